@@ -1,0 +1,71 @@
+"""Mitsuba's ``perspective`` sensor: the same pixel gives the same ray.
+
+Camera space: +z forward, +y up, +x to the *left* (Mitsuba's ``look_at`` columns are
+left, up, dir). A film point ``(x, y)`` in [0, 1]² (row 0 at the top) maps to the camera
+direction ``((1 − 2x)·tan(fov_x/2), (1 − 2y)·tan(fov_x/2)/aspect, 1)`` (Mitsuba's
+``perspective_projection``), normalised and turned by ``to_world``. The ray starts on the
+near plane and ends on the far plane, as in Mitsuba.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .transform import apply_vector, normalize
+
+FOV_AXES = ("x", "y", "diagonal", "smaller", "larger")
+
+
+def fov_x_from(fov: float, axis: str, width: int, height: int) -> float:
+    """Convert a field of view given along ``axis`` to the horizontal one (degrees)."""
+    aspect = width / height
+    t = math.tan(math.radians(fov) / 2.0)
+    if axis == "smaller":
+        axis = "y" if aspect > 1 else "x"
+    elif axis == "larger":
+        axis = "x" if aspect > 1 else "y"
+    if axis == "x":
+        return fov
+    if axis == "y":
+        return math.degrees(2.0 * math.atan(t * aspect))
+    if axis == "diagonal":
+        diag = math.hypot(width, height)
+        return math.degrees(2.0 * math.atan(t * width / diag))
+    raise ValueError(f"fov_axis must be one of {FOV_AXES}, got {axis!r}")
+
+
+@dataclass
+class Camera:
+    """A perspective camera with an ``hdrfilm`` (full size and crop window)."""
+
+    to_world: np.ndarray = field(default_factory=lambda: np.eye(4))
+    fov_x: float = 39.3077
+    near_clip: float = 1e-2
+    far_clip: float = 1e4
+    width: int = 768
+    height: int = 576
+    crop_offset: tuple[int, int] = (0, 0)
+    crop_size: tuple[int, int] | None = None
+
+    def __post_init__(self):
+        if self.crop_size is None:
+            self.crop_size = (self.width, self.height)
+
+    @property
+    def origin(self) -> np.ndarray:
+        return self.to_world[:3, 3].copy()
+
+    def generate_rays(self, x_film: np.ndarray, y_film: np.ndarray):
+        """Rays through film points in [0,1]² → ``(o, d, tmin, tmax)`` (d unit, world space)."""
+        t = math.tan(math.radians(self.fov_x) / 2.0)
+        aspect = self.width / self.height
+        d_cam = np.stack([(1.0 - 2.0 * x_film) * t, (1.0 - 2.0 * y_film) * t / aspect,
+                          np.ones_like(x_film)], axis=-1)
+        d_cam = normalize(d_cam)
+        inv_z = 1.0 / d_cam[:, 2]
+        d = normalize(apply_vector(self.to_world, d_cam))
+        n = d.shape[0]
+        o = np.broadcast_to(self.origin, (n, 3)).copy()
+        return o, d, self.near_clip * inv_z, self.far_clip * inv_z
