@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .transform import apply_vector, normalize
+from .vec import matvec, normalize
 
 FOV_AXES = ("x", "y", "diagonal", "smaller", "larger")
 
@@ -65,7 +65,7 @@ class Camera:
                           np.ones_like(x_film)], axis=-1)
         d_cam = normalize(d_cam)
         inv_z = 1.0 / d_cam[:, 2]
-        d = normalize(apply_vector(self.to_world, d_cam))
+        d = normalize(matvec(self.to_world, d_cam))
         n = d.shape[0]
         o = np.broadcast_to(self.origin, (n, 3)).copy()
         return o, d, self.near_clip * inv_z, self.far_clip * inv_z

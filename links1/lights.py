@@ -14,6 +14,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .vec import dot, length
+
 FALLOFFS = ("none", "inverse_square")
 
 
@@ -81,10 +83,10 @@ class PointLight(Light):
 
     def illuminate(self, p):
         to_light = self.position - p
-        dist = np.linalg.norm(to_light, axis=1)
+        dist = length(to_light)
         with np.errstate(invalid="ignore", divide="ignore"):
             wi = to_light / np.where(dist > 0, dist, 1.0)[:, None]
-        cos_theta = -(wi @ self.direction)  # angle from the lobe axis to the shaded point
+        cos_theta = -dot(wi, self.direction)  # angle from the lobe axis to the shaded point
         lobe = np.where(cos_theta[:, None] >= 0.0, cos_theta[:, None], 0.0)
         L = self.L1 + self.L2 * lobe  # eq. (3.10)
         if self.falloff == "inverse_square":
@@ -118,9 +120,9 @@ class CylinderSpotLight(Light):
 
     def illuminate(self, p):
         rel = p - self.origin
-        s = rel @ self.direction  # distance in front of the base plane
+        s = dot(rel, self.direction)  # distance in front of the base plane
         radial = rel - s[:, None] * self.direction
-        rho2 = np.einsum("ij,ij->i", radial, radial)
+        rho2 = dot(radial, radial)
         inside = (s > 0.0) & (rho2 <= self.radius * self.radius)
         n = p.shape[0]
         wi = np.broadcast_to(-self.direction, (n, 3))
@@ -150,10 +152,10 @@ class ConeSpotLight(Light):
 
     def illuminate(self, p):
         to_light = self.position - p
-        dist = np.linalg.norm(to_light, axis=1)
+        dist = length(to_light)
         with np.errstate(invalid="ignore", divide="ignore"):
             wi = to_light / np.where(dist > 0, dist, 1.0)[:, None]
-        cos_theta = -(wi @ self.axis)
+        cos_theta = -dot(wi, self.axis)
         theta = np.arccos(np.clip(cos_theta, -1.0, 1.0))
         ramp = np.where(cos_theta >= np.cos(self.beam), 1.0,
                         (self.cutoff - theta) / max(self.cutoff - self.beam, 1e-300))

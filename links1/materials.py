@@ -33,8 +33,7 @@ def _rgb(v) -> np.ndarray:
     return np.broadcast_to(np.asarray(v, dtype=np.float64), (3,)).copy()
 
 
-def _dot(a, b):
-    return np.einsum("ij,ij->i", a, b)
+from .vec import dot as _dot
 
 
 def fresnel_dielectric(cos_i: np.ndarray, eta: float | np.ndarray) -> np.ndarray:

@@ -1,0 +1,225 @@
+"""The LINKS-1 Whitted integrator in float64 numpy (digest §2–4, paper 3-1 and 3-3).
+
+One call traces a batch of rays. Each ray finds its nearest hit through the hierarchy of
+bounding boxes (3-2-4); the hit is shaded with eq. (3.11) under every light, each light
+dimmed by the transmittances of the objects its shadow ray crosses (3-3-3), and mirror
+and refraction rays recurse (eq. 3.12–3.16) until ``max_depth``. The batch is split into
+the subsets that need each next step, so a scene without mirrors spawns no mirror rays,
+a scene without glass no refraction rays.
+
+The method decisions shared with the Mitsuba plugin are listed in docs/architecture.md.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .vec import dot, max_abs
+
+#: Relative size of the ray-origin offset (float64: about 1e6 ulps of |p|, far above the
+#: intersection error of every primitive here, far below any feature size a scene has).
+OFFSET_SCALE = 2.0 ** -32
+
+
+@dataclass
+class Hits:
+    """The cheap record of the nearest hits of a batch: distance, shape, primitive."""
+
+    t: np.ndarray
+    shape: np.ndarray
+    prim: np.ndarray
+
+    @property
+    def valid(self) -> np.ndarray:
+        return self.shape >= 0
+
+
+@dataclass
+class SurfaceRecord:
+    """The full record, built once for the winning hits: point and normals."""
+
+    p: np.ndarray
+    ng: np.ndarray  # geometric normal, outward
+    ns: np.ndarray  # shading normal, outward (eq. 3.3 for meshes)
+
+
+@dataclass
+class TraceStats:
+    """Counters for a render: rays by kind, and per-ray-slot primitive tests."""
+
+    rays: dict = field(default_factory=lambda: {"camera": 0, "shadow": 0, "reflect": 0, "refract": 0})
+
+
+class WhittedIntegrator:
+    """Traces batches of rays through a :class:`links1.scene.Scene`.
+
+    Parameters
+    ----------
+    scene : Scene
+    max_depth : int
+        Surface interactions along one branch of the ray tree (primary hit = 1).
+    min_weight : float
+        A secondary ray is spawned only if its weight in the pixel (largest RGB component of
+        the product of r and t factors down the tree) is at least this (0 traces all).
+    """
+
+    def __init__(self, scene, max_depth: int | None = None, min_weight: float = 0.0):
+        self.scene = scene
+        self.max_depth = scene.max_depth if max_depth is None else int(max_depth)
+        if self.max_depth < 1:
+            raise ValueError(f"max_depth must be >= 1, got {self.max_depth}")
+        self.min_weight = float(min_weight)
+        self.accel = scene.accel
+        self.shapes = scene.shapes
+        self.lights = scene.lights
+        self.background = np.asarray(scene.background, dtype=np.float64)
+        # Per-shape shadow transmittance (3-3-3: t1 t2 ... tn, once per object).
+        self.shadow_t = np.array([s.material.shadow_t for s in self.shapes]).reshape(-1, 3)
+        self.any_transparent = bool(np.any(self.shadow_t > 0))
+        mats = {id(s.material): s.material for s in self.shapes}
+        self.any_reflection = any(m.has_reflection for m in mats.values())
+        self.any_transmission = any(m.has_transmission for m in mats.values())
+        self.any_emission = any(s.emission is not None for s in self.shapes)
+        # Shapes grouped by material so each material is evaluated once per batch.
+        self._material_of = np.array([self._mat_index(mats, s.material) for s in self.shapes], dtype=np.int64)
+        self._materials = list(mats.values())
+        self.stats = TraceStats()
+
+    @staticmethod
+    def _mat_index(mats, m) -> int:
+        return list(mats).index(id(m))
+
+    # ------------------------------------------------------------------ geometry
+    def intersect(self, o, d, tmin, tmax, cost) -> Hits:
+        t, shape, prim = self.accel.intersect(o, d, tmin, tmax, cost)
+        return Hits(t, shape, prim)
+
+    def surface(self, o, d, hits: Hits) -> SurfaceRecord:
+        n = o.shape[0]
+        p = np.empty((n, 3))
+        ng = np.empty((n, 3))
+        ns = np.empty((n, 3))
+        for s in np.unique(hits.shape):
+            m = hits.shape == s
+            p[m], ng[m], ns[m] = self.shapes[s].surface(o[m], d[m], hits.t[m], hits.prim[m])
+        return SurfaceRecord(p, ng, ns)
+
+    # ------------------------------------------------------------------ tracing
+    def trace(self, o, d, tmin, tmax, cost, depth: int = 1, weight=None):
+        """Radiance (N, 3) along rays ``o + t d``, t in (tmin, tmax); ``cost`` (N,) int64 is
+        incremented by the ray–primitive tests of each ray's whole tree.
+
+        Returns ``(radiance, hits, surface)``; the last two describe this level's hits.
+        """
+        n = o.shape[0]
+        radiance = np.zeros((n, 3))
+        hits = self.intersect(o, d, tmin, tmax, cost)
+        valid = hits.valid
+        if np.any(self.background != 0):
+            radiance[~valid] = self.background
+        if not np.any(valid):
+            return radiance, hits, None
+        idx = np.nonzero(valid)[0]
+        oh, dh = o[idx], d[idx]
+        sub = Hits(hits.t[idx], hits.shape[idx], hits.prim[idx])
+        rec = self.surface(oh, dh, sub)
+        w = None if weight is None else weight[idx]
+        radiance[idx] = self._shade(oh, dh, sub, rec, cost, idx, depth, w)
+        full = None
+        if depth == 1:
+            full = SurfaceRecord(np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3)))
+            full.p[idx], full.ng[idx], full.ns[idx] = rec.p, rec.ng, rec.ns
+        return radiance, hits, full
+
+    def _shade(self, o, d, hits: Hits, rec: SurfaceRecord, cost, idx, depth, weight):
+        """Radiance leaving each hit toward the ray origin (eq. 3.16)."""
+        n = o.shape[0]
+        wo = -d
+        front = dot(rec.ng, wo) > 0.0
+        nf = np.where(front[:, None], rec.ns, -rec.ns)  # shading normal facing the viewer
+        mat_idx = self._material_of[hits.shape]
+        groups = [(k, np.nonzero(mat_idx == k)[0]) for k in np.unique(mat_idx)]
+
+        out = np.zeros((n, 3))
+        for k, g in groups:
+            out[g] += self._materials[k].ambient  # eq. (3.11), dic
+        if self.any_emission:
+            for s in np.unique(hits.shape):
+                e = self.shapes[s].emission
+                if e is not None:
+                    m = (hits.shape == s) & front
+                    out[m] += e
+
+        eps = (1.0 + max_abs(rec.p)) * OFFSET_SCALE
+        # --- direct light, eq. (3.11), with shadows (3-3-3)
+        for light in self.lights:
+            wi, dist, L = light.illuminate(rec.p)
+            f = np.zeros((n, 3))
+            for k, g in groups:
+                f[g] = self._materials[k].eval(wo[g], wi[g], nf[g], rec.ns[g])
+            contrib = f * L
+            lit = np.nonzero(np.any(contrib != 0.0, axis=1))[0]
+            if lit.size == 0:
+                continue
+            so = _offset(rec.p[lit], rec.ng[lit], wi[lit], eps[lit])
+            smax = dist[lit] - 2.0 * eps[lit]
+            c = np.zeros(lit.size, dtype=np.int64)
+            T = self.accel.shadow_transmittance(so, wi[lit], smax, self.shadow_t, c)
+            cost[idx[lit]] += c
+            self.stats.rays["shadow"] += lit.size
+            out[lit] += contrib[lit] * T
+
+        if depth >= self.max_depth or not (self.any_reflection or self.any_transmission):
+            return out
+
+        # --- secondary rays, eq. (3.12)-(3.16)
+        r = np.zeros((n, 3))
+        t = np.zeros((n, 3))
+        eta = np.ones(n)
+        scale = np.zeros(n, dtype=bool)
+        for k, g in groups:
+            mat = self._materials[k]
+            if not (mat.has_reflection or mat.has_transmission):
+                continue
+            r[g], t[g], eta[g] = mat.specular(wo[g], nf[g], front[g])
+            scale[g] = mat.scale_radiance
+        cos_i = -dot(d, nf)  # >= 0: nf faces the viewer
+        tangential = d + cos_i[:, None] * nf  # d - (d.n) n
+        S = eta[:, None] * tangential  # eq. (3.14)
+        s2 = dot(S, S)
+        has_t = np.any(t > 0.0, axis=1)
+        tir = has_t & (s2 > 1.0)  # total internal reflection: no transmitted ray
+        r = np.where(tir[:, None], r + t, r)
+        t = np.where(tir[:, None], 0.0, t)
+        has_t &= ~tir
+        t = np.where(scale[:, None], t * (eta * eta)[:, None], t)
+
+        wgt = np.ones((n, 3)) if weight is None else weight
+        branches = []
+        refl = np.nonzero(np.max(r * wgt, axis=1) > max(self.min_weight, 0.0) if self.min_weight > 0
+                          else np.any(r > 0.0, axis=1))[0]
+        if refl.size:
+            dr_ = d[refl] + 2.0 * cos_i[refl, None] * nf[refl]  # eq. (3.12)
+            branches.append(("reflect", refl, dr_, r))
+        if np.any(has_t):
+            trn = np.nonzero(has_t & ((np.max(t * wgt, axis=1) > self.min_weight) if self.min_weight > 0 else True))[0]
+            if trn.size:
+                dt = S[trn] - np.sqrt(np.maximum(0.0, 1.0 - s2[trn]))[:, None] * nf[trn]  # eq. (3.15)
+                branches.append(("refract", trn, dt, t))
+        for kind, sel, dnew, factor in branches:
+            self.stats.rays[kind] += sel.size
+            dnew = dnew / np.sqrt(dot(dnew, dnew))[:, None]
+            onew = _offset(rec.p[sel], rec.ng[sel], dnew, eps[sel])
+            c = np.zeros(sel.size, dtype=np.int64)
+            Li, _, _ = self.trace(onew, dnew, np.zeros(sel.size), np.full(sel.size, np.inf), c,
+                                  depth + 1, wgt[sel] * factor[sel])
+            cost[idx[sel]] += c
+            out[sel] += factor[sel] * Li  # eq. (3.13) / (3.16)
+        return out
+
+
+def _offset(p, ng, direction, eps):
+    """Move ``p`` off the surface along ``ng``, to the side ``direction`` leaves toward."""
+    side = np.where(dot(ng, direction) >= 0.0, 1.0, -1.0)
+    return p + ng * (side * eps)[:, None]
