@@ -39,7 +39,7 @@ def many_xml(path: Path, count: int, seed: int = 7) -> None:
            '    <default name="fov" value="40"/>',
            '    <default name="eye" value="0, 9, 14"/>',
            '    <default name="target" value="0, 0, 0"/>',
-           '    <include filename="common_camera.xml"/>',
+           '    <include filename="include/camera.xml"/>',
            '    <integrator type="links1_whitted"><integer name="max_depth" value="2"/></integrator>']
     colours = ["0.8, 0.3, 0.2", "0.2, 0.6, 0.8", "0.85, 0.8, 0.3", "0.3, 0.75, 0.35", "0.7, 0.4, 0.8"]
     for k, c in enumerate(colours):
