@@ -185,28 +185,23 @@ class WhittedIntegrator:
             r[g], t[g], eta[g] = mat.specular(wo[g], nf[g], front[g])
             scale[g] = mat.scale_radiance
         cos_i = -dot(d, nf)  # >= 0: nf faces the viewer
-        tangential = d + cos_i[:, None] * nf  # d - (d.n) n
-        S = eta[:, None] * tangential  # eq. (3.14)
-        s2 = dot(S, S)
+        dt, tir = refract(d, nf, eta)
         has_t = np.any(t > 0.0, axis=1)
-        tir = has_t & (s2 > 1.0)  # total internal reflection: no transmitted ray
+        tir &= has_t  # total internal reflection: no transmitted ray, its weight goes to the mirror ray
         r = np.where(tir[:, None], r + t, r)
         t = np.where(tir[:, None], 0.0, t)
         has_t &= ~tir
         t = np.where(scale[:, None], t * (eta * eta)[:, None], t)
 
         wgt = np.ones((n, 3)) if weight is None else weight
+        threshold = self.min_weight
         branches = []
-        refl = np.nonzero(np.max(r * wgt, axis=1) > max(self.min_weight, 0.0) if self.min_weight > 0
-                          else np.any(r > 0.0, axis=1))[0]
+        refl = np.nonzero(np.max(r * wgt, axis=1) > threshold if threshold > 0 else np.any(r > 0.0, axis=1))[0]
         if refl.size:
-            dr_ = d[refl] + 2.0 * cos_i[refl, None] * nf[refl]  # eq. (3.12)
-            branches.append(("reflect", refl, dr_, r))
-        if np.any(has_t):
-            trn = np.nonzero(has_t & ((np.max(t * wgt, axis=1) > self.min_weight) if self.min_weight > 0 else True))[0]
-            if trn.size:
-                dt = S[trn] - np.sqrt(np.maximum(0.0, 1.0 - s2[trn]))[:, None] * nf[trn]  # eq. (3.15)
-                branches.append(("refract", trn, dt, t))
+            branches.append(("reflect", refl, d[refl] + 2.0 * cos_i[refl, None] * nf[refl], r))  # eq. (3.12)
+        trn = np.nonzero(has_t & (np.max(t * wgt, axis=1) > threshold) if threshold > 0 else has_t)[0]
+        if trn.size:
+            branches.append(("refract", trn, dt[trn], t))  # eq. (3.14)-(3.15)
         for kind, sel, dnew, factor in branches:
             self.stats.rays[kind] += sel.size
             dnew = dnew / np.sqrt(dot(dnew, dnew))[:, None]
@@ -217,6 +212,22 @@ class WhittedIntegrator:
             cost[idx[sel]] += c
             out[sel] += factor[sel] * Li  # eq. (3.13) / (3.16)
         return out
+
+
+def refract(d, n, eta):
+    """Refracted directions, eq. (3.14)-(3.15), and the total-internal-reflection mask.
+
+    ``d`` (N,3) unit incoming directions, ``n`` (N,3) unit normals facing the incoming ray
+    (``d·n <= 0``), ``eta`` (N,) the relative index ``η_i/η_t``. With ``S = η(d − (d·n)n)``
+    the transmitted direction is ``S − sqrt(1 − |S|²) n``; ``|S| > 1`` is total internal
+    reflection (the returned direction is then meaningless and set to ``d``).
+    """
+    cos_i = -dot(d, n)
+    S = eta[:, None] * (d + cos_i[:, None] * n)  # eq. (3.14): tangential part scaled by η
+    s2 = dot(S, S)
+    tir = s2 > 1.0
+    dt = S - np.sqrt(np.maximum(0.0, 1.0 - s2))[:, None] * n  # eq. (3.15)
+    return np.where(tir[:, None], d, dt), tir
 
 
 def _offset(p, ng, direction, eps):
