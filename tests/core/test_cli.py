@@ -1,0 +1,109 @@
+"""The links1 CLI: render options, one-line errors with exit status 2, no half-written output."""
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from links1.cli import main
+
+ROOT = Path(__file__).resolve().parents[2]
+FIG4 = str(ROOT / "scenes" / "fig4.xml")
+
+
+def run_cli(*args):
+    return main(list(args))
+
+
+def test_render_png_and_exr_with_aovs(tmp_path, capsys):
+    from links1.image import read_exr
+    png = tmp_path / "a.png"
+    assert run_cli("render", FIG4, "--renderer", "core", "-D", "res=16", "-o", str(png), "--no-progress") == 0
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    exr = tmp_path / "a.exr"
+    assert run_cli("render", FIG4, "--renderer", "core", "-D", "res=16", "-o", str(exr),
+                   "--aov", "depth,normal,id,cost", "--no-progress") == 0
+    data, names = read_exr(str(exr))
+    assert list(names) == ["R", "G", "B", "depth", "normal.X", "normal.Y", "normal.Z", "id", "cost"]
+    depth, ids, cost = data[..., 3], data[..., 7], data[..., 8]
+    hit = ids >= 0
+    assert hit.any() and (~hit).any()
+    assert np.all(depth[hit] > 0) and np.all(depth[~hit] == 0)
+    assert np.all(cost[hit] >= 1)
+    normals = data[..., 4:7][hit]
+    np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-5)
+
+
+def test_repeat_prints_timing_line(tmp_path, capsys):
+    out = tmp_path / "t.exr"
+    assert run_cli("render", FIG4, "--renderer", "core", "-D", "res=8", "-o", str(out), "--repeat", "2",
+                   "--no-progress") == 0
+    err = capsys.readouterr().err
+    line = [ln for ln in err.splitlines() if ln.startswith("timing:")]
+    assert len(line) == 1
+    for key in ("first=", "median=", "min=", "max="):
+        assert key in line[0]
+
+
+@pytest.mark.parametrize("xml,needle", [
+    ("<scene version='3.0.0'><shape type='sphere'>", "bad.xml"),                       # truncated
+    ("<scene version='3.0.0'>\n<shape type='nosuchshape'/></scene>", "nosuchshape"),  # unknown plugin
+    ("<scene version='3.0.0'>\n<shape type='sphere'><float name='radius' value='-1'/></shape></scene>", "radius"),
+    ("<scene version='3.0.0'>\n<shape type='links1_blob'><string name='centers' value='0 0 0 1'/>"
+     "<float name='threshold' value='0.5'/></shape></scene>", "centers"),
+])
+def test_bad_scene_is_one_line_exit_2_and_no_output(tmp_path, capsys, xml, needle):
+    scene = tmp_path / "bad.xml"
+    scene.write_text(xml)
+    out = tmp_path / "out.exr"
+    out.write_bytes(b"earlier output")
+    rc = run_cli("render", str(scene), "--renderer", "core", "-o", str(out), "--no-progress")
+    err = capsys.readouterr().err.strip()
+    assert rc == 2
+    assert len(err.splitlines()) == 1 and err.startswith("links1: error:")
+    assert needle in err and "bad.xml" in err
+    assert out.read_bytes() == b"earlier output"  # untouched
+
+
+@pytest.mark.parametrize("args,needle", [
+    (["--spp", "0"], "--spp"),
+    (["--width", "-3"], "--width"),
+    (["--aov", "depth,colour"], "colour"),
+    (["-D", "novalue"], "name=value"),
+])
+def test_bad_options_exit_2(tmp_path, capsys, args, needle):
+    with pytest.raises(SystemExit) as ei:
+        run_cli("render", FIG4, "--renderer", "core", "-o", str(tmp_path / "x.exr"), *args)
+    assert ei.value.code == 2
+    err = capsys.readouterr().err
+    assert needle in err
+    assert not (tmp_path / "x.exr").exists()
+
+
+def test_missing_scene_and_bad_extension(tmp_path, capsys):
+    assert run_cli("render", str(tmp_path / "nope.xml"), "--renderer", "core", "-o", str(tmp_path / "x.exr")) == 2
+    assert "nope.xml" in capsys.readouterr().err
+    assert run_cli("render", FIG4, "--renderer", "core", "-o", str(tmp_path / "x.jpg")) == 2
+    assert ".jpg" in capsys.readouterr().err or "x.jpg" in capsys.readouterr().err
+
+
+def test_subprocess_error_has_no_traceback(tmp_path):
+    scene = tmp_path / "broken.xml"
+    scene.write_text("<scene version='3.0.0'>\n  <shape type='sphere'>\n</scene>\n")
+    res = subprocess.run([sys.executable, "-m", "links1.cli", "render", str(scene), "--renderer", "core",
+                          "-o", str(tmp_path / "o.png")], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 2
+    assert "Traceback" not in res.stderr
+    assert "broken.xml" in res.stderr
+    assert not (tmp_path / "o.png").exists()
+
+
+def test_help_has_examples(capsys):
+    with pytest.raises(SystemExit) as ei:
+        run_cli("render", "--help")
+    assert ei.value.code == 0
+    out = capsys.readouterr().out
+    assert "examples:" in out and "--aov" in out and "--repeat" in out
