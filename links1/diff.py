@@ -320,15 +320,15 @@ def _configure(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
     p.add_argument("--no-flip", action="store_true", help="skip the (slower) FLIP metric "
                    "unless it is the --metric")
     p.add_argument("--json", action="store_true", help="print a JSON object instead of a table")
-    p.set_defaults(_links1_command=run_cli)
+    p.set_defaults(func=run_cli)
     return p
 
 
 def add_cli(subparsers) -> argparse.ArgumentParser:
     """Add the ``diff`` subcommand to an argparse ``subparsers`` object; returns its parser.
 
-    The parser's defaults include ``_links1_command=run_cli`` so a dispatcher can call
-    ``args._links1_command(args)``.
+    The parser's defaults include ``func=run_cli`` so a dispatcher can call
+    ``args.func(args)``.
     """
     p = subparsers.add_parser("diff", help="compare two images (metrics, threshold, heatmap)",
                               description=DESCRIPTION)
