@@ -1,0 +1,769 @@
+"""Mitsuba 3 XML scene → :class:`links1.scene.Scene`, with Mitsuba's semantics.
+
+:mod:`links1.xmlparse` reads the XML (parameters, includes, references, transforms); this
+module knows the plugins. It never imports Mitsuba.
+
+Supported plugins (anything else: a :class:`~links1.errors.SceneError` naming file, line and
+element, or a :class:`~links1.xmlparse.SceneWarning` naming the approximation used)
+
+==============  =================================================================================
+element         types and parameters (Mitsuba defaults unless marked *links1*)
+==============  =================================================================================
+sensor          ``perspective``: ``fov`` + ``fov_axis`` (x) or ``focal_length`` (``"50mm"``, 36 mm
+                film width), ``near_clip`` (1e-2), ``far_clip`` (1e4), ``to_world`` (no scaling).
+                ``thinlens`` is rendered as a pinhole (warning).
+film            ``hdrfilm``: ``width`` (768), ``height`` (576), ``crop_offset_x/y``,
+                ``crop_width/height``; an ``rfilter`` other than ``box`` → warning (box used).
+sampler         any type: ``sample_count`` (4) → ``Scene.spp``.
+integrator      its type → ``Scene.integrator``; ``max_depth`` (*links1*: 5; -1 → 5 with warning).
+shape           ``sphere`` (center, radius), ``cylinder`` (p0, p1, radius; open), ``disk``,
+                ``rectangle``, ``cube``, ``obj`` / ``ply`` (filename, face_normals), all with
+                ``to_world`` and ``flip_normals`` (meshes); *links1*: ``links1_quadric``,
+                ``links1_blob``, ``links1_bicubic`` (see below). No bsdf → ``diffuse`` 0.5.
+bsdf            ``diffuse``, ``twosided``, ``conductor`` (perfect mirror, or ``eta``/``k``),
+                ``dielectric``, ``thindielectric``, ``plastic``, *links1* ``links1_phong``;
+                rough/other BSDFs → diffuse stand-in (warning); textures → 0.5 grey (warning).
+emitter         ``point``, ``directional``, ``spot``, ``constant`` (→ background), ``area`` in a
+                shape (→ ``shape.emission``, seen directly only; warning), *links1*
+                ``links1_point``, ``links1_spot``; ``envmap`` etc. → ignored (warning).
+==============  =================================================================================
+
+links1 plugins::
+
+    <shape type="links1_quadric">  kind = sphere | cylinder, to_world, capped (false),
+        <vector name="clip_0" .../> <float name="clip_0_offset" value="h"/> ...  (keep n·y ≤ h)
+    <shape type="links1_blob">     centers = "x y z w S  x y z w S ...", threshold (> 0),
+        solver = exact | paper, samples (8), to_world (optional)
+    <shape type="links1_bicubic">  filename (a .patch file, see links1.meshes) or
+        control_points (string, 48 numbers per patch), subdivisions (8), to_world, flip_normals
+    <emitter type="links1_point">  position, direction (0 0 1), L1 (1), L2 (0), falloff = none | inverse_square
+    <emitter type="links1_spot">   origin, direction, radius, intensity (1)
+    <bsdf type="links1_phong">     ambient (0), diffuse (0.5), specular (0), exponent (20),
+        reflectance (= specular), transmittance (0), ior (1)
+
+Public API: ``load_scene(path, **params)``, ``load_string(xml, base_dir=None, **params)`` and
+``build_scene(root_node, path=None)``.
+"""
+from __future__ import annotations
+
+import math
+import os
+import re
+import warnings
+
+import numpy as np
+
+from . import materials as mat
+from . import meshes
+from . import transform as tf
+from .camera import FOV_AXES, Camera, fov_x_from
+from .errors import SceneError
+from .lights import ConeSpotLight, CylinderSpotLight, ParallelLight, PointLight
+from .scene import Scene
+from .xmlparse import Node, Prop, SceneWarning, parse_file, parse_string
+
+__all__ = ["load_scene", "load_string", "build_scene"]
+
+DEFAULT_MAX_DEPTH = 5
+DEFAULT_SPP = 4  # Mitsuba's independent sampler
+
+# Known Mitsuba 3 plugins the core does not support (for a clearer message than "unknown").
+_MITSUBA_SHAPES = {"serialized", "shapegroup", "instance", "bsplinecurve", "linearcurve",
+                   "sdfgrid", "ellipsoids", "ellipsoidsmesh", "merge"}
+_APPROX_BSDFS = {"roughconductor", "roughdielectric", "roughplastic", "principled",
+                 "principledthin", "blendbsdf", "hair", "measured", "pplastic", "polarizer",
+                 "retarder", "circular", "null", "measured_polarized", "mask", "bumpmap",
+                 "normalmap"}
+_IGNORED_EMITTERS = {"envmap", "sunsky", "projector", "directionalarea"}
+_INTEGRATORS = {"path", "direct", "volpath", "volpathmis", "aov", "moment", "depth", "ptracer",
+                "prb", "prb_basic", "prb_projective", "direct_projective", "stokes",
+                "links1_whitted"}
+_FILMS = {"hdrfilm", "specfilm"}
+_SAMPLERS = {"independent", "stratified", "multijitter", "orthogonal", "ldsampler"}
+_RFILTERS = {"box", "gaussian", "tent", "lanczos", "mitchell", "catmullrom"}
+_SENSORS = {"perspective", "thinlens", "orthographic", "radiancemeter", "irradiancemeter",
+            "distant", "batch"}
+
+
+# --------------------------------------------------------------------------------------------
+# public entry points
+# --------------------------------------------------------------------------------------------
+
+def load_scene(path, /, **params) -> Scene:
+    """Load a Mitsuba 3 XML scene file; ``params`` fill ``$name`` references (``-D name=value``)."""
+    root = parse_file(path, params)
+    return build_scene(root, os.fspath(path))
+
+
+def load_string(xml: str, /, base_dir=None, **params) -> Scene:
+    """Load a scene from XML text; relative file names are looked up in ``base_dir`` (cwd)."""
+    root = parse_string(xml, base_dir=base_dir, params=params)
+    return build_scene(root, None)
+
+
+def build_scene(root: Node, path: str | None = None) -> Scene:
+    """Turn the parsed ``<scene>`` node into a :class:`Scene`."""
+    return _Builder().scene(root, path)
+
+
+# --------------------------------------------------------------------------------------------
+# property access with type checks and Mitsuba's "unused property" report
+# --------------------------------------------------------------------------------------------
+
+_MISSING = object()
+_COLOR_KINDS = ("rgb", "spectrum", "float")
+
+
+class _Props:
+    def __init__(self, node: Node):
+        self.node = node
+        self.used: set = set()
+
+    def has(self, name: str) -> bool:
+        return name in self.node.props
+
+    def error(self, name: str, message: str) -> SceneError:
+        p = self.node.props.get(name)
+        if p is None:
+            return self.node.error(message)
+        return SceneError(message, p.file, p.line, f"{self.node.element()} {p.element()}")
+
+    def _get(self, name: str, kinds: tuple) -> Prop | None:
+        self.used.add(name)
+        p = self.node.props.get(name)
+        if p is not None and p.kind not in kinds:
+            raise self.error(name, f"'{name}' must be given as <{'> or <'.join(kinds)}>, "
+                                   f"not <{p.kind}>")
+        return p
+
+    def required(self, name: str, kinds: tuple) -> Prop:
+        p = self._get(name, kinds)
+        if p is None:
+            raise self.node.error(f"missing required parameter '{name}' (<{kinds[0]}>)")
+        return p
+
+    def float(self, name, default=_MISSING, *, positive=False, nonneg=False) -> float:
+        p = self._get(name, ("float", "integer"))
+        if p is None:
+            if default is _MISSING:
+                raise self.node.error(f"missing required parameter '{name}' (<float>)")
+            return default
+        v = float(p.value)
+        if positive and not v > 0:
+            raise self.error(name, f"'{name}' must be > 0, got {v:g}")
+        if nonneg and not v >= 0:
+            raise self.error(name, f"'{name}' must be >= 0, got {v:g}")
+        return v
+
+    def int(self, name, default=_MISSING, *, minimum=None) -> int:
+        p = self._get(name, ("integer",))
+        if p is None:
+            if default is _MISSING:
+                raise self.node.error(f"missing required parameter '{name}' (<integer>)")
+            return default
+        if minimum is not None and p.value < minimum:
+            raise self.error(name, f"'{name}' must be >= {minimum}, got {p.value}")
+        return int(p.value)
+
+    def bool(self, name, default=False) -> bool:
+        p = self._get(name, ("boolean",))
+        return default if p is None else bool(p.value)
+
+    def string(self, name, default=_MISSING) -> str:
+        p = self._get(name, ("string",))
+        if p is None:
+            if default is _MISSING:
+                raise self.node.error(f"missing required parameter '{name}' (<string>)")
+            return default
+        return p.value
+
+    def vec3(self, name, default=_MISSING, kinds=("point", "vector")) -> np.ndarray:
+        p = self._get(name, kinds)
+        if p is None:
+            if default is _MISSING:
+                raise self.node.error(f"missing required parameter '{name}' (<{kinds[0]}>)")
+            return None if default is None else np.asarray(default, dtype=np.float64)
+        return np.asarray(p.value, dtype=np.float64).copy()
+
+    def color(self, name, default=_MISSING, *, nonneg=True) -> np.ndarray:
+        """An RGB parameter: ``rgb``, ``spectrum`` or ``float``; a nested texture → 0.5 grey."""
+        tex = [n for nm, n in self.node.children if nm == name and n.tag == "texture"]
+        if tex:
+            self.used.add(name)
+            tex[0].warn(f"textures are not supported by the core; '{name}' uses a 0.5 grey")
+            return np.full(3, 0.5)
+        p = self._get(name, _COLOR_KINDS)
+        if p is None:
+            if default is _MISSING:
+                raise self.node.error(f"missing required parameter '{name}' (<rgb>)")
+            return None if default is None else np.broadcast_to(
+                np.asarray(default, dtype=np.float64), (3,)).copy()
+        v = np.broadcast_to(np.asarray(p.value, dtype=np.float64), (3,)).copy()
+        if nonneg and np.any(v < 0):
+            raise self.error(name, f"'{name}' must be >= 0, got {v.tolist()}")
+        return v
+
+    def transform(self, name="to_world") -> np.ndarray | None:
+        p = self._get(name, ("transform",))
+        return None if p is None else np.asarray(p.value, dtype=np.float64).copy()
+
+    def ignore(self, *names) -> None:
+        self.used.update(names)
+
+    def finish(self) -> None:
+        for name, p in self.node.props.items():
+            if name not in self.used:
+                warnings.warn(str(SceneError(
+                    f"parameter '{name}' is not used by the core and is ignored", p.file, p.line,
+                    f"{self.node.element()} {p.element()}")), SceneWarning, stacklevel=3)
+
+
+# --------------------------------------------------------------------------------------------
+# helpers
+# --------------------------------------------------------------------------------------------
+
+def _shape_class(name: str):
+    """The core's shape classes, imported on first use (``links1.shapes`` / ``links1.blob``)."""
+    if name == "Blob":
+        from .blob import Blob
+        return Blob
+    from . import shapes
+    return getattr(shapes, name)
+
+
+def _construct(node: Node, factory, *args, **kwargs):
+    """Call a core constructor; its ValueError becomes a SceneError naming the element."""
+    try:
+        return factory(*args, **kwargs)
+    except SceneError:
+        raise
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        raise node.error(str(exc)) from None
+
+
+def _frame(d: np.ndarray) -> np.ndarray:
+    """Mitsuba's ``Frame3f(d)`` as a 3x3 matrix with columns (s, t, n)."""
+    sign = math.copysign(1.0, d[2])
+    a = -1.0 / (sign + d[2])
+    b = d[0] * d[1] * a
+    s = np.array([math.copysign(d[0] * d[0] * a, d[2]) + 1.0, math.copysign(b, d[2]),
+                  -math.copysign(d[0], d[2])])
+    t = np.array([b, sign + d[1] * d[1] * a, -d[1]])
+    return np.stack([s, t, d], axis=1)
+
+
+def _check_invertible(node: Node, m: np.ndarray, what: str = "to_world") -> None:
+    lin = m[:3, :3]
+    scale = max(float(np.max(np.abs(lin))), 1e-300)
+    det = float(np.linalg.det(lin / scale))
+    if not (np.isfinite(det) and abs(det) > 1e-12):
+        raise node.error(f"singular {what} transform (determinant {det * scale ** 3:g}): "
+                         "the quadric would be degenerate")
+
+
+def _ior(props: _Props, name: str, default: str) -> float:
+    p = props._get(name, ("float", "string", "integer"))
+    if p is None:
+        return mat.IOR_TABLE[default]
+    if p.kind == "string":
+        key = p.value.strip().lower()
+        if key not in mat.IOR_TABLE:
+            raise props.error(name, f"unknown index of refraction '{p.value}' "
+                                    f"(known: {', '.join(sorted(mat.IOR_TABLE))})")
+        return mat.IOR_TABLE[key]
+    v = float(p.value)
+    if not v > 0:
+        raise props.error(name, f"'{name}' must be > 0, got {v:g}")
+    return v
+
+
+def _numbers(text: str) -> list:
+    return [t for t in re.split(r"[,\s]+", text.strip()) if t]
+
+
+# --------------------------------------------------------------------------------------------
+# the builder
+# --------------------------------------------------------------------------------------------
+
+class _Builder:
+    def scene(self, root: Node, path: str | None) -> Scene:
+        props = _Props(root)
+        props.finish()
+        camera, spp = None, None
+        shapes, lights = [], []
+        background = np.zeros(3)
+        integrator, max_depth = None, DEFAULT_MAX_DEPTH
+        for name, node in root.children:
+            if node.tag == "sensor":
+                if camera is not None:
+                    node.warn("more than one sensor: the core renders the first one")
+                    continue
+                camera, spp = self.sensor(node)
+            elif node.tag == "shape":
+                shapes.append(self.shape(node))
+            elif node.tag == "emitter":
+                light = self.emitter(node)
+                if isinstance(light, np.ndarray):
+                    background = background + light
+                elif light is not None:
+                    lights.append(light)
+            elif node.tag == "integrator":
+                if integrator is not None:
+                    node.warn("more than one integrator: the first one is used")
+                    continue
+                integrator, max_depth = self.integrator(node)
+            elif node.tag in ("bsdf", "texture", "medium", "phase", "volume"):
+                if node.tag == "bsdf":
+                    self.bsdf(node)  # validate declarations that are only referenced
+            else:
+                raise node.error(f"<{node.tag}> is not allowed at the top level of a scene")
+        if camera is None:
+            camera, spp = Camera(), DEFAULT_SPP
+        kwargs = dict(camera=camera, shapes=shapes, lights=lights, spp=spp, max_depth=max_depth,
+                      background=background, path=path)
+        if integrator is not None:
+            kwargs["integrator"] = integrator
+        return Scene(**kwargs)
+
+    # -- integrator ------------------------------------------------------------------------
+    def integrator(self, node: Node):
+        if node.type not in _INTEGRATORS:
+            raise node.error(f"unknown plugin '{node.type}' (integrator)")
+        props = _Props(node)
+        inner = node.objects("integrator")
+        depth_node = node
+        if inner and not props.has("max_depth"):
+            depth_node = inner[0]
+        dp = _Props(depth_node)
+        max_depth = dp.int("max_depth", DEFAULT_MAX_DEPTH)
+        if max_depth == -1:
+            depth_node.warn(f"max_depth=-1 (unlimited) is capped at {DEFAULT_MAX_DEPTH} by the core")
+            max_depth = DEFAULT_MAX_DEPTH
+        elif max_depth < 1:
+            raise dp.error("max_depth", f"'max_depth' must be >= 1 or -1, got {max_depth}")
+        props.ignore(*node.props)  # other integrator parameters do not apply to the core
+        return node.type, max_depth
+
+    # -- sensor ----------------------------------------------------------------------------
+    def sensor(self, node: Node):
+        if node.type not in _SENSORS:
+            raise node.error(f"unknown plugin '{node.type}' (sensor)")
+        if node.type == "thinlens":
+            node.warn("thinlens is rendered as a pinhole perspective camera (no depth of field)")
+        elif node.type != "perspective":
+            raise node.error(f"sensor type '{node.type}' is not supported by the core "
+                             "(only 'perspective')")
+        props = _Props(node)
+        props.ignore("aperture_radius", "focus_distance", "srf")
+        # film first: fov_axis conversions need the film's aspect ratio
+        films = node.objects("film")
+        width, height, crop_offset, crop_size = self.film(films[0]) if films else (768, 576, (0, 0), None)
+        if len(films) > 1:
+            films[1].warn("more than one film: the first one is used")
+        samplers = node.objects("sampler")
+        spp = self.sampler(samplers[0]) if samplers else DEFAULT_SPP
+        for child in node.objects():
+            if child.tag not in ("film", "sampler"):
+                child.warn(f"<{child.tag}> inside a sensor is ignored by the core")
+
+        if props.has("fov") and props.has("focal_length"):
+            raise node.error("give either 'fov' or 'focal_length', not both")
+        if props.has("fov"):
+            fov = props.float("fov")
+            if not 0 < fov < 180:
+                raise props.error("fov", f"'fov' must be in (0, 180) degrees, got {fov:g}")
+            axis = props.string("fov_axis", "x").strip().lower()
+            if axis not in FOV_AXES:
+                raise props.error("fov_axis", f"'fov_axis' must be one of {', '.join(FOV_AXES)}, got '{axis}'")
+            fov_x = fov_x_from(fov, axis, width, height)
+        else:
+            text = props.string("focal_length", "50mm").strip()
+            m = re.fullmatch(r"([0-9.eE+-]+)\s*(mm)?", text)
+            try:
+                f = float(m.group(1)) if m else float("nan")
+            except ValueError:
+                f = float("nan")
+            if not (math.isfinite(f) and f > 0):
+                raise props.error("focal_length", f"'focal_length' must be a positive length such "
+                                                  f"as '50mm', got '{text}'")
+            fov_x = math.degrees(2.0 * math.atan(36.0 / (2.0 * f)))  # 36 mm film width (Mitsuba)
+            axis = props.string("fov_axis", "x")  # queried for Mitsuba compatibility; unused
+        near = props.float("near_clip", 1e-2, positive=True)
+        far = props.float("far_clip", 1e4, positive=True)
+        if not near < far:
+            raise node.error(f"near_clip ({near:g}) must be smaller than far_clip ({far:g})")
+        for k in ("principal_point_offset_x", "principal_point_offset_y"):
+            if props.has(k) and props.float(k) != 0.0:
+                node.warn(f"'{k}' is not supported by the core and is ignored")
+        to_world = props.transform()
+        if to_world is None:
+            to_world = np.eye(4)
+        lin = to_world[:3, :3]
+        if not np.allclose(np.linalg.norm(lin, axis=0), 1.0, rtol=0, atol=1e-4):
+            raise props.error("to_world", "scale factors in the camera-to-world transformation "
+                                          "are not allowed (as in Mitsuba)")
+        props.finish()
+        cam = _construct(node, Camera, to_world=to_world, fov_x=fov_x, near_clip=near,
+                         far_clip=far, width=width, height=height, crop_offset=crop_offset,
+                         crop_size=crop_size)
+        return cam, spp
+
+    def film(self, node: Node):
+        if node.type not in _FILMS:
+            raise node.error(f"unknown plugin '{node.type}' (film)")
+        if node.type != "hdrfilm":
+            node.warn(f"film '{node.type}' is treated as an RGB hdrfilm")
+        props = _Props(node)
+        props.ignore("file_format", "pixel_format", "component_format", "banner", "sample_border",
+                     "compensate", "srf")
+        width = props.int("width", 768)
+        height = props.int("height", 576)
+        for k, v in (("width", width), ("height", height)):
+            if v < 1:
+                raise props.error(k, f"film '{k}' must be >= 1, got {v}")
+        ox = props.int("crop_offset_x", 0, minimum=0)
+        oy = props.int("crop_offset_y", 0, minimum=0)
+        cw = props.int("crop_width", width - ox)
+        ch = props.int("crop_height", height - oy)
+        if cw < 1 or ch < 1:
+            raise node.error(f"crop window size must be >= 1, got {cw}x{ch}")
+        if ox + cw > width or oy + ch > height:
+            raise node.error(f"crop window {cw}x{ch}+{ox}+{oy} exceeds the film {width}x{height}")
+        for rf in node.objects("rfilter"):
+            if rf.type not in _RFILTERS:
+                raise rf.error(f"unknown plugin '{rf.type}' (rfilter)")
+            if rf.type != "box":
+                rf.warn(f"reconstruction filter '{rf.type}': the core uses a box filter")
+        props.finish()
+        crop = None if (ox, oy, cw, ch) == (0, 0, width, height) else (cw, ch)
+        return width, height, (ox, oy), crop
+
+    def sampler(self, node: Node) -> int:
+        if node.type not in _SAMPLERS:
+            raise node.error(f"unknown plugin '{node.type}' (sampler)")
+        props = _Props(node)
+        props.ignore("seed", "jitter", "scramble")
+        spp = props.int("sample_count", DEFAULT_SPP)
+        if spp < 1:
+            raise props.error("sample_count", f"'sample_count' must be >= 1, got {spp}")
+        props.finish()
+        return spp
+
+    # -- shapes ----------------------------------------------------------------------------
+    def shape(self, node: Node):
+        t = node.type
+        props = _Props(node)
+        name = node.id or ""
+        to_world = props.transform()
+        m = np.eye(4) if to_world is None else to_world
+        if t == "sphere":
+            center = props.vec3("center", (0.0, 0.0, 0.0))
+            radius = props.float("radius", 1.0, positive=True)
+            self._no_flip(props)
+            full = m @ tf.translate(center) @ tf.scale(radius)
+            _check_invertible(node, full)
+            shape = _construct(node, _shape_class("Quadric"), "sphere", full, clips=[], capped=False,
+                               name=name)
+        elif t == "cylinder":
+            p0 = props.vec3("p0", (0.0, 0.0, 0.0))
+            p1 = props.vec3("p1", (0.0, 0.0, 1.0))
+            radius = props.float("radius", 1.0, positive=True)
+            self._no_flip(props)
+            axis = p1 - p0
+            length = float(np.linalg.norm(axis))
+            if not length > 0:
+                raise node.error("cylinder: p0 and p1 coincide")
+            frame = np.eye(4)
+            frame[:3, :3] = _frame(axis / length)
+            full = m @ tf.translate(p0) @ frame @ tf.scale([radius, radius, length])
+            _check_invertible(node, full)
+            clips = [(np.array([0.0, 0.0, -1.0]), 0.0), (np.array([0.0, 0.0, 1.0]), 1.0)]
+            shape = _construct(node, _shape_class("Quadric"), "cylinder", full, clips=clips,
+                               capped=False, name=name)
+        elif t == "disk":
+            self._no_flip(props)
+            _check_invertible(node, m)
+            shape = _construct(node, _shape_class("Disk"), m, name=name)
+        elif t in ("rectangle", "cube"):
+            v, f, n = meshes.rectangle_mesh() if t == "rectangle" else meshes.cube_mesh()
+            shape = self._mesh(node, props, v, f, n, m, closed=(t == "cube"))
+        elif t in ("obj", "ply"):
+            fn = props.string("filename")
+            path = node.resolve(fn)
+            reader = meshes.read_obj if t == "obj" else meshes.read_ply
+            try:
+                v, f, n = reader(path)
+            except ValueError as exc:
+                raise props.error("filename", str(exc)) from None
+            if props.bool("face_normals", False):
+                n = None
+            elif n is None:
+                n = meshes.angle_weighted_normals(v, f)
+            props.ignore("mesh_attributes")
+            shape = self._mesh(node, props, v, f, n, m, closed=None)
+        elif t == "links1_quadric":
+            shape = self._quadric(node, props, m, name)
+        elif t == "links1_blob":
+            shape = self._blob(node, props, to_world, name)
+        elif t == "links1_bicubic":
+            shape = self._bicubic(node, props, m)
+        elif t in _MITSUBA_SHAPES:
+            raise node.error(f"shape type '{t}' is not supported by the core")
+        else:
+            raise node.error(f"unknown plugin '{t}' (shape)")
+
+        # nested objects: bsdf, area emitter
+        material, emission = None, None
+        for cname, child in node.children:
+            if child.tag == "bsdf":
+                if material is not None:
+                    raise child.error("a shape can have only one bsdf")
+                material = self.bsdf(child)
+            elif child.tag == "emitter":
+                if child.type != "area":
+                    raise child.error(f"emitter '{child.type}' cannot be nested in a shape "
+                                      "(only 'area')")
+                if emission is not None:
+                    raise child.error("a shape can have only one area emitter")
+                ep = _Props(child)
+                emission = ep.color("radiance", 1.0)
+                ep.finish()
+                child.warn("area emitter: the core shows its radiance where the shape is seen "
+                           "directly; it does not light the scene")
+            elif child.tag in ("medium",):
+                child.warn("media are not supported by the core and are ignored")
+            else:
+                raise child.error(f"<{child.tag}> is not allowed inside a shape")
+        if material is None:
+            material = mat.Diffuse(reflectance=np.full(3, 0.5))  # Mitsuba's default BSDF
+        props.finish()
+        shape.material = material
+        shape.emission = emission
+        return shape
+
+    def _no_flip(self, props: _Props) -> None:
+        if props.bool("flip_normals", False):
+            props.node.warn("flip_normals is not supported on analytic shapes by the core; ignored")
+
+    def _mesh(self, node, props, v, f, n, m, closed):
+        if props.bool("flip_normals", False):
+            f, n = meshes.flip(f, n)
+        v, n = meshes.transform_mesh(m, v, n)
+        if not np.all(np.isfinite(v)):
+            raise node.error("non-finite vertex positions after to_world")
+        return _construct(node, _shape_class("TriangleMesh"), v, f, normals=n, name=node.id or "",
+                          closed=closed)
+
+    def _quadric(self, node, props, m, name):
+        kind = props.string("kind").strip().lower()
+        if kind not in ("sphere", "cylinder"):
+            raise props.error("kind", f"'kind' must be 'sphere' or 'cylinder', got '{kind}'")
+        _check_invertible(node, m)
+        clips = []
+        k = 0
+        while props.has(f"clip_{k}"):
+            nrm = props.vec3(f"clip_{k}", kinds=("vector", "point"))
+            if not np.linalg.norm(nrm) > 0:
+                raise props.error(f"clip_{k}", f"clip_{k}: the plane normal must be non-zero")
+            h = props.float(f"clip_{k}_offset", 0.0)
+            clips.append((nrm, h))
+            k += 1
+        for pname in node.props:
+            if re.fullmatch(r"clip_\d+(_offset)?", pname) and pname not in props.used:
+                raise props.error(pname, f"'{pname}' without the planes before it "
+                                         f"(clip planes are numbered clip_0, clip_1, ...)")
+        capped = props.bool("capped", False)
+        return _construct(node, _shape_class("Quadric"), kind, m, clips=clips, capped=capped,
+                          name=name)
+
+    def _blob(self, node, props, to_world, name):
+        text = props.string("centers")
+        toks = _numbers(text)
+        if not toks:
+            raise props.error("centers", "'centers' is empty (groups of five numbers x y z w S)")
+        if len(toks) % 5:
+            raise props.error("centers", f"'centers' must hold groups of five numbers x y z w S, "
+                                         f"got {len(toks)} numbers")
+        try:
+            c = np.array([float(t) for t in toks], dtype=np.float64).reshape(-1, 5)
+        except ValueError:
+            raise props.error("centers", "'centers' must contain only numbers") from None
+        if not np.all(np.isfinite(c)):
+            raise props.error("centers", "'centers' must contain only finite numbers")
+        bad = np.nonzero(~(c[:, 4] > 0))[0]
+        if bad.size:
+            raise props.error("centers", f"centre {int(bad[0])}: the range S must be > 0, "
+                                         f"got {c[bad[0], 4]:g}")
+        threshold = props.float("threshold", positive=True)
+        solver = props.string("solver", "exact").strip().lower()
+        if solver not in ("exact", "paper"):
+            raise props.error("solver", f"'solver' must be 'exact' or 'paper', got '{solver}'")
+        samples = props.int("samples", 8, minimum=1)
+        if to_world is not None:
+            _check_invertible(node, to_world)
+        return _construct(node, _shape_class("Blob"), c, threshold, solver=solver, samples=samples,
+                          to_world=to_world, name=name)
+
+    def _bicubic(self, node, props, m):
+        has_file, has_inline = props.has("filename"), props.has("control_points")
+        if has_file == has_inline:
+            raise node.error("links1_bicubic needs exactly one of 'filename' and 'control_points'")
+        try:
+            if has_file:
+                patches = meshes.read_patches(node.resolve(props.string("filename")))
+            else:
+                p = props.required("control_points", ("string",))
+                patches = meshes.parse_patches(p.value, f"{p.file}:{p.line}", with_count=False)
+        except ValueError as exc:
+            raise props.error("filename" if has_file else "control_points", str(exc)) from None
+        sub = props.int("subdivisions", 8, minimum=1)
+        v, f, n = meshes.tessellate_patches(patches, sub)
+        if props.bool("face_normals", False):
+            n = None
+        return self._mesh(node, props, v, f, n, m, closed=None)
+
+    # -- BSDFs -----------------------------------------------------------------------------
+    def bsdf(self, node: Node):
+        t = node.type
+        props = _Props(node)
+        name = node.id or ""
+        if t == "diffuse":
+            m = mat.Diffuse(reflectance=props.color("reflectance", 0.5), name=name)
+        elif t == "twosided":
+            inner = node.objects("bsdf")
+            if not inner:
+                raise node.error("twosided needs a nested bsdf")
+            if len(inner) > 1:
+                node.warn("twosided with two different BSDFs: the core uses the first on both sides")
+            m = self.bsdf(inner[0])
+            if hasattr(m, "two_sided"):
+                m.two_sided = True
+            if name:
+                m.name = name
+        elif t == "conductor":
+            refl = props.color("specular_reflectance", 1.0)
+            material = props.string("material", "none").strip()
+            eta, k = props.color("eta", None), props.color("k", None)
+            if (eta is None) != (k is None):
+                raise node.error("conductor: give both 'eta' and 'k', or neither")
+            if eta is not None:
+                m = mat.Conductor(specular_reflectance=refl, eta=eta, k=k, name=name)
+            else:
+                if material.lower() != "none":
+                    node.warn(f"conductor material '{material}' is not tabulated in the core; "
+                              "rendered as a perfect mirror")
+                m = mat.Conductor(specular_reflectance=refl, name=name)
+        elif t in ("dielectric", "thindielectric"):
+            int_ior = _ior(props, "int_ior", "bk7")
+            ext_ior = _ior(props, "ext_ior", "air")
+            cls = mat.Dielectric if t == "dielectric" else mat.ThinDielectric
+            m = _construct(node, cls, eta=int_ior / ext_ior,
+                           specular_reflectance=props.color("specular_reflectance", 1.0),
+                           specular_transmittance=props.color("specular_transmittance", 1.0),
+                           name=name)
+        elif t == "plastic":
+            int_ior = _ior(props, "int_ior", "polypropylene")
+            ext_ior = _ior(props, "ext_ior", "air")
+            m = _construct(node, mat.Plastic,
+                           diffuse_reflectance=props.color("diffuse_reflectance", 0.5),
+                           specular_reflectance=props.color("specular_reflectance", 1.0),
+                           eta=int_ior / ext_ior, nonlinear=props.bool("nonlinear", False),
+                           name=name)
+        elif t == "links1_phong":
+            ior = props.float("ior", 1.0, positive=True)
+            m = _construct(node, mat.Phong, ambient=props.color("ambient", 0.0),
+                           diffuse=props.color("diffuse", 0.5),
+                           specular_=props.color("specular", 0.0),
+                           exponent=props.float("exponent", 20.0, nonneg=True),
+                           reflectance=props.color("reflectance", None),
+                           transmittance=props.color("transmittance", 0.0), ior=ior, name=name)
+        elif t in ("mask", "bumpmap", "normalmap") and node.objects("bsdf"):
+            node.warn(f"'{t}' is not supported by the core; the nested bsdf is used as is")
+            props.ignore(*node.props)
+            return self.bsdf(node.objects("bsdf")[0])
+        elif t in _APPROX_BSDFS:
+            color = 0.5
+            for key in ("reflectance", "diffuse_reflectance", "base_color", "specular_reflectance"):
+                if props.has(key) or any(nm == key for nm, _ in node.children):
+                    color = props.color(key)
+                    break
+            props.ignore(*node.props)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                m = mat.approximate(t, color=color, name=name)
+            node.warn(f"bsdf type '{t}' is not supported by the core; approximated as a diffuse "
+                      f"surface of reflectance {np.round(m.reflectance, 4).tolist()}")
+        else:
+            raise node.error(f"unknown plugin '{t}' (bsdf)")
+        props.finish()
+        return m
+
+    # -- emitters --------------------------------------------------------------------------
+    def emitter(self, node: Node):
+        t = node.type
+        props = _Props(node)
+        name = node.id or ""
+        to_world = props.transform()
+        light = None
+        if t == "point":
+            if props.has("position") and to_world is not None:
+                raise node.error("point: give either 'position' or 'to_world', not both")
+            pos = props.vec3("position", None)
+            if pos is None:
+                pos = np.zeros(3) if to_world is None else to_world[:3, 3]
+            light = _construct(node, PointLight, position=pos, L1=props.color("intensity", 1.0),
+                               L2=np.zeros(3), falloff="inverse_square", name=name)
+        elif t == "links1_point":
+            falloff = props.string("falloff", "none").strip().lower()
+            if falloff not in ("none", "inverse_square"):
+                raise props.error("falloff", f"'falloff' must be 'none' or 'inverse_square', got '{falloff}'")
+            pos = props.vec3("position", None)
+            direction = props.vec3("direction", (0.0, 0.0, 1.0), kinds=("vector", "point"))
+            if to_world is not None:
+                pos = tf.apply_point(to_world, np.zeros(3) if pos is None else pos)
+                direction = tf.apply_vector(to_world, direction)
+            light = _construct(node, PointLight, position=np.zeros(3) if pos is None else pos,
+                               direction=direction, L1=props.color("L1", 1.0),
+                               L2=props.color("L2", 0.0, nonneg=False), falloff=falloff, name=name)
+        elif t == "directional":
+            if props.has("direction") and to_world is not None:
+                raise node.error("directional: give either 'direction' or 'to_world', not both")
+            d = props.vec3("direction", None, kinds=("vector", "point"))
+            if d is None:
+                d = np.array([0.0, 0.0, 1.0]) if to_world is None else to_world[:3, 2]
+            light = _construct(node, ParallelLight, direction=d,
+                               irradiance=props.color("irradiance", 1.0), name=name)
+        elif t == "spot":
+            cutoff = props.float("cutoff_angle", 20.0, positive=True)
+            beam = props.float("beam_width", None, positive=True) if props.has("beam_width") else None
+            if cutoff > 90:
+                raise props.error("cutoff_angle", f"'cutoff_angle' must be <= 90, got {cutoff:g}")
+            if beam is not None and beam > cutoff:
+                raise props.error("beam_width", f"'beam_width' ({beam:g}) must not exceed cutoff_angle ({cutoff:g})")
+            props.ignore("texture")
+            light = _construct(node, ConeSpotLight, to_world=np.eye(4) if to_world is None else to_world,
+                               intensity=props.color("intensity", 1.0), cutoff_angle=cutoff,
+                               beam_width=beam, name=name)
+        elif t == "links1_spot":
+            origin = props.vec3("origin", (0.0, 0.0, 0.0))
+            direction = props.vec3("direction", kinds=("vector", "point"))
+            radius = props.float("radius", positive=True)
+            if to_world is not None:
+                origin = tf.apply_point(to_world, origin)
+                direction = tf.apply_vector(to_world, direction)
+            light = _construct(node, CylinderSpotLight, origin=origin, direction=direction,
+                               radius=radius, intensity=props.color("intensity", 1.0), name=name)
+        elif t == "constant":
+            light = props.color("radiance", 1.0)
+        elif t == "area":
+            raise node.error("an area emitter must be nested in a shape")
+        elif t in _IGNORED_EMITTERS:
+            node.warn(f"emitter '{t}' is not supported by the core and is ignored")
+            props.ignore(*node.props)
+        else:
+            raise node.error(f"unknown plugin '{t}' (emitter)")
+        for child in node.objects():
+            child.warn(f"<{child.tag}> inside an emitter is ignored by the core")
+        props.ignore("sampling_weight")
+        props.finish()
+        return light
