@@ -81,8 +81,8 @@ def pytest_configure(config):
 
 
 def pytest_terminal_summary(terminalreporter, exitstatus, config):
-    updated = config.stash.get(_UPDATED, [])
-    reports = config.stash.get(_REPORTS, [])
+    updated = list(dict.fromkeys(config.stash.get(_UPDATED, [])))
+    reports = list(dict.fromkeys(config.stash.get(_REPORTS, [])))
     if updated:
         terminalreporter.section("links1 baselines written")
         for p in updated:
@@ -310,7 +310,12 @@ class Baseline:
                    f"--links1-update-baselines to create it", files)
 
     def _updated(self, path: Path) -> None:
-        self._config.stash[_UPDATED].append(path)
+        updated = self._config.stash[_UPDATED]
+        if path in updated:
+            import warnings  # noqa: PLC0415
+            warnings.warn(f"links1 baseline {path} written twice in this session; the last "
+                          "check wins (give the checks different names)", stacklevel=3)
+        updated.append(path)
 
     # -- checks --------------------------------------------------------------------------
 
