@@ -9,8 +9,8 @@ element, or a :class:`~links1.xmlparse.SceneWarning` naming the approximation us
 ==============  =================================================================================
 element         types and parameters (Mitsuba defaults unless marked *links1*)
 ==============  =================================================================================
-sensor          ``perspective``: ``fov`` + ``fov_axis`` (x) or ``focal_length`` (``"50mm"``, 36 mm
-                film width), ``near_clip`` (1e-2), ``far_clip`` (1e4), ``to_world`` (no scaling).
+sensor          ``perspective``: ``fov`` + ``fov_axis`` (x) or ``focal_length`` (``"50mm"``: the
+                diagonal field of view of a 36 x 24 mm film, as Mitsuba), ``near_clip`` (1e-2), ``far_clip`` (1e4), ``to_world`` (no scaling).
                 ``thinlens`` is rendered as a pinhole (warning).
 film            ``hdrfilm``: ``width`` (768), ``height`` (576), ``crop_offset_x/y``,
                 ``crop_width/height``; an ``rfilter`` other than ``box`` → warning (box used).
@@ -42,7 +42,7 @@ links1 plugins::
         reflectance (= specular), transmittance (0), ior (1)
 
 Public API: ``load_scene(path, **params)``, ``load_string(xml, base_dir=None, **params)`` and
-``build_scene(root_node, path=None)``.
+``build_scene(root_node, path=None)``; ``focal_length_fov_x(mm, width, height)``.
 """
 from __future__ import annotations
 
@@ -62,7 +62,7 @@ from .lights import ConeSpotLight, CylinderSpotLight, ParallelLight, PointLight
 from .scene import Scene
 from .xmlparse import Node, Prop, SceneWarning, parse_file, parse_string
 
-__all__ = ["load_scene", "load_string", "build_scene"]
+__all__ = ["load_scene", "load_string", "build_scene", "focal_length_fov_x"]
 
 DEFAULT_MAX_DEPTH = 5
 DEFAULT_SPP = 4  # Mitsuba's independent sampler
@@ -252,6 +252,12 @@ def _frame(d: np.ndarray) -> np.ndarray:
     return np.stack([s, t, d], axis=1)
 
 
+def focal_length_fov_x(focal_length_mm: float, width: int, height: int) -> float:
+    """Mitsuba's ``focal_length``: the diagonal field of view of a 36 x 24 mm film, as ``fov_x``."""
+    diag_fov = math.degrees(2.0 * math.atan(math.hypot(36.0, 24.0) / (2.0 * focal_length_mm)))
+    return fov_x_from(diag_fov, "diagonal", width, height)
+
+
 def _check_invertible(node: Node, m: np.ndarray, what: str = "to_world") -> None:
     lin = m[:3, :3]
     scale = max(float(np.max(np.abs(lin))), 1e-300)
@@ -318,7 +324,10 @@ class _Builder:
             else:
                 raise node.error(f"<{node.tag}> is not allowed at the top level of a scene")
         if camera is None:
-            camera, spp = Camera(), DEFAULT_SPP
+            root.warn("the scene has no sensor: using Mitsuba's default perspective camera "
+                      "(50mm, 768x576, at the origin looking along +z)")
+            camera = Camera(fov_x=focal_length_fov_x(50.0, 768, 576), width=768, height=576)
+            spp = DEFAULT_SPP
         kwargs = dict(camera=camera, shapes=shapes, lights=lights, spp=spp, max_depth=max_depth,
                       background=background, path=path)
         if integrator is not None:
@@ -386,8 +395,8 @@ class _Builder:
             if not (math.isfinite(f) and f > 0):
                 raise props.error("focal_length", f"'focal_length' must be a positive length such "
                                                   f"as '50mm', got '{text}'")
-            fov_x = math.degrees(2.0 * math.atan(36.0 / (2.0 * f)))  # 36 mm film width (Mitsuba)
-            axis = props.string("fov_axis", "x")  # queried for Mitsuba compatibility; unused
+            fov_x = focal_length_fov_x(f, width, height)
+            props.ignore("fov_axis")  # Mitsuba ignores it with a focal length too
         near = props.float("near_clip", 1e-2, positive=True)
         far = props.float("far_clip", 1e4, positive=True)
         if not near < far:

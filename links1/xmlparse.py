@@ -198,6 +198,11 @@ def _read_xml(data: bytes | str, filename: str) -> _Elem:
         parser.Parse(data, True)
     except xml.parsers.expat.ExpatError as exc:
         msg = xml.parsers.expat.errors.messages.get(exc.code, str(exc))
+        if stack:  # name the element that is still open (what a mismatched/missing end tag breaks)
+            open_elem = stack[-1]
+            raise SceneError(f"malformed XML: {msg} (column {exc.offset + 1}); element opened at "
+                             f"line {open_elem.line} is not closed properly", filename, exc.lineno,
+                             open_elem.element()) from None
         raise SceneError(f"malformed XML: {msg} (column {exc.offset + 1})", filename,
                          exc.lineno, "<xml>") from None
     if not root:  # pragma: no cover - expat reports 'no element found' first
