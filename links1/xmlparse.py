@@ -24,7 +24,8 @@ Supported, with Mitsuba's semantics:
 * ``<transform>`` with ``translate rotate scale matrix lookat`` children, each one
   *pre*-multiplied onto the transform so far (so the first child is applied first), exactly as
   Mitsuba: ``<translate x="1"/><rotate z="1" angle="90"/>`` gives ``R · T``.
-  ``lookat`` without ``up`` uses the first vector of Mitsuba's ``coordinate_system(dir)``.
+  ``lookat`` without ``up`` uses the first vector of Mitsuba's ``coordinate_system(dir)``;
+  ``rotate`` uses its axis as given, *not normalised* (as Mitsuba 3.9.1 does; a warning says so).
 
 Every problem is a :class:`links1.errors.SceneError` naming the file, line and element.
 Non-finite numbers (NaN, Inf) are rejected wherever a number is read.
@@ -515,7 +516,11 @@ class _Parser:
                     axis = _xyz(op, 0.0, allow_single=False)
                     if not np.any(axis != 0):
                         raise op.error("rotation axis must be non-zero (give x, y, z or value)")
-                    step = tf.rotate(axis, _float(a["angle"], op, "angle"))
+                    if abs(float(np.linalg.norm(axis)) - 1.0) > 1e-6:
+                        warn(f"rotation axis {axis.tolist()} is not unit length; like Mitsuba, the "
+                             "core does not normalise it (the matrix is not a pure rotation)",
+                             op.file, op.line, op.element())
+                    step = _rotate_raw(axis, _float(a["angle"], op, "angle"))
                 elif op.tag == "matrix":
                     if "value" not in a:
                         raise op.error("<matrix> needs a 'value' attribute (16 or 9 numbers)")
@@ -548,6 +553,22 @@ class _Parser:
                 raise op.error(str(exc)) from None
             m = step @ m  # Mitsuba pre-multiplies: the first child acts first
         return m
+
+
+def _rotate_raw(axis: np.ndarray, angle_deg: float) -> np.ndarray:
+    """Mitsuba's ``Transform4f::rotate``: Rodrigues' matrix of the axis *as given* (not normalised).
+
+    Equal to :func:`links1.transform.rotate` for a unit axis.
+    """
+    x, y, z = (float(c) for c in axis)
+    th = math.radians(angle_deg)
+    c, s = math.cos(th), math.sin(th)
+    C = 1.0 - c
+    m = np.eye(4)
+    m[:3, :3] = [[x * x * C + c, x * y * C - z * s, x * z * C + y * s],
+                 [y * x * C + z * s, y * y * C + c, y * z * C - x * s],
+                 [z * x * C - y * s, z * y * C + x * s, z * z * C + c]]
+    return m
 
 
 def _snake(name: str) -> str:

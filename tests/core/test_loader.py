@@ -20,6 +20,9 @@ from links1.xmlparse import SceneWarning, parse_string
 
 DATA = os.path.join(os.path.dirname(__file__), "data")
 
+# scenes without a sensor warn; tests that check a warning use pytest.warns, which sees it anyway
+pytestmark = pytest.mark.filterwarnings("ignore::links1.xmlparse.SceneWarning")
+
 
 class _Stub:
     def __init__(self, *args, **kwargs):
@@ -128,6 +131,15 @@ def test_rotate_axis_conventions():
     m = to_world_of('<rotate value="0, 1, 0" angle="30"/>')
     c, s = math.cos(math.radians(30)), math.sin(math.radians(30))
     np.testing.assert_allclose(m[:3, :3], [[c, 0, s], [0, 1, 0], [-s, 0, c]], atol=1e-15)
+
+
+def test_rotate_axis_is_not_normalised_like_mitsuba():
+    # Mitsuba 3.9.1 applies Rodrigues' formula to the raw axis (checked with mi.traverse)
+    with pytest.warns(SceneWarning, match="not unit length"):
+        m = to_world_of('<rotate value="2 0 0" angle="33"/>')
+    c, s = math.cos(math.radians(33)), math.sin(math.radians(33))
+    np.testing.assert_allclose(m[:3, :3], [[4 * (1 - c) + c, 0, 0], [0, c, -2 * s], [0, 2 * s, c]],
+                               atol=1e-15)
 
 
 def test_scale_translate_matrix_forms():
