@@ -509,13 +509,20 @@ def test_unused_parameter_warns():
 
 def test_real_shape_classes(monkeypatch):
     pytest.importorskip("links1.shapes")
-    pytest.importorskip("links1.blob")
     monkeypatch.undo()
-    s = loader.load_string(scene_xml(
-        '<shape type="sphere"/><shape type="cylinder"/><shape type="disk"/><shape type="cube"/>'
-        '<shape type="rectangle"/><shape type="links1_blob"><string name="centers" value="0 0 0 1 1"/>'
-        '<float name="threshold" value="0.5"/></shape>'
-        '<shape type="links1_quadric"><string name="kind" value="sphere"/></shape>'), base_dir=DATA)
-    assert len(s.shapes) == 7
+    body = ('<shape type="sphere"/><shape type="cylinder"/><shape type="disk"/><shape type="cube"/>'
+            '<shape type="rectangle"/><shape type="links1_quadric"><string name="kind" value="sphere"/>'
+            '</shape><shape type="obj"><string name="filename" value="quad_poly.obj"/></shape>'
+            '<shape type="links1_bicubic"><string name="filename" value="flat.patch"/></shape>')
+    try:
+        import links1.blob  # noqa: F401
+        body += ('<shape type="links1_blob"><string name="centers" value="0 0 0 1 1"/>'
+                 '<float name="threshold" value="0.5"/></shape>')
+    except ImportError:
+        pass
+    s = loader.load_string(scene_xml(body), base_dir=DATA)
+    assert len(s.shapes) == body.count("<shape ")
     for i, sh in enumerate(s.shapes):
         assert sh.index == i and sh.material is not None
+        lo, hi = sh.bounds()
+        assert np.all(np.isfinite(lo)) and np.all(lo <= hi)
