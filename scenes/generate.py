@@ -50,7 +50,7 @@ def many_xml(path: Path, count: int, seed: int = 7) -> None:
         x, z = rng.uniform(-7, 7), rng.uniform(-6, 6)
         r = rng.uniform(0.2, 0.55)
         sy = rng.uniform(0.6, 1.4)
-        out.append(f'    <shape type="links1_quadric"><transform name="to_world">'
+        out.append(f'    <shape type="links1_quadric"><string name="kind" value="sphere"/><transform name="to_world">'
                    f'<scale x="{r:.4f}" y="{r * sy:.4f}" z="{r:.4f}"/><translate x="{x:.4f}" y="{r * sy:.4f}" z="{z:.4f}"/>'
                    f'</transform><ref id="m{i % len(colours)}"/></shape>')
     out += ['    <shape type="rectangle"><transform name="to_world"><scale value="9"/><rotate x="1" angle="-90"/>',
