@@ -63,7 +63,32 @@ def many_xml(path: Path, count: int, seed: int = 7) -> None:
     path.write_text("\n".join(out) + "\n")
 
 
+def vase_patches(path: Path) -> None:
+    """A vase of revolution as bicubic Bezier patches: 2 profile segments x 4 quarter turns.
+
+    Each quarter circle is the standard cubic approximation (handle length 0.5523);
+    the profile is two cubic segments in (radius, height).
+    """
+    k = 0.5523
+    quarter = [(1.0, 0.0), (1.0, k), (k, 1.0), (0.0, 1.0)]
+    profile = [[(0.9, 0.0), (1.6, 0.5), (1.4, 1.3), (0.7, 1.7)],
+               [(0.7, 1.7), (0.35, 1.95), (0.45, 2.4), (0.75, 2.7)]]
+    lines = [f"# vase of revolution: {len(profile) * 4} bicubic patches (scenes/generate.py)",
+             str(len(profile) * 4)]
+    for seg in profile:
+        for q in range(4):
+            c, s_ = [(1, 0), (0, 1), (-1, 0), (0, -1)][q]
+            for r, y in seg:  # row i follows the profile (u)
+                row = []
+                for a, b in quarter:  # column j follows the quarter turn (v)
+                    x, z = a * c - b * s_, a * s_ + b * c
+                    row.append(f"{r * x:.6f} {y:.6f} {r * z:.6f}")
+                lines.append("   ".join(row))
+    path.write_text("\n".join(lines) + "\n")
+
+
 if __name__ == "__main__":
     checker_obj(HERE / "meshes" / "checker_light.obj", 10, 6.0, 0)
     checker_obj(HERE / "meshes" / "checker_dark.obj", 10, 6.0, 1)
     many_xml(HERE / "many.xml", 300)
+    vase_patches(HERE / "meshes" / "vase.patch")
