@@ -1,0 +1,214 @@
+"""The Dask backend: an existing cluster (``--scheduler tcp://HOST:PORT``) or a
+``LocalCluster`` bound to 127.0.0.1 (``--dask-local N``; the dashboard too).
+
+Nodes are the cluster's workers. A :class:`distributed.WorkerPlugin` loads the scene once
+per worker (again on a worker the nanny restarts). Static strategies give every node a
+per-worker resource (``links1-<token>-<k>: 1``) and submit each unit with that resource,
+so units stay on their node (work stealing cannot move them, and a LocalCluster started
+here for a static plan has stealing switched off too). When a node's worker leaves, the
+root cancels that node's remaining tasks and resubmits them on the surviving nodes.
+Dynamic plans submit about one unit per worker at a time (plus one queued); a worker
+that joins mid-render is counted at the next completion and gets units; the scheduler
+itself reruns a lost worker's task elsewhere. dask/distributed are imported lazily.
+"""
+from __future__ import annotations
+
+import asyncio
+import uuid
+from collections import deque
+
+from .executors import ALLOWED_FAILURES
+from .runtime import THREAD_ENV, get_renderer, render_unit
+
+try:  # the plugin base class only when distributed is there (lazy for everything else)
+    from distributed.diagnostics.plugin import WorkerPlugin as _WorkerPluginBase
+except ImportError:  # pragma: no cover
+    _WorkerPluginBase = object
+
+
+class ScenePreload(_WorkerPluginBase):
+    """Loads the scene on each worker once, on the thread that runs its tasks."""
+
+    def __init__(self, spec):
+        self.spec = spec
+
+    async def setup(self, worker):
+        ex = worker.executors.get("default")
+        loop = asyncio.get_running_loop()
+        await loop.run_in_executor(ex, get_renderer, self.spec)
+
+
+async def _set_resource(dask_worker, name, value):
+    await dask_worker.set_resources(**{name: value})
+
+
+class DaskBackend:
+    """Render units on a Dask cluster."""
+
+    name = "dask"
+
+    def __init__(self, scheduler: str | None = None, n_local: int | None = None, threads: int | None = None,
+                 static: bool = False, client=None, poll_s: float = 0.25):
+        if scheduler is None and not n_local and client is None:
+            raise ValueError("give a scheduler address, a LocalCluster size or a client")
+        self.scheduler, self.n_local, self.threads = scheduler, n_local, threads
+        self.static = static
+        self.client, self.cluster = client, None
+        self._own_client = client is None
+        self.poll_s = poll_s
+        self.token = uuid.uuid4().hex[:8]
+        self._plugin = None
+
+    # ---------------------------------------------------------------- lifecycle
+    def start(self, spec):
+        from distributed import Client
+        if self.client is None:
+            if self.scheduler:
+                self.client = Client(self.scheduler)
+            else:
+                import dask
+                from distributed import LocalCluster
+
+                from .executors import threads_per_worker
+                t = self.threads or threads_per_worker(self.n_local)
+                cfg = {"distributed.scheduler.work-stealing": not self.static}
+                with dask.config.set(cfg):
+                    self.cluster = LocalCluster(n_workers=int(self.n_local), threads_per_worker=1, processes=True,
+                                                host="127.0.0.1", dashboard_address="127.0.0.1:0",
+                                                env={k: str(t) for k in THREAD_ENV})
+                self.client = Client(self.cluster)
+                self.threads = t
+        if self._plugin != spec.key:
+            if spec.threads is None and self.threads:
+                from .runtime import RendererSpec
+                spec = RendererSpec(spec.kind, spec.path, spec.options, self.threads)
+            self.client.register_plugin(ScenePreload(spec), name=f"links1-preload-{spec.key}")
+            self._plugin = spec.key
+        self._spec = spec
+
+    @property
+    def n_nodes(self) -> int:
+        return len(self.workers()) if self.client is not None else int(self.n_local or 0)
+
+    def workers(self) -> list:
+        return sorted(self.client.scheduler_info(n_workers=-1)["workers"])
+
+    def close(self):
+        if self.client is not None and self._plugin and self.cluster is None:
+            try:
+                self.client.unregister_worker_plugin(f"links1-preload-{self._plugin}")
+            except Exception:  # noqa: BLE001 - best effort on a shared cluster
+                pass
+        if self.client is not None and self._own_client:
+            self.client.close()
+            self.client = None
+        if self.cluster is not None:
+            self.cluster.close()
+            self.cluster = None
+        self._plugin = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    # ---------------------------------------------------------------- running
+    def run(self, plan, todo, spec, cull, on_done, on_fault):
+        from distributed import FIRST_COMPLETED, wait
+        client, spec = self.client, self._spec
+        attempts, failures = {}, {}
+        pending = {}  # future -> (unit, node or None)
+        workers = self.workers()
+        if not workers:
+            client.wait_for_workers(1, timeout=60)
+            workers = self.workers()
+
+        def submit(i, node, resources=None):
+            attempts[i] = attempts.get(i, 0) + 1
+            f = client.submit(render_unit, spec, plan.units[i].window, cull.get(i), pure=False,
+                              key=f"links1-unit-{i}-{self.token}-{attempts[i]}", resources=resources)
+            pending[f] = (i, node)
+
+        if plan.static:
+            node_worker = {}
+            n = len(workers)
+            for k, addr in enumerate(workers):  # node k <-> a per-worker resource
+                res = f"links1-{self.token}-{k}"
+                client.run(_set_resource, res, 1, workers=[addr])
+                node_worker[k] = addr
+            for i in todo:
+                k = plan.owner[i] % n
+                submit(i, k, {f"links1-{self.token}-{k}": 1})
+        else:
+            queue = deque(todo)
+
+            def top_up():
+                want = len(self.workers()) + 1
+                while queue and len(pending) < want:
+                    submit(queue.popleft(), None)
+            top_up()
+
+        known = set(workers)
+        while pending:
+            try:
+                done, _ = wait(list(pending), timeout=self.poll_s, return_when=FIRST_COMPLETED)
+            except TimeoutError:
+                done = ()
+            for f in done:
+                i, node = pending.pop(f)
+                if f.status == "error":
+                    exc = f.exception()
+                    if type(exc).__name__ == "KilledWorker":
+                        raise RuntimeError(f"unit {plan.units[i].window} killed {ALLOWED_FAILURES} or more "
+                                           f"workers; giving up") from exc
+                    raise exc
+                if f.status == "cancelled":
+                    continue
+                px, info = f.result()
+                info["worker"] = f"{info.get('pid')}"
+                info["node"] = node if node is not None else _node_of(info, workers)
+                f.release()
+                on_done(i, px, info)
+            now = set(self.workers())
+            gone, joined = known - now, now - known
+            known = now
+            if plan.static:
+                for k, addr in list(node_worker.items()):
+                    if addr in now:
+                        continue
+                    del node_worker[k]
+                    survivors = sorted(node_worker)
+                    if not survivors:
+                        raise RuntimeError("links1: every node's worker left the cluster")
+                    mine = [(f, i) for f, (i, nd) in pending.items() if nd == k]
+                    for f, i in mine:
+                        pending.pop(f)
+                        f.cancel()
+                    for j, (f, i) in enumerate(sorted(mine, key=lambda t: t[1])):
+                        failures[i] = failures.get(i, 0) + 1
+                        k2 = survivors[j % len(survivors)]
+                        submit(i, k2, {f"links1-{self.token}-{k2}": 1})
+                    on_fault(f"node {k} (worker {addr}) left the cluster; its {len(mine)} unfinished units "
+                             f"are redone on the other nodes")
+            else:
+                for addr in sorted(gone):
+                    on_fault(f"worker {addr} left the cluster; its units are redone elsewhere")
+                for addr in sorted(joined):
+                    workers.append(addr)
+                top_up()
+
+
+def _node_of(info, workers):
+    """Node label of a dynamic unit: the rendering worker's pid (stable within a run)."""
+    return f"pid{info.get('pid')}"
+
+
+def local_address(backend) -> str | None:
+    """The scheduler address of a backend's cluster (tests hold tasks with distributed.Event)."""
+    if backend.client is None:
+        return None
+    return backend.client.scheduler.address
+
+
+__all__ = ["DaskBackend", "ScenePreload", "local_address"]

@@ -1,0 +1,159 @@
+"""What a node runs: a picklable renderer spec, one renderer per worker process, unit tasks.
+
+Scenes cannot be pickled (Mitsuba's cannot), so nodes receive a :class:`RendererSpec`
+(kind, scene path, options) and load the scene themselves, once per process; the renderer
+is kept in :data:`_RENDERERS` for every later unit.
+"""
+from __future__ import annotations
+
+import copy
+import hashlib
+import importlib
+import json
+import os
+import time
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+
+#: Per-process cache: spec key -> renderer (a node loads its scene once).
+_RENDERERS: dict = {}
+#: Per-process cache of culled core scenes: (spec key, object ids) -> scene.
+_CULLED: dict = {}
+
+THREAD_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS")
+
+
+@dataclass(frozen=True)
+class RendererSpec:
+    """How a node builds its renderer.
+
+    kind : "core" | "mitsuba" (``links1.render.make_renderer``) or "module:callable"
+           (any factory ``f(path, **options)`` following the Renderer contract)
+    path : scene file
+    options : keyword options of the factory (params, spp, max_depth, seed, aovs, ...)
+    threads : renderer threads per node (drjit thread count / BLAS threads), None: leave
+    """
+
+    kind: str
+    path: str
+    options: tuple = ()
+    threads: int | None = None
+
+    @classmethod
+    def make(cls, kind, path, threads=None, **options):
+        opts = tuple(sorted((k, _freeze(v)) for k, v in options.items() if v is not None))
+        return cls(str(kind), str(path), opts, threads)
+
+    @property
+    def kwargs(self) -> dict:
+        return {k: _thaw(v) for k, v in self.options}
+
+    @cached_property
+    def key(self) -> str:
+        """Identity of the rendered bits: kind, options and the scene file's content."""
+        h = hashlib.sha256(json.dumps([self.kind, os.path.abspath(self.path), repr(self.options)]).encode())
+        try:
+            with open(self.path, "rb") as f:
+                h.update(f.read())
+        except OSError:
+            pass
+        return h.hexdigest()[:16]
+
+    def build(self):
+        set_threads(self.threads, self.kind)
+        if ":" in self.kind:
+            mod, _, name = self.kind.partition(":")
+            return getattr(importlib.import_module(mod), name)(self.path, **self.kwargs)
+        from ..render import make_renderer
+        return make_renderer(self.kind, self.path, **self.kwargs)
+
+
+def _freeze(v):
+    if isinstance(v, dict):
+        return ("__dict__", tuple(sorted((k, _freeze(x)) for k, x in v.items())))
+    if isinstance(v, (list, tuple)):
+        return tuple(_freeze(x) for x in v)
+    return v
+
+
+def _thaw(v):
+    if isinstance(v, tuple) and len(v) == 2 and v[0] == "__dict__":
+        return {k: _thaw(x) for k, x in v[1]}
+    if isinstance(v, tuple):
+        return tuple(_thaw(x) for x in v)
+    return v
+
+
+def set_threads(threads, kind="core"):
+    """Limit the renderer's threads in this process (drjit when already imported / mitsuba)."""
+    if not threads:
+        return
+    for k in THREAD_ENV:
+        os.environ[k] = str(threads)
+    if kind == "mitsuba":
+        try:
+            import drjit
+            drjit.set_thread_count(int(threads))
+        except Exception:  # noqa: BLE001 - the renderer reports a missing drjit itself
+            pass
+
+
+def get_renderer(spec: RendererSpec):
+    """This process's renderer for ``spec`` (loaded on first use, then kept)."""
+    key = spec.key
+    r = _RENDERERS.get(key)
+    if r is None:
+        r = _RENDERERS[key] = spec.build()
+    return r
+
+
+def init_worker(spec: RendererSpec):
+    """Process-pool initializer: load the scene once."""
+    get_renderer(spec)
+
+
+def render_unit(spec: RendererSpec, window, cull=None):
+    """Render one window on this node -> (pixels (h, w, C) float64, info dict)."""
+    renderer = get_renderer(spec)
+    t0, w0 = time.perf_counter(), time.time()
+    if cull is not None:
+        img = _render_culled(spec, renderer, window, cull)
+    else:
+        img = renderer.render(window=tuple(int(v) for v in window))
+    dt = time.perf_counter() - t0
+    return np.asarray(img, dtype=np.float64), {"seconds": dt, "start": w0, "stop": w0 + dt, "pid": os.getpid()}
+
+
+def _render_culled(spec, renderer, window, ids):
+    """Render with only the objects ``ids`` present (4-4 culling).
+
+    Renderers may implement ``render(window=..., shapes=ids)``; the core renderer is
+    culled here by rendering a copy of its scene that holds copies of those shapes. The id
+    AOV is mapped back to the full scene's indices.
+    """
+    ids = tuple(int(i) for i in ids)
+    if getattr(renderer, "supports_cull", False):
+        return renderer.render(window=tuple(window), shapes=ids)
+    scene = getattr(renderer, "scene", None)
+    if scene is None or not hasattr(scene, "shapes"):
+        return renderer.render(window=tuple(window))  # cannot cull: render everything
+    from dataclasses import replace
+    from ..render import render
+    key = (spec.key, ids)
+    sub = _CULLED.get(key)
+    if sub is None:
+        if len(_CULLED) > 64:
+            _CULLED.clear()
+        sub = _CULLED[key] = replace(scene, shapes=[copy.copy(scene.shapes[i]) for i in ids], _accel=None)
+    img = render(sub, spp=renderer.spp, max_depth=renderer.max_depth, seed=renderer.seed, window=tuple(window),
+                 aovs=renderer.aovs, min_weight=getattr(renderer, "min_weight", 0.0))
+    chans = list(renderer.channels)
+    if "id" in chans:
+        c = chans.index("id")
+        idc = img[..., c]
+        lut = np.asarray(ids, dtype=np.float64)
+        hit = idc >= 0
+        img[..., c] = np.where(hit, lut[np.clip(idc, 0, max(len(ids) - 1, 0)).astype(np.int64)] if ids else -1, -1.0)
+    return img
