@@ -19,6 +19,10 @@ from .vec import dot, length
 FALLOFFS = ("none", "inverse_square")
 
 
+def _rgb(v) -> np.ndarray:
+    return np.broadcast_to(np.asarray(v, dtype=np.float64), (3,)).copy()
+
+
 def _unit(v, what: str) -> np.ndarray:
     v = np.asarray(v, dtype=np.float64)
     n = np.linalg.norm(v)
@@ -49,7 +53,7 @@ class ParallelLight(Light):
 
     def __post_init__(self):
         self.direction = _unit(self.direction, "directional: direction")
-        self.irradiance = np.asarray(self.irradiance, dtype=np.float64).reshape(3)
+        self.irradiance = _rgb(self.irradiance)
 
     def illuminate(self, p):
         n = p.shape[0]
@@ -76,8 +80,8 @@ class PointLight(Light):
     def __post_init__(self):
         self.position = np.asarray(self.position, dtype=np.float64).reshape(3)
         self.direction = _unit(self.direction, "links1_point: direction")
-        self.L1 = np.asarray(self.L1, dtype=np.float64).reshape(3)
-        self.L2 = np.asarray(self.L2, dtype=np.float64).reshape(3)
+        self.L1 = _rgb(self.L1)
+        self.L2 = _rgb(self.L2)
         if self.falloff not in FALLOFFS:
             raise ValueError(f"falloff must be one of {FALLOFFS}, got {self.falloff!r}")
 
@@ -116,7 +120,7 @@ class CylinderSpotLight(Light):
         self.radius = float(self.radius)
         if not (np.isfinite(self.radius) and self.radius > 0):
             raise ValueError(f"links1_spot: radius must be > 0, got {self.radius}")
-        self.intensity = np.asarray(self.intensity, dtype=np.float64).reshape(3)
+        self.intensity = _rgb(self.intensity)
 
     def illuminate(self, p):
         rel = p - self.origin
@@ -142,7 +146,7 @@ class ConeSpotLight(Light):
     name: str = ""
 
     def __post_init__(self):
-        self.intensity = np.asarray(self.intensity, dtype=np.float64).reshape(3)
+        self.intensity = _rgb(self.intensity)
         if self.beam_width is None:
             self.beam_width = self.cutoff_angle * 3.0 / 4.0
         self.position = self.to_world[:3, 3].copy()
