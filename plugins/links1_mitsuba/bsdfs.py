@@ -1,0 +1,178 @@
+"""``links1_phong``: the paper's shading model (eq. 3.11) as a Mitsuba BSDF."""
+from __future__ import annotations
+
+
+def _rgb(props, name, default):
+    import mitsuba as mi
+    if props.has_property(name):
+        v = props[name]
+        try:
+            return [float(v[0]), float(v[1]), float(v[2])]
+        except TypeError:
+            return [float(v)] * 3
+    if default is None:
+        return None
+    return [float(default)] * 3
+
+
+def phong_params(props) -> dict:
+    """Read and check the ``links1_phong`` parameters from Mitsuba ``Properties``."""
+    ambient = _rgb(props, "ambient", 0.0)
+    diffuse = _rgb(props, "diffuse", 0.5)
+    specular = _rgb(props, "specular", 0.0)
+    exponent = float(props.get("exponent", 20.0))
+    reflectance = _rgb(props, "reflectance", None)
+    if reflectance is None:
+        reflectance = list(specular)
+    transmittance = _rgb(props, "transmittance", 0.0)
+    ior = float(props.get("ior", 1.0))
+    if not exponent >= 0:
+        raise ValueError(f"links1_phong: 'exponent' must be >= 0, got {exponent}")
+    if not ior > 0:
+        raise ValueError(f"links1_phong: 'ior' must be > 0, got {ior}")
+    for name, v in (("ambient", ambient), ("diffuse", diffuse), ("specular", specular),
+                    ("reflectance", reflectance), ("transmittance", transmittance)):
+        if min(v) < 0:
+            raise ValueError(f"links1_phong: '{name}' must be >= 0, got {v}")
+    return dict(ambient=ambient, diffuse=diffuse, specular=specular, exponent=exponent,
+                reflectance=reflectance, transmittance=transmittance, ior=ior)
+
+
+def define_phong():
+    import drjit as dr
+    import mitsuba as mi
+
+    class Links1Phong(mi.BSDF):
+        r"""LINKS-1 Phong surface (``links1_phong``), eq. (3.11) in the paper's units.
+
+        ``I_o = dic + drc Σ L cos θ + src Σ L (cos φ)^n``, plus ``r I_r + t I_t`` (eq. 3.16).
+
+        ===============  =======  ==============================================  =========
+        Parameter        Type     Meaning                                         Default
+        ===============  =======  ==============================================  =========
+        ambient          rgb      ``dic``: constant term (links1_whitted only)    0
+        diffuse          rgb      ``drc``: multiplies ``L cos θ`` (no 1/π)        0.5
+        specular         rgb      ``src``: multiplies ``L (cos φ)^n``             0
+        exponent         float    ``n``: sharpness of the highlight               20
+        reflectance      rgb      ``r``: weight of the mirror ray                 = specular
+        transmittance    rgb      ``t``: weight of the refracted ray; shadow      0
+                                  rays through the object are scaled by it
+        ior              float    index of refraction inside (η = η_i/η_t)        1
+        ===============  =======  ==============================================  =========
+
+        Two-sided: the normal is turned toward the viewer. ``eval`` returns the local term's
+        factor (it already contains ``cos θ``), so Mitsuba's ``direct``/``path`` lit by
+        ``links1_point`` (``falloff=none``) give eq. (3.11) without the ambient term.
+        ``sample`` draws only the delta lobes (mirror ray with weight ``r``, refraction with
+        ``t``, total internal reflection folding ``t`` into ``r``): like the paper, the
+        diffuse and highlight terms take no indirect light, so ``path`` converges to
+        Whitted's ray tree. The constant ``ambient`` cannot be expressed in Mitsuba's BSDF
+        interface; ``links1_whitted`` adds it.
+
+        Example::
+
+            {'type': 'links1_phong', 'diffuse': {'type': 'rgb', 'value': [0.8, 0.2, 0.2]},
+             'specular': {'type': 'rgb', 'value': 0.5}, 'exponent': 40.0}
+        """
+
+        def __init__(self, props):
+            super().__init__(props)
+            self.params = phong_params(props)
+            p = self.params
+            self.m_diffuse = mi.Color3f(*p["diffuse"])
+            self.m_specular = mi.Color3f(*p["specular"])
+            self.m_reflectance = mi.Color3f(*p["reflectance"])
+            self.m_transmittance = mi.Color3f(*p["transmittance"])
+            self.m_exponent = p["exponent"]
+            self.m_ior = p["ior"]
+            self.has_r = max(p["reflectance"]) > 0
+            self.has_t = max(p["transmittance"]) > 0
+            both = mi.BSDFFlags.FrontSide | mi.BSDFFlags.BackSide
+            flags = mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.GlossyReflection | both
+            comps = [mi.BSDFFlags.DiffuseReflection | both]
+            if self.has_r:
+                flags = flags | mi.BSDFFlags.DeltaReflection
+                comps.append(mi.BSDFFlags.DeltaReflection | both)
+            if self.has_t:
+                flags = flags | mi.BSDFFlags.DeltaTransmission
+                comps.append(mi.BSDFFlags.DeltaTransmission | both)
+            self.m_flags = flags
+            self.m_components = comps
+
+        # -- local term, eq. (3.11)
+        def _local(self, si, wo):
+            wi = si.wi
+            flip = mi.Frame3f.cos_theta(wi) < 0  # two-sided: turn the normal to the viewer
+            wi = mi.Vector3f(wi.x, wi.y, dr.select(flip, -wi.z, wi.z))
+            wo = mi.Vector3f(wo.x, wo.y, dr.select(flip, -wo.z, wo.z))
+            cos_theta = mi.Frame3f.cos_theta(wo)          # toward the light
+            mirror = mi.Vector3f(-wo.x, -wo.y, wo.z)       # mirror direction of the light
+            cos_phi = dr.maximum(dr.dot(mirror, wi), 0.0)  # φ: mirror vs viewer
+            if self.m_exponent > 0:
+                spec = dr.power(cos_phi, self.m_exponent)
+            else:
+                spec = dr.ones(mi.Float, dr.width(cos_phi))
+            f = self.m_diffuse * dr.maximum(cos_theta, 0.0) + self.m_specular * spec
+            return dr.select(cos_theta > 0, f, 0.0)
+
+        def eval(self, ctx, si, wo, active=True):
+            if not ctx.is_enabled(mi.BSDFFlags.DiffuseReflection, 0):
+                return mi.Color3f(0.0)
+            return dr.select(active, self._local(si, wo), 0.0)
+
+        def pdf(self, ctx, si, wo, active=True):
+            return mi.Float(0.0)
+
+        def eval_pdf(self, ctx, si, wo, active=True):
+            return self.eval(ctx, si, wo, active), mi.Float(0.0)
+
+        def sample(self, ctx, si, sample1, sample2, active=True):
+            wi = si.wi
+            cos_i = mi.Frame3f.cos_theta(wi)
+            entering = cos_i > 0
+            eta = dr.select(entering, 1.0 / self.m_ior, self.m_ior)  # η = η_i/η_t
+            # S = η(e - (e·n)n) with e = -wi, n toward the viewer: its length is η sinθ_i
+            s2 = dr.square(eta) * (1.0 - dr.square(cos_i))
+            use_r = self.has_r and ctx.is_enabled(mi.BSDFFlags.DeltaReflection, 1)
+            use_t = self.has_t and ctx.is_enabled(mi.BSDFFlags.DeltaTransmission, 2)
+            r = self.m_reflectance if use_r else mi.Color3f(0.0)
+            t = self.m_transmittance if use_t else mi.Color3f(0.0)
+            tir = s2 > 1.0
+            if use_t:
+                r = dr.select(tir, r + self.m_transmittance, r)  # TIR: t moves to the mirror ray
+                t = dr.select(tir, 0.0, t)
+            pr = dr.max(r)
+            pt = dr.max(t)
+            total = pr + pt
+            prob_r = dr.select(total > 0, pr / dr.maximum(total, 1e-30), 0.0)
+            pick_r = sample1 < prob_r
+            bs = dr.zeros(mi.BSDFSample3f)
+            refl = mi.Vector3f(-wi.x, -wi.y, wi.z)                      # eq. (3.12)
+            cos_t = dr.safe_sqrt(1.0 - s2)
+            trans = mi.Vector3f(-eta * wi.x, -eta * wi.y,
+                                dr.select(entering, -cos_t, cos_t))       # eq. (3.14)-(3.15)
+            bs.wo = dr.select(pick_r, refl, trans)
+            bs.pdf = dr.select(pick_r, prob_r, 1.0 - prob_r)
+            bs.eta = dr.select(pick_r, 1.0, 1.0 / eta)
+            bs.sampled_type = dr.select(pick_r, mi.UInt32(+mi.BSDFFlags.DeltaReflection),
+                                        mi.UInt32(+mi.BSDFFlags.DeltaTransmission))
+            bs.sampled_component = dr.select(pick_r, mi.UInt32(1), mi.UInt32(2))
+            ok = active & (total > 0) & (bs.pdf > 0)
+            weight = dr.select(pick_r, r, t) / dr.maximum(bs.pdf, 1e-30)
+            bs.pdf = dr.select(ok, bs.pdf, 0.0)
+            return bs, dr.select(ok, weight, 0.0)
+
+        def traverse(self, callback):
+            pass
+
+        def parameters_changed(self, keys):
+            pass
+
+        def to_string(self):
+            p = self.params
+            return ("Links1Phong[ambient=%s, diffuse=%s, specular=%s, exponent=%g, reflectance=%s, "
+                    "transmittance=%s, ior=%g]" % (p["ambient"], p["diffuse"], p["specular"],
+                                                   p["exponent"], p["reflectance"],
+                                                   p["transmittance"], p["ior"]))
+
+    return Links1Phong

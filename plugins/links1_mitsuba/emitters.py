@@ -1,0 +1,255 @@
+"""``links1_point`` (eq. 3.10) and ``links1_spot`` (3-3-1 iii) as Mitsuba emitters."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+FALLOFFS = ("none", "inverse_square")
+
+
+def _vec(props, name, default):
+    if props.has_property(name):
+        v = props[name]
+        return np.array([float(v[0]), float(v[1]), float(v[2])])
+    return None if default is None else np.asarray(default, dtype=np.float64)
+
+
+def _rgb(props, name, default):
+    if props.has_property(name):
+        v = props[name]
+        try:
+            return np.array([float(v[0]), float(v[1]), float(v[2])])
+        except TypeError:
+            return np.full(3, float(v))
+    return np.full(3, float(default))
+
+
+def _to_world(props):
+    if props.has_property("to_world"):
+        return np.array(props["to_world"].matrix, dtype=np.float64).reshape(4, 4)
+    return None
+
+
+def _unit(v, what):
+    n = float(np.linalg.norm(v))
+    if not (math.isfinite(n) and n > 0):
+        raise ValueError(f"{what} must be a finite non-zero vector, got {list(v)}")
+    return v / n
+
+
+def point_params(props) -> dict:
+    pos = _vec(props, "position", (0.0, 0.0, 0.0))
+    direction = _vec(props, "direction", (0.0, 0.0, 1.0))
+    m = _to_world(props)
+    if m is not None:
+        pos = m[:3, :3] @ pos + m[:3, 3]
+        direction = m[:3, :3] @ direction
+    falloff = str(props.get("falloff", "none")).strip().lower()
+    if falloff not in FALLOFFS:
+        raise ValueError(f"links1_point: 'falloff' must be one of {FALLOFFS}, got '{falloff}'")
+    return dict(position=pos, direction=_unit(direction, "links1_point: direction"),
+                L1=_rgb(props, "L1", 1.0), L2=_rgb(props, "L2", 0.0), falloff=falloff)
+
+
+def spot_params(props) -> dict:
+    origin = _vec(props, "origin", (0.0, 0.0, 0.0))
+    if not props.has_property("direction"):
+        raise ValueError("links1_spot: 'direction' is required")
+    direction = _vec(props, "direction", None)
+    m = _to_world(props)
+    if m is not None:
+        origin = m[:3, :3] @ origin + m[:3, 3]
+        direction = m[:3, :3] @ direction
+    if not props.has_property("radius"):
+        raise ValueError("links1_spot: 'radius' is required")
+    radius = float(props["radius"])
+    if not (math.isfinite(radius) and radius > 0):
+        raise ValueError(f"links1_spot: 'radius' must be > 0, got {radius}")
+    return dict(origin=origin, direction=_unit(direction, "links1_spot: direction"),
+                radius=radius, intensity=_rgb(props, "intensity", 1.0))
+
+
+def define_emitters():
+    import drjit as dr
+    import mitsuba as mi
+
+    def c3(v):
+        return mi.Color3f(float(v[0]), float(v[1]), float(v[2]))
+
+    def v3(v):
+        return mi.Vector3f(float(v[0]), float(v[1]), float(v[2]))
+
+    class Links1Point(mi.Emitter):
+        r"""LINKS-1 point light with a cosine lobe (``links1_point``), eq. (3.10).
+
+        ``L_s = L1 + L2 cos θ`` for ``|θ| ≤ 90°`` and ``L1`` beyond, θ measured from ``direction``.
+
+        ==========  ======  =====================================================  ===========
+        Parameter   Type    Meaning                                                Default
+        ==========  ======  =====================================================  ===========
+        position    point   where the light is                                     (0, 0, 0)
+        direction   vector  direction of maximum strength                          (0, 0, 1)
+        L1          rgb     isotropic strength                                     1
+        L2          rgb     strength of the cosine lobe                            0
+        falloff     string  ``none`` (paper) or ``inverse_square`` (physical)      none
+        to_world    trafo   applied to position and direction                      identity
+        ==========  ======  =====================================================  ===========
+
+        A delta-position emitter: Mitsuba's ``direct`` and ``path`` sample it like ``point``
+        (``falloff=inverse_square``, ``L2=0`` is Mitsuba's ``point`` with ``intensity=L1``).
+        """
+
+        def __init__(self, props):
+            super().__init__(props)
+            self.params = point_params(props)
+            p = self.params
+            self.m_flags = mi.EmitterFlags.DeltaPosition
+            self._pos = p["position"]
+            self._dir = p["direction"]
+            self._L1, self._L2 = p["L1"], p["L2"]
+            self._inv_sq = p["falloff"] == "inverse_square"
+
+        def _strength(self, to_light, dist):
+            wi = to_light / dr.maximum(dist, 1e-30)
+            cos_theta = -dr.dot(wi, v3(self._dir))
+            L = c3(self._L1) + c3(self._L2) * dr.maximum(cos_theta, 0.0)  # eq. (3.10)
+            if self._inv_sq:
+                L = L / dr.square(dist)
+            return wi, L
+
+        def sample_direction(self, it, sample, active=True):
+            p = mi.Point3f(*[float(x) for x in self._pos])
+            to_light = p - it.p
+            dist = dr.norm(to_light)
+            wi, L = self._strength(to_light, dist)
+            ds = dr.zeros(mi.DirectionSample3f)
+            ds.p = p
+            ds.n = mi.Normal3f(0.0)
+            ds.time = it.time
+            ds.pdf = mi.Float(1.0)
+            ds.delta = mi.Bool(True)
+            ds.d = wi
+            ds.dist = dist
+            ds.emitter = mi.EmitterPtr(self)
+            return ds, dr.select(active & (dist > 0), L, 0.0)
+
+        def pdf_direction(self, it, ds, active=True):
+            return mi.Float(0.0)
+
+        def eval_direction(self, it, ds, active=True):
+            return mi.Color3f(0.0)
+
+        def eval(self, si, active=True):
+            return mi.Color3f(0.0)
+
+        def sample_position(self, time, sample, active=True):
+            ps = dr.zeros(mi.PositionSample3f)
+            ps.p = mi.Point3f(*[float(x) for x in self._pos])
+            ps.time = time
+            ps.pdf = mi.Float(1.0)
+            ps.delta = mi.Bool(True)
+            return ps, mi.Float(1.0)
+
+        def sample_ray(self, time, sample1, sample2, sample3, active=True):
+            d = mi.warp.square_to_uniform_sphere(sample3)
+            cos_theta = dr.dot(d, v3(self._dir))
+            L = c3(self._L1) + c3(self._L2) * dr.maximum(cos_theta, 0.0)
+            ray = mi.Ray3f(mi.Point3f(*[float(x) for x in self._pos]), d, time)
+            return ray, L * (4.0 * math.pi)
+
+        def bbox(self):
+            p = mi.ScalarPoint3f(*[float(x) for x in self._pos])
+            return mi.ScalarBoundingBox3f(p, p)
+
+        def traverse(self, callback):
+            pass
+
+        def parameters_changed(self, keys):
+            pass
+
+        def to_string(self):
+            p = self.params
+            return (f"Links1Point[position={p['position'].tolist()}, direction={p['direction'].tolist()}, "
+                    f"L1={p['L1'].tolist()}, L2={p['L2'].tolist()}, falloff={p['falloff']}]")
+
+    class Links1Spot(mi.Emitter):
+        r"""LINKS-1 spotlight (``links1_spot``): parallel light inside a semi-infinite cylinder.
+
+        ==========  ======  =====================================================  ===========
+        Parameter   Type    Meaning                                                Default
+        ==========  ======  =====================================================  ===========
+        origin      point   centre of the cylinder's base disc                     (0, 0, 0)
+        direction   vector  direction the light travels (cylinder axis)            required
+        radius      float   radius of the cylinder                                 required
+        intensity   rgb     strength inside the cylinder (no distance fall-off)    1
+        to_world    trafo   applied to origin and direction                        identity
+        ==========  ======  =====================================================  ===========
+
+        Points behind the base plane or farther than ``radius`` from the axis are unlit;
+        shadow rays end at the base plane. A delta-direction emitter (like ``directional``).
+        """
+
+        def __init__(self, props):
+            super().__init__(props)
+            self.params = spot_params(props)
+            self.m_flags = mi.EmitterFlags.DeltaDirection
+            p = self.params
+            self._o, self._d, self._r, self._I = p["origin"], p["direction"], p["radius"], p["intensity"]
+
+        def sample_direction(self, it, sample, active=True):
+            axis = v3(self._d)
+            rel = it.p - mi.Point3f(*[float(x) for x in self._o])
+            s = dr.dot(rel, axis)
+            radial = rel - s * axis
+            inside = (s > 0) & (dr.squared_norm(radial) <= self._r * self._r)
+            ds = dr.zeros(mi.DirectionSample3f)
+            ds.p = it.p - axis * s
+            ds.n = mi.Normal3f(axis)
+            ds.time = it.time
+            ds.pdf = mi.Float(1.0)
+            ds.delta = mi.Bool(True)
+            ds.d = -axis
+            ds.dist = dr.select(inside, s, 0.0)
+            ds.emitter = mi.EmitterPtr(self)
+            return ds, dr.select(active & inside, c3(self._I), 0.0)
+
+        def pdf_direction(self, it, ds, active=True):
+            return mi.Float(0.0)
+
+        def eval_direction(self, it, ds, active=True):
+            return mi.Color3f(0.0)
+
+        def eval(self, si, active=True):
+            return mi.Color3f(0.0)
+
+        def sample_position(self, time, sample, active=True):
+            frame = mi.Frame3f(v3(self._d))
+            q = mi.warp.square_to_uniform_disk_concentric(sample) * self._r
+            ps = dr.zeros(mi.PositionSample3f)
+            ps.p = mi.Point3f(*[float(x) for x in self._o]) + frame.s * q.x + frame.t * q.y
+            ps.n = mi.Normal3f(v3(self._d))
+            ps.time = time
+            ps.pdf = mi.Float(1.0 / (math.pi * self._r * self._r))
+            return ps, mi.Float(math.pi * self._r * self._r)
+
+        def sample_ray(self, time, sample1, sample2, sample3, active=True):
+            ps, w = self.sample_position(time, sample2, active)
+            ray = mi.Ray3f(ps.p, v3(self._d), time)
+            return ray, c3(self._I) * w
+
+        def bbox(self):
+            return mi.ScalarBoundingBox3f()
+
+        def traverse(self, callback):
+            pass
+
+        def parameters_changed(self, keys):
+            pass
+
+        def to_string(self):
+            p = self.params
+            return (f"Links1Spot[origin={p['origin'].tolist()}, direction={p['direction'].tolist()}, "
+                    f"radius={p['radius']}, intensity={p['intensity'].tolist()}]")
+
+    return {"links1_point": Links1Point, "links1_spot": Links1Spot}

@@ -1,0 +1,208 @@
+"""Load links1 / Mitsuba XML into a :class:`mitsuba.Scene` rendered by ``links1_whitted``.
+
+``mi.parser`` parses the file; ``links1_quadric`` and ``links1_blob`` nodes are taken out
+before instantiation (Mitsuba 3.9.1 has no Python shapes) and handed to the integrator, their
+BSDFs travel to it as nested objects. ``links1_bicubic`` stays: it is a registered
+:class:`mitsuba.Mesh` plugin. The same XML files as the core are read unchanged.
+"""
+from __future__ import annotations
+
+import os
+import warnings
+
+import numpy as np
+
+from ._registry import register
+from .shapes import BlobSpec, QuadricSpec
+
+CUSTOM = ("links1_quadric", "links1_blob")
+SLOT_ID = "_links1_slot_{}"
+
+
+def _color(props, name, default):
+    if props.has_property(name):
+        v = props[name]
+        try:
+            return np.array([float(v[0]), float(v[1]), float(v[2])])
+        except TypeError:
+            return np.full(3, float(v))
+    return np.full(3, float(default))
+
+
+def _prepare_state(state, config, integrator: str, base_dir: str | None):
+    import mitsuba as mi
+    nodes = state.nodes
+    root = state.nodes[0]
+    refs = mi.Properties.ResolvedReference, mi.Properties.Reference
+    integ_node = None
+    custom_specs = []
+    moved_refs = []
+    slot_of_id = {}
+    names = []
+    slot = 0
+    for key in list(root.props.keys()):
+        ref = root.props[key]
+        if not isinstance(ref, mi.Properties.ResolvedReference):
+            continue
+        node = nodes[ref.index()]
+        ptype, pname = node.type, node.props.plugin_name()
+        if ptype == mi.ObjectType.Integrator:
+            if integ_node is None:
+                integ_node = node
+            continue
+        if ptype != mi.ObjectType.Shape:
+            continue
+        props = node.props
+        if pname in CUSTOM:
+            try:
+                spec = (QuadricSpec if pname == "links1_quadric" else BlobSpec).from_props(slot, props)
+            except ValueError as exc:
+                raise ValueError(f"{_where(state, node)}: {exc}") from None
+            for k in list(props.keys()):
+                v = props[k]
+                if isinstance(v, refs):
+                    child = nodes[v.index()] if isinstance(v, mi.Properties.ResolvedReference) else None
+                    if child is not None and child.type == mi.ObjectType.Emitter:
+                        if child.props.plugin_name() != "area":
+                            raise ValueError(f"{_where(state, child)}: only 'area' emitters can be nested in a shape")
+                        spec.emission = _color(child.props, "radiance", 1.0)
+                        warnings.warn(f"{pname}: its area emitter is shown where the shape is seen "
+                                      "directly; it does not light the scene", stacklevel=3)
+                        child.props.set_plugin_name("constant")  # harmless, never referenced
+                        continue
+                    if child is None or child.type == mi.ObjectType.BSDF:
+                        moved_refs.append((f"_l1_bsdf_{slot}", v))
+            del root.props[key]
+            custom_specs.append(spec)
+            names.append((slot, props.id() or f"{pname}_{slot}", pname))
+        else:
+            if not props.id():
+                props.set_id(SLOT_ID.format(slot))
+            slot_of_id[props.id()] = slot
+            names.append((slot, props.id(), pname))
+            if pname == "links1_bicubic" and base_dir:
+                fdir = base_dir
+                try:
+                    fdir = os.path.dirname(str(state.files[node.file_index])) or base_dir
+                except Exception:
+                    pass
+                props["_links1_base_dir"] = fdir
+        slot += 1
+    if integrator == "scene":
+        if custom_specs:
+            warnings.warn(f"integrator='scene': {len(custom_specs)} links1_quadric/links1_blob shape(s) "
+                          "are invisible to Mitsuba's own integrators and are left out", stacklevel=3)
+        return None, custom_specs, slot_of_id, names
+    if integ_node is None:
+        integ_node = mi.parser.SceneNode()
+        integ_node.type = mi.ObjectType.Integrator
+        integ_node.props = mi.Properties("links1_whitted")
+        nodes.append(integ_node)
+        root.props["_links1_integrator"] = mi.Properties.ResolvedReference(len(nodes) - 1)
+        integ_node = nodes[len(nodes) - 1]
+    else:
+        old = integ_node.props.plugin_name()
+        keep = {"max_depth", "seed", "aovs"}
+        if old != "links1_whitted":
+            keep = {"max_depth"}
+        for k in list(integ_node.props.keys()):
+            if k not in keep:
+                del integ_node.props[k]
+        integ_node.props.set_plugin_name("links1_whitted")
+    for k, v in moved_refs:
+        integ_node.props[k] = v
+    return integ_node, custom_specs, slot_of_id, names
+
+
+def _repair_normals(scene) -> None:
+    """Mitsuba 3.9.1's OBJ reader flags vertex normals when a file has ``vn`` lines that no
+    face references, and leaves them uninitialised: recompute such normals (angle-weighted,
+    as the core does for meshes without normals)."""
+    import mitsuba as mi
+    for s in scene.shapes():
+        if not (s.is_mesh() and s.has_vertex_normals()):
+            continue
+        prm = mi.traverse(s)
+        n = np.array(prm["vertex_normals"], dtype=np.float64).reshape(-1, 3)
+        ln = np.linalg.norm(n, axis=1)
+        if n.size and not (np.all(np.isfinite(ln)) and np.all(np.abs(ln - 1.0) < 1e-3)):
+            warnings.warn(f"mesh '{s.id()}': invalid vertex normals from Mitsuba's reader "
+                          "(unreferenced 'vn' lines?); recomputed", stacklevel=3)
+            s.recompute_vertex_normals()
+            mi.traverse(s).update()
+
+
+def _where(state, node) -> str:
+    try:
+        return f"{state.files[node.file_index]} (offset {node.offset})"
+    except Exception:
+        return "scene"
+
+
+def _load(parse, source, integrator, base_dir, variant, params):
+    import mitsuba as mi
+    register(variant)
+    config = mi.parser.ParserConfig(mi.variant())
+    config.merge_meshes = False
+    config.merge_equivalent = False
+    fr = mi.Thread.thread().file_resolver()
+    saved = mi.FileResolver(fr)
+    try:
+        if base_dir:
+            fr.prepend(base_dir)
+        state = parse(config, source, **{k: str(v) for k, v in params.items()})
+        integ, specs, slot_of_id, names = _prepare_state(state, config, integrator, base_dir)
+        mi.parser.transform_all(config, state)
+        scene = mi.parser.instantiate(config, state)
+    finally:
+        fr.clear()
+        for i in range(len(saved)):
+            fr.append(saved[i])
+    _repair_normals(scene)
+    if integrator != "scene":
+        whitted = scene.integrator()
+        whitted.attach(specs, slot_of_id, names)
+    return scene
+
+
+def load_file(path, *, integrator: str = "links1", variant: str | None = None, **params):
+    """Load a scene file for Mitsuba with the links1 plugins.
+
+    Parameters
+    ----------
+    path : str
+        Mitsuba 3 XML (links1 plugins allowed), the same files as :func:`links1.loader.load_scene`.
+    integrator : {"links1", "scene"}
+        ``"links1"`` (default): render with ``links1_whitted`` whatever the file names (its
+        ``max_depth`` is kept). ``"scene"``: keep the file's integrator (links1 quadrics and
+        blobs are then left out, with a warning).
+    variant : str, optional
+        Mitsuba variant (default: the active one, else ``llvm_ad_rgb`` / ``cuda_ad_rgb``).
+    **params
+        ``$name`` substitutions, as ``mi.load_file``.
+    """
+    if integrator not in ("links1", "scene"):
+        raise ValueError(f"integrator must be 'links1' or 'scene', got {integrator!r}")
+    import mitsuba as mi
+    path = os.fspath(path)
+    if not os.path.exists(path):
+        raise FileNotFoundError(path)
+    return _load(lambda c, p, **kw: mi.parser.parse_file(c, p, **kw), path, integrator,
+                 os.path.dirname(os.path.abspath(path)), variant, params)
+
+
+def load_string(xml: str, *, integrator: str = "links1", variant: str | None = None,
+                base_dir: str | None = None, **params):
+    """:func:`load_file` for an XML string (relative file names resolve against ``base_dir``)."""
+    if integrator not in ("links1", "scene"):
+        raise ValueError(f"integrator must be 'links1' or 'scene', got {integrator!r}")
+    import mitsuba as mi
+    return _load(lambda c, s, **kw: mi.parser.parse_string(c, s, **kw), xml, integrator,
+                 base_dir or os.getcwd(), variant, params)
+
+
+def whitted_of(scene):
+    """The ``links1_whitted`` integrator of a loaded scene (or None)."""
+    from ._registry import plugin_class
+    integ = scene.integrator()
+    return integ if isinstance(integ, plugin_class("links1_whitted")) else None

@@ -1,0 +1,141 @@
+"""``MitsubaRenderer``: the Renderer contract of docs/architecture.md on Mitsuba 3."""
+from __future__ import annotations
+
+import numpy as np
+
+from ._registry import register
+from .integrator import AOV_CHANNELS, parse_aovs
+
+
+class MitsubaRenderer:
+    """Load a scene file once; render windows of its film many times.
+
+    Parameters
+    ----------
+    path : str
+        Scene file (Mitsuba 3 XML with links1 plugins).
+    params : dict, optional
+        ``$name`` substitutions.
+    spp, max_depth : int, optional
+        Override the file's sampler count / integrator depth.
+    seed : int
+        Seed of the sample pattern (links1.sampling).
+    aovs : sequence of str
+        Extra channels: ``depth``, ``normal``, ``id``, ``cost``.
+    variant : str, optional
+        Mitsuba variant (default ``llvm_ad_rgb``, ``cuda_ad_rgb`` with a GPU).
+    integrator : {"links1", "scene"}
+        ``"scene"`` renders with the integrator the file names (Mitsuba's ``path``/``direct``
+        ...) through ``mi.render`` with a crop window (kernels then recompile per window).
+
+    ``render(window)`` passes the window to the kernels as run-time values: no recompilation
+    per window; a window renders the same bits as the same pixels of the full frame.
+    """
+
+    kind = "mitsuba"
+
+    def __init__(self, path, *, params=None, spp=None, max_depth=None, seed=0, aovs=(),
+                 variant=None, integrator="links1"):
+        self.variant = register(variant)
+        import mitsuba as mi
+        from .loader import load_file
+        self.path = str(path)
+        self.scene = load_file(self.path, integrator=integrator, **(params or {}))
+        self.mode = integrator
+        self.seed = int(seed)
+        self.aovs = parse_aovs(aovs)
+        sensor = self.scene.sensors()[0]
+        self.spp = int(spp) if spp else int(sensor.sampler().sample_count())
+        if self.spp < 1:
+            raise ValueError(f"spp must be >= 1, got {self.spp}")
+        size = sensor.film().size()
+        self._film = (int(size[0]), int(size[1]))
+        if integrator == "links1":
+            self.integrator = self.scene.integrator()
+            if max_depth is not None:
+                if int(max_depth) < 1:
+                    raise ValueError(f"max_depth must be >= 1, got {max_depth}")
+                self.integrator.max_depth = int(max_depth)
+            self.integrator.prepare(self.scene)
+        else:
+            if self.aovs:
+                raise ValueError("AOVs need the links1_whitted integrator (integrator='links1')")
+            if max_depth is not None:
+                mi.traverse(self.scene)  # Mitsuba's integrators keep their own max_depth
+            self.integrator = self.scene.integrator()
+
+    @property
+    def film_size(self):
+        return self._film
+
+    @property
+    def channels(self):
+        names = ["R", "G", "B"]
+        for a in self.aovs:
+            names += AOV_CHANNELS[a]
+        return names
+
+    def render(self, window=None) -> np.ndarray:
+        """``(h, w, C)`` float64 of ``window = (x0, y0, w, h)`` (full film when None)."""
+        if self.mode == "links1":
+            return self.integrator.render_window(self.scene, window, spp=self.spp, seed=self.seed,
+                                                 aovs=self.aovs)
+        import mitsuba as mi
+        W, H = self._film
+        x0, y0, w, h = (0, 0, W, H) if window is None else (int(v) for v in window)
+        prm = mi.traverse(self.scene)
+        prm["sensor.film.crop_offset"] = [x0, y0]
+        prm["sensor.film.crop_size"] = [w, h]
+        prm.update()
+        img = mi.render(self.scene, spp=self.spp, seed=self.seed)
+        return np.array(img, dtype=np.float64)[:, :, :3]
+
+    def shapes_info(self) -> list:
+        """One dict per shape, in file order (``index`` = the ``id`` AOV)."""
+        import mitsuba as mi
+        from ._registry import plugin_class
+        info = []
+        names = getattr(self.integrator, "shape_names", None) or []
+        by_slot = {s: (nm, tp) for s, nm, tp in names}
+        if self.mode != "links1":
+            return [dict(index=i, name=s.id(), type=str(s).split("[")[0],
+                         bounds_lo=np.array(s.bbox().min, dtype=np.float64),
+                         bounds_hi=np.array(s.bbox().max, dtype=np.float64),
+                         reflective=False, transmissive=False, nbytes=0)
+                    for i, s in enumerate(self.scene.shapes())]
+        P = self.integrator.prepare(self.scene)
+        Phong = plugin_class("links1_phong")
+        slot_of_id = self.integrator.slot_of_id or {s.id(): i for i, s in enumerate(self.scene.shapes())}
+        for s in self.scene.shapes():
+            sl = slot_of_id[s.id()]
+            b = s.bbox()
+            bsdf = s.bsdf()
+            if isinstance(bsdf, Phong):
+                refl = max(bsdf.params["reflectance"]) > 0
+                trans = max(bsdf.params["transmittance"]) > 0
+            else:
+                fl = int(bsdf.flags())
+                refl = bool(fl & int(mi.BSDFFlags.DeltaReflection))
+                trans = bool(fl & int(mi.BSDFFlags.DeltaTransmission))
+            if s.is_mesh():
+                nb = int(s.vertex_count()) * 12 * (2 if s.has_vertex_normals() else 1) + int(s.face_count()) * 12
+            else:
+                nb = 64
+            name, tp = by_slot.get(sl, (s.id(), str(s).split("[")[0]))
+            info.append(dict(index=sl, name=name, type=tp,
+                             bounds_lo=np.array([b.min[0], b.min[1], b.min[2]], dtype=np.float64),
+                             bounds_hi=np.array([b.max[0], b.max[1], b.max[2]], dtype=np.float64),
+                             reflective=refl, transmissive=trans, nbytes=nb))
+        for spec in P.custom:
+            lo, hi = spec.bounds()
+            r = max(P.refl.numpy()[3 * spec.slot:3 * spec.slot + 3]) > 0 if P.is_phong_np[spec.slot] else False
+            t = P.shadow_t_np[spec.slot].max() > 0
+            name, tp = by_slot.get(spec.slot, (spec.name, type(spec).__name__))
+            info.append(dict(index=spec.slot, name=name, type=tp, bounds_lo=lo, bounds_hi=hi,
+                             reflective=bool(r), transmissive=bool(t), nbytes=spec.nbytes()))
+        info.sort(key=lambda d: d["index"])
+        return info
+
+    def __repr__(self):
+        return (f"MitsubaRenderer(path={self.path!r}, variant={self.variant}, film={self._film}, "
+                f"spp={self.spp}, aovs={self.aovs})")

@@ -1,0 +1,456 @@
+"""links1 shapes for Mitsuba: analytic quadrics and blobs intersected in Dr.Jit by
+``links1_whitted``, and bicubic patches tessellated into a real :class:`mitsuba.Mesh`.
+
+Mitsuba 3.9.1 cannot take shapes written in Python, so :mod:`links1_mitsuba.loader` takes
+``links1_quadric`` and ``links1_blob`` nodes out of the parsed scene and hands their
+:class:`QuadricSpec` / :class:`BlobSpec` to the integrator, which intersects them next to
+``scene.ray_intersect``. Numerically stable forms follow docs/numerics.md.
+"""
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+
+import numpy as np
+
+INF = float("inf")
+
+
+def _matrix(props, name="to_world"):
+    if props.has_property(name):
+        return np.array(props[name].matrix, dtype=np.float64).reshape(4, 4)
+    return None
+
+
+@dataclass
+class QuadricSpec:
+    """``links1_quadric``: unit sphere or unit infinite cylinder (axis z) in object space,
+    mapped by ``to_world``; clip planes ``n·x ≤ h`` in object space; ``capped`` closes the
+    cut with the planes (eq. 3.4–3.5)."""
+
+    slot: int
+    name: str
+    kind: str
+    to_world: np.ndarray
+    clips: list = field(default_factory=list)
+    capped: bool = False
+    emission: np.ndarray | None = None
+
+    def __post_init__(self):
+        lin = self.to_world[:3, :3]
+        if abs(np.linalg.det(lin)) < 1e-300:
+            raise ValueError(f"links1_quadric '{self.name}': to_world is singular")
+        self.inv = np.linalg.inv(self.to_world).tolist()
+        self.normal_mat = np.linalg.inv(self.to_world)[:3, :3].T.tolist()  # object → world normals
+        self.clips = [(np.asarray(n, dtype=np.float64).tolist(), float(h)) for n, h in self.clips]
+
+    @classmethod
+    def from_props(cls, slot, props):
+        kind = str(props["kind"]).strip().lower() if props.has_property("kind") else ""
+        if kind not in ("sphere", "cylinder"):
+            raise ValueError(f"links1_quadric: 'kind' must be 'sphere' or 'cylinder', got '{kind}'")
+        m = _matrix(props)
+        clips, k = [], 0
+        while props.has_property(f"clip_{k}"):
+            v = props[f"clip_{k}"]
+            n = np.array([float(v[0]), float(v[1]), float(v[2])])
+            if not np.linalg.norm(n) > 0:
+                raise ValueError(f"links1_quadric: clip_{k}: the plane normal must be non-zero")
+            h = float(props[f"clip_{k}_offset"]) if props.has_property(f"clip_{k}_offset") else 0.0
+            clips.append((n, h))
+            k += 1
+        for key in props.keys():
+            if re.fullmatch(r"clip_\d+(_offset)?", key) and int(key.split("_")[1]) >= k:
+                raise ValueError(f"links1_quadric: '{key}' without the planes before it")
+        capped = bool(props["capped"]) if props.has_property("capped") else False
+        return cls(slot, props.id(), kind, np.eye(4) if m is None else m, clips, capped)
+
+    def bounds(self):
+        """World AABB (object box [-1,1]² × z-range from axis-aligned clip planes)."""
+        lo, hi = np.array([-1.0, -1, -1]), np.array([1.0, 1, 1])
+        if self.kind == "cylinder":
+            lo[2], hi[2] = -INF, INF
+        for n, h in self.clips:
+            n = np.asarray(n)
+            nn = n / np.linalg.norm(n)
+            hh = h / np.linalg.norm(n)
+            for ax in range(3):
+                if abs(abs(nn[ax]) - 1) < 1e-12:
+                    if nn[ax] > 0:
+                        hi[ax] = min(hi[ax], hh)
+                    else:
+                        lo[ax] = max(lo[ax], -hh)
+        if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
+            return np.full(3, -INF), np.full(3, INF)
+        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
+                            for z in (lo[2], hi[2])])
+        w = corners @ self.to_world[:3, :3].T + self.to_world[:3, 3]
+        return w.min(0), w.max(0)
+
+    # ------------------------------------------------------------------ Dr.Jit
+    def _to_object(self, o, d):
+        import mitsuba as mi
+        a = self.inv
+        u = mi.Vector3f(*[a[i][0] * o.x + a[i][1] * o.y + a[i][2] * o.z + a[i][3] for i in range(3)])
+        v = mi.Vector3f(*[a[i][0] * d.x + a[i][1] * d.y + a[i][2] * d.z for i in range(3)])
+        return u, v
+
+    def _qform(self, x, y):
+        import drjit as dr
+        if self.kind == "sphere":
+            return dr.dot(x, y)
+        return x.x * y.x + x.y * y.y
+
+    def _inside_clips(self, x, skip=-1):
+        import mitsuba as mi
+        ok = mi.Bool(True)
+        for j, (n, h) in enumerate(self.clips):
+            if j != skip:
+                ok &= n[0] * x.x + n[1] * x.y + n[2] * x.z <= h
+        return ok
+
+    def intersect(self, o, d, tmin, tmax, active):
+        """Nearest ``t`` in (tmin, tmax) (inf on a miss) and the part hit (0 side, 1+j cap j)."""
+        import drjit as dr
+        import mitsuba as mi
+        u, v = self._to_object(o, d)
+        a = self._qform(v, v)
+        ok_a = a > 0
+        a_safe = dr.select(ok_a, a, 1.0)
+        t0 = -self._qform(u, v) / a_safe               # closest approach (numerics.md)
+        u0 = u + v * t0
+        b = self._qform(u0, v)
+        c = self._qform(u0, u0) - 1.0
+        disc = dr.square(b) - a * c
+        hit = ok_a & (disc >= 0) & active
+        q = -(b + dr.copysign(dr.sqrt(dr.maximum(disc, 0.0)), b))
+        r1 = c / dr.select(q != 0, q, 1.0)
+        r2 = q / a_safe
+        tn = t0 + dr.minimum(r1, r2)
+        tf = t0 + dr.maximum(r1, r2)
+        ok_n = hit & (tn > tmin) & (tn < tmax) & self._inside_clips(u + v * tn)
+        ok_f = hit & (tf > tmin) & (tf < tmax) & self._inside_clips(u + v * tf)
+        t = dr.select(ok_n, tn, dr.select(ok_f, tf, INF))
+        prim = dr.zeros(mi.UInt32, dr.width(t))
+        if self.capped:
+            for j, (n, h) in enumerate(self.clips):
+                den = n[0] * v.x + n[1] * v.y + n[2] * v.z
+                num = h - (n[0] * u.x + n[1] * u.y + n[2] * u.z)
+                tc = num / dr.select(den != 0, den, 1.0)
+                x = u + v * tc
+                ok = active & (den != 0) & (tc > tmin) & (tc < tmax) & (tc < t) \
+                    & (self._qform(x, x) <= 1.0) & self._inside_clips(x, skip=j)
+                t = dr.select(ok, tc, t)
+                prim = dr.select(ok, j + 1, prim)
+        return t, prim
+
+    def normal(self, o, d, t, prim):
+        """Outward world normal at the hit ``o + t d`` (side or cap)."""
+        import drjit as dr
+        import mitsuba as mi
+        u, v = self._to_object(o, d)
+        x = u + v * t
+        n_obj = mi.Vector3f(x.x, x.y, x.z if self.kind == "sphere" else 0.0)
+        for j, (n, h) in enumerate(self.clips if self.capped else []):
+            n_obj = dr.select(prim == j + 1, mi.Vector3f(*[float(c) for c in n]), n_obj)
+        m = self.normal_mat
+        nw = mi.Vector3f(*[m[i][0] * n_obj.x + m[i][1] * n_obj.y + m[i][2] * n_obj.z for i in range(3)])
+        return dr.normalize(nw)
+
+    def nbytes(self) -> int:
+        return 16 * 8 + len(self.clips) * 32
+
+
+@dataclass
+class BlobSpec:
+    """``links1_blob``: weight-function surface ``Σ w_i P(r_i) = threshold`` (eq. 3.6–3.9).
+
+    ``centers`` (N, 5) rows ``x y z w S`` in object space; ``to_world`` optional. The
+    ``exact`` solver steps along the ray with the Lipschitz/curvature bound of
+    docs/numerics.md (never jumps over a root, Newton-fast near one); ``paper`` samples the
+    span ``samples`` times per crossed centre and solves a quadratic per segment."""
+
+    slot: int
+    name: str
+    centers: np.ndarray
+    threshold: float
+    solver: str = "exact"
+    samples: int = 8
+    to_world: np.ndarray | None = None
+    emission: np.ndarray | None = None
+    max_steps: int = 256
+
+    def __post_init__(self):
+        m = np.eye(4) if self.to_world is None else self.to_world
+        self.inv = np.linalg.inv(m).tolist()
+        self.normal_mat = np.linalg.inv(m)[:3, :3].T.tolist()
+        self.centers = np.asarray(self.centers, dtype=np.float64)
+
+    @classmethod
+    def from_props(cls, slot, props):
+        text = str(props["centers"]) if props.has_property("centers") else ""
+        toks = text.replace(",", " ").split()
+        if not toks or len(toks) % 5:
+            raise ValueError("links1_blob: 'centers' must hold groups of five numbers x y z w S, "
+                             f"got {len(toks)} numbers")
+        c = np.array([float(t) for t in toks]).reshape(-1, 5)
+        if not np.all(np.isfinite(c)) or not np.all(c[:, 4] > 0):
+            raise ValueError("links1_blob: centres must be finite with S > 0")
+        if not props.has_property("threshold"):
+            raise ValueError("links1_blob: 'threshold' is required")
+        thr = float(props["threshold"])
+        if not thr > 0:
+            raise ValueError(f"links1_blob: 'threshold' must be > 0, got {thr}")
+        solver = str(props["solver"]).strip().lower() if props.has_property("solver") else "exact"
+        if solver not in ("exact", "paper"):
+            raise ValueError(f"links1_blob: 'solver' must be 'exact' or 'paper', got '{solver}'")
+        samples = int(props["samples"]) if props.has_property("samples") else 8
+        if samples < 1:
+            raise ValueError("links1_blob: 'samples' must be >= 1")
+        return cls(slot, props.id(), c, thr, solver, samples, _matrix(props))
+
+    def bounds(self):
+        c = self.centers
+        lo = (c[:, :3] - 3 * c[:, 4:5]).min(0)
+        hi = (c[:, :3] + 3 * c[:, 4:5]).max(0)
+        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+        m = np.eye(4) if self.to_world is None else self.to_world
+        w = corners @ m[:3, :3].T + m[:3, 3]
+        return w.min(0), w.max(0)
+
+    def nbytes(self) -> int:
+        return int(self.centers.nbytes) + 64
+
+    # ------------------------------------------------------------------ Dr.Jit
+    def _setup(self, o, d, tmin, tmax):
+        """Object-space unit ray and per-centre (τ, h², crossing) plus the span and bounds."""
+        import drjit as dr
+        import mitsuba as mi
+        a = self.inv
+        u = mi.Vector3f(*[a[i][0] * o.x + a[i][1] * o.y + a[i][2] * o.z + a[i][3] for i in range(3)])
+        v = mi.Vector3f(*[a[i][0] * d.x + a[i][1] * d.y + a[i][2] * d.z for i in range(3)])
+        scale = dr.norm(v)
+        v = v / scale
+        s_lo, s_hi = tmin * scale, tmax * scale
+        enter, leave = mi.Float(INF), mi.Float(-INF)
+        Lb, Gb = mi.Float(0.0), mi.Float(0.0)
+        per = []
+        for x, y, z, w, S in self.centers.tolist():
+            rel = mi.Vector3f(x, y, z) - u
+            tau = dr.dot(rel, v)
+            h2 = dr.squared_norm(dr.cross(rel, v))   # no cancellation (numerics.md)
+            R2 = 9.0 * S * S
+            cross = h2 < R2
+            half = dr.sqrt(dr.maximum(R2 - h2, 0.0))
+            enter = dr.select(cross, dr.minimum(enter, tau - half), enter)
+            leave = dr.select(cross, dr.maximum(leave, tau + half), leave)
+            Lb += dr.select(cross, abs(w) * 2.0 / (3.0 * S), 0.0)
+            Gb += dr.select(cross, abs(w) * 2.0 / (3.0 * S * S), 0.0)
+            per.append((tau, h2, float(w), float(S)))
+        start = dr.maximum(s_lo, enter)
+        end = dr.minimum(s_hi, leave)
+        return scale, per, start, end, Lb, Gb
+
+    @staticmethod
+    def _field(per, s):
+        """W(s) and dW/ds along the unit object-space ray (eq. 3.6–3.9)."""
+        import drjit as dr
+        import mitsuba as mi
+        W = mi.Float(0.0)
+        dW = mi.Float(0.0)
+        for tau, h2, w, S in per:
+            dt = s - tau
+            r2 = dr.square(dt) + h2
+            r = dr.sqrt(r2)
+            inv3s2 = 1.0 / (3.0 * S * S)
+            inner = r < S
+            outer = r < 3.0 * S
+            P = dr.select(inner, 1.0 - r2 * inv3s2,
+                          dr.select(outer, dr.square(r - 3.0 * S) * (0.5 * inv3s2), 0.0))  # eq. (3.9)
+            g = dr.select(inner, -2.0 * inv3s2,
+                          dr.select(outer, (1.0 - 3.0 * S / dr.maximum(r, 1e-30)) * inv3s2, 0.0))
+            W += w * P
+            dW += w * g * dt
+        return W, dW
+
+    def intersect(self, o, d, tmin, tmax, active, cost=None):
+        """Nearest root of ``W = threshold`` in (tmin, tmax): ``(t, prim=0)``; ``cost`` += evaluations."""
+        import drjit as dr
+        import mitsuba as mi
+        scale, per, start, end, Lb, Gb = self._setup(o, d, tmin, tmax)
+        T = self.threshold
+        run = active & (start < end)
+        W0, _ = self._field(per, start)
+        sgn = dr.select(T - W0 >= 0, 1.0, -1.0)
+        eps = 1e-6 * max(T, 1.0)
+        n_eval = dr.select(run, mi.UInt32(1), mi.UInt32(0))
+        if self.solver == "paper":
+            t_obj, n_eval = self._paper(per, start, end, sgn, run, n_eval)
+        else:
+            t_obj, n_eval = self._exact(per, start, end, sgn, run, n_eval, Lb, Gb, eps)
+        if cost is not None:
+            cost += n_eval
+        t = t_obj / scale
+        return dr.select(dr.isfinite(t_obj), t, INF), dr.zeros(mi.UInt32, dr.width(t))
+
+    def _exact(self, per, start, end, sgn, run, n_eval, Lb, Gb, eps):
+        import drjit as dr
+        import mitsuba as mi
+        T = self.threshold
+        s = mi.Float(start)
+        found = mi.Bool(False)
+        it = mi.UInt32(0)
+        Lb = dr.maximum(Lb, 1e-30)
+        Gb = dr.maximum(Gb, 1e-30)
+        max_steps = self.max_steps
+
+        def cond(s, found, run, it, n_eval):
+            return run
+
+        def body(s, found, run, it, n_eval):
+            W, dW = BlobSpec._field(per, s)
+            n_eval += 1
+            F = sgn * (T - W)
+            Fp = -sgn * dW
+            done = F <= eps
+            found = found | (run & done)
+            root = dr.safe_sqrt(dr.square(Fp) + 2.0 * Gb * F)
+            h2 = dr.select(Fp < 0, 2.0 * F / dr.maximum(root - Fp, 1e-30), (Fp + root) / Gb)
+            h = dr.maximum(F / Lb, h2)
+            # the last step is a Newton step from the safe side (F small, slope reliable)
+            s_next = s + h
+            it += 1
+            run = run & ~done & (s_next <= end) & (it < max_steps)
+            s = dr.select(run, s_next, s)
+            return s, found, run, it, n_eval
+
+        s, found, run, it, n_eval = dr.while_loop((s, found, run, it, n_eval), cond, body)
+        return dr.select(found, s, INF), n_eval
+
+    def _paper(self, per, start, end, sgn, run, n_eval):
+        """Span sampling with one quadratic ``W*`` per segment (the paper's 3-2-3 solver)."""
+        import drjit as dr
+        import mitsuba as mi
+        T = self.threshold
+        n = max(1, self.samples * len(per))
+        h = (end - start) / n
+        best = mi.Float(INF)
+        s0 = start
+        f0, _ = self._field(per, s0)
+        f0 = sgn * (T - f0)
+        for k in range(n):
+            sm = start + h * (k + 0.5)
+            s1 = start + h * (k + 1)
+            fm, _ = self._field(per, sm)
+            f1, _ = self._field(per, s1)
+            fm, f1 = sgn * (T - fm), sgn * (T - f1)
+            # quadratic through (0, f0), (1/2, fm), (1, f1) in x = (s - s0)/h
+            A = 2.0 * f0 - 4.0 * fm + 2.0 * f1
+            B = -3.0 * f0 + 4.0 * fm - f1
+            C = f0
+            disc = dr.square(B) - 4.0 * A * C
+            sq = dr.safe_sqrt(disc)
+            q = -0.5 * (B + dr.copysign(sq, B))
+            x1 = C / dr.select(q != 0, q, 1e-30)
+            x2 = q / dr.select(A != 0, A, 1e-30)
+            xl = dr.select(abs(A) > 1e-12, x2, dr.select(B != 0, -C / dr.select(B != 0, B, 1.0), -1.0))
+            xa = dr.minimum(dr.select(x1 >= 0, x1, 2.0), dr.select((xl >= 0) & (abs(A) > 1e-12), xl, 2.0))
+            xa = dr.select(abs(A) > 1e-12, xa, dr.select(xl >= 0, xl, 2.0))
+            ok = run & (disc >= 0) & (xa <= 1.0) & (best == INF)
+            best = dr.select(ok, s0 + h * xa, best)
+            s0, f0 = s1, f1
+        n_eval += dr.select(run, mi.UInt32(2 * n), 0)
+        return best, n_eval
+
+    def normal(self, o, d, t, prim):
+        """Outward normal ``-∇W/|∇W|`` (fallback ``-d`` where the gradient vanishes)."""
+        import drjit as dr
+        import mitsuba as mi
+        a = self.inv
+        p = o + d * t
+        x = mi.Vector3f(*[a[i][0] * p.x + a[i][1] * p.y + a[i][2] * p.z + a[i][3] for i in range(3)])
+        g = mi.Vector3f(0.0)
+        for cx, cy, cz, w, S in self.centers.tolist():
+            rel = x - mi.Vector3f(cx, cy, cz)
+            r = dr.norm(rel)
+            inv3s2 = 1.0 / (3.0 * S * S)
+            gr = dr.select(r < S, -2.0 * inv3s2,
+                           dr.select(r < 3 * S, (1.0 - 3.0 * S / dr.maximum(r, 1e-30)) * inv3s2, 0.0))
+            g += rel * (w * gr)
+        m = self.normal_mat
+        nw = -mi.Vector3f(*[m[i][0] * g.x + m[i][1] * g.y + m[i][2] * g.z for i in range(3)])
+        ln = dr.norm(nw)
+        return dr.select(ln > 1e-20, nw / dr.maximum(ln, 1e-30), -d)
+
+
+# ---------------------------------------------------------------------- bicubic patches
+def tessellate_bicubic(props, base_dir=None):
+    """Vertices, faces and normals of a ``links1_bicubic`` node, with ``links1.meshes``."""
+    import os
+    try:
+        from links1 import meshes
+    except ImportError as exc:  # pragma: no cover
+        raise RuntimeError("links1_bicubic needs links1.meshes (tessellation)") from exc
+    has_file = props.has_property("filename")
+    has_inline = props.has_property("control_points")
+    if has_file == has_inline:
+        raise ValueError("links1_bicubic needs exactly one of 'filename' and 'control_points'")
+    if has_file:
+        fn = str(props["filename"])
+        if not os.path.isabs(fn) and base_dir:
+            fn = os.path.join(base_dir, fn)
+        patches = meshes.read_patches(fn)
+    else:
+        patches = meshes.parse_patches(str(props["control_points"]), "<control_points>", with_count=False)
+    sub = int(props["subdivisions"]) if props.has_property("subdivisions") else 8
+    v, f, n = meshes.tessellate_patches(patches, sub)
+    if props.has_property("flip_normals") and bool(props["flip_normals"]):
+        f, n = meshes.flip(f, n)
+    m = _matrix(props)
+    if m is not None:
+        v, n = meshes.transform_mesh(m, v, n)
+    if props.has_property("face_normals") and bool(props["face_normals"]):
+        n = None
+    return v, f, n
+
+
+def define_bicubic():
+    import drjit as dr
+    import mitsuba as mi
+
+    class Links1Bicubic(mi.Mesh):
+        r"""Bicubic Bézier patches (``links1_bicubic``) tessellated into a Mitsuba mesh (eq. 3.3).
+
+        ==============  =======  ==========================================  =========
+        Parameter       Type     Meaning                                     Default
+        ==============  =======  ==========================================  =========
+        filename        string   a ``.patch`` file (see ``links1.meshes``)   —
+        control_points  string   inline: 48 numbers per patch                —
+        subdivisions    integer  grid cells per patch side                   8
+        to_world        trafo    object → world                              identity
+        flip_normals    boolean  reverse the winding and normals             false
+        face_normals    boolean  flat shading (no vertex normals)            false
+        ==============  =======  ==========================================  =========
+        """
+
+        def __init__(self, props):
+            base = props["_links1_base_dir"] if props.has_property("_links1_base_dir") else None
+            v, f, n = tessellate_bicubic(props, base)
+            for key in ("subdivisions", "flip_normals", "face_normals", "filename", "control_points"):
+                if props.has_property(key):
+                    props.mark_queried(key) if hasattr(props, "mark_queried") else None
+            super().__init__(props.id() or "links1_bicubic", len(v), len(f), props,
+                             has_vertex_normals=n is not None)
+            prm = mi.traverse(self)
+            prm["vertex_positions"] = mi.Float(np.asarray(v, dtype=np.float32).ravel())
+            prm["faces"] = mi.UInt32(np.asarray(f, dtype=np.uint32).ravel())
+            if n is not None:
+                prm["vertex_normals"] = mi.Float(np.asarray(n, dtype=np.float32).ravel())
+            prm.update()
+            self._nbytes = int(v.nbytes // 2 + f.nbytes // 2 + (0 if n is None else n.nbytes // 2))
+
+        def to_string(self):
+            return f"Links1Bicubic[id={self.id()!r}, vertices={self.vertex_count()}, faces={self.face_count()}]"
+
+    return Links1Bicubic
