@@ -50,7 +50,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .shapes import Shape, check_to_world
+from .shapes import Shape, _finite_or_zero, check_to_world
 from .vec import cross, dot, matvec, normalize
 
 #: Largest number of marching evaluations of the exact solver per ray.
@@ -399,7 +399,7 @@ class Blob(Shape):
     def surface(self, o, d, t, prim):
         o = np.asarray(o, dtype=np.float64).reshape(-1, 3)
         d = np.asarray(d, dtype=np.float64).reshape(-1, 3)
-        t = np.asarray(t, dtype=np.float64)
+        t = _finite_or_zero(t)
         p = o + t[:, None] * d
         o2, dn, lam, ts = self._to_local(o, d)
         x = o2 + (t * lam - ts)[:, None] * dn            # the hit, normalised object units

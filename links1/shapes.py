@@ -42,6 +42,12 @@ def _add_cost(cost, amount=1, where=None):
         cost[where] += amount
 
 
+def _finite_or_zero(t) -> np.ndarray:
+    """``t`` with non-finite entries (misses passed to ``surface``) replaced by 0."""
+    t = np.asarray(t, dtype=np.float64)
+    return np.where(np.isfinite(t), t, 0.0)
+
+
 def check_to_world(to_world, what: str) -> np.ndarray:
     """Validate a 4x4 object-to-world transform; return it as float64 (4, 4).
 
@@ -173,7 +179,9 @@ class TriangleMesh(Shape):
         # Triangle data in leaf order, one contiguous array per component.
         q0, q1, q2 = p0[order], p1[order], p2[order]
         nn = cross(q1 - q0, q2 - q0)  # N = (v2 - v1) x (v3 - v1), paper's numbering
-        self._v = [np.ascontiguousarray(q[:, k]) for q in (q0, q1, q2) for k in range(3)]
+        # Per vertex role, a (3, F) array (component-major) for per-ray permutation.
+        self._vs = [np.ascontiguousarray(q.T) for q in (q0, q1, q2)]
+        self._v0 = [np.ascontiguousarray(q0[:, k]) for k in range(3)]
         self._n = [np.ascontiguousarray(nn[:, k]) for k in range(3)]
         self._lo = v.min(axis=0)
         self._hi = v.max(axis=0)
@@ -188,7 +196,7 @@ class TriangleMesh(Shape):
     @property
     def nbytes(self) -> int:
         n = self.vertices.nbytes + self.faces.nbytes + self.bvh.nbytes
-        n += sum(a.nbytes for a in self._v) + sum(a.nbytes for a in self._n)
+        n += sum(a.nbytes for a in self._vs) + sum(a.nbytes for a in self._n)
         if self.normals is not None:
             n += self.normals.nbytes
         return int(n)
@@ -201,35 +209,57 @@ class TriangleMesh(Shape):
         return self._lo.copy(), self._hi.copy()
 
     # ------------------------------------------------------------------ leaf test
-    def _leaf(self, s, c, ox, oy, oz, ex, ey, ez):
-        """Rays (R,) x triangles [s, s+c) of the leaf order: distance (R, c) and the
-        three undivided Cramer numerators; ``inf`` where missed."""
-        V = self._v
+    def _leaf(self, s, c, ray):
+        """Rays (R,) x triangles [s, s+c) of the leaf order: distance (R, c), ``inf``
+        where missed. ``ray`` holds the per-ray frame of :meth:`_ray_frame`."""
+        kx, ky, kz, px, py, pz, sx, sy, dz, ex, ey, ez = ray
+        V = self._vs
         sl = slice(s, s + c)
-        # a_i = v_i - o: vertices translated by the ray origin (Decision, digest 3.1).
-        ax = V[0][None, sl] - ox
-        ay = V[1][None, sl] - oy
-        az = V[2][None, sl] - oz
-        bx = V[3][None, sl] - ox
-        by = V[4][None, sl] - oy
-        bz = V[5][None, sl] - oz
-        cx = V[6][None, sl] - ox
-        cy = V[7][None, sl] - oy
-        cz = V[8][None, sl] - oz
-        # eq. (3.1) by Cramer's rule, undivided: U_i = e.(a_j x a_k).
-        u1 = ex * (by * cz - bz * cy) + ey * (bz * cx - bx * cz) + ez * (bx * cy - by * cx)
-        u2 = ex * (cy * az - cz * ay) + ey * (cz * ax - cx * az) + ez * (cx * ay - cy * ax)
-        u3 = ex * (ay * bz - az * by) + ey * (az * bx - ax * bz) + ez * (ax * by - ay * bx)
-        nx, ny, nz = self._n[0][None, sl], self._n[1][None, sl], self._n[2][None, sl]
-        det = ax * nx + ay * ny + az * nz  # det[a1 a2 a3] = a1.N
-        en = ex * nx + ey * ny + ez * nz   # sum of the k_i times det
+        # a_i = v_i - o: vertices translated by the ray origin (Decision, digest 3.1),
+        # in the ray's permuted and sheared frame where e is the z axis (Woop, Benthin &
+        # Wald 2013): e.(a_j x a_k) = |d_z| (a'_j x a'_k)_z. Every vertex is transformed
+        # once per ray, so shared edges and vertices see the same numbers.
+        out = []
+        for vi in range(3):
+            Vc = V[vi][:, sl]
+            az = Vc[kz] - pz
+            out.append((Vc[kx] - px - sx * az, Vc[ky] - py - sy * az))
+        (ax, ay), (bx, by), (cx, cy) = out
+        # eq. (3.1) by Cramer's rule, undivided: U_i = e.(a_j x a_k) / |d_z| (the swap of
+        # x and y when d_z < 0 keeps the sign).
+        u1 = bx * cy - by * cx
+        u2 = cx * ay - cy * ax
+        u3 = ax * by - ay * bx
         su = u1 + u2 + u3
         inside = (((u1 >= 0) & (u2 >= 0) & (u3 >= 0)) | ((u1 <= 0) & (u2 <= 0) & (u3 <= 0)))
+        N = self._n
+        nx, ny, nz = N[0][None, sl], N[1][None, sl], N[2][None, sl]
+        V0 = self._v0
+        det = ((V0[0][None, sl] - ex[1]) * nx + (V0[1][None, sl] - ey[1]) * ny
+               + (V0[2][None, sl] - ez[1]) * nz)           # det[a1 a2 a3] = a1.N
+        en = ex[0] * nx + ey[0] * ny + ez[0] * nz          # e.N = |d_z| sum(U)
         # det = 0: the plane contains the ray origin (Decision, digest 3.1): a miss.
         ok = inside & (su != 0) & (en * su > 0) & (det != 0)
         with np.errstate(divide="ignore", invalid="ignore"):
             t = det / np.where(ok, en, 1.0)  # eq. (3.2): 1/sum(k) = (a1.N)/(e.N)
         return np.where(ok, t, np.inf)
+
+    @staticmethod
+    def _ray_frame(o, d):
+        """Per ray: the permutation making |d_z| largest (winding kept), the permuted
+        origin, the shear that maps d to the z axis, and the raw origin/direction."""
+        n = o.shape[0]
+        kz = np.argmax(np.abs(d), axis=1)
+        kx = (kz + 1) % 3
+        ky = (kx + 1) % 3
+        rows = np.arange(n)
+        dz = d[rows, kz]
+        swap = dz < 0
+        kx, ky = np.where(swap, ky, kx), np.where(swap, kx, ky)
+        sx = d[rows, kx] / dz
+        sy = d[rows, ky] / dz
+        return (kx, ky, kz, o[rows, kx], o[rows, ky], o[rows, kz], sx, sy, dz,
+                (d[:, 0], o[:, 0]), (d[:, 1], o[:, 1]), (d[:, 2], o[:, 2]))
 
     def _trace(self, o, d, tmin, tmax, cost, any_hit: bool):
         n = o.shape[0]
@@ -237,14 +267,16 @@ class TriangleMesh(Shape):
         best_p = np.full(n, -1, dtype=np.int64)
         limit = tmax.copy()
         order = self.bvh.order
-        ox_a, oy_a, oz_a = o[:, 0], o[:, 1], o[:, 2]
-        dx_a, dy_a, dz_a = d[:, 0], d[:, 1], d[:, 2]
+        frame = self._ray_frame(o, d)
 
         def visit_leaf(s, c, r):
             if cost is not None:
                 cost[r] += c
-            t = self._leaf(s, c, ox_a[r, None], oy_a[r, None], oz_a[r, None],
-                           dx_a[r, None], dy_a[r, None], dz_a[r, None])
+            kx, ky, kz, px, py, pz, sx, sy, dz, ex, ey, ez = frame
+            col = lambda a: a[r, None]
+            sub = (kx[r], ky[r], kz[r], col(px), col(py), col(pz), col(sx), col(sy), col(dz),
+                   (col(ex[0]), col(ex[1])), (col(ey[0]), col(ey[1])), (col(ez[0]), col(ez[1])))
+            t = self._leaf(s, c, sub)
             lim = limit[r]
             bt = best_t[r]
             t = np.where((t > tmin[r, None]) & (t < tmax[r, None]), t, np.inf)
@@ -505,7 +537,7 @@ class Quadric(Shape):
     def surface(self, o, d, t, prim):
         o = np.asarray(o, dtype=np.float64).reshape(-1, 3)
         d = np.asarray(d, dtype=np.float64).reshape(-1, 3)
-        t = np.asarray(t, dtype=np.float64)
+        t = _finite_or_zero(t)
         prim = np.asarray(prim, dtype=np.int64)
         p = o + t[:, None] * d
         y = matvec(self.A, p - self.m)
@@ -560,7 +592,7 @@ class Disk(Shape):
     def surface(self, o, d, t, prim):
         o = np.asarray(o, dtype=np.float64).reshape(-1, 3)
         d = np.asarray(d, dtype=np.float64).reshape(-1, 3)
-        t = np.asarray(t, dtype=np.float64)
+        t = _finite_or_zero(t)
         p = o + t[:, None] * d
         ng = np.broadcast_to(self._normal, p.shape).copy()
         return p, ng, ng.copy()
