@@ -1,0 +1,218 @@
+"""Hierarchical bounding boxes (paper 3-2-4): equal to brute force, deterministic, and the
+shadow transmittance product of 3-3-3 (once per shape)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from links1 import transform as tf
+from links1.accel import BVH, Accel
+from links1.blob import Blob
+from links1.shapes import Disk, Quadric, Shape, TriangleMesh
+
+INF = np.inf
+
+
+def random_rays(rng, n, spread=6.0):
+    o = rng.normal(size=(n, 3)) * spread
+    target = rng.normal(size=(n, 3)) * 2
+    d = target - o
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    return o, d
+
+
+def random_scene(rng, k=30):
+    shapes = []
+    for i in range(k):
+        kind = i % 4
+        c = rng.normal(size=3) * 3
+        if kind == 0:
+            M = tf.translate(c) @ tf.rotate(rng.normal(size=3), rng.random() * 180) @ tf.scale(rng.random(3) * 0.8 + 0.2)
+            shapes.append(Quadric("sphere", M, name=f"s{i}"))
+        elif kind == 1:
+            v = c + rng.normal(size=(12, 3)) * 0.6
+            f = rng.integers(0, 12, size=(10, 3))
+            shapes.append(TriangleMesh(v, f, name=f"m{i}"))
+        elif kind == 2:
+            M = tf.translate(c) @ tf.rotate(rng.normal(size=3), rng.random() * 180) @ tf.scale(0.7)
+            clips = [(np.array([0.0, 0, 1]), 1.0), (np.array([0.0, 0, -1]), 1.0)]
+            shapes.append(Quadric("cylinder", M, clips=clips, capped=bool(rng.random() < 0.5)))
+        else:
+            M = tf.translate(c) @ tf.rotate(rng.normal(size=3), rng.random() * 180) @ tf.scale(0.9)
+            shapes.append(Disk(M, name=f"d{i}"))
+    shapes.append(Blob([[0, 0, 0, 1, 0.8], [0.6, 0.2, 0, 0.8, 0.6]], 0.5, to_world=tf.translate([1, -1, 0.5])))
+    return shapes
+
+
+def brute_force(shapes, o, d, tmin, tmax):
+    n = o.shape[0]
+    best_t = np.full(n, INF)
+    best_s = np.full(n, -1)
+    best_p = np.full(n, -1)
+    for j, s in enumerate(shapes):
+        t, p = s.intersect(o, d, tmin, tmax)
+        win = t < best_t  # strict: the lower index keeps an exact tie
+        best_t[win], best_s[win], best_p[win] = t[win], j, p[win]
+    return best_t, best_s, best_p
+
+
+def test_scene_accel_equals_brute_force():
+    rng = np.random.default_rng(0)
+    shapes = random_scene(rng)
+    acc = Accel(shapes)
+    o, d = random_rays(rng, 4000)
+    tmin = np.zeros(len(o))
+    tmax = np.where(rng.random(len(o)) < 0.2, rng.random(len(o)) * 8, INF)
+    cost = np.zeros(len(o), dtype=np.int64)
+    t, s, p = acc.intersect(o, d, tmin, tmax, cost)
+    tb, sb, pb = brute_force(shapes, o, d, tmin, tmax)
+    np.testing.assert_array_equal(t, tb)
+    np.testing.assert_array_equal(s, sb)
+    np.testing.assert_array_equal(p, pb)
+    assert np.isfinite(t).sum() > 500
+    assert not np.any(np.isnan(t))
+    assert cost.sum() > 0
+
+
+def test_mesh_bvh_equals_single_leaf_brute_force():
+    rng = np.random.default_rng(1)
+    k = 1500
+    v = rng.normal(size=(k, 3)) * 2
+    # Small triangles scattered in space: vertex i plus two nearby offsets.
+    v2 = np.vstack([v, v + rng.normal(size=v.shape) * 0.3, v + rng.normal(size=v.shape) * 0.3])
+    faces = np.stack([np.arange(k), np.arange(k) + k, np.arange(k) + 2 * k], 1)
+    mesh = TriangleMesh(v2, faces)
+    brute = TriangleMesh(v2, faces, max_leaf=10 ** 9)  # one leaf: every triangle tested
+    assert len(brute.bvh) == 1 and len(mesh.bvh) > 100
+    n = 2000
+    o, d = random_rays(rng, n)
+    tmin, tmax = np.zeros(n), np.full(n, INF)
+    c1 = np.zeros(n, dtype=np.int64)
+    t1, p1 = mesh.intersect(o, d, tmin, tmax, c1)
+    t2, p2 = brute.intersect(o, d, tmin, tmax)
+    np.testing.assert_array_equal(t1, t2)
+    np.testing.assert_array_equal(p1, p2)
+    np.testing.assert_array_equal(mesh.any_hit(o, d, tmin, tmax), np.isfinite(t2))
+    assert np.isfinite(t1).sum() > 200
+    assert c1.mean() < 200  # far fewer than the 1500 of brute force
+
+
+def test_bvh_structure_covers_items():
+    rng = np.random.default_rng(2)
+    lo = rng.normal(size=(500, 3))
+    hi = lo + rng.random((500, 3))
+    b = BVH(lo, hi, max_leaf=4)
+    assert sorted(b.order.tolist()) == list(range(500))
+    leaves = np.nonzero(b.count)[0]
+    assert b.count[leaves].max() <= 4 and b.count.sum() == 500
+    for nid in leaves:
+        items = b.order[b.start[nid]: b.start[nid] + b.count[nid]]
+        assert np.all(np.diff(items) > 0)  # sorted inside a leaf (tie-break by index)
+        assert np.all(lo[items] >= b.node_lo[nid]) and np.all(hi[items] <= b.node_hi[nid])
+
+
+def test_exact_ties_lower_index_wins():
+    s0 = Quadric("sphere", tf.translate([0, 0, 0]))
+    s1 = Quadric("sphere", tf.translate([0, 0, 0]))
+    o = np.tile([0.0, 0, -5], (3, 1))
+    d = np.tile([0.0, 0, 1], (3, 1))
+    for shapes, expect in (([s0, s1], 0), ([s1, s0], 0)):
+        t, s, _ = Accel(shapes).intersect(o, d, 0.0, INF)
+        assert np.all(s == expect) and np.all(t == 4.0)
+    # Coincident triangles inside one mesh: the lower face index wins.
+    v = np.array([[-1.0, -1, 0], [1, -1, 0], [0, 1, 0]])
+    m = TriangleMesh(np.vstack([v, v]), [[3, 4, 5], [0, 1, 2]])
+    t, p = m.intersect(o, d, 0.0, INF)
+    assert np.all(p == 0) and np.all(t == 5.0)
+
+
+def test_results_independent_of_batch():
+    rng = np.random.default_rng(3)
+    shapes = random_scene(rng, 20)
+    acc = Accel(shapes)
+    o, d = random_rays(rng, 3000)
+    n = len(o)
+    c_full = np.zeros(n, dtype=np.int64)
+    full = acc.intersect(o, d, np.zeros(n), np.full(n, INF), c_full)
+    sel = rng.choice(n, 700, replace=False)
+    c_sub = np.zeros(sel.size, dtype=np.int64)
+    sub = acc.intersect(o[sel], d[sel], np.zeros(sel.size), np.full(sel.size, INF), c_sub)
+    for a, b in zip(sub, full):
+        np.testing.assert_array_equal(a, b[sel])
+    np.testing.assert_array_equal(c_sub, c_full[sel])
+
+
+def test_shadow_transmittance_once_per_closed_object():
+    a = Quadric("sphere", tf.translate([0, 0, 0]))
+    b = Quadric("sphere", tf.translate([0, 0, 4]))
+    wall = TriangleMesh([[-5.0, -5, 8], [5, -5, 8], [0, 5, 8]], [[0, 1, 2]])
+    shadow_t = np.array([[0.5, 0.6, 0.7], [0.5, 0.5, 0.5], [0.0, 0.0, 0.0]])
+    acc = Accel([a, b, wall])
+    o = np.array([[0.0, 0, -5], [0.0, 0, -5], [0.0, 0, -5], [3.0, 0, -5], [0.0, 0, 3.5]])
+    d = np.tile([0.0, 0, 1], (5, 1))
+    tmax = np.array([7.0, 11.0, 20.0, 20.0, 3.0])
+    cost = np.zeros(5, dtype=np.int64)
+    T = acc.shadow_transmittance(o, d, tmax, shadow_t, cost)
+    expect = np.array([
+        [0.5, 0.6, 0.7],             # through sphere a (two crossings, counted once)
+        [0.25, 0.3, 0.35],           # through a and b
+        [0.0, 0.0, 0.0],             # and the opaque wall
+        [1.0, 1.0, 1.0],             # x = 3: beside both spheres and the wall
+        [0.5, 0.5, 0.5],             # starts inside b: leaves it once
+    ])
+    np.testing.assert_array_equal(T, expect)
+    assert np.all(cost > 0)
+
+
+def test_any_hit_per_shape():
+    a = Quadric("sphere", tf.translate([0, 0, 0]))
+    b = Quadric("sphere", tf.translate([0, 3, 0]))
+    acc = Accel([a, b])
+    o = np.array([[0.0, 0, -5], [0.0, 3, -5], [0.0, 1.5, -5]])
+    d = np.tile([0.0, 0, 1], (3, 1))
+    got = dict(acc.any_hit_per_shape(o, d, np.zeros(3), np.full(3, INF)))
+    np.testing.assert_array_equal(got[0], [True, False, False])
+    np.testing.assert_array_equal(got[1], [False, True, False])
+    got = dict(acc.any_hit_per_shape(o, d, np.zeros(3), np.full(3, 2.0)))
+    assert all(not h.any() for h in got.values())
+
+
+class _Plane(Shape):
+    """An unbounded plane z = 0 (to test the always-tested list)."""
+
+    def bounds(self):
+        return np.full(3, -INF), np.full(3, INF)
+
+    def intersect(self, o, d, tmin, tmax, cost=None):
+        if cost is not None:
+            cost += 1
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = -o[:, 2] / d[:, 2]
+        ok = np.isfinite(t) & (t > tmin) & (t < tmax)
+        return np.where(ok, t, INF), np.where(ok, 0, -1)
+
+
+def test_unbounded_shapes_and_empty_scene():
+    acc = Accel([Quadric("sphere", tf.translate([0, 0, 3])), _Plane()])
+    assert acc.unbounded == [1]
+    o = np.array([[0.0, 0, 10], [5.0, 0, 10], [5.0, 0, 10]])
+    d = np.array([[0.0, 0, -1], [0.0, 0, -1], [0.0, 0, 1]])
+    t, s, _ = acc.intersect(o, d, 0.0, INF)
+    np.testing.assert_array_equal(t, [6.0, 10.0, INF])
+    np.testing.assert_array_equal(s, [0, 1, -1])
+    t, s, p = Accel([]).intersect(o, d, 0.0, INF)
+    assert np.all(np.isinf(t)) and np.all(s == -1) and np.all(p == -1)
+    T = Accel([]).shadow_transmittance(o, d, np.full(3, 5.0), np.zeros((0, 3)))
+    np.testing.assert_array_equal(T, np.ones((3, 3)))
+
+
+def test_axis_aligned_rays_and_flat_boxes():
+    # A flat quad in z = 0 and rays with zero direction components, some lying in the
+    # quad's plane (slab test with 0 * inf must not produce NaN or false misses).
+    quad = TriangleMesh([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], [[0, 1, 2], [0, 2, 3]])
+    acc = Accel([quad, Quadric("sphere", tf.translate([5, 5, 5]))])
+    o = np.array([[0.5, 0.5, 3], [0.5, 0.5, -3], [0.0, 0.5, 3], [1.0, 1.0, 3], [-1, 0.5, 0]])
+    d = np.array([[0.0, 0, -1], [0, 0, 1], [0, 0, -1], [0, 0, -1], [1, 0, 0]])
+    t, s, _ = acc.intersect(o, d, 0.0, INF)
+    np.testing.assert_array_equal(t[:4], [3.0, 3.0, 3.0, 3.0])
+    assert np.isinf(t[4]) and s[4] == -1  # a ray in the quad's plane: a miss
