@@ -38,7 +38,7 @@ class ScenePreload(_WorkerPluginBase):
         await loop.run_in_executor(ex, get_renderer, self.spec)
 
 
-async def _set_resource(dask_worker, name, value):
+async def _set_resource(name, value, dask_worker=None):
     await dask_worker.set_resources(**{name: value})
 
 
@@ -115,7 +115,7 @@ class DaskBackend:
 
     # ---------------------------------------------------------------- running
     def run(self, plan, todo, spec, cull, on_done, on_fault):
-        from distributed import FIRST_COMPLETED, wait
+        from distributed import wait
         client, spec = self.client, self._spec
         attempts, failures = {}, {}
         pending = {}  # future -> (unit, node or None)
@@ -152,7 +152,7 @@ class DaskBackend:
         known = set(workers)
         while pending:
             try:
-                done, _ = wait(list(pending), timeout=self.poll_s, return_when=FIRST_COMPLETED)
+                done, _ = wait(list(pending), timeout=self.poll_s, return_when="FIRST_COMPLETED")
             except TimeoutError:
                 done = ()
             for f in done:

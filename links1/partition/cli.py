@@ -1,0 +1,310 @@
+"""Command-line side of the partitioning layer.
+
+``links1.cli`` calls, when present:
+
+``add_render_options(parser)``
+    adds --workers/--partition/--tiles-per-node/--unit/--order/--scheduler/--dask-local/
+    --checkpoint/--cull/--load-table to ``links1 render``.
+``render_distributed(args) -> (image (H, W, C) float64, channel names)``
+    renders with those options (``args`` also carries the shared render options: scene,
+    renderer, variant, integrator, spp, width, height, max_depth, seed, aov, defines,
+    min_weight, no_progress). ``--workers auto`` (the default) uses the usable cores when
+    more than one is there and the frame is big enough to pay for the start-up, else
+    renders in-process.
+``add_cli(subparsers)``
+    adds ``links1 schedule``.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import warnings
+
+from ..errors import UsageError
+from .strategies import STRATEGIES, UNITS
+
+#: Frames smaller than this (pixels x samples) render in-process under --workers auto.
+AUTO_MIN_WORK = 128 * 128
+
+_BACKENDS: dict = {}  # reused across --repeat frames in one process
+
+
+def _workers(text):
+    if text == "auto":
+        return text
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--workers must be an integer or 'auto', got {text!r}") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"--workers must be >= 0, got {v}")
+    return v
+
+
+def _pos(name):
+    def parse(text):
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{name} must be an integer, got {text!r}") from None
+        if v <= 0:
+            raise argparse.ArgumentTypeError(f"{name} must be > 0, got {v}")
+        return v
+    return parse
+
+
+def _nodes_list(text):
+    try:
+        v = [int(t) for t in text.split(",") if t.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--simulate expects a list like 1,4,16,64, got {text!r}") from None
+    if not v or min(v) < 1:
+        raise argparse.ArgumentTypeError(f"--simulate node counts must be >= 1, got {text!r}")
+    return v
+
+
+def _partition_options(p, *, nodes_option: bool):
+    g = p.add_argument_group("screen partitioning (paper section 4)")
+    if not nodes_option:
+        g.add_argument("--workers", type=_workers, default="auto",
+                       help="local worker processes: 0 renders in-process; default auto: the usable cores "
+                            "when more than one (and the frame is not tiny)")
+    g.add_argument("--partition", choices=STRATEGIES, default="dynamic",
+                   help="subscreen (4-1, eq. 4.1), scanline (4-2), dynamic (4-3, default), grid (baseline)")
+    g.add_argument("--tiles-per-node", type=_pos("--tiles-per-node"), default=16,
+                   help="tiles per node for subscreen/grid/dynamic tiles (paper: 16 or 64; default 16)")
+    g.add_argument("--unit", choices=UNITS, default="tile", help="unit handed out by dynamic (default tile)")
+    g.add_argument("--order", choices=("lpt", "walk"), default=None,
+                   help="dynamic dispatch order: lpt = largest predicted load first (default), walk = bottom-left first")
+    g.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT", help="render on an existing Dask cluster")
+    g.add_argument("--dask-local", type=_pos("--dask-local"), default=None, metavar="N",
+                   help="start a Dask LocalCluster of N workers bound to 127.0.0.1")
+    g.add_argument("--checkpoint", default=None, metavar="DIR",
+                   help="keep finished units in DIR; a re-run renders only what is missing")
+    g.add_argument("--cull", action="store_true",
+                   help="give nodes only the objects their units need (4-4; --renderer core)")
+    g.add_argument("--load-table", default=None, metavar="JSON", help="per-object load table (eq. 4.1) overrides")
+
+
+def add_render_options(parser) -> None:
+    """Add the distributed-rendering options to ``links1 render``."""
+    _partition_options(parser, nodes_option=False)
+
+
+# ---------------------------------------------------------------------- shared set-up
+def _spec_from_args(args):
+    from .runtime import RendererSpec
+    opts = dict(params=dict(getattr(args, "defines", []) or []), spp=args.spp, max_depth=args.max_depth,
+                seed=args.seed, aovs=tuple(getattr(args, "aov", ()) or ()), width=args.width, height=args.height)
+    if getattr(args, "min_weight", 0.0):
+        opts["min_weight"] = args.min_weight
+    if args.renderer == "mitsuba":
+        opts["variant"] = getattr(args, "variant", None)
+        if getattr(args, "integrator", "links1") == "scene":
+            opts["integrator"] = "scene"
+    elif getattr(args, "variant", None) is not None or getattr(args, "integrator", "links1") != "links1":
+        raise UsageError("--variant and --integrator apply to --renderer mitsuba only")
+    return RendererSpec.make(args.renderer, args.scene, **opts)
+
+
+def _check_backend_args(args, workers):
+    if args.scheduler and args.dask_local:
+        raise UsageError("--scheduler and --dask-local are exclusive")
+    if (args.scheduler or args.dask_local) and workers not in ("auto", 0, None):
+        raise UsageError("--workers is for the local pool; with Dask give --scheduler or --dask-local only")
+
+
+def _model_and_channels(spec, args):
+    """The root's scene model (core loader: shapes, camera) and the output channel names."""
+    from ..render import channel_names
+    from .loadmodel import load_table, scene_model
+    table = load_table(getattr(args, "load_table", None))
+    root_spec = spec
+    if spec.kind != "core":  # the root only needs shapes and the camera: read them with the core
+        from .runtime import RendererSpec
+        kw = {k: v for k, v in spec.kwargs.items() if k in ("params", "spp", "max_depth", "seed", "aovs", "width",
+                                                             "height")}
+        root_spec = RendererSpec.make("core", spec.path, **kw)
+    try:
+        from .runtime import get_renderer
+        r = get_renderer(root_spec)
+        model = scene_model(r, path=spec.path, params=spec.kwargs.get("params"), table=table)
+        channels = list(r.channels)
+    except UsageError:
+        raise
+    except Exception as e:  # noqa: BLE001 - the core cannot read a Mitsuba-only scene: build the real one
+        if root_spec is spec:
+            raise
+        warnings.warn(f"the core cannot read {spec.path} ({e}); loading it with {spec.kind} in the root")
+        from .runtime import get_renderer
+        r = get_renderer(spec)
+        model = scene_model(r, path=spec.path, params=spec.kwargs.get("params"), table=table)
+        channels = list(r.channels)
+    if spec.kind != "core":
+        channels = channel_names(spec.kwargs.get("aovs", ()))
+    return model, channels
+
+
+def _backend(args, workers, static):
+    key = (args.scheduler, args.dask_local, workers, static)
+    be = _BACKENDS.get(key)
+    if be is not None:
+        return be
+    if args.scheduler or args.dask_local:
+        try:
+            from .dask_backend import DaskBackend
+        except ImportError as e:
+            raise UsageError(f"Dask is not installed ({e}); pip install 'links1[dask]'") from None
+        be = DaskBackend(scheduler=args.scheduler, n_local=args.dask_local, static=static)
+    elif workers == 0:
+        from .executors import InProcess
+        be = InProcess()
+    else:
+        from .executors import LocalPool
+        be = LocalPool(int(workers))
+    _BACKENDS[key] = be
+    import atexit
+    atexit.register(be.close)
+    return be
+
+
+def _cull_map(plan, model, spec):
+    if spec.kind != "core":
+        warnings.warn("--cull needs --renderer core (the Mitsuba scene cannot drop objects); ignored")
+        return None
+    import numpy as np
+    touch = model.touching([u.window for u in plan.units])
+    out = {}
+    if plan.static:
+        for k in range(plan.n_nodes):
+            ids = plan.node_units(k)
+            prim = touch[ids].any(axis=0)
+            need = tuple(int(j) for j in np.flatnonzero(prim | model.secondary(prim)))
+            out.update({i: need for i in ids})
+    else:
+        for i in range(len(plan.units)):
+            prim = touch[i]
+            out[i] = tuple(int(j) for j in np.flatnonzero(prim | model.secondary(prim)))
+    return out
+
+
+def prepare(args, *, nodes=None):
+    """Spec, model, channels, plan and backend for ``args`` (shared by render and schedule)."""
+    from .strategies import make_plan
+    workers = getattr(args, "workers", nodes)
+    _check_backend_args(args, workers)
+    spec = _spec_from_args(args)
+    model, channels = _model_and_channels(spec, args)
+    if workers == "auto":
+        from .executors import default_workers
+        work = model.width * model.height * (spec.kwargs.get("spp") or 1)
+        workers = default_workers() if work >= AUTO_MIN_WORK else 0
+    if args.scheduler or args.dask_local:
+        n_nodes = args.dask_local or nodes or 0
+        if not n_nodes:  # an existing cluster: one node per worker
+            from .dask_backend import DaskBackend  # noqa: F401 - raises early if dask is missing
+            from distributed import Client
+            with Client(args.scheduler) as c:
+                n_nodes = max(1, len(c.scheduler_info(n_workers=-1)["workers"]))
+    else:
+        n_nodes = max(1, int(workers))
+    plan = make_plan(args.partition, model.width, model.height, n_nodes, tiles_per_node=args.tiles_per_node,
+                     unit=args.unit, load_map=model.load_map(), order=args.order)
+    backend = _backend(args, workers, plan.static)
+    return spec, model, channels, plan, backend
+
+
+def render_distributed(args):
+    """Render per ``args`` on the chosen nodes -> ``(image (H, W, C) float64, channel names)``."""
+    from .executors import render_plan
+    spec, model, channels, plan, backend = prepare(args)
+    ckpt = None
+    if args.checkpoint:
+        from .checkpoint import Checkpoint
+        ckpt = Checkpoint(args.checkpoint, spec.key, {"scene": os.path.abspath(spec.path), "kind": spec.kind,
+                                                      "options": repr(spec.options)})
+    cull = _cull_map(plan, model, spec) if args.cull else None
+    res = render_plan(plan, spec, backend, checkpoint=ckpt, progress=not getattr(args, "no_progress", False),
+                      cull=cull)
+    if res.faults:
+        print(f"links1: {len(res.faults)} node(s) lost during the render; their units were redone and the image "
+              f"is complete", file=sys.stderr)
+    return res.image, channels
+
+
+# ---------------------------------------------------------------------- schedule
+SCHEDULE_EXAMPLES = """examples:
+  links1 schedule scenes/many.xml --renderer core --nodes 2 --partition dynamic --report r.json --plot r.png
+  links1 schedule scenes/many.xml --renderer core --nodes 2 --partition subscreen --tiles-per-node 64 \\
+      --report s.json --simulate 1,4,16,64,256,1024 --sim-plot sim.png
+  links1 schedule scenes/fig11.xml --nodes 4 --dask-local 4 --partition scanline --report d.json
+"""
+
+
+def add_cli(subparsers) -> None:
+    """Add ``links1 schedule`` to the main parser's subcommands."""
+    from ..cli import add_render_arguments
+    p = subparsers.add_parser("schedule", help="run a root/node screen-partitioning experiment",
+                              epilog=SCHEDULE_EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter,
+                              description="Render a scene on N nodes with a partitioning strategy and report per "
+                              "unit predicted load (eq. 4.1), measured seconds and ray-primitive tests, per node busy "
+                              "time, makespan, imbalance, parallel efficiency; optionally simulate more nodes.")
+    add_render_arguments(p)
+    p.add_argument("--nodes", type=_pos("--nodes"), required=True, help="node count (local worker processes)")
+    _partition_options(p, nodes_option=True)
+    p.add_argument("--report", required=True, metavar="OUT.json", help="write the report here (JSON, atomic)")
+    p.add_argument("--plot", default=None, metavar="OUT.png", help="Gantt chart per node + predicted-vs-measured")
+    p.add_argument("--simulate", type=_nodes_list, default=None, metavar="1,4,16,...",
+                   help="replay the measured cost map at these node counts")
+    p.add_argument("--sim-plot", default=None, metavar="OUT.png", help="simulation plot (default: next to --plot)")
+    p.add_argument("--unit-overhead", type=float, default=None,
+                   help="simulated seconds per unit (default: the fitted per-unit cost)")
+    p.add_argument("--object-cost", type=float, default=1e-4, help="simulated seconds per object sent to a node")
+    p.add_argument("--overhead", action="store_true",
+                   help="also time the frame as 64 units vs one frame in one process (overhead_ratio_64)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--debug", action="store_true", help="show tracebacks")
+    p.set_defaults(func=run_cli)
+
+
+def run_cli(args) -> int:
+    """``links1 schedule``: a real run, its report, optional plots and simulation."""
+    from .checkpoint import atomic_write_json
+    from .executors import render_plan
+    from .experiment import build_report, format_table, measure_overhead, plot_report, plot_simulation, simulate
+    aovs = tuple(args.aov or ())
+    if "cost" not in aovs:
+        args.aov = aovs + ("cost",)  # the per-pixel ray-primitive tests: the measured cost map
+    args.workers = 0 if args.nodes == 1 and not (args.scheduler or args.dask_local) else args.nodes
+    spec, model, channels, plan, backend = prepare(args, nodes=args.nodes)
+    cull = _cull_map(plan, model, spec) if args.cull else None
+    res = render_plan(plan, spec, backend, progress=not args.no_progress, cull=cull)
+    cost_channel = channels.index("cost") if "cost" in channels else None
+    report = build_report(res, plan, model, cost_channel=cost_channel,
+                          meta={"scene": os.path.abspath(args.scene), "renderer": args.renderer,
+                                "cull": bool(args.cull), "spp": spec.kwargs.get("spp")})
+    backend.close()
+    if args.overhead:
+        report["overhead_ratio_64"] = measure_overhead(spec)
+    if args.simulate:
+        cm = report["cost_model"] or {"per_pixel_s": 0.0, "per_test_s": 0.0, "per_unit_s": 0.0}
+        tests = res.image[..., cost_channel] if cost_channel is not None else 0.0
+        cost_map = cm["per_pixel_s"] + cm["per_test_s"] * tests
+        overhead = cm["per_unit_s"] if args.unit_overhead is None else args.unit_overhead
+        rows = simulate(cost_map, model, args.simulate, tiles_per_node=args.tiles_per_node,
+                        unit_overhead=overhead, object_cost=args.object_cost)
+        report["simulation"] = {"unit_overhead_s": overhead, "object_cost_s": args.object_cost, "rows": rows}
+        print(format_table(rows))
+        sim_plot = args.sim_plot or (os.path.splitext(args.plot)[0] + "-simulate.png" if args.plot else None)
+        if sim_plot:
+            plot_simulation(rows, sim_plot)
+    atomic_write_json(args.report, report)
+    if args.plot:
+        plot_report(report, args.plot)
+    eff, imb = report["parallel_efficiency"], report["imbalance"]
+    rc = report["rank_correlation"]["predicted_vs_seconds"]
+    print(f"links1: schedule {plan.strategy} on {report['nodes']} nodes: makespan {report['makespan_s']:.3f} s, "
+          f"imbalance {imb if imb is None else round(imb, 3)}, efficiency {eff if eff is None else round(eff, 3)}, "
+          f"rank correlation {rc if rc is None else round(rc, 3)}; wrote {args.report}", file=sys.stderr)
+    return 0
