@@ -38,8 +38,8 @@ class BVH:
     lo, hi : (P, 3) float64
         The boxes (finite).
     max_leaf : int
-        Largest number of items in a leaf (a leaf may be larger only when all its items
-        have the same centre... it is then split by index instead).
+        Largest number of items in a leaf (items whose centres all coincide are split
+        by their position in the list instead).
 
     Attributes
     ----------

@@ -281,7 +281,7 @@ class Blob(Shape):
             if new.any():
                 inside = (W > T) | ((W == T) & (dW > 0))
                 sign = np.where(new, np.where(inside, -1.0, 1.0), sign)
-            F = sign * (T - W)
+            F = sign * (T - W)   # eq. (3.8): the surface is F = 0; F > 0 on the ray's start side
             dF = -sign * dW
             # A sign change: the root lies in [t_prev, t] (only after a probe, or F == 0).
             root = (F <= 0) & ~new

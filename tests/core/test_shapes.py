@@ -177,6 +177,22 @@ def test_cube_normals_outward_and_exit_from_inside():
     np.testing.assert_allclose(ng, [[0, 0, -1], [0, 0, 1]], atol=0)
 
 
+@pytest.mark.parametrize("k,shift", [(1e-4, 0.0), (1e4, 0.0), (1.0, 1e5), (1e-4, 1e5)])
+def test_mesh_translated_and_scaled(k, shift):
+    base = cube_mesh()
+    m = TriangleMesh(base.vertices * k + shift, base.faces)
+    rng = np.random.default_rng(9)
+    target = rng.uniform(-0.9, 0.9, size=(300, 3))
+    target[:, 2] = -1.0  # points on the z = -1 face
+    o = np.array([0.1, -0.2, -6.0]) + rng.normal(size=(300, 3)) * [1, 1, 0.1]
+    dist = np.linalg.norm(target - o, axis=1)
+    o2, d, tmin, tmax = rays(o * k + shift, target - o)
+    t, prim = m.intersect(o2, d, tmin, tmax)
+    np.testing.assert_allclose(t / k, dist, rtol=1e-6 if shift else 1e-12)
+    _, ng, _ = m.surface(o2, d, t, prim)
+    np.testing.assert_allclose(ng, np.tile([0, 0, -1.0], (300, 1)), atol=1e-9)
+
+
 def test_mesh_validation():
     with pytest.raises(ValueError):
         TriangleMesh(np.zeros((0, 3)), [[0, 1, 2]])
