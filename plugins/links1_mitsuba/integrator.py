@@ -21,6 +21,8 @@ from links1.sampling import strata
 
 AOV_CHANNELS = {"depth": ["depth"], "normal": ["nx", "ny", "nz"], "id": ["id"], "cost": ["cost"]}
 INF = float("inf")
+#: Relative ray-origin offset on Mitsuba shapes and links1 quadrics (blobs: Mitsuba's RayEpsilon).
+OFFSET_EPS = 2.0 ** -19
 _M1 = 0x7FEB352D
 _M2 = 0x846CA68B
 
@@ -484,7 +486,15 @@ def define_integrator():
                     f = dr.select(mb, fm, f)
                 return f
 
-            eps = (1.0 + dr.max(dr.abs(p))) * mi.math.RayEpsilon
+            # ray offsets (relative to 1 + max|p|): OFFSET_EPS on Mitsuba shapes and quadrics
+            # (their float32 hits are accurate to a few ulps; a small offset keeps shadow rays
+            # that graze an object on the same side as the float64 core), Mitsuba's larger
+            # RayEpsilon on blobs (iterative roots)
+            eps_scale = dr.full(mi.Float, OFFSET_EPS, n)
+            for spec in P.custom:
+                if spec.__class__.__name__ == "BlobSpec":
+                    eps_scale = dr.select(slot == spec.slot, mi.math.RayEpsilon, eps_scale)
+            eps = (1.0 + dr.max(dr.abs(p))) * eps_scale
 
             def offset(direction):
                 side = dr.select(dr.dot(ng, direction) >= 0, 1.0, -1.0)

@@ -123,6 +123,8 @@ def _repair_normals(scene) -> None:
         if not (s.is_mesh() and s.has_vertex_normals()):
             continue
         prm = mi.traverse(s)
+        if "vertex_normals" not in prm.keys():
+            continue
         n = np.array(prm["vertex_normals"], dtype=np.float64).reshape(-1, 3)
         ln = np.linalg.norm(n, axis=1)
         if n.size and not (np.all(np.isfinite(ln)) and np.all(np.abs(ln - 1.0) < 1e-3)):

@@ -15,6 +15,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 INF = float("inf")
+#: Blob march: probe step relative to the largest S (float32 analogue of the core's).
+PROBE_REL = 1e-4
+#: Largest number of secant refinements of a bracketed blob root.
+MAX_REFINE = 24
 
 
 def _matrix(props, name="to_world"):
@@ -281,8 +285,9 @@ class BlobSpec:
         scale, per, start, end, Lb, Gb = self._setup(o, d, tmin, tmax)
         T = self.threshold
         run = active & (start < end)
-        W0, _ = self._field(per, start)
-        sgn = dr.select(T - W0 >= 0, 1.0, -1.0)
+        W0, dW0 = self._field(per, start)
+        inside = (W0 > T) | ((W0 == T) & (dW0 > 0))
+        sgn = dr.select(inside, -1.0, 1.0)
         eps = 1e-6 * max(T, 1.0)
         n_eval = dr.select(run, mi.UInt32(1), mi.UInt32(0))
         if self.solver == "paper":
@@ -295,38 +300,85 @@ class BlobSpec:
         return dr.select(dr.isfinite(t_obj), t, INF), dr.zeros(mi.UInt32, dr.width(t))
 
     def _exact(self, per, start, end, sgn, run, n_eval, Lb, Gb, eps):
+        """March with steps that never jump over a root (numerics.md LG bound); once the step
+        falls below ``probe`` it probes ``max(2h, probe)`` ahead; a sign change brackets the
+        root, refined by secant steps with the Illinois safeguard (as the core). A ray that
+        grazes the surface never brackets a root: a miss, as in the float64 core."""
         import drjit as dr
         import mitsuba as mi
         T = self.threshold
-        s = mi.Float(start)
-        found = mi.Bool(False)
-        it = mi.UInt32(0)
+        probe = PROBE_REL * float(self.centers[:, 4].max())
         Lb = dr.maximum(Lb, 1e-30)
         Gb = dr.maximum(Gb, 1e-30)
         max_steps = self.max_steps
+        n = dr.width(start)
+        s = mi.Float(start)
+        s_prev = mi.Float(start)
+        f_prev = dr.full(mi.Float, 1.0, n)
+        found = dr.zeros(mi.Bool, n)
+        it = dr.zeros(mi.UInt32, n)
 
-        def cond(s, found, run, it, n_eval):
+        def cond(s, s_prev, f_prev, found, run, it, n_eval):
             return run
 
-        def body(s, found, run, it, n_eval):
+        def body(s, s_prev, f_prev, found, run, it, n_eval):
             W, dW = BlobSpec._field(per, s)
-            n_eval += 1
+            n_eval += dr.select(run, mi.UInt32(1), 0)
             F = sgn * (T - W)
             Fp = -sgn * dW
-            done = F <= eps
-            found = found | (run & done)
-            root = dr.safe_sqrt(dr.square(Fp) + 2.0 * Gb * F)
-            h2 = dr.select(Fp < 0, 2.0 * F / dr.maximum(root - Fp, 1e-30), (Fp + root) / Gb)
-            h = dr.maximum(F / Lb, h2)
-            # the last step is a Newton step from the safe side (F small, slope reliable)
-            s_next = s + h
+            root = run & (F <= 0) & (it > 0)
+            found = found | root
+            Fpos = dr.maximum(F, 0.0)
+            disc = dr.safe_sqrt(dr.square(Fp) + 2.0 * Gb * Fpos)
+            h2 = dr.select(Fp < 0, 2.0 * Fpos / dr.maximum(disc - Fp, 1e-30), (Fp + disc) / Gb)
+            h = dr.maximum(Fpos / Lb, h2)
+            step = dr.select(h < probe, dr.maximum(2.0 * h, probe), h)
             it += 1
-            run = run & ~done & (s_next <= end) & (it < max_steps)
-            s = dr.select(run, s_next, s)
-            return s, found, run, it, n_eval
+            go = run & ~root
+            s_prev = dr.select(go, s, s_prev)
+            f_prev = dr.select(go, F, f_prev)
+            s = dr.select(go, s + step, s)
+            run = go & (s < end) & (it < max_steps)
+            return s, s_prev, f_prev, found, run, it, n_eval
 
-        s, found, run, it, n_eval = dr.while_loop((s, found, run, it, n_eval), cond, body)
-        return dr.select(found, s, INF), n_eval
+        s, s_prev, f_prev, found, run, it, n_eval = dr.while_loop(
+            (s, s_prev, f_prev, found, run, it, n_eval), cond, body)
+        # bracket [a, b] with F(a) > 0 >= F(b): secant steps with the Illinois safeguard
+        a, b = mi.Float(s_prev), mi.Float(s)
+        fa = f_prev
+        Wb, _ = BlobSpec._field(per, b)
+        fb = sgn * (T - Wb)
+        last = dr.zeros(mi.Int32, n)
+        k = dr.zeros(mi.UInt32, n)
+        act = found & (fb != 0) & (a < b)
+
+        def cond2(a, b, fa, fb, last, k, act, n_eval):
+            return act
+
+        def body2(a, b, fa, fb, last, k, act, n_eval):
+            x = dr.clip(a + fa * ((b - a) / (fa - fb)), a, b)
+            W, _ = BlobSpec._field(per, x)
+            n_eval += dr.select(act, mi.UInt32(1), 0)
+            fx = sgn * (T - W)
+            up = fx > 0
+            na = dr.select(up, x, a)
+            nb = dr.select(up, b, x)
+            nfa = dr.select(up, fx, dr.select(last == -1, 0.5 * fa, fa))
+            nfb = dr.select(up, dr.select(last == 1, 0.5 * fb, fb), fx)
+            a = dr.select(act, na, a)
+            b = dr.select(act, nb, b)
+            fa = dr.select(act, nfa, fa)
+            fb = dr.select(act, nfb, fb)
+            last = dr.select(act, dr.select(up, 1, -1), last)
+            k += 1
+            act = act & (fx != 0) & (b - a > 2e-7 * (1.0 + dr.abs(b))) & (k < MAX_REFINE)
+            return a, b, fa, fb, last, k, act, n_eval
+
+        a, b, fa, fb, last, k, act, n_eval = dr.while_loop(
+            (a, b, fa, fb, last, k, act, n_eval), cond2, body2)
+        # final estimate: secant on the bracket (b itself when F(b) == 0)
+        x = dr.select(fb == 0, b, dr.clip(a + fa * ((b - a) / dr.select(fa != fb, fa - fb, 1.0)), a, b))
+        return dr.select(found, x, INF), n_eval
 
     def _paper(self, per, start, end, sgn, run, n_eval):
         """Span sampling with one quadratic ``W*`` per segment (the paper's 3-2-3 solver)."""
