@@ -165,8 +165,11 @@ def _output_kind(path: str) -> str:
 
 
 def renderer_options(args) -> dict:
-    return dict(params=dict(args.defines), spp=args.spp, max_depth=args.max_depth, seed=args.seed,
-                aovs=tuple(args.aov), width=args.width, height=args.height)
+    opts = dict(params=dict(args.defines), spp=args.spp, max_depth=args.max_depth, seed=args.seed,
+                aovs=tuple(args.aov))
+    if args.width is not None or args.height is not None:  # film override (keeps the fov)
+        opts.update(width=args.width, height=args.height)
+    return opts
 
 
 def make_cli_renderer(args):
