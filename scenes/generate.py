@@ -24,7 +24,6 @@ def checker_obj(path: Path, n: int, size: float, parity: int) -> None:
                 lines.append(f"v {x:.6g} 0 {z:.6g}")
             faces.append(f"f {v + 1} {v + 2} {v + 3} {v + 4}")
             v += 4
-    lines.append("vn 0 1 0")
     path.write_text("\n".join(lines + faces) + "\n")
 
 
