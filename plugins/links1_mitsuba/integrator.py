@@ -311,8 +311,9 @@ def define_integrator():
                 prim = dr.select(better, pc, prim)
             return t, slot, si, prim
 
-        def _shadow(self, P, scene, o, d, smax, active, cost):
-            """Transmittance along the shadow segment (3-3-3): product of shadow_t, once per shape."""
+        def _shadow_custom(self, P, o, d, smax, active, cost):
+            """Transmittance (3-3-3) through the links1 shapes: product of shadow_t over the
+            shapes the segment hits, once per shape."""
             T = dr.select(active, mi.Color3f(1.0), mi.Color3f(0.0))
             for spec in P.custom:
                 st = P.shadow_t_np[spec.slot]
@@ -324,6 +325,10 @@ def define_integrator():
                     cost += dr.select(act, mi.UInt32(1), 0)
                 hit = act & (tc < INF)
                 T = dr.select(hit, T * c3(st), T)
+            return T
+
+        def _shadow_mitsuba(self, P, scene, o, d, smax, active, T, cost):
+            """Continue the transmittance ``T`` through Mitsuba's shapes (once per shape)."""
             if not P.any_mitsuba_shapes:
                 return T
             act = active & (dr.max(T) > 0)
@@ -410,6 +415,8 @@ def define_integrator():
             n = dr.width(o)
             active = dr.full(mi.Bool, True, n)
             cost = dr.zeros(mi.UInt32, n)
+            if P.any_mitsuba_shapes:
+                dr.eval(o, d, tmin, tmax)
             t, slot, si, prim = self._nearest(P, scene, o, d, tmin, tmax, active, cost)
             hit = slot >= 0
             uslot = mi.UInt32(dr.maximum(slot, 0))
@@ -431,6 +438,8 @@ def define_integrator():
             wo = -d
             front = dr.dot(ng, wo) > 0
             nf = dr.select(front, ns, -ns)
+            if P.any_mitsuba_shapes:
+                dr.eval(t, slot, prim, p, ng, ns, nf, cost)
             out = dr.zeros(mi.Color3f, n)
             # ---- escaping rays: background (Mitsuba constant / envmap)
             if P.env is not None:
@@ -500,14 +509,17 @@ def define_integrator():
                 side = dr.select(dr.dot(ng, direction) >= 0, 1.0, -1.0)
                 return p + ng * (side * eps)
 
-            # ---- direct light with shadows (eq. 3.11, 3-3-3)
+            # ---- direct light with shadows (eq. 3.11, 3-3-3). Shadow rays of all lights are
+            # built and evaluated together, then handed to Mitsuba's ray tests (each test
+            # evaluates its inputs: building them first avoids recomputing shared work).
+            pending = []
             for L in P.lights:
                 wi, dist, Ls = self._light(L, p)
                 contrib = f_eval(wi) * Ls
                 lit = hit & (dr.max(contrib) > 0)
-                smax = dist - 2.0 * eps
-                T = self._shadow(P, scene, offset(wi), wi, smax, lit, cost)
-                out += dr.select(lit, contrib * T, 0.0)
+                so, smax = offset(wi), dist - 2.0 * eps
+                T = self._shadow_custom(P, so, wi, smax, lit, cost)
+                pending.append((contrib, so, wi, smax, lit, T))
             for j, e in enumerate(P.area):
                 it = dr.zeros(mi.Interaction3f, n)
                 it.p = p
@@ -515,12 +527,15 @@ def define_integrator():
                 k2 = mix32(key ^ mi.UInt32(0x9E3779B9 + 2 * j))
                 sample = mi.Point2f(u24(mix32(k2 ^ 1)), u24(mix32(k2 ^ 2)))
                 ds, val = e.sample_direction(it, sample, hit)
-                contrib = f_eval(ds.d) * val
-                if P.any_phong:  # paper units: Phong has no 1/π
-                    pass
+                contrib = f_eval(ds.d) * val  # one shadow ray per sample and area light
                 lit = hit & (dr.max(contrib) > 0) & (ds.pdf > 0)
-                T = self._shadow(P, scene, offset(ds.d), ds.d, ds.dist * (1.0 - mi.math.ShadowEpsilon),
-                                 lit, cost)
+                so, smax = offset(ds.d), ds.dist * (1.0 - mi.math.ShadowEpsilon)
+                T = self._shadow_custom(P, so, ds.d, smax, lit, cost)
+                pending.append((contrib, so, mi.Vector3f(ds.d), smax, lit, T))
+            if P.any_mitsuba_shapes and pending:
+                dr.eval(out, cost, *[x for tup in pending for x in tup])
+            for contrib, so, wi, smax, lit, T in pending:
+                T = self._shadow_mitsuba(P, scene, so, wi, smax, lit, T, cost)
                 out += dr.select(lit, contrib * T, 0.0)
             res = {"L": out, "cost": cost, "t": t, "slot": slot, "ns": ns, "hit": hit}
             if not spawn:
