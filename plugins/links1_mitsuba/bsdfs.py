@@ -4,7 +4,7 @@ from __future__ import annotations
 
 def _rgb(props, name, default):
     import mitsuba as mi
-    if props.has_property(name):
+    if (name in props):
         v = props[name]
         try:
             return [float(v[0]), float(v[1]), float(v[2])]

@@ -9,14 +9,14 @@ FALLOFFS = ("none", "inverse_square")
 
 
 def _vec(props, name, default):
-    if props.has_property(name):
+    if (name in props):
         v = props[name]
         return np.array([float(v[0]), float(v[1]), float(v[2])])
     return None if default is None else np.asarray(default, dtype=np.float64)
 
 
 def _rgb(props, name, default):
-    if props.has_property(name):
+    if (name in props):
         v = props[name]
         try:
             return np.array([float(v[0]), float(v[1]), float(v[2])])
@@ -26,7 +26,7 @@ def _rgb(props, name, default):
 
 
 def _to_world(props):
-    if props.has_property("to_world"):
+    if ("to_world" in props):
         return np.array(props["to_world"].matrix, dtype=np.float64).reshape(4, 4)
     return None
 
@@ -54,14 +54,14 @@ def point_params(props) -> dict:
 
 def spot_params(props) -> dict:
     origin = _vec(props, "origin", (0.0, 0.0, 0.0))
-    if not props.has_property("direction"):
+    if not ("direction" in props):
         raise ValueError("links1_spot: 'direction' is required")
     direction = _vec(props, "direction", None)
     m = _to_world(props)
     if m is not None:
         origin = m[:3, :3] @ origin + m[:3, 3]
         direction = m[:3, :3] @ direction
-    if not props.has_property("radius"):
+    if not ("radius" in props):
         raise ValueError("links1_spot: 'radius' is required")
     radius = float(props["radius"])
     if not (math.isfinite(radius) and radius > 0):

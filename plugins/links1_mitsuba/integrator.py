@@ -21,8 +21,12 @@ from links1.sampling import strata
 
 AOV_CHANNELS = {"depth": ["depth"], "normal": ["nx", "ny", "nz"], "id": ["id"], "cost": ["cost"]}
 INF = float("inf")
-#: Relative ray-origin offset on Mitsuba shapes and links1 quadrics (blobs: Mitsuba's RayEpsilon).
+#: Relative ray-origin offset on shapes whose float32 hits are accurate to a few ulps
+#: (meshes, rectangles, disks, links1 quadrics): a small offset keeps shadow rays that graze
+#: an object on the same side as the float64 core. Mitsuba's sphere/cylinder and links1
+#: blobs (iterative roots) use Mitsuba's RayEpsilon (self-shadowing otherwise).
 OFFSET_EPS = 2.0 ** -19
+_PRECISE_MITSUBA = ("Mesh", "OBJMesh", "PLYMesh", "Rectangle", "Disk", "Links1Bicubic", "SerializedMesh")
 _M1 = 0x7FEB352D
 _M2 = 0x846CA68B
 
@@ -154,6 +158,14 @@ def define_integrator():
                 table[r] = sl
             P.reg_to_slot = mi.Int32(table)
             P.any_mitsuba_shapes = len(shapes) > 0
+            eps_np = np.full(max(nslots, 1), float(mi.math.RayEpsilon), dtype=np.float32)
+            for s_, sl in zip(shapes, slot_list):
+                if s_.is_mesh() or str(s_).split("[")[0] in _PRECISE_MITSUBA:
+                    eps_np[sl] = OFFSET_EPS
+            for spec in self.custom:
+                if spec.__class__.__name__ == "QuadricSpec":
+                    eps_np[spec.slot] = OFFSET_EPS
+            P.eps_table = mi.Float(eps_np)
             # materials
             default_bsdf = None
             bsdfs = [None] * nslots
@@ -495,14 +507,8 @@ def define_integrator():
                     f = dr.select(mb, fm, f)
                 return f
 
-            # ray offsets (relative to 1 + max|p|): OFFSET_EPS on Mitsuba shapes and quadrics
-            # (their float32 hits are accurate to a few ulps; a small offset keeps shadow rays
-            # that graze an object on the same side as the float64 core), Mitsuba's larger
-            # RayEpsilon on blobs (iterative roots)
-            eps_scale = dr.full(mi.Float, OFFSET_EPS, n)
-            for spec in P.custom:
-                if spec.__class__.__name__ == "BlobSpec":
-                    eps_scale = dr.select(slot == spec.slot, mi.math.RayEpsilon, eps_scale)
+            # ray offsets (relative to 1 + max|p|), per shape: see OFFSET_EPS
+            eps_scale = dr.gather(mi.Float, P.eps_table, uslot, hit)
             eps = (1.0 + dr.max(dr.abs(p))) * eps_scale
 
             def offset(direction):

@@ -20,7 +20,7 @@ SLOT_ID = "_links1_slot_{}"
 
 
 def _color(props, name, default):
-    if props.has_property(name):
+    if (name in props):
         v = props[name]
         try:
             return np.array([float(v[0]), float(v[1]), float(v[2])])

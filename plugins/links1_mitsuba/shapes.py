@@ -22,7 +22,7 @@ MAX_REFINE = 24
 
 
 def _matrix(props, name="to_world"):
-    if props.has_property(name):
+    if (name in props):
         return np.array(props[name].matrix, dtype=np.float64).reshape(4, 4)
     return None
 
@@ -51,23 +51,23 @@ class QuadricSpec:
 
     @classmethod
     def from_props(cls, slot, props):
-        kind = str(props["kind"]).strip().lower() if props.has_property("kind") else ""
+        kind = str(props["kind"]).strip().lower() if ("kind" in props) else ""
         if kind not in ("sphere", "cylinder"):
             raise ValueError(f"links1_quadric: 'kind' must be 'sphere' or 'cylinder', got '{kind}'")
         m = _matrix(props)
         clips, k = [], 0
-        while props.has_property(f"clip_{k}"):
+        while (f"clip_{k}" in props):
             v = props[f"clip_{k}"]
             n = np.array([float(v[0]), float(v[1]), float(v[2])])
             if not np.linalg.norm(n) > 0:
                 raise ValueError(f"links1_quadric: clip_{k}: the plane normal must be non-zero")
-            h = float(props[f"clip_{k}_offset"]) if props.has_property(f"clip_{k}_offset") else 0.0
+            h = float(props[f"clip_{k}_offset"]) if (f"clip_{k}_offset" in props) else 0.0
             clips.append((n, h))
             k += 1
         for key in props.keys():
             if re.fullmatch(r"clip_\d+(_offset)?", key) and int(key.split("_")[1]) >= k:
                 raise ValueError(f"links1_quadric: '{key}' without the planes before it")
-        capped = bool(props["capped"]) if props.has_property("capped") else False
+        capped = bool(props["capped"]) if ("capped" in props) else False
         return cls(slot, props.id(), kind, np.eye(4) if m is None else m, clips, capped)
 
     def bounds(self):
@@ -193,7 +193,7 @@ class BlobSpec:
 
     @classmethod
     def from_props(cls, slot, props):
-        text = str(props["centers"]) if props.has_property("centers") else ""
+        text = str(props["centers"]) if ("centers" in props) else ""
         toks = text.replace(",", " ").split()
         if not toks or len(toks) % 5:
             raise ValueError("links1_blob: 'centers' must hold groups of five numbers x y z w S, "
@@ -201,15 +201,15 @@ class BlobSpec:
         c = np.array([float(t) for t in toks]).reshape(-1, 5)
         if not np.all(np.isfinite(c)) or not np.all(c[:, 4] > 0):
             raise ValueError("links1_blob: centres must be finite with S > 0")
-        if not props.has_property("threshold"):
+        if not ("threshold" in props):
             raise ValueError("links1_blob: 'threshold' is required")
         thr = float(props["threshold"])
         if not thr > 0:
             raise ValueError(f"links1_blob: 'threshold' must be > 0, got {thr}")
-        solver = str(props["solver"]).strip().lower() if props.has_property("solver") else "exact"
+        solver = str(props["solver"]).strip().lower() if ("solver" in props) else "exact"
         if solver not in ("exact", "paper"):
             raise ValueError(f"links1_blob: 'solver' must be 'exact' or 'paper', got '{solver}'")
-        samples = int(props["samples"]) if props.has_property("samples") else 8
+        samples = int(props["samples"]) if ("samples" in props) else 8
         if samples < 1:
             raise ValueError("links1_blob: 'samples' must be >= 1")
         return cls(slot, props.id(), c, thr, solver, samples, _matrix(props))
@@ -444,8 +444,8 @@ def tessellate_bicubic(props, base_dir=None):
         from links1 import meshes
     except ImportError as exc:  # pragma: no cover
         raise RuntimeError("links1_bicubic needs links1.meshes (tessellation)") from exc
-    has_file = props.has_property("filename")
-    has_inline = props.has_property("control_points")
+    has_file = ("filename" in props)
+    has_inline = ("control_points" in props)
     if has_file == has_inline:
         raise ValueError("links1_bicubic needs exactly one of 'filename' and 'control_points'")
     if has_file:
@@ -455,14 +455,14 @@ def tessellate_bicubic(props, base_dir=None):
         patches = meshes.read_patches(fn)
     else:
         patches = meshes.parse_patches(str(props["control_points"]), "<control_points>", with_count=False)
-    sub = int(props["subdivisions"]) if props.has_property("subdivisions") else 8
+    sub = int(props["subdivisions"]) if ("subdivisions" in props) else 8
     v, f, n = meshes.tessellate_patches(patches, sub)
-    if props.has_property("flip_normals") and bool(props["flip_normals"]):
+    if ("flip_normals" in props) and bool(props["flip_normals"]):
         f, n = meshes.flip(f, n)
     m = _matrix(props)
     if m is not None:
         v, n = meshes.transform_mesh(m, v, n)
-    if props.has_property("face_normals") and bool(props["face_normals"]):
+    if ("face_normals" in props) and bool(props["face_normals"]):
         n = None
     return v, f, n
 
@@ -487,10 +487,10 @@ def define_bicubic():
         """
 
         def __init__(self, props):
-            base = props["_links1_base_dir"] if props.has_property("_links1_base_dir") else None
+            base = props["_links1_base_dir"] if ("_links1_base_dir" in props) else None
             v, f, n = tessellate_bicubic(props, base)
             for key in ("subdivisions", "flip_normals", "face_normals", "filename", "control_points"):
-                if props.has_property(key):
+                if (key in props):
                     props.mark_queried(key) if hasattr(props, "mark_queried") else None
             super().__init__(props.id() or "links1_bicubic", len(v), len(f), props,
                              has_vertex_normals=n is not None)

@@ -1,0 +1,59 @@
+"""Fixtures for the Mitsuba plugin tests: skip with a clear reason when Mitsuba cannot run."""
+from __future__ import annotations
+
+import functools
+import os
+
+import pytest
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+DATA = os.path.join(HERE, "data")
+ROOT = os.path.dirname(os.path.dirname(HERE))
+SCENES = os.path.join(ROOT, "scenes")
+
+
+@functools.lru_cache(maxsize=None)
+def variant_problem(variant: str) -> str | None:
+    """None if ``variant`` runs kernels here, else why not (probed in a subprocess)."""
+    try:
+        import mitsuba  # noqa: F401
+        import drjit  # noqa: F401
+    except Exception as exc:  # pragma: no cover - environment dependent
+        return f"mitsuba/drjit cannot be imported: {exc}"
+    import mitsuba as mi
+    if variant not in mi.variants():
+        return f"variant {variant} is not in this Mitsuba build"
+    if variant.startswith("cuda") and not os.path.exists("/dev/nvidiactl"):
+        return "no CUDA GPU on this machine"
+    from links1_mitsuba import probe_variant
+    return probe_variant(variant)
+
+
+def _variant_param(v):
+    marks = [pytest.mark.mitsuba]
+    if v.startswith("cuda"):
+        marks.append(pytest.mark.gpu)
+    return pytest.param(v, marks=marks, id=v)
+
+
+@pytest.fixture(params=[_variant_param("llvm_ad_rgb"), _variant_param("cuda_ad_rgb")])
+def variant(request):
+    """Each test runs on llvm_ad_rgb and, where a GPU exists, on cuda_ad_rgb (validation e)."""
+    why = variant_problem(request.param)
+    if why:
+        pytest.skip(f"{request.param} unavailable: {why}")
+    import links1_mitsuba
+    return links1_mitsuba.register(request.param)
+
+
+@pytest.fixture
+def llvm():
+    why = variant_problem("llvm_ad_rgb")
+    if why:
+        pytest.skip(f"llvm_ad_rgb unavailable: {why}")
+    import links1_mitsuba
+    return links1_mitsuba.register("llvm_ad_rgb")
+
+
+def data(name: str) -> str:
+    return os.path.join(DATA, name)
