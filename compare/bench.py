@@ -55,7 +55,11 @@ MODES = {
 
 
 def scene_paths(names=None) -> list[Path]:
-    paths = sorted(SCENES.glob("*.xml"))
+    # Mitsuba-only scenes first (the ratios to Mitsuba), the costliest scenes last (a --quick
+    # budget then cuts those).
+    last = {"bicubic": 1, "many": 2}
+    paths = sorted(SCENES.glob("*.xml"),
+                   key=lambda p: (not common.mitsuba_only(p), last.get(p.stem, 0), p.stem))
     if names:
         want = []
         for n in names:
