@@ -117,8 +117,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, help="output image (.exr or .png)")
     p.add_argument("--repeat", type=_nonneg_int("--repeat"), default=0,
                    help="render N more frames and print 'timing: first= median= min= max=' (ms) on stderr")
-    p.add_argument("--min-weight", type=float, default=0.0,
-                   help="stop a ray-tree branch whose weight falls below this (0: never)")
+    p.add_argument("--min-weight", type=float, default=None,
+                   help="stop a ray-tree branch whose weight falls to this or below (default 1/255; 0: never)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--debug", action="store_true", help="show tracebacks")
     p.set_defaults(func=cmd_render)
@@ -175,7 +175,7 @@ def renderer_options(args) -> dict:
 def make_cli_renderer(args):
     from .render import make_renderer
     opts = renderer_options(args)
-    if getattr(args, "min_weight", 0.0):
+    if getattr(args, "min_weight", None) is not None:
         opts["min_weight"] = args.min_weight
     if args.renderer == "mitsuba":
         opts["variant"] = args.variant
@@ -190,7 +190,7 @@ def cmd_render(args) -> int:
     kind = _output_kind(args.output)
     if kind == "png" and args.aov:
         raise UsageError("AOVs need an EXR output (-o something.exr)")
-    if args.min_weight < 0:
+    if args.min_weight is not None and not args.min_weight >= 0:
         raise UsageError(f"--min-weight must be >= 0, got {args.min_weight}")
     distributed = getattr(args, "workers", None) not in (None, 0) or getattr(args, "dask_local", None) \
         or getattr(args, "scheduler", None)

@@ -21,6 +21,9 @@ from .vec import dot, max_abs
 #: intersection error of every primitive here, far below any feature size a scene has).
 OFFSET_SCALE = 2.0 ** -32
 
+#: Default weight below which a branch of the ray tree is not traced (POV-Ray's adc_bailout).
+DEFAULT_MIN_WEIGHT = 1.0 / 255.0
+
 
 @dataclass
 class Hits:
@@ -61,10 +64,10 @@ class WhittedIntegrator:
         Surface interactions along one branch of the ray tree (primary hit = 1).
     min_weight : float
         A secondary ray is spawned only if its weight in the pixel (largest RGB component of
-        the product of r and t factors down the tree) is at least this (0 traces all).
+        the product of r and t factors down the tree) exceeds this (default 1/255; 0 traces all).
     """
 
-    def __init__(self, scene, max_depth: int | None = None, min_weight: float = 0.0):
+    def __init__(self, scene, max_depth: int | None = None, min_weight: float = DEFAULT_MIN_WEIGHT):
         self.scene = scene
         self.max_depth = scene.max_depth if max_depth is None else int(max_depth)
         if self.max_depth < 1:

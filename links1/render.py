@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from .errors import UsageError
-from .integrator import WhittedIntegrator
+from .integrator import DEFAULT_MIN_WEIGHT, WhittedIntegrator
 from .sampling import sample_offsets
 
 AOVS = {"depth": ("depth",), "normal": ("normal.X", "normal.Y", "normal.Z"), "id": ("id",), "cost": ("cost",)}
@@ -47,7 +47,7 @@ def _check_window(window, width, height):
 
 
 def render(scene, *, spp: int | None = None, max_depth: int | None = None, seed: int = 0,
-           window=None, aovs=(), min_weight: float = 0.0, progress: bool = False,
+           window=None, aovs=(), min_weight: float = DEFAULT_MIN_WEIGHT, progress: bool = False,
            width: int | None = None, height: int | None = None) -> np.ndarray:
     """Render ``scene`` with the float64 core.
 
@@ -66,7 +66,8 @@ def render(scene, *, spp: int | None = None, max_depth: int | None = None, seed:
         the same pixels of a full render, bit for bit. Default: the film's crop window.
     aovs : sequence of {"depth", "normal", "id", "cost"}
     min_weight : float
-        Stop a branch of the ray tree when its weight drops below this (0: never).
+        Stop a branch of the ray tree when its weight drops to this or below (default 1/255,
+        POV-Ray's adc_bailout; 0: never).
     width, height : int, optional
         Override the film resolution (the field of view is kept).
 
@@ -151,7 +152,7 @@ class CoreRenderer:
     kind = "core"
 
     def __init__(self, path, *, params=None, spp=None, max_depth=None, seed=0, aovs=(),
-                 min_weight=0.0, width=None, height=None, variant=None):
+                 min_weight=DEFAULT_MIN_WEIGHT, width=None, height=None, variant=None):
         from .loader import load_scene
         self.path = str(path)
         self.scene = load_scene(self.path, **(params or {}))

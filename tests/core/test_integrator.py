@@ -252,7 +252,7 @@ def test_min_weight_prunes_the_tree_within_its_bound():
     a = quad(z=0.0, material=m, name="a")
     b = quad(z=1.0, material=m, name="b", normal_up=False)
     sc = scene_of([a, b], [], max_depth=20)
-    full, integ_full, _ = trace(sc, [0, 0, 0.5], [0, 0, -1])
+    full, integ_full, _ = trace(sc, [0, 0, 0.5], [0, 0, -1], min_weight=0.0)
     pruned, integ, _ = trace(sc, [0, 0, 0.5], [0, 0, -1], min_weight=1 / 255)
     assert integ.stats.rays["reflect"] < integ_full.stats.rays["reflect"]
     # the dropped tail is bounded by the weight threshold times the largest radiance (0.1 / (1 - 0.5))
