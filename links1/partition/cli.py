@@ -8,9 +8,10 @@
 ``render_distributed(args) -> (image (H, W, C) float64, channel names)``
     renders with those options (``args`` also carries the shared render options: scene,
     renderer, variant, integrator, spp, width, height, max_depth, seed, aov, defines,
-    min_weight, no_progress). ``--workers auto`` (the default) uses the usable cores when
-    more than one is there and the frame is big enough to pay for the start-up, else
-    renders in-process.
+    min_weight, no_progress). ``--workers auto`` (the default) uses the usable cores for
+    the core renderer when more than one is there and the frame has at least
+    ``AUTO_MIN_WORK`` pixel samples; otherwise (and always for the Mitsuba renderer, whose
+    Dr.Jit kernels already use every core) it renders the full frame in-process.
 ``add_cli(subparsers)``
     adds ``links1 schedule``.
 """
@@ -215,9 +216,26 @@ def prepare(args, *, nodes=None):
     return spec, model, channels, plan, backend
 
 
+def _auto_in_process(args) -> bool:
+    """--workers auto resolves to in-process: one core, a Mitsuba renderer (Dr.Jit already uses every
+    core and a window costs more than its share of a frame there), or a frame under AUTO_MIN_WORK."""
+    if getattr(args, "workers", None) != "auto" or args.scheduler or args.dask_local or args.checkpoint or args.cull:
+        return False
+    from .executors import default_workers
+    if default_workers() == 0 or args.renderer != "core":
+        return True
+    from .runtime import get_renderer
+    w, h = get_renderer(_spec_from_args(args)).film_size
+    return w * h * (args.spp or 1) < AUTO_MIN_WORK
+
+
 def render_distributed(args):
     """Render per ``args`` on the chosen nodes -> ``(image (H, W, C) float64, channel names)``."""
     from .executors import render_plan
+    if _auto_in_process(args):  # --workers auto found nothing worth distributing: one full frame here
+        from .runtime import get_renderer
+        r = get_renderer(_spec_from_args(args))
+        return r.render(window=(0, 0, *r.film_size)), list(r.channels)
     spec, model, channels, plan, backend = prepare(args)
     ckpt = None
     if args.checkpoint:
