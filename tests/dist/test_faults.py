@@ -142,3 +142,28 @@ def test_checkpoint_ignores_other_configurations(tmp_path):
     assert other.key != spec.key
     res = render_plan(plan, other, InProcess(), progress=False, checkpoint=Checkpoint(tmp_path, other.key))
     assert res.resumed == 0 and res.image.shape[2] == 3
+
+
+@pytest.mark.dask
+def test_dask_worker_joining_mid_render_gets_units():
+    pytest.importorskip("distributed")
+    from links1.partition.dask_backend import DaskBackend
+    spec = RendererSpec.make(FAKE, "fake", sleep_per_row=0.03)
+    plan = make_plan("dynamic", 48, 32, 1, unit="scanline", order="walk")
+
+    class _Grow:  # after the 3rd finished unit, a second worker joins the cluster
+        def __init__(self, be):
+            self.be, self.n = be, 0
+
+        def load(self, unit):
+            return None
+
+        def save(self, unit, pixels):
+            self.n += 1
+            if self.n == 3:
+                self.be.cluster.scale(2)
+
+    with DaskBackend(n_local=1) as be:
+        res = render_plan(plan, spec, be, progress=False, checkpoint=_Grow(be))
+    assert np.array_equal(res.image, REF)
+    assert len({r["pid"] for r in res.records.values()}) == 2
