@@ -2,7 +2,6 @@
 expectations (docs numerics stress cases 5, 6, 8, 9, 11, 12)."""
 from __future__ import annotations
 
-import time
 
 import numpy as np
 import pytest
@@ -204,7 +203,7 @@ def test_mesh_validation():
         TriangleMesh([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]], normals=np.zeros((2, 3)))
 
 
-def test_mesh_5000_triangles_256x256_is_fast():
+def test_mesh_5000_triangles_bvh_culls():
     v, f = uv_sphere(50, 52)
     assert 4900 <= len(f) <= 5100
     m = TriangleMesh(v, f)
@@ -213,16 +212,12 @@ def test_mesh_5000_triangles_256x256_is_fast():
     o = np.stack([x.ravel(), y.ravel(), np.full(n * n, -5.0)], -1)
     d = np.tile([0, 0, 1.0], (n * n, 1))
     cost = np.zeros(n * n, dtype=np.int64)
-    m.intersect(o[:256], d[:256], 0.0, INF)  # warm-up
-    t0 = time.perf_counter()
     t, _ = m.intersect(o, d, np.zeros(n * n), np.full(n * n, INF), cost)
-    dt = time.perf_counter() - t0
     r2 = x.ravel() ** 2 + y.ravel() ** 2
     # The tessellation lies inside the unit sphere: hits inside, misses outside.
     assert np.all(np.isinf(t[r2 > 1.0]))
     assert np.all(np.isfinite(t[r2 < 0.99]))
-    assert cost.mean() < 20  # the hierarchy culls: a handful of leaves per ray
-    assert dt < 2.5, f"{dt:.2f} s for 65536 rays"  # ~0.25 s on an idle core
+    assert cost.mean() < 20  # the hierarchy culls: a handful of leaves per ray (speed: compare/)
 
 
 # ---------------------------------------------------------------------------- quadrics
