@@ -36,28 +36,25 @@ examples:
 EXTENSIONS = ("links1.diff", "links1.partition.cli")
 
 
-def _positive_int(name):
+def int_option(name, minimum: int = 1):
+    """An argparse type: an integer >= ``minimum``, with a message naming the option."""
     def parse(text):
         try:
             v = int(text)
         except ValueError:
             raise argparse.ArgumentTypeError(f"{name} must be an integer, got {text!r}") from None
-        if v <= 0:
-            raise argparse.ArgumentTypeError(f"{name} must be > 0, got {v}")
+        if v < minimum:
+            raise argparse.ArgumentTypeError(f"{name} must be >= {minimum}, got {v}")
         return v
     return parse
+
+
+def _positive_int(name):
+    return int_option(name, 1)
 
 
 def _nonneg_int(name):
-    def parse(text):
-        try:
-            v = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{name} must be an integer, got {text!r}") from None
-        if v < 0:
-            raise argparse.ArgumentTypeError(f"{name} must be >= 0, got {v}")
-        return v
-    return parse
+    return int_option(name, 0)
 
 
 def _define(text):

@@ -222,20 +222,12 @@ class Dielectric(Material):
 
 
 @dataclass
-class ThinDielectric(Material):
+class ThinDielectric(Dielectric):
     """Mitsuba ``thindielectric``: a thin slab; transmitted rays go straight through."""
 
-    eta: float = 1.5046 / 1.000277
-    specular_reflectance: np.ndarray = field(default_factory=lambda: np.ones(3))
-    specular_transmittance: np.ndarray = field(default_factory=lambda: np.ones(3))
-    name: str = ""
-
     def __post_init__(self):
-        self.eta = float(self.eta)
-        self.specular_reflectance = _rgb(self.specular_reflectance)
-        self.specular_transmittance = _rgb(self.specular_transmittance)
-        self.has_reflection = True
-        self.has_transmission = True
+        super().__post_init__()
+        self.scale_radiance = False  # in and out of the slab: no net radiance scaling
 
     def specular(self, wo, n, entering):
         R = fresnel_dielectric(np.abs(_dot(wo, n)), self.eta)

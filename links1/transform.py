@@ -22,13 +22,17 @@ def scale(v) -> np.ndarray:
     return np.diag([v[0], v[1], v[2], 1.0])
 
 
-def rotate(axis, angle_deg: float) -> np.ndarray:
-    """Rotation about ``axis`` by ``angle_deg`` degrees (right-handed, as Mitsuba's ``rotate``)."""
+def rotate(axis, angle_deg: float, normalize_axis: bool = True) -> np.ndarray:
+    """Rotation about ``axis`` by ``angle_deg`` degrees (right-handed), Rodrigues' matrix.
+
+    ``normalize_axis=False`` keeps the axis as given, as Mitsuba 3.9.1's ``Transform4f::rotate``
+    does (not a rotation unless the axis is a unit vector).
+    """
     a = np.asarray(axis, dtype=np.float64)
     n = np.linalg.norm(a)
     if not n > 0:
         raise ValueError("rotation axis must be non-zero")
-    x, y, z = a / n
+    x, y, z = a / n if normalize_axis else a
     th = np.deg2rad(angle_deg)
     c, s = np.cos(th), np.sin(th)
     C = 1.0 - c

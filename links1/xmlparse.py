@@ -556,19 +556,8 @@ class _Parser:
 
 
 def _rotate_raw(axis: np.ndarray, angle_deg: float) -> np.ndarray:
-    """Mitsuba's ``Transform4f::rotate``: Rodrigues' matrix of the axis *as given* (not normalised).
-
-    Equal to :func:`links1.transform.rotate` for a unit axis.
-    """
-    x, y, z = (float(c) for c in axis)
-    th = math.radians(angle_deg)
-    c, s = math.cos(th), math.sin(th)
-    C = 1.0 - c
-    m = np.eye(4)
-    m[:3, :3] = [[x * x * C + c, x * y * C - z * s, x * z * C + y * s],
-                 [y * x * C + z * s, y * y * C + c, y * z * C - x * s],
-                 [z * x * C - y * s, z * y * C + x * s, z * z * C + c]]
-    return m
+    """Mitsuba's ``Transform4f::rotate``: Rodrigues' matrix of the axis *as given* (not normalised)."""
+    return tf.rotate(axis, angle_deg, normalize_axis=False)
 
 
 def _snake(name: str) -> str:

@@ -22,6 +22,7 @@ import os
 import sys
 import warnings
 
+from ..cli import int_option
 from ..errors import UsageError
 from .strategies import STRATEGIES, UNITS
 
@@ -32,27 +33,11 @@ _BACKENDS: dict = {}  # reused across --repeat frames in one process
 
 
 def _workers(text):
-    if text == "auto":
-        return text
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"--workers must be an integer or 'auto', got {text!r}") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"--workers must be >= 0, got {v}")
-    return v
+    return text if text == "auto" else int_option("--workers (an integer or 'auto')", 0)(text)
 
 
 def _pos(name):
-    def parse(text):
-        try:
-            v = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{name} must be an integer, got {text!r}") from None
-        if v <= 0:
-            raise argparse.ArgumentTypeError(f"{name} must be > 0, got {v}")
-        return v
-    return parse
+    return int_option(name, 1)
 
 
 def _nodes_list(text):
