@@ -6,9 +6,12 @@ or the Mitsuba plugin integrator via :mod:`links1_mitsuba`).
 """
 from __future__ import annotations
 
+import os
+import re
+
 import numpy as np
 
-from .errors import UsageError
+from .errors import Links1Error, SceneError, UsageError
 from .integrator import DEFAULT_MIN_WEIGHT, WhittedIntegrator
 from .sampling import sample_offsets
 
@@ -206,5 +209,57 @@ def make_renderer(kind: str, path, **options):
             from links1_mitsuba import MitsubaRenderer
         except ImportError as e:
             raise UsageError(f"the mitsuba renderer is unavailable: {e}") from None
-        return MitsubaRenderer(path, **options)
+        _validate_for_mitsuba(path, options.get("params") or {})
+        try:
+            return MitsubaRenderer(path, **options)
+        except (RuntimeError, ValueError, OSError, IndexError) as e:
+            if isinstance(e, Links1Error):
+                raise
+            if isinstance(e, IndexError):  # the plugin found no sensor to render from
+                raise SceneError("the scene has no sensor (add a <sensor type='perspective'>)",
+                                 file=str(path)) from None
+            raise SceneError(mitsuba_message(e, path)) from None
     raise UsageError(f"unknown renderer {kind!r}; choose 'mitsuba' or 'core'")
+
+
+def _validate_for_mitsuba(path, params) -> None:
+    """Check a scene with the core's reader before Mitsuba sees it: the reader names file,
+    line and element for bad values (NaN, negative sizes, bad links1 parameters) that
+    Mitsuba would accept or crash on. Plugins the core lacks are left to Mitsuba."""
+    import warnings
+
+    from .loader import load_scene
+    if not os.path.exists(path):
+        raise SceneError("scene file not found", file=str(path))
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            load_scene(path, **params)
+    except SceneError as e:
+        if "not supported by the core" not in e.message:
+            raise
+
+
+def mitsuba_message(exc: BaseException, path) -> str:
+    """One line from a Mitsuba loading error: the last line of a Python traceback, no
+    ``[parser.cpp:NNN]`` source tags, and ``(offset N)`` turned into the file's line number."""
+    text = str(exc)
+    lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
+    msg = lines[-1] if lines else type(exc).__name__
+    if len(lines) > 1 and "Traceback" in text:
+        where = _SOURCE_TAG.sub("", lines[0]).split(": failed")[0]  # "At FILE (line L, col C)"
+        msg = f"{where}: {msg}"
+    msg = _SOURCE_TAG.sub("", msg)
+
+    def line_of(m):
+        try:
+            with open(m.group(1), "rb") as f:
+                line = f.read(int(m.group(2))).count(b"\n") + 1
+            return f"{m.group(1)}:{line}"
+        except OSError:
+            return m.group(0)
+    return _OFFSET.sub(line_of, msg)
+
+
+_SOURCE_TAG = re.compile(r"\[[\w./]+:\d+\]\s*")
+_OFFSET = re.compile(r"(\S+) \(offset (\d+)\)")

@@ -98,6 +98,9 @@ def _prepare_state(state, config, integrator: str, base_dir: str | None):
         integ_node.type = mi.ObjectType.Integrator
         integ_node.props = mi.Properties("links1_whitted")
         nodes.append(integ_node)
+        # The append may reallocate the C++ node vector: earlier references into it (such
+        # as ``root``) dangle, so fetch the root again before writing to it.
+        root = nodes[0]
         root.props["_links1_integrator"] = mi.Properties.ResolvedReference(len(nodes) - 1)
         integ_node = nodes[len(nodes) - 1]
     else:

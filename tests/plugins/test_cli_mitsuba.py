@@ -1,0 +1,50 @@
+"""`links1 render` with the default (Mitsuba) renderer: bad scenes are one-line errors, exit 2."""
+from __future__ import annotations
+
+import pytest
+
+from links1.cli import main
+
+pytestmark = pytest.mark.mitsuba
+
+
+@pytest.fixture(autouse=True)
+def _llvm():
+    from tests.plugins.llvm_probe import require_llvm_variant
+    require_llvm_variant()
+
+
+@pytest.mark.parametrize("body,needle", [
+    ("<shape type='nosuch'/>", "nosuch"),
+    ("<shape type='sphere'><float name='radius' value='-1'/></shape>", "radius"),
+    ("<shape type='links1_blob'><string name='centers' value='0 0 0 1'/><float name='threshold' value='0.5'/></shape>",
+     "centers"),
+    ("<bsdf type='links1_phong' id='x'><float name='ior' value='-1'/></bsdf><shape type='sphere'><ref id='x'/></shape>",
+     "ior"),
+    ("<shape type='sphere'/>", "no sensor"),
+])
+def test_bad_scene_one_line_exit_2(tmp_path, capsys, body, needle):
+    scene = tmp_path / "bad.xml"
+    scene.write_text(f"<scene version='3.0.0'>\n{body}\n</scene>\n")
+    out = tmp_path / "out.png"
+    out.write_bytes(b"earlier")
+    rc = main(["render", str(scene), "--renderer", "mitsuba", "--workers", "0", "-o", str(out)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2
+    errors = [ln for ln in err if ln.startswith("links1: error:")]
+    assert len(errors) == 1 and needle in errors[0] and "bad.xml" in errors[0]
+    assert out.read_bytes() == b"earlier"
+
+
+def test_scene_without_integrator_renders(tmp_path):
+    """A file that names no integrator gets links1_whitted (the loader adds the node)."""
+    from links1.image import read_exr
+    scene = tmp_path / "ok.xml"
+    scene.write_text("<scene version='3.0.0'><sensor type='perspective'><film type='hdrfilm'>"
+                     "<integer name='width' value='8'/><integer name='height' value='6'/></film></sensor>"
+                     "<shape type='sphere'><point name='center' x='0' y='0' z='5'/></shape>"
+                     "<emitter type='point'><point name='position' x='0' y='0' z='0'/></emitter></scene>")
+    out = tmp_path / "ok.exr"
+    assert main(["render", str(scene), "--renderer", "mitsuba", "--workers", "0", "-o", str(out)]) == 0
+    img, _ = read_exr(str(out))
+    assert img.shape[:2] == (6, 8) and img[3, 4, 0] > 0
