@@ -27,6 +27,9 @@ INF = float("inf")
 #: blobs (iterative roots) use Mitsuba's RayEpsilon (self-shadowing otherwise).
 OFFSET_EPS = 2.0 ** -19
 _PRECISE_MITSUBA = ("Mesh", "OBJMesh", "PLYMesh", "Rectangle", "Disk", "Links1Bicubic", "SerializedMesh")
+#: Default weight below which a branch of the ray tree is not traced (POV-Ray's adc_bailout;
+#: the same default as links1.integrator.DEFAULT_MIN_WEIGHT).
+DEFAULT_MIN_WEIGHT = 1.0 / 255.0
 _M1 = 0x7FEB352D
 _M2 = 0x846CA68B
 
@@ -88,6 +91,9 @@ def define_integrator():
                              (primary hit = 1; 1 = direct light only)
         seed        integer  seed of the sample pattern (links1.sampling)                0
         aovs        string   comma-separated extra channels: depth, normal, id, cost     ""
+        min_weight  float    a secondary ray is traced only if the largest RGB component  1/255
+                             of its weight in the pixel (product of the r / t factors
+                             down the tree) exceeds this; 0 traces every branch
         ==========  =======  ==========================================================  =======
 
         Shading: ``links1_phong`` surfaces use eq. (3.11) (ambient + diffuse + highlight),
@@ -113,6 +119,9 @@ def define_integrator():
                 raise ValueError(f"links1_whitted: max_depth must be >= 1 (or -1), got {md}")
             self.max_depth = md
             self.seed = int(props.get("seed", 0))
+            self.min_weight = float(props.get("min_weight", DEFAULT_MIN_WEIGHT))
+            if not self.min_weight >= 0:
+                raise ValueError(f"links1_whitted: min_weight must be >= 0, got {self.min_weight}")
             self.aovs = parse_aovs(props.get("aovs", ""))
             self.custom_bsdfs = {}
             for key in props.keys():
@@ -645,9 +654,15 @@ def define_integrator():
             o, d, tmin, tmax, key, i = self._camera_rays(P, x0, y0, w, h, spp, seed)
             levels = []
             depth = 1
+            wgt = mi.Color3f(1.0)
             while True:
                 spawn = depth < self.max_depth and P.any_specular
                 res = self._level(P, scene, o, d, tmin, tmax, key, depth, spawn)
+                if spawn and self.min_weight > 0:
+                    # weight threshold (as the core): spawn only if max_RGB(weight × factor) > min_weight
+                    w_r, w_t = res["r"] * wgt, res["tw"] * wgt
+                    res["has_r"] = res["has_r"] & (dr.max(w_r) > self.min_weight)
+                    res["has_t"] = res["has_t"] & (dr.max(w_t) > self.min_weight)
                 keep = [res["L"], res["cost"]]
                 if depth == 1 and aovs:
                     keep += [res["t"], res["slot"], res["ns"]]
@@ -678,10 +693,12 @@ def define_integrator():
                               gl(res["o_r"], par, ~is_t))
                 d = dr.select(is_t, gl(res["dir_t"], par, is_t),
                               gl(res["dir_r"], par, ~is_t))
+                if self.min_weight > 0:
+                    wgt = dr.select(is_t, gl(w_t, par, is_t), gl(w_r, par, ~is_t))
                 key = mix32(dr.gather(mi.UInt32, key, par) ^ dr.select(is_t, mi.UInt32(0xA511E9B3), mi.UInt32(0x63D83595)))
                 tmin = dr.zeros(mi.Float, nr + nt)
                 tmax = dr.full(mi.Float, INF, nr + nt)
-                dr.eval(o, d, key)
+                dr.eval(o, d, key, wgt)
                 depth += 1
             # ---- backward pass: I = I_o + r I_r + t I_t (eq. 3.16), deterministic gathers
             total = levels[-1]["L"]

@@ -105,7 +105,7 @@ def _prepare_state(state, config, integrator: str, base_dir: str | None):
         integ_node = nodes[len(nodes) - 1]
     else:
         old = integ_node.props.plugin_name()
-        keep = {"max_depth", "seed", "aovs"}
+        keep = {"max_depth", "seed", "aovs", "min_weight"}
         if old != "links1_whitted":
             keep = {"max_depth"}
         for k in list(integ_node.props.keys()):

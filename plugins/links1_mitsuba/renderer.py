@@ -4,7 +4,26 @@ from __future__ import annotations
 import numpy as np
 
 from ._registry import register
-from .integrator import AOV_CHANNELS, parse_aovs
+from .integrator import AOV_CHANNELS, DEFAULT_MIN_WEIGHT, parse_aovs
+
+
+def _resize_film(sensor, width, height):
+    """Give ``sensor``'s film a new resolution keeping ``x_fov`` (crop = whole film)."""
+    import mitsuba as mi
+    size = sensor.film().size()
+    w = int(size[0]) if width is None else int(width)
+    h = int(size[1]) if height is None else int(height)
+    if w <= 0 or h <= 0:
+        raise ValueError(f"resolution must be positive, got {w}x{h}")
+    prm = mi.traverse(sensor)
+    keys = set(prm.keys())
+    x_fov = prm["x_fov"] if "x_fov" in keys else None
+    prm["film.size"] = [w, h]
+    prm["film.crop_size"] = [w, h]
+    prm["film.crop_offset"] = [0, 0]
+    if x_fov is not None:
+        prm["x_fov"] = x_fov  # the sensor derives its projection from the new size and this
+    prm.update()
 
 
 class MitsubaRenderer:
@@ -27,6 +46,13 @@ class MitsubaRenderer:
     integrator : {"links1", "scene"}
         ``"scene"`` renders with the integrator the file names (Mitsuba's ``path``/``direct``
         ...) through ``mi.render`` with a crop window (kernels then recompile per window).
+    width, height : int, optional
+        Override the film resolution, keeping the horizontal field of view (as the core's
+        ``links1.render._resized``); the crop window becomes the whole new film.
+    min_weight : float
+        A secondary ray is traced only if its weight in the pixel (largest RGB component of the
+        product of the r / t factors down the ray tree) exceeds this; default 1/255 (POV-Ray's
+        adc_bailout, as the core); 0 traces every branch. links1 integrator only.
 
     ``render(window)`` passes the window to the kernels as run-time values: no recompilation
     per window; a window renders the same bits as the same pixels of the full frame.
@@ -35,7 +61,8 @@ class MitsubaRenderer:
     kind = "mitsuba"
 
     def __init__(self, path, *, params=None, spp=None, max_depth=None, seed=0, aovs=(),
-                 variant=None, integrator="links1"):
+                 variant=None, integrator="links1", width=None, height=None,
+                 min_weight=DEFAULT_MIN_WEIGHT):
         self.variant = register(variant)
         import mitsuba as mi
         from .loader import load_file
@@ -45,6 +72,11 @@ class MitsubaRenderer:
         self.seed = int(seed)
         self.aovs = parse_aovs(aovs)
         sensor = self.scene.sensors()[0]
+        if width is not None or height is not None:
+            _resize_film(sensor, width, height)
+        self.min_weight = float(min_weight)
+        if not self.min_weight >= 0:
+            raise ValueError(f"min_weight must be >= 0, got {min_weight}")
         self.spp = int(spp) if spp else int(sensor.sampler().sample_count())
         if self.spp < 1:
             raise ValueError(f"spp must be >= 1, got {self.spp}")
@@ -56,6 +88,8 @@ class MitsubaRenderer:
                 if int(max_depth) < 1:
                     raise ValueError(f"max_depth must be >= 1, got {max_depth}")
                 self.integrator.max_depth = int(max_depth)
+            self.integrator.min_weight = self.min_weight
+            self.integrator._prep = None
             self.integrator.prepare(self.scene)
         else:
             if self.aovs:
@@ -83,9 +117,9 @@ class MitsubaRenderer:
         import mitsuba as mi
         W, H = self._film
         x0, y0, w, h = (0, 0, W, H) if window is None else (int(v) for v in window)
-        prm = mi.traverse(self.scene)
-        prm["sensor.film.crop_offset"] = [x0, y0]
-        prm["sensor.film.crop_size"] = [w, h]
+        prm = mi.traverse(self.scene.sensors()[0])  # keys do not depend on the sensor's id
+        prm["film.crop_offset"] = [x0, y0]
+        prm["film.crop_size"] = [w, h]
         prm.update()
         img = mi.render(self.scene, spp=self.spp, seed=self.seed)
         return np.array(img, dtype=np.float64)[:, :, :3]

@@ -54,3 +54,32 @@ def test_shapes_info_and_register_idempotent(llvm):
                           "transmissive", "nbytes"}
         assert np.all(d["bounds_lo"] <= d["bounds_hi"])
     assert any(d["reflective"] for d in info) and any(d["transmissive"] for d in info)
+
+
+@pytest.mark.skipif(not os.path.exists(FIG11), reason="scenes/fig11.xml missing")
+def test_width_height_override_matches_core(llvm):
+    from links1.render import make_renderer
+    plug = make_renderer("mitsuba", FIG11, width=24, height=18, spp=1)
+    core = make_renderer("core", FIG11, width=24, height=18, spp=1)
+    assert plug.film_size == core.film_size == (24, 18)
+    a, b = plug.render(), core.render()
+    assert a.shape == b.shape == (18, 24, 3)
+    assert float(np.sum((a - b) ** 2) / np.sum(b ** 2)) <= 1e-5
+    # the window contract holds on the resized film
+    assert np.array_equal(plug.render((3, 4, 10, 9)), a[4:13, 3:13])
+
+
+@pytest.mark.skipif(not os.path.exists(FIG11), reason="scenes/fig11.xml missing")
+@pytest.mark.parametrize("min_weight", [0.0, 0.05])
+def test_min_weight_matches_core(llvm, min_weight):
+    from links1.render import make_renderer
+    kw = dict(params={"res": 64}, spp=1, min_weight=min_weight)
+    a = make_renderer("mitsuba", FIG11, **kw).render()
+    b = make_renderer("core", FIG11, **kw).render()
+    assert float(np.sum((a - b) ** 2) / np.sum(b ** 2)) <= 1e-5
+
+
+def test_min_weight_default_matches_core():
+    from links1.integrator import DEFAULT_MIN_WEIGHT as CORE
+    from links1_mitsuba.integrator import DEFAULT_MIN_WEIGHT as PLUG
+    assert CORE == PLUG == 1.0 / 255.0
