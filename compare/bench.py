@@ -21,7 +21,8 @@ Reference: the core at ``ref_spp`` (256; 64 with ``--quick``) with seed
 Mitsuba-only scene the Mitsuba integrator the file names (``direct`` or ``path``; the
 Mitsuba-only scenes are built so that it computes what Whitted recursion computes: Mitsuba
 ``path`` on a diffuse scene would add indirect light, which Whitted has not) at ``ref_spp``
-with the same seed.
+with the same seed. The reference traces every branch (``min_weight = 0``); the measured
+renders use each renderer's default weight threshold (1/255).
 
 Ratios: time of each renderer / time of the Mitsuba integrator the scene file names,
 measured in the same run at the same spp (Mitsuba-only scenes only; elsewhere Mitsuba
@@ -169,7 +170,8 @@ def main(argv=None) -> int:
         if ref_kind != "core" and not _mitsuba_status()[0]:
             ref_kind = "core"
         ref = common.run_job({"scene": str(path), "renderer": ref_kind, "params": params,
-                              "spp": [mode["ref_spp"]], "repeats": 0, "seed": REF_SEED},
+                              "spp": [mode["ref_spp"]], "repeats": 0, "seed": REF_SEED,
+                              "min_weight": 0.0},
                              timeout=max(mode["timeout"], 120))
         if not ref.get("ok"):
             entry["reference"] = {"renderer": ref_kind, "skipped": ref.get("reason")}
@@ -255,7 +257,8 @@ def _markdown(p) -> str:
            common.machine_markdown(p["machine"], p["command"]),
            f"\nFilm {m['res']}×{m['res']}; warm median of {m['repeats']} frames after one warm-up "
            f"frame (`first` = the warm-up frame, kernel compilation included); reference = core "
-           f"(on Mitsuba-only scenes: the Mitsuba integrator the file names) at {m['ref_spp']} spp, seed {p['ref_seed']}. "
+           f"(on Mitsuba-only scenes: the Mitsuba integrator the file names) at {m['ref_spp']} spp, seed {p['ref_seed']}, "
+           f"min_weight 0 (measured renders: the renderers' default 1/255). "
            f"relMSE = mean((x−ref)²/(ref²+0.01)); FLIP = mean LDR-FLIP. "
            f"×mi = time / the scene's own Mitsuba integrator's time at the same spp, same run; "
            f"×core = time / core time. The machine is shared (2 cores): timings are noisy. "

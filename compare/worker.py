@@ -3,7 +3,7 @@
 Job keys: ``scene`` (path), ``renderer`` (see :data:`compare.common.RENDERERS`), ``params``
 (``$name`` values), ``spp`` (list), ``repeats`` (timed frames after one warm-up frame;
 0 = one untimed-warm-up-free frame only), ``seed``, ``max_depth`` (optional),
-``min_weight`` (core only), ``aovs``, ``out`` (npz path for the images), ``core_patch``
+``min_weight`` (absent: the renderer's default), ``aovs``, ``out`` (npz path for the images), ``core_patch``
 (core only: names of skip-disabling patches, see :mod:`compare.skip_study`).
 
 Prints one JSON line: ``ok``, ``load_s``, ``results`` = per spp ``{spp, first_s, times,
@@ -36,9 +36,9 @@ def _core(job):
             created.append(self)
 
     R.WhittedIntegrator = Recording
+    kw = {} if job.get("min_weight") is None else {"min_weight": float(job["min_weight"])}
     r = R.CoreRenderer(job["scene"], params=job.get("params"), spp=1, seed=job.get("seed", 0),
-                       max_depth=job.get("max_depth"), aovs=tuple(job.get("aovs") or ()),
-                       min_weight=float(job.get("min_weight", 0.0)))
+                       max_depth=job.get("max_depth"), aovs=tuple(job.get("aovs") or ()), **kw)
 
     def render(spp):
         r.spp = spp
@@ -52,9 +52,10 @@ def _core(job):
 
 def _links1(job, variant):
     from links1.render import make_renderer
+    kw = {} if job.get("min_weight") is None else {"min_weight": float(job["min_weight"])}
     r = make_renderer("mitsuba", job["scene"], params=job.get("params"), spp=1,
                       seed=job.get("seed", 0), max_depth=job.get("max_depth"),
-                      aovs=tuple(job.get("aovs") or ()), variant=variant)
+                      aovs=tuple(job.get("aovs") or ()), variant=variant, **kw)
 
     def render(spp):
         r.spp = spp
