@@ -1,14 +1,22 @@
 """``links1_whitted``: the LINKS-1 method (digest §2–4) as a Mitsuba 3 integrator in Dr.Jit.
 
-Recursion design: a wavefront over depths. Level ``k`` holds the rays of depth ``k`` of every
-pixel's ray tree; one kernel intersects them (Mitsuba shapes through ``scene.ray_intersect``,
-links1 quadrics and blobs in Dr.Jit, nearest wins) and shades them (eq. 3.11 under every
-light, shadow rays with transmittance); mirror and refraction children are compacted
-(``dr.compress``) into level ``k + 1``. A backward pass folds ``I = I_o + r I_r + t I_t``
-(eq. 3.16) from the deepest level up with gathers, never with floating-point atomics, so a
-window renders the same bits as the same pixels of the full frame. Every run-time input of
-the kernels (window offset and width, seed) is an opaque value: kernels compile once per
-scene and are reused for every window and frame.
+Recursion design: a megakernel. One symbolic ``dr.while_loop`` traces the whole ray tree of
+every camera sample: each iteration intersects one ray (Mitsuba shapes through
+``scene.ray_intersect``, links1 quadrics and blobs in Dr.Jit, nearest wins) and shades it
+(eq. 3.11 under every light, shadow rays with transmittance); the mirror child is followed
+next and a refraction child with a mirror sibling waits on a small per-lane stack (local
+memory). ``I = I_o + r I_r + t I_t`` (eq. 3.16) is accumulated as the sum of
+``weight · I_o`` over the tree (weight = product of the factors down the branch). A branch
+stops when its weight falls to ``min_weight`` (default 1/255, as the core). Lanes never
+interact, so a window renders the same bits as the same pixels of the full frame, and every
+run-time input (window offset and width, seed) is an opaque value: the kernel compiles once
+per scene and is reused for every window and frame.
+
+What a scene doesn't need is not traced (decided once per scene in ``prepare``): no
+refraction code without transmissive surfaces, no reflection without reflective ones, no loop
+at all without either, no custom-shape code without custom shapes, no shadow ray toward a
+light from a hit that no shape can shadow (``_occluders``). ``stats`` holds the ray counts of
+the last render by kind.
 """
 from __future__ import annotations
 
@@ -131,6 +139,7 @@ def define_integrator():
             self.slot_of_id = None    # Mitsuba shape id -> slot (file order), set by the loader
             self.shape_names = None
             self._prep = None
+            self.stats = {}
 
         # -------------------------------------------------------------- set-up
         def attach(self, custom, slot_of_id, shape_names=None):
@@ -300,8 +309,103 @@ def define_integrator():
             else:
                 warnings.warn("links1_whitted: non-perspective sensor: rays from sensor.sample_ray",
                               stacklevel=2)
+            self._occluders(P, shapes, slot_list)
             self._prep = P
             return P
+
+        def _occluders(self, P, shapes, slot_list):
+            """Which shapes can lie between a lit point and each light (skip what can't).
+
+            A convex shape (sphere, capped quadric, rectangle, disk) never shadows its own lit
+            points; a planar one shadows nothing when the light and every other shape lie on the
+            same side of its plane. ``P.shadow_need[j]``: per slot, whether hits on that slot need
+            a shadow ray toward light ``j``; ``P.occ_custom[j]`` / ``P.occ_mitsuba[j]``: the
+            links1 shapes / whether any Mitsuba shape can occlude it. Conservative."""
+            nslots = P.nslots
+            lo = np.full((nslots, 3), -np.inf)
+            hi = np.full((nslots, 3), np.inf)
+            convex = np.zeros(nslots, dtype=bool)
+            plane = [None] * nslots
+            mitsuba_slot = np.zeros(nslots, dtype=bool)
+            for s_, sl in zip(shapes, slot_list):
+                mitsuba_slot[sl] = True
+                b = s_.bbox()
+                lo[sl] = [b.min[0], b.min[1], b.min[2]]
+                hi[sl] = [b.max[0], b.max[1], b.max[2]]
+                kind = str(s_).split("[")[0]
+                if kind in ("Sphere", "Rectangle", "Disk"):
+                    convex[sl] = True
+                if kind in ("Rectangle", "Disk"):
+                    try:
+                        m = np.array(mi.traverse(s_)["to_world"].matrix, dtype=np.float64).reshape(4, 4)
+                        nrm = np.cross(m[:3, 0], m[:3, 1])
+                        if np.linalg.norm(nrm) > 0:
+                            nrm = nrm / np.linalg.norm(nrm)
+                            plane[sl] = (nrm, float(nrm @ m[:3, 3]))
+                    except Exception:
+                        pass
+            for spec in self.custom:
+                a, b = spec.bounds()
+                lo[spec.slot], hi[spec.slot] = a, b
+                if spec.__class__.__name__ == "QuadricSpec":
+                    convex[spec.slot] = (spec.kind == "sphere" and (not spec.clips or spec.capped)) or \
+                        (spec.kind == "cylinder" and spec.capped and len(spec.clips) >= 2)
+            scale = 1.0 + float(np.max(np.abs(np.where(np.isfinite(lo), lo, 0.0)))) + \
+                float(np.max(np.abs(np.where(np.isfinite(hi), hi, 0.0))))
+            tol = 1e-6 * scale
+
+            def side_of_box(nrm, c, a, b):
+                """-1 / +1 if the box is in the closed half-space below / above the plane, else 0."""
+                if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
+                    return 0
+                corners = np.array([[x, y, z] for x in (a[0], b[0]) for y in (a[1], b[1]) for z in (a[2], b[2])])
+                dist = corners @ nrm - c
+                if np.all(dist >= -tol):
+                    return 1
+                if np.all(dist <= tol):
+                    return -1
+                return 0
+
+            lights = []   # (position or None, direction toward the light or None, emitter slot or None)
+            for L in P.lights:
+                if L[0] == "dir":
+                    lights.append(("dir", -np.asarray(L[1], dtype=np.float64)))
+                elif L[0] == "cspot":
+                    lights.append(("dir", -np.asarray(L[2], dtype=np.float64)))
+                else:
+                    lights.append(("pos", np.asarray(L[1], dtype=np.float64)))
+            for e in P.area:
+                lights.append(("area", e))
+            P.shadow_need, P.occ_custom, P.occ_mitsuba, P.any_shadow = [], [], [], []
+            for light in lights:
+                occ = np.ones(nslots, dtype=bool)
+                for sl in range(nslots):
+                    if plane[sl] is None:
+                        continue
+                    nrm, c = plane[sl]
+                    if light[0] == "area":
+                        sh = light[1].get_shape()
+                        bb = sh.bbox() if sh is not None else None
+                        if bb is None:
+                            continue
+                        lside = side_of_box(nrm, c, np.array([bb.min[0], bb.min[1], bb.min[2]]),
+                                            np.array([bb.max[0], bb.max[1], bb.max[2]]))
+                    elif light[0] == "dir":
+                        v = float(light[1] @ nrm)
+                        lside = 1 if v > 0 else (-1 if v < 0 else 0)
+                    else:
+                        v = float(light[1] @ nrm - c)
+                        lside = 1 if v > tol else (-1 if v < -tol else 0)
+                    if lside == 0:
+                        continue
+                    if all(side_of_box(nrm, c, lo[o], hi[o]) == lside for o in range(nslots) if o != sl):
+                        occ[sl] = False
+                need = np.array([bool(np.any(occ & ~((np.arange(nslots) == sl) & convex[sl])))
+                                 for sl in range(nslots)], dtype=bool)
+                P.shadow_need.append(None if need.all() else mi.Bool(need))
+                P.any_shadow.append(bool(need.any()))
+                P.occ_custom.append([spec for spec in self.custom if occ[spec.slot]])
+                P.occ_mitsuba.append(bool(np.any(occ & mitsuba_slot)))
 
         # -------------------------------------------------------------- geometry
         def _nearest(self, P, scene, o, d, tmin, tmax, active, cost):
@@ -332,11 +436,11 @@ def define_integrator():
                 prim = dr.select(better, pc, prim)
             return t, slot, si, prim
 
-        def _shadow_custom(self, P, o, d, smax, active, cost):
+        def _shadow_custom(self, P, o, d, smax, active, cost, specs=None):
             """Transmittance (3-3-3) through the links1 shapes: product of shadow_t over the
             shapes the segment hits, once per shape."""
             T = dr.select(active, mi.Color3f(1.0), mi.Color3f(0.0))
-            for spec in P.custom:
+            for spec in (P.custom if specs is None else specs):
                 st = P.shadow_t_np[spec.slot]
                 act = active & (dr.max(T) > 0)
                 if spec.__class__.__name__ == "BlobSpec":
@@ -431,12 +535,15 @@ def define_integrator():
             raise AssertionError(kind)
 
         # -------------------------------------------------------------- one level
-        def _level(self, P, scene, o, d, tmin, tmax, key, depth, spawn):
-            """Trace one wavefront level. Returns a dict of Dr.Jit arrays."""
+        def _level(self, P, scene, o, d, tmin, tmax, key, depth, spawn, active=None, symbolic=True):
+            """Trace and shade one ray per lane (inside the megakernel's loop when ``symbolic``).
+            Returns a dict of Dr.Jit arrays."""
             n = dr.width(o)
-            active = dr.full(mi.Bool, True, n)
+            if active is None:
+                active = dr.full(mi.Bool, True, n)
             cost = dr.zeros(mi.UInt32, n)
-            if P.any_mitsuba_shapes:
+            n_shadow = dr.zeros(mi.UInt32, n)
+            if P.any_mitsuba_shapes and not symbolic:
                 dr.eval(o, d, tmin, tmax)
             t, slot, si, prim = self._nearest(P, scene, o, d, tmin, tmax, active, cost)
             hit = slot >= 0
@@ -459,7 +566,7 @@ def define_integrator():
             wo = -d
             front = dr.dot(ng, wo) > 0
             nf = dr.select(front, ns, -ns)
-            if P.any_mitsuba_shapes:
+            if P.any_mitsuba_shapes and not symbolic:
                 dr.eval(t, slot, prim, p, ng, ns, nf, cost)
             out = dr.zeros(mi.Color3f, n)
             # ---- escaping rays: background (Mitsuba constant / envmap)
@@ -528,13 +635,31 @@ def define_integrator():
             # built and evaluated together, then handed to Mitsuba's ray tests (each test
             # evaluates its inputs: building them first avoids recomputing shared work).
             pending = []
-            for L in P.lights:
+
+            def need_of(j, lit):
+                """Lanes that need a shadow ray toward light j (P.shadow_need, _occluders)."""
+                if not P.any_shadow[j]:
+                    return dr.zeros(mi.Bool, n)
+                if P.shadow_need[j] is None:
+                    return lit
+                return lit & dr.gather(mi.Bool, P.shadow_need[j], uslot, lit)
+
+            def shadow(j, so, wi, smax, lit, contrib):
+                nonlocal n_shadow
+                if not P.any_shadow[j]:
+                    return None, lit, None
+                need = need_of(j, lit)
+                n_shadow = n_shadow + dr.select(need, mi.UInt32(1), 0)
+                T = self._shadow_custom(P, so, wi, smax, need, cost, P.occ_custom[j])
+                return T, need, P.occ_mitsuba[j]
+
+            for jl, L in enumerate(P.lights):
                 wi, dist, Ls = self._light(L, p)
                 contrib = f_eval(wi) * Ls
                 lit = hit & (dr.max(contrib) > 0)
                 so, smax = offset(wi), dist - 2.0 * eps
-                T = self._shadow_custom(P, so, wi, smax, lit, cost)
-                pending.append((contrib, so, wi, smax, lit, T))
+                T, need, occ_m = shadow(jl, so, wi, smax, lit, contrib)
+                pending.append((contrib, so, wi, smax, lit, need, T, occ_m))
             for j, e in enumerate(P.area):
                 it = dr.zeros(mi.Interaction3f, n)
                 it.p = p
@@ -545,14 +670,20 @@ def define_integrator():
                 contrib = f_eval(ds.d) * val  # one shadow ray per sample and area light
                 lit = hit & (dr.max(contrib) > 0) & (ds.pdf > 0)
                 so, smax = offset(ds.d), ds.dist * (1.0 - mi.math.ShadowEpsilon)
-                T = self._shadow_custom(P, so, ds.d, smax, lit, cost)
-                pending.append((contrib, so, mi.Vector3f(ds.d), smax, lit, T))
-            if P.any_mitsuba_shapes and pending:
-                dr.eval(out, cost, *[x for tup in pending for x in tup])
-            for contrib, so, wi, smax, lit, T in pending:
-                T = self._shadow_mitsuba(P, scene, so, wi, smax, lit, T, cost)
-                out += dr.select(lit, contrib * T, 0.0)
+                wd = mi.Vector3f(ds.d)
+                T, need, occ_m = shadow(len(P.lights) + j, so, wd, smax, lit, contrib)
+                pending.append((contrib, so, wd, smax, lit, need, T, occ_m))
+            if P.any_mitsuba_shapes and pending and not symbolic:
+                dr.eval(out, cost, *[x for tup in pending for x in tup[:6]])
+            for contrib, so, wi, smax, lit, need, T, occ_m in pending:
+                if T is None:               # nothing can shadow this light
+                    out += dr.select(lit, contrib, 0.0)
+                    continue
+                if P.any_mitsuba_shapes and occ_m:
+                    T = self._shadow_mitsuba(P, scene, so, wi, smax, need, T, cost)
+                out += dr.select(lit, contrib * dr.select(need, T, 1.0), 0.0)
             res = {"L": out, "cost": cost, "t": t, "slot": slot, "ns": ns, "hit": hit}
+            res["n_shadow"] = n_shadow
             if not spawn:
                 return res
             # ---- secondary rays, eq. (3.12)-(3.16)
@@ -637,6 +768,116 @@ def define_integrator():
             return mi.Point3f(ray.o), mi.Vector3f(ray.d), dr.zeros(mi.Float, n), mi.Float(ray.maxt), key, i
 
         # -------------------------------------------------------------- the tree
+        def _trace_tree(self, P, scene, o, d, tmin, tmax, key, want_aovs):
+            """The whole ray tree of every lane in one kernel (a "megakernel").
+
+            A symbolic ``dr.while_loop`` traces one ray per iteration: the mirror child (eq. 3.12)
+            is followed next, a refraction child (eq. 3.14-3.15) that has a mirror sibling waits
+            on a small per-lane stack (Dr.Jit local memory, at most ``max_depth - 1`` entries).
+            ``I = I_o + r I_r + t I_t`` (eq. 3.16) is accumulated as ``Σ weight · I_o`` with the
+            weight the product of the factors down the tree (the same sum as the core's fold,
+            summed in another order). Every lane is independent of its neighbours, so a window
+            renders the same bits as the full frame; the window is a run-time value (no
+            recompilation). Returns ``(L, cost, t0, slot0, ns0, counts)``.
+            """
+            n = dr.width(o)
+            md = self.max_depth
+            mw = float(self.min_weight)
+            spawn = md > 1 and P.any_specular
+            one = mi.UInt32(1)
+            if not spawn:
+                res = self._level(P, scene, o, d, tmin, tmax, key, 1, False)
+                cnt = res["n_shadow"]
+                flat = dr.ravel(res["L"])
+                dr.eval(flat, res["cost"], cnt, *((res["t"], res["slot"], res["ns"]) if want_aovs else ()))
+                self._record(P, n, cnt, None, None)
+                return flat, res["cost"], res["t"], res["slot"], res["ns"], None
+            K = md - 1
+            stk_f = dr.alloc_local(mi.Float, 9 * K, mi.Float(0.0))   # o, d, weight per entry
+            stk_u = dr.alloc_local(mi.UInt32, 2 * K, mi.UInt32(0))   # depth, key per entry
+            zf = dr.zeros(mi.Float, n)
+            zu = dr.zeros(mi.UInt32, n)
+            state = dict(o=mi.Point3f(o), d=mi.Vector3f(d), tmin=mi.Float(tmin), tmax=mi.Float(tmax),
+                         wgt=mi.Color3f(1.0) + mi.Color3f(zf), depth=zu + 1, key=mi.UInt32(key),
+                         L=dr.zeros(mi.Color3f, n), cost=mi.UInt32(zu), sp=mi.UInt32(zu),
+                         active=dr.full(mi.Bool, True, n), it=mi.UInt32(zu),
+                         t0=mi.Float(zf), s0=dr.full(mi.Int32, -1, n), n0=dr.zeros(mi.Vector3f, n),
+                         nsh=mi.UInt32(zu), nr=mi.UInt32(zu), nt=mi.UInt32(zu))
+            names = list(state)
+
+            def cond(stk_f, stk_u, *vals):
+                return vals[names.index("active")]
+
+            def body(stk_f, stk_u, *vals):
+                v = dict(zip(names, vals))
+                act = v["active"]
+                res = self._level(P, scene, v["o"], v["d"], v["tmin"], v["tmax"], v["key"], 0, True,
+                                  active=act)
+                wgt = v["wgt"]
+                L = v["L"] + wgt * res["L"]
+                cost = v["cost"] + res["cost"]
+                first = v["it"] == 0
+                if want_aovs:
+                    t0 = dr.select(first, res["t"], v["t0"])
+                    s0 = dr.select(first, res["slot"], v["s0"])
+                    n0 = dr.select(first, res["ns"], v["n0"])
+                else:
+                    t0, s0, n0 = v["t0"], v["s0"], v["n0"]
+                deeper = act & (v["depth"] < md)
+                w_r, w_t = wgt * res["r"], wgt * res["tw"]
+                cr = deeper & res["has_r"]
+                ct = deeper & res["has_t"]
+                if mw > 0:          # weight threshold, as the core
+                    cr &= dr.max(w_r) > mw
+                    ct &= dr.max(w_t) > mw
+                key_r = mix32(v["key"] ^ mi.UInt32(0x63D83595))
+                key_t = mix32(v["key"] ^ mi.UInt32(0xA511E9B3))
+                sp = v["sp"]
+                push = cr & ct
+                if P.any_phong_t or P.any_mitsuba_delta:
+                    base = sp * 9
+                    o_t, d_t = res["o_t"], res["dir_t"]
+                    for k, val in enumerate((o_t.x, o_t.y, o_t.z, d_t.x, d_t.y, d_t.z, w_t.x, w_t.y, w_t.z)):
+                        stk_f.write(val, base + k, push)
+                    stk_u.write(v["depth"] + 1, sp * 2, push)
+                    stk_u.write(key_t, sp * 2 + 1, push)
+                pop = act & ~cr & ~ct & (sp > 0)
+                top = dr.select(pop, sp - 1, 0)
+                fp = [stk_f.read(top * 9 + k, pop) for k in range(9)]
+                dp = stk_u.read(top * 2, pop)
+                kp = stk_u.read(top * 2 + 1, pop)
+                o_n = dr.select(cr, res["o_r"], dr.select(ct, res["o_t"], mi.Point3f(fp[0], fp[1], fp[2])))
+                d_n = dr.select(cr, res["dir_r"], dr.select(ct, res["dir_t"], mi.Vector3f(fp[3], fp[4], fp[5])))
+                w_n = dr.select(cr, w_r, dr.select(ct, w_t, mi.Color3f(fp[6], fp[7], fp[8])))
+                depth_n = dr.select(cr | ct, v["depth"] + 1, dp)
+                key_n = dr.select(cr, key_r, dr.select(ct, key_t, kp))
+                sp = dr.select(push, sp + 1, dr.select(pop, sp - 1, sp))
+                nsh = v["nsh"] + res["n_shadow"]
+                nr = v["nr"] + dr.select(cr, one, 0)
+                nt = v["nt"] + dr.select(ct, one, 0)
+                out = dict(o=o_n, d=d_n, tmin=dr.select(act, 0.0, v["tmin"]),
+                           tmax=dr.select(act, INF, v["tmax"]), wgt=w_n, depth=depth_n, key=key_n,
+                           L=L, cost=cost, sp=sp, active=cr | ct | pop, it=v["it"] + 1,
+                           t0=t0, s0=s0, n0=n0, nsh=nsh, nr=nr, nt=nt)
+                return (stk_f, stk_u, *[out[k] for k in names])
+
+            result = dr.while_loop((stk_f, stk_u, *[state[k] for k in names]), cond, body,
+                                   label="links1_whitted")
+            v = dict(zip(names, result[2:]))
+            flat = dr.ravel(v["L"])
+            dr.eval(flat, v["cost"], v["nsh"], v["nr"], v["nt"],
+                    *((v["t0"], v["s0"], v["n0"]) if want_aovs else ()))
+            self._record(P, n, v["nsh"], v["nr"], v["nt"])
+            return flat, v["cost"], v["t0"], v["s0"], v["n0"], None
+
+        def _record(self, P, n, nsh, nr, nt):
+            """Ray counters of the last render (rays by kind, and per camera ray)."""
+            c = {"camera": int(n)}
+            for k, a in (("shadow", nsh), ("reflect", nr), ("refract", nt)):
+                c[k] = 0 if a is None else int(np.sum(np.array(a, dtype=np.int64)))
+            c["per_camera_ray"] = {k: c[k] / max(n, 1) for k in ("shadow", "reflect", "refract")}
+            self.stats = c
+
         def render_window(self, scene, window=None, spp=1, seed=None, aovs=None):
             """Render ``window = (x0, y0, w, h)`` of the full film (row 0 at the top).
 
@@ -652,91 +893,18 @@ def define_integrator():
             seed = self.seed if seed is None else int(seed)
             aovs = self.aovs if aovs is None else parse_aovs(aovs)
             o, d, tmin, tmax, key, i = self._camera_rays(P, x0, y0, w, h, spp, seed)
-            levels = []
-            depth = 1
-            wgt = mi.Color3f(1.0)
-            while True:
-                spawn = depth < self.max_depth and P.any_specular
-                res = self._level(P, scene, o, d, tmin, tmax, key, depth, spawn)
-                if spawn and self.min_weight > 0:
-                    # weight threshold (as the core): spawn only if max_RGB(weight × factor) > min_weight
-                    w_r, w_t = res["r"] * wgt, res["tw"] * wgt
-                    res["has_r"] = res["has_r"] & (dr.max(w_r) > self.min_weight)
-                    res["has_t"] = res["has_t"] & (dr.max(w_t) > self.min_weight)
-                keep = [res["L"], res["cost"]]
-                if depth == 1 and aovs:
-                    keep += [res["t"], res["slot"], res["ns"]]
-                if spawn:
-                    keep += [res["has_r"], res["has_t"], res["r"], res["tw"]]
-                dr.eval(*keep)
-                lev = {"L": res["L"], "cost": res["cost"], "n": dr.width(o)}
-                if depth == 1:
-                    lev.update(t=res["t"], slot=res["slot"], ns=res["ns"])
-                levels.append(lev)
-                if not spawn:
-                    break
-                idx_r = dr.compress(res["has_r"])
-                idx_t = dr.compress(res["has_t"])
-                nr, nt = dr.width(idx_r), dr.width(idx_t)
-                if nr + nt == 0:
-                    break
-                lev.update(idx_r=idx_r, idx_t=idx_t, r=res["r"], tw=res["tw"], nr=nr)
-                # next level: reflection children first, then refraction children
-                j = dr.arange(mi.UInt32, nr + nt)
-                is_t = j >= nr
-                jr = dr.select(is_t, 0, j)
-                jt = dr.select(is_t, j - nr, 0)
-                par_r = dr.gather(mi.UInt32, idx_r, jr, ~is_t) if nr else mi.UInt32(0)
-                par_t = dr.gather(mi.UInt32, idx_t, jt, is_t) if nt else mi.UInt32(0)
-                par = dr.select(is_t, par_t, par_r)
-                o = dr.select(is_t, gl(res["o_t"], par, is_t),
-                              gl(res["o_r"], par, ~is_t))
-                d = dr.select(is_t, gl(res["dir_t"], par, is_t),
-                              gl(res["dir_r"], par, ~is_t))
-                if self.min_weight > 0:
-                    wgt = dr.select(is_t, gl(w_t, par, is_t), gl(w_r, par, ~is_t))
-                key = mix32(dr.gather(mi.UInt32, key, par) ^ dr.select(is_t, mi.UInt32(0xA511E9B3), mi.UInt32(0x63D83595)))
-                tmin = dr.zeros(mi.Float, nr + nt)
-                tmax = dr.full(mi.Float, INF, nr + nt)
-                dr.eval(o, d, key, wgt)
-                depth += 1
-            # ---- backward pass: I = I_o + r I_r + t I_t (eq. 3.16), deterministic gathers
-            total = levels[-1]["L"]
-            cost = levels[-1]["cost"]
-            for k in range(len(levels) - 2, -1, -1):
-                lev = levels[k]
-                nk, nr = lev["n"], lev["nr"]
-                child_of_r = dr.full(mi.UInt32, 0, nk)
-                child_of_t = dr.full(mi.UInt32, 0, nk)
-                if nr:
-                    dr.scatter(child_of_r, dr.arange(mi.UInt32, nr), lev["idx_r"])
-                nt = dr.width(lev["idx_t"])
-                if nt:
-                    dr.scatter(child_of_t, dr.arange(mi.UInt32, nt) + nr, lev["idx_t"])
-                m_r = dr.zeros(mi.Bool, nk)
-                m_t = dr.zeros(mi.Bool, nk)
-                if nr:
-                    dr.scatter(m_r, True, lev["idx_r"])
-                if nt:
-                    dr.scatter(m_t, True, lev["idx_t"])
-                Lk = lev["L"]
-                Lk = Lk + dr.select(m_r, lev["r"] * gl(total, child_of_r, m_r), 0.0)
-                Lk = Lk + dr.select(m_t, lev["tw"] * gl(total, child_of_t, m_t), 0.0)
-                ck = lev["cost"] + dr.select(m_r, dr.gather(mi.UInt32, cost, child_of_r, m_r), 0) \
-                    + dr.select(m_t, dr.gather(mi.UInt32, cost, child_of_t, m_t), 0)
-                dr.eval(Lk, ck)
-                total, cost = Lk, ck
-            rgb = np.array(total, dtype=np.float32).astype(np.float64)
-            if rgb.shape[0] == 3 and rgb.ndim == 2 and rgb.shape[1] != 3:
-                rgb = rgb.T
-            rgb = rgb.reshape(h * w, spp, 3).mean(axis=1).reshape(h, w, 3)
+            total, cost, t0, s0, n0, counts = self._trace_tree(P, scene, o, d, tmin, tmax, key, bool(aovs))
+            rgb = np.asarray(total.numpy(), dtype=np.float32).reshape(h * w * spp, 3)  # (flat RGB)
+            if spp == 1:
+                rgb = rgb.astype(np.float64).reshape(h, w, 3)
+            else:
+                rgb = rgb.astype(np.float64).reshape(h * w, spp, 3).mean(axis=1).reshape(h, w, 3)
             chans = [rgb]
             if aovs:
-                lev = levels[0]
                 first = slice(0, None, spp)
-                t0 = np.array(lev["t"], dtype=np.float64)[first]
-                s0 = np.array(lev["slot"], dtype=np.int64)[first]
-                n0 = np.array(lev["ns"], dtype=np.float64)
+                t0 = np.array(t0, dtype=np.float64)[first]
+                s0 = np.array(s0, dtype=np.int64)[first]
+                n0 = np.array(n0, dtype=np.float64)
                 n0 = (n0.T if n0.shape[0] == 3 and n0.shape[1] != 3 else n0)[first]
                 hit0 = s0 >= 0
                 for a in aovs:
