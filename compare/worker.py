@@ -61,7 +61,11 @@ def _links1(job, variant):
         r.spp = spp
         img = r.render()
         stats = getattr(getattr(r, "integrator", None), "stats", None)
-        rays = dict(stats.rays) if stats is not None and hasattr(stats, "rays") else None
+        if stats is not None and hasattr(stats, "rays"):
+            stats = stats.rays
+        kinds = ("camera", "shadow", "reflect", "refract")
+        rays = ({k: int(stats[k]) for k in kinds if k in stats}
+                if isinstance(stats, dict) and stats else None)
         return img, rays
 
     return render
