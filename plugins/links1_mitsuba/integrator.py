@@ -38,6 +38,8 @@ _PRECISE_MITSUBA = ("Mesh", "OBJMesh", "PLYMesh", "Rectangle", "Disk", "Links1Bi
 #: Default weight below which a branch of the ray tree is not traced (POV-Ray's adc_bailout;
 #: the same default as links1.integrator.DEFAULT_MIN_WEIGHT).
 DEFAULT_MIN_WEIGHT = 1.0 / 255.0
+#: Custom quadrics with finite bounds go under a BVH (bvh.py) from this many on.
+BVH_MIN = 8
 _M1 = 0x7FEB352D
 _M2 = 0x846CA68B
 
@@ -169,6 +171,15 @@ def define_integrator():
                 nslots = len(slot_of_id) + len(self.custom)
             P.nslots = nslots
             P.custom = self.custom
+            # many bounded quadrics: tables under a BVH (bvh.py) instead of one code block each
+            quad = [sp for sp in self.custom if sp.__class__.__name__ == "QuadricSpec"
+                    and np.all(np.isfinite(np.concatenate(sp.bounds())))]
+            P.bvh = None
+            P.custom_unrolled = list(self.custom)
+            if len(quad) >= BVH_MIN:
+                bvh_ids = {id(sp) for sp in quad}
+                P.custom_unrolled = [sp for sp in self.custom if id(sp) not in bvh_ids]
+                P.bvh_slots = {sp.slot for sp in quad}
             # registry id -> slot
             reg = [int(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(s))[0]) for s in shapes]
             table = np.full(max(reg + [0]) + 1, -1, dtype=np.int32)
@@ -240,6 +251,13 @@ def define_integrator():
                 if not P.all_phong else None
             # shadow transmittance (3-3-3): Phong t; Mitsuba BSDFs are opaque
             P.shadow_t_np = trans.copy()
+            if len(P.custom_unrolled) != len(self.custom):
+                from .bvh import define_bvh
+                P.bvh = define_bvh()([sp for sp in self.custom if sp.slot in P.bvh_slots], P.shadow_t_np)
+                s2q = np.full(max(nslots, 1), -1, dtype=np.int32)
+                for i, sp in enumerate(P.bvh.specs):
+                    s2q[sp.slot] = i
+                P.bvh.slot_to_q = mi.Int32(s2q)
             P.shadow_t = mi.Float(trans.ravel())
             transparent_mitsuba = [sl for s, sl in zip(shapes, slot_list) if trans[sl].max() > 0]
             bits = np.zeros(nslots, dtype=np.uint32)
@@ -423,7 +441,7 @@ def define_integrator():
                 t = dr.full(mi.Float, INF, dr.width(o))
                 slot = dr.full(mi.Int32, -1, dr.width(o))
             prim = dr.zeros(mi.UInt32, dr.width(o))
-            for spec in P.custom:
+            for spec in P.custom_unrolled:
                 tt = dr.minimum(t, tmax)
                 if spec.__class__.__name__ == "BlobSpec":
                     tc, pc = spec.intersect(o, d, tmin, tt, active, cost)
@@ -434,13 +452,24 @@ def define_integrator():
                 t = dr.select(better, tc, t)
                 slot = dr.select(better, spec.slot, slot)
                 prim = dr.select(better, pc, prim)
+            if P.bvh is not None:
+                tq, q, part, found = P.bvh.nearest(o, d, tmin, dr.minimum(t, tmax), active, cost)
+                better = found & (tq < t)
+                t = dr.select(better, tq, t)
+                slot = dr.select(better, mi.Int32(dr.gather(mi.UInt32, P.bvh.slot, q, better)), slot)
+                prim = dr.select(better, part, prim)
             return t, slot, si, prim
 
         def _shadow_custom(self, P, o, d, smax, active, cost, specs=None):
             """Transmittance (3-3-3) through the links1 shapes: product of shadow_t over the
             shapes the segment hits, once per shape."""
             T = dr.select(active, mi.Color3f(1.0), mi.Color3f(0.0))
-            for spec in (P.custom if specs is None else specs):
+            specs = P.custom if specs is None else specs
+            if P.bvh is not None:
+                if any(sp.slot in P.bvh_slots for sp in specs):
+                    T = P.bvh.transmittance(o, d, smax, active, cost)
+                specs = [sp for sp in specs if sp.slot not in P.bvh_slots]
+            for spec in specs:
                 st = P.shadow_t_np[spec.slot]
                 act = active & (dr.max(T) > 0)
                 if spec.__class__.__name__ == "BlobSpec":
@@ -558,9 +587,15 @@ def define_integrator():
                 ng = dr.zeros(mi.Vector3f, n)
                 ns = dr.zeros(mi.Vector3f, n)
                 mits = dr.full(mi.Bool, False, n)
-            for spec in P.custom:
+            for spec in P.custom_unrolled:
                 m = slot == spec.slot
                 nc = spec.normal(o, d, t, prim)
+                ng = dr.select(m, nc, ng)
+                ns = dr.select(m, nc, ns)
+            if P.bvh is not None:
+                qi = dr.gather(mi.Int32, P.bvh.slot_to_q, uslot, hit)
+                m = hit & (qi >= 0)
+                nc = P.bvh.normal(mi.UInt32(dr.maximum(qi, 0)), o, d, t, prim, m)
                 ng = dr.select(m, nc, ng)
                 ns = dr.select(m, nc, ns)
             wo = -d

@@ -1,0 +1,279 @@
+"""Hierarchical bounding boxes (paper 3-2-4) over links1 quadrics, traversed in Dr.Jit.
+
+Mitsuba 3.9.1 cannot hold Python shapes, so links1 quadrics are not in Mitsuba's own BVH.
+With many of them (``scenes/many.xml``: 300) testing every quadric on every ray dominates the
+frame, and unrolling one code block per quadric makes the kernel grow with the scene. This
+module keeps the quadrics in tables (one row per quadric, read with ``dr.gather``) under a
+binary BVH in flat node arrays; a ray walks it in a symbolic loop with a small per-lane stack
+(Dr.Jit local memory), testing only the quadrics whose boxes it crosses. The intersection is
+the same arithmetic as :meth:`links1_mitsuba.shapes.QuadricSpec.intersect` (same float32
+constants), so a quadric gives the same bits whichever path tests it.
+
+Layout: node ``k`` has a box ``lo``/``hi``; ``count > 0``: a leaf with quadrics
+``[first, first + count)`` of the permuted table; ``count == 0``: an inner node whose
+children are nodes ``first`` and ``first + 1``.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+INF = float("inf")
+LEAF = 1          #: quadrics per leaf (one intersection per loop iteration)
+STACK = 64        #: traversal stack entries per lane (depth of a median-split tree + 1)
+
+
+def build(lo, hi, leaf=LEAF):
+    """Median-split BVH over boxes ``lo, hi`` (N, 3). Returns (order, node_lo, node_hi, first, count)."""
+    n = lo.shape[0]
+    cen = 0.5 * (lo + hi)
+    order = np.arange(n)
+    nodes = []          # [lo, hi, first, count]
+
+    def box(idx):
+        return lo[idx].min(0), hi[idx].max(0)
+
+    # breadth-first so that children are allocated as consecutive pairs
+    nodes.append(None)
+    work = [(0, 0, n)]
+    while work:
+        k, a, b = work.pop()
+        idx = order[a:b]
+        blo, bhi = box(idx)
+        if b - a <= leaf:
+            nodes[k] = [blo, bhi, a, b - a]
+            continue
+        ext = cen[idx].max(0) - cen[idx].min(0)
+        ax = int(np.argmax(ext))
+        srt = idx[np.argsort(cen[idx, ax], kind="stable")]
+        order[a:b] = srt
+        m = (a + b) // 2
+        left = len(nodes)
+        nodes.extend([None, None])
+        nodes[k] = [blo, bhi, left, 0]
+        work.append((left, a, m))
+        work.append((left + 1, m, b))
+    node_lo = np.array([nd[0] for nd in nodes], dtype=np.float64)
+    node_hi = np.array([nd[1] for nd in nodes], dtype=np.float64)
+    first = np.array([nd[2] for nd in nodes], dtype=np.uint32)
+    count = np.array([nd[3] for nd in nodes], dtype=np.uint32)
+    return order, node_lo, node_hi, first, count
+
+
+def tree_depth(first, count):
+    depth, work = 0, [(0, 1)]
+    while work:
+        k, dep = work.pop()
+        depth = max(depth, dep)
+        if count[k] == 0:
+            work += [(int(first[k]), dep + 1), (int(first[k]) + 1, dep + 1)]
+    return depth
+
+
+def define_bvh():
+    import drjit as dr
+    import mitsuba as mi
+
+    class QuadricBVH:
+        """Quadric table + BVH; ``specs`` are :class:`QuadricSpec` with finite bounds."""
+
+        def __init__(self, specs, shadow_t):
+            bl = np.array([s.bounds()[0] for s in specs])
+            bh = np.array([s.bounds()[1] for s in specs])
+            order, nlo, nhi, first, count = build(bl, bh, LEAF)
+            if tree_depth(first, count) + 1 > STACK:
+                raise ValueError("BVH too deep")
+            specs = [specs[i] for i in order]
+            self.specs = specs
+            self.n = len(specs)
+            self.kc = max(len(s.clips) for s in specs)
+            nq = self.n
+            inv = np.array([np.array(s.inv)[:3, :4].ravel() for s in specs])          # (n, 12)
+            nm = np.array([np.array(s.normal_mat).ravel() for s in specs])            # (n, 9)
+            qz = np.array([1.0 if s.kind == "sphere" else 0.0 for s in specs])
+            clips = np.zeros((nq, max(self.kc, 1), 4))
+            clips[:, :, 3] = 1.0                                                    # 0·x <= 1: no plane
+            for i, s in enumerate(specs):
+                for j, (nrm, h) in enumerate(s.clips):
+                    clips[i, j, :3] = nrm
+                    clips[i, j, 3] = h
+            self.any_capped = any(s.capped and s.clips for s in specs)
+            capped = np.array([bool(s.capped) for s in specs])
+            slot = np.array([s.slot for s in specs], dtype=np.uint32)
+            st = np.array([shadow_t[s.slot] for s in specs], dtype=np.float64)
+            self.any_transparent = bool(np.any(st > 0))
+            F = lambda a: mi.Float(np.ascontiguousarray(a, dtype=np.float64).ravel())  # noqa: E731
+            self.inv, self.nm, self.qz, self.clips = F(inv), F(nm), F(qz), F(clips)
+            self.capped = mi.Bool(capped)
+            self.slot = mi.UInt32(slot)
+            self.st = F(st)
+            self.nlo, self.nhi = F(nlo), F(nhi)
+            self.first, self.count = mi.UInt32(first), mi.UInt32(count)
+            self.nnodes = len(first)
+            self.slot_to_q = None   # set by the integrator (slot -> row)
+
+        # ------------------------------------------------------------ one quadric
+        def _rows(self, q, act):
+            g = lambda tab, k, m: dr.gather(mi.Float, tab, q * m + k, act)  # noqa: E731
+            a = [[g(self.inv, 4 * i + j, 12) for j in range(4)] for i in range(3)]
+            return a, g(self.qz, 0, 1)
+
+        def _clip(self, q, j, act):
+            K = max(self.kc, 1)
+            return [dr.gather(mi.Float, self.clips, (q * K + j) * 4 + c, act) for c in range(4)]
+
+        @staticmethod
+        def _qform(qz, x, y):
+            return x.x * y.x + x.y * y.y + qz * (x.z * y.z)
+
+        def intersect(self, q, o, d, tmin, tmax, act):
+            """QuadricSpec.intersect with gathered parameters: (t, part)."""
+            a, qz = self._rows(q, act)
+            u = mi.Vector3f(*[a[i][0] * o.x + a[i][1] * o.y + a[i][2] * o.z + a[i][3] for i in range(3)])
+            v = mi.Vector3f(*[a[i][0] * d.x + a[i][1] * d.y + a[i][2] * d.z for i in range(3)])
+            # sphere: qform = dot; cylinder: x, y only (qz = 0 drops z exactly)
+            aa = self._qform(qz, v, v)
+            ok_a = aa > 0
+            a_safe = dr.select(ok_a, aa, 1.0)
+            t0 = -self._qform(qz, u, v) / a_safe
+            u0 = u + v * t0
+            b = self._qform(qz, u0, v)
+            c = self._qform(qz, u0, u0) - 1.0
+            disc = dr.square(b) - aa * c
+            hit = ok_a & (disc >= 0) & act
+            qq = -(b + dr.copysign(dr.sqrt(dr.maximum(disc, 0.0)), b))
+            r1 = c / dr.select(qq != 0, qq, 1.0)
+            r2 = qq / a_safe
+            tn = t0 + dr.minimum(r1, r2)
+            tf = t0 + dr.maximum(r1, r2)
+            planes = [self._clip(q, j, act) for j in range(self.kc)]
+
+            def inside(x, skip=-1):
+                ok = mi.Bool(True)
+                for j, (nx, ny, nz, h) in enumerate(planes):
+                    if j != skip:
+                        ok &= nx * x.x + ny * x.y + nz * x.z <= h
+                return ok
+            ok_n = hit & (tn > tmin) & (tn < tmax) & inside(u + v * tn)
+            ok_f = hit & (tf > tmin) & (tf < tmax) & inside(u + v * tf)
+            t = dr.select(ok_n, tn, dr.select(ok_f, tf, INF))
+            part = dr.zeros(mi.UInt32, dr.width(t))
+            if self.any_capped:
+                cap = dr.gather(mi.Bool, self.capped, q, act)
+                for j, (nx, ny, nz, h) in enumerate(planes):
+                    den = nx * v.x + ny * v.y + nz * v.z
+                    num = h - (nx * u.x + ny * u.y + nz * u.z)
+                    tc = num / dr.select(den != 0, den, 1.0)
+                    x = u + v * tc
+                    ok = act & cap & (den != 0) & (tc > tmin) & (tc < tmax) & (tc < t) \
+                        & (self._qform(qz, x, x) <= 1.0) & inside(x, skip=j)
+                    t = dr.select(ok, tc, t)
+                    part = dr.select(ok, j + 1, part)
+            return t, part
+
+        def normal(self, q, o, d, t, part, act):
+            a, qz = self._rows(q, act)
+            u = mi.Vector3f(*[a[i][0] * o.x + a[i][1] * o.y + a[i][2] * o.z + a[i][3] for i in range(3)])
+            v = mi.Vector3f(*[a[i][0] * d.x + a[i][1] * d.y + a[i][2] * d.z for i in range(3)])
+            x = u + v * t
+            n_obj = mi.Vector3f(x.x, x.y, x.z * qz)
+            if self.any_capped:
+                for j in range(self.kc):
+                    nx, ny, nz, _ = self._clip(q, j, act)
+                    n_obj = dr.select(part == j + 1, mi.Vector3f(nx, ny, nz), n_obj)
+            m = [dr.gather(mi.Float, self.nm, q * 9 + k, act) for k in range(9)]
+            nw = mi.Vector3f(*[m[3 * i] * n_obj.x + m[3 * i + 1] * n_obj.y + m[3 * i + 2] * n_obj.z
+                               for i in range(3)])
+            return dr.normalize(nw)
+
+        # ------------------------------------------------------------ traversal
+        def _box(self, k, o, inv_d, tmin, tmax, act):
+            lo = [dr.gather(mi.Float, self.nlo, k * 3 + c, act) for c in range(3)]
+            hi = [dr.gather(mi.Float, self.nhi, k * 3 + c, act) for c in range(3)]
+            t0, t1 = tmin, tmax
+            for c, (oc, ic) in enumerate(((o.x, inv_d.x), (o.y, inv_d.y), (o.z, inv_d.z))):
+                ta = (lo[c] - oc) * ic
+                tb = (hi[c] - oc) * ic
+                # NaN (0 * inf on a slab face) must not cull: minimum/maximum keep the other
+                t0 = dr.maximum(t0, dr.select(dr.isnan(ta) | dr.isnan(tb), -INF, dr.minimum(ta, tb)))
+                t1 = dr.minimum(t1, dr.select(dr.isnan(ta) | dr.isnan(tb), INF, dr.maximum(ta, tb)))
+            # a box is crossed when its slab interval meets (tmin, tmax); slack for float32
+            slack = 1e-5 * (dr.abs(t0) + dr.abs(t1)) + 1e-30
+            return act & (t0 <= t1 + slack), t0
+
+        def _walk(self, o, d, tmin, tmax, active, cost, shadow):
+            """One node per iteration: a leaf tests its quadric, an inner node tests both
+            children's boxes and pushes those crossed, the nearer on top."""
+            inv_d = mi.Vector3f(1.0 / d.x, 1.0 / d.y, 1.0 / d.z)
+            n = dr.width(o)
+            stack = dr.alloc_local(mi.UInt32, STACK, mi.UInt32(0))
+            root_hit, _ = self._box(mi.UInt32(0), o, inv_d, tmin, tmax, active)
+            sp = dr.select(root_hit, mi.UInt32(1), mi.UInt32(0))
+            best_t = mi.Float(tmax)
+            best_q = dr.zeros(mi.UInt32, n)
+            best_part = dr.zeros(mi.UInt32, n)
+            found = dr.zeros(mi.Bool, n)
+            T = dr.select(active, mi.Color3f(1.0), mi.Color3f(0.0))
+            c = dr.zeros(mi.UInt32, n)
+            one = mi.UInt32(1)
+
+            def cond(stack, sp, best_t, best_q, best_part, found, T, c):
+                run = sp > 0
+                if shadow:
+                    run &= dr.max(T) > 0
+                return run
+
+            def body(stack, sp, best_t, best_q, best_part, found, T, c):
+                act = sp > 0
+                sp = sp - 1
+                k = stack.read(sp, act)
+                cnt = dr.gather(mi.UInt32, self.count, k, act)
+                fst = dr.gather(mi.UInt32, self.first, k, act)
+                leaf = act & (cnt > 0)
+                inner = act & (cnt == 0)
+                lim = tmax if shadow else best_t
+                # leaf: its one quadric
+                tq, pq = self.intersect(fst, o, d, tmin, lim, leaf)
+                c = c + dr.select(leaf, one, 0)
+                h = leaf & (tq < lim)
+                if shadow:
+                    T = dr.select(h, T * dr.gather(mi.Color3f, self.st, fst, h), T)
+                else:
+                    s_new = dr.gather(mi.UInt32, self.slot, fst, h)
+                    s_old = dr.gather(mi.UInt32, self.slot, best_q, h & found)
+                    better = h & ((tq < best_t) | ((tq == best_t) & found & (s_new < s_old)))
+                    best_t = dr.select(better, tq, best_t)
+                    best_q = dr.select(better, fst, best_q)
+                    best_part = dr.select(better, pq, best_part)
+                    found |= better
+                # inner: both children's boxes (against the nearest hit so far)
+                lim = tmax if shadow else best_t
+                hl, tl = self._box(fst, o, inv_d, tmin, lim, inner)
+                hr, tr = self._box(fst + 1, o, inv_d, tmin, lim, inner)
+                near_l = tl <= tr
+                both = hl & hr
+                far = dr.select(both, dr.select(near_l, fst + 1, fst), dr.select(hl, fst, fst + 1))
+                w1 = hl | hr
+                stack.write(far, sp, w1)
+                sp = dr.select(w1, sp + 1, sp)
+                stack.write(dr.select(near_l, fst, fst + 1), sp, both)
+                sp = dr.select(both, sp + 1, sp)
+                return stack, sp, best_t, best_q, best_part, found, T, c
+
+            st = dr.while_loop((stack, sp, best_t, best_q, best_part, found, T, c), cond, body,
+                               label="links1_bvh")
+            _, _, best_t, best_q, best_part, found, T, c = st
+            if cost is not None:
+                cost += c
+            return best_t, best_q, best_part, found, T
+
+        def nearest(self, o, d, tmin, tmax, active, cost):
+            """(t (inf on a miss), row q, part, found)."""
+            t, q, part, found, _ = self._walk(o, d, tmin, tmax, active, cost, shadow=False)
+            return dr.select(found, t, INF), q, part, found
+
+        def transmittance(self, o, d, smax, active, cost):
+            """Product of shadow_t over the quadrics the segment (0, smax) hits (each once)."""
+            _, _, _, _, T = self._walk(o, d, mi.Float(0.0), smax, active, cost, shadow=True)
+            return T
+
+    return QuadricBVH
