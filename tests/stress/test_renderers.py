@@ -47,10 +47,7 @@ def renderer(kind, path, **kw):
         why = _mitsuba_reason()
         if why:
             pytest.skip(f"mitsuba renderer unavailable: {why}")
-        try:
-            return make_renderer("mitsuba", str(path), spp=1, **kw)
-        except Exception as e:  # noqa: BLE001 - a plugin gap is a skip with the reason, not a crash here
-            pytest.skip(f"the mitsuba renderer cannot load this scene yet: {type(e).__name__}: {e}")
+        return make_renderer("mitsuba", str(path), spp=1, **kw)
     return make_renderer("core", str(path), spp=1, **kw)
 
 
@@ -206,7 +203,7 @@ def test_glass_sphere_under_uniform_background(tmp_path, kind):
         <bsdf type="dielectric"><float name="int_ior" value="1.5"/><float name="ext_ior" value="1"/></bsdf></shape>
         <emitter type="constant"><rgb name="radiance" value="1"/></emitter>"""
     p = write(tmp_path, "glass", scene_xml(body, [0, 0, 4], [0, 0, 0], 35.0, max_depth=16))
-    img = renderer(kind, p, aovs=("id",)).render()
+    img = renderer(kind, p, aovs=("id",), min_weight=0.0).render()  # the whole ray tree
     assert_finite(img)
     hit = img[..., 3] >= 0
     assert hit.any()
