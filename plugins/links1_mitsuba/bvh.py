@@ -230,32 +230,53 @@ def define_bvh():
                 fst = dr.gather(mi.UInt32, self.first, k, act)
                 leaf = act & (cnt > 0)
                 inner = act & (cnt == 0)
-                lim = tmax if shadow else best_t
-                # leaf: its one quadric
-                tq, pq = self.intersect(fst, o, d, tmin, lim, leaf)
-                c = c + dr.select(leaf, one, 0)
-                h = leaf & (tq < lim)
-                if shadow:
-                    T = dr.select(h, T * dr.gather(mi.Color3f, self.st, fst, h), T)
-                else:
-                    s_new = dr.gather(mi.UInt32, self.slot, fst, h)
-                    s_old = dr.gather(mi.UInt32, self.slot, best_q, h & found)
-                    better = h & ((tq < best_t) | ((tq == best_t) & found & (s_new < s_old)))
-                    best_t = dr.select(better, tq, best_t)
-                    best_q = dr.select(better, fst, best_q)
-                    best_part = dr.select(better, pq, best_part)
-                    found |= better
-                # inner: both children's boxes (against the nearest hit so far)
-                lim = tmax if shadow else best_t
-                hl, tl = self._box(fst, o, inv_d, tmin, lim, inner)
-                hr, tr = self._box(fst + 1, o, inv_d, tmin, lim, inner)
-                near_l = tl <= tr
-                both = hl & hr
-                far = dr.select(both, dr.select(near_l, fst + 1, fst), dr.select(hl, fst, fst + 1))
-                w1 = hl | hr
+
+                # Symbolic conditionals: a packet whose lanes are all inner nodes (or all
+                # leaves) skips the other block entirely (the LLVM backend branches per packet).
+                def leaf_fn(fst, best_t, best_q, best_part, found, T, c):
+                    lim = tmax if shadow else best_t
+                    tq, pq = self.intersect(fst, o, d, tmin, lim, True)
+                    c = c + 1
+                    h = tq < lim
+                    if shadow:
+                        T = dr.select(h, T * dr.gather(mi.Color3f, self.st, fst, h), T)
+                    else:
+                        s_new = dr.gather(mi.UInt32, self.slot, fst, h)
+                        s_old = dr.gather(mi.UInt32, self.slot, best_q, h & found)
+                        better = h & ((tq < best_t) | ((tq == best_t) & found & (s_new < s_old)))
+                        best_t = dr.select(better, tq, best_t)
+                        best_q = dr.select(better, fst, best_q)
+                        best_part = dr.select(better, pq, best_part)
+                        found = found | better
+                    return fst, best_t, best_q, best_part, found, T, c
+
+                def keep(*args):
+                    return args
+
+                fst, best_t, best_q, best_part, found, T, c = dr.if_stmt(
+                    (fst, best_t, best_q, best_part, found, T, c), leaf, leaf_fn, keep)
+
+                def inner_fn(fst, best_t):
+                    # both children's boxes (against the nearest hit so far)
+                    lim = tmax if shadow else best_t
+                    hl, tl = self._box(fst, o, inv_d, tmin, lim, True)
+                    hr, tr = self._box(fst + 1, o, inv_d, tmin, lim, True)
+                    near_l = tl <= tr
+                    both = hl & hr
+                    far = dr.select(both, dr.select(near_l, fst + 1, fst), dr.select(hl, fst, fst + 1))
+                    near = dr.select(near_l, fst, fst + 1)
+                    return hl | hr, both, far, near
+
+                def no_inner(fst, best_t):
+                    z = dr.zeros(mi.UInt32, dr.width(fst))
+                    return dr.zeros(mi.Bool, dr.width(fst)), dr.zeros(mi.Bool, dr.width(fst)), z, z
+
+                w1, both, far, near = dr.if_stmt((fst, best_t), inner, inner_fn, no_inner)
+                w1 &= inner
+                both &= inner
                 stack.write(far, sp, w1)
                 sp = dr.select(w1, sp + 1, sp)
-                stack.write(dr.select(near_l, fst, fst + 1), sp, both)
+                stack.write(near, sp, both)
                 sp = dr.select(both, sp + 1, sp)
                 return stack, sp, best_t, best_q, best_part, found, T, c
 
