@@ -128,8 +128,9 @@ def main(argv=None) -> int:
            "scenes": {}, "not_measured": [
                "custom-shape code and the blob solver: the core has no per-shape-type code path "
                "a scene without that shape type runs (the hierarchy only visits shapes present)",
-               "links1_whitted (Mitsuba): its integrator exposes no switch for these skips nor a "
-               "min_weight; it does skip secondary rays without specular materials (P.any_specular)",
+               "links1_whitted (Mitsuba): only min_weight can be switched (rows 'links1-llvm ...'); its "
+               "scene-level skips (specular code, custom-shape code, shadow rays no shape can block) "
+               "are always on",
                "'no shadow rays where no occluder can be': not implemented by the core (it traces a "
                "shadow ray for every non-zero contribution); see docs/benchmarks.md"]}
     for name in a.scenes:
@@ -156,11 +157,34 @@ def main(argv=None) -> int:
                          "finite": r["finite"]})
             print(f"  {name} {label}: {rows[-1]['rays_per_pixel']:.2f} rays/px, "
                   f"{r['median_s'] * 1e3:.1f} ms, max diff {diff:.3g}", file=sys.stderr)
+        # links1_whitted: only its weight threshold can be switched (its scene-level skips are
+        # always on); rays per pixel from its ``stats`` counters
+        for label, mw in (("links1-llvm min_weight 0", 0.0), ("links1-llvm min_weight 1/255", 1 / 255),
+                          ("links1-llvm min_weight 1/64", 1 / 64)):
+            res_ = common.run_job({"scene": str(path), "renderer": "links1-llvm", "params": {"res": res},
+                                   "spp": [a.spp], "repeats": repeats, "seed": 0, "min_weight": mw},
+                                  timeout=300)
+            if not res_.get("ok"):
+                rows.append({"config": label, "skipped": res_.get("reason")})
+                continue
+            r = res_["results"][0]
+            img = res_["images"][a.spp]
+            npix = img.shape[0] * img.shape[1]
+            rays = r["rays"] or {}
+            diff = float(np.max(np.abs(img - base_img))) if base_img is not None else float("nan")
+            rows.append({"config": label, "patches": [], "min_weight": mw, "renderer": "links1-llvm",
+                         "median_s": r["median_s"], "rays": rays,
+                         "rays_per_pixel": sum(rays.values()) / npix if rays else float("nan"),
+                         "by_kind_per_pixel": {k: v / npix for k, v in rays.items()},
+                         "max_abs_diff": diff, "diff_over_threshold": diff / mw if mw > 0 else None,
+                         "finite": r["finite"]})
         base = next((r for r in rows if r["config"] == "baseline" and "skipped" not in r), None)
+        mbase = next((r for r in rows if r["config"] == "links1-llvm min_weight 0" and "skipped" not in r), None)
         for r in rows:
-            if base and "skipped" not in r:
-                r["time_ratio_to_baseline"] = r["median_s"] / base["median_s"]
-                r["rays_ratio_to_baseline"] = r["rays_per_pixel"] / base["rays_per_pixel"]
+            b = mbase if r.get("renderer") == "links1-llvm" else base
+            if b and "skipped" not in r:
+                r["time_ratio_to_baseline"] = r["median_s"] / b["median_s"]
+                r["rays_ratio_to_baseline"] = r["rays_per_pixel"] / b["rays_per_pixel"]
         out["scenes"][name] = rows
     out["wall_s"] = time.perf_counter() - t_start
     md = _markdown(out)
@@ -176,7 +200,9 @@ def _markdown(out) -> str:
          f"\nFilm {out['res']}×{out['res']}, {out['spp']} spp; warm median of {out['repeats']} frames; "
          "each configuration in its own process. rays/px = camera + shadow + reflect + refract rays per "
          "pixel. ×time, ×rays = relative to the baseline (all skips on, min_weight 0). "
-         "max |Δ| = largest per-channel difference to the baseline image; /thr = that over min_weight. "
+         "max |Δ| = largest per-channel difference to the core baseline image (float32 vs float64 for the "
+         "links1-llvm rows, whose ×rays and ×time are relative to links1-llvm at min_weight 0); "
+         "/thr = that over min_weight. "
          f"Run took {out['wall_s']:.0f} s.\n\nNot measured:\n"]
     s += [f"- {x}\n" for x in out["not_measured"]]
     for name, rows in out["scenes"].items():
@@ -198,7 +224,7 @@ def _markdown(out) -> str:
 def _plot(out):
     plt = common.pyplot()
     names = list(out["scenes"])
-    labels = [c[0] for c in CONFIGS]
+    labels = [c[0] for c in CONFIGS] + ["links1-llvm min_weight 0", "links1-llvm min_weight 1/255", "links1-llvm min_weight 1/64"]
     fig, axes = plt.subplots(1, 2, figsize=(12, 4))
     w = 0.8 / max(len(labels), 1)
     for j, lab in enumerate(labels):
