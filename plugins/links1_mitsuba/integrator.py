@@ -803,42 +803,79 @@ def define_integrator():
             return mi.Point3f(ray.o), mi.Vector3f(ray.d), dr.zeros(mi.Float, n), mi.Float(ray.maxt), key, i
 
         # -------------------------------------------------------------- the tree
-        def _trace_tree(self, P, scene, o, d, tmin, tmax, key, want_aovs):
-            """The whole ray tree of every lane in one kernel (a "megakernel").
+        def _children(self, res, act, wgt, depth):
+            """Which children a hit spawns (eq. 3.12-3.16, ``max_depth``, weight threshold as
+            the core) and their weights in the pixel."""
+            md, mw = self.max_depth, float(self.min_weight)
+            deeper = act & (depth < md)
+            w_r, w_t = wgt * res["r"], wgt * res["tw"]
+            cr = deeper & res["has_r"]
+            ct = deeper & res["has_t"]
+            if mw > 0:
+                cr &= dr.max(w_r) > mw
+                ct &= dr.max(w_t) > mw
+            return cr, ct, w_r, w_t
 
-            A symbolic ``dr.while_loop`` traces one ray per iteration: the mirror child (eq. 3.12)
-            is followed next, a refraction child (eq. 3.14-3.15) that has a mirror sibling waits
-            on a small per-lane stack (Dr.Jit local memory, at most ``max_depth - 1`` entries).
-            ``I = I_o + r I_r + t I_t`` (eq. 3.16) is accumulated as ``Σ weight · I_o`` with the
-            weight the product of the factors down the tree (the same sum as the core's fold,
-            summed in another order). Every lane is independent of its neighbours, so a window
-            renders the same bits as the full frame; the window is a run-time value (no
-            recompilation). Returns ``(L, cost, t0, slot0, ns0, counts)``.
+        def _trace_tree(self, P, scene, o, d, tmin, tmax, key, want_aovs):
+            """All ray trees: the camera level in one kernel, the rest in a "megakernel".
+
+            Level 1 (every sample) is straight-line code. The samples whose hit spawns a
+            mirror or refraction ray are compacted (``dr.compress``), and one symbolic
+            ``dr.while_loop`` traces the rest of their trees, one ray per iteration: the mirror
+            child (eq. 3.12) is followed next, a refraction child (eq. 3.14-3.15) with a mirror
+            sibling waits on a small per-lane stack (Dr.Jit local memory, at most
+            ``max_depth - 1`` entries). ``I = I_o + r I_r + t I_t`` (eq. 3.16) is accumulated as
+            ``Σ weight · I_o`` with the weight the product of the factors down the tree (the
+            core's sum in another order). Lanes never interact and the compaction keeps the
+            order of samples, so a window renders the same bits as the full frame; the window
+            is a run-time value (no recompilation). Returns ``(flat RGB, cost, t0, slot0, ns0)``.
             """
             n = dr.width(o)
             md = self.max_depth
-            mw = float(self.min_weight)
             spawn = md > 1 and P.any_specular
             one = mi.UInt32(1)
+            res = self._level(P, scene, o, d, tmin, tmax, key, 1, spawn)
+            aov = (res["t"], res["slot"], res["ns"]) if want_aovs else ()
             if not spawn:
-                res = self._level(P, scene, o, d, tmin, tmax, key, 1, False)
-                cnt = res["n_shadow"]
                 flat = dr.ravel(res["L"])
-                dr.eval(flat, res["cost"], cnt, *((res["t"], res["slot"], res["ns"]) if want_aovs else ()))
-                self._record(P, n, cnt, None, None)
-                return flat, res["cost"], res["t"], res["slot"], res["ns"], None
+                dr.eval(flat, res["cost"], res["n_shadow"], *aov)
+                self._record(P, n, res["n_shadow"], None, None)
+                return flat, res["cost"], res["t"], res["slot"], res["ns"]
+            act = res["hit"]
+            cr, ct, w_r, w_t = self._children(res, act, mi.Color3f(1.0), mi.UInt32(1))
+            key_r = mix32(key ^ mi.UInt32(0x63D83595))
+            key_t = mix32(key ^ mi.UInt32(0xA511E9B3))
+            kids = (res["o_r"], res["dir_r"], w_r, key_r, res["o_t"], res["dir_t"], w_t, key_t)
+            L1, cost1, nsh1 = res["L"], res["cost"], res["n_shadow"]
+            dr.eval(L1, cost1, nsh1, cr, ct, *aov, *kids)                  # kernel 1: level 1
+            idx = dr.compress(cr | ct)
+            m = dr.width(idx)
+            nr1 = int(np.count_nonzero(cr.numpy()))
+            nt1 = int(np.count_nonzero(ct.numpy()))
+            if m == 0:
+                flat = dr.ravel(L1)
+                dr.eval(flat)
+                self._record(P, n, nsh1, None, None, (nr1, nt1))
+                return flat, cost1, res["t"], res["slot"], res["ns"]
+            g = lambda x: dr.gather(type(x), x, idx)  # noqa: E731
+            o_r, d_r, wr, kr, o_t, d_t, wt, kt = (g(x) for x in kids)
+            gr, gt = g(cr), g(ct)
+            push = gr & gt
             K = md - 1
             stk_f = dr.alloc_local(mi.Float, 9 * K, mi.Float(0.0))   # o, d, weight per entry
             stk_u = dr.alloc_local(mi.UInt32, 2 * K, mi.UInt32(0))   # depth, key per entry
-            zf = dr.zeros(mi.Float, n)
-            zu = dr.zeros(mi.UInt32, n)
-            state = dict(o=mi.Point3f(o), d=mi.Vector3f(d), tmin=mi.Float(tmin), tmax=mi.Float(tmax),
-                         wgt=mi.Color3f(1.0) + mi.Color3f(zf), depth=zu + 1, key=mi.UInt32(key),
-                         L=dr.zeros(mi.Color3f, n), cost=mi.UInt32(zu), sp=mi.UInt32(zu),
-                         active=dr.full(mi.Bool, True, n), it=mi.UInt32(zu),
-                         t0=mi.Float(zf), s0=dr.full(mi.Int32, -1, n), n0=dr.zeros(mi.Vector3f, n),
+            for k_, val in enumerate((o_t.x, o_t.y, o_t.z, d_t.x, d_t.y, d_t.z, wt.x, wt.y, wt.z)):
+                stk_f.write(val, mi.UInt32(k_), push)
+            stk_u.write(dr.full(mi.UInt32, 2, m), mi.UInt32(0), push)
+            stk_u.write(kt, mi.UInt32(1), push)
+            zu = dr.zeros(mi.UInt32, m)
+            state = dict(o=mi.Point3f(dr.select(gr, o_r, o_t)), d=mi.Vector3f(dr.select(gr, d_r, d_t)),
+                         wgt=mi.Color3f(dr.select(gr, wr, wt)),
+                         depth=zu + 2, key=dr.select(gr, kr, kt), L=dr.zeros(mi.Color3f, m),
+                         cost=mi.UInt32(zu), sp=dr.select(push, one, 0), active=dr.full(mi.Bool, True, m),
                          nsh=mi.UInt32(zu), nr=mi.UInt32(zu), nt=mi.UInt32(zu))
             names = list(state)
+            has_t = P.any_phong_t or P.any_mitsuba_delta
 
             def cond(stk_f, stk_u, *vals):
                 return vals[names.index("active")]
@@ -846,30 +883,18 @@ def define_integrator():
             def body(stk_f, stk_u, *vals):
                 v = dict(zip(names, vals))
                 act = v["active"]
-                res = self._level(P, scene, v["o"], v["d"], v["tmin"], v["tmax"], v["key"], 0, True,
-                                  active=act)
+                mm = dr.width(v["o"])
+                res = self._level(P, scene, v["o"], v["d"], dr.zeros(mi.Float, mm), dr.full(mi.Float, INF, mm),
+                                  v["key"], 0, True, active=act)
                 wgt = v["wgt"]
                 L = v["L"] + wgt * res["L"]
                 cost = v["cost"] + res["cost"]
-                first = v["it"] == 0
-                if want_aovs:
-                    t0 = dr.select(first, res["t"], v["t0"])
-                    s0 = dr.select(first, res["slot"], v["s0"])
-                    n0 = dr.select(first, res["ns"], v["n0"])
-                else:
-                    t0, s0, n0 = v["t0"], v["s0"], v["n0"]
-                deeper = act & (v["depth"] < md)
-                w_r, w_t = wgt * res["r"], wgt * res["tw"]
-                cr = deeper & res["has_r"]
-                ct = deeper & res["has_t"]
-                if mw > 0:          # weight threshold, as the core
-                    cr &= dr.max(w_r) > mw
-                    ct &= dr.max(w_t) > mw
+                cr, ct, w_r, w_t = self._children(res, act, wgt, v["depth"])
                 key_r = mix32(v["key"] ^ mi.UInt32(0x63D83595))
                 key_t = mix32(v["key"] ^ mi.UInt32(0xA511E9B3))
                 sp = v["sp"]
                 push = cr & ct
-                if P.any_phong_t or P.any_mitsuba_delta:
+                if has_t:
                     base = sp * 9
                     o_t, d_t = res["o_t"], res["dir_t"]
                     for k, val in enumerate((o_t.x, o_t.y, o_t.z, d_t.x, d_t.y, d_t.z, w_t.x, w_t.y, w_t.z)):
@@ -887,29 +912,33 @@ def define_integrator():
                 depth_n = dr.select(cr | ct, v["depth"] + 1, dp)
                 key_n = dr.select(cr, key_r, dr.select(ct, key_t, kp))
                 sp = dr.select(push, sp + 1, dr.select(pop, sp - 1, sp))
-                nsh = v["nsh"] + res["n_shadow"]
-                nr = v["nr"] + dr.select(cr, one, 0)
-                nt = v["nt"] + dr.select(ct, one, 0)
-                out = dict(o=o_n, d=d_n, tmin=dr.select(act, 0.0, v["tmin"]),
-                           tmax=dr.select(act, INF, v["tmax"]), wgt=w_n, depth=depth_n, key=key_n,
-                           L=L, cost=cost, sp=sp, active=cr | ct | pop, it=v["it"] + 1,
-                           t0=t0, s0=s0, n0=n0, nsh=nsh, nr=nr, nt=nt)
+                out = dict(o=mi.Point3f(o_n), d=mi.Vector3f(d_n), wgt=mi.Color3f(w_n), depth=depth_n, key=key_n, L=L, cost=cost, sp=sp,
+                           active=cr | ct | pop, nsh=v["nsh"] + res["n_shadow"],
+                           nr=v["nr"] + dr.select(cr, one, 0), nt=v["nt"] + dr.select(ct, one, 0))
                 return (stk_f, stk_u, *[out[k] for k in names])
 
             result = dr.while_loop((stk_f, stk_u, *[state[k] for k in names]), cond, body,
                                    label="links1_whitted")
             v = dict(zip(names, result[2:]))
-            flat = dr.ravel(v["L"])
-            dr.eval(flat, v["cost"], v["nsh"], v["nr"], v["nt"],
-                    *((v["t0"], v["s0"], v["n0"]) if want_aovs else ()))
-            self._record(P, n, v["nsh"], v["nr"], v["nt"])
-            return flat, v["cost"], v["t0"], v["s0"], v["n0"], None
+            acc = dr.zeros(mi.Color3f, n)
+            dr.scatter(acc, v["L"], idx)                   # one child forest per sample: no races
+            cacc = dr.zeros(mi.UInt32, n)
+            dr.scatter(cacc, v["cost"], idx)
+            total = L1 + acc
+            cost = cost1 + cacc
+            flat = dr.ravel(total)
+            dr.eval(flat, cost, v["nsh"], v["nr"], v["nt"])                  # kernel 2: the rest
+            self._record(P, n, nsh1, v["nr"], v["nt"], (nr1, nt1), v["nsh"])
+            return flat, cost, res["t"], res["slot"], res["ns"]
 
-        def _record(self, P, n, nsh, nr, nt):
+        def _record(self, P, n, nsh, nr, nt, first=(0, 0), nsh2=None):
             """Ray counters of the last render (rays by kind, and per camera ray)."""
             c = {"camera": int(n)}
-            for k, a in (("shadow", nsh), ("reflect", nr), ("refract", nt)):
-                c[k] = 0 if a is None else int(np.sum(np.array(a, dtype=np.int64)))
+            tot = lambda a: 0 if a is None else int(np.sum(np.asarray(a.numpy(), dtype=np.int64)))  # noqa: E731
+            c["shadow"] = tot(nsh) + tot(nsh2)
+            c["reflect"] = first[0] + tot(nr)
+            c["refract"] = first[1] + tot(nt)
+            c["secondary_lanes"] = int(dr.width(nr)) if nr is not None else 0  # samples with children
             c["per_camera_ray"] = {k: c[k] / max(n, 1) for k in ("shadow", "reflect", "refract")}
             self.stats = c
 
@@ -928,7 +957,7 @@ def define_integrator():
             seed = self.seed if seed is None else int(seed)
             aovs = self.aovs if aovs is None else parse_aovs(aovs)
             o, d, tmin, tmax, key, i = self._camera_rays(P, x0, y0, w, h, spp, seed)
-            total, cost, t0, s0, n0, counts = self._trace_tree(P, scene, o, d, tmin, tmax, key, bool(aovs))
+            total, cost, t0, s0, n0 = self._trace_tree(P, scene, o, d, tmin, tmax, key, bool(aovs))
             rgb = np.asarray(total.numpy(), dtype=np.float32).reshape(h * w * spp, 3)  # (flat RGB)
             if spp == 1:
                 rgb = rgb.astype(np.float64).reshape(h, w, 3)
