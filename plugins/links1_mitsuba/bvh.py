@@ -23,7 +23,7 @@ STACK = 64        #: traversal stack entries per lane (depth of a median-split t
 
 
 def build(lo, hi, leaf=LEAF):
-    """Median-split BVH over boxes ``lo, hi`` (N, 3). Returns (order, node_lo, node_hi, first, count)."""
+    """SAH BVH over boxes ``lo, hi`` (N, 3). Returns (order, node_lo, node_hi, first, count)."""
     n = lo.shape[0]
     cen = 0.5 * (lo + hi)
     order = np.arange(n)
@@ -42,11 +42,9 @@ def build(lo, hi, leaf=LEAF):
         if b - a <= leaf:
             nodes[k] = [blo, bhi, a, b - a]
             continue
-        ext = cen[idx].max(0) - cen[idx].min(0)
-        ax = int(np.argmax(ext))
-        srt = idx[np.argsort(cen[idx, ax], kind="stable")]
+        srt, cut = _sah_split(idx, lo, hi, cen)
         order[a:b] = srt
-        m = (a + b) // 2
+        m = a + cut
         left = len(nodes)
         nodes.extend([None, None])
         nodes[k] = [blo, bhi, left, 0]
@@ -57,6 +55,30 @@ def build(lo, hi, leaf=LEAF):
     first = np.array([nd[2] for nd in nodes], dtype=np.uint32)
     count = np.array([nd[3] for nd in nodes], dtype=np.uint32)
     return order, node_lo, node_hi, first, count
+
+
+def _area(lo, hi):
+    e = np.maximum(hi - lo, 0.0)
+    return e[..., 0] * e[..., 1] + e[..., 1] * e[..., 2] + e[..., 2] * e[..., 0]
+
+
+def _sah_split(idx, lo, hi, cen):
+    """Surface-area-heuristic split (sweep over the sorted centroids on each axis):
+    returns (idx reordered, number of items in the left child)."""
+    best = (np.inf, None, None)
+    k = len(idx)
+    for ax in range(3):
+        srt = idx[np.argsort(cen[idx, ax], kind="stable")]
+        l_lo = np.minimum.accumulate(lo[srt], axis=0)
+        l_hi = np.maximum.accumulate(hi[srt], axis=0)
+        r_lo = np.minimum.accumulate(lo[srt][::-1], axis=0)[::-1]
+        r_hi = np.maximum.accumulate(hi[srt][::-1], axis=0)[::-1]
+        i = np.arange(1, k)
+        cost = _area(l_lo[:-1], l_hi[:-1]) * i + _area(r_lo[1:], r_hi[1:]) * (k - i)
+        j = int(np.argmin(cost))
+        if cost[j] < best[0]:
+            best = (cost[j], srt, j + 1)
+    return best[1], best[2]
 
 
 def tree_depth(first, count):

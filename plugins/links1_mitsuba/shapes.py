@@ -285,15 +285,22 @@ class BlobSpec:
         scale, per, start, end, Lb, Gb = self._setup(o, d, tmin, tmax)
         T = self.threshold
         run = active & (start < end)
-        W0, dW0 = self._field(per, start)
-        inside = (W0 > T) | ((W0 == T) & (dW0 > 0))
-        sgn = dr.select(inside, -1.0, 1.0)
         eps = 1e-6 * max(T, 1.0)
-        n_eval = dr.select(run, mi.UInt32(1), mi.UInt32(0))
-        if self.solver == "paper":
-            t_obj, n_eval = self._paper(per, start, end, sgn, run, n_eval)
-        else:
-            t_obj, n_eval = self._exact(per, start, end, sgn, run, n_eval, Lb, Gb, eps)
+
+        def solve(start, end, Lb, Gb):
+            W0, dW0 = self._field(per, start)
+            inside = (W0 > T) | ((W0 == T) & (dW0 > 0))
+            sgn = dr.select(inside, -1.0, 1.0)
+            n_eval = dr.select(run, mi.UInt32(1), mi.UInt32(0))
+            if self.solver == "paper":
+                return self._paper(per, start, end, sgn, run, n_eval)
+            return self._exact(per, start, end, sgn, run, n_eval, Lb, Gb, eps)
+
+        def skip(start, end, Lb, Gb):
+            return dr.full(mi.Float, INF, dr.width(start)), dr.zeros(mi.UInt32, dr.width(start))
+
+        # symbolic conditional: a packet of rays that all miss the centres' spheres skips the solver
+        t_obj, n_eval = dr.if_stmt((start, end, Lb, Gb), run, solve, skip)
         if cost is not None:
             cost += n_eval
         t = t_obj / scale
