@@ -920,6 +920,9 @@ def define_integrator():
             result = dr.while_loop((stk_f, stk_u, *[state[k] for k in names]), cond, body,
                                    label="links1_whitted")
             v = dict(zip(names, result[2:]))
+            # materialise the loop's outputs in one kernel first: scatters into arrays of another
+            # size are scheduled as their own kernel, which would re-run the loop
+            dr.eval(v["L"], v["cost"], v["nsh"], v["nr"], v["nt"])          # kernel 2: the trees
             acc = dr.zeros(mi.Color3f, n)
             dr.scatter(acc, v["L"], idx)                   # one child forest per sample: no races
             cacc = dr.zeros(mi.UInt32, n)
@@ -927,7 +930,7 @@ def define_integrator():
             total = L1 + acc
             cost = cost1 + cacc
             flat = dr.ravel(total)
-            dr.eval(flat, cost, v["nsh"], v["nr"], v["nt"])                  # kernel 2: the rest
+            dr.eval(flat, cost)
             self._record(P, n, nsh1, v["nr"], v["nt"], (nr1, nt1), v["nsh"])
             return flat, cost, res["t"], res["slot"], res["ns"]
 
