@@ -473,7 +473,7 @@ def define_integrator():
                 st = P.shadow_t_np[spec.slot]
                 act = active & (dr.max(T) > 0)
                 if spec.__class__.__name__ == "BlobSpec":
-                    tc, _ = spec.intersect(o, d, 0.0, smax, act, cost)
+                    tc, _ = spec.intersect(o, d, 0.0, smax, act, cost, any_hit=True)
                 else:
                     tc, _ = spec.intersect(o, d, 0.0, smax, act)
                     cost += dr.select(act, mi.UInt32(1), 0)

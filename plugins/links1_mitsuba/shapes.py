@@ -278,8 +278,10 @@ class BlobSpec:
             dW += w * g * dt
         return W, dW
 
-    def intersect(self, o, d, tmin, tmax, active, cost=None):
-        """Nearest root of ``W = threshold`` in (tmin, tmax): ``(t, prim=0)``; ``cost`` += evaluations."""
+    def intersect(self, o, d, tmin, tmax, active, cost=None, any_hit=False):
+        """Nearest root of ``W = threshold`` in (tmin, tmax): ``(t, prim=0)``; ``cost`` += evaluations.
+        ``any_hit`` (shadow rays): the first bracketed root is enough, its exact place is not
+        refined (the returned t is then a point past the root, still inside the interval)."""
         import drjit as dr
         import mitsuba as mi
         scale, per, start, end, Lb, Gb = self._setup(o, d, tmin, tmax)
@@ -294,7 +296,7 @@ class BlobSpec:
             n_eval = dr.select(run, mi.UInt32(1), mi.UInt32(0))
             if self.solver == "paper":
                 return self._paper(per, start, end, sgn, run, n_eval)
-            return self._exact(per, start, end, sgn, run, n_eval, Lb, Gb, eps)
+            return self._exact(per, start, end, sgn, run, n_eval, Lb, Gb, eps, any_hit)
 
         def skip(start, end, Lb, Gb):
             return dr.full(mi.Float, INF, dr.width(start)), dr.zeros(mi.UInt32, dr.width(start))
@@ -306,7 +308,7 @@ class BlobSpec:
         t = t_obj / scale
         return dr.select(dr.isfinite(t_obj), t, INF), dr.zeros(mi.UInt32, dr.width(t))
 
-    def _exact(self, per, start, end, sgn, run, n_eval, Lb, Gb, eps):
+    def _exact(self, per, start, end, sgn, run, n_eval, Lb, Gb, eps, any_hit=False):
         """March with steps that never jump over a root (numerics.md LG bound); once the step
         falls below ``probe`` it probes ``max(2h, probe)`` ahead; a sign change brackets the
         root, refined by secant steps with the Illinois safeguard (as the core). A ray that
@@ -350,6 +352,8 @@ class BlobSpec:
 
         s, s_prev, f_prev, found, run, it, n_eval = dr.while_loop(
             (s, s_prev, f_prev, found, run, it, n_eval), cond, body)
+        if any_hit:
+            return dr.select(found, s, INF), n_eval
         # bracket [a, b] with F(a) > 0 >= F(b): secant steps with the Illinois safeguard
         a, b = mi.Float(s_prev), mi.Float(s)
         fa = f_prev
