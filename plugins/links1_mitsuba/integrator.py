@@ -243,6 +243,7 @@ def define_integrator():
             P.expo, P.ior = mi.Float(expo), mi.Float(ior)
             P.any_ambient = bool(np.any(amb > 0))
             P.has_dr, P.has_dt = mi.Bool(has_dr), mi.Bool(has_dt)
+            P.any_mitsuba_dr, P.any_mitsuba_dt = bool(has_dr.any()), bool(has_dt.any())
             P.any_mitsuba_delta = bool(np.any(has_dr | has_dt))
             P.any_phong_r = bool(np.any(refl.max(1) > 0))
             P.any_phong_t = bool(np.any(trans.max(1) > 0))
@@ -742,7 +743,10 @@ def define_integrator():
                     tw = dr.select(has_t & ~tir, tt, 0.0)
                     dir_t = S - nf * dr.safe_sqrt(1.0 - s2)                       # eq. (3.15)
             if P.any_mitsuba_delta:
-                for flag, which in ((mi.BSDFFlags.DeltaReflection, "r"), (mi.BSDFFlags.DeltaTransmission, "t")):
+                lobes = [(mi.BSDFFlags.DeltaReflection, "r")] if P.any_mitsuba_dr else []
+                if P.any_mitsuba_dt:
+                    lobes.append((mi.BSDFFlags.DeltaTransmission, "t"))
+                for flag, which in lobes:   # only the delta lobes some BSDF of the scene has
                     table = P.has_dr if which == "r" else P.has_dt
                     act = mb & dr.gather(mi.Bool, table, uslot, mb)
                     cx = mi.BSDFContext()
@@ -845,7 +849,11 @@ def define_integrator():
             cr, ct, w_r, w_t = self._children(res, act, mi.Color3f(1.0), mi.UInt32(1))
             key_r = mix32(key ^ mi.UInt32(0x63D83595))
             key_t = mix32(key ^ mi.UInt32(0xA511E9B3))
-            kids = (res["o_r"], res["dir_r"], w_r, key_r, res["o_t"], res["dir_t"], w_t, key_t)
+            has_t = P.any_phong_t or P.any_mitsuba_dt
+            if has_t:
+                kids = (res["o_r"], res["dir_r"], w_r, key_r, res["o_t"], res["dir_t"], w_t, key_t)
+            else:       # no refraction anywhere: no refraction children to store
+                kids = (res["o_r"], res["dir_r"], w_r, key_r)
             L1, cost1, nsh1 = res["L"], res["cost"], res["n_shadow"]
             dr.eval(L1, cost1, nsh1, cr, ct, *aov, *kids)                  # kernel 1: level 1
             idx = dr.compress(cr | ct)
@@ -858,16 +866,21 @@ def define_integrator():
                 self._record(P, n, nsh1, None, None, (nr1, nt1))
                 return flat, cost1, res["t"], res["slot"], res["ns"]
             g = lambda x: dr.gather(type(x), x, idx)  # noqa: E731
-            o_r, d_r, wr, kr, o_t, d_t, wt, kt = (g(x) for x in kids)
+            if has_t:
+                o_r, d_r, wr, kr, o_t, d_t, wt, kt = (g(x) for x in kids)
+            else:
+                o_r, d_r, wr, kr = (g(x) for x in kids)
+                o_t, d_t, wt, kt = o_r, d_r, wr, kr
             gr, gt = g(cr), g(ct)
             push = gr & gt
             K = md - 1
             stk_f = dr.alloc_local(mi.Float, 9 * K, mi.Float(0.0))   # o, d, weight per entry
             stk_u = dr.alloc_local(mi.UInt32, 2 * K, mi.UInt32(0))   # depth, key per entry
-            for k_, val in enumerate((o_t.x, o_t.y, o_t.z, d_t.x, d_t.y, d_t.z, wt.x, wt.y, wt.z)):
-                stk_f.write(val, mi.UInt32(k_), push)
-            stk_u.write(dr.full(mi.UInt32, 2, m), mi.UInt32(0), push)
-            stk_u.write(kt, mi.UInt32(1), push)
+            if has_t:
+                for k_, val in enumerate((o_t.x, o_t.y, o_t.z, d_t.x, d_t.y, d_t.z, wt.x, wt.y, wt.z)):
+                    stk_f.write(val, mi.UInt32(k_), push)
+                stk_u.write(dr.full(mi.UInt32, 2, m), mi.UInt32(0), push)
+                stk_u.write(kt, mi.UInt32(1), push)
             zu = dr.zeros(mi.UInt32, m)
             state = dict(o=mi.Point3f(dr.select(gr, o_r, o_t)), d=mi.Vector3f(dr.select(gr, d_r, d_t)),
                          wgt=mi.Color3f(dr.select(gr, wr, wt)),
@@ -875,7 +888,6 @@ def define_integrator():
                          cost=mi.UInt32(zu), sp=dr.select(push, one, 0), active=dr.full(mi.Bool, True, m),
                          nsh=mi.UInt32(zu), nr=mi.UInt32(zu), nt=mi.UInt32(zu))
             names = list(state)
-            has_t = P.any_phong_t or P.any_mitsuba_delta
 
             def cond(stk_f, stk_u, *vals):
                 return vals[names.index("active")]
@@ -1006,7 +1018,7 @@ def define_integrator():
             return mi.TensorXf(img.astype(np.float32))
 
         def sample(self, scene, sampler, ray, medium=None, active=True):
-            raise RuntimeError("links1_whitted renders whole ray trees per level; use mi.render() "
+            raise RuntimeError("links1_whitted renders whole ray trees in its own kernels; use mi.render() "
                                "or render_window(), not sample()")
 
         def aov_names(self):
