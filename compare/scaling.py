@@ -150,6 +150,7 @@ def main(argv=None) -> int:
         rows = []
         dead: dict = {}
         for n in sizes:
+            core_img = None
             path = Path(tmp.name) / f"{fam}-{n}.xml"
             path.write_text(make(n))
             extra = {}
@@ -172,6 +173,11 @@ def main(argv=None) -> int:
                     continue
                 rr = res_["results"][0]
                 img = res_["images"][1]
+                if r == "core":
+                    core_img = img
+                elif core_img is not None and r.startswith("links1-"):
+                    from links1 import diff
+                    row["relmse_vs_core"] = diff.relmse(img[..., :3], core_img[..., :3])
                 row.update(load_s=res_["load_s"], first_s=rr["first_s"], median_s=rr["median_s"],
                            peak_rss_mib=res_["peak_rss_mib"], finite=rr["finite"])
                 if aovs:
@@ -203,20 +209,21 @@ def _markdown(out) -> str:
          f"\nFilm {out['res']}×{out['res']}, 1 spp, warm median of {out['repeats']} frames, each "
          f"(scene, renderer) in its own process with a {out['timeout_s']:.0f} s limit (loading and the "
          "warm-up frame, which includes kernel compilation, count toward it). ×smallest = frame time / "
-         "frame time at the smallest size (same renderer, same run). Peak RSS includes the interpreter "
+         "frame time at the smallest size (same renderer, same run). relMSE vs core: the links1-llvm image "
+         "against the core's image of the same scene (same sample pattern; checks the fast path is right). Peak RSS includes the interpreter "
          f"and libraries; Δ = minus the smallest size's. Run took {out['wall_s']:.0f} s.\n"]
     for fam, rows in out["families"].items():
         s.append(f"\n## {fam}\n\n")
         t = []
         for x in rows:
             if "skipped" in x:
-                t.append([x["size"], x["renderer"], "skipped: " + str(x["skipped"])[:90]] + [None] * 7)
+                t.append([x["size"], x["renderer"], "skipped: " + str(x["skipped"])[:90]] + [None] * 8)
                 continue
             t.append([x["size"], x["renderer"], x["median_s"] * 1e3, x.get("time_ratio_to_smallest"),
                       x["first_s"], x["load_s"], x["peak_rss_mib"], x.get("rss_delta_mib"),
-                      x.get("centres_met_per_ray"), x.get("evals_per_ray_meeting")])
+                      x.get("centres_met_per_ray"), x.get("evals_per_ray_meeting"), x.get("relmse_vs_core")])
         s.append(md_table(["size", "renderer", "median ms", "×smallest", "first s", "load s", "peak MiB",
-                           "Δ MiB", "centres met/ray", "evals/ray"], t))
+                           "Δ MiB", "centres met/ray", "evals/ray", "relMSE vs core"], t))
     return "".join(s)
 
 
