@@ -1,22 +1,30 @@
 """``links1_whitted``: the LINKS-1 method (digest §2–4) as a Mitsuba 3 integrator in Dr.Jit.
 
-Recursion design: a megakernel. One symbolic ``dr.while_loop`` traces the whole ray tree of
-every camera sample: each iteration intersects one ray (Mitsuba shapes through
-``scene.ray_intersect``, links1 quadrics and blobs in Dr.Jit, nearest wins) and shades it
-(eq. 3.11 under every light, shadow rays with transmittance); the mirror child is followed
-next and a refraction child with a mirror sibling waits on a small per-lane stack (local
-memory). ``I = I_o + r I_r + t I_t`` (eq. 3.16) is accumulated as the sum of
-``weight · I_o`` over the tree (weight = product of the factors down the branch). A branch
-stops when its weight falls to ``min_weight`` (default 1/255, as the core). Lanes never
-interact, so a window renders the same bits as the same pixels of the full frame, and every
-run-time input (window offset and width, seed) is an opaque value: the kernel compiles once
-per scene and is reused for every window and frame.
+Recursion design (``_trace_tree``): two kernels per frame, whatever the depth.
+
+1. The camera level: every sample's ray is intersected (Mitsuba shapes through
+   ``scene.ray_intersect``, links1 quadrics and blobs in Dr.Jit, nearest wins) and shaded
+   (eq. 3.11 under every light, shadow rays with transmittance); its mirror and refraction
+   children are computed.
+2. The samples that spawn children are compacted (``dr.compress``, order kept) and one
+   symbolic ``dr.while_loop`` traces the rest of their ray trees, one ray per iteration: the
+   mirror child (eq. 3.12) is followed next, a refraction child (eq. 3.14-3.15) with a mirror
+   sibling waits on a small per-lane stack (Dr.Jit local memory). ``I = I_o + r I_r + t I_t``
+   (eq. 3.16) is accumulated as the sum of ``weight · I_o`` over the tree (weight = product of
+   the factors down the branch), then scattered back to its sample (one writer per sample).
+
+A branch stops when its weight falls to ``min_weight`` (default 1/255, as the core). Lanes
+never interact, so a window renders the same bits as the same pixels of the full frame, and
+every run-time input (window offset and width, seed) is an opaque value: the kernels compile
+once per scene and are reused for every window and frame. Many links1 quadrics go under a BVH
+(:mod:`links1_mitsuba.bvh`).
 
 What a scene doesn't need is not traced (decided once per scene in ``prepare``): no
 refraction code without transmissive surfaces, no reflection without reflective ones, no loop
-at all without either, no custom-shape code without custom shapes, no shadow ray toward a
-light from a hit that no shape can shadow (``_occluders``). ``stats`` holds the ray counts of
-the last render by kind.
+at all without either, no custom-shape code without custom shapes, no blob solver without
+blobs, no shadow ray toward a light from a hit that no shape can shadow (``_occluders``: a
+lone convex shape, a floor below every other shape and the light, ...). ``stats`` holds the
+ray counts of the last render by kind.
 """
 from __future__ import annotations
 
