@@ -87,6 +87,11 @@ class WhittedIntegrator:
         # Shapes grouped by material so each material is evaluated once per batch.
         self._material_of = np.array([self._mat_index(mats, s.material) for s in self.shapes], dtype=np.int64)
         self._materials = list(mats.values())
+        # Per light: which shapes can occlude it, and which shapes' points need a shadow ray.
+        from .occluders import shadow_plan
+        occluder, need = shadow_plan(self.shapes, self.lights)
+        self._shadow_need = need
+        self._shadow_t_light = [np.where(occ[:, None], self.shadow_t, 1.0) for occ in occluder]
         self.stats = TraceStats()
 
     @staticmethod
@@ -156,22 +161,26 @@ class WhittedIntegrator:
 
         eps = (1.0 + max_abs(rec.p)) * OFFSET_SCALE
         # --- direct light, eq. (3.11), with shadows (3-3-3)
-        for light in self.lights:
+        for j, light in enumerate(self.lights):
             wi, dist, L = light.illuminate(rec.p)
             f = np.zeros((n, 3))
             for k, g in groups:
                 f[g] = self._materials[k].eval(wo[g], wi[g], nf[g], rec.ns[g])
             contrib = f * L
-            lit = np.nonzero(np.any(contrib != 0.0, axis=1))[0]
-            if lit.size == 0:
+            lit = np.any(contrib != 0.0, axis=1)
+            need = self._shadow_need[j][hits.shape]
+            unblockable = lit & ~need  # no shape can lie between these points and the light
+            out[unblockable] += contrib[unblockable]
+            shadowed = np.nonzero(lit & need)[0]
+            if shadowed.size == 0:
                 continue
-            so = _offset(rec.p[lit], rec.ng[lit], wi[lit], eps[lit])
-            smax = dist[lit] - 2.0 * eps[lit]
-            c = np.zeros(lit.size, dtype=np.int64)
-            T = self.accel.shadow_transmittance(so, wi[lit], smax, self.shadow_t, c)
-            cost[idx[lit]] += c
-            self.stats.rays["shadow"] += lit.size
-            out[lit] += contrib[lit] * T
+            so = _offset(rec.p[shadowed], rec.ng[shadowed], wi[shadowed], eps[shadowed])
+            smax = dist[shadowed] - 2.0 * eps[shadowed]
+            c = np.zeros(shadowed.size, dtype=np.int64)
+            T = self.accel.shadow_transmittance(so, wi[shadowed], smax, self._shadow_t_light[j], c)
+            cost[idx[shadowed]] += c
+            self.stats.rays["shadow"] += shadowed.size
+            out[shadowed] += contrib[shadowed] * T
 
         if depth >= self.max_depth or not (self.any_reflection or self.any_transmission):
             return out
