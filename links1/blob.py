@@ -44,6 +44,11 @@ Solvers
     quadratic ``W*`` interpolates each triple, and the first solution of ``W* = T`` is
     the hit. Its error falls as ``samples`` grows; it can miss thin features.
 
+Only the centres whose ``3S`` sphere a ray crosses can contribute along it: they are
+compacted once per ray into a padded (n, kmax) candidate list sorted by centre index
+(:meth:`Blob._candidates`), and every field evaluation sums over those only, left to
+right in centre index order, so an evaluation costs O(centres met), not O(all centres).
+
 ``cost`` gets +1 per field evaluation per ray (the contract's blob rule).
 """
 from __future__ import annotations
@@ -140,6 +145,13 @@ class Blob(Shape):
         self._inv3s2 = 1.0 / (3.0 * S_ * S_)
         self._lip = np.abs(self._w) * 2.0 / (3.0 * S_)          # |w| max|P'|
         self._curv = np.abs(self._w) * 2.0 / (3.0 * S_ * S_)    # |w| max|P''|
+        # Per-centre data with one padding entry at index K (an exact zero term).
+        self._w_pad = np.append(self._w, 0.0)
+        self._S_pad = np.append(S_, 1.0)
+        self._k_pad = np.append(self._inv3s2, 1.0)
+        self._lip_pad = np.append(self._lip, 0.0)
+        self._curv_pad = np.append(self._curv, 0.0)
+        self._pos_pad = np.append(self._pos, False)
 
         # World bounds: union of the positive centres' 3S spheres (W <= 0 elsewhere).
         lin = self.to_world[:3, :3]
@@ -180,28 +192,33 @@ class Blob(Shape):
         h2 = dot(cr, cr)                                      # |(o - P_i) x d|^2
         return tau, h2
 
-    def _field(self, t, tau, h2):
-        """W and dW/dt at distances ``t`` (n,) or (n, M) along the rays; eq. (3.6)-(3.9)."""
-        S = self._S
-        if t.ndim == 1:              # (n,) points, (n, K) centres
+    def _field(self, t, cand):
+        """W and dW/dt at distances ``t`` (n,) or (n, M) along the rays; eq. (3.6)-(3.9).
+
+        ``cand`` = ``(tau, h2, w, S, k)``, each (n, kmax): the ray's candidate centres
+        (those whose ``3S`` sphere it crosses, see :meth:`_candidates`), padded with
+        ``w = 0``. The sums run over the candidates only, in increasing centre index,
+        strictly left to right (``cumsum``), so the padding (exact zeros) and the
+        batch's ``kmax`` never change a bit.
+        """
+        tau, hh, w, S, k = cand
+        if t.ndim == 1:              # (n,) points
             dt = t[:, None] - tau
-            hh = h2
         else:                        # (n, M) points
             dt = t[:, :, None] - tau[:, None, :]
-            hh = h2[:, None, :]
-        r2 = dt * dt + hh
-        r = np.sqrt(r2)
-        k = self._inv3s2
-        inner = r < S
-        outer = (~inner) & (r < 3.0 * S)
-        # eq. (3.9): P(r) piecewise quadratic; g = P'(r)/r (no 0/0 at a centre).
-        q = r - 3.0 * S
-        P = np.where(inner, 1.0 - r2 * k, np.where(outer, 0.5 * q * q * k, 0.0))
+            hh, w, S, k = hh[:, None, :], w[:, None, :], S[:, None, :], k[:, None, :]
+        with np.errstate(invalid="ignore", over="ignore"):
+            r2 = dt * dt + hh
+            r = np.sqrt(r2)
+            inner = r < S
+            outer = (~inner) & (r < 3.0 * S)
+            # eq. (3.9): P(r) piecewise quadratic; g = P'(r)/r (no 0/0 at a centre).
+            q = r - 3.0 * S
+            P = np.where(inner, 1.0 - r2 * k, np.where(outer, 0.5 * q * q * k, 0.0))
         with np.errstate(divide="ignore", invalid="ignore"):
             g = np.where(inner, -2.0 * k, np.where(outer, (q / r) * k, 0.0))
-        w = self._w
-        W = np.sum(w * P, axis=-1)           # eq. (3.6)/(3.7): W = sum w_i P(r_i)
-        dW = np.sum(w * g * dt, axis=-1)     # dW/dt = sum w_i g(r_i) (t - tau_i)
+        W = np.cumsum(w * P, axis=-1)[..., -1]           # eq. (3.6)/(3.7): W = sum w_i P(r_i)
+        dW = np.cumsum(w * g * dt, axis=-1)[..., -1]     # dW/dt = sum w_i g(r_i) (t - tau_i)
         return W, dW
 
     # ------------------------------------------------------------------ queries
@@ -233,21 +250,46 @@ class Blob(Shape):
             lo = tmin * lam - ts
             hi = tmax * lam - ts
         tau, h2 = self._ray_centres(o2, dn)
+        return lam, ts, lo, hi, self._candidates(tau, h2)
+
+    def _candidates(self, tau, h2):
+        """Compact each ray's centres whose ``3S`` sphere it crosses (``h^2 < 9 S^2``;
+        only these can contribute to W along the ray) into (n, kmax) arrays sorted by
+        centre index: ``cand = (tau, h2, w, S, k)`` padded with ``w = 0``, ``h2 = inf``
+        (an exact zero term), the chords ``c_lo``/``c_hi`` (inf/-inf on padding), the
+        validity mask, and whether the centre is positive."""
+        n, K = tau.shape
         nine = 9.0 * self._S * self._S
         crossed = h2 < nine
-        half = np.sqrt(np.maximum(nine - h2, 0.0))
-        c_lo = np.where(crossed, tau - half, np.inf)
-        c_hi = np.where(crossed, tau + half, -np.inf)
-        return lam, ts, lo, hi, tau, h2, crossed, c_lo, c_hi
+        cnt = crossed.sum(axis=1)
+        kmax = max(int(cnt.max()) if n else 0, 1)
+        rr, cc = np.nonzero(crossed)                 # row-major: centre index increasing
+        first = np.cumsum(cnt) - cnt
+        slot = np.arange(rr.size) - first[rr]
+        idx = np.full((n, kmax), K, dtype=np.int64)  # K: the padding entry
+        idx[rr, slot] = cc
+        valid = idx < K
+        tau_c = np.zeros((n, kmax))
+        h2_c = np.full((n, kmax), np.inf)
+        tau_c[rr, slot] = tau[rr, cc]
+        h2_c[rr, slot] = h2[rr, cc]
+        w_c = self._w_pad[idx]
+        S_c = self._S_pad[idx]
+        k_c = self._k_pad[idx]
+        half = np.sqrt(np.maximum(9.0 * S_c * S_c - h2_c, 0.0))
+        c_lo = np.where(valid, tau_c - half, np.inf)
+        c_hi = np.where(valid, tau_c + half, -np.inf)
+        return (tau_c, h2_c, w_c, S_c, k_c), idx, valid, c_lo, c_hi
 
     def _solve_exact(self, o, d, tmin, tmax, cost):
         n = o.shape[0]
-        lam, ts, seg_lo, seg_hi, tau, h2, crossed, c_lo, c_hi = self._local_segment(o, d, tmin, tmax)
-        pos = self._pos
+        lam, ts, seg_lo, seg_hi, (cand, idx, valid, c_lo, c_hi) = self._local_segment(o, d, tmin, tmax)
+        pos = self._pos_pad[idx]
         p_lo = np.where(pos, c_lo, np.inf)      # chords of positive centres: the span
         p_hi = np.where(pos, c_hi, -np.inf)
-        Lb = np.sum(np.where(crossed, self._lip, 0.0), axis=1)    # bound on |W'|
-        Gb = np.sum(np.where(crossed, self._curv, 0.0), axis=1)   # bound on |W''|
+        # Bounds on |W'| and |W''| over the crossed centres (left-to-right sums).
+        Lb = np.cumsum(self._lip_pad[idx], axis=1)[:, -1]
+        Gb = np.cumsum(self._curv_pad[idx], axis=1)[:, -1]
         T = self.threshold
         result = np.full(n, np.inf)
 
@@ -274,7 +316,7 @@ class Blob(Shape):
         for _ in range(MAX_MARCH):
             if act.size == 0:
                 break
-            W, dW = self._field(t, tau[act], h2[act])
+            W, dW = self._field(t, tuple(x[act] for x in cand))
             if cost is not None:
                 cost[act] += 1
             new = sign == 0
@@ -322,13 +364,13 @@ class Blob(Shape):
             ridx = np.concatenate(idx_l)
             result[ridx] = self._refine(ridx, np.concatenate(a_l), np.concatenate(b_l),
                                         np.concatenate(fa_l), np.concatenate(fb_l),
-                                        np.concatenate(s_l), tau, h2, cost)
+                                        np.concatenate(s_l), cand, cost)
         # Back to world units.
         t_world = (result + ts) / lam
         ok = np.isfinite(t_world) & (t_world > tmin) & (t_world < tmax)
         return np.where(ok, t_world, np.inf)
 
-    def _refine(self, ridx, a, b, fa, fb, sgn, tau, h2, cost):
+    def _refine(self, ridx, a, b, fa, fb, sgn, cand, cost):
         """Refine brackets ``F(a) > 0 >= F(b)`` (``F = sgn (T - W)``) of rays ``ridx`` by
         secant steps with the Illinois safeguard; returns the roots (local units)."""
         T = self.threshold
@@ -347,7 +389,7 @@ class Blob(Shape):
             act, x = act[~conv], x[~conv]
             if act.size == 0 or it == MAX_REFINE:
                 break
-            W, _dW = self._field(x, tau[ridx[act]], h2[ridx[act]])
+            W, _dW = self._field(x, tuple(c[ridx[act]] for c in cand))
             if cost is not None:
                 cost[ridx[act]] += 1  # ridx is unique per call
             Fx = sgn[act] * (T - W)
@@ -367,12 +409,15 @@ class Blob(Shape):
     def _solve_paper(self, o, d, tmin, tmax, cost):
         """The paper's span sampling and piecewise quadratic interpolation (3-2-3)."""
         n = o.shape[0]
-        lam, ts, seg_lo, seg_hi, tau, h2, crossed, c_lo, c_hi = self._local_segment(o, d, tmin, tmax)
+        lam, ts, seg_lo, seg_hi, (cand, idx, valid, c_lo, c_hi) = self._local_segment(o, d, tmin, tmax)
         T = self.threshold
         M = self.samples
-        # (i) spans: the positive centres' chords, cut to the ray segment.
-        lo = np.maximum(c_lo[:, self._pos], seg_lo[:, None])
-        hi = np.minimum(c_hi[:, self._pos], np.minimum(seg_hi, np.finfo(np.float64).max)[:, None])
+        # (i) spans: the positive centres' chords (crossed ones; others are empty), cut
+        # to the ray segment.
+        pos = self._pos_pad[idx]
+        lo = np.maximum(np.where(pos, c_lo, np.inf), seg_lo[:, None])
+        hi = np.minimum(np.where(pos, c_hi, -np.inf),
+                        np.minimum(seg_hi, np.finfo(np.float64).max)[:, None])
         valid = lo < hi
         # (ii) `samples` points per chord: more centres on the span, more samples.
         f = np.linspace(0.0, 1.0, M)
@@ -388,7 +433,7 @@ class Blob(Shape):
         fv = np.full(tt.shape, np.nan)
         rr, cc = np.nonzero(fin)
         if rr.size:
-            Wv, _ = self._field(tt[rr, cc], tau[rr], h2[rr])
+            Wv, _ = self._field(tt[rr, cc], tuple(x[rr] for x in cand))
             fv[rr, cc] = Wv - T
         # (iii) quadratics W* through consecutive triples, first solution of W* = T.
         result = _first_quadratic_root(tt, fv, cnt)
