@@ -13,6 +13,15 @@ that hierarchy is a bounding-volume hierarchy (BVH) built automatically:
 * :class:`Accel` answers the scene-level queries of docs/architecture.md: nearest hit,
   any-hit per shape, and the shadow transmittance product ``t1 t2 ... tn`` of 3-3-3.
 
+Two traversals give the same bits and costs. The *packet* one (``BVH.traverse``) pays a
+Python cost per (node, packet): cheap when packets are large. The *lock-step* one
+(``BVH.traverse_pairs``) keeps a stack per ray and advances all rays one node per step
+(vectorised slab tests over (ray, node) pairs), handing the leaves' (ray, shape) pairs
+over in batches; all plain :class:`links1.shapes.Quadric` shapes of a batch are then
+intersected in one vectorised call (``_QuadricSet``, the same arithmetic per pair), so
+the cost per frame no longer grows with the number of nodes visited. ``Accel`` picks the
+packet traversal when a batch has at least :data:`PACKET_RAYS_PER_LEAF` rays per leaf.
+
 Determinism
 -----------
 A ray's result and its ``cost`` entry must not depend on the other rays of the batch (a
@@ -28,6 +37,12 @@ import numpy as np
 #: Relative enlargement of the slab test's exit distance (pbrt's 2·gamma(3) idea, with a
 #: generous margin): a box is never missed because of rounding.
 _SLAB_SLACK = 1e-12
+
+#: Traversals of :class:`Accel` (they give the same bits and costs; only speed differs).
+TRAVERSALS = ("auto", "packet", "lockstep")
+#: ``"auto"`` uses the packet traversal when a batch has at least this many rays per leaf
+#: of the hierarchy (large coherent packets), else the lock-step one (many small packets).
+PACKET_RAYS_PER_LEAF = 200
 
 
 class BVH:
@@ -107,6 +122,13 @@ class BVH:
         self.axis = np.array(axis, dtype=np.int64)
         self.start = np.array(start, dtype=np.int64)
         self.count = np.array(count, dtype=np.int64)
+        # Depth of the tree (parents are created before their children): bounds the
+        # per-ray stacks of traverse_pairs.
+        depth = np.zeros(len(left), dtype=np.int64)
+        for nid, (lc, rc) in enumerate(zip(left, right)):
+            if lc >= 0:
+                depth[lc] = depth[rc] = depth[nid] + 1
+        self.depth = int(depth.max())
         # Scalar per-node data as Python lists: faster to index in the traversal loop.
         self._lo = self.node_lo.tolist()
         self._hi = self.node_hi.tolist()
@@ -209,8 +231,245 @@ class BVH:
                     stack.append((child, r[mask], tc[mask]))
 
 
+    def _slab_many(self, node, P, Q, t0, t1):
+        """Entry distance (inf where missed) of rays (P origins, Q reciprocal directions)
+        each against its own node ``node`` (m,): the same arithmetic as ``traverse``."""
+        lo = self.node_lo[node]
+        hi = self.node_hi[node]
+        with np.errstate(over="ignore"):
+            ax0 = (lo[:, 0] - P[:, 0]) * Q[:, 0]
+            ax1 = (hi[:, 0] - P[:, 0]) * Q[:, 0]
+            ay0 = (lo[:, 1] - P[:, 1]) * Q[:, 1]
+            ay1 = (hi[:, 1] - P[:, 1]) * Q[:, 1]
+            az0 = (lo[:, 2] - P[:, 2]) * Q[:, 2]
+            az1 = (hi[:, 2] - P[:, 2]) * Q[:, 2]
+        mn, mx = np.minimum, np.maximum
+        tn = mx(mx(mn(ax0, ax1), mn(ay0, ay1)), mx(mn(az0, az1), t0))
+        tf = mn(mn(mx(ax0, ax1), mx(ay0, ay1)), mx(az0, az1))
+        tf = mn(tf * np.where(tf > 0, 1.0 + _SLAB_SLACK, 1.0 - _SLAB_SLACK), t1)
+        return np.where(tn <= tf, tn, np.inf)
+
+    def traverse_pairs(self, o: np.ndarray, d: np.ndarray, tmin: np.ndarray, limit: np.ndarray,
+                       visit, rays: np.ndarray | None = None) -> None:
+        """Lock-step traversal: every ray walks the tree depth first with its own stack
+        (exactly the per-ray order, culling and ``limit`` reads of :meth:`traverse`), and
+        all rays advance together, one node each per step, in a few numpy calls whatever
+        the number of nodes or how the rays spread over them.
+
+        ``visit(r, k)`` is called for the leaf items reached: ``r`` (m,) int64 the rays
+        (increasing, each at most once per call), ``k`` (m,) their item positions in
+        :attr:`order`; a ray's items of one leaf come in successive calls, in order, and a
+        ray whose ``limit`` fell below its ``tmin`` stops visiting the rest of that leaf.
+        ``limit`` is read at every node, so ``visit`` may lower it or set it to ``-inf``.
+        """
+        n = o.shape[0]
+        if rays is None:
+            rays = np.arange(n, dtype=np.int64)
+        if rays.size == 0:
+            return
+        inv = 1.0 / np.where(d == 0, 1e-300, d)
+        dirpos = d >= 0
+        g = rays
+        tn = self._slab_many(np.zeros(g.size, dtype=np.int64), o[g], inv[g], tmin[g], limit[g])
+        ok = np.isfinite(tn)
+        g, tn = g[ok], tn[ok]
+        R = g.size
+        if R == 0:
+            return
+        D = self.depth + 2
+        stk = np.zeros((R, D), dtype=np.int64)
+        stt = np.zeros((R, D))
+        stt[:, 0] = tn
+        sp = np.ones(R, dtype=np.int64)
+        left, right, axis, start, count = self.left, self.right, self.axis, self.start, self.count
+        act = np.arange(R)
+        while act.size:
+            top = sp[act] - 1
+            node = stk[act, top]
+            tnode = stt[act, top]
+            sp[act] = top
+            ga = g[act]
+            lim = limit[ga]
+            live = tnode <= lim            # re-cull with the current limit
+            cnt = count[node]
+            inner = live & (cnt == 0)
+            leaf = live & (cnt > 0)
+            if inner.any():
+                ii = act[inner]
+                gi = ga[inner]
+                nd = node[inner]
+                li = lim[inner]
+                P, Q, t0 = o[gi], inv[gi], tmin[gi]
+                lc, rc = left[nd], right[nd]
+                tl = self._slab_many(lc, P, Q, t0, li)
+                tr = self._slab_many(rc, P, Q, t0, li)
+                pos = dirpos[gi, axis[nd]]
+                # Per ray: far child pushed first, near child on top (popped first).
+                far, near = np.where(pos, rc, lc), np.where(pos, lc, rc)
+                tf, tnr = np.where(pos, tr, tl), np.where(pos, tl, tr)
+                sp_i = sp[ii]
+                for child, tc in ((far, tf), (near, tnr)):
+                    h = np.isfinite(tc)
+                    stk[ii[h], sp_i[h]] = child[h]
+                    stt[ii[h], sp_i[h]] = tc[h]
+                    sp_i = sp_i + h
+                sp[ii] = sp_i
+            if leaf.any():
+                gl = ga[leaf]
+                st = start[node[leaf]]
+                cl = cnt[leaf]
+                alive = np.ones(gl.size, dtype=bool)
+                for i in range(int(cl.max())):
+                    if i > 0:
+                        alive &= limit[gl] >= tmin[gl]
+                    sel = alive & (cl > i)
+                    if sel.any():
+                        visit(gl[sel], st[sel] + i)
+            act = act[sp[act] > 0]
+
+
 def _sub(a, r):
     return None if a is None else a[r]
+
+
+def _batchable_quadric(s) -> bool:
+    from .shapes import Quadric
+    return type(s) is Quadric and not ({"intersect", "any_hit", "_hits", "_intervals"} & set(vars(s)))
+
+
+def _mv(A, x):
+    """``A[i] @ x[i]`` per row, written out like :func:`links1.vec.matvec` (same bits)."""
+    return np.stack([A[:, r, 0] * x[:, 0] + A[:, r, 1] * x[:, 1] + A[:, r, 2] * x[:, 2]
+                     for r in range(3)], axis=-1)
+
+
+class _QuadricSet:
+    """All the scene's :class:`links1.shapes.Quadric` shapes as arrays, intersected over
+    (ray, quadric) pairs in one vectorised call: per pair the exact arithmetic of
+    ``Quadric._intervals`` / ``Quadric._hits`` (same bits), clip planes padded with the
+    no-op plane ``0.y <= 1``."""
+
+    def __init__(self, quads):
+        self.A = np.array([q.A for q in quads], dtype=np.float64).reshape(-1, 3, 3)
+        self.m = np.array([q.m for q in quads], dtype=np.float64).reshape(-1, 3)
+        self.sphere = np.array([q.kind == "sphere" for q in quads])
+        self.capped = np.array([q.capped for q in quads])
+        C = max((len(q.clips) for q in quads), default=0)
+        self.cn = np.zeros((len(quads), C, 3))
+        self.ch = np.ones((len(quads), C))
+        for i, q in enumerate(quads):
+            for j, (nv, h) in enumerate(q.clips):
+                self.cn[i, j] = nv
+                self.ch[i, j] = h
+
+    @staticmethod
+    def _terms(u, v, sph):
+        if sph is True or sph is False:
+            return _QuadricSet._terms_one(u, v, sph)
+        u0, u1, u2 = u[:, 0], u[:, 1], u[:, 2]
+        v0, v1, v2 = v[:, 0], v[:, 1], v[:, 2]
+        cz = u0 * v1 - u1 * v0
+        a = np.where(sph, v0 * v0 + v1 * v1 + v2 * v2, v0 * v0 + v1 * v1)
+        b = np.where(sph, u0 * v0 + u1 * v1 + u2 * v2, u0 * v0 + u1 * v1)
+        c = np.where(sph, (u0 * u0 + u1 * u1 + u2 * u2) - 1.0, u0 * u0 + u1 * u1 - 1.0)
+        cx = u1 * v2 - u2 * v1
+        cy = u2 * v0 - u0 * v2
+        cr2 = np.where(sph, cx * cx + cy * cy + cz * cz, cz * cz)
+        return a, b, c, cr2
+
+    @staticmethod
+    def _terms_one(u, v, sphere):
+        u0, u1, u2 = u[:, 0], u[:, 1], u[:, 2]
+        v0, v1, v2 = v[:, 0], v[:, 1], v[:, 2]
+        cz = u0 * v1 - u1 * v0
+        if sphere:
+            cx = u1 * v2 - u2 * v1
+            cy = u2 * v0 - u0 * v2
+            return (v0 * v0 + v1 * v1 + v2 * v2, u0 * v0 + u1 * v1 + u2 * v2,
+                    (u0 * u0 + u1 * u1 + u2 * u2) - 1.0, cx * cx + cy * cy + cz * cz)
+        return v0 * v0 + v1 * v1, u0 * v0 + u1 * v1, u0 * u0 + u1 * u1 - 1.0, cz * cz
+
+    def hits(self, qi, o, d, tmin, tmax):
+        """``(t, prim)`` of rays ``o, d`` (m, 3) each against quadric ``qi`` (m,)."""
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            return self._hits(qi, o, d, tmin, tmax)
+
+    def _hits(self, qi, o, d, tmin, tmax):
+        A, m, sph = self.A[qi], self.m[qi], self.sphere[qi]
+        if sph.all():
+            sph = True
+        elif not sph.any():
+            sph = False
+        u = _mv(A, o - m)
+        v = _mv(A, d)
+        a, b, _, _ = self._terms(u, v, sph)
+        pos = a > 0
+        s = np.where(pos, -b / np.where(pos, a, 1.0), 0.0)
+        o2 = o + s[:, None] * d
+        u = _mv(A, o2 - m)
+        a, b, c, cr2 = self._terms(u, v, sph)
+        disc = a - cr2
+        sq = np.sqrt(np.maximum(disc, 0.0))
+        q = -(b + np.copysign(sq, b))
+        has = pos & (disc >= 0)
+        r1 = np.where(has & (q != 0), c / np.where(q != 0, q, 1.0), 0.0)
+        r2 = np.where(has, q / np.where(pos, a, 1.0), 0.0)
+        q_lo = np.minimum(r1, r2)
+        q_hi = np.maximum(r1, r2)
+        inside_all = ~pos & (c < 0)
+        q_lo = np.where(has, q_lo, np.where(inside_all, -np.inf, np.inf))
+        q_hi = np.where(has, q_hi, np.where(inside_all, np.inf, -np.inf))
+        n = o.shape[0]
+        c_in = np.full(n, -np.inf)
+        c_out = np.full(n, np.inf)
+        j_in = np.full(n, -1, dtype=np.int64)
+        j_out = np.full(n, -1, dtype=np.int64)
+        for j in range(self.cn.shape[1]):
+            nv = self.cn[qi, j]
+            h = self.ch[qi, j]
+            den = nv[:, 0] * v[:, 0] + nv[:, 1] * v[:, 1] + nv[:, 2] * v[:, 2]
+            num = h - (nv[:, 0] * u[:, 0] + nv[:, 1] * u[:, 1] + nv[:, 2] * u[:, 2])
+            tp = num / np.where(den != 0, den, 1.0)
+            lower = (den > 0) & (tp < c_out)
+            c_out = np.where(lower, tp, c_out)
+            j_out = np.where(lower, j, j_out)
+            raise_ = (den < 0) & (tp > c_in)
+            c_in = np.where(raise_, tp, c_in)
+            j_in = np.where(raise_, j, j_in)
+            empty = (den == 0) & (num < 0)
+            c_in = np.where(empty, np.inf, c_in)
+            c_out = np.where(empty, -np.inf, c_out)
+        cap = self.capped[qi]
+        if not cap.any():
+            ok1 = (c_in <= q_lo) & (q_lo <= c_out) & (q_lo <= q_hi)
+            ok2 = (c_in <= q_hi) & (q_hi <= c_out) & (q_lo <= q_hi)
+            t1 = s + np.where(ok1, q_lo, np.inf)
+            t2 = s + np.where(ok2, q_hi, np.inf)
+            g1 = np.isfinite(t1) & (t1 > tmin) & (t1 < tmax)
+            g2 = np.isfinite(t2) & (t2 > tmin) & (t2 < tmax)
+            t = np.where(g1, t1, np.where(g2, t2, np.inf))
+            prim = np.where(g1, 0, np.where(g2, 0, -1)).astype(np.int64)
+            return t, prim
+        # capped solid
+        lo = np.maximum(q_lo, c_in)
+        hi = np.minimum(q_hi, c_out)
+        solid = lo <= hi
+        cp1 = np.where(c_in > q_lo, 1 + j_in, 0)
+        cp2 = np.where(c_out < q_hi, 1 + j_out, 0)
+        ct1 = np.where(solid, lo, np.inf)
+        ct2 = np.where(solid, hi, np.inf)
+        # open shell
+        ok1 = (c_in <= q_lo) & (q_lo <= c_out) & (q_lo <= q_hi)
+        ok2 = (c_in <= q_hi) & (q_hi <= c_out) & (q_lo <= q_hi)
+        t1 = s + np.where(cap, ct1, np.where(ok1, q_lo, np.inf))
+        t2 = s + np.where(cap, ct2, np.where(ok2, q_hi, np.inf))
+        p1 = np.where(cap, cp1, 0)
+        p2 = np.where(cap, cp2, 0)
+        g1 = np.isfinite(t1) & (t1 > tmin) & (t1 < tmax)
+        g2 = np.isfinite(t2) & (t2 > tmin) & (t2 < tmax)
+        t = np.where(g1, t1, np.where(g2, t2, np.inf))
+        prim = np.where(g1, p1, np.where(g2, p2, -1)).astype(np.int64)
+        return t, prim
 
 
 class Accel:
@@ -227,7 +486,10 @@ class Accel:
         Shapes per leaf of the hierarchy.
     """
 
-    def __init__(self, shapes, max_leaf: int = 2):
+    def __init__(self, shapes, max_leaf: int = 2, traversal: str = "auto"):
+        if traversal not in TRAVERSALS:
+            raise ValueError(f"Accel: traversal must be one of {TRAVERSALS}, got {traversal!r}")
+        self.traversal = traversal
         self.shapes = list(shapes)
         finite, unbounded, lo, hi = [], [], [], []
         for j, s in enumerate(self.shapes):
@@ -245,6 +507,15 @@ class Accel:
         self.bvh = BVH(np.array(lo), np.array(hi), max_leaf=max_leaf) if finite else None
         # Shape indices in leaf order of the hierarchy.
         self._leaf_shapes = (self._finite[self.bvh.order].tolist() if self.bvh is not None else [])
+        self._leaf_arr = np.array(self._leaf_shapes, dtype=np.int64)
+        # The plain quadrics are intersected together over (ray, quadric) pairs.
+        self._qslot = np.full(len(self.shapes), -1, dtype=np.int64)
+        quads = []
+        for j, s in enumerate(self.shapes):
+            if _batchable_quadric(s):
+                self._qslot[j] = len(quads)
+                quads.append(s)
+        self._quads = _QuadricSet(quads) if quads else None
 
     def __repr__(self) -> str:
         nodes = len(self.bvh) if self.bvh is not None else 0
@@ -252,18 +523,26 @@ class Accel:
                 f"unbounded={len(self.unbounded)})")
 
     # ------------------------------------------------------------------ helpers
-    def _each_leaf(self, o, d, tmin, limit, visit_shape, rays=None):
-        """Call ``visit_shape(j, rays)`` for every shape whose box the rays reach; the
-        unbounded shapes are visited first, in index order."""
-        if rays is None:
-            rays = np.arange(o.shape[0], dtype=np.int64)
+    def _each_pair(self, o, d, tmin, limit, visit):
+        """Call ``visit(r, j)`` with rays ``r`` (increasing, unique) and the shapes ``j``
+        (one per ray) whose box they reach, per ray in the order of the depth-first,
+        near-child-first traversal; the unbounded shapes are visited first, in index
+        order."""
+        rays = np.arange(o.shape[0], dtype=np.int64)
         for j in self.unbounded:
             r = rays[limit[rays] >= tmin[rays]]
             if r.size:
-                visit_shape(j, r)
+                visit(r, np.full(r.size, j, dtype=np.int64))
         if self.bvh is None:
             return
-        leaf_shapes = self._leaf_shapes
+        leaf = self._leaf_arr
+        mode = self.traversal
+        if mode == "auto":
+            n_leaves = max(1, (len(self.bvh) + 1) // 2)
+            mode = "packet" if rays.size >= PACKET_RAYS_PER_LEAF * n_leaves else "lockstep"
+        if mode == "lockstep":
+            self.bvh.traverse_pairs(o, d, tmin, limit, lambda r, k: visit(r, leaf[k]), rays)
+            return
 
         def visit_leaf(start, count, r):
             for k in range(start, start + count):
@@ -271,9 +550,61 @@ class Accel:
                     r = r[limit[r] >= tmin[r]]
                     if r.size == 0:
                         return
-                visit_shape(leaf_shapes[k], r)
+                visit(r, np.full(r.size, leaf[k], dtype=np.int64))
 
         self.bvh.traverse(o, d, tmin, limit, visit_leaf, rays)
+
+    def _groups(self, j):
+        """Positions in ``j`` of the batched quadrics, and (shape, positions) of the rest."""
+        slot = self._qslot[j]
+        if j.size and j[0] == j[-1] and np.all(j == j[0]):
+            # One shape (always so in the packet traversal): its own call, scalar operands.
+            return slot, np.zeros(0, dtype=np.int64), [(int(j[0]), np.arange(j.size))]
+        q = slot >= 0
+        qpos = np.nonzero(q)[0]
+        rest = []
+        if qpos.size < j.size:
+            opos = np.nonzero(~q)[0]
+            js = j[opos]
+            if js.size and np.all(js == js[0]):
+                rest.append((int(js[0]), opos))
+            else:
+                order = np.argsort(js, kind="stable")
+                js_s = js[order]
+                cut = np.nonzero(np.diff(js_s))[0] + 1
+                for part in np.split(order, cut):
+                    rest.append((int(js[part[0]]), opos[part]))
+        return slot, qpos, rest
+
+    def _test_pairs(self, r, j, o, d, tmin, tmax, cost, any_hit=False):
+        """Intersect ray ``r[i]`` with shape ``j[i]`` (segment ``tmin[r], tmax``);
+        returns ``t`` (or hit bools for ``any_hit``) and adds to ``cost[r]``."""
+        m = r.size
+        out = np.zeros(m, dtype=bool) if any_hit else np.full(m, np.inf)
+        prim = None if any_hit else np.full(m, -1, dtype=np.int64)
+        slot, qpos, rest = self._groups(j)
+        if qpos.size:
+            rr = r[qpos]
+            t, p = self._quads.hits(slot[qpos], o[rr], d[rr], tmin[rr], tmax[qpos])
+            if any_hit:
+                out[qpos] = np.isfinite(t)
+            else:
+                out[qpos] = t
+                prim[qpos] = p
+            if cost is not None:
+                cost[rr] += 1
+        for jj, pos in rest:
+            rr = r[pos]
+            c = None if cost is None else np.zeros(rr.size, dtype=np.int64)
+            if any_hit:
+                out[pos] = self.shapes[jj].any_hit(o[rr], d[rr], tmin[rr], tmax[pos], c)
+            else:
+                t, p = self.shapes[jj].intersect(o[rr], d[rr], tmin[rr], tmax[pos], c)
+                out[pos] = t
+                prim[pos] = p
+            if cost is not None:
+                cost[rr] += c
+        return out, prim
 
     # ------------------------------------------------------------------ queries
     def intersect(self, o, d, tmin, tmax, cost=None):
@@ -291,27 +622,23 @@ class Accel:
         best_s = np.full(n, -1, dtype=np.int64)
         best_p = np.full(n, -1, dtype=np.int64)
         limit = tmax.copy()  # min(tmax, best_t): culls the traversal
-        shapes = self.shapes
 
-        def visit_shape(j, r):
+        def visit(r, j):
             bs = best_s[r]
             lim = limit[r]
             # A lower-index shape may tie with the current best: let it return t == best.
             lim = np.where((bs > j), np.nextafter(lim, np.inf), lim)
-            c = None if cost is None else np.zeros(r.size, dtype=np.int64)
-            t, prim = shapes[j].intersect(o[r], d[r], tmin[r], lim, c)
-            if cost is not None:
-                cost[r] += c
+            t, prim = self._test_pairs(r, j, o, d, tmin, lim, cost)
             bt = best_t[r]
             win = (t < bt) | ((t == bt) & (j < bs) & np.isfinite(t))
             if win.any():
                 w = r[win]
                 best_t[w] = t[win]
-                best_s[w] = j
+                best_s[w] = j[win]
                 best_p[w] = prim[win]
                 limit[w] = t[win]
 
-        self._each_leaf(o, d, tmin, limit, visit_shape)
+        self._each_pair(o, d, tmin, limit, visit)
         return best_t, best_s, best_p
 
     def any_hit_per_shape(self, o, d, tmin, tmax, cost=None):
@@ -322,12 +649,21 @@ class Accel:
         n = o.shape[0]
         tmin = np.broadcast_to(np.asarray(tmin, dtype=np.float64), (n,))
         limit = np.broadcast_to(np.asarray(tmax, dtype=np.float64), (n,)).copy()
+        rs, js = [], []
+
+        def visit(r, j):
+            rs.append(r)
+            js.append(j)
+
+        self._each_pair(o, d, tmin, limit, visit)
         reached: dict[int, list] = {}
-
-        def visit_shape(j, r):
-            reached.setdefault(j, []).append(r)
-
-        self._each_leaf(o, d, tmin, limit, visit_shape)
+        if rs:
+            rr, jj = np.concatenate(rs), np.concatenate(js)
+            order = np.lexsort((rr, jj))
+            rr, jj = rr[order], jj[order]
+            cut = np.nonzero(np.diff(jj))[0] + 1
+            for part_r, part_j in zip(np.split(rr, cut), np.split(jj, cut)):
+                reached[int(part_j[0])] = [part_r]
         for j in sorted(reached):
             r = np.sort(np.concatenate(reached[j]))
             c = None if cost is None else np.zeros(r.size, dtype=np.int64)
@@ -355,21 +691,20 @@ class Accel:
         tmin = np.zeros(n)
         limit = np.broadcast_to(np.asarray(tmax, dtype=np.float64), (n,)).copy()
         limit[~(limit > 0)] = -np.inf
-        shapes = self.shapes
+        opaque_or_tinted = ~np.all(shadow_t == 1.0, axis=1)
 
-        def visit_shape(j, r):
-            st = shadow_t[j]
-            if np.all(st == 1.0):
-                return  # fully transparent: cannot change the product
-            c = None if cost is None else np.zeros(r.size, dtype=np.int64)
-            h = shapes[j].any_hit(o[r], d[r], tmin[r], limit[r], c)
-            if cost is not None:
-                cost[r] += c
+        def visit(r, j):
+            keep = opaque_or_tinted[j]  # fully transparent: cannot change the product
+            if not keep.all():
+                r, j = r[keep], j[keep]
+                if r.size == 0:
+                    return
+            h, _ = self._test_pairs(r, j, o, d, tmin, limit[r], cost, any_hit=True)
             if h.any():
                 w = r[h]
-                T[w] *= st  # 3-3-3: L' = t1 t2 ... tn L
+                T[w] *= shadow_t[j[h]]  # 3-3-3: L' = t1 t2 ... tn L
                 dead = w[np.all(T[w] == 0.0, axis=1)]
                 limit[dead] = -np.inf  # early out
 
-        self._each_leaf(o, d, tmin, limit, visit_shape)
+        self._each_pair(o, d, tmin, limit, visit)
         return T
