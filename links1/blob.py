@@ -48,6 +48,9 @@ Only the centres whose ``3S`` sphere a ray crosses can contribute along it: they
 compacted once per ray into a padded (n, kmax) candidate list sorted by centre index
 (:meth:`Blob._candidates`), and every field evaluation sums over those only, left to
 right in centre index order, so an evaluation costs O(centres met), not O(all centres).
+From :data:`BVH_MIN_CENTRES` centres on, the crossed centres themselves are found with a
+hierarchy of boxes over the 3S spheres (``accel.BVH.traverse_pairs``; same pairs, same
+bits as testing every centre), and the normal sums over them too.
 
 ``cost`` gets +1 per field evaluation per ray (the contract's blob rule).
 """
@@ -68,6 +71,11 @@ PROBE_STEP = 1e-7
 MIN_S_RATIO = 1e-100
 #: Rays per chunk x centres (x samples) kept in memory at once.
 _CHUNK_ELEMS = 1 << 19
+#: From this many centres on, a ray's crossed centres are found with a hierarchy of
+#: boxes over the 3S spheres instead of testing every centre.
+BVH_MIN_CENTRES = 160
+#: Assumed number of centres met per ray when sizing chunks on the hierarchy path.
+_MET_GUESS = 64
 
 SOLVERS = ("exact", "paper")
 
@@ -152,6 +160,14 @@ class Blob(Shape):
         self._lip_pad = np.append(self._lip, 0.0)
         self._curv_pad = np.append(self._curv, 0.0)
         self._pos_pad = np.append(self._pos, False)
+        self._nine = 9.0 * S_ * S_
+        # Hierarchy over the centres' 3S spheres (normalised units), slightly enlarged so
+        # that a crossed sphere's box is never missed; the exact test h^2 < 9 S^2 follows.
+        self._centre_bvh = None
+        if c.shape[0] >= BVH_MIN_CENTRES:
+            from .accel import BVH
+            R = 3.0 * S_ * (1.0 + 1e-9)
+            self._centre_bvh = BVH(self._p - R[:, None], self._p + R[:, None], max_leaf=4)
 
         # World bounds: union of the positive centres' 3S spheres (W <= 0 elsewhere).
         lin = self.to_world[:3, :3]
@@ -231,7 +247,7 @@ class Blob(Shape):
         t_out = np.full(n, np.inf)
         if n == 0:
             return t_out, np.full(0, -1, dtype=np.int64)
-        K = self._p.shape[0]
+        K = self._p.shape[0] if self._centre_bvh is None else _MET_GUESS
         per = K * (self.samples if self.solver == "paper" else 1)
         chunk = max(1, _CHUNK_ELEMS // max(per, 1))
         solve = self._solve_exact if self.solver == "exact" else self._solve_paper
@@ -249,21 +265,52 @@ class Blob(Shape):
         with np.errstate(invalid="ignore"):
             lo = tmin * lam - ts
             hi = tmax * lam - ts
-        tau, h2 = self._ray_centres(o2, dn)
-        return lam, ts, lo, hi, self._candidates(tau, h2)
+        if self._centre_bvh is None:
+            tau, h2 = self._ray_centres(o2, dn)
+            crossed = h2 < self._nine
+            rr, cc = np.nonzero(crossed)             # row-major: centre index increasing
+            pairs = rr, cc, tau[rr, cc], h2[rr, cc]
+        else:
+            pairs = self._crossed_pairs(o2, dn)
+        return lam, ts, lo, hi, self._candidates(o2.shape[0], *pairs)
 
-    def _candidates(self, tau, h2):
+    def _crossed_pairs(self, o2, dn):
+        """(ray, centre, tau, h^2) of every centre whose 3S sphere the line crosses, found
+        with the hierarchy over the spheres; sorted by ray, then centre index. The same
+        arithmetic per pair as :meth:`_ray_centres` (same bits)."""
+        n = o2.shape[0]
+        rs, ks = [], []
+
+        def visit(r, k):
+            rs.append(r)
+            ks.append(k)
+
+        big = np.finfo(np.float64).max
+        self._centre_bvh.traverse_pairs(o2, dn, np.full(n, -big), np.full(n, big), visit)
+        if not rs:
+            e = np.zeros(0, dtype=np.int64)
+            return e, e, np.zeros(0), np.zeros(0)
+        rr = np.concatenate(rs)
+        cc = self._centre_bvh.order[np.concatenate(ks)]
+        rel = o2[rr] - self._p[cc]                            # o - P_i
+        dr = dn[rr]
+        tau = -dot(rel, dr)                                   # (P_i - o).d
+        cr = cross(rel, dr)
+        h2 = dot(cr, cr)                                      # |(o - P_i) x d|^2
+        keep = h2 < self._nine[cc]
+        rr, cc, tau, h2 = rr[keep], cc[keep], tau[keep], h2[keep]
+        order = np.lexsort((cc, rr))
+        return rr[order], cc[order], tau[order], h2[order]
+
+    def _candidates(self, n, rr, cc, tau_v, h2_v):
         """Compact each ray's centres whose ``3S`` sphere it crosses (``h^2 < 9 S^2``;
-        only these can contribute to W along the ray) into (n, kmax) arrays sorted by
-        centre index: ``cand = (tau, h2, w, S, k)`` padded with ``w = 0``, ``h2 = inf``
-        (an exact zero term), the chords ``c_lo``/``c_hi`` (inf/-inf on padding), the
-        validity mask, and whether the centre is positive."""
-        n, K = tau.shape
-        nine = 9.0 * self._S * self._S
-        crossed = h2 < nine
-        cnt = crossed.sum(axis=1)
+        only these can contribute to W along the ray), given as pairs ``(rr, cc)`` sorted
+        by ray then centre index with their ``tau``, ``h^2``, into (n, kmax) arrays:
+        ``cand = (tau, h2, w, S, k)`` padded with ``w = 0``, ``h2 = inf`` (an exact zero
+        term), the chords ``c_lo``/``c_hi`` (inf/-inf on padding), the validity mask."""
+        K = self._p.shape[0]
+        cnt = np.bincount(rr, minlength=n)
         kmax = max(int(cnt.max()) if n else 0, 1)
-        rr, cc = np.nonzero(crossed)                 # row-major: centre index increasing
         first = np.cumsum(cnt) - cnt
         slot = np.arange(rr.size) - first[rr]
         idx = np.full((n, kmax), K, dtype=np.int64)  # K: the padding entry
@@ -271,8 +318,8 @@ class Blob(Shape):
         valid = idx < K
         tau_c = np.zeros((n, kmax))
         h2_c = np.full((n, kmax), np.inf)
-        tau_c[rr, slot] = tau[rr, cc]
-        h2_c[rr, slot] = h2[rr, cc]
+        tau_c[rr, slot] = tau_v
+        h2_c[rr, slot] = h2_v
         w_c = self._w_pad[idx]
         S_c = self._S_pad[idx]
         k_c = self._k_pad[idx]
@@ -448,16 +495,23 @@ class Blob(Shape):
         p = o + t[:, None] * d
         o2, dn, lam, ts = self._to_local(o, d)
         x = o2 + (t * lam - ts)[:, None] * dn            # the hit, normalised object units
-        rel = x[:, None, :] - self._p[None, :, :]         # x - P_i
+        if self._centre_bvh is None:
+            P, w, S, k = self._p[None, :, :], self._w, self._S, self._inv3s2
+        else:
+            # Only the centres whose 3S sphere the ray crosses can be within 3S of a point
+            # on it; the others add exact zeros to the (left-to-right) sum below.
+            idx = self._candidates(o.shape[0], *self._crossed_pairs(o2, dn))[1]
+            P = np.append(self._p, [[0.0, 0.0, 0.0]], axis=0)[idx]
+            w, S, k = self._w_pad[idx], self._S_pad[idx], self._k_pad[idx]
+        rel = x[:, None, :] - P                           # x - P_i
         r2 = dot(rel, rel)
         r = np.sqrt(r2)
-        S = self._S
-        k = self._inv3s2
         inner = r < S
         outer = (~inner) & (r < 3.0 * S)
         with np.errstate(divide="ignore", invalid="ignore"):
             g = np.where(inner, -2.0 * k, np.where(outer, ((r - 3.0 * S) / r) * k, 0.0))
-        grad = np.sum((self._w * g)[:, :, None] * rel, axis=1)   # grad W = sum w g (x - P_i)
+        # grad W = sum w g (x - P_i), summed left to right in centre index order
+        grad = np.cumsum((w * g)[:, :, None] * rel, axis=1)[:, -1, :]
         gl = np.sqrt(dot(grad, grad))
         scale = np.sum(self._lip) + 1e-300
         flat = ~(gl > 1e-12 * scale)                      # pinch point: no direction

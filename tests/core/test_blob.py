@@ -309,9 +309,14 @@ def test_field_sums_only_met_centres(solver):
     # Candidate lists: sorted by centre index, exactly the crossed centres.
     o2, dn, lam, ts = b._to_local(o, d)
     tau, h2 = b._ray_centres(o2, dn)
-    cand, idx, valid, _, _ = b._candidates(tau, h2)
-    assert idx.shape[1] < C.shape[0] // 8
     crossed = h2 < 9 * b._S ** 2
+    assert b._centre_bvh is not None
+    rr, cc, tv, hv = b._crossed_pairs(o2, dn)   # found with the hierarchy: the dense set, same bits
+    r0, c0 = np.nonzero(crossed)
+    assert np.array_equal(rr, r0) and np.array_equal(cc, c0)
+    assert np.array_equal(tv, tau[r0, c0]) and np.array_equal(hv, h2[r0, c0])
+    cand, idx, valid, _, _ = b._candidates(n, rr, cc, tv, hv)
+    assert idx.shape[1] < C.shape[0] // 8
     assert np.array_equal(valid.sum(1), crossed.sum(1))
     assert np.all(np.diff(idx, axis=1) >= 0) and np.all(idx[~valid] == C.shape[0])
     assert np.all(np.diff(np.where(valid, idx, 10 ** 6 + np.arange(idx.shape[1])), axis=1) > 0)
@@ -331,3 +336,31 @@ def test_field_sums_only_met_centres(solver):
     cs = np.zeros(sub.size, dtype=np.int64)
     ts_, _ = b.intersect(o[sub], d[sub], 0.0, INF, cs)
     assert np.array_equal(ts_, th[sub]) and np.array_equal(cs, cost[sub])
+    # Without the hierarchy (every centre tested per ray): the same bits and costs.
+    dense = Blob(C, 0.5, solver=solver)
+    dense._centre_bvh = None
+    cd = np.zeros(n, dtype=np.int64)
+    td, _ = dense.intersect(o, d, 0.0, INF, cd)
+    assert np.array_equal(td, th) and np.array_equal(cd, cost)
+
+
+def test_surface_normals_from_met_centres_equal_dense():
+    """With the hierarchy, the normal sums over the centres the ray crosses only: the same
+    bits as the sum over every centre."""
+    C, m = _many_centres(300, seed=4)
+    b = Blob(C, 0.5)
+    dense = Blob(C, 0.5)
+    dense._centre_bvh = None
+    assert b._centre_bvh is not None
+    rng = np.random.default_rng(2)
+    n = 500
+    eye = np.array([0.0, m + 1.0, m + 1.0])
+    d = np.c_[rng.uniform(-m / 2, m / 2, n), rng.uniform(-0.3, 0.3, n), rng.uniform(-m / 2, m / 2, n)] - eye
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    o = np.broadcast_to(eye, (n, 3)).copy()
+    t, prim = b.intersect(o, d, 0.0, INF)
+    h = np.isfinite(t)
+    assert h.sum() > n // 3
+    p1, ng1, ns1 = b.surface(o[h], d[h], t[h], prim[h])
+    p2, ng2, ns2 = dense.surface(o[h], d[h], t[h], prim[h])
+    assert np.array_equal(p1, p2) and np.array_equal(ng1, ng2) and np.array_equal(ns1, ns2)
