@@ -357,10 +357,28 @@ class _QuadricSet:
         C = max((len(q.clips) for q in quads), default=0)
         self.cn = np.zeros((len(quads), C, 3))
         self.ch = np.ones((len(quads), C))
+        self.capn = np.zeros((len(quads), C, 3))
         for i, q in enumerate(quads):
             for j, (nv, h) in enumerate(q.clips):
                 self.cn[i, j] = nv
                 self.ch[i, j] = h
+                self.capn[i, j] = q._cap_normals[j]
+
+    def surface(self, qi, o, d, t, prim):
+        """``Quadric.surface`` of rays ``o, d`` (m, 3) hitting quadric ``qi`` (m,) at
+        ``t`` (finite), ``prim``: the same bits, all quadrics at once."""
+        from .vec import normalize
+        p = o + t[:, None] * d
+        A = self.A[qi]
+        y = _mv(A, p - self.m[qi])
+        cyl = ~self.sphere[qi]
+        if cyl.any():
+            y = np.where(cyl[:, None], y * np.array([1.0, 1.0, 0.0]), y)
+        ng = normalize(_mv(A.transpose(0, 2, 1), y))
+        cap = prim >= 1
+        if cap.any():
+            ng[cap] = self.capn[qi[cap], prim[cap] - 1]
+        return p, ng, ng.copy()
 
     @staticmethod
     def _terms(u, v, sph):
@@ -607,6 +625,31 @@ class Accel:
         return out, prim
 
     # ------------------------------------------------------------------ queries
+    def surface(self, o, d, t, shape_idx, prim):
+        """``(p, ng, ns)`` (N, 3) of hits ``shape_idx >= 0`` (the shapes' own ``surface``,
+        same bits; zeros where ``shape_idx < 0``): the plain quadrics all in one call, the
+        other shapes one call each (grouped by sorting, not one mask per shape)."""
+        from .shapes import _finite_or_zero
+        o = np.asarray(o, dtype=np.float64).reshape(-1, 3)
+        d = np.asarray(d, dtype=np.float64).reshape(-1, 3)
+        t = _finite_or_zero(t)
+        shape_idx = np.asarray(shape_idx, dtype=np.int64)
+        prim = np.asarray(prim, dtype=np.int64)
+        n = o.shape[0]
+        p, ng, ns = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3))
+        hit = np.nonzero(shape_idx >= 0)[0]
+        if hit.size == 0:
+            return p, ng, ns
+        j = shape_idx[hit]
+        slot, qpos, rest = self._groups(j)
+        if qpos.size:
+            rr = hit[qpos]
+            p[rr], ng[rr], ns[rr] = self._quads.surface(slot[qpos], o[rr], d[rr], t[rr], prim[rr])
+        for jj, pos in rest:
+            rr = hit[pos]
+            p[rr], ng[rr], ns[rr] = self.shapes[jj].surface(o[rr], d[rr], t[rr], prim[rr])
+        return p, ng, ns
+
     def intersect(self, o, d, tmin, tmax, cost=None):
         """Nearest hit over all shapes.
 

@@ -292,3 +292,19 @@ def test_lockstep_and_packet_traversals_same_bits(seed):
 def test_accel_rejects_unknown_traversal():
     with pytest.raises(ValueError, match="traversal"):
         Accel([Quadric("sphere", tf.scale(1.0))], traversal="bfs")
+
+
+def test_surface_batched_equals_each_shape_bitwise():
+    """Accel.surface: the shapes' own surface() bits, quadrics (caps included) batched."""
+    rng = np.random.default_rng(7)
+    shapes = random_scene(rng, k=40) + _quadric_zoo(rng, 40)
+    acc = Accel(shapes)
+    o, d = random_rays(rng, 4000)
+    t, s, p = acc.intersect(o, d, 0.0, INF)
+    assert (s >= 0).sum() > 500 and (p > 0).sum() > 5
+    P, NG, NS = acc.surface(o, d, t, s, p)
+    for j in np.unique(s[s >= 0]):
+        m = s == j
+        pj, ngj, nsj = shapes[j].surface(o[m], d[m], t[m], p[m])
+        assert np.array_equal(P[m], pj) and np.array_equal(NG[m], ngj) and np.array_equal(NS[m], nsj)
+    assert np.all(P[s < 0] == 0) and np.all(NG[s < 0] == 0)
