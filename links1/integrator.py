@@ -54,6 +54,51 @@ class TraceStats:
     rays: dict = field(default_factory=lambda: {"camera": 0, "shadow": 0, "reflect": 0, "refract": 0})
 
 
+@dataclass
+class ScenePlan:
+    """What the integrator needs to know about a scene, looked at once (cached on the scene):
+    materials grouped so each is evaluated once per batch, per-shape shadow transmittance
+    (3-3-3), which kinds of secondary rays can occur, and per light which shapes can occlude
+    it and which shapes' points need a shadow ray at all (:mod:`links1.occluders`)."""
+
+    materials: list
+    material_of: np.ndarray
+    shadow_t: np.ndarray
+    any_reflection: bool
+    any_transmission: bool
+    any_emission: bool
+    shadow_need: list
+    shadow_t_light: list
+
+
+def scene_plan(scene) -> ScenePlan:
+    plan = getattr(scene, "_plan", None)
+    if plan is not None:
+        return plan
+    from .occluders import shadow_plan
+    shapes = scene.shapes
+    index = {}
+    materials = []
+    for s in shapes:
+        if id(s.material) not in index:
+            index[id(s.material)] = len(materials)
+            materials.append(s.material)
+    shadow_t = np.array([s.material.shadow_t for s in shapes]).reshape(-1, 3)
+    occluder, need = shadow_plan(shapes, scene.lights)
+    plan = ScenePlan(
+        materials=materials,
+        material_of=np.array([index[id(s.material)] for s in shapes], dtype=np.int64),
+        shadow_t=shadow_t,
+        any_reflection=any(m.has_reflection for m in materials),
+        any_transmission=any(m.has_transmission for m in materials),
+        any_emission=any(s.emission is not None for s in shapes),
+        shadow_need=need,
+        shadow_t_light=[np.where(occ[:, None], shadow_t, 1.0) for occ in occluder],
+    )
+    scene._plan = plan
+    return plan
+
+
 class WhittedIntegrator:
     """Traces batches of rays through a :class:`links1.scene.Scene`.
 
@@ -77,26 +122,16 @@ class WhittedIntegrator:
         self.shapes = scene.shapes
         self.lights = scene.lights
         self.background = np.asarray(scene.background, dtype=np.float64)
-        # Per-shape shadow transmittance (3-3-3: t1 t2 ... tn, once per object).
-        self.shadow_t = np.array([s.material.shadow_t for s in self.shapes]).reshape(-1, 3)
-        self.any_transparent = bool(np.any(self.shadow_t > 0))
-        mats = {id(s.material): s.material for s in self.shapes}
-        self.any_reflection = any(m.has_reflection for m in mats.values())
-        self.any_transmission = any(m.has_transmission for m in mats.values())
-        self.any_emission = any(s.emission is not None for s in self.shapes)
-        # Shapes grouped by material so each material is evaluated once per batch.
-        self._material_of = np.array([self._mat_index(mats, s.material) for s in self.shapes], dtype=np.int64)
-        self._materials = list(mats.values())
-        # Per light: which shapes can occlude it, and which shapes' points need a shadow ray.
-        from .occluders import shadow_plan
-        occluder, need = shadow_plan(self.shapes, self.lights)
-        self._shadow_need = need
-        self._shadow_t_light = [np.where(occ[:, None], self.shadow_t, 1.0) for occ in occluder]
+        plan = scene_plan(scene)
+        self.shadow_t = plan.shadow_t
+        self.any_reflection = plan.any_reflection
+        self.any_transmission = plan.any_transmission
+        self.any_emission = plan.any_emission
+        self._material_of = plan.material_of
+        self._materials = plan.materials
+        self._shadow_need = plan.shadow_need
+        self._shadow_t_light = plan.shadow_t_light
         self.stats = TraceStats()
-
-    @staticmethod
-    def _mat_index(mats, m) -> int:
-        return list(mats).index(id(m))
 
     # ------------------------------------------------------------------ geometry
     def intersect(self, o, d, tmin, tmax, cost) -> Hits:
@@ -104,14 +139,7 @@ class WhittedIntegrator:
         return Hits(t, shape, prim)
 
     def surface(self, o, d, hits: Hits) -> SurfaceRecord:
-        n = o.shape[0]
-        p = np.empty((n, 3))
-        ng = np.empty((n, 3))
-        ns = np.empty((n, 3))
-        for s in np.unique(hits.shape):
-            m = hits.shape == s
-            p[m], ng[m], ns[m] = self.shapes[s].surface(o[m], d[m], hits.t[m], hits.prim[m])
-        return SurfaceRecord(p, ng, ns)
+        return SurfaceRecord(*self.accel.surface(o, d, hits.t, hits.shape, hits.prim))
 
     # ------------------------------------------------------------------ tracing
     def trace(self, o, d, tmin, tmax, cost, depth: int = 1, weight=None):

@@ -33,6 +33,7 @@ class Scene:
     integrator: str = "links1_whitted"
     path: str | None = None
     _accel: object = field(default=None, repr=False)
+    _plan: object = field(default=None, repr=False)  # links1.integrator.ScenePlan, built on first use
 
     def __post_init__(self):
         for i, s in enumerate(self.shapes):
