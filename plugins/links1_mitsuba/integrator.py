@@ -28,6 +28,7 @@ ray counts of the last render by kind.
 """
 from __future__ import annotations
 
+import gc
 import math
 import warnings
 
@@ -49,6 +50,14 @@ DEFAULT_MIN_WEIGHT = 1.0 / 255.0
 #: Custom quadrics with finite bounds go under a BVH (bvh.py) from this many on.
 BVH_MIN = 8
 _M1 = 0x7FEB352D
+#: The integrator whose frozen window function runs (read inside it, not traversed by freeze).
+_FROZEN_CALLER = {"integrator": None}
+
+
+def _frozen_caller():
+    # a function: freeze hashes the globals a frozen function names and traverses their
+    # Dr.Jit contents; through a call the integrator (and its scene) stay out of that
+    return _FROZEN_CALLER["integrator"]
 _M2 = 0x846CA68B
 
 
@@ -96,6 +105,23 @@ def define_integrator():
     def gather3(table, idx, active=True):
         return dr.gather(mi.Color3f, table, idx, active)
 
+    class _Untraversed:
+        """Attributes that :func:`drjit.freeze` does not walk. It traverses the scene (an input
+        of the frozen window function) and with it this integrator's ``__dict__``; the Dr.Jit
+        arrays of the per-scene tables reach the frozen function through
+        ``Links1Whitted._frozen_inputs``, and walking the shape specs (thousands in big scenes)
+        on every call would cost more than rendering a small window."""
+
+        def _traverse_1_cb_ro(self, fn):
+            pass
+
+        def _traverse_1_cb_rw(self, fn):
+            pass
+
+    def _hidden_attr(name):
+        return property(lambda self: getattr(self._hidden, name, None),
+                        lambda self, v: setattr(self._hidden, name, v))
+
     class Prepared:
         """Per-scene tables: slots (shapes in file order), materials, lights, camera."""
 
@@ -128,8 +154,16 @@ def define_integrator():
         window ``(x0, y0, w, h)`` of the full film without recompiling kernels.
         """
 
+        custom = _hidden_attr("custom")
+        slot_of_id = _hidden_attr("slot_of_id")
+        shape_names = _hidden_attr("shape_names")
+        _prep = _hidden_attr("prep")
+        _freeze = _hidden_attr("freeze")
+        stats = _hidden_attr("stats")
+
         def __init__(self, props):
             super().__init__(props)
+            self._hidden = _Untraversed()
             md = int(props.get("max_depth", 5))
             if md == -1:
                 md = 5
@@ -150,6 +184,9 @@ def define_integrator():
             self.shape_names = None
             self._prep = None
             self.stats = {}
+            #: render windows through a frozen function (:meth:`_frozen_fn`): no re-tracing
+            self.use_freeze = True
+            self._freeze = None
 
         # -------------------------------------------------------------- set-up
         def attach(self, custom, slot_of_id, shape_names=None):
@@ -164,6 +201,7 @@ def define_integrator():
                 return self._prep
             P = Prepared()
             P.scene_ref = id(scene)
+            self._freeze = None       # recordings hold the previous tables
             shapes = list(scene.shapes())
             slot_of_id = self.slot_of_id
             if slot_of_id is None:
@@ -778,29 +816,30 @@ def define_integrator():
 
         # -------------------------------------------------------------- camera
         def _camera_rays(self, P, x0, y0, w, h, spp, seed):
+            """``x0, y0`` and ``seed = (pattern seed, key seed)`` are opaque ``UInt32`` (run-time
+            values, see :meth:`_runtime_inputs`)."""
             W, H = P.film_size
             n = w * h * spp
             idx = dr.arange(mi.UInt32, n)
             ow = dr.opaque(mi.UInt32, w)
             pix = idx // spp if spp > 1 else idx
             i = idx % spp if spp > 1 else dr.zeros(mi.UInt32, n)
-            px = dr.opaque(mi.UInt32, x0) + pix % ow
-            py = dr.opaque(mi.UInt32, y0) + pix // ow
+            px = x0 + pix % ow
+            py = y0 + pix // ow
             if spp == 1:
                 offx = offy = mi.Float(0.5)
             else:
                 k = strata(spp)
                 sx = mi.Float(i % k)
                 sy = mi.Float(i // k)
-                base = mix32(mix32(dr.opaque(mi.UInt32, seed & 0xFFFFFFFF)) ^ (py * W + px))
+                base = mix32(mix32(seed[0]) ^ (py * W + px))
                 ux = u24(mix32(base ^ (2 * i)))
                 uy = u24(mix32(base ^ (2 * i + 1)))
                 offx = (sx + ux) / k
                 offy = (sy + uy) / k
             xf = (mi.Float(px) + offx) / W
             yf = (mi.Float(py) + offy) / H
-            key = mix32(mix32(dr.opaque(mi.UInt32, (seed * 0x27D4EB2F + 0x165667B1) & 0xFFFFFFFF))
-                        ^ ((py * W + px) * spp + i))
+            key = mix32(mix32(seed[1]) ^ ((py * W + px) * spp + i))
             if P.perspective:
                 tn = math.tan(math.radians(P.x_fov) / 2.0)
                 aspect = W / H
@@ -828,7 +867,7 @@ def define_integrator():
                 ct &= dr.max(w_t) > mw
             return cr, ct, w_r, w_t
 
-        def _trace_tree(self, P, scene, o, d, tmin, tmax, key, want_aovs):
+        def _trace_tree(self, P, scene, o, d, tmin, tmax, key, want_aovs, frozen=False):
             """All ray trees: the camera level in one kernel, the rest in a "megakernel".
 
             Level 1 (every sample) is straight-line code. The samples whose hit spawns a
@@ -840,7 +879,14 @@ def define_integrator():
             ``Σ weight · I_o`` with the weight the product of the factors down the tree (the
             core's sum in another order). Lanes never interact and the compaction keeps the
             order of samples, so a window renders the same bits as the full frame; the window
-            is a run-time value (no recompilation). Returns ``(flat RGB, cost, t0, slot0, ns0)``.
+            is a run-time value (no recompilation). Returns ``(flat RGB, cost, t0, slot0, ns0,
+            counters)`` with ``counters`` the arrays :meth:`_record` sums (no read-back here).
+
+            ``frozen``: traced inside :func:`drjit.freeze` (:meth:`_frozen_fn`), so no Python
+            decision may depend on data: the compaction always keeps the last sample too (a lane
+            without children starts inactive and adds exact zeros, the same bits as no lane), so
+            the loop exists whatever the recorded window held (two lanes: a recording with one
+            would treat the loop's arrays as scalars and replay wrongly).
             """
             n = dr.width(o)
             md = self.max_depth
@@ -851,8 +897,7 @@ def define_integrator():
             if not spawn:
                 flat = dr.ravel(res["L"])
                 dr.eval(flat, res["cost"], res["n_shadow"], *aov)
-                self._record(P, n, res["n_shadow"], None, None)
-                return flat, res["cost"], res["t"], res["slot"], res["ns"]
+                return flat, res["cost"], res["t"], res["slot"], res["ns"], dict(nsh1=res["n_shadow"])
             act = res["hit"]
             cr, ct, w_r, w_t = self._children(res, act, mi.Color3f(1.0), mi.UInt32(1))
             key_r = mix32(key ^ mi.UInt32(0x63D83595))
@@ -864,15 +909,17 @@ def define_integrator():
                 kids = (res["o_r"], res["dir_r"], w_r, key_r)
             L1, cost1, nsh1 = res["L"], res["cost"], res["n_shadow"]
             dr.eval(L1, cost1, nsh1, cr, ct, *aov, *kids)                  # kernel 1: level 1
-            idx = dr.compress(cr | ct)
+            if frozen:       # the last two samples always: a width of 1 would record as a scalar
+                ar = dr.arange(mi.UInt32, n)
+                idx = dr.compress(cr | ct | (ar + 2 >= dr.opaque(mi.UInt32, n)))  # no kernel per n
+            else:
+                idx = dr.compress(cr | ct)
             m = dr.width(idx)
-            nr1 = int(np.count_nonzero(cr.numpy()))
-            nt1 = int(np.count_nonzero(ct.numpy()))
+            counters = dict(nsh1=nsh1, cr=cr, ct=ct)
             if m == 0:
                 flat = dr.ravel(L1)
                 dr.eval(flat)
-                self._record(P, n, nsh1, None, None, (nr1, nt1))
-                return flat, cost1, res["t"], res["slot"], res["ns"]
+                return flat, cost1, res["t"], res["slot"], res["ns"], counters
             g = lambda x: dr.gather(type(x), x, idx)  # noqa: E731
             if has_t:
                 o_r, d_r, wr, kr, o_t, d_t, wt, kt = (g(x) for x in kids)
@@ -893,7 +940,7 @@ def define_integrator():
             state = dict(o=mi.Point3f(dr.select(gr, o_r, o_t)), d=mi.Vector3f(dr.select(gr, d_r, d_t)),
                          wgt=mi.Color3f(dr.select(gr, wr, wt)),
                          depth=zu + 2, key=dr.select(gr, kr, kt), L=dr.zeros(mi.Color3f, m),
-                         cost=mi.UInt32(zu), sp=dr.select(push, one, 0), active=dr.full(mi.Bool, True, m),
+                         cost=mi.UInt32(zu), sp=dr.select(push, one, 0), active=gr | gt,
                          nsh=mi.UInt32(zu), nr=mi.UInt32(zu), nt=mi.UInt32(zu))
             names = list(state)
 
@@ -951,19 +998,64 @@ def define_integrator():
             cost = cost1 + cacc
             flat = dr.ravel(total)
             dr.eval(flat, cost)
-            self._record(P, n, nsh1, v["nr"], v["nt"], (nr1, nt1), v["nsh"])
-            return flat, cost, res["t"], res["slot"], res["ns"]
+            counters.update(nr=v["nr"], nt=v["nt"], nsh2=v["nsh"])
+            return flat, cost, res["t"], res["slot"], res["ns"], counters
 
-        def _record(self, P, n, nsh, nr, nt, first=(0, 0), nsh2=None):
+        def _record(self, n, nsh1, cr=None, ct=None, nr=None, nt=None, nsh2=None):
             """Ray counters of the last render (rays by kind, and per camera ray)."""
             c = {"camera": int(n)}
             tot = lambda a: 0 if a is None else int(np.sum(np.asarray(a.numpy(), dtype=np.int64)))  # noqa: E731
-            c["shadow"] = tot(nsh) + tot(nsh2)
-            c["reflect"] = first[0] + tot(nr)
-            c["refract"] = first[1] + tot(nt)
-            c["secondary_lanes"] = int(dr.width(nr)) if nr is not None else 0  # samples with children
+            c["shadow"] = tot(nsh1) + tot(nsh2)
+            c["reflect"] = tot(cr) + tot(nr)
+            c["refract"] = tot(ct) + tot(nt)
+            c["secondary_lanes"] = int(np.count_nonzero(cr.numpy() | ct.numpy())) if cr is not None else 0
             c["per_camera_ray"] = {k: c[k] / max(n, 1) for k in ("shadow", "reflect", "refract")}
             self.stats = c
+
+        def _frozen_inputs(self, P):
+            """Every Dr.Jit array the trace reads from the per-scene tables (the frozen
+            function must receive them as inputs), gathered once per ``P``."""
+            if getattr(P, "frozen_inputs", None) is None:
+                found, seen = [], set()
+
+                def walk(x, depth=0):
+                    if depth > 12 or id(x) in seen:
+                        return
+                    seen.add(id(x))
+                    if dr.is_array_v(x):
+                        found.append(x)
+                    elif isinstance(x, dict):
+                        for v in x.values():
+                            walk(v, depth + 1)
+                    elif isinstance(x, (list, tuple)):
+                        for v in x:
+                            walk(v, depth + 1)
+                    elif hasattr(x, "__dict__") and not isinstance(x, (mi.Object, type)) \
+                            and not callable(x):
+                        for v in vars(x).values():
+                            walk(v, depth + 1)
+                walk(P)
+                P.frozen_inputs = found
+            return P.frozen_inputs
+
+        def _frozen_fn(self):
+            """The window render as a :func:`drjit.freeze` function of the run-time inputs
+            (window offset, seeds: opaque ``UInt32``): recorded once per configuration ``cfg``
+            (scene, window size, spp, AOVs, depth, weight threshold: hashed Python values, so a
+            new one records again) and replayed without re-tracing. Sizes enter the trace as
+            Python ints, hence the window size in ``cfg``."""
+            if self._freeze is None:
+                def window_kernels(x0, y0, seeds, cfg, tables, scene):
+                    # no closure: freeze would traverse it (the integrator, the scene ...)
+                    self = _frozen_caller()
+                    P = self._prep
+                    _, _, w, h, spp, want = cfg[:6]
+                    o, d, tmin, tmax, key, _ = self._camera_rays(P, x0, y0, w, h, spp, seeds)
+                    total, cost, t0, s0, n0, counters = self._trace_tree(P, scene, o, d, tmin, tmax, key,
+                                                                         want, frozen=True)
+                    return (total, cost, t0, s0, n0, counters) if want else (total, cost, counters)
+                self._freeze = dr.freeze(window_kernels, warn_after=1000)
+            return self._freeze
 
         def render_window(self, scene, window=None, spp=1, seed=None, aovs=None):
             """Render ``window = (x0, y0, w, h)`` of the full film (row 0 at the top).
@@ -979,8 +1071,33 @@ def define_integrator():
             spp = int(spp)
             seed = self.seed if seed is None else int(seed)
             aovs = self.aovs if aovs is None else parse_aovs(aovs)
-            o, d, tmin, tmax, key, i = self._camera_rays(P, x0, y0, w, h, spp, seed)
-            total, cost, t0, s0, n0 = self._trace_tree(P, scene, o, d, tmin, tmax, key, bool(aovs))
+            want = bool(aovs)
+            x0_, y0_ = dr.opaque(mi.UInt32, x0), dr.opaque(mi.UInt32, y0)
+            seeds = (dr.opaque(mi.UInt32, seed & 0xFFFFFFFF),
+                     dr.opaque(mi.UInt32, (seed * 0x27D4EB2F + 0x165667B1) & 0xFFFFFFFF))
+            # measured (drjit 1.5, LLVM): a replay costs ~0.7 ms against ~1.6 ms of tracing on
+            # fig11, but ~20 ms against ~2 ms with a BVH ("many", reason not found): BVH scenes
+            # are traced per call
+            if self.use_freeze and P.bvh is None:
+                cfg = (id(P), id(scene), w, h, spp, want, int(self.max_depth), float(self.min_weight))
+                fn = self._frozen_fn()
+                _FROZEN_CALLER["integrator"] = self
+                # no cyclic garbage collection while recording: freeing another renderer's
+                # Dr.Jit state (its own recordings) in the middle of one aborts the process
+                gc_on = gc.isenabled()
+                gc.disable()
+                try:
+                    out = fn(x0_, y0_, seeds, cfg, self._frozen_inputs(P), scene)
+                finally:
+                    _FROZEN_CALLER["integrator"] = None
+                    if gc_on:
+                        gc.enable()
+                total, cost, counters = out[0], out[1], out[-1]
+                t0, s0, n0 = out[2:5] if want else (None, None, None)
+            else:
+                o, d, tmin, tmax, key, i = self._camera_rays(P, x0_, y0_, w, h, spp, seeds)
+                total, cost, t0, s0, n0, counters = self._trace_tree(P, scene, o, d, tmin, tmax, key, want)
+            self._record(w * h * spp, **counters)
             rgb = np.asarray(total.numpy(), dtype=np.float32).reshape(h * w * spp, 3)  # (flat RGB)
             if spp == 1:
                 rgb = rgb.astype(np.float64).reshape(h, w, 3)
