@@ -413,6 +413,7 @@ class _QuadricSet:
             return self._hits(qi, o, d, tmin, tmax)
 
     def _hits(self, qi, o, d, tmin, tmax):
+        from .shapes import clip_interval, quadric_roots
         A, m, sph = self.A[qi], self.m[qi], self.sphere[qi]
         if sph.all():
             sph = True
@@ -427,36 +428,9 @@ class _QuadricSet:
         u = _mv(A, o2 - m)
         a, b, c, cr2 = self._terms(u, v, sph)
         disc = a - cr2
-        sq = np.sqrt(np.maximum(disc, 0.0))
-        q = -(b + np.copysign(sq, b))
-        has = pos & (disc >= 0)
-        r1 = np.where(has & (q != 0), c / np.where(q != 0, q, 1.0), 0.0)
-        r2 = np.where(has, q / np.where(pos, a, 1.0), 0.0)
-        q_lo = np.minimum(r1, r2)
-        q_hi = np.maximum(r1, r2)
-        inside_all = ~pos & (c < 0)
-        q_lo = np.where(has, q_lo, np.where(inside_all, -np.inf, np.inf))
-        q_hi = np.where(has, q_hi, np.where(inside_all, np.inf, -np.inf))
-        n = o.shape[0]
-        c_in = np.full(n, -np.inf)
-        c_out = np.full(n, np.inf)
-        j_in = np.full(n, -1, dtype=np.int64)
-        j_out = np.full(n, -1, dtype=np.int64)
-        for j in range(self.cn.shape[1]):
-            nv = self.cn[qi, j]
-            h = self.ch[qi, j]
-            den = nv[:, 0] * v[:, 0] + nv[:, 1] * v[:, 1] + nv[:, 2] * v[:, 2]
-            num = h - (nv[:, 0] * u[:, 0] + nv[:, 1] * u[:, 1] + nv[:, 2] * u[:, 2])
-            tp = num / np.where(den != 0, den, 1.0)
-            lower = (den > 0) & (tp < c_out)
-            c_out = np.where(lower, tp, c_out)
-            j_out = np.where(lower, j, j_out)
-            raise_ = (den < 0) & (tp > c_in)
-            c_in = np.where(raise_, tp, c_in)
-            j_in = np.where(raise_, j, j_in)
-            empty = (den == 0) & (num < 0)
-            c_in = np.where(empty, np.inf, c_in)
-            c_out = np.where(empty, -np.inf, c_out)
+        q_lo, q_hi = quadric_roots(a, b, c, disc, pos)
+        c_in, c_out, j_in, j_out = clip_interval(
+            u, v, ((self.cn[qi, j], self.ch[qi, j]) for j in range(self.cn.shape[1])))
         cap = self.capped[qi]
         if not cap.any():
             ok1 = (c_in <= q_lo) & (q_lo <= c_out) & (q_lo <= q_hi)

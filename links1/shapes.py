@@ -339,6 +339,55 @@ class TriangleMesh(Shape):
 
 
 # ---------------------------------------------------------------------------- quadrics
+def quadric_roots(a, b, c, disc, pos):
+    """Both roots of eq. (3.5) in the stable form (numerics.md), as an interval ``(lo, hi)``.
+
+    ``pos`` = ``a > 0``; where ``a = 0`` (a ray parallel to a cylinder's axis) the ray is
+    inside everywhere (``c < 0``: ``(-inf, inf)``) or nowhere (an empty interval).
+    Shared by :class:`Quadric` and the all-quadrics-at-once path of :mod:`links1.accel`.
+    """
+    sq = np.sqrt(np.maximum(disc, 0.0))
+    q = -(b + np.copysign(sq, b))
+    has = pos & (disc >= 0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r1 = np.where(has & (q != 0), c / np.where(q != 0, q, 1.0), 0.0)  # eq. (3.5) roots
+        r2 = np.where(has, q / np.where(pos, a, 1.0), 0.0)
+    q_lo = np.minimum(r1, r2)
+    q_hi = np.maximum(r1, r2)
+    inside_all = ~pos & (c < 0)
+    q_lo = np.where(has, q_lo, np.where(inside_all, -np.inf, np.inf))
+    q_hi = np.where(has, q_hi, np.where(inside_all, np.inf, -np.inf))
+    return q_lo, q_hi
+
+
+def clip_interval(u, v, planes):
+    """The part ``(c_in, c_out)`` of each ray ``u + t v`` (object space) where every clip
+    plane ``n·y <= h`` holds, and which plane bounds each end (-1: none).
+
+    ``planes`` yields ``(n, h)`` with ``n`` of shape (3,) or (N, 3) and ``h`` scalar or (N,).
+    """
+    n = u.shape[0]
+    c_in = np.full(n, -np.inf)
+    c_out = np.full(n, np.inf)
+    j_in = np.full(n, -1, dtype=np.int64)
+    j_out = np.full(n, -1, dtype=np.int64)
+    for j, (nv, h) in enumerate(planes):
+        den = nv[..., 0] * v[:, 0] + nv[..., 1] * v[:, 1] + nv[..., 2] * v[:, 2]
+        num = h - (nv[..., 0] * u[:, 0] + nv[..., 1] * u[:, 1] + nv[..., 2] * u[:, 2])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            tp = num / np.where(den != 0, den, 1.0)
+        lower = (den > 0) & (tp < c_out)  # den > 0 lowers t_out
+        c_out = np.where(lower, tp, c_out)
+        j_out = np.where(lower, j, j_out)
+        raise_ = (den < 0) & (tp > c_in)  # den < 0 raises t_in
+        c_in = np.where(raise_, tp, c_in)
+        j_in = np.where(raise_, j, j_in)
+        empty = (den == 0) & (num < 0)  # parallel and outside: empty
+        c_in = np.where(empty, np.inf, c_in)
+        c_out = np.where(empty, -np.inf, c_out)
+    return c_in, c_out, j_in, j_out
+
+
 class Quadric(Shape):
     """Sphere / ellipsoid or infinite elliptic cylinder ``|A(x - m)|^2 = 1`` (eq. 3.4),
     optionally cut by planes.
@@ -468,39 +517,9 @@ class Quadric(Shape):
         u = matvec(A, o2 - m)
         a, b, c, cr2 = self._quadric_terms(u, v)
         disc = a - cr2  # = b^2 - ac, eq. (3.5) discriminant without cancellation
-        sq = np.sqrt(np.maximum(disc, 0.0))
-        q = -(b + np.copysign(sq, b))
-        has = pos & (disc >= 0)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            r1 = np.where(has & (q != 0), c / np.where(q != 0, q, 1.0), 0.0)  # eq. (3.5) roots
-            r2 = np.where(has, q / np.where(pos, a, 1.0), 0.0)
-        q_lo = np.minimum(r1, r2)
-        q_hi = np.maximum(r1, r2)
-        # a = 0: a ray parallel to the cylinder's axis, inside everywhere or nowhere.
-        par = ~pos
-        inside_all = par & (c < 0)
-        q_lo = np.where(has, q_lo, np.where(inside_all, -np.inf, np.inf))
-        q_hi = np.where(has, q_hi, np.where(inside_all, np.inf, -np.inf))
+        q_lo, q_hi = quadric_roots(a, b, c, disc, pos)
         # Clip planes n.y <= h: interval clipping along the ray (shifted frame).
-        n = o.shape[0]
-        c_in = np.full(n, -np.inf)
-        c_out = np.full(n, np.inf)
-        j_in = np.full(n, -1, dtype=np.int64)
-        j_out = np.full(n, -1, dtype=np.int64)
-        for j, (nv, h) in enumerate(self.clips):
-            den = nv[0] * v[:, 0] + nv[1] * v[:, 1] + nv[2] * v[:, 2]
-            num = h - (nv[0] * u[:, 0] + nv[1] * u[:, 1] + nv[2] * u[:, 2])
-            with np.errstate(divide="ignore", invalid="ignore"):
-                tp = num / np.where(den != 0, den, 1.0)
-            lower = (den > 0) & (tp < c_out)
-            c_out = np.where(lower, tp, c_out)
-            j_out = np.where(lower, j, j_out)
-            raise_ = (den < 0) & (tp > c_in)
-            c_in = np.where(raise_, tp, c_in)
-            j_in = np.where(raise_, j, j_in)
-            empty = (den == 0) & (num < 0)
-            c_in = np.where(empty, np.inf, c_in)
-            c_out = np.where(empty, -np.inf, c_out)
+        c_in, c_out, j_in, j_out = clip_interval(u, v, self.clips)
         return s, q_lo, q_hi, c_in, c_out, j_in, j_out
 
     def _hits(self, o, d, tmin, tmax):

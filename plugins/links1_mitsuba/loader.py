@@ -13,20 +13,13 @@ import warnings
 import numpy as np
 
 from ._registry import register
+from .emitters import _rgb
 from .shapes import BlobSpec, QuadricSpec
 
 CUSTOM = ("links1_quadric", "links1_blob")
 SLOT_ID = "_links1_slot_{}"
 
 
-def _color(props, name, default):
-    if (name in props):
-        v = props[name]
-        try:
-            return np.array([float(v[0]), float(v[1]), float(v[2])])
-        except TypeError:
-            return np.full(3, float(v))
-    return np.full(3, float(default))
 
 
 def _prepare_state(state, config, integrator: str, base_dir: str | None):
@@ -65,7 +58,7 @@ def _prepare_state(state, config, integrator: str, base_dir: str | None):
                     if child is not None and child.type == mi.ObjectType.Emitter:
                         if child.props.plugin_name() != "area":
                             raise ValueError(f"{_where(state, child)}: only 'area' emitters can be nested in a shape")
-                        spec.emission = _color(child.props, "radiance", 1.0)
+                        spec.emission = _rgb(child.props, "radiance", 1.0)
                         warnings.warn(f"{pname}: its area emitter is shown where the shape is seen "
                                       "directly; it does not light the scene", stacklevel=3)
                         child.props.set_plugin_name("constant")  # harmless, never referenced
