@@ -285,17 +285,18 @@ class BlobSpec:
         import drjit as dr
         import mitsuba as mi
         scale, per, start, end, Lb, Gb = self._setup(o, d, tmin, tmax)
+        s_lo, s_hi = tmin * scale, tmax * scale   # the segment, as in _setup
         T = self.threshold
         run = active & (start < end)
         eps = 1e-6 * max(T, 1.0)
 
         def solve(start, end, Lb, Gb):
+            if self.solver == "paper":
+                return self._paper(per, s_lo, s_hi, run)
             W0, dW0 = self._field(per, start)
             inside = (W0 > T) | ((W0 == T) & (dW0 > 0))
             sgn = dr.select(inside, -1.0, 1.0)
             n_eval = dr.select(run, mi.UInt32(1), mi.UInt32(0))
-            if self.solver == "paper":
-                return self._paper(per, start, end, sgn, run, n_eval)
             return self._exact(per, start, end, sgn, run, n_eval, Lb, Gb, eps, any_hit)
 
         def skip(start, end, Lb, Gb):
@@ -391,40 +392,93 @@ class BlobSpec:
         x = dr.select(fb == 0, b, dr.clip(a + fa * ((b - a) / dr.select(fa != fb, fa - fb, 1.0)), a, b))
         return dr.select(found, x, INF), n_eval
 
-    def _paper(self, per, start, end, sgn, run, n_eval):
-        """Span sampling with one quadratic ``W*`` per segment (the paper's 3-2-3 solver)."""
+    def _paper(self, per, s_lo, s_hi, run):
+        """The paper's span sampling and piecewise quadratic interpolation (3-2-3), the
+        float64 core's algorithm (links1/blob.py ``_solve_paper``) in float32.
+
+        Every positive centre's chord (cut to the ray segment) gets ``samples`` evenly spaced
+        points (``linspace(0, 1, samples)``); the samples of all chords, in increasing order
+        (a k-way merge of the chords' already sorted samples), are taken in triples (0,1,2),
+        (2,3,4), ...; the quadratic through each (divided differences, Newton form) gives the
+        first root of ``W* = T`` on ``[t_2j, t_2j+2]``. With an even count and no root yet,
+        the last interval uses the triple (c-3, c-2, c-1); two samples give a line. One
+        field evaluation per sample (the core's count)."""
         import drjit as dr
         import mitsuba as mi
         T = self.threshold
-        n = max(1, self.samples * len(per))
-        h = (end - start) / n
-        best = mi.Float(INF)
-        s0 = start
-        f0, _ = self._field(per, s0)
-        f0 = sgn * (T - f0)
-        for k in range(n):
-            sm = start + h * (k + 0.5)
-            s1 = start + h * (k + 1)
-            fm, _ = self._field(per, sm)
-            f1, _ = self._field(per, s1)
-            fm, f1 = sgn * (T - fm), sgn * (T - f1)
-            # quadratic through (0, f0), (1/2, fm), (1, f1) in x = (s - s0)/h
-            A = 2.0 * f0 - 4.0 * fm + 2.0 * f1
-            B = -3.0 * f0 + 4.0 * fm - f1
-            C = f0
-            disc = dr.square(B) - 4.0 * A * C
-            sq = dr.safe_sqrt(disc)
-            q = -0.5 * (B + dr.copysign(sq, B))
-            x1 = C / dr.select(q != 0, q, 1e-30)
-            x2 = q / dr.select(A != 0, A, 1e-30)
-            xl = dr.select(abs(A) > 1e-12, x2, dr.select(B != 0, -C / dr.select(B != 0, B, 1.0), -1.0))
-            xa = dr.minimum(dr.select(x1 >= 0, x1, 2.0), dr.select((xl >= 0) & (abs(A) > 1e-12), xl, 2.0))
-            xa = dr.select(abs(A) > 1e-12, xa, dr.select(xl >= 0, xl, 2.0))
-            ok = run & (disc >= 0) & (xa <= 1.0) & (best == INF)
-            best = dr.select(ok, s0 + h * xa, best)
-            s0, f0 = s1, f1
-        n_eval += dr.select(run, mi.UInt32(2 * n), 0)
-        return best, n_eval
+        M = int(self.samples)
+        step = float(np.linspace(0.0, 1.0, M)[1]) if M > 1 else 0.0
+        n = dr.width(s_lo)
+        hi_cap = dr.minimum(s_hi, float(np.finfo(np.float32).max))
+        bases, widths, nxs, js = [], [], [], []
+        cnt = dr.zeros(mi.UInt32, n)
+        for tau, h2, w, S in per:
+            if not w > 0:
+                continue
+            R2 = 9.0 * S * S
+            half = dr.sqrt(dr.maximum(R2 - h2, 0.0))
+            cross = h2 < R2
+            lo = dr.maximum(dr.select(cross, tau - half, INF), s_lo)
+            hi = dr.minimum(dr.select(cross, tau + half, -INF), hi_cap)
+            valid = run & (lo < hi)
+            base = dr.select(valid, lo, INF)
+            width = dr.select(valid, hi - lo, 0.0)
+            bases.append(base)
+            widths.append(width)
+            nxs.append(mi.Float(base))                       # next sample of this chord
+            js.append(dr.zeros(mi.UInt32, n))                # its index in 0..M-1
+            cnt += dr.select(valid, mi.UInt32(M), 0)
+        if not bases:
+            return dr.full(mi.Float, INF, n), dr.zeros(mi.UInt32, n)
+
+        i = dr.zeros(mi.UInt32, n)
+        x0, x1, x2 = dr.zeros(mi.Float, n), dr.zeros(mi.Float, n), dr.zeros(mi.Float, n)
+        y0, y1, y2 = dr.zeros(mi.Float, n), dr.zeros(mi.Float, n), dr.zeros(mi.Float, n)
+        best = dr.full(mi.Float, INF, n)
+        active = cnt > 0
+
+        def cond(i, nxs, js, x0, x1, x2, y0, y1, y2, best, active):
+            return active
+
+        def body(i, nxs, js, x0, x1, x2, y0, y1, y2, best, active):
+            # the smallest pending sample (k-way merge of the chords' sorted samples)
+            t = nxs[0]
+            for nx in nxs[1:]:
+                t = dr.minimum(t, nx)
+            taken = dr.zeros(mi.Bool, dr.width(t))
+            nxs, js = list(nxs), list(js)
+            for k in range(len(nxs)):
+                pick = active & ~taken & (nxs[k] == t)
+                taken = taken | pick
+                j = js[k] + 1
+                f = dr.select(j >= M - 1, 1.0, mi.Float(j) * step)
+                nx = dr.select(j < M, bases[k] + widths[k] * f, INF)
+                nxs[k] = dr.select(pick, nx, nxs[k])
+                js[k] = dr.select(pick, j, js[k])
+            W, _ = BlobSpec._field(per, t)
+            y = W - T
+            # sliding window of the last three samples
+            x0, x1, x2 = x1, x2, mi.Float(t)
+            y0, y1, y2 = y1, y2, y
+            tri = active & (i >= 2) & ((i & 1) == 0) & (best == INF)
+            r = _quad_root32(x0, x1, x2, y0, y1, y2, x0, x2)
+            best = dr.select(tri, r, best)
+            i = i + dr.select(active, mi.UInt32(1), 0)
+            active = active & (i < cnt)
+            return i, nxs, js, x0, x1, x2, y0, y1, y2, best, active
+
+        i, nxs, js, x0, x1, x2, y0, y1, y2, best, active = dr.while_loop(
+            (i, nxs, js, x0, x1, x2, y0, y1, y2, best, active), cond, body)
+        # tail of an even count: the last interval [t_c-2, t_c-1] (two samples: a line)
+        tail = (cnt >= 2) & ((cnt & 1) == 0) & (best == INF)
+        line = cnt == 2
+        # (c-3, c-2, c-1) on [t_c-2, t_c-1]; two samples: (t0, t1, t1) on [t0, t1]
+        tx0, tx1 = dr.select(line, x1, x0), dr.select(line, x2, x1)
+        ty0, ty1 = dr.select(line, y1, y0), dr.select(line, y2, y1)
+        r = _quad_root32(tx0, tx1, x2, ty0, ty1, y2, x1, x2)
+        best = dr.select(tail, r, best)
+        ok = dr.isfinite(best) & (best > s_lo) & (best < s_hi)
+        return dr.select(ok, best, INF), cnt
 
     def normal(self, o, d, t, prim):
         """Outward normal ``-∇W/|∇W|`` (fallback ``-d`` where the gradient vanishes)."""
@@ -445,6 +499,34 @@ class BlobSpec:
         nw = -mi.Vector3f(*[m[i][0] * g.x + m[i][1] * g.y + m[i][2] * g.z for i in range(3)])
         ln = dr.norm(nw)
         return dr.select(ln > 1e-20, nw / dr.maximum(ln, 1e-30), -d)
+
+
+def _quad_root32(x0, x1, x2, y0, y1, y2, a, b):
+    """Smallest t in [a, b] where the quadratic through (x_i, y_i) is zero (inf if none):
+    links1/blob.py ``_quad_root``, the same arithmetic in Dr.Jit float32."""
+    import drjit as dr
+    d01 = dr.select(x1 != x0, (y1 - y0) / dr.select(x1 != x0, x1 - x0, 1.0), 0.0)
+    d12 = dr.select(x2 != x1, (y2 - y1) / dr.select(x2 != x1, x2 - x1, 1.0), d01)
+    c2 = dr.select(x2 != x0, (d12 - d01) / dr.select(x2 != x0, x2 - x0, 1.0), 0.0)
+    # Newton form around a: f(a + s) = f(a) + f'(a) s + c2 s^2.
+    fa = y0 + (a - x0) * (d01 + c2 * (a - x1))
+    fpa = d01 + c2 * ((a - x0) + (a - x1))
+    disc = fpa * fpa - 4.0 * c2 * fa
+    sq = dr.sqrt(dr.maximum(disc, 0.0))
+    q = -0.5 * (fpa + dr.copysign(sq, fpa))
+    r1 = dr.select(q != 0, fa / dr.select(q != 0, q, 1.0), dr.select(fa == 0, 0.0, INF))
+    r2 = dr.select(c2 != 0, q / dr.select(c2 != 0, c2, 1.0), INF)
+    lin = dr.select(fpa != 0, -fa / dr.select(fpa != 0, fpa, 1.0), dr.select(fa == 0, 0.0, INF))
+    quad = c2 != 0
+    r1 = dr.select(quad, dr.select(disc >= 0, r1, INF), lin)
+    r2 = dr.select(quad & (disc >= 0), r2, INF)
+    L = b - a
+    tol = 1e-12 * dr.abs(L)
+    ok1 = (r1 >= -tol) & (r1 <= L + tol)
+    ok2 = (r2 >= -tol) & (r2 <= L + tol)
+    s = dr.minimum(dr.select(ok1, r1, INF), dr.select(ok2, r2, INF))
+    s = dr.clip(s, 0.0, dr.select(dr.isfinite(L), L, 0.0))
+    return dr.select(ok1 | ok2, a + s, INF)
 
 
 # ---------------------------------------------------------------------- bicubic patches
