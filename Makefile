@@ -25,6 +25,7 @@ llvm:
 	else echo "links1 setup: libLLVM 19 is missing; install it (as root): apt-get install libllvm19" >&2; exit 1; fi
 
 demo: setup
+	mkdir -p out
 	$(BIN)/links1 render scenes/fig11.xml --renderer core -o out/demo.png
 	@echo "demo image: $(CURDIR)/out/demo.png"
 
