@@ -80,7 +80,26 @@ def define_emitters():
     def v3(v):
         return mi.Vector3f(float(v[0]), float(v[1]), float(v[2]))
 
-    class Links1Point(mi.Emitter):
+    class _DeltaEmitter(mi.Emitter):
+        """What both links1 lights share: delta lights have no density and emit nothing
+        a ray could hit; no differentiable parameters."""
+
+        def pdf_direction(self, it, ds, active=True):
+            return mi.Float(0.0)
+
+        def eval_direction(self, it, ds, active=True):
+            return mi.Color3f(0.0)
+
+        def eval(self, si, active=True):
+            return mi.Color3f(0.0)
+
+        def traverse(self, callback):
+            pass
+
+        def parameters_changed(self, keys):
+            pass
+
+    class Links1Point(_DeltaEmitter):
         r"""LINKS-1 point light with a cosine lobe (``links1_point``), eq. (3.10).
 
         ``L_s = L1 + L2 cos θ`` for ``|θ| ≤ 90°`` and ``L1`` beyond, θ measured from ``direction``.
@@ -134,15 +153,6 @@ def define_emitters():
             ds.emitter = mi.EmitterPtr(self)
             return ds, dr.select(active & (dist > 0), L, 0.0)
 
-        def pdf_direction(self, it, ds, active=True):
-            return mi.Float(0.0)
-
-        def eval_direction(self, it, ds, active=True):
-            return mi.Color3f(0.0)
-
-        def eval(self, si, active=True):
-            return mi.Color3f(0.0)
-
         def sample_position(self, time, sample, active=True):
             ps = dr.zeros(mi.PositionSample3f)
             ps.p = mi.Point3f(*[float(x) for x in self._pos])
@@ -162,18 +172,12 @@ def define_emitters():
             p = mi.ScalarPoint3f(*[float(x) for x in self._pos])
             return mi.ScalarBoundingBox3f(p, p)
 
-        def traverse(self, callback):
-            pass
-
-        def parameters_changed(self, keys):
-            pass
-
         def to_string(self):
             p = self.params
             return (f"Links1Point[position={p['position'].tolist()}, direction={p['direction'].tolist()}, "
                     f"L1={p['L1'].tolist()}, L2={p['L2'].tolist()}, falloff={p['falloff']}]")
 
-    class Links1Spot(mi.Emitter):
+    class Links1Spot(_DeltaEmitter):
         r"""LINKS-1 spotlight (``links1_spot``): parallel light inside a semi-infinite cylinder.
 
         ==========  ======  =====================================================  ===========
@@ -214,15 +218,6 @@ def define_emitters():
             ds.emitter = mi.EmitterPtr(self)
             return ds, dr.select(active & inside, c3(self._I), 0.0)
 
-        def pdf_direction(self, it, ds, active=True):
-            return mi.Float(0.0)
-
-        def eval_direction(self, it, ds, active=True):
-            return mi.Color3f(0.0)
-
-        def eval(self, si, active=True):
-            return mi.Color3f(0.0)
-
         def sample_position(self, time, sample, active=True):
             frame = mi.Frame3f(v3(self._d))
             q = mi.warp.square_to_uniform_disk_concentric(sample) * self._r
@@ -240,12 +235,6 @@ def define_emitters():
 
         def bbox(self):
             return mi.ScalarBoundingBox3f()
-
-        def traverse(self, callback):
-            pass
-
-        def parameters_changed(self, keys):
-            pass
 
         def to_string(self):
             p = self.params
