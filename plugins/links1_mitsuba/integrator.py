@@ -54,6 +54,17 @@ _M1 = 0x7FEB352D
 _FROZEN_CALLER = {"integrator": None}
 
 
+def _columns(v):
+    """(N, 3) float32 numpy array of a Dr.Jit 3-vector (or of a flat, interleaved Float).
+
+    A 3-vector is read one component at a time: converting it whole runs a packing kernel
+    whose strides (the window size) are literals, i.e. one compile per window size."""
+    import drjit as dr
+    if dr.size_v(v) == 3:
+        return np.stack([np.asarray(v[k].numpy(), dtype=np.float32) for k in range(3)], axis=1)
+    return np.asarray(v.numpy(), dtype=np.float32).reshape(-1, 3)
+
+
 def _frozen_caller():
     # a function: freeze hashes the globals a frozen function names and traverses their
     # Dr.Jit contents; through a call the integrator (and its scene) stay out of that
@@ -1098,7 +1109,7 @@ def define_integrator():
                 o, d, tmin, tmax, key, i = self._camera_rays(P, x0_, y0_, w, h, spp, seeds)
                 total, cost, t0, s0, n0, counters = self._trace_tree(P, scene, o, d, tmin, tmax, key, want)
             self._record(w * h * spp, **counters)
-            rgb = np.asarray(total.numpy(), dtype=np.float32).reshape(h * w * spp, 3)  # (flat RGB)
+            rgb = _columns(total).reshape(h * w * spp, 3)  # (flat RGB)
             if spp == 1:
                 rgb = rgb.astype(np.float64).reshape(h, w, 3)
             else:
@@ -1108,8 +1119,7 @@ def define_integrator():
                 first = slice(0, None, spp)
                 t0 = np.array(t0, dtype=np.float64)[first]
                 s0 = np.array(s0, dtype=np.int64)[first]
-                n0 = np.array(n0, dtype=np.float64)
-                n0 = (n0.T if n0.shape[0] == 3 and n0.shape[1] != 3 else n0)[first]
+                n0 = _columns(n0).astype(np.float64)[first]
                 hit0 = s0 >= 0
                 for a in aovs:
                     if a == "depth":
