@@ -12,7 +12,7 @@ import sys
 import time
 import warnings
 
-from .errors import Links1Error, UsageError
+from .errors import Links1Error, RenderAborted, UsageError
 
 RENDER_EXAMPLES = """examples:
   links1 render scenes/fig11.xml -o fig11.png
@@ -250,6 +250,11 @@ def main(argv=None) -> int:
             raise
         print(f"links1: error: {e}", file=sys.stderr)
         return 2
+    except RenderAborted as e:
+        if debug:
+            raise
+        print(f"links1: error: {e}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print("links1: interrupted", file=sys.stderr)
         return 130

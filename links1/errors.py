@@ -43,3 +43,10 @@ class SceneError(Links1Error):
 
 class UsageError(Links1Error):
     """A bad command-line or API option (e.g. ``--spp 0``)."""
+
+
+class RenderAborted(RuntimeError):
+    """A render that cannot finish, e.g. too many worker processes died.
+
+    The CLI prints it in one line and exits with status 1, writing no output.
+    """

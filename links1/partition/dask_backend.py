@@ -17,6 +17,7 @@ import asyncio
 import uuid
 from collections import deque
 
+from ..errors import RenderAborted
 from .executors import ALLOWED_FAILURES
 from .runtime import THREAD_ENV, get_renderer, render_unit
 
@@ -160,8 +161,8 @@ class DaskBackend:
                 if f.status == "error":
                     exc = f.exception()
                     if type(exc).__name__ == "KilledWorker":
-                        raise RuntimeError(f"unit {plan.units[i].window} killed {ALLOWED_FAILURES} or more "
-                                           f"workers; giving up") from exc
+                        raise RenderAborted(f"unit {plan.units[i].window} was lost with {ALLOWED_FAILURES} "
+                                            f"or more workers; giving up, no image written") from exc
                     raise exc
                 if f.status == "cancelled":
                     continue
@@ -180,7 +181,7 @@ class DaskBackend:
                     del node_worker[k]
                     survivors = sorted(node_worker)
                     if not survivors:
-                        raise RuntimeError("links1: every node's worker left the cluster")
+                        raise RenderAborted("every node's worker left the cluster; giving up, no image written")
                     mine = [(f, i) for f, (i, nd) in pending.items() if nd == k]
                     for f, i in mine:
                         pending.pop(f)

@@ -12,8 +12,9 @@ InProcess   ``--workers 0``: the root renders every unit itself.
 LocalPool   ``--workers N``: N spawned worker processes, one
             :class:`concurrent.futures.ProcessPoolExecutor` (``max_workers=1``) per node, so a
             static strategy's units stay on their node; each worker loads the scene once
-            (pool initializer). A SIGKILLed worker breaks only its own pool
-            (``BrokenProcessPool``): its unfinished units go to the surviving nodes.
+            (its first task). A worker that dies (starting, idle or mid-unit) breaks only its
+            own pool (``BrokenProcessPool``): its unfinished units go to the other nodes and
+            a replacement process starts, up to a documented number of deaths.
 The Dask backend is in :mod:`.dask_backend`.
 """
 from __future__ import annotations
@@ -26,7 +27,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .runtime import THREAD_ENV, RendererSpec, get_renderer, init_worker, render_unit
+from ..errors import RenderAborted
+from .runtime import THREAD_ENV, RendererSpec, get_renderer, render_unit, start_worker
 
 #: A unit that has killed this many workers is reported as an error (Dask's allowed-failures).
 ALLOWED_FAILURES = 3
@@ -184,133 +186,199 @@ def threads_per_worker(n_workers: int) -> int:
     return max(1, cores // max(1, n_workers))
 
 
+#: A local pool gives up after this many worker deaths per worker it runs (``max_deaths``).
+DEATHS_PER_WORKER = 3
+
+
 class LocalPool:
-    """``--workers N``: N spawned worker processes on this machine, one pool per node."""
+    """``--workers N``: N spawned worker processes on this machine, one pool per node.
+
+    A worker that dies (SIGKILL, out of memory) while starting, idle or mid-unit is one
+    event: the node's unfinished units are redone on the other nodes (dynamic: they go back
+    to the queue), stderr says so, and a replacement process is started for the node, so N
+    workers stay N. After ``max_deaths`` deaths (default ``DEATHS_PER_WORKER × N``) in the
+    pool's life, or when one unit was lost with ``ALLOWED_FAILURES`` workers, the render
+    stops with :class:`~links1.errors.RenderAborted` (CLI: one line, exit 1, no output).
+    """
 
     name = "local"
 
-    def __init__(self, n_workers: int, threads: int | None = None, prefetch: int = 2):
+    def __init__(self, n_workers: int, threads: int | None = None, prefetch: int = 2,
+                 max_deaths: int | None = None, log=default_log):
         if n_workers < 1:
             raise ValueError(f"workers must be >= 1, got {n_workers}")
         self.n = int(n_workers)
         self.threads = threads
         self.prefetch = max(1, int(prefetch))
+        self.max_deaths = DEATHS_PER_WORKER * self.n if max_deaths is None else int(max_deaths)
+        self.log = log
+        self.deaths = 0
         self.pools: dict = {}
-        self.pids: dict = {}
+        self.pids: dict = {}       # node -> pid of its ready worker
+        self.hello: dict = {}      # node -> start_worker future while the node is starting
         self._spec_key = None
+        self._spec = None
 
     @property
     def n_nodes(self) -> int:
-        return len(self.pools) if self.pools else self.n
+        return self.n
+
+    def _spawn(self, k):
+        """Start node k's worker process: a one-process pool whose first task loads the scene."""
+        import multiprocessing as mp
+        from concurrent.futures import ProcessPoolExecutor
+        threads = str(self._spec.threads)
+        saved = {v: os.environ.get(v) for v in THREAD_ENV}
+        os.environ.update({v: threads for v in THREAD_ENV})  # inherited by the spawned worker
+        try:
+            pool = ProcessPoolExecutor(1, mp_context=mp.get_context("spawn"))
+            self.pools[k] = pool
+            self.pids.pop(k, None)
+            self.hello[k] = pool.submit(start_worker, self._spec)  # the process starts here
+        finally:
+            for v, old in saved.items():
+                if old is None:
+                    os.environ.pop(v, None)
+                else:
+                    os.environ[v] = old
+
+    def _died(self, k, when):
+        """Node k's process is gone: count it, give up past the limit, else start a replacement."""
+        pid = self.pids.get(k)
+        self.deaths += 1
+        old = self.pools.pop(k, None)
+        self.hello.pop(k, None)
+        if old is not None:
+            old.shutdown(wait=False, cancel_futures=True)
+        who = f"node {k} (pid {pid})" if pid else f"node {k}"
+        if self.deaths > self.max_deaths:
+            self.close()
+            raise RenderAborted(f"{self.deaths} worker processes died (the limit is {self.max_deaths} for "
+                                f"{self.n} workers; the last: {who}, {when}); giving up, no image written")
+        self._spawn(k)
+        return f"{who} died {when}"
 
     def start(self, spec):
+        """Start the N workers and wait until each has loaded the scene (replacing any that die)."""
         if self.pools and self._spec_key == spec.key:
             return
         self.close()
-        import multiprocessing as mp
-        from concurrent.futures import ProcessPoolExecutor, wait
-        threads = self.threads or threads_per_worker(self.n)
-        spec = RendererSpec(spec.kind, spec.path, spec.options, spec.threads or threads)
-        ctx = mp.get_context("spawn")
-        saved = {k: os.environ.get(k) for k in THREAD_ENV}
-        os.environ.update({k: str(threads) for k in THREAD_ENV})  # inherited by the spawned workers
+        threads = spec.threads or self.threads or threads_per_worker(self.n)
+        self._spec = RendererSpec(spec.kind, spec.path, spec.options, threads)
+        self._spec_key = spec.key
+        self.deaths = 0
         try:
             for k in range(self.n):
-                self.pools[k] = ProcessPoolExecutor(1, mp_context=ctx, initializer=init_worker, initargs=(spec,))
-            pings = {k: p.submit(os.getpid) for k, p in self.pools.items()}
-            wait(list(pings.values()))
-        finally:
-            for k, v in saved.items():
-                if v is None:
-                    os.environ.pop(k, None)
-                else:
-                    os.environ[k] = v
-        for k, f in pings.items():
-            self.pids[k] = f.result()  # raises if a worker could not load the scene
-        self._spec_key = spec.key
-        self._spec = spec
+                self._spawn(k)
+            while self.hello:
+                self._await_hello(timeout=None)
+        except BaseException:
+            self.close()
+            raise
+
+    def _await_hello(self, timeout):
+        """Wait for starting nodes; a ready one records its pid, a dead one gets a replacement."""
+        from concurrent.futures import FIRST_COMPLETED, wait
+        from concurrent.futures.process import BrokenProcessPool
+        by_future = {f: k for k, f in self.hello.items()}
+        done, _ = wait(list(by_future), timeout=timeout, return_when=FIRST_COMPLETED)
+        for f in done:
+            k = by_future[f]
+            try:
+                pid = f.result()  # a scene error is raised here, as that error
+            except BrokenProcessPool:
+                self.log(f"links1: {self._died(k, 'while starting')}; a replacement is starting")
+                continue
+            self.hello.pop(k, None)
+            self.pids[k] = pid
 
     def run(self, plan, todo, spec, cull, on_done, on_fault):
         from concurrent.futures import FIRST_COMPLETED, wait
         from concurrent.futures.process import BrokenProcessPool
         spec = self._spec
-        alive = [k for k in self.pools]
         failures = {}
         if plan.static:
-            queues = {k: deque() for k in alive}
+            queues = {k: deque() for k in range(self.n)}
             for i in todo:
                 queues[plan.owner[i] % self.n].append(i)
         else:
             shared = deque(todo)
         pending = {}  # future -> (unit, node)
 
-        def next_for(k):
-            q = queues[k] if plan.static else shared
-            return q.popleft() if q else None
+        def queue_of(k):
+            return queues[k] if plan.static else shared
 
         def fill(k):
+            if k in self.hello:  # still starting: units wait for a ready node
+                return
             busy = sum(1 for (_, n) in pending.values() if n == k)
             limit = len(todo) if plan.static else self.prefetch
-            while busy < limit:
-                i = next_for(k)
-                if i is None:
+            q = queue_of(k)
+            while busy < limit and q:
+                i = q.popleft()
+                try:
+                    f = self.pools[k].submit(render_unit, spec, plan.units[i].window, cull.get(i))
+                except (BrokenProcessPool, RuntimeError):  # it died while idle: noticed at this submit
+                    q.appendleft(i)
+                    lose(k, "while idle")
                     return
-                f = self.pools[k].submit(render_unit, spec, plan.units[i].window, cull.get(i))
                 pending[f] = (i, k)
                 busy += 1
 
-        for k in alive:
+        def lose(k, when):
+            mine = sorted(i for f, (i, n) in list(pending.items()) if n == k)
+            for f in [f for f, (_, n) in pending.items() if n == k]:
+                del pending[f]
+            for i in mine:
+                failures[i] = failures.get(i, 0) + 1
+                if failures[i] >= ALLOWED_FAILURES:
+                    self.close()
+                    raise RenderAborted(f"unit {plan.units[i].window} was lost with {failures[i]} workers; "
+                                        f"giving up, no image written")
+            msg = self._died(k, when)
+            if plan.static:
+                left = mine + list(queues[k])
+                queues[k].clear()
+                others = [n for n in range(self.n) if n != k and n not in self.hello] or [k]
+                for j, i in enumerate(left):  # dealt in turn to the ready nodes
+                    queues[others[j % len(others)]].append(i)
+                on_fault(f"{msg}; its {len(left)} unfinished units are redone on other nodes; "
+                         f"a replacement is starting")
+            else:
+                shared.extendleft(reversed(mine))
+                on_fault(f"{msg}; its {len(mine)} units in flight go back to the queue; a replacement is starting")
+
+        for k in range(self.n):
             fill(k)
-        while pending:
-            done, _ = wait(list(pending), return_when=FIRST_COMPLETED)
-            lost_nodes = set()
-            for f in done:
-                i, k = pending.pop(f)
+        while pending or (self.hello and any(queue_of(k) for k in range(self.n))):
+            if pending:
+                wait(list(pending) + list(self.hello.values()), return_when=FIRST_COMPLETED)
+                if any(f.done() for f in self.hello.values()):
+                    self._await_hello(timeout=0)
+            else:  # only starting nodes are left to render the remaining units
+                self._await_hello(timeout=None)
+            lost = set()
+            for f in [f for f in pending if f.done()]:
+                i, k = pending[f]
                 try:
                     px, info = f.result()
                 except BrokenProcessPool:
-                    lost_nodes.add(k)
-                    self._requeue(i, k, failures, plan, queues if plan.static else None,
-                                  None if plan.static else shared)
+                    lost.add(k)
                     continue
+                del pending[f]
                 info["node"] = k
                 on_done(i, px, info)
-            for k in lost_nodes:
-                if k not in alive:
-                    continue
-                alive.remove(k)
-                # every unit still queued on the dead node's pool is lost with it
-                for f2, (i2, k2) in list(pending.items()):
-                    if k2 == k:
-                        pending.pop(f2)
-                        self._requeue(i2, k, failures, plan, queues if plan.static else None,
-                                      None if plan.static else shared)
-                left = list(queues.pop(k)) if plan.static else []
-                self.pools.pop(k).shutdown(wait=False, cancel_futures=True)
-                if not alive:
-                    raise RuntimeError("links1: every worker died; no node left to render on")
-                if plan.static:  # the dead node's units go to the survivors, dealt in turn
-                    for j, i2 in enumerate(left):
-                        queues[alive[j % len(alive)]].append(i2)
-                on_fault(f"node {k} (pid {self.pids.get(k)}) died; {len(left) if plan.static else 'its'} "
-                         f"unfinished units are redone on the other nodes")
-            for k in alive:
+            for k in sorted(lost):
+                lose(k, "mid-unit")
+            for k in range(self.n):
                 fill(k)
-
-    def _requeue(self, i, k, failures, plan, queues, shared):
-        failures[i] = failures.get(i, 0) + 1
-        if failures[i] >= ALLOWED_FAILURES:
-            raise RuntimeError(f"unit {plan.units[i].window} was lost with {failures[i]} workers; giving up")
-        if queues is not None:
-            queues[k].appendleft(i)
-        else:
-            shared.appendleft(i)
 
     def close(self):
         for p in self.pools.values():
             p.shutdown(wait=True, cancel_futures=True)
         self.pools.clear()
         self.pids.clear()
+        self.hello.clear()
         self._spec_key = None
 
     def __enter__(self):

@@ -109,9 +109,14 @@ def get_renderer(spec: RendererSpec):
     return r
 
 
-def init_worker(spec: RendererSpec):
-    """Process-pool initializer: load the scene once."""
+def start_worker(spec: RendererSpec) -> int:
+    """A local worker's first task: set its threads, load the scene once -> its pid.
+
+    A task rather than a pool initializer, so that a scene error comes back as that error
+    and only a dead process breaks the pool.
+    """
     get_renderer(spec)
+    return os.getpid()
 
 
 def render_unit(spec: RendererSpec, window, cull=None):

@@ -1,0 +1,54 @@
+"""A real renderer whose worker process SIGKILLs itself at a chosen moment (death tests).
+
+``DyingRenderer(path, inner=KIND, die=..., marker=FILE, **options)`` builds the renderer
+``KIND`` (``core``, ``mitsuba`` or a ``module:callable``) and forwards everything to it,
+so the pixels are that renderer's. The first process to claim ``marker`` (an exclusive
+create; ``always=True``: every process) SIGKILLs itself:
+
+- ``die="start"``: right after loading the scene, inside the worker's first task;
+- ``die="unit"``: inside ``render`` of ``die_window``, after rendering it, before returning.
+
+A death "while idle" needs no hook: the test kills a ready worker from outside.
+"""
+from __future__ import annotations
+
+import os
+import signal
+
+DYING = "tests.dist.dying_renderer:DyingRenderer"
+
+
+def _claim(marker, always):
+    if always:
+        return True
+    try:
+        fd = os.open(marker, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
+    except FileExistsError:
+        return False
+    os.write(fd, str(os.getpid()).encode())
+    os.close(fd)
+    return True
+
+
+def _die():
+    os.kill(os.getpid(), signal.SIGKILL)
+
+
+class DyingRenderer:
+    def __init__(self, path, *, inner, die, marker, die_window=None, always=False, **options):
+        from links1.partition.runtime import RendererSpec
+        self._inner = RendererSpec.make(inner, path, **options).build()
+        self._die, self._marker, self._always = die, marker, bool(always)
+        self._window = tuple(die_window) if die_window else None
+        if die == "start" and _claim(marker, self._always):
+            _die()
+
+    def render(self, window=None, **kw):
+        img = self._inner.render(window=window, **kw)
+        if self._die == "unit" and window is not None and tuple(window) == self._window \
+                and _claim(self._marker, self._always):
+            _die()
+        return img
+
+    def __getattr__(self, name):  # film_size, channels, shapes_info, ...
+        return getattr(self._inner, name)
