@@ -25,6 +25,7 @@ the centres the ray meets, not with all centres.
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import sys
 import tempfile
@@ -129,9 +130,12 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--res", type=int)
     ap.add_argument("--timeout", type=float)
+    ap.add_argument("--repeats", type=int, help="timed frames per job (median; default 3, --quick 2)")
+    ap.add_argument("--families", default="quadric,msphere,blob",
+                    help="comma-separated families to run (default: all)")
     a = ap.parse_args(argv)
     res = a.res or (32 if a.quick else 64)
-    repeats = 2 if a.quick else 3
+    repeats = a.repeats or (2 if a.quick else 3)
     timeout = a.timeout or (30 if a.quick else 300)
     counts = [10, 100, 1000, 10000]
     blob_counts = [10, 30, 100, 300, 1000]
@@ -144,6 +148,7 @@ def main(argv=None) -> int:
         "msphere": (counts, lambda n: quadric_scene(n, mitsuba_shapes=True), ["core", "links1-llvm", "mitsuba-direct"]),
         "blob": (blob_counts, blob_scene, ["core", "links1-llvm"]),
     }
+    families = {k: v for k, v in families.items() if k in a.families.split(",")}
     out = {"machine": info, "command": command, "res": res, "repeats": repeats, "timeout_s": timeout,
            "families": {}}
     for fam, (sizes, make, renderers) in families.items():
@@ -196,6 +201,17 @@ def main(argv=None) -> int:
         out["families"][fam] = rows
     tmp.cleanup()
     out["wall_s"] = time.perf_counter() - t_start
+    for fam in out["families"]:
+        out.setdefault("family_runs", {})[fam] = {"command": command, "machine": info, "wall_s": out["wall_s"]}
+    if set(families) != {"quadric", "msphere", "blob"}:
+        # a partial run replaces its families in the committed results and keeps the others
+        old = json.loads((common.ROOT / "compare" / "results" / "scaling.json").read_text())
+        for fam, rows in old["families"].items():
+            if fam not in out["families"]:
+                out["families"][fam] = rows
+                out["family_runs"][fam] = old.get("family_runs", {}).get(
+                    fam, {"command": old["command"], "machine": old["machine"], "wall_s": old["wall_s"]})
+        out["families"] = {f: out["families"][f] for f in ("quadric", "msphere", "blob") if f in out["families"]}
     md = _markdown(out)
     paths = common.write_results("scaling", out, md, _plot(out))
     print(md)
@@ -214,6 +230,11 @@ def _markdown(out) -> str:
          f"and libraries; Δ = minus the smallest size's. Run took {out['wall_s']:.0f} s.\n"]
     for fam, rows in out["families"].items():
         s.append(f"\n## {fam}\n\n")
+        run = out.get("family_runs", {}).get(fam)
+        if run and run["command"] != out["command"]:
+            m = run["machine"]
+            s.append(f"From an earlier run: `{run['command']}` (git commit {m.get('git_commit')}, load average "
+                     f"at start {m.get('load_average_at_start')}).\n\n")
         t = []
         for x in rows:
             if "skipped" in x:

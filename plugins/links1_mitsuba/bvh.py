@@ -91,6 +91,22 @@ def tree_depth(first, count):
     return depth
 
 
+def slab(lo, hi, o, inv_d, tmin, tmax, act):
+    """Ray–box slab test in Dr.Jit: (crossed within (tmin, tmax), entry t). ``lo``/``hi``
+    are per-axis lists of Floats, ``inv_d`` = 1/d per component."""
+    import drjit as dr
+    t0, t1 = tmin, tmax
+    for c, (oc, ic) in enumerate(((o.x, inv_d.x), (o.y, inv_d.y), (o.z, inv_d.z))):
+        ta = (lo[c] - oc) * ic
+        tb = (hi[c] - oc) * ic
+        # NaN (0 * inf on a slab face) must not cull: minimum/maximum keep the other
+        t0 = dr.maximum(t0, dr.select(dr.isnan(ta) | dr.isnan(tb), -INF, dr.minimum(ta, tb)))
+        t1 = dr.minimum(t1, dr.select(dr.isnan(ta) | dr.isnan(tb), INF, dr.maximum(ta, tb)))
+    # a box is crossed when its slab interval meets (tmin, tmax); slack for float32
+    slack = 1e-5 * (dr.abs(t0) + dr.abs(t1)) + 1e-30
+    return act & (t0 <= t1 + slack), t0
+
+
 def define_bvh():
     import drjit as dr
     import mitsuba as mi
@@ -211,16 +227,7 @@ def define_bvh():
         def _box(self, k, o, inv_d, tmin, tmax, act):
             lo = [dr.gather(mi.Float, self.nlo, k * 3 + c, act) for c in range(3)]
             hi = [dr.gather(mi.Float, self.nhi, k * 3 + c, act) for c in range(3)]
-            t0, t1 = tmin, tmax
-            for c, (oc, ic) in enumerate(((o.x, inv_d.x), (o.y, inv_d.y), (o.z, inv_d.z))):
-                ta = (lo[c] - oc) * ic
-                tb = (hi[c] - oc) * ic
-                # NaN (0 * inf on a slab face) must not cull: minimum/maximum keep the other
-                t0 = dr.maximum(t0, dr.select(dr.isnan(ta) | dr.isnan(tb), -INF, dr.minimum(ta, tb)))
-                t1 = dr.minimum(t1, dr.select(dr.isnan(ta) | dr.isnan(tb), INF, dr.maximum(ta, tb)))
-            # a box is crossed when its slab interval meets (tmin, tmax); slack for float32
-            slack = 1e-5 * (dr.abs(t0) + dr.abs(t1)) + 1e-30
-            return act & (t0 <= t1 + slack), t0
+            return slab(lo, hi, o, inv_d, tmin, tmax, act)
 
         def _walk(self, o, d, tmin, tmax, active, cost, shadow):
             """One node per iteration: a leaf tests its quadric, an inner node tests both

@@ -228,6 +228,8 @@ def define_integrator():
                 nslots = len(slot_of_id) + len(self.custom)
             P.nslots = nslots
             P.custom = self.custom
+            # blobs' candidate-search tables, built before any trace (frozen inputs)
+            P.blob_tables = [sp.tables() for sp in self.custom if hasattr(sp, "tables")]
             # many bounded quadrics: tables under a BVH (bvh.py) instead of one code block each
             quad = [sp for sp in self.custom if sp.__class__.__name__ == "QuadricSpec"
                     and np.all(np.isfinite(np.concatenate(sp.bounds())))]

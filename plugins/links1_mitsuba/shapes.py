@@ -19,6 +19,18 @@ INF = float("inf")
 PROBE_REL = 1e-4
 #: Largest number of secant refinements of a bracketed blob root.
 MAX_REFINE = 24
+#: From this many centres on, the ``exact`` solver sums each field evaluation over the ray's
+#: candidate centres only (found once per ray with a hierarchy of boxes over the 3S spheres).
+LIST_MIN_CENTRES = 24
+#: Candidate centres per ray held in registers (the field sum is unrolled over them); a ray
+#: crossing more sums over its list in local memory (a loop), beyond :data:`LIST_CAP` over all.
+SLOTS = 16
+#: Slots summed together; a packet skips a group no lane of it fills.
+SLOT_GROUP = 8
+#: Candidate centres per ray held in local memory.
+LIST_CAP = 64
+#: Centres per leaf of the candidate search's hierarchy.
+LEAF_CENTRES = 4
 
 
 def _matrix(props, name="to_world"):
@@ -173,7 +185,10 @@ class BlobSpec:
     ``centers`` (N, 5) rows ``x y z w S`` in object space; ``to_world`` optional. The
     ``exact`` solver steps along the ray with the Lipschitz/curvature bound of
     docs/numerics.md (never jumps over a root, Newton-fast near one); ``paper`` samples the
-    span ``samples`` times per crossed centre and solves a quadratic per segment."""
+    span ``samples`` times per crossed centre and solves a quadratic per segment. With
+    :data:`LIST_MIN_CENTRES` centres or more, ``exact`` sums each field evaluation over the
+    ray's candidate centres only (its line crosses their 3S sphere; the others add exact
+    zeros), found once per ray (:meth:`_collect`), as the core does."""
 
     slot: int
     name: str
@@ -184,6 +199,7 @@ class BlobSpec:
     to_world: np.ndarray | None = None
     emission: np.ndarray | None = None
     max_steps: int = 256
+    _tables: dict | None = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self):
         m = np.eye(4) if self.to_world is None else self.to_world
@@ -227,55 +243,241 @@ class BlobSpec:
         return int(self.centers.nbytes) + 64
 
     # ------------------------------------------------------------------ Dr.Jit
-    def _setup(self, o, d, tmin, tmax):
-        """Object-space unit ray and per-centre (τ, h², crossing) plus the span and bounds."""
+    def _consts(self):
+        """Per-centre constants, one row each: x y z w S 9S² 1/(3S²) 3S 1/(6S²) −2/(3S²)
+        2|w|/(3S) 2|w|/(3S²) (float64, rounded once to float32 wherever they are used)."""
+        x, y, z, w, S = self.centers.T
+        inv3s2 = 1.0 / (3.0 * S * S)
+        return np.c_[x, y, z, w, S, 9.0 * S * S, inv3s2, 3.0 * S, 0.5 * inv3s2, -2.0 * inv3s2,
+                     np.abs(w) * 2.0 / (3.0 * S), np.abs(w) * 2.0 / (3.0 * S * S)]
+
+    def _unit_ray(self, o, d):
+        """Object-space origin, unit direction and the length scale of ``d``."""
         import drjit as dr
         import mitsuba as mi
         a = self.inv
         u = mi.Vector3f(*[a[i][0] * o.x + a[i][1] * o.y + a[i][2] * o.z + a[i][3] for i in range(3)])
         v = mi.Vector3f(*[a[i][0] * d.x + a[i][1] * d.y + a[i][2] * d.z for i in range(3)])
         scale = dr.norm(v)
-        v = v / scale
+        return u, v / scale, scale
+
+    @staticmethod
+    def _chord(u, v, row, enter, leave, Lb, Gb):
+        """One centre against the ray's line: (τ, h², the span and the derivative bounds
+        updated where the line crosses its 3S sphere)."""
+        import drjit as dr
+        import mitsuba as mi
+        x, y, z, _, _, R2, _, _, _, _, lb, gb = row
+        rel = mi.Vector3f(x, y, z) - u
+        tau = dr.dot(rel, v)
+        h2 = dr.squared_norm(dr.cross(rel, v))   # no cancellation (numerics.md)
+        cross = h2 < R2
+        half = dr.sqrt(dr.maximum(R2 - h2, 0.0))
+        enter = dr.select(cross, dr.minimum(enter, tau - half), enter)
+        leave = dr.select(cross, dr.maximum(leave, tau + half), leave)
+        return tau, h2, enter, leave, Lb + dr.select(cross, lb, 0.0), Gb + dr.select(cross, gb, 0.0)
+
+    def _setup(self, o, d, tmin, tmax):
+        """Object-space unit ray and per-centre (τ, h², constants) plus the span and bounds."""
+        import drjit as dr
+        import mitsuba as mi
+        u, v, scale = self._unit_ray(o, d)
         s_lo, s_hi = tmin * scale, tmax * scale
         enter, leave = mi.Float(INF), mi.Float(-INF)
         Lb, Gb = mi.Float(0.0), mi.Float(0.0)
         per = []
-        for x, y, z, w, S in self.centers.tolist():
-            rel = mi.Vector3f(x, y, z) - u
-            tau = dr.dot(rel, v)
-            h2 = dr.squared_norm(dr.cross(rel, v))   # no cancellation (numerics.md)
-            R2 = 9.0 * S * S
-            cross = h2 < R2
-            half = dr.sqrt(dr.maximum(R2 - h2, 0.0))
-            enter = dr.select(cross, dr.minimum(enter, tau - half), enter)
-            leave = dr.select(cross, dr.maximum(leave, tau + half), leave)
-            Lb += dr.select(cross, abs(w) * 2.0 / (3.0 * S), 0.0)
-            Gb += dr.select(cross, abs(w) * 2.0 / (3.0 * S * S), 0.0)
-            per.append((tau, h2, float(w), float(S)))
+        for row in self._consts().tolist():
+            tau, h2, enter, leave, Lb, Gb = self._chord(u, v, row, enter, leave, Lb, Gb)
+            per.append((tau, h2, *row[3:5], *row[6:10]))
         start = dr.maximum(s_lo, enter)
         end = dr.minimum(s_hi, leave)
         return scale, per, start, end, Lb, Gb
 
-    @staticmethod
-    def _field(per, s):
-        """W(s) and dW/ds along the unit object-space ray (eq. 3.6–3.9)."""
+    # ---------------------------------------------- candidate centres (many centres)
+    def uses_lists(self) -> bool:
+        """Whether the ``exact`` solver sums over per-ray candidate lists (many centres)."""
+        return self.solver == "exact" and len(self.centers) >= LIST_MIN_CENTRES
+
+    def tables(self):
+        """Dr.Jit tables of the candidate search, built once (``None`` below
+        :data:`LIST_MIN_CENTRES`): a hierarchy of boxes over the centres' 3S spheres (one
+        centre per leaf, bvh.py's SAH build) and the constants of :meth:`_consts` in its leaf
+        order, so that a left-first walk meets the candidates in increasing row."""
+        if self._tables is None and self.uses_lists():
+            import mitsuba as mi
+            from .bvh import build
+            k = self._consts()
+            c, R = k[:, :3], k[:, 7]
+            # padded so that a sphere the float32 line test finds crossed is never culled
+            pad = (1e-3 * R + 1e-5 * np.abs(c).max(1))[:, None]
+            order, nlo, nhi, first, count = build(c - R[:, None] - pad, c + R[:, None] + pad,
+                                                  leaf=LEAF_CENTRES)
+            F = lambda a: mi.Float(np.ascontiguousarray(a, dtype=np.float64).ravel())  # noqa: E731
+            self._tables = {"consts": F(k[order]), "nlo": F(nlo), "nhi": F(nhi),
+                            "first": mi.UInt32(first), "count": mi.UInt32(count)}
+        return self._tables
+
+    def _row(self, idx, act):
         import drjit as dr
         import mitsuba as mi
-        W = mi.Float(0.0)
-        dW = mi.Float(0.0)
-        for tau, h2, w, S in per:
-            dt = s - tau
-            r2 = dr.square(dt) + h2
-            r = dr.sqrt(r2)
-            inv3s2 = 1.0 / (3.0 * S * S)
-            inner = r < S
-            outer = r < 3.0 * S
-            P = dr.select(inner, 1.0 - r2 * inv3s2,
-                          dr.select(outer, dr.square(r - 3.0 * S) * (0.5 * inv3s2), 0.0))  # eq. (3.9)
-            g = dr.select(inner, -2.0 * inv3s2,
-                          dr.select(outer, (1.0 - 3.0 * S / dr.maximum(r, 1e-30)) * inv3s2, 0.0))
-            W += w * P
-            dW += w * g * dt
+        tab = self.tables()["consts"]
+        return [dr.gather(mi.Float, tab, idx * 12 + j, act) for j in range(12)]
+
+    def _collect(self, hit_box, hit_centre, active):
+        """Each lane's candidate centres (rows of the leaf-ordered table, increasing) in local
+        memory (up to :data:`LIST_CAP`), their number, and whether there were more (the lane
+        then sums over all centres).
+        ``hit_box(node, act)`` culls subtrees, ``hit_centre(row, act)`` decides a leaf."""
+        import drjit as dr
+        import mitsuba as mi
+        from .bvh import STACK
+        T = self.tables()
+        n = dr.width(active)
+        stack = dr.alloc_local(mi.UInt32, STACK, mi.UInt32(0))
+        lst = dr.alloc_local(mi.UInt32, LIST_CAP, mi.UInt32(0))
+        sp = dr.select(hit_box(mi.UInt32(0), active), mi.UInt32(1), mi.UInt32(0))
+        cnt = dr.zeros(mi.UInt32, n)
+        ovf = dr.zeros(mi.Bool, n)
+
+        def cond(stack, lst, sp, cnt, ovf):
+            return sp > 0
+
+        def body(stack, lst, sp, cnt, ovf):
+            act = sp > 0
+            sp = sp - 1
+            k = stack.read(sp, act)
+            fst = dr.gather(mi.UInt32, T["first"], k, act)
+            num = dr.gather(mi.UInt32, T["count"], k, act)
+            leaf = act & (num > 0)
+            for i in range(LEAF_CENTRES):
+                take = leaf & (i < num)
+                take &= hit_centre(fst + i, take)
+                add = take & (cnt < LIST_CAP)
+                ovf = ovf | (take & ~add)
+                lst.write(fst + i, cnt, add)
+                cnt = dr.select(add, cnt + 1, cnt)
+            inner = act & ~leaf
+            for child in (fst + 1, fst):    # the left child on top: leaves in increasing row
+                h = hit_box(child, inner)
+                stack.write(child, sp, h)
+                sp = dr.select(h, sp + 1, sp)
+            return stack, lst, sp, cnt, ovf
+
+        _, lst, _, cnt, ovf = dr.while_loop((stack, lst, sp, cnt, ovf), cond, body, label="links1_blob_collect")
+        return lst, cnt, ovf
+
+    def _node_box(self, k, act):
+        import drjit as dr
+        import mitsuba as mi
+        T = self.tables()
+        return ([dr.gather(mi.Float, T["nlo"], k * 3 + c, act) for c in range(3)],
+                [dr.gather(mi.Float, T["nhi"], k * 3 + c, act) for c in range(3)])
+
+    def _each(self, lst, cnt, ovf, state, fn):
+        """Loop ``state = fn(row, state)`` over the lane's candidates in increasing row
+        (over all centres where the list overflowed)."""
+        import drjit as dr
+        import mitsuba as mi
+        total = dr.select(ovf, mi.UInt32(len(self.centers)), cnt)
+
+        def cond(j, lst, *st):
+            return j < total
+
+        def body(j, lst, *st):
+            act = j < total
+            idx = dr.select(ovf, j, lst.read(j, act & ~ovf))
+            return (j + 1, lst, *fn(self._row(idx, act), *st))
+
+        out = dr.while_loop((dr.zeros(mi.UInt32, dr.width(cnt)), lst, *state), cond, body, label="links1_blob_sum")
+        return out[2:]
+
+    def _setup_lists(self, u, v, active):
+        """The candidate lists of the rays' lines, the first :data:`SLOTS` of them in
+        registers, and the span and the bounds over them: the sums of :meth:`_setup`, over
+        the centres that add non-zero terms, in the hierarchy's leaf order (so the same to
+        float32 rounding, not bit for bit)."""
+        import drjit as dr
+        import mitsuba as mi
+        from .bvh import slab
+        inv_v = mi.Vector3f(1.0 / v.x, 1.0 / v.y, 1.0 / v.z)
+        n = dr.width(active)
+
+        def hit_box(k, act):
+            lo, hi = self._node_box(k, act)
+            return slab(lo, hi, u, inv_v, mi.Float(-INF), mi.Float(INF), act)[0]
+
+        def hit_centre(idx, act):
+            row = self._row(idx, act)
+            rel = mi.Vector3f(*row[:3]) - u
+            return dr.squared_norm(dr.cross(rel, v)) < row[5]
+
+        lst, cnt, ovf = self._collect(hit_box, hit_centre, active)
+        many = ovf | (cnt > SLOTS)
+        st = (dr.full(mi.Float, INF, n), dr.full(mi.Float, -INF, n), dr.zeros(mi.Float, n), dr.zeros(mi.Float, n))
+        slots = []
+        for j in range(SLOTS):
+            # an empty slot reads zeros: no crossing, and w = 0 adds exactly zero
+            row = self._row(lst.read(j), (j < cnt) & ~many)
+            tau, h2, *st = self._chord(u, v, row, *st)
+            slots.append((tau, h2, *row[3:5], *row[6:10]))
+
+        def span(row, enter, leave, Lb, Gb):
+            return self._chord(u, v, row, enter, leave, Lb, Gb)[2:]
+
+        def by_list(*st):
+            return self._each(lst, cnt, ovf, st, span)
+
+        st = dr.if_stmt(tuple(st), many, by_list, lambda *st: st)
+        return (lst, cnt, ovf, many, slots), *st
+
+    def _field_lists(self, u, v, cands, s):
+        """:meth:`_field` over the lane's candidate centres (the same terms, in leaf order)."""
+        import drjit as dr
+        import mitsuba as mi
+        lst, cnt, ovf, many, slots = cands
+        W, dW = BlobSpec._field(slots[:SLOT_GROUP], s)
+        for g in range(SLOT_GROUP, len(slots), SLOT_GROUP):
+            # the next slots only in packets where some lane has that many candidates
+            def more(W, dW, g=g):
+                return BlobSpec._field(slots[g:g + SLOT_GROUP], s, W, dW)
+            W, dW = dr.if_stmt((W, dW), (cnt > g) & ~many, more, lambda W, dW: (W, dW))
+
+        def term(row, W, dW):
+            tau, h2 = self._chord(u, v, row, 0.0, 0.0, 0.0, 0.0)[:2]
+            Wk, dWk = BlobSpec._term(s, tau, h2, *row[3:5], *row[6:10])
+            return W + Wk, dW + dWk
+
+        def by_list(W, dW):
+            return self._each(lst, cnt, ovf, (dr.zeros(mi.Float, dr.width(s)), dr.zeros(mi.Float, dr.width(s))), term)
+
+        return dr.if_stmt((W, dW), many, by_list, lambda W, dW: (W, dW))
+
+    @staticmethod
+    def _term(s, tau, h2, w, S, inv3s2, S3, half, m2):
+        """One centre's ``w P(r)`` and ``w dP/ds`` at ``s`` (eq. 3.9); the constants are the
+        centre's row of :meth:`_consts` (Python floats or gathered Floats: the same float32
+        values, so both give the same bits)."""
+        import drjit as dr
+        dt = s - tau
+        r2 = dr.square(dt) + h2
+        r = dr.sqrt(r2)
+        inner = r < S
+        outer = r < S3
+        P = dr.select(inner, 1.0 - r2 * inv3s2, dr.select(outer, dr.square(r - S3) * half, 0.0))  # eq. (3.9)
+        g = dr.select(inner, m2, dr.select(outer, (1.0 - S3 / dr.maximum(r, 1e-30)) * inv3s2, 0.0))
+        return w * P, w * g * dt
+
+    @staticmethod
+    def _field(per, s, W=0.0, dW=0.0):
+        """W(s) and dW/ds along the unit object-space ray (eq. 3.6–3.9), the terms of
+        ``per`` added in order to ``W``, ``dW``."""
+        import mitsuba as mi
+        W = mi.Float(W)
+        dW = mi.Float(dW)
+        for tau, h2, *c in per:
+            Wk, dWk = BlobSpec._term(s, tau, h2, *c)
+            W += Wk
+            dW += dWk
         return W, dW
 
     def intersect(self, o, d, tmin, tmax, active, cost=None, any_hit=False):
@@ -284,7 +486,19 @@ class BlobSpec:
         refined (the returned t is then a point past the root, still inside the interval)."""
         import drjit as dr
         import mitsuba as mi
-        scale, per, start, end, Lb, Gb = self._setup(o, d, tmin, tmax)
+        if self.uses_lists():
+            u, v, scale = self._unit_ray(o, d)
+            cands, enter, leave, Lb, Gb = self._setup_lists(u, v, active)
+            start, end = dr.maximum(tmin * scale, enter), dr.minimum(tmax * scale, leave)
+            per = None
+
+            def field_at(s):
+                return self._field_lists(u, v, cands, s)
+        else:
+            scale, per, start, end, Lb, Gb = self._setup(o, d, tmin, tmax)
+
+            def field_at(s):
+                return BlobSpec._field(per, s)
         s_lo, s_hi = tmin * scale, tmax * scale   # the segment, as in _setup
         T = self.threshold
         run = active & (start < end)
@@ -293,11 +507,11 @@ class BlobSpec:
         def solve(start, end, Lb, Gb):
             if self.solver == "paper":
                 return self._paper(per, s_lo, s_hi, run)
-            W0, dW0 = self._field(per, start)
+            W0, dW0 = field_at(start)
             inside = (W0 > T) | ((W0 == T) & (dW0 > 0))
             sgn = dr.select(inside, -1.0, 1.0)
             n_eval = dr.select(run, mi.UInt32(1), mi.UInt32(0))
-            return self._exact(per, start, end, sgn, run, n_eval, Lb, Gb, eps, any_hit)
+            return self._exact(field_at, start, end, sgn, run, n_eval, Lb, Gb, eps, any_hit)
 
         def skip(start, end, Lb, Gb):
             return dr.full(mi.Float, INF, dr.width(start)), dr.zeros(mi.UInt32, dr.width(start))
@@ -309,7 +523,7 @@ class BlobSpec:
         t = t_obj / scale
         return dr.select(dr.isfinite(t_obj), t, INF), dr.zeros(mi.UInt32, dr.width(t))
 
-    def _exact(self, per, start, end, sgn, run, n_eval, Lb, Gb, eps, any_hit=False):
+    def _exact(self, field_at, start, end, sgn, run, n_eval, Lb, Gb, eps, any_hit=False):
         """March with steps that never jump over a root (numerics.md LG bound); once the step
         falls below ``probe`` it probes ``max(2h, probe)`` ahead; a sign change brackets the
         root, refined by secant steps with the Illinois safeguard (as the core). A ray that
@@ -332,7 +546,7 @@ class BlobSpec:
             return run
 
         def body(s, s_prev, f_prev, found, run, it, n_eval):
-            W, dW = BlobSpec._field(per, s)
+            W, dW = field_at(s)
             n_eval += dr.select(run, mi.UInt32(1), 0)
             F = sgn * (T - W)
             Fp = -sgn * dW
@@ -358,7 +572,7 @@ class BlobSpec:
         # bracket [a, b] with F(a) > 0 >= F(b): secant steps with the Illinois safeguard
         a, b = mi.Float(s_prev), mi.Float(s)
         fa = f_prev
-        Wb, _ = BlobSpec._field(per, b)
+        Wb, _ = field_at(b)
         fb = sgn * (T - Wb)
         last = dr.zeros(mi.Int32, n)
         k = dr.zeros(mi.UInt32, n)
@@ -369,7 +583,7 @@ class BlobSpec:
 
         def body2(a, b, fa, fb, last, k, act, n_eval):
             x = dr.clip(a + fa * ((b - a) / (fa - fb)), a, b)
-            W, _ = BlobSpec._field(per, x)
+            W, _ = field_at(x)
             n_eval += dr.select(act, mi.UInt32(1), 0)
             fx = sgn * (T - W)
             up = fx > 0
@@ -412,7 +626,7 @@ class BlobSpec:
         hi_cap = dr.minimum(s_hi, float(np.finfo(np.float32).max))
         bases, widths, nxs, js = [], [], [], []
         cnt = dr.zeros(mi.UInt32, n)
-        for tau, h2, w, S in per:
+        for tau, h2, w, S, *_ in per:
             if not w > 0:
                 continue
             R2 = 9.0 * S * S
@@ -487,14 +701,27 @@ class BlobSpec:
         a = self.inv
         p = o + d * t
         x = mi.Vector3f(*[a[i][0] * p.x + a[i][1] * p.y + a[i][2] * p.z + a[i][3] for i in range(3)])
-        g = mi.Vector3f(0.0)
-        for cx, cy, cz, w, S in self.centers.tolist():
+
+        def grad(row, g):
+            cx, cy, cz, w, S, _, inv3s2, S3, _, m2 = row[:10]
             rel = x - mi.Vector3f(cx, cy, cz)
             r = dr.norm(rel)
-            inv3s2 = 1.0 / (3.0 * S * S)
-            gr = dr.select(r < S, -2.0 * inv3s2,
-                           dr.select(r < 3 * S, (1.0 - 3.0 * S / dr.maximum(r, 1e-30)) * inv3s2, 0.0))
-            g += rel * (w * gr)
+            gr = dr.select(r < S, m2, dr.select(r < S3, (1.0 - S3 / dr.maximum(r, 1e-30)) * inv3s2, 0.0))
+            return (g + rel * (w * gr),)
+
+        if self.uses_lists():
+            # the centres whose box holds the point (the others add exactly zero)
+            def hit_box(k, act):
+                lo, hi = self._node_box(k, act)
+                return act & (lo[0] <= x.x) & (x.x <= hi[0]) & (lo[1] <= x.y) & (x.y <= hi[1]) \
+                    & (lo[2] <= x.z) & (x.z <= hi[2])
+
+            cands = self._collect(hit_box, lambda idx, act: act, dr.isfinite(t))
+            g, = self._each(*cands, (dr.zeros(mi.Vector3f, dr.width(x)),), grad)
+        else:
+            g = mi.Vector3f(0.0)
+            for row in self._consts().tolist():
+                g, = grad(row, g)
         m = self.normal_mat
         nw = -mi.Vector3f(*[m[i][0] * g.x + m[i][1] * g.y + m[i][2] * g.z for i in range(3)])
         ln = dr.norm(nw)
