@@ -88,11 +88,43 @@ def render(scene, *, spp: int | None = None, max_depth: int | None = None, seed:
     if window is None:
         window = (*cam.crop_offset, *cam.crop_size)
     x0, y0, w, h = _check_window(window, cam.width, cam.height)
-    integ = WhittedIntegrator(scene, max_depth=max_depth, min_weight=min_weight)
+    px, py = _window_pixels(x0, y0, w, h)
+    out = _render_pixels(scene, cam, px, py, spp=spp, max_depth=max_depth, seed=seed, aovs=aovs,
+                         min_weight=min_weight, progress=progress)
+    return out.reshape(h, w, -1)
 
-    npix = w * h
-    ys, xs = np.divmod(np.arange(npix, dtype=np.int64), w)
-    px, py = xs + x0, ys + y0
+
+def render_windows(scene, windows, *, spp: int | None = None, max_depth: int | None = None, seed: int = 0,
+                   aovs=(), min_weight: float = DEFAULT_MIN_WEIGHT) -> list:
+    """Render several windows of the film in one pass -> one array per window, each bit for bit
+    what :func:`render` returns for it (pixels are traced independently, in batches of
+    ``BATCH``: a batch of small windows pays the per-call numpy overhead once)."""
+    cam = scene.camera
+    spp = scene.spp if spp is None else int(spp)
+    if spp < 1:
+        raise UsageError(f"spp must be >= 1, got {spp}")
+    aovs = check_aovs(aovs)
+    wins = [_check_window(win, cam.width, cam.height) for win in windows]
+    pxs, pys = zip(*(_window_pixels(*win) for win in wins))
+    flat = _render_pixels(scene, cam, np.concatenate(pxs), np.concatenate(pys), spp=spp, max_depth=max_depth,
+                          seed=seed, aovs=aovs, min_weight=min_weight, progress=False)
+    out, at = [], 0
+    for x0, y0, w, h in wins:
+        out.append(flat[at:at + w * h].reshape(h, w, -1))
+        at += w * h
+    return out
+
+
+def _window_pixels(x0, y0, w, h):
+    """Pixel coordinates of a window, row by row."""
+    ys, xs = np.divmod(np.arange(w * h, dtype=np.int64), w)
+    return xs + x0, ys + y0
+
+
+def _render_pixels(scene, cam, px, py, *, spp, max_depth, seed, aovs, min_weight, progress):
+    """(len(px), 3 + AOV channels) for the pixels ``(px, py)`` of the film (row 0 at the top)."""
+    integ = WhittedIntegrator(scene, max_depth=max_depth, min_weight=min_weight)
+    npix = len(px)
     rgb = np.zeros((npix, 3))
     cost = np.zeros(npix, dtype=np.int64)
     depth_aov = np.zeros(npix)
@@ -124,7 +156,7 @@ def render(scene, *, spp: int | None = None, max_depth: int | None = None, seed:
     for a in aovs:
         channels.append({"depth": depth_aov[:, None], "normal": normal_aov, "id": id_aov[:, None],
                          "cost": cost[:, None].astype(np.float64)}[a])
-    return np.concatenate(channels, axis=1).reshape(h, w, -1)
+    return np.concatenate(channels, axis=1)
 
 
 def _resized(cam, width, height):
@@ -180,6 +212,11 @@ class CoreRenderer:
             window = (0, 0, *self.film_size)
         return render(self.scene, spp=self.spp, max_depth=self.max_depth, seed=self.seed,
                       window=window, aovs=self.aovs, min_weight=self.min_weight, progress=progress)
+
+    def render_batch(self, windows) -> list:
+        """One array per window, each exactly ``render(window)`` (one pass over their pixels)."""
+        return render_windows(self.scene, windows, spp=self.spp, max_depth=self.max_depth, seed=self.seed,
+                              aovs=self.aovs, min_weight=self.min_weight)
 
     def shapes_info(self) -> list[dict]:
         return shapes_info(self.scene)

@@ -61,6 +61,9 @@ def _partition_options(p, *, nodes_option: bool):
     g.add_argument("--tiles-per-node", type=_pos("--tiles-per-node"), default=16,
                    help="tiles per node for subscreen/grid/dynamic tiles (paper: 16 or 64; default 16)")
     g.add_argument("--unit", choices=UNITS, default="tile", help="unit handed out by dynamic (default tile)")
+    g.add_argument("--chunk-factor", type=int_option("--chunk-factor", 0), default=None, metavar="K",
+                   help="dynamic: a node that asks for work gets ceil(remaining / (K x nodes)) units in one launch "
+                        "(guided self-scheduling; default 2); 0 = one unit at a time (the paper's 4-3)")
     g.add_argument("--order", choices=("lpt", "walk"), default=None,
                    help="dynamic dispatch order: lpt = largest predicted load first (default), walk = bottom-left first")
     g.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT", help="render on an existing Dask cluster")
@@ -133,22 +136,25 @@ def _model_and_channels(spec, args):
 
 
 def _backend(args, workers, static):
+    from .executors import CHUNK_FACTOR
+    k = CHUNK_FACTOR if getattr(args, "chunk_factor", None) is None else args.chunk_factor
     key = (args.scheduler, args.dask_local, workers, static)
     be = _BACKENDS.get(key)
     if be is not None:
+        be.chunk_factor = k
         return be
     if args.scheduler or args.dask_local:
         try:
             from .dask_backend import DaskBackend
         except ImportError as e:
             raise UsageError(f"Dask is not installed ({e}); pip install 'links1[dask]'") from None
-        be = DaskBackend(scheduler=args.scheduler, n_local=args.dask_local, static=static)
+        be = DaskBackend(scheduler=args.scheduler, n_local=args.dask_local, static=static, chunk_factor=k)
     elif workers == 0:
         from .executors import InProcess
-        be = InProcess()
+        be = InProcess(chunk_factor=k)
     else:
         from .executors import LocalPool
-        be = LocalPool(int(workers))
+        be = LocalPool(int(workers), chunk_factor=k)
     _BACKENDS[key] = be
     import atexit
     atexit.register(be.close)

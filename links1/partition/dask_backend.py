@@ -18,8 +18,8 @@ import uuid
 from collections import deque
 
 from ..errors import RenderAborted
-from .executors import ALLOWED_FAILURES
-from .runtime import THREAD_ENV, get_renderer, render_unit
+from .executors import ALLOWED_FAILURES, CHUNK_FACTOR, TASK_PIXELS, chunk_size, take_batch
+from .runtime import THREAD_ENV, get_renderer, render_units, spec_batches
 
 try:  # the plugin base class only when distributed is there (lazy for everything else)
     from distributed.diagnostics.plugin import WorkerPlugin as _WorkerPluginBase
@@ -49,7 +49,8 @@ class DaskBackend:
     name = "dask"
 
     def __init__(self, scheduler: str | None = None, n_local: int | None = None, threads: int | None = None,
-                 static: bool = False, client=None, poll_s: float = 0.25):
+                 static: bool = False, client=None, poll_s: float = 0.25, chunk_factor: int = CHUNK_FACTOR,
+                 task_pixels: int = TASK_PIXELS):
         if scheduler is None and not n_local and client is None:
             raise ValueError("give a scheduler address, a LocalCluster size or a client")
         self.scheduler, self.n_local, self.threads = scheduler, n_local, threads
@@ -57,6 +58,7 @@ class DaskBackend:
         self.client, self.cluster = client, None
         self._own_client = client is None
         self.poll_s = poll_s
+        self.chunk_factor, self.task_pixels = int(chunk_factor), int(task_pixels)
         self.token = uuid.uuid4().hex[:8]
         self._plugin = None
 
@@ -118,18 +120,26 @@ class DaskBackend:
     def run(self, plan, todo, spec, cull, on_done, on_fault):
         from distributed import wait
         client, spec = self.client, self._spec
-        attempts, failures = {}, {}
-        pending = {}  # future -> (unit, node or None)
+        batches = spec_batches(spec)
+        attempts = {}
+        pending = {}  # future -> (units, node or None)
         workers = self.workers()
         if not workers:
             client.wait_for_workers(1, timeout=60)
             workers = self.workers()
 
-        def submit(i, node, resources=None):
-            attempts[i] = attempts.get(i, 0) + 1
-            f = client.submit(render_unit, spec, plan.units[i].window, cull.get(i), pure=False,
-                              key=f"links1-unit-{i}-{self.token}-{attempts[i]}", resources=resources)
-            pending[f] = (i, node)
+        def submit(batch, node, resources=None):
+            a = attempts[batch[0]] = attempts.get(batch[0], 0) + 1
+            f = client.submit(render_units, spec, [plan.units[i].window for i in batch], [cull.get(i) for i in batch],
+                              pure=False, key=f"links1-units-{batch[0]}-{len(batch)}-{self.token}-{a}",
+                              resources=resources)
+            pending[f] = (batch, node)
+
+        def submit_node(k, units):  # a static node's units, in tasks within the pixel budget
+            q = deque(units)
+            while q:
+                submit(take_batch(plan, q, None if batches else 1, self.task_pixels), k,
+                       {f"links1-{self.token}-{k}": 1})
 
         if plan.static:
             node_worker = {}
@@ -138,16 +148,19 @@ class DaskBackend:
                 res = f"links1-{self.token}-{k}"
                 client.run(_set_resource, res, 1, workers=[addr])
                 node_worker[k] = addr
+            mine = {}
             for i in todo:
-                k = plan.owner[i] % n
-                submit(i, k, {f"links1-{self.token}-{k}": 1})
+                mine.setdefault(plan.owner[i] % n, []).append(i)
+            for k, units in sorted(mine.items()):
+                submit_node(k, units)
         else:
             queue = deque(todo)
 
             def top_up():
-                want = len(self.workers()) + 1
-                while queue and len(pending) < want:
-                    submit(queue.popleft(), None)
+                nw = max(1, len(self.workers()))
+                while queue and len(pending) < nw + 1:
+                    c = chunk_size(len(queue), nw, self.chunk_factor) if batches else 1
+                    submit(take_batch(plan, queue, c, self.task_pixels), None)
             top_up()
 
         known = set(workers)
@@ -157,20 +170,21 @@ class DaskBackend:
             except TimeoutError:
                 done = ()
             for f in done:
-                i, node = pending.pop(f)
+                batch, node = pending.pop(f)
                 if f.status == "error":
                     exc = f.exception()
                     if type(exc).__name__ == "KilledWorker":
-                        raise RenderAborted(f"unit {plan.units[i].window} was lost with {ALLOWED_FAILURES} "
-                                            f"or more workers; giving up, no image written") from exc
+                        raise RenderAborted(f"units {[plan.units[i].window for i in batch][:3]} were lost with "
+                                            f"{ALLOWED_FAILURES} or more workers; giving up, no image written") from exc
                     raise exc
                 if f.status == "cancelled":
                     continue
-                px, info = f.result()
-                info["worker"] = f"{info.get('pid')}"
-                info["node"] = node if node is not None else _node_of(info, workers)
+                results = f.result()
                 f.release()
-                on_done(i, px, info)
+                for i, (px, info) in zip(batch, results):
+                    info["worker"] = f"{info.get('pid')}"
+                    info["node"] = node if node is not None else _node_of(info, workers)
+                    on_done(i, px, info)
             now = set(self.workers())
             gone, joined = known - now, now - known
             known = now
@@ -182,15 +196,18 @@ class DaskBackend:
                     survivors = sorted(node_worker)
                     if not survivors:
                         raise RenderAborted("every node's worker left the cluster; giving up, no image written")
-                    mine = [(f, i) for f, (i, nd) in pending.items() if nd == k]
-                    for f, i in mine:
-                        pending.pop(f)
-                        f.cancel()
-                    for j, (f, i) in enumerate(sorted(mine, key=lambda t: t[1])):
-                        failures[i] = failures.get(i, 0) + 1
-                        k2 = survivors[j % len(survivors)]
-                        submit(i, k2, {f"links1-{self.token}-{k2}": 1})
-                    on_fault(f"node {k} (worker {addr}) left the cluster; its {len(mine)} unfinished units "
+                    lost = []
+                    for f, (batch, nd) in list(pending.items()):
+                        if nd == k:
+                            pending.pop(f)
+                            f.cancel()
+                            lost += batch
+                    lost.sort()
+                    for j, k2 in enumerate(survivors):  # dealt in turn to the surviving nodes
+                        share = lost[j::len(survivors)]
+                        if share:
+                            submit_node(k2, share)
+                    on_fault(f"node {k} (worker {addr}) left the cluster; its {len(lost)} unfinished units "
                              f"are redone on the other nodes")
             else:
                 for addr in sorted(gone):

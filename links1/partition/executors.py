@@ -28,10 +28,36 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import RenderAborted
-from .runtime import THREAD_ENV, RendererSpec, get_renderer, render_unit, start_worker
+from .runtime import THREAD_ENV, RendererSpec, can_batch, get_renderer, render_units, start_worker
 
 #: A unit that has killed this many workers is reported as an error (Dask's allowed-failures).
 ALLOWED_FAILURES = 3
+#: ``dynamic``: a node that asks for work gets ``ceil(remaining / (CHUNK_FACTOR x nodes))``
+#: units (guided self-scheduling); ``--chunk-factor 0``: one unit at a time (the paper's 4-3).
+CHUNK_FACTOR = 2
+#: Pixels one task (a batch of units sent to a node in one message) may hold; the node renders
+#: it in as few launches as its memory budget allows (``runtime.LAUNCH_SAMPLES``).
+TASK_PIXELS = 1 << 18
+
+
+def take_batch(plan, queue, max_units=None, max_pixels=TASK_PIXELS):
+    """Pop the next units of ``queue`` (a deque of unit indices) for one task: at most
+    ``max_units`` units and ``max_pixels`` pixels, at least one unit."""
+    out, px = [], 0
+    while queue and (max_units is None or len(out) < max_units):
+        u = plan.units[queue[0]]
+        if out and px + u.w * u.h > max_pixels:
+            break
+        out.append(queue.popleft())
+        px += u.w * u.h
+    return out
+
+
+def chunk_size(remaining, n_nodes, chunk_factor):
+    """Guided self-scheduling: units in the next dynamic chunk (1 when ``chunk_factor`` is 0)."""
+    if chunk_factor <= 0 or remaining <= 0:
+        return 1
+    return max(1, -(-remaining // (chunk_factor * max(1, n_nodes))))
 
 
 class NodeLost(Exception):
@@ -148,14 +174,22 @@ class InProcess:
     name = "inprocess"
     n_nodes = 1
 
+    def __init__(self, chunk_factor: int = CHUNK_FACTOR, task_pixels: int = TASK_PIXELS):
+        self.chunk_factor, self.task_pixels = int(chunk_factor), int(task_pixels)
+
     def start(self, spec):
         get_renderer(spec)
 
     def run(self, plan, todo, spec, cull, on_done, on_fault):
-        for i in todo:
-            px, info = render_unit(spec, plan.units[i].window, cull.get(i))
-            info["node"] = plan.owner[i] if plan.static else 0
-            on_done(i, px, info)
+        batches = can_batch(get_renderer(spec))
+        queue = deque(todo)
+        while queue:  # static: the pixel budget per task; dynamic: guided chunks
+            n = None if plan.static else chunk_size(len(queue), 1, self.chunk_factor)
+            batch = take_batch(plan, queue, n if batches else 1, self.task_pixels)
+            for i, (px, info) in zip(batch, render_units(spec, [plan.units[i].window for i in batch],
+                                                         [cull.get(i) for i in batch])):
+                info["node"] = plan.owner[i] if plan.static else 0
+                on_done(i, px, info)
 
     def close(self):
         pass
@@ -204,12 +238,15 @@ class LocalPool:
     name = "local"
 
     def __init__(self, n_workers: int, threads: int | None = None, prefetch: int = 2,
-                 max_deaths: int | None = None, log=default_log):
+                 max_deaths: int | None = None, log=default_log, chunk_factor: int = CHUNK_FACTOR,
+                 task_pixels: int = TASK_PIXELS):
         if n_workers < 1:
             raise ValueError(f"workers must be >= 1, got {n_workers}")
         self.n = int(n_workers)
         self.threads = threads
         self.prefetch = max(1, int(prefetch))
+        self.chunk_factor, self.task_pixels = int(chunk_factor), int(task_pixels)
+        self.batches = True        # the renderer renders batches (set when a worker is ready)
         self.max_deaths = DEATHS_PER_WORKER * self.n if max_deaths is None else int(max_deaths)
         self.log = log
         self.deaths = 0
@@ -285,12 +322,12 @@ class LocalPool:
         for f in done:
             k = by_future[f]
             try:
-                pid = f.result()  # a scene error is raised here, as that error
+                pid = f.result()  # (pid, batches); a scene error is raised here, as that error
             except BrokenProcessPool:
                 self.log(f"links1: {self._died(k, 'while starting')}; a replacement is starting")
                 continue
             self.hello.pop(k, None)
-            self.pids[k] = pid
+            self.pids[k], self.batches = pid
 
     def run(self, plan, todo, spec, cull, on_done, on_fault):
         from concurrent.futures import FIRST_COMPLETED, wait
@@ -303,7 +340,10 @@ class LocalPool:
                 queues[plan.owner[i] % self.n].append(i)
         else:
             shared = deque(todo)
-        pending = {}  # future -> (unit, node)
+        pending = {}  # future -> (units, node)
+        # dynamic: one chunk queued behind the running one hides the round trip; guided chunks
+        # are large enough that one in flight per node keeps the tail short
+        prefetch = self.prefetch if self.chunk_factor <= 0 else 1
 
         def queue_of(k):
             return queues[k] if plan.static else shared
@@ -312,21 +352,22 @@ class LocalPool:
             if k in self.hello:  # still starting: units wait for a ready node
                 return
             busy = sum(1 for (_, n) in pending.values() if n == k)
-            limit = len(todo) if plan.static else self.prefetch
             q = queue_of(k)
-            while busy < limit and q:
-                i = q.popleft()
+            while q and (plan.static or busy < prefetch):
+                n = None if plan.static else chunk_size(len(q), self.n, self.chunk_factor)
+                batch = take_batch(plan, q, n if self.batches else 1, self.task_pixels)
                 try:
-                    f = self.pools[k].submit(render_unit, spec, plan.units[i].window, cull.get(i))
+                    f = self.pools[k].submit(render_units, spec, [plan.units[i].window for i in batch],
+                                             [cull.get(i) for i in batch])
                 except (BrokenProcessPool, RuntimeError):  # it died while idle: noticed at this submit
-                    q.appendleft(i)
+                    q.extendleft(reversed(batch))
                     lose(k, "while idle")
                     return
-                pending[f] = (i, k)
+                pending[f] = (batch, k)
                 busy += 1
 
         def lose(k, when):
-            mine = sorted(i for f, (i, n) in list(pending.items()) if n == k)
+            mine = sorted(i for f, (b, n) in pending.items() if n == k for i in b)
             for f in [f for f, (_, n) in pending.items() if n == k]:
                 del pending[f]
             for i in mine:
@@ -359,19 +400,44 @@ class LocalPool:
                 self._await_hello(timeout=None)
             lost = set()
             for f in [f for f in pending if f.done()]:
-                i, k = pending[f]
+                batch, k = pending[f]
                 try:
-                    px, info = f.result()
+                    results = f.result()
                 except BrokenProcessPool:
                     lost.add(k)
                     continue
                 del pending[f]
-                info["node"] = k
-                on_done(i, px, info)
+                for i, (px, info) in zip(batch, results):
+                    info["node"] = k
+                    on_done(i, px, info)
             for k in sorted(lost):
                 lose(k, "mid-unit")
             for k in range(self.n):
                 fill(k)
+        self._check_idle(on_fault)
+
+    def _check_idle(self, on_fault):
+        """Ping every ready worker: one that died after its last unit is replaced now (N stay N).
+
+        A SIGKILLed process cannot answer, so a death before this point is always seen."""
+        from concurrent.futures import wait
+        from concurrent.futures.process import BrokenProcessPool
+        pings = {}
+        for k in [k for k in range(self.n) if k not in self.hello]:
+            try:
+                pings[k] = self.pools[k].submit(os.getpid)
+            except (BrokenProcessPool, RuntimeError):
+                pings[k] = None
+        wait([f for f in pings.values() if f is not None], timeout=60)
+        for k, f in pings.items():
+            try:
+                if f is not None and f.done():
+                    f.result()
+                    continue
+            except BrokenProcessPool:
+                pass
+            if f is None or f.done():
+                on_fault(f"{self._died(k, 'while idle')}; it had no unfinished units; a replacement is starting")
 
     def close(self):
         for p in self.pools.values():

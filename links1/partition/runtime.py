@@ -109,14 +109,28 @@ def get_renderer(spec: RendererSpec):
     return r
 
 
-def start_worker(spec: RendererSpec) -> int:
-    """A local worker's first task: set its threads, load the scene once -> its pid.
+def start_worker(spec: RendererSpec) -> tuple:
+    """A local worker's first task: set its threads, load the scene once -> ``(pid, batches)``
+    (``batches``: the renderer renders many units per launch, see :func:`render_units`).
 
     A task rather than a pool initializer, so that a scene error comes back as that error
     and only a dead process breaks the pool.
     """
-    get_renderer(spec)
-    return os.getpid()
+    return os.getpid(), can_batch(get_renderer(spec))
+
+
+def spec_batches(spec: RendererSpec) -> bool:
+    """Whether ``spec``'s renderer batches, known without building it (the root of a cluster):
+    the links1 renderers do; a ``module:callable`` factory does if it has ``render_batch``."""
+    if ":" not in spec.kind:
+        return True
+    mod, _, name = spec.kind.partition(":")
+    return can_batch(getattr(importlib.import_module(mod), name))
+
+
+def can_batch(renderer) -> bool:
+    """Whether units are worth sending to ``renderer`` in batches (it has ``render_batch``)."""
+    return callable(getattr(renderer, "render_batch", None))
 
 
 def render_unit(spec: RendererSpec, window, cull=None):
@@ -128,7 +142,54 @@ def render_unit(spec: RendererSpec, window, cull=None):
     else:
         img = renderer.render(window=tuple(int(v) for v in window))
     dt = time.perf_counter() - t0
-    return np.asarray(img, dtype=np.float64), {"seconds": dt, "start": w0, "stop": w0 + dt, "pid": os.getpid()}
+    return np.asarray(img, dtype=np.float64), {"seconds": dt, "start": w0, "stop": w0 + dt, "pid": os.getpid(),
+                                               "launch_seconds": dt, "launch_units": 1}
+
+
+#: Samples (pixels x spp) one launch may hold on a node; a larger batch is split into
+#: launches of at most this many (bounds the renderer's memory: Dr.Jit keeps a few hundred
+#: bytes per sample in flight).
+LAUNCH_SAMPLES = 1 << 22
+
+
+def render_units(spec: RendererSpec, windows, culls=None):
+    """Render a batch of units on this node -> ``[(pixels, info), ...]`` in ``windows`` order.
+
+    Renderers with ``render_batch(windows)`` (both links1 renderers) render the batch in as
+    few launches as :data:`LAUNCH_SAMPLES` allows; each unit's pixels are exactly what
+    ``render(window)`` returns for it. A unit's ``seconds`` is then its share of its launch by
+    pixel count (``launch_seconds`` and ``launch_units`` say which launch it shared). Units
+    with a cull list, or renderers without ``render_batch``, are rendered one by one.
+    """
+    windows = [tuple(int(v) for v in w) for w in windows]
+    culls = list(culls) if culls is not None else [None] * len(windows)
+    renderer = get_renderer(spec)
+    batch = getattr(renderer, "render_batch", None) if can_batch(renderer) else None
+    if batch is None or len(windows) == 1 or any(c is not None for c in culls):
+        return [render_unit(spec, w, c) for w, c in zip(windows, culls)]
+    spp = max(1, int(getattr(renderer, "spp", 1) or 1))
+    launches, cur, size = [], [], 0
+    for w in windows:  # consecutive units, at most LAUNCH_SAMPLES samples per launch (>= 1 unit)
+        if cur and (size + w[2] * w[3]) * spp > LAUNCH_SAMPLES:
+            launches.append(cur)
+            cur, size = [], 0
+        cur.append(w)
+        size += w[2] * w[3]
+    launches.append(cur)
+    out = []
+    for launch in launches:
+        t0, w0 = time.perf_counter(), time.time()
+        imgs = batch(launch)
+        dt = time.perf_counter() - t0
+        total = sum(a[2] * a[3] for a in launch)
+        at = w0
+        for img, a in zip(imgs, launch):
+            share = dt * a[2] * a[3] / total
+            out.append((np.asarray(img, dtype=np.float64),
+                        {"seconds": share, "start": at, "stop": at + share, "pid": os.getpid(),
+                         "launch_seconds": dt, "launch_units": len(launch)}))
+            at += share
+    return out
 
 
 def _render_culled(spec, renderer, window, ids):

@@ -54,15 +54,23 @@ _M1 = 0x7FEB352D
 _FROZEN_CALLER = {"integrator": None}
 
 
-def _columns(v):
+def _columns(v, n=None):
     """(N, 3) float32 numpy array of a Dr.Jit 3-vector (or of a flat, interleaved Float).
 
     A 3-vector is read one component at a time: converting it whole runs a packing kernel
     whose strides (the window size) are literals, i.e. one compile per window size."""
     import drjit as dr
     if dr.size_v(v) == 3:
-        return np.stack([np.asarray(v[k].numpy(), dtype=np.float32) for k in range(3)], axis=1)
+        n = dr.width(v) if n is None else n
+        return np.stack([np.asarray(_lanes(v[k], n), dtype=np.float32) for k in range(3)], axis=1)
     return np.asarray(v.numpy(), dtype=np.float32).reshape(-1, 3)
+
+
+def _lanes(v, n):
+    """numpy copy of a Dr.Jit array with ``n`` lanes (a kernel output) or of a literal (one
+    value; a frozen function returns literals at their recorded width): broadcast to ``n``."""
+    a = np.asarray(v.numpy())
+    return a if a.shape[0] == n else np.broadcast_to(a[:1], (n,) + a.shape[1:])
 
 
 def _frozen_caller():
@@ -166,6 +174,7 @@ def define_integrator():
         """
 
         custom = _hidden_attr("custom")
+        custom_bsdfs = _hidden_attr("custom_bsdfs")
         slot_of_id = _hidden_attr("slot_of_id")
         shape_names = _hidden_attr("shape_names")
         _prep = _hidden_attr("prep")
@@ -828,31 +837,31 @@ def define_integrator():
             return res
 
         # -------------------------------------------------------------- camera
-        def _camera_rays(self, P, x0, y0, w, h, spp, seed):
-            """``x0, y0`` and ``seed = (pattern seed, key seed)`` are opaque ``UInt32`` (run-time
-            values, see :meth:`_runtime_inputs`)."""
+        def _camera_rays(self, P, sid, spp, seed):
+            """Camera rays of the samples ``sid = pixel * spp + i`` (``pixel = py * W + px``, ``i``
+            the sample's index in its pixel): any set of pixels (one window or a batch of them)
+            in one launch. ``sid``, ``spp = (spp, strata k)`` and ``seed = (pattern seed, key
+            seed)`` are run-time values (``UInt32``), so neither the pixel set nor the sample count
+            enters the kernels (see :meth:`render_windows`)."""
             W, H = P.film_size
-            n = w * h * spp
-            idx = dr.arange(mi.UInt32, n)
-            ow = dr.opaque(mi.UInt32, w)
-            pix = idx // spp if spp > 1 else idx
-            i = idx % spp if spp > 1 else dr.zeros(mi.UInt32, n)
-            px = x0 + pix % ow
-            py = y0 + pix // ow
-            if spp == 1:
-                offx = offy = mi.Float(0.5)
-            else:
-                k = strata(spp)
-                sx = mi.Float(i % k)
-                sy = mi.Float(i // k)
-                base = mix32(mix32(seed[0]) ^ (py * W + px))
-                ux = u24(mix32(base ^ (2 * i)))
-                uy = u24(mix32(base ^ (2 * i + 1)))
-                offx = (sx + ux) / k
-                offy = (sy + uy) / k
+            n_s, k_s = spp
+            pix = sid // n_s
+            i = sid - pix * n_s
+            py = pix // W
+            px = pix - py * W
+            kf = mi.Float(k_s)
+            sx = mi.Float(i % k_s)
+            sy = mi.Float(i // k_s)
+            base = mix32(mix32(seed[0]) ^ pix)
+            ux = u24(mix32(base ^ (2 * i)))
+            uy = u24(mix32(base ^ (2 * i + 1)))
+            centre = n_s == 1   # one sample: the pixel centre (links1.sampling)
+            offx = dr.select(centre, mi.Float(0.5), (sx + ux) / kf)
+            offy = dr.select(centre, mi.Float(0.5), (sy + uy) / kf)
             xf = (mi.Float(px) + offx) / W
             yf = (mi.Float(py) + offy) / H
-            key = mix32(mix32(seed[1]) ^ ((py * W + px) * spp + i))
+            key = mix32(mix32(seed[1]) ^ sid)
+            n = dr.width(sid)
             if P.perspective:
                 tn = math.tan(math.radians(P.x_fov) / 2.0)
                 aspect = W / H
@@ -880,7 +889,7 @@ def define_integrator():
                 ct &= dr.max(w_t) > mw
             return cr, ct, w_r, w_t
 
-        def _trace_tree(self, P, scene, o, d, tmin, tmax, key, want_aovs, frozen=False):
+        def _trace_tree(self, P, scene, o, d, tmin, tmax, key, want_aovs, frozen=None):
             """All ray trees: the camera level in one kernel, the rest in a "megakernel".
 
             Level 1 (every sample) is straight-line code. The samples whose hit spawns a
@@ -892,14 +901,15 @@ def define_integrator():
             ``Σ weight · I_o`` with the weight the product of the factors down the tree (the
             core's sum in another order). Lanes never interact and the compaction keeps the
             order of samples, so a window renders the same bits as the full frame; the window
-            is a run-time value (no recompilation). Returns ``(flat RGB, cost, t0, slot0, ns0,
+            is a run-time value (no recompilation). Returns ``(RGB, cost, t0, slot0, ns0,
             counters)`` with ``counters`` the arrays :meth:`_record` sums (no read-back here).
 
-            ``frozen``: traced inside :func:`drjit.freeze` (:meth:`_frozen_fn`), so no Python
-            decision may depend on data: the compaction always keeps the last sample too (a lane
-            without children starts inactive and adds exact zeros, the same bits as no lane), so
-            the loop exists whatever the recorded window held (two lanes: a recording with one
-            would treat the loop's arrays as scalars and replay wrongly).
+            ``frozen``: the sample count as an opaque ``UInt32`` when traced inside
+            :func:`drjit.freeze` (:meth:`_frozen_fn`), so no Python decision may depend on data:
+            the compaction always keeps the last two samples too (a lane without children starts
+            inactive and adds exact zeros, the same bits as no lane), so the loop exists whatever
+            the recorded pixels held (two lanes: a recording with one would treat the loop's
+            arrays as scalars and replay wrongly).
             """
             n = dr.width(o)
             md = self.max_depth
@@ -908,9 +918,9 @@ def define_integrator():
             res = self._level(P, scene, o, d, tmin, tmax, key, 1, spawn)
             aov = (res["t"], res["slot"], res["ns"]) if want_aovs else ()
             if not spawn:
-                flat = dr.ravel(res["L"])
-                dr.eval(flat, res["cost"], res["n_shadow"], *aov)
-                return flat, res["cost"], res["t"], res["slot"], res["ns"], dict(nsh1=res["n_shadow"])
+                rgb = mi.Color3f(res["L"])
+                dr.eval(rgb, res["cost"], res["n_shadow"], *aov)
+                return rgb, res["cost"], res["t"], res["slot"], res["ns"], dict(nsh1=res["n_shadow"])
             act = res["hit"]
             cr, ct, w_r, w_t = self._children(res, act, mi.Color3f(1.0), mi.UInt32(1))
             key_r = mix32(key ^ mi.UInt32(0x63D83595))
@@ -922,17 +932,15 @@ def define_integrator():
                 kids = (res["o_r"], res["dir_r"], w_r, key_r)
             L1, cost1, nsh1 = res["L"], res["cost"], res["n_shadow"]
             dr.eval(L1, cost1, nsh1, cr, ct, *aov, *kids)                  # kernel 1: level 1
-            if frozen:       # the last two samples always: a width of 1 would record as a scalar
+            if frozen is not None:  # the last two samples always: a width of 1 would record as a scalar
                 ar = dr.arange(mi.UInt32, n)
-                idx = dr.compress(cr | ct | (ar + 2 >= dr.opaque(mi.UInt32, n)))  # no kernel per n
+                idx = dr.compress(cr | ct | (ar + 2 >= frozen))  # n: an input, not a literal
             else:
                 idx = dr.compress(cr | ct)
             m = dr.width(idx)
             counters = dict(nsh1=nsh1, cr=cr, ct=ct)
             if m == 0:
-                flat = dr.ravel(L1)
-                dr.eval(flat)
-                return flat, cost1, res["t"], res["slot"], res["ns"], counters
+                return L1, cost1, res["t"], res["slot"], res["ns"], counters
             g = lambda x: dr.gather(type(x), x, idx)  # noqa: E731
             if has_t:
                 o_r, d_r, wr, kr, o_t, d_t, wt, kt = (g(x) for x in kids)
@@ -1003,25 +1011,25 @@ def define_integrator():
             # materialise the loop's outputs in one kernel first: scatters into arrays of another
             # size are scheduled as their own kernel, which would re-run the loop
             dr.eval(v["L"], v["cost"], v["nsh"], v["nr"], v["nt"])          # kernel 2: the trees
-            acc = dr.zeros(mi.Color3f, n)
-            dr.scatter(acc, v["L"], idx)                   # one child forest per sample: no races
-            cacc = dr.zeros(mi.UInt32, n)
-            dr.scatter(cacc, v["cost"], idx)
-            total = L1 + acc
-            cost = cost1 + cacc
-            flat = dr.ravel(total)
-            dr.eval(flat, cost)
+            # one child forest per sample (idx is unique: no races). The scatter targets are
+            # copies of level-1 arrays, whose width is the input's at every replay (a zeros(n)
+            # target would keep the recorded width; a scatter_add would force freeze to dry-run)
+            total = mi.Color3f(L1)
+            dr.scatter(total, g(L1) + v["L"], idx)
+            cost = mi.UInt32(cost1)
+            dr.scatter(cost, g(cost1) + v["cost"], idx)
+            dr.eval(total, cost)
             counters.update(nr=v["nr"], nt=v["nt"], nsh2=v["nsh"])
-            return flat, cost, res["t"], res["slot"], res["ns"], counters
+            return total, cost, res["t"], res["slot"], res["ns"], counters
 
         def _record(self, n, nsh1, cr=None, ct=None, nr=None, nt=None, nsh2=None):
             """Ray counters of the last render (rays by kind, and per camera ray)."""
             c = {"camera": int(n)}
-            tot = lambda a: 0 if a is None else int(np.sum(np.asarray(a.numpy(), dtype=np.int64)))  # noqa: E731
+            tot = lambda a: 0 if a is None else int(np.sum(_lanes(a, dr.width(a)), dtype=np.int64))  # noqa: E731
             c["shadow"] = tot(nsh1) + tot(nsh2)
             c["reflect"] = tot(cr) + tot(nr)
             c["refract"] = tot(ct) + tot(nt)
-            c["secondary_lanes"] = int(np.count_nonzero(cr.numpy() | ct.numpy())) if cr is not None else 0
+            c["secondary_lanes"] = int(np.count_nonzero(_lanes(cr, n) | _lanes(ct, n))) if cr is not None else 0
             c["per_camera_ray"] = {k: c[k] / max(n, 1) for k in ("shadow", "reflect", "refract")}
             self.stats = c
 
@@ -1052,22 +1060,22 @@ def define_integrator():
             return P.frozen_inputs
 
         def _frozen_fn(self):
-            """The window render as a :func:`drjit.freeze` function of the run-time inputs
-            (window offset, seeds: opaque ``UInt32``): recorded once per configuration ``cfg``
-            (scene, window size, spp, AOVs, depth, weight threshold: hashed Python values, so a
-            new one records again) and replayed without re-tracing. Sizes enter the trace as
-            Python ints, hence the window size in ``cfg``."""
+            """The launch as a :func:`drjit.freeze` function of run-time inputs (sample ids,
+            sample count, seeds: ``UInt32``; the per-scene tables): recorded once per
+            configuration ``cfg`` (scene, AOVs, depth, weight threshold: hashed Python values)
+            and replayed without re-tracing for any pixel set, window or batch size and spp
+            (freeze replays recorded kernels at the widths of the new inputs)."""
             if self._freeze is None:
-                def window_kernels(x0, y0, seeds, cfg, tables, scene):
+                def launch_kernels(sid, n_op, spp, seeds, cfg, tables, scene):
                     # no closure: freeze would traverse it (the integrator, the scene ...)
                     self = _frozen_caller()
                     P = self._prep
-                    _, _, w, h, spp, want = cfg[:6]
-                    o, d, tmin, tmax, key, _ = self._camera_rays(P, x0, y0, w, h, spp, seeds)
+                    want = cfg[2]
+                    o, d, tmin, tmax, key, _ = self._camera_rays(P, sid, spp, seeds)
                     total, cost, t0, s0, n0, counters = self._trace_tree(P, scene, o, d, tmin, tmax, key,
-                                                                         want, frozen=True)
+                                                                         want, frozen=n_op)
                     return (total, cost, t0, s0, n0, counters) if want else (total, cost, counters)
-                self._freeze = dr.freeze(window_kernels, warn_after=1000)
+                self._freeze = dr.freeze(launch_kernels, warn_after=1000)
             return self._freeze
 
         def render_window(self, scene, window=None, spp=1, seed=None, aovs=None):
@@ -1076,23 +1084,41 @@ def define_integrator():
             Returns a float64 ndarray ``(h, w, 3 + aov channels)``: the mean of the pixel's
             ``spp`` samples at the positions of :mod:`links1.sampling`.
             """
+            return self.render_windows(scene, [window], spp=spp, seed=seed, aovs=aovs)[0]
+
+        def render_windows(self, scene, windows, spp=1, seed=None, aovs=None):
+            """Render several windows of the film in one launch -> one array per window, each
+            exactly what :meth:`render_window` returns for it (pixels are independent lanes).
+
+            The pixel set reaches the kernels as a ``UInt32`` array of sample ids, so no window
+            offset, window size, batch size or sample count enters the recorded kernels: one
+            recording per configuration, then replays (:meth:`_frozen_fn`).
+            """
             P = self.prepare(scene)
             W, H = P.film_size
-            x0, y0, w, h = (0, 0, W, H) if window is None else (int(v) for v in window)
-            if not (0 <= x0 and 0 <= y0 and w > 0 and h > 0 and x0 + w <= W and y0 + h <= H):
-                raise ValueError(f"window {window} is outside the {W}x{H} film")
+            wins = []
+            for window in windows:
+                x0, y0, w, h = (0, 0, W, H) if window is None else (int(v) for v in window)
+                if not (0 <= x0 and 0 <= y0 and w > 0 and h > 0 and x0 + w <= W and y0 + h <= H):
+                    raise ValueError(f"window {window} is outside the {W}x{H} film")
+                wins.append((x0, y0, w, h))
             spp = int(spp)
+            if W * H * spp >= 2 ** 32:
+                raise ValueError(f"{W}x{H} pixels x {spp} samples exceed the 32-bit sample ids")
             seed = self.seed if seed is None else int(seed)
             aovs = self.aovs if aovs is None else parse_aovs(aovs)
             want = bool(aovs)
-            x0_, y0_ = dr.opaque(mi.UInt32, x0), dr.opaque(mi.UInt32, y0)
+            pix = np.concatenate([((np.arange(y0, y0 + h, dtype=np.uint32) * W)[:, None]
+                                   + np.arange(x0, x0 + w, dtype=np.uint32)[None, :]).ravel()
+                                  for x0, y0, w, h in wins])
+            sid_np = (pix[:, None] * np.uint32(spp) + np.arange(spp, dtype=np.uint32)[None, :]).ravel()
+            n = sid_np.size
+            sid = mi.UInt32(sid_np)
+            spp_ = (dr.opaque(mi.UInt32, spp), dr.opaque(mi.UInt32, strata(spp)))
             seeds = (dr.opaque(mi.UInt32, seed & 0xFFFFFFFF),
                      dr.opaque(mi.UInt32, (seed * 0x27D4EB2F + 0x165667B1) & 0xFFFFFFFF))
-            # measured (drjit 1.5, LLVM): a replay costs ~0.7 ms against ~1.6 ms of tracing on
-            # fig11, but ~20 ms against ~2 ms with a BVH ("many", reason not found): BVH scenes
-            # are traced per call
-            if self.use_freeze and P.bvh is None:
-                cfg = (id(P), id(scene), w, h, spp, want, int(self.max_depth), float(self.min_weight))
+            if self.use_freeze:
+                cfg = (id(P), id(scene), want, int(self.max_depth), float(self.min_weight))
                 fn = self._frozen_fn()
                 _FROZEN_CALLER["integrator"] = self
                 # no cyclic garbage collection while recording: freeing another renderer's
@@ -1100,7 +1126,7 @@ def define_integrator():
                 gc_on = gc.isenabled()
                 gc.disable()
                 try:
-                    out = fn(x0_, y0_, seeds, cfg, self._frozen_inputs(P), scene)
+                    out = fn(sid, dr.opaque(mi.UInt32, n), spp_, seeds, cfg, self._frozen_inputs(P), scene)
                 finally:
                     _FROZEN_CALLER["integrator"] = None
                     if gc_on:
@@ -1108,32 +1134,34 @@ def define_integrator():
                 total, cost, counters = out[0], out[1], out[-1]
                 t0, s0, n0 = out[2:5] if want else (None, None, None)
             else:
-                o, d, tmin, tmax, key, i = self._camera_rays(P, x0_, y0_, w, h, spp, seeds)
+                o, d, tmin, tmax, key, _ = self._camera_rays(P, sid, spp_, seeds)
                 total, cost, t0, s0, n0, counters = self._trace_tree(P, scene, o, d, tmin, tmax, key, want)
-            self._record(w * h * spp, **counters)
-            rgb = _columns(total).reshape(h * w * spp, 3)  # (flat RGB)
-            if spp == 1:
-                rgb = rgb.astype(np.float64).reshape(h, w, 3)
-            else:
-                rgb = rgb.astype(np.float64).reshape(h * w, spp, 3).mean(axis=1).reshape(h, w, 3)
+            self._record(n, **counters)
+            npix = n // spp
+            rgb = _columns(total, n).astype(np.float64)
+            rgb = rgb.reshape(npix, spp, 3).mean(axis=1) if spp > 1 else rgb.reshape(npix, 3)
             chans = [rgb]
             if aovs:
                 first = slice(0, None, spp)
-                t0 = np.array(t0, dtype=np.float64)[first]
-                s0 = np.array(s0, dtype=np.int64)[first]
-                n0 = _columns(n0).astype(np.float64)[first]
+                t0 = _lanes(t0, n).astype(np.float64)[first]
+                s0 = _lanes(s0, n).astype(np.int64)[first]
+                n0 = _columns(n0, n).astype(np.float64)[first]
                 hit0 = s0 >= 0
                 for a in aovs:
                     if a == "depth":
-                        chans.append(np.where(hit0, t0, 0.0).reshape(h, w, 1))
+                        chans.append(np.where(hit0, t0, 0.0)[:, None])
                     elif a == "normal":
-                        chans.append(np.where(hit0[:, None], n0, 0.0).reshape(h, w, 3))
+                        chans.append(np.where(hit0[:, None], n0, 0.0))
                     elif a == "id":
-                        chans.append(s0.astype(np.float64).reshape(h, w, 1))
+                        chans.append(s0.astype(np.float64)[:, None])
                     elif a == "cost":
-                        c = np.array(cost, dtype=np.float64).reshape(h * w, spp).sum(axis=1)
-                        chans.append(c.reshape(h, w, 1))
-            return np.concatenate(chans, axis=2) if len(chans) > 1 else rgb
+                        chans.append(_lanes(cost, n).astype(np.float64).reshape(npix, spp).sum(axis=1)[:, None])
+            flat = np.concatenate(chans, axis=1) if len(chans) > 1 else rgb
+            out, at = [], 0
+            for x0, y0, w, h in wins:
+                out.append(flat[at:at + w * h].reshape(h, w, -1))
+                at += w * h
+            return out
 
         def channels(self):
             names = ["R", "G", "B"]

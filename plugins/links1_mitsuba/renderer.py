@@ -124,6 +124,14 @@ class MitsubaRenderer:
         img = mi.render(self.scene, spp=self.spp, seed=self.seed)
         return np.array(img, dtype=np.float64)[:, :, :3]
 
+    def render_batch(self, windows) -> list:
+        """One array per window, each exactly ``render(window)``: with the links1 integrator all
+        their pixels in one launch (:meth:`Links1Whitted.render_windows`)."""
+        if self.mode == "links1":
+            return self.integrator.render_windows(self.scene, list(windows), spp=self.spp, seed=self.seed,
+                                                  aovs=self.aovs)
+        return [self.render(w) for w in windows]
+
     def shapes_info(self) -> list:
         """One dict per shape, in file order (``index`` = the ``id`` AOV)."""
         import mitsuba as mi

@@ -6,7 +6,8 @@ so the pixels are that renderer's. The first process to claim ``marker`` (an exc
 create; ``always=True``: every process) SIGKILLs itself:
 
 - ``die="start"``: right after loading the scene, inside the worker's first task;
-- ``die="unit"``: inside ``render`` of ``die_window``, after rendering it, before returning.
+- ``die="unit"``: inside ``render`` (or ``render_batch``) of ``die_window``, after rendering it,
+  before returning.
 
 A death "while idle" needs no hook: the test kills a ready worker from outside.
 """
@@ -40,15 +41,25 @@ class DyingRenderer:
         self._inner = RendererSpec.make(inner, path, **options).build()
         self._die, self._marker, self._always = die, marker, bool(always)
         self._window = tuple(die_window) if die_window else None
+        if hasattr(self._inner, "render_batch"):
+            self.render_batch = self._render_batch
         if die == "start" and _claim(marker, self._always):
             _die()
 
     def render(self, window=None, **kw):
         img = self._inner.render(window=window, **kw)
-        if self._die == "unit" and window is not None and tuple(window) == self._window \
+        self._maybe_die([window])
+        return img
+
+    def _render_batch(self, windows):
+        imgs = self._inner.render_batch(windows)
+        self._maybe_die(windows)
+        return imgs
+
+    def _maybe_die(self, windows):
+        if self._die == "unit" and self._window in [tuple(w) for w in windows if w is not None] \
                 and _claim(self._marker, self._always):
             _die()
-        return img
 
     def __getattr__(self, name):  # film_size, channels, shapes_info, ...
         return getattr(self._inner, name)

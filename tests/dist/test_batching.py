@@ -1,0 +1,131 @@
+"""Many units per launch (issue 9, items 1-2): batches render exactly what each window
+renders alone, guided chunks follow their formula, and new shapes replay without recording."""
+from __future__ import annotations
+
+import math
+import os
+from collections import deque
+
+import numpy as np
+import pytest
+
+from links1.partition.executors import InProcess, LocalPool, chunk_size, render_plan, take_batch
+from links1.partition.strategies import make_plan
+
+from .conftest import MANY, ROOT
+
+SCENES = os.path.join(ROOT, "scenes")
+WINDOWS = [(0, 0, 40, 3), (13, 17, 9, 11), (39, 39, 1, 1), (5, 2, 20, 30), (0, 0, 40, 40)]
+
+
+def _crop(full, w):
+    x0, y0, ww, hh = w
+    return full[y0:y0 + hh, x0:x0 + ww]
+
+
+def test_guided_chunks_follow_ceil_remaining_over_k_nodes():
+    for n_units, nodes, k in [(64, 2, 2), (256, 2, 1), (100, 4, 3), (7, 2, 2)]:
+        left, sizes = n_units, []
+        while left:
+            c = chunk_size(left, nodes, k)
+            assert c == max(1, math.ceil(left / (k * nodes)))
+            sizes.append(c)
+            left -= c
+        assert sum(sizes) == n_units and sizes == sorted(sizes, reverse=True)
+    assert chunk_size(64, 2, 0) == 1  # --chunk-factor 0: one unit at a time (the paper's 4-3)
+
+
+def test_a_task_stays_within_its_pixel_budget():
+    plan = make_plan("grid", 64, 64, 2, tiles_per_node=8)  # 16 tiles of 16 x 16 = 256 pixels
+    q = deque(range(16))
+    assert take_batch(plan, q, None, 1000) == [0, 1, 2]  # 3 x 256 <= 1000 < 4 x 256
+    assert take_batch(plan, q, 2, 10 ** 6) == [3, 4]
+    assert take_batch(plan, q, None, 10) == [5]  # at least one unit, even over the budget
+
+
+@pytest.mark.parametrize("scene", ["many", "fig11", "fig6a"])
+def test_core_batch_equals_each_window_alone(scene):
+    from links1.render import make_renderer
+    r = make_renderer("core", os.path.join(SCENES, f"{scene}.xml"), params={"res": "40"}, spp=4,
+                      aovs=("depth", "normal", "id", "cost"))
+    full = r.render()
+    for img, w in zip(r.render_batch(WINDOWS), WINDOWS):
+        assert np.array_equal(img, _crop(full, w)), w
+
+
+@pytest.mark.mitsuba
+@pytest.mark.parametrize("scene", ["fig11", "many", "fig6a"])  # plain, quadric BVH, blobs
+def test_mitsuba_batch_equals_each_window_and_new_shapes_replay_without_recording(scene):
+    from tests.plugins.conftest import variant_problem
+    why = variant_problem("llvm_ad_rgb")
+    if why:
+        pytest.skip(f"llvm_ad_rgb unavailable: {why}")
+    import gc
+
+    import drjit as dr
+    from links1_mitsuba import MitsubaRenderer
+    gc.collect()  # renderers of earlier tests freed now: freeze re-records when Mitsuba's registry changes
+    r = MitsubaRenderer(os.path.join(SCENES, f"{scene}.xml"), params={"res": 40}, spp=4,
+                        aovs=("depth", "normal", "id", "cost"))
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    try:
+        dr.kernel_history()
+        for spp in (4, 9):  # first calls: the recording, and freeze's one re-recording with opaque literals
+            r.spp = spp
+            r.render()
+            r.render_batch([(0, 0, 10, 10), (3, 4, 5, 6)])
+        built = {k["hash"] for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT}
+        assert built
+        recordings = r.integrator._freeze.n_recordings
+        for spp in (2, 16, 1):  # new sample counts, batch shapes and window sizes
+            r.spp = spp
+            full = r.render()
+            wins = WINDOWS[:2] + WINDOWS[3:4]
+            for img, w in zip(r.render_batch(wins), wins):
+                assert np.array_equal(img, _crop(full, w)), (spp, w)
+            assert np.array_equal(r.render(WINDOWS[1]), _crop(full, WINDOWS[1]))
+        new = [k for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT and k["hash"] not in built]
+    finally:
+        dr.set_flag(dr.JitFlag.KernelHistory, False)
+    # replayed, not traced again. Freeze may re-trace once more (seen rarely, not reproducibly:
+    # it re-keys on Mitsuba's object registry and on widths that coincide); a re-trace may build
+    # kernels, so "no new kernel" is asserted when nothing was re-traced
+    again = r.integrator._freeze.n_recordings - recordings
+    assert again <= 1
+    if again == 0:
+        assert not new, f"{len(new)} kernels built for new batch shapes or sample counts"
+
+
+def _launches(res):
+    """Launch sizes of a run, in start order (units that shared a launch share its start)."""
+    by_start = {}
+    for rec in res.records.values():
+        by_start.setdefault((rec["pid"], rec["launch_seconds"]), rec["launch_units"])
+    return list(by_start.values())
+
+
+@pytest.mark.parametrize("k", [0, 1, 2])
+def test_in_process_dynamic_chunks_are_guided(k, core_spec, core_ref):
+    plan = make_plan("dynamic", 32, 32, 1, tiles_per_node=16, unit="tile")
+    res = render_plan(plan, core_spec, InProcess(chunk_factor=k), progress=False)
+    assert np.array_equal(res.image, core_ref)
+    left, want = len(plan.units), []
+    while left:
+        want.append(chunk_size(left, 1, k))
+        left -= want[-1]
+    assert sorted(_launches(res), reverse=True) == want
+
+
+@pytest.mark.parametrize("strategy, k", [("subscreen", 2), ("dynamic", 2), ("dynamic", 0), ("scanline", 2)])
+def test_local_pool_batches_give_the_same_bits(strategy, k, core_spec, core_ref):
+    plan = make_plan(strategy, 32, 32, 2, tiles_per_node=8, unit="tile")
+    with LocalPool(2, chunk_factor=k) as pool:
+        res = render_plan(plan, core_spec, pool, progress=False)
+    assert np.array_equal(res.image, core_ref)
+    sizes = [r["launch_units"] for r in res.records.values()]
+    if plan.static:  # a node's units in one launch (the frame is far below the budget)
+        assert all(r["launch_units"] == len(plan.node_units(r["node"])) for r in res.records.values())
+    elif k == 0:
+        assert set(sizes) == {1}
+    else:
+        assert max(sizes) == chunk_size(len(plan.units), 2, k)
