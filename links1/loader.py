@@ -23,6 +23,9 @@ shape           ``sphere`` (center, radius), ``cylinder`` (p0, p1, radius; open)
 bsdf            ``diffuse``, ``twosided``, ``conductor`` (perfect mirror, or ``eta``/``k``),
                 ``dielectric``, ``thindielectric``, ``plastic``, *links1* ``links1_phong``;
                 rough/other BSDFs → diffuse stand-in (warning); textures → 0.5 grey (warning).
+colours        ``rgb``, ``float``, ``spectrum`` (one value or ``wavelength:value`` pairs, converted
+                as Mitsuba's RGB variants do: :mod:`links1.spectra`), ``<spectrum type="uniform|
+                srgb|blackbody">`` (blackbody on emitters only, warning).
 emitter         ``point``, ``directional``, ``spot``, ``constant`` (→ background), ``area`` in a
                 shape (→ ``shape.emission``, seen directly only; warning), *links1*
                 ``links1_point``, ``links1_spot``; ``envmap`` etc. → ignored (warning).
@@ -55,6 +58,7 @@ import numpy as np
 
 from . import materials as mat
 from . import meshes
+from . import spectra
 from . import transform as tf
 from .camera import FOV_AXES, Camera, fov_x_from
 from .errors import SceneError
@@ -185,20 +189,31 @@ class _Props:
             return None if default is None else np.asarray(default, dtype=np.float64)
         return np.asarray(p.value, dtype=np.float64).copy()
 
-    def color(self, name, default=_MISSING, *, nonneg=True) -> np.ndarray:
-        """An RGB parameter: ``rgb``, ``spectrum`` or ``float``; a nested texture → 0.5 grey."""
+    def color(self, name, default=_MISSING, *, nonneg=True, emitter=False,
+              unbounded=False) -> np.ndarray:
+        """An RGB parameter: ``rgb``, ``float``, ``spectrum`` (converted as Mitsuba's RGB variants
+        do, see :mod:`links1.spectra`: ``emitter`` for emitted quantities, ``unbounded`` for
+        parameters Mitsuba reads unclamped) or a ``<spectrum type=..>`` plugin; a nested
+        texture → 0.5 grey."""
         tex = [n for nm, n in self.node.children if nm == name and n.tag == "texture"]
         if tex:
             self.used.add(name)
             tex[0].warn(f"textures are not supported by the core; '{name}' uses a 0.5 grey")
             return np.full(3, 0.5)
+        plugin = [n for nm, n in self.node.children if nm == name and n.tag == "spectrum"]
+        if plugin:
+            self.used.add(name)
+            return _spectrum_plugin(plugin[0], emitter)
         p = self._get(name, _COLOR_KINDS)
         if p is None:
             if default is _MISSING:
                 raise self.node.error(f"missing required parameter '{name}' (<rgb>)")
             return None if default is None else np.broadcast_to(
                 np.asarray(default, dtype=np.float64), (3,)).copy()
-        v = np.broadcast_to(np.asarray(p.value, dtype=np.float64), (3,)).copy()
+        if p.kind == "spectrum":
+            v = _spectrum_rgb(p, emitter, unbounded)
+        else:
+            v = np.broadcast_to(np.asarray(p.value, dtype=np.float64), (3,)).copy()
         if nonneg and np.any(v < 0):
             raise self.error(name, f"'{name}' must be >= 0, got {v.tolist()}")
         return v
@@ -285,6 +300,51 @@ def _ior(props: _Props, name: str, default: str) -> float:
 
 def _numbers(text: str) -> list:
     return [t for t in re.split(r"[,\s]+", text.strip()) if t]
+
+
+def _spectrum_rgb(p: Prop, emitter: bool, unbounded: bool) -> np.ndarray:
+    """A ``<spectrum value=..>`` as Mitsuba's RGB variants read it (warns where it clamps)."""
+    spec = p.value
+    if spec.wavelengths is None:
+        return spectra.uniform_to_rgb(spec.values, emitter=emitter)
+    rgb, raw = spectra.list_to_rgb(spec.wavelengths, spec.values, emitter=emitter,
+                                   unbounded=unbounded)
+    if raw is not None:
+        warnings.warn(str(p.error(f"clamping out-of-gamut colour {np.round(raw, 6).tolist()} to "
+                                  f"{np.round(rgb, 6).tolist()} (as Mitsuba)")),
+                      SceneWarning, stacklevel=4)
+    return rgb
+
+
+def _spectrum_plugin(node: Node, emitter: bool) -> np.ndarray:
+    """``<spectrum type=..>`` in an RGB variant: ``uniform``, ``srgb`` and ``blackbody``."""
+    props = _Props(node)
+    t = node.type
+    if t == "uniform":
+        props.ignore("wavelength_min", "wavelength_max")
+        rgb = np.full(3, props.float("value"))
+    elif t == "srgb":
+        rgb = props.color("color")
+        if not emitter and np.any(rgb > 1):
+            raise props.error("color", f"invalid RGB reflectance {rgb.tolist()}: must be in "
+                                       "[0, 1] (as Mitsuba)")
+    elif t == "blackbody":
+        if not emitter:
+            raise node.error("a blackbody spectrum only makes sense for emission")
+        temperature = props.float("temperature", positive=True)
+        lo = props.float("wavelength_min", spectra.CIE_MIN, positive=True)
+        hi = props.float("wavelength_max", spectra.CIE_MAX, positive=True)
+        rgb = _construct(node, spectra.blackbody_to_rgb, temperature, lo, hi)
+        node.warn(f"blackbody ({temperature:g} K): Mitsuba's RGB variants cannot evaluate it; "
+                  f"the core uses the colour its spectral variants integrate to, "
+                  f"{np.round(rgb, 6).tolist()}")
+    elif t in ("regular", "irregular", "d65", "rawconstant"):
+        raise node.error(f"spectrum plugin '{t}' is not supported by the core; give the "
+                         "spectrum as <spectrum name=.. value=\"wavelength:value, ...\"/>")
+    else:
+        raise node.error(f"unknown plugin '{t}' (spectrum)")
+    props.finish()
+    return rgb
 
 
 # --------------------------------------------------------------------------------------------
@@ -535,7 +595,7 @@ class _Builder:
                 if emission is not None:
                     raise child.error("a shape can have only one area emitter")
                 ep = _Props(child)
-                emission = ep.color("radiance", 1.0)
+                emission = ep.color("radiance", 1.0, emitter=True)
                 ep.finish()
                 child.warn("area emitter: the core shows its radiance where the shape is seen "
                            "directly; it does not light the scene")
@@ -652,7 +712,8 @@ class _Builder:
         elif t == "conductor":
             refl = props.color("specular_reflectance", 1.0)
             material = props.string("material", "none").strip()
-            eta, k = props.color("eta", None), props.color("k", None)
+            eta = props.color("eta", None, unbounded=True)
+            k = props.color("k", None, unbounded=True)
             if (eta is None) != (k is None):
                 raise node.error("conductor: give both 'eta' and 'k', or neither")
             if eta is not None:
@@ -720,7 +781,7 @@ class _Builder:
             pos = props.vec3("position", None)
             if pos is None:
                 pos = np.zeros(3) if to_world is None else to_world[:3, 3]
-            light = _construct(node, PointLight, position=pos, L1=props.color("intensity", 1.0),
+            light = _construct(node, PointLight, position=pos, L1=props.color("intensity", 1.0, emitter=True),
                                L2=np.zeros(3), falloff="inverse_square", name=name)
         elif t == "links1_point":
             falloff = props.string("falloff", "none").strip().lower()
@@ -732,8 +793,8 @@ class _Builder:
                 pos = tf.apply_point(to_world, np.zeros(3) if pos is None else pos)
                 direction = tf.apply_vector(to_world, direction)
             light = _construct(node, PointLight, position=np.zeros(3) if pos is None else pos,
-                               direction=direction, L1=props.color("L1", 1.0),
-                               L2=props.color("L2", 0.0, nonneg=False), falloff=falloff, name=name)
+                               direction=direction, L1=props.color("L1", 1.0, emitter=True),
+                               L2=props.color("L2", 0.0, nonneg=False, emitter=True), falloff=falloff, name=name)
         elif t == "directional":
             if props.has("direction") and to_world is not None:
                 raise node.error("directional: give either 'direction' or 'to_world', not both")
@@ -741,7 +802,7 @@ class _Builder:
             if d is None:
                 d = np.array([0.0, 0.0, 1.0]) if to_world is None else to_world[:3, 2]
             light = _construct(node, ParallelLight, direction=d,
-                               irradiance=props.color("irradiance", 1.0), name=name)
+                               irradiance=props.color("irradiance", 1.0, emitter=True), name=name)
         elif t == "spot":
             cutoff = props.float("cutoff_angle", 20.0, positive=True)
             beam = props.float("beam_width", None, positive=True) if props.has("beam_width") else None
@@ -751,7 +812,7 @@ class _Builder:
                 raise props.error("beam_width", f"'beam_width' ({beam:g}) must not exceed cutoff_angle ({cutoff:g})")
             props.ignore("texture")
             light = _construct(node, ConeSpotLight, to_world=np.eye(4) if to_world is None else to_world,
-                               intensity=props.color("intensity", 1.0), cutoff_angle=cutoff,
+                               intensity=props.color("intensity", 1.0, emitter=True), cutoff_angle=cutoff,
                                beam_width=beam, name=name)
         elif t == "links1_spot":
             origin = props.vec3("origin", (0.0, 0.0, 0.0))
@@ -761,9 +822,9 @@ class _Builder:
                 origin = tf.apply_point(to_world, origin)
                 direction = tf.apply_vector(to_world, direction)
             light = _construct(node, CylinderSpotLight, origin=origin, direction=direction,
-                               radius=radius, intensity=props.color("intensity", 1.0), name=name)
+                               radius=radius, intensity=props.color("intensity", 1.0, emitter=True), name=name)
         elif t == "constant":
-            light = props.color("radiance", 1.0)
+            light = props.color("radiance", 1.0, emitter=True)
         elif t == "area":
             raise node.error("an area emitter must be nested in a shape")
         elif t in _IGNORED_EMITTERS:
@@ -771,8 +832,9 @@ class _Builder:
             props.ignore(*node.props)
         else:
             raise node.error(f"unknown plugin '{t}' (emitter)")
-        for child in node.objects():
-            child.warn(f"<{child.tag}> inside an emitter is ignored by the core")
+        for cname, child in node.children:
+            if not (child.tag == "spectrum" and cname in props.used):
+                child.warn(f"<{child.tag}> inside an emitter is ignored by the core")
         props.ignore("sampling_weight")
         props.finish()
         return light

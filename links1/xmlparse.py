@@ -18,9 +18,10 @@ Supported, with Mitsuba's semantics:
   ``<alias id=".." as=".."/>``;
 * value tags ``integer float boolean string point vector rgb spectrum transform``; ``point``
   / ``vector`` take ``x y z`` attributes (missing ones are 0) or ``value`` (one number is
-  broadcast); ``rgb`` / ``spectrum`` take one or three numbers, comma- or space-separated
-  (a ``spectrum`` given as ``wavelength:value`` pairs becomes the grey of their mean, with a
-  warning);
+  broadcast); ``rgb`` takes one or three numbers, comma- or space-separated; ``spectrum``
+  takes one number or ``wavelength:value`` pairs (a :class:`Spectrum`, turned into RGB by
+  :mod:`links1.spectra` as Mitsuba's RGB variants do); ``<spectrum type="..">`` is an object
+  (a spectrum plugin such as ``blackbody``), as in Mitsuba;
 * ``<transform>`` with ``translate rotate scale matrix lookat`` children, each one
   *pre*-multiplied onto the transform so far (so the first child is applied first), exactly as
   Mitsuba: ``<translate x="1"/><rotate z="1" angle="90"/>`` gives ``R · T``.
@@ -94,6 +95,15 @@ class Prop:
 
     def error(self, message: str) -> SceneError:
         return SceneError(message, self.file, self.line, self.element())
+
+
+@dataclass(frozen=True)
+class Spectrum:
+    """A ``<spectrum value=...>``: one number (``wavelengths`` None) or ``wavelength:value``
+    pairs; :mod:`links1.spectra` turns it into RGB the way the parameter's reader needs."""
+
+    wavelengths: Any
+    values: Any
 
 
 @dataclass
@@ -374,7 +384,7 @@ class _Parser:
                     raise c.error("<default> is only allowed directly inside <scene>")
                 continue  # collected up front
             self.subst(c)
-            if c.tag in OBJECT_TAGS:
+            if c.tag in OBJECT_TAGS or (c.tag == "spectrum" and "type" in c.attrs):
                 if c.tag == "scene":
                     raise c.error("<scene> cannot be nested")
                 child = self.object(c)
@@ -485,19 +495,12 @@ class _Parser:
             v = _floats(text, c, "value", (1, 3))
             return Prop(name, tag, np.broadcast_to(v, (3,)).copy(), c.file, c.line)
         if tag == "spectrum":
-            if ":" in text:
-                pairs = [p for p in re.split(r"[,\s]+", text.strip()) if p]
-                vals = []
-                for p in pairs:
-                    if p.count(":") != 1:
-                        raise c.error(f"cannot parse spectrum entry '{p}' (wavelength:value)")
-                    vals.append(_float(p.split(":")[1], c, "value"))
-                grey = float(np.mean(vals))
-                warn(f"spectrum given per wavelength; the core uses the grey of their mean ({grey:g})",
-                     c.file, c.line, c.element())
-                return Prop(name, tag, np.full(3, grey), c.file, c.line)
-            v = _floats(text, c, "value", (1, 3))
-            return Prop(name, tag, np.broadcast_to(v, (3,)).copy(), c.file, c.line)
+            from .spectra import parse as parse_spectrum
+            try:
+                wavelengths, values = parse_spectrum(text)
+            except ValueError as exc:
+                raise c.error(str(exc)) from None
+            return Prop(name, tag, Spectrum(wavelengths, values), c.file, c.line)
         raise c.error(f"unknown element <{tag}>")  # pragma: no cover
 
     def transform(self, c: _Elem) -> np.ndarray:

@@ -46,6 +46,17 @@ def variant(request):
     return links1_mitsuba.register(request.param)
 
 
+@pytest.fixture(scope="module")
+def scalar_rgb():
+    """Mitsuba's scalar_rgb variant (needs no LLVM), for tests that read what Mitsuba loads."""
+    import mitsuba as mi
+    try:
+        mi.set_variant("scalar_rgb")
+    except Exception as exc:  # pragma: no cover - depends on the wheel
+        pytest.skip(f"mitsuba scalar_rgb unavailable: {exc}")
+    return mi
+
+
 @pytest.fixture
 def llvm():
     why = variant_problem("llvm_ad_rgb")

@@ -14,15 +14,8 @@ from links1.xmlparse import SceneWarning
 
 mi = pytest.importorskip("mitsuba")
 
-pytestmark = pytest.mark.mitsuba
+pytestmark = [pytest.mark.mitsuba, pytest.mark.usefixtures("scalar_rgb")]
 
-
-@pytest.fixture(scope="module", autouse=True)
-def scalar_variant():
-    try:
-        mi.set_variant("scalar_rgb")
-    except Exception as exc:  # pragma: no cover - depends on the wheel
-        pytest.skip(f"mitsuba scalar_rgb unavailable: {exc}")
 
 
 class _Stub:
