@@ -10,9 +10,8 @@ import importlib
 import statistics
 import sys
 import time
-import warnings
 
-from .errors import Links1Error, RenderAborted, UsageError
+from .errors import Links1Error, RenderAborted, UsageError, one_line_warnings
 
 RENDER_EXAMPLES = """examples:
   links1 render scenes/fig11.xml -o fig11.png
@@ -184,6 +183,7 @@ def make_cli_renderer(args):
 
 
 def cmd_render(args) -> int:
+    one_line_warnings(args.renderer)
     kind = _output_kind(args.output)
     if kind == "png" and args.aov:
         raise UsageError("AOVs need an EXR output (-o something.exr)")
@@ -231,17 +231,13 @@ def _takes_progress(renderer) -> bool:
         return False
 
 
-def _format_warning(message, category, filename, lineno, line=None):
-    return f"links1: warning: {message}\n"
-
-
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "command", None):
         parser.print_help(sys.stderr)
         return 2
-    warnings.formatwarning = _format_warning
+    one_line_warnings()
     debug = getattr(args, "debug", False)
     try:
         return int(args.func(args) or 0)

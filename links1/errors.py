@@ -1,9 +1,11 @@
-"""One error type for bad scenes, one for bad options.
+"""One error type for bad scenes, one for bad options, and the one-line warning format.
 
-Both carry enough context for the CLI to print a single line naming *what* is wrong and
+Both errors carry enough context for the CLI to print a single line naming *what* is wrong and
 *where* (file, line, element), then exit with status 2.
 """
 from __future__ import annotations
+
+import warnings
 
 
 class Links1Error(ValueError):
@@ -50,3 +52,18 @@ class RenderAborted(RuntimeError):
 
     The CLI prints it in one line and exits with status 1, writing no output.
     """
+
+
+def format_warning(message, category, filename, lineno, line=None) -> str:
+    """Every warning as one line, ``links1: warning: FILE:LINE: ...`` for scene warnings
+    (never Python's format with the source line of links1 that issued it)."""
+    return f"links1: warning: {message}\n"
+
+
+def one_line_warnings(renderer: str | None = None) -> None:
+    """Print warnings as :func:`format_warning` does, in this process (the CLI, its workers);
+    for ``renderer="mitsuba"`` Mitsuba's own log warnings too."""
+    warnings.formatwarning = format_warning
+    if renderer == "mitsuba":
+        from links1_mitsuba import log_to_warnings  # lazy: the core never needs Mitsuba
+        log_to_warnings()

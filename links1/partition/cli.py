@@ -24,6 +24,7 @@ import warnings
 
 from ..cli import int_option
 from ..errors import UsageError
+from ..xmlparse import SceneWarning
 from .strategies import STRATEGIES, UNITS
 
 #: Frames smaller than this (pixels x samples) render in-process under --workers auto.
@@ -117,7 +118,10 @@ def _model_and_channels(spec, args):
         root_spec = RendererSpec.make("core", spec.path, **kw)
     try:
         from .runtime import get_renderer
-        r = get_renderer(root_spec)
+        with warnings.catch_warnings():
+            if root_spec is not spec:  # the core's approximations do not concern another renderer
+                warnings.simplefilter("ignore", SceneWarning)
+            r = get_renderer(root_spec)
         model = scene_model(r, path=spec.path, params=spec.kwargs.get("params"), table=table)
         channels = list(r.channels)
     except UsageError:

@@ -12,6 +12,7 @@ import importlib
 import json
 import os
 import time
+import warnings
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -114,8 +115,13 @@ def start_worker(spec: RendererSpec) -> tuple:
     (``batches``: the renderer renders many units per launch, see :func:`render_units`).
 
     A task rather than a pool initializer, so that a scene error comes back as that error
-    and only a dead process breaks the pool.
+    and only a dead process breaks the pool. Warnings print as one line; the scene's own
+    (:class:`~links1.xmlparse.SceneWarning`) are left to the root, which read the scene too.
     """
+    from ..errors import one_line_warnings
+    from ..xmlparse import SceneWarning
+    one_line_warnings(spec.kind)
+    warnings.simplefilter("ignore", SceneWarning)
     return os.getpid(), can_batch(get_renderer(spec))
 
 

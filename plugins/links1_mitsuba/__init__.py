@@ -9,6 +9,7 @@ Python shapes).
 Public API::
 
     register(variant=None) -> str
+    log_to_warnings() -> None        Mitsuba's log warnings through Python's warnings (the CLI)
     load_file(path, *, integrator="links1", variant=None, **params) -> mi.Scene
     load_string(xml, *, integrator="links1", variant=None, base_dir=None, **params) -> mi.Scene
     MitsubaRenderer(path, *, params=None, spp=None, max_depth=None, seed=0, aovs=(), variant=None,
@@ -16,10 +17,10 @@ Public API::
 """
 from __future__ import annotations
 
-from ._registry import default_variant, probe_variant, register
+from ._registry import default_variant, log_to_warnings, probe_variant, register
 
 __all__ = ["register", "load_file", "load_string", "MitsubaRenderer", "default_variant",
-           "probe_variant"]
+           "probe_variant", "log_to_warnings"]
 
 
 def load_file(path, **kwargs):

@@ -105,3 +105,40 @@ def plugin_class(name: str):
     """The class registered under ``name`` for the active variant."""
     import mitsuba as mi
     return _REGISTERED[mi.variant()][name]
+
+
+class MitsubaLogWarning(UserWarning):
+    """A warning Mitsuba logged (``Log(Warn, ...)``), re-issued through :mod:`warnings`."""
+
+
+def log_to_warnings() -> None:
+    """Route Mitsuba's log (warnings and above) through :func:`warnings.warn`, so that it
+    prints as the caller formats warnings (the CLI: one ``links1: warning: mitsuba: ...``
+    line) instead of Mitsuba's own coloured lines. Idempotent."""
+    import warnings
+
+    import mitsuba as mi
+
+    class _Message(mi.Formatter):
+        def format(self, level, cname, fname, line, msg):
+            return msg
+
+    class _ToWarnings(mi.Appender):
+        def append(self, level, text):
+            if level >= mi.LogLevel.Warn:
+                try:
+                    warnings.warn(f"mitsuba: {text}", MitsubaLogWarning, stacklevel=2)
+                except Exception:  # warnings turned into errors: never raise into Mitsuba
+                    sys.stderr.write(f"links1: warning: mitsuba: {text}\n")
+
+        def log_progress(self, progress, name, formatted, eta, ptr=None):
+            pass
+
+    with _LOCK:
+        if _REGISTERED.get("_log_to_warnings"):
+            return
+        logger = mi.logger()
+        logger.clear_appenders()
+        logger.add_appender(_ToWarnings())
+        logger.set_formatter(_Message())
+        _REGISTERED["_log_to_warnings"] = {}

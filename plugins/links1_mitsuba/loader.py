@@ -17,6 +17,9 @@ from .emitters import _rgb
 from .shapes import BlobSpec, QuadricSpec
 
 CUSTOM = ("links1_quadric", "links1_blob")
+#: What ``integrator="scene"`` renders a file without ``<integrator>`` with: Mitsuba 3 has no
+#: default (``mi.render`` raises "No integrator specified!"); Mitsuba 2 instantiated ``path``.
+DEFAULT_SCENE_INTEGRATOR = "path"
 SLOT_ID = "_links1_slot_{}"
 
 
@@ -85,17 +88,15 @@ def _prepare_state(state, config, integrator: str, base_dir: str | None):
         if custom_specs:
             warnings.warn(f"integrator='scene': {len(custom_specs)} links1_quadric/links1_blob shape(s) "
                           "are invisible to Mitsuba's own integrators and are left out", stacklevel=3)
+        if integ_node is None:
+            warnings.warn(f"{_where(state, root)}: the scene names no integrator (Mitsuba 3.9.1 "
+                          f"would refuse to render it): using '{DEFAULT_SCENE_INTEGRATOR}' with "
+                          "Mitsuba's defaults, the default integrator of Mitsuba before 3.0",
+                          stacklevel=3)
+            _add_integrator(state, DEFAULT_SCENE_INTEGRATOR)
         return None, custom_specs, slot_of_id, names
     if integ_node is None:
-        integ_node = mi.parser.SceneNode()
-        integ_node.type = mi.ObjectType.Integrator
-        integ_node.props = mi.Properties("links1_whitted")
-        nodes.append(integ_node)
-        # The append may reallocate the C++ node vector: earlier references into it (such
-        # as ``root``) dangle, so fetch the root again before writing to it.
-        root = nodes[0]
-        root.props["_links1_integrator"] = mi.Properties.ResolvedReference(len(nodes) - 1)
-        integ_node = nodes[len(nodes) - 1]
+        integ_node = _add_integrator(state, "links1_whitted")
     else:
         old = integ_node.props.plugin_name()
         keep = {"max_depth", "seed", "aovs", "min_weight"}
@@ -108,6 +109,20 @@ def _prepare_state(state, config, integrator: str, base_dir: str | None):
     for k, v in moved_refs:
         integ_node.props[k] = v
     return integ_node, custom_specs, slot_of_id, names
+
+
+def _add_integrator(state, plugin: str):
+    """Append an integrator node to the parsed scene and reference it from the root."""
+    import mitsuba as mi
+    nodes = state.nodes
+    node = mi.parser.SceneNode()
+    node.type = mi.ObjectType.Integrator
+    node.props = mi.Properties(plugin)
+    nodes.append(node)
+    # The append may reallocate the C++ node vector: earlier references into it (such as
+    # the root) dangle, so fetch the root again before writing to it.
+    nodes[0].props["_links1_integrator"] = mi.Properties.ResolvedReference(len(nodes) - 1)
+    return nodes[len(nodes) - 1]
 
 
 def _repair_normals(scene) -> None:
@@ -131,10 +146,17 @@ def _repair_normals(scene) -> None:
 
 
 def _where(state, node) -> str:
+    """``FILE:LINE`` of a parsed node (Mitsuba keeps the byte offset), as the core's messages."""
     try:
-        return f"{state.files[node.file_index]} (offset {node.offset})"
+        path = str(state.files[node.file_index])
     except Exception:
         return "scene"
+    try:
+        with open(path, "rb") as f:
+            line = f.read(int(node.offset)).count(b"\n") + 1
+        return f"{path}:{line}"
+    except (OSError, TypeError, ValueError):
+        return f"{path} (offset {node.offset})"
 
 
 def _load(parse, source, integrator, base_dir, variant, params):

@@ -107,3 +107,34 @@ def test_help_has_examples(capsys):
     assert ei.value.code == 0
     out = capsys.readouterr().out
     assert "examples:" in out and "--aov" in out and "--repeat" in out
+
+
+WARN_SCENE = """<scene version="3.0.0">
+  <sensor type="perspective"><float name="fov" value="40"/>
+    <transform name="to_world"><lookat origin="0,0,5" target="0,0,0" up="0,1,0"/></transform>
+    <film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="8"/></film>
+  </sensor>
+  <emitter type="point"><point name="position" x="2" y="2" z="4"/></emitter>
+  <shape type="sphere"><bsdf type="diffuse"><spectrum name="reflectance" value="500:0, 540:1, 545:0"/></bsdf></shape>
+  <shape type="sphere"><point name="center" x="1" y="0" z="0"/><bsdf type="roughplastic"/></shape>
+</scene>
+"""
+
+
+@pytest.mark.parametrize("workers", ["0", "2"])
+def test_warnings_are_one_clean_line_each(tmp_path, workers):
+    """Scene warnings: `links1: warning: FILE:LINE: ...`, once each, never Python's format
+    (file.py:N: SceneWarning + the source line), in the root and in worker processes."""
+    scene = tmp_path / "warn.xml"
+    scene.write_text(WARN_SCENE)
+    res = subprocess.run([sys.executable, "-m", "links1.cli", "render", str(scene), "--renderer", "core",
+                          "--workers", workers, "--no-progress", "-o", str(tmp_path / "o.exr")],
+                         capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    lines = res.stderr.splitlines()
+    assert all(ln.startswith("links1: ") for ln in lines), res.stderr
+    warns = [ln for ln in lines if ln.startswith("links1: warning: ")]
+    assert len(warns) == 2 and len(set(warns)) == 2, res.stderr
+    assert warns[0].startswith(f"links1: warning: {scene}:7: ") and "clamping out-of-gamut" in warns[0]
+    assert warns[1].startswith(f"links1: warning: {scene}:8: ") and "roughplastic" in warns[1]
+    assert "SceneWarning" not in res.stderr and ".py:" not in res.stderr
