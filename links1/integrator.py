@@ -176,10 +176,12 @@ class WhittedIntegrator:
         nf = np.where(front[:, None], rec.ns, -rec.ns)  # shading normal facing the viewer
         mat_idx = self._material_of[hits.shape]
         groups = [(k, np.nonzero(mat_idx == k)[0]) for k in np.unique(mat_idx)]
+        # each group's material, its textures evaluated at the hits' uv (links1.textures)
+        mats = {k: self._bound(self._materials[k], o[g], d[g], hits, g) for k, g in groups}
 
         out = np.zeros((n, 3))
         for k, g in groups:
-            out[g] += self._materials[k].ambient  # eq. (3.11), dic
+            out[g] += mats[k].ambient  # eq. (3.11), dic
         if self.any_emission:
             for s in np.unique(hits.shape):
                 e = self.shapes[s].emission
@@ -193,7 +195,7 @@ class WhittedIntegrator:
             wi, dist, L = light.illuminate(rec.p)
             f = np.zeros((n, 3))
             for k, g in groups:
-                f[g] = self._materials[k].eval(wo[g], wi[g], nf[g], rec.ns[g])
+                f[g] = mats[k].eval(wo[g], wi[g], nf[g], rec.ns[g])
             contrib = f * L
             lit = np.any(contrib != 0.0, axis=1)
             need = self._shadow_need[j][hits.shape]
@@ -219,7 +221,7 @@ class WhittedIntegrator:
         eta = np.ones(n)
         scale = np.zeros(n, dtype=bool)
         for k, g in groups:
-            mat = self._materials[k]
+            mat = mats[k]
             if not (mat.has_reflection or mat.has_transmission):
                 continue
             r[g], t[g], eta[g] = mat.specular(wo[g], nf[g], front[g])
@@ -252,6 +254,18 @@ class WhittedIntegrator:
             cost[idx[sel]] += c
             out[sel] += factor[sel] * Li  # eq. (3.13) / (3.16)
         return out
+
+
+    def _bound(self, material, o, d, hits: Hits, sel):
+        """``material`` with its textures evaluated at the uv of hits ``sel`` (rays ``o, d``)."""
+        if not material.textured:
+            return material
+        uv = np.zeros((sel.size, 2))
+        shape = hits.shape[sel]
+        for s in np.unique(shape):
+            m = shape == s
+            uv[m] = self.shapes[s].uv(o[m], d[m], hits.t[sel][m], hits.prim[sel][m])
+        return material.at(uv)
 
 
 def refract(d, n, eta):

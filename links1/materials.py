@@ -10,13 +10,20 @@ The integrator asks a material three things for a batch of N hits (all direction
 * ``specular(wo, n, entering)`` → ``(r, t, eta)``: weights of the mirror ray (eq. 3.13) and
   the transmitted ray (eq. 3.16), and the relative index ``η = η_i/η_t`` of eq. (3.14/3.15);
 * ``shadow_t`` (3,): the transmittance a shadow ray sees through this object (eq. 3.12 note).
+
+A colour parameter of a Mitsuba BSDF may be a :class:`links1.textures.Texture`; ``at(uv)``
+returns the material with every texture evaluated at the hits' ``uv`` (``(N, 3)`` arrays in
+place of ``(3,)``), which ``eval`` and ``specular`` broadcast alike.
 """
 from __future__ import annotations
 
+import copy
 import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from .textures import Texture, upper_bound
 
 # Mitsuba's named indices of refraction (src/core/... ior.h), used by dielectric/plastic.
 IOR_TABLE = {
@@ -29,8 +36,17 @@ IOR_TABLE = {
 }
 
 
-def _rgb(v) -> np.ndarray:
+def _rgb(v):
+    """An RGB constant (3,) float64, or a texture as it is."""
+    if isinstance(v, Texture):
+        return v
     return np.broadcast_to(np.asarray(v, dtype=np.float64), (3,)).copy()
+
+
+def _const(v, what: str) -> np.ndarray:
+    if isinstance(v, Texture):
+        raise ValueError(f"'{what}' cannot be a texture here")
+    return _rgb(v)
 
 
 from .vec import dot as _dot
@@ -54,9 +70,10 @@ def fresnel_dielectric(cos_i: np.ndarray, eta: float | np.ndarray) -> np.ndarray
 
 
 def fresnel_conductor(cos_i: np.ndarray, eta: np.ndarray, k: np.ndarray) -> np.ndarray:
-    """Unpolarised Fresnel reflectance of a conductor with complex index ``eta + i k`` (RGB)."""
+    """Unpolarised Fresnel reflectance of a conductor with complex index ``eta + i k``
+    (RGB: (3,) or per hit (N, 3))."""
     ci = np.clip(np.abs(cos_i), 0.0, 1.0)[:, None]
-    e = eta[None, :] + 1j * k[None, :]
+    e = eta + 1j * k
     sin2 = 1.0 - ci * ci
     ct = np.sqrt(1.0 - sin2 / (e * e))
     rs = (ci - e * ct) / (ci + e * ct)
@@ -93,6 +110,21 @@ class Material:
         z = np.zeros((wo.shape[0], 3))
         return z, z, np.ones(wo.shape[0])
 
+    @property
+    def textured(self) -> tuple:
+        """Names of the parameters that are textures."""
+        return tuple(k for k, v in vars(self).items() if isinstance(v, Texture))
+
+    def at(self, uv):
+        """This material with its textures evaluated at ``uv (N, 2)`` (itself if it has none)."""
+        names = self.textured
+        if not names:
+            return self
+        bound = copy.copy(self)
+        for k in names:
+            setattr(bound, k, getattr(self, k).eval(uv))
+        return bound
+
 
 @dataclass
 class Phong(Material):
@@ -114,11 +146,12 @@ class Phong(Material):
     name: str = ""
 
     def __post_init__(self):
-        self.ambient = _rgb(self.ambient)
-        self.diffuse = _rgb(self.diffuse)
-        self.specular_ = _rgb(self.specular_)
-        self.reflectance = self.specular_.copy() if self.reflectance is None else _rgb(self.reflectance)
-        self.transmittance = _rgb(self.transmittance)
+        self.ambient = _const(self.ambient, "ambient")
+        self.diffuse = _const(self.diffuse, "diffuse")
+        self.specular_ = _const(self.specular_, "specular")
+        self.reflectance = (self.specular_.copy() if self.reflectance is None
+                            else _const(self.reflectance, "reflectance"))
+        self.transmittance = _const(self.transmittance, "transmittance")
         self.exponent = float(self.exponent)
         self.ior = float(self.ior)
         if not (np.isfinite(self.ior) and self.ior > 0):
@@ -176,6 +209,8 @@ class Conductor(Material):
 
     def __post_init__(self):
         self.specular_reflectance = _rgb(self.specular_reflectance)
+        if self.eta is not None:
+            self.eta, self.k = _rgb(self.eta), _rgb(self.k)
         self.has_reflection = True
 
     def specular(self, wo, n, entering):
@@ -183,7 +218,7 @@ class Conductor(Material):
         if self.eta is None:
             r = np.broadcast_to(self.specular_reflectance, (m, 3)).copy()
         else:
-            r = self.specular_reflectance * fresnel_conductor(_dot(wo, n), _rgb(self.eta), _rgb(self.k))
+            r = self.specular_reflectance * fresnel_conductor(_dot(wo, n), self.eta, self.k)
         if not self.two_sided:
             r = np.where(entering[:, None], r, 0.0)
         return r, np.zeros((m, 3)), np.ones(m)
@@ -266,7 +301,7 @@ class Plastic(Material):
         f_o = fresnel_dielectric(np.abs(cos_l), self.eta)
         d = self.diffuse_reflectance
         denom = 1.0 - (d * self.fdr_int if self.nonlinear else self.fdr_int)
-        val = (d / denom)[None, :] * (self.inv_eta2 / np.pi * cos_l * (1 - f_i) * (1 - f_o))[:, None]
+        val = (d / denom) * (self.inv_eta2 / np.pi * cos_l * (1 - f_i) * (1 - f_o))[:, None]
         return np.where(ok[:, None], val, 0.0)
 
     def specular(self, wo, n, entering):

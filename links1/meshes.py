@@ -7,17 +7,20 @@ file and line (the loader re-raises it as a ``SceneError`` naming the XML elemen
 
 Mitsuba semantics kept here
 ---------------------------
-* OBJ (``v``, ``vn``, ``f`` with ``v``, ``v/vt``, ``v//vn``, ``v/vt/vn`` and negative indices;
-  other statements ignored): polygons are triangulated as fans ``(0, k, k+1)``; a vertex is one
-  ``(position, normal)`` pair; unreferenced positions are dropped.
-* PLY: ``ascii``, ``binary_little_endian`` and ``binary_big_endian``; vertex ``x y z`` and
-  optional ``nx ny nz``; faces from the list ``vertex_indices`` (or ``vertex_index``), fans again.
+* OBJ (``v``, ``vt``, ``vn``, ``f`` with ``v``, ``v/vt``, ``v//vn``, ``v/vt/vn`` and negative
+  indices; other statements ignored): polygons are triangulated as fans ``(0, k, k+1)``; a
+  vertex is one ``(position, texcoord, normal)`` triple; unreferenced positions are dropped.
+* PLY: ``ascii``, ``binary_little_endian`` and ``binary_big_endian``; vertex ``x y z``,
+  optional ``nx ny nz`` and texcoords ``u v`` (or ``texture_u texture_v``, or ``s t``); faces
+  from the list ``vertex_indices`` (or ``vertex_index``), fans again.
+* Texcoords (``uv=True``) come back as stored; Mitsuba's ``flip_tex_coords`` (``v -> 1 - v``,
+  default on for OBJ, off for PLY) is the loader's business.
 * A mesh without normals gets Mitsuba's smooth vertex normals
   (:func:`angle_weighted_normals`, ``Mesh::recompute_vertex_normals``) unless the caller asks
   for face normals.
-* :func:`rectangle_mesh`: ``[-1, 1]²`` in ``z = 0``, normal ``+z`` (Mitsuba's ``rectangle``).
-  :func:`cube_mesh`: ``[-1, 1]³``, outward winding, flat faces: the same 24 vertices and 12
-  triangles as Mitsuba's ``cube``.
+* :func:`rectangle_mesh`: ``[-1, 1]²`` in ``z = 0``, normal ``+z``, ``uv = ((x+1)/2, (y+1)/2)``
+  (Mitsuba's ``rectangle``). :func:`cube_mesh`: ``[-1, 1]³``, outward winding, flat faces: the
+  same 24 vertices, texcoords and 12 triangles as Mitsuba's ``cube``.
 
 Bicubic Bézier patches (digest §3.1, eq. 3.3)
 ---------------------------------------------
@@ -99,8 +102,9 @@ def _fan(poly: list) -> list:
 # OBJ
 # --------------------------------------------------------------------------------------------
 
-def read_obj(path: str):
-    """Read a Wavefront OBJ file → ``(vertices, faces, normals or None)`` (see module doc)."""
+def read_obj(path: str, uv: bool = False):
+    """Read a Wavefront OBJ file → ``(vertices, faces, normals or None)`` (see module doc),
+    and ``texcoords (V, 2) or None`` fourth with ``uv=True`` (0 where a corner has no ``vt``)."""
     try:
         with open(path, encoding="utf-8", errors="replace") as fh:
             lines = fh.read().splitlines()
@@ -108,6 +112,7 @@ def read_obj(path: str):
         raise ValueError(f"{path}: cannot read: {exc.strerror}") from None
     pos: list = []
     nrm: list = []
+    tex: list = []
     key_index: dict = {}
     keys: list = []
     faces: list = []
@@ -147,6 +152,10 @@ def read_obj(path: str):
             if len(toks) < 4:
                 raise ValueError(f"{path}:{ln}: 'vn' needs 3 coordinates")
             nrm.append([num(t, ln) for t in toks[1:4]])
+        elif kw == "vt":
+            if len(toks) < 3:
+                raise ValueError(f"{path}:{ln}: 'vt' needs 2 coordinates")
+            tex.append([num(t, ln) for t in toks[1:3]])
         elif kw == "f":
             if len(toks) < 4:
                 raise ValueError(f"{path}:{ln}: a face needs at least 3 vertices")
@@ -154,13 +163,15 @@ def read_obj(path: str):
             for t in toks[1:]:
                 parts = t.split("/")
                 vi = index(parts[0], len(pos), ln, "vertex")
-                ni = -1
+                ti = ni = -1
+                if len(parts) >= 2 and parts[1]:
+                    ti = index(parts[1], len(tex), ln, "texcoord")
                 if len(parts) >= 3 and parts[2]:
                     ni = index(parts[2], len(nrm), ln, "normal")
                     any_normal = True
                 else:
                     all_normal = False
-                key = (vi, ni)
+                key = (vi, ti, ni)
                 k = key_index.get(key)
                 if k is None:
                     k = key_index[key] = len(keys)
@@ -174,8 +185,14 @@ def read_obj(path: str):
     faces_a = np.array(faces, dtype=np.int64)
     normals = None
     if any_normal and all_normal:
-        normals = tf.normalize(np.array(nrm, dtype=np.float64)[keys_a[:, 1]])
-    return vertices, faces_a, normals
+        normals = tf.normalize(np.array(nrm, dtype=np.float64)[keys_a[:, 2]])
+    if not uv:
+        return vertices, faces_a, normals
+    texcoords = None
+    if np.any(keys_a[:, 1] >= 0):
+        t = np.vstack([np.array(tex, dtype=np.float64).reshape(-1, 2), np.zeros((1, 2))])
+        texcoords = t[keys_a[:, 1]]  # index -1: the zero row
+    return vertices, faces_a, normals, texcoords
 
 
 def write_obj(path: str, vertices, faces, normals=None) -> None:
@@ -304,8 +321,9 @@ def _read_binary_element(buf: bytes, off: int, count: int, props, endian: str, p
     return out, off
 
 
-def read_ply(path: str):
-    """Read a PLY mesh → ``(vertices, faces, normals or None)`` (see module doc)."""
+def read_ply(path: str, uv: bool = False):
+    """Read a PLY mesh → ``(vertices, faces, normals or None)`` (see module doc), and
+    ``texcoords (V, 2) or None`` fourth with ``uv=True``."""
     try:
         with open(path, "rb") as fh:
             data = fh.read()
@@ -359,6 +377,13 @@ def read_ply(path: str):
     if all(k in vert for k in ("nx", "ny", "nz")):
         normals = tf.normalize(np.stack([np.asarray(vert[k], dtype=np.float64)
                                          for k in ("nx", "ny", "nz")], axis=1))
+    texcoords = None
+    for a, b in (("u", "v"), ("texture_u", "texture_v"), ("s", "t")):
+        if a in vert and b in vert:
+            texcoords = np.stack([np.asarray(vert[a], dtype=np.float64),
+                                  np.asarray(vert[b], dtype=np.float64)], axis=1)
+            break
+    extra = (texcoords,) if uv else ()
     face = values.get("face")
     if face is None:
         raise ValueError(f"{path}: PLY file has no face element")
@@ -373,7 +398,7 @@ def read_ply(path: str):
         k = poly.shape[1]
         tri_a = np.stack([np.stack([poly[:, 0], poly[:, j], poly[:, j + 1]], 1)
                           for j in range(1, k - 1)], 1).reshape(-1, 3)
-        return vertices, tri_a, normals
+        return (vertices, tri_a, normals) + extra
     tri: list = []
     for i, poly in enumerate(lists):
         poly = [int(x) for x in np.asarray(poly)]
@@ -384,7 +409,7 @@ def read_ply(path: str):
         tri.extend(_fan(poly))
     if not tri:
         raise ValueError(f"{path}: no faces")
-    return vertices, np.array(tri, dtype=np.int64), normals
+    return (vertices, np.array(tri, dtype=np.int64), normals) + extra
 
 
 def write_ply(path: str, vertices, faces, normals=None, binary: bool = True) -> None:
@@ -414,12 +439,13 @@ def write_ply(path: str, vertices, faces, normals=None, binary: bool = True) -> 
 # Mitsuba's built-in meshes
 # --------------------------------------------------------------------------------------------
 
-def rectangle_mesh():
-    """Mitsuba's ``rectangle``: ``[-1, 1]²`` in the plane ``z = 0``, normal ``+z``."""
+def rectangle_mesh(uv: bool = False):
+    """Mitsuba's ``rectangle``: ``[-1, 1]²`` in the plane ``z = 0``, normal ``+z``; with
+    ``uv=True`` also its texcoords ``((x + 1)/2, (y + 1)/2)``."""
     v = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], dtype=np.float64)
     f = np.array([[0, 1, 2], [2, 3, 0]], dtype=np.int64)
     n = np.tile([0.0, 0.0, 1.0], (4, 1))
-    return v, f, n
+    return (v, f, n, 0.5 * (v[:, :2] + 1.0)) if uv else (v, f, n)
 
 
 _CUBE_V = [[1, -1, -1], [1, -1, 1], [-1, -1, 1], [-1, -1, -1], [1, 1, -1], [-1, 1, -1],
@@ -429,13 +455,16 @@ _CUBE_V = [[1, -1, -1], [1, -1, 1], [-1, -1, 1], [-1, -1, -1], [1, 1, -1], [-1, 
 _CUBE_N = [[0, -1, 0], [0, 1, 0], [1, 0, 0], [0, 0, 1], [-1, 0, 0], [0, 0, -1]]
 
 
-def cube_mesh():
-    """Mitsuba's ``cube``: ``[-1, 1]³``, 24 vertices (flat faces), 12 outward-wound triangles."""
+def cube_mesh(uv: bool = False):
+    """Mitsuba's ``cube``: ``[-1, 1]³``, 24 vertices (flat faces), 12 outward-wound triangles;
+    with ``uv=True`` also Mitsuba's texcoords (each face (0,1), (1,1), (1,0), (0,0))."""
     v = np.array(_CUBE_V, dtype=np.float64)
     f = np.array([tri for k in range(6) for tri in ([4 * k, 4 * k + 1, 4 * k + 2],
                                                     [4 * k + 3, 4 * k, 4 * k + 2])], dtype=np.int64)
     n = np.repeat(np.array(_CUBE_N, dtype=np.float64), 4, axis=0)
-    return v, f, n
+    if not uv:
+        return v, f, n
+    return v, f, n, np.tile(np.array([[0, 1], [1, 1], [1, 0], [0, 0]], dtype=np.float64), (6, 1))
 
 
 # --------------------------------------------------------------------------------------------

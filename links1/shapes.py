@@ -9,7 +9,10 @@ Every shape answers the contract of docs/architecture.md for batches of ``N`` ra
   distance in the open interval ``(tmin, tmax)``, ``t = inf`` and ``prim = -1`` on a miss;
 * ``any_hit(o, d, tmin, tmax, cost=None) -> (N,) bool``;
 * ``surface(o, d, t, prim) -> (p, ng, ns)``: hit point, geometric normal and shading
-  normal, both unit and outward (never turned toward the ray).
+  normal, both unit and outward (never turned toward the ray);
+* ``uv(o, d, t, prim) -> (N, 2)``: Mitsuba's surface coordinates of the hits (what textures
+  are evaluated at, :mod:`links1.textures`): mesh texcoords interpolated by barycentrics
+  (``(b1, b2)`` without texcoords), Mitsuba's sphere / cylinder / disk parameterisations.
 
 ``cost`` (``(N,)`` int64) gets +1 per ray-primitive test (box tests are free). No output
 is ever NaN; degenerate configurations (a triangle plane through the ray origin, a ray
@@ -46,6 +49,11 @@ def _finite_or_zero(t) -> np.ndarray:
     """``t`` with non-finite entries (misses passed to ``surface``) replaced by 0."""
     t = np.asarray(t, dtype=np.float64)
     return np.where(np.isfinite(t), t, 0.0)
+
+
+def _turn(phi: np.ndarray) -> np.ndarray:
+    """An angle from ``atan2`` as a fraction of a full turn in [0, 1) (Mitsuba's ``u``/``v``)."""
+    return np.where(phi < 0.0, phi + 2.0 * np.pi, phi) / (2.0 * np.pi)
 
 
 def check_to_world(to_world, what: str) -> np.ndarray:
@@ -102,6 +110,10 @@ class Shape:
     def surface(self, o, d, t, prim):  # pragma: no cover - interface
         raise NotImplementedError
 
+    def uv(self, o, d, t, prim):
+        """Surface coordinates (N, 2) of the hits (default: none, zeros)."""
+        return np.zeros((np.asarray(prim).shape[0], 2))
+
     @property
     def nbytes(self) -> int:
         return 0
@@ -135,13 +147,15 @@ class TriangleMesh(Shape):
     faces : (F, 3) int  vertex indices (winding gives the outward geometric normal
         ``(v1 - v0) x (v2 - v0)``, Mitsuba's convention)
     normals : (V, 3) or None  per-vertex shading normals (eq. 3.3); ``None``: ``ns = ng``
+    texcoords : (V, 2) or None  per-vertex ``uv`` (``None``: a hit's ``uv`` is its
+        barycentrics ``(b1, b2)``, as Mitsuba's meshes without texcoords)
     name : str
     closed : bool or None  ``None`` detects it: every edge shared by exactly two faces
     max_leaf : int  triangles per leaf of the per-mesh hierarchy
     """
 
     def __init__(self, vertices, faces, normals=None, name: str = "", closed=None,
-                 max_leaf: int = 8):
+                 max_leaf: int = 8, texcoords=None):
         super().__init__(name)
         v = np.array(vertices, dtype=np.float64)
         f = np.array(faces)
@@ -169,6 +183,13 @@ class TriangleMesh(Shape):
             self.normals = nrm
         else:
             self.normals = None
+        self.texcoords = None
+        if texcoords is not None:
+            uv = np.array(texcoords, dtype=np.float64)
+            if uv.shape != (v.shape[0], 2) or not np.all(np.isfinite(uv)):
+                raise ValueError(f"mesh {name!r}: texcoords must be finite with shape "
+                                 f"{(v.shape[0], 2)}, got {uv.shape}")
+            self.texcoords = uv
         self.closed = self._detect_closed() if closed is None else bool(closed)
 
         p0, p1, p2 = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
@@ -336,6 +357,18 @@ class TriangleMesh(Shape):
             ln = np.sqrt(dot(ns, ns))
             ns = np.where((ln > 0)[:, None], normalize(ns), ng)
         return p, ng, ns
+
+    def uv(self, o, d, t, prim):
+        """Texcoords interpolated by the hit's barycentrics (Mitsuba: ``(b1, b2)`` without)."""
+        o = np.asarray(o, dtype=np.float64).reshape(-1, 3)
+        d = np.asarray(d, dtype=np.float64).reshape(-1, 3)
+        prim = np.asarray(prim, dtype=np.int64)
+        b = self.barycentrics(o, d, prim)
+        if self.texcoords is None:
+            return b[:, 1:].copy()
+        f = self.faces[prim]
+        tc = self.texcoords
+        return b[:, :1] * tc[f[:, 0]] + b[:, 1:2] * tc[f[:, 1]] + b[:, 2:] * tc[f[:, 2]]
 
 
 # ---------------------------------------------------------------------------- quadrics
@@ -570,6 +603,19 @@ class Quadric(Shape):
                 ng[m] = cn
         return p, ng, ng.copy()
 
+    def uv(self, o, d, t, prim):
+        """Mitsuba's parameterisation in object space ``y``: sphere ``(φ/2π, θ/π)`` with
+        ``φ = atan2(y_y, y_x)`` in [0, 2π) and ``θ = acos(y_z)``; cylinder ``(φ/2π, y_z)``
+        (``p0`` at 0, ``p1`` at 1 for Mitsuba's ``cylinder``). Caps use the same formulas."""
+        o = np.asarray(o, dtype=np.float64).reshape(-1, 3)
+        d = np.asarray(d, dtype=np.float64).reshape(-1, 3)
+        y = matvec(self.A, o + _finite_or_zero(t)[:, None] * d - self.m)
+        phi = _turn(np.arctan2(y[:, 1], y[:, 0]))
+        if self.kind == "cylinder":
+            return np.stack([phi, y[:, 2]], axis=1)
+        y = normalize(y)  # Mitsuba re-projects the hit onto the sphere
+        return np.stack([phi, np.arccos(np.clip(y[:, 2], -1.0, 1.0)) / np.pi], axis=1)
+
 
 # ---------------------------------------------------------------------------- disk
 class Disk(Shape):
@@ -615,3 +661,10 @@ class Disk(Shape):
         p = o + t[:, None] * d
         ng = np.broadcast_to(self._normal, p.shape).copy()
         return p, ng, ng.copy()
+
+    def uv(self, o, d, t, prim):
+        """Mitsuba's disk parameterisation: ``(r, φ/2π)`` of the object-space hit, φ in [0, 2π)."""
+        o = np.asarray(o, dtype=np.float64).reshape(-1, 3)
+        d = np.asarray(d, dtype=np.float64).reshape(-1, 3)
+        y = matvec(self.A, o + _finite_or_zero(t)[:, None] * d - self.m)
+        return np.stack([np.hypot(y[:, 0], y[:, 1]), _turn(np.arctan2(y[:, 1], y[:, 0]))], axis=1)
