@@ -57,7 +57,7 @@ import warnings
 import numpy as np
 
 from . import materials as mat
-from . import meshes
+from . import meshes, textures
 from . import spectra
 from . import transform as tf
 from .camera import FOV_AXES, Camera, fov_x_from
@@ -218,6 +218,15 @@ class _Props:
             raise self.error(name, f"'{name}' must be >= 0, got {v.tolist()}")
         return v
 
+    def texture(self, name, default=_MISSING, **kwargs):
+        """A texturable BSDF parameter: a nested ``bitmap`` / ``checkerboard`` texture
+        (:mod:`links1.textures`), else :meth:`color`."""
+        tex = [n for nm, n in self.node.children if nm == name and n.tag == "texture"]
+        if tex and tex[0].type in _TEXTURES:
+            self.used.add(name)
+            return _texture(tex[0])
+        return self.color(name, default, **kwargs)
+
     def transform(self, name="to_world") -> np.ndarray | None:
         p = self._get(name, ("transform",))
         return None if p is None else np.asarray(p.value, dtype=np.float64).copy()
@@ -231,6 +240,42 @@ class _Props:
                 warnings.warn(str(SceneError(
                     f"parameter '{name}' is not used by the core and is ignored", p.file, p.line,
                     f"{self.node.element()} {p.element()}")), SceneWarning, stacklevel=3)
+
+
+# --------------------------------------------------------------------------------------------
+# textures (links1.textures)
+# --------------------------------------------------------------------------------------------
+
+_TEXTURES = ("bitmap", "checkerboard")
+
+
+def _texture(node: Node):
+    """A ``<texture type="bitmap | checkerboard">`` element → :class:`links1.textures.Texture`."""
+    props = _Props(node)
+    to_uv = props.transform("to_uv")
+    if node.type == "checkerboard":
+        tex = _construct(node, textures.Checkerboard, props.texture("color0", 0.4),
+                         props.texture("color1", 0.2), to_uv=to_uv, name=node.id or "")
+    else:
+        filter_type = props.string("filter_type", "bilinear").strip()
+        wrap_mode = props.string("wrap_mode", "repeat").strip()
+        for key, value, allowed in (("filter_type", filter_type, textures.FILTER_TYPES),
+                                    ("wrap_mode", wrap_mode, textures.WRAP_MODES)):
+            if value not in allowed:
+                raise props.error(key, f"'{key}' must be one of {', '.join(allowed)}, got '{value}'")
+        raw = props.bool("raw", False)
+        if props.has("data") or props.has("bitmap"):
+            raise node.error("bitmap: only 'filename' can be given in a scene file")
+        fn = props.string("filename")
+        try:
+            data = textures.read_bitmap(node.resolve(fn), raw)
+        except ValueError as exc:
+            raise props.error("filename", str(exc)) from None
+        props.ignore("format", "accel")  # storage precision and GPU lookups: same values here
+        tex = _construct(node, textures.Bitmap, data, filter_type, wrap_mode, to_uv=to_uv,
+                         name=node.id or "")
+    props.finish()
+    return tex
 
 
 # --------------------------------------------------------------------------------------------
@@ -554,22 +599,24 @@ class _Builder:
             _check_invertible(node, m)
             shape = _construct(node, _shape_class("Disk"), m, name=name)
         elif t in ("rectangle", "cube"):
-            v, f, n = meshes.rectangle_mesh() if t == "rectangle" else meshes.cube_mesh()
-            shape = self._mesh(node, props, v, f, n, m, closed=(t == "cube"))
+            v, f, n, uv = (meshes.rectangle_mesh if t == "rectangle" else meshes.cube_mesh)(uv=True)
+            shape = self._mesh(node, props, v, f, n, m, closed=(t == "cube"), uv=uv)
         elif t in ("obj", "ply"):
             fn = props.string("filename")
             path = node.resolve(fn)
             reader = meshes.read_obj if t == "obj" else meshes.read_ply
             try:
-                v, f, n = reader(path)
+                v, f, n, uv = reader(path, uv=True)
             except ValueError as exc:
                 raise props.error("filename", str(exc)) from None
             if props.bool("face_normals", False):
                 n = None
             elif n is None:
                 n = meshes.angle_weighted_normals(v, f)
-            props.ignore("mesh_attributes")
-            shape = self._mesh(node, props, v, f, n, m, closed=None)
+            if uv is not None and props.bool("flip_tex_coords", t == "obj"):
+                uv = uv * np.array([1.0, -1.0]) + np.array([0.0, 1.0])  # Mitsuba: v -> 1 - v
+            props.ignore("mesh_attributes", "flip_tex_coords")
+            shape = self._mesh(node, props, v, f, n, m, closed=None, uv=uv)
         elif t == "links1_quadric":
             shape = self._quadric(node, props, m, name)
         elif t == "links1_blob":
@@ -614,14 +661,14 @@ class _Builder:
         if props.bool("flip_normals", False):
             props.node.warn("flip_normals is not supported on analytic shapes by the core; ignored")
 
-    def _mesh(self, node, props, v, f, n, m, closed):
+    def _mesh(self, node, props, v, f, n, m, closed, uv=None):
         if props.bool("flip_normals", False):
             f, n = meshes.flip(f, n)
         v, n = meshes.transform_mesh(m, v, n)
         if not np.all(np.isfinite(v)):
             raise node.error("non-finite vertex positions after to_world")
         return _construct(node, _shape_class("TriangleMesh"), v, f, normals=n, name=node.id or "",
-                          closed=closed)
+                          closed=closed, texcoords=uv)
 
     def _quadric(self, node, props, m, name):
         kind = props.string("kind").strip().lower()
@@ -697,7 +744,7 @@ class _Builder:
         props = _Props(node)
         name = node.id or ""
         if t == "diffuse":
-            m = mat.Diffuse(reflectance=props.color("reflectance", 0.5), name=name)
+            m = mat.Diffuse(reflectance=props.texture("reflectance", 0.5), name=name)
         elif t == "twosided":
             inner = node.objects("bsdf")
             if not inner:
@@ -710,10 +757,10 @@ class _Builder:
             if name:
                 m.name = name
         elif t == "conductor":
-            refl = props.color("specular_reflectance", 1.0)
+            refl = props.texture("specular_reflectance", 1.0)
             material = props.string("material", "none").strip()
-            eta = props.color("eta", None, unbounded=True)
-            k = props.color("k", None, unbounded=True)
+            eta = props.texture("eta", None, unbounded=True)
+            k = props.texture("k", None, unbounded=True)
             if (eta is None) != (k is None):
                 raise node.error("conductor: give both 'eta' and 'k', or neither")
             if eta is not None:
@@ -728,15 +775,15 @@ class _Builder:
             ext_ior = _ior(props, "ext_ior", "air")
             cls = mat.Dielectric if t == "dielectric" else mat.ThinDielectric
             m = _construct(node, cls, eta=int_ior / ext_ior,
-                           specular_reflectance=props.color("specular_reflectance", 1.0),
-                           specular_transmittance=props.color("specular_transmittance", 1.0),
+                           specular_reflectance=props.texture("specular_reflectance", 1.0),
+                           specular_transmittance=props.texture("specular_transmittance", 1.0),
                            name=name)
         elif t == "plastic":
             int_ior = _ior(props, "int_ior", "polypropylene")
             ext_ior = _ior(props, "ext_ior", "air")
             m = _construct(node, mat.Plastic,
-                           diffuse_reflectance=props.color("diffuse_reflectance", 0.5),
-                           specular_reflectance=props.color("specular_reflectance", 1.0),
+                           diffuse_reflectance=props.texture("diffuse_reflectance", 0.5),
+                           specular_reflectance=props.texture("specular_reflectance", 1.0),
                            eta=int_ior / ext_ior, nonlinear=props.bool("nonlinear", False),
                            name=name)
         elif t == "links1_phong":
@@ -755,14 +802,16 @@ class _Builder:
             color = 0.5
             for key in ("reflectance", "diffuse_reflectance", "base_color", "specular_reflectance"):
                 if props.has(key) or any(nm == key for nm, _ in node.children):
-                    color = props.color(key)
+                    color = props.texture(key)
                     break
             props.ignore(*node.props)
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 m = mat.approximate(t, color=color, name=name)
+            what = ("its texture" if textures.is_texture(m.reflectance)
+                    else np.round(m.reflectance, 4).tolist())
             node.warn(f"bsdf type '{t}' is not supported by the core; approximated as a diffuse "
-                      f"surface of reflectance {np.round(m.reflectance, 4).tolist()}")
+                      f"surface of reflectance {what}")
         else:
             raise node.error(f"unknown plugin '{t}' (bsdf)")
         props.finish()
