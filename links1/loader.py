@@ -22,7 +22,8 @@ shape           ``sphere`` (center, radius), ``cylinder`` (p0, p1, radius; open)
                 ``links1_blob``, ``links1_bicubic`` (see below). No bsdf → ``diffuse`` 0.5.
 bsdf            ``diffuse``, ``twosided``, ``conductor`` (perfect mirror, or ``eta``/``k``),
                 ``dielectric``, ``thindielectric``, ``plastic``, *links1* ``links1_phong``;
-                rough/other BSDFs → diffuse stand-in (warning); textures → 0.5 grey (warning).
+                rough/other BSDFs → diffuse stand-in (warning); ``bitmap`` / ``checkerboard``
+                textures (:mod:`links1.textures`) on their colour parameters; other textures → 0.5 grey (warning).
 colours        ``rgb``, ``float``, ``spectrum`` (one value or ``wavelength:value`` pairs, converted
                 as Mitsuba's RGB variants do: :mod:`links1.spectra`), ``<spectrum type="uniform|
                 srgb|blackbody">`` (blackbody on emitters only, warning).
