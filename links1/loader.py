@@ -303,12 +303,14 @@ def _construct(node: Node, factory, *args, **kwargs):
 
 
 def _frame(d: np.ndarray) -> np.ndarray:
-    """Mitsuba's ``Frame3f(d)`` as a 3x3 matrix with columns (s, t, n)."""
-    sign = math.copysign(1.0, d[2])
+    """Mitsuba's ``Frame3f(d)`` (``coordinate_system``, Duff et al. 2017) as a 3x3 matrix with
+    columns (s, t, n). Mitsuba's ``mulsign(x, y)`` is ``x`` times the sign of ``y`` (not
+    ``copysign``: ``x`` keeps its own sign when ``y >= 0``)."""
+    sign = 1.0 if d[2] >= 0 else -1.0
+    zs = math.copysign(1.0, d[2])  # mulsign's factor: the sign bit of d_z
     a = -1.0 / (sign + d[2])
     b = d[0] * d[1] * a
-    s = np.array([math.copysign(d[0] * d[0] * a, d[2]) + 1.0, math.copysign(b, d[2]),
-                  -math.copysign(d[0], d[2])])
+    s = np.array([d[0] * d[0] * a * zs + 1.0, b * zs, -d[0] * zs])
     t = np.array([b, sign + d[1] * d[1] * a, -d[1]])
     return np.stack([s, t, d], axis=1)
 

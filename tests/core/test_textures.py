@@ -157,3 +157,43 @@ def test_texture_errors_name_the_element(tmp_path):
             "checkerboard", "bitmap").replace('name="reflectance"/>',
             'name="reflectance"><string name="filename" value="x.png"/>'
             '<string name="wrap_mode" value="wrap"/></texture>'), base_dir=tmp_path)
+
+
+def test_cylinder_on_a_skew_axis_is_right_circular():
+    """Mitsuba's frame of the axis is orthonormal for every direction: the hits of a cylinder
+    from p0 to p1 lie at its radius from the axis, and their v is the position along it."""
+    p0, p1, r = np.array([0.1, -0.8, 0.2]), np.array([-0.3, 0.9, 0.0]), 0.6
+    scene = load_string(f"""<scene version="3.0.0"><sensor type="perspective"/><shape type="cylinder">
+        <point name="p0" value="{' '.join(map(str, p0))}"/><point name="p1" value="{' '.join(map(str, p1))}"/>
+        <float name="radius" value="{r}"/></shape></scene>""")
+    cyl = scene.shapes[0]
+    rng = np.random.default_rng(5)
+    o = rng.normal(size=(500, 3))
+    o = 4 * o / np.linalg.norm(o, axis=1, keepdims=True)
+    d = rng.uniform(-0.5, 0.5, (500, 3)) - o
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    t, prim = cyl.intersect(o, d, 0, np.inf)
+    hit = np.isfinite(t)
+    assert hit.sum() > 100
+    p = o[hit] + t[hit, None] * d[hit]
+    axis = (p1 - p0) / np.linalg.norm(p1 - p0)
+    along = (p - p0) @ axis
+    radial = np.linalg.norm((p - p0) - along[:, None] * axis, axis=1)
+    np.testing.assert_allclose(radial, r, rtol=1e-9)
+    uv = cyl.uv(o[hit], d[hit], t[hit], prim[hit])
+    np.testing.assert_allclose(uv[:, 1], along / np.linalg.norm(p1 - p0), atol=1e-9)
+
+
+def test_referenced_and_nested_textures():
+    """A top-level ``<texture id>`` referenced by a BSDF, and a checkerboard whose color0 is
+    itself a checkerboard: values follow Mitsuba's rule at known uv."""
+    xml = """<scene version="3.0.0"><sensor type="perspective"/>
+      <texture type="checkerboard" id="inner"><rgb name="color0" value="0.9"/><rgb name="color1" value="0.5"/>
+        <transform name="to_uv"><scale x="4" y="4"/></transform></texture>
+      <texture type="checkerboard" id="outer"><ref id="inner" name="color0"/><rgb name="color1" value="0.1"/></texture>
+      <shape type="rectangle"><bsdf type="diffuse"><ref id="outer" name="reflectance"/></bsdf></shape></scene>"""
+    m = load_string(xml).shapes[0].material
+    assert m.textured == ("reflectance",)
+    uv = np.array([[0.05, 0.05], [0.2, 0.05], [0.7, 0.2], [0.7, 0.7]])
+    # outer cell of (0.7, 0.2) is color1; inner at 4uv: (0.2,0.2)->c0, (0.8,0.2)->c1, (0.8,2.8)->c0
+    np.testing.assert_allclose(m.at(uv).reflectance[:, 0], [0.9, 0.5, 0.1, 0.9])
