@@ -665,13 +665,14 @@ class _Builder:
             props.node.warn("flip_normals is not supported on analytic shapes by the core; ignored")
 
     def _mesh(self, node, props, v, f, n, m, closed, uv=None):
-        if props.bool("flip_normals", False):
+        rewound = props.bool("flip_normals", False)
+        if rewound:
             f, n = meshes.flip(f, n)
         v, n = meshes.transform_mesh(m, v, n)
         if not np.all(np.isfinite(v)):
             raise node.error("non-finite vertex positions after to_world")
         return _construct(node, _shape_class("TriangleMesh"), v, f, normals=n, name=node.id or "",
-                          closed=closed, texcoords=uv)
+                          closed=closed, texcoords=uv, rewound=rewound)
 
     def _quadric(self, node, props, m, name):
         kind = props.string("kind").strip().lower()

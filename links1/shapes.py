@@ -149,13 +149,15 @@ class TriangleMesh(Shape):
     normals : (V, 3) or None  per-vertex shading normals (eq. 3.3); ``None``: ``ns = ng``
     texcoords : (V, 2) or None  per-vertex ``uv`` (``None``: a hit's ``uv`` is its
         barycentrics ``(b1, b2)``, as Mitsuba's meshes without texcoords)
+    rewound : bool  the faces were rewound ``(0, 2, 1)`` by ``flip_normals`` (Mitsuba keeps the
+        file's winding, so barycentric ``uv`` is then ``(b2, b1)`` of the rewound face)
     name : str
     closed : bool or None  ``None`` detects it: every edge shared by exactly two faces
     max_leaf : int  triangles per leaf of the per-mesh hierarchy
     """
 
     def __init__(self, vertices, faces, normals=None, name: str = "", closed=None,
-                 max_leaf: int = 8, texcoords=None):
+                 max_leaf: int = 8, texcoords=None, rewound: bool = False):
         super().__init__(name)
         v = np.array(vertices, dtype=np.float64)
         f = np.array(faces)
@@ -184,6 +186,7 @@ class TriangleMesh(Shape):
         else:
             self.normals = None
         self.texcoords = None
+        self._bary_uv = [2, 1] if rewound else [1, 2]
         if texcoords is not None:
             uv = np.array(texcoords, dtype=np.float64)
             if uv.shape != (v.shape[0], 2) or not np.all(np.isfinite(uv)):
@@ -365,7 +368,7 @@ class TriangleMesh(Shape):
         prim = np.asarray(prim, dtype=np.int64)
         b = self.barycentrics(o, d, prim)
         if self.texcoords is None:
-            return b[:, 1:].copy()
+            return b[:, self._bary_uv]
         f = self.faces[prim]
         tc = self.texcoords
         return b[:, :1] * tc[f[:, 0]] + b[:, 1:2] * tc[f[:, 1]] + b[:, 2:] * tc[f[:, 2]]

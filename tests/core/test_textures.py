@@ -197,3 +197,13 @@ def test_referenced_and_nested_textures():
     uv = np.array([[0.05, 0.05], [0.2, 0.05], [0.7, 0.2], [0.7, 0.7]])
     # outer cell of (0.7, 0.2) is color1; inner at 4uv: (0.2,0.2)->c0, (0.8,0.2)->c1, (0.8,2.8)->c0
     np.testing.assert_allclose(m.at(uv).reflectance[:, 0], [0.9, 0.5, 0.1, 0.9])
+
+
+def test_unsupported_bsdf_keeps_its_texture_in_the_diffuse_stand_in():
+    xml = """<scene version="3.0.0"><sensor type="perspective"/><shape type="rectangle">
+      <bsdf type="roughconductor"><texture type="checkerboard" name="specular_reflectance"/></bsdf>
+      </shape></scene>"""
+    with pytest.warns(SceneWarning, match="roughconductor.*approximated as a diffuse surface of "
+                                          "reflectance its texture"):
+        m = load_string(xml).shapes[0].material
+    np.testing.assert_allclose(m.at([[0.1, 0.1], [0.6, 0.1]]).reflectance, [[0.4] * 3, [0.2] * 3])

@@ -36,11 +36,15 @@ def files(tmp_path_factory):
 
 
 def make_files(d):
-    """The test bitmaps (8-bit sRGB PNG, grey PNG, float EXR) and textured meshes, in ``d``."""
+    """The test bitmaps (8-bit sRGB PNG and JPEG, 8- and 16-bit grey PNG, float EXR) and
+    textured meshes, in ``d``."""
     rng = np.random.default_rng(7)
     _write_png(d / "rgb.png", rng.integers(0, 256, size=(6, 9, 3), dtype=np.uint8))
     _write_png(d / "grey.png", rng.integers(0, 256, size=(5, 4), dtype=np.uint8))
     write_exr(d / "lin.exr", (rng.random((7, 5, 3)) * 1.2).astype(np.float32))
+    from PIL import Image
+    Image.fromarray(rng.integers(0, 256, size=(8, 10, 3), dtype=np.uint8)).save(d / "rgb.jpg", quality=95)
+    Image.fromarray(rng.integers(0, 65536, size=(5, 6), dtype=np.uint16)).save(d / "grey16.png")
     # a quad with uv ranging over [-0.5, 1.5] (exercises wrap modes), as OBJ (vt, flipped by
     # Mitsuba) and as PLY (u v, not flipped)
     with open(d / "quad.obj", "w") as fh:
@@ -148,8 +152,8 @@ def mitsuba(xml, variant, integrator, spp):
 
 
 def test_texture_values_match_mitsuba(files, llvm):
-    """Bitmap (each filter, wrap mode, raw flag; PNG, grey PNG, EXR) and checkerboard values at
-    random uv, through ``to_uv``, against Mitsuba's texture plugins."""
+    """Bitmap (each filter, wrap mode, raw flag; PNG, JPEG, 8/16-bit grey PNG, EXR) and
+    checkerboard values at random uv, through ``to_uv``, against Mitsuba's texture plugins."""
     import mitsuba as mi
     rng = np.random.default_rng(3)
     uv = rng.uniform(-2.0, 3.0, size=(4000, 2)).astype(np.float32)
@@ -158,7 +162,7 @@ def test_texture_values_match_mitsuba(files, llvm):
     uv = uv.astype(np.float64)
     to_uv = mi.ScalarTransform4f().translate([0.1, 0.2, 0]).rotate([0, 0, 1], 20).scale([1.3, 0.7, 1])
     m = np.array(to_uv.matrix, dtype=np.float64)
-    for fn in ("rgb.png", "grey.png", "lin.exr"):
+    for fn in ("rgb.png", "grey.png", "lin.exr", "rgb.jpg", "grey16.png"):
         for raw in (False, True):
             for ft in textures.FILTER_TYPES:
                 for wm in textures.WRAP_MODES:
@@ -224,6 +228,9 @@ SHAPES = {
            '<rotate y="1" angle="20"/></transform></shape>',
     "ply": '<shape type="ply"><string name="filename" value="{d}/quad.ply"/></shape>',
     "obj_no_vt": '<shape type="obj"><string name="filename" value="{d}/plain.obj"/></shape>',
+    "obj_no_vt_flipped": '<shape type="obj"><string name="filename" value="{d}/plain.obj"/>'
+                         '<boolean name="flip_normals" value="true"/></shape>',
+    "cube_flipped": '<shape type="cube"><boolean name="flip_normals" value="true"/></shape>',
 }
 
 
