@@ -223,6 +223,14 @@ def define_bvh():
                                for i in range(3)])
             return dr.normalize(nw)
 
+        def uv(self, q, o, d, t, act):
+            """QuadricSpec.uv with gathered parameters."""
+            from .shapes import quadric_uv
+            a, qz = self._rows(q, act)
+            u = mi.Vector3f(*[a[i][0] * o.x + a[i][1] * o.y + a[i][2] * o.z + a[i][3] for i in range(3)])
+            v = mi.Vector3f(*[a[i][0] * d.x + a[i][1] * d.y + a[i][2] * d.z for i in range(3)])
+            return quadric_uv(u + v * t, qz)
+
         # ------------------------------------------------------------ traversal
         def _box(self, k, o, inv_d, tmin, tmax, act):
             lo = [dr.gather(mi.Float, self.nlo, k * 3 + c, act) for c in range(3)]

@@ -93,6 +93,12 @@ def parse_aovs(value) -> list:
     return items
 
 
+def _textured(bsdf) -> bool:
+    """Whether a Mitsuba BSDF has a texture (bitmap and checkerboard expose ``to_uv``)."""
+    import mitsuba as mi
+    return bsdf is not None and any(k.endswith("to_uv") for k in mi.traverse(bsdf).keys())
+
+
 def define_integrator():
     import drjit as dr
     import mitsuba as mi
@@ -316,6 +322,9 @@ def define_integrator():
             P.any_phong_r = bool(np.any(refl.max(1) > 0))
             P.any_phong_t = bool(np.any(trans.max(1) > 0))
             P.any_specular = P.any_mitsuba_delta or P.any_phong_r or P.any_phong_t
+            # links1_quadric shapes whose Mitsuba BSDF has a texture get the core's uv
+            P.uv_slots = {sp.slot for sp in self.custom if sp.__class__.__name__ == "QuadricSpec"
+                          and not is_phong[sp.slot] and _textured(bsdfs[sp.slot])}
             P.bsdf_ptr = mi.BSDFPtr([b if b is not None else default_bsdf for b in bsdfs]) \
                 if not P.all_phong else None
             # shadow transmittance (3-3-3): Phong t; Mitsuba BSDFs are opaque
@@ -696,7 +705,7 @@ def define_integrator():
                                           dr.select(cw, frame_c.t, si.sh_frame.t),
                                           dr.select(cw, frame_c.n, si.sh_frame.n))
                 sif.t = dr.select(hit, t, INF)
-                sif.uv = dr.select(cw, mi.Point2f(0.0), si.uv)
+                sif.uv = dr.select(cw, self._custom_uv(P, o, d, t, prim, slot, uslot, hit), si.uv)
                 sif.wi = sif.to_local(wo)
                 if P.any_mitsuba_emission:
                     em = si.emitter(scene, mits)
@@ -835,6 +844,20 @@ def define_integrator():
             res.update(r=r, tw=tw, has_r=has_r, has_t=has_tt, dir_r=dir_r, dir_t=dir_t,
                        o_r=offset(dir_r), o_t=offset(dir_t))
             return res
+
+        def _custom_uv(self, P, o, d, t, prim, slot, uslot, hit):
+            """uv of the hits on links1_quadric shapes with textured BSDFs (0 elsewhere)."""
+            uv = mi.Point2f(0.0)
+            if not P.uv_slots:
+                return uv
+            for spec in P.custom_unrolled:
+                if spec.slot in P.uv_slots:
+                    uv = dr.select(slot == spec.slot, spec.uv(o, d, t, prim), uv)
+            if P.bvh is not None and P.uv_slots & P.bvh_slots:
+                qi = dr.gather(mi.Int32, P.bvh.slot_to_q, uslot, hit)
+                m = hit & (qi >= 0)
+                uv = dr.select(m, P.bvh.uv(mi.UInt32(dr.maximum(qi, 0)), o, d, t, m), uv)
+            return uv
 
         # -------------------------------------------------------------- camera
         def _camera_rays(self, P, sid, spp, seed):

@@ -174,8 +174,25 @@ class QuadricSpec:
         nw = mi.Vector3f(*[m[i][0] * n_obj.x + m[i][1] * n_obj.y + m[i][2] * n_obj.z for i in range(3)])
         return dr.normalize(nw)
 
+    def uv(self, o, d, t, prim):
+        """The core's uv of the hit (links1.shapes.Quadric.uv): Mitsuba's sphere / cylinder
+        parameterisation of the object-space point."""
+        u, v = self._to_object(o, d)
+        return quadric_uv(u + v * t, 1.0 if self.kind == "sphere" else 0.0)
+
     def nbytes(self) -> int:
         return 16 * 8 + len(self.clips) * 32
+
+
+def quadric_uv(x, qz):
+    """uv of object-space points ``x`` on a unit sphere (``qz`` = 1) or cylinder (0):
+    ``(φ/2π, θ/π)`` or ``(φ/2π, z)``, φ = atan2(y, x) in [0, 2π) (links1.shapes.Quadric.uv)."""
+    import drjit as dr
+    import mitsuba as mi
+    phi = dr.atan2(x.y, x.x)
+    phi = dr.select(phi < 0, phi + 2.0 * math.pi, phi) / (2.0 * math.pi)
+    cos_theta = dr.clip(x.z / dr.norm(x), -1.0, 1.0)
+    return mi.Point2f(phi, dr.select(qz > 0, dr.acos(cos_theta) / math.pi, x.z))
 
 
 @dataclass

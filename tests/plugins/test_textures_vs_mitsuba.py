@@ -266,3 +266,26 @@ def test_shape_uv_matches_mitsuba(files, llvm, kind):
     for k in periodic:
         diff[:, k] = np.minimum(diff[:, k], 1.0 - diff[:, k])
     assert np.max(diff) < 1e-4, kind
+
+
+@pytest.mark.parametrize("count", [1, 12])
+def test_textured_links1_quadrics_plugin_matches_core(files, llvm, count):
+    """links1_quadric spheres and cylinders with textured Mitsuba BSDFs: the plugin gives them
+    the core's uv (one code block per quadric, or the quadric BVH from 8 on)."""
+    shapes = []
+    for i in range(count):
+        kind = "sphere" if i % 2 == 0 else "cylinder"
+        x, z = -2.0 + 4.0 * (i % 4) / 3.0, -1.0 + 1.2 * (i // 4)
+        clips = ('<vector name="clip_0" value="0 0 1"/><float name="clip_0_offset" value="1"/>'
+                 '<vector name="clip_1" value="0 0 -1"/><float name="clip_1_offset" value="1"/>'
+                 if kind == "cylinder" else "")
+        tex = (checker("reflectance", scale="6, 3") if i % 3 != 1 else
+               bitmap("reflectance", files / "rgb.png"))
+        shapes.append(f'<shape type="links1_quadric"><string name="kind" value="{kind}"/>{clips}'
+                      f'<transform name="to_world"><scale value="0.45"/><rotate x="1" angle="-70"/>'
+                      f'<translate x="{x}" y="0.6" z="{z}"/></transform>{diffuse(tex)}</shape>')
+    xml = scene_xml("".join(shapes))
+    a = core(xml, spp=4, max_depth=1)
+    c = plugin(xml, "llvm_ad_rgb", spp=4, max_depth=1)
+    assert np.count_nonzero(a.max(axis=2)) > 25 * count
+    assert rel_mse(a, c) < 1e-5
