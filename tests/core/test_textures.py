@@ -207,3 +207,16 @@ def test_unsupported_bsdf_keeps_its_texture_in_the_diffuse_stand_in():
                                           "reflectance its texture"):
         m = load_string(xml).shapes[0].material
     np.testing.assert_allclose(m.at([[0.1, 0.1], [0.6, 0.1]]).reflectance, [[0.4] * 3, [0.2] * 3])
+
+
+def test_textured_window_equals_full_frame(tmp_path):
+    """Texture lookups are per hit: a window renders the same bits as the full frame."""
+    from PIL import Image
+    Image.fromarray(np.random.default_rng(1).integers(0, 256, (5, 7, 3), dtype=np.uint8)).save(
+        tmp_path / "t.png")
+    tex = f'<texture type="bitmap" name="reflectance"><string name="filename" value="{tmp_path / "t.png"}"/></texture>'
+    scene = load_string(flat_scene(tex, fov=40))
+    full = links1.render(scene, spp=2, max_depth=1)
+    win = links1.render(scene, spp=2, max_depth=1, window=(7, 11, 13, 9))
+    np.testing.assert_array_equal(win, full[11:20, 7:20])
+    assert len(np.unique(full[..., 0])) > 20  # the texture shows
