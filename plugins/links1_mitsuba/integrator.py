@@ -80,6 +80,25 @@ def _frozen_caller():
 _M2 = 0x846CA68B
 
 
+def _emitted_rgb(prm, key: str, kind: str) -> np.ndarray:
+    """An emitter's RGB ``key`` from ``mi.traverse``: its value, or for a ``blackbody`` spectrum
+    (which Mitsuba's RGB variants cannot evaluate) the colour the core uses
+    (:func:`links1.spectra.blackbody_to_rgb`, with a warning)."""
+    if f"{key}.value" in prm:
+        v = np.array(prm[f"{key}.value"], dtype=np.float64).ravel()
+        return np.broadcast_to(v, (3,)).copy() if v.size == 1 else v
+    if f"{key}.temperature" in prm:
+        from links1.spectra import blackbody_to_rgb
+        t = float(np.array(prm[f"{key}.temperature"]).ravel()[0])
+        rgb = blackbody_to_rgb(t)
+        warnings.warn(f"links1_whitted: {kind} {key} is a blackbody ({t:g} K), which Mitsuba's RGB "
+                      f"variants cannot evaluate; using the colour its spectral variants integrate "
+                      f"to, {np.round(rgb, 6).tolist()}", stacklevel=3)
+        return rgb
+    raise ValueError(f"links1_whitted: {kind} '{key}' must be an RGB value or a blackbody spectrum "
+                     "(textured emitters are not supported)")
+
+
 def parse_aovs(value) -> list:
     if value is None:
         return []
@@ -366,14 +385,12 @@ def define_integrator():
                 elif kind == "PointLight":
                     prm = mi.traverse(e)
                     pos = np.array(prm["position"], dtype=np.float64).ravel()
-                    I = np.array(prm["intensity.value"], dtype=np.float64).ravel()
-                    I = np.broadcast_to(I, (3,)) if I.size == 1 else I
+                    I = _emitted_rgb(prm, "intensity", kind)
                     P.lights.append(("point", pos, np.array([0, 0, 1.0]), I, np.zeros(3), True))
                 elif kind == "SpotLight":
                     prm = mi.traverse(e)
                     m = np.array(prm["to_world"].matrix, dtype=np.float64).reshape(4, 4)
-                    I = np.array(prm["intensity.value"], dtype=np.float64).ravel()
-                    I = np.broadcast_to(I, (3,)) if I.size == 1 else I
+                    I = _emitted_rgb(prm, "intensity", kind)
                     cutoff = float(np.array(prm["cutoff_angle"]).ravel()[0])
                     beam = float(np.array(prm["beam_width"]).ravel()[0])
                     P.lights.append(("mspot", m[:3, 3].copy(), m[:3, 2] / np.linalg.norm(m[:3, 2]),
@@ -381,8 +398,7 @@ def define_integrator():
                 elif kind == "DirectionalEmitter":
                     prm = mi.traverse(e)
                     m = np.array(prm["to_world"].matrix, dtype=np.float64).reshape(4, 4)
-                    E = np.array(prm["irradiance.value"], dtype=np.float64).ravel()
-                    E = np.broadcast_to(E, (3,)) if E.size == 1 else E
+                    E = _emitted_rgb(prm, "irradiance", kind)
                     P.lights.append(("dir", m[:3, 2] / np.linalg.norm(m[:3, 2]), E))
                 elif e.is_environment() or (int(e.flags()) & int(mi.EmitterFlags.Infinite)):
                     P.env = e

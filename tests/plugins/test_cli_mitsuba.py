@@ -89,3 +89,32 @@ def test_integrator_scene_without_integrator_uses_path(tmp_path):
     assert "links1: warning: mitsuba: Spectrum: clamping out-of-gamut color" in errs[0]
     assert imgs[0].max() > 0
     np.testing.assert_array_equal(imgs[0], imgs[1])
+
+
+def test_blackbody_emitter_same_colour_in_both_renderers(tmp_path):
+    """Mitsuba's RGB variants cannot evaluate a blackbody; both renderers use the colour its
+    spectral variants integrate to (links1.spectra), each saying so in one warning line."""
+    import subprocess
+    import sys
+
+    from links1.image import read_exr
+    scene = tmp_path / "bb.xml"
+    scene.write_text(
+        "<scene version='3.0.0'>\n<sensor type='perspective'><float name='fov' value='40'/><film type='hdrfilm'>"
+        "<integer name='width' value='12'/><integer name='height' value='10'/><rfilter type='box'/></film></sensor>\n"
+        "<shape type='sphere'><point name='center' x='0' y='0' z='5'/></shape>\n"
+        "<emitter type='point'><point name='position' x='0' y='1' z='0'/>\n"
+        "<spectrum name='intensity' type='blackbody'><float name='temperature' value='3500'/></spectrum>"
+        "</emitter></scene>\n")
+    imgs = {}
+    for r in ("core", "mitsuba"):
+        out = tmp_path / f"{r}.exr"
+        res = subprocess.run([sys.executable, "-m", "links1.cli", "render", str(scene), "--renderer", r,
+                              "--workers", "0", "--no-progress", "-o", str(out)],
+                             capture_output=True, text=True, timeout=300)
+        assert res.returncode == 0, res.stderr
+        warns = [ln for ln in res.stderr.splitlines() if "blackbody (3500 K)" in ln]
+        assert len(warns) == 1 and warns[0].startswith("links1: warning: "), res.stderr
+        imgs[r] = read_exr(str(out))[0]
+    assert imgs["core"].max() > 0 and imgs["core"][..., 0].max() > imgs["core"][..., 2].max()
+    np.testing.assert_allclose(imgs["mitsuba"], imgs["core"], rtol=1e-4, atol=1e-6)

@@ -1,0 +1,102 @@
+"""The corpus: real Mitsuba 3 scenes from public repositories, and what each must do.
+
+One entry per scene. ``committed`` scenes live under ``tests/corpus/<repo dir>/``; the others
+have no licence that allows committing them (see SOURCES.md) and are copied, at the pinned
+commit, into ``tests/corpus/external/`` by ``python tools/fetch_corpus.py`` (the corpus test
+skips them, saying so, until then).
+
+``expect``:
+  ``"direct"``   delta lights and diffuse surfaces only: both renderers at ``max_depth`` 1
+                 agree with Mitsuba's ``direct`` within 2x Mitsuba's own error at equal spp;
+  ``"renders"``  both renderers render it without error or NaN, and each approximation listed
+                 in ``warns`` is named in a one-line warning (``FILE:LINE: ...``).
+``xfail``: renderer -> why it does not (yet) meet ``expect`` (the test is ``xfail(strict)``).
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+EXTERNAL = os.path.join(HERE, "external")
+
+MITSUBA_DATA = ("mitsuba-renderer/mitsuba-data", "01100fa9b0b154492061a92404f26dcd7b784dbb")
+TUTORIALS = ("mitsuba-renderer/mitsuba-tutorials", "a8dbee7e81b1039a983770ce1042f2d78688d0ae")
+BLENDER = ("mitsuba-renderer/mitsuba-blender", "862d44f24fbebcd6ef4c6521cf2e1fc9aa49fbbe")
+
+NO_LICENCE = "none stated (no LICENSE in the repository)"
+BSD3 = "BSD-3-Clause (repository LICENSE)"
+GAUSSIAN = ("the film names no rfilter, so Mitsuba filters with its default gaussian; both renderers "
+            "use a box filter until reconstruction filters land (issue 10f): relMSE 4x Mitsuba's own")
+
+
+@dataclass(frozen=True)
+class CorpusScene:
+    id: str
+    repo: str
+    commit: str
+    path: str
+    licence: str
+    committed: bool
+    expect: str
+    warns: tuple = ()
+    xfail: dict = field(default_factory=dict)
+    params: dict = field(default_factory=dict)
+
+    @property
+    def local_path(self) -> str:
+        root = HERE if self.committed else EXTERNAL
+        return os.path.join(root, self.repo.replace("/", "+"), self.path)
+
+
+def _s(id, src, path, licence, committed, expect, **kw):
+    return CorpusScene(id, src[0], src[1], path, licence, committed, expect, **kw)
+
+
+SCENES = [
+    _s("blender_test1", BLENDER, "tests/res/scenes/test1.xml", BSD3, True, "renders",
+       warns=("principled",)),
+    _s("data_hello", MITSUBA_DATA, "scenes/hello.xml", NO_LICENCE, False, "direct"),
+    _s("data_directional", MITSUBA_DATA, "tests/scenes/floating_sphere/test_directional_direct.xml",
+       NO_LICENCE, False, "direct"),
+    _s("data_pointlight_spheres", MITSUBA_DATA, "tests/scenes/bsdf_spheres/test_pointlight_path.xml",
+       NO_LICENCE, False, "renders", warns=("roughconductor", "'mask'")),
+    _s("data_constant_spheres", MITSUBA_DATA, "tests/scenes/bsdf_spheres/test_constant_path.xml",
+       NO_LICENCE, False, "renders", warns=("roughplastic", "roughdielectric")),
+    _s("data_texture_interp", MITSUBA_DATA, "tests/scenes/texture_interp/test_texture_interp_direct.xml",
+       NO_LICENCE, False, "direct",
+       xfail={k: GAUSSIAN for k in ("core", "mitsuba")}),
+    _s("data_spot", MITSUBA_DATA, "tests/scenes/spot_light/test_spot_direct.xml",
+       NO_LICENCE, False, "renders", warns=("<texture> inside an emitter is ignored",)),
+    _s("data_mesh_attributes", MITSUBA_DATA,
+       "tests/scenes/mesh_attributes/test_mesh_attributes_3_face_direct.xml",
+       NO_LICENCE, False, "renders", warns=("'mesh_attribute'",)),
+    _s("data_orthographic", MITSUBA_DATA, "tests/scenes/orthographic_sensor/test_orthographic_path.xml",
+       NO_LICENCE, False, "renders",
+       xfail={"core": "the core has only the perspective sensor (orthographic is refused)",
+              "mitsuba": "links1_whitted's frozen render cannot record an orthographic sensor "
+                         "(drjit record(): a variable created before recording)"}),
+    _s("data_instancing", MITSUBA_DATA, "tests/scenes/instancing/test_instancing_path.xml",
+       NO_LICENCE, False, "renders",
+       xfail={"core": "shapegroup/instance are refused by the core"}),
+    _s("tutorials_simple", TUTORIALS, "scenes/simple.xml", NO_LICENCE, False, "direct",
+       params={"spp": "4", "res": "32"}),
+    _s("tutorials_cbox", TUTORIALS, "scenes/cbox.xml", NO_LICENCE, False, "renders",
+       warns=("area emitter",)),
+]
+
+
+def table_rows() -> list:
+    """SOURCES.md's table rows (``python -m tests.corpus.manifest`` prints them)."""
+    rows = ["| id | repository | path | commit | licence | committed | expected |",
+            "| --- | --- | --- | --- | --- | --- | --- |"]
+    for s in SCENES:
+        exp = s.expect + (f", warns {', '.join(repr(w) for w in s.warns)}" if s.warns else "")
+        exp += "".join(f"; {k}: xfail ({v})" for k, v in s.xfail.items())
+        rows.append(f"| `{s.id}` | [{s.repo}](https://github.com/{s.repo}) | `{s.path}` | "
+                    f"`{s.commit[:12]}` | {s.licence} | {'yes' if s.committed else 'no'} | {exp} |")
+    return rows
+
+
+if __name__ == "__main__":
+    print("\n".join(table_rows()))
