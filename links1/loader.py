@@ -416,6 +416,8 @@ class _Builder:
             elif node.tag == "shape":
                 shapes.append(self.shape(node))
             elif node.tag == "emitter":
+                if node.type == "area" and node.id is not None:
+                    continue  # a declaration, used where a shape references it (as Mitsuba)
                 light = self.emitter(node)
                 if isinstance(light, np.ndarray):
                     background = background + light

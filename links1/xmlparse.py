@@ -13,7 +13,8 @@ Supported, with Mitsuba's semantics:
 * ``<include filename=".."/>`` (the included ``<scene>``'s children are spliced in) and
   ``<path value=".."/>`` (a search directory for every file named afterwards, relative to the
   file that names it); files are searched in the ``<path>`` directories (latest first), then
-  in the directory of the file that names them;
+  in the main scene file's directory (as Mitsuba, also for files an included fragment names),
+  then in the directory of the file that names them;
 * ``id`` attributes, ``<ref id=".." name=".."/>`` (forward references allowed) and
   ``<alias id=".." as=".."/>``;
 * value tags ``integer float boolean string point vector rgb spectrum transform``; ``point``
@@ -290,6 +291,7 @@ class _Parser:
         self.include_stack: list[str] = []
         self.upgrade_names = False
         self.base_dir: str | None = None
+        self.root_dir: str | None = None  # the main scene file's directory
 
     # -- parameters ------------------------------------------------------------------------
     def lookup(self, name: str) -> str | None:
@@ -328,14 +330,21 @@ class _Parser:
         return os.path.dirname(os.path.abspath(file))
 
     def dirs_for(self, file: str) -> tuple:
-        here = self.file_dir(file)
-        return tuple(self.search_dirs) + ((here,) if here not in self.search_dirs else ())
+        """Where a file named in ``file`` is looked for: the ``<path>`` directories, the main
+        scene file's directory (Mitsuba resolves the files an ``<include>``d fragment names
+        there), then ``file``'s own directory."""
+        dirs = list(self.search_dirs)
+        for d in (self.root_dir, self.file_dir(file)):
+            if d is not None and d not in dirs:
+                dirs.append(d)
+        return tuple(dirs)
 
     def parse_root(self, data, filename: str, base_dir: str | None) -> Node:
         raw = _read_xml(data, filename)
         if raw.tag != "scene":
             raise raw.error(f"the root element must be <scene>, got <{raw.tag}>")
         self.base_dir = base_dir
+        self.root_dir = self.file_dir(filename)
         self.subst(raw)
         self.subst_version(raw)
         self.collect_defaults(raw)

@@ -5,7 +5,8 @@
 
 Each scene of ``tests/corpus/manifest.py`` is read at its pinned commit with ``git show``,
 together with the files it needs: ``<include>``d fragments and every ``filename`` it names,
-looked up as Mitsuba does (the ``<path>`` directories, then the including file's directory).
+looked up as Mitsuba does (the ``<path>`` directories, the main scene file's directory, then
+the naming file's own).
 Files keep their place in the repository, so the scenes' relative paths work unchanged.
 Committed scenes (a licence that allows it) are refreshed too.
 """
@@ -46,6 +47,7 @@ class Repo:
 def collect(repo: Repo, commit: str, scene: str) -> dict:
     """Repository path -> bytes of the scene and everything it needs."""
     files, todo, search = {}, [scene], []
+    root = posixpath.dirname(scene)  # Mitsuba resolves fragments' files from the main file's dir
     while todo:
         path = todo.pop()
         if path in files:
@@ -63,7 +65,7 @@ def collect(repo: Repo, commit: str, scene: str) -> dict:
             todo.append(posixpath.normpath(posixpath.join(here, inc)))
         for a, b in _FILENAME.findall(text):
             name = a or b
-            for d in search + [here]:
+            for d in search + [root, here]:
                 cand = posixpath.normpath(posixpath.join(d, name))
                 if repo.read(commit, cand) is not None:
                     todo.append(cand)

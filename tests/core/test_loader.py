@@ -526,3 +526,22 @@ def test_real_shape_classes(monkeypatch):
         assert sh.index == i and sh.material is not None
         lo, hi = sh.bounds()
         assert np.all(np.isfinite(lo)) and np.all(lo <= hi)
+
+
+def test_files_named_in_an_included_fragment_resolve_from_the_main_scene_dir(tmp_path):
+    """Mitsuba resolves the meshes a fragment in a subdirectory names against the main scene
+    file's directory (its file resolver), as mitsuba-data's Cornell box relies on."""
+    (tmp_path / "meshes").mkdir()
+    (tmp_path / "fragments").mkdir()
+    (tmp_path / "meshes" / "tri.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    (tmp_path / "fragments" / "shapes.xml").write_text(
+        '<scene version="3.0.0"><shape type="obj"><string name="filename" value="meshes/tri.obj"/>'
+        '<ref id="glow"/></shape></scene>')
+    (tmp_path / "main.xml").write_text(
+        '<scene version="3.0.0"><include filename="fragments/shapes.xml"/>'
+        '<emitter type="area" id="glow"><rgb name="radiance" value="2"/></emitter></scene>')
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", SceneWarning)
+        scene = loader.load_scene(str(tmp_path / "main.xml"))
+    assert len(scene.shapes) == 1 and not scene.lights
+    np.testing.assert_array_equal(scene.shapes[0].emission, [2.0, 2.0, 2.0])
