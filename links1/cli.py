@@ -93,6 +93,8 @@ def add_render_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-depth", type=_positive_int("--max-depth"), default=None,
                    help="surface interactions per ray-tree branch (default: the scene's, else 5)")
     p.add_argument("--seed", type=_nonneg_int("--seed"), default=0, help="seed of the sample pattern (spp > 1)")
+    p.add_argument("--light-samples", type=_positive_int("--light-samples"), default=None,
+                   help="shadow rays per area light / environment per sample (default 1)")
     p.add_argument("--aov", type=_aov_list, default=(), help="extra EXR channels: depth,normal,id,cost")
     p.add_argument("-D", dest="defines", type=_define, action="append", default=[], metavar="NAME=VALUE",
                    help="set a scene parameter ($NAME), overriding its <default>")
@@ -173,6 +175,8 @@ def make_cli_renderer(args):
     opts = renderer_options(args)
     if getattr(args, "min_weight", None) is not None:
         opts["min_weight"] = args.min_weight
+    if getattr(args, "light_samples", None) is not None:
+        opts["light_samples"] = args.light_samples
     if args.renderer == "mitsuba":
         opts["variant"] = args.variant
         if args.integrator == "scene":

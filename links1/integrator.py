@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .sampling import KEY_REFLECT, KEY_REFRACT, child_keys, light_samples_uv
 from .vec import dot, max_abs
 
 #: Relative size of the ray-origin offset (float64: about 1e6 ulps of |p|, far above the
@@ -110,10 +111,17 @@ class WhittedIntegrator:
     min_weight : float
         A secondary ray is spawned only if its weight in the pixel (largest RGB component of
         the product of r and t factors down the tree) exceeds this (default 1/255; 0 traces all).
+    light_samples : int
+        Shadow rays per sampled light (area emitters, environments) per hit (default 1).
     """
 
-    def __init__(self, scene, max_depth: int | None = None, min_weight: float = DEFAULT_MIN_WEIGHT):
+    def __init__(self, scene, max_depth: int | None = None, min_weight: float = DEFAULT_MIN_WEIGHT,
+                 light_samples: int = 1):
         self.scene = scene
+        self.light_samples = int(light_samples)
+        if self.light_samples < 1:
+            raise ValueError(f"light_samples must be >= 1, got {self.light_samples}")
+        self.environments = list(getattr(scene, "environments", ()) or ())
         self.max_depth = scene.max_depth if max_depth is None else int(max_depth)
         if self.max_depth < 1:
             raise ValueError(f"max_depth must be >= 1, got {self.max_depth}")
@@ -142,9 +150,13 @@ class WhittedIntegrator:
         return SurfaceRecord(*self.accel.surface(o, d, hits.t, hits.shape, hits.prim))
 
     # ------------------------------------------------------------------ tracing
-    def trace(self, o, d, tmin, tmax, cost, depth: int = 1, weight=None):
+    def trace(self, o, d, tmin, tmax, cost, depth: int = 1, weight=None, keys=None, sample=None):
         """Radiance (N, 3) along rays ``o + t d``, t in (tmin, tmax); ``cost`` (N,) int64 is
         incremented by the ray–primitive tests of each ray's whole tree.
+
+        ``keys`` (N,) uint32: the rays' keys (:func:`links1.sampling.ray_keys`; default 0);
+        ``sample = (pixel_keys (N,), i, spp)``: at depth 1, the camera sample the rays belong
+        to, so that light samples form one lattice over the pixel's samples.
 
         Returns ``(radiance, hits, surface)``; the last two describe this level's hits.
         """
@@ -154,6 +166,12 @@ class WhittedIntegrator:
         valid = hits.valid
         if np.any(self.background != 0):
             radiance[~valid] = self.background
+        if self.environments and not np.all(valid):
+            miss = np.nonzero(~valid)[0]
+            for env in self.environments:
+                radiance[miss] += env.eval(d[miss])
+        if keys is None:
+            keys = np.zeros(n, dtype=np.uint32)
         if not np.any(valid):
             return radiance, hits, None
         idx = np.nonzero(valid)[0]
@@ -161,14 +179,27 @@ class WhittedIntegrator:
         sub = Hits(hits.t[idx], hits.shape[idx], hits.prim[idx])
         rec = self.surface(oh, dh, sub)
         w = None if weight is None else weight[idx]
-        radiance[idx] = self._shade(oh, dh, sub, rec, cost, idx, depth, w)
+        if sample is not None and depth == 1:
+            sample = (sample[0][idx], sample[1], sample[2])
+        else:
+            sample = None
+        radiance[idx] = self._shade(oh, dh, sub, rec, cost, idx, depth, w, keys[idx], sample)
         full = None
         if depth == 1:
             full = SurfaceRecord(np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3)))
             full.p[idx], full.ng[idx], full.ns[idx] = rec.p, rec.ng, rec.ns
         return radiance, hits, full
 
-    def _shade(self, o, d, hits: Hits, rec: SurfaceRecord, cost, idx, depth, weight):
+    def _light_points(self, light, keys, sample):
+        """``(u, v)`` of each light sample ``j`` (list over j) for the hits, keyed as the plugin
+        (:func:`links1.sampling.light_samples_uv`)."""
+        m = self.light_samples
+        if sample is not None:
+            pk, i, spp = sample
+            return [light_samples_uv(pk, light.light_id, i * m + j, spp * m) for j in range(m)]
+        return [light_samples_uv(keys, light.light_id, j, m) for j in range(m)]
+
+    def _shade(self, o, d, hits: Hits, rec: SurfaceRecord, cost, idx, depth, weight, keys, sample):
         """Radiance leaving each hit toward the ray origin (eq. 3.16)."""
         n = o.shape[0]
         wo = -d
@@ -192,28 +223,22 @@ class WhittedIntegrator:
         eps = (1.0 + max_abs(rec.p)) * OFFSET_SCALE
         # --- direct light, eq. (3.11), with shadows (3-3-3)
         for j, light in enumerate(self.lights):
-            wi, dist, L = light.illuminate(rec.p)
-            f = np.zeros((n, 3))
-            for k, g in groups:
-                f[g] = mats[k].eval(wo[g], wi[g], nf[g], rec.ns[g])
-            contrib = f * L
-            lit = np.any(contrib != 0.0, axis=1)
-            need = self._shadow_need[j][hits.shape]
-            unblockable = lit & ~need  # no shape can lie between these points and the light
-            out[unblockable] += contrib[unblockable]
-            shadowed = np.nonzero(lit & need)[0]
-            if shadowed.size == 0:
-                continue
-            so = _offset(rec.p[shadowed], rec.ng[shadowed], wi[shadowed], eps[shadowed])
-            smax = dist[shadowed] - 2.0 * eps[shadowed]
-            c = np.zeros(shadowed.size, dtype=np.int64)
-            T = self.accel.shadow_transmittance(so, wi[shadowed], smax, self._shadow_t_light[j], c)
-            cost[idx[shadowed]] += c
-            self.stats.rays["shadow"] += shadowed.size
-            out[shadowed] += contrib[shadowed] * T
+            if getattr(light, "sampled", False):   # area / environment: light_samples points each
+                inv_m = 1.0 / self.light_samples
+                rays = [light.sample(rec.p, nf, u, v) for u, v in self._light_points(light, keys, sample)]
+            else:
+                inv_m = None
+                rays = [light.illuminate(rec.p)]
+            for wi, dist, L in rays:
+                f = np.zeros((n, 3))
+                for k, g in groups:
+                    f[g] = mats[k].eval(wo[g], wi[g], nf[g], rec.ns[g])
+                contrib = f * L if inv_m is None else f * L * inv_m
+                self._shadowed(out, contrib, wi, dist, j, hits, rec, eps, cost, idx)
 
         if depth >= self.max_depth or not (self.any_reflection or self.any_transmission):
             return out
+        keys_r, keys_t = child_keys(keys, KEY_REFLECT), child_keys(keys, KEY_REFRACT)
 
         # --- secondary rays, eq. (3.12)-(3.16)
         r = np.zeros((n, 3))
@@ -240,21 +265,39 @@ class WhittedIntegrator:
         branches = []
         refl = np.nonzero(np.max(r * wgt, axis=1) > threshold if threshold > 0 else np.any(r > 0.0, axis=1))[0]
         if refl.size:
-            branches.append(("reflect", refl, d[refl] + 2.0 * cos_i[refl, None] * nf[refl], r))  # eq. (3.12)
+            branches.append(("reflect", refl, d[refl] + 2.0 * cos_i[refl, None] * nf[refl], r, keys_r))  # eq. (3.12)
         trn = np.nonzero(has_t & (np.max(t * wgt, axis=1) > threshold) if threshold > 0 else has_t)[0]
         if trn.size:
-            branches.append(("refract", trn, dt[trn], t))  # eq. (3.14)-(3.15)
-        for kind, sel, dnew, factor in branches:
+            branches.append(("refract", trn, dt[trn], t, keys_t))  # eq. (3.14)-(3.15)
+        for kind, sel, dnew, factor, kk in branches:
             self.stats.rays[kind] += sel.size
             dnew = dnew / np.sqrt(dot(dnew, dnew))[:, None]
             onew = _offset(rec.p[sel], rec.ng[sel], dnew, eps[sel])
             c = np.zeros(sel.size, dtype=np.int64)
             Li, _, _ = self.trace(onew, dnew, np.zeros(sel.size), np.full(sel.size, np.inf), c,
-                                  depth + 1, wgt[sel] * factor[sel])
+                                  depth + 1, wgt[sel] * factor[sel], kk[sel])
             cost[idx[sel]] += c
             out[sel] += factor[sel] * Li  # eq. (3.13) / (3.16)
         return out
 
+
+    def _shadowed(self, out, contrib, wi, dist, j, hits, rec, eps, cost, idx):
+        """Add ``contrib`` of light ``j`` to ``out``, dimmed by the transmittance of the shapes
+        its shadow segment crosses (3-3-3), tracing only where an occluder can be."""
+        lit = np.any(contrib != 0.0, axis=1)
+        need = self._shadow_need[j][hits.shape]
+        unblockable = lit & ~need  # no shape can lie between these points and the light
+        out[unblockable] += contrib[unblockable]
+        shadowed = np.nonzero(lit & need)[0]
+        if shadowed.size == 0:
+            return
+        so = _offset(rec.p[shadowed], rec.ng[shadowed], wi[shadowed], eps[shadowed])
+        smax = dist[shadowed] - 2.0 * eps[shadowed]
+        c = np.zeros(shadowed.size, dtype=np.int64)
+        T = self.accel.shadow_transmittance(so, wi[shadowed], smax, self._shadow_t_light[j], c)
+        cost[idx[shadowed]] += c
+        self.stats.rays["shadow"] += shadowed.size
+        out[shadowed] += contrib[shadowed] * T
 
     def _bound(self, material, o, d, hits: Hits, sel):
         """``material`` with its textures evaluated at the uv of hits ``sel`` (rays ``o, d``)."""

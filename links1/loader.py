@@ -27,9 +27,11 @@ bsdf            ``diffuse``, ``twosided``, ``conductor`` (perfect mirror, or ``e
 colours        ``rgb``, ``float``, ``spectrum`` (one value or ``wavelength:value`` pairs, converted
                 as Mitsuba's RGB variants do: :mod:`links1.spectra`), ``<spectrum type="uniform|
                 srgb|blackbody">`` (blackbody on emitters only, warning).
-emitter         ``point``, ``directional``, ``spot``, ``constant`` (→ background), ``area`` in a
-                shape (→ ``shape.emission``, seen directly only; warning), *links1*
-                ``links1_point``, ``links1_spot``; ``envmap`` etc. → ignored (warning).
+emitter         ``point``, ``directional``, ``spot``, ``constant`` and ``envmap`` (filename, scale,
+                to_world: background and sampled light), ``area`` in a mesh, rectangle, cube,
+                sphere or disk (→ ``shape.emission`` and a sampled :class:`AreaLight`; on other
+                shapes seen only, warning), *links1* ``links1_point``, ``links1_spot``;
+                ``sunsky`` etc. → ignored (warning).
 ==============  =================================================================================
 
 links1 plugins::
@@ -63,7 +65,9 @@ from . import spectra
 from . import transform as tf
 from .camera import FOV_AXES, Camera, fov_x_from
 from .errors import SceneError
-from .lights import ConeSpotLight, CylinderSpotLight, ParallelLight, PointLight
+from .lights import (ENV_LIGHT_ID, AreaLight, ConeSpotLight, ConstantEnvironment, CylinderSpotLight,
+                     EnvironmentMap, ParallelLight, PointLight)
+from .vec import coordinate_system
 from .scene import Scene
 from .xmlparse import Node, Prop, SceneWarning, parse_file, parse_string
 
@@ -79,7 +83,7 @@ _APPROX_BSDFS = {"roughconductor", "roughdielectric", "roughplastic", "principle
                  "principledthin", "blendbsdf", "hair", "measured", "pplastic", "polarizer",
                  "retarder", "circular", "null", "measured_polarized", "mask", "bumpmap",
                  "normalmap"}
-_IGNORED_EMITTERS = {"envmap", "sunsky", "projector", "directionalarea"}
+_IGNORED_EMITTERS = {"sunsky", "projector", "directionalarea"}
 _INTEGRATORS = {"path", "direct", "volpath", "volpathmis", "aov", "moment", "depth", "ptracer",
                 "prb", "prb_basic", "prb_projective", "direct_projective", "stokes",
                 "links1_whitted"}
@@ -303,15 +307,9 @@ def _construct(node: Node, factory, *args, **kwargs):
 
 
 def _frame(d: np.ndarray) -> np.ndarray:
-    """Mitsuba's ``Frame3f(d)`` (``coordinate_system``, Duff et al. 2017) as a 3x3 matrix with
-    columns (s, t, n). Mitsuba's ``mulsign(x, y)`` is ``x`` times the sign of ``y`` (not
-    ``copysign``: ``x`` keeps its own sign when ``y >= 0``)."""
-    sign = 1.0 if d[2] >= 0 else -1.0
-    zs = math.copysign(1.0, d[2])  # mulsign's factor: the sign bit of d_z
-    a = -1.0 / (sign + d[2])
-    b = d[0] * d[1] * a
-    s = np.array([d[0] * d[0] * a * zs + 1.0, b * zs, -d[0] * zs])
-    t = np.array([b, sign + d[1] * d[1] * a, -d[1]])
+    """Mitsuba's ``Frame3f(d)`` (:func:`links1.vec.coordinate_system`) as a 3x3 matrix with
+    columns (s, t, n)."""
+    s, t = coordinate_system(np.asarray(d, dtype=np.float64))
     return np.stack([s, t, d], axis=1)
 
 
@@ -404,7 +402,7 @@ class _Builder:
         props = _Props(root)
         props.finish()
         camera, spp = None, None
-        shapes, lights = [], []
+        shapes, lights, environments = [], [], []
         background = np.zeros(3)
         integrator, max_depth = None, DEFAULT_MAX_DEPTH
         for name, node in root.children:
@@ -419,9 +417,12 @@ class _Builder:
                 if node.type == "area" and node.id is not None:
                     continue  # a declaration, used where a shape references it (as Mitsuba)
                 light = self.emitter(node)
-                if isinstance(light, np.ndarray):
-                    background = background + light
-                elif light is not None:
+                if isinstance(light, (ConstantEnvironment, EnvironmentMap)):
+                    light.light_id = ENV_LIGHT_ID + len(environments)
+                    environments.append(light)
+                    if isinstance(light, ConstantEnvironment):
+                        background = background + light.radiance
+                if light is not None:
                     lights.append(light)
             elif node.tag == "integrator":
                 if integrator is not None:
@@ -438,8 +439,17 @@ class _Builder:
                       "(50mm, 768x576, at the origin looking along +z)")
             camera = Camera(fov_x=focal_length_fov_x(50.0, 768, 576), width=768, height=576)
             spp = DEFAULT_SPP
+        for k, shape in enumerate(shapes):      # area emitters light the scene (after file-order lights)
+            if shape.emission is not None:
+                shape.index = k
+                enode = shape.__dict__.pop("_emitter_node", None)
+                try:
+                    lights.append(AreaLight(shape, shape.emission))
+                except ValueError as exc:
+                    (enode or root).warn(f"{exc}: it is seen but lights nothing in the core")
         kwargs = dict(camera=camera, shapes=shapes, lights=lights, spp=spp, max_depth=max_depth,
-                      background=background, path=path)
+                      background=background, path=path,
+                      environments=[e for e in environments if isinstance(e, EnvironmentMap)])
         if integrator is not None:
             kwargs["integrator"] = integrator
         return Scene(**kwargs)
@@ -649,8 +659,7 @@ class _Builder:
                 ep = _Props(child)
                 emission = ep.color("radiance", 1.0, emitter=True)
                 ep.finish()
-                child.warn("area emitter: the core shows its radiance where the shape is seen "
-                           "directly; it does not light the scene")
+                emitter_node = child
             elif child.tag in ("medium",):
                 child.warn("media are not supported by the core and are ignored")
             else:
@@ -660,6 +669,8 @@ class _Builder:
         props.finish()
         shape.material = material
         shape.emission = emission
+        if emission is not None:
+            shape._emitter_node = emitter_node
         return shape
 
     def _no_flip(self, props: _Props) -> None:
@@ -879,7 +890,18 @@ class _Builder:
             light = _construct(node, CylinderSpotLight, origin=origin, direction=direction,
                                radius=radius, intensity=props.color("intensity", 1.0, emitter=True), name=name)
         elif t == "constant":
-            light = props.color("radiance", 1.0, emitter=True)
+            light = ConstantEnvironment(props.color("radiance", 1.0, emitter=True), name=name)
+        elif t == "envmap":
+            fn = props.string("filename")
+            from .errors import Links1Error
+            from .image import read_image
+            try:
+                data = read_image(node.resolve(fn))
+            except (Links1Error, OSError, ValueError) as exc:
+                raise props.error("filename", f"envmap: cannot read '{fn}': {exc}") from None
+            light = _construct(node, EnvironmentMap, data, to_world=to_world,
+                               scale=props.float("scale", 1.0, nonneg=True), name=name)
+            props.ignore("mis_compensation")
         elif t == "area":
             raise node.error("an area emitter must be nested in a shape")
         elif t in _IGNORED_EMITTERS:

@@ -7,7 +7,9 @@ Two conservative facts decide it:
   or convex closed mesh) never shadows its own lit points: the segment from a point on its
   surface toward a light it faces leaves it at once;
 * a **planar** shape (disk, rectangle, flat mesh) shadows nothing toward a light when the
-  light and every other shape lie on one side of its plane (a floor under the scene).
+  light and every other shape lie on one side of its plane (a floor under the scene); for an
+  area light the whole emitter (its bounding box) must lie on that side;
+* a convex **emitter** never hides the points sampled on it (they face the shaded point).
 
 The result per light ``j``: ``occluder[j]`` (S,) bool, the shapes a shadow ray toward ``j``
 may hit, and ``need[j]`` (S,) bool, whether a point on shape ``s`` needs a shadow ray toward
@@ -17,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .lights import ConeSpotLight, CylinderSpotLight, ParallelLight, PointLight
+from .lights import AreaLight, ConeSpotLight, CylinderSpotLight, ParallelLight, PointLight
 
 #: Relative tolerance of the side-of-plane tests (scene scale units).
 SIDE_TOL = 1e-9
@@ -74,7 +76,9 @@ def _light_side(light, n, p0):
         pos, reach = light.origin, light.radius
     elif isinstance(light, ConeSpotLight):
         pos, reach = light.position, 0.0
-    else:
+    elif isinstance(light, AreaLight):  # a light with extent: the whole emitter must be on one side
+        return _box_side(*light.bounds(), n, p0)
+    else:  # environments light from every direction
         return 0
     s = float((pos - p0) @ n)
     return int(np.sign(s)) if abs(s) > reach + SIDE_TOL * (1.0 + np.max(np.abs(pos))) else 0
@@ -112,6 +116,9 @@ def shadow_plan(shapes, lights):
                 continue
             if all(_box_side(*boxes[j], n, p0) == side for j in range(S) if j != k):
                 occ[k] = False  # the light and every other shape are on one side: a floor
+        own = [k for k, s in enumerate(shapes) if s is getattr(light, "shape", None)]
+        if own and convex[own[0]]:
+            occ[own[0]] = False  # a convex emitter never hides its own sampled (facing) points
         total = int(occ.sum())
         nd = np.array([(total - int(occ[s])) > 0 or (occ[s] and not convex[s]) for s in range(S)], dtype=bool)
         occluder.append(occ)

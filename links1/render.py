@@ -13,7 +13,7 @@ import numpy as np
 
 from .errors import Links1Error, SceneError, UsageError
 from .integrator import DEFAULT_MIN_WEIGHT, WhittedIntegrator
-from .sampling import sample_offsets
+from .sampling import pixel_keys, ray_keys, sample_offsets
 
 AOVS = {"depth": ("depth",), "normal": ("normal.X", "normal.Y", "normal.Z"), "id": ("id",), "cost": ("cost",)}
 
@@ -51,7 +51,7 @@ def _check_window(window, width, height):
 
 def render(scene, *, spp: int | None = None, max_depth: int | None = None, seed: int = 0,
            window=None, aovs=(), min_weight: float = DEFAULT_MIN_WEIGHT, progress: bool = False,
-           width: int | None = None, height: int | None = None) -> np.ndarray:
+           width: int | None = None, height: int | None = None, light_samples: int = 1) -> np.ndarray:
     """Render ``scene`` with the float64 core.
 
     Parameters
@@ -73,6 +73,9 @@ def render(scene, *, spp: int | None = None, max_depth: int | None = None, seed:
         POV-Ray's adc_bailout; 0: never).
     width, height : int, optional
         Override the film resolution (the field of view is kept).
+    light_samples : int
+        Shadow rays per area light / environment per hit (default 1); the points lie on one
+        lattice over the pixel's samples (:func:`links1.sampling.light_samples_uv`).
 
     Returns
     -------
@@ -90,12 +93,12 @@ def render(scene, *, spp: int | None = None, max_depth: int | None = None, seed:
     x0, y0, w, h = _check_window(window, cam.width, cam.height)
     px, py = _window_pixels(x0, y0, w, h)
     out = _render_pixels(scene, cam, px, py, spp=spp, max_depth=max_depth, seed=seed, aovs=aovs,
-                         min_weight=min_weight, progress=progress)
+                         min_weight=min_weight, progress=progress, light_samples=light_samples)
     return out.reshape(h, w, -1)
 
 
 def render_windows(scene, windows, *, spp: int | None = None, max_depth: int | None = None, seed: int = 0,
-                   aovs=(), min_weight: float = DEFAULT_MIN_WEIGHT) -> list:
+                   aovs=(), min_weight: float = DEFAULT_MIN_WEIGHT, light_samples: int = 1) -> list:
     """Render several windows of the film in one pass -> one array per window, each bit for bit
     what :func:`render` returns for it (pixels are traced independently, in batches of
     ``BATCH``: a batch of small windows pays the per-call numpy overhead once)."""
@@ -107,7 +110,8 @@ def render_windows(scene, windows, *, spp: int | None = None, max_depth: int | N
     wins = [_check_window(win, cam.width, cam.height) for win in windows]
     pxs, pys = zip(*(_window_pixels(*win) for win in wins))
     flat = _render_pixels(scene, cam, np.concatenate(pxs), np.concatenate(pys), spp=spp, max_depth=max_depth,
-                          seed=seed, aovs=aovs, min_weight=min_weight, progress=False)
+                          seed=seed, aovs=aovs, min_weight=min_weight, progress=False,
+                          light_samples=light_samples)
     out, at = [], 0
     for x0, y0, w, h in wins:
         out.append(flat[at:at + w * h].reshape(h, w, -1))
@@ -121,9 +125,9 @@ def _window_pixels(x0, y0, w, h):
     return xs + x0, ys + y0
 
 
-def _render_pixels(scene, cam, px, py, *, spp, max_depth, seed, aovs, min_weight, progress):
+def _render_pixels(scene, cam, px, py, *, spp, max_depth, seed, aovs, min_weight, progress, light_samples=1):
     """(len(px), 3 + AOV channels) for the pixels ``(px, py)`` of the film (row 0 at the top)."""
-    integ = WhittedIntegrator(scene, max_depth=max_depth, min_weight=min_weight)
+    integ = WhittedIntegrator(scene, max_depth=max_depth, min_weight=min_weight, light_samples=light_samples)
     npix = len(px)
     rgb = np.zeros((npix, 3))
     cost = np.zeros(npix, dtype=np.int64)
@@ -137,7 +141,9 @@ def _render_pixels(scene, cam, px, py, *, spp, max_depth, seed, aovs, min_weight
         ox, oy = sample_offsets(px[a:b], py[a:b], i, spp, seed, cam.width)
         o, d, tmin, tmax = cam.generate_rays((px[a:b] + ox) / cam.width, (py[a:b] + oy) / cam.height)
         c = np.zeros(b - a, dtype=np.int64)
-        L, hits, rec = integ.trace(o, d, tmin, tmax, c)
+        keys = ray_keys(px[a:b], py[a:b], i, spp, seed, cam.width)
+        L, hits, rec = integ.trace(o, d, tmin, tmax, c, keys=keys,
+                                   sample=(pixel_keys(px[a:b], py[a:b], seed, cam.width), i, spp))
         integ.stats.rays["camera"] += b - a
         rgb[a:b] += L
         cost[a:b] += c
@@ -187,7 +193,7 @@ class CoreRenderer:
     kind = "core"
 
     def __init__(self, path, *, params=None, spp=None, max_depth=None, seed=0, aovs=(),
-                 min_weight=DEFAULT_MIN_WEIGHT, width=None, height=None, variant=None):
+                 min_weight=DEFAULT_MIN_WEIGHT, width=None, height=None, variant=None, light_samples=1):
         from .loader import load_scene
         self.path = str(path)
         self.scene = load_scene(self.path, **(params or {}))
@@ -198,6 +204,9 @@ class CoreRenderer:
         self.seed = int(seed)
         self.aovs = check_aovs(aovs)
         self.min_weight = float(min_weight)
+        self.light_samples = int(light_samples)
+        if self.light_samples < 1:
+            raise UsageError(f"light_samples must be >= 1, got {self.light_samples}")
 
     @property
     def film_size(self) -> tuple[int, int]:
@@ -211,12 +220,13 @@ class CoreRenderer:
         if window is None:
             window = (0, 0, *self.film_size)
         return render(self.scene, spp=self.spp, max_depth=self.max_depth, seed=self.seed,
-                      window=window, aovs=self.aovs, min_weight=self.min_weight, progress=progress)
+                      window=window, aovs=self.aovs, min_weight=self.min_weight, progress=progress,
+                      light_samples=self.light_samples)
 
     def render_batch(self, windows) -> list:
         """One array per window, each exactly ``render(window)`` (one pass over their pixels)."""
         return render_windows(self.scene, windows, spp=self.spp, max_depth=self.max_depth, seed=self.seed,
-                              aovs=self.aovs, min_weight=self.min_weight)
+                              aovs=self.aovs, min_weight=self.min_weight, light_samples=self.light_samples)
 
     def shapes_info(self) -> list[dict]:
         return shapes_info(self.scene)

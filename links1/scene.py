@@ -19,7 +19,8 @@ class Scene:
     lights : list of links1.lights.Light
     spp : int            sample count from the scene's sampler (default 1)
     max_depth : int      surface interactions along one branch of the ray tree (default 5)
-    background : (3,)    radiance of rays that escape (Mitsuba ``constant`` emitter)
+    background : (3,)    radiance of rays that escape (Mitsuba ``constant`` emitters)
+    environments : list  ``EnvironmentMap`` lights (also in ``lights``): escaping rays add them
     integrator : str     the integrator the file names (the core always traces LINKS-1 Whitted)
     path : str | None    the scene file
     """
@@ -31,6 +32,7 @@ class Scene:
     max_depth: int = 5
     background: np.ndarray = field(default_factory=lambda: np.zeros(3))
     integrator: str = "links1_whitted"
+    environments: list = field(default_factory=list)  # envmap lights: escaping rays add their eval
     path: str | None = None
     _accel: object = field(default=None, repr=False)
     _plan: object = field(default=None, repr=False)  # links1.integrator.ScenePlan, built on first use

@@ -37,3 +37,17 @@ def matvec(m: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 def max_abs(a: np.ndarray) -> np.ndarray:
     return np.maximum(np.maximum(np.abs(a[..., 0]), np.abs(a[..., 1])), np.abs(a[..., 2]))
+
+
+def coordinate_system(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mitsuba's ``coordinate_system(n)`` (Duff et al. 2017): tangents ``(s, t)`` with ``(s, t, n)``
+    orthonormal, for unit ``n`` (..., 3). Mitsuba's ``mulsign(x, y)`` is ``x`` times the sign
+    bit of ``y`` (``-0.0`` counts as negative there), unlike ``sign`` below (``>= 0``)."""
+    x, y, z = n[..., 0], n[..., 1], n[..., 2]
+    sign = np.where(z >= 0, 1.0, -1.0)
+    zs = np.copysign(1.0, z)
+    a = -1.0 / (sign + z)
+    b = x * y * a
+    s = np.stack([x * x * a * zs + 1.0, b * zs, -x * zs], axis=-1)
+    t = np.stack([b, sign + y * y * a, -y], axis=-1)
+    return s, t

@@ -89,6 +89,8 @@ def _spec_from_args(args):
                 seed=args.seed, aovs=tuple(getattr(args, "aov", ()) or ()), width=args.width, height=args.height)
     if getattr(args, "min_weight", 0.0):
         opts["min_weight"] = args.min_weight
+    if getattr(args, "light_samples", None):
+        opts["light_samples"] = args.light_samples
     if args.renderer == "mitsuba":
         opts["variant"] = getattr(args, "variant", None)
         if getattr(args, "integrator", "links1") == "scene":

@@ -34,7 +34,8 @@ import warnings
 
 import numpy as np
 
-from links1.sampling import strata
+from links1.lights import ENV_LIGHT_ID
+from links1.sampling import light_tag, strata
 
 AOV_CHANNELS = {"depth": ["depth"], "normal": ["nx", "ny", "nz"], "id": ["id"], "cost": ["cost"]}
 INF = float("inf")
@@ -78,6 +79,10 @@ def _frozen_caller():
     # Dr.Jit contents; through a call the integrator (and its scene) stay out of that
     return _FROZEN_CALLER["integrator"]
 _M2 = 0x846CA68B
+
+#: the camera sample (pixel key, i, spp) of the rays last made by ``_camera_rays``, per integrator,
+#: read by the primary level of ``_trace_tree`` (kept out of the integrator: Dr.Jit freezing walks it)
+_CAM_SAMPLE: dict = {}
 
 
 def _emitted_rgb(prm, key: str, kind: str) -> np.ndarray:
@@ -182,6 +187,7 @@ def define_integrator():
         min_weight  float    a secondary ray is traced only if the largest RGB component  1/255
                              of its weight in the pixel (product of the r / t factors
                              down the tree) exceeds this; 0 traces every branch
+        light_samples int    shadow rays per sampled light (environment) per hit        1
         ==========  =======  ==========================================================  =======
 
         Shading: ``links1_phong`` surfaces use eq. (3.11) (ambient + diffuse + highlight),
@@ -217,6 +223,9 @@ def define_integrator():
             self.max_depth = md
             self.seed = int(props.get("seed", 0))
             self.min_weight = float(props.get("min_weight", DEFAULT_MIN_WEIGHT))
+            self.light_samples = int(props.get("light_samples", 1))
+            if self.light_samples < 1:
+                raise ValueError(f"links1_whitted: light_samples must be >= 1, got {self.light_samples}")
             if not self.min_weight >= 0:
                 raise ValueError(f"links1_whitted: min_weight must be >= 0, got {self.min_weight}")
             self.aovs = parse_aovs(props.get("aovs", ""))
@@ -371,7 +380,8 @@ def define_integrator():
             P.any_custom_emission = bool(np.any(emis > 0))
             P.any_mitsuba_emission = any(s.emitter() is not None for s in shapes)
             # lights
-            P.lights, P.area, P.env = [], [], None
+            P.lights, P.area, P.env, P.consts = [], [], None, []
+            n_env = 0
             Pt, Sp = plugin_class("links1_point"), plugin_class("links1_spot")
             for e in scene.emitters():
                 kind = str(e).split("[")[0]
@@ -400,7 +410,15 @@ def define_integrator():
                     m = np.array(prm["to_world"].matrix, dtype=np.float64).reshape(4, 4)
                     E = _emitted_rgb(prm, "irradiance", kind)
                     P.lights.append(("dir", m[:3, 2] / np.linalg.norm(m[:3, 2]), E))
+                elif kind == "ConstantBackgroundEmitter":
+                    rad = np.array(mi.traverse(e)["radiance.value"], dtype=np.float64).ravel()
+                    P.consts.append((np.broadcast_to(rad, (3,)).copy(), ENV_LIGHT_ID + n_env))
+                    n_env += 1
+                    P.env = e
                 elif e.is_environment() or (int(e.flags()) & int(mi.EmitterFlags.Infinite)):
+                    warnings.warn(f"links1_whitted: emitter {kind} is seen as the background but "
+                                  "lights nothing (not sampled by the plugin yet)", stacklevel=2)
+                    n_env += 1
                     P.env = e
                 elif int(e.flags()) & int(mi.EmitterFlags.Surface):
                     P.area.append(e)
@@ -488,11 +506,13 @@ def define_integrator():
                     lights.append(("pos", np.asarray(L[1], dtype=np.float64)))
             for e in P.area:
                 lights.append(("area", e))
+            for _ in P.consts:
+                lights.append(("env", None))
             P.shadow_need, P.occ_custom, P.occ_mitsuba, P.any_shadow = [], [], [], []
             for light in lights:
                 occ = np.ones(nslots, dtype=bool)
                 for sl in range(nslots):
-                    if plane[sl] is None:
+                    if plane[sl] is None or light[0] == "env":   # environments: every direction
                         continue
                     nrm, c = plane[sl]
                     if light[0] == "area":
@@ -658,8 +678,29 @@ def define_integrator():
             raise AssertionError(kind)
 
         # -------------------------------------------------------------- one level
-        def _level(self, P, scene, o, d, tmin, tmax, key, depth, spawn, active=None, symbolic=True):
+        def _light_uv(self, key, sample, light_id, j):
+            """Light sample ``j`` of light ``light_id``: :func:`links1.sampling.light_samples_uv`
+            in float32 (``sample = (pixel key, i, spp)`` at a primary hit, else None)."""
+            m = self.light_samples
+            if sample is not None:
+                shift, i, spp = sample
+                s_, n_ = i * m + j, mi.Float(spp * m)
+            else:
+                shift, s_, n_ = key, dr.zeros(mi.UInt32, dr.width(key)) + j, float(m)
+            h = mix32(shift ^ mi.UInt32(light_tag(light_id)))
+            a, b = u24(mix32(h ^ 1)), u24(mix32(h ^ 2))
+            x = mi.UInt32(s_)
+            for sh, mask in ((1, 0x55555555), (2, 0x33333333), (4, 0x0F0F0F0F), (8, 0x00FF00FF)):
+                x = ((x >> sh) & mask) | ((x & mask) << sh)
+            x = (x >> 16) | (x << 16)
+            u = mi.Float(s_) / n_ + a
+            v = u24(x) + b
+            return u - dr.floor(u), v - dr.floor(v)
+
+        def _level(self, P, scene, o, d, tmin, tmax, key, depth, spawn, active=None, symbolic=True,
+                   sample=None):
             """Trace and shade one ray per lane (inside the megakernel's loop when ``symbolic``).
+            ``sample``: the camera sample of a primary hit (see :meth:`_light_uv`).
             Returns a dict of Dr.Jit arrays."""
             n = dr.width(o)
             if active is None:
@@ -789,6 +830,22 @@ def define_integrator():
                 so, smax = offset(wi), dist - 2.0 * eps
                 T, need, occ_m = shadow(jl, so, wi, smax, lit, contrib)
                 pending.append((contrib, so, wi, smax, lit, need, T, occ_m))
+            for k, (rad, lid) in enumerate(P.consts):     # constant environment, cosine-weighted
+                jsh = len(P.lights) + len(P.area) + k
+                frame = mi.Frame3f(nf)
+                for js in range(self.light_samples):
+                    u, v = self._light_uv(key, sample, lid, js)
+                    r_, phi = dr.sqrt(u), 2.0 * math.pi * v
+                    z = dr.sqrt(dr.maximum(0.0, 1.0 - u))
+                    sp_, cp_ = dr.sincos(phi)
+                    wi = frame.s * (r_ * cp_) + frame.t * (r_ * sp_) + frame.n * z
+                    w = dr.select(z > 0, math.pi / (z * self.light_samples), 0.0)
+                    contrib = f_eval(wi) * c3(rad) * w
+                    lit = hit & (dr.max(contrib) > 0)
+                    so = offset(wi)
+                    smax = dr.full(mi.Float, INF, n)
+                    T, need, occ_m = shadow(jsh, so, wi, smax, lit, contrib)
+                    pending.append((contrib, so, wi, smax, lit, need, T, occ_m))
             for j, e in enumerate(P.area):
                 it = dr.zeros(mi.Interaction3f, n)
                 it.p = p
@@ -900,6 +957,8 @@ def define_integrator():
             xf = (mi.Float(px) + offx) / W
             yf = (mi.Float(py) + offy) / H
             key = mix32(mix32(seed[1]) ^ sid)
+            # light samples of a primary hit: one set over the pixel (links1.sampling.pixel_keys)
+            _CAM_SAMPLE[id(self)] = (mix32(mix32(seed[1] ^ 0x5BD1E995) ^ pix), i, n_s)
             n = dr.width(sid)
             if P.perspective:
                 tn = math.tan(math.radians(P.x_fov) / 2.0)
@@ -954,7 +1013,7 @@ def define_integrator():
             md = self.max_depth
             spawn = md > 1 and P.any_specular
             one = mi.UInt32(1)
-            res = self._level(P, scene, o, d, tmin, tmax, key, 1, spawn)
+            res = self._level(P, scene, o, d, tmin, tmax, key, 1, spawn, sample=_CAM_SAMPLE.pop(id(self), None))
             aov = (res["t"], res["slot"], res["ns"]) if want_aovs else ()
             if not spawn:
                 rgb = mi.Color3f(res["L"])

@@ -62,7 +62,7 @@ class MitsubaRenderer:
 
     def __init__(self, path, *, params=None, spp=None, max_depth=None, seed=0, aovs=(),
                  variant=None, integrator="links1", width=None, height=None,
-                 min_weight=DEFAULT_MIN_WEIGHT):
+                 min_weight=DEFAULT_MIN_WEIGHT, light_samples=1):
         self.variant = register(variant)
         import mitsuba as mi
         from .loader import load_file
@@ -89,6 +89,9 @@ class MitsubaRenderer:
                     raise ValueError(f"max_depth must be >= 1, got {max_depth}")
                 self.integrator.max_depth = int(max_depth)
             self.integrator.min_weight = self.min_weight
+            self.integrator.light_samples = int(light_samples)
+            if self.integrator.light_samples < 1:
+                raise ValueError(f"light_samples must be >= 1, got {light_samples}")
             self.integrator._prep = None
             self.integrator.prepare(self.scene)
         else:

@@ -15,7 +15,8 @@ import pytest
 from links1 import loader, materials
 from links1 import transform as tf
 from links1.errors import SceneError
-from links1.lights import ConeSpotLight, CylinderSpotLight, ParallelLight, PointLight
+from links1.lights import (ENV_LIGHT_ID, ConeSpotLight, ConstantEnvironment, CylinderSpotLight,
+                           ParallelLight, PointLight)
 from links1.xmlparse import SceneWarning, parse_string
 
 DATA = os.path.join(os.path.dirname(__file__), "data")
@@ -311,11 +312,10 @@ def test_links1_bicubic_file_and_inline():
     np.testing.assert_allclose(sh.args[0].max(0), [3, 3, 1])
 
 
-def test_area_emitter_sets_emission_with_warning():
-    with pytest.warns(SceneWarning, match="does not light the scene"):
-        s = loader.load_string(scene_xml('<shape type="disk"><emitter type="area">'
-                                         '<rgb name="radiance" value="1, 2, 3"/></emitter></shape>'))
-    np.testing.assert_array_equal(s.shapes[0].emission, [1, 2, 3])
+def test_area_emitter_sets_emission():
+    s = loader.load_string(scene_xml('<shape type="disk"><emitter type="area">'
+                                     '<rgb name="radiance" value="1, 2, 3"/></emitter></shape>'))
+    np.testing.assert_array_equal(s.shapes[0].emission, [1, 2, 3])  # (the light: test_area_lights)
 
 
 # -- BSDFs ----------------------------------------------------------------------------------
@@ -376,7 +376,8 @@ def test_emitters():
              '<emitter type="links1_spot"><point name="origin" value="0 5 0"/>'
              '<vector name="direction" value="0 -2 0"/><float name="radius" value="1.5"/></emitter>'
              '<emitter type="constant"><rgb name="radiance" value="0.25"/></emitter>')
-    p1, p2, lp, d, sp, cs = s.lights
+    p1, p2, lp, d, sp, cs, env = s.lights
+    assert isinstance(env, ConstantEnvironment) and env.light_id == ENV_LIGHT_ID
     assert isinstance(p1, PointLight) and p1.falloff == "inverse_square"
     np.testing.assert_array_equal(p1.position, [1, 2, 3]); np.testing.assert_array_equal(p1.L1, [5] * 3)
     np.testing.assert_array_equal(p2.position, [4, 0, 0])
@@ -391,10 +392,9 @@ def test_emitters():
     np.testing.assert_array_equal(s.background, [0.25] * 3)
 
 
-def test_envmap_is_ignored_with_warning():
-    with pytest.warns(SceneWarning, match="envmap"):
-        s = loader.load_string(scene_xml('<emitter type="envmap"><string name="filename" value="x.exr"/></emitter>'))
-    assert s.lights == []
+def test_envmap_missing_file_is_a_scene_error():
+    with pytest.raises(SceneError, match="envmap: cannot read 'x.exr'"):
+        loader.load_string(scene_xml('<emitter type="envmap"><string name="filename" value="x.exr"/></emitter>'))
 
 
 # -- errors: every one names file, line and element -------------------------------------------
