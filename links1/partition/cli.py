@@ -274,10 +274,8 @@ def add_cli(subparsers) -> None:
                    help="replay the measured cost map at these node counts")
     p.add_argument("--sim-plot", default=None, metavar="OUT.png", help="simulation plot (default: next to --plot)")
     p.add_argument("--unit-overhead", type=float, default=None,
-                   help="simulated seconds per unit (default: the fitted per-unit cost)")
+                   help="simulated seconds per unit (default: the per-launch overhead measured in this run)")
     p.add_argument("--object-cost", type=float, default=1e-4, help="simulated seconds per object sent to a node")
-    p.add_argument("--overhead", action="store_true",
-                   help="also time the frame as 64 units vs one frame in one process (overhead_ratio_64)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--debug", action="store_true", help="show tracebacks")
     p.set_defaults(func=run_cli)
@@ -287,7 +285,7 @@ def run_cli(args) -> int:
     """``links1 schedule``: a real run, its report, optional plots and simulation."""
     from .checkpoint import atomic_write_json
     from .executors import render_plan
-    from .experiment import build_report, format_table, measure_overhead, plot_report, plot_simulation, simulate
+    from .experiment import build_report, format_table, plot_report, plot_simulation, simulate
     aovs = tuple(args.aov or ())
     if "cost" not in aovs:
         args.aov = aovs + ("cost",)  # the per-pixel ray-primitive tests: the measured cost map
@@ -295,18 +293,18 @@ def run_cli(args) -> int:
     spec, model, channels, plan, backend = prepare(args, nodes=args.nodes)
     cull = _cull_map(plan, model, spec) if args.cull else None
     res = render_plan(plan, spec, backend, progress=not args.no_progress, cull=cull)
+    reference = _reference(backend, spec)
+    backend.close()
     cost_channel = channels.index("cost") if "cost" in channels else None
-    report = build_report(res, plan, model, cost_channel=cost_channel,
+    report = build_report(res, plan, model, cost_channel=cost_channel, reference=reference,
                           meta={"scene": os.path.abspath(args.scene), "renderer": args.renderer,
                                 "cull": bool(args.cull), "spp": spec.kwargs.get("spp")})
-    backend.close()
-    if args.overhead:
-        report["overhead_ratio_64"] = measure_overhead(spec)
     if args.simulate:
         cm = report["cost_model"] or {"per_pixel_s": 0.0, "per_test_s": 0.0, "per_unit_s": 0.0}
         tests = res.image[..., cost_channel] if cost_channel is not None else 0.0
         cost_map = cm["per_pixel_s"] + cm["per_test_s"] * tests
-        overhead = cm["per_unit_s"] if args.unit_overhead is None else args.unit_overhead
+        measured = reference["per_launch_overhead_s"] if reference else cm["per_unit_s"]
+        overhead = measured if args.unit_overhead is None else args.unit_overhead
         rows = simulate(cost_map, model, args.simulate, tiles_per_node=args.tiles_per_node,
                         unit_overhead=overhead, object_cost=args.object_cost)
         report["simulation"] = {"unit_overhead_s": overhead, "object_cost_s": args.object_cost, "rows": rows}
@@ -317,9 +315,30 @@ def run_cli(args) -> int:
     atomic_write_json(args.report, report)
     if args.plot:
         plot_report(report, args.plot)
-    eff, imb = report["parallel_efficiency"], report["imbalance"]
-    rc = report["rank_correlation"]["predicted_vs_seconds"]
-    print(f"links1: schedule {plan.strategy} on {report['nodes']} nodes: makespan {report['makespan_s']:.3f} s, "
-          f"imbalance {imb if imb is None else round(imb, 3)}, efficiency {eff if eff is None else round(eff, 3)}, "
-          f"rank correlation {rc if rc is None else round(rc, 3)}; wrote {args.report}", file=sys.stderr)
+    print(summary_line(report, plan.strategy) + f"; wrote {args.report}", file=sys.stderr)
     return 0
+
+
+def _reference(backend, spec):
+    """The same renderer on one node (its threads, warm): full frame, 64 one-unit launches, the
+    64 units in 2 batches, measured in the same run after the partitioned render."""
+    from .experiment import measure_overhead
+    try:
+        return backend.call(measure_overhead, spec)
+    except Exception as e:  # noqa: BLE001 - e.g. a cluster whose renderer this machine lacks
+        warnings.warn(f"no single-process reference here ({type(e).__name__}: {e}); true efficiency not reported")
+        return None
+
+
+def summary_line(report, strategy) -> str:
+    """One line: which figure answers which question (docs/partitioning.md, "Reading the report")."""
+    def f(v, nd=3):
+        return "n/a" if v is None else f"{v:.{nd}f}"
+    pl = (report.get("reference") or {}).get("per_launch_overhead_s")
+    return (f"links1: schedule {strategy} on {report['nodes']} nodes: makespan {f(report['makespan_s'])} s, "
+            f"full frame in one process {f(report.get('full_frame_s'))} s, "
+            f"true efficiency {f(report.get('true_efficiency'))}, busy efficiency "
+            f"{f(report['parallel_efficiency'])}, imbalance {f(report['imbalance'])}, "
+            f"{report.get('launches')} launches, per-launch overhead "
+            f"{f(None if pl is None else pl * 1e3, 2)} ms, "
+            f"rank correlation {f(report['rank_correlation']['predicted_vs_seconds'])}")

@@ -19,7 +19,7 @@ from collections import deque
 
 from ..errors import RenderAborted
 from .executors import ALLOWED_FAILURES, CHUNK_FACTOR, TASK_PIXELS, chunk_size, take_batch
-from .runtime import THREAD_ENV, get_renderer, render_units, spec_batches
+from .runtime import THREAD_ENV, get_renderer, render_units, spec_batches, warm_up
 
 try:  # the plugin base class only when distributed is there (lazy for everything else)
     from distributed.diagnostics.plugin import WorkerPlugin as _WorkerPluginBase
@@ -36,7 +36,11 @@ class ScenePreload(_WorkerPluginBase):
     async def setup(self, worker):
         ex = worker.executors.get("default")
         loop = asyncio.get_running_loop()
-        await loop.run_in_executor(ex, get_renderer, self.spec)
+        await loop.run_in_executor(ex, _load_and_warm_up, self.spec)
+
+
+def _load_and_warm_up(spec):
+    warm_up(get_renderer(spec))
 
 
 async def _set_resource(name, value, dask_worker=None):
@@ -92,6 +96,10 @@ class DaskBackend:
     @property
     def n_nodes(self) -> int:
         return len(self.workers()) if self.client is not None else int(self.n_local or 0)
+
+    def call(self, fn, *args):
+        """Run ``fn(*args)`` on one worker of the cluster -> the result."""
+        return self.client.submit(fn, *args, pure=False, workers=self.workers()[:1]).result(timeout=600)
 
     def workers(self) -> list:
         return sorted(self.client.scheduler_info(n_workers=-1)["workers"])

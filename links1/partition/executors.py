@@ -180,6 +180,10 @@ class InProcess:
     def start(self, spec):
         get_renderer(spec)
 
+    def call(self, fn, *args):
+        """Run ``fn(*args)`` on a node (here: this process)."""
+        return fn(*args)
+
     def run(self, plan, todo, spec, cull, on_done, on_fault):
         batches = can_batch(get_renderer(spec))
         queue = deque(todo)
@@ -415,6 +419,11 @@ class LocalPool:
             for k in range(self.n):
                 fill(k)
         self._check_idle(on_fault)
+
+    def call(self, fn, *args):
+        """Run ``fn(*args)`` on a ready node (its threads, its loaded renderer) -> the result."""
+        k = min(k for k in range(self.n) if k not in self.hello)
+        return self.pools[k].submit(fn, *args).result(timeout=600)
 
     def _check_idle(self, on_fault):
         """Ping every ready worker: one that died after its last unit is replaced now (N stay N).

@@ -11,13 +11,20 @@ nodes_busy[]       per node: node, busy_s (sum of its units' seconds), units
 makespan_s         root clock, first dispatch to last result (scene loading excluded:
                    workers load once, before)
 imbalance          max(busy) / mean(busy) over the nodes that were started (>= 1)
-parallel_efficiency  sum(busy) / (nodes * makespan_s), in (0, 1]
+parallel_efficiency  sum(busy) / (nodes * makespan_s), in (0, 1]: how busy the nodes were
+                   (load balance and dispatch gaps; blind to per-unit overhead)
+full_frame_s       the same renderer and options rendering the whole frame as one unit in the
+                   root process (all its cores), measured in the same run (median of 3)
+true_efficiency    full_frame_s / (nodes * makespan_s): what the partitioned run gained over
+                   rendering the frame in one process (1 = perfect speed-up)
+launches           kernel launches (tasks' batches) in the run; per node in nodes_busy[]
+reference          measure_overhead(): full frame vs the frame as 64 one-unit launches vs the
+                   64 units in two batches, and per_launch_overhead_s (fixed cost of a launch)
 rank_correlation   Spearman: predicted_vs_seconds, predicted_vs_ray_tests, ray_tests_vs_seconds
 data_per_node[]    4-4: per node of the plan, objects_primary/bytes_primary (projected rectangle
                    touches its region) and objects_secondary/bytes_secondary (what secondary
                    rays may still reach)
 faults             messages about lost nodes
-overhead_ratio_64  (with --overhead) time of the frame as 64 units in one process / full frame
 cost_model         fit of unit seconds = per_pixel_s * pixels + per_test_s * ray_tests + per_unit_s
 simulation         (with --simulate) rows {strategy, nodes, makespan_s, imbalance, efficiency,
                    objects_per_node_mean, objects_per_node_max, units}
@@ -68,7 +75,7 @@ def fit_cost_model(pixels, tests, seconds) -> dict:
     return {"per_pixel_s": float(coef[0]), "per_test_s": float(coef[1]), "per_unit_s": float(coef[2])}
 
 
-def build_report(result, plan, model, *, cost_channel=None, meta=None) -> dict:
+def build_report(result, plan, model, *, cost_channel=None, meta=None, reference=None) -> dict:
     """The schedule report of one real run (see the module docstring for the keys)."""
     recs = result.records
     t0 = min((r["start"] for r in recs.values()), default=0.0)
@@ -83,11 +90,12 @@ def build_report(result, plan, model, *, cost_channel=None, meta=None) -> dict:
                       "predicted_load": None if plan.predicted is None else float(plan.predicted[i]),
                       "seconds": r["seconds"], "start": r["start"] - t0, "stop": r["stop"] - t0,
                       "ray_tests": tests})
-    busy = {}
+    busy, launches = {}, {}
     for u in units:
         b = busy.setdefault(str(u["node"]), [0.0, 0])
         b[0] += u["seconds"]
         b[1] += 1
+        launches.setdefault(str(u["node"]), set()).add(recs[u["index"]].get("launch", ("unit", u["index"])))
     n = max(result.n_nodes, len(busy), 1)
     busy_s = [v[0] for v in busy.values()] + [0.0] * (n - len(busy))
     makespan = result.makespan_s or 1e-12
@@ -101,7 +109,9 @@ def build_report(result, plan, model, *, cost_channel=None, meta=None) -> dict:
         "tiles_per_node": plan.meta.get("tiles_per_node"), "unit": plan.meta.get("unit"),
         "order": plan.meta.get("order"), "backend": result.backend,
         "units": units,
-        "nodes_busy": [{"node": k, "busy_s": v[0], "units": v[1]} for k, v in busy.items()],
+        "nodes_busy": [{"node": k, "busy_s": v[0], "units": v[1], "launches": len(launches[k])}
+                       for k, v in busy.items()],
+        "launches": sum(len(v) for v in launches.values()),
         "makespan_s": makespan,
         "imbalance": (max(busy_s) / mean) if mean > 0 else None,
         "parallel_efficiency": min(1.0, float(np.sum(busy_s)) / (n * makespan)) if makespan > 0 else None,
@@ -110,6 +120,9 @@ def build_report(result, plan, model, *, cost_channel=None, meta=None) -> dict:
             "predicted_vs_ray_tests": spearman(pred, tests) if None not in pred and None not in tests else None,
             "ray_tests_vs_seconds": spearman(tests, secs) if None not in tests else None,
         },
+        "full_frame_s": None if reference is None else reference["full_s"],
+        "true_efficiency": None if reference is None else reference["full_s"] / (n * makespan),
+        "reference": reference,
         "data_per_node": model.node_data(plan) if model is not None else None,
         "faults": list(result.faults),
         "cost_model": fit_cost_model([u["pixels"] for u in units], tests, secs) if None not in tests and units
@@ -118,28 +131,45 @@ def build_report(result, plan, model, *, cost_channel=None, meta=None) -> dict:
     return rep
 
 
-def measure_overhead(spec, n_units: int = 64, repeat: int = 2) -> dict:
-    """Full frame vs the same frame as ``n_units`` tiles, in this process (best of ``repeat``)."""
-    from .runtime import get_renderer
+def measure_overhead(spec, n_units: int = 64, repeat: int = 3, batched: bool = True) -> dict:
+    """In this process, with the renderer's own threads: the full frame, the same frame as
+    ``n_units`` tiles each in its own launch (the paper's one-at-a-time hand-out) and, with
+    ``batched``, the tiles in two launches (two nodes' static batches, run one after the
+    other). Medians of ``repeat`` after one warm-up of each; the per-launch fixed cost is
+    ``(tiled_s - full_s) / (n_units - 1)``.
+    """
+    from .runtime import can_batch, get_renderer
     from .strategies import grid_shape, tile_units
     r = get_renderer(spec)
     w, h = r.film_size
     nx, ny = grid_shape(w, h, n_units)
-    tiles = tile_units(w, h, nx, ny)
-    r.render(window=tiles[0].window)  # warm caches (kernels, accel) once
-    full, tiled = [], []
-    for _ in range(repeat):
+    wins = [u.window for u in tile_units(w, h, nx, ny)]
+    batched = batched and can_batch(r)
+    halves = (wins[:len(wins) // 2], wins[len(wins) // 2:])
+    full, tiled, two = [], [], []
+    for k in range(repeat + 1):  # the first round warms caches (kernels, recordings, accel)
         t = time.perf_counter()
         r.render(window=(0, 0, w, h))
-        full.append(time.perf_counter() - t)
-        t = time.perf_counter()
-        for u in tiles:
-            r.render(window=u.window)
-        tiled.append(time.perf_counter() - t)
-    return {"units": len(tiles), "full_s": min(full), "tiled_s": min(tiled), "ratio": min(tiled) / min(full)}
+        t1 = time.perf_counter()
+        for win in wins:
+            r.render(window=win)
+        t2 = time.perf_counter()
+        if batched:
+            for half in halves:
+                r.render_batch(half)
+        t3 = time.perf_counter()
+        if k:
+            full.append(t1 - t)
+            tiled.append(t2 - t1)
+            two.append(t3 - t2)
+    f, t = float(np.median(full)), float(np.median(tiled))
+    out = {"units": len(wins), "full_s": f, "tiled_s": t, "ratio": t / f,
+           "per_launch_overhead_s": max(0.0, (t - f) / max(len(wins) - 1, 1)), "repeat": repeat}
+    if batched:
+        out.update(batched_s=float(np.median(two)), batched_ratio=float(np.median(two)) / f)
+    return out
 
 
-# ---------------------------------------------------------------------- simulation
 def simulate(cost_map, model, nodes_list, *, strategies=("subscreen", "scanline", "grid", "dynamic/tile",
                                                           "dynamic/scanline"),
              tiles_per_node: int = 16, unit_overhead: float = 0.0, object_cost: float = 0.0,

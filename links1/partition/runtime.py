@@ -9,6 +9,7 @@ from __future__ import annotations
 import copy
 import hashlib
 import importlib
+import itertools
 import json
 import os
 import time
@@ -22,6 +23,8 @@ import numpy as np
 _RENDERERS: dict = {}
 #: Per-process cache of culled core scenes: (spec key, object ids) -> scene.
 _CULLED: dict = {}
+#: Launch numbers in this process (a record's ``launch`` = (pid, number): units sharing one)
+_LAUNCHES = itertools.count()
 
 THREAD_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS")
 
@@ -122,7 +125,22 @@ def start_worker(spec: RendererSpec) -> tuple:
     from ..xmlparse import SceneWarning
     one_line_warnings(spec.kind)
     warnings.simplefilter("ignore", SceneWarning)
-    return os.getpid(), can_batch(get_renderer(spec))
+    r = get_renderer(spec)
+    warm_up(r)
+    return os.getpid(), can_batch(r)
+
+
+def warm_up(renderer):
+    """Render a few tiny windows and batches of different sizes, so that kernels, Dr.Jit's
+    frozen recordings (the first call records, the second makes changed literals opaque) and
+    caches are ready before the node's first unit: start-up, not work."""
+    w, h = renderer.film_size
+    tiny = [(0, 0, min(w, 3), min(h, 2)), (0, 0, min(w, 2), min(h, 3)), (0, 0, min(w, 4), min(h, 4))]
+    if can_batch(renderer):
+        for k in range(3):
+            renderer.render_batch(tiny[k:] + tiny[:k][:1])
+    else:
+        renderer.render(window=tiny[0])
 
 
 def spec_batches(spec: RendererSpec) -> bool:
@@ -149,7 +167,8 @@ def render_unit(spec: RendererSpec, window, cull=None):
         img = renderer.render(window=tuple(int(v) for v in window))
     dt = time.perf_counter() - t0
     return np.asarray(img, dtype=np.float64), {"seconds": dt, "start": w0, "stop": w0 + dt, "pid": os.getpid(),
-                                               "launch_seconds": dt, "launch_units": 1}
+                                               "launch_seconds": dt, "launch_units": 1,
+                                               "launch": (os.getpid(), next(_LAUNCHES))}
 
 
 #: Samples (pixels x spp) one launch may hold on a node; a larger batch is split into
@@ -185,6 +204,7 @@ def render_units(spec: RendererSpec, windows, culls=None):
     out = []
     for launch in launches:
         t0, w0 = time.perf_counter(), time.time()
+        lid = (os.getpid(), next(_LAUNCHES))
         imgs = batch(launch)
         dt = time.perf_counter() - t0
         total = sum(a[2] * a[3] for a in launch)
@@ -193,7 +213,7 @@ def render_units(spec: RendererSpec, windows, culls=None):
             share = dt * a[2] * a[3] / total
             out.append((np.asarray(img, dtype=np.float64),
                         {"seconds": share, "start": at, "stop": at + share, "pid": os.getpid(),
-                         "launch_seconds": dt, "launch_units": len(launch)}))
+                         "launch_seconds": dt, "launch_units": len(launch), "launch": lid}))
             at += share
     return out
 

@@ -1,0 +1,143 @@
+"""A real Dask cluster that links1 did not start (issue 9, item 6): ``dask scheduler`` and two
+``dask worker`` processes started with Dask's own command line on 127.0.0.1 (free ports),
+``links1 render --scheduler`` with both renderers and every strategy, one worker SIGKILLed
+mid-render. Every process the test starts is stopped (bounded waits), whatever happens."""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from links1.partition.runtime import RendererSpec
+from links1.partition.strategies import STRATEGIES, make_plan
+
+from .conftest import MANY, ROOT
+from .fake_renderer import FAKE, pixel_values
+
+pytestmark = [pytest.mark.dask, pytest.mark.slow]
+DASK = os.path.join(os.path.dirname(sys.executable), "dask")
+
+
+def _free_port():
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _wait_for_file(path, timeout):
+    deadline = time.time() + timeout
+    while not path.exists():
+        if time.time() > deadline:
+            raise TimeoutError(f"{path} did not appear in {timeout} s")
+        time.sleep(0.02)
+
+
+def _stop(procs):
+    for p in procs:
+        if p.poll() is None:
+            p.send_signal(signal.SIGTERM)
+    deadline = time.time() + 15
+    for p in procs:
+        try:
+            p.wait(timeout=max(0.1, deadline - time.time()))
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait(timeout=10)
+
+
+@pytest.fixture
+def cli_cluster(tmp_path):
+    """(scheduler address, [worker Popen]) of a cluster started with `dask scheduler` / `dask worker`."""
+    pytest.importorskip("distributed")
+    if not os.path.exists(DASK):
+        pytest.skip("the dask command line is not installed")
+    from distributed import Client
+    port = _free_port()
+    addr = f"tcp://127.0.0.1:{port}"
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([ROOT, os.environ.get("PYTHONPATH", "")]))
+    log = open(tmp_path / "dask.log", "w")
+    procs = []
+    try:
+        procs.append(subprocess.Popen([DASK, "scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard",
+                                       "--idle-timeout", "600"], stdout=log, stderr=log, env=env))
+        workers = [subprocess.Popen([DASK, "worker", addr, "--host", "127.0.0.1", "--nthreads", "1", "--no-nanny",
+                                     "--no-dashboard", "--death-timeout", "60", "--name", f"w{k}"],
+                                    stdout=log, stderr=log, env=env) for k in range(2)]
+        procs += workers
+        with Client(addr, timeout=60) as c:
+            c.wait_for_workers(2, timeout=60)
+        yield addr, workers
+    finally:
+        _stop(procs)
+        log.close()
+
+
+DRIVER = """
+import json, sys
+from links1.cli import main
+codes = [main(a) for a in json.loads(sys.argv[1])]
+print(json.dumps(codes))
+"""
+
+
+def test_cli_renders_on_a_cluster_it_did_not_start(cli_cluster, tmp_path):
+    addr, _ = cli_cluster
+    from links1.image import read_image
+    from links1.render import make_renderer
+    runs, expect = [], []
+    for kind in ("core", "mitsuba"):
+        if kind == "mitsuba":
+            from tests.plugins.conftest import variant_problem
+            if variant_problem("llvm_ad_rgb"):
+                continue
+        ref = np.asarray(make_renderer(kind, MANY, params={"res": "32"}).render(), dtype=np.float32)
+        for strategy in STRATEGIES:
+            out = tmp_path / f"{kind}-{strategy}.exr"
+            runs.append(["render", MANY, "--renderer", kind, "-D", "res=32", "--scheduler", addr, "--partition",
+                         strategy, "--tiles-per-node", "4", "--no-progress", "-o", str(out)])
+            expect.append((out, ref))
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([ROOT, os.environ.get("PYTHONPATH", "")]))
+    p = subprocess.run([sys.executable, "-c", DRIVER, json.dumps(runs)], capture_output=True, text=True,
+                       timeout=240, env=env)
+    assert p.returncode == 0 and json.loads(p.stdout.strip().splitlines()[-1]) == [0] * len(runs), p.stderr[-2000:]
+    for out, ref in expect:
+        img = read_image(str(out))
+        assert np.array_equal(np.asarray(img, dtype=np.float32)[..., :3], ref[..., :3]), out.name
+
+
+def test_a_worker_killed_mid_render_on_that_cluster(cli_cluster, tmp_path, capsys):
+    from distributed import Event
+
+    from links1.partition.dask_backend import DaskBackend
+    from links1.partition.executors import render_plan
+    addr, workers = cli_cluster
+    marker = tmp_path / "holding"
+    event = f"links1-cli-cluster-{os.getpid()}"
+    spec = RendererSpec.make(FAKE, "fake", hold_window=(0, 20, 48, 1), marker=str(marker), event=event)
+    plan = make_plan("dynamic", 48, 32, 2, unit="scanline")
+    with DaskBackend(scheduler=addr) as be:
+        be.start(spec)
+
+        def killer():  # SIGKILL the worker process that holds line 20, then release the held unit
+            _wait_for_file(marker, 60)
+            holder = int(marker.read_text())
+            os.kill(holder, signal.SIGKILL)
+            next(w for w in workers if w.pid == holder).wait(timeout=30)
+            Event(event, client=be.client).set()
+
+        t = threading.Thread(target=killer, daemon=True)
+        t.start()
+        res = render_plan(plan, spec, be, progress=False)
+        t.join(10)
+    assert int(marker.read_text()) in [w.pid for w in workers]
+    assert sum(w.poll() is not None for w in workers) == 1  # that worker is gone, the other rendered the rest
+    assert np.array_equal(res.image, pixel_values(0, 0, 48, 32, 4))
+    assert res.faults and "left the cluster" in capsys.readouterr().err

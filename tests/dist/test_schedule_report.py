@@ -1,0 +1,42 @@
+"""Honest schedule reports (issue 9, item 4): the full frame of the same renderer measured in
+the same run, true efficiency = full / (nodes x makespan), launches, per-launch overhead."""
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from links1.partition.executors import RenderResult
+from links1.partition.experiment import build_report
+from links1.partition.strategies import make_plan
+
+from .conftest import MANY
+
+
+def test_true_efficiency_is_full_frame_over_nodes_times_makespan():
+    import numpy as np
+    plan = make_plan("scanline", 4, 4, 2)
+    recs = {i: {"node": i % 2, "seconds": 0.25, "start": 10.0 + (i // 2) * 0.25, "stop": 10.25 + (i // 2) * 0.25,
+                "pid": 100 + i % 2, "launch": (100 + i % 2, 0), "launch_units": 2} for i in range(4)}
+    res = RenderResult(np.zeros((4, 4, 3)), plan, records=recs, makespan_s=0.6, n_nodes=2)
+    rep = build_report(res, plan, None, reference={"full_s": 0.3, "per_launch_overhead_s": 0.001})
+    assert rep["parallel_efficiency"] == pytest.approx(1.0 / (2 * 0.6))  # busy 0.5 s per node
+    assert rep["true_efficiency"] == pytest.approx(0.3 / (2 * 0.6))
+    assert rep["launches"] == 2 and [n["launches"] for n in rep["nodes_busy"]] == [1, 1]
+
+
+def test_schedule_reports_the_reference_measured_in_the_same_run(tmp_path, capsys):
+    from links1.cli import main
+    out = tmp_path / "r.json"
+    rc = main(["schedule", MANY, "--renderer", "core", "-D", "res=32", "--nodes", "2", "--partition", "subscreen",
+               "--tiles-per-node", "4", "--report", str(out), "--no-progress", "--simulate", "1,4"])
+    assert rc == 0
+    r = json.loads(out.read_text())
+    ref = r["reference"]
+    assert r["full_frame_s"] == ref["full_s"] > 0 and ref["units"] == 64 and ref["tiled_s"] > 0
+    assert r["true_efficiency"] == pytest.approx(r["full_frame_s"] / (r["nodes"] * r["makespan_s"]))
+    assert ref["per_launch_overhead_s"] == pytest.approx(max(0.0, (ref["tiled_s"] - ref["full_s"]) / 63))
+    assert r["launches"] == 2  # each node's 4 tiles in one launch
+    assert r["simulation"]["unit_overhead_s"] == ref["per_launch_overhead_s"]
+    err = capsys.readouterr().err
+    assert "true efficiency" in err and "full frame in one process" in err and "per-launch overhead" in err
