@@ -350,11 +350,8 @@ def _numbers(text: str) -> list:
 
 def _spectrum_rgb(p: Prop, emitter: bool, unbounded: bool) -> np.ndarray:
     """A ``<spectrum value=..>`` as Mitsuba's RGB variants read it (warns where it clamps)."""
-    spec = p.value
-    if spec.wavelengths is None:
-        return spectra.uniform_to_rgb(spec.values, emitter=emitter)
-    rgb, raw = spectra.list_to_rgb(spec.wavelengths, spec.values, emitter=emitter,
-                                   unbounded=unbounded)
+    rgb, raw = spectra.to_rgb(p.value.wavelengths, p.value.values, emitter=emitter,
+                              unbounded=unbounded)
     if raw is not None:
         warnings.warn(str(p.error(f"clamping out-of-gamut colour {np.round(raw, 6).tolist()} to "
                                   f"{np.round(rgb, 6).tolist()} (as Mitsuba)")),

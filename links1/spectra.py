@@ -39,7 +39,7 @@ import os
 
 import numpy as np
 
-__all__ = ["CIE_MIN", "CIE_MAX", "parse", "uniform_to_rgb", "list_to_rgb", "blackbody_to_rgb",
+__all__ = ["CIE_MIN", "CIE_MAX", "parse", "to_rgb", "uniform_to_rgb", "list_to_rgb", "blackbody_to_rgb",
            "planck", "cie_tables"]
 
 CIE_MIN, CIE_MAX = 360.0, 830.0
@@ -126,6 +126,16 @@ def list_to_rgb(wavelengths, values, *, emitter: bool, unbounded: bool = False):
     if not bounded and np.any(rgb < 0):
         return _f32(np.maximum(rgb, 0.0)), raw
     return _f32(rgb), None
+
+
+def to_rgb(wavelengths, values, *, emitter: bool, unbounded: bool = False):
+    """:func:`uniform_to_rgb` when ``wavelengths`` is empty (one value), else
+    :func:`list_to_rgb`: ``(rgb, clamped)`` either way. Takes what Mitsuba's parser keeps of a
+    ``<spectrum>`` too (``Properties`` spectra have ``.wavelengths`` and ``.values``)."""
+    values = np.atleast_1d(np.asarray(values, dtype=np.float64))
+    if wavelengths is None or len(wavelengths) == 0:
+        return uniform_to_rgb(float(values[0]), emitter=emitter), None
+    return list_to_rgb(wavelengths, values, emitter=emitter, unbounded=unbounded)
 
 
 # Planck's law with Mitsuba's constants (src/spectra/blackbody.cpp)

@@ -3,16 +3,9 @@ from __future__ import annotations
 
 
 def _rgb(props, name, default):
-    import mitsuba as mi
-    if (name in props):
-        v = props[name]
-        try:
-            return [float(v[0]), float(v[1]), float(v[2])]
-        except TypeError:
-            return [float(v)] * 3
-    if default is None:
-        return None
-    return [float(default)] * 3
+    from .emitters import _rgb as read_rgb  # one reader of colours and spectra
+    v = read_rgb(props, name, default, emitter=False)
+    return None if v is None else [float(c) for c in v]
 
 
 def phong_params(props) -> dict:

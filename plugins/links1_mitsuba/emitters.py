@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 
@@ -15,14 +16,23 @@ def _vec(props, name, default):
     return None if default is None else np.asarray(default, dtype=np.float64)
 
 
-def _rgb(props, name, default):
+def _rgb(props, name, default, *, emitter=True):
+    """An RGB parameter as Mitsuba's RGB variants read it: ``rgb``, ``float`` or ``spectrum``
+    (:func:`links1.spectra.to_rgb`; ``emitter=False`` for reflectance-like parameters)."""
     if (name in props):
         v = props[name]
+        if hasattr(v, "wavelengths") and hasattr(v, "values"):  # a <spectrum>
+            from links1.spectra import to_rgb
+            rgb, raw = to_rgb(list(v.wavelengths), list(v.values), emitter=emitter)
+            if raw is not None:
+                warnings.warn(f"'{name}': clamping out-of-gamut colour {np.round(raw, 6).tolist()} "
+                              f"to {np.round(rgb, 6).tolist()} (as Mitsuba)", stacklevel=3)
+            return rgb
         try:
             return np.array([float(v[0]), float(v[1]), float(v[2])])
         except TypeError:
             return np.full(3, float(v))
-    return np.full(3, float(default))
+    return None if default is None else np.full(3, float(default))
 
 
 def _to_world(props):

@@ -91,30 +91,53 @@ def test_integrator_scene_without_integrator_uses_path(tmp_path):
     np.testing.assert_array_equal(imgs[0], imgs[1])
 
 
-def test_blackbody_emitter_same_colour_in_both_renderers(tmp_path):
-    """Mitsuba's RGB variants cannot evaluate a blackbody; both renderers use the colour its
-    spectral variants integrate to (links1.spectra), each saying so in one warning line."""
+def _render_both(tmp_path, body):
+    """Render ``body`` (a 12x10 camera added) with both renderers through the CLI, in
+    subprocesses -> ({renderer: image}, {renderer: stderr})."""
     import subprocess
     import sys
 
     from links1.image import read_exr
-    scene = tmp_path / "bb.xml"
+    scene = tmp_path / "s.xml"
     scene.write_text(
         "<scene version='3.0.0'>\n<sensor type='perspective'><float name='fov' value='40'/><film type='hdrfilm'>"
         "<integer name='width' value='12'/><integer name='height' value='10'/><rfilter type='box'/></film></sensor>\n"
-        "<shape type='sphere'><point name='center' x='0' y='0' z='5'/></shape>\n"
-        "<emitter type='point'><point name='position' x='0' y='1' z='0'/>\n"
-        "<spectrum name='intensity' type='blackbody'><float name='temperature' value='3500'/></spectrum>"
-        "</emitter></scene>\n")
-    imgs = {}
+        + body + "</scene>\n")
+    imgs, errs = {}, {}
     for r in ("core", "mitsuba"):
         out = tmp_path / f"{r}.exr"
         res = subprocess.run([sys.executable, "-m", "links1.cli", "render", str(scene), "--renderer", r,
                               "--workers", "0", "--no-progress", "-o", str(out)],
                              capture_output=True, text=True, timeout=300)
         assert res.returncode == 0, res.stderr
-        warns = [ln for ln in res.stderr.splitlines() if "blackbody (3500 K)" in ln]
-        assert len(warns) == 1 and warns[0].startswith("links1: warning: "), res.stderr
-        imgs[r] = read_exr(str(out))[0]
+        imgs[r], errs[r] = read_exr(str(out))[0], res.stderr
+    return imgs, errs
+
+
+def test_blackbody_emitter_same_colour_in_both_renderers(tmp_path):
+    """Mitsuba's RGB variants cannot evaluate a blackbody; both renderers use the colour its
+    spectral variants integrate to (links1.spectra), each saying so in one warning line."""
+    imgs, errs = _render_both(tmp_path, (
+        "<shape type='sphere'><point name='center' x='0' y='0' z='5'/></shape>\n"
+        "<emitter type='point'><point name='position' x='0' y='1' z='0'/>\n"
+        "<spectrum name='intensity' type='blackbody'><float name='temperature' value='3500'/></spectrum>"
+        "</emitter>\n"))
+    for err in errs.values():
+        warns = [ln for ln in err.splitlines() if "blackbody (3500 K)" in ln]
+        assert len(warns) == 1 and warns[0].startswith("links1: warning: "), err
+    assert imgs["core"].max() > 0 and imgs["core"][..., 0].max() > imgs["core"][..., 2].max()
+    np.testing.assert_allclose(imgs["mitsuba"], imgs["core"], rtol=1e-4, atol=1e-6)
+
+
+def test_spectra_on_links1_plugins_same_in_both_renderers(tmp_path):
+    """links1_point, links1_spot and links1_phong read <spectrum> as Mitsuba's RGB variants
+    (emitters unweighted, the Phong colours as reflectances) in the plugin as in the core."""
+    imgs, _ = _render_both(tmp_path, (
+        "<emitter type='links1_point'><point name='position' x='0' y='1' z='0'/>"
+        "<spectrum name='L1' value='400:10, 700:20'/></emitter>\n"
+        "<emitter type='links1_spot'><point name='origin' x='0' y='0' z='0'/><vector name='direction' x='0' "
+        "y='0' z='1'/><float name='radius' value='0.3'/><spectrum name='intensity' value='0.5'/></emitter>\n"
+        "<shape type='sphere'><point name='center' x='0' y='0' z='5'/><bsdf type='links1_phong'>"
+        "<spectrum name='diffuse' value='400:0.2, 550:0.3, 700:0.8'/></bsdf></shape>\n"))
     assert imgs["core"].max() > 0 and imgs["core"][..., 0].max() > imgs["core"][..., 2].max()
     np.testing.assert_allclose(imgs["mitsuba"], imgs["core"], rtol=1e-4, atol=1e-6)
