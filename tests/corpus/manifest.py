@@ -59,8 +59,10 @@ SCENES = [
     _s("data_hello", MITSUBA_DATA, "scenes/hello.xml", NO_LICENCE, False, "direct"),
     _s("data_directional", MITSUBA_DATA, "tests/scenes/floating_sphere/test_directional_direct.xml",
        NO_LICENCE, False, "direct"),
-    _s("data_cbox_spectral", MITSUBA_DATA, "scenes/cbox/cbox-spectral.xml", NO_LICENCE, False, "renders",
-       warns=("area emitter",), params={"spp": "4", "res": "32"}),
+    _s("data_cbox_spectral", MITSUBA_DATA, "scenes/cbox/cbox-spectral.xml", NO_LICENCE, False, "direct",
+       params={"spp": "4", "res": "32"},
+       xfail={"mitsuba": "links1_whitted lights this area-lit box 27% darker than Mitsuba's direct "
+                         "(image mean 0.088 vs 0.122 at max_depth 1)"}),
     _s("data_pointlight_spheres", MITSUBA_DATA, "tests/scenes/bsdf_spheres/test_pointlight_path.xml",
        NO_LICENCE, False, "renders", warns=("roughconductor", "'mask'")),
     _s("data_constant_spheres", MITSUBA_DATA, "tests/scenes/bsdf_spheres/test_constant_path.xml",
@@ -83,8 +85,9 @@ SCENES = [
        xfail={"core": "shapegroup/instance are refused by the core"}),
     _s("tutorials_simple", TUTORIALS, "scenes/simple.xml", NO_LICENCE, False, "direct",
        params={"spp": "4", "res": "32"}),
-    _s("tutorials_cbox", TUTORIALS, "scenes/cbox.xml", NO_LICENCE, False, "renders",
-       warns=("area emitter",)),
+    # mirror and glass spheres: not a direct-light-only scene (Mitsuba's direct sees the light in
+    # the mirror), so it is held to "renders"; the tent filter is its approximation until issue 10f
+    _s("tutorials_cbox", TUTORIALS, "scenes/cbox.xml", NO_LICENCE, False, "renders", warns=("'tent'",)),
 ]
 
 
