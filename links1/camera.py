@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .filters import Filter
 from .vec import matvec, normalize
 
 FOV_AXES = ("x", "y", "diagonal", "smaller", "larger")
@@ -38,7 +39,7 @@ def fov_x_from(fov: float, axis: str, width: int, height: int) -> float:
 
 @dataclass
 class Camera:
-    """A perspective camera with an ``hdrfilm`` (full size and crop window)."""
+    """A perspective camera with an ``hdrfilm`` (full size, crop window, reconstruction filter)."""
 
     to_world: np.ndarray = field(default_factory=lambda: np.eye(4))
     fov_x: float = 39.3077
@@ -48,6 +49,8 @@ class Camera:
     height: int = 576
     crop_offset: tuple[int, int] = (0, 0)
     crop_size: tuple[int, int] | None = None
+    #: the film's reconstruction filter (Mitsuba's default: gaussian)
+    rfilter: Filter = field(default_factory=Filter)
 
     def __post_init__(self):
         if self.crop_size is None:

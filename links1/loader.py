@@ -13,7 +13,8 @@ sensor          ``perspective``: ``fov`` + ``fov_axis`` (x) or ``focal_length`` 
                 diagonal field of view of a 36 x 24 mm film, as Mitsuba), ``near_clip`` (1e-2), ``far_clip`` (1e4), ``to_world`` (no scaling).
                 ``thinlens`` is rendered as a pinhole (warning).
 film            ``hdrfilm``: ``width`` (768), ``height`` (576), ``crop_offset_x/y``,
-                ``crop_width/height``; an ``rfilter`` other than ``box`` → warning (box used).
+                ``crop_width/height``; ``rfilter``: ``box``, ``tent`` (radius), ``gaussian``
+                (stddev; the default), ``mitchell`` (B, C), ``catmullrom``, ``lanczos`` (lobes).
 sampler         any type: ``sample_count`` (4) → ``Scene.spp``.
 integrator      its type → ``Scene.integrator``; ``max_depth`` (*links1*: 5; -1 → 5 with warning).
 shape           ``sphere`` (center, radius), ``cylinder`` (p0, p1, radius; open), ``disk``,
@@ -65,6 +66,7 @@ from . import spectra
 from . import transform as tf
 from .camera import FOV_AXES, Camera, fov_x_from
 from .errors import SceneError
+from .filters import FILTERS, Filter
 from .lights import (ENV_LIGHT_ID, AreaLight, ConeSpotLight, ConstantEnvironment, CylinderSpotLight,
                      EnvironmentMap, ParallelLight, PointLight)
 from .vec import coordinate_system
@@ -89,7 +91,6 @@ _INTEGRATORS = {"path", "direct", "volpath", "volpathmis", "aov", "moment", "dep
                 "links1_whitted"}
 _FILMS = {"hdrfilm", "specfilm"}
 _SAMPLERS = {"independent", "stratified", "multijitter", "orthogonal", "ldsampler"}
-_RFILTERS = {"box", "gaussian", "tent", "lanczos", "mitchell", "catmullrom"}
 _SENSORS = {"perspective", "thinlens", "orthographic", "radiancemeter", "irradiancemeter",
             "distant", "batch"}
 
@@ -483,7 +484,8 @@ class _Builder:
         props.ignore("aperture_radius", "focus_distance", "srf")
         # film first: fov_axis conversions need the film's aspect ratio
         films = node.objects("film")
-        width, height, crop_offset, crop_size = self.film(films[0]) if films else (768, 576, (0, 0), None)
+        width, height, crop_offset, crop_size, rfilter = (self.film(films[0]) if films
+                                                          else (768, 576, (0, 0), None, Filter()))
         if len(films) > 1:
             films[1].warn("more than one film: the first one is used")
         samplers = node.objects("sampler")
@@ -531,7 +533,7 @@ class _Builder:
         props.finish()
         cam = _construct(node, Camera, to_world=to_world, fov_x=fov_x, near_clip=near,
                          far_clip=far, width=width, height=height, crop_offset=crop_offset,
-                         crop_size=crop_size)
+                         crop_size=crop_size, rfilter=rfilter)
         return cam, spp
 
     def film(self, node: Node):
@@ -555,14 +557,27 @@ class _Builder:
             raise node.error(f"crop window size must be >= 1, got {cw}x{ch}")
         if ox + cw > width or oy + ch > height:
             raise node.error(f"crop window {cw}x{ch}+{ox}+{oy} exceeds the film {width}x{height}")
-        for rf in node.objects("rfilter"):
-            if rf.type not in _RFILTERS:
-                raise rf.error(f"unknown plugin '{rf.type}' (rfilter)")
-            if rf.type != "box":
-                rf.warn(f"reconstruction filter '{rf.type}': the core uses a box filter")
+        rfilters = node.objects("rfilter")
+        if len(rfilters) > 1:
+            rfilters[1].warn("more than one rfilter: the first one is used")
+        rfilter = self.rfilter(rfilters[0]) if rfilters else Filter()
         props.finish()
         crop = None if (ox, oy, cw, ch) == (0, 0, width, height) else (cw, ch)
-        return width, height, (ox, oy), crop
+        return width, height, (ox, oy), crop, rfilter
+
+    def rfilter(self, node: Node) -> Filter:
+        if node.type not in FILTERS:
+            raise node.error(f"unknown plugin '{node.type}' (rfilter)")
+        props = _Props(node)
+        params = {}
+        for k, default in FILTERS[node.type].items():
+            if props.has(k):
+                params[k] = props.int(k) if k == "lobes" else props.float(k)
+        props.finish()
+        try:
+            return Filter(node.type, params)
+        except ValueError as e:
+            raise node.error(str(e)) from None
 
     def sampler(self, node: Node) -> int:
         if node.type not in _SAMPLERS:

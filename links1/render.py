@@ -12,6 +12,7 @@ import re
 import numpy as np
 
 from .errors import Links1Error, SceneError, UsageError
+from .filters import FilterGather
 from .integrator import DEFAULT_MIN_WEIGHT, WhittedIntegrator
 from .sampling import pixel_keys, ray_keys, sample_offsets
 
@@ -91,31 +92,39 @@ def render(scene, *, spp: int | None = None, max_depth: int | None = None, seed:
     if window is None:
         window = (*cam.crop_offset, *cam.crop_size)
     x0, y0, w, h = _check_window(window, cam.width, cam.height)
-    px, py = _window_pixels(x0, y0, w, h)
-    out = _render_pixels(scene, cam, px, py, spp=spp, max_depth=max_depth, seed=seed, aovs=aovs,
-                         min_weight=min_weight, progress=progress, light_samples=light_samples)
-    return out.reshape(h, w, -1)
+    return render_windows(scene, [(x0, y0, w, h)], spp=spp, max_depth=max_depth, seed=seed, aovs=aovs,
+                          min_weight=min_weight, light_samples=light_samples, progress=progress, cam=cam)[0]
 
 
 def render_windows(scene, windows, *, spp: int | None = None, max_depth: int | None = None, seed: int = 0,
-                   aovs=(), min_weight: float = DEFAULT_MIN_WEIGHT, light_samples: int = 1) -> list:
+                   aovs=(), min_weight: float = DEFAULT_MIN_WEIGHT, light_samples: int = 1,
+                   progress: bool = False, cam=None) -> list:
     """Render several windows of the film in one pass -> one array per window, each bit for bit
     what :func:`render` returns for it (pixels are traced independently, in batches of
-    ``BATCH``: a batch of small windows pays the per-call numpy overhead once)."""
-    cam = scene.camera
+    ``BATCH``: a batch of small windows pays the per-call numpy overhead once). Each window
+    traces the samples of its filter border too (links1/filters.py) and gathers them alone."""
+    cam = scene.camera if cam is None else cam
     spp = scene.spp if spp is None else int(spp)
     if spp < 1:
         raise UsageError(f"spp must be >= 1, got {spp}")
     aovs = check_aovs(aovs)
     wins = [_check_window(win, cam.width, cam.height) for win in windows]
-    pxs, pys = zip(*(_window_pixels(*win) for win in wins))
-    flat = _render_pixels(scene, cam, np.concatenate(pxs), np.concatenate(pys), spp=spp, max_depth=max_depth,
-                          seed=seed, aovs=aovs, min_weight=min_weight, progress=False,
+    gathers = [FilterGather(cam.rfilter, win, (cam.width, cam.height)) for win in wins]
+    pxs, pys = zip(*(_window_pixels(*g.sample_window) for g in gathers))
+    starts = np.cumsum([0] + [len(p) for p in pxs])
+
+    def add_layer(rgb, ox, oy):
+        for g, a, b in zip(gathers, starts[:-1], starts[1:]):
+            sh, sw = g.sample_window[3], g.sample_window[2]
+            g.add(rgb[a:b].reshape(sh, sw, 3), ox[a:b].reshape(sh, sw), oy[a:b].reshape(sh, sw))
+
+    flat = _render_pixels(scene, cam, np.concatenate(pxs), np.concatenate(pys), add_layer, spp=spp,
+                          max_depth=max_depth, seed=seed, aovs=aovs, min_weight=min_weight, progress=progress,
                           light_samples=light_samples)
-    out, at = [], 0
-    for x0, y0, w, h in wins:
-        out.append(flat[at:at + w * h].reshape(h, w, -1))
-        at += w * h
+    out = []
+    for g, a, b in zip(gathers, starts[:-1], starts[1:]):
+        sh, sw = g.sample_window[3], g.sample_window[2]
+        out.append(np.concatenate([g.result(), g.inner(flat[a:b].reshape(sh, sw, -1))], axis=2))
     return out
 
 
@@ -125,11 +134,14 @@ def _window_pixels(x0, y0, w, h):
     return xs + x0, ys + y0
 
 
-def _render_pixels(scene, cam, px, py, *, spp, max_depth, seed, aovs, min_weight, progress, light_samples=1):
-    """(len(px), 3 + AOV channels) for the pixels ``(px, py)`` of the film (row 0 at the top)."""
+def _render_pixels(scene, cam, px, py, add_layer, *, spp, max_depth, seed, aovs, min_weight, progress,
+                   light_samples=1):
+    """Trace the ``spp`` samples of the pixels ``(px, py)`` of the film (row 0 at the top):
+    ``add_layer(rgb (n, 3), offx (n,), offy (n,))`` receives sample 0, 1, ... of every pixel in
+    turn; returns the per-pixel AOV channels ``(n, number of AOV channels)``."""
     integ = WhittedIntegrator(scene, max_depth=max_depth, min_weight=min_weight, light_samples=light_samples)
     npix = len(px)
-    rgb = np.zeros((npix, 3))
+    layer, offs = np.zeros((npix, 3)), np.zeros((2, npix))  # one sample of every pixel
     cost = np.zeros(npix, dtype=np.int64)
     depth_aov = np.zeros(npix)
     normal_aov = np.zeros((npix, 3))
@@ -145,7 +157,7 @@ def _render_pixels(scene, cam, px, py, *, spp, max_depth, seed, aovs, min_weight
         L, hits, rec = integ.trace(o, d, tmin, tmax, c, keys=keys,
                                    sample=(pixel_keys(px[a:b], py[a:b], seed, cam.width), i, spp))
         integ.stats.rays["camera"] += b - a
-        rgb[a:b] += L
+        layer[a:b], offs[0, a:b], offs[1, a:b] = L, ox, oy
         cost[a:b] += c
         if i == 0 and aovs:
             valid = hits.valid
@@ -153,12 +165,13 @@ def _render_pixels(scene, cam, px, py, *, spp, max_depth, seed, aovs, min_weight
             id_aov[a:b] = np.where(valid, hits.shape, -1)
             if rec is not None:
                 normal_aov[a:b] = rec.ns
+        if b == npix:
+            add_layer(layer, offs[0], offs[1])
         if bar is not None:
             bar.update(1)
     if bar is not None:
         bar.close()
-    rgb /= spp
-    channels = [rgb]
+    channels = [np.zeros((npix, 0))]
     for a in aovs:
         channels.append({"depth": depth_aov[:, None], "normal": normal_aov, "id": id_aov[:, None],
                          "cost": cost[:, None].astype(np.float64)}[a])

@@ -13,7 +13,8 @@ Exact definition (the plugins reproduce it with Dr.Jit ``UInt32`` arithmetic):
   where ``mix`` is Chris Wellons' ``lowbias32``, ``(px, py)`` the pixel in the *full film*
   (so a crop window renders the same samples as the full frame) and ``axis`` 0 for x, 1 for y.
 * Film coordinates: ``x_film = (px + off_x) / film_width``, ``y_film = (py + off_y) / film_height``,
-  row 0 at the top (Mitsuba's convention). Samples are averaged with equal weights (box filter).
+  row 0 at the top (Mitsuba's convention). Samples are weighted by the film's reconstruction
+  filter (:mod:`links1.filters`).
 """
 from __future__ import annotations
 

@@ -34,6 +34,7 @@ import warnings
 
 import numpy as np
 
+from links1.filters import Filter, FilterGather, filter_samples
 from links1.lights import ENV_LIGHT_ID
 from links1.sampling import light_tag, strata
 
@@ -430,6 +431,7 @@ def define_integrator():
             film = sensor.film()
             P.sensor = sensor
             P.film_size = (int(film.size()[0]), int(film.size()[1]))
+            P.rfilter = Filter.from_mitsuba(film.rfilter())
             P.perspective = str(sensor).startswith("PerspectiveCamera")
             if P.perspective:
                 prm = mi.traverse(sensor)
@@ -1179,8 +1181,9 @@ def define_integrator():
         def render_window(self, scene, window=None, spp=1, seed=None, aovs=None):
             """Render ``window = (x0, y0, w, h)`` of the full film (row 0 at the top).
 
-            Returns a float64 ndarray ``(h, w, 3 + aov channels)``: the mean of the pixel's
-            ``spp`` samples at the positions of :mod:`links1.sampling`.
+            Returns a float64 ndarray ``(h, w, 3 + aov channels)``: the pixel's ``spp`` samples
+            at the positions of :mod:`links1.sampling` and those of its neighbours within the
+            film's reconstruction filter, weighted by it (:mod:`links1.filters`; box: the mean).
             """
             return self.render_windows(scene, [window], spp=spp, seed=seed, aovs=aovs)[0]
 
@@ -1206,9 +1209,11 @@ def define_integrator():
             seed = self.seed if seed is None else int(seed)
             aovs = self.aovs if aovs is None else parse_aovs(aovs)
             want = bool(aovs)
+            # each window traces the samples of its filter border too (clipped to the film)
+            gathers = [FilterGather(P.rfilter, win, (W, H)) for win in wins]
             pix = np.concatenate([((np.arange(y0, y0 + h, dtype=np.uint32) * W)[:, None]
                                    + np.arange(x0, x0 + w, dtype=np.uint32)[None, :]).ravel()
-                                  for x0, y0, w, h in wins])
+                                  for x0, y0, w, h in (g.sample_window for g in gathers)])
             sid_np = (pix[:, None] * np.uint32(spp) + np.arange(spp, dtype=np.uint32)[None, :]).ravel()
             n = sid_np.size
             sid = mi.UInt32(sid_np)
@@ -1236,8 +1241,13 @@ def define_integrator():
                 total, cost, t0, s0, n0, counters = self._trace_tree(P, scene, o, d, tmin, tmax, key, want)
             self._record(n, **counters)
             npix = n // spp
-            rgb = _columns(total, n).astype(np.float64)
-            rgb = rgb.reshape(npix, spp, 3).mean(axis=1) if spp > 1 else rgb.reshape(npix, 3)
+            samples = _columns(total, n).astype(np.float64)
+            box = P.rfilter.border == 0
+            if box:
+                rgb = samples.reshape(npix, spp, 3).mean(axis=1) if spp > 1 else samples.reshape(npix, 3)
+            else:
+                samples = samples.reshape(npix, spp, 3)
+                rgb = np.zeros((npix, 0))
             chans = [rgb]
             if aovs:
                 first = slice(0, None, spp)
@@ -1256,9 +1266,15 @@ def define_integrator():
                         chans.append(_lanes(cost, n).astype(np.float64).reshape(npix, spp).sum(axis=1)[:, None])
             flat = np.concatenate(chans, axis=1) if len(chans) > 1 else rgb
             out, at = [], 0
-            for x0, y0, w, h in wins:
-                out.append(flat[at:at + w * h].reshape(h, w, -1))
-                at += w * h
+            for g in gathers:
+                sx0, sy0, sw, sh = g.sample_window
+                img = g.inner(flat[at:at + sw * sh].reshape(sh, sw, -1))
+                if not box:
+                    block = samples[at:at + sw * sh].reshape(sh, sw, spp, 3)
+                    rgb = filter_samples(P.rfilter, g.window, (W, H), block, (sx0, sy0), spp, seed)
+                    img = np.concatenate([rgb, img], axis=2)
+                out.append(img)
+                at += sw * sh
             return out
 
         def channels(self):

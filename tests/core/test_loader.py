@@ -213,10 +213,22 @@ def test_defaults_without_sensor_follow_mitsuba():
     assert s.camera.fov_x == pytest.approx(math.degrees(2 * math.atan(math.hypot(36, 24) / 100 * 0.8)))
 
 
-def test_gaussian_filter_warns():
-    with pytest.warns(SceneWarning, match="box filter"):
-        loader.load_string(scene_xml('<sensor type="perspective"><film type="hdrfilm">'
-                                     '<rfilter type="gaussian"/></film></sensor>'))
+def test_rfilter_types_parameters_and_mitsuba_default():
+    def rf(inner):
+        return loader.load_string(scene_xml('<sensor type="perspective"><film type="hdrfilm">'
+                                            f'{inner}</film></sensor>')).camera.rfilter
+    # Mitsuba 3.9.1: no rfilter -> gaussian, stddev 0.5, radius 4 stddev
+    assert (rf("").name, rf("").radius) == ("gaussian", 2.0)
+    assert load("").camera.rfilter.name == "gaussian"
+    assert rf('<rfilter type="gaussian"><float name="stddev" value="0.25"/></rfilter>').radius == 1.0
+    assert rf('<rfilter type="lanczos"><integer name="lobes" value="2"/></rfilter>').radius == 2.0
+    assert rf('<rfilter type="tent"><float name="radius" value="1.5"/></rfilter>').border == 1
+    assert rf('<rfilter type="mitchell"><float name="B" value="0.2"/></rfilter>').params == {"B": 0.2, "C": 1 / 3}
+    assert (rf('<rfilter type="box"/>').radius, rf('<rfilter type="box"/>').border) == (0.5, 0)
+    with pytest.raises(SceneError, match=r"<string>:\d+: <rfilter type='tent'>: .*radius must be a positive"):
+        rf('<rfilter type="tent"><float name="radius" value="-1"/></rfilter>')
+    with pytest.raises(SceneError, match="unknown plugin 'blackman'"):
+        rf('<rfilter type="blackman"/>')
 
 
 # -- shapes ---------------------------------------------------------------------------------
