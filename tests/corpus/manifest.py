@@ -26,8 +26,6 @@ BLENDER = ("mitsuba-renderer/mitsuba-blender", "862d44f24fbebcd6ef4c6521cf2e1fc9
 
 NO_LICENCE = "none stated (no LICENSE in the repository)"
 BSD3 = "BSD-3-Clause (repository LICENSE)"
-GAUSSIAN = ("the film names no rfilter, so Mitsuba filters with its default gaussian; both renderers "
-            "use a box filter until reconstruction filters land (issue 10f): relMSE 4x Mitsuba's own")
 
 
 @dataclass(frozen=True)
@@ -68,8 +66,7 @@ SCENES = [
     _s("data_constant_spheres", MITSUBA_DATA, "tests/scenes/bsdf_spheres/test_constant_path.xml",
        NO_LICENCE, False, "renders", warns=("roughplastic", "roughdielectric")),
     _s("data_texture_interp", MITSUBA_DATA, "tests/scenes/texture_interp/test_texture_interp_direct.xml",
-       NO_LICENCE, False, "direct",
-       xfail={k: GAUSSIAN for k in ("core", "mitsuba")}),
+       NO_LICENCE, False, "direct"),  # no rfilter: Mitsuba's default gaussian, in both renderers
     _s("data_spot", MITSUBA_DATA, "tests/scenes/spot_light/test_spot_direct.xml",
        NO_LICENCE, False, "renders", warns=("<texture> inside an emitter is ignored",)),
     _s("data_mesh_attributes", MITSUBA_DATA,
