@@ -180,21 +180,24 @@ class FilterGather:
             self._num = np.zeros((h, w, values.shape[2]))
         b = self.filter.border
         f = self.filter.eval
+        offx, offy = np.asarray(offx, dtype=np.float64), np.asarray(offy, dtype=np.float64)
+        # the 1-D weights of every sample towards the pixel dx (dy) columns (rows) away from it
+        wxs = [f(0.5 - dx - offx) for dx in range(-b, b + 1)]
+        wys = [f(0.5 - dy - offy) if weight is None else f(0.5 - dy - offy) * weight
+               for dy in range(-b, b + 1)]
         for dy in range(-b, b + 1):
             # rows of the window whose neighbour row y + dy lies on the film
             ya, yb = max(0, sy0 - (y0 + dy)), min(h, sy0 + sh - (y0 + dy))
             if ya >= yb:
                 continue
             rs = slice(y0 + dy + ya - sy0, y0 + dy + yb - sy0)
-            wy = f(0.5 - dy - np.asarray(offy)[rs])
+            wy = wys[dy + b][rs]
             for dx in range(-b, b + 1):
                 xa, xb = max(0, sx0 - (x0 + dx)), min(w, sx0 + sw - (x0 + dx))
                 if xa >= xb:
                     continue
                 cs = slice(x0 + dx + xa - sx0, x0 + dx + xb - sx0)
-                wgt = wy[:, cs] * f(0.5 - dx - np.asarray(offx)[rs, cs])
-                if weight is not None:
-                    wgt = wgt * np.asarray(weight)[rs, cs]
+                wgt = wy[:, cs] * wxs[dx + b][rs, cs]
                 self._num[ya:yb, xa:xb] += wgt[:, :, None] * values[rs, cs]
                 self._den[ya:yb, xa:xb] += wgt
 
