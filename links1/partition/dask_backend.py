@@ -62,6 +62,7 @@ class DaskBackend:
         self.client, self.cluster = client, None
         self._own_client = client is None
         self.poll_s = poll_s
+        self.fetch_s = 5.0   # a finished unit's result that takes longer to fetch is waited for again
         self.chunk_factor, self.task_pixels = int(chunk_factor), int(task_pixels)
         self.token = uuid.uuid4().hex[:8]
         self._plugin = None
@@ -178,7 +179,15 @@ class DaskBackend:
             except TimeoutError:
                 done = ()
             for f in done:
-                batch, node = pending.pop(f)
+                batch, node = pending[f]
+                if f.status not in ("error", "cancelled"):
+                    try:  # a result kept on a worker that died since is recomputed: wait in the loop
+                        results = f.result(timeout=self.fetch_s)
+                    except (TimeoutError, asyncio.TimeoutError):
+                        continue  # still pending: if its node left, the loss handling below resubmits it
+                    except Exception:  # noqa: BLE001 - the task failed meanwhile: reported below
+                        pass
+                pending.pop(f)
                 if f.status == "error":
                     exc = f.exception()
                     if type(exc).__name__ == "KilledWorker":
@@ -187,7 +196,6 @@ class DaskBackend:
                     raise exc
                 if f.status == "cancelled":
                     continue
-                results = f.result()
                 f.release()
                 for i, (px, info) in zip(batch, results):
                     info["worker"] = f"{info.get('pid')}"

@@ -136,11 +136,9 @@ def warm_up(renderer):
     caches are ready before the node's first unit: start-up, not work."""
     w, h = renderer.film_size
     tiny = [(0, 0, min(w, 3), min(h, 2)), (0, 0, min(w, 2), min(h, 3)), (0, 0, min(w, 4), min(h, 4))]
-    if can_batch(renderer):
+    if can_batch(renderer):  # the links1 renderers (others are left as they are)
         for k in range(3):
             renderer.render_batch(tiny[k:] + tiny[:k][:1])
-    else:
-        renderer.render(window=tiny[0])
 
 
 def spec_batches(spec: RendererSpec) -> bool:
