@@ -1,0 +1,255 @@
+"""The launch machinery of ``links1_whitted`` (its one home): camera rays of any pixel set,
+the :func:`drjit.freeze` launch replayed for any window, batch size or spp, read-back.
+
+:func:`define_launches` returns a class whose methods ``Links1Whitted`` takes (defined in a
+function, as the integrator, because the Mitsuba variant must be set first).
+"""
+from __future__ import annotations
+
+import gc
+import math
+
+import numpy as np
+
+from links1.filters import FilterGather, filter_samples
+from links1.sampling import strata
+
+#: The integrator whose frozen window function runs (read inside it, not traversed by freeze).
+_FROZEN_CALLER = {"integrator": None}
+
+#: the camera sample (pixel key, i, spp) of the rays last made by ``_camera_rays``, per integrator,
+#: read by the primary level of ``_trace_tree`` (kept out of the integrator: Dr.Jit freezing walks it)
+_CAM_SAMPLE: dict = {}
+
+
+def _columns(v, n=None):
+    """(N, 3) float32 numpy array of a Dr.Jit 3-vector (or of a flat, interleaved Float).
+
+    A 3-vector is read one component at a time: converting it whole runs a packing kernel
+    whose strides (the window size) are literals, i.e. one compile per window size."""
+    import drjit as dr
+    if dr.size_v(v) == 3:
+        n = dr.width(v) if n is None else n
+        return np.stack([np.asarray(_lanes(v[k], n), dtype=np.float32) for k in range(3)], axis=1)
+    return np.asarray(v.numpy(), dtype=np.float32).reshape(-1, 3)
+
+
+def _lanes(v, n):
+    """numpy copy of a Dr.Jit array with ``n`` lanes (a kernel output) or of a literal (one
+    value; a frozen function returns literals at their recorded width): broadcast to ``n``."""
+    a = np.asarray(v.numpy())
+    return a if a.shape[0] == n else np.broadcast_to(a[:1], (n,) + a.shape[1:])
+
+
+def _frozen_caller():
+    # a function: freeze hashes the globals a frozen function names and traverses their
+    # Dr.Jit contents; through a call the integrator (and its scene) stay out of that
+    return _FROZEN_CALLER["integrator"]
+
+
+def define_launches(mi, dr, mix32, u24):
+    """The ``Launches`` mixin for the variant in use (``mix32``/``u24``: the integrator's hashes)."""
+    from .integrator import parse_aovs
+
+    class Launches:
+        """Ray generation and launches; the ray tree (``_trace_tree``) and tables (``prepare``)
+        come from the integrator."""
+
+        # -------------------------------------------------------------- camera
+        def _camera_rays(self, P, sid, spp, seed):
+            """Camera rays of the samples ``sid = pixel * spp + i`` (``pixel = py * W + px``, ``i``
+            the sample's index in its pixel): any set of pixels (one window or a batch of them)
+            in one launch. ``sid``, ``spp = (spp, strata k)`` and ``seed = (pattern seed, key
+            seed)`` are run-time values (``UInt32``), so neither the pixel set nor the sample count
+            enters the kernels (see :meth:`render_windows`)."""
+            W, H = P.film_size
+            n_s, k_s = spp
+            pix = sid // n_s
+            i = sid - pix * n_s
+            py = pix // W
+            px = pix - py * W
+            kf = mi.Float(k_s)
+            sx = mi.Float(i % k_s)
+            sy = mi.Float(i // k_s)
+            base = mix32(mix32(seed[0]) ^ pix)
+            ux = u24(mix32(base ^ (2 * i)))
+            uy = u24(mix32(base ^ (2 * i + 1)))
+            centre = n_s == 1   # one sample: the pixel centre (links1.sampling)
+            offx = dr.select(centre, mi.Float(0.5), (sx + ux) / kf)
+            offy = dr.select(centre, mi.Float(0.5), (sy + uy) / kf)
+            xf = (mi.Float(px) + offx) / W
+            yf = (mi.Float(py) + offy) / H
+            key = mix32(mix32(seed[1]) ^ sid)
+            # light samples of a primary hit: one set over the pixel (links1.sampling.pixel_keys)
+            _CAM_SAMPLE[id(self)] = (mix32(mix32(seed[1] ^ 0x5BD1E995) ^ pix), i, n_s)
+            n = dr.width(sid)
+            if P.perspective:
+                tn = math.tan(math.radians(P.x_fov) / 2.0)
+                aspect = W / H
+                dc = dr.normalize(mi.Vector3f((1.0 - 2.0 * xf) * tn, (1.0 - 2.0 * yf) * (tn / aspect), 1.0))
+                inv_z = 1.0 / dc.z
+                m = P.cam.tolist()
+                d = dr.normalize(mi.Vector3f(*[m[r][0] * dc.x + m[r][1] * dc.y + m[r][2] * dc.z
+                                               for r in range(3)]))
+                o = mi.Point3f(m[0][3], m[1][3], m[2][3]) + mi.Vector3f(dr.zeros(mi.Float, n))
+                return o, d, P.near * inv_z, P.far * inv_z, key, i
+            ray, _ = P.sensor.sample_ray(0.0, 0.5, mi.Point2f(xf, yf), mi.Point2f(0.5, 0.5))
+            return mi.Point3f(ray.o), mi.Vector3f(ray.d), dr.zeros(mi.Float, n), mi.Float(ray.maxt), key, i
+
+        # -------------------------------------------------------------- launches
+        def _record(self, n, nsh1, cr=None, ct=None, nr=None, nt=None, nsh2=None):
+            """Ray counters of the last render (rays by kind, and per camera ray)."""
+            c = {"camera": int(n)}
+            tot = lambda a: 0 if a is None else int(np.sum(_lanes(a, dr.width(a)), dtype=np.int64))  # noqa: E731
+            c["shadow"] = tot(nsh1) + tot(nsh2)
+            c["reflect"] = tot(cr) + tot(nr)
+            c["refract"] = tot(ct) + tot(nt)
+            c["secondary_lanes"] = int(np.count_nonzero(_lanes(cr, n) | _lanes(ct, n))) if cr is not None else 0
+            c["per_camera_ray"] = {k: c[k] / max(n, 1) for k in ("shadow", "reflect", "refract")}
+            self.stats = c
+
+        def _frozen_inputs(self, P):
+            """Every Dr.Jit array the trace reads from the per-scene tables (the frozen
+            function must receive them as inputs), gathered once per ``P``."""
+            if getattr(P, "frozen_inputs", None) is None:
+                found, seen = [], set()
+
+                def walk(x, depth=0):
+                    if depth > 12 or id(x) in seen:
+                        return
+                    seen.add(id(x))
+                    if dr.is_array_v(x):
+                        found.append(x)
+                    elif isinstance(x, dict):
+                        for v in x.values():
+                            walk(v, depth + 1)
+                    elif isinstance(x, (list, tuple)):
+                        for v in x:
+                            walk(v, depth + 1)
+                    elif hasattr(x, "__dict__") and not isinstance(x, (mi.Object, type)) \
+                            and not callable(x):
+                        for v in vars(x).values():
+                            walk(v, depth + 1)
+                walk(P)
+                P.frozen_inputs = found
+            return P.frozen_inputs
+
+        def _frozen_fn(self):
+            """The launch as a :func:`drjit.freeze` function of run-time inputs (sample ids,
+            sample count, seeds: ``UInt32``; the per-scene tables): recorded once per
+            configuration ``cfg`` (scene, AOVs, depth, weight threshold: hashed Python values)
+            and replayed without re-tracing for any pixel set, window or batch size and spp
+            (freeze replays recorded kernels at the widths of the new inputs)."""
+            if self._freeze is None:
+                def launch_kernels(sid, n_op, spp, seeds, cfg, tables, scene):
+                    # no closure: freeze would traverse it (the integrator, the scene ...)
+                    self = _frozen_caller()
+                    P = self._prep
+                    want = cfg[2]
+                    o, d, tmin, tmax, key, _ = self._camera_rays(P, sid, spp, seeds)
+                    total, cost, t0, s0, n0, counters = self._trace_tree(P, scene, o, d, tmin, tmax, key,
+                                                                         want, frozen=n_op)
+                    return (total, cost, t0, s0, n0, counters) if want else (total, cost, counters)
+                self._freeze = dr.freeze(launch_kernels, warn_after=1000)
+            return self._freeze
+
+        def render_window(self, scene, window=None, spp=1, seed=None, aovs=None):
+            """Render ``window = (x0, y0, w, h)`` of the full film (row 0 at the top).
+
+            Returns a float64 ndarray ``(h, w, 3 + aov channels)``: the pixel's ``spp`` samples
+            at the positions of :mod:`links1.sampling` and those of its neighbours within the
+            film's reconstruction filter, weighted by it (:mod:`links1.filters`; box: the mean).
+            """
+            return self.render_windows(scene, [window], spp=spp, seed=seed, aovs=aovs)[0]
+
+        def render_windows(self, scene, windows, spp=1, seed=None, aovs=None):
+            """Render several windows of the film in one launch -> one array per window, each
+            exactly what :meth:`render_window` returns for it (pixels are independent lanes).
+
+            The pixel set reaches the kernels as a ``UInt32`` array of sample ids, so no window
+            offset, window size, batch size or sample count enters the recorded kernels: one
+            recording per configuration, then replays (:meth:`_frozen_fn`).
+            """
+            P = self.prepare(scene)
+            W, H = P.film_size
+            wins = []
+            for window in windows:
+                x0, y0, w, h = (0, 0, W, H) if window is None else (int(v) for v in window)
+                if not (0 <= x0 and 0 <= y0 and w > 0 and h > 0 and x0 + w <= W and y0 + h <= H):
+                    raise ValueError(f"window {window} is outside the {W}x{H} film")
+                wins.append((x0, y0, w, h))
+            spp = int(spp)
+            if W * H * spp >= 2 ** 32:
+                raise ValueError(f"{W}x{H} pixels x {spp} samples exceed the 32-bit sample ids")
+            seed = self.seed if seed is None else int(seed)
+            aovs = self.aovs if aovs is None else parse_aovs(aovs)
+            want = bool(aovs)
+            # each window traces the samples of its filter border too (clipped to the film)
+            gathers = [FilterGather(P.rfilter, win, (W, H)) for win in wins]
+            pix = np.concatenate([((np.arange(y0, y0 + h, dtype=np.uint32) * W)[:, None]
+                                   + np.arange(x0, x0 + w, dtype=np.uint32)[None, :]).ravel()
+                                  for x0, y0, w, h in (g.sample_window for g in gathers)])
+            sid_np = (pix[:, None] * np.uint32(spp) + np.arange(spp, dtype=np.uint32)[None, :]).ravel()
+            n = sid_np.size
+            sid = mi.UInt32(sid_np)
+            spp_ = (dr.opaque(mi.UInt32, spp), dr.opaque(mi.UInt32, strata(spp)))
+            seeds = (dr.opaque(mi.UInt32, seed & 0xFFFFFFFF),
+                     dr.opaque(mi.UInt32, (seed * 0x27D4EB2F + 0x165667B1) & 0xFFFFFFFF))
+            if self.use_freeze:
+                cfg = (id(P), id(scene), want, int(self.max_depth), float(self.min_weight))
+                fn = self._frozen_fn()
+                _FROZEN_CALLER["integrator"] = self
+                # no cyclic garbage collection while recording: freeing another renderer's
+                # Dr.Jit state (its own recordings) in the middle of one aborts the process
+                gc_on = gc.isenabled()
+                gc.disable()
+                try:
+                    out = fn(sid, dr.opaque(mi.UInt32, n), spp_, seeds, cfg, self._frozen_inputs(P), scene)
+                finally:
+                    _FROZEN_CALLER["integrator"] = None
+                    if gc_on:
+                        gc.enable()
+                total, cost, counters = out[0], out[1], out[-1]
+                t0, s0, n0 = out[2:5] if want else (None, None, None)
+            else:
+                o, d, tmin, tmax, key, _ = self._camera_rays(P, sid, spp_, seeds)
+                total, cost, t0, s0, n0, counters = self._trace_tree(P, scene, o, d, tmin, tmax, key, want)
+            self._record(n, **counters)
+            npix = n // spp
+            samples = _columns(total, n).astype(np.float64)
+            box = P.rfilter.border == 0
+            if box:
+                rgb = samples.reshape(npix, spp, 3).mean(axis=1) if spp > 1 else samples.reshape(npix, 3)
+            else:
+                samples = samples.reshape(npix, spp, 3)
+                rgb = np.zeros((npix, 0))
+            chans = [rgb]
+            if aovs:
+                first = slice(0, None, spp)
+                t0 = _lanes(t0, n).astype(np.float64)[first]
+                s0 = _lanes(s0, n).astype(np.int64)[first]
+                n0 = _columns(n0, n).astype(np.float64)[first]
+                hit0 = s0 >= 0
+                for a in aovs:
+                    if a == "depth":
+                        chans.append(np.where(hit0, t0, 0.0)[:, None])
+                    elif a == "normal":
+                        chans.append(np.where(hit0[:, None], n0, 0.0))
+                    elif a == "id":
+                        chans.append(s0.astype(np.float64)[:, None])
+                    elif a == "cost":
+                        chans.append(_lanes(cost, n).astype(np.float64).reshape(npix, spp).sum(axis=1)[:, None])
+            flat = np.concatenate(chans, axis=1) if len(chans) > 1 else rgb
+            out, at = [], 0
+            for g in gathers:
+                sx0, sy0, sw, sh = g.sample_window
+                img = g.inner(flat[at:at + sw * sh].reshape(sh, sw, -1))
+                if not box:
+                    block = samples[at:at + sw * sh].reshape(sh, sw, spp, 3)
+                    rgb = filter_samples(P.rfilter, g.window, (W, H), block, (sx0, sy0), spp, seed)
+                    img = np.concatenate([rgb, img], axis=2)
+                out.append(img)
+                at += sw * sh
+            return out
+
+    return Launches
