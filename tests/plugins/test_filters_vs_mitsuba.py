@@ -84,13 +84,18 @@ def test_per_filter_within_2x_of_direct(llvm, tmp_path, name):
         assert relmse(box, ref) > 2 * theirs
 
 
+@pytest.mark.parametrize("kind", ["core", "mitsuba"])
 @pytest.mark.parametrize("name", ["gaussian", "lanczos"])
-def test_plugin_windows_equal_full_frame(llvm, tmp_path, name):
+def test_windows_and_batches_equal_full_frame(llvm, tmp_path, name, kind):
+    """One window, or a batch of windows in one launch (render_batch), equals the same pixels of
+    the full frame bit for bit: each window gathers its own border samples."""
     from links1.render import make_renderer
-    r = make_renderer("mitsuba", write_scene(tmp_path, RFILTERS[name]), spp=4, aovs=("depth", "cost"))
+    r = make_renderer(kind, write_scene(tmp_path, RFILTERS[name]), spp=4, aovs=("depth", "cost"))
     full = r.render()
-    for x0, y0, w, h in [(0, 0, 8, 8), (8, 0, 8, 8), (12, 20, 20, 12), (1, 3, 30, 5)]:
+    wins = [(0, 0, 8, 8), (8, 0, 8, 8), (12, 20, 20, 12), (1, 3, 30, 5)]
+    for (x0, y0, w, h), batched in zip(wins, r.render_batch(wins)):
         assert np.array_equal(r.render((x0, y0, w, h)), full[y0:y0 + h, x0:x0 + w])
+        assert np.array_equal(batched, full[y0:y0 + h, x0:x0 + w])
 
 
 @pytest.mark.slow
