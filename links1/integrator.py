@@ -69,6 +69,7 @@ class ScenePlan:
     any_transmission: bool
     any_emission: bool
     shadow_need: list
+    shadow_inner: list
     shadow_t_light: list
 
 
@@ -76,7 +77,7 @@ def scene_plan(scene) -> ScenePlan:
     plan = getattr(scene, "_plan", None)
     if plan is not None:
         return plan
-    from .occluders import shadow_plan
+    from .occluders import closed_convex, shadow_plan
     shapes = scene.shapes
     index = {}
     materials = []
@@ -94,6 +95,9 @@ def scene_plan(scene) -> ScenePlan:
         any_transmission=any(m.has_transmission for m in materials),
         any_emission=any(s.emission is not None for s in shapes),
         shadow_need=need,
+        # closed convex occluders skipped above: their own points with the light on the inner
+        # side of the surface still need a shadow ray (links1.occluders)
+        shadow_inner=[occ & closed_convex(shapes) & ~nd for occ, nd in zip(occluder, need)],
         shadow_t_light=[np.where(occ[:, None], shadow_t, 1.0) for occ in occluder],
     )
     scene._plan = plan
@@ -138,6 +142,7 @@ class WhittedIntegrator:
         self._material_of = plan.material_of
         self._materials = plan.materials
         self._shadow_need = plan.shadow_need
+        self._shadow_inner = plan.shadow_inner
         self._shadow_t_light = plan.shadow_t_light
         self.stats = TraceStats()
 
@@ -285,7 +290,8 @@ class WhittedIntegrator:
         """Add ``contrib`` of light ``j`` to ``out``, dimmed by the transmittance of the shapes
         its shadow segment crosses (3-3-3), tracing only where an occluder can be."""
         lit = np.any(contrib != 0.0, axis=1)
-        need = self._shadow_need[j][hits.shape]
+        need = self._shadow_need[j][hits.shape] | \
+            (self._shadow_inner[j][hits.shape] & (dot(rec.ng, wi) <= 0.0))  # inner side: links1.occluders
         unblockable = lit & ~need  # no shape can lie between these points and the light
         out[unblockable] += contrib[unblockable]
         shadowed = np.nonzero(lit & need)[0]

@@ -4,8 +4,10 @@ integrator traces no shadow ray where no occluder can be (issue 5 §4).
 Two conservative facts decide it:
 
 * a **convex** shape (an unclipped sphere or ellipsoid, a capped quadric, a disk, a planar
-  or convex closed mesh) never shadows its own lit points: the segment from a point on its
-  surface toward a light it faces leaves it at once;
+  or convex closed mesh) never shadows its own points *toward a light on the outer side of
+  the surface there* (``ng · wi > 0``, ``ng`` outward): that segment leaves it at once. A
+  **closed** convex shape does shadow its points whose light lies on the inner side (seen
+  from inside it, or reached by refraction through it): that segment crosses it (issue 14);
 * a **planar** shape (disk, rectangle, flat mesh) shadows nothing toward a light when the
   light and every other shape lie on one side of its plane (a floor under the scene); for an
   area light the whole emitter (its bounding box) must lie on that side;
@@ -14,6 +16,8 @@ Two conservative facts decide it:
 The result per light ``j``: ``occluder[j]`` (S,) bool, the shapes a shadow ray toward ``j``
 may hit, and ``need[j]`` (S,) bool, whether a point on shape ``s`` needs a shadow ray toward
 ``j`` at all (some occluder other than ``s``, or ``s`` itself when it is not convex).
+:func:`closed_convex` names the convex shapes whose points still need a shadow ray where
+``ng · wi <= 0``.
 """
 from __future__ import annotations
 
@@ -63,6 +67,17 @@ def _convex(shape) -> bool:
         side = np.einsum("fk,fvk->fv", n, v[None, :, :] - v[f[:, 0]][:, None, :])
         return bool(np.all(side <= SIDE_TOL * (1.0 + np.max(np.abs(v))) * np.linalg.norm(n, axis=1)[:, None]))
     return False
+
+
+def closed_convex(shapes) -> np.ndarray:
+    """(S,) bool: the convex shapes that enclose a volume (not planar), whose points with the
+    light on the inner side of the surface are shadowed by the shape itself."""
+    return np.array([_convex(s) and _plane_of(s) is None and not _is_disk(s) for s in shapes], dtype=bool)
+
+
+def _is_disk(shape) -> bool:
+    from .shapes import Disk
+    return isinstance(shape, Disk)
 
 
 def _light_side(light, n, p0):

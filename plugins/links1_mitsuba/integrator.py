@@ -420,15 +420,19 @@ def define_integrator():
         def _occluders(self, P, shapes, slot_list):
             """Which shapes can lie between a lit point and each light (skip what can't).
 
-            A convex shape (sphere, capped quadric, rectangle, disk) never shadows its own lit
-            points; a planar one shadows nothing when the light and every other shape lie on the
-            same side of its plane. ``P.shadow_need[j]``: per slot, whether hits on that slot need
-            a shadow ray toward light ``j``; ``P.occ_custom[j]`` / ``P.occ_mitsuba[j]``: the
-            links1 shapes / whether any Mitsuba shape can occlude it. Conservative."""
+            A convex shape (sphere, capped quadric, rectangle, disk) never shadows its own
+            points toward a light on the outer side of the surface there; a closed one (sphere,
+            capped quadric) does where the light is on the inner side (``P.shadow_inner``, same
+            rule as links1.occluders). A planar shape shadows nothing when the light and every
+            other shape lie on the same side of its plane. ``P.shadow_need[j]``: per slot,
+            whether hits on that slot need a shadow ray toward light ``j``; ``P.occ_custom[j]``
+            / ``P.occ_mitsuba[j]``: the links1 shapes / whether any Mitsuba shape can occlude
+            it. Conservative."""
             nslots = P.nslots
             lo = np.full((nslots, 3), -np.inf)
             hi = np.full((nslots, 3), np.inf)
             convex = np.zeros(nslots, dtype=bool)
+            closed = np.zeros(nslots, dtype=bool)   # convex and enclosing a volume
             plane = [None] * nslots
             mitsuba_slot = np.zeros(nslots, dtype=bool)
             for s_, sl in zip(shapes, slot_list):
@@ -439,6 +443,7 @@ def define_integrator():
                 kind = str(s_).split("[")[0]
                 if kind in ("Sphere", "Rectangle", "Disk"):
                     convex[sl] = True
+                    closed[sl] = kind == "Sphere"
                 if kind in ("Rectangle", "Disk"):
                     try:
                         m = np.array(mi.traverse(s_)["to_world"].matrix, dtype=np.float64).reshape(4, 4)
@@ -454,6 +459,7 @@ def define_integrator():
                 if spec.__class__.__name__ == "QuadricSpec":
                     convex[spec.slot] = (spec.kind == "sphere" and (not spec.clips or spec.capped)) or \
                         (spec.kind == "cylinder" and spec.capped and len(spec.clips) >= 2)
+                    closed[spec.slot] = convex[spec.slot]
             scale = 1.0 + float(np.max(np.abs(np.where(np.isfinite(lo), lo, 0.0)))) + \
                 float(np.max(np.abs(np.where(np.isfinite(hi), hi, 0.0))))
             tol = 1e-6 * scale
@@ -483,6 +489,7 @@ def define_integrator():
             for _ in P.consts:
                 lights.append(("env", None))
             P.shadow_need, P.occ_custom, P.occ_mitsuba, P.any_shadow = [], [], [], []
+            P.shadow_inner = []
             for light in lights:
                 occ = np.ones(nslots, dtype=bool)
                 for sl in range(nslots):
@@ -508,8 +515,10 @@ def define_integrator():
                         occ[sl] = False
                 need = np.array([bool(np.any(occ & ~((np.arange(nslots) == sl) & convex[sl])))
                                  for sl in range(nslots)], dtype=bool)
+                inner = occ & closed & ~need
                 P.shadow_need.append(None if need.all() else mi.Bool(need))
-                P.any_shadow.append(bool(need.any()))
+                P.shadow_inner.append(mi.Bool(inner) if inner.any() else None)
+                P.any_shadow.append(bool(need.any() or inner.any()))
                 P.occ_custom.append([spec for spec in self.custom if occ[spec.slot]])
                 P.occ_mitsuba.append(bool(np.any(occ & mitsuba_slot)))
 
@@ -780,19 +789,22 @@ def define_integrator():
             # evaluates its inputs: building them first avoids recomputing shared work).
             pending = []
 
-            def need_of(j, lit):
+            def need_of(j, lit, wi):
                 """Lanes that need a shadow ray toward light j (P.shadow_need, _occluders)."""
                 if not P.any_shadow[j]:
                     return dr.zeros(mi.Bool, n)
                 if P.shadow_need[j] is None:
                     return lit
-                return lit & dr.gather(mi.Bool, P.shadow_need[j], uslot, lit)
+                need = dr.gather(mi.Bool, P.shadow_need[j], uslot, lit)
+                if P.shadow_inner[j] is not None:  # light on the inner side of a closed convex shape
+                    need |= dr.gather(mi.Bool, P.shadow_inner[j], uslot, lit) & (dr.dot(ng, wi) <= 0)
+                return lit & need
 
             def shadow(j, so, wi, smax, lit, contrib):
                 nonlocal n_shadow
                 if not P.any_shadow[j]:
                     return None, lit, None
-                need = need_of(j, lit)
+                need = need_of(j, lit, wi)
                 n_shadow = n_shadow + dr.select(need, mi.UInt32(1), 0)
                 T = self._shadow_custom(P, so, wi, smax, need, cost, P.occ_custom[j])
                 return T, need, P.occ_mitsuba[j]
