@@ -17,7 +17,7 @@ def render(xml, variant, aovs=()):
     return s.integrator().render_window(s, None, spp=1, aovs=aovs)
 
 
-@pytest.mark.parametrize("shell", ["links1_sphere", "sphere", "capped_cylinder"])
+@pytest.mark.parametrize("shell", ["links1_sphere", "sphere", "capped_cylinder", "cube"])
 def test_opaque_shell_from_inside_is_ambient_only(variant, shell):
     img = render(scene(SHELLS[shell], OPAQUE), variant)
     np.testing.assert_allclose(img, AMBIENT, rtol=1e-6)
