@@ -169,8 +169,10 @@ def define_integrator():
         BSDFs get direct light only (warning). Lights: ``links1_point``, ``links1_spot``,
         Mitsuba ``point``, ``spot``, ``directional`` (evaluated analytically, shadow rays
         scaled by the transmittance of every object crossed, once per object); ``area``
-        emitters are sampled with one shadow ray per sample; ``constant``/``envmap`` are the
-        radiance of escaping rays. Custom shapes (``links1_quadric``, ``links1_blob``) come
+        emitters (mesh, rectangle, cube, sphere, disk), ``constant`` and ``envmap`` are sampled
+        with ``light_samples`` shadow rays each on the core's light-sample points
+        (:mod:`links1.lights`, :func:`links1.sampling.light_samples_uv`) and are also the
+        radiance of escaping rays (``constant``/``envmap``). Custom shapes (``links1_quadric``, ``links1_blob``) come
         from :func:`links1_mitsuba.load_file`.
 
         ``mi.render(scene)`` renders the film's crop window; :meth:`render_window` renders any
@@ -353,7 +355,7 @@ def define_integrator():
             P.any_custom_emission = bool(np.any(emis > 0))
             P.any_mitsuba_emission = any(s.emitter() is not None for s in shapes)
             # lights
-            P.lights, P.area, P.env, P.consts = [], [], None, []
+            P.lights, P.area, P.env, P.consts, P.area_tab = [], [], None, [], []
             n_env = 0
             Pt, Sp = plugin_class("links1_point"), plugin_class("links1_spot")
             for e in scene.emitters():
@@ -385,16 +387,23 @@ def define_integrator():
                     P.lights.append(("dir", m[:3, 2] / np.linalg.norm(m[:3, 2]), E))
                 elif kind == "ConstantBackgroundEmitter":
                     rad = np.array(mi.traverse(e)["radiance.value"], dtype=np.float64).ravel()
-                    P.consts.append((np.broadcast_to(rad, (3,)).copy(), ENV_LIGHT_ID + n_env))
+                    P.consts.append(("const", np.broadcast_to(rad, (3,)).copy(), ENV_LIGHT_ID + n_env))
+                    n_env += 1
+                    P.env = e
+                elif kind == "EnvironmentMapEmitter":
+                    P.consts.append(("envmap", self._envmap_table(e), ENV_LIGHT_ID + n_env))
                     n_env += 1
                     P.env = e
                 elif e.is_environment() or (int(e.flags()) & int(mi.EmitterFlags.Infinite)):
                     warnings.warn(f"links1_whitted: emitter {kind} is seen as the background but "
-                                  "lights nothing (not sampled by the plugin yet)", stacklevel=2)
+                                  "lights nothing", stacklevel=2)
                     n_env += 1
                     P.env = e
                 elif int(e.flags()) & int(mi.EmitterFlags.Surface):
-                    P.area.append(e)
+                    tab = self._area_table(e, shapes, slot_list)
+                    if tab is not None:
+                        P.area.append(e)
+                        P.area_tab.append(tab)
                 else:
                     warnings.warn(f"links1_whitted: emitter {kind} is not supported and is ignored",
                                   stacklevel=2)
@@ -513,6 +522,10 @@ def define_integrator():
                         continue
                     if all(side_of_box(nrm, c, lo[o], hi[o]) == lside for o in range(nslots) if o != sl):
                         occ[sl] = False
+                if light[0] == "area":      # a convex emitter never hides its own sampled points
+                    own = P.area_tab[P.area.index(light[1])]["slot"]
+                    if own is not None and convex[own]:
+                        occ[own] = False
                 need = np.array([bool(np.any(occ & ~((np.arange(nslots) == sl) & convex[sl])))
                                  for sl in range(nslots)], dtype=bool)
                 inner = occ & closed & ~need
@@ -584,7 +597,7 @@ def define_integrator():
                 return T
             act = active & (dr.max(T) > 0)
             if not P.any_transparent_mitsuba:
-                occluded = scene.ray_test(mi.Ray3f(o, d, smax), active=act)
+                occluded = scene.ray_test(mi.Ray3f(o, d, smax, 0.0, mi.Color0f()), active=act)  # (o, d, x) would set time, not maxt
                 cost += dr.select(act, mi.UInt32(1), 0)
                 return dr.select(occluded, 0.0, T)
             reg_to_slot, bits_t, sh_t = P.reg_to_slot, P.trans_bits, P.shadow_t
@@ -593,7 +606,7 @@ def define_integrator():
                 return run
 
             def body(o, tleft, T, seen, run, it, cost):
-                si = scene.ray_intersect(mi.Ray3f(o, d, tleft), active=run)
+                si = scene.ray_intersect(mi.Ray3f(o, d, tleft, 0.0, mi.Color0f()), active=run)
                 cost += dr.select(run, mi.UInt32(1), 0)
                 hit = run & si.is_valid()
                 reg = dr.reinterpret_array(mi.UInt32, si.shape)
@@ -661,6 +674,157 @@ def define_integrator():
             raise AssertionError(kind)
 
         # -------------------------------------------------------------- one level
+        def _area_table(self, e, shapes, slot_list):
+            """The core's :class:`links1.lights.AreaLight` for a Mitsuba area emitter (same triangles,
+            CDF, sphere, disk), as Dr.Jit tables; None (with a warning) when it cannot be sampled."""
+            from links1 import meshes
+            from links1.lights import AreaLight
+            from links1.shapes import Disk, Quadric, TriangleMesh
+            sh = e.get_shape()
+            kind = str(sh).split("[")[0]
+            slot = next((sl for s_, sl in zip(shapes, slot_list) if s_.id() == sh.id()), None)
+            rad = np.array(mi.traverse(e)["radiance.value"], dtype=np.float64).ravel()
+            try:
+                prm = mi.traverse(sh)
+                if kind not in ("Rectangle", "Sphere", "Disk") and sh.is_mesh():
+                    v = np.array(sh.vertex_positions_buffer(), dtype=np.float64).reshape(-1, 3)
+                    f = np.array(sh.faces_buffer(), dtype=np.int64).reshape(-1, 3)
+                    core = TriangleMesh(v, f)
+                else:
+                    m = np.array(prm["to_world"].matrix, dtype=np.float64).reshape(4, 4)
+                    if kind == "Rectangle":
+                        v, f, nrm = meshes.rectangle_mesh()
+                        v, nrm = meshes.transform_mesh(m, v, nrm)
+                        core = TriangleMesh(v, f)
+                    elif kind == "Sphere":
+                        core = Quadric("sphere", m)
+                    elif kind == "Disk":
+                        core = Disk(m)
+                    else:
+                        raise ValueError(f"the plugin cannot sample an area emitter on a {kind}")
+                core.index = -1 if slot is None else slot
+                L = AreaLight(core, np.broadcast_to(rad, (3,)))
+            except (ValueError, KeyError) as exc:
+                warnings.warn(f"links1_whitted: area emitter on '{sh.id()}' lights nothing: {exc}",
+                              stacklevel=3)
+                return None
+            tab = dict(kind=L.kind, id=L.light_id, slot=slot, L=L.radiance)
+            if L.kind == "mesh":
+                tab.update(cdf=mi.Float(L.cdf), v0=mi.Float(L.v0.ravel()), v1=mi.Float(L.v1.ravel()),
+                           v2=mi.Float(L.v2.ravel()), nrm=mi.Float(L.normals.ravel()), n=len(L.cdf),
+                           area=float(L.area))
+            elif L.kind == "sphere":
+                tab.update(c=L.center, r=float(L.r))
+            else:
+                tab.update(m=L.m.tolist(), nrm_d=L.normal, area=float(L.area))
+            return tab
+
+        def _envmap_table(self, e):
+            """The core's :class:`links1.lights.EnvironmentMap` from Mitsuba's own data (its periodic
+            columns dropped), to_world and scale, with its CDFs as Dr.Jit tables."""
+            from links1.lights import EnvironmentMap
+            prm = mi.traverse(e)
+            data = np.array(prm["data"], dtype=np.float64)
+            m = np.array(prm["to_world"].matrix, dtype=np.float64).reshape(4, 4)
+            scale = float(np.array(prm["scale"]).ravel()[0])
+            # Mitsuba 3.9.1 pads a periodic column on each side (its eval matches the core's, tested)
+            E = EnvironmentMap(data[:, 1:-1], to_world=m, scale=scale)
+            return dict(E=E, nodes=mi.Float(E.nodes.ravel()), row=mi.Float(E.row_cdf),
+                        col=mi.Float(E.col_cdf.ravel()), pcell=mi.Float(E.p_cell.ravel()))
+
+        def _sample_area(self, tab, p, u, v):
+            """``AreaLight.sample`` of the core in float32: (wi, dist, L_e / pdf)."""
+            Le = c3(tab["L"])
+            if tab["kind"] == "sphere":
+                c, r = v3(tab["c"]), float(tab["r"])
+                to_c = c - p
+                dc2 = dr.squared_norm(to_c)
+                dc = dr.sqrt(dc2)
+                outside = dc > r
+                axis = to_c / dr.select(dc > 0, dc, 1.0)
+                sin2 = dr.minimum(r * r / dr.select(outside, dc2, 1.0), 1.0)
+                cos_max = dr.sqrt(1.0 - sin2)
+                one_minus = sin2 / (1.0 + cos_max)
+                cos_t = 1.0 - u * one_minus
+                sin_t = dr.safe_sqrt(1.0 - cos_t * cos_t)
+                sp_, cp_ = dr.sincos(2.0 * math.pi * v)
+                fr = mi.Frame3f(axis)
+                wi = fr.s * (sin_t * cp_) + fr.t * (sin_t * sp_) + axis * cos_t
+                dist = dc * cos_t - dr.safe_sqrt(r * r - dc2 * sin_t * sin_t)
+                w = dr.select(outside, 2.0 * math.pi * one_minus, 0.0)
+                return wi, dr.select(outside, dist, 0.0), Le * w
+            if tab["kind"] == "mesh":
+                cdf, nt = tab["cdf"], tab["n"]
+                k = dr.binary_search(0, nt - 1, lambda i: dr.gather(mi.Float, cdf, i) <= u)
+                hi = dr.gather(mi.Float, cdf, k)
+                lo = dr.select(k > 0, dr.gather(mi.Float, cdf, dr.maximum(k, 1) - 1), 0.0)
+                u2 = dr.clip((u - lo) / dr.maximum(hi - lo, 1e-30), 0.0, 1.0)
+                su = dr.sqrt(u2)
+                b0 = 1.0 - su
+                b1 = v * su
+                q = (dr.gather(mi.Vector3f, tab["v0"], k) * b0 + dr.gather(mi.Vector3f, tab["v1"], k) * b1
+                     + dr.gather(mi.Vector3f, tab["v2"], k) * (1.0 - b0 - b1))
+                nl = dr.gather(mi.Vector3f, tab["nrm"], k)
+            else:
+                m = tab["m"]
+                rr = dr.sqrt(u)
+                sp_, cp_ = dr.sincos(2.0 * math.pi * v)
+                x, y = rr * cp_, rr * sp_
+                q = mi.Vector3f(*[m[i][0] * x + m[i][1] * y + m[i][3] for i in range(3)])
+                nl = v3(tab["nrm_d"])
+            to = q - p
+            d2 = dr.squared_norm(to)
+            dist = dr.sqrt(d2)
+            wi = to / dr.select(dist > 0, dist, 1.0)
+            cos_l = -dr.dot(nl, wi)
+            w = dr.select((cos_l > 0) & (d2 > 0), tab["area"] * cos_l / dr.select(d2 > 0, d2, 1.0), 0.0)
+            return wi, dist, Le * w
+
+        def _sample_env(self, env, nf, u, v):
+            """``ConstantEnvironment.sample`` / ``EnvironmentMap.sample`` of the core in float32:
+            (wi, L / pdf)."""
+            if env[0] == "const":
+                fr = mi.Frame3f(nf)
+                r_ = dr.sqrt(u)
+                z = dr.sqrt(dr.maximum(0.0, 1.0 - u))
+                sp_, cp_ = dr.sincos(2.0 * math.pi * v)
+                wi = fr.s * (r_ * cp_) + fr.t * (r_ * sp_) + fr.n * z
+                return wi, c3(env[1]) * dr.select(z > 0, math.pi / z, 0.0)
+            T = env[1]
+            E, H, W = T["E"], T["E"].H, T["E"].W
+            if E.dark:
+                return mi.Vector3f(nf), dr.zeros(mi.Color3f, dr.width(u))
+            row, col = T["row"], T["col"]
+            iy = dr.binary_search(0, H - 2, lambda i: dr.gather(mi.Float, row, i) <= v)
+            hi = dr.gather(mi.Float, row, iy)
+            lo = dr.select(iy > 0, dr.gather(mi.Float, row, dr.maximum(iy, 1) - 1), 0.0)
+            fy = dr.clip((v - lo) / dr.maximum(hi - lo, 1e-30), 0.0, 1.0)
+            base = iy * W
+            ix = dr.binary_search(0, W - 1, lambda i: dr.gather(mi.Float, col, base + i) <= u)
+            hi = dr.gather(mi.Float, col, base + ix)
+            lo = dr.select(ix > 0, dr.gather(mi.Float, col, base + dr.maximum(ix, 1) - 1), 0.0)
+            fx = dr.clip((u - lo) / dr.maximum(hi - lo, 1e-30), 0.0, 1.0)
+            x, y = mi.Float(ix) + fx, mi.Float(iy) + fy
+            theta = y * (math.pi / (H - 1))
+            phi = (x + 0.5) * (2.0 * math.pi / W)
+            st, ct = dr.sincos(theta)
+            sp_, cp_ = dr.sincos(phi)
+            mw = E.to_world.tolist()
+            lx, ly, lz = sp_ * st, ct, -cp_ * st
+            wi = dr.normalize(mi.Vector3f(*[mw[i][0] * lx + mw[i][1] * ly + mw[i][2] * lz for i in range(3)]))
+            pdf = dr.gather(mi.Float, T["pcell"], iy * W + ix) * (W * (H - 1)) / \
+                (2.0 * math.pi * math.pi * dr.maximum(st, 1e-30))
+            # bilinear radiance at (x, y) between the nodes (links1.lights.EnvironmentMap._bilinear)
+            ixn = dr.minimum(mi.UInt32(x), W - 1)
+            iyn = dr.minimum(mi.UInt32(y), H - 2)
+            gx, gy = x - mi.Float(ixn), y - mi.Float(iyn)
+            nodes, W1 = T["nodes"], W + 1
+            g = lambda yy, xx: dr.gather(mi.Color3f, nodes, yy * W1 + xx)  # noqa: E731
+            L = ((g(iyn, ixn) * (1 - gx) + g(iyn, ixn + 1) * gx) * (1 - gy)
+                 + (g(iyn + 1, ixn) * (1 - gx) + g(iyn + 1, ixn + 1) * gx) * gy)
+            w = dr.select((pdf > 0) & (st > 0), 1.0 / dr.select(pdf > 0, pdf, 1.0), 0.0)
+            return wi, L * w
+
         def _light_uv(self, key, sample, light_id, j):
             """Light sample ``j`` of light ``light_id``: :func:`links1.sampling.light_samples_uv`
             in float32 (``sample = (pixel key, i, spp)`` at a primary hit, else None)."""
@@ -816,35 +980,25 @@ def define_integrator():
                 so, smax = offset(wi), dist - 2.0 * eps
                 T, need, occ_m = shadow(jl, so, wi, smax, lit, contrib)
                 pending.append((contrib, so, wi, smax, lit, need, T, occ_m))
-            for k, (rad, lid) in enumerate(P.consts):     # constant environment, cosine-weighted
-                jsh = len(P.lights) + len(P.area) + k
-                frame = mi.Frame3f(nf)
+            m_inv = 1.0 / self.light_samples
+            sampled = [(len(P.lights) + j, tab, tab["id"]) for j, tab in enumerate(P.area_tab)]
+            sampled += [(len(P.lights) + len(P.area) + k, env, lid) for k, env in enumerate(P.consts)
+                        for lid in [env[2]]]
+            for jsh, tab, lid in sampled:          # area lights and environments (links1.lights)
                 for js in range(self.light_samples):
                     u, v = self._light_uv(key, sample, lid, js)
-                    r_, phi = dr.sqrt(u), 2.0 * math.pi * v
-                    z = dr.sqrt(dr.maximum(0.0, 1.0 - u))
-                    sp_, cp_ = dr.sincos(phi)
-                    wi = frame.s * (r_ * cp_) + frame.t * (r_ * sp_) + frame.n * z
-                    w = dr.select(z > 0, math.pi / (z * self.light_samples), 0.0)
-                    contrib = f_eval(wi) * c3(rad) * w
+                    if isinstance(tab, dict):
+                        wi, dist, Lw = self._sample_area(tab, p, u, v)
+                        # Mitsuba's ray tests include the emitter: stop short of it as Mitsuba does
+                        smax = dist * (1.0 - mi.math.ShadowEpsilon) - 2.0 * eps
+                    else:
+                        wi, Lw = self._sample_env(tab, nf, u, v)
+                        smax = dr.full(mi.Float, INF, n)
+                    contrib = f_eval(wi) * Lw * m_inv
                     lit = hit & (dr.max(contrib) > 0)
                     so = offset(wi)
-                    smax = dr.full(mi.Float, INF, n)
                     T, need, occ_m = shadow(jsh, so, wi, smax, lit, contrib)
                     pending.append((contrib, so, wi, smax, lit, need, T, occ_m))
-            for j, e in enumerate(P.area):
-                it = dr.zeros(mi.Interaction3f, n)
-                it.p = p
-                it.n = mi.Normal3f(ng)
-                k2 = mix32(key ^ mi.UInt32(0x9E3779B9 + 2 * j))
-                sample = mi.Point2f(u24(mix32(k2 ^ 1)), u24(mix32(k2 ^ 2)))
-                ds, val = e.sample_direction(it, sample, hit)
-                contrib = f_eval(ds.d) * val  # one shadow ray per sample and area light
-                lit = hit & (dr.max(contrib) > 0) & (ds.pdf > 0)
-                so, smax = offset(ds.d), ds.dist * (1.0 - mi.math.ShadowEpsilon)
-                wd = mi.Vector3f(ds.d)
-                T, need, occ_m = shadow(len(P.lights) + j, so, wd, smax, lit, contrib)
-                pending.append((contrib, so, wd, smax, lit, need, T, occ_m))
             if P.any_mitsuba_shapes and pending and not symbolic:
                 dr.eval(out, cost, *[x for tup in pending for x in tup[:6]])
             for contrib, so, wi, smax, lit, need, T, occ_m in pending:
