@@ -58,9 +58,7 @@ SCENES = [
     _s("data_directional", MITSUBA_DATA, "tests/scenes/floating_sphere/test_directional_direct.xml",
        NO_LICENCE, False, "direct"),
     _s("data_cbox_spectral", MITSUBA_DATA, "scenes/cbox/cbox-spectral.xml", NO_LICENCE, False, "direct",
-       params={"spp": "4", "res": "32"},
-       xfail={"mitsuba": "links1_whitted lights this area-lit box 27% darker than Mitsuba's direct "
-                         "(image mean 0.088 vs 0.122 at max_depth 1)"}),
+       params={"spp": "4", "res": "32"}),
     _s("data_pointlight_spheres", MITSUBA_DATA, "tests/scenes/bsdf_spheres/test_pointlight_path.xml",
        NO_LICENCE, False, "renders", warns=("roughconductor", "'mask'")),
     _s("data_constant_spheres", MITSUBA_DATA, "tests/scenes/bsdf_spheres/test_constant_path.xml",
