@@ -1,0 +1,204 @@
+"""Nearest-hit queries over N ``links1_quadric`` spheres: the plugin's own BVH walk against
+Embree finding the candidates through proxy meshes, with Mitsuba's ``sphere`` shapes as the
+yardstick (issue 12: measure both ideas before choosing).
+
+    python -m compare.quadric_accel [--res 512] [--sizes 10,300,3000,10000] [--repeats 7]
+
+Rays: the camera rays of ``compare.scaling.quadric_scene(N)`` (pixel centres, ``res``²), the
+spheres only (no floor). Per N and method, in one process: one warm-up query (tracing and
+kernel compilation), then the median of ``repeats`` queries (tracing + kernel, as a frame of
+a BVH scene pays) and the median kernel time (``dr.kernel_history``). Methods:
+
+* ``bvh``: :meth:`links1_mitsuba.bvh.QuadricBVH.nearest` (binary SAH BVH, per-lane stack).
+* ``proxy``: every quadric's world box as 12 triangles of one Mitsuba mesh in a second
+  scene; a loop of ``scene.ray_intersect`` walks on along the ray while a proxy face is
+  nearer than the best exact hit, testing the quadric behind each face (the exact test of
+  ``bvh.py``).
+* ``mitsuba-sphere``: the same spheres as Mitsuba ``sphere`` shapes, ``scene.ray_intersect``.
+
+Every method's hit/miss and depth are checked against ``bvh`` (the tested path).
+Writes ``compare/results/quadric_accel.{json,md}``.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from . import common
+from .common import md_table
+
+BOX_FACES = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+                      [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]], dtype=np.uint32)
+
+
+def _camera_rays(n, res):
+    """Pixel-centre rays of the scaling scene's camera (numpy float64)."""
+    from .scaling import quadric_scene
+    from links1.loader import load_scene
+    with tempfile.TemporaryDirectory() as d:
+        p = Path(d) / "q.xml"
+        p.write_text(quadric_scene(n))
+        cam = load_scene(str(p), res=res).camera
+    ys, xs = np.divmod(np.arange(res * res), res)
+    o, dd, _, _ = cam.generate_rays((xs + 0.5) / res, (ys + 0.5) / res)
+    return o, dd
+
+
+def _specs(n):
+    import links1_mitsuba as lm
+    from .scaling import quadric_scene
+    with tempfile.TemporaryDirectory() as d:
+        p = Path(d) / "q.xml"
+        p.write_text(quadric_scene(n))
+        r = lm.MitsubaRenderer(str(p), params={"res": 8}, spp=1)
+    return [s for s in r.integrator.custom]
+
+
+def _timed(fn, repeats):
+    import drjit as dr
+    fn()
+    wall, kern = [], []
+    for _ in range(repeats):
+        dr.set_flag(dr.JitFlag.KernelHistory, True)
+        dr.kernel_history()
+        t0 = time.perf_counter()
+        out = fn()
+        wall.append(time.perf_counter() - t0)
+        kern.append(sum(float(k.get("execution_time", 0.0)) for k in dr.kernel_history()) / 1e3)
+        dr.set_flag(dr.JitFlag.KernelHistory, False)
+    return float(np.median(wall)), float(np.median(kern)), out
+
+
+def run_size(n, res, repeats):
+    import drjit as dr
+    import mitsuba as mi
+    from links1_mitsuba.bvh import define_bvh
+    specs = _specs(n)
+    slots = max(s.slot for s in specs) + 1
+    bvh = define_bvh()(specs, np.zeros((slots, 3)))
+    o_np, d_np = _camera_rays(n, res)
+    o, d = mi.Vector3f(o_np.T), mi.Vector3f(d_np.T)
+    m = len(o_np)
+    rows = []
+
+    def q_bvh():
+        t, q, _, found = bvh.nearest(o, d, mi.Float(0.0), mi.Float(np.inf), dr.ones(mi.Bool, m),
+                                     dr.zeros(mi.UInt32, m))
+        dr.eval(t)
+        dr.sync_thread()
+        return t
+
+    # proxy: world boxes of the (BVH-ordered) quadrics as one mesh
+    lo = np.array([s.bounds()[0] for s in bvh.specs])
+    hi = np.array([s.bounds()[1] for s in bvh.specs])
+    corners = np.stack([np.where([(k >> 2) & 1, (k >> 1) & 1, k & 1], hi, lo) for k in range(8)], axis=1)
+    mesh = mi.Mesh("proxy", 8 * n, 12 * n)
+    prm = mi.traverse(mesh)
+    prm["vertex_positions"] = mi.Float(corners.reshape(-1).astype(np.float32))
+    prm["faces"] = mi.UInt32((BOX_FACES[None] + 8 * np.arange(n, dtype=np.uint32)[:, None, None]).ravel())
+    prm.update()
+    proxy_scene = mi.load_dict({"type": "scene", "proxy": mesh})
+
+    def q_proxy():
+        best = dr.full(mi.Float, np.inf, m)
+        t_cur = dr.zeros(mi.Float, m)
+        run = dr.ones(mi.Bool, m)
+
+        def cond(best, t_cur, run, it):
+            return run
+
+        def body(best, t_cur, run, it):
+            ray = mi.Ray3f(o + d * t_cur, d, best - t_cur)
+            si = proxy_scene.ray_intersect_preliminary(ray, active=run)
+            hit = run & si.is_valid()
+            q = si.prim_index // 12
+            tq, _ = bvh.intersect(q, o, d, mi.Float(0.0), best, hit)
+            best = dr.select(hit & (tq < best), tq, best)
+            # step past the face (relative float32 margin), keep walking while nearer than best
+            t_cur = dr.select(hit, (t_cur + si.t) * (1.0 + 1e-5) + 1e-5, t_cur)
+            it += 1
+            return best, t_cur, hit & (t_cur < best) & (it < 512), it
+
+        best, _, _, _ = dr.while_loop((best, t_cur, run, dr.zeros(mi.UInt32, m)), cond, body)
+        dr.eval(best)
+        dr.sync_thread()
+        return best
+
+    sph = {"type": "scene"}
+    for i, s in enumerate(specs):
+        c = s.to_world[:3, 3]
+        sph[f"s{i}"] = {"type": "sphere", "center": [float(v) for v in c], "radius": float(s.to_world[0, 0])}
+    msc = mi.load_dict(sph)
+
+    def q_mitsuba():
+        si = msc.ray_intersect_preliminary(mi.Ray3f(o, d), active=dr.ones(mi.Bool, m))
+        t = dr.select(si.is_valid(), si.t, np.inf)
+        dr.eval(t)
+        dr.sync_thread()
+        return t
+
+    ref = None
+    for name, fn in (("bvh", q_bvh), ("proxy", q_proxy), ("mitsuba-sphere", q_mitsuba)):
+        wall, kern, t = _timed(fn, repeats)
+        t = np.array(t, dtype=np.float64)
+        row = {"size": n, "method": name, "median_ms": 1e3 * wall, "kernel_ms": 1e3 * kern,
+               "hit_fraction": float(np.mean(np.isfinite(t)))}
+        if ref is None:
+            ref = t
+        else:
+            hr, ht = np.isfinite(ref), np.isfinite(t)
+            both = hr & ht
+            row["hit_disagree"] = float(np.mean(hr != ht))
+            row["max_rel_depth"] = float(np.max(np.abs(t[both] - ref[both]) / ref[both])) if both.any() else 0.0
+        rows.append(row)
+        print(f"  N={n} {name}: {row['median_ms']:.2f} ms (kernels {row['kernel_ms']:.2f} ms)", file=sys.stderr,
+              flush=True)
+    base = next(r for r in rows if r["method"] == "mitsuba-sphere")
+    for r in rows:
+        r["x_mitsuba"] = r["median_ms"] / base["median_ms"]
+        r["kernel_x_mitsuba"] = r["kernel_ms"] / max(base["kernel_ms"], 1e-9)
+    return rows
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m compare.quadric_accel")
+    ap.add_argument("--res", type=int, default=512)
+    ap.add_argument("--sizes", default="10,300,3000,10000")
+    ap.add_argument("--repeats", type=int, default=7)
+    a = ap.parse_args(argv)
+    warnings.simplefilter("ignore")
+    import mitsuba as mi
+    mi.set_variant("llvm_ad_rgb")
+    info = common.machine_info()
+    command = common.command_line()
+    t0 = time.perf_counter()
+    rows = []
+    for n in [int(v) for v in a.sizes.split(",") if v]:
+        rows += run_size(n, a.res, a.repeats)
+    out = {"machine": info, "command": command, "res": a.res, "repeats": a.repeats, "rows": rows,
+           "wall_s": time.perf_counter() - t0}
+    md = ["# Nearest hit over N quadric spheres: own BVH vs Embree proxies vs Mitsuba spheres\n\n",
+          common.machine_markdown(info, command),
+          f"\n{a.res}² camera rays (pixel centres) of `compare.scaling.quadric_scene(N)`, spheres only, one "
+          f"process, median of {a.repeats} queries after a warm-up; wall = tracing + kernels (what a frame "
+          "of a BVH scene pays), kernels = `dr.kernel_history` execution time. ×mitsuba: over Mitsuba "
+          "`sphere` shapes in the same process. Hit/miss and depth against `bvh`.\n\n"]
+    md.append(md_table(["N", "method", "wall ms", "×mitsuba", "kernels ms", "kernels ×mitsuba", "hit fraction",
+                        "hit/miss vs bvh", "max rel depth vs bvh"],
+                       [[r["size"], r["method"], r["median_ms"], r["x_mitsuba"], r["kernel_ms"],
+                         r["kernel_x_mitsuba"], r["hit_fraction"], r.get("hit_disagree"), r.get("max_rel_depth")]
+                        for r in rows]))
+    paths = common.write_results("quadric_accel", out, "".join(md), None)
+    print("".join(md))
+    print("wrote " + ", ".join(str(p.relative_to(common.ROOT)) for p in paths), file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
