@@ -1,0 +1,93 @@
+"""The adaptive lattice refinement (links1/adaptive.py) on analytic images."""
+import numpy as np
+import pytest
+
+from links1.adaptive import check_options, render_adaptive
+from links1.errors import UsageError
+
+W, H = 16, 12
+
+
+def image(f):
+    """A sample function from an analytic image f(x, y) -> (n,) in [0, 1] (film pixels)."""
+    def sample(i, j, step, keys):
+        v = f(i / step, j / step)
+        return np.stack([v, 0.5 * v, np.zeros_like(v)], axis=1)
+    return sample
+
+
+def half_plane(a, b, c):
+    return image(lambda x, y: (a * x + b * y < c).astype(np.float64))
+
+
+def test_flat_image_is_not_refined():
+    vals, n = render_adaptive(image(lambda x, y: np.full(x.shape, 0.7)), (0, 0, W, H), (W, H), 0.0, 4)
+    assert np.all(n == 4)
+    assert np.all(vals[..., 0] == 0.7) and np.all(vals[..., 1] == 0.35)
+
+
+def test_vertical_edge_refines_only_its_column():
+    depth = 4
+    vals, n = render_adaptive(half_plane(1.0, 0.0, 5.3), (0, 0, W, H), (W, H), 0.1, depth)
+    refined = n > 4
+    assert np.all(refined[:, 5]) and not np.any(np.delete(refined, 5, axis=1))
+    # coverage of column 5 is 0.3; the box integral of corner means is within one lattice step
+    assert np.all(np.abs(vals[:, 5, 0] - 0.3) <= 2.0 ** -depth)
+    assert np.all(vals[:, :5, 0] == 1.0) and np.all(vals[:, 6:, 0] == 0.0)
+
+
+def test_slanted_edge_refines_exactly_the_pixels_it_crosses():
+    a, b, c = 0.37, -1.0, -2.1  # the line y = 0.37 x + 2.1 (misses every lattice point)
+    vals, n = render_adaptive(half_plane(a, b, c), (0, 0, W, H), (W, H), 0.1, 3)
+    x, y = np.meshgrid(np.arange(W), np.arange(H))
+    side = [a * (x + dx) + b * (y + dy) < c for dx in (0, 1) for dy in (0, 1)]
+    crossed = np.any(side, axis=0) & ~np.all(side, axis=0)
+    assert crossed.sum() > W - 2
+    np.testing.assert_array_equal(n > 4, crossed)
+
+
+def test_threshold_zero_on_a_gradient_refines_to_full_depth():
+    for depth in (0, 1, 3):
+        vals, n = render_adaptive(image(lambda x, y: 0.01 * x + 0.02 * y), (0, 0, W, H), (W, H), 0.0, depth)
+        assert np.all(n == (2 ** depth + 1) ** 2)
+        # a linear image: the box integral of corner means is exact (pixel centre value)
+        x, y = np.meshgrid(np.arange(W) + 0.5, np.arange(H) + 0.5)
+        np.testing.assert_allclose(vals[..., 0], 0.01 * x + 0.02 * y, rtol=0, atol=1e-14)
+
+
+def test_disk_error_falls_with_depth():
+    disk = image(lambda x, y: ((x - 7.3) ** 2 + (y - 5.9) ** 2 < 4.1 ** 2).astype(np.float64))
+    errs = []
+    ref = np.pi * 4.1 ** 2
+    for depth in (0, 2, 4, 6):
+        vals, n = render_adaptive(disk, (0, 0, W, H), (W, H), 0.05, depth)
+        errs.append(abs(vals[..., 0].sum() - ref))
+    assert errs[-1] < 0.02 * ref and errs[-1] < errs[1] < errs[0]
+
+
+def test_tiled_equals_untiled_bit_for_bit():
+    def f(x, y):
+        return (np.sin(1.7 * x) * np.cos(2.3 * y) > 0.2) * (0.3 + 0.05 * x) + ((x - 8) ** 2 + (y - 6) ** 2 < 9)
+    sample = image(f)
+    full, nfull = render_adaptive(sample, (0, 0, W, H), (W, H), 0.05, 3)
+    for x0, y0, w, h in [(0, 0, 7, 5), (7, 0, 9, 5), (0, 5, 3, 7), (3, 5, 13, 7), (5, 4, 1, 1)]:
+        part, npart = render_adaptive(sample, (x0, y0, w, h), (W, H), 0.05, 3)
+        assert np.array_equal(part, full[y0:y0 + h, x0:x0 + w])
+        assert np.array_equal(npart, nfull[y0:y0 + h, x0:x0 + w])
+
+
+def test_each_lattice_point_is_evaluated_once():
+    seen = []
+
+    def sample(i, j, step, keys):
+        seen.append(keys)
+        return np.stack([(i / step < 5.3).astype(float)] * 3, axis=1)
+    render_adaptive(sample, (0, 0, W, H), (W, H), 0.1, 3)
+    keys = np.concatenate(seen)
+    assert len(np.unique(keys)) == len(keys)
+
+
+@pytest.mark.parametrize("t, d", [(-0.1, 2), (float("nan"), 2), (0.1, -1), (0.1, 9), ("x", 2)])
+def test_bad_options(t, d):
+    with pytest.raises(UsageError, match="adaptive"):
+        check_options(t, d)
