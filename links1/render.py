@@ -16,7 +16,11 @@ from .filters import FilterGather
 from .integrator import DEFAULT_MIN_WEIGHT, WhittedIntegrator
 from .sampling import pixel_keys, ray_keys, sample_offsets
 
-AOVS = {"depth": ("depth",), "normal": ("normal.X", "normal.Y", "normal.Z"), "id": ("id",), "cost": ("cost",)}
+#: AOV -> its channel names, one table for every renderer, back end and worker count, in
+#: Mitsuba's ``name.X`` convention (what its ``aov`` integrator writes: depth ``.T``, normals
+#: ``.X .Y .Z``, shape index ``.I``); ``cost`` (ray-primitive tests) is a count, ``.N``.
+AOVS = {"depth": ("depth.T",), "normal": ("normal.X", "normal.Y", "normal.Z"), "id": ("id.I",),
+        "cost": ("cost.N",)}
 
 #: Sample rays traced per numpy batch (bounds memory: ~40 arrays of 3 doubles per ray).
 BATCH = 1 << 16
@@ -28,6 +32,13 @@ def channel_names(aovs=()) -> list[str]:
     for a in aovs:
         names.extend(AOVS[a])
     return names
+
+
+def aov_channel(channels, aov: str) -> int | None:
+    """Index of the first channel of ``aov`` in ``channels`` (a render's channel names), or
+    None when the render has no such AOV."""
+    first = AOVS[aov][0]
+    return list(channels).index(first) if first in channels else None
 
 
 def check_aovs(aovs) -> tuple[str, ...]:

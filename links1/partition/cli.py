@@ -295,7 +295,8 @@ def run_cli(args) -> int:
     res = render_plan(plan, spec, backend, progress=not args.no_progress, cull=cull)
     reference = _reference(backend, spec)
     backend.close()
-    cost_channel = channels.index("cost") if "cost" in channels else None
+    from ..render import aov_channel
+    cost_channel = aov_channel(channels, "cost")
     report = build_report(res, plan, model, cost_channel=cost_channel, reference=reference,
                           meta={"scene": os.path.abspath(args.scene), "renderer": args.renderer,
                                 "cull": bool(args.cull), "spp": spec.kwargs.get("spp")})

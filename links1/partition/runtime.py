@@ -230,7 +230,7 @@ def _render_culled(spec, renderer, window, ids):
     if scene is None or not hasattr(scene, "shapes"):
         return renderer.render(window=tuple(window))  # cannot cull: render everything
     from dataclasses import replace
-    from ..render import render
+    from ..render import aov_channel, render
     key = (spec.key, ids)
     sub = _CULLED.get(key)
     if sub is None:
@@ -240,9 +240,8 @@ def _render_culled(spec, renderer, window, ids):
     img = render(sub, spp=renderer.spp, max_depth=renderer.max_depth, seed=renderer.seed, window=tuple(window),
                  aovs=renderer.aovs, min_weight=getattr(renderer, "min_weight", 0.0),
                  light_samples=getattr(renderer, "light_samples", 1))
-    chans = list(renderer.channels)
-    if "id" in chans:
-        c = chans.index("id")
+    c = aov_channel(renderer.channels, "id")
+    if c is not None:
         idc = img[..., c]
         lut = np.asarray(ids, dtype=np.float64)
         hit = idc >= 0

@@ -35,11 +35,11 @@ import numpy as np
 
 from links1.filters import Filter
 from links1.lights import ENV_LIGHT_ID
+from links1.render import AOVS, channel_names
 from links1.sampling import light_tag
 
 from .launch import _CAM_SAMPLE, define_launches
 
-AOV_CHANNELS = {"depth": ["depth"], "normal": ["nx", "ny", "nz"], "id": ["id"], "cost": ["cost"]}
 INF = float("inf")
 #: Relative ray-origin offset on shapes whose float32 hits are accurate to a few ulps
 #: (meshes, rectangles, disks, links1 quadrics): a small offset keeps shadow rays that graze
@@ -83,8 +83,8 @@ def parse_aovs(value) -> list:
     else:
         items = [str(s).strip() for s in value]
     for a in items:
-        if a not in AOV_CHANNELS:
-            raise ValueError(f"unknown AOV '{a}': allowed are {sorted(AOV_CHANNELS)}")
+        if a not in AOVS:  # one naming for both renderers (links1.render)
+            raise ValueError(f"unknown AOV '{a}': allowed are {sorted(AOVS)}")
     return items
 
 
@@ -1220,10 +1220,7 @@ def define_integrator():
             return total, cost, res["t"], res["slot"], res["ns"], counters
 
         def channels(self):
-            names = ["R", "G", "B"]
-            for a in self.aovs:
-                names += AOV_CHANNELS[a]
-            return names
+            return channel_names(self.aovs)
 
         # -------------------------------------------------------------- Mitsuba entry points
         def render(self, scene, sensor=0, seed=0, spp=0, develop=True, evaluate=True):
@@ -1243,7 +1240,7 @@ def define_integrator():
                                "or render_window(), not sample()")
 
         def aov_names(self):
-            return [c for a in self.aovs for c in AOV_CHANNELS[a]]
+            return channel_names(self.aovs)[3:]
 
         def to_string(self):
             return (f"Links1Whitted[max_depth={self.max_depth}, seed={self.seed}, aovs={self.aovs}, "

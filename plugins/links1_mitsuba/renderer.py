@@ -4,7 +4,9 @@ from __future__ import annotations
 import numpy as np
 
 from ._registry import register
-from .integrator import AOV_CHANNELS, DEFAULT_MIN_WEIGHT, parse_aovs
+from links1.render import channel_names
+
+from .integrator import DEFAULT_MIN_WEIGHT, parse_aovs
 
 
 def _resize_film(sensor, width, height):
@@ -107,10 +109,7 @@ class MitsubaRenderer:
 
     @property
     def channels(self):
-        names = ["R", "G", "B"]
-        for a in self.aovs:
-            names += AOV_CHANNELS[a]
-        return names
+        return channel_names(self.aovs)
 
     def render(self, window=None) -> np.ndarray:
         """``(h, w, C)`` float64 of ``window = (x0, y0, w, h)`` (full film when None)."""

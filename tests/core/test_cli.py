@@ -27,7 +27,7 @@ def test_render_png_and_exr_with_aovs(tmp_path, capsys):
     assert run_cli("render", FIG4, "--renderer", "core", "-D", "res=16", "-o", str(exr),
                    "--aov", "depth,normal,id,cost", "--no-progress") == 0
     data, names = read_exr(str(exr))
-    assert list(names) == ["R", "G", "B", "depth", "normal.X", "normal.Y", "normal.Z", "id", "cost"]
+    assert list(names) == ["R", "G", "B", "depth.T", "normal.X", "normal.Y", "normal.Z", "id.I", "cost.N"]
     depth, ids, cost = data[..., 3], data[..., 7], data[..., 8]
     hit = ids >= 0
     assert hit.any() and (~hit).any()

@@ -23,7 +23,7 @@ def test_windows_equal_full_frame_without_recompiling(llvm):
     gc.collect()
     r = MitsubaRenderer(FIG11, params={"res": 40}, spp=4, aovs=("depth", "normal", "id", "cost"))
     assert r.film_size == (40, 40)
-    assert r.channels == ["R", "G", "B", "depth", "nx", "ny", "nz", "id", "cost"]
+    assert r.channels == ["R", "G", "B", "depth.T", "normal.X", "normal.Y", "normal.Z", "id.I", "cost.N"]
     # every kernel this process builds for the first windows is recorded (on a cold
     # kernel cache they are compiled here; on a warm one they come from ~/.drjit)
     dr.set_flag(dr.JitFlag.KernelHistory, True)
