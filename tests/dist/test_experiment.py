@@ -28,7 +28,9 @@ def test_schedule_report_keys_and_sanity(tmp_path):
     assert 0.0 < r["parallel_efficiency"] <= 1.0
     assert len(r["units"]) == 8 and all(u["ray_tests"] > 0 for u in r["units"])
     assert {u["node"] for u in r["units"]} == {0, 1}
-    assert -1.0 <= r["rank_correlation"]["predicted_vs_ray_tests"] <= 1.0
+    # eq. 4.1 ranks the 8 tiles of many.xml as their measured ray tests do (deterministic counts;
+    # 0.90 today); the model itself is tested on a known gradient in test_load_model.py
+    assert r["rank_correlation"]["predicted_vs_ray_tests"] >= 0.8
     assert png.stat().st_size > 0 and (tmp_path / "r-simulate.png").stat().st_size > 0
     strategies = {row["strategy"] for row in r["simulation"]["rows"]}
     assert {"subscreen", "scanline", "dynamic/tile"} <= strategies

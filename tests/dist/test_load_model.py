@@ -1,0 +1,62 @@
+"""The eq. 4.1 load model against a scene built with a known load gradient (issue 14).
+
+Six vertical strips of the screen hold 1, 4, 7, 10, 13 and 16 small spheres: the work a strip
+costs grows from left to right by construction. The model's predicted strip loads (eq. 4.1:
+background + the sum of w_j over the objects whose projected rectangle covers a pixel) and the
+renderer's measured ray-primitive tests (the deterministic ``cost`` AOV, not wall time) must
+both rank the strips as the construction does.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from links1.partition.experiment import spearman
+from links1.partition.loadmodel import scene_model
+from links1.render import aov_channel, make_renderer
+
+STRIPS, STRIP_W, H = 6, 16, 32
+COUNTS = [1 + 3 * c for c in range(STRIPS)]
+
+
+def gradient_scene(path):
+    half_w = 10.0 * np.tan(np.radians(30.0))          # fov 60 along x, eye 10 from the plane z = 0
+    half_h = half_w * H / (STRIPS * STRIP_W)
+    rng = np.random.default_rng(7)
+    r = 0.22
+    shapes = []
+    for c, n in enumerate(COUNTS):
+        x0 = -half_w + c * 2 * half_w / STRIPS
+        xs = rng.uniform(x0 + r, x0 + 2 * half_w / STRIPS - r, n)
+        ys = rng.uniform(-half_h + r, half_h - r, n)
+        zs = rng.uniform(-1.0, 1.0, n)
+        shapes += [f'<shape type="sphere"><point name="center" x="{x}" y="{y}" z="{z}"/>'
+                   f'<float name="radius" value="{r}"/><ref id="m"/></shape>' for x, y, z in zip(xs, ys, zs)]
+    path.write_text(f"""<scene version="3.0.0">
+  <sensor type="perspective"><float name="fov" value="60"/><string name="fov_axis" value="x"/>
+    <transform name="to_world"><lookat origin="0, 0, 10" target="0, 0, 0" up="0, 1, 0"/></transform>
+    <sampler type="independent"><integer name="sample_count" value="1"/></sampler>
+    <film type="hdrfilm"><integer name="width" value="{STRIPS * STRIP_W}"/><integer name="height" value="{H}"/>
+      <rfilter type="box"/></film></sensor>
+  <bsdf type="diffuse" id="m"/>
+  {''.join(shapes)}
+  <emitter type="point"><point name="position" x="0" y="5" z="10"/><rgb name="intensity" value="50"/></emitter>
+</scene>""")
+    return str(path)
+
+
+def strip_sums(img2d):
+    return img2d.reshape(H, STRIPS, STRIP_W).sum(axis=(0, 2))
+
+
+def test_eq41_predicts_a_known_load_gradient(tmp_path):
+    path = gradient_scene(tmp_path / "gradient.xml")
+    r = make_renderer("core", path, aovs=("cost",))
+    predicted = strip_sums(scene_model(r).load_map())
+    img = r.render()
+    measured = strip_sums(img[..., aov_channel(r.channels, "cost")])
+    # the construction's ranking, in the prediction and in the measurement
+    assert np.all(np.diff(predicted) > 0), predicted
+    assert np.all(np.diff(measured) > 0), measured
+    assert spearman(predicted, measured) == 1.0
+    # and not only the order: predicted and measured loads are nearly proportional
+    assert np.corrcoef(predicted, measured)[0, 1] > 0.95
