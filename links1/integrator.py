@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .accel import Accel
 from .sampling import KEY_REFLECT, KEY_REFRACT, child_keys, light_samples_uv
 from .vec import dot, max_abs
 
@@ -73,10 +74,13 @@ class ScenePlan:
     shadow_t_light: list
 
 
-def scene_plan(scene) -> ScenePlan:
-    plan = getattr(scene, "_plan", None)
-    if plan is not None:
-        return plan
+def scene_plan(scene, key: bytes | None = None) -> ScenePlan:
+    """The per-scene tables the integrator needs, built once per content of the scene
+    (:meth:`links1.scene.Scene.cached`)."""
+    return scene.cached("plan", lambda: _build_plan(scene), key)
+
+
+def _build_plan(scene) -> ScenePlan:
     from .occluders import closed_convex, shadow_plan
     shapes = scene.shapes
     index = {}
@@ -100,7 +104,6 @@ def scene_plan(scene) -> ScenePlan:
         shadow_inner=[occ & closed_convex(shapes) & ~nd for occ, nd in zip(occluder, need)],
         shadow_t_light=[np.where(occ[:, None], shadow_t, 1.0) for occ in occluder],
     )
-    scene._plan = plan
     return plan
 
 
@@ -130,11 +133,12 @@ class WhittedIntegrator:
         if self.max_depth < 1:
             raise ValueError(f"max_depth must be >= 1, got {self.max_depth}")
         self.min_weight = float(min_weight)
-        self.accel = scene.accel
+        key = scene.content_key()  # one digest for both caches: nothing stale if the scene changed
+        self.accel = scene.cached("accel", lambda: Accel(scene.shapes), key)
         self.shapes = scene.shapes
         self.lights = scene.lights
         self.background = np.asarray(scene.background, dtype=np.float64)
-        plan = scene_plan(scene)
+        plan = scene_plan(scene, key)
         self.shadow_t = plan.shadow_t
         self.any_reflection = plan.any_reflection
         self.any_transmission = plan.any_transmission

@@ -1,6 +1,7 @@
 """The core's in-memory scene: what the XML loader builds and the integrator renders."""
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -34,22 +35,89 @@ class Scene:
     integrator: str = "links1_whitted"
     environments: list = field(default_factory=list)  # envmap lights: escaping rays add their eval
     path: str | None = None
-    _accel: object = field(default=None, repr=False)
-    _plan: object = field(default=None, repr=False)  # links1.integrator.ScenePlan, built on first use
+    #: what is built from the shapes and lights on first use (the BVH, the integrator's plan),
+    #: each with the content key it was built for (:meth:`cached`)
+    _caches: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def __post_init__(self):
+        self._index_shapes()
+
+    def _index_shapes(self):
         for i, s in enumerate(self.shapes):
             s.index = i
 
+    def content_key(self) -> bytes:
+        """A digest of everything the caches are built from: the shapes (geometry, materials,
+        textures), the lights and the background. Changing any of them after a render (in place
+        or by replacing list items) changes the key."""
+        return content_key((self.shapes, self.lights, self.environments, self.background))
+
+    def cached(self, name: str, build, key: bytes | None = None):
+        """``build()`` once per content of the scene: the value kept under ``name`` while the
+        scene's :meth:`content_key` is the one it was built for (no ``id(scene)`` keys, nothing
+        stale after the scene is changed)."""
+        key = self.content_key() if key is None else key
+        hit = self._caches.get(name)
+        if hit is not None and hit[0] == key:
+            return hit[1]
+        self._index_shapes()
+        value = build()
+        self._caches[name] = (key, value)
+        return value
+
     @property
     def accel(self):
-        """The hierarchical bounding boxes over all shapes (paper 3-2-4), built on first use."""
-        if self._accel is None:
-            from .accel import Accel
-            self._accel = Accel(self.shapes)
-        return self._accel
+        """The hierarchical bounding boxes over all shapes (paper 3-2-4), built on first use
+        and again whenever the shapes change."""
+        from .accel import Accel
+        return self.cached("accel", lambda: Accel(self.shapes))
 
     def __repr__(self) -> str:
         c = self.camera
         return (f"Scene(path={self.path!r}, film={c.width}x{c.height}, shapes={len(self.shapes)}, "
                 f"lights={len(self.lights)}, spp={self.spp}, max_depth={self.max_depth})")
+
+
+def content_key(obj) -> bytes:
+    """A 16-byte digest of ``obj``'s content: numbers, strings, arrays (dtype, shape, bytes),
+    sequences, dicts and the public attributes of objects, recursively (an object met twice
+    is hashed once; attributes starting with ``_`` are caches and are left out)."""
+    h = hashlib.blake2b(digest_size=16)
+    seen = {}
+
+    def walk(o):
+        if o is None or isinstance(o, (bool, int, float, complex, str, bytes, np.generic)):
+            h.update(f"{type(o).__name__}:{o!r};".encode())
+            return
+        if isinstance(o, np.ndarray):
+            h.update(f"nd:{o.dtype.str}:{o.shape};".encode())
+            h.update(np.ascontiguousarray(o).tobytes())
+            return
+        if id(o) in seen:  # shared (a material on many shapes) or a cycle
+            h.update(f"ref:{seen[id(o)]};".encode())
+            return
+        seen[id(o)] = len(seen)
+        if isinstance(o, (list, tuple)):
+            h.update(f"seq:{len(o)}[".encode())
+            for x in o:
+                walk(x)
+            h.update(b"]")
+        elif isinstance(o, dict):
+            h.update(f"dict:{len(o)}{{".encode())
+            for k in sorted(o, key=repr):
+                walk(k)
+                walk(o[k])
+            h.update(b"}")
+        else:
+            h.update(f"obj:{type(o).__module__}.{type(o).__qualname__}(".encode())
+            attrs = getattr(o, "__dict__", None)
+            if attrs is None:
+                attrs = {k: getattr(o, k) for k in getattr(type(o), "__slots__", ()) if hasattr(o, k)}
+            for k in sorted(attrs):
+                if not k.startswith("_") and not callable(attrs[k]):
+                    h.update(k.encode())
+                    walk(attrs[k])
+            h.update(b")")
+
+    walk(obj)
+    return h.digest()

@@ -236,7 +236,7 @@ def _render_culled(spec, renderer, window, ids):
     if sub is None:
         if len(_CULLED) > 64:
             _CULLED.clear()
-        sub = _CULLED[key] = replace(scene, shapes=[copy.copy(scene.shapes[i]) for i in ids], _accel=None)
+        sub = _CULLED[key] = replace(scene, shapes=[copy.copy(scene.shapes[i]) for i in ids])
     img = render(sub, spp=renderer.spp, max_depth=renderer.max_depth, seed=renderer.seed, window=tuple(window),
                  aovs=renderer.aovs, min_weight=getattr(renderer, "min_weight", 0.0),
                  light_samples=getattr(renderer, "light_samples", 1))

@@ -145,25 +145,44 @@ def test_checkpoint_ignores_other_configurations(tmp_path):
 
 
 @pytest.mark.dask
-def test_dask_worker_joining_mid_render_gets_units():
+def test_dask_worker_joining_mid_render_gets_units(tmp_path):
+    """A worker that joins mid-render gets units. Deterministic (issue 14): the first worker
+    holds its first chunk on a ``distributed.Event`` while the second one starts; the event is
+    set when a unit finishes during the hold, which only the joiner can have rendered. If the
+    joiner never gets work, the hold times out (60 s) and the pid check fails."""
     pytest.importorskip("distributed")
+    from distributed import Event
+
     from links1.partition.dask_backend import DaskBackend
-    spec = RendererSpec.make(FAKE, "fake", sleep_per_row=0.03)
     plan = make_plan("dynamic", 48, 32, 1, unit="scanline", order="walk")
-
-    class _Grow:  # after the 3rd finished unit, a second worker joins the cluster
-        def __init__(self, be):
-            self.be, self.n = be, 0
-
-        def load(self, unit):
-            return None
-
-        def save(self, unit, pixels):
-            self.n += 1
-            if self.n == 3:
-                self.be.cluster.scale(2)
+    marker, event = tmp_path / "holding", f"links1-join-{os.getpid()}"
+    spec = RendererSpec.make(FAKE, "fake", hold_window=plan.units[plan.order[0]].window, marker=str(marker),
+                             event=event)
+    released = []
 
     with DaskBackend(n_local=1) as be:
-        res = render_plan(plan, spec, be, progress=False, checkpoint=_Grow(be))
+        class _ReleaseOnFirstSave:
+            def load(self, unit):
+                return None
+
+            def save(self, unit, pixels):
+                if not released:
+                    assert marker.exists()  # nothing finishes before the first worker holds
+                    released.append(unit)
+                    Event(event, client=be.client).set()
+
+        def grow():  # the second worker joins once the first one holds its chunk
+            deadline = time.time() + 60
+            while not marker.exists() and time.time() < deadline:
+                time.sleep(0.02)
+            be.cluster.scale(2)
+
+        t = threading.Thread(target=grow, daemon=True)
+        t.start()
+        res = render_plan(plan, spec, be, progress=False, checkpoint=_ReleaseOnFirstSave())
+        t.join(10)
     assert np.array_equal(res.image, REF)
-    assert len({r["pid"] for r in res.records.values()}) == 2
+    holder = int(marker.read_text())
+    pids = {r["pid"] for r in res.records.values()}
+    assert len(pids) == 2 and holder in pids
+    assert res.records[released[0].index]["pid"] != holder  # the unit that ended the hold: the joiner's
