@@ -28,6 +28,7 @@ ray counts of the last render by kind.
 """
 from __future__ import annotations
 
+import hashlib
 import math
 import warnings
 
@@ -142,6 +143,32 @@ def define_integrator():
         return property(lambda self: getattr(self._hidden, name, None),
                         lambda self, v: setattr(self._hidden, name, v))
 
+    def scene_identity(scene):
+        """The scene's shapes, emitters and sensors as object identities (cheap: no parameters).
+        Prepared tables keep those objects alive, so another scene's objects cannot take the
+        same identities while the tables are kept."""
+        ids = []
+        for objs in (scene.shapes(), scene.emitters(), scene.sensors()):
+            ids.append(len(objs))
+            ids += [id(o) for o in objs]
+        return tuple(ids)
+
+    def scene_digest(scene) -> bytes:
+        """A digest of every parameter ``mi.traverse(scene)`` exposes, by value."""
+        h = hashlib.blake2b(digest_size=16)
+        params = mi.traverse(scene)
+        for k in sorted(params.keys()):
+            v = params[k]
+            h.update(k.encode())
+            try:
+                a = np.asarray(v.matrix if hasattr(v, "matrix") else v)
+            except Exception:  # noqa: BLE001 - a value numpy cannot read: its text
+                h.update(repr(v).encode())
+                continue
+            h.update(f"{a.dtype.str}{a.shape}".encode())
+            h.update(np.ascontiguousarray(a).tobytes())
+        return h.digest()
+
     class Prepared:
         """Per-scene tables: slots (shapes in file order), materials, lights, camera."""
 
@@ -212,6 +239,9 @@ def define_integrator():
             self.slot_of_id = None    # Mitsuba shape id -> slot (file order), set by the loader
             self.shape_names = None
             self._prep = None
+            #: check the scene's parameters (mi.traverse) before reusing the prepared tables;
+            #: MitsubaRenderer, whose scene is its own, turns it off for its launches
+            self.verify_scene = True
             self.stats = {}
             #: render windows through a frozen function (:meth:`_frozen_fn`): no re-tracing
             self.use_freeze = True
@@ -226,10 +256,20 @@ def define_integrator():
             self._prep = None
 
         def prepare(self, scene):
-            if self._prep is not None and self._prep.scene_ref == id(scene):
-                return self._prep
+            """The per-scene tables, rebuilt when the scene is another one or was changed.
+
+            Keyed on what they are built from, never on ``id(scene)``: the registry ids of
+            the scene's shapes, emitters and sensors (P keeps those objects alive, so no other
+            scene can reuse the ids), and, while ``verify_scene``, a digest of every parameter
+            ``mi.traverse`` exposes (a ``params.update()`` after a render is seen)."""
+            ident = scene_identity(scene)
+            P = self._prep
+            if P is not None and P.ident == ident and (not self.verify_scene or P.content == scene_digest(scene)):
+                return P
             P = Prepared()
-            P.scene_ref = id(scene)
+            P.ident = ident
+            P.content = scene_digest(scene)
+            P.keep_alive = (list(scene.shapes()), list(scene.emitters()), list(scene.sensors()))  # see scene_identity
             self._freeze = None       # recordings hold the previous tables
             shapes = list(scene.shapes())
             slot_of_id = self.slot_of_id

@@ -95,6 +95,9 @@ class MitsubaRenderer:
             if self.integrator.light_samples < 1:
                 raise ValueError(f"light_samples must be >= 1, got {light_samples}")
             self.integrator._prep = None
+            # the renderer's scene is its own (loaded here, changed by no one): launches skip the
+            # parameter digest (mi.traverse) that mi.render() and render_window() check
+            self.integrator.verify_scene = False
             self.integrator.prepare(self.scene)
         else:
             if self.aovs:
