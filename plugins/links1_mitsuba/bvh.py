@@ -271,7 +271,9 @@ def define_bvh():
                 # Symbolic conditionals: a packet whose lanes are all inner nodes (or all
                 # leaves) skips the other block entirely (the LLVM backend branches per packet).
                 def leaf_fn(fst, best_t, best_q, best_part, found, T, c):
-                    lim = tmax if shadow else best_t
+                    # a tie with the best so far is let through; the lower slot wins (below)
+                    lim = tmax if shadow else dr.select(found, dr.reinterpret_array(
+                        mi.Float, dr.reinterpret_array(mi.UInt32, best_t) + 1), best_t)
                     tq, pq = self.intersect(fst, o, d, tmin, lim, True)
                     c = c + 1
                     h = tq < lim

@@ -143,6 +143,12 @@ def define_integrator():
         return property(lambda self: getattr(self._hidden, name, None),
                         lambda self, v: setattr(self._hidden, name, v))
 
+    def next_up(x):
+        """The next float32 above positive ``x`` (infinity stays): a strict ``t < limit`` test
+        against ``next_up(t)`` accepts a tie at ``t``."""
+        return dr.select(dr.isfinite(x) & (x >= 0), dr.reinterpret_array(
+            mi.Float, dr.reinterpret_array(mi.UInt32, x) + 1), x)
+
     def scene_identity(scene):
         """The scene's shapes, emitters and sensors as object identities (cheap: no parameters).
         Prepared tables keep those objects alive, so another scene's objects cannot take the
@@ -380,11 +386,18 @@ def define_integrator():
                     s2q[sp.slot] = i
                 P.bvh.slot_to_q = mi.Int32(s2q)
             P.shadow_t = mi.Float(trans.ravel())
-            transparent_mitsuba = [sl for s, sl in zip(shapes, slot_list) if trans[sl].max() > 0]
+            # transparent Mitsuba shapes, each counted once per shadow segment (3-3-3): shape j
+            # owns bit j % 32 of word j // 32 of a per-lane "seen" set (as many words as needed)
+            transparent_mitsuba = [(s, sl) for s, sl in zip(shapes, slot_list) if trans[sl].max() > 0]
             bits = np.zeros(nslots, dtype=np.uint32)
-            for j, sl in enumerate(transparent_mitsuba):
-                bits[sl] = np.uint32(1 << min(j, 31))
-            P.trans_bits = mi.UInt32(bits)
+            words = np.zeros(nslots, dtype=np.uint32)
+            for j, (_, sl) in enumerate(transparent_mitsuba):
+                bits[sl], words[sl] = np.uint32(1 << (j % 32)), np.uint32(j // 32)
+            P.trans_bits, P.trans_words = mi.UInt32(bits), mi.UInt32(words)
+            P.trans_nwords = max(1, -(-len(transparent_mitsuba) // 32))
+            # a segment crosses each triangle at most once and an analytic shape at most twice,
+            # and stops at the first opaque one: no arbitrary cap on crossings
+            P.max_crossings = 1 + sum(int(s.face_count()) if s.is_mesh() else 2 for s, _ in transparent_mitsuba)
             P.any_transparent_mitsuba = bool(transparent_mitsuba)
             # emission
             emis = np.zeros((nslots, 3))
@@ -591,22 +604,26 @@ def define_integrator():
                 t = dr.full(mi.Float, INF, dr.width(o))
                 slot = dr.full(mi.Int32, -1, dr.width(o))
             prim = dr.zeros(mi.UInt32, dr.width(o))
+            # ties at the same distance go to the lower slot (file order), as in the core
+            # (links1.accel): a shape after the current best may not tie, one before it may
             for spec in P.custom_unrolled:
                 tt = dr.minimum(t, tmax)
+                tt = dr.select(slot > spec.slot, next_up(tt), tt)
                 if spec.__class__.__name__ == "BlobSpec":
                     tc, pc = spec.intersect(o, d, tmin, tt, active, cost)
                 else:
                     tc, pc = spec.intersect(o, d, tmin, tt, active)
                     cost += dr.select(active, mi.UInt32(1), 0)
-                better = tc < t
+                better = (tc < t) | ((tc == t) & (slot > spec.slot))
                 t = dr.select(better, tc, t)
                 slot = dr.select(better, spec.slot, slot)
                 prim = dr.select(better, pc, prim)
             if P.bvh is not None:
-                tq, q, part, found = P.bvh.nearest(o, d, tmin, dr.minimum(t, tmax), active, cost)
-                better = found & (tq < t)
+                tq, q, part, found = P.bvh.nearest(o, d, tmin, next_up(dr.minimum(t, tmax)), active, cost)
+                sq = mi.Int32(dr.gather(mi.UInt32, P.bvh.slot, q, found))
+                better = found & ((tq < t) | ((tq == t) & ((slot < 0) | (sq < slot))))
                 t = dr.select(better, tq, t)
-                slot = dr.select(better, mi.Int32(dr.gather(mi.UInt32, P.bvh.slot, q, better)), slot)
+                slot = dr.select(better, sq, slot)
                 prim = dr.select(better, part, prim)
             return t, slot, si, prim
 
@@ -640,7 +657,8 @@ def define_integrator():
                 occluded = scene.ray_test(mi.Ray3f(o, d, smax, 0.0, mi.Color0f()), active=act)  # (o, d, x) would set time, not maxt
                 cost += dr.select(act, mi.UInt32(1), 0)
                 return dr.select(occluded, 0.0, T)
-            reg_to_slot, bits_t, sh_t = P.reg_to_slot, P.trans_bits, P.shadow_t
+            reg_to_slot, bits_t, words_t, sh_t = P.reg_to_slot, P.trans_bits, P.trans_words, P.shadow_t
+            nwords, max_crossings = P.trans_nwords, P.max_crossings
 
             def cond(o, tleft, T, seen, run, it, cost):
                 return run
@@ -652,20 +670,25 @@ def define_integrator():
                 reg = dr.reinterpret_array(mi.UInt32, si.shape)
                 slot = dr.gather(mi.Int32, reg_to_slot, reg, hit)
                 bit = dr.gather(mi.UInt32, bits_t, mi.UInt32(slot), hit)
+                word = dr.gather(mi.UInt32, words_t, mi.UInt32(slot), hit)
                 opaque = hit & (bit == 0)
-                new = hit & (bit != 0) & ((seen & bit) == 0)
+                mine = [hit & (bit != 0) & (word == k) for k in range(nwords)]
+                new = hit & mi.Bool(False)
+                for k in range(nwords):
+                    new = new | (mine[k] & ((seen[k] & bit) == 0))
                 T = dr.select(opaque, 0.0, T)
                 T = dr.select(new, T * gather3(sh_t, mi.UInt32(slot), new), T)
-                seen = dr.select(new, seen | bit, seen)
+                seen = [dr.select(new & mine[k], seen[k] | bit, seen[k]) for k in range(nwords)]
                 nxt = si.spawn_ray(d)
                 tleft = dr.select(hit, tleft - si.t, tleft)
                 o = dr.select(hit, nxt.o, o)
                 it += 1
-                run = hit & ~opaque & (it < 64) & (tleft > 0)
+                run = hit & ~opaque & (it < max_crossings) & (tleft > 0)
                 return o, tleft, T, seen, run, it, cost
 
-            state = (mi.Point3f(o), mi.Float(smax), T, dr.zeros(mi.UInt32, dr.width(o)), mi.Bool(act),
-                     dr.zeros(mi.UInt32, dr.width(o)), dr.zeros(mi.UInt32, dr.width(o)))
+            n = dr.width(o)
+            state = (mi.Point3f(o), mi.Float(smax), T, [dr.zeros(mi.UInt32, n) for _ in range(nwords)], mi.Bool(act),
+                     dr.zeros(mi.UInt32, n), dr.zeros(mi.UInt32, n))
             o, tleft, T, seen, run, it, c_loop = dr.while_loop(state, cond, body)
             cost += c_loop
             return T
