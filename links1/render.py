@@ -320,6 +320,8 @@ def mitsuba_message(exc: BaseException, path) -> str:
     if len(lines) > 1 and "Traceback" in text:
         where = _SOURCE_TAG.sub("", lines[0]).split(": failed")[0]  # "At FILE (line L, col C)"
         msg = f"{where}: {msg}"
+    elif len(lines) > 1:  # "While loading FILE (line L, col C): Found 1 unreferenced property ...:" + a list
+        msg = " ".join(lines)
     msg = _SOURCE_TAG.sub("", msg)
 
     def line_of(m):

@@ -185,7 +185,8 @@ def _load(parse, source, integrator, base_dir, variant, params):
     return scene
 
 
-def load_file(path, *, integrator: str = "links1", variant: str | None = None, **params):
+def load_file(path, *, integrator: str = "links1", variant: str | None = None, params: dict | None = None,
+              **kwparams):
     """Load a scene file for Mitsuba with the links1 plugins.
 
     Parameters
@@ -198,8 +199,11 @@ def load_file(path, *, integrator: str = "links1", variant: str | None = None, *
         blobs are then left out, with a warning).
     variant : str, optional
         Mitsuba variant (default: the active one, else ``llvm_ad_rgb`` / ``cuda_ad_rgb``).
-    **params
-        ``$name`` substitutions, as ``mi.load_file``.
+    params : dict, optional
+        ``$name`` substitutions (any name, also ``integrator`` or ``variant``, which
+        Mitsuba's own scenes often declare with ``<default>``).
+    **kwparams
+        More ``$name`` substitutions, as ``mi.load_file``.
     """
     if integrator not in ("links1", "scene"):
         raise ValueError(f"integrator must be 'links1' or 'scene', got {integrator!r}")
@@ -208,17 +212,17 @@ def load_file(path, *, integrator: str = "links1", variant: str | None = None, *
     if not os.path.exists(path):
         raise FileNotFoundError(path)
     return _load(lambda c, p, **kw: mi.parser.parse_file(c, p, **kw), path, integrator,
-                 os.path.dirname(os.path.abspath(path)), variant, params)
+                 os.path.dirname(os.path.abspath(path)), variant, {**(params or {}), **kwparams})
 
 
 def load_string(xml: str, *, integrator: str = "links1", variant: str | None = None,
-                base_dir: str | None = None, **params):
+                base_dir: str | None = None, params: dict | None = None, **kwparams):
     """:func:`load_file` for an XML string (relative file names resolve against ``base_dir``)."""
     if integrator not in ("links1", "scene"):
         raise ValueError(f"integrator must be 'links1' or 'scene', got {integrator!r}")
     import mitsuba as mi
     return _load(lambda c, s, **kw: mi.parser.parse_string(c, s, **kw), xml, integrator,
-                 base_dir or os.getcwd(), variant, params)
+                 base_dir or os.getcwd(), variant, {**(params or {}), **kwparams})
 
 
 def whitted_of(scene):
