@@ -228,6 +228,41 @@ def threads_per_worker(n_workers: int) -> int:
 DEATHS_PER_WORKER = 3
 
 
+#: seconds between checks that the processes a local pool waits on are still alive
+POLL_S = 1.0
+
+
+def _alive(pool) -> bool:
+    """Whether a one-process pool's worker process is alive (True when it cannot be told)."""
+    procs = getattr(pool, "_processes", None)
+    if pool is None or not procs:
+        return True
+    return all(p.is_alive() for p in list(procs.values()))
+
+
+def _abandon(pool) -> None:
+    """Shut down a pool whose worker died, without waiting on it.
+
+    CPython's ProcessPoolExecutor reads results in a manager thread; a worker SIGKILLed while
+    it writes a result leaves that thread blocked forever in the middle of the message (the
+    parent keeps the pipe's write end open, so no EOF comes), no future ever completes and
+    ``shutdown(wait=True)``, or the interpreter's exit, waits on it. Closing the parent's copy
+    of the write end once the worker is gone gives the thread its EOF: it marks the pool broken
+    and ends."""
+    procs = list((getattr(pool, "_processes", None) or {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    for proc in procs:
+        if proc.is_alive():
+            proc.kill()
+        proc.join(timeout=10)
+    writer = getattr(getattr(pool, "_result_queue", None), "_writer", None)
+    if writer is not None:
+        try:
+            writer.close()
+        except OSError:
+            pass
+
+
 class LocalPool:
     """``--workers N``: N spawned worker processes on this machine, one pool per node.
 
@@ -290,7 +325,7 @@ class LocalPool:
         old = self.pools.pop(k, None)
         self.hello.pop(k, None)
         if old is not None:
-            old.shutdown(wait=False, cancel_futures=True)
+            _abandon(old)
         who = f"node {k} (pid {pid})" if pid else f"node {k}"
         if self.deaths > self.max_deaths:
             self.close()
@@ -322,7 +357,11 @@ class LocalPool:
         from concurrent.futures import FIRST_COMPLETED, wait
         from concurrent.futures.process import BrokenProcessPool
         by_future = {f: k for k, f in self.hello.items()}
-        done, _ = wait(list(by_future), timeout=timeout, return_when=FIRST_COMPLETED)
+        done, _ = wait(list(by_future), timeout=POLL_S if timeout is None else timeout,
+                       return_when=FIRST_COMPLETED)
+        for f, k in by_future.items():  # dead without a result (see _abandon): as if broken
+            if f not in done and not _alive(self.pools.get(k)):
+                self.log(f"links1: {self._died(k, 'while starting')}; a replacement is starting")
         for f in done:
             k = by_future[f]
             try:
@@ -397,12 +436,14 @@ class LocalPool:
             fill(k)
         while pending or (self.hello and any(queue_of(k) for k in range(self.n))):
             if pending:
-                wait(list(pending) + list(self.hello.values()), return_when=FIRST_COMPLETED)
-                if any(f.done() for f in self.hello.values()):
+                # bounded: a worker killed while it sends a result may never complete its
+                # future (see _abandon), so its process is checked too
+                wait(list(pending) + list(self.hello.values()), timeout=POLL_S, return_when=FIRST_COMPLETED)
+                if self.hello:
                     self._await_hello(timeout=0)
             else:  # only starting nodes are left to render the remaining units
                 self._await_hello(timeout=None)
-            lost = set()
+            lost = {k for (_, k) in pending.values() if k in self.pools and not _alive(self.pools[k])}
             for f in [f for f in pending if f.done()]:
                 batch, k = pending[f]
                 try:
@@ -450,7 +491,10 @@ class LocalPool:
 
     def close(self):
         for p in self.pools.values():
-            p.shutdown(wait=True, cancel_futures=True)
+            if _alive(p):
+                p.shutdown(wait=True, cancel_futures=True)
+            else:
+                _abandon(p)
         self.pools.clear()
         self.pids.clear()
         self.hello.clear()

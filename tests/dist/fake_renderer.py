@@ -5,7 +5,9 @@ frames is testable without a real scene. Hooks make failures happen at chosen un
 ``kill_window`` SIGKILLs the rendering process the first time that window is rendered
 (``marker`` records that it happened), ``hold_window`` blocks on a ``distributed.Event``
 after writing the worker's pid to ``marker``, ``count_file`` gets one line per rendered
-window (to count work across processes).
+window (to count work across processes), ``kill_in_send=(window, delay_s)`` SIGKILLs the
+process ``delay_s`` after it returns that window's pixels (the first time): with a large window,
+while the result is on its way to the root.
 """
 from __future__ import annotations
 
@@ -33,7 +35,7 @@ class FakeRenderer:
     kind = "fake"
 
     def __init__(self, path="fake", *, width=48, height=32, nc=4, sleep_per_row=0.0, kill_window=None,
-                 hold_window=None, event=None, marker=None, count_file=None, max_depth=1):
+                 hold_window=None, event=None, marker=None, count_file=None, max_depth=1, kill_in_send=None):
         self.path = path
         self.width, self.height, self.nc = int(width), int(height), int(nc)
         self.sleep_per_row = float(sleep_per_row)
@@ -41,6 +43,7 @@ class FakeRenderer:
         self.hold_window = tuple(hold_window) if hold_window else None
         self.event, self.marker, self.count_file = event, marker, count_file
         self.max_depth = max_depth
+        self.kill_in_send = (tuple(kill_in_send[0]), float(kill_in_send[1])) if kill_in_send else None
         # camera at the origin looking down +z (+x to the left), 60 degrees across
         self.camera = Camera(fov_x=60.0, width=self.width, height=self.height)
 
@@ -62,6 +65,13 @@ class FakeRenderer:
             with open(self.marker, "w") as f:
                 f.write(str(os.getpid()))
             os.kill(os.getpid(), signal.SIGKILL)
+        if self.kill_in_send and self.kill_in_send[0] == win and self.marker and not os.path.exists(self.marker):
+            import threading
+            with open(self.marker, "w") as f:
+                f.write(str(os.getpid()))
+            delay = self.kill_in_send[1]
+            threading.Thread(target=lambda: (time.sleep(delay), os.kill(os.getpid(), signal.SIGKILL)),
+                             daemon=True).start()
         if self.hold_window == win and self.marker:
             if not os.path.exists(self.marker):
                 with open(self.marker, "w") as f:

@@ -186,3 +186,23 @@ def test_dask_worker_joining_mid_render_gets_units(tmp_path):
     pids = {r["pid"] for r in res.records.values()}
     assert len(pids) == 2 and holder in pids
     assert res.records[released[0].index]["pid"] != holder  # the unit that ended the hold: the joiner's
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("delay", [0.0, 0.05, 0.15])
+def test_local_worker_killed_while_sending_its_result(tmp_path, delay):
+    """A worker SIGKILLed while its (128 MB) result is on its way to the root: CPython's pool
+    can then wait forever on a half-read message; the render must go on (the unit is redone
+    elsewhere), finish with the right image and close without hanging. The delays put the kill
+    before, during and after the transfer."""
+    W, H = 2048, 2048
+    spec = RendererSpec.make(FAKE, "fake", width=W, height=H, nc=4, kill_in_send=((0, 0, 1024, 1024), delay),
+                             marker=str(tmp_path / "killed"))
+    plan = make_plan("grid", W, H, 2, tiles_per_node=2)
+    assert (0, 0, 1024, 1024) in [u.window for u in plan.units]
+    t = time.perf_counter()
+    with LocalPool(2) as pool:
+        res = render_plan(plan, spec, pool, progress=False)
+    assert (tmp_path / "killed").exists()
+    assert np.array_equal(res.image, pixel_values(0, 0, W, H, 4))
+    assert time.perf_counter() - t < 120
