@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .accel import Accel
+from .lights import AreaLight
 from .sampling import KEY_REFLECT, KEY_REFRACT, child_keys, light_samples_uv
 from .vec import dot, max_abs
 
@@ -243,7 +244,8 @@ class WhittedIntegrator:
                 for k, g in groups:
                     f[g] = mats[k].eval(wo[g], wi[g], nf[g], rec.ns[g])
                 contrib = f * L if inv_m is None else f * L * inv_m
-                self._shadowed(out, contrib, wi, dist, j, hits, rec, eps, cost, idx)
+                self._shadowed(out, contrib, wi, dist, j, hits, rec, eps, cost, idx,
+                               aim=isinstance(light, AreaLight))
 
         if depth >= self.max_depth or not (self.any_reflection or self.any_transmission):
             return out
@@ -290,9 +292,16 @@ class WhittedIntegrator:
         return out
 
 
-    def _shadowed(self, out, contrib, wi, dist, j, hits, rec, eps, cost, idx):
+    def _shadowed(self, out, contrib, wi, dist, j, hits, rec, eps, cost, idx, aim=False):
         """Add ``contrib`` of light ``j`` to ``out``, dimmed by the transmittance of the shapes
-        its shadow segment crosses (3-3-3), tracing only where an occluder can be."""
+        its shadow segment crosses (3-3-3), tracing only where an occluder can be.
+
+        ``aim``: the light's points lie on a surface (an area emitter). The segment then runs
+        from the offset origin to the sampled point itself and stops short of it by that
+        point's own offset: from the offset origin along the original ``wi`` a ray meets the
+        emitter's plane up to ``eps / cos`` early (the offset's component along the light's
+        normal), inside the emitter when the emitter is not convex (and so an occluder): a
+        luminaire mesh shadowed itself on points that see it obliquely."""
         lit = np.any(contrib != 0.0, axis=1)
         need = self._shadow_need[j][hits.shape] | \
             (self._shadow_inner[j][hits.shape] & (dot(rec.ng, wi) <= 0.0))  # inner side: links1.occluders
@@ -302,9 +311,16 @@ class WhittedIntegrator:
         if shadowed.size == 0:
             return
         so = _offset(rec.p[shadowed], rec.ng[shadowed], wi[shadowed], eps[shadowed])
+        ws = wi[shadowed]
         smax = dist[shadowed] - 2.0 * eps[shadowed]
+        if aim:
+            q = rec.p[shadowed] + ws * dist[shadowed, None]
+            to = q - so
+            length = np.sqrt(dot(to, to))
+            ws = to / np.where(length > 0, length, 1.0)[:, None]
+            smax = length - 2.0 * np.maximum((1.0 + max_abs(q)) * OFFSET_SCALE, eps[shadowed])
         c = np.zeros(shadowed.size, dtype=np.int64)
-        T = self.accel.shadow_transmittance(so, wi[shadowed], smax, self._shadow_t_light[j], c)
+        T = self.accel.shadow_transmittance(so, ws, smax, self._shadow_t_light[j], c)
         cost[idx[shadowed]] += c
         self.stats.rays["shadow"] += shadowed.size
         out[shadowed] += contrib[shadowed] * T
