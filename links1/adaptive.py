@@ -95,7 +95,7 @@ class Lattice:
         return self.values[np.searchsorted(self.keys, flat)].reshape(*keys.shape, -1)
 
 
-def render_adaptive(sample, window, film_size, threshold, depth):
+def render_adaptive(sample, window, film_size, threshold, depth, summed=0):
     """Adaptive render of ``window = (x0, y0, w, h)`` of a film of ``film_size = (W, H)`` pixels.
 
     ``sample(i, j, step, keys)`` -> (n, C) values of the lattice points ``(i, j)`` (int64
@@ -103,7 +103,9 @@ def render_adaptive(sample, window, film_size, threshold, depth):
     global keys) must depend on ``(i, j)`` only.
 
     Returns ``(values (h, w, C), samples (h, w) int64)``: the pixel values (module doc) and
-    the number of distinct lattice points each pixel's leaf squares use.
+    the number of distinct lattice points each pixel's leaf squares use. With ``summed = k``
+    the last ``k`` channels of ``sample`` (e.g. a ray count) are not reconstructed but summed
+    over those distinct points: ``(values (h, w, C - k), samples, sums (h, w, k))``.
     """
     threshold, depth = check_options(threshold, depth)
     x0, y0, w, h = (int(v) for v in window)
@@ -119,7 +121,8 @@ def render_adaptive(sample, window, film_size, threshold, depth):
         v = lat.lookup(corners)  # (4, n, C)
         if acc is None:
             acc = np.zeros((w * h, v.shape[-1]))
-        split = differs(v, threshold) if s > 1 else np.zeros(len(pid), dtype=bool)
+        # the summed channels (counts, not colour) take no part in the decision
+        split = differs(v[..., :v.shape[-1] - summed], threshold) if s > 1 else np.zeros(len(pid), dtype=bool)
         leaf = ~split
         area = (s / S) ** 2  # a power of two: exact
         np.add.at(acc, pid[leaf], (v[0, leaf] + v[1, leaf] + v[2, leaf] + v[3, leaf]) * (0.25 * area))
@@ -132,5 +135,10 @@ def render_adaptive(sample, window, film_size, threshold, depth):
         pid = np.tile(pid, 4)
         s = h2
     pairs = np.unique(np.stack([np.concatenate(used_pid), np.concatenate(used_key)], axis=1), axis=0)
-    samples = np.bincount(pairs[:, 0], minlength=w * h)
-    return acc.reshape(h, w, -1), samples.reshape(h, w).astype(np.int64)
+    samples = np.bincount(pairs[:, 0], minlength=w * h).reshape(h, w).astype(np.int64)
+    if not summed:
+        return acc.reshape(h, w, -1), samples
+    C = acc.shape[1]
+    sums = np.zeros((w * h, summed))
+    np.add.at(sums, pairs[:, 0], lat.lookup(pairs[:, 1])[:, C - summed:])
+    return acc[:, :C - summed].reshape(h, w, -1), samples, sums.reshape(h, w, summed)

@@ -95,7 +95,13 @@ def add_render_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=_nonneg_int("--seed"), default=0, help="seed of the sample pattern (spp > 1)")
     p.add_argument("--light-samples", type=_positive_int("--light-samples"), default=None,
                    help="shadow rays per area light / environment per sample (default 1)")
-    p.add_argument("--aov", type=_aov_list, default=(), help="extra EXR channels: depth,normal,id,cost")
+    p.add_argument("--aov", type=_aov_list, default=(), help="extra EXR channels: depth,normal,id,cost,samples")
+    p.add_argument("--adaptive", type=float, default=None, metavar="THRESHOLD",
+                   help="adaptive anti-aliasing (core renderer): split a pixel's square of samples while "
+                        "its corners differ by more than THRESHOLD (tone-mapped v/(1+v), e.g. 0.05); "
+                        "replaces --spp")
+    p.add_argument("--adaptive-depth", type=_nonneg_int("--adaptive-depth"), default=None, metavar="D",
+                   help="most refinement levels of --adaptive (default 2: up to 5x5 samples per pixel)")
     p.add_argument("-D", dest="defines", type=_define, action="append", default=[], metavar="NAME=VALUE",
                    help="set a scene parameter ($NAME), overriding its <default>")
 
@@ -170,6 +176,24 @@ def renderer_options(args) -> dict:
     return opts
 
 
+def adaptive_options(args) -> dict:
+    """``adaptive``/``adaptive_depth`` renderer options from ``--adaptive``/``--adaptive-depth``."""
+    if getattr(args, "adaptive", None) is None:
+        if getattr(args, "adaptive_depth", None) is not None:
+            raise UsageError("--adaptive-depth needs --adaptive THRESHOLD")
+        return {}
+    from .adaptive import check_options
+    from .render import DEFAULT_ADAPTIVE_DEPTH
+    if args.spp is not None:
+        raise UsageError("--adaptive replaces --spp: give one of them")
+    if args.renderer != "core":
+        raise UsageError("--adaptive is implemented in the core renderer only so far (issue 11): "
+                         "add --renderer core")
+    depth = DEFAULT_ADAPTIVE_DEPTH if args.adaptive_depth is None else args.adaptive_depth
+    t, d = check_options(args.adaptive, depth)
+    return {"adaptive": t, "adaptive_depth": d}
+
+
 def make_cli_renderer(args):
     from .render import make_renderer
     opts = renderer_options(args)
@@ -177,6 +201,7 @@ def make_cli_renderer(args):
         opts["min_weight"] = args.min_weight
     if getattr(args, "light_samples", None) is not None:
         opts["light_samples"] = args.light_samples
+    opts.update(adaptive_options(args))
     if args.renderer == "mitsuba":
         opts["variant"] = args.variant
         if args.integrator == "scene":

@@ -14,13 +14,17 @@ import numpy as np
 from .errors import Links1Error, SceneError, UsageError
 from .filters import FilterGather
 from .integrator import DEFAULT_MIN_WEIGHT, WhittedIntegrator
-from .sampling import pixel_keys, ray_keys, sample_offsets
+from .sampling import lattice_keys, pixel_keys, ray_keys, sample_offsets
 
 #: AOV -> its channel names, one table for every renderer, back end and worker count, in
 #: Mitsuba's ``name.X`` convention (what its ``aov`` integrator writes: depth ``.T``, normals
-#: ``.X .Y .Z``, shape index ``.I``); ``cost`` (ray-primitive tests) is a count, ``.N``.
+#: ``.X .Y .Z``, shape index ``.I``); ``cost`` (ray-primitive tests) and ``samples`` (camera
+#: samples of the pixel: spp, or the adaptive lattice points it used) are counts, ``.N``.
 AOVS = {"depth": ("depth.T",), "normal": ("normal.X", "normal.Y", "normal.Z"), "id": ("id.I",),
-        "cost": ("cost.N",)}
+        "cost": ("cost.N",), "samples": ("samples.N",)}
+
+#: Default refinement depth of adaptive anti-aliasing (a pixel holds up to (2**D + 1)² points).
+DEFAULT_ADAPTIVE_DEPTH = 2
 
 #: Sample rays traced per numpy batch (bounds memory: ~40 arrays of 3 doubles per ray).
 BATCH = 1 << 16
@@ -63,7 +67,8 @@ def _check_window(window, width, height):
 
 def render(scene, *, spp: int | None = None, max_depth: int | None = None, seed: int = 0,
            window=None, aovs=(), min_weight: float = DEFAULT_MIN_WEIGHT, progress: bool = False,
-           width: int | None = None, height: int | None = None, light_samples: int = 1) -> np.ndarray:
+           width: int | None = None, height: int | None = None, light_samples: int = 1,
+           adaptive: float | None = None, adaptive_depth: int = DEFAULT_ADAPTIVE_DEPTH) -> np.ndarray:
     """Render ``scene`` with the float64 core.
 
     Parameters
@@ -88,6 +93,14 @@ def render(scene, *, spp: int | None = None, max_depth: int | None = None, seed:
     light_samples : int
         Shadow rays per area light / environment per hit (default 1); the points lie on one
         lattice over the pixel's samples (:func:`links1.sampling.light_samples_uv`).
+    adaptive : float, optional
+        Adaptive anti-aliasing instead of ``spp`` samples per pixel (:mod:`links1.adaptive`):
+        a pixel's square of lattice points is split while its corners differ by more than
+        this (tone-mapped ``v/(1+v)``, max over channels), down to ``adaptive_depth`` levels.
+        The box integral of the corners replaces the film's filter (a warning says so when
+        the film names another).
+    adaptive_depth : int
+        Most levels of refinement (default 2; 0..8).
 
     Returns
     -------
@@ -104,12 +117,14 @@ def render(scene, *, spp: int | None = None, max_depth: int | None = None, seed:
         window = (*cam.crop_offset, *cam.crop_size)
     x0, y0, w, h = _check_window(window, cam.width, cam.height)
     return render_windows(scene, [(x0, y0, w, h)], spp=spp, max_depth=max_depth, seed=seed, aovs=aovs,
-                          min_weight=min_weight, light_samples=light_samples, progress=progress, cam=cam)[0]
+                          min_weight=min_weight, light_samples=light_samples, progress=progress, cam=cam,
+                          adaptive=adaptive, adaptive_depth=adaptive_depth)[0]
 
 
 def render_windows(scene, windows, *, spp: int | None = None, max_depth: int | None = None, seed: int = 0,
                    aovs=(), min_weight: float = DEFAULT_MIN_WEIGHT, light_samples: int = 1,
-                   progress: bool = False, cam=None) -> list:
+                   progress: bool = False, cam=None, adaptive: float | None = None,
+                   adaptive_depth: int = DEFAULT_ADAPTIVE_DEPTH) -> list:
     """Render several windows of the film in one pass -> one array per window, each bit for bit
     what :func:`render` returns for it (pixels are traced independently, in batches of
     ``BATCH``: a batch of small windows pays the per-call numpy overhead once). Each window
@@ -120,6 +135,10 @@ def render_windows(scene, windows, *, spp: int | None = None, max_depth: int | N
         raise UsageError(f"spp must be >= 1, got {spp}")
     aovs = check_aovs(aovs)
     wins = [_check_window(win, cam.width, cam.height) for win in windows]
+    if adaptive is not None:
+        return [_render_adaptive(scene, cam, win, threshold=adaptive, depth=adaptive_depth, max_depth=max_depth,
+                                 seed=seed, aovs=aovs, min_weight=min_weight, light_samples=light_samples,
+                                 progress=progress) for win in wins]
     gathers = [FilterGather(cam.rfilter, win, (cam.width, cam.height)) for win in wins]
     pxs, pys = zip(*(_window_pixels(*g.sample_window) for g in gathers))
     starts = np.cumsum([0] + [len(p) for p in pxs])
@@ -185,8 +204,60 @@ def _render_pixels(scene, cam, px, py, add_layer, *, spp, max_depth, seed, aovs,
     channels = [np.zeros((npix, 0))]
     for a in aovs:
         channels.append({"depth": depth_aov[:, None], "normal": normal_aov, "id": id_aov[:, None],
-                         "cost": cost[:, None].astype(np.float64)}[a])
+                         "cost": cost[:, None].astype(np.float64), "samples": np.full((npix, 1), float(spp))}[a])
     return np.concatenate(channels, axis=1)
+
+
+def _render_adaptive(scene, cam, win, *, threshold, depth, max_depth, seed, aovs, min_weight, light_samples,
+                     progress):
+    """Adaptive anti-aliasing of window ``win`` (:mod:`links1.adaptive`): lattice point ``(i, j)``
+    is the camera ray through film position ``(i, j) / 2**depth`` pixels, its ray tree keyed by
+    :func:`links1.sampling.lattice_keys`. AOVs: depth, normal and id at the pixel centres (as an
+    spp-1 render), cost summed over the pixel's lattice points, samples = their number."""
+    import warnings
+
+    from .adaptive import check_options, render_adaptive
+    from .xmlparse import SceneWarning
+    threshold, depth = check_options(threshold, depth)
+    if cam.rfilter.name != "box":
+        warnings.warn(f"adaptive anti-aliasing integrates each pixel's box: the film's {cam.rfilter.name!r} "
+                      f"reconstruction filter is not applied", SceneWarning, stacklevel=3)
+    integ = WhittedIntegrator(scene, max_depth=max_depth, min_weight=min_weight, light_samples=light_samples)
+    W, H = cam.width, cam.height
+    bar = _progress(None, progress)
+
+    def sample(i, j, step, keys):
+        out = np.empty((len(i), 4))
+        for a in range(0, len(i), BATCH):
+            b = min(a + BATCH, len(i))
+            o, d, tmin, tmax = cam.generate_rays(i[a:b] / step / W, j[a:b] / step / H)
+            c = np.zeros(b - a, dtype=np.int64)
+            L, _, _ = integ.trace(o, d, tmin, tmax, c, keys=lattice_keys(keys[a:b], seed))
+            integ.stats.rays["camera"] += b - a
+            out[a:b, :3], out[a:b, 3] = L, c
+            if bar is not None:
+                bar.update(b - a)
+        return out
+
+    x0, y0, w, h = win
+    rgb, samples, cost = render_adaptive(sample, win, (W, H), threshold, depth, summed=1)
+    if bar is not None:
+        bar.close()
+    chans = [rgb]
+    centre = [a for a in aovs if a in ("depth", "normal", "id")]
+    if centre:
+        px, py = _window_pixels(x0, y0, w, h)
+        c = _render_pixels(scene, cam, px, py, lambda *_: None, spp=1, max_depth=max_depth, seed=seed,
+                           aovs=tuple(centre), min_weight=min_weight, progress=False,
+                           light_samples=light_samples).reshape(h, w, -1)
+        at = 0
+        parts = {}
+        for a in centre:
+            parts[a] = c[..., at:at + len(AOVS[a])]
+            at += len(AOVS[a])
+    for a in aovs:
+        chans.append(parts[a] if a in centre else cost if a == "cost" else samples[..., None].astype(np.float64))
+    return np.concatenate(chans, axis=2)
 
 
 def _resized(cam, width, height):
@@ -217,7 +288,8 @@ class CoreRenderer:
     kind = "core"
 
     def __init__(self, path, *, params=None, spp=None, max_depth=None, seed=0, aovs=(),
-                 min_weight=DEFAULT_MIN_WEIGHT, width=None, height=None, variant=None, light_samples=1):
+                 min_weight=DEFAULT_MIN_WEIGHT, width=None, height=None, variant=None, light_samples=1,
+                 adaptive=None, adaptive_depth=DEFAULT_ADAPTIVE_DEPTH):
         from .loader import load_scene
         self.path = str(path)
         self.scene = load_scene(self.path, **(params or {}))
@@ -231,6 +303,10 @@ class CoreRenderer:
         self.light_samples = int(light_samples)
         if self.light_samples < 1:
             raise UsageError(f"light_samples must be >= 1, got {self.light_samples}")
+        self.adaptive, self.adaptive_depth = adaptive, adaptive_depth
+        if adaptive is not None:
+            from .adaptive import check_options
+            self.adaptive, self.adaptive_depth = check_options(adaptive, adaptive_depth)
 
     @property
     def film_size(self) -> tuple[int, int]:
@@ -245,12 +321,13 @@ class CoreRenderer:
             window = (0, 0, *self.film_size)
         return render(self.scene, spp=self.spp, max_depth=self.max_depth, seed=self.seed,
                       window=window, aovs=self.aovs, min_weight=self.min_weight, progress=progress,
-                      light_samples=self.light_samples)
+                      light_samples=self.light_samples, adaptive=self.adaptive, adaptive_depth=self.adaptive_depth)
 
     def render_batch(self, windows) -> list:
         """One array per window, each exactly ``render(window)`` (one pass over their pixels)."""
         return render_windows(self.scene, windows, spp=self.spp, max_depth=self.max_depth, seed=self.seed,
-                              aovs=self.aovs, min_weight=self.min_weight, light_samples=self.light_samples)
+                              aovs=self.aovs, min_weight=self.min_weight, light_samples=self.light_samples,
+                              adaptive=self.adaptive, adaptive_depth=self.adaptive_depth)
 
     def shapes_info(self) -> list[dict]:
         return shapes_info(self.scene)
@@ -276,6 +353,10 @@ def make_renderer(kind: str, path, **options):
     if kind == "core":
         return CoreRenderer(path, **options)
     if kind == "mitsuba":
+        if options.pop("adaptive", None) is not None:
+            raise UsageError("adaptive anti-aliasing is implemented in the core renderer only so far "
+                             "(issue 11): use --renderer core")
+        options.pop("adaptive_depth", None)
         try:
             from links1_mitsuba import MitsubaRenderer
         except ImportError as e:

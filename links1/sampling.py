@@ -83,6 +83,16 @@ def ray_keys(px, py, i: int, spp: int, seed: int, film_width: int) -> np.ndarray
     return mix32(mix32(np.uint32(key_seed(seed))) ^ idx)
 
 
+def lattice_keys(keys, seed: int) -> np.ndarray:
+    """Key of the adaptive lattice points with global keys ``keys`` (int64, links1.adaptive):
+    ``mix(mix(mix(key_seed(seed) ^ 0x68E31DA4) ^ low 32 bits) ^ high 32 bits)``, a function of
+    the point alone, so every window that samples it traces the same ray tree."""
+    k = np.asarray(keys, dtype=np.int64).astype(np.uint64)
+    lo = (k & np.uint64(0xFFFFFFFF)).astype(np.uint32)
+    hi = (k >> np.uint64(32)).astype(np.uint32)
+    return mix32(mix32(mix32(np.uint32(key_seed(seed) ^ 0x68E31DA4)) ^ lo) ^ hi)
+
+
 def pixel_keys(px, py, seed: int, film_width: int) -> np.ndarray:
     """Key shared by all samples of pixel ``(px, py)``:
     ``mix(mix(key_seed(seed) ^ 0x5BD1E995) ^ (py * film_width + px))``."""

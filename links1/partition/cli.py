@@ -91,6 +91,8 @@ def _spec_from_args(args):
         opts["min_weight"] = args.min_weight
     if getattr(args, "light_samples", None):
         opts["light_samples"] = args.light_samples
+    from ..cli import adaptive_options
+    opts.update(adaptive_options(args))
     if args.renderer == "mitsuba":
         opts["variant"] = getattr(args, "variant", None)
         if getattr(args, "integrator", "links1") == "scene":

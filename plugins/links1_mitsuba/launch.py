@@ -239,6 +239,8 @@ def define_launches(mi, dr, mix32, u24):
                         chans.append(s0.astype(np.float64)[:, None])
                     elif a == "cost":
                         chans.append(_lanes(cost, n).astype(np.float64).reshape(npix, spp).sum(axis=1)[:, None])
+                    elif a == "samples":
+                        chans.append(np.full((npix, 1), float(spp)))
             flat = np.concatenate(chans, axis=1) if len(chans) > 1 else rgb
             out, at = [], 0
             for g in gathers:

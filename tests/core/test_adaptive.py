@@ -91,3 +91,19 @@ def test_each_lattice_point_is_evaluated_once():
 def test_bad_options(t, d):
     with pytest.raises(UsageError, match="adaptive"):
         check_options(t, d)
+
+
+def test_summed_channels_are_counted_not_refined_on():
+    """A count channel (e.g. ray tests per point) that varies wildly takes no part in the
+    refinement and is summed over each pixel's distinct lattice points."""
+    def sample(i, j, step, keys):
+        flat = np.full(len(i), 0.25)
+        return np.stack([flat, flat, flat, (i * 7 + j * 13) % 11 + 1.0], axis=1)
+    vals, samples, sums = render_adaptive(sample, (0, 0, W, H), (W, H), 0.0, 3, summed=1)
+    assert vals.shape == (H, W, 3) and np.all(vals == 0.25)
+    assert np.all(samples == 4)
+    x, y = np.meshgrid(np.arange(W), np.arange(H))
+    S = 8   # lattice steps per pixel at depth 3
+    count = lambda i, j: (i * 7 + j * 13) % 11 + 1.0  # noqa: E731
+    expect = sum(count((x + dx) * S, (y + dy) * S) for dx in (0, 1) for dy in (0, 1))
+    assert np.array_equal(sums[..., 0], expect)

@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import os
 
+import numpy as np
+
 import pytest
 
 from .conftest import ROOT
 
 SCENE = os.path.join(ROOT, "scenes", "fig4.xml")
-EXPECTED = ["R", "G", "B", "depth.T", "normal.X", "normal.Y", "normal.Z", "id.I", "cost.N"]
+EXPECTED = ["R", "G", "B", "depth.T", "normal.X", "normal.Y", "normal.Z", "id.I", "cost.N", "samples.N"]
 BACKENDS = {"one process": ["--workers", "0"], "2 workers": ["--workers", "2"],
             "dask-local 2": ["--dask-local", "2"]}
 
@@ -31,9 +33,10 @@ def test_exr_channel_names(tmp_path, renderer, backend):
     if renderer == "mitsuba":
         pytest.importorskip("mitsuba")
     out = tmp_path / "a.exr"
-    argv = ["render", SCENE, "--renderer", renderer, "-D", "res=12", "--aov", "depth,normal,id,cost",
+    argv = ["render", SCENE, "--renderer", renderer, "-D", "res=12", "--aov", "depth,normal,id,cost,samples", "--spp", "2",
             "--no-progress", "-o", str(out)] + BACKENDS[backend]
     assert main(argv) == 0
     img, names = read_exr(str(out))
     assert list(names) == EXPECTED
     assert img.shape[-1] == len(EXPECTED)
+    assert np.all(img[..., names.index("samples.N")] == 2)   # the camera samples of each pixel
