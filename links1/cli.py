@@ -97,7 +97,7 @@ def add_render_arguments(p: argparse.ArgumentParser) -> None:
                    help="shadow rays per area light / environment per sample (default 1)")
     p.add_argument("--aov", type=_aov_list, default=(), help="extra EXR channels: depth,normal,id,cost,samples")
     p.add_argument("--adaptive", type=float, default=None, metavar="THRESHOLD",
-                   help="adaptive anti-aliasing (core renderer): split a pixel's square of samples while "
+                   help="adaptive anti-aliasing: split a pixel's square of samples while "
                         "its corners differ by more than THRESHOLD (tone-mapped v/(1+v), e.g. 0.05); "
                         "replaces --spp")
     p.add_argument("--adaptive-depth", type=_nonneg_int("--adaptive-depth"), default=None, metavar="D",
@@ -186,9 +186,8 @@ def adaptive_options(args) -> dict:
     from .render import DEFAULT_ADAPTIVE_DEPTH
     if args.spp is not None:
         raise UsageError("--adaptive replaces --spp: give one of them")
-    if args.renderer != "core":
-        raise UsageError("--adaptive is implemented in the core renderer only so far (issue 11): "
-                         "add --renderer core")
+    if args.renderer == "mitsuba" and getattr(args, "integrator", "links1") == "scene":
+        raise UsageError("--adaptive needs the links1 integrator (not --integrator scene)")
     depth = DEFAULT_ADAPTIVE_DEPTH if args.adaptive_depth is None else args.adaptive_depth
     t, d = check_options(args.adaptive, depth)
     return {"adaptive": t, "adaptive_depth": d}

@@ -210,53 +210,77 @@ def _render_pixels(scene, cam, px, py, add_layer, *, spp, max_depth, seed, aovs,
 
 def _render_adaptive(scene, cam, win, *, threshold, depth, max_depth, seed, aovs, min_weight, light_samples,
                      progress):
-    """Adaptive anti-aliasing of window ``win`` (:mod:`links1.adaptive`): lattice point ``(i, j)``
-    is the camera ray through film position ``(i, j) / 2**depth`` pixels, its ray tree keyed by
-    :func:`links1.sampling.lattice_keys`. AOVs: depth, normal and id at the pixel centres (as an
-    spp-1 render), cost summed over the pixel's lattice points, samples = their number."""
+    """The core's adaptive render of window ``win``: :func:`render_adaptive_window` with the
+    core's integrator tracing the lattice points and an spp-1 pass for the centre AOVs."""
+    if cam.rfilter.name != "box":
+        _warn_filter(cam.rfilter.name)
+    integ = WhittedIntegrator(scene, max_depth=max_depth, min_weight=min_weight, light_samples=light_samples)
+
+    def trace_points(xf, yf, keys):
+        L, cost = np.empty((len(xf), 3)), np.empty(len(xf))
+        for a in range(0, len(xf), BATCH):
+            b = min(a + BATCH, len(xf))
+            o, d, tmin, tmax = cam.generate_rays(xf[a:b], yf[a:b])
+            c = np.zeros(b - a, dtype=np.int64)
+            L[a:b], _, _ = integ.trace(o, d, tmin, tmax, c, keys=keys[a:b])
+            integ.stats.rays["camera"] += b - a
+            cost[a:b] = c
+        return L, cost
+
+    def centre_aovs(window, names):
+        x0, y0, w, h = window
+        px, py = _window_pixels(x0, y0, w, h)
+        return _render_pixels(scene, cam, px, py, lambda *_: None, spp=1, max_depth=max_depth, seed=seed,
+                              aovs=tuple(names), min_weight=min_weight, progress=False,
+                              light_samples=light_samples).reshape(h, w, -1)
+
+    return render_adaptive_window(trace_points, centre_aovs, win, (cam.width, cam.height), threshold, depth,
+                                  seed, aovs, progress)
+
+
+def _warn_filter(name):
     import warnings
 
-    from .adaptive import check_options, render_adaptive
     from .xmlparse import SceneWarning
+    warnings.warn(f"adaptive anti-aliasing integrates each pixel's box: the film's {name!r} "
+                  f"reconstruction filter is not applied", SceneWarning, stacklevel=4)
+
+
+def render_adaptive_window(trace_points, centre_aovs, win, film_size, threshold, depth, seed, aovs,
+                           progress=False) -> np.ndarray:
+    """Adaptive anti-aliasing of window ``win`` with any renderer (:mod:`links1.adaptive`):
+    lattice point ``(i, j)`` is the camera ray through film position ``(i, j) / 2**depth``
+    pixels, its ray tree keyed by :func:`links1.sampling.lattice_keys` (a function of the point
+    and the seed alone, so every window and renderer traces the same tree).
+
+    ``trace_points(xf, yf, keys) -> (L (n, 3), cost (n,))`` traces rays through film fractions
+    ``(xf, yf)``; ``centre_aovs(win, names) -> (h, w, k)`` renders the AOVs ``names`` (of depth,
+    normal, id) at the pixel centres. Returns ``(h, w, 3 + AOV channels)``: cost summed over the
+    pixel's lattice points, samples = their number."""
+    from .adaptive import check_options, render_adaptive
     threshold, depth = check_options(threshold, depth)
-    if cam.rfilter.name != "box":
-        warnings.warn(f"adaptive anti-aliasing integrates each pixel's box: the film's {cam.rfilter.name!r} "
-                      f"reconstruction filter is not applied", SceneWarning, stacklevel=3)
-    integ = WhittedIntegrator(scene, max_depth=max_depth, min_weight=min_weight, light_samples=light_samples)
-    W, H = cam.width, cam.height
+    W, H = film_size
     bar = _progress(None, progress)
 
     def sample(i, j, step, keys):
-        out = np.empty((len(i), 4))
-        for a in range(0, len(i), BATCH):
-            b = min(a + BATCH, len(i))
-            o, d, tmin, tmax = cam.generate_rays(i[a:b] / step / W, j[a:b] / step / H)
-            c = np.zeros(b - a, dtype=np.int64)
-            L, _, _ = integ.trace(o, d, tmin, tmax, c, keys=lattice_keys(keys[a:b], seed))
-            integ.stats.rays["camera"] += b - a
-            out[a:b, :3], out[a:b, 3] = L, c
-            if bar is not None:
-                bar.update(b - a)
-        return out
+        L, cost = trace_points(i / step / W, j / step / H, lattice_keys(keys, seed))
+        if bar is not None:
+            bar.update(len(i))
+        return np.concatenate([np.asarray(L, dtype=np.float64), np.asarray(cost, dtype=np.float64)[:, None]], axis=1)
 
-    x0, y0, w, h = win
     rgb, samples, cost = render_adaptive(sample, win, (W, H), threshold, depth, summed=1)
     if bar is not None:
         bar.close()
-    chans = [rgb]
     centre = [a for a in aovs if a in ("depth", "normal", "id")]
+    parts = {}
     if centre:
-        px, py = _window_pixels(x0, y0, w, h)
-        c = _render_pixels(scene, cam, px, py, lambda *_: None, spp=1, max_depth=max_depth, seed=seed,
-                           aovs=tuple(centre), min_weight=min_weight, progress=False,
-                           light_samples=light_samples).reshape(h, w, -1)
-        at = 0
-        parts = {}
+        c, at = centre_aovs(win, centre), 0
         for a in centre:
             parts[a] = c[..., at:at + len(AOVS[a])]
             at += len(AOVS[a])
+    chans = [rgb]
     for a in aovs:
-        chans.append(parts[a] if a in centre else cost if a == "cost" else samples[..., None].astype(np.float64))
+        chans.append(parts[a] if a in parts else cost if a == "cost" else samples[..., None].astype(np.float64))
     return np.concatenate(chans, axis=2)
 
 
@@ -353,10 +377,6 @@ def make_renderer(kind: str, path, **options):
     if kind == "core":
         return CoreRenderer(path, **options)
     if kind == "mitsuba":
-        if options.pop("adaptive", None) is not None:
-            raise UsageError("adaptive anti-aliasing is implemented in the core renderer only so far "
-                             "(issue 11): use --renderer core")
-        options.pop("adaptive_depth", None)
         try:
             from links1_mitsuba import MitsubaRenderer
         except ImportError as e:

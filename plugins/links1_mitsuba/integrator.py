@@ -36,7 +36,7 @@ import numpy as np
 
 from links1.filters import Filter
 from links1.lights import ENV_LIGHT_ID
-from links1.render import AOVS, channel_names
+from links1.render import AOVS, DEFAULT_ADAPTIVE_DEPTH, channel_names
 from links1.sampling import light_tag
 
 from .launch import _CAM_SAMPLE, define_launches
@@ -194,6 +194,9 @@ def define_integrator():
                              of its weight in the pixel (product of the r / t factors
                              down the tree) exceeds this; 0 traces every branch
         light_samples int    shadow rays per sampled light (environment) per hit        1
+        adaptive    float    adaptive anti-aliasing threshold (links1.adaptive) instead  none
+                             of the sampler's count; ``mi.render`` and render_window
+        adaptive_depth int   most refinement levels of ``adaptive``                     2
         ==========  =======  ==========================================================  =======
 
         Shading: ``links1_phong`` surfaces use eq. (3.11) (ambient + diffuse + highlight),
@@ -218,6 +221,7 @@ def define_integrator():
         shape_names = _hidden_attr("shape_names")
         _prep = _hidden_attr("prep")
         _freeze = _hidden_attr("freeze")
+        _freeze_points = _hidden_attr("freeze_points")
         stats = _hidden_attr("stats")
 
         def __init__(self, props):
@@ -237,6 +241,16 @@ def define_integrator():
             if not self.min_weight >= 0:
                 raise ValueError(f"links1_whitted: min_weight must be >= 0, got {self.min_weight}")
             self.aovs = parse_aovs(props.get("aovs", ""))
+            self.adaptive = None
+            if props.has_property("adaptive"):
+                from links1.adaptive import check_options
+                try:
+                    self.adaptive, self.adaptive_depth = check_options(
+                        props.get("adaptive"), props.get("adaptive_depth", DEFAULT_ADAPTIVE_DEPTH))
+                except Exception as e:
+                    raise ValueError(f"links1_whitted: {e}") from None
+            elif props.has_property("adaptive_depth"):
+                raise ValueError("links1_whitted: adaptive_depth needs adaptive")
             self.custom_bsdfs = {}
             for key in props.keys():
                 if key.startswith("_l1_bsdf_"):
@@ -1294,8 +1308,11 @@ def define_integrator():
             if spp == 0 or spp is None:
                 spp = sensor.sampler().sample_count()
             s = int(seed) if not hasattr(seed, "__len__") else int(np.array(seed).ravel()[0])
-            img = self.render_window(scene, (int(off[0]), int(off[1]), int(size[0]), int(size[1])),
-                                     spp=int(spp), seed=self.seed + s)
+            win = (int(off[0]), int(off[1]), int(size[0]), int(size[1]))
+            if self.adaptive is not None:
+                img = self.render_adaptive(scene, win, seed=self.seed + s)
+            else:
+                img = self.render_window(scene, win, spp=int(spp), seed=self.seed + s)
             return mi.TensorXf(img.astype(np.float32))
 
         def sample(self, scene, sampler, ray, medium=None, active=True):

@@ -82,7 +82,14 @@ def define_launches(mi, dr, mix32, u24):
             key = mix32(mix32(seed[1]) ^ sid)
             # light samples of a primary hit: one set over the pixel (links1.sampling.pixel_keys)
             _CAM_SAMPLE[id(self)] = (mix32(mix32(seed[1] ^ 0x5BD1E995) ^ pix), i, n_s)
-            n = dr.width(sid)
+            o, d, tmin, tmax = self._rays_at(P, xf, yf)
+            return o, d, tmin, tmax, key, i
+
+        def _rays_at(self, P, xf, yf):
+            """Camera rays through film positions ``(xf, yf)`` (fractions of the film's width and
+            height, row 0 at the top) -> ``o, d, tmin, tmax``."""
+            n = dr.width(xf)
+            W, H = P.film_size
             if P.perspective:
                 tn = math.tan(math.radians(P.x_fov) / 2.0)
                 aspect = W / H
@@ -92,9 +99,9 @@ def define_launches(mi, dr, mix32, u24):
                 d = dr.normalize(mi.Vector3f(*[m[r][0] * dc.x + m[r][1] * dc.y + m[r][2] * dc.z
                                                for r in range(3)]))
                 o = mi.Point3f(m[0][3], m[1][3], m[2][3]) + mi.Vector3f(dr.zeros(mi.Float, n))
-                return o, d, P.near * inv_z, P.far * inv_z, key, i
+                return o, d, P.near * inv_z, P.far * inv_z
             ray, _ = P.sensor.sample_ray(0.0, 0.5, mi.Point2f(xf, yf), mi.Point2f(0.5, 0.5))
-            return mi.Point3f(ray.o), mi.Vector3f(ray.d), dr.zeros(mi.Float, n), mi.Float(ray.maxt), key, i
+            return mi.Point3f(ray.o), mi.Vector3f(ray.d), dr.zeros(mi.Float, n), mi.Float(ray.maxt)
 
         # -------------------------------------------------------------- launches
         def _record(self, n, nsh1, cr=None, ct=None, nr=None, nt=None, nsh2=None):
@@ -152,6 +159,75 @@ def define_launches(mi, dr, mix32, u24):
                     return (total, cost, t0, s0, n0, counters) if want else (total, cost, counters)
                 self._freeze = dr.freeze(launch_kernels, warn_after=1000)
             return self._freeze
+
+        def _frozen_points_fn(self):
+            """:meth:`trace_points` as a :func:`drjit.freeze` function (film positions and keys
+            are run-time inputs): recorded once per configuration, replayed for any point count."""
+            if getattr(self, "_freeze_points", None) is None:
+                def launch_points(xf, yf, key, n_op, cfg, tables, scene):
+                    self = _frozen_caller()
+                    P = self._prep
+                    o, d, tmin, tmax = self._rays_at(P, xf, yf)
+                    total, cost, _, _, _, counters = self._trace_tree(P, scene, o, d, tmin, tmax, key, False,
+                                                                      frozen=n_op)
+                    return total, cost, counters
+                self._freeze_points = dr.freeze(launch_points, warn_after=1000)
+            return self._freeze_points
+
+        def trace_points(self, scene, xf, yf, keys):
+            """Radiance and cost of the camera rays through film positions ``(xf, yf)`` (numpy,
+            fractions of the film, row 0 at the top), ray-tree keys ``keys`` (uint32): the
+            lattice points of adaptive anti-aliasing (:mod:`links1.adaptive`). Light samples at
+            the primary hit follow the key alone, as in the core's ``trace(keys=...)``.
+            Returns ``(L (n, 3) float64, cost (n,) float64)``; one launch."""
+            P = self.prepare(scene)
+            n = len(xf)
+            if n == 0:
+                return np.zeros((0, 3)), np.zeros(0)
+            x, y = mi.Float(np.asarray(xf, dtype=np.float32)), mi.Float(np.asarray(yf, dtype=np.float32))
+            key = mi.UInt32(np.asarray(keys, dtype=np.uint32))
+            if self.use_freeze:
+                cfg = (id(P), id(scene), int(self.max_depth), float(self.min_weight))
+                fn = self._frozen_points_fn()
+                _FROZEN_CALLER["integrator"] = self
+                gc_on = gc.isenabled()
+                gc.disable()   # as in render_windows
+                try:
+                    total, cost, counters = fn(x, y, key, dr.opaque(mi.UInt32, n), cfg, self._frozen_inputs(P), scene)
+                finally:
+                    _FROZEN_CALLER["integrator"] = None
+                    if gc_on:
+                        gc.enable()
+            else:
+                o, d, tmin, tmax = self._rays_at(P, x, y)
+                total, cost, _, _, _, counters = self._trace_tree(P, scene, o, d, tmin, tmax, key, False)
+            self._record(n, **counters)
+            return _columns(total, n).astype(np.float64), _lanes(cost, n).astype(np.float64)
+
+        def render_adaptive(self, scene, window=None, seed=None, aovs=None, threshold=None, depth=None):
+            """Adaptive anti-aliasing of ``window`` (:func:`links1.render.render_adaptive_window`,
+            as the core): one :meth:`trace_points` launch per refinement level; AOVs depth,
+            normal, id at the pixel centres (an spp-1 :meth:`render_window`)."""
+            from links1.render import render_adaptive_window
+            P = self.prepare(scene)
+            W, H = P.film_size
+            win = (0, 0, W, H) if window is None else tuple(int(v) for v in window)
+            seed = self.seed if seed is None else int(seed)
+            aovs = self.aovs if aovs is None else parse_aovs(aovs)
+            threshold = self.adaptive if threshold is None else threshold
+            depth = self.adaptive_depth if depth is None else depth
+            if threshold is None:
+                raise ValueError("links1_whitted: no adaptive threshold (give adaptive=...)")
+            if P.rfilter.name != "box":
+                import warnings
+
+                from links1.xmlparse import SceneWarning
+                warnings.warn("adaptive anti-aliasing integrates each pixel's box: the film's "
+                              f"{P.rfilter.name!r} reconstruction filter is not applied", SceneWarning, stacklevel=3)
+            return render_adaptive_window(
+                lambda xf, yf, keys: self.trace_points(scene, xf, yf, keys),
+                lambda w, names: self.render_window(scene, w, spp=1, seed=seed, aovs=list(names))[..., 3:],
+                win, (W, H), threshold, depth, seed, aovs)
 
         def render_window(self, scene, window=None, spp=1, seed=None, aovs=None):
             """Render ``window = (x0, y0, w, h)`` of the full film (row 0 at the top).

@@ -99,7 +99,7 @@ def _prepare_state(state, config, integrator: str, base_dir: str | None):
         integ_node = _add_integrator(state, "links1_whitted")
     else:
         old = integ_node.props.plugin_name()
-        keep = {"max_depth", "seed", "aovs", "min_weight"}
+        keep = {"max_depth", "seed", "aovs", "min_weight", "light_samples", "adaptive", "adaptive_depth"}
         if old != "links1_whitted":
             keep = {"max_depth"}
         for k in list(integ_node.props.keys()):

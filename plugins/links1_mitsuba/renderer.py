@@ -55,6 +55,10 @@ class MitsubaRenderer:
         A secondary ray is traced only if its weight in the pixel (largest RGB component of the
         product of the r / t factors down the ray tree) exceeds this; default 1/255 (POV-Ray's
         adc_bailout, as the core); 0 traces every branch. links1 integrator only.
+    adaptive, adaptive_depth : float, int, optional
+        Adaptive anti-aliasing instead of ``spp`` (:mod:`links1.adaptive`, as the core's
+        ``links1.render``): one launch per refinement level over the new lattice points
+        (:meth:`Links1Whitted.trace_points`). links1 integrator only.
 
     ``render(window)`` passes the window to the kernels as run-time values: no recompilation
     per window; a window renders the same bits as the same pixels of the full frame.
@@ -64,7 +68,7 @@ class MitsubaRenderer:
 
     def __init__(self, path, *, params=None, spp=None, max_depth=None, seed=0, aovs=(),
                  variant=None, integrator="links1", width=None, height=None,
-                 min_weight=DEFAULT_MIN_WEIGHT, light_samples=1):
+                 min_weight=DEFAULT_MIN_WEIGHT, light_samples=1, adaptive=None, adaptive_depth=None):
         self.variant = register(variant)
         import mitsuba as mi
         from .loader import load_file
@@ -84,6 +88,12 @@ class MitsubaRenderer:
             raise ValueError(f"spp must be >= 1, got {self.spp}")
         size = sensor.film().size()
         self._film = (int(size[0]), int(size[1]))
+        self.adaptive = None
+        if adaptive is not None:
+            from links1.adaptive import check_options
+            from links1.render import DEFAULT_ADAPTIVE_DEPTH
+            self.adaptive, self.adaptive_depth = check_options(
+                adaptive, DEFAULT_ADAPTIVE_DEPTH if adaptive_depth is None else adaptive_depth)
         if integrator == "links1":
             self.integrator = self.scene.integrator()
             if max_depth is not None:
@@ -100,6 +110,8 @@ class MitsubaRenderer:
             self.integrator.verify_scene = False
             self.integrator.prepare(self.scene)
         else:
+            if adaptive is not None:
+                raise ValueError("adaptive anti-aliasing needs the links1_whitted integrator (integrator='links1')")
             if self.aovs:
                 raise ValueError("AOVs need the links1_whitted integrator (integrator='links1')")
             if max_depth is not None:
@@ -116,6 +128,8 @@ class MitsubaRenderer:
 
     def render(self, window=None) -> np.ndarray:
         """``(h, w, C)`` float64 of ``window = (x0, y0, w, h)`` (full film when None)."""
+        if self.adaptive is not None:
+            return self._render_adaptive(window)
         if self.mode == "links1":
             return self.integrator.render_window(self.scene, window, spp=self.spp, seed=self.seed,
                                                  aovs=self.aovs)
@@ -132,10 +146,14 @@ class MitsubaRenderer:
     def render_batch(self, windows) -> list:
         """One array per window, each exactly ``render(window)``: with the links1 integrator all
         their pixels in one launch (:meth:`Links1Whitted.render_windows`)."""
-        if self.mode == "links1":
+        if self.mode == "links1" and self.adaptive is None:
             return self.integrator.render_windows(self.scene, list(windows), spp=self.spp, seed=self.seed,
                                                   aovs=self.aovs)
         return [self.render(w) for w in windows]
+
+    def _render_adaptive(self, window):
+        return self.integrator.render_adaptive(self.scene, window, seed=self.seed, aovs=self.aovs,
+                                               threshold=self.adaptive, depth=self.adaptive_depth)
 
     def shapes_info(self) -> list:
         """One dict per shape, in file order (``index`` = the ``id`` AOV)."""

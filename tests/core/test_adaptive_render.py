@@ -101,7 +101,7 @@ def test_windows_batches_and_workers_assemble_the_same_image(disk, tmp_path):
 
 
 @pytest.mark.parametrize("args,message", [
-    (["--adaptive", "0.1"], "--renderer core"),                       # the plugin: not yet
+    (["--adaptive", "0.1", "--integrator", "scene"], "links1 integrator"),
     (["--renderer", "core", "--adaptive", "0.1", "--spp", "4"], "replaces --spp"),
     (["--renderer", "core", "--adaptive-depth", "2"], "needs --adaptive"),
     (["--renderer", "core", "--adaptive", "-1"], "threshold"),

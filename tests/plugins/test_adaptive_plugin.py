@@ -1,0 +1,73 @@
+"""Adaptive anti-aliasing in links1_whitted (issue 11): the same lattice, keys and decisions as
+the core (links1.render.render_adaptive_window), one launch per refinement level."""
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+
+from .conftest import SCENES
+
+pytestmark = pytest.mark.mitsuba
+KW = dict(params={"res": 32}, adaptive=0.03, adaptive_depth=2, aovs=("samples", "cost", "depth"))
+
+
+def rel_mse(a, b):
+    return float(np.sum((a - b) ** 2) / max(np.sum(b ** 2), 1e-30))
+
+
+@pytest.mark.parametrize("scene", ["lights.xml", "fig4.xml", "shadows.xml", "many.xml"])
+def test_plugin_refines_as_the_core_does(llvm, scene):
+    from links1.render import make_renderer
+    path = os.path.join(SCENES, scene)
+    core = make_renderer("core", path, **KW).render()
+    plug = make_renderer("mitsuba", path, **KW).render()
+    assert plug.shape == core.shape == (32, 32, 6)
+    same = plug[..., 3] == core[..., 3]
+    # decisions can differ only where a corner difference sits at the threshold (float32)
+    assert same.mean() >= 0.99, same.mean()
+    assert (core[..., 3] > 4).sum() >= 20   # edges were refined
+    assert rel_mse(plug[..., :3], core[..., :3]) < 1e-5
+    hit = core[..., 5] > 0
+    np.testing.assert_allclose(plug[..., 5][hit], core[..., 5][hit], rtol=1e-5)   # depth at the centres
+
+
+def test_plugin_windows_and_batches_equal_the_full_frame(llvm):
+    from links1.render import make_renderer
+    r = make_renderer("mitsuba", os.path.join(SCENES, "lights.xml"), **KW)
+    full = r.render()
+    wins = [(0, 0, 13, 9), (13, 0, 19, 9), (0, 9, 32, 23), (7, 4, 3, 17)]
+    for win, part in zip(wins, r.render_batch(wins)):
+        x0, y0, w, h = win
+        assert np.array_equal(part, full[y0:y0 + h, x0:x0 + w]), win
+
+
+def test_scene_integrator_refuses_adaptive(llvm):
+    from links1.render import make_renderer
+    with pytest.raises(Exception, match="links1_whitted"):
+        make_renderer("mitsuba", os.path.join(SCENES, "mitsuba_direct.xml"), integrator="scene", adaptive=0.1)
+
+
+def test_integrator_parameters_adaptive_in_mi_render(llvm, tmp_path):
+    """``<float name="adaptive">`` on links1_whitted: ``mi.render`` renders adaptively, the
+    same image as MitsubaRenderer(adaptive=...)."""
+    import mitsuba as mi
+
+    from links1.render import make_renderer
+    from links1_mitsuba import load_file
+    src = open(os.path.join(SCENES, "lights.xml")).read().replace(
+        '<integer name="max_depth" value="1"/>',
+        '<integer name="max_depth" value="1"/><float name="adaptive" value="0.03"/>'
+        '<integer name="adaptive_depth" value="2"/><string name="aovs" value="samples"/>')
+    p = tmp_path / "lights_adaptive.xml"
+    p.write_text(src.replace('filename="include/', f'filename="{SCENES}/include/'))
+    scene = load_file(str(p), params={"res": 32})
+    img = np.array(mi.render(scene), dtype=np.float64)
+    ref = make_renderer("mitsuba", os.path.join(SCENES, "lights.xml"), params={"res": 32}, adaptive=0.03,
+                        adaptive_depth=2, aovs=("samples",)).render()
+    assert img.shape == ref.shape == (32, 32, 4)
+    assert (img[..., 3] > 4).any()
+    np.testing.assert_allclose(img, ref, rtol=1e-6, atol=1e-7)
+    with pytest.raises(Exception, match="adaptive_depth needs adaptive"):
+        mi.load_dict({"type": "links1_whitted", "adaptive_depth": 2})
