@@ -80,7 +80,11 @@ class Lattice:
     def lookup(self, keys: np.ndarray) -> np.ndarray:
         """Values of the points ``keys`` (any shape), evaluating the new ones (in key order)."""
         flat = keys.ravel()
-        new = np.setdiff1d(flat, self.keys, assume_unique=False)
+        u = _sorted_unique(flat)
+        at = np.searchsorted(self.keys, u)
+        known = (at < len(self.keys)) & (self.keys[np.minimum(at, max(len(self.keys) - 1, 0))] == u) \
+            if len(self.keys) else np.zeros(len(u), dtype=bool)
+        new = u[~known]   # sorted, as setdiff1d gave them
         if len(new):
             j, i = np.divmod(new, self.stride)
             vals = np.asarray(self.sample(i, j, self.step, new), dtype=np.float64)
@@ -93,6 +97,27 @@ class Lattice:
                 self.keys = keys_all[order]
                 self.values = np.concatenate([self.values, vals])[order]
         return self.values[np.searchsorted(self.keys, flat)].reshape(*keys.shape, -1)
+
+
+def _sorted_unique(a: np.ndarray) -> np.ndarray:
+    """``np.unique`` of a 1-D integer array by one sort (numpy 2's hash-based unique is
+    several times slower on the millions of lattice keys of a large film)."""
+    a = np.sort(a, kind="stable")
+    if a.size == 0:
+        return a
+    keep = np.empty(a.size, dtype=bool)
+    keep[0] = True
+    np.not_equal(a[1:], a[:-1], out=keep[1:])
+    return a[keep]
+
+
+def _unique_pairs(pid, key, nkeys):
+    """Distinct ``(pid, key)`` rows, sorted: one int64 per pair when it fits (a 1-D sort is an
+    order of magnitude faster than numpy's row-wise unique), else row-wise."""
+    if (int(pid.max(initial=0)) + 1) * int(nkeys) < 2 ** 62:
+        c = _sorted_unique(pid.astype(np.int64) * np.int64(nkeys) + key)
+        return np.stack(np.divmod(c, np.int64(nkeys)), axis=1)
+    return np.unique(np.stack([pid, key], axis=1), axis=0)
 
 
 def render_adaptive(sample, window, film_size, threshold, depth, summed=0):
@@ -125,7 +150,9 @@ def render_adaptive(sample, window, film_size, threshold, depth, summed=0):
         split = differs(v[..., :v.shape[-1] - summed], threshold) if s > 1 else np.zeros(len(pid), dtype=bool)
         leaf = ~split
         area = (s / S) ** 2  # a power of two: exact
-        np.add.at(acc, pid[leaf], (v[0, leaf] + v[1, leaf] + v[2, leaf] + v[3, leaf]) * (0.25 * area))
+        contrib = (v[0, leaf] + v[1, leaf] + v[2, leaf] + v[3, leaf]) * (0.25 * area)
+        for c in range(contrib.shape[1]):   # per level: the pixel's leaves summed in array order
+            acc[:, c] += np.bincount(pid[leaf], weights=contrib[:, c], minlength=w * h)
         used_pid.append(np.repeat(pid[leaf][None], 4, axis=0).ravel())
         used_key.append(corners[:, leaf].ravel())
         h2 = s // 2
@@ -134,11 +161,13 @@ def render_adaptive(sample, window, film_size, threshold, depth, summed=0):
         sy = np.concatenate([sy, sy, sy + h2, sy + h2])
         pid = np.tile(pid, 4)
         s = h2
-    pairs = np.unique(np.stack([np.concatenate(used_pid), np.concatenate(used_key)], axis=1), axis=0)
+    pairs = _unique_pairs(np.concatenate(used_pid), np.concatenate(used_key), lat.stride * (film_size[1] * S + 1))
     samples = np.bincount(pairs[:, 0], minlength=w * h).reshape(h, w).astype(np.int64)
     if not summed:
         return acc.reshape(h, w, -1), samples
     C = acc.shape[1]
     sums = np.zeros((w * h, summed))
-    np.add.at(sums, pairs[:, 0], lat.lookup(pairs[:, 1])[:, C - summed:])
+    extra = lat.lookup(pairs[:, 1])[:, C - summed:]
+    for c in range(summed):
+        sums[:, c] = np.bincount(pairs[:, 0], weights=extra[:, c], minlength=w * h)
     return acc[:, :C - summed].reshape(h, w, -1), samples, sums.reshape(h, w, summed)
