@@ -14,6 +14,9 @@ import numpy as np
 from links1.filters import FilterGather, filter_samples
 from links1.sampling import strata
 
+#: Most samples (lanes) per launch of the window function; more are split into launches.
+LAUNCH_LANES = 1 << 22
+
 #: The integrator whose frozen window function runs (read inside it, not traversed by freeze).
 _FROZEN_CALLER = {"integrator": None}
 
@@ -184,6 +187,10 @@ def define_launches(mi, dr, mix32, u24):
             n = len(xf)
             if n == 0:
                 return np.zeros((0, 3)), np.zeros(0)
+            if n > LAUNCH_LANES:   # bounded launches, as render_windows
+                parts = [self.trace_points(scene, xf[a:a + LAUNCH_LANES], yf[a:a + LAUNCH_LANES],
+                                           keys[a:a + LAUNCH_LANES]) for a in range(0, n, LAUNCH_LANES)]
+                return np.concatenate([q[0] for q in parts]), np.concatenate([q[1] for q in parts])
             x, y = mi.Float(np.asarray(xf, dtype=np.float32)), mi.Float(np.asarray(yf, dtype=np.float32))
             key = mi.UInt32(np.asarray(keys, dtype=np.uint32))
             if self.use_freeze:
@@ -203,6 +210,35 @@ def define_launches(mi, dr, mix32, u24):
                 total, cost, _, _, _, counters = self._trace_tree(P, scene, o, d, tmin, tmax, key, False)
             self._record(n, **counters)
             return _columns(total, n).astype(np.float64), _lanes(cost, n).astype(np.float64)
+
+        def _launch(self, P, scene, sid_np, spp_, seeds, want):
+            """One launch over the sample ids ``sid_np`` -> (numpy outputs, ray counters)."""
+            n = sid_np.size
+            sid = mi.UInt32(sid_np)
+            if self.use_freeze:
+                cfg = (id(P), id(scene), want, int(self.max_depth), float(self.min_weight))
+                fn = self._frozen_fn()
+                _FROZEN_CALLER["integrator"] = self
+                # no cyclic garbage collection while recording: freeing another renderer's
+                # Dr.Jit state (its own recordings) in the middle of one aborts the process
+                gc_on = gc.isenabled()
+                gc.disable()
+                try:
+                    out = fn(sid, dr.opaque(mi.UInt32, n), spp_, seeds, cfg, self._frozen_inputs(P), scene)
+                finally:
+                    _FROZEN_CALLER["integrator"] = None
+                    if gc_on:
+                        gc.enable()
+                total, cost, counters = out[0], out[1], out[-1]
+                t0, s0, n0 = out[2:5] if want else (None, None, None)
+            else:
+                o, d, tmin, tmax, key, _ = self._camera_rays(P, sid, spp_, seeds)
+                total, cost, t0, s0, n0, counters = self._trace_tree(P, scene, o, d, tmin, tmax, key, want)
+            self._record(n, **counters)
+            part = {"total": _columns(total, n), "cost": _lanes(cost, n)}
+            if want:
+                part.update(t0=_lanes(t0, n), s0=_lanes(s0, n), n0=_columns(n0, n))
+            return part, self.stats
 
         def render_adaptive(self, scene, window=None, seed=None, aovs=None, threshold=None, depth=None):
             """Adaptive anti-aliasing of ``window`` (:func:`links1.render.render_adaptive_window`,
@@ -267,32 +303,25 @@ def define_launches(mi, dr, mix32, u24):
                                   for x0, y0, w, h in (g.sample_window for g in gathers)])
             sid_np = (pix[:, None] * np.uint32(spp) + np.arange(spp, dtype=np.uint32)[None, :]).ravel()
             n = sid_np.size
-            sid = mi.UInt32(sid_np)
             spp_ = (dr.opaque(mi.UInt32, spp), dr.opaque(mi.UInt32, strata(spp)))
             seeds = (dr.opaque(mi.UInt32, seed & 0xFFFFFFFF),
                      dr.opaque(mi.UInt32, (seed * 0x27D4EB2F + 0x165667B1) & 0xFFFFFFFF))
-            if self.use_freeze:
-                cfg = (id(P), id(scene), want, int(self.max_depth), float(self.min_weight))
-                fn = self._frozen_fn()
-                _FROZEN_CALLER["integrator"] = self
-                # no cyclic garbage collection while recording: freeing another renderer's
-                # Dr.Jit state (its own recordings) in the middle of one aborts the process
-                gc_on = gc.isenabled()
-                gc.disable()
-                try:
-                    out = fn(sid, dr.opaque(mi.UInt32, n), spp_, seeds, cfg, self._frozen_inputs(P), scene)
-                finally:
-                    _FROZEN_CALLER["integrator"] = None
-                    if gc_on:
-                        gc.enable()
-                total, cost, counters = out[0], out[1], out[-1]
-                t0, s0, n0 = out[2:5] if want else (None, None, None)
-            else:
-                o, d, tmin, tmax, key, _ = self._camera_rays(P, sid, spp_, seeds)
-                total, cost, t0, s0, n0, counters = self._trace_tree(P, scene, o, d, tmin, tmax, key, want)
-            self._record(n, **counters)
+            # launches of at most LAUNCH_LANES samples (lanes are independent: the same bits as
+            # one launch); one launch of W*H*spp lanes needs ~90 bytes each (512², 1024 spp: 24 GB)
+            parts, stats = [], None
+            for a in range(0, n, LAUNCH_LANES):
+                part, st = self._launch(P, scene, sid_np[a:a + LAUNCH_LANES], spp_, seeds, want)
+                parts.append(part)
+                stats = st if stats is None else {k: (stats[k] + st[k] if k != "per_camera_ray" else None)
+                                                  for k in st}
+            stats["per_camera_ray"] = {k: stats[k] / max(n, 1) for k in ("shadow", "reflect", "refract")}
+            self.stats = stats
+            total = np.concatenate([q["total"] for q in parts])
+            cost = np.concatenate([q["cost"] for q in parts])
+            if want:
+                t0, s0, n0 = (np.concatenate([q[k] for q in parts]) for k in ("t0", "s0", "n0"))
             npix = n // spp
-            samples = _columns(total, n).astype(np.float64)
+            samples = total.astype(np.float64)
             box = P.rfilter.border == 0
             if box:
                 rgb = samples.reshape(npix, spp, 3).mean(axis=1) if spp > 1 else samples.reshape(npix, 3)
@@ -302,9 +331,9 @@ def define_launches(mi, dr, mix32, u24):
             chans = [rgb]
             if aovs:
                 first = slice(0, None, spp)
-                t0 = _lanes(t0, n).astype(np.float64)[first]
-                s0 = _lanes(s0, n).astype(np.int64)[first]
-                n0 = _columns(n0, n).astype(np.float64)[first]
+                t0 = t0.astype(np.float64)[first]
+                s0 = s0.astype(np.int64)[first]
+                n0 = n0.astype(np.float64)[first]
                 hit0 = s0 >= 0
                 for a in aovs:
                     if a == "depth":
@@ -314,7 +343,7 @@ def define_launches(mi, dr, mix32, u24):
                     elif a == "id":
                         chans.append(s0.astype(np.float64)[:, None])
                     elif a == "cost":
-                        chans.append(_lanes(cost, n).astype(np.float64).reshape(npix, spp).sum(axis=1)[:, None])
+                        chans.append(cost.astype(np.float64).reshape(npix, spp).sum(axis=1)[:, None])
                     elif a == "samples":
                         chans.append(np.full((npix, 1), float(spp)))
             flat = np.concatenate(chans, axis=1) if len(chans) > 1 else rgb

@@ -138,3 +138,19 @@ def test_ray_counters_and_skips(llvm):
 if __name__ == "__main__":
     _check_windows_without_recompiling()
     print("windows ok")
+
+
+@pytest.mark.skipif(not os.path.exists(FIG11), reason="scenes/fig11.xml missing")
+def test_launches_split_by_lanes_give_the_same_bits(llvm, monkeypatch):
+    """A render of more than LAUNCH_LANES samples is split into launches (one launch of
+    512² x 1024 spp needed 24 GB): the image, AOVs and ray counts are those of one launch."""
+    import links1_mitsuba.launch as launch
+    from links1_mitsuba import MitsubaRenderer
+    r = MitsubaRenderer(FIG11, params={"res": 24}, spp=4, aovs=("depth", "normal", "id", "cost", "samples"))
+    one = r.render()
+    counts = dict(r.integrator.stats)
+    monkeypatch.setattr(launch, "LAUNCH_LANES", 1000)   # 24*24*4 = 2304 samples: 3 launches
+    split = r.render()
+    assert np.array_equal(one, split)
+    assert r.integrator.stats["camera"] == counts["camera"] == 2304
+    assert r.integrator.stats["shadow"] == counts["shadow"] > 0
