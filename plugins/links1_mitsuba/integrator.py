@@ -242,14 +242,14 @@ def define_integrator():
                 raise ValueError(f"links1_whitted: min_weight must be >= 0, got {self.min_weight}")
             self.aovs = parse_aovs(props.get("aovs", ""))
             self.adaptive = None
-            if props.has_property("adaptive"):
+            if "adaptive" in props:
                 from links1.adaptive import check_options
                 try:
                     self.adaptive, self.adaptive_depth = check_options(
                         props.get("adaptive"), props.get("adaptive_depth", DEFAULT_ADAPTIVE_DEPTH))
                 except Exception as e:
                     raise ValueError(f"links1_whitted: {e}") from None
-            elif props.has_property("adaptive_depth"):
+            elif "adaptive_depth" in props:
                 raise ValueError("links1_whitted: adaptive_depth needs adaptive")
             self.custom_bsdfs = {}
             for key in props.keys():

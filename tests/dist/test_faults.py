@@ -191,15 +191,17 @@ def test_dask_worker_joining_mid_render_gets_units(tmp_path):
 @pytest.mark.slow
 @pytest.mark.parametrize("delay", [0.0, 0.05, 0.15])
 def test_local_worker_killed_while_sending_its_result(tmp_path, delay):
-    """A worker SIGKILLed while its (128 MB) result is on its way to the root: CPython's pool
-    can then wait forever on a half-read message; the render must go on (the unit is redone
-    elsewhere), finish with the right image and close without hanging. The delays put the kill
-    before, during and after the transfer."""
-    W, H = 2048, 2048
-    spec = RendererSpec.make(FAKE, "fake", width=W, height=H, nc=4, kill_in_send=((0, 0, 1024, 1024), delay),
+    """A worker SIGKILLed around the moment its result is on its way to the root: CPython's
+    pool can then wait forever on a half-read message; the render must go on (the unit is
+    redone elsewhere), finish with the right image and close without hanging. The delays put
+    the kill before, during and after the transfer. (512² keeps the process's memory small: a
+    2048² version, 128 MB per image, left glibc's heap growing and shrinking and made every
+    later numpy-heavy test in the session several times slower.)"""
+    W, H = 512, 512
+    spec = RendererSpec.make(FAKE, "fake", width=W, height=H, nc=4, kill_in_send=((0, 0, 256, 256), delay),
                              marker=str(tmp_path / "killed"))
     plan = make_plan("grid", W, H, 2, tiles_per_node=2)
-    assert (0, 0, 1024, 1024) in [u.window for u in plan.units]
+    assert (0, 0, 256, 256) in [u.window for u in plan.units]
     t = time.perf_counter()
     with LocalPool(2) as pool:
         res = render_plan(plan, spec, pool, progress=False)
