@@ -278,6 +278,9 @@ def add_cli(subparsers) -> None:
     p.add_argument("--unit-overhead", type=float, default=None,
                    help="simulated seconds per unit (default: the per-launch overhead measured in this run)")
     p.add_argument("--object-cost", type=float, default=1e-4, help="simulated seconds per object sent to a node")
+    p.add_argument("--reference-repeat", type=_pos("--reference-repeat"), default=3, metavar="N",
+                   help="the single-process reference (full frame, 64 one-unit launches, 2 batches): "
+                        "medians of N rounds after one warm-up (default 3)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--debug", action="store_true", help="show tracebacks")
     p.set_defaults(func=run_cli)
@@ -295,7 +298,7 @@ def run_cli(args) -> int:
     spec, model, channels, plan, backend = prepare(args, nodes=args.nodes)
     cull = _cull_map(plan, model, spec) if args.cull else None
     res = render_plan(plan, spec, backend, progress=not args.no_progress, cull=cull)
-    reference = _reference(backend, spec)
+    reference = _reference(backend, spec, args.reference_repeat)
     backend.close()
     from ..render import aov_channel
     cost_channel = aov_channel(channels, "cost")
@@ -322,12 +325,14 @@ def run_cli(args) -> int:
     return 0
 
 
-def _reference(backend, spec):
+def _reference(backend, spec, repeat=3):
     """The same renderer on one node (its threads, warm): full frame, 64 one-unit launches, the
     64 units in 2 batches, measured in the same run after the partitioned render."""
+    from functools import partial
+
     from .experiment import measure_overhead
     try:
-        return backend.call(measure_overhead, spec)
+        return backend.call(partial(measure_overhead, repeat=repeat), spec)
     except Exception as e:  # noqa: BLE001 - e.g. a cluster whose renderer this machine lacks
         warnings.warn(f"no single-process reference here ({type(e).__name__}: {e}); true efficiency not reported")
         return None

@@ -41,13 +41,13 @@ def _wait_for_file(path, timeout):
 
 
 def _stop(procs):
-    for p in procs:
+    """Stop the workers first, then the scheduler (a worker whose scheduler is gone waits for it
+    before exiting on SIGTERM: stopping the scheduler first cost 15 s per test); SIGKILL after 5 s."""
+    for p in reversed(procs):
         if p.poll() is None:
             p.send_signal(signal.SIGTERM)
-    deadline = time.time() + 15
-    for p in procs:
         try:
-            p.wait(timeout=max(0.1, deadline - time.time()))
+            p.wait(timeout=5)
         except subprocess.TimeoutExpired:
             p.kill()
             p.wait(timeout=10)

@@ -18,7 +18,7 @@ def test_schedule_report_keys_and_sanity(tmp_path):
     out, png = tmp_path / "r.json", tmp_path / "r.png"
     rc = main(["schedule", MANY, "--renderer", "core", "-D", "res=32", "--nodes", "2", "--partition", "subscreen",
                "--tiles-per-node", "4", "--report", str(out), "--plot", str(png), "--simulate", "1,4,16",
-               "--no-progress"])
+               "--no-progress", "--reference-repeat", "1"])
     assert rc == 0
     r = json.loads(out.read_text())
     for key in ("units", "nodes_busy", "makespan_s", "imbalance", "parallel_efficiency", "rank_correlation",

@@ -29,11 +29,13 @@ def test_schedule_reports_the_reference_measured_in_the_same_run(tmp_path, capsy
     from links1.cli import main
     out = tmp_path / "r.json"
     rc = main(["schedule", MANY, "--renderer", "core", "-D", "res=32", "--nodes", "2", "--partition", "subscreen",
-               "--tiles-per-node", "4", "--report", str(out), "--no-progress", "--simulate", "1,4"])
+               "--tiles-per-node", "4", "--report", str(out), "--no-progress", "--simulate", "1,4",
+               "--reference-repeat", "1"])
     assert rc == 0
     r = json.loads(out.read_text())
     ref = r["reference"]
     assert r["full_frame_s"] == ref["full_s"] > 0 and ref["units"] == 64 and ref["tiled_s"] > 0
+    assert ref["repeat"] == 1   # --reference-repeat
     assert r["true_efficiency"] == pytest.approx(r["full_frame_s"] / (r["nodes"] * r["makespan_s"]))
     assert ref["per_launch_overhead_s"] == pytest.approx(max(0.0, (ref["tiled_s"] - ref["full_s"]) / 63))
     assert r["launches"] == 2  # each node's 4 tiles in one launch
