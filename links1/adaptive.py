@@ -80,11 +80,10 @@ class Lattice:
     def lookup(self, keys: np.ndarray) -> np.ndarray:
         """Values of the points ``keys`` (any shape), evaluating the new ones (in key order)."""
         flat = keys.ravel()
-        u = _sorted_unique(flat)
-        at = np.searchsorted(self.keys, u)
-        known = (at < len(self.keys)) & (self.keys[np.minimum(at, max(len(self.keys) - 1, 0))] == u) \
-            if len(self.keys) else np.zeros(len(u), dtype=bool)
-        new = u[~known]   # sorted, as setdiff1d gave them
+        new = _sorted_unique(flat)
+        if len(self.keys):   # drop the points already evaluated (new stays sorted)
+            at = np.minimum(np.searchsorted(self.keys, new), len(self.keys) - 1)
+            new = new[self.keys[at] != new]
         if len(new):
             j, i = np.divmod(new, self.stride)
             vals = np.asarray(self.sample(i, j, self.step, new), dtype=np.float64)

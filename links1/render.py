@@ -212,8 +212,6 @@ def _render_adaptive(scene, cam, win, *, threshold, depth, max_depth, seed, aovs
                      progress):
     """The core's adaptive render of window ``win``: :func:`render_adaptive_window` with the
     core's integrator tracing the lattice points and an spp-1 pass for the centre AOVs."""
-    if cam.rfilter.name != "box":
-        _warn_filter(cam.rfilter.name)
     integ = WhittedIntegrator(scene, max_depth=max_depth, min_weight=min_weight, light_samples=light_samples)
 
     def trace_points(xf, yf, keys):
@@ -235,19 +233,11 @@ def _render_adaptive(scene, cam, win, *, threshold, depth, max_depth, seed, aovs
                               light_samples=light_samples).reshape(h, w, -1)
 
     return render_adaptive_window(trace_points, centre_aovs, win, (cam.width, cam.height), threshold, depth,
-                                  seed, aovs, progress)
-
-
-def _warn_filter(name):
-    import warnings
-
-    from .xmlparse import SceneWarning
-    warnings.warn(f"adaptive anti-aliasing integrates each pixel's box: the film's {name!r} "
-                  f"reconstruction filter is not applied", SceneWarning, stacklevel=4)
+                                  seed, aovs, progress, filter_name=cam.rfilter.name)
 
 
 def render_adaptive_window(trace_points, centre_aovs, win, film_size, threshold, depth, seed, aovs,
-                           progress=False) -> np.ndarray:
+                           progress=False, filter_name="box") -> np.ndarray:
     """Adaptive anti-aliasing of window ``win`` with any renderer (:mod:`links1.adaptive`):
     lattice point ``(i, j)`` is the camera ray through film position ``(i, j) / 2**depth``
     pixels, its ray tree keyed by :func:`links1.sampling.lattice_keys` (a function of the point
@@ -256,9 +246,16 @@ def render_adaptive_window(trace_points, centre_aovs, win, film_size, threshold,
     ``trace_points(xf, yf, keys) -> (L (n, 3), cost (n,))`` traces rays through film fractions
     ``(xf, yf)``; ``centre_aovs(win, names) -> (h, w, k)`` renders the AOVs ``names`` (of depth,
     normal, id) at the pixel centres. Returns ``(h, w, 3 + AOV channels)``: cost summed over the
-    pixel's lattice points, samples = their number."""
+    pixel's lattice points, samples = their number. ``filter_name``: the film's reconstruction
+    filter, which the box integral replaces (a warning when it is not ``box``)."""
     from .adaptive import check_options, render_adaptive
     threshold, depth = check_options(threshold, depth)
+    if filter_name != "box":
+        import warnings
+
+        from .xmlparse import SceneWarning
+        warnings.warn(f"adaptive anti-aliasing integrates each pixel's box: the film's {filter_name!r} "
+                      f"reconstruction filter is not applied", SceneWarning, stacklevel=4)
     W, H = film_size
     bar = _progress(None, progress)
 

@@ -234,8 +234,8 @@ POLL_S = 1.0
 
 def _alive(pool) -> bool:
     """Whether a one-process pool's worker process is alive (True when it cannot be told)."""
-    procs = getattr(pool, "_processes", None)
-    if pool is None or not procs:
+    procs = getattr(pool, "_processes", None)   # None for a missing pool or before it starts
+    if not procs:
         return True
     return all(p.is_alive() for p in list(procs.values()))
 

@@ -1176,7 +1176,7 @@ def define_integrator():
             core's sum in another order). Lanes never interact and the compaction keeps the
             order of samples, so a window renders the same bits as the full frame; the window
             is a run-time value (no recompilation). Returns ``(RGB, cost, t0, slot0, ns0,
-            counters)`` with ``counters`` the arrays :meth:`_record` sums (no read-back here).
+            counters)`` with ``counters`` the arrays :meth:`_counts` sums (no read-back here).
 
             ``frozen``: the sample count as an opaque ``UInt32`` when traced inside
             :func:`drjit.freeze` (:meth:`_frozen_fn`), so no Python decision may depend on data:

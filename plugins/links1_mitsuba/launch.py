@@ -107,16 +107,32 @@ def define_launches(mi, dr, mix32, u24):
             return mi.Point3f(ray.o), mi.Vector3f(ray.d), dr.zeros(mi.Float, n), mi.Float(ray.maxt)
 
         # -------------------------------------------------------------- launches
-        def _record(self, n, nsh1, cr=None, ct=None, nr=None, nt=None, nsh2=None):
-            """Ray counters of the last render (rays by kind, and per camera ray)."""
-            c = {"camera": int(n)}
+        def _counts(self, n, nsh1, cr=None, ct=None, nr=None, nt=None, nsh2=None):
+            """Ray counters of one launch of ``n`` camera rays (rays by kind)."""
             tot = lambda a: 0 if a is None else int(np.sum(_lanes(a, dr.width(a)), dtype=np.int64))  # noqa: E731
-            c["shadow"] = tot(nsh1) + tot(nsh2)
-            c["reflect"] = tot(cr) + tot(nr)
-            c["refract"] = tot(ct) + tot(nt)
-            c["secondary_lanes"] = int(np.count_nonzero(_lanes(cr, n) | _lanes(ct, n))) if cr is not None else 0
-            c["per_camera_ray"] = {k: c[k] / max(n, 1) for k in ("shadow", "reflect", "refract")}
+            return {"camera": int(n), "shadow": tot(nsh1) + tot(nsh2), "reflect": tot(cr) + tot(nr),
+                    "refract": tot(ct) + tot(nt),
+                    "secondary_lanes": int(np.count_nonzero(_lanes(cr, n) | _lanes(ct, n))) if cr is not None else 0}
+
+        def _set_stats(self, counts):
+            """``self.stats``: the counters of the last render's launches summed, and per camera ray."""
+            c = {k: sum(x[k] for x in counts) for k in counts[0]}
+            c["per_camera_ray"] = {k: c[k] / max(c["camera"], 1) for k in ("shadow", "reflect", "refract")}
             self.stats = c
+
+        def _call_frozen(self, fn, *args):
+            """Call a frozen launch of this integrator (:func:`_frozen_caller` names it inside)."""
+            _FROZEN_CALLER["integrator"] = self
+            # no cyclic garbage collection while recording: freeing another renderer's Dr.Jit
+            # state (its own recordings) in the middle of one aborts the process
+            gc_on = gc.isenabled()
+            gc.disable()
+            try:
+                return fn(*args)
+            finally:
+                _FROZEN_CALLER["integrator"] = None
+                if gc_on:
+                    gc.enable()
 
         def _frozen_inputs(self, P):
             """Every Dr.Jit array the trace reads from the per-scene tables (the frozen
@@ -182,63 +198,47 @@ def define_launches(mi, dr, mix32, u24):
             fractions of the film, row 0 at the top), ray-tree keys ``keys`` (uint32): the
             lattice points of adaptive anti-aliasing (:mod:`links1.adaptive`). Light samples at
             the primary hit follow the key alone, as in the core's ``trace(keys=...)``.
-            Returns ``(L (n, 3) float64, cost (n,) float64)``; one launch."""
+            Returns ``(L (n, 3) float64, cost (n,) float64)``; launches of at most
+            ``LAUNCH_LANES`` points."""
             P = self.prepare(scene)
-            n = len(xf)
-            if n == 0:
-                return np.zeros((0, 3)), np.zeros(0)
-            if n > LAUNCH_LANES:   # bounded launches, as render_windows
-                parts = [self.trace_points(scene, xf[a:a + LAUNCH_LANES], yf[a:a + LAUNCH_LANES],
-                                           keys[a:a + LAUNCH_LANES]) for a in range(0, n, LAUNCH_LANES)]
-                return np.concatenate([q[0] for q in parts]), np.concatenate([q[1] for q in parts])
-            x, y = mi.Float(np.asarray(xf, dtype=np.float32)), mi.Float(np.asarray(yf, dtype=np.float32))
-            key = mi.UInt32(np.asarray(keys, dtype=np.uint32))
-            if self.use_freeze:
-                cfg = (id(P), id(scene), int(self.max_depth), float(self.min_weight))
-                fn = self._frozen_points_fn()
-                _FROZEN_CALLER["integrator"] = self
-                gc_on = gc.isenabled()
-                gc.disable()   # as in render_windows
-                try:
-                    total, cost, counters = fn(x, y, key, dr.opaque(mi.UInt32, n), cfg, self._frozen_inputs(P), scene)
-                finally:
-                    _FROZEN_CALLER["integrator"] = None
-                    if gc_on:
-                        gc.enable()
-            else:
-                o, d, tmin, tmax = self._rays_at(P, x, y)
-                total, cost, _, _, _, counters = self._trace_tree(P, scene, o, d, tmin, tmax, key, False)
-            self._record(n, **counters)
-            return _columns(total, n).astype(np.float64), _lanes(cost, n).astype(np.float64)
+            L, cost, counts = [np.zeros((0, 3))], [np.zeros(0)], []
+            for a in range(0, len(xf), LAUNCH_LANES):
+                b = min(a + LAUNCH_LANES, len(xf))
+                x = mi.Float(np.asarray(xf[a:b], dtype=np.float32))
+                y = mi.Float(np.asarray(yf[a:b], dtype=np.float32))
+                key = mi.UInt32(np.asarray(keys[a:b], dtype=np.uint32))
+                if self.use_freeze:
+                    cfg = (id(P), id(scene), int(self.max_depth), float(self.min_weight))
+                    total, c, counters = self._call_frozen(self._frozen_points_fn(), x, y, key,
+                                                           dr.opaque(mi.UInt32, b - a), cfg,
+                                                           self._frozen_inputs(P), scene)
+                else:
+                    o, d, tmin, tmax = self._rays_at(P, x, y)
+                    total, c, _, _, _, counters = self._trace_tree(P, scene, o, d, tmin, tmax, key, False)
+                L.append(_columns(total, b - a).astype(np.float64))
+                cost.append(_lanes(c, b - a).astype(np.float64))
+                counts.append(self._counts(b - a, **counters))
+            if counts:
+                self._set_stats(counts)
+            return np.concatenate(L), np.concatenate(cost)
 
         def _launch(self, P, scene, sid_np, spp_, seeds, want):
-            """One launch over the sample ids ``sid_np`` -> (numpy outputs, ray counters)."""
+            """One launch over the sample ids ``sid_np`` -> (numpy outputs, its ray counters)."""
             n = sid_np.size
             sid = mi.UInt32(sid_np)
             if self.use_freeze:
                 cfg = (id(P), id(scene), want, int(self.max_depth), float(self.min_weight))
-                fn = self._frozen_fn()
-                _FROZEN_CALLER["integrator"] = self
-                # no cyclic garbage collection while recording: freeing another renderer's
-                # Dr.Jit state (its own recordings) in the middle of one aborts the process
-                gc_on = gc.isenabled()
-                gc.disable()
-                try:
-                    out = fn(sid, dr.opaque(mi.UInt32, n), spp_, seeds, cfg, self._frozen_inputs(P), scene)
-                finally:
-                    _FROZEN_CALLER["integrator"] = None
-                    if gc_on:
-                        gc.enable()
+                out = self._call_frozen(self._frozen_fn(), sid, dr.opaque(mi.UInt32, n), spp_, seeds, cfg,
+                                        self._frozen_inputs(P), scene)
                 total, cost, counters = out[0], out[1], out[-1]
                 t0, s0, n0 = out[2:5] if want else (None, None, None)
             else:
                 o, d, tmin, tmax, key, _ = self._camera_rays(P, sid, spp_, seeds)
                 total, cost, t0, s0, n0, counters = self._trace_tree(P, scene, o, d, tmin, tmax, key, want)
-            self._record(n, **counters)
             part = {"total": _columns(total, n), "cost": _lanes(cost, n)}
             if want:
                 part.update(t0=_lanes(t0, n), s0=_lanes(s0, n), n0=_columns(n0, n))
-            return part, self.stats
+            return part, self._counts(n, **counters)
 
         def render_adaptive(self, scene, window=None, seed=None, aovs=None, threshold=None, depth=None):
             """Adaptive anti-aliasing of ``window`` (:func:`links1.render.render_adaptive_window`,
@@ -254,16 +254,10 @@ def define_launches(mi, dr, mix32, u24):
             depth = self.adaptive_depth if depth is None else depth
             if threshold is None:
                 raise ValueError("links1_whitted: no adaptive threshold (give adaptive=...)")
-            if P.rfilter.name != "box":
-                import warnings
-
-                from links1.xmlparse import SceneWarning
-                warnings.warn("adaptive anti-aliasing integrates each pixel's box: the film's "
-                              f"{P.rfilter.name!r} reconstruction filter is not applied", SceneWarning, stacklevel=3)
             return render_adaptive_window(
                 lambda xf, yf, keys: self.trace_points(scene, xf, yf, keys),
                 lambda w, names: self.render_window(scene, w, spp=1, seed=seed, aovs=list(names))[..., 3:],
-                win, (W, H), threshold, depth, seed, aovs)
+                win, (W, H), threshold, depth, seed, aovs, filter_name=P.rfilter.name)
 
         def render_window(self, scene, window=None, spp=1, seed=None, aovs=None):
             """Render ``window = (x0, y0, w, h)`` of the full film (row 0 at the top).
@@ -308,14 +302,9 @@ def define_launches(mi, dr, mix32, u24):
                      dr.opaque(mi.UInt32, (seed * 0x27D4EB2F + 0x165667B1) & 0xFFFFFFFF))
             # launches of at most LAUNCH_LANES samples (lanes are independent: the same bits as
             # one launch); one launch of W*H*spp lanes needs ~90 bytes each (512², 1024 spp: 24 GB)
-            parts, stats = [], None
-            for a in range(0, n, LAUNCH_LANES):
-                part, st = self._launch(P, scene, sid_np[a:a + LAUNCH_LANES], spp_, seeds, want)
-                parts.append(part)
-                stats = st if stats is None else {k: (stats[k] + st[k] if k != "per_camera_ray" else None)
-                                                  for k in st}
-            stats["per_camera_ray"] = {k: stats[k] / max(n, 1) for k in ("shadow", "reflect", "refract")}
-            self.stats = stats
+            parts, counts = zip(*(self._launch(P, scene, sid_np[a:a + LAUNCH_LANES], spp_, seeds, want)
+                                  for a in range(0, n, LAUNCH_LANES)))
+            self._set_stats(counts)
             total = np.concatenate([q["total"] for q in parts])
             cost = np.concatenate([q["cost"] for q in parts])
             if want:

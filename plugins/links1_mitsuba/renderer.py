@@ -129,7 +129,8 @@ class MitsubaRenderer:
     def render(self, window=None) -> np.ndarray:
         """``(h, w, C)`` float64 of ``window = (x0, y0, w, h)`` (full film when None)."""
         if self.adaptive is not None:
-            return self._render_adaptive(window)
+            return self.integrator.render_adaptive(self.scene, window, seed=self.seed, aovs=self.aovs,
+                                                   threshold=self.adaptive, depth=self.adaptive_depth)
         if self.mode == "links1":
             return self.integrator.render_window(self.scene, window, spp=self.spp, seed=self.seed,
                                                  aovs=self.aovs)
@@ -150,10 +151,6 @@ class MitsubaRenderer:
             return self.integrator.render_windows(self.scene, list(windows), spp=self.spp, seed=self.seed,
                                                   aovs=self.aovs)
         return [self.render(w) for w in windows]
-
-    def _render_adaptive(self, window):
-        return self.integrator.render_adaptive(self.scene, window, seed=self.seed, aovs=self.aovs,
-                                               threshold=self.adaptive, depth=self.adaptive_depth)
 
     def shapes_info(self) -> list:
         """One dict per shape, in file order (``index`` = the ``id`` AOV)."""

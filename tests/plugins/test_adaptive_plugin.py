@@ -71,3 +71,22 @@ def test_integrator_parameters_adaptive_in_mi_render(llvm, tmp_path):
     np.testing.assert_allclose(img, ref, rtol=1e-6, atol=1e-7)
     with pytest.raises(Exception, match="adaptive_depth needs adaptive"):
         mi.load_dict({"type": "links1_whitted", "adaptive_depth": 2})
+
+
+@pytest.mark.parametrize("kind", ["core", "mitsuba"])
+def test_a_non_box_film_filter_is_named_in_one_warning(llvm, kind, tmp_path):
+    """The box integral replaces the film's filter: both renderers say so, once per render."""
+    import warnings
+
+    from links1.render import make_renderer
+    inc = open(os.path.join(SCENES, "include", "camera.xml")).read()
+    (tmp_path / "include").mkdir()
+    (tmp_path / "include" / "camera.xml").write_text(inc.replace('<rfilter type="box"/>', '<rfilter type="gaussian"/>'))
+    (tmp_path / "s.xml").write_text(open(os.path.join(SCENES, "lights.xml")).read())
+    r = make_renderer(kind, str(tmp_path / "s.xml"), params={"res": 16}, adaptive=0.1)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        r.render()
+    named = [str(w.message) for w in caught if "reconstruction filter is not applied" in str(w.message)]
+    assert named == ["adaptive anti-aliasing integrates each pixel's box: the film's 'gaussian' "
+                     "reconstruction filter is not applied"]
