@@ -370,20 +370,24 @@ class Scene:
 
     def camera_rays(self, sub):
         """Rays through a sub×sub grid of points in each pixel (centres for sub=1)."""
-        fwd = (self.target - self.eye) / np.linalg.norm(self.target - self.eye)
-        left = np.cross(self.up, fwd)
-        left /= np.linalg.norm(left)
-        up = np.cross(fwd, left)
         k = (np.arange(sub) + 0.5) / sub
         x = (np.arange(self.w)[:, None] + k[None, :]).ravel()
         y = (np.arange(self.h)[:, None] + k[None, :]).ravel()
         X, Y = np.meshgrid(x, y)            # (H*sub, W*sub)
+        return self.rays_through(X, Y).reshape(-1, 3)
+
+    def rays_through(self, X, Y):
+        """Unit directions of the camera rays through film positions ``(X, Y)`` (pixels, row 0
+        at the top; any shape) -> shape + (3,)."""
+        fwd = (self.target - self.eye) / np.linalg.norm(self.target - self.eye)
+        left = np.cross(self.up, fwd)
+        left /= np.linalg.norm(left)
+        up = np.cross(fwd, left)
         tx = math.tan(math.radians(self.fov) / 2)
         cx = (1 - 2 * X / self.w) * tx                  # + = the camera's left
         cy = (1 - 2 * Y / self.h) * tx * self.h / self.w
         d = cx[..., None] * left + cy[..., None] * up + fwd
-        d /= np.linalg.norm(d, axis=-1, keepdims=True)
-        return d.reshape(-1, 3)
+        return d / np.linalg.norm(d, axis=-1, keepdims=True)
 
     def nearest(self, o, d):
         t, idx, n = np.full(len(o), np.inf), np.full(len(o), -1), np.zeros((len(o), 3))

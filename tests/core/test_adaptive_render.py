@@ -7,8 +7,6 @@ test), a flat image not at all, and tiles, batches and worker processes must ass
 image bit for bit."""
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pytest
 
@@ -40,14 +38,8 @@ def disk(tmp_path):
 def corner_hits(path):
     """(H+1, W+1) bool: whether the camera ray through each pixel corner hits the unit sphere."""
     sc = oracle.Scene(path, {})
-    fwd = (sc.target - sc.eye) / np.linalg.norm(sc.target - sc.eye)
-    left = np.cross(sc.up, fwd)
-    left /= np.linalg.norm(left)
-    up = np.cross(fwd, left)
     X, Y = np.meshgrid(np.arange(W + 1.0), np.arange(H + 1.0))
-    tx = math.tan(math.radians(sc.fov) / 2)
-    d = ((1 - 2 * X / W) * tx)[..., None] * left + ((1 - 2 * Y / H) * tx * H / W)[..., None] * up + fwd
-    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    d = sc.rays_through(X, Y)
     b = d @ sc.eye
     return b * b - (sc.eye @ sc.eye - 1.0) > 0
 
