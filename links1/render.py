@@ -97,8 +97,8 @@ def render(scene, *, spp: int | None = None, max_depth: int | None = None, seed:
         Adaptive anti-aliasing instead of ``spp`` samples per pixel (:mod:`links1.adaptive`):
         a pixel's square of lattice points is split while its corners differ by more than
         this (tone-mapped ``v/(1+v)``, max over channels), down to ``adaptive_depth`` levels.
-        The box integral of the corners replaces the film's filter (a warning says so when
-        the film names another).
+        Pixels are reconstructed with the film's filter from the bilinear interpolant of the
+        refined squares (:class:`links1.adaptive.FilteredLeaves`).
     adaptive_depth : int
         Most levels of refinement (default 2; 0..8).
 
@@ -233,11 +233,11 @@ def _render_adaptive(scene, cam, win, *, threshold, depth, max_depth, seed, aovs
                               light_samples=light_samples).reshape(h, w, -1)
 
     return render_adaptive_window(trace_points, centre_aovs, win, (cam.width, cam.height), threshold, depth,
-                                  seed, aovs, progress, filter_name=cam.rfilter.name)
+                                  seed, aovs, progress, rfilter=cam.rfilter)
 
 
 def render_adaptive_window(trace_points, centre_aovs, win, film_size, threshold, depth, seed, aovs,
-                           progress=False, filter_name="box") -> np.ndarray:
+                           progress=False, rfilter=None) -> np.ndarray:
     """Adaptive anti-aliasing of window ``win`` with any renderer (:mod:`links1.adaptive`):
     lattice point ``(i, j)`` is the camera ray through film position ``(i, j) / 2**depth``
     pixels, its ray tree keyed by :func:`links1.sampling.lattice_keys` (a function of the point
@@ -246,16 +246,10 @@ def render_adaptive_window(trace_points, centre_aovs, win, film_size, threshold,
     ``trace_points(xf, yf, keys) -> (L (n, 3), cost (n,))`` traces rays through film fractions
     ``(xf, yf)``; ``centre_aovs(win, names) -> (h, w, k)`` renders the AOVs ``names`` (of depth,
     normal, id) at the pixel centres. Returns ``(h, w, 3 + AOV channels)``: cost summed over the
-    pixel's lattice points, samples = their number. ``filter_name``: the film's reconstruction
-    filter, which the box integral replaces (a warning when it is not ``box``)."""
+    pixel's lattice points, samples = their number. ``rfilter``: the film's reconstruction
+    filter (:class:`links1.filters.Filter`; default box)."""
     from .adaptive import check_options, render_adaptive
     threshold, depth = check_options(threshold, depth)
-    if filter_name != "box":
-        import warnings
-
-        from .xmlparse import SceneWarning
-        warnings.warn(f"adaptive anti-aliasing integrates each pixel's box: the film's {filter_name!r} "
-                      f"reconstruction filter is not applied", SceneWarning, stacklevel=4)
     W, H = film_size
     bar = _progress(None, progress)
 
@@ -265,7 +259,7 @@ def render_adaptive_window(trace_points, centre_aovs, win, film_size, threshold,
             bar.update(len(i))
         return np.concatenate([np.asarray(L, dtype=np.float64), np.asarray(cost, dtype=np.float64)[:, None]], axis=1)
 
-    rgb, samples, cost = render_adaptive(sample, win, (W, H), threshold, depth, summed=1)
+    rgb, samples, cost = render_adaptive(sample, win, (W, H), threshold, depth, summed=1, rfilter=rfilter)
     if bar is not None:
         bar.close()
     centre = [a for a in aovs if a in ("depth", "normal", "id")]

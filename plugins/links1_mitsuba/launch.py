@@ -257,7 +257,7 @@ def define_launches(mi, dr, mix32, u24):
             return render_adaptive_window(
                 lambda xf, yf, keys: self.trace_points(scene, xf, yf, keys),
                 lambda w, names: self.render_window(scene, w, spp=1, seed=seed, aovs=list(names))[..., 3:],
-                win, (W, H), threshold, depth, seed, aovs, filter_name=P.rfilter.name)
+                win, (W, H), threshold, depth, seed, aovs, rfilter=P.rfilter)
 
         def render_window(self, scene, window=None, spp=1, seed=None, aovs=None):
             """Render ``window = (x0, y0, w, h)`` of the full film (row 0 at the top).

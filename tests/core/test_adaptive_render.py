@@ -105,3 +105,31 @@ def test_bad_adaptive_options_are_one_line_errors(disk, tmp_path, capsys, args, 
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("links1:") and message in err[0], err
     assert not out.exists()
+
+
+def test_the_films_filter_is_applied(tmp_path):
+    """With a Gaussian film the adaptive image is the filtered one: close to a 256-spp render
+    through the same filter, and much closer to it than to the box-filtered adaptive image;
+    tiles and worker processes still assemble it bit for bit."""
+    p = tmp_path / "g.xml"
+    p.write_text(SCENE.format(w=W, h=H, r=1.0).replace('<rfilter type="box"/>', '<rfilter type="gaussian"/>'))
+    box = tmp_path / "b.xml"
+    box.write_text(SCENE.format(w=W, h=H, r=1.0))
+    r = make_renderer("core", str(p), adaptive=0.01, adaptive_depth=3, aovs=("samples",))
+    img = r.render()
+    ref = render(make_renderer("core", str(p)).scene, spp=256)[..., :3]
+    boxed = make_renderer("core", str(box), adaptive=0.01, adaptive_depth=3).render()[..., :3]
+
+    def relmse(a, b):
+        return float(np.mean((a - b) ** 2 / (b * b + 1e-2)))
+    err, err_box = relmse(img[..., :3], ref), relmse(boxed, ref)
+    assert err < 0.1 * err_box, (err, err_box)
+    assert err < 1e-4, err
+    for win, part in zip([(0, 0, 17, 11), (17, 0, 23, 11), (0, 11, 40, 19), (13, 7, 5, 9)],
+                         r.render_batch([(0, 0, 17, 11), (17, 0, 23, 11), (0, 11, 40, 19), (13, 7, 5, 9)])):
+        x0, y0, w, h = win
+        assert np.array_equal(part, img[y0:y0 + h, x0:x0 + w]), win
+    out = tmp_path / "two.exr"
+    assert main(["render", str(p), "--renderer", "core", "--adaptive", "0.01", "--adaptive-depth", "3",
+                 "-o", str(out), "--no-progress", "--aov", "samples", "--workers", "2"]) == 0
+    assert np.array_equal(read_exr(str(out))[0], img.astype(np.float32))
