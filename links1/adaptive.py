@@ -62,93 +62,111 @@ def tonemap(v: np.ndarray) -> np.ndarray:
     return v / (1.0 + v)
 
 
-def differs(corners: np.ndarray, threshold: float) -> np.ndarray:
-    """``corners`` (4, n, C) -> (n,) bool: refine where the tone-mapped corner values differ
-    by more than ``threshold`` in some channel."""
-    t = tonemap(corners)
-    return np.max(t.max(axis=0) - t.min(axis=0), axis=1) > threshold
+def spread(t: np.ndarray) -> np.ndarray:
+    """``t`` (4, ..., C): tone-mapped corner values -> the metric: max over channels of
+    (max - min over the 4 corners)."""
+    return np.max(np.maximum(np.maximum(t[0], t[1]), np.maximum(t[2], t[3]))
+                  - np.minimum(np.minimum(t[0], t[1]), np.minimum(t[2], t[3])), axis=-1)
 
 
-class Lattice:
-    """Values of lattice points, evaluated once each and looked up by key."""
-
-    def __init__(self, sample, film_size, depth):
-        self.sample, self.step = sample, 1 << depth
-        self.stride = np.int64(film_size[0] * self.step + 1)
-        self.keys = np.zeros(0, dtype=np.int64)  # sorted
-        self.values = None
-        self.evaluated = 0
-
-    def key(self, i, j):
-        return np.asarray(j, dtype=np.int64) * self.stride + np.asarray(i, dtype=np.int64)
-
-    def lookup(self, keys: np.ndarray) -> np.ndarray:
-        """Values of the points ``keys`` (any shape), evaluating the new ones (in key order)."""
-        flat = keys.ravel()
-        new = _sorted_unique(flat)
-        if len(self.keys):   # drop the points already evaluated (new stays sorted)
-            at = np.minimum(np.searchsorted(self.keys, new), len(self.keys) - 1)
-            new = new[self.keys[at] != new]
-        if len(new):
-            j, i = np.divmod(new, self.stride)
-            vals = np.asarray(self.sample(i, j, self.step, new), dtype=np.float64)
-            self.evaluated += len(new)
-            if self.values is None:
-                self.keys, self.values = new, vals
-            else:
-                keys_all = np.concatenate([self.keys, new])
-                order = np.argsort(keys_all, kind="stable")
-                self.keys = keys_all[order]
-                self.values = np.concatenate([self.values, vals])[order]
-        return self.values[np.searchsorted(self.keys, flat)].reshape(*keys.shape, -1)
+def _unique_sorted(a: np.ndarray):
+    """``(unique values of a 1-D integer array, sorted; index of each element's value in them)``
+    by one stable sort (numpy 2's hash-based ``np.unique`` is several times slower on the
+    millions of lattice keys of a large film)."""
+    order = np.argsort(a, kind="stable")
+    srt = a[order]
+    first = np.ones(a.size, dtype=bool)
+    np.not_equal(srt[1:], srt[:-1], out=first[1:])
+    inv = np.empty(a.size, dtype=np.int64)
+    inv[order] = np.cumsum(first) - 1
+    return srt[first], inv
 
 
-def _sorted_unique(a: np.ndarray) -> np.ndarray:
-    """``np.unique`` of a 1-D integer array by one sort (numpy 2's hash-based unique is
-    several times slower on the millions of lattice keys of a large film)."""
-    a = np.sort(a, kind="stable")
-    if a.size == 0:
-        return a
-    keep = np.empty(a.size, dtype=bool)
-    keep[0] = True
-    np.not_equal(a[1:], a[:-1], out=keep[1:])
-    return a[keep]
+class _Refinement:
+    """The refinement of the pixels of ``window`` (module doc).
 
+    Level 0 is the grid of the pixels' corners, evaluated row by row (= key order) and kept as
+    a grid: ``V (h+1, w+1, C)`` values, ``K`` keys, ``split0 (h, w)`` the pixels refined.
+    :meth:`levels` yields the deeper levels, ``(pid, sx, sy, s, v, corners, leaf)`` each: the
+    squares of that level (pixel index in the window, row by row; top-left lattice point;
+    side ``s`` lattice steps), their corner values ``v (4, n, C)`` and keys ``corners (4, n)``
+    (corners ``(sx, sy), (sx+s, sy), (sx, sy+s), (sx+s, sy+s)``) and which are leaves. A
+    pixel's squares keep one order whatever the window (squares are compacted and split in
+    array order), so sums over them are window-independent.
 
-def _unique_pairs(pid, key, nkeys):
-    """Distinct ``(pid, key)`` rows, sorted: one int64 per pair when it fits (a 1-D sort is an
-    order of magnitude faster than numpy's row-wise unique), else row-wise."""
-    if (int(pid.max(initial=0)) + 1) * int(nkeys) < 2 ** 62:
-        c = _sorted_unique(pid.astype(np.int64) * np.int64(nkeys) + key)
-        return np.stack(np.divmod(c, np.int64(nkeys)), axis=1)
-    return np.unique(np.stack([pid, key], axis=1), axis=0)
+    Every lattice point is traced once: a split square's five new points (edge midpoints and
+    centre: odd multiples of half its side, so no earlier level has them) are shared only with
+    squares of the same level, and each level evaluates its distinct new points, in key order.
+    A square's corner values and their tone map are handed down from its parent, never looked
+    up."""
 
+    def __init__(self, sample, film_size, depth, window, threshold, summed):
+        x0, y0, w, h = window
+        self.sample, self.threshold, self.summed = sample, threshold, summed
+        self.S = S = 1 << depth
+        self.stride = np.int64(film_size[0] * S + 1)
+        self.window = window
+        gj, gi = np.divmod(np.arange((h + 1) * (w + 1), dtype=np.int64), w + 1)
+        gi, gj = (gi + x0) * S, (gj + y0) * S
+        gk = gj * self.stride + gi
+        V, T = self._evaluate(gi, gj, gk)
+        self.V, self.T, self.K = (a.reshape(h + 1, w + 1, *a.shape[1:]) for a in (V, T, gk))
+        self.split0 = spread(self.quad(self.T)) > threshold if S > 1 else np.zeros((h, w), dtype=bool)
 
-def _refine(lat, window, threshold, summed):
-    """The refinement of the pixels of ``window`` (module doc), one level at a time.
-
-    Yields ``(pid, sx, sy, s, v, corners, leaf)`` per level: the squares of that level (pixel
-    index in the window, row by row; top-left lattice point; side ``s`` lattice steps), their
-    corner values ``v (4, n, C)`` and keys ``corners (4, n)`` (corners ``(sx, sy), (sx+s, sy),
-    (sx, sy+s), (sx+s, sy+s)``) and which are leaves. A pixel's squares keep one order whatever the window (squares are
-    compacted and split in array order), so sums over them are window-independent."""
-    x0, y0, w, h = window
-    S = lat.step
-    pys, pxs = np.divmod(np.arange(w * h, dtype=np.int64), w)
-    sx, sy, pid = (pxs + x0) * S, (pys + y0) * S, np.arange(w * h, dtype=np.int64)
-    s = S
-    while len(pid):
-        corners = np.stack([lat.key(sx, sy), lat.key(sx + s, sy), lat.key(sx, sy + s), lat.key(sx + s, sy + s)])
-        v = lat.lookup(corners)  # (4, n, C)
+    def _evaluate(self, i, j, keys):
+        vals = np.asarray(self.sample(i, j, self.S, keys), dtype=np.float64)
         # the summed channels (counts, not colour) take no part in the decision
-        split = differs(v[..., :v.shape[-1] - summed], threshold) if s > 1 else np.zeros(len(pid), dtype=bool)
-        yield pid, sx, sy, s, v, corners, ~split
-        h2 = s // 2
-        sx, sy, pid = sx[split], sy[split], pid[split]
-        sx = np.concatenate([sx, sx + h2, sx, sx + h2])
-        sy = np.concatenate([sy, sy, sy + h2, sy + h2])
-        pid = np.tile(pid, 4)
-        s = h2
+        return vals, tonemap(vals[:, :vals.shape[1] - self.summed])
+
+    @staticmethod
+    def quad(g):
+        """The 4 corner views ``(4, h, w, ...)`` of a grid ``(h+1, w+1, ...)`` (no copy)."""
+        return (g[:-1, :-1], g[:-1, 1:], g[1:, :-1], g[1:, 1:])
+
+    def leaves0(self):
+        """The level-0 leaves in the generic form of :meth:`levels`."""
+        x0, y0, w, h = self.window
+        leaf = ~self.split0
+        pid = np.flatnonzero(leaf)
+        pys, pxs = np.divmod(pid, w)
+        v = np.stack([q[leaf] for q in self.quad(self.V)])
+        return pid, (pxs + x0) * self.S, (pys + y0) * self.S, self.S, v
+
+    def levels(self):
+        x0, y0, w, h = self.window
+        S, stride = self.S, self.stride
+        pid = np.flatnonzero(self.split0)
+        pys, pxs = np.divmod(pid, w)
+        sx, sy = (pxs + x0) * S, (pys + y0) * S
+        sel = self.split0
+        v, t, corners = (np.stack([q[sel] for q in self.quad(g)]) for g in (self.V, self.T, self.K))
+        s = S
+        while len(pid):
+            h2 = s // 2
+            # the new points: top, left, centre, right and bottom midpoints of each square
+            ni = np.concatenate([sx + h2, sx, sx + h2, sx + s, sx + h2])
+            nj = np.concatenate([sy, sy + h2, sy + h2, sy + h2, sy + s])
+            uk, inv = _unique_sorted(nj * stride + ni)
+            uj, ui = np.divmod(uk, stride)
+            U, UT = self._evaluate(ui, uj, uk)
+            idx = inv.reshape(5, len(sx))
+
+            def children(new, parent):
+                """Corners of the 4 children (top-left, top-right, bottom-left, bottom-right)."""
+                top, left, cen, right, bot = (new[k] for k in idx)
+                c0, c1, c2, c3 = parent
+                return np.stack([np.concatenate(c) for c in ((c0, top, left, cen), (top, c1, cen, right),
+                                                              (left, cen, c2, bot), (cen, right, bot, c3))])
+
+            v, t, corners = children(U, v), children(UT, t), children(uk, corners)
+            sx = np.concatenate([sx, sx + h2, sx, sx + h2])
+            sy = np.concatenate([sy, sy, sy + h2, sy + h2])
+            pid = np.tile(pid, 4)
+            s = h2
+            split = spread(t) > self.threshold if s > 1 else np.zeros(len(pid), dtype=bool)
+            yield pid, sx, sy, s, v, corners, ~split
+            sx, sy, pid = sx[split], sy[split], pid[split]
+            v, t, corners = v[:, split], t[:, split], corners[:, split]
 
 
 def render_adaptive(sample, window, film_size, threshold, depth, summed=0, rfilter=None):
@@ -171,8 +189,7 @@ def render_adaptive(sample, window, film_size, threshold, depth, summed=0, rfilt
     """
     threshold, depth = check_options(threshold, depth)
     x0, y0, w, h = (int(v) for v in window)
-    lat = Lattice(sample, film_size, depth)
-    S = lat.step
+    S = 1 << depth
     box = rfilter is None or rfilter.is_box
     if box:
         sw = (x0, y0, w, h)
@@ -182,31 +199,50 @@ def render_adaptive(sample, window, film_size, threshold, depth, summed=0, rfilt
         sw = (sx0, sy0, min(film_size[0], x0 + w + b) - sx0, min(film_size[1], y0 + h + b) - sy0)
         filtered = FilteredLeaves(rfilter, depth, sw)
     n = sw[2] * sw[3]
-    acc = None
-    used_pid, used_key = [], []
-    for pid, sx, sy, s, v, corners, leaf in _refine(lat, sw, threshold, summed):
-        C = v.shape[-1] - summed
+    ref = _Refinement(sample, film_size, depth, sw, threshold, summed)
+    C = ref.V.shape[-1] - summed
+    V0, V1, V2, V3 = (q[..., :C] for q in ref.quad(ref.V))
+    if box:   # level 0: a leaf pixel is its corner mean (0.25 * area 1, as below)
+        acc = np.where(ref.split0[..., None], 0.0, (V0 + V1 + V2 + V3) * 0.25).reshape(n, C)
+    else:
+        pid, sx, sy, s, v = ref.leaves0()
+        filtered.add(pid, sx, sy, s, v[..., :C])
+    used_pid, used_key, used_val = [], [], []
+    for pid, sx, sy, s, v, corners, leaf in ref.levels():
         if box:
-            if acc is None:
-                acc = np.zeros((n, C))
             area = (s / S) ** 2  # a power of two: exact
-            contrib = (v[0, leaf] + v[1, leaf] + v[2, leaf] + v[3, leaf]) * (0.25 * area)
+            contrib = (v[0, leaf, :C] + v[1, leaf, :C] + v[2, leaf, :C] + v[3, leaf, :C]) * (0.25 * area)
             for c in range(C):   # per level: the pixel's leaves summed in array order
                 acc[:, c] += np.bincount(pid[leaf], weights=contrib[:, c], minlength=n)
         else:
             filtered.add(pid[leaf], sx[leaf], sy[leaf], s, v[:, leaf, :C])
         used_pid.append(np.repeat(pid[leaf][None], 4, axis=0).ravel())
         used_key.append(corners[:, leaf].ravel())
+        if summed:
+            used_val.append(v[:, leaf, C:].reshape(-1, summed))
     values = acc if box else filtered.result()
-    pairs = _unique_pairs(np.concatenate(used_pid), np.concatenate(used_key), lat.stride * (film_size[1] * S + 1))
-    samples = np.bincount(pairs[:, 0], minlength=n).astype(np.int64)
-    out = [values, samples]
+    # a level-0 leaf uses its 4 corners (in key order); a refined pixel the distinct corners of
+    # its leaves, sorted by (pixel, key)
+    samples = np.full(n, 4, dtype=np.int64)
     if summed:
-        sums = np.zeros((n, summed))
-        extra = lat.lookup(pairs[:, 1])[:, -summed:]
-        for c in range(summed):
-            sums[:, c] = np.bincount(pairs[:, 0], weights=extra[:, c], minlength=n)
-        out.append(sums)
+        Q = [q[..., C:] for q in ref.quad(ref.V)]
+        sums = (((Q[0] + Q[1]) + Q[2]) + Q[3]).reshape(n, summed)
+    if used_pid:
+        pid, key = np.concatenate(used_pid), np.concatenate(used_key)
+        nkeys = int(film_size[1] * S + 1) * (int(film_size[0]) * S + 1)
+        order = np.argsort(pid * np.int64(nkeys) + key, kind="stable") if n * nkeys < 2 ** 62 \
+            else np.lexsort((key, pid))
+        p, k = pid[order], key[order]
+        first = np.ones(len(p), dtype=bool)
+        first[1:] = (p[1:] != p[:-1]) | (k[1:] != k[:-1])
+        p = p[first]
+        refined = ref.split0.ravel()
+        samples[refined] = np.bincount(p, minlength=n)[refined]
+        if summed:
+            extra = np.concatenate(used_val)[order][first]
+            for c in range(summed):
+                sums[refined, c] = np.bincount(p, weights=extra[:, c], minlength=n)[refined]
+    out = [values, samples] + ([sums] if summed else [])
     # the window's own pixels of the sample window
     ox, oy = x0 - sw[0], y0 - sw[1]
     out = [a.reshape(sw[3], sw[2], -1)[oy:oy + h, ox:ox + w] for a in out]

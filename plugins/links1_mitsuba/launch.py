@@ -44,6 +44,20 @@ def _lanes(v, n):
     return a if a.shape[0] == n else np.broadcast_to(a[:1], (n,) + a.shape[1:])
 
 
+def _aligned(a, dtype) -> np.ndarray:
+    """A 64-byte aligned contiguous copy of ``a`` as ``dtype``. A Dr.Jit array made from a
+    numpy array maps its memory, and a frozen function records again whenever the alignment
+    of such an input changes (drjit.freeze's documentation): numpy's buffers are aligned or
+    not by chance, so unaligned inputs made ``trace_points`` re-record at random (7 recordings
+    in 12 calls of 3 adaptive frames)."""
+    a = np.asarray(a, dtype=dtype)
+    buf = np.empty(a.nbytes + 64, dtype=np.uint8)
+    start = -buf.ctypes.data % 64
+    out = buf[start:start + a.nbytes].view(dtype)
+    out[:] = a.ravel()
+    return out
+
+
 def _frozen_caller():
     # a function: freeze hashes the globals a frozen function names and traverses their
     # Dr.Jit contents; through a call the integrator (and its scene) stay out of that
@@ -204,9 +218,9 @@ def define_launches(mi, dr, mix32, u24):
             L, cost, counts = [np.zeros((0, 3))], [np.zeros(0)], []
             for a in range(0, len(xf), LAUNCH_LANES):
                 b = min(a + LAUNCH_LANES, len(xf))
-                x = mi.Float(np.asarray(xf[a:b], dtype=np.float32))
-                y = mi.Float(np.asarray(yf[a:b], dtype=np.float32))
-                key = mi.UInt32(np.asarray(keys[a:b], dtype=np.uint32))
+                x = mi.Float(_aligned(xf[a:b], np.float32))
+                y = mi.Float(_aligned(yf[a:b], np.float32))
+                key = mi.UInt32(_aligned(keys[a:b], np.uint32))
                 if self.use_freeze:
                     cfg = (id(P), id(scene), int(self.max_depth), float(self.min_weight))
                     total, c, counters = self._call_frozen(self._frozen_points_fn(), x, y, key,
