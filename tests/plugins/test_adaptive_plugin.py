@@ -93,3 +93,24 @@ def test_plugin_applies_the_films_filter_as_the_core(llvm, tmp_path):
     for win, part in zip(wins, r.render_batch(wins)):
         x0, y0, w, h = win
         assert np.array_equal(part, plug[y0:y0 + h, x0:x0 + w]), win
+
+
+def test_points_launch_records_once_whatever_the_inputs_alignment(llvm):
+    """trace_points replays one recording for any point count and any alignment of the numpy
+    inputs (a mapped input whose alignment changes makes drjit.freeze record again)."""
+    from links1.render import make_renderer
+    r = make_renderer("mitsuba", os.path.join(SCENES, "shadows.xml"), params={"res": 32}, adaptive=0.03)
+    rng = np.random.default_rng(1)
+
+    def offset(a, off):   # a copy of a starting `off` bytes past a 64-byte boundary
+        buf = np.empty(a.nbytes + 128, dtype=np.uint8)
+        start = -buf.ctypes.data % 64 + off
+        out = buf[start:start + a.nbytes].view(a.dtype)
+        out[:] = a
+        return out
+    for n, off in [(5000, 0), (5000, 4), (7000, 8), (5000, 0), (300, 4)]:
+        xf, yf = (offset(rng.random(n).astype(np.float32), off) for _ in range(2))
+        keys = offset(np.arange(n, dtype=np.uint32), off)
+        L, _ = r.integrator.trace_points(r.scene, xf, yf, keys)
+        assert np.isfinite(L).all() and L.shape == (n, 3)
+    assert r.integrator._freeze_points.n_recordings == 1
