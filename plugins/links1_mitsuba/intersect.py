@@ -1,0 +1,142 @@
+"""Intersection in ``links1_whitted`` (its one home): the nearest hit of each ray over Mitsuba's
+shapes (``scene.ray_intersect``) and the links1 quadrics and blobs in Dr.Jit, nearest wins, ties
+to the lower slot (``_nearest``); the transmittance of shadow rays (3-3-3) through the links1
+shapes (``_shadow_custom``) and Mitsuba's (``_shadow_mitsuba``), each shape counted once; the
+uv of hits on textured links1 quadrics (``_custom_uv``). Many links1 quadrics go under a BVH
+(:mod:`links1_mitsuba.bvh`).
+
+:func:`define_intersect` returns a class whose methods ``Links1Whitted`` takes (defined in a
+function, as the integrator, because the Mitsuba variant must be set first).
+"""
+from __future__ import annotations
+
+from .util import INF
+
+
+def define_intersect(mi, dr, util):
+    """The ``Intersect`` part of ``Links1Whitted`` for the variant in use."""
+    c3, gather3, next_up = util.c3, util.gather3, util.next_up
+
+    class Intersect:
+        """Nearest hits, shadow transmittance, uv of custom hits."""
+
+        # -------------------------------------------------------------- geometry
+        def _nearest(self, P, scene, o, d, tmin, tmax, active, cost):
+            """Nearest hit over Mitsuba shapes and custom shapes: (t, slot, si, prim, custom_won)."""
+            if P.any_mitsuba_shapes:
+                ray = mi.Ray3f(o + d * tmin, d, tmax - tmin)
+                si = scene.ray_intersect(ray, active=active)
+                valid = active & si.is_valid()
+                t = dr.select(valid, si.t + tmin, INF)
+                reg = dr.reinterpret_array(mi.UInt32, si.shape)
+                slot = dr.select(valid, dr.gather(mi.Int32, P.reg_to_slot, reg, valid), -1)
+                cost += dr.select(active, mi.UInt32(1), 0)
+            else:
+                si = dr.zeros(mi.SurfaceInteraction3f, dr.width(o))
+                t = dr.full(mi.Float, INF, dr.width(o))
+                slot = dr.full(mi.Int32, -1, dr.width(o))
+            prim = dr.zeros(mi.UInt32, dr.width(o))
+            # ties at the same distance go to the lower slot (file order), as in the core
+            # (links1.accel): a shape after the current best may not tie, one before it may
+            for spec in P.custom_unrolled:
+                tt = dr.minimum(t, tmax)
+                tt = dr.select(slot > spec.slot, next_up(tt), tt)
+                if spec.__class__.__name__ == "BlobSpec":
+                    tc, pc = spec.intersect(o, d, tmin, tt, active, cost)
+                else:
+                    tc, pc = spec.intersect(o, d, tmin, tt, active)
+                    cost += dr.select(active, mi.UInt32(1), 0)
+                better = (tc < t) | ((tc == t) & (slot > spec.slot))
+                t = dr.select(better, tc, t)
+                slot = dr.select(better, spec.slot, slot)
+                prim = dr.select(better, pc, prim)
+            if P.bvh is not None:
+                tq, q, part, found = P.bvh.nearest(o, d, tmin, next_up(dr.minimum(t, tmax)), active, cost)
+                sq = mi.Int32(dr.gather(mi.UInt32, P.bvh.slot, q, found))
+                better = found & ((tq < t) | ((tq == t) & ((slot < 0) | (sq < slot))))
+                t = dr.select(better, tq, t)
+                slot = dr.select(better, sq, slot)
+                prim = dr.select(better, part, prim)
+            return t, slot, si, prim
+
+        def _shadow_custom(self, P, o, d, smax, active, cost, specs=None):
+            """Transmittance (3-3-3) through the links1 shapes: product of shadow_t over the
+            shapes the segment hits, once per shape."""
+            T = dr.select(active, mi.Color3f(1.0), mi.Color3f(0.0))
+            specs = P.custom if specs is None else specs
+            if P.bvh is not None:
+                if any(sp.slot in P.bvh_slots for sp in specs):
+                    T = P.bvh.transmittance(o, d, smax, active, cost)
+                specs = [sp for sp in specs if sp.slot not in P.bvh_slots]
+            for spec in specs:
+                st = P.shadow_t_np[spec.slot]
+                act = active & (dr.max(T) > 0)
+                if spec.__class__.__name__ == "BlobSpec":
+                    tc, _ = spec.intersect(o, d, 0.0, smax, act, cost, any_hit=True)
+                else:
+                    tc, _ = spec.intersect(o, d, 0.0, smax, act)
+                    cost += dr.select(act, mi.UInt32(1), 0)
+                hit = act & (tc < INF)
+                T = dr.select(hit, T * c3(st), T)
+            return T
+
+        def _shadow_mitsuba(self, P, scene, o, d, smax, active, T, cost):
+            """Continue the transmittance ``T`` through Mitsuba's shapes (once per shape)."""
+            if not P.any_mitsuba_shapes:
+                return T
+            act = active & (dr.max(T) > 0)
+            if not P.any_transparent_mitsuba:
+                occluded = scene.ray_test(mi.Ray3f(o, d, smax, 0.0, mi.Color0f()), active=act)  # (o, d, x) would set time, not maxt
+                cost += dr.select(act, mi.UInt32(1), 0)
+                return dr.select(occluded, 0.0, T)
+            reg_to_slot, bits_t, words_t, sh_t = P.reg_to_slot, P.trans_bits, P.trans_words, P.shadow_t
+            nwords, max_crossings = P.trans_nwords, P.max_crossings
+
+            def cond(o, tleft, T, seen, run, it, cost):
+                return run
+
+            def body(o, tleft, T, seen, run, it, cost):
+                si = scene.ray_intersect(mi.Ray3f(o, d, tleft, 0.0, mi.Color0f()), active=run)
+                cost += dr.select(run, mi.UInt32(1), 0)
+                hit = run & si.is_valid()
+                reg = dr.reinterpret_array(mi.UInt32, si.shape)
+                slot = dr.gather(mi.Int32, reg_to_slot, reg, hit)
+                bit = dr.gather(mi.UInt32, bits_t, mi.UInt32(slot), hit)
+                word = dr.gather(mi.UInt32, words_t, mi.UInt32(slot), hit)
+                opaque = hit & (bit == 0)
+                mine = [hit & (bit != 0) & (word == k) for k in range(nwords)]
+                new = hit & mi.Bool(False)
+                for k in range(nwords):
+                    new = new | (mine[k] & ((seen[k] & bit) == 0))
+                T = dr.select(opaque, 0.0, T)
+                T = dr.select(new, T * gather3(sh_t, mi.UInt32(slot), new), T)
+                seen = [dr.select(new & mine[k], seen[k] | bit, seen[k]) for k in range(nwords)]
+                nxt = si.spawn_ray(d)
+                tleft = dr.select(hit, tleft - si.t, tleft)
+                o = dr.select(hit, nxt.o, o)
+                it += 1
+                run = hit & ~opaque & (it < max_crossings) & (tleft > 0)
+                return o, tleft, T, seen, run, it, cost
+
+            n = dr.width(o)
+            state = (mi.Point3f(o), mi.Float(smax), T, [dr.zeros(mi.UInt32, n) for _ in range(nwords)], mi.Bool(act),
+                     dr.zeros(mi.UInt32, n), dr.zeros(mi.UInt32, n))
+            o, tleft, T, seen, run, it, c_loop = dr.while_loop(state, cond, body)
+            cost += c_loop
+            return T
+
+        def _custom_uv(self, P, o, d, t, prim, slot, uslot, hit):
+            """uv of the hits on links1_quadric shapes with textured BSDFs (0 elsewhere)."""
+            uv = mi.Point2f(0.0)
+            if not P.uv_slots:
+                return uv
+            for spec in P.custom_unrolled:
+                if spec.slot in P.uv_slots:
+                    uv = dr.select(slot == spec.slot, spec.uv(o, d, t, prim), uv)
+            if P.bvh is not None and P.uv_slots & P.bvh_slots:
+                qi = dr.gather(mi.Int32, P.bvh.slot_to_q, uslot, hit)
+                m = hit & (qi >= 0)
+                uv = dr.select(m, P.bvh.uv(mi.UInt32(dr.maximum(qi, 0)), o, d, t, m), uv)
+            return uv
+
+    return Intersect

@@ -1,0 +1,400 @@
+"""The per-scene tables of ``links1_whitted`` (their one home): ``prepare`` turns a Mitsuba scene
+into what the kernels read (slots in file order, ray offsets, materials, shadow transmittance,
+emission, lights, camera, custom shapes and their BVH), rebuilt only when the scene changes;
+``_occluders`` decides which shadow rays a scene needs.
+
+What a scene doesn't need is not traced (decided once per scene in ``prepare``): no
+refraction code without transmissive surfaces, no reflection without reflective ones, no loop
+at all without either, no custom-shape code without custom shapes, no blob solver without
+blobs, no shadow ray toward a light from a hit that no shape can shadow (``_occluders``: a
+lone convex shape, a floor below every other shape and the light, ...).
+
+:func:`define_tables` returns a class whose methods ``Links1Whitted`` takes (defined in a
+function, as the integrator, because the Mitsuba variant must be set first).
+"""
+from __future__ import annotations
+
+import hashlib
+import warnings
+
+import numpy as np
+
+from links1.filters import Filter
+from links1.lights import ENV_LIGHT_ID
+
+from .lights import _emitted_rgb
+
+
+def _textured(bsdf) -> bool:
+    """Whether a Mitsuba BSDF has a texture (bitmap and checkerboard expose ``to_uv``)."""
+    import mitsuba as mi
+    return bsdf is not None and any(k.endswith("to_uv") for k in mi.traverse(bsdf).keys())
+
+
+class Prepared:
+    """Per-scene tables: slots (shapes in file order), materials, lights, camera."""
+
+
+def define_tables(mi, dr, util):
+    """The ``Tables`` part of ``Links1Whitted`` for the variant in use."""
+    from . import integrator   # BVH_MIN read there at call time (tests patch it)
+    from ._registry import plugin_class
+    from .integrator import _PRECISE_MITSUBA, OFFSET_EPS
+
+    def scene_identity(scene):
+        """The scene's shapes, emitters and sensors as object identities (cheap: no parameters).
+        Prepared tables keep those objects alive, so another scene's objects cannot take the
+        same identities while the tables are kept."""
+        ids = []
+        for objs in (scene.shapes(), scene.emitters(), scene.sensors()):
+            ids.append(len(objs))
+            ids += [id(o) for o in objs]
+        return tuple(ids)
+
+    def scene_digest(scene) -> bytes:
+        """A digest of every parameter ``mi.traverse(scene)`` exposes, by value."""
+        h = hashlib.blake2b(digest_size=16)
+        params = mi.traverse(scene)
+        for k in sorted(params.keys()):
+            v = params[k]
+            h.update(k.encode())
+            try:
+                a = np.asarray(v.matrix if hasattr(v, "matrix") else v)
+            except Exception:  # noqa: BLE001 - a value numpy cannot read: its text
+                h.update(repr(v).encode())
+                continue
+            h.update(f"{a.dtype.str}{a.shape}".encode())
+            h.update(np.ascontiguousarray(a).tobytes())
+        return h.digest()
+
+    class Tables:
+        """``prepare``: the per-scene tables; ``_occluders``: which shadow rays they need."""
+
+        def prepare(self, scene):
+            """The per-scene tables, rebuilt when the scene is another one or was changed.
+
+            Keyed on what they are built from, never on ``id(scene)``: the registry ids of
+            the scene's shapes, emitters and sensors (P keeps those objects alive, so no other
+            scene can reuse the ids), and, while ``verify_scene``, a digest of every parameter
+            ``mi.traverse`` exposes (a ``params.update()`` after a render is seen)."""
+            ident = scene_identity(scene)
+            P = self._prep
+            if P is not None and P.ident == ident and (not self.verify_scene or P.content == scene_digest(scene)):
+                return P
+            P = Prepared()
+            P.ident = ident
+            P.content = scene_digest(scene)
+            P.keep_alive = (list(scene.shapes()), list(scene.emitters()), list(scene.sensors()))  # see scene_identity
+            self._freeze = None       # recordings hold the previous tables
+            shapes = list(scene.shapes())
+            slot_of_id = self.slot_of_id
+            if slot_of_id is None:
+                slot_of_id = {s.id(): i for i, s in enumerate(shapes)}
+                nslots = len(shapes)
+                slot_list = [slot_of_id[s.id()] for s in shapes]
+            else:
+                slot_list = []
+                for s in shapes:
+                    if s.id() not in slot_of_id:
+                        raise RuntimeError(f"links1_whitted: shape '{s.id()}' is unknown to the loader")
+                    slot_list.append(slot_of_id[s.id()])
+                nslots = len(slot_of_id) + len(self.custom)
+            P.nslots = nslots
+            P.custom = self.custom
+            # blobs' candidate-search tables, built before any trace (frozen inputs)
+            P.blob_tables = [sp.tables() for sp in self.custom if hasattr(sp, "tables")]
+            # many bounded quadrics: tables under a BVH (bvh.py) instead of one code block each
+            quad = [sp for sp in self.custom if sp.__class__.__name__ == "QuadricSpec"
+                    and np.all(np.isfinite(np.concatenate(sp.bounds())))]
+            P.bvh = None
+            P.custom_unrolled = list(self.custom)
+            if len(quad) >= integrator.BVH_MIN:
+                bvh_ids = {id(sp) for sp in quad}
+                P.custom_unrolled = [sp for sp in self.custom if id(sp) not in bvh_ids]
+                P.bvh_slots = {sp.slot for sp in quad}
+            # registry id -> slot
+            reg = [int(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(s))[0]) for s in shapes]
+            table = np.full(max(reg + [0]) + 1, -1, dtype=np.int32)
+            for r, sl in zip(reg, slot_list):
+                table[r] = sl
+            P.reg_to_slot = mi.Int32(table)
+            P.any_mitsuba_shapes = len(shapes) > 0
+            eps_np = np.full(max(nslots, 1), float(mi.math.RayEpsilon), dtype=np.float32)
+            for s_, sl in zip(shapes, slot_list):
+                if s_.is_mesh() or str(s_).split("[")[0] in _PRECISE_MITSUBA:
+                    eps_np[sl] = OFFSET_EPS
+            for spec in self.custom:
+                if spec.__class__.__name__ == "QuadricSpec":
+                    eps_np[spec.slot] = OFFSET_EPS
+            P.eps_table = mi.Float(eps_np)
+            # materials
+            default_bsdf = None
+            bsdfs = [None] * nslots
+            for s, sl in zip(shapes, slot_list):
+                bsdfs[sl] = s.bsdf()
+            for spec in self.custom:
+                b = self.custom_bsdfs.get(spec.slot)
+                if b is None:
+                    if default_bsdf is None:
+                        default_bsdf = mi.load_dict({"type": "diffuse"})
+                    b = default_bsdf
+                bsdfs[spec.slot] = b
+            Phong = plugin_class("links1_phong")
+            is_phong = np.zeros(nslots, dtype=bool)
+            amb = np.zeros((nslots, 3)); dif = np.zeros((nslots, 3)); spe = np.zeros((nslots, 3))
+            refl = np.zeros((nslots, 3)); trans = np.zeros((nslots, 3))
+            expo = np.zeros(nslots); ior = np.ones(nslots)
+            has_dr = np.zeros(nslots, dtype=bool); has_dt = np.zeros(nslots, dtype=bool)
+            warned = set()
+            for sl, b in enumerate(bsdfs):
+                if b is None:
+                    continue
+                if isinstance(b, Phong):
+                    p = b.params
+                    is_phong[sl] = True
+                    amb[sl], dif[sl], spe[sl] = p["ambient"], p["diffuse"], p["specular"]
+                    refl[sl], trans[sl] = p["reflectance"], p["transmittance"]
+                    expo[sl], ior[sl] = p["exponent"], p["ior"]
+                else:
+                    fl = int(b.flags())
+                    has_dr[sl] = bool(fl & int(mi.BSDFFlags.DeltaReflection))
+                    has_dt[sl] = bool(fl & int(mi.BSDFFlags.DeltaTransmission))
+                    if fl & int(mi.BSDFFlags.Glossy):
+                        name = str(b).split("[")[0]
+                        if name not in warned:
+                            warned.add(name)
+                            warnings.warn(f"links1_whitted: BSDF {name} has glossy lobes; it gets direct "
+                                          "light from delta lights only (no glossy indirect light)",
+                                          stacklevel=2)
+            P.is_phong_np = is_phong
+            P.all_phong = bool(is_phong.all())
+            P.any_phong = bool(is_phong.any())
+            P.is_phong = mi.Bool(is_phong)
+            P.amb, P.dif, P.spe = (mi.Float(a.ravel()) for a in (amb, dif, spe))
+            P.refl, P.trans = mi.Float(refl.ravel()), mi.Float(trans.ravel())
+            P.expo, P.ior = mi.Float(expo), mi.Float(ior)
+            P.any_ambient = bool(np.any(amb > 0))
+            P.has_dr, P.has_dt = mi.Bool(has_dr), mi.Bool(has_dt)
+            P.any_mitsuba_dr, P.any_mitsuba_dt = bool(has_dr.any()), bool(has_dt.any())
+            P.any_mitsuba_delta = bool(np.any(has_dr | has_dt))
+            P.any_phong_r = bool(np.any(refl.max(1) > 0))
+            P.any_phong_t = bool(np.any(trans.max(1) > 0))
+            P.any_specular = P.any_mitsuba_delta or P.any_phong_r or P.any_phong_t
+            # links1_quadric shapes whose Mitsuba BSDF has a texture get the core's uv
+            P.uv_slots = {sp.slot for sp in self.custom if sp.__class__.__name__ == "QuadricSpec"
+                          and not is_phong[sp.slot] and _textured(bsdfs[sp.slot])}
+            P.bsdf_ptr = mi.BSDFPtr([b if b is not None else default_bsdf for b in bsdfs]) \
+                if not P.all_phong else None
+            # shadow transmittance (3-3-3): Phong t; Mitsuba BSDFs are opaque
+            P.shadow_t_np = trans.copy()
+            if len(P.custom_unrolled) != len(self.custom):
+                from .bvh import define_bvh
+                P.bvh = define_bvh()([sp for sp in self.custom if sp.slot in P.bvh_slots], P.shadow_t_np)
+                s2q = np.full(max(nslots, 1), -1, dtype=np.int32)
+                for i, sp in enumerate(P.bvh.specs):
+                    s2q[sp.slot] = i
+                P.bvh.slot_to_q = mi.Int32(s2q)
+            P.shadow_t = mi.Float(trans.ravel())
+            # transparent Mitsuba shapes, each counted once per shadow segment (3-3-3): shape j
+            # owns bit j % 32 of word j // 32 of a per-lane "seen" set (as many words as needed)
+            transparent_mitsuba = [(s, sl) for s, sl in zip(shapes, slot_list) if trans[sl].max() > 0]
+            bits = np.zeros(nslots, dtype=np.uint32)
+            words = np.zeros(nslots, dtype=np.uint32)
+            for j, (_, sl) in enumerate(transparent_mitsuba):
+                bits[sl], words[sl] = np.uint32(1 << (j % 32)), np.uint32(j // 32)
+            P.trans_bits, P.trans_words = mi.UInt32(bits), mi.UInt32(words)
+            P.trans_nwords = max(1, -(-len(transparent_mitsuba) // 32))
+            # a segment crosses each triangle at most once and an analytic shape at most twice,
+            # and stops at the first opaque one: no arbitrary cap on crossings
+            P.max_crossings = 1 + sum(int(s.face_count()) if s.is_mesh() else 2 for s, _ in transparent_mitsuba)
+            P.any_transparent_mitsuba = bool(transparent_mitsuba)
+            # emission
+            emis = np.zeros((nslots, 3))
+            for spec in self.custom:
+                if spec.emission is not None:
+                    emis[spec.slot] = spec.emission
+            P.custom_emission = mi.Float(emis.ravel())
+            P.any_custom_emission = bool(np.any(emis > 0))
+            P.any_mitsuba_emission = any(s.emitter() is not None for s in shapes)
+            # lights
+            P.lights, P.area, P.env, P.consts, P.area_tab = [], [], None, [], []
+            n_env = 0
+            Pt, Sp = plugin_class("links1_point"), plugin_class("links1_spot")
+            for e in scene.emitters():
+                kind = str(e).split("[")[0]
+                if isinstance(e, Pt):
+                    p = e.params
+                    P.lights.append(("point", p["position"], p["direction"], p["L1"], p["L2"],
+                                     p["falloff"] == "inverse_square"))
+                elif isinstance(e, Sp):
+                    p = e.params
+                    P.lights.append(("cspot", p["origin"], p["direction"], p["radius"], p["intensity"]))
+                elif kind == "PointLight":
+                    prm = mi.traverse(e)
+                    pos = np.array(prm["position"], dtype=np.float64).ravel()
+                    I = _emitted_rgb(prm, "intensity", kind)
+                    P.lights.append(("point", pos, np.array([0, 0, 1.0]), I, np.zeros(3), True))
+                elif kind == "SpotLight":
+                    prm = mi.traverse(e)
+                    m = np.array(prm["to_world"].matrix, dtype=np.float64).reshape(4, 4)
+                    I = _emitted_rgb(prm, "intensity", kind)
+                    cutoff = float(np.array(prm["cutoff_angle"]).ravel()[0])
+                    beam = float(np.array(prm["beam_width"]).ravel()[0])
+                    P.lights.append(("mspot", m[:3, 3].copy(), m[:3, 2] / np.linalg.norm(m[:3, 2]),
+                                     I, cutoff, beam))
+                elif kind == "DirectionalEmitter":
+                    prm = mi.traverse(e)
+                    m = np.array(prm["to_world"].matrix, dtype=np.float64).reshape(4, 4)
+                    E = _emitted_rgb(prm, "irradiance", kind)
+                    P.lights.append(("dir", m[:3, 2] / np.linalg.norm(m[:3, 2]), E))
+                elif kind == "ConstantBackgroundEmitter":
+                    rad = np.array(mi.traverse(e)["radiance.value"], dtype=np.float64).ravel()
+                    P.consts.append(("const", np.broadcast_to(rad, (3,)).copy(), ENV_LIGHT_ID + n_env))
+                    n_env += 1
+                    P.env = e
+                elif kind == "EnvironmentMapEmitter":
+                    P.consts.append(("envmap", self._envmap_table(e), ENV_LIGHT_ID + n_env))
+                    n_env += 1
+                    P.env = e
+                elif e.is_environment() or (int(e.flags()) & int(mi.EmitterFlags.Infinite)):
+                    warnings.warn(f"links1_whitted: emitter {kind} is seen as the background but "
+                                  "lights nothing", stacklevel=2)
+                    n_env += 1
+                    P.env = e
+                elif int(e.flags()) & int(mi.EmitterFlags.Surface):
+                    tab = self._area_table(e, shapes, slot_list)
+                    if tab is not None:
+                        P.area.append(e)
+                        P.area_tab.append(tab)
+                else:
+                    warnings.warn(f"links1_whitted: emitter {kind} is not supported and is ignored",
+                                  stacklevel=2)
+            # camera
+            sensor = scene.sensors()[0]
+            film = sensor.film()
+            P.sensor = sensor
+            P.film_size = (int(film.size()[0]), int(film.size()[1]))
+            P.rfilter = Filter.from_mitsuba(film.rfilter())
+            P.perspective = str(sensor).startswith("PerspectiveCamera")
+            if P.perspective:
+                prm = mi.traverse(sensor)
+                P.x_fov = float(np.array(prm["x_fov"]).ravel()[0])
+                P.cam = np.array(sensor.world_transform().matrix, dtype=np.float64).reshape(4, 4)
+                P.near, P.far = float(sensor.near_clip()), float(sensor.far_clip())
+            else:
+                warnings.warn("links1_whitted: non-perspective sensor: rays from sensor.sample_ray",
+                              stacklevel=2)
+            self._occluders(P, shapes, slot_list)
+            self._prep = P
+            return P
+
+        def _occluders(self, P, shapes, slot_list):
+            """Which shapes can lie between a lit point and each light (skip what can't).
+
+            A convex shape (sphere, capped quadric, rectangle, disk) never shadows its own
+            points toward a light on the outer side of the surface there; a closed one (sphere,
+            capped quadric) does where the light is on the inner side (``P.shadow_inner``, same
+            rule as links1.occluders). A planar shape shadows nothing when the light and every
+            other shape lie on the same side of its plane. ``P.shadow_need[j]``: per slot,
+            whether hits on that slot need a shadow ray toward light ``j``; ``P.occ_custom[j]``
+            / ``P.occ_mitsuba[j]``: the links1 shapes / whether any Mitsuba shape can occlude
+            it. Conservative."""
+            nslots = P.nslots
+            lo = np.full((nslots, 3), -np.inf)
+            hi = np.full((nslots, 3), np.inf)
+            convex = np.zeros(nslots, dtype=bool)
+            closed = np.zeros(nslots, dtype=bool)   # convex and enclosing a volume
+            plane = [None] * nslots
+            mitsuba_slot = np.zeros(nslots, dtype=bool)
+            for s_, sl in zip(shapes, slot_list):
+                mitsuba_slot[sl] = True
+                b = s_.bbox()
+                lo[sl] = [b.min[0], b.min[1], b.min[2]]
+                hi[sl] = [b.max[0], b.max[1], b.max[2]]
+                kind = str(s_).split("[")[0]
+                if kind in ("Sphere", "Rectangle", "Disk"):
+                    convex[sl] = True
+                    closed[sl] = kind == "Sphere"
+                if kind in ("Rectangle", "Disk"):
+                    try:
+                        m = np.array(mi.traverse(s_)["to_world"].matrix, dtype=np.float64).reshape(4, 4)
+                        nrm = np.cross(m[:3, 0], m[:3, 1])
+                        if np.linalg.norm(nrm) > 0:
+                            nrm = nrm / np.linalg.norm(nrm)
+                            plane[sl] = (nrm, float(nrm @ m[:3, 3]))
+                    except Exception:
+                        pass
+            for spec in self.custom:
+                a, b = spec.bounds()
+                lo[spec.slot], hi[spec.slot] = a, b
+                if spec.__class__.__name__ == "QuadricSpec":
+                    convex[spec.slot] = (spec.kind == "sphere" and (not spec.clips or spec.capped)) or \
+                        (spec.kind == "cylinder" and spec.capped and len(spec.clips) >= 2)
+                    closed[spec.slot] = convex[spec.slot]
+            scale = 1.0 + float(np.max(np.abs(np.where(np.isfinite(lo), lo, 0.0)))) + \
+                float(np.max(np.abs(np.where(np.isfinite(hi), hi, 0.0))))
+            tol = 1e-6 * scale
+
+            def side_of_box(nrm, c, a, b):
+                """-1 / +1 if the box is in the closed half-space below / above the plane, else 0."""
+                if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
+                    return 0
+                corners = np.array([[x, y, z] for x in (a[0], b[0]) for y in (a[1], b[1]) for z in (a[2], b[2])])
+                dist = corners @ nrm - c
+                if np.all(dist >= -tol):
+                    return 1
+                if np.all(dist <= tol):
+                    return -1
+                return 0
+
+            lights = []   # (position or None, direction toward the light or None, emitter slot or None)
+            for L in P.lights:
+                if L[0] == "dir":
+                    lights.append(("dir", -np.asarray(L[1], dtype=np.float64)))
+                elif L[0] == "cspot":
+                    lights.append(("dir", -np.asarray(L[2], dtype=np.float64)))
+                else:
+                    lights.append(("pos", np.asarray(L[1], dtype=np.float64)))
+            for e in P.area:
+                lights.append(("area", e))
+            for _ in P.consts:
+                lights.append(("env", None))
+            P.shadow_need, P.occ_custom, P.occ_mitsuba, P.any_shadow = [], [], [], []
+            P.shadow_inner = []
+            for light in lights:
+                occ = np.ones(nslots, dtype=bool)
+                for sl in range(nslots):
+                    if plane[sl] is None or light[0] == "env":   # environments: every direction
+                        continue
+                    nrm, c = plane[sl]
+                    if light[0] == "area":
+                        sh = light[1].get_shape()
+                        bb = sh.bbox() if sh is not None else None
+                        if bb is None:
+                            continue
+                        lside = side_of_box(nrm, c, np.array([bb.min[0], bb.min[1], bb.min[2]]),
+                                            np.array([bb.max[0], bb.max[1], bb.max[2]]))
+                    elif light[0] == "dir":
+                        v = float(light[1] @ nrm)
+                        lside = 1 if v > 0 else (-1 if v < 0 else 0)
+                    else:
+                        v = float(light[1] @ nrm - c)
+                        lside = 1 if v > tol else (-1 if v < -tol else 0)
+                    if lside == 0:
+                        continue
+                    if all(side_of_box(nrm, c, lo[o], hi[o]) == lside for o in range(nslots) if o != sl):
+                        occ[sl] = False
+                if light[0] == "area":      # a convex emitter never hides its own sampled points
+                    own = P.area_tab[P.area.index(light[1])]["slot"]
+                    if own is not None and convex[own]:
+                        occ[own] = False
+                need = np.array([bool(np.any(occ & ~((np.arange(nslots) == sl) & convex[sl])))
+                                 for sl in range(nslots)], dtype=bool)
+                inner = occ & closed & ~need
+                P.shadow_need.append(None if need.all() else mi.Bool(need))
+                P.shadow_inner.append(mi.Bool(inner) if inner.any() else None)
+                P.any_shadow.append(bool(need.any() or inner.any()))
+                P.occ_custom.append([spec for spec in self.custom if occ[spec.slot]])
+                P.occ_mitsuba.append(bool(np.any(occ & mitsuba_slot)))
+
+    return Tables
