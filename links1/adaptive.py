@@ -85,20 +85,21 @@ def _unique_sorted(a: np.ndarray):
 class _Refinement:
     """The refinement of the pixels of ``window`` (module doc).
 
-    Level 0 is the grid of the pixels' corners, evaluated row by row (= key order) and kept as
-    a grid: ``V (h+1, w+1, C)`` values, ``K`` keys, ``split0 (h, w)`` the pixels refined.
-    :meth:`levels` yields the deeper levels, ``(pid, sx, sy, s, v, corners, leaf)`` each: the
-    squares of that level (pixel index in the window, row by row; top-left lattice point;
-    side ``s`` lattice steps), their corner values ``v (4, n, C)`` and keys ``corners (4, n)``
-    (corners ``(sx, sy), (sx+s, sy), (sx, sy+s), (sx+s, sy+s)``) and which are leaves. A
+    Points: every lattice point traced so far, in one table (``PV (N, C)`` values, ``PT (N,
+    C')`` tone-mapped colour, ``PK (N,)`` keys); a square is the table rows of its 4 corners.
+    Level 0 is the grid of the pixels' corners, rows ``0 .. (h+1)(w+1) - 1`` row by row (= key
+    order); ``split0 (h, w)``: the pixels refined. :meth:`levels` yields the deeper levels,
+    ``(pid, sx, sy, s, ci, leaf)`` each: the squares of that level (pixel index in the window,
+    row by row; top-left lattice point; side ``s`` lattice steps), the rows ``ci (4, n)`` of
+    their corners ``(sx, sy), (sx+s, sy), (sx, sy+s), (sx+s, sy+s)`` and which are leaves. A
     pixel's squares keep one order whatever the window (squares are compacted and split in
     array order), so sums over them are window-independent.
 
     Every lattice point is traced once: a split square's five new points (edge midpoints and
     centre: odd multiples of half its side, so no earlier level has them) are shared only with
     squares of the same level, and each level evaluates its distinct new points, in key order.
-    A square's corner values and their tone map are handed down from its parent, never looked
-    up."""
+    A child square's corner rows come from its parent and the level's new points: no lookup by
+    key, and only row indices are copied from level to level."""
 
     def __init__(self, sample, film_size, depth, window, threshold, summed):
         x0, y0, w, h = window
@@ -108,10 +109,11 @@ class _Refinement:
         self.window = window
         gj, gi = np.divmod(np.arange((h + 1) * (w + 1), dtype=np.int64), w + 1)
         gi, gj = (gi + x0) * S, (gj + y0) * S
-        gk = gj * self.stride + gi
-        V, T = self._evaluate(gi, gj, gk)
-        self.V, self.T, self.K = (a.reshape(h + 1, w + 1, *a.shape[1:]) for a in (V, T, gk))
-        self.split0 = spread(self.quad(self.T)) > threshold if S > 1 else np.zeros((h, w), dtype=bool)
+        self.PK = gj * self.stride + gi
+        self.PV, self.PT = self._evaluate(gi, gj, self.PK)
+        self.V = self.PV.reshape(h + 1, w + 1, -1)
+        self.split0 = spread(self.quad(self.PT.reshape(h + 1, w + 1, -1))) > threshold if S > 1 \
+            else np.zeros((h, w), dtype=bool)
 
     def _evaluate(self, i, j, keys):
         vals = np.asarray(self.sample(i, j, self.S, keys), dtype=np.float64)
@@ -124,7 +126,7 @@ class _Refinement:
         return (g[:-1, :-1], g[:-1, 1:], g[1:, :-1], g[1:, 1:])
 
     def leaves0(self):
-        """The level-0 leaves in the generic form of :meth:`levels`."""
+        """The level-0 leaves: ``(pid, sx, sy, s, v (4, n, C))``."""
         x0, y0, w, h = self.window
         leaf = ~self.split0
         pid = np.flatnonzero(leaf)
@@ -138,8 +140,9 @@ class _Refinement:
         pid = np.flatnonzero(self.split0)
         pys, pxs = np.divmod(pid, w)
         sx, sy = (pxs + x0) * S, (pys + y0) * S
-        sel = self.split0
-        v, t, corners = (np.stack([q[sel] for q in self.quad(g)]) for g in (self.V, self.T, self.K))
+        rows = np.arange((h + 1) * (w + 1), dtype=np.int64).reshape(h + 1, w + 1)
+        ci = np.stack([q[self.split0] for q in self.quad(rows)])
+        self.new_points = []
         s = S
         while len(pid):
             h2 = s // 2
@@ -149,24 +152,22 @@ class _Refinement:
             uk, inv = _unique_sorted(nj * stride + ni)
             uj, ui = np.divmod(uk, stride)
             U, UT = self._evaluate(ui, uj, uk)
-            idx = inv.reshape(5, len(sx))
-
-            def children(new, parent):
-                """Corners of the 4 children (top-left, top-right, bottom-left, bottom-right)."""
-                top, left, cen, right, bot = (new[k] for k in idx)
-                c0, c1, c2, c3 = parent
-                return np.stack([np.concatenate(c) for c in ((c0, top, left, cen), (top, c1, cen, right),
-                                                              (left, cen, c2, bot), (cen, right, bot, c3))])
-
-            v, t, corners = children(U, v), children(UT, t), children(uk, corners)
+            self.new_points.append((np.tile(pid, 5), inv + len(self.PK)))
+            top, left, cen, right, bot = (inv + len(self.PK)).reshape(5, len(sx))
+            self.PK = np.concatenate([self.PK, uk])
+            self.PV = np.concatenate([self.PV, U])
+            self.PT = np.concatenate([self.PT, UT])
+            c0, c1, c2, c3 = ci
+            # the corners of the 4 children: top-left, top-right, bottom-left, bottom-right
+            ci = np.stack([np.concatenate(c) for c in ((c0, top, left, cen), (top, c1, cen, right),
+                                                       (left, cen, c2, bot), (cen, right, bot, c3))])
             sx = np.concatenate([sx, sx + h2, sx, sx + h2])
             sy = np.concatenate([sy, sy, sy + h2, sy + h2])
             pid = np.tile(pid, 4)
             s = h2
-            split = spread(t) > self.threshold if s > 1 else np.zeros(len(pid), dtype=bool)
-            yield pid, sx, sy, s, v, corners, ~split
-            sx, sy, pid = sx[split], sy[split], pid[split]
-            v, t, corners = v[:, split], t[:, split], corners[:, split]
+            split = spread(self.PT[ci]) > self.threshold if s > 1 else np.zeros(len(pid), dtype=bool)
+            yield pid, sx, sy, s, ci, ~split
+            sx, sy, pid, ci = sx[split], sy[split], pid[split], ci[:, split]
 
 
 def render_adaptive(sample, window, film_size, threshold, depth, summed=0, rfilter=None):
@@ -207,41 +208,41 @@ def render_adaptive(sample, window, film_size, threshold, depth, summed=0, rfilt
     else:
         pid, sx, sy, s, v = ref.leaves0()
         filtered.add(pid, sx, sy, s, v[..., :C])
-    used_pid, used_key, used_val = [], [], []
-    for pid, sx, sy, s, v, corners, leaf in ref.levels():
+    # refined pixels are accumulated in a compact index (cid) and scattered back at the end
+    refined = ref.split0.ravel()
+    cid_of = np.cumsum(refined) - 1
+    m = int(refined.sum())
+    acc_r = np.zeros((m, C))
+    for pid, sx, sy, s, ci, leaf in ref.levels():
+        pid, cl = pid[leaf], ci[:, leaf]
+        v = ref.PV[cl]   # (4, leaves, C + summed)
         if box:
             area = (s / S) ** 2  # a power of two: exact
-            contrib = (v[0, leaf, :C] + v[1, leaf, :C] + v[2, leaf, :C] + v[3, leaf, :C]) * (0.25 * area)
+            contrib = (v[0, :, :C] + v[1, :, :C] + v[2, :, :C] + v[3, :, :C]) * (0.25 * area)
+            cid = cid_of[pid]
             for c in range(C):   # per level: the pixel's leaves summed in array order
-                acc[:, c] += np.bincount(pid[leaf], weights=contrib[:, c], minlength=n)
+                acc_r[:, c] += np.bincount(cid, weights=contrib[:, c], minlength=m)
         else:
-            filtered.add(pid[leaf], sx[leaf], sy[leaf], s, v[:, leaf, :C])
-        used_pid.append(np.repeat(pid[leaf][None], 4, axis=0).ravel())
-        used_key.append(corners[:, leaf].ravel())
-        if summed:
-            used_val.append(v[:, leaf, C:].reshape(-1, summed))
+            filtered.add(pid, sx[leaf], sy[leaf], s, v[..., :C])
+    if box:
+        acc[refined] = acc_r
     values = acc if box else filtered.result()
-    # a level-0 leaf uses its 4 corners (in key order); a refined pixel the distinct corners of
-    # its leaves, sorted by (pixel, key)
+    # the distinct lattice points a pixel's leaves use: its 4 corners, then per level the
+    # distinct points its splits created (summed channels: counts, added in that order)
     samples = np.full(n, 4, dtype=np.int64)
     if summed:
         Q = [q[..., C:] for q in ref.quad(ref.V)]
         sums = (((Q[0] + Q[1]) + Q[2]) + Q[3]).reshape(n, summed)
-    if used_pid:
-        pid, key = np.concatenate(used_pid), np.concatenate(used_key)
-        nkeys = int(film_size[1] * S + 1) * (int(film_size[0]) * S + 1)
-        order = np.argsort(pid * np.int64(nkeys) + key, kind="stable") if n * nkeys < 2 ** 62 \
-            else np.lexsort((key, pid))
-        p, k = pid[order], key[order]
-        first = np.ones(len(p), dtype=bool)
-        first[1:] = (p[1:] != p[:-1]) | (k[1:] != k[:-1])
-        p = p[first]
-        refined = ref.split0.ravel()
-        samples[refined] = np.bincount(p, minlength=n)[refined]
-        if summed:
-            extra = np.concatenate(used_val)[order][first]
-            for c in range(summed):
-                sums[refined, c] = np.bincount(p, weights=extra[:, c], minlength=n)[refined]
+    samples_r, sums_r = samples[refined], sums[refined] if summed else None
+    for pid, row in ref.new_points:
+        pairs, _ = _unique_sorted(cid_of[pid] * np.int64(len(ref.PK)) + row)
+        p, r = np.divmod(pairs, np.int64(len(ref.PK)))
+        samples_r += np.bincount(p, minlength=m)
+        for c in range(summed):
+            sums_r[:, c] += np.bincount(p, weights=ref.PV[r, C + c], minlength=m)
+    samples[refined] = samples_r
+    if summed:
+        sums[refined] = sums_r
     out = [values, samples] + ([sums] if summed else [])
     # the window's own pixels of the sample window
     ox, oy = x0 - sw[0], y0 - sw[1]
