@@ -11,7 +11,8 @@ element         types and parameters (Mitsuba defaults unless marked *links1*)
 ==============  =================================================================================
 sensor          ``perspective``: ``fov`` + ``fov_axis`` (x) or ``focal_length`` (``"50mm"``: the
                 diagonal field of view of a 36 x 24 mm film, as Mitsuba), ``near_clip`` (1e-2), ``far_clip`` (1e4), ``to_world`` (no scaling).
-                ``thinlens`` is rendered as a pinhole (warning).
+                ``thinlens`` is rendered as a pinhole (warning). ``orthographic``: ``near_clip``,
+                ``far_clip``, ``to_world`` (its scale sizes the sensor plane, as in Mitsuba).
 film            ``hdrfilm``: ``width`` (768), ``height`` (576), ``crop_offset_x/y``,
                 ``crop_width/height``; ``rfilter``: ``box``, ``tent`` (radius), ``gaussian``
                 (stddev; the default), ``mitchell`` (B, C), ``catmullrom``, ``lanczos`` (lobes).
@@ -477,9 +478,9 @@ class _Builder:
             raise node.error(f"unknown plugin '{node.type}' (sensor)")
         if node.type == "thinlens":
             node.warn("thinlens is rendered as a pinhole perspective camera (no depth of field)")
-        elif node.type != "perspective":
+        elif node.type not in ("perspective", "orthographic"):
             raise node.error(f"sensor type '{node.type}' is not supported by the core "
-                             "(only 'perspective')")
+                             "(only 'perspective', 'thinlens' and 'orthographic')")
         props = _Props(node)
         props.ignore("aperture_radius", "focus_distance", "srf")
         # film first: fov_axis conversions need the film's aspect ratio
@@ -494,9 +495,11 @@ class _Builder:
             if child.tag not in ("film", "sampler"):
                 child.warn(f"<{child.tag}> inside a sensor is ignored by the core")
 
-        if props.has("fov") and props.has("focal_length"):
+        if node.type == "orthographic":
+            fov_x = None   # the sensor plane's size comes from to_world (below)
+        elif props.has("fov") and props.has("focal_length"):
             raise node.error("give either 'fov' or 'focal_length', not both")
-        if props.has("fov"):
+        elif props.has("fov"):
             fov = props.float("fov")
             if not 0 < fov < 180:
                 raise props.error("fov", f"'fov' must be in (0, 180) degrees, got {fov:g}")
@@ -527,13 +530,16 @@ class _Builder:
         if to_world is None:
             to_world = np.eye(4)
         lin = to_world[:3, :3]
-        if not np.allclose(np.linalg.norm(lin, axis=0), 1.0, rtol=0, atol=1e-4):
+        if node.type != "orthographic" and not np.allclose(np.linalg.norm(lin, axis=0), 1.0, rtol=0, atol=1e-4):
             raise props.error("to_world", "scale factors in the camera-to-world transformation "
                                           "are not allowed (as in Mitsuba)")
+        if abs(np.linalg.det(lin)) < 1e-300:
+            raise props.error("to_world", "the camera-to-world transformation is singular")
         props.finish()
-        cam = _construct(node, Camera, to_world=to_world, fov_x=fov_x, near_clip=near,
+        extra = {"projection": "orthographic"} if fov_x is None else {"fov_x": fov_x}
+        cam = _construct(node, Camera, to_world=to_world, near_clip=near,
                          far_clip=far, width=width, height=height, crop_offset=crop_offset,
-                         crop_size=crop_size, rfilter=rfilter)
+                         crop_size=crop_size, rfilter=rfilter, **extra)
         return cam, spp
 
     def film(self, node: Node):

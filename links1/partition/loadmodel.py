@@ -89,7 +89,8 @@ def project_boxes(camera, lo, hi, width=None, height=None, pad: float = 0.5) -> 
     lo = np.atleast_2d(np.asarray(lo, dtype=np.float64))
     hi = np.atleast_2d(np.asarray(hi, dtype=np.float64))
     cam_from_world = np.linalg.inv(np.asarray(camera.to_world, dtype=np.float64))
-    t = math.tan(math.radians(camera.fov_x) / 2.0)
+    ortho = getattr(camera, "projection", "perspective") == "orthographic"
+    t = 1.0 if ortho else math.tan(math.radians(camera.fov_x) / 2.0)
     aspect = width / height
     z_near = max(float(getattr(camera, "near_clip", 1e-2)), 1e-9)
     out = np.zeros((len(lo), 4))
@@ -106,9 +107,11 @@ def project_boxes(camera, lo, hi, width=None, height=None, pad: float = 0.5) -> 
         p = np.concatenate(pts)
         if len(p) == 0:
             continue
-        # Mitsuba perspective: x_film = (1 - x/(z t)) / 2, y_film = (1 - y aspect/(z t)) / 2
-        fx = (1.0 - p[:, 0] / (p[:, 2] * t)) * 0.5 * width
-        fy = (1.0 - p[:, 1] * aspect / (p[:, 2] * t)) * 0.5 * height
+        # Mitsuba perspective: x_film = (1 - x/(z t)) / 2, y_film = (1 - y aspect/(z t)) / 2;
+        # orthographic: the same with z t = 1 (links1.camera)
+        zt = 1.0 if ortho else p[:, 2] * t
+        fx = (1.0 - p[:, 0] / zt) * 0.5 * width
+        fy = (1.0 - p[:, 1] * aspect / zt) * 0.5 * height
         x0, x1 = max(fx.min() - pad, 0.0), min(fx.max() + pad, width)
         y0, y1 = max(fy.min() - pad, 0.0), min(fy.max() + pad, height)
         if x1 > x0 and y1 > y0:

@@ -117,8 +117,12 @@ def define_launches(mi, dr, mix32, u24):
                                                for r in range(3)]))
                 o = mi.Point3f(m[0][3], m[1][3], m[2][3]) + mi.Vector3f(dr.zeros(mi.Float, n))
                 return o, d, P.near * inv_z, P.far * inv_z
-            ray, _ = P.sensor.sample_ray(0.0, 0.5, mi.Point2f(xf, yf), mi.Point2f(0.5, 0.5))
-            return mi.Point3f(ray.o), mi.Vector3f(ray.d), dr.zeros(mi.Float, n), mi.Float(ray.maxt)
+            # orthographic (links1.camera): the film on the near plane, rays along the view axis
+            m = P.cam.tolist()
+            pc = (1.0 - 2.0 * xf, (1.0 - 2.0 * yf) * (H / W), P.near)
+            o = mi.Point3f(*[m[r][0] * pc[0] + m[r][1] * pc[1] + m[r][2] * pc[2] + m[r][3] for r in range(3)])
+            d = dr.normalize(mi.Vector3f(m[0][2], m[1][2], m[2][2])) + mi.Vector3f(dr.zeros(mi.Float, n))
+            return o, d, dr.zeros(mi.Float, n), mi.Float(P.far - P.near) + dr.zeros(mi.Float, n)
 
         # -------------------------------------------------------------- launches
         def _counts(self, n, nsh1, cr=None, ct=None, nr=None, nt=None, nsh2=None):

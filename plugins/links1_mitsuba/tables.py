@@ -275,15 +275,23 @@ def define_tables(mi, dr, util):
             P.sensor = sensor
             P.film_size = (int(film.size()[0]), int(film.size()[1]))
             P.rfilter = Filter.from_mitsuba(film.rfilter())
-            P.perspective = str(sensor).startswith("PerspectiveCamera")
-            if P.perspective:
-                prm = mi.traverse(sensor)
-                P.x_fov = float(np.array(prm["x_fov"]).ravel()[0])
+            # perspective and orthographic rays are made analytically (launch.py: _rays_at) from
+            # the sensor's matrix, clip distances and field of view: the same rays as Mitsuba's
+            kind = str(sensor).split("[")[0]
+            if kind == "ThinLensCamera":   # as the core: the lens centre only
+                warnings.warn("links1_whitted: thinlens is rendered as a pinhole perspective camera "
+                              "(no depth of field)", stacklevel=2)
+            P.projection = {"PerspectiveCamera": "perspective", "ThinLensCamera": "perspective",
+                            "OrthographicCamera": "orthographic"}.get(kind)
+            P.perspective = P.projection == "perspective"
+            if P.projection is not None:
+                if P.perspective:
+                    P.x_fov = float(np.array(mi.traverse(sensor)["x_fov"]).ravel()[0])
                 P.cam = np.array(sensor.world_transform().matrix, dtype=np.float64).reshape(4, 4)
                 P.near, P.far = float(sensor.near_clip()), float(sensor.far_clip())
             else:
-                warnings.warn("links1_whitted: non-perspective sensor: rays from sensor.sample_ray",
-                              stacklevel=2)
+                raise ValueError(f"links1_whitted renders perspective, thinlens and orthographic sensors, "
+                                 f"not {kind}")
             self._occluders(P, shapes, slot_list)
             self._prep = P
             return P

@@ -443,7 +443,7 @@ ERROR_CASES = {
                         '</film></sensor>', "<integer name='width'>", ">= 1"),
     "bad_crop": ('<sensor type="perspective"><film type="hdrfilm"><integer name="crop_offset_x" value="700"/>'
                  '<integer name="crop_width" value="100"/></film></sensor>', "<film type='hdrfilm'>", "exceeds"),
-    "orthographic": ('<sensor type="orthographic"/>', "<sensor type='orthographic'>", "not supported"),
+    "radiancemeter": ('<sensor type="radiancemeter"/>', "<sensor type='radiancemeter'>", "not supported"),
     "unknown_ref": ('<shape type="sphere"><ref id="ghost"/></shape>', "<ref", "unknown id 'ghost'"),
     "duplicate_id": ('<bsdf type="diffuse" id="a"/><bsdf type="diffuse" id="a"/>', "<bsdf type='diffuse' id='a'>",
                      "duplicate id"),

@@ -71,10 +71,7 @@ SCENES = [
        "tests/scenes/mesh_attributes/test_mesh_attributes_3_face_direct.xml",
        NO_LICENCE, False, "renders", warns=("'mesh_attribute'",)),
     _s("data_orthographic", MITSUBA_DATA, "tests/scenes/orthographic_sensor/test_orthographic_path.xml",
-       NO_LICENCE, False, "renders",
-       xfail={"core": "the core has only the perspective sensor (orthographic is refused)",
-              "mitsuba": "links1_whitted's frozen render cannot record an orthographic sensor "
-                         "(drjit record(): a variable created before recording)"}),
+       NO_LICENCE, False, "renders"),
     _s("data_instancing", MITSUBA_DATA, "tests/scenes/instancing/test_instancing_path.xml",
        NO_LICENCE, False, "renders",
        xfail={"core": "shapegroup/instance are refused by the core"}),

@@ -1,0 +1,101 @@
+"""Sensors other than the pinhole in both renderers.
+
+The orthographic sensor, against Mitsuba's own ``direct`` integrator:
+
+A scaled orthographic camera looks down at a diffuse sphere on a diffuse floor under a point
+light (delta light, diffuse surfaces: Whitted at max_depth 1 is Mitsuba's ``direct``). Both
+renderers' relative MSE against Mitsuba's ``direct`` at 16x the spp must be within 2x
+Mitsuba's own at the same spp (the corpus criterion), and the picture must be orthographic:
+the sphere's disk is round and as wide as the sphere, wherever it sits in the frame."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from links1.diff import relmse
+from links1.render import make_renderer
+
+pytestmark = pytest.mark.mitsuba
+
+W, H = 48, 32
+SCENE = """<scene version="3.0.0">
+  <sensor type="orthographic">
+    <float name="near_clip" value="0.5"/><float name="far_clip" value="50"/>
+    <transform name="to_world"><scale x="2.5" y="2.5"/>
+      <lookat origin="0.7, 6, 1.2" target="0.7, 0, 1.2" up="0, 0, -1"/></transform>
+    <film type="hdrfilm"><integer name="width" value="{W}"/><integer name="height" value="{H}"/>
+      <rfilter type="box"/></film>
+    <sampler type="independent"><integer name="sample_count" value="16"/></sampler>
+  </sensor>
+  <integrator type="direct"/>
+  <emitter type="point"><point name="position" x="2" y="5" z="3"/><rgb name="intensity" value="30"/></emitter>
+  <shape type="sphere"><point name="center" x="{cx}" y="1" z="0.8"/><float name="radius" value="1"/>
+    <bsdf type="diffuse"><rgb name="reflectance" value="0.7, 0.5, 0.3"/></bsdf></shape>
+  <shape type="rectangle"><transform name="to_world"><scale value="10"/><rotate x="1" angle="-90"/></transform>
+    <bsdf type="diffuse"><rgb name="reflectance" value="0.5"/></bsdf></shape>
+</scene>"""
+
+
+@pytest.fixture(params=[0.0, 2.0], ids=["centre", "off-centre"])
+def scene(request, tmp_path):
+    p = tmp_path / "ortho.xml"
+    p.write_text(SCENE.format(W=W, H=H, cx=request.param))
+    return str(p), request.param
+
+
+def mitsuba_direct(path, spp, seed):
+    import mitsuba as mi
+    r = make_renderer("mitsuba", path, integrator="scene", spp=spp)
+    return np.array(mi.render(r.scene, spp=spp, seed=seed), dtype=np.float64)[..., :3]
+
+
+@pytest.mark.parametrize("kind", ["core", "mitsuba"])
+def test_orthographic_scene_matches_mitsuba_direct(llvm, scene, kind):
+    path, cx = scene
+    ref = mitsuba_direct(path, 256, seed=1)
+    theirs = relmse(mitsuba_direct(path, 16, seed=2), ref)
+    ours = np.asarray(make_renderer(kind, path, spp=16, max_depth=1).render(), dtype=np.float64)[..., :3]
+    err = relmse(ours, ref)
+    assert err <= 2 * theirs, f"{kind}: relMSE {err:.3g} vs Mitsuba direct's own {theirs:.3g}"
+    # orthographic: the unit sphere's silhouette is a disk of radius 1 world unit around its
+    # centre's film position (2.5 world units per half film width: W / 5 pixels per unit)
+    px = W / 5.0
+    centre = (W / 2.0 + (cx - 0.7) * px, H / 2.0 + (0.8 - 1.2) * px)   # camera x: world -x, up: -z
+    ids = np.asarray(make_renderer(kind, path, spp=1, max_depth=1, aovs=("id",)).render())[..., 3]
+    sphere = ids == 0   # the id AOV at the pixel centres (spp 1): the sphere is shape 0
+    yy, xx = np.mgrid[0:H, 0:W] + 0.5
+    r = np.hypot(xx - centre[0], yy - centre[1])
+    assert sphere[r < 0.95 * px].all() and not sphere[r > 1.05 * px].any()
+
+
+@pytest.mark.parametrize("kind", ["core", "mitsuba"])
+def test_thinlens_is_rendered_as_the_pinhole_camera(llvm, kind, tmp_path):
+    """A thin lens renders as the perspective camera at its lens centre, with one warning."""
+    import warnings
+    persp = tmp_path / "p.xml"
+    thin = tmp_path / "t.xml"
+    body = SCENE.format(W=W, H=H, cx=0.0).replace('<sensor type="orthographic">', '<sensor type="{t}">') \
+        .replace('<scale x="2.5" y="2.5"/>', "").replace('<float name="near_clip"', '<float name="fov" value="40"/>'
+                                                         '<float name="near_clip"')
+    persp.write_text(body.replace("{t}", "perspective"))
+    thin.write_text(body.replace("{t}", "thinlens").replace(
+        '<float name="fov"', '<float name="aperture_radius" value="0.3"/><float name="focus_distance" value="4"/>'
+                             '<float name="fov"'))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        a = make_renderer(kind, str(thin), spp=4).render()
+    b = make_renderer(kind, str(persp), spp=4).render()
+    assert np.array_equal(a, b) and a[..., 0].max() > 0
+    assert len([w for w in caught if "pinhole" in str(w.message)]) == 1
+
+
+def test_other_sensors_are_refused_in_one_line(llvm, tmp_path):
+    p = tmp_path / "r.xml"
+    p.write_text(SCENE.format(W=1, H=1, cx=0.0).replace(
+        '<sensor type="orthographic">', '<sensor type="radiancemeter"><point name="origin" x="0" y="5" z="0"/><!-- 1x1 film -->'
+        '<vector name="direction" x="0" y="-1" z="0"/>').replace(
+        '<transform name="to_world"><scale x="2.5" y="2.5"/>\n      <lookat origin="0.7, 6, 1.2" target="0.7, 0, 1.2" '
+        'up="0, 0, -1"/></transform>', "").replace('<float name="near_clip" value="0.5"/><float name="far_clip" '
+                                                   'value="50"/>', ""))
+    with pytest.raises(Exception, match="perspective, thinlens and orthographic sensors, not RadianceMeter"):
+        make_renderer("mitsuba", str(p), spp=1).render()
