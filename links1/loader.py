@@ -22,6 +22,8 @@ shape           ``sphere`` (center, radius), ``cylinder`` (p0, p1, radius; open)
                 ``rectangle``, ``cube``, ``obj`` / ``ply`` (filename, face_normals), all with
                 ``to_world`` and ``flip_normals`` (meshes); *links1*: ``links1_quadric``,
                 ``links1_blob``, ``links1_bicubic`` (see below). No bsdf → ``diffuse`` 0.5.
+                ``shapegroup`` + ``instance`` (its ``to_world`` after each member's): flattened
+                into copies of the group's shapes.
 bsdf            ``diffuse``, ``twosided``, ``conductor`` (perfect mirror, or ``eta``/``k``),
                 ``dielectric``, ``thindielectric``, ``plastic``, *links1* ``links1_phong``;
                 rough/other BSDFs → diffuse stand-in (warning); ``bitmap`` / ``checkerboard``
@@ -411,7 +413,12 @@ class _Builder:
                     continue
                 camera, spp = self.sensor(node)
             elif node.tag == "shape":
-                shapes.append(self.shape(node))
+                if node.type == "shapegroup":
+                    self._shapegroup(node)   # drawn only through its instances
+                elif node.type == "instance":
+                    shapes.extend(self._instance(node))
+                else:
+                    shapes.append(self.shape(node))
             elif node.tag == "emitter":
                 if node.type == "area" and node.id is not None:
                     continue  # a declaration, used where a shape references it (as Mitsuba)
@@ -597,11 +604,46 @@ class _Builder:
         return spp
 
     # -- shapes ----------------------------------------------------------------------------
-    def shape(self, node: Node):
+    def _shapegroup(self, node: Node) -> list:
+        """The shapes of a ``shapegroup`` (checked once per use; Mitsuba's rules: shapes only,
+        no nested groups or instances, no area emitters)."""
+        _Props(node).finish()
+        members = []
+        for _, child in node.children:
+            if child.tag != "shape":
+                raise child.error(f"<{child.tag}> is not allowed in a shapegroup (only shapes)")
+            if child.type in ("shapegroup", "instance"):
+                raise child.error("nested instancing is not supported (as in Mitsuba)")
+            if child.objects("emitter"):
+                raise child.error("a shape in a shapegroup cannot be an emitter (as in Mitsuba)")
+            members.append(child)
+        return members
+
+    def _instance(self, node: Node) -> list:
+        """An ``instance`` of a ``shapegroup``: copies of the group's shapes, each mapped by the
+        instance's ``to_world`` after its own (the core flattens instances; Mitsuba shares
+        them, which renders the same image)."""
+        props = _Props(node)
+        outer = props.transform()
+        outer = np.eye(4) if outer is None else outer
+        groups = [child for _, child in node.children if child.tag == "shape" and child.type == "shapegroup"]
+        for _, child in node.children:
+            if not (child.tag == "shape" and child.type == "shapegroup"):
+                raise child.error(f"<{child.tag}> is not allowed in an instance (only a <ref> to a shapegroup)")
+        if len(groups) != 1:
+            raise node.error("an instance needs exactly one shapegroup (<ref id=\"...\"/>)")
+        _check_invertible(node, outer)
+        props.finish()
+        return [self.shape(member, outer=outer) for member in self._shapegroup(groups[0])]
+
+    def shape(self, node: Node, outer: np.ndarray | None = None):
+        """One shape; ``outer``: the transformation of the instance it is drawn through."""
         t = node.type
         props = _Props(node)
         name = node.id or ""
         to_world = props.transform()
+        if outer is not None:
+            to_world = outer if to_world is None else outer @ to_world
         m = np.eye(4) if to_world is None else to_world
         if t == "sphere":
             center = props.vec3("center", (0.0, 0.0, 0.0))

@@ -23,10 +23,70 @@ DEFAULT_SCENE_INTEGRATOR = "path"
 SLOT_ID = "_links1_slot_{}"
 
 
+def _flatten_instances(state) -> None:
+    """Replace each ``instance`` by copies of its ``shapegroup``'s shapes, each mapped by the
+    instance's ``to_world`` after its own, in the instance's place in file order (shape slots
+    are file order), and drop the groups: what the core does (links1.loader). links1_whitted
+    then sees ordinary shapes (its per-shape tables hold one row per shape; a hit on a shape
+    shared by instances would not say which copy it is)."""
+    import mitsuba as mi
+    nodes = state.nodes
+    R = mi.Properties.ResolvedReference
+    by_id = {nodes[i].props.id(): i for i in range(len(nodes)) if nodes[i].props.id()}
+
+    def shape_node(v):
+        i = v.index() if isinstance(v, R) else by_id.get(v.id()) if isinstance(v, mi.Properties.Reference) else None
+        return None if i is None or nodes[i].type != mi.ObjectType.Shape else i
+
+    root = nodes[0]
+    entries = [(k, root.props[k]) for k in root.props.keys()]
+    kinds = [nodes[i].props.plugin_name() if (i := shape_node(v)) is not None else None for _, v in entries]
+    if "instance" not in kinds and "shapegroup" not in kinds:
+        return
+    copies, order = [], []        # new nodes (made before any append), the root's new entries
+    for (k, v), kind in zip(entries, kinds):
+        if kind == "shapegroup":
+            continue
+        if kind != "instance":
+            order.append((k, v))
+            continue
+        inst = nodes[shape_node(v)]
+        groups = [shape_node(inst.props[q]) for q in inst.props.keys()
+                  if isinstance(inst.props[q], (R, mi.Properties.Reference))]
+        groups = [g for g in groups if g is not None and nodes[g].props.plugin_name() == "shapegroup"]
+        if len(groups) != 1:
+            raise ValueError(f"{_where(state, inst)}: an instance needs exactly one shapegroup")
+        outer = inst.props["to_world"] if "to_world" in inst.props else mi.ScalarAffineTransform4d()
+        group = nodes[groups[0]]
+        for j, q in enumerate(group.props.keys()):
+            m = shape_node(group.props[q])
+            if m is None:
+                continue
+            member = nodes[m]
+            if member.props.plugin_name() in ("shapegroup", "instance"):
+                raise ValueError(f"{_where(state, member)}: nested instancing is not supported (as in Mitsuba)")
+            node = mi.parser.SceneNode()
+            node.type, node.file_index, node.offset = member.type, member.file_index, member.offset
+            node.props = mi.Properties(member.props)
+            node.props["to_world"] = outer @ member.props["to_world"] if "to_world" in member.props else outer
+            if node.props.id():
+                node.props.set_id("")
+            copies.append(node)
+            order.append((f"{k}_{j}", len(copies) - 1))
+    base = len(nodes)
+    for node in copies:
+        nodes.append(node)
+    root = nodes[0]   # the appends may have moved the node vector
+    for k, _ in entries:
+        del root.props[k]
+    for k, v in order:
+        root.props[k] = R(base + v) if isinstance(v, int) else v
 
 
 def _prepare_state(state, config, integrator: str, base_dir: str | None):
     import mitsuba as mi
+    if integrator != "scene":
+        _flatten_instances(state)
     nodes = state.nodes
     root = state.nodes[0]
     refs = mi.Properties.ResolvedReference, mi.Properties.Reference

@@ -73,8 +73,7 @@ SCENES = [
     _s("data_orthographic", MITSUBA_DATA, "tests/scenes/orthographic_sensor/test_orthographic_path.xml",
        NO_LICENCE, False, "renders"),
     _s("data_instancing", MITSUBA_DATA, "tests/scenes/instancing/test_instancing_path.xml",
-       NO_LICENCE, False, "renders",
-       xfail={"core": "shapegroup/instance are refused by the core"}),
+       NO_LICENCE, False, "direct"),   # point light, diffuse: path at max_depth 2 is direct light
     _s("tutorials_simple", TUTORIALS, "scenes/simple.xml", NO_LICENCE, False, "direct",
        params={"spp": "4", "res": "32"}),
     # mirror and glass spheres: not a direct-light-only scene (Mitsuba's direct sees the light in
