@@ -71,7 +71,7 @@ SCENES = [
        "tests/scenes/mesh_attributes/test_mesh_attributes_3_face_direct.xml",
        NO_LICENCE, False, "renders", warns=("'mesh_attribute'",)),
     _s("data_orthographic", MITSUBA_DATA, "tests/scenes/orthographic_sensor/test_orthographic_path.xml",
-       NO_LICENCE, False, "renders"),
+       NO_LICENCE, False, "direct"),
     _s("data_instancing", MITSUBA_DATA, "tests/scenes/instancing/test_instancing_path.xml",
        NO_LICENCE, False, "direct"),   # point light, diffuse: path at max_depth 2 is direct light
     _s("tutorials_simple", TUTORIALS, "scenes/simple.xml", NO_LICENCE, False, "direct",

@@ -2,8 +2,9 @@
 
 Per scene, what tests/corpus/manifest.py states:
 
-* ``direct`` (delta lights, diffuse surfaces): the core and links1_whitted at max_depth 1 and
-  Mitsuba's ``direct`` at the same spp are each compared with Mitsuba's ``direct`` at 16x the
+* ``direct`` (diffuse surfaces under delta lights or an environment, direct light only: what
+  links1_whitted at max_depth 1 renders without approximation): the core and links1_whitted at
+  max_depth 1 and Mitsuba's ``direct`` at the same spp are each compared with Mitsuba's ``direct`` at 16x the
   spp; both renderers' relative MSE must be within 2x Mitsuba's own.
 * ``renders``: both renderers give a finite image, and every approximation the entry names is
   in a one-line scene warning (``FILE:LINE: ...``).
