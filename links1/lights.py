@@ -148,13 +148,17 @@ class CylinderSpotLight(Light):
 @dataclass
 class ConeSpotLight(Light):
     """Mitsuba's ``spot`` emitter: a cone with a linear fall-off between ``beam_width`` and
-    ``cutoff_angle`` (degrees), inverse-square distance fall-off."""
+    ``cutoff_angle`` (degrees), inverse-square distance fall-off. With a ``texture``
+    (:class:`links1.textures.Texture`) it is a projector, as Mitsuba's: the intensity is
+    scaled by the texture at ``uv = 1/2 + (x, y) / (2 z tan(cutoff))``, ``(x, y, z)`` the
+    direction from the light to the point in the light's frame."""
 
     to_world: np.ndarray
     intensity: np.ndarray
     cutoff_angle: float = 20.0
     beam_width: float | None = None
     name: str = ""
+    texture: object = None
 
     def __post_init__(self):
         self.intensity = _rgb(self.intensity)
@@ -177,6 +181,14 @@ class ConeSpotLight(Light):
         ramp = np.where(cos_theta > np.cos(self.cutoff), ramp, 0.0)
         with np.errstate(divide="ignore"):
             L = self.intensity * (ramp / np.where(dist > 0, dist * dist, np.inf))[:, None]
+        if self.texture is not None:
+            lit = ramp > 0   # Mitsuba looks the texture up only inside the cone
+            local = matvec(np.linalg.inv(self.to_world), -wi[lit])
+            k = 0.5 / (local[:, 2] * np.tan(self.cutoff))
+            uv = np.stack([0.5 + local[:, 0] * k, 0.5 + local[:, 1] * k], axis=1)
+            tex = np.zeros_like(L)
+            tex[lit] = self.texture.eval(uv)
+            L = L * tex
         return wi, dist, L
 
 

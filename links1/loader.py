@@ -936,10 +936,13 @@ class _Builder:
                 raise props.error("cutoff_angle", f"'cutoff_angle' must be <= 90, got {cutoff:g}")
             if beam is not None and beam > cutoff:
                 raise props.error("beam_width", f"'beam_width' ({beam:g}) must not exceed cutoff_angle ({cutoff:g})")
-            props.ignore("texture")
+            texture = props.texture("texture", None)   # a projector's image (or a constant factor)
+            intensity = props.color("intensity", 1.0, emitter=True)
+            if texture is not None and not textures.is_texture(texture):
+                intensity, texture = intensity * texture, None
             light = _construct(node, ConeSpotLight, to_world=np.eye(4) if to_world is None else to_world,
-                               intensity=props.color("intensity", 1.0, emitter=True), cutoff_angle=cutoff,
-                               beam_width=beam, name=name)
+                               intensity=intensity, cutoff_angle=cutoff, beam_width=beam, name=name,
+                               texture=texture)
         elif t == "links1_spot":
             origin = props.vec3("origin", (0.0, 0.0, 0.0))
             direction = props.vec3("direction", kinds=("vector", "point"))
@@ -970,7 +973,7 @@ class _Builder:
         else:
             raise node.error(f"unknown plugin '{t}' (emitter)")
         for cname, child in node.children:
-            if not (child.tag == "spectrum" and cname in props.used):
+            if not (child.tag in ("spectrum", "texture") and cname in props.used):
                 child.warn(f"<{child.tag}> inside an emitter is ignored by the core")
         props.ignore("sampling_weight")
         props.finish()

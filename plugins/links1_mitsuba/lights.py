@@ -88,6 +88,11 @@ def define_lights(mi, dr, util):
                                  (co - dr.acos(dr.clip(cos_theta, -1.0, 1.0))) / max(co - cb, 1e-30))
                 ramp = dr.select(cos_theta > math.cos(co), ramp, 0.0)
                 return wi, dist, c3(I) * (ramp / dr.maximum(dr.square(dist), 1e-30))
+            if kind == "memitter":   # a Mitsuba delta emitter evaluated by Mitsuba (textured spot)
+                it = dr.zeros(mi.Interaction3f, dr.width(p))
+                it.p = p
+                ds, spec = L[2].sample_direction(it, mi.Point2f(0.5, 0.5), True)
+                return ds.d, ds.dist, mi.Color3f(spec)
             raise AssertionError(kind)
 
         # -------------------------------------------------------------- area lights, environments

@@ -234,10 +234,17 @@ def define_tables(mi, dr, util):
                     pos = np.array(prm["position"], dtype=np.float64).ravel()
                     I = _emitted_rgb(prm, "intensity", kind)
                     P.lights.append(("point", pos, np.array([0, 0, 1.0]), I, np.zeros(3), True))
+                elif kind == "SpotLight" and any(k.startswith("texture.") and k != "texture.value"
+                                                 for k in mi.traverse(e).keys()):
+                    # a projector (its texture varies): Mitsuba's own evaluation of the emitter
+                    pos = np.array(mi.traverse(e)["to_world"].matrix, dtype=np.float64).reshape(4, 4)[:3, 3]
+                    P.lights.append(("memitter", pos, e))
                 elif kind == "SpotLight":
                     prm = mi.traverse(e)
                     m = np.array(prm["to_world"].matrix, dtype=np.float64).reshape(4, 4)
                     I = _emitted_rgb(prm, "intensity", kind)
+                    if "texture.value" in prm.keys():   # a constant texture scales the intensity
+                        I = I * _emitted_rgb(prm, "texture", kind)
                     cutoff = float(np.array(prm["cutoff_angle"]).ravel()[0])
                     beam = float(np.array(prm["beam_width"]).ravel()[0])
                     P.lights.append(("mspot", m[:3, 3].copy(), m[:3, 2] / np.linalg.norm(m[:3, 2]),

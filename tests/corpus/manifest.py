@@ -66,7 +66,7 @@ SCENES = [
     _s("data_texture_interp", MITSUBA_DATA, "tests/scenes/texture_interp/test_texture_interp_direct.xml",
        NO_LICENCE, False, "direct"),  # no rfilter: Mitsuba's default gaussian, in both renderers
     _s("data_spot", MITSUBA_DATA, "tests/scenes/spot_light/test_spot_direct.xml",
-       NO_LICENCE, False, "renders", warns=("<texture> inside an emitter is ignored",)),
+       NO_LICENCE, False, "direct"),   # a projector: spot with a bitmap texture
     _s("data_mesh_attributes", MITSUBA_DATA,
        "tests/scenes/mesh_attributes/test_mesh_attributes_3_face_direct.xml",
        NO_LICENCE, False, "renders", warns=("'mesh_attribute'",)),
