@@ -48,15 +48,21 @@ def define_lights(mi, dr, util):
         """Analytic lights at a hit; area and environment lights: tables and samples."""
 
         # -------------------------------------------------------------- lights
+        @staticmethod
+        def _toward(pos, axis, p):
+            """Unit direction from ``p`` to the point light at ``pos``, the distance, and the
+            cosine between the light's ``axis`` and the direction from the light to ``p``."""
+            to_light = v3(pos) - p
+            dist = dr.norm(to_light)
+            wi = to_light / dr.maximum(dist, 1e-30)
+            return wi, dist, -dr.dot(wi, v3(axis))
+
         def _light(self, L, p):
             """(wi, dist, L_s) of one analytic light at points p (digest §4.1)."""
             kind = L[0]
             if kind == "point":
                 _, pos, direction, L1, L2, inv_sq = L
-                to_light = v3(pos) - p
-                dist = dr.norm(to_light)
-                wi = to_light / dr.maximum(dist, 1e-30)
-                cos_theta = -dr.dot(wi, v3(direction))
+                wi, dist, cos_theta = self._toward(pos, direction, p)
                 Ls = c3(L1)
                 if np.any(L2 != 0):
                     Ls = Ls + c3(L2) * dr.maximum(cos_theta, 0.0)  # eq. (3.10)
@@ -79,10 +85,7 @@ def define_lights(mi, dr, util):
                     dr.select(inside, c3(I), 0.0)
             if kind == "mspot":
                 _, pos, axis, I, cutoff, beam = L
-                to_light = v3(pos) - p
-                dist = dr.norm(to_light)
-                wi = to_light / dr.maximum(dist, 1e-30)
-                cos_theta = -dr.dot(wi, v3(axis))
+                wi, dist, cos_theta = self._toward(pos, axis, p)
                 co, cb = math.radians(cutoff), math.radians(beam)
                 ramp = dr.select(cos_theta >= math.cos(cb), 1.0,
                                  (co - dr.acos(dr.clip(cos_theta, -1.0, 1.0))) / max(co - cb, 1e-30))

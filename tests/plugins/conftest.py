@@ -68,3 +68,32 @@ def llvm():
 
 def data(name: str) -> str:
     return os.path.join(DATA, name)
+
+
+def mitsuba_direct(path, spp: int, seed: int, **options):
+    """Mitsuba's own ``direct`` integrator on the scene file ``path`` -> (h, w, 3) float64
+    (``options``: ``make_renderer`` options such as ``params``, ``width``, ``height``)."""
+    import mitsuba as mi
+    import numpy as np
+
+    from links1.render import make_renderer
+    r = make_renderer("mitsuba", path, integrator="scene", spp=spp, **options)
+    return np.array(mi.render(r.scene, integrator=mi.load_dict({"type": "direct"}), spp=spp, seed=seed),
+                    dtype=np.float64)[..., :3]
+
+
+def assert_matches_mitsuba_direct(kind, path, spp: int = 16, ref_factor: int = 16, **options):
+    """``kind``'s render (max_depth 1: direct light) of ``path`` at ``spp`` is within 2x the
+    relMSE of Mitsuba's ``direct`` at the same spp, both against Mitsuba's ``direct`` at
+    ``ref_factor`` times the spp. Returns (ours, reference)."""
+    import numpy as np
+
+    from links1.diff import relmse
+    from links1.render import make_renderer
+    ref = mitsuba_direct(path, spp * ref_factor, seed=1, **options)
+    theirs = relmse(mitsuba_direct(path, spp, seed=2, **options), ref)
+    ours = np.asarray(make_renderer(kind, path, spp=spp, max_depth=1, **options).render(), dtype=np.float64)[..., :3]
+    assert np.all(np.isfinite(ours))
+    err = relmse(ours, ref)
+    assert err <= 2 * theirs, f"{kind} {os.path.basename(str(path))}: relMSE {err:.3g} vs Mitsuba direct's own {theirs:.3g}"
+    return ours, ref

@@ -17,6 +17,13 @@ def variant():
     return require_llvm_variant()
 
 
+def mitsuba_rays(sensor, xy):
+    """Mitsuba's rays through film points ``xy`` (n, 2): origins, directions (n, 3), maxt."""
+    ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f(xy[:, 0], xy[:, 1]), mi.Point2f(0.5, 0.5))
+    rows = lambda a: a.T if a.shape[0] == 3 else a  # noqa: E731
+    return rows(np.array(ray.o)), rows(np.array(ray.d)), np.array(ray.maxt)
+
+
 @pytest.mark.parametrize("fov_axis", ["x", "y", "diagonal", "smaller", "larger"])
 @pytest.mark.parametrize("size", [(64, 48), (30, 70)])
 def test_rays_match_mitsuba_sensor(variant, fov_axis, size):
@@ -31,14 +38,12 @@ def test_rays_match_mitsuba_sensor(variant, fov_axis, size):
                  near_clip=0.5, far_clip=300.0, width=w, height=h)
     rng = np.random.default_rng(3)
     xy = np.concatenate([rng.random((200, 2)), [[0.5, 0.5], [0.0, 0.0], [1.0, 1.0], [0.0, 1.0]]])
-    ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f(xy[:, 0], xy[:, 1]), mi.Point2f(0.5, 0.5))
-    o_mi = np.array(ray.o).T if np.array(ray.o).shape[0] == 3 else np.array(ray.o)
-    d_mi = np.array(ray.d).T if np.array(ray.d).shape[0] == 3 else np.array(ray.d)
+    o_mi, d_mi, maxt_mi = mitsuba_rays(sensor, xy)
     o, d, tmin, tmax = cam.generate_rays(xy[:, 0], xy[:, 1])
     np.testing.assert_allclose(d, d_mi, atol=2e-6)
     # Mitsuba starts the ray on the near plane: o_mi = o + tmin d
     np.testing.assert_allclose(o + tmin[:, None] * d, o_mi, atol=2e-5)
-    np.testing.assert_allclose(tmax - tmin, np.array(ray.maxt), rtol=2e-5)
+    np.testing.assert_allclose(tmax - tmin, maxt_mi, rtol=2e-5)
 
 
 @pytest.mark.parametrize("size", [(64, 48), (30, 70)])
@@ -54,13 +59,11 @@ def test_orthographic_rays_match_mitsuba_sensor(variant, size):
                  far_clip=300.0, width=w, height=h, projection="orthographic")
     rng = np.random.default_rng(4)
     xy = np.concatenate([rng.random((200, 2)), [[0.5, 0.5], [0.0, 0.0], [1.0, 1.0], [0.0, 1.0]]])
-    ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f(xy[:, 0], xy[:, 1]), mi.Point2f(0.5, 0.5))
-    o_mi = np.array(ray.o).T if np.array(ray.o).shape[0] == 3 else np.array(ray.o)
-    d_mi = np.array(ray.d).T if np.array(ray.d).shape[0] == 3 else np.array(ray.d)
+    o_mi, d_mi, maxt_mi = mitsuba_rays(sensor, xy)
     o, d, tmin, tmax = cam.generate_rays(xy[:, 0], xy[:, 1])
     np.testing.assert_allclose(d, np.broadcast_to(d_mi, d.shape), atol=2e-6)   # one direction
     np.testing.assert_allclose(o + tmin[:, None] * d, o_mi, atol=2e-5)
-    np.testing.assert_allclose(tmax - tmin, np.broadcast_to(np.array(ray.maxt), tmax.shape), rtol=2e-5)
+    np.testing.assert_allclose(tmax - tmin, np.broadcast_to(maxt_mi, tmax.shape), rtol=2e-5)
     # parallel rays, and the film's corners 2 x 2/aspect scaled units apart on the near plane
     assert np.allclose(d, d[0], atol=1e-12)
     o00, o10 = cam.generate_rays(np.array([0.0, 1.0]), np.array([0.0, 0.0]))[0]

@@ -19,9 +19,10 @@ import warnings
 import numpy as np
 import pytest
 
-from links1.diff import relmse
 from links1.render import make_renderer
 from tests.corpus.manifest import SCENES
+
+from .conftest import assert_matches_mitsuba_direct
 
 pytestmark = [pytest.mark.mitsuba, pytest.mark.slow]
 
@@ -45,14 +46,6 @@ def _render(kind, sc, path, **opts):
     return img, [str(w.message) for w in caught]
 
 
-def _mitsuba_direct(path, sc, spp, seed):
-    import mitsuba as mi
-    r = make_renderer("mitsuba", path, params=dict(sc.params), width=WIDTH, height=HEIGHT,
-                      integrator="scene", spp=spp)
-    direct = mi.load_dict({"type": "direct"})
-    return np.array(mi.render(r.scene, integrator=direct, spp=spp, seed=seed), dtype=np.float64)[..., :3]
-
-
 def _params(expect):
     out = []
     for sc in SCENES:
@@ -66,13 +59,8 @@ def _params(expect):
 
 @pytest.mark.parametrize("sc,kind", _params("direct"))
 def test_delta_light_scene_matches_mitsuba_direct(sc, kind, llvm):
-    path = _path(sc)
-    ref = _mitsuba_direct(path, sc, SPP * REF_FACTOR, seed=1)
-    theirs = relmse(_mitsuba_direct(path, sc, SPP, seed=2), ref)
-    ours, _ = _render(kind, sc, path, spp=SPP, max_depth=1)
-    assert np.all(np.isfinite(ours))
-    err = relmse(ours, ref)
-    assert err <= 2 * theirs, f"{sc.id} {kind}: relMSE {err:.3g} vs Mitsuba direct's own {theirs:.3g}"
+    assert_matches_mitsuba_direct(kind, _path(sc), spp=SPP, ref_factor=REF_FACTOR, params=dict(sc.params),
+                                  width=WIDTH, height=HEIGHT)
 
 
 @pytest.mark.parametrize("sc,kind", _params("renders"))

@@ -11,9 +11,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from links1.diff import relmse
 from links1.errors import SceneError
 from links1.render import make_renderer
+
+from .conftest import assert_matches_mitsuba_direct
 
 W, H = 48, 36
 HEAD = """<scene version="3.0.0">
@@ -68,19 +69,9 @@ def test_instances_are_the_shapes_written_out(scenes, kind, request):
 
 
 @pytest.mark.mitsuba
-def test_core_instancing_matches_mitsuba_direct(llvm, scenes):
-    import mitsuba as mi
-    inst, _ = scenes
-
-    def direct(spp, seed):
-        r = make_renderer("mitsuba", inst, integrator="scene", spp=spp)
-        return np.array(mi.render(r.scene, integrator=mi.load_dict({"type": "direct"}), spp=spp, seed=seed),
-                        dtype=np.float64)[..., :3]
-    ref = direct(256, 1)
-    theirs = relmse(direct(16, 2), ref)
-    for kind in ("core", "mitsuba"):
-        ours = np.asarray(make_renderer(kind, inst, spp=16, max_depth=1).render(), dtype=np.float64)[..., :3]
-        assert relmse(ours, ref) <= 2 * theirs, (kind, relmse(ours, ref), theirs)
+@pytest.mark.parametrize("kind", ["core", "mitsuba"])
+def test_instancing_matches_mitsuba_direct(llvm, scenes, kind):
+    assert_matches_mitsuba_direct(kind, scenes[0])
 
 
 @pytest.mark.parametrize("body,message", [

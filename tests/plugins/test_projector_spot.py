@@ -10,8 +10,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from links1.diff import relmse
 from links1.render import make_renderer
+
+from .conftest import assert_matches_mitsuba_direct
 
 pytestmark = pytest.mark.mitsuba
 
@@ -40,20 +41,10 @@ def scenes(tmp_path):
     return str(a), str(b)
 
 
-def mitsuba_direct(path, spp, seed):
-    import mitsuba as mi
-    r = make_renderer("mitsuba", path, integrator="scene", spp=spp)
-    return np.array(mi.render(r.scene, integrator=mi.load_dict({"type": "direct"}), spp=spp, seed=seed),
-                    dtype=np.float64)[..., :3]
-
-
 @pytest.mark.parametrize("kind", ["core", "mitsuba"])
 def test_projector_matches_mitsuba_direct(llvm, scenes, kind):
     projector, plain = scenes
-    ref = mitsuba_direct(projector, 256, seed=1)
-    theirs = relmse(mitsuba_direct(projector, 16, seed=2), ref)
-    ours = np.asarray(make_renderer(kind, projector, spp=16, max_depth=1).render(), dtype=np.float64)[..., :3]
-    assert relmse(ours, ref) <= 2 * theirs, (relmse(ours, ref), theirs)
+    assert_matches_mitsuba_direct(kind, projector)
     # the pattern: inside the beam the ratio to the untextured spot is the checkerboard's 1 or 0.1
     even = np.asarray(make_renderer(kind, plain, spp=1, max_depth=1).render())[..., 0]
     lit = even > 0.5 * even.max()

@@ -12,8 +12,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from links1.diff import relmse
 from links1.render import make_renderer
+
+from .conftest import assert_matches_mitsuba_direct
 
 pytestmark = pytest.mark.mitsuba
 
@@ -43,20 +44,10 @@ def scene(request, tmp_path):
     return str(p), request.param
 
 
-def mitsuba_direct(path, spp, seed):
-    import mitsuba as mi
-    r = make_renderer("mitsuba", path, integrator="scene", spp=spp)
-    return np.array(mi.render(r.scene, spp=spp, seed=seed), dtype=np.float64)[..., :3]
-
-
 @pytest.mark.parametrize("kind", ["core", "mitsuba"])
 def test_orthographic_scene_matches_mitsuba_direct(llvm, scene, kind):
     path, cx = scene
-    ref = mitsuba_direct(path, 256, seed=1)
-    theirs = relmse(mitsuba_direct(path, 16, seed=2), ref)
-    ours = np.asarray(make_renderer(kind, path, spp=16, max_depth=1).render(), dtype=np.float64)[..., :3]
-    err = relmse(ours, ref)
-    assert err <= 2 * theirs, f"{kind}: relMSE {err:.3g} vs Mitsuba direct's own {theirs:.3g}"
+    assert_matches_mitsuba_direct(kind, path)
     # orthographic: the unit sphere's silhouette is a disk of radius 1 world unit around its
     # centre's film position (2.5 world units per half film width: W / 5 pixels per unit)
     px = W / 5.0
