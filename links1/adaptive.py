@@ -202,8 +202,8 @@ def render_adaptive(sample, window, film_size, threshold, depth, summed=0, rfilt
     n = sw[2] * sw[3]
     ref = _Refinement(sample, film_size, depth, sw, threshold, summed)
     C = ref.V.shape[-1] - summed
-    V0, V1, V2, V3 = (q[..., :C] for q in ref.quad(ref.V))
     if box:   # level 0: a leaf pixel is its corner mean (0.25 * area 1, as below)
+        V0, V1, V2, V3 = (q[..., :C] for q in ref.quad(ref.V))
         acc = np.where(ref.split0[..., None], 0.0, (V0 + V1 + V2 + V3) * 0.25).reshape(n, C)
     else:
         pid, sx, sy, s, v = ref.leaves0()
