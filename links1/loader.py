@@ -405,7 +405,7 @@ class _Builder:
         camera, spp = None, None
         shapes, lights, environments = [], [], []
         background = np.zeros(3)
-        integrator, max_depth = None, DEFAULT_MAX_DEPTH
+        integrator, max_depth, integrator_params = None, DEFAULT_MAX_DEPTH, {}
         for name, node in root.children:
             if node.tag == "sensor":
                 if camera is not None:
@@ -434,7 +434,7 @@ class _Builder:
                 if integrator is not None:
                     node.warn("more than one integrator: the first one is used")
                     continue
-                integrator, max_depth = self.integrator(node)
+                integrator, max_depth, integrator_params = self.integrator(node)
             elif node.tag in ("bsdf", "texture", "medium", "phase", "volume"):
                 if node.tag == "bsdf":
                     self.bsdf(node)  # validate declarations that are only referenced
@@ -458,6 +458,7 @@ class _Builder:
                       environments=[e for e in environments if isinstance(e, EnvironmentMap)])
         if integrator is not None:
             kwargs["integrator"] = integrator
+        kwargs.update(integrator_params)
         return Scene(**kwargs)
 
     # -- integrator ------------------------------------------------------------------------
@@ -476,8 +477,14 @@ class _Builder:
             max_depth = DEFAULT_MAX_DEPTH
         elif max_depth < 1:
             raise dp.error("max_depth", f"'max_depth' must be >= 1 or -1, got {max_depth}")
+        extra = {}
+        if node.type == "links1_whitted":   # its parameters that change the image
+            extra["light_samples"] = props.int("light_samples", 1)
+            if extra["light_samples"] < 1:
+                raise props.error("light_samples", f"'light_samples' must be >= 1, got {extra['light_samples']}")
+            extra["min_weight"] = props.float("min_weight", 1.0 / 255.0, nonneg=True)
         props.ignore(*node.props)  # other integrator parameters do not apply to the core
-        return node.type, max_depth
+        return node.type, max_depth, extra
 
     # -- sensor ----------------------------------------------------------------------------
     def sensor(self, node: Node):

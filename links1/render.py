@@ -66,8 +66,8 @@ def _check_window(window, width, height):
 
 
 def render(scene, *, spp: int | None = None, max_depth: int | None = None, seed: int = 0,
-           window=None, aovs=(), min_weight: float = DEFAULT_MIN_WEIGHT, progress: bool = False,
-           width: int | None = None, height: int | None = None, light_samples: int = 1,
+           window=None, aovs=(), min_weight: float | None = None, progress: bool = False,
+           width: int | None = None, height: int | None = None, light_samples: int | None = None,
            adaptive: float | None = None, adaptive_depth: int = DEFAULT_ADAPTIVE_DEPTH) -> np.ndarray:
     """Render ``scene`` with the float64 core.
 
@@ -85,14 +85,15 @@ def render(scene, *, spp: int | None = None, max_depth: int | None = None, seed:
         A window of the film, in full-film pixels with row 0 at the top. Its pixels equal
         the same pixels of a full render, bit for bit. Default: the film's crop window.
     aovs : sequence of {"depth", "normal", "id", "cost"}
-    min_weight : float
-        Stop a branch of the ray tree when its weight drops to this or below (default 1/255,
-        POV-Ray's adc_bailout; 0: never).
+    min_weight : float, optional
+        Stop a branch of the ray tree when its weight drops to this or below (default: the
+        scene's ``links1_whitted`` ``min_weight``, else 1/255, POV-Ray's adc_bailout; 0: never).
     width, height : int, optional
         Override the film resolution (the field of view is kept).
-    light_samples : int
-        Shadow rays per area light / environment per hit (default 1); the points lie on one
-        lattice over the pixel's samples (:func:`links1.sampling.light_samples_uv`).
+    light_samples : int, optional
+        Shadow rays per area light / environment per hit (default: the scene's
+        ``links1_whitted`` ``light_samples``, else 1); the points lie on one lattice over the
+        pixel's samples (:func:`links1.sampling.light_samples_uv`).
     adaptive : float, optional
         Adaptive anti-aliasing instead of ``spp`` samples per pixel (:mod:`links1.adaptive`):
         a pixel's square of lattice points is split while its corners differ by more than
@@ -122,7 +123,7 @@ def render(scene, *, spp: int | None = None, max_depth: int | None = None, seed:
 
 
 def render_windows(scene, windows, *, spp: int | None = None, max_depth: int | None = None, seed: int = 0,
-                   aovs=(), min_weight: float = DEFAULT_MIN_WEIGHT, light_samples: int = 1,
+                   aovs=(), min_weight: float | None = None, light_samples: int | None = None,
                    progress: bool = False, cam=None, adaptive: float | None = None,
                    adaptive_depth: int = DEFAULT_ADAPTIVE_DEPTH) -> list:
     """Render several windows of the film in one pass -> one array per window, each bit for bit
@@ -133,6 +134,7 @@ def render_windows(scene, windows, *, spp: int | None = None, max_depth: int | N
     spp = scene.spp if spp is None else int(spp)
     if spp < 1:
         raise UsageError(f"spp must be >= 1, got {spp}")
+    min_weight, light_samples = ray_tree_options(scene, min_weight, light_samples)
     aovs = check_aovs(aovs)
     wins = [_check_window(win, cam.width, cam.height) for win in windows]
     if adaptive is not None:
@@ -156,6 +158,18 @@ def render_windows(scene, windows, *, spp: int | None = None, max_depth: int | N
         sh, sw = g.sample_window[3], g.sample_window[2]
         out.append(np.concatenate([g.result(), g.inner(flat[a:b].reshape(sh, sw, -1))], axis=2))
     return out
+
+
+def ray_tree_options(scene, min_weight=None, light_samples=None) -> tuple[float, int]:
+    """``(min_weight, light_samples)``: the given values, else the scene's (its
+    ``links1_whitted`` element's, else the defaults), checked."""
+    mw = float(getattr(scene, "min_weight", DEFAULT_MIN_WEIGHT) if min_weight is None else min_weight)
+    ls = int(getattr(scene, "light_samples", 1) if light_samples is None else light_samples)
+    if not mw >= 0:
+        raise UsageError(f"min_weight must be >= 0, got {min_weight}")
+    if ls < 1:
+        raise UsageError(f"light_samples must be >= 1, got {light_samples}")
+    return mw, ls
 
 
 def _window_pixels(x0, y0, w, h):
@@ -303,7 +317,7 @@ class CoreRenderer:
     kind = "core"
 
     def __init__(self, path, *, params=None, spp=None, max_depth=None, seed=0, aovs=(),
-                 min_weight=DEFAULT_MIN_WEIGHT, width=None, height=None, variant=None, light_samples=1,
+                 min_weight=None, width=None, height=None, variant=None, light_samples=None,
                  adaptive=None, adaptive_depth=DEFAULT_ADAPTIVE_DEPTH):
         from .loader import load_scene
         self.path = str(path)
@@ -314,10 +328,8 @@ class CoreRenderer:
         self.max_depth = max_depth
         self.seed = int(seed)
         self.aovs = check_aovs(aovs)
-        self.min_weight = float(min_weight)
-        self.light_samples = int(light_samples)
-        if self.light_samples < 1:
-            raise UsageError(f"light_samples must be >= 1, got {self.light_samples}")
+        # the scene's own (links1_whitted) values unless given
+        self.min_weight, self.light_samples = ray_tree_options(self.scene, min_weight, light_samples)
         self.adaptive, self.adaptive_depth = adaptive, adaptive_depth
         if adaptive is not None:
             from .adaptive import check_options

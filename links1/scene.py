@@ -23,6 +23,8 @@ class Scene:
     background : (3,)    radiance of rays that escape (Mitsuba ``constant`` emitters)
     environments : list  ``EnvironmentMap`` lights (also in ``lights``): escaping rays add them
     integrator : str     the integrator the file names (the core always traces LINKS-1 Whitted)
+    light_samples : int  shadow rays per sampled light and hit (``links1_whitted``'s, default 1)
+    min_weight : float   ray-tree weight threshold (``links1_whitted``'s, default 1/255)
     path : str | None    the scene file
     """
 
@@ -33,6 +35,8 @@ class Scene:
     max_depth: int = 5
     background: np.ndarray = field(default_factory=lambda: np.zeros(3))
     integrator: str = "links1_whitted"
+    light_samples: int = 1
+    min_weight: float = 1.0 / 255.0
     environments: list = field(default_factory=list)  # envmap lights: escaping rays add their eval
     path: str | None = None
     #: what is built from the shapes and lights on first use (the BVH, the integrator's plan),

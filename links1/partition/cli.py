@@ -87,9 +87,9 @@ def _spec_from_args(args):
     from .runtime import RendererSpec
     opts = dict(params=dict(getattr(args, "defines", []) or []), spp=args.spp, max_depth=args.max_depth,
                 seed=args.seed, aovs=tuple(getattr(args, "aov", ()) or ()), width=args.width, height=args.height)
-    if getattr(args, "min_weight", 0.0):
+    if getattr(args, "min_weight", None) is not None:   # 0 is a value (trace every branch)
         opts["min_weight"] = args.min_weight
-    if getattr(args, "light_samples", None):
+    if getattr(args, "light_samples", None) is not None:
         opts["light_samples"] = args.light_samples
     from ..cli import adaptive_options
     opts.update(adaptive_options(args))

@@ -53,8 +53,12 @@ class MitsubaRenderer:
         ``links1.render._resized``); the crop window becomes the whole new film.
     min_weight : float
         A secondary ray is traced only if its weight in the pixel (largest RGB component of the
-        product of the r / t factors down the ray tree) exceeds this; default 1/255 (POV-Ray's
-        adc_bailout, as the core); 0 traces every branch. links1 integrator only.
+        product of the r / t factors down the ray tree) exceeds this; default: the scene's
+        ``links1_whitted`` ``min_weight``, else 1/255 (POV-Ray's adc_bailout, as the core); 0
+        traces every branch. links1 integrator only.
+    light_samples : int, optional
+        Shadow rays per sampled light and hit; default: the scene's ``links1_whitted``
+        ``light_samples``, else 1. links1 integrator only.
     adaptive, adaptive_depth : float, int, optional
         Adaptive anti-aliasing instead of ``spp`` (:mod:`links1.adaptive`, as the core's
         ``links1.render``): one launch per refinement level over the new lattice points
@@ -68,7 +72,7 @@ class MitsubaRenderer:
 
     def __init__(self, path, *, params=None, spp=None, max_depth=None, seed=0, aovs=(),
                  variant=None, integrator="links1", width=None, height=None,
-                 min_weight=DEFAULT_MIN_WEIGHT, light_samples=1, adaptive=None, adaptive_depth=None):
+                 min_weight=None, light_samples=None, adaptive=None, adaptive_depth=None):
         self.variant = register(variant)
         import mitsuba as mi
         from .loader import load_file
@@ -80,9 +84,10 @@ class MitsubaRenderer:
         sensor = self.scene.sensors()[0]
         if width is not None or height is not None:
             _resize_film(sensor, width, height)
-        self.min_weight = float(min_weight)
+        self.min_weight = DEFAULT_MIN_WEIGHT if min_weight is None else float(min_weight)
         if not self.min_weight >= 0:
             raise ValueError(f"min_weight must be >= 0, got {min_weight}")
+        self.light_samples = 1 if light_samples is None else int(light_samples)
         self.spp = int(spp) if spp else int(sensor.sampler().sample_count())
         if self.spp < 1:
             raise ValueError(f"spp must be >= 1, got {self.spp}")
@@ -100,10 +105,15 @@ class MitsubaRenderer:
                 if int(max_depth) < 1:
                     raise ValueError(f"max_depth must be >= 1, got {max_depth}")
                 self.integrator.max_depth = int(max_depth)
-            self.integrator.min_weight = self.min_weight
-            self.integrator.light_samples = int(light_samples)
-            if self.integrator.light_samples < 1:
-                raise ValueError(f"light_samples must be >= 1, got {light_samples}")
+            # the scene's own links1_whitted values (the integrator read them) unless given
+            if min_weight is not None:
+                self.integrator.min_weight = self.min_weight
+            self.min_weight = float(self.integrator.min_weight)
+            if light_samples is not None:
+                if int(light_samples) < 1:
+                    raise ValueError(f"light_samples must be >= 1, got {light_samples}")
+                self.integrator.light_samples = int(light_samples)
+            self.light_samples = int(self.integrator.light_samples)
             self.integrator._prep = None
             # the renderer's scene is its own (loaded here, changed by no one): launches skip the
             # parameter digest (mi.traverse) that mi.render() and render_window() check
