@@ -49,7 +49,9 @@ def _aligned(a, dtype) -> np.ndarray:
     numpy array maps its memory, and a frozen function records again whenever the alignment
     of such an input changes (drjit.freeze's documentation): numpy's buffers are aligned or
     not by chance, so unaligned inputs made ``trace_points`` re-record at random (7 recordings
-    in 12 calls of 3 adaptive frames)."""
+    in 12 calls of 3 adaptive frames), and window launches too (the sample ids: a re-rendered
+    window now and then recorded and compiled again; 2 of 8 fresh processes of
+    tests/plugins/test_renderer_api.py, 0 of 10 aligned)."""
     a = np.asarray(a, dtype=dtype)
     buf = np.empty(a.nbytes + 64, dtype=np.uint8)
     start = -buf.ctypes.data % 64
@@ -243,7 +245,7 @@ def define_launches(mi, dr, mix32, u24):
         def _launch(self, P, scene, sid_np, spp_, seeds, want):
             """One launch over the sample ids ``sid_np`` -> (numpy outputs, its ray counters)."""
             n = sid_np.size
-            sid = mi.UInt32(sid_np)
+            sid = mi.UInt32(_aligned(sid_np, np.uint32))   # see _aligned
             if self.use_freeze:
                 cfg = (id(P), id(scene), want, int(self.max_depth), float(self.min_weight))
                 out = self._call_frozen(self._frozen_fn(), sid, dr.opaque(mi.UInt32, n), spp_, seeds, cfg,
