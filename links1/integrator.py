@@ -18,6 +18,7 @@ import numpy as np
 from .accel import Accel
 from .lights import AreaLight
 from .sampling import KEY_REFLECT, KEY_REFRACT, child_keys, light_samples_uv
+from .textures import MeshAttribute
 from .vec import dot, max_abs
 
 #: Relative size of the ray-origin offset (float64: about 1e6 ulps of |p|, far above the
@@ -331,10 +332,14 @@ class WhittedIntegrator:
             return material
         uv = np.zeros((sel.size, 2))
         shape = hits.shape[sel]
+        attrs = {k: v for k, v in vars(material).items() if isinstance(v, MeshAttribute)}
+        given = {k: np.zeros((sel.size, 3)) for k in attrs}
         for s in np.unique(shape):
             m = shape == s
             uv[m] = self.shapes[s].uv(o[m], d[m], hits.t[sel][m], hits.prim[sel][m])
-        return material.at(uv)
+            for k, tex in attrs.items():   # mesh attributes: at the hit itself
+                given[k][m] = tex.values(self.shapes[s].attribute(tex.attribute, o[m], d[m], hits.prim[sel][m]))
+        return material.at(uv, given)
 
 
 def refract(d, n, eta):

@@ -27,7 +27,8 @@ shape           ``sphere`` (center, radius), ``cylinder`` (p0, p1, radius; open)
 bsdf            ``diffuse``, ``twosided``, ``conductor`` (perfect mirror, or ``eta``/``k``),
                 ``dielectric``, ``thindielectric``, ``plastic``, *links1* ``links1_phong``;
                 rough/other BSDFs → diffuse stand-in (warning); ``bitmap`` / ``checkerboard``
-                textures (:mod:`links1.textures`) on their colour parameters; other textures → 0.5 grey (warning).
+                textures (:mod:`links1.textures`) and ``mesh_attribute`` (a PLY's ``vertex_*`` / ``face_*``
+                properties) on their colour parameters; other textures → 0.5 grey (warning).
 colours        ``rgb``, ``float``, ``spectrum`` (one value or ``wavelength:value`` pairs, converted
                 as Mitsuba's RGB variants do: :mod:`links1.spectra`), ``<spectrum type="uniform|
                 srgb|blackbody">`` (blackbody on emitters only, warning).
@@ -255,14 +256,17 @@ class _Props:
 # textures (links1.textures)
 # --------------------------------------------------------------------------------------------
 
-_TEXTURES = ("bitmap", "checkerboard")
+_TEXTURES = ("bitmap", "checkerboard", "mesh_attribute")
 
 
 def _texture(node: Node):
     """A ``<texture type="bitmap | checkerboard">`` element → :class:`links1.textures.Texture`."""
     props = _Props(node)
     to_uv = props.transform("to_uv")
-    if node.type == "checkerboard":
+    if node.type == "mesh_attribute":
+        tex = _construct(node, textures.MeshAttribute, props.string("name"), props.float("scale", 1.0),
+                         texname=node.id or "")
+    elif node.type == "checkerboard":
         tex = _construct(node, textures.Checkerboard, props.texture("color0", 0.4),
                          props.texture("color1", 0.2), to_uv=to_uv, name=node.id or "")
     else:
@@ -686,9 +690,11 @@ class _Builder:
         elif t in ("obj", "ply"):
             fn = props.string("filename")
             path = node.resolve(fn)
-            reader = meshes.read_obj if t == "obj" else meshes.read_ply
             try:
-                v, f, n, uv = reader(path, uv=True)
+                if t == "obj":
+                    (v, f, n, uv), attrs = meshes.read_obj(path, uv=True), {}
+                else:
+                    v, f, n, uv, attrs = meshes.read_ply(path, uv=True, attributes=True)
             except ValueError as exc:
                 raise props.error("filename", str(exc)) from None
             if props.bool("face_normals", False):
@@ -698,7 +704,7 @@ class _Builder:
             if uv is not None and props.bool("flip_tex_coords", t == "obj"):
                 uv = uv * np.array([1.0, -1.0]) + np.array([0.0, 1.0])  # Mitsuba: v -> 1 - v
             props.ignore("mesh_attributes", "flip_tex_coords")
-            shape = self._mesh(node, props, v, f, n, m, closed=None, uv=uv)
+            shape = self._mesh(node, props, v, f, n, m, closed=None, uv=uv, attributes=attrs)
         elif t == "links1_quadric":
             shape = self._quadric(node, props, m, name)
         elif t == "links1_blob":
@@ -734,6 +740,10 @@ class _Builder:
         if material is None:
             material = mat.Diffuse(reflectance=np.full(3, 0.5))  # Mitsuba's default BSDF
         props.finish()
+        for k, tex in vars(material).items():   # a mesh_attribute must name one of the mesh's
+            if isinstance(tex, textures.MeshAttribute) and tex.attribute not in getattr(shape, "attributes", {}):
+                raise node.error(f"the bsdf's '{k}' reads mesh attribute '{tex.attribute}', which this "
+                                 f"{t} does not have (it has: {', '.join(sorted(getattr(shape, 'attributes', {}))) or 'none'})")
         shape.material = material
         shape.emission = emission
         if emission is not None:
@@ -744,7 +754,7 @@ class _Builder:
         if props.bool("flip_normals", False):
             props.node.warn("flip_normals is not supported on analytic shapes by the core; ignored")
 
-    def _mesh(self, node, props, v, f, n, m, closed, uv=None):
+    def _mesh(self, node, props, v, f, n, m, closed, uv=None, attributes=None):
         rewound = props.bool("flip_normals", False)
         if rewound:
             f, n = meshes.flip(f, n)
@@ -752,7 +762,7 @@ class _Builder:
         if not np.all(np.isfinite(v)):
             raise node.error("non-finite vertex positions after to_world")
         return _construct(node, _shape_class("TriangleMesh"), v, f, normals=n, name=node.id or "",
-                          closed=closed, texcoords=uv, rewound=rewound)
+                          closed=closed, texcoords=uv, rewound=rewound, attributes=attributes)
 
     def _quadric(self, node, props, m, name):
         kind = props.string("kind").strip().lower()

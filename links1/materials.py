@@ -115,14 +115,15 @@ class Material:
         """Names of the parameters that are textures."""
         return tuple(k for k, v in vars(self).items() if isinstance(v, Texture))
 
-    def at(self, uv):
-        """This material with its textures evaluated at ``uv (N, 2)`` (itself if it has none)."""
+    def at(self, uv, given=None):
+        """This material with its textures evaluated at ``uv (N, 2)`` (itself if it has none);
+        ``given``: values already evaluated at the hits, by parameter name (mesh attributes)."""
         names = self.textured
         if not names:
             return self
         bound = copy.copy(self)
         for k in names:
-            setattr(bound, k, getattr(self, k).eval(uv))
+            setattr(bound, k, given[k] if given and k in given else getattr(self, k).eval(uv))
         return bound
 
 

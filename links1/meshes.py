@@ -321,9 +321,29 @@ def _read_binary_element(buf: bytes, off: int, count: int, props, endian: str, p
     return out, off
 
 
-def read_ply(path: str, uv: bool = False):
+#: PLY vertex properties read as geometry (the others become mesh attributes).
+_PLY_GEOMETRY = {"x", "y", "z", "nx", "ny", "nz", "u", "v", "texture_u", "texture_v", "s", "t"}
+
+
+def _ply_attributes(element: dict, prefix: str, skip) -> dict:
+    """Mitsuba's mesh attributes of a PLY element: properties ``name_0, name_1, ...`` become
+    ``prefix + name`` with one column each (a lone property ``name``: one column)."""
+    groups: dict = {}
+    for prop, values in element.items():
+        if prop in skip or not isinstance(values, np.ndarray):
+            continue
+        base, _, idx = prop.rpartition("_")
+        key = base if (base and idx.isdigit()) else prop
+        groups.setdefault(key, []).append((int(idx) if (base and idx.isdigit()) else 0, values))
+    return {prefix + k: np.stack([np.asarray(v, dtype=np.float64) for _, v in sorted(cols, key=lambda c: c[0])],
+                                 axis=1) for k, cols in groups.items()}
+
+
+def read_ply(path: str, uv: bool = False, attributes: bool = False):
     """Read a PLY mesh → ``(vertices, faces, normals or None)`` (see module doc), and
-    ``texcoords (V, 2) or None`` fourth with ``uv=True``."""
+    ``texcoords (V, 2) or None`` with ``uv=True``, then with ``attributes=True`` Mitsuba's mesh
+    attributes ``{"vertex_<name>": (V, k), "face_<name>": (F, k)}`` (face rows per triangle
+    after polygons are fanned)."""
     try:
         with open(path, "rb") as fh:
             data = fh.read()
@@ -384,6 +404,7 @@ def read_ply(path: str, uv: bool = False):
                                   np.asarray(vert[b], dtype=np.float64)], axis=1)
             break
     extra = (texcoords,) if uv else ()
+    vattrs = _ply_attributes(vert, "vertex_", _PLY_GEOMETRY) if attributes else {}
     face = values.get("face")
     if face is None:
         raise ValueError(f"{path}: PLY file has no face element")
@@ -398,8 +419,13 @@ def read_ply(path: str, uv: bool = False):
         k = poly.shape[1]
         tri_a = np.stack([np.stack([poly[:, 0], poly[:, j], poly[:, j + 1]], 1)
                           for j in range(1, k - 1)], 1).reshape(-1, 3)
+        if attributes:
+            fattrs = {k_: np.repeat(a, k - 2, axis=0)
+                      for k_, a in _ply_attributes(face, "face_", {"vertex_indices", "vertex_index"}).items()}
+            extra = extra + ({**vattrs, **fattrs},)
         return (vertices, tri_a, normals) + extra
     tri: list = []
+    per_face = []   # triangles of each face (face attributes repeat over them)
     for i, poly in enumerate(lists):
         poly = [int(x) for x in np.asarray(poly)]
         if len(poly) < 3:
@@ -407,8 +433,15 @@ def read_ply(path: str, uv: bool = False):
         if min(poly) < 0 or max(poly) >= nv:
             raise ValueError(f"{path}: face {i} indexes a vertex out of range (0..{nv - 1})")
         tri.extend(_fan(poly))
+        per_face.append(len(poly) - 2)
     if not tri:
         raise ValueError(f"{path}: no faces")
+    if attributes:
+        face_arrays = {p_: np.asarray(v_, dtype=np.float64) for p_, v_ in face.items()
+                       if p_ not in ("vertex_indices", "vertex_index")}
+        fattrs = {k_: np.repeat(a, per_face, axis=0)
+                  for k_, a in _ply_attributes(face_arrays, "face_", set()).items()}
+        extra = extra + ({**vattrs, **fattrs},)
     return (vertices, np.array(tri, dtype=np.int64), normals) + extra
 
 

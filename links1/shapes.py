@@ -157,7 +157,7 @@ class TriangleMesh(Shape):
     """
 
     def __init__(self, vertices, faces, normals=None, name: str = "", closed=None,
-                 max_leaf: int = 8, texcoords=None, rewound: bool = False):
+                 max_leaf: int = 8, texcoords=None, rewound: bool = False, attributes=None):
         super().__init__(name)
         v = np.array(vertices, dtype=np.float64)
         f = np.array(faces)
@@ -193,6 +193,15 @@ class TriangleMesh(Shape):
                 raise ValueError(f"mesh {name!r}: texcoords must be finite with shape "
                                  f"{(v.shape[0], 2)}, got {uv.shape}")
             self.texcoords = uv
+        #: Mitsuba's mesh attributes: ``vertex_<name>`` (V, k) and ``face_<name>`` (F, k)
+        self.attributes = {}
+        for key, a in (attributes or {}).items():
+            a = np.asarray(a, dtype=np.float64)
+            rows = v.shape[0] if key.startswith("vertex_") else f.shape[0] if key.startswith("face_") else -1
+            if a.ndim != 2 or a.shape[0] != rows:
+                raise ValueError(f"mesh {name!r}: attribute {key!r} must be vertex_* (V, k) or face_* (F, k), "
+                                 f"got {a.shape}")
+            self.attributes[key] = a
         self.closed = self._detect_closed() if closed is None else bool(closed)
 
         p0, p1, p2 = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
@@ -372,6 +381,21 @@ class TriangleMesh(Shape):
         f = self.faces[prim]
         tc = self.texcoords
         return b[:, :1] * tc[f[:, 0]] + b[:, 1:2] * tc[f[:, 1]] + b[:, 2:] * tc[f[:, 2]]
+
+
+    def attribute(self, key: str, o, d, prim) -> np.ndarray:
+        """Mesh attribute ``key`` at the hits (N, k): a face's value, or the vertices' values
+        interpolated by the hit's barycentrics (Mitsuba's ``mesh_attribute`` texture)."""
+        a = self.attributes.get(key)
+        if a is None:
+            raise KeyError(f"mesh {self.name!r} has no attribute {key!r} (it has {sorted(self.attributes)})")
+        prim = np.asarray(prim, dtype=np.int64)
+        if key.startswith("face_"):
+            return a[prim]
+        b = self.barycentrics(np.asarray(o, dtype=np.float64).reshape(-1, 3),
+                              np.asarray(d, dtype=np.float64).reshape(-1, 3), prim)
+        f = self.faces[prim]
+        return b[:, :1] * a[f[:, 0]] + b[:, 1:2] * a[f[:, 1]] + b[:, 2:] * a[f[:, 2]]
 
 
 # ---------------------------------------------------------------------------- quadrics

@@ -78,6 +78,34 @@ class Texture:
         raise NotImplementedError  # pragma: no cover - interface
 
 
+class MeshAttribute(Texture):
+    """Mitsuba's ``mesh_attribute`` texture: a mesh's ``vertex_*`` / ``face_*`` attribute at the
+    hit, times ``scale``. It needs the hit, not its uv: the integrator evaluates it per shape
+    (:meth:`links1.shapes.TriangleMesh.attribute`) and hands the values to
+    :meth:`links1.materials.Material.at`."""
+
+    def __init__(self, name: str, scale: float = 1.0, to_uv=None, texname: str = ""):
+        super().__init__(to_uv, texname)
+        if not (name.startswith("vertex_") or name.startswith("face_")):
+            raise ValueError(f"mesh_attribute: 'name' must start with 'vertex_' or 'face_', got {name!r}")
+        self.attribute, self.scale = name, float(scale)
+
+    def values(self, a: np.ndarray) -> np.ndarray:
+        """RGB from the attribute's columns at the hits (1 column: grey, 3: RGB)."""
+        a = np.asarray(a, dtype=np.float64)
+        rgb = np.repeat(a[:, :1], 3, axis=1) if a.shape[1] == 1 else a[:, :3]
+        return rgb * self.scale
+
+    def eval(self, uv) -> np.ndarray:
+        raise TypeError("a mesh_attribute texture is evaluated at hits, not at uv")
+
+    def max(self) -> np.ndarray:
+        return np.full(3, np.inf)    # unknown before the mesh is seen: no bound
+
+    def mean(self) -> np.ndarray:
+        return np.full(3, 0.5 * self.scale)
+
+
 def is_texture(v) -> bool:
     return isinstance(v, Texture)
 

@@ -368,7 +368,7 @@ def test_unsupported_bsdf_and_texture_warn_with_location():
         loader.load_string(scene_xml('<shape type="sphere">\n<bsdf type="roughconductor"/></shape>'))
     with pytest.warns(SceneWarning, match="0.5 grey"):
         s = loader.load_string(scene_xml('<shape type="sphere"><bsdf type="diffuse">'
-                                         '<texture type="mesh_attribute" name="reflectance"/></bsdf></shape>'))
+                                         '<texture type="volume" name="reflectance"/></bsdf></shape>'))
     np.testing.assert_allclose(s.shapes[0].material.reflectance, [0.5] * 3)
 
 

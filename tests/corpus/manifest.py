@@ -69,7 +69,7 @@ SCENES = [
        NO_LICENCE, False, "direct"),   # a projector: spot with a bitmap texture
     _s("data_mesh_attributes", MITSUBA_DATA,
        "tests/scenes/mesh_attributes/test_mesh_attributes_3_face_direct.xml",
-       NO_LICENCE, False, "renders", warns=("'mesh_attribute'",)),
+       NO_LICENCE, False, "direct"),   # a PLY's face_color through a mesh_attribute texture
     _s("data_orthographic", MITSUBA_DATA, "tests/scenes/orthographic_sensor/test_orthographic_path.xml",
        NO_LICENCE, False, "direct"),
     _s("data_instancing", MITSUBA_DATA, "tests/scenes/instancing/test_instancing_path.xml",
