@@ -168,6 +168,7 @@ class ConeSpotLight(Light):
         self.axis = _unit(self.to_world[:3, 2], "spot: to_world z axis")
         self.cutoff = np.deg2rad(self.cutoff_angle)
         self.beam = np.deg2rad(self.beam_width)
+        self._from_world = np.linalg.inv(self.to_world)   # the projector's frame (texture lookups)
 
     def illuminate(self, p):
         to_light = self.position - p
@@ -183,7 +184,7 @@ class ConeSpotLight(Light):
             L = self.intensity * (ramp / np.where(dist > 0, dist * dist, np.inf))[:, None]
         if self.texture is not None:
             lit = ramp > 0   # Mitsuba looks the texture up only inside the cone
-            local = matvec(np.linalg.inv(self.to_world), -wi[lit])
+            local = matvec(self._from_world, -wi[lit])
             k = 0.5 / (local[:, 2] * np.tan(self.cutoff))
             uv = np.stack([0.5 + local[:, 0] * k, 0.5 + local[:, 1] * k], axis=1)
             tex = np.zeros_like(L)

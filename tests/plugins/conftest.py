@@ -66,6 +66,14 @@ def llvm():
     return links1_mitsuba.register("llvm_ad_rgb")
 
 
+@pytest.fixture(params=["core", pytest.param("mitsuba", marks=pytest.mark.mitsuba)])
+def renderer_kind(request):
+    """Each renderer in turn: ``"core"``, then ``"mitsuba"`` (skipped where llvm_ad_rgb cannot run)."""
+    if request.param == "mitsuba":
+        request.getfixturevalue("llvm")
+    return request.param
+
+
 def data(name: str) -> str:
     return os.path.join(DATA, name)
 

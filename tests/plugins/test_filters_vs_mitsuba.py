@@ -99,12 +99,10 @@ def test_windows_and_batches_equal_full_frame(llvm, tmp_path, name, kind):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("kind", ["core", "mitsuba"])
-def test_cli_workers_2_equal_one_process_with_lanczos(request, tmp_path, kind):
+def test_cli_workers_2_equal_one_process_with_lanczos(tmp_path, renderer_kind):
     """Units of a partitioned render gather the samples of their borders: two worker processes
     assemble the one-process image bit for bit."""
-    if kind == "mitsuba":
-        request.getfixturevalue("llvm")
+    kind = renderer_kind
     from links1.cli import main
     from links1.image import read_image
     path = write_scene(tmp_path, RFILTERS["lanczos"])

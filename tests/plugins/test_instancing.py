@@ -53,10 +53,8 @@ def scenes(tmp_path):
     return str(a), str(b)
 
 
-@pytest.mark.parametrize("kind", ["core", pytest.param("mitsuba", marks=pytest.mark.mitsuba)])
-def test_instances_are_the_shapes_written_out(scenes, kind, request):
-    if kind == "mitsuba":
-        request.getfixturevalue("llvm")
+def test_instances_are_the_shapes_written_out(scenes, renderer_kind):
+    kind = renderer_kind
     inst, flat = scenes
     a = make_renderer(kind, inst, spp=4, aovs=("depth", "id")).render()
     b = make_renderer(kind, flat, spp=4, aovs=("depth", "id")).render()

@@ -38,10 +38,8 @@ def files(tmp_path):
     return str(a), str(b)
 
 
-@pytest.mark.parametrize("kind", ["core", pytest.param("mitsuba", marks=pytest.mark.mitsuba)])
-def test_the_files_parameters_are_the_defaults(files, kind, request):
-    if kind == "mitsuba":
-        request.getfixturevalue("llvm")
+def test_the_files_parameters_are_the_defaults(files, renderer_kind):
+    kind = renderer_kind
     with_, without = files
     r = make_renderer(kind, with_, spp=2)
     assert (r.light_samples, r.min_weight) == (8, 0.0)
