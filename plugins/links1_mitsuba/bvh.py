@@ -144,16 +144,20 @@ def define_bvh():
             self.capped = mi.Bool(capped)
             self.slot = mi.UInt32(slot)
             self.st = F(st)
-            self.nlo, self.nhi = F(nlo), F(nhi)
-            self.first, self.count = mi.UInt32(first), mi.UInt32(count)
+            # node k's box as two packets of 4 (lo, 0) (hi, 0): a node's children, nodes f and
+            # f + 1, are 16 consecutive floats, read with four packet gathers (Array4f)
+            box = np.zeros((len(first), 2, 4))
+            box[:, 0, :3], box[:, 1, :3] = nlo, nhi
+            self.nbox = F(box)
+            self.node = mi.UInt32(np.stack([count, first], axis=1).ravel())   # (count, first)
             self.nnodes = len(first)
             self.slot_to_q = None   # set by the integrator (slot -> row)
 
         # ------------------------------------------------------------ one quadric
         def _rows(self, q, act):
-            g = lambda tab, k, m: dr.gather(mi.Float, tab, q * m + k, act)  # noqa: E731
-            a = [[g(self.inv, 4 * i + j, 12) for j in range(4)] for i in range(3)]
-            return a, g(self.qz, 0, 1)
+            # the 3x4 inverse transform, a row per packet gather (the same values as 12 gathers)
+            rows = [dr.gather(mi.Array4f, self.inv, q * 3 + i, act) for i in range(3)]
+            return [[r.x, r.y, r.z, r.w] for r in rows], dr.gather(mi.Float, self.qz, q, act)
 
         def _clip(self, q, j, act):
             K = max(self.kc, 1)
@@ -233,98 +237,94 @@ def define_bvh():
 
         # ------------------------------------------------------------ traversal
         def _box(self, k, o, inv_d, tmin, tmax, act):
-            lo = [dr.gather(mi.Float, self.nlo, k * 3 + c, act) for c in range(3)]
-            hi = [dr.gather(mi.Float, self.nhi, k * 3 + c, act) for c in range(3)]
-            return slab(lo, hi, o, inv_d, tmin, tmax, act)
+            lo = dr.gather(mi.Array4f, self.nbox, 2 * k, act)
+            hi = dr.gather(mi.Array4f, self.nbox, 2 * k + 1, act)
+            return slab([lo.x, lo.y, lo.z], [hi.x, hi.y, hi.z], o, inv_d, tmin, tmax, act)
 
         def _walk(self, o, d, tmin, tmax, active, cost, shadow):
-            """One node per iteration: a leaf tests its quadric, an inner node tests both
-            children's boxes and pushes those crossed, the nearer on top."""
+            """One node per iteration, held in a register (no stack round trip on the way
+            down): a leaf tests its quadric, then the walk pops; an inner node tests both
+            children's boxes and goes on to the nearer one crossed, pushing the other."""
             inv_d = mi.Vector3f(1.0 / d.x, 1.0 / d.y, 1.0 / d.z)
             n = dr.width(o)
             stack = dr.alloc_local(mi.UInt32, STACK, mi.UInt32(0))
             root_hit, _ = self._box(mi.UInt32(0), o, inv_d, tmin, tmax, active)
-            sp = dr.select(root_hit, mi.UInt32(1), mi.UInt32(0))
-            best_t = mi.Float(tmax)
-            best_q = dr.zeros(mi.UInt32, n)
-            best_part = dr.zeros(mi.UInt32, n)
-            found = dr.zeros(mi.Bool, n)
-            T = dr.select(active, mi.Color3f(1.0), mi.Color3f(0.0))
+            node = dr.zeros(mi.UInt32, n)
+            live = mi.Bool(root_hit)
+            sp = dr.zeros(mi.UInt32, n)
             c = dr.zeros(mi.UInt32, n)
-            one = mi.UInt32(1)
+            if shadow:
+                res = (dr.select(active, mi.Color3f(1.0), mi.Color3f(0.0)),)
+            else:
+                res = (mi.Float(tmax), dr.zeros(mi.UInt32, n), dr.zeros(mi.UInt32, n), dr.zeros(mi.Bool, n))
 
-            def cond(stack, sp, best_t, best_q, best_part, found, T, c):
-                run = sp > 0
-                if shadow:
-                    run &= dr.max(T) > 0
-                return run
+            def cond(stack, node, live, sp, c, res):
+                return live & (dr.max(res[0]) > 0) if shadow else live
 
-            def body(stack, sp, best_t, best_q, best_part, found, T, c):
-                act = sp > 0
-                sp = sp - 1
-                k = stack.read(sp, act)
-                cnt = dr.gather(mi.UInt32, self.count, k, act)
-                fst = dr.gather(mi.UInt32, self.first, k, act)
+            def body(stack, node, live, sp, c, res):
+                act = mi.Bool(live)
+                cf = dr.gather(mi.Vector2u, self.node, node, act)
+                cnt, fst = cf.x, cf.y
                 leaf = act & (cnt > 0)
                 inner = act & (cnt == 0)
 
                 # Symbolic conditionals: a packet whose lanes are all inner nodes (or all
                 # leaves) skips the other block entirely (the LLVM backend branches per packet).
-                def leaf_fn(fst, best_t, best_q, best_part, found, T, c):
+                def leaf_fn(fst, c, res):
+                    c = c + 1
+                    if shadow:
+                        (T,) = res
+                        tq, _ = self.intersect(fst, o, d, tmin, tmax, True)
+                        h = tq < tmax
+                        return fst, c, (dr.select(h, T * dr.gather(mi.Color3f, self.st, fst, h), T),)
+                    best_t, best_q, best_part, found = res
                     # a tie with the best so far is let through; the lower slot wins (below)
-                    lim = tmax if shadow else dr.select(found, dr.reinterpret_array(
+                    lim = dr.select(found, dr.reinterpret_array(
                         mi.Float, dr.reinterpret_array(mi.UInt32, best_t) + 1), best_t)
                     tq, pq = self.intersect(fst, o, d, tmin, lim, True)
-                    c = c + 1
                     h = tq < lim
-                    if shadow:
-                        T = dr.select(h, T * dr.gather(mi.Color3f, self.st, fst, h), T)
-                    else:
-                        s_new = dr.gather(mi.UInt32, self.slot, fst, h)
-                        s_old = dr.gather(mi.UInt32, self.slot, best_q, h & found)
-                        better = h & ((tq < best_t) | ((tq == best_t) & found & (s_new < s_old)))
-                        best_t = dr.select(better, tq, best_t)
-                        best_q = dr.select(better, fst, best_q)
-                        best_part = dr.select(better, pq, best_part)
-                        found = found | better
-                    return fst, best_t, best_q, best_part, found, T, c
+                    s_new = dr.gather(mi.UInt32, self.slot, fst, h)
+                    s_old = dr.gather(mi.UInt32, self.slot, best_q, h & found)
+                    better = h & ((tq < best_t) | ((tq == best_t) & found & (s_new < s_old)))
+                    return fst, c, (dr.select(better, tq, best_t), dr.select(better, fst, best_q),
+                                    dr.select(better, pq, best_part), found | better)
 
                 def keep(*args):
                     return args
 
-                fst, best_t, best_q, best_part, found, T, c = dr.if_stmt(
-                    (fst, best_t, best_q, best_part, found, T, c), leaf, leaf_fn, keep)
+                fst, c, res = dr.if_stmt((fst, c, res), leaf, leaf_fn, keep)
 
-                def inner_fn(fst, best_t):
+                def inner_fn(fst, res):
                     # both children's boxes (against the nearest hit so far)
-                    lim = tmax if shadow else best_t
+                    lim = tmax if shadow else res[0]
                     hl, tl = self._box(fst, o, inv_d, tmin, lim, True)
                     hr, tr = self._box(fst + 1, o, inv_d, tmin, lim, True)
-                    near_l = tl <= tr
-                    both = hl & hr
-                    far = dr.select(both, dr.select(near_l, fst + 1, fst), dr.select(hl, fst, fst + 1))
-                    near = dr.select(near_l, fst, fst + 1)
-                    return hl | hr, both, far, near
+                    return hl, hr, tl <= tr
 
-                def no_inner(fst, best_t):
-                    z = dr.zeros(mi.UInt32, dr.width(fst))
-                    return dr.zeros(mi.Bool, dr.width(fst)), dr.zeros(mi.Bool, dr.width(fst)), z, z
+                def no_inner(fst, res):
+                    z = dr.zeros(mi.Bool, dr.width(fst))
+                    return z, z, z
 
-                w1, both, far, near = dr.if_stmt((fst, best_t), inner, inner_fn, no_inner)
-                w1 &= inner
-                both &= inner
-                stack.write(far, sp, w1)
-                sp = dr.select(w1, sp + 1, sp)
-                stack.write(near, sp, both)
+                hl, hr, near_l = dr.if_stmt((fst, res), inner, inner_fn, no_inner)
+                hl &= inner
+                hr &= inner
+                both = hl & hr
+                down = hl | hr
+                near = dr.select(both, dr.select(near_l, fst, fst + 1), dr.select(hl, fst, fst + 1))
+                stack.write(dr.select(near_l, fst + 1, fst), sp, both)
                 sp = dr.select(both, sp + 1, sp)
-                return stack, sp, best_t, best_q, best_part, found, T, c
+                pop = act & ~down & (sp > 0)
+                sp = dr.select(pop, sp - 1, sp)
+                node = dr.select(down, near, stack.read(sp, pop))
+                return stack, node, down | pop, sp, c, res
 
-            st = dr.while_loop((stack, sp, best_t, best_q, best_part, found, T, c), cond, body,
-                               label="links1_bvh")
-            _, _, best_t, best_q, best_part, found, T, c = st
+            st = dr.while_loop((stack, node, live, sp, c, res), cond, body, label="links1_bvh")
+            c, res = st[4], st[5]
             if cost is not None:
                 cost += c
-            return best_t, best_q, best_part, found, T
+            if shadow:
+                return None, None, None, None, res[0]
+            return res + (None,)
 
         def nearest(self, o, d, tmin, tmax, active, cost):
             """(t (inf on a miss), row q, part, found)."""

@@ -6,6 +6,8 @@ import warnings
 
 import numpy as np
 
+from .bsdfs import _Held
+
 FALLOFFS = ("none", "inverse_square")
 
 
@@ -131,13 +133,15 @@ def define_emitters():
 
         def __init__(self, props):
             super().__init__(props)
-            self.params = point_params(props)
-            p = self.params
+            self._held = _Held(params=point_params(props))    # see bsdfs._Held
             self.m_flags = mi.EmitterFlags.DeltaPosition
-            self._pos = p["position"]
-            self._dir = p["direction"]
-            self._L1, self._L2 = p["L1"], p["L2"]
-            self._inv_sq = p["falloff"] == "inverse_square"
+
+        params = property(lambda self: self._held.params)
+        _pos = property(lambda self: self.params["position"])
+        _dir = property(lambda self: self.params["direction"])
+        _L1 = property(lambda self: self.params["L1"])
+        _L2 = property(lambda self: self.params["L2"])
+        _inv_sq = property(lambda self: self.params["falloff"] == "inverse_square")
 
         def _strength(self, to_light, dist):
             wi = to_light / dr.maximum(dist, 1e-30)
@@ -206,10 +210,14 @@ def define_emitters():
 
         def __init__(self, props):
             super().__init__(props)
-            self.params = spot_params(props)
+            self._held = _Held(params=spot_params(props))     # see bsdfs._Held
             self.m_flags = mi.EmitterFlags.DeltaDirection
-            p = self.params
-            self._o, self._d, self._r, self._I = p["origin"], p["direction"], p["radius"], p["intensity"]
+
+        params = property(lambda self: self._held.params)
+        _o = property(lambda self: self.params["origin"])
+        _d = property(lambda self: self.params["direction"])
+        _r = property(lambda self: self.params["radius"])
+        _I = property(lambda self: self.params["intensity"])
 
         def sample_direction(self, it, sample, active=True):
             axis = v3(self._d)
