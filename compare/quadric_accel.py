@@ -4,6 +4,13 @@ yardstick (issue 12: measure both ideas before choosing).
 
     python -m compare.quadric_accel [--res 512] [--sizes 10,300,3000,10000] [--repeats 7]
 
+Two tables. **Frames** (the issue's target: ``links1_quadric`` spheres <= 1.2x Mitsuba ``sphere``
+shapes in the same integrator): warm median frame of links1_whitted (512², spp 1) on
+``compare.scaling.quadric_scene(N, bsdf=...)`` with the spheres as ``links1_quadric`` and as
+Mitsuba ``sphere`` shapes, the same materials on both (Mitsuba ``diffuse``, and ``links1_phong``),
+with the kernels' share (``dr.kernel_history``), and Mitsuba's own ``direct`` on the Mitsuba
+spheres for reference. **Queries**: the nearest-hit query alone, below.
+
 Rays: the camera rays of ``compare.scaling.quadric_scene(N)`` (pixel centres, ``res``²), the
 spheres only (no floor). Per N and method, in one process: one warm-up query (tracing and
 kernel compilation), then the median of ``repeats`` queries (tracing + kernel, as a frame of
@@ -73,6 +80,36 @@ def _timed(fn, repeats):
         kern.append(sum(float(k.get("execution_time", 0.0)) for k in dr.kernel_history()) / 1e3)
         dr.set_flag(dr.JitFlag.KernelHistory, False)
     return float(np.median(wall)), float(np.median(kern)), out
+
+
+def run_frames(n, res, repeats):
+    """Frame rows for N spheres: links1_whitted on quadrics and on Mitsuba spheres (both
+    BSDF variants), Mitsuba ``direct`` on the Mitsuba spheres."""
+    import drjit as dr
+    from links1.render import make_renderer
+    from .scaling import quadric_scene
+    rows = []
+    with tempfile.TemporaryDirectory() as d:
+        for bsdf in ("diffuse", "phong"):
+            row = {"size": n, "bsdf": bsdf}
+            cases = [("quadric", False, None), ("sphere", True, None)]
+            if bsdf == "diffuse":
+                cases.append(("direct", True, "scene"))
+            for key, msh, integ in cases:
+                p = Path(d) / f"{key}_{bsdf}_{n}.xml"
+                p.write_text(quadric_scene(n, mitsuba_shapes=msh, bsdf=bsdf))
+                kw = {"integrator": integ} if integ else {}
+                r = make_renderer("mitsuba", str(p), params={"res": res}, spp=1, **kw)
+                wall, kern, _ = _timed(r.render, repeats)
+                row[f"{key}_ms"], row[f"{key}_kernel_ms"] = 1e3 * wall, 1e3 * kern
+                del r
+                dr.flush_malloc_cache()
+            row["ratio"] = row["quadric_ms"] / row["sphere_ms"]
+            row["kernel_ratio"] = row["quadric_kernel_ms"] / max(row["sphere_kernel_ms"], 1e-9)
+            print(f"  N={n} {bsdf}: quadric {row['quadric_ms']:.1f} ms, Mitsuba sphere {row['sphere_ms']:.1f} ms "
+                  f"({row['ratio']:.2f}x; kernels {row['kernel_ratio']:.2f}x)", file=sys.stderr, flush=True)
+            rows.append(row)
+    return rows
 
 
 def run_size(n, res, repeats):
@@ -171,6 +208,7 @@ def main(argv=None) -> int:
     ap.add_argument("--res", type=int, default=512)
     ap.add_argument("--sizes", default="10,300,3000,10000")
     ap.add_argument("--repeats", type=int, default=7)
+    ap.add_argument("--no-frames", action="store_true", help="the query table only")
     a = ap.parse_args(argv)
     warnings.simplefilter("ignore")
     import mitsuba as mi
@@ -178,13 +216,30 @@ def main(argv=None) -> int:
     info = common.machine_info()
     command = common.command_line()
     t0 = time.perf_counter()
-    rows = []
-    for n in [int(v) for v in a.sizes.split(",") if v]:
+    rows, frames = [], []
+    sizes = [int(v) for v in a.sizes.split(",") if v]
+    if not a.no_frames:
+        for n in sizes:
+            frames += run_frames(n, a.res, a.repeats)
+    for n in sizes:
         rows += run_size(n, a.res, a.repeats)
     out = {"machine": info, "command": command, "res": a.res, "repeats": a.repeats, "rows": rows,
-           "wall_s": time.perf_counter() - t0}
-    md = ["# Nearest hit over N quadric spheres: own BVH vs Embree proxies vs Mitsuba spheres\n\n",
-          common.machine_markdown(info, command),
+           "frames": frames, "wall_s": time.perf_counter() - t0}
+    md = ["# links1_quadric spheres against Mitsuba spheres: frames and nearest-hit queries\n\n",
+          common.machine_markdown(info, command)]
+    if frames:
+        md.append(f"\n## Frames (target: quadric <= 1.2x Mitsuba sphere, same integrator)\n\nlinks1_whitted, "
+                  f"{a.res}², spp 1, warm median of {a.repeats} frames, `compare.scaling.quadric_scene(N, bsdf=...)`: "
+                  "the same scene and materials with the spheres as `links1_quadric` or Mitsuba `sphere` shapes. "
+                  "kernels = `dr.kernel_history` execution time of a frame (the rest: the launch's "
+                  "input traversal, read-back). Mitsuba `direct`: Mitsuba's own integrator on the Mitsuba "
+                  "spheres (diffuse), for reference.\n\n")
+        md.append(md_table(["N", "BSDF", "quadric ms", "Mitsuba sphere ms", "ratio", "target (<= 1.2)",
+                            "quadric kernels ms", "sphere kernels ms", "kernel ratio", "Mitsuba direct ms"],
+                           [[r["size"], r["bsdf"], r["quadric_ms"], r["sphere_ms"], r["ratio"],
+                             "met" if r["ratio"] <= 1.2 else "missed", r["quadric_kernel_ms"],
+                             r["sphere_kernel_ms"], r["kernel_ratio"], r.get("direct_ms")] for r in frames]))
+    md += ["\n## Nearest-hit queries: own BVH vs Embree proxies vs Mitsuba spheres\n",
           f"\n{a.res}² camera rays (pixel centres) of `compare.scaling.quadric_scene(N)`, spheres only, one "
           f"process, median of {a.repeats} queries after a warm-up; wall = tracing + kernels (what a frame "
           "of a BVH scene pays), kernels = `dr.kernel_history` execution time. ×mitsuba: over Mitsuba "

@@ -53,7 +53,14 @@ def _grid(n, rng):
     return xy, m
 
 
-def quadric_scene(n, mitsuba_shapes=False, seed=0):
+def quadric_scene(n, mitsuba_shapes=False, seed=0, bsdf=None):
+    """N spheres on a grid over a floor, one directional light: ``links1_quadric`` spheres
+    (links1_whitted) or Mitsuba ``sphere`` shapes (Mitsuba ``direct``). ``bsdf``: ``None``
+    (links1_phong on quadrics, Mitsuba ``diffuse`` on Mitsuba spheres), or ``"diffuse"`` /
+    ``"phong"`` for both (the same materials whichever shapes carry them)."""
+    if bsdf not in (None, "diffuse", "phong"):
+        raise ValueError(f"quadric_scene: bsdf must be None, 'diffuse' or 'phong', got {bsdf!r}")
+    diffuse = mitsuba_shapes if bsdf is None else bsdf == "diffuse"
     rng = np.random.default_rng(seed)
     xz, m = _grid(n, rng)
     r = rng.uniform(0.2, 0.35, n)
@@ -63,7 +70,7 @@ def quadric_scene(n, mitsuba_shapes=False, seed=0):
     bsdfs = []
     for k, col in enumerate(pal):
         c = f"{col[0]:.3f}, {col[1]:.3f}, {col[2]:.3f}"
-        bsdfs.append(f'<bsdf type="diffuse" id="m{k}"><rgb name="reflectance" value="{c}"/></bsdf>' if mitsuba_shapes
+        bsdfs.append(f'<bsdf type="diffuse" id="m{k}"><rgb name="reflectance" value="{c}"/></bsdf>' if diffuse
                      else f'<bsdf type="links1_phong" id="m{k}"><rgb name="ambient" value="0.05"/><rgb name="diffuse" '
                           f'value="{c}"/><rgb name="specular" value="0.3"/><float name="exponent" value="20"/></bsdf>')
     shapes = list(bsdfs)
@@ -76,7 +83,7 @@ def quadric_scene(n, mitsuba_shapes=False, seed=0):
             shapes.append(f'<shape type="links1_quadric"><string name="kind" value="sphere"/><transform name="to_world">'
                           f'<scale value="{ri:.6g}"/><translate x="{x:.6g}" y="{ri:.6g}" z="{z:.6g}"/></transform>'
                           f'{ref}</shape>')
-    floor_bsdf = ('<bsdf type="diffuse"><rgb name="reflectance" value="0.5"/></bsdf>' if mitsuba_shapes else
+    floor_bsdf = ('<bsdf type="diffuse"><rgb name="reflectance" value="0.5"/></bsdf>' if diffuse else
                   '<bsdf type="links1_phong"><rgb name="ambient" value="0.05"/><rgb name="diffuse" value="0.5"/>'
                   '<rgb name="specular" value="0"/></bsdf>')
     half = m / 2.0 + 1.0
