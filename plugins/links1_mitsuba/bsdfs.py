@@ -82,7 +82,7 @@ def define_phong():
             # Plain Python values behind one attribute: dr.freeze traverses a Python BSDF's
             # attributes (dicts and lists item by item) on every call of a frozen launch, once
             # per shape that uses it; one opaque holder keeps that out of every launch
-            # (3,000 Mitsuba spheres: 365 -> 70 ms a frame). The colours are literals: no launch of
+            # (3,000 Mitsuba spheres: 365 -> 100 ms a frame). The colours are literals: no launch of
             # links1_whitted reads them (it reads its own tables).
             self._held = _Held(params=p, diffuse=mi.Color3f(*p["diffuse"]),
                                specular=mi.Color3f(*p["specular"]),

@@ -91,6 +91,23 @@ def tree_depth(first, count):
     return depth
 
 
+def pack_boxes(node_lo, node_hi):
+    """Node boxes as one float table, node k's ``(lo, 0)`` and ``(hi, 0)`` at packets 2k and
+    2k + 1 of 4 floats: read with two packet gathers (:func:`gather_box`) instead of six."""
+    box = np.zeros((len(node_lo), 2, 4))
+    box[:, 0, :3], box[:, 1, :3] = node_lo, node_hi
+    return box.ravel()
+
+
+def gather_box(table, k, act):
+    """Node ``k``'s box from a :func:`pack_boxes` table: per-axis lists ``lo``, ``hi``."""
+    import drjit as dr
+    import mitsuba as mi
+    lo = dr.gather(mi.Array4f, table, 2 * k, act)
+    hi = dr.gather(mi.Array4f, table, 2 * k + 1, act)
+    return [lo.x, lo.y, lo.z], [hi.x, hi.y, hi.z]
+
+
 def slab(lo, hi, o, inv_d, tmin, tmax, act):
     """Ray–box slab test in Dr.Jit: (crossed within (tmin, tmax), entry t). ``lo``/``hi``
     are per-axis lists of Floats, ``inv_d`` = 1/d per component."""
@@ -144,11 +161,7 @@ def define_bvh():
             self.capped = mi.Bool(capped)
             self.slot = mi.UInt32(slot)
             self.st = F(st)
-            # node k's box as two packets of 4 (lo, 0) (hi, 0): a node's children, nodes f and
-            # f + 1, are 16 consecutive floats, read with four packet gathers (Array4f)
-            box = np.zeros((len(first), 2, 4))
-            box[:, 0, :3], box[:, 1, :3] = nlo, nhi
-            self.nbox = F(box)
+            self.nbox = F(pack_boxes(nlo, nhi))
             self.node = mi.UInt32(np.stack([count, first], axis=1).ravel())   # (count, first)
             self.nnodes = len(first)
             self.slot_to_q = None   # set by the integrator (slot -> row)
@@ -237,9 +250,8 @@ def define_bvh():
 
         # ------------------------------------------------------------ traversal
         def _box(self, k, o, inv_d, tmin, tmax, act):
-            lo = dr.gather(mi.Array4f, self.nbox, 2 * k, act)
-            hi = dr.gather(mi.Array4f, self.nbox, 2 * k + 1, act)
-            return slab([lo.x, lo.y, lo.z], [hi.x, hi.y, hi.z], o, inv_d, tmin, tmax, act)
+            lo, hi = gather_box(self.nbox, k, act)
+            return slab(lo, hi, o, inv_d, tmin, tmax, act)
 
         def _walk(self, o, d, tmin, tmax, active, cost, shadow):
             """One node per iteration, held in a register (no stack round trip on the way

@@ -322,7 +322,7 @@ class BlobSpec:
         order, so that a left-first walk meets the candidates in increasing row."""
         if self._tables is None and self.uses_lists():
             import mitsuba as mi
-            from .bvh import build
+            from .bvh import build, pack_boxes
             k = self._consts()
             c, R = k[:, :3], k[:, 7]
             # padded so that a sphere the float32 line test finds crossed is never culled
@@ -330,7 +330,7 @@ class BlobSpec:
             order, nlo, nhi, first, count = build(c - R[:, None] - pad, c + R[:, None] + pad,
                                                   leaf=LEAF_CENTRES)
             F = lambda a: mi.Float(np.ascontiguousarray(a, dtype=np.float64).ravel())  # noqa: E731
-            self._tables = {"consts": F(k[order]), "nlo": F(nlo), "nhi": F(nhi),
+            self._tables = {"consts": F(k[order]), "box": F(pack_boxes(nlo, nhi)),
                             "first": mi.UInt32(first), "count": mi.UInt32(count)}
         return self._tables
 
@@ -384,11 +384,8 @@ class BlobSpec:
         return lst, cnt, ovf
 
     def _node_box(self, k, act):
-        import drjit as dr
-        import mitsuba as mi
-        T = self.tables()
-        return ([dr.gather(mi.Float, T["nlo"], k * 3 + c, act) for c in range(3)],
-                [dr.gather(mi.Float, T["nhi"], k * 3 + c, act) for c in range(3)])
+        from .bvh import gather_box
+        return gather_box(self.tables()["box"], k, act)
 
     def _each(self, lst, cnt, ovf, state, fn):
         """Loop ``state = fn(row, state)`` over the lane's candidates in increasing row
