@@ -324,6 +324,8 @@ class CoreRenderer:
         self.scene = load_scene(self.path, **(params or {}))
         if width is not None or height is not None:
             self.scene.camera = _resized(self.scene.camera, width, height)
+        # this renderer owns its scene and never changes it: hash it once, not per window
+        self.scene.pin_content()
         self.spp = self.scene.spp if spp is None else int(spp)
         self.max_depth = max_depth
         self.seed = int(seed)

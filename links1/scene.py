@@ -42,6 +42,8 @@ class Scene:
     #: what is built from the shapes and lights on first use (the BVH, the integrator's plan),
     #: each with the content key it was built for (:meth:`cached`)
     _caches: dict = field(default_factory=dict, init=False, repr=False, compare=False)
+    #: the content key fixed by :meth:`pin_content` (None: computed at every use)
+    _pinned_key: bytes | None = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self):
         self._index_shapes()
@@ -53,8 +55,22 @@ class Scene:
     def content_key(self) -> bytes:
         """A digest of everything the caches are built from: the shapes (geometry, materials,
         textures), the lights and the background. Changing any of them after a render (in place
-        or by replacing list items) changes the key."""
+        or by replacing list items) changes the key, unless the scene is pinned."""
+        if self._pinned_key is not None:
+            return self._pinned_key
         return content_key((self.shapes, self.lights, self.environments, self.background))
+
+    def pin_content(self) -> bytes:
+        """Compute the content key once and keep it: for an owner that renders the same,
+        unchanged scene many times (a partition node renders one window per call, and hashing
+        300 quadrics costs ~15 ms, half a 32x32 window's launch). Changes made after pinning
+        are not seen by the caches; :meth:`unpin_content` goes back to hashing at every use."""
+        self._pinned_key = None
+        self._pinned_key = self.content_key()
+        return self._pinned_key
+
+    def unpin_content(self) -> None:
+        self._pinned_key = None
 
     def cached(self, name: str, build, key: bytes | None = None):
         """``build()`` once per content of the scene: the value kept under ``name`` while the

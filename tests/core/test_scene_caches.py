@@ -72,3 +72,26 @@ def test_a_culled_copy_does_not_share_the_plan():
     only_floor = _load()
     del only_floor.shapes[1:]
     np.testing.assert_array_equal(img, links1.render(only_floor))
+
+
+def test_a_pinned_scene_is_hashed_once_and_unpinned_follows_changes(monkeypatch):
+    """A partition node's CoreRenderer renders one window per call: it pins its scene's key
+    at load, so a window's launch does not re-hash every shape (issue 9: ~15 ms of a 32x32
+    window's 31 ms on many.xml); an unpinned scene still follows changes."""
+    from links1 import scene as scene_mod
+    from links1.render import CoreRenderer
+    r = CoreRenderer(SHADOWS, params={"res": "24"})
+    full = r.render()
+    calls = []
+    real = scene_mod.content_key
+    monkeypatch.setattr(scene_mod, "content_key", lambda o: calls.append(1) or real(o))
+    win = r.render(window=(4, 6, 10, 8))
+    np.testing.assert_array_equal(win, full[6:14, 4:14])
+    assert calls == []                                    # no hashing per window
+    r.scene.unpin_content()
+    _opaque_panes(r.scene)
+    after = r.render()
+    assert calls                                          # unpinned: the key is computed again
+    fresh = _load()
+    _opaque_panes(fresh)
+    np.testing.assert_array_equal(after, links1.render(fresh))  # and the caches follow the change
