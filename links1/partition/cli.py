@@ -113,7 +113,7 @@ def _model_and_channels(spec, args):
     """The root's scene model (core loader: shapes, camera) and the output channel names."""
     from ..render import channel_names
     from .loadmodel import load_table, scene_model
-    table = load_table(getattr(args, "load_table", None))
+    table = load_table(getattr(args, "load_table", None), renderer=spec.kind)
     root_spec = spec
     if spec.kind != "core":  # the root only needs shapes and the camera: read them with the core
         from .runtime import RendererSpec

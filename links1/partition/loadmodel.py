@@ -43,20 +43,114 @@ DEFAULT_LOAD_TABLE = {
 }
 
 
-def load_table(path=None) -> dict:
-    """The default table, updated from a JSON file with the same layout (any subset of keys)."""
+#: Tables fitted per renderer to measured tile times (:func:`fit_load_table`, run by
+#: ``python -m compare.load_table``; results in ``compare/results/load_table.md``), merged
+#: over :data:`DEFAULT_LOAD_TABLE`. The core keeps the default table. For ``links1_whitted``
+#: (Mitsuba) every pixel's lanes pay for the whole frozen ray tree, meshes are Embree's, and
+#: reflection/refraction trees are what cost: a very different table from the core's.
+RENDERER_LOAD_TABLES: dict = {
+    # python -m compare.load_table --rounds 3 (512², 32 tiles a scene, all 10 scenes; 2-core
+    # AMD EPYC, 2026-11-25): relative RMS residual 0.38; a two-node subscreen plan's measured
+    # imbalance 1.15 -> 1.06 on average over the scenes held out of the fit (fig11 1.42 -> 1.07)
+    "mitsuba": {
+        "representation": {"quadric": 1.0, "trianglemesh": 0.87, "blob": 0.68},
+        "finish": {"reflective": 2.0, "transmissive": 7.0},
+        "background": 1.49,
+    },
+}
+
+
+def _merge(table: dict, update: dict) -> None:
+    for k, v in update.items():
+        if isinstance(v, dict) and isinstance(table.get(k), dict):
+            table[k].update(v)
+        else:
+            table[k] = v
+
+
+def load_table(path=None, renderer: str | None = None) -> dict:
+    """The default table, then the ``renderer``'s fitted table (:data:`RENDERER_LOAD_TABLES`),
+    then a JSON file with the same layout (any subset of keys)."""
     table = json.loads(json.dumps(DEFAULT_LOAD_TABLE))
+    _merge(table, json.loads(json.dumps(RENDERER_LOAD_TABLES.get(str(renderer), {}))))
     if path:
         try:
             with open(path) as f:
                 user = json.load(f)
         except (OSError, ValueError) as e:
             raise UsageError(f"load table {path}: {e}") from None
-        for k, v in user.items():
-            if isinstance(v, dict) and isinstance(table.get(k), dict):
-                table[k].update(v)
-            else:
-                table[k] = v
+        if not isinstance(user, dict):
+            raise UsageError(f"load table {path}: expected a JSON object like DEFAULT_LOAD_TABLE")
+        _merge(table, user)
+    return table
+
+
+def _rep_key(shape, rep) -> str:
+    t = str(shape.get("type", "")).lower()
+    return t if t in rep else "default"
+
+
+def fit_load_table(samples, *, reflective=None, transmissive=None, base=None) -> dict:
+    """Fit the load table to measured unit times (least squares, eq. 4.1 kept as it is).
+
+    ``samples``: ``[(model, units, seconds), ...]``, one per scene: a :class:`SceneModel`, the
+    units (``Unit``s) and each unit's measured seconds when rendered in its own launch. For
+    fixed finish extras the predicted unit load is linear in ``representation[t]`` and
+    ``background``: ``seconds_u ~ sum_t rep[t] L_u(t) + background * area_u + c`` (``c``: the
+    launch's fixed cost, the same for all units); the finish extras are chosen from a grid.
+    Each scene's rows are divided by its mean time, so every scene counts alike. Coefficients
+    are kept >= 0 (a negative one is set to 0 and the rest refitted). The result is scaled
+    to ``representation["quadric"] = 1`` (when fitted > 0) and returned with ``"fit"``: the
+    relative RMS residual and the launch constant in seconds.
+    """
+    from .strategies import unit_loads
+    base = json.loads(json.dumps(base or DEFAULT_LOAD_TABLE))
+    reflective = np.linspace(0.0, 32.0, 65) if reflective is None else reflective
+    transmissive = np.linspace(0.0, 32.0, 33) if transmissive is None else transmissive
+    keys = sorted({_rep_key(s, base["representation"]) for m, _, _ in samples for s in m.shapes})
+    # w_j = rep[t] (1 + fr refl_j + ft trans_j) is linear in (rep[t], rep[t] fr, rep[t] ft):
+    # per scene and representation, the unit loads of its objects with w_j = 1, refl_j, trans_j
+    basis, rhs = [], []
+    for m, units, sec in samples:
+        sec = np.asarray(sec, dtype=np.float64)
+        scale = 1.0 / max(float(sec.mean()), 1e-12)
+        refl = np.array([bool(s.get("reflective")) for s in m.shapes], dtype=np.float64)
+        trans = np.array([bool(s.get("transmissive")) for s in m.shapes], dtype=np.float64)
+        rk = np.array([_rep_key(s, base["representation"]) for s in m.shapes])
+        cols = []
+        for k in keys:
+            for f in (1.0, refl, trans):
+                w = (rk == k) * f
+                cols.append(unit_loads(units, replace(m, loads=w, background=0.0, meta=dict(m.meta)).load_map()))
+        area = np.array([u.w * u.h for u in units], dtype=np.float64)
+        basis.append(np.stack(cols + [area, np.ones(len(units))], axis=1) * scale)
+        rhs.append(sec * scale)
+    B, b = np.concatenate(basis), np.concatenate(rhs)
+    nk = len(keys)
+    best = None
+    for fr in reflective:
+        for ft in transmissive:
+            A = np.concatenate([B[:, 3 * i:3 * i + 1] + fr * B[:, 3 * i + 1:3 * i + 2] + ft * B[:, 3 * i + 2:3 * i + 3]
+                                for i in range(nk)] + [B[:, 3 * nk:]], axis=1)
+            free = np.ones(A.shape[1], dtype=bool)
+            while True:
+                x = np.zeros(A.shape[1])
+                x[free] = np.linalg.lstsq(A[:, free], b, rcond=None)[0]
+                if (x >= 0).all():
+                    break
+                free &= x > 0
+            res = float(np.sqrt(np.mean((A @ x - b) ** 2)))
+            if best is None or res < best[0] - 1e-12:
+                best = (res, fr, ft, x)
+    res, fr, ft, x = best
+    rep = dict(zip(keys, x[:len(keys)]))
+    unit = rep.get("quadric", 0.0) or max(max(rep.values(), default=0.0), x[len(keys)], 1e-30)
+    table = base
+    table["representation"].update({k: float(v / unit) for k, v in rep.items()})
+    table["finish"] = {"reflective": float(fr), "transmissive": float(ft)}
+    table["background"] = float(x[len(keys)] / unit)
+    table["fit"] = {"relative_rms": res, "launch_s": float(x[-1]), "seconds_per_load": float(unit),
+                    "fitted": keys}
     return table
 
 

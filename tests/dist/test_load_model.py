@@ -9,6 +9,7 @@ both rank the strips as the construction does.
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from links1.partition.experiment import spearman
 from links1.partition.loadmodel import scene_model
@@ -60,3 +61,58 @@ def test_eq41_predicts_a_known_load_gradient(tmp_path):
     assert spearman(predicted, measured) == 1.0
     # and not only the order: predicted and measured loads are nearly proportional
     assert np.corrcoef(predicted, measured)[0, 1] > 0.95
+
+
+def _synthetic_model():
+    """Five objects of three representations and finishes on a 64x48 film (rectangles given)."""
+    from links1.partition.loadmodel import SceneModel
+    shapes = [{"type": "quadric", "reflective": False, "transmissive": False},
+              {"type": "quadric", "reflective": True, "transmissive": False},
+              {"type": "trianglemesh", "reflective": False, "transmissive": False},
+              {"type": "quadric", "reflective": False, "transmissive": True},
+              {"type": "blob", "reflective": True, "transmissive": False}]
+    rects = np.array([[0, 0, 20, 30], [10, 5, 40, 25], [0, 30, 64, 48], [30, 0, 60, 20], [45, 10, 64, 40]],
+                     dtype=np.float64)
+    return SceneModel(64, 48, shapes, np.ones(len(shapes)), rects)
+
+
+def test_fit_load_table_recovers_the_table_that_made_the_times():
+    """Unit times made by eq. 4.1 itself from a known table (plus a launch constant) are fitted
+    back to that table: the representation, the finish extras and the background."""
+    from dataclasses import replace
+
+    from links1.partition.loadmodel import fit_load_table, object_loads
+    from links1.partition.strategies import grid_shape, tile_units, unit_loads
+    truth = {"representation": {"quadric": 1.0, "trianglemesh": 0.4, "blob": 3.0, "default": 1.0},
+             "finish": {"reflective": 2.5, "transmissive": 6.0}, "background": 0.7}
+    samples = []
+    for tiles in (12, 48):  # two "scenes": the same objects cut two ways
+        m = _synthetic_model()
+        units = tile_units(64, 48, *grid_shape(64, 48, tiles))
+        lm = replace(m, loads=object_loads(m.shapes, truth), background=truth["background"]).load_map()
+        samples.append((m, units, 2e-7 * unit_loads(units, lm) + 3e-4))
+    fit = fit_load_table(samples)
+    for k, v in truth["representation"].items():
+        if k != "default":
+            assert fit["representation"][k] == pytest.approx(v, rel=1e-6), k
+    assert fit["finish"] == pytest.approx(truth["finish"], rel=1e-9)
+    assert fit["background"] == pytest.approx(truth["background"], rel=1e-6)
+    assert fit["fit"]["launch_s"] == pytest.approx(3e-4, rel=1e-6)
+    assert fit["fit"]["relative_rms"] < 1e-9
+
+
+def test_each_renderer_plans_with_its_own_load_table(tmp_path):
+    """``links1 schedule --renderer mitsuba`` predicts loads with the table fitted to the plugin
+    renderer, the core with the default table, and a --load-table file overrides either."""
+    import json
+
+    from links1.partition.loadmodel import DEFAULT_LOAD_TABLE, RENDERER_LOAD_TABLES, load_table
+    assert RENDERER_LOAD_TABLES["mitsuba"]["finish"] != DEFAULT_LOAD_TABLE["finish"]
+    assert load_table(renderer="core") == DEFAULT_LOAD_TABLE
+    mt = load_table(renderer="mitsuba")
+    assert mt["background"] == RENDERER_LOAD_TABLES["mitsuba"]["background"]
+    assert mt["representation"]["disk"] == DEFAULT_LOAD_TABLE["representation"]["disk"]  # not fitted: default
+    f = tmp_path / "t.json"
+    f.write_text(json.dumps({"background": 9.0}))
+    over = load_table(f, renderer="mitsuba")
+    assert over["background"] == 9.0 and over["finish"] == mt["finish"]
