@@ -21,6 +21,8 @@ launches           kernel launches (tasks' batches) in the run; per node in node
 reference          measure_overhead(): full frame vs the frame as 64 one-unit launches vs the
                    64 units in two batches, and per_launch_overhead_s (fixed cost of a launch)
 rank_correlation   Spearman: predicted_vs_seconds, predicted_vs_ray_tests, ray_tests_vs_seconds
+load_table         the eq. 4.1 table the plan's loads were predicted with (the renderer's own
+                   fitted table, see loadmodel.RENDERER_LOAD_TABLES, or --load-table)
 data_per_node[]    4-4: per node of the plan, objects_primary/bytes_primary (projected rectangle
                    touches its region) and objects_secondary/bytes_secondary (what secondary
                    rays may still reach)
@@ -124,6 +126,7 @@ def build_report(result, plan, model, *, cost_channel=None, meta=None, reference
         "true_efficiency": None if reference is None else reference["full_s"] / (n * makespan),
         "reference": reference,
         "data_per_node": model.node_data(plan) if model is not None else None,
+        "load_table": model.meta.get("load_table") if model is not None else None,
         "faults": list(result.faults),
         "cost_model": fit_cost_model([u["pixels"] for u in units], tests, secs) if None not in tests and units
         else None,

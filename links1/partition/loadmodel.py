@@ -399,4 +399,4 @@ def scene_model(renderer, *, path=None, params=None, table=None) -> SceneModel:
         md = getattr(getattr(renderer, "scene", None), "max_depth", None) or 5
     return SceneModel(w, h, shapes, object_loads(shapes, table), rects,
                       background=float(table.get("background", 0.05)), max_depth=int(md),
-                      lights=lights_of(renderer), meta={"projected": cam is not None})
+                      lights=lights_of(renderer), meta={"projected": cam is not None, "load_table": table})

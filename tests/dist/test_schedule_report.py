@@ -40,5 +40,7 @@ def test_schedule_reports_the_reference_measured_in_the_same_run(tmp_path, capsy
     assert ref["per_launch_overhead_s"] == pytest.approx(max(0.0, (ref["tiled_s"] - ref["full_s"]) / 63))
     assert r["launches"] == 2  # each node's 4 tiles in one launch
     assert r["simulation"]["unit_overhead_s"] == ref["per_launch_overhead_s"]
+    from links1.partition.loadmodel import load_table
+    assert r["load_table"] == load_table(renderer="core")  # the table the plan was made with
     err = capsys.readouterr().err
     assert "true efficiency" in err and "full frame in one process" in err and "per-launch overhead" in err
