@@ -24,13 +24,17 @@ MAX_REFINE = 24
 LIST_MIN_CENTRES = 24
 #: Candidate centres per ray held in registers (the field sum is unrolled over them); a ray
 #: crossing more sums over its list in local memory (a loop), beyond :data:`LIST_CAP` over all.
-SLOTS = 16
+SLOTS = 32
 #: Slots summed together; a packet skips a group no lane of it fills.
 SLOT_GROUP = 8
 #: Candidate centres per ray held in local memory.
 LIST_CAP = 64
-#: Centres per leaf of the candidate search's hierarchy.
+#: Centres per leaf of the candidate search's hierarchy (at most 15).
 LEAF_CENTRES = 4
+#: :meth:`BlobSpec._consts` columns in the packets of a centre's row in the candidate
+#: search's table: ``(x, y, z, 9S²)``, ``(w, S, 3S, 1/(3S²))``, ``(2|w|/(3S), 2|w|/(3S²),
+#: 1/(6S²), −2/(3S²))``.
+_ROW_PACKETS = [0, 1, 2, 5, 3, 4, 7, 6, 10, 11, 8, 9]
 
 
 def _matrix(props, name="to_world"):
@@ -317,12 +321,16 @@ class BlobSpec:
 
     def tables(self):
         """Dr.Jit tables of the candidate search, built once (``None`` below
-        :data:`LIST_MIN_CENTRES`): a hierarchy of boxes over the centres' 3S spheres (one
-        centre per leaf, bvh.py's SAH build) and the constants of :meth:`_consts` in its leaf
-        order, so that a left-first walk meets the candidates in increasing row."""
+        :data:`LIST_MIN_CENTRES`): a hierarchy of boxes over the centres' 3S spheres (up to
+        :data:`LEAF_CENTRES` centres per leaf, bvh.py's SAH build) and the constants of
+        :meth:`_consts` in its leaf order, so that a left-first walk meets the candidates in
+        increasing row. Both are packets of 4 floats, read with packet gathers: a centre's
+        row as ``(x, y, z, 9S²)`` (all the line test reads), ``(w, S, 3S, 1/(3S²))`` and
+        ``(2|w|/(3S), 2|w|/(3S²), 1/(6S²), −2/(3S²))``; a node as ``(lo, first)`` and
+        ``(hi, count)`` (small integers, exact in float32)."""
         if self._tables is None and self.uses_lists():
             import mitsuba as mi
-            from .bvh import build, pack_boxes
+            from .bvh import build
             k = self._consts()
             c, R = k[:, :3], k[:, 7]
             # padded so that a sphere the float32 line test finds crossed is never culled
@@ -330,29 +338,41 @@ class BlobSpec:
             order, nlo, nhi, first, count = build(c - R[:, None] - pad, c + R[:, None] + pad,
                                                   leaf=LEAF_CENTRES)
             F = lambda a: mi.Float(np.ascontiguousarray(a, dtype=np.float64).ravel())  # noqa: E731
-            self._tables = {"consts": F(k[order]), "box": F(pack_boxes(nlo, nhi)),
-                            "first": mi.UInt32(first), "count": mi.UInt32(count)}
+            nodes = np.zeros((len(nlo), 2, 4))
+            nodes[:, 0, :3], nodes[:, 0, 3] = nlo, first
+            nodes[:, 1, :3], nodes[:, 1, 3] = nhi, count
+            self._tables = {"rows": F(k[order][:, _ROW_PACKETS]), "nodes": F(nodes)}
         return self._tables
 
     def _row(self, idx, act):
+        """Row ``idx`` of the leaf-ordered constants, in :meth:`_consts`'s column order
+        (three packet gathers; a packet no caller reads is never loaded)."""
         import drjit as dr
         import mitsuba as mi
-        tab = self.tables()["consts"]
-        return [dr.gather(mi.Float, tab, idx * 12 + j, act) for j in range(12)]
+        tab = self.tables()["rows"]
+        vals = [None] * 12
+        for j in range(3):
+            pk = dr.gather(mi.Array4f, tab, 3 * idx + j, act)
+            for col, v in zip(_ROW_PACKETS[4 * j:4 * j + 4], (pk.x, pk.y, pk.z, pk.w)):
+                vals[col] = v
+        return vals
 
     def _collect(self, hit_box, hit_centre, active):
         """Each lane's candidate centres (rows of the leaf-ordered table, increasing) in local
         memory (up to :data:`LIST_CAP`), their number, and whether there were more (the lane
         then sums over all centres).
-        ``hit_box(node, act)`` culls subtrees, ``hit_centre(row, act)`` decides a leaf."""
+        ``hit_box(lo, hi, act)`` culls subtrees, ``hit_centre(row, act)`` decides a leaf. The
+        stack holds each pushed node's ``first · 16 + count`` (read with its box), so a pop
+        reads no table."""
         import drjit as dr
         import mitsuba as mi
         from .bvh import STACK
-        T = self.tables()
         n = dr.width(active)
         stack = dr.alloc_local(mi.UInt32, STACK, mi.UInt32(0))
         lst = dr.alloc_local(mi.UInt32, LIST_CAP, mi.UInt32(0))
-        sp = dr.select(hit_box(mi.UInt32(0), active), mi.UInt32(1), mi.UInt32(0))
+        h, code = self._test_node(hit_box, mi.UInt32(0), active)
+        stack.write(code, mi.UInt32(0), h)
+        sp = dr.select(h, mi.UInt32(1), mi.UInt32(0))
         cnt = dr.zeros(mi.UInt32, n)
         ovf = dr.zeros(mi.Bool, n)
 
@@ -362,9 +382,8 @@ class BlobSpec:
         def body(stack, lst, sp, cnt, ovf):
             act = sp > 0
             sp = sp - 1
-            k = stack.read(sp, act)
-            fst = dr.gather(mi.UInt32, T["first"], k, act)
-            num = dr.gather(mi.UInt32, T["count"], k, act)
+            code = stack.read(sp, act)
+            fst, num = code >> 4, code & 15
             leaf = act & (num > 0)
             for i in range(LEAF_CENTRES):
                 take = leaf & (i < num)
@@ -375,17 +394,23 @@ class BlobSpec:
                 cnt = dr.select(add, cnt + 1, cnt)
             inner = act & ~leaf
             for child in (fst + 1, fst):    # the left child on top: leaves in increasing row
-                h = hit_box(child, inner)
-                stack.write(child, sp, h)
+                h, code = self._test_node(hit_box, child, inner)
+                stack.write(code, sp, h)
                 sp = dr.select(h, sp + 1, sp)
             return stack, lst, sp, cnt, ovf
 
         _, lst, _, cnt, ovf = dr.while_loop((stack, lst, sp, cnt, ovf), cond, body, label="links1_blob_collect")
         return lst, cnt, ovf
 
-    def _node_box(self, k, act):
-        from .bvh import gather_box
-        return gather_box(self.tables()["box"], k, act)
+    def _test_node(self, hit_box, k, act):
+        """Node ``k``'s box against ``hit_box`` and its stack code ``first · 16 + count``."""
+        import drjit as dr
+        import mitsuba as mi
+        tab = self.tables()["nodes"]
+        lo = dr.gather(mi.Array4f, tab, 2 * k, act)
+        hi = dr.gather(mi.Array4f, tab, 2 * k + 1, act)
+        h = hit_box([lo.x, lo.y, lo.z], [hi.x, hi.y, hi.z], act)
+        return h, mi.UInt32(lo.w) * 16 + mi.UInt32(hi.w)
 
     def _each(self, lst, cnt, ovf, state, fn):
         """Loop ``state = fn(row, state)`` over the lane's candidates in increasing row
@@ -405,19 +430,14 @@ class BlobSpec:
         out = dr.while_loop((dr.zeros(mi.UInt32, dr.width(cnt)), lst, *state), cond, body, label="links1_blob_sum")
         return out[2:]
 
-    def _setup_lists(self, u, v, active):
-        """The candidate lists of the rays' lines, the first :data:`SLOTS` of them in
-        registers, and the span and the bounds over them: the sums of :meth:`_setup`, over
-        the centres that add non-zero terms, in the hierarchy's leaf order (so the same to
-        float32 rounding, not bit for bit)."""
+    def _line_candidates(self, u, v, active):
+        """:meth:`_collect` for the line ``u + s v``: the centres whose 3S sphere it crosses."""
         import drjit as dr
         import mitsuba as mi
         from .bvh import slab
         inv_v = mi.Vector3f(1.0 / v.x, 1.0 / v.y, 1.0 / v.z)
-        n = dr.width(active)
 
-        def hit_box(k, act):
-            lo, hi = self._node_box(k, act)
+        def hit_box(lo, hi, act):
             return slab(lo, hi, u, inv_v, mi.Float(-INF), mi.Float(INF), act)[0]
 
         def hit_centre(idx, act):
@@ -425,15 +445,36 @@ class BlobSpec:
             rel = mi.Vector3f(*row[:3]) - u
             return dr.squared_norm(dr.cross(rel, v)) < row[5]
 
-        lst, cnt, ovf = self._collect(hit_box, hit_centre, active)
+        return self._collect(hit_box, hit_centre, active)
+
+    def _setup_lists(self, u, v, active):
+        """The candidate lists of the rays' lines, the first :data:`SLOTS` of them in
+        registers, and the span and the bounds over them: the sums of :meth:`_setup`, over
+        the centres that add non-zero terms, in the hierarchy's leaf order (so the same to
+        float32 rounding, not bit for bit)."""
+        import drjit as dr
+        import mitsuba as mi
+        n = dr.width(active)
+        lst, cnt, ovf = self._line_candidates(u, v, active)
         many = ovf | (cnt > SLOTS)
         st = (dr.full(mi.Float, INF, n), dr.full(mi.Float, -INF, n), dr.zeros(mi.Float, n), dr.zeros(mi.Float, n))
         slots = []
-        for j in range(SLOTS):
-            # an empty slot reads zeros: no crossing, and w = 0 adds exactly zero
-            row = self._row(lst.read(j), (j < cnt) & ~many)
-            tau, h2, *st = self._chord(u, v, row, *st)
-            slots.append((tau, h2, *row[3:5], *row[6:10]))
+        for g in range(0, SLOTS, SLOT_GROUP):
+            def group(*st, g=g):
+                out = []
+                for j in range(g, g + SLOT_GROUP):
+                    # an empty slot reads zeros: no crossing, and w = 0 adds exactly zero
+                    row = self._row(lst.read(j), (j < cnt) & ~many)
+                    tau, h2, *st = self._chord(u, v, row, *st)
+                    out += [tau, h2, *row[3:5], *row[6:10]]
+                return (*st, *out)
+
+            def empty(*st):   # slots no lane of the packet fills: zeros, as an empty slot
+                return (*st, *[dr.zeros(mi.Float, n) for _ in range(8 * SLOT_GROUP)])
+            # the next slots only in packets where some lane has that many candidates
+            res = group(*st) if g == 0 else dr.if_stmt(st, (cnt > g) & ~many, group, empty)
+            st = res[:4]
+            slots += [tuple(res[4 + 8 * j:12 + 8 * j]) for j in range(SLOT_GROUP)]
 
         def span(row, enter, leave, Lb, Gb):
             return self._chord(u, v, row, enter, leave, Lb, Gb)[2:]
@@ -725,8 +766,7 @@ class BlobSpec:
 
         if self.uses_lists():
             # the centres whose box holds the point (the others add exactly zero)
-            def hit_box(k, act):
-                lo, hi = self._node_box(k, act)
+            def hit_box(lo, hi, act):
                 return act & (lo[0] <= x.x) & (x.x <= hi[0]) & (lo[1] <= x.y) & (x.y <= hi[1]) \
                     & (lo[2] <= x.z) & (x.z <= hi[2])
 
