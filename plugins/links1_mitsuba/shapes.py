@@ -199,6 +199,26 @@ def quadric_uv(x, qz):
     return mi.Point2f(phi, dr.select(qz > 0, dr.acos(cos_theta) / math.pi, x.z))
 
 
+def _depth_first(lo, hi, first, count):
+    """Packed node table of :meth:`BlobSpec._collect`: the nodes of a bvh.py ``build``
+    (children of node k at first[k], first[k] + 1) renumbered depth-first, left child first,
+    8 floats each (see :meth:`BlobSpec.tables`)."""
+    pre, work = [], [0]
+    while work:
+        k = work.pop()
+        pre.append(k)
+        if count[k] == 0:
+            work += [int(first[k]) + 1, int(first[k])]
+    size = {}
+    for k in reversed(pre):
+        size[k] = 1 if count[k] > 0 else 1 + size[int(first[k])] + size[int(first[k]) + 1]
+    out = np.zeros((len(pre), 8))
+    for at, k in enumerate(pre):
+        skip = at + size[k]
+        out[at] = [first[k], 0, 0, skip, 0, 0, 0, count[k]] if count[k] > 0 else [*lo[k], skip, *hi[k], 0]
+    return out
+
+
 @dataclass
 class BlobSpec:
     """``links1_blob``: weight-function surface ``Σ w_i P(r_i) = threshold`` (eq. 3.6–3.9).
@@ -322,12 +342,14 @@ class BlobSpec:
     def tables(self):
         """Dr.Jit tables of the candidate search, built once (``None`` below
         :data:`LIST_MIN_CENTRES`): a hierarchy of boxes over the centres' 3S spheres (up to
-        :data:`LEAF_CENTRES` centres per leaf, bvh.py's SAH build) and the constants of
-        :meth:`_consts` in its leaf order, so that a left-first walk meets the candidates in
-        increasing row. Both are packets of 4 floats, read with packet gathers: a centre's
-        row as ``(x, y, z, 9S²)`` (all the line test reads), ``(w, S, 3S, 1/(3S²))`` and
-        ``(2|w|/(3S), 2|w|/(3S²), 1/(6S²), −2/(3S²))``; a node as ``(lo, first)`` and
-        ``(hi, count)`` (small integers, exact in float32)."""
+        :data:`LEAF_CENTRES` centres per leaf, bvh.py's SAH build) in depth-first order, and
+        the constants of :meth:`_consts` in its leaf order, so that the walk meets the
+        candidates in increasing row. Both are packets of 4 floats, read with packet gathers:
+        a centre's row as ``(x, y, z, 9S²)`` (all the line test reads), ``(w, S, 3S,
+        1/(3S²))`` and ``(2|w|/(3S), 2|w|/(3S²), 1/(6S²), −2/(3S²))``; an inner node as
+        ``(lo, skip)`` and ``(hi, 0)``, a leaf as ``(first, 0, 0, skip)`` and ``(0, 0, 0,
+        count)``, where ``skip`` is the node after its subtree (small integers, exact in
+        float32)."""
         if self._tables is None and self.uses_lists():
             import mitsuba as mi
             from .bvh import build
@@ -338,10 +360,8 @@ class BlobSpec:
             order, nlo, nhi, first, count = build(c - R[:, None] - pad, c + R[:, None] + pad,
                                                   leaf=LEAF_CENTRES)
             F = lambda a: mi.Float(np.ascontiguousarray(a, dtype=np.float64).ravel())  # noqa: E731
-            nodes = np.zeros((len(nlo), 2, 4))
-            nodes[:, 0, :3], nodes[:, 0, 3] = nlo, first
-            nodes[:, 1, :3], nodes[:, 1, 3] = nhi, count
-            self._tables = {"rows": F(k[order][:, _ROW_PACKETS]), "nodes": F(nodes)}
+            self._tables = {"rows": F(k[order][:, _ROW_PACKETS]),
+                            "nodes": F(_depth_first(nlo, nhi, first, count))}
         return self._tables
 
     def _row(self, idx, act):
@@ -361,30 +381,30 @@ class BlobSpec:
         """Each lane's candidate centres (rows of the leaf-ordered table, increasing) in local
         memory (up to :data:`LIST_CAP`), their number, and whether there were more (the lane
         then sums over all centres).
-        ``hit_box(lo, hi, act)`` culls subtrees, ``hit_centre(row, act)`` decides a leaf. The
-        stack holds each pushed node's ``first · 16 + count`` (read with its box), so a pop
-        reads no table."""
+        ``hit_box(lo, hi, act)`` culls subtrees, ``hit_centre(row, act)`` decides a leaf's
+        centres. Stackless: the nodes are in depth-first order, so a crossed inner node goes
+        on to the next node (its left child) and anything else to the node after its
+        subtree; the walk ends past the last node."""
         import drjit as dr
         import mitsuba as mi
-        from .bvh import STACK
+        tab = self.tables()["nodes"]
+        end = dr.width(tab) // 8
         n = dr.width(active)
-        stack = dr.alloc_local(mi.UInt32, STACK, mi.UInt32(0))
         lst = dr.alloc_local(mi.UInt32, LIST_CAP, mi.UInt32(0))
-        h, code = self._test_node(hit_box, mi.UInt32(0), active)
-        stack.write(code, mi.UInt32(0), h)
-        sp = dr.select(h, mi.UInt32(1), mi.UInt32(0))
+        k = dr.select(active, mi.UInt32(0), mi.UInt32(end))
         cnt = dr.zeros(mi.UInt32, n)
         ovf = dr.zeros(mi.Bool, n)
 
-        def cond(stack, lst, sp, cnt, ovf):
-            return sp > 0
+        def cond(k, lst, cnt, ovf):
+            return k < end
 
-        def body(stack, lst, sp, cnt, ovf):
-            act = sp > 0
-            sp = sp - 1
-            code = stack.read(sp, act)
-            fst, num = code >> 4, code & 15
+        def body(k, lst, cnt, ovf):
+            act = k < end
+            lo = dr.gather(mi.Array4f, tab, 2 * k, act)
+            hi = dr.gather(mi.Array4f, tab, 2 * k + 1, act)
+            num = mi.UInt32(hi.w)
             leaf = act & (num > 0)
+            fst = mi.UInt32(lo.x)
             for i in range(LEAF_CENTRES):
                 take = leaf & (i < num)
                 take &= hit_centre(fst + i, take)
@@ -392,25 +412,12 @@ class BlobSpec:
                 ovf = ovf | (take & ~add)
                 lst.write(fst + i, cnt, add)
                 cnt = dr.select(add, cnt + 1, cnt)
-            inner = act & ~leaf
-            for child in (fst + 1, fst):    # the left child on top: leaves in increasing row
-                h, code = self._test_node(hit_box, child, inner)
-                stack.write(code, sp, h)
-                sp = dr.select(h, sp + 1, sp)
-            return stack, lst, sp, cnt, ovf
+            down = hit_box([lo.x, lo.y, lo.z], [hi.x, hi.y, hi.z], act & ~leaf)
+            k = dr.select(down, k + 1, mi.UInt32(lo.w))
+            return k, lst, cnt, ovf
 
-        _, lst, _, cnt, ovf = dr.while_loop((stack, lst, sp, cnt, ovf), cond, body, label="links1_blob_collect")
+        _, lst, cnt, ovf = dr.while_loop((k, lst, cnt, ovf), cond, body, label="links1_blob_collect")
         return lst, cnt, ovf
-
-    def _test_node(self, hit_box, k, act):
-        """Node ``k``'s box against ``hit_box`` and its stack code ``first · 16 + count``."""
-        import drjit as dr
-        import mitsuba as mi
-        tab = self.tables()["nodes"]
-        lo = dr.gather(mi.Array4f, tab, 2 * k, act)
-        hi = dr.gather(mi.Array4f, tab, 2 * k + 1, act)
-        h = hit_box([lo.x, lo.y, lo.z], [hi.x, hi.y, hi.z], act)
-        return h, mi.UInt32(lo.w) * 16 + mi.UInt32(hi.w)
 
     def _each(self, lst, cnt, ovf, state, fn):
         """Loop ``state = fn(row, state)`` over the lane's candidates in increasing row
@@ -765,12 +772,17 @@ class BlobSpec:
             return (g + rel * (w * gr),)
 
         if self.uses_lists():
-            # the centres whose box holds the point (the others add exactly zero)
+            # the centres whose 3S sphere holds the point (the others add exactly zero)
             def hit_box(lo, hi, act):
                 return act & (lo[0] <= x.x) & (x.x <= hi[0]) & (lo[1] <= x.y) & (x.y <= hi[1]) \
                     & (lo[2] <= x.z) & (x.z <= hi[2])
 
-            cands = self._collect(hit_box, lambda idx, act: act, dr.isfinite(t))
+            def hit_centre(idx, act):
+                # the point within the 3S sphere (padded: a term r < 3S in float32 is kept)
+                row = self._row(idx, act)
+                return dr.squared_norm(x - mi.Vector3f(*row[:3])) < row[5] * (1.0 + 1e-4)
+
+            cands = self._collect(hit_box, hit_centre, dr.isfinite(t))
             g, = self._each(*cands, (dr.zeros(mi.Vector3f, dr.width(x)),), grad)
         else:
             g = mi.Vector3f(0.0)
