@@ -403,7 +403,7 @@ class BlobSpec:
         tab = self.tables()["nodes"]
         end = dr.width(tab) // 8
         n = dr.width(active)
-        lst = dr.alloc_local(mi.UInt32, LIST_CAP, mi.UInt32(0))
+        lst = dr.alloc_local(mi.UInt32, LIST_CAP + 1, mi.UInt32(0))
         k = dr.select(active, mi.UInt32(0), mi.UInt32(end))
         cnt = dr.zeros(mi.UInt32, n)
         ovf = dr.zeros(mi.Bool, n)
@@ -417,13 +417,15 @@ class BlobSpec:
             hi = dr.gather(mi.Array4f, tab, 2 * k + 1, act)
             num = mi.UInt32(hi.w)
             leaf = act & (num > 0)
-            fst = mi.UInt32(lo.x)
+            fst = mi.UInt32(dr.select(leaf, lo.x, 0.0))
             for i in range(LEAF_CENTRES):
                 take = leaf & (i < num)
                 take &= hit_centre(fst + i, take)
                 add = take & (cnt < LIST_CAP)
                 ovf = ovf | (take & ~add)
-                lst.write(fst + i, cnt, add)
+                # unmasked (a masked write costs a branch per lane): the entry at cnt is kept
+                # only where cnt moves on, and a full list writes to its spare last entry
+                lst.write(fst + i, dr.minimum(cnt, LIST_CAP))
                 cnt = dr.select(add, cnt + 1, cnt)
             down = hit_box([lo.x, lo.y, lo.z], [hi.x, hi.y, hi.z], act & ~leaf)
             k = dr.select(down, k + 1, mi.UInt32(lo.w))
