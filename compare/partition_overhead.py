@@ -17,7 +17,7 @@ The machine is shared (other engineers' test runs): every figure is the median o
 ``repeat`` runs and every target is a ratio measured in the same run.
 
 Usage: ``.venv/bin/python -m compare.partition_overhead [--quick] [--full]``; writes
-``compare/results/partition_overhead.{json,md}``.
+``compare/results/partition_overhead.{json,md}`` (``--quick``: ``partition_overhead_quick.{json,md}``).
 """
 from __future__ import annotations
 
@@ -151,8 +151,9 @@ def main(argv=None):
         out["end_to_end"] = end_to_end_rows(("fig11", "many"), 1024, 16, max(1, repeat - 1))
     meta["load_avg_at_end"] = os.getloadavg()
     RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / "partition_overhead.json").write_text(json.dumps(out, indent=2))
-    (RESULTS / "partition_overhead.md").write_text(markdown(out) + "\n")
+    stem = "partition_overhead_quick" if args.quick and not args.full else "partition_overhead"  # keep --full's
+    (RESULTS / f"{stem}.json").write_text(json.dumps(out, indent=2))
+    (RESULTS / f"{stem}.md").write_text(markdown(out) + "\n")
     return 0
 
 

@@ -122,7 +122,8 @@ def define_integrator():
         _prep = _hidden_attr("prep")
         _freeze = _hidden_attr("freeze")
         _freeze_points = _hidden_attr("freeze_points")
-        stats = _hidden_attr("stats")
+        #: ray counters of the last render (``Launches._set_stats``: summed when first read)
+        stats = property(lambda self: self._read_stats(), lambda self, v: self._set_stats(v))
 
         def __init__(self, props):
             super().__init__(props)

@@ -17,8 +17,13 @@ from links1.sampling import strata
 #: Most samples (lanes) per launch of the window function; more are split into launches.
 LAUNCH_LANES = 1 << 22
 
-#: The integrator whose frozen window function runs (read inside it, not traversed by freeze).
-_FROZEN_CALLER = {"integrator": None}
+#: Launches of at most this many lanes keep their ray counters until ``stats`` is read
+#: (``Launches._launch_counts``); bigger ones sum them at once (memory).
+LAZY_COUNT_LANES = 1 << 16
+
+#: The integrator whose frozen window function runs and its scene (read inside it, not
+#: traversed by freeze: the function's scene input is there for freeze's walk only).
+_FROZEN_CALLER = {"integrator": None, "scene": None}
 
 #: the camera sample (pixel key, i, spp) of the rays last made by ``_camera_rays``, per integrator,
 #: read by the primary level of ``_trace_tree`` (kept out of the integrator: Dr.Jit freezing walks it)
@@ -53,17 +58,91 @@ def _aligned(a, dtype) -> np.ndarray:
     window now and then recorded and compiled again; 2 of 8 fresh processes of
     tests/plugins/test_renderer_api.py, 0 of 10 aligned)."""
     a = np.asarray(a, dtype=dtype)
-    buf = np.empty(a.nbytes + 64, dtype=np.uint8)
-    start = -buf.ctypes.data % 64
-    out = buf[start:start + a.nbytes].view(dtype)
+    out = _aligned_empty(a.size, dtype)
     out[:] = a.ravel()
     return out
+
+
+def _aligned_empty(n, dtype) -> np.ndarray:
+    """An uninitialised 64-byte aligned array of ``n`` values (see :func:`_aligned`)."""
+    dtype = np.dtype(dtype)
+    buf = np.empty(n * dtype.itemsize + 64, dtype=np.uint8)
+    start = -buf.ctypes.data % 64
+    return buf[start:start + n * dtype.itemsize].view(dtype)
+
+
+def _is_aligned(a) -> bool:
+    return a.flags.c_contiguous and a.ctypes.data % 64 == 0
+
+
+class SceneInputs:
+    """The part of a Mitsuba scene that the frozen launches read, as :func:`drjit.freeze` input.
+
+    Freeze walks every input on every call. Given the scene, it walks the scene's object tree
+    (each shape, emitter and sensor once as a member and again among the scene's children:
+    fig11 yields 690 variables, 241 distinct) and then, for the registry domains of the
+    pointer arrays it met (shapes, emitters, sensors), every registered object again: 0.16-0.21
+    ms a launch on fig11, many, mitsuba_glass. The launches make camera rays themselves and
+    never read the sensors (their film, sampler: 79 variables). So this input hands freeze the
+    scene's variables once each, without the sensors' ones and without the sensor pointer
+    array (whose domain would make freeze walk every registered sensor): 0.06-0.10 ms.
+    The shape and emitter pointer arrays keep their registry domains, so freeze still walks
+    the registered shapes and emitters that Dr.Jit's calls through those arrays may reach.
+
+    The scene's variables are collected once (through its ``_traverse_1_cb_ro``, the walk
+    freeze itself makes); they stay valid while the scene is not changed, i.e. for one set of
+    prepared tables (``P.scene_input``: rebuilt with them). A recording that reads a variable
+    outside this set fails in Dr.Jit ("... was not specified as an input variable"); the
+    launch then records with the whole scene instead (``Launches._call_frozen``). It holds
+    variable indices, not the scene: the scene owns the integrator, which holds the tables
+    (a reference cycle through C++ objects would keep every scene and its registered
+    objects alive).
+    """
+
+    __slots__ = ("items", "stale")   # no __dict__: _frozen_inputs does not walk it
+
+    def __init__(self, scene):
+        import drjit as dr
+
+        def collect(obj):
+            out = []
+            with dr.scoped_set_flag(dr.JitFlag.EnableObjectTraversal, True):
+                obj._traverse_1_cb_ro(lambda index, variant, domain: out.append((index, variant, domain)))
+            return out
+
+        used = {i for objs in (scene.shapes(), scene.emitters()) for o in objs for i, _, _ in collect(o)}
+        camera_only = {i for s in scene.sensors() for i, _, _ in collect(s)} - used
+        items = {}
+        for index, variant, domain in collect(scene):
+            if index not in camera_only and domain != "Sensor":
+                items.setdefault(index, (index, variant, domain))
+        self.items = tuple(items.values())
+        #: freeze handed back another variable for one of them (it would update the scene's
+        #: own): the launches of these tables take the whole scene from then on
+        self.stale = False
+
+    def _traverse_1_cb_ro(self, fn):
+        for item in self.items:
+            fn(*item)
+
+    def _traverse_1_cb_rw(self, fn):
+        for item in self.items:
+            if fn(*item) != item[0]:
+                self.stale = True
+
+
+#: ``P.scene_input`` when a recording needed more than :class:`SceneInputs` holds
+_WHOLE_SCENE = "whole scene"
 
 
 def _frozen_caller():
     # a function: freeze hashes the globals a frozen function names and traverses their
     # Dr.Jit contents; through a call the integrator (and its scene) stay out of that
     return _FROZEN_CALLER["integrator"]
+
+
+def _frozen_scene():
+    return _FROZEN_CALLER["scene"]
 
 
 def define_launches(mi, dr, mix32, u24):
@@ -134,23 +213,56 @@ def define_launches(mi, dr, mix32, u24):
                     "refract": tot(ct) + tot(nt),
                     "secondary_lanes": int(np.count_nonzero(_lanes(cr, n) | _lanes(ct, n))) if cr is not None else 0}
 
-        def _set_stats(self, counts):
-            """``self.stats``: the counters of the last render's launches summed, and per camera ray."""
-            c = {k: sum(x[k] for x in counts) for k in counts[0]}
-            c["per_camera_ray"] = {k: c[k] / max(c["camera"], 1) for k in ("shadow", "reflect", "refract")}
-            self.stats = c
+        def _launch_counts(self, n, counters):
+            """A launch's ray counters for :meth:`_set_stats`: summed now when the launch is big,
+            kept as the launch's arrays when it is small (up to ``LAZY_COUNT_LANES`` lanes) and
+            summed only when ``stats`` is read: six read-backs and sums, ~0.05 ms, are a tenth
+            of a small window's launch, and nothing in a render reads them."""
+            return (n, counters) if n <= LAZY_COUNT_LANES else self._counts(n, **counters)
 
-        def _call_frozen(self, fn, *args):
-            """Call a frozen launch of this integrator (:func:`_frozen_caller` names it inside)."""
-            _FROZEN_CALLER["integrator"] = self
+        def _set_stats(self, counts):
+            """``self.stats`` (read through :meth:`_read_stats`): the counters of the last
+            render's launches (a list of :meth:`_launch_counts`) summed, and per camera ray; or
+            the dict ``counts`` itself."""
+            pending = isinstance(counts, list)
+            self._hidden.stats = None if pending else counts
+            self._hidden.stats_pending = counts if pending else None
+
+        def _read_stats(self):
+            pending = getattr(self._hidden, "stats_pending", None)
+            if pending:
+                counts = [self._counts(c[0], **c[1]) if isinstance(c, tuple) else c for c in pending]
+                c = {k: sum(x[k] for x in counts) for k in counts[0]}
+                c["per_camera_ray"] = {k: c[k] / max(c["camera"], 1) for k in ("shadow", "reflect", "refract")}
+                self._hidden.stats = c
+                self._hidden.stats_pending = None
+            return getattr(self._hidden, "stats", None)
+
+        def _call_frozen(self, fn, P, scene, *args):
+            """Call a frozen launch of this integrator (:func:`_frozen_caller` names it inside)
+            with ``args`` and, last, the scene as :class:`SceneInputs`; a recording that reads
+            more of the scene than those hold is made again with the whole scene, which the
+            launches of ``P`` then keep passing."""
+            scene_input = getattr(P, "scene_input", None)
+            if scene_input is None:
+                scene_input = P.scene_input = SceneInputs(scene)
+            elif scene_input is not _WHOLE_SCENE and scene_input.stale:
+                scene_input = P.scene_input = _WHOLE_SCENE   # freeze would update the scene's own
+            _FROZEN_CALLER.update(integrator=self, scene=scene)
             # no cyclic garbage collection while recording: freeing another renderer's Dr.Jit
             # state (its own recordings) in the middle of one aborts the process
             gc_on = gc.isenabled()
             gc.disable()
             try:
-                return fn(*args)
+                if scene_input is _WHOLE_SCENE:
+                    return fn(*args, scene)
+                try:
+                    return fn(*args, scene_input)
+                except Exception:
+                    P.scene_input = _WHOLE_SCENE
+                    return fn(*args, scene)
             finally:
-                _FROZEN_CALLER["integrator"] = None
+                _FROZEN_CALLER.update(integrator=None, scene=None)
                 if gc_on:
                     gc.enable()
 
@@ -187,14 +299,14 @@ def define_launches(mi, dr, mix32, u24):
             and replayed without re-tracing for any pixel set, window or batch size and spp
             (freeze replays recorded kernels at the widths of the new inputs)."""
             if self._freeze is None:
-                def launch_kernels(sid, n_op, spp, seeds, cfg, tables, scene):
+                def launch_kernels(sid, n_op, spp, seeds, cfg, tables, scene_input):
                     # no closure: freeze would traverse it (the integrator, the scene ...)
                     self = _frozen_caller()
                     P = self._prep
                     want = cfg[2]
                     o, d, tmin, tmax, key, _ = self._camera_rays(P, sid, spp, seeds)
-                    total, cost, t0, s0, n0, counters = self._trace_tree(P, scene, o, d, tmin, tmax, key,
-                                                                         want, frozen=n_op)
+                    total, cost, t0, s0, n0, counters = self._trace_tree(P, _frozen_scene(), o, d, tmin,
+                                                                         tmax, key, want, frozen=n_op)
                     return (total, cost, t0, s0, n0, counters) if want else (total, cost, counters)
                 self._freeze = dr.freeze(launch_kernels, warn_after=1000)
             return self._freeze
@@ -203,12 +315,12 @@ def define_launches(mi, dr, mix32, u24):
             """:meth:`trace_points` as a :func:`drjit.freeze` function (film positions and keys
             are run-time inputs): recorded once per configuration, replayed for any point count."""
             if getattr(self, "_freeze_points", None) is None:
-                def launch_points(xf, yf, key, n_op, cfg, tables, scene):
+                def launch_points(xf, yf, key, n_op, cfg, tables, scene_input):
                     self = _frozen_caller()
                     P = self._prep
                     o, d, tmin, tmax = self._rays_at(P, xf, yf)
-                    total, cost, _, _, _, counters = self._trace_tree(P, scene, o, d, tmin, tmax, key, False,
-                                                                      frozen=n_op)
+                    total, cost, _, _, _, counters = self._trace_tree(P, _frozen_scene(), o, d, tmin, tmax,
+                                                                      key, False, frozen=n_op)
                     return total, cost, counters
                 self._freeze_points = dr.freeze(launch_points, warn_after=1000)
             return self._freeze_points
@@ -229,15 +341,15 @@ def define_launches(mi, dr, mix32, u24):
                 key = mi.UInt32(_aligned(keys[a:b], np.uint32))
                 if self.use_freeze:
                     cfg = (id(P), id(scene), int(self.max_depth), float(self.min_weight))
-                    total, c, counters = self._call_frozen(self._frozen_points_fn(), x, y, key,
+                    total, c, counters = self._call_frozen(self._frozen_points_fn(), P, scene, x, y, key,
                                                            dr.opaque(mi.UInt32, b - a), cfg,
-                                                           self._frozen_inputs(P), scene)
+                                                           self._frozen_inputs(P))
                 else:
                     o, d, tmin, tmax = self._rays_at(P, x, y)
                     total, c, _, _, _, counters = self._trace_tree(P, scene, o, d, tmin, tmax, key, False)
                 L.append(_columns(total, b - a).astype(np.float64))
                 cost.append(_lanes(c, b - a).astype(np.float64))
-                counts.append(self._counts(b - a, **counters))
+                counts.append(self._launch_counts(b - a, counters))
             if counts:
                 self._set_stats(counts)
             return np.concatenate(L), np.concatenate(cost)
@@ -245,11 +357,11 @@ def define_launches(mi, dr, mix32, u24):
         def _launch(self, P, scene, sid_np, spp_, seeds, want):
             """One launch over the sample ids ``sid_np`` -> (numpy outputs, its ray counters)."""
             n = sid_np.size
-            sid = mi.UInt32(_aligned(sid_np, np.uint32))   # see _aligned
+            sid = mi.UInt32(sid_np if _is_aligned(sid_np) else _aligned(sid_np, np.uint32))   # see _aligned
             if self.use_freeze:
                 cfg = (id(P), id(scene), want, int(self.max_depth), float(self.min_weight))
-                out = self._call_frozen(self._frozen_fn(), sid, dr.opaque(mi.UInt32, n), spp_, seeds, cfg,
-                                        self._frozen_inputs(P), scene)
+                out = self._call_frozen(self._frozen_fn(), P, scene, sid, dr.opaque(mi.UInt32, n), spp_, seeds,
+                                        cfg, self._frozen_inputs(P))
                 total, cost, counters = out[0], out[1], out[-1]
                 t0, s0, n0 = out[2:5] if want else (None, None, None)
             else:
@@ -258,7 +370,7 @@ def define_launches(mi, dr, mix32, u24):
             part = {"total": _columns(total, n), "cost": _lanes(cost, n)}
             if want:
                 part.update(t0=_lanes(t0, n), s0=_lanes(s0, n), n0=_columns(n0, n))
-            return part, self._counts(n, **counters)
+            return part, self._launch_counts(n, counters)
 
         def render_adaptive(self, scene, window=None, seed=None, aovs=None, threshold=None, depth=None):
             """Adaptive anti-aliasing of ``window`` (:func:`links1.render.render_adaptive_window`,
@@ -311,12 +423,19 @@ def define_launches(mi, dr, mix32, u24):
             aovs = self.aovs if aovs is None else parse_aovs(aovs)
             want = bool(aovs)
             # each window traces the samples of its filter border too (clipped to the film)
-            gathers = [FilterGather(P.rfilter, win, (W, H)) for win in wins]
-            pix = np.concatenate([((np.arange(y0, y0 + h, dtype=np.uint32) * W)[:, None]
-                                   + np.arange(x0, x0 + w, dtype=np.uint32)[None, :]).ravel()
-                                  for x0, y0, w, h in (g.sample_window for g in gathers)])
-            sid_np = (pix[:, None] * np.uint32(spp) + np.arange(spp, dtype=np.uint32)[None, :]).ravel()
-            n = sid_np.size
+            box = P.rfilter.border == 0
+            gathers = [None if box else FilterGather(P.rfilter, win, (W, H)) for win in wins]
+            sample_windows = wins if box else [g.sample_window for g in gathers]
+            # sample ids pixel * spp + i, written in place into one aligned buffer (see _aligned)
+            n = sum(w * h for _, _, w, h in sample_windows) * spp
+            sid_np = _aligned_empty(n, np.uint32)
+            at = 0
+            for x0, y0, w, h in sample_windows:
+                pix = (np.arange(y0, y0 + h, dtype=np.uint32) * np.uint32(W))[:, None, None] \
+                    + np.arange(x0, x0 + w, dtype=np.uint32)[None, :, None]
+                np.add(pix * np.uint32(spp), np.arange(spp, dtype=np.uint32)[None, None, :],
+                       out=sid_np[at:at + w * h * spp].reshape(h, w, spp))
+                at += w * h * spp
             spp_ = (dr.opaque(mi.UInt32, spp), dr.opaque(mi.UInt32, strata(spp)))
             seeds = (dr.opaque(mi.UInt32, seed & 0xFFFFFFFF),
                      dr.opaque(mi.UInt32, (seed * 0x27D4EB2F + 0x165667B1) & 0xFFFFFFFF))
@@ -324,14 +443,13 @@ def define_launches(mi, dr, mix32, u24):
             # one launch); one launch of W*H*spp lanes needs ~90 bytes each (512², 1024 spp: 24 GB)
             parts, counts = zip(*(self._launch(P, scene, sid_np[a:a + LAUNCH_LANES], spp_, seeds, want)
                                   for a in range(0, n, LAUNCH_LANES)))
-            self._set_stats(counts)
+            self._set_stats(list(counts))
             total = np.concatenate([q["total"] for q in parts])
             cost = np.concatenate([q["cost"] for q in parts])
             if want:
                 t0, s0, n0 = (np.concatenate([q[k] for q in parts]) for k in ("t0", "s0", "n0"))
             npix = n // spp
             samples = total.astype(np.float64)
-            box = P.rfilter.border == 0
             if box:
                 rgb = samples.reshape(npix, spp, 3).mean(axis=1) if spp > 1 else samples.reshape(npix, 3)
             else:
@@ -357,10 +475,10 @@ def define_launches(mi, dr, mix32, u24):
                         chans.append(np.full((npix, 1), float(spp)))
             flat = np.concatenate(chans, axis=1) if len(chans) > 1 else rgb
             out, at = [], 0
-            for g in gathers:
-                sx0, sy0, sw, sh = g.sample_window
-                img = g.inner(flat[at:at + sw * sh].reshape(sh, sw, -1))
+            for g, (sx0, sy0, sw, sh) in zip(gathers, sample_windows):
+                img = flat[at:at + sw * sh].reshape(sh, sw, -1)
                 if not box:
+                    img = g.inner(img)
                     block = samples[at:at + sw * sh].reshape(sh, sw, spp, 3)
                     rgb = filter_samples(P.rfilter, g.window, (W, H), block, (sx0, sy0), spp, seed)
                     img = np.concatenate([rgb, img], axis=2)
