@@ -453,7 +453,10 @@ class BlobSpec:
         return out[2:]
 
     def _line_candidates(self, u, v, active):
-        """:meth:`_collect` for the line ``u + s v``: the centres whose 3S sphere it crosses."""
+        """:meth:`_collect` for the line ``u + s v``: the centres whose 3S sphere it crosses,
+        the only ones whose term ``w_i P(r_i)`` of ``W`` (eq. 3.6/3.7) can be non-zero on the
+        line (``P = 0`` from ``r = 3S`` on, eq. 3.9); the root of ``W = T`` (eq. 3.8) is
+        sought over their span."""
         import drjit as dr
         import mitsuba as mi
         from .bvh import slab
