@@ -71,6 +71,14 @@ def machine_info() -> dict:
     return info
 
 
+def cpu_seconds() -> float:
+    """This process's CPU time so far (user + system, all threads). Frame times as CPU time are
+    barely inflated when other processes share the machine's cores; wall times are."""
+    import resource
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+
+
 def gpu_name() -> str | None:
     """The NVIDIA GPU's name, or None (no GPU: the CUDA rows are skipped)."""
     try:

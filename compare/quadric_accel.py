@@ -67,18 +67,24 @@ def _specs(n):
     return [s for s in r.integrator.custom]
 
 
-def _timed(fn, repeats):
+def _timed(fn, repeats, cpu=None):
+    """Median wall and kernel seconds of ``repeats`` calls of ``fn`` (after a warm-up) and the
+    last output; the median CPU seconds are appended to the list ``cpu`` when given."""
     import drjit as dr
     fn()
-    wall, kern = [], []
+    wall, kern, cpu_s = [], [], []
     for _ in range(repeats):
         dr.set_flag(dr.JitFlag.KernelHistory, True)
         dr.kernel_history()
+        c0 = common.cpu_seconds()
         t0 = time.perf_counter()
         out = fn()
         wall.append(time.perf_counter() - t0)
+        cpu_s.append(common.cpu_seconds() - c0)
         kern.append(sum(float(k.get("execution_time", 0.0)) for k in dr.kernel_history()) / 1e3)
         dr.set_flag(dr.JitFlag.KernelHistory, False)
+    if cpu is not None:
+        cpu.append(float(np.median(cpu_s)))
     return float(np.median(wall)), float(np.median(kern)), out
 
 
@@ -100,14 +106,17 @@ def run_frames(n, res, repeats):
                 p.write_text(quadric_scene(n, mitsuba_shapes=msh, bsdf=bsdf))
                 kw = {"integrator": integ} if integ else {}
                 r = make_renderer("mitsuba", str(p), params={"res": res}, spp=1, **kw)
-                wall, kern, _ = _timed(r.render, repeats)
+                cpu = []
+                wall, kern, _ = _timed(r.render, repeats, cpu)
                 row[f"{key}_ms"], row[f"{key}_kernel_ms"] = 1e3 * wall, 1e3 * kern
+                row[f"{key}_cpu_ms"] = 1e3 * cpu[0]
                 del r
                 dr.flush_malloc_cache()
             row["ratio"] = row["quadric_ms"] / row["sphere_ms"]
             row["kernel_ratio"] = row["quadric_kernel_ms"] / max(row["sphere_kernel_ms"], 1e-9)
+            row["cpu_ratio"] = row["quadric_cpu_ms"] / max(row["sphere_cpu_ms"], 1e-9)
             print(f"  N={n} {bsdf}: quadric {row['quadric_ms']:.1f} ms, Mitsuba sphere {row['sphere_ms']:.1f} ms "
-                  f"({row['ratio']:.2f}x; kernels {row['kernel_ratio']:.2f}x)", file=sys.stderr, flush=True)
+                  f"({row['ratio']:.2f}x; kernels {row['kernel_ratio']:.2f}x; CPU {row['cpu_ratio']:.2f}x)", file=sys.stderr, flush=True)
             rows.append(row)
     return rows
 
@@ -232,13 +241,17 @@ def main(argv=None) -> int:
                   f"{a.res}², spp 1, warm median of {a.repeats} frames, `compare.scaling.quadric_scene(N, bsdf=...)`: "
                   "the same scene and materials with the spheres as `links1_quadric` or Mitsuba `sphere` shapes. "
                   "kernels = `dr.kernel_history` execution time of a frame (the rest: the launch's "
-                  "input traversal, read-back). Mitsuba `direct`: Mitsuba's own integrator on the Mitsuba "
-                  "spheres (diffuse), for reference.\n\n")
+                  "input traversal, read-back). CPU = the process's CPU time of a frame (both threads; "
+                  "on a machine whose two cores other processes also use, wall times and their ratio "
+                  "swing with the load, CPU times much less). Mitsuba `direct`: Mitsuba's own integrator "
+                  "on the Mitsuba spheres (diffuse), for reference.\n\n")
         md.append(md_table(["N", "BSDF", "quadric ms", "Mitsuba sphere ms", "ratio", "target (<= 1.2)",
-                            "quadric kernels ms", "sphere kernels ms", "kernel ratio", "Mitsuba direct ms"],
+                            "quadric kernels ms", "sphere kernels ms", "kernel ratio", "quadric CPU ms",
+                            "sphere CPU ms", "CPU ratio", "Mitsuba direct ms"],
                            [[r["size"], r["bsdf"], r["quadric_ms"], r["sphere_ms"], r["ratio"],
                              "met" if r["ratio"] <= 1.2 else "missed", r["quadric_kernel_ms"],
-                             r["sphere_kernel_ms"], r["kernel_ratio"], r.get("direct_ms")] for r in frames]))
+                             r["sphere_kernel_ms"], r["kernel_ratio"], r["quadric_cpu_ms"], r["sphere_cpu_ms"],
+                             r["cpu_ratio"], r.get("direct_ms")] for r in frames]))
     md += ["\n## Nearest-hit queries: own BVH vs Embree proxies vs Mitsuba spheres\n",
           f"\n{a.res}² camera rays (pixel centres) of `compare.scaling.quadric_scene(N)`, spheres only, one "
           f"process, median of {a.repeats} queries after a warm-up; wall = tracing + kernels (what a frame "
