@@ -59,14 +59,19 @@ def define_intersect(mi, dr, util):
                 prim = dr.select(better, part, prim)
             return t, slot, si, prim
 
-        def _shadow_custom(self, P, o, d, smax, active, cost, specs=None):
+        def _shadow_custom(self, P, o, d, smax, active, cost, specs=None, light=None):
             """Transmittance (3-3-3) through the links1 shapes: product of shadow_t over the
-            shapes the segment hits, once per shape."""
+            shapes the segment hits, once per shape. The BVH's quadrics through the light
+            buffer of analytic light ``light`` where it has one (lightbuffer.py), else the BVH."""
             T = dr.select(active, mi.Color3f(1.0), mi.Color3f(0.0))
             specs = P.custom if specs is None else specs
             if P.bvh is not None:
                 if any(sp.slot in P.bvh_slots for sp in specs):
-                    T = P.bvh.transmittance(o, d, smax, active, cost)
+                    lb = P.lbuf[light] if light is not None and light < len(P.lbuf) else None
+                    if lb is not None:
+                        T = lb.transmittance(o, d, smax, active, cost)
+                    else:
+                        T = P.bvh.transmittance(o, d, smax, active, cost)
                 specs = [sp for sp in specs if sp.slot not in P.bvh_slots]
             for spec in specs:
                 st = P.shadow_t_np[spec.slot]

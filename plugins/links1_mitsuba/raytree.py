@@ -163,7 +163,7 @@ def define_raytree(mi, dr, util):
                     return None, lit, None
                 need = need_of(j, lit, wi)
                 n_shadow = n_shadow + dr.select(need, mi.UInt32(1), 0)
-                T = self._shadow_custom(P, so, wi, smax, need, cost, P.occ_custom[j])
+                T = self._shadow_custom(P, so, wi, smax, need, cost, P.occ_custom[j], light=j)
                 return T, need, P.occ_mitsuba[j]
 
             for jl, L in enumerate(P.lights):

@@ -199,21 +199,6 @@ def quadric_uv(x, qz):
     return mi.Point2f(phi, dr.select(qz > 0, dr.acos(cos_theta) / math.pi, x.z))
 
 
-def _line_aligned(a):
-    """``a`` as a Dr.Jit Float in a buffer Dr.Jit allocated itself (64-byte aligned; one made
-    from a numpy array is only 16-byte aligned). The candidate walk reads its tables with
-    packet gathers; the same kernel on a table that started 16 or 48 bytes into a cache line
-    ran up to 2x slower (blob-1000 walk at 128², one thread: 4.0 ms aligned, 5.4-7.9 ms not)."""
-    import drjit as dr
-    import mitsuba as mi
-    flat = mi.Float(np.ascontiguousarray(a, dtype=np.float64).ravel())
-    buf = dr.zeros(mi.Float, dr.width(flat))
-    dr.eval(buf)
-    dr.scatter(buf, flat, dr.arange(mi.UInt32, dr.width(flat)))   # in place, the same bits
-    dr.eval(buf)
-    return buf
-
-
 def _depth_first(lo, hi, first, count):
     """Packed node table of :meth:`BlobSpec._collect`: the nodes of a bvh.py ``build``
     (children of node k at first[k], first[k] + 1) renumbered depth-first, left child first,
@@ -366,15 +351,17 @@ class BlobSpec:
         count)``, where ``skip`` is the node after its subtree (small integers, exact in
         float32)."""
         if self._tables is None and self.uses_lists():
-            from .bvh import build
+            import mitsuba as mi
+
+            from .bvh import build, table
             k = self._consts()
             c, R = k[:, :3], k[:, 7]
             # padded so that a sphere the float32 line test finds crossed is never culled
             pad = (1e-3 * R + 1e-5 * np.abs(c).max(1))[:, None]
             order, nlo, nhi, first, count = build(c - R[:, None] - pad, c + R[:, None] + pad,
                                                   leaf=LEAF_CENTRES)
-            self._tables = {"rows": _line_aligned(k[order][:, _ROW_PACKETS]),
-                            "nodes": _line_aligned(_depth_first(nlo, nhi, first, count))}
+            self._tables = {"rows": table(mi.Float, k[order][:, _ROW_PACKETS]),
+                            "nodes": table(mi.Float, _depth_first(nlo, nhi, first, count))}
         return self._tables
 
     def _row(self, idx, act):

@@ -22,6 +22,7 @@ import numpy as np
 from links1.filters import Filter
 from links1.lights import ENV_LIGHT_ID
 
+from . import lightbuffer
 from .lights import _emitted_rgb
 
 
@@ -300,6 +301,8 @@ def define_tables(mi, dr, util):
                 raise ValueError(f"links1_whitted renders perspective, thinlens and orthographic sensors, "
                                  f"not {kind}")
             self._occluders(P, shapes, slot_list)
+            # light buffers for the quadric shadow rays toward analytic lights (where they pay)
+            P.lbuf = lightbuffer.plan(P, scene) if lightbuffer.ENABLED else [None] * len(P.lights)
             self._prep = P
             return P
 
