@@ -32,9 +32,12 @@ import numpy as np
 MARGIN_REL = 1e-4
 #: angular margin (radians) on every cell's cone: float32 direction and face/cell rounding
 ANGLE_MARGIN = 1e-4
-#: most cells per side (cube face or directional grid)
-GRID_MAX = 64
+#: cells per side: about sqrt(GRID_FACTOR * n) for n quadrics, at most GRID_MAX (a cube face:
+#: the cube map's set-up tests every cell against every bound) or GRID_MAX_DIR (a directional
+#: grid: each bound visits only the cells of its box)
 GRID_FACTOR = 14.0
+GRID_MAX = 64
+GRID_MAX_DIR = 256
 #: light buffers on (tests and benchmarks turn them off to compare with the BVH walk)
 ENABLED = True
 #: a light buffer is used for a light when its expected list length per shadow ray is below
@@ -188,11 +191,12 @@ def cube_size(n):
     return int(np.clip(round(math.sqrt(4.0 * n / 6.0)), 8, 64))
 
 
-def grid_size(n):
+def grid_size(n, kind="point"):
     """Cells per side for ``n`` quadrics (cube face or directional grid): about 14 n cells per
-    face, 8..64 (many.xml, 300 spheres: 64; measured mean list lengths per shadow ray in
+    face (many.xml, 300 spheres: 64; mean list lengths per shadow ray against N in
     docs/benchmarks.md 5b)."""
-    return int(np.clip(round(math.sqrt(GRID_FACTOR * n)), 8, GRID_MAX))
+    cap = GRID_MAX if kind == "point" else GRID_MAX_DIR
+    return int(np.clip(round(math.sqrt(GRID_FACTOR * n)), 8, cap))
 
 
 def scene_extent(P, scene, lights):
@@ -252,7 +256,7 @@ def build(bvh, geom, margin, N=None):
     lo = np.array([s.bounds()[0] for s in specs], dtype=np.float64)
     hi = np.array([s.bounds()[1] for s in specs], dtype=np.float64)
     c, r = sphere_bounds(lo, hi, margin)
-    N = grid_size(len(specs)) if N is None else int(N)
+    N = grid_size(len(specs), geom[0]) if N is None else int(N)
     if geom[0] == "point":
         off, ob, ke = build_point(geom[1], c, r, N)
     else:
