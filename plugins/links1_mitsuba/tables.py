@@ -1,6 +1,6 @@
 """The per-scene tables of ``links1_whitted`` (their one home): ``prepare`` turns a Mitsuba scene
 into what the kernels read (slots in file order, ray offsets, materials, shadow transmittance,
-emission, lights, camera, custom shapes and their BVH), rebuilt only when the scene changes;
+emission, lights, camera, custom shapes, their BVH and light buffers), rebuilt only when the scene changes;
 ``_occluders`` decides which shadow rays a scene needs.
 
 What a scene doesn't need is not traced (decided once per scene in ``prepare``): no
