@@ -125,13 +125,17 @@ def build_point(pos, c, r, N, chunk=None):
         objs.append(np.tile(idx_in, ncell))
     out = np.nonzero(~inside)[0]
     chunk = chunk or max(1, (1 << 22) // ncell)
-    cos_cap = None
+    # cos(alpha + h) = cos a cos h - sin a sin h, h = a cell's half-angle + the angular margin:
+    # no transcendental per (cell, bound) pair (alpha <= pi/2 and h <= 0.18 rad from N = 8: no wrap)
+    hm = half + ANGLE_MARGIN
+    ch, sh = np.cos(hm), np.sin(hm)
     for a in range(0, out.size, chunk):
         o = out[a:a + chunk]
         u = rel[o] / D[o, None]
-        alpha = np.arcsin(np.clip(r[o] / D[o], 0.0, 1.0))
-        lim = alpha[None, :] + half[:, None] + ANGLE_MARGIN    # (ncell, k)
-        cos_cap = np.cos(np.minimum(lim, math.pi))
+        sa = np.clip(r[o] / D[o], 0.0, 1.0)
+        ca = np.sqrt(1.0 - sa * sa)
+        cos_cap = np.multiply.outer(ch, ca)
+        cos_cap -= np.multiply.outer(sh, sa)
         hit = (cen @ u.T) >= cos_cap
         ci, oi = np.nonzero(hit)
         cells.append(ci)
