@@ -87,6 +87,28 @@ def _shadow_rays(P, L, rng, N):
             rad = 0.5 * np.min(hi[k] - lo[k])      # about the quadric's surface
             edge = c[k] + side * rad * rng.uniform(0.97, 1.03)
             pts.append((L + (edge - L) * rng.uniform(1.02, 2.5))[None])
+    # exactly grazing: through the silhouette of each ellipsoid as seen from the light (its
+    # object-space tangent circle), a little inside or outside, then on beyond the tangent point
+    for s in specs:
+        m = np.asarray(s.to_world, dtype=np.float64)
+        lo_ = np.linalg.inv(m) @ np.append(L, 1.0)
+        q2 = float(lo_[:3] @ lo_[:3])
+        if q2 <= 1.0:
+            continue
+        a1 = np.cross(lo_[:3], [0.3, 0.5, 0.8])
+        a1 /= np.linalg.norm(a1)
+        a2 = np.cross(lo_[:3], a1) / np.sqrt(q2)
+        phi = rng.uniform(0, 2 * np.pi, 24)
+        y = lo_[:3] / q2 + np.sqrt(1 - 1 / q2) * (np.cos(phi)[:, None] * a1 + np.sin(phi)[:, None] * a2)
+        y *= (1.0 + rng.uniform(-1e-5, 1e-5, 24))[:, None]
+        x = y @ m[:3, :3].T + m[:3, 3]
+        pts.append(L + (x - L) * rng.uniform(1.02, 3.0, 24)[:, None])
+        # through the ellipsoid's farthest points from its centre (the ends of its longest
+        # axis, just inside), where a bounding sphere around the centre is tight
+        v1 = np.linalg.svd(m[:3, :3])[2][0]
+        tips = np.array([v1, -v1]) * (1 - 1e-4)
+        for x in tips @ m[:3, :3].T + m[:3, 3]:
+            pts.append(L + (x - L) * rng.uniform(1.0001, 3.0, 8)[:, None])
     # along the borders of cube-map cells (u or v on a border, the other random)
     for face in range(6):
         ax, sgn = face // 2, (-1.0 if face % 2 else 1.0)
@@ -222,3 +244,21 @@ def test_cells_are_conservative():
             dirs = dirs[dirs @ ax >= np.sqrt(1 - sin_a ** 2) - 1e-12]     # snapped ones still in the cone
             for cell in lb.cube_cell(dirs.astype(np.float32), N):
                 assert k in lists[cell], (N, k)
+
+
+def test_bounding_spheres_hold_the_quadrics(llvm):
+    """Every point of every quadric (its ellipsoid, the longest axis's ends included; a clipped
+    or capped one lies inside its ellipsoid and its box) is inside its light-buffer sphere."""
+    from links1_mitsuba import lightbuffer
+    scene, integ, P = _prepared(_scene(60))
+    c, r = lightbuffer.quadric_spheres(P.bvh.specs, 0.0)
+    rng = np.random.default_rng(2)
+    u = rng.normal(size=(400, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    for k, s in enumerate(P.bvh.specs):
+        m = np.asarray(s.to_world, dtype=np.float64)
+        v1 = np.linalg.svd(m[:3, :3])[2][0]
+        pts = np.concatenate([u, [v1, -v1]]) @ m[:3, :3].T + m[:3, 3]
+        lo, hi = s.bounds()
+        pts = pts[np.all((pts >= lo - 1e-12) & (pts <= hi + 1e-12), axis=1)]   # within its box
+        assert np.all(np.linalg.norm(pts - c[k], axis=1) <= r[k] * (1 + 1e-9)), k
