@@ -49,13 +49,14 @@ DEFAULT_LOAD_TABLE = {
 #: (Mitsuba) every pixel's lanes pay for the whole frozen ray tree, meshes are Embree's, and
 #: reflection/refraction trees are what cost: a very different table from the core's.
 RENDERER_LOAD_TABLES: dict = {
-    # python -m compare.load_table --rounds 3 (512², 32 tiles a scene, all 10 scenes; 2-core
-    # AMD EPYC, 2026-11-25): relative RMS residual 0.38; a two-node subscreen plan's measured
-    # imbalance 1.15 -> 1.06 on average over the scenes held out of the fit (fig11 1.42 -> 1.07)
+    # python -m compare.load_table --rounds 5 (512², 32 tiles a scene, all 10 scenes; 2-core
+    # AMD EPYC, load 1.1, git 97e652e + light buffers, 2026-11-25): relative RMS residual 0.34;
+    # a two-node subscreen plan's measured imbalance 1.15 -> 1.10 on average over the scenes
+    # held out of the fit (fig11 1.43 -> 1.08, mitsuba_glass 1.24 -> 1.02)
     "mitsuba": {
-        "representation": {"quadric": 1.0, "trianglemesh": 0.87, "blob": 0.68},
-        "finish": {"reflective": 2.0, "transmissive": 7.0},
-        "background": 1.49,
+        "representation": {"quadric": 1.0, "trianglemesh": 0.85, "blob": 0.70},
+        "finish": {"reflective": 5.5, "transmissive": 12.0},
+        "background": 2.95,
     },
 }
 
