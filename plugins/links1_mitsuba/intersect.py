@@ -12,6 +12,10 @@ from __future__ import annotations
 
 from .util import INF
 
+#: transparent shadow rays: Embree's preliminary hit, the full surface record (for the next
+#: crossing's origin) only at transparent hits (issue 12; False: ``scene.ray_intersect``)
+PRELIMINARY = True
+
 
 def define_intersect(mi, dr, util):
     """The ``Intersect`` part of ``Links1Whitted`` for the variant in use."""
@@ -101,14 +105,25 @@ def define_intersect(mi, dr, util):
                 return run
 
             def body(o, tleft, T, seen, run, it, cost):
-                si = scene.ray_intersect(mi.Ray3f(o, d, tleft, 0.0, mi.Color0f()), active=run)
+                ray = mi.Ray3f(o, d, tleft, 0.0, mi.Color0f())
+                if PRELIMINARY:
+                    # the full surface record only where the ray goes on (a transparent hit):
+                    # scene.ray_intersect is this preliminary test plus compute_surface_interaction
+                    pi = scene.ray_intersect_preliminary(ray, active=run)
+                    hit = run & pi.is_valid()
+                    shape = pi.shape
+                else:
+                    si = scene.ray_intersect(ray, active=run)
+                    hit = run & si.is_valid()
+                    shape = si.shape
                 cost += dr.select(run, mi.UInt32(1), 0)
-                hit = run & si.is_valid()
-                reg = dr.reinterpret_array(mi.UInt32, si.shape)
+                reg = dr.reinterpret_array(mi.UInt32, shape)
                 slot = dr.gather(mi.Int32, reg_to_slot, reg, hit)
                 bit = dr.gather(mi.UInt32, bits_t, mi.UInt32(slot), hit)
                 word = dr.gather(mi.UInt32, words_t, mi.UInt32(slot), hit)
                 opaque = hit & (bit == 0)
+                if PRELIMINARY:
+                    si = pi.compute_surface_interaction(ray, mi.RayFlags.All, hit & ~opaque)
                 mine = [hit & (bit != 0) & (word == k) for k in range(nwords)]
                 new = hit & mi.Bool(False)
                 for k in range(nwords):

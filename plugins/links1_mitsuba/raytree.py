@@ -28,6 +28,11 @@ from __future__ import annotations
 from .launch import _CAM_SAMPLE
 from .util import INF
 
+#: direct light (every light's sample, shading and shadow rays) under a symbolic ``dr.if_stmt``
+#: on the hit: a packet of escaped rays (sky, 38 % of fig11's camera rays) skips it instead of
+#: computing it masked (issue 12; False: the old straight-line code, for before/after runs)
+SKIP_MISSES = True
+
 
 def define_raytree(mi, dr, util):
     """The ``RayTree`` part of ``Links1Whitted`` for the variant in use."""
@@ -144,63 +149,74 @@ def define_raytree(mi, dr, util):
             # ---- direct light with shadows (eq. 3.11, 3-3-3). Shadow rays of all lights are
             # built and evaluated together, then handed to Mitsuba's ray tests (each test
             # evaluates its inputs: building them first avoids recomputing shared work).
-            pending = []
+            skip = SKIP_MISSES  # under a symbolic if on the hit (no dr.eval inside it)
 
-            def need_of(j, lit, wi):
-                """Lanes that need a shadow ray toward light j (P.shadow_need, _occluders)."""
-                if not P.any_shadow[j]:
-                    return dr.zeros(mi.Bool, n)
-                if P.shadow_need[j] is None:
-                    return lit
-                need = dr.gather(mi.Bool, P.shadow_need[j], uslot, lit)
-                if P.shadow_inner[j] is not None:  # light on the inner side of a closed convex shape
-                    need |= dr.gather(mi.Bool, P.shadow_inner[j], uslot, lit) & (dr.dot(ng, wi) <= 0)
-                return lit & need
+            def direct(out, cost, n_shadow):
+                pending = []
 
-            def shadow(j, so, wi, smax, lit, contrib):
-                nonlocal n_shadow
-                if not P.any_shadow[j]:
-                    return None, lit, None
-                need = need_of(j, lit, wi)
-                n_shadow = n_shadow + dr.select(need, mi.UInt32(1), 0)
-                T = self._shadow_custom(P, so, wi, smax, need, cost, P.occ_custom[j], light=j)
-                return T, need, P.occ_mitsuba[j]
+                def need_of(j, lit, wi):
+                    """Lanes that need a shadow ray toward light j (P.shadow_need, _occluders)."""
+                    if not P.any_shadow[j]:
+                        return dr.zeros(mi.Bool, n)
+                    if P.shadow_need[j] is None:
+                        return lit
+                    need = dr.gather(mi.Bool, P.shadow_need[j], uslot, lit)
+                    if P.shadow_inner[j] is not None:  # light on the inner side of a closed convex shape
+                        need |= dr.gather(mi.Bool, P.shadow_inner[j], uslot, lit) & (dr.dot(ng, wi) <= 0)
+                    return lit & need
 
-            for jl, L in enumerate(P.lights):
-                wi, dist, Ls = self._light(L, p)
-                contrib = f_eval(wi) * Ls
-                lit = hit & (dr.max(contrib) > 0)
-                so, smax = offset(wi), dist - 2.0 * eps
-                T, need, occ_m = shadow(jl, so, wi, smax, lit, contrib)
-                pending.append((contrib, so, wi, smax, lit, need, T, occ_m))
-            m_inv = 1.0 / self.light_samples
-            sampled = [(len(P.lights) + j, tab, tab["id"]) for j, tab in enumerate(P.area_tab)]
-            sampled += [(len(P.lights) + len(P.area) + k, env, lid) for k, env in enumerate(P.consts)
-                        for lid in [env[2]]]
-            for jsh, tab, lid in sampled:          # area lights and environments (links1.lights)
-                for js in range(self.light_samples):
-                    u, v = self._light_uv(key, sample, lid, js)
-                    if isinstance(tab, dict):
-                        wi, dist, Lw = self._sample_area(tab, p, u, v)
-                        # Mitsuba's ray tests include the emitter: stop short of it as Mitsuba does
-                        smax = dist * (1.0 - mi.math.ShadowEpsilon) - 2.0 * eps
-                    else:
-                        wi, Lw = self._sample_env(tab, nf, u, v)
-                        smax = dr.full(mi.Float, INF, n)
-                    contrib = f_eval(wi) * Lw * m_inv
+                def shadow(j, so, wi, smax, lit, contrib):
+                    nonlocal n_shadow
+                    if not P.any_shadow[j]:
+                        return None, lit, None
+                    need = need_of(j, lit, wi)
+                    n_shadow = n_shadow + dr.select(need, mi.UInt32(1), 0)
+                    T = self._shadow_custom(P, so, wi, smax, need, cost, P.occ_custom[j], light=j)
+                    return T, need, P.occ_mitsuba[j]
+
+                for jl, L in enumerate(P.lights):
+                    wi, dist, Ls = self._light(L, p)
+                    contrib = f_eval(wi) * Ls
                     lit = hit & (dr.max(contrib) > 0)
-                    so = offset(wi)
-                    T, need, occ_m = shadow(jsh, so, wi, smax, lit, contrib)
+                    so, smax = offset(wi), dist - 2.0 * eps
+                    T, need, occ_m = shadow(jl, so, wi, smax, lit, contrib)
                     pending.append((contrib, so, wi, smax, lit, need, T, occ_m))
-            if P.any_mitsuba_shapes and pending and not symbolic:
-                dr.eval(out, cost, *[x for tup in pending for x in tup[:6]])
-            for contrib, so, wi, smax, lit, need, T, occ_m in pending:
-                if T is None:               # nothing can shadow this light
-                    out += dr.select(lit, contrib, 0.0)
-                    continue
-                if P.any_mitsuba_shapes and occ_m:
-                    T = self._shadow_mitsuba(P, scene, so, wi, smax, need, T, cost)
-                out += dr.select(lit, contrib * dr.select(need, T, 1.0), 0.0)
+                m_inv = 1.0 / self.light_samples
+                sampled = [(len(P.lights) + j, tab, tab["id"]) for j, tab in enumerate(P.area_tab)]
+                sampled += [(len(P.lights) + len(P.area) + k, env, lid) for k, env in enumerate(P.consts)
+                            for lid in [env[2]]]
+                for jsh, tab, lid in sampled:          # area lights and environments (links1.lights)
+                    for js in range(self.light_samples):
+                        u, v = self._light_uv(key, sample, lid, js)
+                        if isinstance(tab, dict):
+                            wi, dist, Lw = self._sample_area(tab, p, u, v)
+                            # Mitsuba's ray tests include the emitter: stop short of it as Mitsuba does
+                            smax = dist * (1.0 - mi.math.ShadowEpsilon) - 2.0 * eps
+                        else:
+                            wi, Lw = self._sample_env(tab, nf, u, v)
+                            smax = dr.full(mi.Float, INF, n)
+                        contrib = f_eval(wi) * Lw * m_inv
+                        lit = hit & (dr.max(contrib) > 0)
+                        so = offset(wi)
+                        T, need, occ_m = shadow(jsh, so, wi, smax, lit, contrib)
+                        pending.append((contrib, so, wi, smax, lit, need, T, occ_m))
+                if P.any_mitsuba_shapes and pending and not symbolic and not skip:
+                    dr.eval(out, cost, *[x for tup in pending for x in tup[:6]])
+                for contrib, so, wi, smax, lit, need, T, occ_m in pending:
+                    if T is None:               # nothing can shadow this light
+                        out += dr.select(lit, contrib, 0.0)
+                        continue
+                    if P.any_mitsuba_shapes and occ_m:
+                        T = self._shadow_mitsuba(P, scene, so, wi, smax, need, T, cost)
+                    out += dr.select(lit, contrib * dr.select(need, T, 1.0), 0.0)
+                return out, cost, n_shadow
+
+            if skip:
+                out, cost, n_shadow = dr.if_stmt((out, cost, n_shadow), hit, direct,
+                                                 lambda out, cost, n_shadow: (out, cost, n_shadow),
+                                                 mode="symbolic", label="links1_direct")
+            else:
+                out, cost, n_shadow = direct(out, cost, n_shadow)
             res = {"L": out, "cost": cost, "t": t, "slot": slot, "ns": ns, "hit": hit}
             res["n_shadow"] = n_shadow
             if not spawn:
