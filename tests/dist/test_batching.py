@@ -129,3 +129,21 @@ def test_local_pool_batches_give_the_same_bits(strategy, k, core_spec, core_ref)
         assert set(sizes) == {1}
     else:
         assert max(sizes) == chunk_size(len(plan.units), 2, k)
+
+
+def test_nodes_send_float32_only_when_it_is_exact(tmp_path):
+    """A node sends a unit's pixels as float32 when every value is a float32 (the plugin
+    renderer's), half the bytes through the pipe, and as float64 otherwise (the core's): the
+    root's float64 frame gets the same bits either way."""
+    from links1.partition.runtime import RendererSpec, render_units, wire_pixels
+    exact = np.float32([[[0.1, 2.5, np.inf]], [[np.nan, -0.0, 3e-38]]]).astype(np.float64)
+    assert wire_pixels(exact).dtype == np.float32
+    np.testing.assert_array_equal(wire_pixels(exact).astype(np.float64), exact)
+    inexact = exact.copy()
+    inexact[0, 0, 0] = 0.1                      # not a float32
+    assert wire_pixels(inexact).dtype == np.float64
+    np.testing.assert_array_equal(wire_pixels(inexact), inexact)
+    core = render_units(RendererSpec.make("core", MANY, params={"res": "24"}), [(0, 0, 8, 8), (8, 8, 4, 4)])
+    assert {px.dtype for px, _ in core} == {np.dtype(np.float64)}   # a float64 render stays so
+    plugin = render_units(RendererSpec.make("mitsuba", MANY, params={"res": "24"}), [(0, 0, 8, 8), (8, 8, 4, 4)])
+    assert {px.dtype for px, _ in plugin} == {np.dtype(np.float32)}  # the plugin's are float32
