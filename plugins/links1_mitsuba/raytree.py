@@ -69,7 +69,10 @@ def define_raytree(mi, dr, util):
                 mits = dr.full(mi.Bool, False, n)
             for spec in P.custom_unrolled:
                 m = slot == spec.slot
-                nc = spec.normal(o, d, t, prim)
+                if spec.__class__.__name__ == "BlobSpec":   # reuses _nearest's candidates (same kernel)
+                    nc = spec.normal(o, d, t, prim, reuse=True)
+                else:
+                    nc = spec.normal(o, d, t, prim)
                 ng = dr.select(m, nc, ng)
                 ns = dr.select(m, nc, ns)
             if P.bvh is not None:

@@ -241,6 +241,8 @@ class BlobSpec:
     emission: np.ndarray | None = None
     max_steps: int = 256
     _tables: dict | None = field(default=None, init=False, repr=False, compare=False)
+    # the last nearest-hit search's ray (o, d) and candidate lists, for :meth:`normal`
+    _line: tuple | None = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self):
         m = np.eye(4) if self.to_world is None else self.to_world
@@ -556,6 +558,8 @@ class BlobSpec:
         if self.uses_lists():
             u, v, scale = self._unit_ray(o, d)
             cands, enter, leave, Lb, Gb = self._setup_lists(u, v, active)
+            # kept for the normal at this ray's hit (raytree.py calls normal(o, d, ...) next)
+            self._line = None if any_hit else (o, d, cands[:3])
             start, end = dr.maximum(tmin * scale, enter), dr.minimum(tmax * scale, leave)
             per = None
 
@@ -761,8 +765,11 @@ class BlobSpec:
         ok = dr.isfinite(best) & (best > s_lo) & (best < s_hi)
         return dr.select(ok, best, INF), cnt
 
-    def normal(self, o, d, t, prim):
-        """Outward normal ``-∇W/|∇W|`` (fallback ``-d`` where the gradient vanishes)."""
+    def normal(self, o, d, t, prim, reuse=False):
+        """Outward normal ``-∇W/|∇W|`` (fallback ``-d`` where the gradient vanishes).
+        ``reuse``: sum over the candidates of the last nearest-hit :meth:`intersect` of the same
+        ``o``, ``d`` (no walk); only for a caller that evaluates the normal in the kernel of
+        that search (its candidate list is a local array of that kernel), as raytree.py does."""
         import drjit as dr
         import mitsuba as mi
         a = self.inv
@@ -776,7 +783,16 @@ class BlobSpec:
             gr = dr.select(r < S, m2, dr.select(r < S3, (1.0 - S3 / dr.maximum(r, 1e-30)) * inv3s2, 0.0))
             return (g + rel * (w * gr),)
 
-        if self.uses_lists():
+        line, self._line = self._line, None
+        if reuse and self.uses_lists() and line is not None and line[0] is o and line[1] is d:
+            # the nearest-hit search's candidates of this ray: every centre whose 3S sphere
+            # its line crosses, so every centre that adds a non-zero term at the hit point,
+            # in the same increasing row as the point walk below (the others add exact zeros)
+            # (only where there is a hit: a ray that misses sums nothing)
+            lst, cnt, ovf = line[2]
+            hit = dr.isfinite(t)
+            g, = self._each(lst, dr.select(hit, cnt, 0), ovf & hit, (dr.zeros(mi.Vector3f, dr.width(x)),), grad)
+        elif self.uses_lists():
             # the centres whose 3S sphere holds the point (the others add exactly zero)
             def hit_box(lo, hi, act):
                 return act & (lo[0] <= x.x) & (x.x <= hi[0]) & (lo[1] <= x.y) & (x.y <= hi[1]) \

@@ -97,6 +97,37 @@ def test_candidate_lists_match_core_and_all_centres(centres):
     assert np.array_equal(np.isfinite(sh_l), hl)
 
 
+
+@pytest.mark.parametrize("centres", ["cloud300", "row80"])
+def test_normal_reuses_hit_search_candidates(centres):
+    """The normal sums over the nearest-hit search's candidates of the same ray (every
+    centre whose 3S sphere the line crosses) instead of walking the hierarchy again with the
+    hit point: the same non-zero terms in the same (leaf) order, so the same bits."""
+    require_llvm_variant()
+    import drjit as dr
+    import mitsuba as mi
+    from links1_mitsuba.shapes import BlobSpec
+    c = _cloud(300, 3) if centres == "cloud300" else _row(80)
+    o, d = _rays(c, 4000, 5)
+    if centres == "row80":   # along the row: more candidates than the list holds
+        o[:200] = [-60.0, 0.0, 0.0] + np.random.default_rng(1).normal(size=(200, 3)) * [0, 0.05, 0.05]
+        d[:200] = [1.0, 0.0, 0.0]
+    spec = BlobSpec(0, "b", c, 0.5, "exact")
+    assert spec.uses_lists()
+    n = len(o)
+    O, D = mi.Vector3f(o.T), mi.Vector3f(d.T)
+    t, prim = spec.intersect(O, D, mi.Float(0.0), mi.Float(np.inf), dr.ones(mi.Bool, n), dr.zeros(mi.UInt32, n))
+    assert spec._line is not None
+    n_reuse = spec.normal(O, D, t, prim, reuse=True)
+    assert spec._line is None   # consumed: the next call walks (or uses the next search's)
+    n_walk = spec.normal(O, D, t, prim, reuse=True)
+    dr.eval(t, n_reuse, n_walk)   # the list is a local array of the search's kernel
+    n_reuse, n_walk = np.array(n_reuse), np.array(n_walk)
+    hit = np.isfinite(np.array(t))
+    assert hit.sum() > n // 4
+    assert np.array_equal(n_reuse.view(np.uint32), n_walk.view(np.uint32))
+
+
 def test_many_centre_blob_scene_matches_core(tmp_path):
     """A 120-centre blob lit by a point light over a mirror floor, through the renderer
     (frozen launch, shadow rays, reflections, normals): plugin against the core."""
