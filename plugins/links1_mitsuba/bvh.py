@@ -13,11 +13,13 @@ Layout: node ``k`` has a box ``lo``/``hi``; ``count > 0``: a leaf with quadrics
 ``[first, first + count)`` of the permuted table; ``count == 0``: an inner node whose
 children are nodes ``first`` and ``first + 1``. On the Dr.Jit side a node is one 64-byte
 line holding its children's boxes (:func:`pack_nodes`), a quadric one line too, in 64-byte
-aligned tables (:func:`table`).
+aligned tables (:func:`util.table`).
 """
 from __future__ import annotations
 
 import numpy as np
+
+from .util import table
 
 INF = float("inf")
 LEAF = 1          #: quadrics per leaf (one intersection per loop iteration)
@@ -91,18 +93,6 @@ def tree_depth(first, count):
         if count[k] == 0:
             work += [(int(first[k]), dep + 1), (int(first[k]) + 1, dep + 1)]
     return depth
-
-
-def table(mi_type, a):
-    """A Dr.Jit table of ``a`` (flattened) in 64-byte aligned memory. A Dr.Jit array made from
-    a numpy array maps its memory, which numpy aligns to 16 bytes only: packet gathers then
-    straddle cache lines at random, and the same walk took 35 to 62 ms from one table
-    instance to the next (many.xml's camera rays, 512², one thread); the blob candidate walk
-    (shapes.py) likewise, 4.0 ms aligned against 5.4-7.9 ms not (blob-1000 at 128², one
-    thread). The one home of the aligned tables (the BVH, the blob tables, light buffers)."""
-    from .launch import _aligned
-    dtype = np.uint32 if mi_type.__name__.startswith("UInt") else np.float32
-    return mi_type(_aligned(np.ascontiguousarray(a).ravel(), dtype))
 
 
 def pack_nodes(node_lo, node_hi, first, count):

@@ -14,6 +14,8 @@ import numpy as np
 from links1.filters import FilterGather, filter_samples
 from links1.sampling import strata
 
+from .util import aligned, aligned_empty, is_aligned
+
 #: Most samples (lanes) per launch of the window function; more are split into launches.
 LAUNCH_LANES = 1 << 22
 
@@ -47,32 +49,6 @@ def _lanes(v, n):
     value; a frozen function returns literals at their recorded width): broadcast to ``n``."""
     a = np.asarray(v.numpy())
     return a if a.shape[0] == n else np.broadcast_to(a[:1], (n,) + a.shape[1:])
-
-
-def _aligned(a, dtype) -> np.ndarray:
-    """A 64-byte aligned contiguous copy of ``a`` as ``dtype``. A Dr.Jit array made from a
-    numpy array maps its memory, and a frozen function records again whenever the alignment
-    of such an input changes (drjit.freeze's documentation): numpy's buffers are aligned or
-    not by chance, so unaligned inputs made ``trace_points`` re-record at random (7 recordings
-    in 12 calls of 3 adaptive frames), and window launches too (the sample ids: a re-rendered
-    window now and then recorded and compiled again; 2 of 8 fresh processes of
-    tests/plugins/test_renderer_api.py, 0 of 10 aligned)."""
-    a = np.asarray(a, dtype=dtype)
-    out = _aligned_empty(a.size, dtype)
-    out[:] = a.ravel()
-    return out
-
-
-def _aligned_empty(n, dtype) -> np.ndarray:
-    """An uninitialised 64-byte aligned array of ``n`` values (see :func:`_aligned`)."""
-    dtype = np.dtype(dtype)
-    buf = np.empty(n * dtype.itemsize + 64, dtype=np.uint8)
-    start = -buf.ctypes.data % 64
-    return buf[start:start + n * dtype.itemsize].view(dtype)
-
-
-def _is_aligned(a) -> bool:
-    return a.flags.c_contiguous and a.ctypes.data % 64 == 0
 
 
 class SceneInputs:
@@ -336,9 +312,9 @@ def define_launches(mi, dr, mix32, u24):
             L, cost, counts = [np.zeros((0, 3))], [np.zeros(0)], []
             for a in range(0, len(xf), LAUNCH_LANES):
                 b = min(a + LAUNCH_LANES, len(xf))
-                x = mi.Float(_aligned(xf[a:b], np.float32))
-                y = mi.Float(_aligned(yf[a:b], np.float32))
-                key = mi.UInt32(_aligned(keys[a:b], np.uint32))
+                x = mi.Float(aligned(xf[a:b], np.float32))
+                y = mi.Float(aligned(yf[a:b], np.float32))
+                key = mi.UInt32(aligned(keys[a:b], np.uint32))
                 if self.use_freeze:
                     cfg = (id(P), id(scene), int(self.max_depth), float(self.min_weight))
                     total, c, counters = self._call_frozen(self._frozen_points_fn(), P, scene, x, y, key,
@@ -357,7 +333,7 @@ def define_launches(mi, dr, mix32, u24):
         def _launch(self, P, scene, sid_np, spp_, seeds, want):
             """One launch over the sample ids ``sid_np`` -> (numpy outputs, its ray counters)."""
             n = sid_np.size
-            sid = mi.UInt32(sid_np if _is_aligned(sid_np) else _aligned(sid_np, np.uint32))   # see _aligned
+            sid = mi.UInt32(sid_np if is_aligned(sid_np) else aligned(sid_np, np.uint32))   # see util.aligned
             if self.use_freeze:
                 cfg = (id(P), id(scene), want, int(self.max_depth), float(self.min_weight))
                 out = self._call_frozen(self._frozen_fn(), P, scene, sid, dr.opaque(mi.UInt32, n), spp_, seeds,
@@ -426,9 +402,9 @@ def define_launches(mi, dr, mix32, u24):
             box = P.rfilter.border == 0
             gathers = [None if box else FilterGather(P.rfilter, win, (W, H)) for win in wins]
             sample_windows = wins if box else [g.sample_window for g in gathers]
-            # sample ids pixel * spp + i, written in place into one aligned buffer (see _aligned)
+            # sample ids pixel * spp + i, written in place into one aligned buffer (see util.aligned)
             n = sum(w * h for _, _, w, h in sample_windows) * spp
-            sid_np = _aligned_empty(n, np.uint32)
+            sid_np = aligned_empty(n, np.uint32)
             at = 0
             for x0, y0, w, h in sample_windows:
                 pix = (np.arange(y0, y0 + h, dtype=np.uint32) * np.uint32(W))[:, None, None] \

@@ -17,7 +17,7 @@ circumscribed sphere inflated by a margin ``m`` (a multiple of the float32 error
 ray's line, which starts at an offset origin and need not pass exactly through the light); a
 cell is a cone around its centre direction (its corner directions included) widened by an
 angular margin, and a bound that contains the light is listed in every cell. Lists are CSR
-arrays (``offsets``, entries) in 64-byte aligned Dr.Jit tables (:func:`bvh.table`); an entry is
+arrays (``offsets``, entries) in 64-byte aligned Dr.Jit tables (:func:`util.table`); an entry is
 a pair (quadric row as float bits, key), read with one packet gather.
 """
 from __future__ import annotations
@@ -292,7 +292,7 @@ class LightBuffer:
 
     def __init__(self, bvh, geom, N, off, ob, ke, margin, mean):
         import mitsuba as mi
-        from .bvh import table
+        from .util import table
         self.bvh = bvh
         self.kind = geom[0]
         self.N = int(N)

@@ -355,7 +355,8 @@ class BlobSpec:
         if self._tables is None and self.uses_lists():
             import mitsuba as mi
 
-            from .bvh import build, table
+            from .bvh import build
+            from .util import table
             k = self._consts()
             c, R = k[:, :3], k[:, 7]
             # padded so that a sphere the float32 line test finds crossed is never culled

@@ -7,9 +7,48 @@ from __future__ import annotations
 
 from types import SimpleNamespace
 
+import numpy as np
+
 INF = float("inf")
 _M1 = 0x7FEB352D
 _M2 = 0x846CA68B
+
+
+def aligned(a, dtype) -> np.ndarray:
+    """A 64-byte aligned contiguous copy of ``a`` as ``dtype``. A Dr.Jit array made from a
+    numpy array maps its memory, and numpy aligns it to 16 bytes only. Two costs follow:
+    (1) a frozen function records again whenever the alignment of such an input changes
+    (drjit.freeze's documentation): unaligned inputs made ``trace_points`` re-record at random
+    (7 recordings in 12 calls of 3 adaptive frames), and window launches too (the sample ids:
+    2 of 8 fresh processes of tests/plugins/test_renderer_api.py recorded again, 0 of 10
+    aligned); (2) packet gathers from a table straddle cache lines at random (:func:`table`)."""
+    a = np.asarray(a, dtype=dtype)
+    out = aligned_empty(a.size, dtype)
+    out[:] = a.ravel()
+    return out
+
+
+def aligned_empty(n, dtype) -> np.ndarray:
+    """An uninitialised 64-byte aligned array of ``n`` values (see :func:`aligned`)."""
+    dtype = np.dtype(dtype)
+    buf = np.empty(n * dtype.itemsize + 64, dtype=np.uint8)
+    start = -buf.ctypes.data % 64
+    return buf[start:start + n * dtype.itemsize].view(dtype)
+
+
+def is_aligned(a) -> bool:
+    return a.flags.c_contiguous and a.ctypes.data % 64 == 0
+
+
+def table(mi_type, a):
+    """A Dr.Jit table of ``a`` (flattened) in 64-byte aligned memory (:func:`aligned`): with
+    numpy's 16-byte alignment packet gathers straddle cache lines at random, and the same walk
+    took 35 to 62 ms from one table instance to the next (many.xml's camera rays, 512², one
+    thread); the blob candidate walk likewise, 4.0 ms aligned against 5.4-7.9 ms not
+    (blob-1000 at 128², one thread). The one home of the aligned tables (the BVH, the blob
+    tables, light buffers)."""
+    dtype = np.uint32 if mi_type.__name__.startswith("UInt") else np.float32
+    return mi_type(aligned(np.ascontiguousarray(a).ravel(), dtype))
 
 
 def define_util(mi, dr):
