@@ -69,10 +69,8 @@ def define_raytree(mi, dr, util):
                 mits = dr.full(mi.Bool, False, n)
             for spec in P.custom_unrolled:
                 m = slot == spec.slot
-                if spec.__class__.__name__ == "BlobSpec":   # reuses _nearest's candidates (same kernel)
-                    nc = spec.normal(o, d, t, prim, reuse=True)
-                else:
-                    nc = spec.normal(o, d, t, prim)
+                # in the kernel of _nearest's search: a shape may reuse what it found (a blob its candidates)
+                nc = spec.normal(o, d, t, prim, reuse=True)
                 ng = dr.select(m, nc, ng)
                 ns = dr.select(m, nc, ns)
             if P.bvh is not None:

@@ -165,8 +165,9 @@ class QuadricSpec:
                 prim = dr.select(ok, j + 1, prim)
         return t, prim
 
-    def normal(self, o, d, t, prim):
-        """Outward world normal at the hit ``o + t d`` (side or cap)."""
+    def normal(self, o, d, t, prim, reuse=False):
+        """Outward world normal at the hit ``o + t d`` (side or cap). ``reuse`` (state of the
+        nearest-hit search, see :meth:`BlobSpec.normal`): a quadric's normal is closed-form."""
         import drjit as dr
         import mitsuba as mi
         u, v = self._to_object(o, d)
