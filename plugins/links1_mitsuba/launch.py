@@ -77,7 +77,7 @@ class SceneInputs:
 
     __slots__ = ("items", "stale")   # no __dict__: _frozen_inputs does not walk it
 
-    def __init__(self, scene):
+    def __init__(self, scene, extra=()):
         import drjit as dr
 
         def collect(obj):
@@ -89,7 +89,12 @@ class SceneInputs:
         used = {i for objs in (scene.shapes(), scene.emitters()) for o in objs for i, _, _ in collect(o)}
         camera_only = {i for s in scene.sensors() for i, _, _ in collect(s)} - used
         items = {}
-        for index, variant, domain in collect(scene):
+        # an extra scene's own items 1 and 2 (Mitsuba 3.9.1's Scene traversal: two scene-level
+        # values equal to the main scene's) are not read by its ray tests, and freeze merges
+        # them with the main scene's, handing back other variables (the whole scene each call
+        # then); a ray test that did read one fails to record and falls back (_call_frozen)
+        for index, variant, domain in [x for sc in (scene, *extra) for k, x in enumerate(collect(sc))
+                                       if sc is scene or k not in (1, 2)]:
             if index not in camera_only and domain != "Sensor":
                 items.setdefault(index, (index, variant, domain))
         self.items = tuple(items.values())
@@ -109,6 +114,15 @@ class SceneInputs:
 
 #: ``P.scene_input`` when a recording needed more than :class:`SceneInputs` holds
 _WHOLE_SCENE = "whole scene"
+
+
+def _extra_scenes(P) -> tuple:
+    """The Mitsuba scenes besides the scene itself that the launches trace rays in (the
+    shadow rays' sub-scenes, ``tables.shadow_split``): frozen inputs too."""
+    split = getattr(P, "shadow_split", None)
+    if split is None:
+        return ()
+    return tuple(x for x in [split["opaque"], *[t[0] for t in split["trans"]]] if x is not None)
 
 
 def _frozen_caller():
@@ -220,8 +234,9 @@ def define_launches(mi, dr, mix32, u24):
             more of the scene than those hold is made again with the whole scene, which the
             launches of ``P`` then keep passing."""
             scene_input = getattr(P, "scene_input", None)
+            extra = _extra_scenes(P)
             if scene_input is None:
-                scene_input = P.scene_input = SceneInputs(scene)
+                scene_input = P.scene_input = SceneInputs(scene, extra)
             elif scene_input is not _WHOLE_SCENE and scene_input.stale:
                 scene_input = P.scene_input = _WHOLE_SCENE   # freeze would update the scene's own
             _FROZEN_CALLER.update(integrator=self, scene=scene)
@@ -230,13 +245,14 @@ def define_launches(mi, dr, mix32, u24):
             gc_on = gc.isenabled()
             gc.disable()
             try:
+                whole = (scene, *extra) if extra else scene
                 if scene_input is _WHOLE_SCENE:
-                    return fn(*args, scene)
+                    return fn(*args, whole)
                 try:
                     return fn(*args, scene_input)
                 except Exception:
                     P.scene_input = _WHOLE_SCENE
-                    return fn(*args, scene)
+                    return fn(*args, whole)
             finally:
                 _FROZEN_CALLER.update(integrator=None, scene=None)
                 if gc_on:

@@ -175,13 +175,17 @@ def define_raytree(mi, dr, util):
                     T = self._shadow_custom(P, so, wi, smax, need, cost, P.occ_custom[j], light=j)
                     return T, need, P.occ_mitsuba[j]
 
+                def own_outer(wi):
+                    """The hit's slot where the shadow ray leaves it on the outer side, else -1."""
+                    return dr.select(hit & (dr.dot(ng, wi) > 0), slot, -1)
+
                 for jl, L in enumerate(P.lights):
                     wi, dist, Ls = self._light(L, p)
                     contrib = f_eval(wi) * Ls
                     lit = hit & (dr.max(contrib) > 0)
                     so, smax = offset(wi), dist - 2.0 * eps
                     T, need, occ_m = shadow(jl, so, wi, smax, lit, contrib)
-                    pending.append((contrib, so, wi, smax, lit, need, T, occ_m))
+                    pending.append((contrib, so, wi, smax, lit, need, T, occ_m, jl))
                 m_inv = 1.0 / self.light_samples
                 sampled = [(len(P.lights) + j, tab, tab["id"]) for j, tab in enumerate(P.area_tab)]
                 sampled += [(len(P.lights) + len(P.area) + k, env, lid) for k, env in enumerate(P.consts)
@@ -200,15 +204,16 @@ def define_raytree(mi, dr, util):
                         lit = hit & (dr.max(contrib) > 0)
                         so = offset(wi)
                         T, need, occ_m = shadow(jsh, so, wi, smax, lit, contrib)
-                        pending.append((contrib, so, wi, smax, lit, need, T, occ_m))
+                        pending.append((contrib, so, wi, smax, lit, need, T, occ_m, jsh))
                 if P.any_mitsuba_shapes and pending and not symbolic and not skip:
                     dr.eval(out, cost, *[x for tup in pending for x in tup[:6]])
-                for contrib, so, wi, smax, lit, need, T, occ_m in pending:
+                for contrib, so, wi, smax, lit, need, T, occ_m, j in pending:
                     if T is None:               # nothing can shadow this light
                         out += dr.select(lit, contrib, 0.0)
                         continue
                     if P.any_mitsuba_shapes and occ_m:
-                        T = self._shadow_mitsuba(P, scene, so, wi, smax, need, T, cost)
+                        T = self._shadow_mitsuba(P, scene, so, wi, smax, need, T, cost, light=j,
+                                                 own=own_outer(wi))
                     out += dr.select(lit, contrib * dr.select(need, T, 1.0), 0.0)
                 return out, cost, n_shadow
 

@@ -26,6 +26,71 @@ from . import lightbuffer
 from .lights import _emitted_rgb
 
 
+
+#: Shadow rays toward a light that at most this many Mitsuba shapes can occlude first test the
+#: segment against those shapes' bounding boxes and call Embree only where one is met
+#: (``Intersect._shadow_mitsuba``); above it Embree's own BVH culls better (issue 12)
+BOX_CULL_MAX = 8
+
+#: Scenes with at most this many transparent Mitsuba shapes test shadow rays with one any-hit
+#: query per transparent shape and one over the opaque ones (``shadow_split``) instead of
+#: walking the crossings nearest first
+SPLIT_MAX = 8
+
+
+def shadow_split(mi, shapes, slot_list, trans):
+    """Shadow rays through few transparent Mitsuba shapes (3-3-3: T = 0 behind an opaque shape,
+    else the product of the shadow transmittances of the shapes met, each once, in any order):
+    a Mitsuba scene of the opaque shapes (None if there are none) for one any-hit query, and
+    one scene per transparent shape, ``{"opaque", "opaque_slots", "trans": [(scene, slot,
+    transmittance)]}``. The scenes share the shapes (no copy). None above SPLIT_MAX, or if
+    Mitsuba refuses a sub-scene (then the crossings are walked)."""
+    tr = [(s, sl) for s, sl in zip(shapes, slot_list) if trans[sl].max() > 0]
+    op = [(s, sl) for s, sl in zip(shapes, slot_list) if not trans[sl].max() > 0]
+    if not tr or len(tr) > SPLIT_MAX:
+        return None
+
+    def scene_of(group):
+        # keyed by the shapes' own ids: load_dict names each object after its key
+        ids = [s.id() for s, _ in group]
+        if len(set(ids)) != len(ids) or "" in ids or "type" in ids:
+            raise ValueError("shapes without distinct ids")
+        sub = mi.load_dict({"type": "scene", **{i: s for i, (s, _) in zip(ids, group)}})
+        if [s.id() for s, _ in group] != ids:
+            raise ValueError("a sub-scene renamed its shapes")
+        return sub
+
+    try:
+        return {"opaque": scene_of(op) if op else None, "opaque_slots": frozenset(sl for _, sl in op),
+                "trans": [(scene_of([(s, sl)]), sl, trans[sl].copy()) for s, sl in tr]}
+    except Exception as exc:    # noqa: BLE001 - any refusal: the general path
+        warnings.warn(f"links1_whitted: transparent shadows walk their crossings ({exc})", stacklevel=2)
+        return None
+
+
+def occluder_boxes(occ, lo, hi, convex, exact):
+    """The bounding boxes of the Mitsuba shapes ``occ`` (per slot) for the shadow rays' cull:
+    ``[(lo, hi, slot, convex)]`` as Python floats, or None when there are more than
+    BOX_CULL_MAX or one is unbounded. A mesh's box (its vertices' min/max) is exact; other
+    shapes' boxes (computed from a transform) are widened by 2^-20 of their size and
+    magnitude, so rounding in Mitsuba's box never culls a ray that meets the shape."""
+    slots = np.flatnonzero(occ)
+    if slots.size > BOX_CULL_MAX:
+        return None
+    boxes = []
+    for sl in slots:
+        a, b = np.asarray(lo[sl], dtype=np.float64), np.asarray(hi[sl], dtype=np.float64)
+        if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
+            return None
+        if not exact[sl]:
+            m = 2.0 ** -20 * (float(np.max(b - a)) + float(np.max(np.abs(np.r_[a, b]))))
+            a, b = a - m, b + m
+        a32, b32 = np.float32(a), np.float32(b)   # outward rounding to float32
+        a32 = np.where(a32 > a, np.nextafter(a32, np.float32(-np.inf)), a32)
+        b32 = np.where(b32 < b, np.nextafter(b32, np.float32(np.inf)), b32)
+        boxes.append(([float(v) for v in a32], [float(v) for v in b32], int(sl), bool(convex[sl])))
+    return boxes
+
 def _textured(bsdf) -> bool:
     """Whether a Mitsuba BSDF has a texture (bitmap and checkerboard expose ``to_uv``)."""
     import mitsuba as mi
@@ -209,6 +274,7 @@ def define_tables(mi, dr, util):
             # and stops at the first opaque one: no arbitrary cap on crossings
             P.max_crossings = 1 + sum(int(s.face_count()) if s.is_mesh() else 2 for s, _ in transparent_mitsuba)
             P.any_transparent_mitsuba = bool(transparent_mitsuba)
+            P.shadow_split = shadow_split(mi, shapes, slot_list, trans) if transparent_mitsuba else None
             # emission
             emis = np.zeros((nslots, 3))
             for spec in self.custom:
@@ -324,8 +390,10 @@ def define_tables(mi, dr, util):
             closed = np.zeros(nslots, dtype=bool)   # convex and enclosing a volume
             plane = [None] * nslots
             mitsuba_slot = np.zeros(nslots, dtype=bool)
+            exact = np.zeros(nslots, dtype=bool)      # bbox = the min/max of its vertices
             for s_, sl in zip(shapes, slot_list):
                 mitsuba_slot[sl] = True
+                exact[sl] = bool(s_.is_mesh())
                 b = s_.bbox()
                 lo[sl] = [b.min[0], b.min[1], b.min[2]]
                 hi[sl] = [b.max[0], b.max[1], b.max[2]]
@@ -378,7 +446,7 @@ def define_tables(mi, dr, util):
             for _ in P.consts:
                 lights.append(("env", None))
             P.shadow_need, P.occ_custom, P.occ_mitsuba, P.any_shadow = [], [], [], []
-            P.shadow_inner = []
+            P.shadow_inner, P.occ_boxes, P.occ_mslots = [], [], []
             for light in lights:
                 occ = np.ones(nslots, dtype=bool)
                 for sl in range(nslots):
@@ -414,5 +482,7 @@ def define_tables(mi, dr, util):
                 P.any_shadow.append(bool(need.any() or inner.any()))
                 P.occ_custom.append([spec for spec in self.custom if occ[spec.slot]])
                 P.occ_mitsuba.append(bool(np.any(occ & mitsuba_slot)))
+                P.occ_boxes.append(occluder_boxes(occ & mitsuba_slot, lo, hi, convex, exact))
+                P.occ_mslots.append(frozenset(int(v) for v in np.flatnonzero(occ & mitsuba_slot)))
 
     return Tables
