@@ -116,13 +116,13 @@ def define_intersect(mi, dr, util):
         def _meets_boxes(o, d, smax, boxes, own):
             """Lanes whose segment ``o + t d``, 0 <= t <= smax, can meet one of ``boxes``
             (``tables.occluder_boxes``): a slab test made conservative in float32 (Ize 2013: the
-            far distance widened by 1 + 2 gamma_3); a zero direction component is replaced by
-            1e-30 (no 0 * inf). A convex shape's box is skipped where the ray leaves that shape
+            far distance widened by 1 + 2 gamma_3; the segment's end by 2^-16); a zero
+            direction component is replaced by 1e-30 (no 0 * inf). A convex shape's box is skipped where the ray leaves that shape
             on its outer side (``own``: the hit's slot there, else -1; the rule of
             ``Tables._occluders``)."""
             widen = 1.0 + 2.0 * (3.0 * 2.0 ** -24) / (1.0 - 3.0 * 2.0 ** -24)
             inv = [1.0 / dr.select(d[k] == 0, 1e-30, d[k]) for k in range(3)]
-            far_max = smax * widen
+            far_max = smax * (1.0 + 2.0 ** -16)   # Mitsuba's t at a segment's end: its own rounding
             meet = dr.zeros(mi.Bool, dr.width(o))
             for lo, hi, sl, convex in boxes:
                 near, far = mi.Float(0.0), far_max

@@ -68,12 +68,13 @@ def shadow_split(mi, shapes, slot_list, trans):
         return None
 
 
-def occluder_boxes(occ, lo, hi, convex, exact):
+def occluder_boxes(occ, lo, hi, convex):
     """The bounding boxes of the Mitsuba shapes ``occ`` (per slot) for the shadow rays' cull:
     ``[(lo, hi, slot, convex)]`` as Python floats, or None when there are more than
-    BOX_CULL_MAX or one is unbounded. A mesh's box (its vertices' min/max) is exact; other
-    shapes' boxes (computed from a transform) are widened by 2^-20 of their size and
-    magnitude, so rounding in Mitsuba's box never culls a ray that meets the shape."""
+    BOX_CULL_MAX or one is unbounded. Each axis is widened by 2^-20 of the box's extent plus
+    its largest coordinate there (Mitsuba's and Embree's own float32 tests accept hits a few
+    ulps outside a shape: a rectangle's corner), and rounded outward to float32; a box flat
+    along an axis (a floor) stays flat there, so rays leaving it are culled."""
     slots = np.flatnonzero(occ)
     if slots.size > BOX_CULL_MAX:
         return None
@@ -82,9 +83,8 @@ def occluder_boxes(occ, lo, hi, convex, exact):
         a, b = np.asarray(lo[sl], dtype=np.float64), np.asarray(hi[sl], dtype=np.float64)
         if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
             return None
-        if not exact[sl]:
-            m = 2.0 ** -20 * (float(np.max(b - a)) + float(np.max(np.abs(np.r_[a, b]))))
-            a, b = a - m, b + m
+        m = 2.0 ** -20 * ((b - a) + np.maximum(np.abs(a), np.abs(b)))
+        a, b = a - m, b + m
         a32, b32 = np.float32(a), np.float32(b)   # outward rounding to float32
         a32 = np.where(a32 > a, np.nextafter(a32, np.float32(-np.inf)), a32)
         b32 = np.where(b32 < b, np.nextafter(b32, np.float32(np.inf)), b32)
@@ -390,10 +390,8 @@ def define_tables(mi, dr, util):
             closed = np.zeros(nslots, dtype=bool)   # convex and enclosing a volume
             plane = [None] * nslots
             mitsuba_slot = np.zeros(nslots, dtype=bool)
-            exact = np.zeros(nslots, dtype=bool)      # bbox = the min/max of its vertices
             for s_, sl in zip(shapes, slot_list):
                 mitsuba_slot[sl] = True
-                exact[sl] = bool(s_.is_mesh())
                 b = s_.bbox()
                 lo[sl] = [b.min[0], b.min[1], b.min[2]]
                 hi[sl] = [b.max[0], b.max[1], b.max[2]]
@@ -482,7 +480,7 @@ def define_tables(mi, dr, util):
                 P.any_shadow.append(bool(need.any() or inner.any()))
                 P.occ_custom.append([spec for spec in self.custom if occ[spec.slot]])
                 P.occ_mitsuba.append(bool(np.any(occ & mitsuba_slot)))
-                P.occ_boxes.append(occluder_boxes(occ & mitsuba_slot, lo, hi, convex, exact))
+                P.occ_boxes.append(occluder_boxes(occ & mitsuba_slot, lo, hi, convex))
                 P.occ_mslots.append(frozenset(int(v) for v in np.flatnonzero(occ & mitsuba_slot)))
 
     return Tables
