@@ -26,6 +26,10 @@ BOX_CULL = True
 #: crossing (what ``spawn_ray`` reads); same bits
 MINIMAL_RECORD = True
 
+#: camera rays of a pinhole camera find their nearest BVH quadric through the eye's buffer
+#: (``lightbuffer.plan_eye``) where there is one (issue 12; False: the BVH walk)
+EYE_BUFFER = True
+
 #: transparent shadows through few transparent Mitsuba shapes as any-hit queries on sub-scenes
 #: (``tables.shadow_split``) instead of the walk over the crossings (issue 12)
 SPLIT = True
@@ -48,8 +52,9 @@ def define_intersect(mi, dr, util):
                 return int(mi.RayFlags.Minimal) | int(mi.RayFlags.ShadingFrame)
             return int(mi.RayFlags.All)
 
-        def _nearest(self, P, scene, o, d, tmin, tmax, active, cost):
-            """Nearest hit over Mitsuba shapes and custom shapes: (t, slot, si, prim, custom_won)."""
+        def _nearest(self, P, scene, o, d, tmin, tmax, active, cost, camera=False):
+            """Nearest hit over Mitsuba shapes and custom shapes: (t, slot, si, prim, custom_won).
+            ``camera``: the rays start at a pinhole camera's eye (its buffer replaces the BVH)."""
             if P.any_mitsuba_shapes:
                 ray = mi.Ray3f(o + d * tmin, d, tmax - tmin)
                 si = scene.ray_intersect(ray, self._si_flags(P), False, active=active)
@@ -78,7 +83,8 @@ def define_intersect(mi, dr, util):
                 slot = dr.select(better, spec.slot, slot)
                 prim = dr.select(better, pc, prim)
             if P.bvh is not None:
-                tq, q, part, found = P.bvh.nearest(o, d, tmin, next_up(dr.minimum(t, tmax)), active, cost)
+                eye = P.eye_buf if camera and EYE_BUFFER else None
+                tq, q, part, found = (eye or P.bvh).nearest(o, d, tmin, next_up(dr.minimum(t, tmax)), active, cost)
                 sq = mi.Int32(dr.gather(mi.UInt32, P.bvh.slot, q, found))
                 better = found & ((tq < t) | ((tq == t) & ((slot < 0) | (sq < slot))))
                 t = dr.select(better, tq, t)

@@ -1,5 +1,7 @@
 """Light buffers (Haines and Greenberg 1986) for the shadow rays of ``links1_whitted`` toward
-positional lights (point, spot) and, as the same idea in parallel projection, directional lights.
+positional lights (point, spot) and, as the same idea in parallel projection, directional lights;
+and the same cube map around a pinhole camera's eye for the camera rays' nearest hit
+(:func:`plan_eye`, :meth:`LightBuffer.nearest`).
 
 At scene set-up, per light, a grid of cells over the directions seen from the light (a cube
 map: 6 faces x N x N cells) or, for a directional light, over the plane perpendicular to its
@@ -270,6 +272,23 @@ def plan(P, scene):
     return out
 
 
+def plan_eye(P, scene):
+    """The light buffer of a perspective camera's eye (Weghorst, Hooper and Greenberg's first-hit
+    speed-up in Haines and Greenberg's form): camera rays all start there, so a cube map around
+    it lists the quadrics each ray can meet, nearest first (``LightBuffer.nearest``). None
+    where there is no BVH, the camera is not a pinhole or it does not pay (as :func:`plan`)."""
+    if P.bvh is None or not getattr(P, "perspective", False):
+        return None
+    eye = np.asarray(P.cam, dtype=np.float64)[:3, 3]
+    ext = scene_extent(P, scene, [("point", eye)])
+    if ext is None:
+        return None
+    # the finest grid: most camera rays see no quadric, and a fine cell tells them so without
+    # an exact test (the BVH rejects them with one box test)
+    lb = build(P.bvh, ("point", eye), MARGIN_REL * (1.0 + ext), N=GRID_MAX)
+    return lb if lb.mean_list <= max(MAX_MEAN_LIST, math.log2(max(P.bvh.n, 2))) else None
+
+
 def build(bvh, geom, margin, N=None):
     """The :class:`LightBuffer` of light ``geom`` (``("point", position)`` or ``("dir", unit
     vector toward the light)``) over the rows of ``bvh``, every bound inflated by ``margin``."""
@@ -381,3 +400,46 @@ class LightBuffer:
         if cost is not None:
             cost += c
         return T
+
+    def nearest(self, o, d, tmin, tmax, active, cost):
+        """The nearest quadric hit of rays leaving this buffer's point (a camera's eye) along
+        ``d`` within (tmin, tmax): the BVH's ``nearest`` (same exact test, ties to the lower
+        slot) over the ray's cell list, which is ordered by how near each bound comes to the
+        point: the walk stops at the first entry beyond the best hit. -> (t, row, part, found)."""
+        import drjit as dr
+        import mitsuba as mi
+        from .util import INF
+        bvh = self.bvh
+        n = dr.width(o)
+        cell, _, ok = self.cell(o, -d, active)        # cell() looks from the point along -d
+        k = dr.gather(mi.UInt32, self.off, cell, ok)
+        end = dr.select(ok, dr.gather(mi.UInt32, self.off, cell + 1, ok), k)
+        res = (mi.Float(tmax), dr.zeros(mi.UInt32, n), dr.zeros(mi.UInt32, n), dr.zeros(mi.Bool, n))
+        c = dr.zeros(mi.UInt32, n)
+
+        def cond(k, c, res):
+            return k < end
+
+        def body(k, c, res):
+            best_t, best_q, best_part, found = res
+            live = k < end
+            e = dr.gather(mi.Array2f, self.ent, k, live)
+            go = live & (e.y <= best_t)      # a hit on the entry lies at least its key away
+            q = dr.reinterpret_array(mi.UInt32, e.x)
+            # a tie with the best so far is let through; the lower slot wins (as the BVH walk)
+            lim = dr.select(found, dr.reinterpret_array(mi.Float, dr.reinterpret_array(mi.UInt32, best_t) + 1),
+                            best_t)
+            tq, pq = bvh.intersect(q, o, d, tmin, lim, go)
+            h = go & (tq < lim)
+            s_new = dr.gather(mi.UInt32, bvh.slot, q, h)
+            s_old = dr.gather(mi.UInt32, bvh.slot, best_q, h & found)
+            better = h & ((tq < best_t) | ((tq == best_t) & found & (s_new < s_old)))
+            res = (dr.select(better, tq, best_t), dr.select(better, q, best_q), dr.select(better, pq, best_part),
+                   found | better)
+            return dr.select(go, k + 1, end), dr.select(go, c + 1, c), res
+
+        k, c, res = dr.while_loop((k, c, res), cond, body, label="links1_eyebuffer")
+        if cost is not None:
+            cost += c
+        t, q, part, found = res
+        return dr.select(found, t, INF), q, part, found

@@ -54,7 +54,9 @@ def define_raytree(mi, dr, util):
             n_shadow = dr.zeros(mi.UInt32, n)
             if P.any_mitsuba_shapes and not symbolic:
                 dr.eval(o, d, tmin, tmax)
-            t, slot, si, prim = self._nearest(P, scene, o, d, tmin, tmax, active, cost)
+            # level 1 is the camera's rays (from its eye when it is a pinhole)
+            t, slot, si, prim = self._nearest(P, scene, o, d, tmin, tmax, active, cost,
+                                              camera=depth == 1 and P.perspective)
             hit = slot >= 0
             uslot = mi.UInt32(dr.maximum(slot, 0))
             # ---- surface record of the winner

@@ -369,6 +369,8 @@ def define_tables(mi, dr, util):
             self._occluders(P, shapes, slot_list)
             # light buffers for the quadric shadow rays toward analytic lights (where they pay)
             P.lbuf = lightbuffer.plan(P, scene) if lightbuffer.ENABLED else [None] * len(P.lights)
+            # and around a pinhole camera's eye for the camera rays' nearest quadric
+            P.eye_buf = lightbuffer.plan_eye(P, scene) if lightbuffer.ENABLED else None
             self._prep = P
             return P
 
