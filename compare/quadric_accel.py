@@ -17,6 +17,8 @@ kernel compilation), then the median of ``repeats`` queries (tracing + kernel, a
 a BVH scene pays) and the median kernel time (``dr.kernel_history``). Methods:
 
 * ``bvh``: :meth:`links1_mitsuba.bvh.QuadricBVH.nearest` (binary SAH BVH, per-lane stack).
+* ``eye``: :meth:`links1_mitsuba.lightbuffer.LightBuffer.nearest` on the eye's cube map
+  (:func:`links1_mitsuba.lightbuffer.plan_eye`: what links1_whitted's camera rays use).
 * ``proxy``: every quadric's world box as 12 triangles of one Mitsuba mesh in a second
   scene; a loop of ``scene.ray_intersect`` walks on along the ray while a proxy face is
   nearer than the best exact hit, testing the quadric behind each face (the exact test of
@@ -140,6 +142,22 @@ def run_size(n, res, repeats):
         dr.sync_thread()
         return t
 
+    # eye: the camera's eye buffer (lightbuffer.plan_eye: what links1_whitted's camera rays use)
+    from links1_mitsuba import lightbuffer
+    lo_, hi_ = (np.array([s.bounds()[k] for s in bvh.specs]) for k in (0, 1))
+    ext = float(max(np.max(np.abs(lo_)), np.max(np.abs(hi_)), np.max(np.abs(o_np[0]))))
+    t_build = time.perf_counter()
+    eye = lightbuffer.build(bvh, ("point", o_np[0].astype(np.float64)), lightbuffer.MARGIN_REL * (1.0 + ext),
+                            N=lightbuffer.GRID_MAX)
+    t_build = time.perf_counter() - t_build
+
+    def q_eye():
+        t, q, _, found = eye.nearest(o, d, mi.Float(0.0), mi.Float(np.inf), dr.ones(mi.Bool, m),
+                                     dr.zeros(mi.UInt32, m))
+        dr.eval(t)
+        dr.sync_thread()
+        return t
+
     # proxy: world boxes of the (BVH-ordered) quadrics as one mesh
     lo = np.array([s.bounds()[0] for s in bvh.specs])
     hi = np.array([s.bounds()[1] for s in bvh.specs])
@@ -190,11 +208,13 @@ def run_size(n, res, repeats):
         return t
 
     ref = None
-    for name, fn in (("bvh", q_bvh), ("proxy", q_proxy), ("mitsuba-sphere", q_mitsuba)):
+    for name, fn in (("bvh", q_bvh), ("eye", q_eye), ("proxy", q_proxy), ("mitsuba-sphere", q_mitsuba)):
         wall, kern, t = _timed(fn, repeats)
         t = np.array(t, dtype=np.float64)
         row = {"size": n, "method": name, "median_ms": 1e3 * wall, "kernel_ms": 1e3 * kern,
                "hit_fraction": float(np.mean(np.isfinite(t)))}
+        if name == "eye":
+            row["build_s"] = t_build
         if ref is None:
             ref = t
         else:
