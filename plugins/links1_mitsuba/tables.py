@@ -43,8 +43,12 @@ def shadow_split(mi, shapes, slot_list, trans):
     else the product of the shadow transmittances of the shapes met, each once, in any order):
     a Mitsuba scene of the opaque shapes (None if there are none) for one any-hit query, and
     one scene per transparent shape, ``{"opaque", "opaque_slots", "trans": [(scene, slot,
-    transmittance)]}``. The scenes share the shapes (no copy). None above SPLIT_MAX, or if
+    transmittance)]}``. The scenes share the shapes (no copy). None above SPLIT_MAX, on the
+    CUDA variants (untried there: OptiX traces a kernel's rays through one pipeline), or if
     Mitsuba refuses a sub-scene (then the crossings are walked)."""
+    if not mi.variant().startswith("llvm"):
+        # OptiX: one kernel traces through one pipeline, so no second scene in the launch
+        return None
     tr = [(s, sl) for s, sl in zip(shapes, slot_list) if trans[sl].max() > 0]
     op = [(s, sl) for s, sl in zip(shapes, slot_list) if not trans[sl].max() > 0]
     if not tr or len(tr) > SPLIT_MAX:
