@@ -65,6 +65,10 @@ def _partition_options(p, *, nodes_option: bool):
     g.add_argument("--chunk-factor", type=int_option("--chunk-factor", 0), default=None, metavar="K",
                    help="dynamic: a node that asks for work gets ceil(remaining / (K x nodes)) units in one launch "
                         "(guided self-scheduling; default 2); 0 = one unit at a time (the paper's 4-3)")
+    g.add_argument("--chunk-by", choices=("units", "load"), default="units",
+                   help="dynamic: a guided chunk counts units (default: ceil(remaining / (K x nodes)) of them) or "
+                        "predicted load (eq. 4.1: units up to remaining load / (K x nodes)): with lpt order the "
+                        "first chunks hold the heaviest units, and 'load' keeps them from unbalancing the tail")
     g.add_argument("--order", choices=("lpt", "walk"), default=None,
                    help="dynamic dispatch order: lpt = largest predicted load first (default), walk = bottom-left first")
     g.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT", help="render on an existing Dask cluster")
@@ -146,23 +150,25 @@ def _model_and_channels(spec, args):
 def _backend(args, workers, static):
     from .executors import CHUNK_FACTOR
     k = CHUNK_FACTOR if getattr(args, "chunk_factor", None) is None else args.chunk_factor
+    by = getattr(args, "chunk_by", None) or "units"
     key = (args.scheduler, args.dask_local, workers, static)
     be = _BACKENDS.get(key)
     if be is not None:
-        be.chunk_factor = k
+        be.chunk_factor, be.chunk_by = k, by
         return be
     if args.scheduler or args.dask_local:
         try:
             from .dask_backend import DaskBackend
         except ImportError as e:
             raise UsageError(f"Dask is not installed ({e}); pip install 'links1[dask]'") from None
-        be = DaskBackend(scheduler=args.scheduler, n_local=args.dask_local, static=static, chunk_factor=k)
+        be = DaskBackend(scheduler=args.scheduler, n_local=args.dask_local, static=static, chunk_factor=k,
+                         chunk_by=by)
     elif workers == 0:
         from .executors import InProcess
-        be = InProcess(chunk_factor=k)
+        be = InProcess(chunk_factor=k, chunk_by=by)
     else:
         from .executors import LocalPool
-        be = LocalPool(int(workers), chunk_factor=k)
+        be = LocalPool(int(workers), chunk_factor=k, chunk_by=by)
     _BACKENDS[key] = be
     import atexit
     atexit.register(be.close)
@@ -304,7 +310,9 @@ def run_cli(args) -> int:
     cost_channel = aov_channel(channels, "cost")
     report = build_report(res, plan, model, cost_channel=cost_channel, reference=reference,
                           meta={"scene": os.path.abspath(args.scene), "renderer": args.renderer,
-                                "cull": bool(args.cull), "spp": spec.kwargs.get("spp")})
+                                "cull": bool(args.cull), "spp": spec.kwargs.get("spp"),
+                                "chunk_factor": getattr(backend, "chunk_factor", None),
+                                "chunk_by": getattr(backend, "chunk_by", None)})
     if args.simulate:
         cm = report["cost_model"] or {"per_pixel_s": 0.0, "per_test_s": 0.0, "per_unit_s": 0.0}
         tests = res.image[..., cost_channel] if cost_channel is not None else 0.0

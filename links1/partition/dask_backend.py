@@ -18,7 +18,7 @@ import uuid
 from collections import deque
 
 from ..errors import RenderAborted
-from .executors import ALLOWED_FAILURES, CHUNK_FACTOR, TASK_PIXELS, chunk_size, take_batch
+from .executors import ALLOWED_FAILURES, CHUNK_FACTOR, TASK_PIXELS, guided_batch, take_batch
 from .runtime import THREAD_ENV, get_renderer, render_units, spec_batches, warm_up
 
 try:  # the plugin base class only when distributed is there (lazy for everything else)
@@ -54,7 +54,7 @@ class DaskBackend:
 
     def __init__(self, scheduler: str | None = None, n_local: int | None = None, threads: int | None = None,
                  static: bool = False, client=None, poll_s: float = 0.25, chunk_factor: int = CHUNK_FACTOR,
-                 task_pixels: int = TASK_PIXELS):
+                 task_pixels: int = TASK_PIXELS, chunk_by: str = "units"):
         if scheduler is None and not n_local and client is None:
             raise ValueError("give a scheduler address, a LocalCluster size or a client")
         self.scheduler, self.n_local, self.threads = scheduler, n_local, threads
@@ -64,6 +64,7 @@ class DaskBackend:
         self.poll_s = poll_s
         self.fetch_s = 5.0   # a finished unit's result that takes longer to fetch is waited for again
         self.chunk_factor, self.task_pixels = int(chunk_factor), int(task_pixels)
+        self.chunk_by = chunk_by
         self.token = uuid.uuid4().hex[:8]
         self._plugin = None
 
@@ -168,8 +169,11 @@ class DaskBackend:
             def top_up():
                 nw = max(1, len(self.workers()))
                 while queue and len(pending) < nw + 1:
-                    c = chunk_size(len(queue), nw, self.chunk_factor) if batches else 1
-                    submit(take_batch(plan, queue, c, self.task_pixels), None)
+                    if batches:
+                        submit(guided_batch(plan, queue, nw, self.chunk_factor, self.task_pixels,
+                                            by_load=self.chunk_by == "load"), None)
+                    else:
+                        submit(take_batch(plan, queue, 1, self.task_pixels), None)
             top_up()
 
         known = set(workers)

@@ -60,6 +60,27 @@ def chunk_size(remaining, n_nodes, chunk_factor):
     return max(1, -(-remaining // (chunk_factor * max(1, n_nodes))))
 
 
+def guided_batch(plan, queue, n_nodes, chunk_factor, max_pixels=TASK_PIXELS, by_load=False):
+    """The next dynamic chunk: :func:`chunk_size` units, or with ``by_load`` (and a plan that
+    predicts each unit's load) units up to ``remaining load / (k nodes)`` of predicted load
+    (at least one): guided self-scheduling that weighs units, so a chunk of the heaviest
+    units (LPT order) is not k x nodes times the work it should be."""
+    pred = getattr(plan, "predicted", None)
+    if not by_load or pred is None or chunk_factor <= 0:
+        return take_batch(plan, queue, chunk_size(len(queue), n_nodes, chunk_factor), max_pixels)
+    target = sum(float(pred[i]) for i in queue) / (chunk_factor * max(1, n_nodes))
+    out, load, px = [], 0.0, 0
+    while queue:
+        u = plan.units[queue[0]]
+        p = float(pred[queue[0]])
+        if out and (load + p > target or px + u.w * u.h > max_pixels):
+            break
+        out.append(queue.popleft())
+        load += p
+        px += u.w * u.h
+    return out
+
+
 class NodeLost(Exception):
     """Raised inside a backend when the node rendering a unit went away."""
 
@@ -174,8 +195,9 @@ class InProcess:
     name = "inprocess"
     n_nodes = 1
 
-    def __init__(self, chunk_factor: int = CHUNK_FACTOR, task_pixels: int = TASK_PIXELS):
+    def __init__(self, chunk_factor: int = CHUNK_FACTOR, task_pixels: int = TASK_PIXELS, chunk_by: str = "units"):
         self.chunk_factor, self.task_pixels = int(chunk_factor), int(task_pixels)
+        self.chunk_by = chunk_by
 
     def start(self, spec):
         # as a local worker's start (start_worker): recordings and caches before the first
@@ -191,8 +213,11 @@ class InProcess:
         batches = can_batch(get_renderer(spec))
         queue = deque(todo)
         while queue:  # static: the pixel budget per task; dynamic: guided chunks
-            n = None if plan.static else chunk_size(len(queue), 1, self.chunk_factor)
-            batch = take_batch(plan, queue, n if batches else 1, self.task_pixels)
+            if plan.static or not batches:
+                batch = take_batch(plan, queue, None if batches else 1, self.task_pixels)
+            else:
+                batch = guided_batch(plan, queue, 1, self.chunk_factor, self.task_pixels,
+                                     by_load=self.chunk_by == "load")
             for i, (px, info) in zip(batch, render_units(spec, [plan.units[i].window for i in batch],
                                                          [cull.get(i) for i in batch])):
                 info["node"] = plan.owner[i] if plan.static else 0
@@ -281,13 +306,14 @@ class LocalPool:
 
     def __init__(self, n_workers: int, threads: int | None = None, prefetch: int = 2,
                  max_deaths: int | None = None, log=default_log, chunk_factor: int = CHUNK_FACTOR,
-                 task_pixels: int = TASK_PIXELS):
+                 task_pixels: int = TASK_PIXELS, chunk_by: str = "units"):
         if n_workers < 1:
             raise ValueError(f"workers must be >= 1, got {n_workers}")
         self.n = int(n_workers)
         self.threads = threads
         self.prefetch = max(1, int(prefetch))
         self.chunk_factor, self.task_pixels = int(chunk_factor), int(task_pixels)
+        self.chunk_by = chunk_by
         self.batches = True        # the renderer renders batches (set when a worker is ready)
         self.max_deaths = DEATHS_PER_WORKER * self.n if max_deaths is None else int(max_deaths)
         self.log = log
@@ -401,8 +427,11 @@ class LocalPool:
             busy = sum(1 for (_, n) in pending.values() if n == k)
             q = queue_of(k)
             while q and (plan.static or busy < prefetch):
-                n = None if plan.static else chunk_size(len(q), self.n, self.chunk_factor)
-                batch = take_batch(plan, q, n if self.batches else 1, self.task_pixels)
+                if plan.static or not self.batches:
+                    batch = take_batch(plan, q, None if self.batches else 1, self.task_pixels)
+                else:
+                    batch = guided_batch(plan, q, self.n, self.chunk_factor, self.task_pixels,
+                                         by_load=self.chunk_by == "load")
                 try:
                     f = self.pools[k].submit(render_units, spec, [plan.units[i].window for i in batch],
                                              [cull.get(i) for i in batch])

@@ -166,3 +166,44 @@ def test_in_process_node_is_warm_before_its_first_unit():
     assert recordings >= 1
     r.render_batch([(0, 0, 24, 12), (3, 14, 8, 8)])
     assert r.integrator._freeze.n_recordings == recordings
+
+
+def test_guided_chunks_by_load_weigh_the_units():
+    """--chunk-by load: a chunk holds predicted load up to remaining / (k x nodes) (at least one
+    unit), so with the heaviest units first it holds fewer of them than --chunk-by units does;
+    without predictions it is the unit count."""
+    from links1.partition.executors import guided_batch
+    plan = make_plan("dynamic", 64, 64, 2, tiles_per_node=16, unit="tile")
+    rng = np.random.default_rng(2)
+    plan.predicted = rng.pareto(1.5, len(plan.units)) + 0.1
+    order = sorted(range(len(plan.units)), key=lambda i: -plan.predicted[i])   # lpt
+    for k in (1, 2, 3):
+        q = deque(order)
+        chunks = []
+        while q:
+            left = sum(plan.predicted[i] for i in q)
+            c = guided_batch(plan, q, 2, k, by_load=True)
+            load = sum(plan.predicted[i] for i in c)
+            assert len(c) == 1 or load <= left / (k * 2) + 1e-12
+            nxt = list(q)[:1]
+            assert not nxt or load + plan.predicted[nxt[0]] > left / (k * 2) or len(c) == 0
+            chunks.append(c)
+        assert sorted(i for c in chunks for i in c) == sorted(order)
+        first_units = guided_batch(plan, deque(order), 2, k)            # by unit count
+        assert len(chunks[0]) < len(first_units)
+    plan.predicted = None
+    q = deque(order)
+    assert len(guided_batch(plan, q, 2, 2, by_load=True)) == chunk_size(len(order), 2, 2)
+
+
+def test_chunks_by_load_give_the_same_bits(core_spec, core_ref):
+    plan = make_plan("dynamic", 32, 32, 2, tiles_per_node=8, unit="tile")
+    plan.predicted = np.linspace(3.0, 0.5, len(plan.units))
+    with LocalPool(2, chunk_factor=2, chunk_by="load") as pool:
+        res = render_plan(plan, core_spec, pool, progress=False)
+    assert np.array_equal(res.image, core_ref)
+    res = render_plan(plan, core_spec, InProcess(chunk_factor=2, chunk_by="load"), progress=False)
+    assert np.array_equal(res.image, core_ref)
+    by_units = render_plan(plan, core_spec, InProcess(chunk_factor=2), progress=False)
+    # the heaviest units come first: by load the first chunks hold fewer of them
+    assert max(_launches(res)) < max(_launches(by_units))
