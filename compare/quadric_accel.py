@@ -135,32 +135,28 @@ def run_size(n, res, repeats):
     m = len(o_np)
     rows = []
 
-    def q_bvh():
-        t, q, _, found = bvh.nearest(o, d, mi.Float(0.0), mi.Float(np.inf), dr.ones(mi.Bool, m),
-                                     dr.zeros(mi.UInt32, m))
-        dr.eval(t)
-        dr.sync_thread()
-        return t
+    def nearest_query(accel):
+        """The nearest-hit query of ``accel`` (the BVH walk or a buffer: the same ``nearest``)."""
+        def query():
+            t, q, _, found = accel.nearest(o, d, mi.Float(0.0), mi.Float(np.inf), dr.ones(mi.Bool, m),
+                                           dr.zeros(mi.UInt32, m))
+            dr.eval(t)
+            dr.sync_thread()
+            return t
+        return query
 
+    lo = np.array([s.bounds()[0] for s in bvh.specs])
+    hi = np.array([s.bounds()[1] for s in bvh.specs])
     # eye: the camera's eye buffer (lightbuffer.plan_eye: what links1_whitted's camera rays use)
     from links1_mitsuba import lightbuffer
-    lo_, hi_ = (np.array([s.bounds()[k] for s in bvh.specs]) for k in (0, 1))
-    ext = float(max(np.max(np.abs(lo_)), np.max(np.abs(hi_)), np.max(np.abs(o_np[0]))))
+    ext = float(max(np.max(np.abs(lo)), np.max(np.abs(hi)), np.max(np.abs(o_np[0]))))
     t_build = time.perf_counter()
     eye = lightbuffer.build(bvh, ("point", o_np[0].astype(np.float64)), lightbuffer.MARGIN_REL * (1.0 + ext),
                             N=lightbuffer.GRID_MAX)
     t_build = time.perf_counter() - t_build
-
-    def q_eye():
-        t, q, _, found = eye.nearest(o, d, mi.Float(0.0), mi.Float(np.inf), dr.ones(mi.Bool, m),
-                                     dr.zeros(mi.UInt32, m))
-        dr.eval(t)
-        dr.sync_thread()
-        return t
+    q_bvh, q_eye = nearest_query(bvh), nearest_query(eye)
 
     # proxy: world boxes of the (BVH-ordered) quadrics as one mesh
-    lo = np.array([s.bounds()[0] for s in bvh.specs])
-    hi = np.array([s.bounds()[1] for s in bvh.specs])
     corners = np.stack([np.where([(k >> 2) & 1, (k >> 1) & 1, k & 1], hi, lo) for k in range(8)], axis=1)
     mesh = mi.Mesh("proxy", 8 * n, 12 * n)
     prm = mi.traverse(mesh)

@@ -186,6 +186,22 @@ def define_bvh():
         def _qform(qz, x, y):
             return x.x * y.x + x.y * y.y + qz * (x.z * y.z)
 
+        def offer(self, q, o, d, tmin, res, active=None):
+            """The nearest-hit state ``res = (t, row, part, found)`` after testing row ``q``
+            (lanes ``active``, all when None): a tie with the best so far is let through and
+            the lower slot wins (file order, as ``Intersect._nearest``). One rule for the
+            walk's leaves and the eye buffer's lists."""
+            best_t, best_q, best_part, found = res
+            lim = dr.select(found, dr.reinterpret_array(mi.Float, dr.reinterpret_array(mi.UInt32, best_t) + 1),
+                            best_t)
+            tq, pq = self.intersect(q, o, d, tmin, lim, True if active is None else active)
+            h = tq < lim if active is None else active & (tq < lim)
+            s_new = dr.gather(mi.UInt32, self.slot, q, h)
+            s_old = dr.gather(mi.UInt32, self.slot, best_q, h & found)
+            better = h & ((tq < best_t) | ((tq == best_t) & found & (s_new < s_old)))
+            return (dr.select(better, tq, best_t), dr.select(better, q, best_q), dr.select(better, pq, best_part),
+                    found | better)
+
         def intersect(self, q, o, d, tmin, tmax, act):
             """QuadricSpec.intersect with gathered parameters: (t, part)."""
             a, qz = self._rows(q, act)
@@ -293,17 +309,7 @@ def define_bvh():
                         tq, _ = self.intersect(fst, o, d, tmin, tmax, True)
                         h = tq < tmax
                         return fst, c, (dr.select(h, T * dr.gather(mi.Color3f, self.st, fst, h), T),)
-                    best_t, best_q, best_part, found = res
-                    # a tie with the best so far is let through; the lower slot wins (below)
-                    lim = dr.select(found, dr.reinterpret_array(
-                        mi.Float, dr.reinterpret_array(mi.UInt32, best_t) + 1), best_t)
-                    tq, pq = self.intersect(fst, o, d, tmin, lim, True)
-                    h = tq < lim
-                    s_new = dr.gather(mi.UInt32, self.slot, fst, h)
-                    s_old = dr.gather(mi.UInt32, self.slot, best_q, h & found)
-                    better = h & ((tq < best_t) | ((tq == best_t) & found & (s_new < s_old)))
-                    return fst, c, (dr.select(better, tq, best_t), dr.select(better, fst, best_q),
-                                    dr.select(better, pq, best_part), found | better)
+                    return fst, c, self.offer(fst, o, d, tmin, res)
 
                 def keep(*args):
                     return args

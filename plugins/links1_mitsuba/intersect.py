@@ -20,12 +20,6 @@ PRELIMINARY = True
 #: light (``tables.occluder_boxes``); Embree only where one is met (issue 12)
 BOX_CULL = True
 
-#: Mitsuba hits compute only the surface record the integrator reads (issue 12; False: all):
-#: position, geometric and shading normals where every BSDF is links1_phong and no Mitsuba
-#: shape emits (no uv, dp/du, tangents), and position and normal at a transparent shadow
-#: crossing (what ``spawn_ray`` reads); same bits
-MINIMAL_RECORD = True
-
 #: camera rays of a pinhole camera find their nearest BVH quadric through the eye's buffer
 #: (``lightbuffer.plan_eye``) where there is one (issue 12; False: the BVH walk)
 EYE_BUFFER = True
@@ -43,21 +37,12 @@ def define_intersect(mi, dr, util):
         """Nearest hits, shadow transmittance, uv of custom hits."""
 
         # -------------------------------------------------------------- geometry
-        @staticmethod
-        def _si_flags(P):
-            """The surface record a Mitsuba hit needs (``scene.ray_intersect``'s ray flags): all
-            of it where a Mitsuba BSDF (uv, shading frame) or emitter reads it, else position and
-            normals (MINIMAL_RECORD)."""
-            if MINIMAL_RECORD and P.all_phong and not P.any_mitsuba_emission:
-                return int(mi.RayFlags.Minimal) | int(mi.RayFlags.ShadingFrame)
-            return int(mi.RayFlags.All)
-
         def _nearest(self, P, scene, o, d, tmin, tmax, active, cost, camera=False):
             """Nearest hit over Mitsuba shapes and custom shapes: (t, slot, si, prim, custom_won).
             ``camera``: the rays start at a pinhole camera's eye (its buffer replaces the BVH)."""
             if P.any_mitsuba_shapes:
                 ray = mi.Ray3f(o + d * tmin, d, tmax - tmin)
-                si = scene.ray_intersect(ray, self._si_flags(P), False, active=active)
+                si = scene.ray_intersect(ray, active=active)
                 valid = active & si.is_valid()
                 t = dr.select(valid, si.t + tmin, INF)
                 reg = dr.reinterpret_array(mi.UInt32, si.shape)
@@ -143,69 +128,60 @@ def define_intersect(mi, dr, util):
                 meet |= m
             return meet
 
-        def _shadow_mitsuba(self, P, scene, o, d, smax, active, T, cost, light=None,
-                            own=None):
-            """Continue the transmittance ``T`` through Mitsuba's shapes (once per shape). With
-            ``light`` (its index in P.occ_boxes), rays that meet none of the occluders' boxes
-            skip Embree (``own``: see :meth:`_meets_boxes`)."""
+        def _shadow_mitsuba(self, P, scene, o, d, smax, active, T, cost, light=None, own=None):
+            """Continue the transmittance ``T`` through Mitsuba's shapes (once per shape): per
+            group of shapes (:meth:`_shadow_groups`) its query, which a packet whose segments
+            meet none of the group's occluder boxes of ``light`` skips (``P.occ_boxes``;
+            ``own``: see :meth:`_meets_boxes`)."""
             if not P.any_mitsuba_shapes:
                 return T
-            act = active & (dr.max(T) > 0)
-            if P.shadow_split is not None and SPLIT:
-                T, inc = self._shadow_split(P, o, d, smax, act, T, light, own)
-                cost += inc
-                return T
             boxes = P.occ_boxes[light] if BOX_CULL and light is not None else None
-            if boxes is not None:
-                act &= self._meets_boxes(o, d, smax, boxes, own)
-                # a packet where no ray meets a box skips the Embree calls
-                T, inc = dr.if_stmt((T, dr.zeros(mi.UInt32, dr.width(o))), act,
-                                    lambda T, inc: self._shadow_embree(P, scene, o, d, smax, act, T),
-                                    lambda T, inc: (T, inc), mode="symbolic", label="links1_shadow_boxes")
-            else:
-                T, inc = self._shadow_embree(P, scene, o, d, smax, act, T)
+            occ = P.occ_mslots[light] if light is not None else None
+            inc = dr.zeros(mi.UInt32, dr.width(o))
+            for slots, query in self._shadow_groups(P, scene, o, d, smax, occ):
+                mine = None if boxes is None else [b for b in boxes if slots is None or b[2] in slots]
+                if mine is not None and not mine:
+                    continue                       # none of these shapes can shadow this light
+                run = active & (dr.max(T) > 0)
+                if mine is None:
+                    T, inc = query(T, inc, run)
+                else:
+                    run &= self._meets_boxes(o, d, smax, mine, own)
+                    T, inc = dr.if_stmt((T, inc), run, lambda T, inc, q=query, r=run: q(T, inc, r),
+                                        lambda T, inc: (T, inc), mode="symbolic", label="links1_shadow_boxes")
             cost += inc
             return T
 
-        def _shadow_split(self, P, o, d, smax, act, T, light, own):
-            """Transmittance through Mitsuba's shapes with ``P.shadow_split`` (see
-            ``tables.shadow_split``): one any-hit query over the opaque shapes, then one per
-            transparent shape that can still matter; each skipped by lanes whose segment meets
-            none of its boxes -> (T, tests made)."""
-            split = P.shadow_split
-            boxes = P.occ_boxes[light] if BOX_CULL and light is not None else None
-            occ = P.occ_mslots[light] if light is not None else None
+        def _shadow_groups(self, P, scene, o, d, smax, occ):
+            """``[(slots, query)]``: the Mitsuba shapes a shadow segment is tested against, by
+            group (``slots`` None: all of them), ``query(T, tests, lanes) -> (T, tests)``. With
+            ``P.shadow_split`` (``tables.shadow_split``) an any-hit query on the opaque shapes'
+            sub-scene (T = 0) and one on each transparent shape's (T times its transmittance),
+            skipping groups that cannot occlude (``occ``: the light's occluder slots); else the
+            scene with :meth:`_shadow_embree`."""
+            split = P.shadow_split if SPLIT else None
+            if split is None:
+                return [(None, lambda T, inc, run: self._shadow_embree(P, scene, o, d, smax, run, T, inc))]
             ray = mi.Ray3f(o, d, smax, 0.0, mi.Color0f())
-            inc = dr.zeros(mi.UInt32, dr.width(o))
-            groups = []
-            if split["opaque"] is not None and (occ is None or occ & split["opaque_slots"]):
-                groups.append((split["opaque"], split["opaque_slots"], None))
-            for sub, sl, st in split["trans"]:
-                if occ is None or sl in occ:
-                    groups.append((sub, frozenset([sl]), st))
-            for sub, slots, st in groups:
-                mine = None if boxes is None else [b for b in boxes if b[2] in slots]
-                if mine is not None and not mine:
-                    continue                       # none of these shapes can shadow this light
-                run = act & (dr.max(T) > 0)
 
-                def test(T, inc, sub=sub, st=st, run=run):
+            def any_hit(sub, st):
+                def query(T, inc, run):
                     hit = sub.ray_test(ray, active=run)
                     return (dr.select(hit, 0.0 if st is None else T * c3(st), T),
                             inc + dr.select(run, mi.UInt32(1), 0))
-                if mine is None:
-                    T, inc = test(T, inc)
-                else:
-                    run &= self._meets_boxes(o, d, smax, mine, own)
-                    T, inc = dr.if_stmt((T, inc), run, lambda T, inc, test=test, run=run: test(T, inc, run=run),
-                                        lambda T, inc: (T, inc), mode="symbolic", label="links1_shadow_split")
-            return T, inc
+                return query
+            groups = []
+            if split["opaque"] is not None and (occ is None or occ & split["opaque_slots"]):
+                groups.append((split["opaque_slots"], any_hit(split["opaque"], None)))
+            groups += [(frozenset([sl]), any_hit(sub, st)) for sub, sl, st in split["trans"] if occ is None or sl in occ]
+            return groups
 
-        def _shadow_embree(self, P, scene, o, d, smax, act, T):
-            """``_shadow_mitsuba``'s Embree part for the lanes ``act`` -> (T, tests made)."""
+        def _shadow_embree(self, P, scene, o, d, smax, act, T, inc):
+            """Shadow segments of the lanes ``act`` through the whole scene: one any-hit test, or
+            with transparent shapes the walk over the crossings, nearest first -> (T, tests)."""
             if not P.any_transparent_mitsuba:
                 occluded = scene.ray_test(mi.Ray3f(o, d, smax, 0.0, mi.Color0f()), active=act)  # (o, d, x) would set time, not maxt
-                return dr.select(occluded, 0.0, T), dr.select(act, mi.UInt32(1), 0)
+                return dr.select(occluded, 0.0, T), inc + dr.select(act, mi.UInt32(1), 0)
             reg_to_slot, bits_t, words_t, sh_t = P.reg_to_slot, P.trans_bits, P.trans_words, P.shadow_t
             nwords, max_crossings = P.trans_nwords, P.max_crossings
 
@@ -231,8 +207,7 @@ def define_intersect(mi, dr, util):
                 word = dr.gather(mi.UInt32, words_t, mi.UInt32(slot), hit)
                 opaque = hit & (bit == 0)
                 if PRELIMINARY:
-                    si = pi.compute_surface_interaction(
-                        ray, int(mi.RayFlags.Minimal if MINIMAL_RECORD else mi.RayFlags.All), hit & ~opaque)
+                    si = pi.compute_surface_interaction(ray, mi.RayFlags.All, hit & ~opaque)
                 mine = [hit & (bit != 0) & (word == k) for k in range(nwords)]
                 new = hit & mi.Bool(False)
                 for k in range(nwords):
@@ -251,7 +226,7 @@ def define_intersect(mi, dr, util):
             state = (mi.Point3f(o), mi.Float(smax), T, [dr.zeros(mi.UInt32, n) for _ in range(nwords)], mi.Bool(act),
                      dr.zeros(mi.UInt32, n), dr.zeros(mi.UInt32, n))
             o, tleft, T, seen, run, it, c_loop = dr.while_loop(state, cond, body)
-            return T, c_loop
+            return T, inc + c_loop
 
         def _custom_uv(self, P, o, d, t, prim, slot, uslot, hit):
             """uv of the hits on links1_quadric shapes with textured BSDFs (0 elsewhere)."""

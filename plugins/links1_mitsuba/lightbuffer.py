@@ -280,7 +280,6 @@ def plan(P, scene):
     if ext is None:
         return out
     margin = MARGIN_REL * (1.0 + ext)
-    limit = max(MAX_MEAN_LIST, math.log2(max(P.bvh.n, 2)))
     for j, L in enumerate(P.lights):
         if L[0] in ("point", "mspot", "memitter"):
             geom = ("point", np.asarray(L[1], dtype=np.float64))
@@ -289,12 +288,7 @@ def plan(P, scene):
             geom = ("dir", w / np.linalg.norm(w))
         else:
             continue
-        if geom[0] == "point" and sampled_mean_list(geom[1], *quadric_spheres(P.bvh.specs, margin),
-                                                    grid_size(P.bvh.n, "point")) > 1.5 * limit:
-            continue         # clearly too long: not worth the build
-        lb = build(P.bvh, geom, margin)
-        if lb.mean_list <= limit:
-            out[j] = lb
+        out[j] = build_if_it_pays(P.bvh, geom, margin)
     return out
 
 
@@ -311,10 +305,19 @@ def plan_eye(P, scene):
         return None
     # the finest grid: most camera rays see no quadric, and a fine cell tells them so without
     # an exact test (the BVH rejects them with one box test)
-    margin, limit = MARGIN_REL * (1.0 + ext), max(MAX_MEAN_LIST, math.log2(max(P.bvh.n, 2)))
-    if sampled_mean_list(eye, *quadric_spheres(P.bvh.specs, margin), GRID_MAX) > 1.5 * limit:
-        return None          # clearly too long: not worth the build
-    lb = build(P.bvh, ("point", eye), margin, N=GRID_MAX)
+    return build_if_it_pays(P.bvh, ("point", eye), MARGIN_REL * (1.0 + ext), N=GRID_MAX)
+
+
+def build_if_it_pays(bvh, geom, margin, N=None):
+    """:func:`build`, kept when the mean list of its non-empty cells is below the BVH walk's
+    depth (log2 of the quadric count, at least ``MAX_MEAN_LIST``), else None; a point buffer
+    whose sampled estimate (:func:`sampled_mean_list`) is clearly above that is not built."""
+    limit = max(MAX_MEAN_LIST, math.log2(max(bvh.n, 2)))
+    if geom[0] == "point":
+        n_side = grid_size(len(bvh.specs), "point") if N is None else int(N)
+        if sampled_mean_list(geom[1], *quadric_spheres(bvh.specs, margin), n_side) > 1.5 * limit:
+            return None      # clearly too long: not worth the build
+    lb = build(bvh, geom, margin, N=N)
     return lb if lb.mean_list <= limit else None
 
 
@@ -450,21 +453,10 @@ class LightBuffer:
             return k < end
 
         def body(k, c, res):
-            best_t, best_q, best_part, found = res
             live = k < end
             e = dr.gather(mi.Array2f, self.ent, k, live)
-            go = live & (e.y <= best_t)      # a hit on the entry lies at least its key away
-            q = dr.reinterpret_array(mi.UInt32, e.x)
-            # a tie with the best so far is let through; the lower slot wins (as the BVH walk)
-            lim = dr.select(found, dr.reinterpret_array(mi.Float, dr.reinterpret_array(mi.UInt32, best_t) + 1),
-                            best_t)
-            tq, pq = bvh.intersect(q, o, d, tmin, lim, go)
-            h = go & (tq < lim)
-            s_new = dr.gather(mi.UInt32, bvh.slot, q, h)
-            s_old = dr.gather(mi.UInt32, bvh.slot, best_q, h & found)
-            better = h & ((tq < best_t) | ((tq == best_t) & found & (s_new < s_old)))
-            res = (dr.select(better, tq, best_t), dr.select(better, q, best_q), dr.select(better, pq, best_part),
-                   found | better)
+            go = live & (e.y <= res[0])      # a hit on the entry lies at least its key away
+            res = bvh.offer(dr.reinterpret_array(mi.UInt32, e.x), o, d, tmin, res, go)   # the walk's rule
             return dr.select(go, k + 1, end), dr.select(go, c + 1, c), res
 
         k, c, res = dr.while_loop((k, c, res), cond, body, label="links1_eyebuffer")

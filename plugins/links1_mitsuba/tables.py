@@ -25,8 +25,6 @@ from links1.lights import ENV_LIGHT_ID
 from . import lightbuffer
 from .lights import _emitted_rgb
 
-
-
 #: Shadow rays toward a light that at most this many Mitsuba shapes can occlude first test the
 #: segment against those shapes' bounding boxes and call Embree only where one is met
 #: (``Intersect._shadow_mitsuba``); above it Embree's own BVH culls better (issue 12)
@@ -94,6 +92,7 @@ def occluder_boxes(occ, lo, hi, convex):
         b32 = np.where(b32 < b, np.nextafter(b32, np.float32(np.inf)), b32)
         boxes.append(([float(v) for v in a32], [float(v) for v in b32], int(sl), bool(convex[sl])))
     return boxes
+
 
 def _textured(bsdf) -> bool:
     """Whether a Mitsuba BSDF has a texture (bitmap and checkerboard expose ``to_uv``)."""
