@@ -9,7 +9,7 @@ piecewise-quadratic kernel of eq. (3.9)::
     P(r) = 0                        r >= 3S
 
 and the surface is ``W(x) = T`` (eq. 3.8); the inside is ``W > T``. The outward normal is
-``-grad W / |grad W|`` (digest Decision), ``-d`` where the gradient vanishes (pinch point).
+``-grad W / |grad W|`` (docs/method.md §3.3, Choice), ``-d`` where the gradient vanishes (pinch point).
 
 Ray set-up (shared by both solvers)
 -----------------------------------

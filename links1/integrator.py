@@ -1,4 +1,4 @@
-"""The LINKS-1 Whitted integrator in float64 numpy (digest §2–4, paper 3-1 and 3-3).
+"""The LINKS-1 Whitted integrator in float64 numpy (docs/method.md §2–4, paper 3-1 and 3-3).
 
 One call traces a batch of rays. Each ray finds its nearest hit through the hierarchy of
 bounding boxes (3-2-4); the hit is shaded with eq. (3.11) under every light, each light

@@ -1,4 +1,4 @@
-"""Light sources (digest §4.1, paper 3-3-1). Every intensity is an RGB triple.
+"""Light sources (docs/method.md §4.1, paper 3-3-1). Every intensity is an RGB triple.
 
 Each light answers one question for a batch of shading points ``p`` (N, 3)::
 

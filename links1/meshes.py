@@ -22,7 +22,7 @@ Mitsuba semantics kept here
   (Mitsuba's ``rectangle``). :func:`cube_mesh`: ``[-1, 1]³``, outward winding, flat faces: the
   same 24 vertices, texcoords and 12 triangles as Mitsuba's ``cube``.
 
-Bicubic Bézier patches (digest §3.1, eq. 3.3)
+Bicubic Bézier patches (docs/method.md §3.1, eq. 3.3)
 ---------------------------------------------
 A patch has 4 × 4 control points ``P[i][j]``; the surface is
 ``S(u, v) = Σ_i Σ_j B_i(u) B_j(v) P[i][j]`` with the Bernstein polynomials

@@ -248,7 +248,7 @@ class TriangleMesh(Shape):
         kx, ky, kz, px, py, pz, sx, sy, dz, ex, ey, ez = ray
         V = self._vs
         sl = slice(s, s + c)
-        # a_i = v_i - o: vertices translated by the ray origin (Decision, digest 3.1),
+        # a_i = v_i - o: vertices translated by the ray origin (Choice, docs/method.md §3.1),
         # in the ray's permuted and sheared frame where e is the z axis (Woop, Benthin &
         # Wald 2013): e.(a_j x a_k) = |d_z| (a'_j x a'_k)_z. Every vertex is transformed
         # once per ray, so shared edges and vertices see the same numbers.
@@ -271,7 +271,7 @@ class TriangleMesh(Shape):
         det = ((V0[0][None, sl] - ex[1]) * nx + (V0[1][None, sl] - ey[1]) * ny
                + (V0[2][None, sl] - ez[1]) * nz)           # det[a1 a2 a3] = a1.N
         en = ex[0] * nx + ey[0] * ny + ez[0] * nz          # e.N = |d_z| sum(U)
-        # det = 0: the plane contains the ray origin (Decision, digest 3.1): a miss.
+        # det = 0: the plane contains the ray origin (Choice, docs/method.md §3.1): a miss.
         ok = inside & (su != 0) & (en * su > 0) & (det != 0)
         with np.errstate(divide="ignore", invalid="ignore"):
             t = det / np.where(ok, en, 1.0)  # eq. (3.2): 1/sum(k) = (a1.N)/(e.N)
@@ -400,7 +400,7 @@ class TriangleMesh(Shape):
 
 # ---------------------------------------------------------------------------- quadrics
 def quadric_roots(a, b, c, disc, pos):
-    """Both roots of eq. (3.5) in the stable form (numerics.md), as an interval ``(lo, hi)``.
+    """Both roots of eq. (3.5) in the stable form (docs/numerics.md), as an interval ``(lo, hi)``.
 
     ``pos`` = ``a > 0``; where ``a = 0`` (a ray parallel to a cylinder's axis) the ray is
     inside everywhere (``c < 0``: ``(-inf, inf)``) or nowhere (an empty interval).

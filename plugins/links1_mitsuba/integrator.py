@@ -1,4 +1,4 @@
-"""``links1_whitted``: the LINKS-1 method (digest §2–4) as a Mitsuba 3 integrator in Dr.Jit.
+"""``links1_whitted``: the LINKS-1 method (docs/method.md §2–4) as a Mitsuba 3 integrator in Dr.Jit.
 
 The integrator class is composed here from one part per concept, each in its own module
 (made by a ``define_*`` function, because the Mitsuba variant must be set first):

@@ -58,7 +58,7 @@ def define_lights(mi, dr, util):
             return wi, dist, -dr.dot(wi, v3(axis))
 
         def _light(self, L, p):
-            """(wi, dist, L_s) of one analytic light at points p (digest §4.1)."""
+            """(wi, dist, L_s) of one analytic light at points p (docs/method.md §4.1)."""
             kind = L[0]
             if kind == "point":
                 _, pos, direction, L1, L2, inv_sq = L

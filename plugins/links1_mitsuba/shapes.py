@@ -138,7 +138,7 @@ class QuadricSpec:
         a = self._qform(v, v)
         ok_a = a > 0
         a_safe = dr.select(ok_a, a, 1.0)
-        t0 = -self._qform(u, v) / a_safe               # closest approach (numerics.md)
+        t0 = -self._qform(u, v) / a_safe               # closest approach (docs/numerics.md)
         u0 = u + v * t0
         b = self._qform(u0, v)
         c = self._qform(u0, u0) - 1.0
@@ -314,7 +314,7 @@ class BlobSpec:
         x, y, z, _, _, R2, _, _, _, _, lb, gb = row
         rel = mi.Vector3f(x, y, z) - u
         tau = dr.dot(rel, v)
-        h2 = dr.squared_norm(dr.cross(rel, v))   # no cancellation (numerics.md)
+        h2 = dr.squared_norm(dr.cross(rel, v))   # no cancellation (docs/numerics.md)
         cross = h2 < R2
         half = dr.sqrt(dr.maximum(R2 - h2, 0.0))
         enter = dr.select(cross, dr.minimum(enter, tau - half), enter)
@@ -597,7 +597,7 @@ class BlobSpec:
         return dr.select(dr.isfinite(t_obj), t, INF), dr.zeros(mi.UInt32, dr.width(t))
 
     def _exact(self, field_at, start, end, sgn, run, n_eval, Lb, Gb, eps, any_hit=False):
-        """March with steps that never jump over a root (numerics.md LG bound); once the step
+        """March with steps that never jump over a root (docs/numerics.md, step bounds); once the step
         falls below ``probe`` it probes ``max(2h, probe)`` ahead; a sign change brackets the
         root, refined by secant steps with the Illinois safeguard (as the core). A ray that
         grazes the surface never brackets a root: a miss, as in the float64 core."""

@@ -1,4 +1,4 @@
-"""float64 analytic references for the numerical stress cases (shared/docs/numerics.md)."""
+"""float64 analytic references for the numerical stress cases (docs/numerics.md)."""
 from __future__ import annotations
 
 import math

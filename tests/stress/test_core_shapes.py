@@ -1,4 +1,4 @@
-"""Numerical stress cases of shared/docs/numerics.md on the core's primitives (float64).
+"""Numerical stress cases of docs/numerics.md on the core's primitives (float64).
 
 Property-based (hypothesis, derandomised, few examples); every case asserts that no output
 is NaN/Inf where it must be finite, and hit/miss equal to a float64 analytic reference

@@ -1,4 +1,4 @@
-"""Numerical stress cases (shared/docs/numerics.md) through both renderers.
+"""Numerical stress cases (docs/numerics.md) through both renderers.
 
 Each test renders a small generated scene with ``links1.render.make_renderer(kind, ...)``
 for ``kind`` = ``core`` and ``mitsuba`` (the links1_whitted Dr.Jit integrator; skipped with
