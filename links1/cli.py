@@ -219,7 +219,7 @@ def make_cli_renderer(args):
 def cmd_render(args) -> int:
     if args.renderer == "mitsuba":
         from .render import require_mitsuba
-        require_mitsuba()
+        require_mitsuba(args.variant)
     one_line_warnings(args.renderer)
     kind = _output_kind(args.output)
     if kind == "png" and args.aov:

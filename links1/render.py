@@ -403,15 +403,21 @@ def check_sensor_index(path, sensor, count: int) -> int:
     return k
 
 
-def require_mitsuba() -> None:
+def require_mitsuba(variant: str | None = None) -> None:
     """Raise a one-line ``UsageError`` naming the extra to install when Mitsuba 3 / Dr.Jit
-    cannot be imported (the core renderer needs neither)."""
+    cannot be imported (the core renderer needs neither), or naming the variants that work
+    when ``variant`` is one the links1 plugins cannot run on (before any worker starts)."""
     try:
         import drjit  # noqa: F401
         import mitsuba  # noqa: F401
     except ImportError as e:
         raise UsageError(f"the mitsuba renderer needs Mitsuba 3 and Dr.Jit ({e}): install them with "
                          "pip install 'links1[mitsuba]', or render with --renderer core") from None
+    if variant is not None:
+        from links1_mitsuba import unsupported_variant
+        why = unsupported_variant(variant)
+        if why:
+            raise UsageError(why)
 
 
 def make_renderer(kind: str, path, **options):

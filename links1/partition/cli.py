@@ -301,7 +301,7 @@ def run_cli(args) -> int:
     from .experiment import build_report, format_table, plot_report, plot_simulation, simulate
     if args.renderer == "mitsuba":
         from ..render import require_mitsuba
-        require_mitsuba()
+        require_mitsuba(args.variant)
     aovs = tuple(args.aov or ())
     if "cost" not in aovs:
         args.aov = aovs + ("cost",)  # the per-pixel ray-primitive tests: the measured cost map

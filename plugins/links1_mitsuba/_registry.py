@@ -28,7 +28,7 @@ def unsupported_variant(variant: str) -> str | None:
     """None if the links1 plugins can run on ``variant``, else one line saying why not and
     what works (scalar variants have no JIT arrays for the integrator's kernels; spectral and
     mono variants carry other spectra than the RGB triples its tables hold)."""
-    works = ("use --variant llvm_ad_rgb (CPU) or cuda_ad_rgb (NVIDIA GPU), or --renderer core")
+    works = "use the variant llvm_ad_rgb (CPU) or cuda_ad_rgb (NVIDIA GPU), or the core renderer (--renderer core)"
     if variant in SUPPORTED_VARIANTS:
         return None
     import mitsuba as mi
@@ -39,8 +39,8 @@ def unsupported_variant(variant: str) -> str | None:
                 f"(Dr.Jit LLVM or CUDA arrays); {works}")
     what = "polarized " if "polarized" in variant else ""
     what += "spectral" if "spectral" in variant else "monochrome" if "mono" in variant else "non-RGB"
-    return (f"links1_whitted cannot run on variant {variant}: it renders RGB variants only, not {what} "
-            f"ones; {works}")
+    return (f"links1_whitted cannot run on variant {variant}: the links1 plugins render RGB variants "
+            f"only, not {what} ones; {works}")
 
 
 def probe_variant(variant: str) -> str | None:
