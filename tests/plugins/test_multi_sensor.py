@@ -180,3 +180,34 @@ def test_core_sensor_equals_a_file_with_that_sensor_alone(tmp_path, path):
     assert a.shape == (24, 30, 3) and np.array_equal(a, b)
     r = make_renderer("core", path, sensor=1, spp=2)
     assert r.film_size == (40, 40) and r.spp == 2
+
+
+def test_moving_a_scene_sensor_is_seen(llvm, path):
+    """``params['top.to_world'] = ...; params.update()`` after a render of sensor 1: the next
+    render is from the moved camera (the tables' digest covers every sensor of the scene)."""
+    import mitsuba as mi
+
+    import links1_mitsuba
+    scene = links1_mitsuba.load_file(path)
+    before = np.array(mi.render(scene, sensor=1, spp=SPP), dtype=np.float64)
+    prm = mi.traverse(scene)
+    prm["top.to_world"] = mi.ScalarTransform4f().look_at(origin=[-3, 4, 3], target=[0, 0.5, 0], up=[0, 1, 0])
+    prm.update()
+    after = np.array(mi.render(scene, sensor=1, spp=SPP), dtype=np.float64)
+    assert not np.array_equal(before, after)
+    _check_against_direct(scene, 1, after, "sensor 1 moved")
+
+
+@pytest.mark.parametrize("kind", ["core", "mitsuba"])
+def test_workers_render_the_chosen_sensor(llvm, path, tmp_path, kind):
+    """``--sensor 1 --workers 2``: the worker processes render sensor 1 too (the same bits as
+    in-process)."""
+    from links1.cli import main
+    from links1.image import read_image
+    imgs = []
+    for w in ("0", "2"):
+        out = tmp_path / f"w{w}.exr"
+        assert main(["render", path, "-o", str(out), "--renderer", kind, "--sensor", "1", "--spp", "2",
+                     "--max-depth", "1", "--workers", w, "--no-progress"]) == 0
+        imgs.append(np.asarray(read_image(str(out))))
+    assert imgs[0].shape == (40, 40, 3) and np.array_equal(imgs[0], imgs[1])
