@@ -84,7 +84,11 @@ def add_render_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--renderer", choices=("mitsuba", "core"), default="mitsuba",
                    help="mitsuba: the links1_whitted Dr.Jit integrator (default); core: the float64 numpy reference")
     p.add_argument("--variant", default=None,
-                   help="Mitsuba variant for --renderer mitsuba (default llvm_ad_rgb, cuda_ad_rgb with a GPU)")
+                   help="Mitsuba variant for --renderer mitsuba: llvm_ad_rgb (default) or cuda_ad_rgb (default "
+                        "with a GPU); scalar, spectral and mono variants are refused")
+    p.add_argument("--sensor", type=_nonneg_int("--sensor"), default=None, metavar="K",
+                   help="render from the scene's sensor K (0-based, file order; default 0): its camera, "
+                        "film and sample count")
     p.add_argument("--integrator", choices=("links1", "scene"), default="links1",
                    help="mitsuba renderer: links1_whitted (default) or the integrator the file names")
     p.add_argument("--spp", type=_positive_int("--spp"), default=None, help="samples per pixel (default: the scene's)")
@@ -171,6 +175,8 @@ def _output_kind(path: str) -> str:
 def renderer_options(args) -> dict:
     opts = dict(params=dict(args.defines), spp=args.spp, max_depth=args.max_depth, seed=args.seed,
                 aovs=tuple(args.aov))
+    if getattr(args, "sensor", None) is not None:
+        opts["sensor"] = args.sensor
     if args.width is not None or args.height is not None:  # film override (keeps the fov)
         opts.update(width=args.width, height=args.height)
     return opts
@@ -211,6 +217,9 @@ def make_cli_renderer(args):
 
 
 def cmd_render(args) -> int:
+    if args.renderer == "mitsuba":
+        from .render import require_mitsuba
+        require_mitsuba(args.variant)
     one_line_warnings(args.renderer)
     kind = _output_kind(args.output)
     if kind == "png" and args.aov:

@@ -407,15 +407,22 @@ class _Builder:
         props = _Props(root)
         props.finish()
         camera, spp = None, None
+        sensors = []    # (camera, spp) of each sensor, in file order (Scene.use_sensor)
         shapes, lights, environments = [], [], []
         background = np.zeros(3)
         integrator, max_depth, integrator_params = None, DEFAULT_MAX_DEPTH, {}
         for name, node in root.children:
             if node.tag == "sensor":
-                if camera is not None:
-                    node.warn("more than one sensor: the core renders the first one")
+                if sensors:
+                    # another view of the scene (mi.render(scene, sensor=k), links1 render
+                    # --sensor k): one the core cannot render is an error only when chosen
+                    try:
+                        sensors.append(self.sensor(node))
+                    except SceneError as exc:
+                        sensors.append(exc)
                     continue
                 camera, spp = self.sensor(node)
+                sensors.append((camera, spp))
             elif node.tag == "shape":
                 if node.type == "shapegroup":
                     self._shapegroup(node)   # drawn only through its instances
@@ -449,6 +456,7 @@ class _Builder:
                       "(50mm, 768x576, at the origin looking along +z)")
             camera = Camera(fov_x=focal_length_fov_x(50.0, 768, 576), width=768, height=576)
             spp = DEFAULT_SPP
+            sensors.append((camera, spp))
         for k, shape in enumerate(shapes):      # area emitters light the scene (after file-order lights)
             if shape.emission is not None:
                 shape.index = k
@@ -457,7 +465,7 @@ class _Builder:
                     lights.append(AreaLight(shape, shape.emission))
                 except ValueError as exc:
                     (enode or root).warn(f"{exc}: it is seen but lights nothing in the core")
-        kwargs = dict(camera=camera, shapes=shapes, lights=lights, spp=spp, max_depth=max_depth,
+        kwargs = dict(camera=camera, sensors=sensors, shapes=shapes, lights=lights, spp=spp, max_depth=max_depth,
                       background=background, path=path,
                       environments=[e for e in environments if isinstance(e, EnvironmentMap)])
         if integrator is not None:

@@ -68,7 +68,8 @@ def _check_window(window, width, height):
 def render(scene, *, spp: int | None = None, max_depth: int | None = None, seed: int = 0,
            window=None, aovs=(), min_weight: float | None = None, progress: bool = False,
            width: int | None = None, height: int | None = None, light_samples: int | None = None,
-           adaptive: float | None = None, adaptive_depth: int = DEFAULT_ADAPTIVE_DEPTH) -> np.ndarray:
+           adaptive: float | None = None, adaptive_depth: int = DEFAULT_ADAPTIVE_DEPTH,
+           sensor: int | None = None) -> np.ndarray:
     """Render ``scene`` with the float64 core.
 
     Parameters
@@ -102,15 +103,25 @@ def render(scene, *, spp: int | None = None, max_depth: int | None = None, seed:
         refined squares (:class:`links1.adaptive.FilteredLeaves`).
     adaptive_depth : int
         Most levels of refinement (default 2; 0..8).
+    sensor : int, optional
+        Render from the file's sensor ``k`` (0-based, file order; as ``mi.render(scene,
+        sensor=k)``): its camera, film (size, crop window, filter) and sample count. Default:
+        ``scene.camera`` and ``scene.spp`` (the first sensor unless ``scene.use_sensor``).
 
     Returns
     -------
     ndarray (h, w, 3 + AOV channels), float64, linear radiance; see :func:`channel_names`.
     """
-    cam = scene.camera
+    cam, scene_spp = scene.camera, scene.spp
+    if sensor is not None:
+        k = check_sensor_index(scene.path, sensor, scene.sensor_count())
+        sensors = scene.sensors or [(scene.camera, scene.spp)]
+        if isinstance(sensors[k], Exception):
+            raise sensors[k]
+        cam, scene_spp = sensors[k]
     if width is not None or height is not None:
         cam = _resized(cam, width, height)
-    spp = scene.spp if spp is None else int(spp)
+    spp = scene_spp if spp is None else int(spp)
     if spp < 1:
         raise UsageError(f"spp must be >= 1, got {spp}")
     aovs = check_aovs(aovs)
@@ -318,10 +329,12 @@ class CoreRenderer:
 
     def __init__(self, path, *, params=None, spp=None, max_depth=None, seed=0, aovs=(),
                  min_weight=None, width=None, height=None, variant=None, light_samples=None,
-                 adaptive=None, adaptive_depth=DEFAULT_ADAPTIVE_DEPTH):
+                 adaptive=None, adaptive_depth=DEFAULT_ADAPTIVE_DEPTH, sensor=None):
         from .loader import load_scene
         self.path = str(path)
         self.scene = load_scene(self.path, **(params or {}))
+        self.sensor_index = check_sensor_index(self.path, sensor, self.scene.sensor_count())
+        self.scene.use_sensor(self.sensor_index)
         if width is not None or height is not None:
             self.scene.camera = _resized(self.scene.camera, width, height)
         # this renderer owns its scene and never changes it: hash it once, not per window
@@ -377,11 +390,42 @@ def shapes_info(scene) -> list[dict]:
     return out
 
 
+def check_sensor_index(path, sensor, count: int) -> int:
+    """``sensor`` (None: 0) as an index into a scene's ``count`` sensors, or a one-line error
+    naming the scene file and how many sensors it has."""
+    from .scene import sensor_range_message
+    k = 0 if sensor is None else sensor
+    if isinstance(k, bool) or not isinstance(k, (int, np.integer)):
+        raise UsageError(f"sensor must be an integer index, got {sensor!r}")
+    k = int(k)
+    if not 0 <= k < count:
+        raise SceneError(sensor_range_message(k, count), file=str(path))
+    return k
+
+
+def require_mitsuba(variant: str | None = None) -> None:
+    """Raise a one-line ``UsageError`` naming the extra to install when Mitsuba 3 / Dr.Jit
+    cannot be imported (the core renderer needs neither), or naming the variants that work
+    when ``variant`` is one the links1 plugins cannot run on (before any worker starts)."""
+    try:
+        import drjit  # noqa: F401
+        import mitsuba  # noqa: F401
+    except ImportError as e:
+        raise UsageError(f"the mitsuba renderer needs Mitsuba 3 and Dr.Jit ({e}): install them with "
+                         "pip install 'links1[mitsuba]', or render with --renderer core") from None
+    if variant is not None:
+        from links1_mitsuba import unsupported_variant
+        why = unsupported_variant(variant)
+        if why:
+            raise UsageError(why)
+
+
 def make_renderer(kind: str, path, **options):
     """A renderer for ``kind`` = ``"core"`` or ``"mitsuba"`` (the plugin integrator)."""
     if kind == "core":
         return CoreRenderer(path, **options)
     if kind == "mitsuba":
+        require_mitsuba()
         try:
             from links1_mitsuba import MitsubaRenderer
         except ImportError as e:

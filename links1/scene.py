@@ -15,7 +15,9 @@ class Scene:
 
     Attributes
     ----------
-    camera : Camera
+    camera : Camera      the camera rendered (the file's first sensor unless :meth:`use_sensor`)
+    sensors : list       ``(camera, spp)`` of every sensor in file order (a ``SceneError`` for one
+                         the core cannot render); ``[]``: only ``camera``
     shapes : list of links1.shapes.Shape (``shape.index`` is its position here: the ``id`` AOV)
     lights : list of links1.lights.Light
     spp : int            sample count from the scene's sampler (default 1)
@@ -29,6 +31,7 @@ class Scene:
     """
 
     camera: Camera
+    sensors: list = field(default_factory=list)
     shapes: list = field(default_factory=list)
     lights: list = field(default_factory=list)
     spp: int = 1
@@ -51,6 +54,22 @@ class Scene:
     def _index_shapes(self):
         for i, s in enumerate(self.shapes):
             s.index = i
+
+    def sensor_count(self) -> int:
+        return max(len(self.sensors), 1)
+
+    def use_sensor(self, k: int) -> None:
+        """Render from the file's sensor ``k`` (0-based, file order): its camera (film size,
+        crop window, filter) and sample count become ``camera`` and ``spp``. Raises
+        ``SceneError`` naming the file and the number of sensors for a ``k`` out of range, and
+        the sensor's own error for one the core cannot render."""
+        from .errors import SceneError
+        sensors = self.sensors or [(self.camera, self.spp)]
+        if not 0 <= k < len(sensors):
+            raise SceneError(sensor_range_message(k, len(sensors)), file=self.path)
+        if isinstance(sensors[k], Exception):
+            raise sensors[k]
+        self.camera, self.spp = sensors[k]
 
     def content_key(self) -> bytes:
         """A digest of everything the caches are built from: the shapes (geometry, materials,
@@ -141,3 +160,11 @@ def content_key(obj) -> bytes:
 
     walk(obj)
     return h.digest()
+
+
+def sensor_range_message(k: int, count: int) -> str:
+    """The one message for a sensor index outside a scene's ``count`` sensors (both renderers)."""
+    if count == 0:
+        return f"sensor {k} does not exist: the scene has no sensor (add a <sensor type='perspective'>)"
+    return (f"sensor {k} does not exist: the scene has {count} sensor{'s' if count != 1 else ''} "
+            f"(--sensor 0{'..' + str(count - 1) if count > 1 else ''})")

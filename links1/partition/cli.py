@@ -91,6 +91,8 @@ def _spec_from_args(args):
     from .runtime import RendererSpec
     opts = dict(params=dict(getattr(args, "defines", []) or []), spp=args.spp, max_depth=args.max_depth,
                 seed=args.seed, aovs=tuple(getattr(args, "aov", ()) or ()), width=args.width, height=args.height)
+    if getattr(args, "sensor", None) is not None:
+        opts["sensor"] = args.sensor
     if getattr(args, "min_weight", None) is not None:   # 0 is a value (trace every branch)
         opts["min_weight"] = args.min_weight
     if getattr(args, "light_samples", None) is not None:
@@ -122,7 +124,7 @@ def _model_and_channels(spec, args):
     if spec.kind != "core":  # the root only needs shapes and the camera: read them with the core
         from .runtime import RendererSpec
         kw = {k: v for k, v in spec.kwargs.items() if k in ("params", "spp", "max_depth", "seed", "aovs", "width",
-                                                             "height")}
+                                                             "height", "sensor")}
         root_spec = RendererSpec.make("core", spec.path, **kw)
     try:
         from .runtime import get_renderer
@@ -297,6 +299,9 @@ def run_cli(args) -> int:
     from .checkpoint import atomic_write_json
     from .executors import render_plan
     from .experiment import build_report, format_table, plot_report, plot_simulation, simulate
+    if args.renderer == "mitsuba":
+        from ..render import require_mitsuba
+        require_mitsuba(args.variant)
     aovs = tuple(args.aov or ())
     if "cost" not in aovs:
         args.aov = aovs + ("cost",)  # the per-pixel ray-primitive tests: the measured cost map

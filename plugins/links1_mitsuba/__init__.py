@@ -17,10 +17,11 @@ Public API::
 """
 from __future__ import annotations
 
-from ._registry import default_variant, log_to_warnings, probe_variant, register
+from ._registry import (SUPPORTED_VARIANTS, default_variant, log_to_warnings, probe_variant, register,
+                        unsupported_variant)
 
 __all__ = ["register", "load_file", "load_string", "MitsubaRenderer", "default_variant",
-           "probe_variant", "log_to_warnings"]
+           "probe_variant", "log_to_warnings", "SUPPORTED_VARIANTS", "unsupported_variant"]
 
 
 def load_file(path, **kwargs):

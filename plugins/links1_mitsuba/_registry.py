@@ -20,6 +20,29 @@ print(float(dr.sum(y)[0]) if hasattr(dr.sum(y), '__getitem__') else float(dr.sum
 """
 
 
+#: The Mitsuba variants links1_whitted renders on (its kernels are Dr.Jit JIT code over RGB).
+SUPPORTED_VARIANTS = ("llvm_ad_rgb", "cuda_ad_rgb")
+
+
+def unsupported_variant(variant: str) -> str | None:
+    """None if the links1 plugins can run on ``variant``, else one line saying why not and
+    what works (scalar variants have no JIT arrays for the integrator's kernels; spectral and
+    mono variants carry other spectra than the RGB triples its tables hold)."""
+    works = "use the variant llvm_ad_rgb (CPU) or cuda_ad_rgb (NVIDIA GPU), or the core renderer (--renderer core)"
+    if variant in SUPPORTED_VARIANTS:
+        return None
+    import mitsuba as mi
+    if variant not in mi.variants():
+        return f"unknown Mitsuba variant '{variant}' (this Mitsuba has {', '.join(mi.variants())}): {works}"
+    if variant.startswith("scalar"):
+        return (f"links1_whitted cannot run on variant {variant}: its kernels need a JIT variant "
+                f"(Dr.Jit LLVM or CUDA arrays); {works}")
+    what = "polarized " if "polarized" in variant else ""
+    what += "spectral" if "spectral" in variant else "monochrome" if "mono" in variant else "non-RGB"
+    return (f"links1_whitted cannot run on variant {variant}: the links1 plugins render RGB variants "
+            f"only, not {what} ones; {works}")
+
+
 def probe_variant(variant: str) -> str | None:
     """Run a tiny kernel of ``variant`` in a subprocess: ``None`` if it works, else why not.
 
@@ -68,12 +91,20 @@ def register(variant: str | None = None) -> str:
     ``links1_spot``, BSDF ``links1_phong`` and shape ``links1_bicubic`` (a tessellated
     :class:`mitsuba.Mesh`). Idempotent; returns the variant name.
 
-    Raises ``RuntimeError`` with the reason when the variant cannot run (e.g. a libLLVM that
-    is too old): the check runs in a subprocess so that a crash there cannot kill the caller.
+    Raises ``UsageError`` (a ``ValueError``) naming the variants that work for one the plugins
+    cannot render on (:data:`SUPPORTED_VARIANTS`: scalar, spectral and mono variants are
+    refused), and ``RuntimeError`` with the reason when the variant cannot run here (e.g. a
+    libLLVM that is too old): that check runs in a subprocess so that a crash there cannot
+    kill the caller.
     """
     import mitsuba as mi
+
+    from links1.errors import UsageError
     if variant is None:
         variant = mi.variant() or default_variant()
+    why = unsupported_variant(variant)
+    if why:
+        raise UsageError(why)
     with _LOCK:
         if variant not in _REGISTERED:
             reason = probe_variant(variant)

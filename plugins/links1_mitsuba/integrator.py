@@ -22,6 +22,7 @@ import numpy as np
 
 from links1.render import AOVS, DEFAULT_ADAPTIVE_DEPTH, channel_names
 
+from ._registry import unsupported_variant
 from .intersect import define_intersect
 from .launch import define_launches
 from .lights import define_lights
@@ -126,6 +127,9 @@ def define_integrator():
         stats = property(lambda self: self._read_stats(), lambda self, v: self._set_stats(v))
 
         def __init__(self, props):
+            why = unsupported_variant(mi.variant())
+            if why:   # registered for one variant, built under another
+                raise ValueError(why)
             super().__init__(props)
             self._hidden = _Untraversed()
             md = int(props.get("max_depth", 5))
@@ -181,8 +185,10 @@ def define_integrator():
 
         # -------------------------------------------------------------- Mitsuba entry points
         def render(self, scene, sensor=0, seed=0, spp=0, develop=True, evaluate=True):
-            if isinstance(sensor, int):
-                sensor = scene.sensors()[sensor]
+            """``mi.render(scene, sensor=...)``: ``sensor`` (an index into ``scene.sensors()`` or
+            a sensor object, the scene's or one made apart) gives the camera, the film (size,
+            crop window, reconstruction filter) and, unless ``spp`` is given, the sample count."""
+            sensor = self._sensor_of(scene, sensor)
             film = sensor.film()
             off, size = film.crop_offset(), film.crop_size()
             if spp == 0 or spp is None:
@@ -190,9 +196,9 @@ def define_integrator():
             s = int(seed) if not hasattr(seed, "__len__") else int(np.array(seed).ravel()[0])
             win = (int(off[0]), int(off[1]), int(size[0]), int(size[1]))
             if self.adaptive is not None:
-                img = self.render_adaptive(scene, win, seed=self.seed + s)
+                img = self.render_adaptive(scene, win, seed=self.seed + s, sensor=sensor)
             else:
-                img = self.render_window(scene, win, spp=int(spp), seed=self.seed + s)
+                img = self.render_window(scene, win, spp=int(spp), seed=self.seed + s, sensor=sensor)
             return mi.TensorXf(img.astype(np.float32))
 
         def sample(self, scene, sampler, ray, medium=None, active=True):

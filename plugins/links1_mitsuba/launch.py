@@ -317,14 +317,14 @@ def define_launches(mi, dr, mix32, u24):
                 self._freeze_points = dr.freeze(launch_points, warn_after=1000)
             return self._freeze_points
 
-        def trace_points(self, scene, xf, yf, keys):
+        def trace_points(self, scene, xf, yf, keys, sensor=None):
             """Radiance and cost of the camera rays through film positions ``(xf, yf)`` (numpy,
             fractions of the film, row 0 at the top), ray-tree keys ``keys`` (uint32): the
             lattice points of adaptive anti-aliasing (:mod:`links1.adaptive`). Light samples at
             the primary hit follow the key alone, as in the core's ``trace(keys=...)``.
             Returns ``(L (n, 3) float64, cost (n,) float64)``; launches of at most
-            ``LAUNCH_LANES`` points."""
-            P = self.prepare(scene)
+            ``LAUNCH_LANES`` points. ``sensor``: see :meth:`prepare` (None: the scene's first)."""
+            P = self.prepare(scene, sensor)
             L, cost, counts = [np.zeros((0, 3))], [np.zeros(0)], []
             for a in range(0, len(xf), LAUNCH_LANES):
                 b = min(a + LAUNCH_LANES, len(xf))
@@ -364,12 +364,14 @@ def define_launches(mi, dr, mix32, u24):
                 part.update(t0=_lanes(t0, n), s0=_lanes(s0, n), n0=_columns(n0, n))
             return part, self._launch_counts(n, counters)
 
-        def render_adaptive(self, scene, window=None, seed=None, aovs=None, threshold=None, depth=None):
+        def render_adaptive(self, scene, window=None, seed=None, aovs=None, threshold=None, depth=None,
+                            sensor=None):
             """Adaptive anti-aliasing of ``window`` (:func:`links1.render.render_adaptive_window`,
             as the core): one :meth:`trace_points` launch per refinement level; AOVs depth,
             normal, id at the pixel centres (an spp-1 :meth:`render_window`)."""
             from links1.render import render_adaptive_window
-            P = self.prepare(scene)
+            P = self.prepare(scene, sensor)
+            sensor = P.sensor
             W, H = P.film_size
             win = (0, 0, W, H) if window is None else tuple(int(v) for v in window)
             seed = self.seed if seed is None else int(seed)
@@ -379,20 +381,23 @@ def define_launches(mi, dr, mix32, u24):
             if threshold is None:
                 raise ValueError("links1_whitted: no adaptive threshold (give adaptive=...)")
             return render_adaptive_window(
-                lambda xf, yf, keys: self.trace_points(scene, xf, yf, keys),
-                lambda w, names: self.render_window(scene, w, spp=1, seed=seed, aovs=list(names))[..., 3:],
+                lambda xf, yf, keys: self.trace_points(scene, xf, yf, keys, sensor=sensor),
+                lambda w, names: self.render_window(scene, w, spp=1, seed=seed, aovs=list(names),
+                                                    sensor=sensor)[..., 3:],
                 win, (W, H), threshold, depth, seed, aovs, rfilter=P.rfilter)
 
-        def render_window(self, scene, window=None, spp=1, seed=None, aovs=None):
+        def render_window(self, scene, window=None, spp=1, seed=None, aovs=None, sensor=None):
             """Render ``window = (x0, y0, w, h)`` of the full film (row 0 at the top).
 
             Returns a float64 ndarray ``(h, w, 3 + aov channels)``: the pixel's ``spp`` samples
             at the positions of :mod:`links1.sampling` and those of its neighbours within the
             film's reconstruction filter, weighted by it (:mod:`links1.filters`; box: the mean).
+            ``sensor``: an index into ``scene.sensors()`` or a sensor object (None: the first):
+            its camera, film size and filter (:meth:`prepare`).
             """
-            return self.render_windows(scene, [window], spp=spp, seed=seed, aovs=aovs)[0]
+            return self.render_windows(scene, [window], spp=spp, seed=seed, aovs=aovs, sensor=sensor)[0]
 
-        def render_windows(self, scene, windows, spp=1, seed=None, aovs=None):
+        def render_windows(self, scene, windows, spp=1, seed=None, aovs=None, sensor=None):
             """Render several windows of the film in one launch -> one array per window, each
             exactly what :meth:`render_window` returns for it (pixels are independent lanes).
 
@@ -400,7 +405,7 @@ def define_launches(mi, dr, mix32, u24):
             offset, window size, batch size or sample count enters the recorded kernels: one
             recording per configuration, then replays (:meth:`_frozen_fn`).
             """
-            P = self.prepare(scene)
+            P = self.prepare(scene, sensor)
             W, H = P.film_size
             wins = []
             for window in windows:

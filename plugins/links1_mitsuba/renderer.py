@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from ._registry import register
-from links1.render import channel_names
+from links1.render import channel_names, check_sensor_index
 
 from .integrator import DEFAULT_MIN_WEIGHT, parse_aovs
 
@@ -63,6 +63,9 @@ class MitsubaRenderer:
         Adaptive anti-aliasing instead of ``spp`` (:mod:`links1.adaptive`, as the core's
         ``links1.render``): one launch per refinement level over the new lattice points
         (:meth:`Links1Whitted.trace_points`). links1 integrator only.
+    sensor : int, optional
+        Which of the file's sensors renders (index in file order, default 0): its camera,
+        film and sample count (as ``mi.render(scene, sensor=k)``).
 
     ``render(window)`` passes the window to the kernels as run-time values: no recompilation
     per window; a window renders the same bits as the same pixels of the full frame.
@@ -72,7 +75,7 @@ class MitsubaRenderer:
 
     def __init__(self, path, *, params=None, spp=None, max_depth=None, seed=0, aovs=(),
                  variant=None, integrator="links1", width=None, height=None,
-                 min_weight=None, light_samples=None, adaptive=None, adaptive_depth=None):
+                 min_weight=None, light_samples=None, adaptive=None, adaptive_depth=None, sensor=None):
         self.variant = register(variant)
         import mitsuba as mi
         from .loader import load_file
@@ -81,7 +84,8 @@ class MitsubaRenderer:
         self.mode = integrator
         self.seed = int(seed)
         self.aovs = parse_aovs(aovs)
-        sensor = self.scene.sensors()[0]
+        self.sensor_index = check_sensor_index(self.path, sensor, len(self.scene.sensors()))
+        self.sensor = sensor = self.scene.sensors()[self.sensor_index]
         if width is not None or height is not None:
             _resize_film(sensor, width, height)
         self.min_weight = DEFAULT_MIN_WEIGHT if min_weight is None else float(min_weight)
@@ -118,7 +122,7 @@ class MitsubaRenderer:
             # the renderer's scene is its own (loaded here, changed by no one): launches skip the
             # parameter digest (mi.traverse) that mi.render() and render_window() check
             self.integrator.verify_scene = False
-            self.integrator.prepare(self.scene)
+            self.integrator.prepare(self.scene, self.sensor)
         else:
             if adaptive is not None:
                 raise ValueError("adaptive anti-aliasing needs the links1_whitted integrator (integrator='links1')")
@@ -140,18 +144,19 @@ class MitsubaRenderer:
         """``(h, w, C)`` float64 of ``window = (x0, y0, w, h)`` (full film when None)."""
         if self.adaptive is not None:
             return self.integrator.render_adaptive(self.scene, window, seed=self.seed, aovs=self.aovs,
-                                                   threshold=self.adaptive, depth=self.adaptive_depth)
+                                                   threshold=self.adaptive, depth=self.adaptive_depth,
+                                                   sensor=self.sensor)
         if self.mode == "links1":
             return self.integrator.render_window(self.scene, window, spp=self.spp, seed=self.seed,
-                                                 aovs=self.aovs)
+                                                 aovs=self.aovs, sensor=self.sensor)
         import mitsuba as mi
         W, H = self._film
         x0, y0, w, h = (0, 0, W, H) if window is None else (int(v) for v in window)
-        prm = mi.traverse(self.scene.sensors()[0])  # keys do not depend on the sensor's id
+        prm = mi.traverse(self.sensor)  # keys do not depend on the sensor's id
         prm["film.crop_offset"] = [x0, y0]
         prm["film.crop_size"] = [w, h]
         prm.update()
-        img = mi.render(self.scene, spp=self.spp, seed=self.seed)
+        img = mi.render(self.scene, sensor=self.sensor, spp=self.spp, seed=self.seed)
         return np.array(img, dtype=np.float64)[:, :, :3]
 
     def render_batch(self, windows) -> list:
@@ -159,7 +164,7 @@ class MitsubaRenderer:
         their pixels in one launch (:meth:`Links1Whitted.render_windows`)."""
         if self.mode == "links1" and self.adaptive is None:
             return self.integrator.render_windows(self.scene, list(windows), spp=self.spp, seed=self.seed,
-                                                  aovs=self.aovs)
+                                                  aovs=self.aovs, sensor=self.sensor)
         return [self.render(w) for w in windows]
 
     def shapes_info(self) -> list:
@@ -175,7 +180,7 @@ class MitsubaRenderer:
                          bounds_hi=np.array(s.bbox().max, dtype=np.float64),
                          reflective=False, transmissive=False, nbytes=0)
                     for i, s in enumerate(self.scene.shapes())]
-        P = self.integrator.prepare(self.scene)
+        P = self.integrator.prepare(self.scene, self.sensor)
         Phong = plugin_class("links1_phong")
         slot_of_id = self.integrator.slot_of_id or {s.id(): i for i, s in enumerate(self.scene.shapes())}
         for s in self.scene.shapes():

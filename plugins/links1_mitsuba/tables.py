@@ -14,6 +14,7 @@ function, as the integrator, because the Mitsuba variant must be set first).
 """
 from __future__ import annotations
 
+import copy
 import hashlib
 import warnings
 
@@ -121,7 +122,8 @@ def define_tables(mi, dr, util):
         return tuple(ids)
 
     def scene_digest(scene) -> bytes:
-        """A digest of every parameter ``mi.traverse(scene)`` exposes, by value."""
+        """A digest of every parameter ``mi.traverse(scene)`` exposes, by value (a scene or
+        any other Mitsuba object: a sensor)."""
         h = hashlib.blake2b(digest_size=16)
         params = mi.traverse(scene)
         for k in sorted(params.keys()):
@@ -139,21 +141,96 @@ def define_tables(mi, dr, util):
     class Tables:
         """``prepare``: the per-scene tables; ``_occluders``: which shadow rays they need."""
 
-        def prepare(self, scene):
-            """The per-scene tables, rebuilt when the scene is another one or was changed.
+        def prepare(self, scene, sensor=None):
+            """The tables of ``scene`` seen from ``sensor`` (a sensor object, an index into
+            ``scene.sensors()``, or None: the scene's first sensor), rebuilt when the scene is
+            another one or was changed.
 
-            Keyed on what they are built from, never on ``id(scene)``: the registry ids of
-            the scene's shapes, emitters and sensors (P keeps those objects alive, so no other
-            scene can reuse the ids), and, while ``verify_scene``, a digest of every parameter
-            ``mi.traverse`` exposes (a ``params.update()`` after a render is seen)."""
+            The scene's tables (shapes, materials, lights, shadow rays) are keyed on what they
+            are built from, never on ``id(scene)``: the registry ids of the scene's shapes,
+            emitters and sensors (P keeps those objects alive, so no other scene can reuse the
+            ids), and, while ``verify_scene``, a digest of every parameter ``mi.traverse``
+            exposes (a ``params.update()`` after a render is seen). Each sensor gets its own
+            view of them (:meth:`_camera_view`: camera, film, filter, eye buffer) as a distinct
+            object, so a frozen launch recorded for one sensor's camera (``cfg`` holds the
+            view's id) is never replayed for another."""
             ident = scene_identity(scene)
-            P = self._prep
-            if P is not None and P.ident == ident and (not self.verify_scene or P.content == scene_digest(scene)):
-                return P
+            V = self._prep
+            B = getattr(V, "base", None)
+            if not (B is not None and B.ident == ident
+                    and (not self.verify_scene or B.content == scene_digest(scene))):
+                B = self._prepare_scene(scene, ident)
+            V = self._camera_view(B, scene, self._sensor_of(scene, sensor))
+            self._prep = V
+            return V
+
+        def _sensor_of(self, scene, sensor):
+            """``sensor`` as a sensor object: an index into ``scene.sensors()`` (None: 0) or the
+            object itself (a sensor of the scene or one made apart, ``mi.load_dict``)."""
+            if sensor is None or isinstance(sensor, (int, np.integer)):
+                sensors = scene.sensors()
+                k = 0 if sensor is None else int(sensor)
+                if not 0 <= k < len(sensors):
+                    raise IndexError(f"links1_whitted: sensor {k} does not exist: the scene has "
+                                     f"{len(sensors)} sensor{'s' if len(sensors) != 1 else ''}")
+                return sensors[k]
+            if not isinstance(sensor, mi.Sensor):
+                raise TypeError(f"links1_whitted: sensor must be an index or a mitsuba Sensor, got "
+                                f"{type(sensor).__name__}")
+            return sensor
+
+        def _camera_view(self, B, scene, sensor):
+            """The tables ``B`` with ``sensor``'s camera, film and filter (a shallow copy of
+            ``B``: the Dr.Jit tables are shared), one per sensor and kept with ``B``. A sensor
+            that is not one of the scene's is checked by value (``mi.traverse``) while
+            ``verify_scene``, as the scene is."""
+            own = any(sensor is s for s in B.keep_alive[2])
+            content = None if own or not self.verify_scene else scene_digest(sensor)
+            V = B.views.get(id(sensor))
+            if V is not None and V.sensor is sensor and V.sensor_content == content:
+                return V
+            V = copy.copy(B)
+            V.base = B
+            V.sensor_content = content
+            V.frozen_inputs = None
+            V.scene_input = None
+            self._set_camera(V, sensor)
+            # light buffer around a pinhole camera's eye for the camera rays' nearest quadric
+            V.eye_buf = lightbuffer.plan_eye(V, scene) if lightbuffer.ENABLED else None
+            B.views[id(sensor)] = V     # V keeps the sensor alive: its id is not reused
+            return V
+
+        def _set_camera(self, P, sensor):
+            """The camera of ``P``: ``sensor``'s film size, filter, projection and matrix."""
+            film = sensor.film()
+            P.sensor = sensor
+            P.film_size = (int(film.size()[0]), int(film.size()[1]))
+            P.rfilter = Filter.from_mitsuba(film.rfilter())
+            # perspective and orthographic rays are made analytically (launch.py: _rays_at) from
+            # the sensor's matrix, clip distances and field of view: the same rays as Mitsuba's
+            kind = str(sensor).split("[")[0]
+            if kind == "ThinLensCamera":   # as the core: the lens centre only
+                warnings.warn("links1_whitted: thinlens is rendered as a pinhole perspective camera "
+                              "(no depth of field)", stacklevel=2)
+            P.projection = {"PerspectiveCamera": "perspective", "ThinLensCamera": "perspective",
+                            "OrthographicCamera": "orthographic"}.get(kind)
+            P.perspective = P.projection == "perspective"
+            if P.projection is not None:
+                if P.perspective:
+                    P.x_fov = float(np.array(mi.traverse(sensor)["x_fov"]).ravel()[0])
+                P.cam = np.array(sensor.world_transform().matrix, dtype=np.float64).reshape(4, 4)
+                P.near, P.far = float(sensor.near_clip()), float(sensor.far_clip())
+            else:
+                raise ValueError(f"links1_whitted renders perspective, thinlens and orthographic sensors, "
+                                 f"not {kind}")
+
+        def _prepare_scene(self, scene, ident):
+            """The tables of ``scene`` that do not depend on the sensor (:meth:`prepare`)."""
             P = Prepared()
             P.ident = ident
             P.content = scene_digest(scene)
             P.keep_alive = (list(scene.shapes()), list(scene.emitters()), list(scene.sensors()))  # see scene_identity
+            P.views = {}
             self._freeze = None       # recordings hold the previous tables
             shapes = list(scene.shapes())
             slot_of_id = self.slot_of_id
@@ -346,35 +423,9 @@ def define_tables(mi, dr, util):
                 else:
                     warnings.warn(f"links1_whitted: emitter {kind} is not supported and is ignored",
                                   stacklevel=2)
-            # camera
-            sensor = scene.sensors()[0]
-            film = sensor.film()
-            P.sensor = sensor
-            P.film_size = (int(film.size()[0]), int(film.size()[1]))
-            P.rfilter = Filter.from_mitsuba(film.rfilter())
-            # perspective and orthographic rays are made analytically (launch.py: _rays_at) from
-            # the sensor's matrix, clip distances and field of view: the same rays as Mitsuba's
-            kind = str(sensor).split("[")[0]
-            if kind == "ThinLensCamera":   # as the core: the lens centre only
-                warnings.warn("links1_whitted: thinlens is rendered as a pinhole perspective camera "
-                              "(no depth of field)", stacklevel=2)
-            P.projection = {"PerspectiveCamera": "perspective", "ThinLensCamera": "perspective",
-                            "OrthographicCamera": "orthographic"}.get(kind)
-            P.perspective = P.projection == "perspective"
-            if P.projection is not None:
-                if P.perspective:
-                    P.x_fov = float(np.array(mi.traverse(sensor)["x_fov"]).ravel()[0])
-                P.cam = np.array(sensor.world_transform().matrix, dtype=np.float64).reshape(4, 4)
-                P.near, P.far = float(sensor.near_clip()), float(sensor.far_clip())
-            else:
-                raise ValueError(f"links1_whitted renders perspective, thinlens and orthographic sensors, "
-                                 f"not {kind}")
             self._occluders(P, shapes, slot_list)
             # light buffers for the quadric shadow rays toward analytic lights (where they pay)
             P.lbuf = lightbuffer.plan(P, scene) if lightbuffer.ENABLED else [None] * len(P.lights)
-            # and around a pinhole camera's eye for the camera rays' nearest quadric
-            P.eye_buf = lightbuffer.plan_eye(P, scene) if lightbuffer.ENABLED else None
-            self._prep = P
             return P
 
         def _occluders(self, P, shapes, slot_list):

@@ -86,8 +86,14 @@ def mitsuba_direct(path, spp: int, seed: int, **options):
 
     from links1.render import make_renderer
     r = make_renderer("mitsuba", path, integrator="scene", spp=spp, **options)
-    return np.array(mi.render(r.scene, integrator=mi.load_dict({"type": "direct"}), spp=spp, seed=seed),
-                    dtype=np.float64)[..., :3]
+    # the whole film of the chosen sensor (``options["sensor"]``), as the renderers' render()
+    W, H = r.film_size
+    prm = mi.traverse(r.sensor)
+    prm["film.crop_offset"] = [0, 0]
+    prm["film.crop_size"] = [W, H]
+    prm.update()
+    return np.array(mi.render(r.scene, integrator=mi.load_dict({"type": "direct"}), sensor=r.sensor, spp=spp,
+                              seed=seed), dtype=np.float64)[..., :3]
 
 
 def assert_matches_mitsuba_direct(kind, path, spp: int = 16, ref_factor: int = 16, **options):
