@@ -35,14 +35,15 @@ import pytest
 
 from links1.image import read_exr, write_exr
 
-pytestmark = [pytest.mark.slow, pytest.mark.wheel]
+PIP_TIMEOUT = 600  # a cold cache downloads Mitsuba, Dr.Jit, numpy, Dask... from the index
+# the first test that needs the venv also waits for its installation
+pytestmark = [pytest.mark.slow, pytest.mark.wheel, pytest.mark.timeout(PIP_TIMEOUT + 300)]
 
 ROOT = Path(__file__).resolve().parent.parent
 # top-level package in the wheel -> its source directory (pyproject.toml's packages.find)
 PACKAGES = {"links1": "links1", "links1_mitsuba": "plugins/links1_mitsuba"}
 BUILD_FILES = ("pyproject.toml", "README.md")
 RES = ("--width", "32", "--height", "24")
-PIP_TIMEOUT = 600  # a cold cache downloads Mitsuba, Dr.Jit, numpy, Dask... from the index
 
 
 def _source_files() -> list[str]:
@@ -70,7 +71,9 @@ def _run(cmd, *, cwd, env=None, timeout=300, check=True):
 
 @pytest.fixture(scope="module")
 def tmp(tmp_path_factory):
-    return tmp_path_factory.mktemp("wheel")
+    d = tmp_path_factory.mktemp("wheel")
+    yield d
+    shutil.rmtree(d, ignore_errors=True)  # the venv alone is ~400 MB; pytest keeps 3 runs' tmp
 
 
 @pytest.fixture(scope="module")
