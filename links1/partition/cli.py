@@ -302,6 +302,13 @@ def run_cli(args) -> int:
     if args.renderer == "mitsuba":
         from ..render import require_mitsuba
         require_mitsuba(args.variant)
+    if args.plot or args.sim_plot:  # matplotlib is an extra: say so before rendering, not after
+        try:
+            import matplotlib  # noqa: F401, PLC0415
+        except ImportError:
+            opt = "--plot" if args.plot else "--sim-plot"
+            raise UsageError(f"{opt} needs matplotlib, which is not installed; "
+                             "pip install 'links1[plot]'") from None
     aovs = tuple(args.aov or ())
     if "cost" not in aovs:
         args.aov = aovs + ("cost",)  # the per-pixel ray-primitive tests: the measured cost map

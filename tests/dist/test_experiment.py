@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import sys
 
 import numpy as np
 import pytest
@@ -34,6 +35,20 @@ def test_schedule_report_keys_and_sanity(tmp_path):
     assert png.stat().st_size > 0 and (tmp_path / "r-simulate.png").stat().st_size > 0
     strategies = {row["strategy"] for row in r["simulation"]["rows"]}
     assert {"subscreen", "scanline", "dynamic/tile"} <= strategies
+
+
+@pytest.mark.parametrize("opt", ["--plot", "--sim-plot"])
+def test_plot_without_matplotlib_is_a_usage_error_before_rendering(tmp_path, capsys, monkeypatch, opt):
+    """matplotlib is the [plot] extra: without it, one line and exit 2, and no report written."""
+    from links1.cli import main
+    monkeypatch.setitem(sys.modules, "matplotlib", None)  # import matplotlib -> ImportError
+    out = tmp_path / "r.json"
+    rc = main(["schedule", MANY, "--renderer", "core", "-D", "res=8", "--nodes", "1", "--report", str(out),
+               opt, str(tmp_path / "r.png"), "--simulate", "1,4", "--no-progress"])
+    assert rc == 2
+    assert capsys.readouterr().err.strip().splitlines() == [
+        f"links1: error: {opt} needs matplotlib, which is not installed; pip install 'links1[plot]'"]
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_spearman():
