@@ -243,9 +243,11 @@ def _places(state, text: str | None = None) -> dict:
     names = {}
     for n in nodes:
         for k in n.props.keys():
-            v = n.props[k]
-            if isinstance(v, mi.Properties.ResolvedReference) and not k.startswith("_"):
-                names.setdefault(v.index(), k)
+            if k.startswith("_") or n.props.type(k) != mi.Properties.Type.ResolvedReference:
+                continue
+            was = n.props.was_queried(k)
+            names.setdefault(n.props[k].index(), k)
+            n.props.mark_queried(k, was)   # reading marks it: Mitsuba must still see what it was
     data, lines = {}, {}
     places = {}
     for i, n in enumerate(nodes):
