@@ -75,7 +75,8 @@ class _Parser(argparse.ArgumentParser):
     """argparse with exit status 2 and a one-line message (argparse's default is close)."""
 
     def error(self, message):
-        self.exit(2, f"links1: error: {self.prog.split()[-1]}: {message}\n")
+        cmd = self.prog.split()[-1]       # "links1" itself: no second "links1:" after the prefix
+        self.exit(2, f"links1: error: {message}\n" if cmd == "links1" else f"links1: error: {cmd}: {message}\n")
 
 
 def add_render_arguments(p: argparse.ArgumentParser) -> None:
@@ -124,7 +125,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_render_arguments(p)
     p.add_argument("-o", "--output", required=True, help="output image (.exr or .png)")
     p.add_argument("--repeat", type=_nonneg_int("--repeat"), default=0,
-                   help="render N more frames and print 'timing: first= median= min= max=' (ms) on stderr")
+                   help="render N more frames and print 'timing: first=... ms median=... ms min=... ms max=... ms' on stderr")
     p.add_argument("--min-weight", type=float, default=None,
                    help="stop a ray-tree branch whose weight falls to this or below (default 1/255; 0: never)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -249,8 +250,8 @@ def cmd_render(args) -> int:
             else:
                 renderer.render()
             times.append(time.perf_counter() - t)
-        print(f"timing: first={first * 1e3:.1f} median={statistics.median(times) * 1e3:.1f} "
-              f"min={min(times) * 1e3:.1f} max={max(times) * 1e3:.1f}", file=sys.stderr)
+        print(f"timing: first={first * 1e3:.1f} ms median={statistics.median(times) * 1e3:.1f} ms "
+              f"min={min(times) * 1e3:.1f} ms max={max(times) * 1e3:.1f} ms", file=sys.stderr)
     from .image import write_image
     if kind == "png":
         write_image(args.output, image[..., :3])

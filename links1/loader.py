@@ -90,9 +90,6 @@ _APPROX_BSDFS = {"roughconductor", "roughdielectric", "roughplastic", "principle
                  "retarder", "circular", "null", "measured_polarized", "mask", "bumpmap",
                  "normalmap"}
 _IGNORED_EMITTERS = {"sunsky", "projector", "directionalarea"}
-_INTEGRATORS = {"path", "direct", "volpath", "volpathmis", "aov", "moment", "depth", "ptracer",
-                "prb", "prb_basic", "prb_projective", "direct_projective", "stokes",
-                "links1_whitted"}
 _FILMS = {"hdrfilm", "specfilm"}
 _SAMPLERS = {"independent", "stratified", "multijitter", "orthogonal", "ldsampler"}
 _SENSORS = {"perspective", "thinlens", "orthographic", "radiancemeter", "irradiancemeter",
@@ -116,8 +113,19 @@ def load_string(xml: str, /, base_dir=None, **params) -> Scene:
 
 
 def build_scene(root: Node, path: str | None = None) -> Scene:
-    """Turn the parsed ``<scene>`` node into a :class:`Scene`."""
-    return _Builder().scene(root, path)
+    """Turn the parsed ``<scene>`` node into a :class:`Scene`; each warning once (an element
+    referenced twice, a BSDF shared by shapes, is read twice but named once)."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        scene = _Builder().scene(root, path)
+    seen = set()
+    for w in caught:
+        key = (str(w.message), w.category)
+        if key not in seen:
+            seen.add(key)
+            warnings.warn(w.message if isinstance(w.message, Warning) else str(w.message),
+                          w.category, stacklevel=2)
+    return scene
 
 
 # --------------------------------------------------------------------------------------------
@@ -245,11 +253,35 @@ class _Props:
         self.used.update(names)
 
     def finish(self) -> None:
+        known = mitsuba_parameters(self.node.tag, self.node.type)
         for name, p in self.node.props.items():
-            if name not in self.used:
-                warnings.warn(str(SceneError(
-                    f"parameter '{name}' is not used by the core and is ignored", p.file, p.line,
-                    f"{self.node.element()} {p.element()}")), SceneWarning, stacklevel=3)
+            if name in self.used:
+                continue
+            if known is not None and name not in known:   # Mitsuba refuses it: so does the core
+                raise SceneError(f"unknown parameter '{name}': Mitsuba's {self.node.tag} "
+                                 f"'{self.node.type or self.node.tag}' does not take it (Mitsuba "
+                                 "refuses unreferenced properties)", p.file, p.line,
+                                 f"{self.node.element()} {p.element()}")
+            warnings.warn(str(SceneError(
+                f"parameter '{name}' is not used by the core and is ignored", p.file, p.line,
+                f"{self.node.element()} {p.element()}")), SceneWarning, stacklevel=3)
+
+
+_MITSUBA_PARAMETERS = None
+
+
+def mitsuba_parameters(tag: str, plugin: str | None):
+    """The parameter names Mitsuba 3.9.1's plugin ``plugin`` of element ``tag`` may query
+    (``links1/data/mitsuba_properties.json``, made by tools/make_mitsuba_properties.py from
+    Mitsuba's sources), or None for a plugin not listed (links1's own, unknown ones)."""
+    global _MITSUBA_PARAMETERS
+    if _MITSUBA_PARAMETERS is None:
+        import json
+        path = os.path.join(os.path.dirname(__file__), "data", "mitsuba_properties.json")
+        with open(path, encoding="utf-8") as f:
+            _MITSUBA_PARAMETERS = json.load(f)["plugins"]
+    names = _MITSUBA_PARAMETERS.get(tag, {}).get(plugin or tag)
+    return None if names is None else frozenset(names)
 
 
 # --------------------------------------------------------------------------------------------
@@ -475,8 +507,8 @@ class _Builder:
 
     # -- integrator ------------------------------------------------------------------------
     def integrator(self, node: Node):
-        if node.type not in _INTEGRATORS:
-            raise node.error(f"unknown plugin '{node.type}' (integrator)")
+        # links1 replaces whatever integrator the file names (the Mitsuba renderer too, with
+        # --integrator links1): one it does not know (a Bitterli scene's 'mat') is no error
         props = _Props(node)
         inner = node.objects("integrator")
         depth_node = node

@@ -9,7 +9,8 @@ Supported, with Mitsuba's semantics:
   camelCase parameter names upgraded to snake_case, with a warning);
 * ``$name`` references in *any* attribute value, filled from the ``params`` given to the
   parser (the ``-D name=value`` overrides) or from ``<default name=".." value=".."/>``;
-  params override defaults; a reference to an undefined parameter is an error;
+  params override defaults; a reference to an undefined parameter is an error, and so is a
+  param no ``$name`` takes (Mitsuba: "Found unused parameters");
 * ``<include filename=".."/>`` (the included ``<scene>``'s children are spliced in) and
   ``<path value=".."/>`` (a search directory for every file named afterwards, relative to the
   file that names it); files are searched in the ``<path>`` directories (latest first), then
@@ -284,6 +285,7 @@ def _coordinate_system_s(n: np.ndarray) -> np.ndarray:
 class _Parser:
     def __init__(self, params: dict | None):
         self.params = {k: _param_str(v) for k, v in (params or {}).items()}
+        self.used_params: set = set()  # the params some ``$name`` took (Mitsuba refuses the others)
         self.defaults: dict[str, str] = {}
         self.ids: dict[str, Any] = {}
         self.refs: list[tuple[Node, int, _Ref]] = []
@@ -296,6 +298,7 @@ class _Parser:
     # -- parameters ------------------------------------------------------------------------
     def lookup(self, name: str) -> str | None:
         if name in self.params:
+            self.used_params.add(name)
             return self.params[name]
         return self.defaults.get(name)
 
@@ -350,7 +353,19 @@ class _Parser:
         self.collect_defaults(raw)
         node = self.object(raw)
         self.resolve_refs()
+        self.check_unused_params(raw)
         return node
+
+    def check_unused_params(self, raw: _Elem) -> None:
+        """Refuse a ``-D name=value`` that no ``$name`` of the scene (or its includes) takes,
+        as Mitsuba's parser does ("Found unused parameters"), naming the file."""
+        unused = [k for k in self.params if k not in self.used_params]
+        if unused:
+            given = ", ".join(f"-D {k}={self.params[k]}" for k in unused)
+            names = ", ".join(f"${k}" for k in unused)
+            raise SceneError(f"unused parameter{'s' if len(unused) > 1 else ''} {given}: the scene "
+                             f"has no {names} (Mitsuba refuses unused parameters)",
+                             raw.file, raw.line, "<scene>")
 
     def subst_version(self, raw: _Elem) -> None:
         ver = raw.attrs.get("version")

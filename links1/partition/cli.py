@@ -252,6 +252,9 @@ def render_distributed(args):
     cull = _cull_map(plan, model, spec) if args.cull else None
     res = render_plan(plan, spec, backend, checkpoint=ckpt, progress=not getattr(args, "no_progress", False),
                       cull=cull)
+    if res.resumed:
+        print(f"links1: resumed {res.resumed} of {len(plan.units)} units from the checkpoint {ckpt.dir}",
+              file=sys.stderr)
     if res.faults:
         print(f"links1: {len(res.faults)} node(s) lost during the render; their units were redone and the image "
               f"is complete", file=sys.stderr)

@@ -27,7 +27,10 @@ def _rgb(props, name, default, *, emitter=True):
             from links1.spectra import to_rgb
             rgb, raw = to_rgb(list(v.wavelengths), list(v.values), emitter=emitter)
             if raw is not None:
-                warnings.warn(f"'{name}': clamping out-of-gamut colour {np.round(raw, 6).tolist()} "
+                from .loader import place_of
+                where = place_of(props.id())
+                where = f"{where} <spectrum name='{name}'>" if where else f"'{name}'"
+                warnings.warn(f"{where}: clamping out-of-gamut colour {np.round(raw, 6).tolist()} "
                               f"to {np.round(rgb, 6).tolist()} (as Mitsuba)", stacklevel=3)
             return rgb
         try:

@@ -120,6 +120,7 @@ def define_integrator():
         custom_bsdfs = _hidden_attr("custom_bsdfs")
         slot_of_id = _hidden_attr("slot_of_id")
         shape_names = _hidden_attr("shape_names")
+        places = _hidden_attr("places")
         _prep = _hidden_attr("prep")
         _freeze = _hidden_attr("freeze")
         _freeze_points = _hidden_attr("freeze_points")
@@ -163,6 +164,7 @@ def define_integrator():
             self.custom = []          # QuadricSpec / BlobSpec, set by the loader
             self.slot_of_id = None    # Mitsuba shape id -> slot (file order), set by the loader
             self.shape_names = None
+            self.places = None        # object id -> "FILE:LINE: <element>", set by the loader
             self._prep = None
             #: check the scene's parameters (mi.traverse) before reusing the prepared tables;
             #: MitsubaRenderer, whose scene is its own, turns it off for its launches
@@ -173,12 +175,19 @@ def define_integrator():
             self._freeze = None
 
         # -------------------------------------------------------------- set-up
-        def attach(self, custom, slot_of_id, shape_names=None):
-            """Called by the loader: the custom shapes and the file order of all shapes."""
+        def attach(self, custom, slot_of_id, shape_names=None, places=None):
+            """Called by the loader: the custom shapes, the file order of all shapes and where
+            each object is in the file (for warnings)."""
             self.custom = list(custom)
             self.slot_of_id = dict(slot_of_id)
             self.shape_names = shape_names
+            self.places = places
             self._prep = None
+
+        def place(self, obj, what: str = "links1_whitted") -> str:
+            """``FILE:LINE: <element>`` of a scene object for a warning, else ``what``."""
+            from .loader import place_of
+            return place_of(obj, self.places or {}) or what
 
         def channels(self):
             return channel_names(self.aovs)

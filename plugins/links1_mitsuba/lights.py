@@ -20,7 +20,7 @@ from links1.sampling import light_tag
 from .util import INF
 
 
-def _emitted_rgb(prm, key: str, kind: str) -> np.ndarray:
+def _emitted_rgb(prm, key: str, kind: str, where: str = "links1_whitted") -> np.ndarray:
     """An emitter's RGB ``key`` from ``mi.traverse``: its value, or for a ``blackbody`` spectrum
     (which Mitsuba's RGB variants cannot evaluate) the colour the core uses
     (:func:`links1.spectra.blackbody_to_rgb`, with a warning)."""
@@ -31,7 +31,7 @@ def _emitted_rgb(prm, key: str, kind: str) -> np.ndarray:
         from links1.spectra import blackbody_to_rgb
         t = float(np.array(prm[f"{key}.temperature"]).ravel()[0])
         rgb = blackbody_to_rgb(t)
-        warnings.warn(f"links1_whitted: {kind} {key} is a blackbody ({t:g} K), which Mitsuba's RGB "
+        warnings.warn(f"{where}: {kind} {key} is a blackbody ({t:g} K), which Mitsuba's RGB "
                       f"variants cannot evaluate; using the colour its spectral variants integrate "
                       f"to, {np.round(rgb, 6).tolist()}", stacklevel=3)
         return rgb
@@ -130,7 +130,8 @@ def define_lights(mi, dr, util):
                 core.index = -1 if slot is None else slot
                 L = AreaLight(core, np.broadcast_to(rad, (3,)))
             except (ValueError, KeyError) as exc:
-                warnings.warn(f"links1_whitted: area emitter on '{sh.id()}' lights nothing: {exc}",
+                warnings.warn(f"{self.place(e, f'links1_whitted: area emitter on {sh.id()!r}')}: "
+                              f"it lights nothing: {exc}",
                               stacklevel=3)
                 return None
             tab = dict(kind=L.kind, id=L.light_id, slot=slot, L=L.radiance)

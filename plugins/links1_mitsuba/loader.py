@@ -92,6 +92,7 @@ def _prepare_state(state, config, integrator: str, base_dir: str | None):
     refs = mi.Properties.ResolvedReference, mi.Properties.Reference
     integ_node = None
     custom_specs = []
+    custom_nodes = []
     moved_refs = []
     slot_of_id = {}
     names = []
@@ -122,7 +123,8 @@ def _prepare_state(state, config, integrator: str, base_dir: str | None):
                         if child.props.plugin_name() != "area":
                             raise ValueError(f"{_where(state, child)}: only 'area' emitters can be nested in a shape")
                         spec.emission = _rgb(child.props, "radiance", 1.0)
-                        warnings.warn(f"{pname}: its area emitter is shown where the shape is seen "
+                        warnings.warn(f"{_where(state, child)}: <emitter type='area'> in <shape type="
+                                      f"'{pname}'>: its area emitter is shown where the shape is seen "
                                       "directly; it does not light the scene", stacklevel=3)
                         child.props.set_plugin_name("constant")  # harmless, never referenced
                         continue
@@ -130,6 +132,7 @@ def _prepare_state(state, config, integrator: str, base_dir: str | None):
                         moved_refs.append((f"_l1_bsdf_{slot}", v))
             del root.props[key]
             custom_specs.append(spec)
+            custom_nodes.append((slot, node))
             names.append((slot, props.id() or f"{pname}_{slot}", pname))
         else:
             if not props.id():
@@ -145,11 +148,12 @@ def _prepare_state(state, config, integrator: str, base_dir: str | None):
                 props["_links1_base_dir"] = fdir
         slot += 1
     if integrator == "scene":
-        if custom_specs:
-            warnings.warn(f"integrator='scene': {len(custom_specs)} links1_quadric/links1_blob shape(s) "
-                          "are invisible to Mitsuba's own integrators and are left out", stacklevel=3)
+        for _, node in custom_nodes:
+            warnings.warn(f"{_where(state, node)}: <shape type='{node.props.plugin_name()}'>: "
+                          "integrator='scene': Mitsuba's own integrators cannot see this shape; "
+                          "it is left out", stacklevel=3)
         if integ_node is None:
-            warnings.warn(f"{_where(state, root)}: the scene names no integrator (Mitsuba 3.9.1 "
+            warnings.warn(f"{_where(state, root)}: <scene>: the scene names no integrator (Mitsuba 3.9.1 "
                           f"would refuse to render it): using '{DEFAULT_SCENE_INTEGRATOR}' with "
                           "Mitsuba's defaults, the default integrator of Mitsuba before 3.0",
                           stacklevel=3)
@@ -185,7 +189,7 @@ def _add_integrator(state, plugin: str):
     return nodes[len(nodes) - 1]
 
 
-def _repair_normals(scene) -> None:
+def _repair_normals(scene, places=None) -> None:
     """Mitsuba 3.9.1's OBJ reader flags vertex normals when a file has ``vn`` lines that no
     face references, and leaves them uninitialised: recompute such normals (angle-weighted,
     as the core does for meshes without normals)."""
@@ -199,7 +203,7 @@ def _repair_normals(scene) -> None:
         n = np.array(prm["vertex_normals"], dtype=np.float64).reshape(-1, 3)
         ln = np.linalg.norm(n, axis=1)
         if n.size and not (np.all(np.isfinite(ln)) and np.all(np.abs(ln - 1.0) < 1e-3)):
-            warnings.warn(f"mesh '{s.id()}': invalid vertex normals from Mitsuba's reader "
+            warnings.warn(f"{place_of(s, places) or repr(s.id())}: invalid vertex normals from Mitsuba's reader "
                           "(unreferenced 'vn' lines?); recomputed", stacklevel=3)
             s.recompute_vertex_normals()
             mi.traverse(s).update()
@@ -219,29 +223,119 @@ def _where(state, node) -> str:
         return f"{path} (offset {node.offset})"
 
 
-def _load(parse, source, integrator, base_dir, variant, params):
+_TAGS = {"BSDF": "bsdf", "Emitter": "emitter", "Film": "film", "Integrator": "integrator",
+         "Medium": "medium", "PhaseFunction": "phase", "ReconstructionFilter": "rfilter",
+         "Sampler": "sampler", "Scene": "scene", "Sensor": "sensor", "Shape": "shape",
+         "Texture": "texture", "Volume": "volume"}
+#: the id given to an object the file names none for, so that a warning can find its element
+#: (Scene.traverse names ``_unnamed_*`` objects generically, as objects without an id)
+UNNAMED_ID = "_unnamed_links1_{}"
+#: ``id -> "FILE:LINE: <element>"`` of the scene being instantiated (for the plugins' own
+#: constructors, e.g. links1_point's colour warnings); None outside :func:`_load`
+CURRENT_PLACES = None
+
+
+def _places(state, text: str | None = None) -> dict:
+    """``FILE:LINE: <tag type='..' id='..' name='..'>`` of every parsed object, keyed by its
+    id; objects without one get :data:`UNNAMED_ID` (the core's messages have the same form)."""
+    import mitsuba as mi
+    nodes = state.nodes
+    names = {}
+    for n in nodes:
+        for k in n.props.keys():
+            if k.startswith("_") or n.props.type(k) != mi.Properties.Type.ResolvedReference:
+                continue
+            was = n.props.was_queried(k)
+            names.setdefault(n.props[k].index(), k)
+            n.props.mark_queried(k, was)   # reading marks it: Mitsuba must still see what it was
+    data, lines = {}, {}
+    places = {}
+    for i, n in enumerate(nodes):
+        if n.type == mi.ObjectType.Scene:
+            continue
+        user_id = n.props.id()
+        if not user_id:
+            n.props.set_id(UNNAMED_ID.format(i))
+        elif user_id.startswith("_"):     # the loader's own (shape slots)
+            user_id = ""
+        try:
+            path = str(state.files[n.file_index])
+        except Exception:                 # a node the loader added
+            continue
+        if path not in data:
+            try:
+                if text is not None and n.file_index == 0 and not os.path.isfile(path):
+                    data[path] = text.encode()
+                else:
+                    with open(path, "rb") as f:
+                        data[path] = f.read()
+            except OSError:
+                data[path] = None
+        buf = data[path]
+        line = buf[:int(n.offset)].count(b"\n") + 1 if buf is not None else None
+        elem = f"<{_TAGS.get(n.type.name, n.type.name.lower())} type='{n.props.plugin_name()}'"
+        if user_id:
+            elem += f" id='{user_id}'"
+        if i in names:
+            elem += f" name='{names[i]}'"
+        places[n.props.id()] = f"{path}:{line}: {elem}>" if line is not None else f"{path}: {elem}>"
+    return places
+
+
+def place_of(obj, places=None) -> str | None:
+    """``FILE:LINE: <element>`` of a loaded Mitsuba object (from its id), or None."""
+    places = CURRENT_PLACES if places is None else places
+    if not places:
+        return None
+    try:
+        return places.get(obj if isinstance(obj, str) else obj.id())
+    except Exception:
+        return None
+
+
+def _unused_parameters(exc, source) -> Exception:
+    """Mitsuba's "Found unused parameters: - $res=64" (no file) as the core's one line."""
+    from links1.errors import SceneError
+    text = str(exc)
+    if "Found unused parameters" not in text:
+        return exc
+    given = [ln.strip()[2:].lstrip("$") for ln in text.splitlines() if ln.strip().startswith("- $")]
+    what = ", ".join(f"-D {g}" for g in given) or "parameters"
+    names = ", ".join(f"${g.split('=')[0]}" for g in given)
+    return SceneError(f"unused parameter{'s' if len(given) > 1 else ''} {what}: the scene has no "
+                      f"{names} (Mitsuba refuses unused parameters)", source, 1, "<scene>")
+
+
+def _load(parse, source, integrator, base_dir, variant, params, filename=None):
     import mitsuba as mi
     register(variant)
     config = mi.parser.ParserConfig(mi.variant())
     config.merge_meshes = False
     config.merge_equivalent = False
-    fr = mi.Thread.thread().file_resolver()
+    global CURRENT_PLACES
+    fr = mi.file_resolver()
     saved = mi.FileResolver(fr)
     try:
         if base_dir:
             fr.prepend(base_dir)
-        state = parse(config, source, **{k: str(v) for k, v in params.items()})
+        try:
+            state = parse(config, source, **{k: str(v) for k, v in params.items()})
+        except RuntimeError as exc:
+            raise _unused_parameters(exc, filename or "<string>") from None
         integ, specs, slot_of_id, names = _prepare_state(state, config, integrator, base_dir)
+        places = _places(state, None if filename else source)
         mi.parser.transform_all(config, state)
+        CURRENT_PLACES = places
         scene = mi.parser.instantiate(config, state)
     finally:
+        CURRENT_PLACES = None
         fr.clear()
         for i in range(len(saved)):
             fr.append(saved[i])
-    _repair_normals(scene)
+    _repair_normals(scene, places)
     if integrator != "scene":
         whitted = scene.integrator()
-        whitted.attach(specs, slot_of_id, names)
+        whitted.attach(specs, slot_of_id, names, places)
     return scene
 
 
@@ -272,7 +366,8 @@ def load_file(path, *, integrator: str = "links1", variant: str | None = None, p
     if not os.path.exists(path):
         raise FileNotFoundError(path)
     return _load(lambda c, p, **kw: mi.parser.parse_file(c, p, **kw), path, integrator,
-                 os.path.dirname(os.path.abspath(path)), variant, {**(params or {}), **kwparams})
+                 os.path.dirname(os.path.abspath(path)), variant, {**(params or {}), **kwparams},
+                 filename=path)
 
 
 def load_string(xml: str, *, integrator: str = "links1", variant: str | None = None,

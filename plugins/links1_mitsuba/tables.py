@@ -210,7 +210,7 @@ def define_tables(mi, dr, util):
             # the sensor's matrix, clip distances and field of view: the same rays as Mitsuba's
             kind = str(sensor).split("[")[0]
             if kind == "ThinLensCamera":   # as the core: the lens centre only
-                warnings.warn("links1_whitted: thinlens is rendered as a pinhole perspective camera "
+                warnings.warn(f"{self.place(sensor)}: thinlens is rendered as a pinhole perspective camera "
                               "(no depth of field)", stacklevel=2)
             P.projection = {"PerspectiveCamera": "perspective", "ThinLensCamera": "perspective",
                             "OrthographicCamera": "orthographic"}.get(kind)
@@ -307,9 +307,10 @@ def define_tables(mi, dr, util):
                     has_dt[sl] = bool(fl & int(mi.BSDFFlags.DeltaTransmission))
                     if fl & int(mi.BSDFFlags.Glossy):
                         name = str(b).split("[")[0]
-                        if name not in warned:
-                            warned.add(name)
-                            warnings.warn(f"links1_whitted: BSDF {name} has glossy lobes; it gets direct "
+                        where = self.place(b)
+                        if (where, name) not in warned:     # once per element
+                            warned.add((where, name))
+                            warnings.warn(f"{where}: BSDF {name} has glossy lobes; it gets direct "
                                           "light from delta lights only (no glossy indirect light)",
                                           stacklevel=2)
             P.is_phong_np = is_phong
@@ -379,7 +380,7 @@ def define_tables(mi, dr, util):
                 elif kind == "PointLight":
                     prm = mi.traverse(e)
                     pos = np.array(prm["position"], dtype=np.float64).ravel()
-                    I = _emitted_rgb(prm, "intensity", kind)
+                    I = _emitted_rgb(prm, "intensity", kind, self.place(e))
                     P.lights.append(("point", pos, np.array([0, 0, 1.0]), I, np.zeros(3), True))
                 elif kind == "SpotLight" and any(k.startswith("texture.") and k != "texture.value"
                                                  for k in mi.traverse(e).keys()):
@@ -389,9 +390,9 @@ def define_tables(mi, dr, util):
                 elif kind == "SpotLight":
                     prm = mi.traverse(e)
                     m = np.array(prm["to_world"].matrix, dtype=np.float64).reshape(4, 4)
-                    I = _emitted_rgb(prm, "intensity", kind)
+                    I = _emitted_rgb(prm, "intensity", kind, self.place(e))
                     if "texture.value" in prm.keys():   # a constant texture scales the intensity
-                        I = I * _emitted_rgb(prm, "texture", kind)
+                        I = I * _emitted_rgb(prm, "texture", kind, self.place(e))
                     cutoff = float(np.array(prm["cutoff_angle"]).ravel()[0])
                     beam = float(np.array(prm["beam_width"]).ravel()[0])
                     P.lights.append(("mspot", m[:3, 3].copy(), m[:3, 2] / np.linalg.norm(m[:3, 2]),
@@ -399,7 +400,7 @@ def define_tables(mi, dr, util):
                 elif kind == "DirectionalEmitter":
                     prm = mi.traverse(e)
                     m = np.array(prm["to_world"].matrix, dtype=np.float64).reshape(4, 4)
-                    E = _emitted_rgb(prm, "irradiance", kind)
+                    E = _emitted_rgb(prm, "irradiance", kind, self.place(e))
                     P.lights.append(("dir", m[:3, 2] / np.linalg.norm(m[:3, 2]), E))
                 elif kind == "ConstantBackgroundEmitter":
                     rad = np.array(mi.traverse(e)["radiance.value"], dtype=np.float64).ravel()
@@ -411,7 +412,7 @@ def define_tables(mi, dr, util):
                     n_env += 1
                     P.env = e
                 elif e.is_environment() or (int(e.flags()) & int(mi.EmitterFlags.Infinite)):
-                    warnings.warn(f"links1_whitted: emitter {kind} is seen as the background but "
+                    warnings.warn(f"{self.place(e)}: emitter {kind} is seen as the background but "
                                   "lights nothing", stacklevel=2)
                     n_env += 1
                     P.env = e
@@ -421,7 +422,7 @@ def define_tables(mi, dr, util):
                         P.area.append(e)
                         P.area_tab.append(tab)
                 else:
-                    warnings.warn(f"links1_whitted: emitter {kind} is not supported and is ignored",
+                    warnings.warn(f"{self.place(e)}: emitter {kind} is not supported and is ignored",
                                   stacklevel=2)
             self._occluders(P, shapes, slot_list)
             # light buffers for the quadric shadow rays toward analytic lights (where they pay)

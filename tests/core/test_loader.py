@@ -512,9 +512,19 @@ def test_shape_constructor_value_error_becomes_scene_error(monkeypatch):
                                      '<float name="threshold" value="0.5"/></shape>'))
 
 
-def test_unused_parameter_warns():
-    with pytest.warns(SceneWarning, match="'colour' is not used"):
+def test_unknown_parameter_is_refused_as_mitsuba_refuses_it():
+    """Issue 27: a name Mitsuba's plugin never queries is an error (Mitsuba: "Found 1
+    unreferenced property"), naming file, line and element."""
+    with pytest.raises(SceneError, match=r"<string>:2: <shape type='sphere'> <float name='colour'>: "
+                                         r"unknown parameter 'colour'"):
         loader.load_string(scene_xml('<shape type="sphere"><float name="colour" value="1"/></shape>'))
+
+
+def test_mitsuba_parameter_the_core_ignores_warns():
+    """A real Mitsuba parameter the core does not read is a warning, not an error."""
+    with pytest.warns(SceneWarning, match="'silhouette_sampling_weight' is not used"):
+        loader.load_string(scene_xml('<shape type="sphere"><float name="silhouette_sampling_weight" '
+                                     'value="1"/></shape>'))
 
 
 # -- the real shape classes (when links1.shapes / links1.blob exist) ---------------------------

@@ -83,7 +83,7 @@ def test_integrator_scene_without_integrator_uses_path(tmp_path):
         assert all(ln.startswith("links1: ") for ln in res.stderr.splitlines()), res.stderr
         imgs.append(read_exr(str(out))[0])
         errs.append(res.stderr)
-    assert f"links1: warning: {tmp_path / 'noint0.xml'}:1: the scene names no integrator" in errs[0]
+    assert f"links1: warning: {tmp_path / 'noint0.xml'}:1: <scene>: the scene names no integrator" in errs[0]
     assert "names no integrator" not in errs[1]
     # Mitsuba's own log warning (the clamped spectrum) is one links1 line too
     assert "links1: warning: mitsuba: Spectrum: clamping out-of-gamut color" in errs[0]
