@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .textures import Texture, upper_bound
+from .textures import LUMINANCE as _LUMINANCE, Texture, upper_bound
 
 # Mitsuba's named indices of refraction (src/core/... ior.h), used by dielectric/plastic.
 IOR_TABLE = {
@@ -318,8 +318,6 @@ class Plastic(Material):
         return r, np.zeros((m, 3)), np.ones(m)
 
 
-#: Mitsuba's luminance weights (sRGB primaries): ``Texture::eval_1`` of an RGB value
-_LUMINANCE = np.array([0.212671, 0.715160, 0.072169])
 
 
 @dataclass
@@ -356,15 +354,19 @@ class Mask(Material):
         if not self.textured:
             return self
         bound = copy.copy(self)
-        if isinstance(self.opacity, Texture):
-            bound.opacity = given["opacity"] if given and "opacity" in given else self.opacity.eval(uv)
+        if isinstance(self.opacity, Texture):   # a scalar lookup: Mitsuba's eval_1
+            a = (given["opacity"] @ _LUMINANCE if given and "opacity" in given
+                 else self.opacity.eval_1(uv))
+            bound.opacity = np.clip(a, 0.0, 1.0)[:, None]
         bound.nested = self.nested.at(uv, given)
         return bound
 
     def _a(self):
         """The opacity as Mitsuba's ``eval_1`` reads it (luminance), clamped to [0, 1]: (N, 1) or (1,)."""
-        a = np.clip(np.asarray(self.opacity) @ _LUMINANCE, 0.0, 1.0)
-        return a[:, None] if a.ndim else a.reshape(1)
+        a = np.asarray(self.opacity)
+        if a.ndim == 2:         # bound to the hits by ``at``
+            return a
+        return np.clip(a @ _LUMINANCE, 0.0, 1.0).reshape(1)
 
     def eval(self, wo, wi, n, n_raw):
         return self._a() * self.nested.eval(wo, wi, n, n_raw)

@@ -53,6 +53,10 @@ CASES = {
     "mask_thindielectric": SHEET.format(a=35, b='<bsdf type="mask"><float name="opacity" value="0.6"/>'
                                           '<bsdf type="thindielectric"/></bsdf>'),
     "mask_plastic": SPHERE.format(b='<bsdf type="mask"><float name="opacity" value="0.5"/><bsdf type="plastic"/></bsdf>'),
+    "mask_textured_conductor": SHEET.format(a=35, b='<bsdf type="mask"><texture name="opacity" type="checkerboard">'
+                                            '<float name="color0" value="0.9"/><float name="color1" value="0.2"/>'
+                                            '<transform name="to_uv"><scale value="3"/></transform></texture>'
+                                            '<bsdf type="conductor"/></bsdf>'),
     "null": SPHERE.format(b='<bsdf type="null"/>'),
 }
 
@@ -138,3 +142,17 @@ def test_thin_sheet_keeps_its_transmission(variant):
     c = RES // 2
     assert np.allclose(plug[c, c], 0.529, rtol=1e-5), plug[c, c]
     assert np.allclose(core[c, c], 0.529, rtol=1e-9), core[c, c]
+
+
+def test_mask_around_dielectric_warns_in_both_renderers(variant):
+    """A Whitted node has one transmitted ray: a mask around a refracting dielectric keeps the
+    refraction and drops the straight-through part, and both renderers say so."""
+    from links1_mitsuba import load_string
+    from links1.loader import load_string as core_load
+    body = SPHERE.format(b='<bsdf type="mask"><float name="opacity" value="0.5"/><bsdf type="dielectric"/></bsdf>')
+    xml = scene_xml(body, WHITTED, 1)
+    with pytest.warns(UserWarning, match="straight-through"):
+        core_load(xml)
+    with pytest.warns(UserWarning, match="straight-through"):
+        sc = load_string(xml, variant=variant)
+        sc.integrator().render_window(sc, None, spp=1)
