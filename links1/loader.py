@@ -87,7 +87,7 @@ _MITSUBA_SHAPES = {"serialized", "shapegroup", "instance", "bsplinecurve", "line
                    "sdfgrid", "ellipsoids", "ellipsoidsmesh", "merge"}
 _APPROX_BSDFS = {"roughconductor", "roughdielectric", "roughplastic", "principled",
                  "principledthin", "blendbsdf", "hair", "measured", "pplastic", "polarizer",
-                 "retarder", "circular", "null", "measured_polarized", "mask", "bumpmap",
+                 "retarder", "circular", "measured_polarized", "bumpmap",
                  "normalmap"}
 _IGNORED_EMITTERS = {"sunsky", "projector", "directionalarea"}
 _FILMS = {"hdrfilm", "specfilm"}
@@ -778,7 +778,8 @@ class _Builder:
             else:
                 raise child.error(f"<{child.tag}> is not allowed inside a shape")
         if material is None:
-            material = mat.Diffuse(reflectance=np.full(3, 0.5))  # Mitsuba's default BSDF
+            # Mitsuba's default BSDF: diffuse 0.5, black on an emitting shape (its Shape does so)
+            material = mat.Diffuse(reflectance=np.full(3, 0.0 if emission is not None else 0.5))
         props.finish()
         for k, tex in vars(material).items():   # a mesh_attribute must name one of the mesh's
             if isinstance(tex, textures.MeshAttribute) and tex.attribute not in getattr(shape, "attributes", {}):
@@ -928,7 +929,19 @@ class _Builder:
                            exponent=props.float("exponent", 20.0, nonneg=True),
                            reflectance=props.color("reflectance", None),
                            transmittance=props.color("transmittance", 0.0), ior=ior, name=name)
-        elif t in ("mask", "bumpmap", "normalmap") and node.objects("bsdf"):
+        elif t == "mask":
+            inner = node.objects("bsdf")
+            if len(inner) != 1:
+                raise node.error("mask needs exactly one nested bsdf")
+            nested = self.bsdf(inner[0])
+            m = _construct(node, mat.Mask, nested=nested, opacity=props.texture("opacity", 0.5),
+                           name=name)
+            if m.refracts:
+                node.warn("mask around a refracting bsdf: its straight-through part (1 - opacity) "
+                          "is dropped (a Whitted node has one transmitted ray)")
+        elif t == "null":   # Mitsuba's null: every ray goes straight through (BSDFFlags::Null)
+            m = mat.Mask(nested=mat.Material(), opacity=0.0, name=name)
+        elif t in ("bumpmap", "normalmap") and node.objects("bsdf"):
             node.warn(f"'{t}' is not supported by the core; the nested bsdf is used as is")
             props.ignore(*node.props)
             return self.bsdf(node.objects("bsdf")[0])

@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .textures import Texture, upper_bound
+from .textures import LUMINANCE as _LUMINANCE, Texture, upper_bound
 
 # Mitsuba's named indices of refraction (src/core/... ior.h), used by dielectric/plastic.
 IOR_TABLE = {
@@ -101,6 +101,8 @@ class Material:
     has_transmission = False
     #: Mitsuba's dielectrics scale transmitted radiance by 1/η² (radiance compression).
     scale_radiance = False
+    #: the transmitted ray goes straight on (η = 1: thindielectric, a mask's see-through part)
+    straight_transmission = False
     name = ""
 
     def eval(self, wo, wi, n, n_raw):
@@ -162,6 +164,7 @@ class Phong(Material):
         self.shadow_t = self.transmittance
         self.has_reflection = bool(np.any(self.reflectance > 0))
         self.has_transmission = bool(np.any(self.transmittance > 0))
+        self.straight_transmission = self.ior == 1.0
 
     def eval(self, wo, wi, n, n_raw):
         cos_theta = _dot(n, wi)  # eq. (3.11), diffuse term: drc L cos θ
@@ -264,6 +267,7 @@ class ThinDielectric(Dielectric):
     def __post_init__(self):
         super().__post_init__()
         self.scale_radiance = False  # in and out of the slab: no net radiance scaling
+        self.straight_transmission = True
 
     def specular(self, wo, n, entering):
         R = fresnel_dielectric(np.abs(_dot(wo, n)), self.eta)
@@ -312,6 +316,67 @@ class Plastic(Material):
         if not self.two_sided:
             r = np.where(entering[:, None], r, 0.0)
         return r, np.zeros((m, 3)), np.ones(m)
+
+
+
+
+@dataclass
+class Mask(Material):
+    """Mitsuba ``mask``: the nested finish with weight ``a`` (the opacity), a straight-through
+    delta lobe with weight ``1 - a`` (Mitsuba's ``BSDFFlags::Null``).
+
+    ``eval`` is ``a`` times the nested one; the mirror ray's weight is ``a r``; the transmitted
+    ray goes straight on (η = 1) with weight ``1 - a + a t`` when the nested finish's own
+    transmission is straight too (``thindielectric``, ``null``) or absent. Around a refracting
+    finish (``dielectric``) only its refracted ray ``a t`` is kept (the loader warns). Opaque to
+    shadow rays, as in Mitsuba's ``direct``/``path`` (their shadow tests are binary).
+    """
+
+    nested: Material = None
+    opacity: np.ndarray = field(default_factory=lambda: np.full(3, 0.5))
+    name: str = ""
+
+    def __post_init__(self):
+        self.opacity = _rgb(self.opacity)
+        self.has_reflection = self.nested.has_reflection
+        self.has_transmission = True
+        self.scale_radiance = self.nested.scale_radiance
+        #: the nested transmission bends the ray: the straight part cannot ride on it
+        self.refracts = self.nested.has_transmission and not self.nested.straight_transmission
+        self.straight_transmission = not self.refracts
+
+    @property
+    def textured(self) -> tuple:
+        own = tuple(k for k, v in vars(self).items() if isinstance(v, Texture))
+        return own + (("nested",) if self.nested.textured else ())
+
+    def at(self, uv, given=None):
+        if not self.textured:
+            return self
+        bound = copy.copy(self)
+        if isinstance(self.opacity, Texture):   # a scalar lookup: Mitsuba's eval_1
+            a = (given["opacity"] @ _LUMINANCE if given and "opacity" in given
+                 else self.opacity.eval_1(uv))
+            bound.opacity = np.clip(a, 0.0, 1.0)[:, None]
+        bound.nested = self.nested.at(uv, given)
+        return bound
+
+    def _a(self):
+        """The opacity as Mitsuba's ``eval_1`` reads it (luminance), clamped to [0, 1]: (N, 1) or (1,)."""
+        a = np.asarray(self.opacity)
+        if a.ndim == 2:         # bound to the hits by ``at``
+            return a
+        return np.clip(a @ _LUMINANCE, 0.0, 1.0).reshape(1)
+
+    def eval(self, wo, wi, n, n_raw):
+        return self._a() * self.nested.eval(wo, wi, n, n_raw)
+
+    def specular(self, wo, n, entering):
+        a = self._a()
+        r, t, eta = self.nested.specular(wo, n, entering)
+        if self.refracts:
+            return a * r, a * t, eta
+        return a * r, a * t + (1.0 - a), np.ones(wo.shape[0])
 
 
 def approximate(kind: str, color=0.5, name: str = "") -> Material:

@@ -53,6 +53,10 @@ def uv_transform(m) -> np.ndarray:
     return m
 
 
+#: Mitsuba's luminance weights (linear sRGB primaries), as its ``luminance()``
+LUMINANCE = np.array([0.212671, 0.715160, 0.072169])
+
+
 class Texture:
     """A spatially varying RGB parameter: ``eval(uv (N, 2)) -> (N, 3)`` float64."""
 
@@ -65,6 +69,10 @@ class Texture:
         m = self.to_uv
         return (m[0, 0] * uv[:, 0] + m[0, 1] * uv[:, 1] + m[0, 2],
                 m[1, 0] * uv[:, 0] + m[1, 1] * uv[:, 1] + m[1, 2])
+
+    def eval_1(self, uv) -> np.ndarray:
+        """One value per point (N,), as Mitsuba's ``Texture::eval_1``: the luminance of ``eval``."""
+        return self.eval(uv) @ LUMINANCE
 
     def eval(self, uv) -> np.ndarray:  # pragma: no cover - interface
         raise NotImplementedError
@@ -136,6 +144,19 @@ class Checkerboard(Texture):
         out = np.empty((uv.shape[0], 3))
         out[first] = _value(self.color0, uv, first)
         out[~first] = _value(self.color1, uv, ~first)
+        return out
+
+    def eval_1(self, uv) -> np.ndarray:
+        """Mitsuba 3.9.1's scalar lookup (``Checkerboard::eval_1``): it tests ``!=`` where
+        ``eval`` tests ``==``, so it returns ``color1`` where ``eval`` returns ``color0`` and the
+        reverse. A mask's opacity reads it (issue 27); followed so both renderers agree with it."""
+        uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+        s, t = self._uv(uv)
+        first = (s - np.floor(s) > 0.5) != (t - np.floor(t) > 0.5)
+        out = np.empty(uv.shape[0])
+        for sel, c in ((first, self.color0), (~first, self.color1)):
+            out[sel] = (c.eval_1(uv[sel]) if isinstance(c, Texture)
+                        else np.full(int(sel.sum()), float(np.asarray(c) @ LUMINANCE)))
         return out
 
     def max(self) -> np.ndarray:

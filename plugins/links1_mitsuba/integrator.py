@@ -102,7 +102,9 @@ def define_integrator():
 
         Shading: ``links1_phong`` surfaces use eq. (3.11) (ambient + diffuse + highlight),
         other Mitsuba BSDFs are evaluated through Mitsuba (``bsdf.eval``) for delta lights
-        and their delta lobes (mirror, glass) are recursed with their own weights; rough
+        and their delta lobes (mirror, glass, and the straight-through ``Null`` lobe of
+        ``thindielectric``, ``mask`` and ``null``, weight ``eval_null_transmission``) are
+        recursed with their own weights (a ``mask``'s: its nested BSDF's times the opacity); rough
         BSDFs get direct light only (warning). Lights: ``links1_point``, ``links1_spot``,
         Mitsuba ``point``, ``spot``, ``directional`` (evaluated analytically, shadow rays
         scaled by the transmittance of every object crossed, once per object); ``area``

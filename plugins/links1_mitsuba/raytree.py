@@ -253,13 +253,24 @@ def define_raytree(mi, dr, util):
                 lobes = [(mi.BSDFFlags.DeltaReflection, "r")] if P.any_mitsuba_dr else []
                 if P.any_mitsuba_dt:
                     lobes.append((mi.BSDFFlags.DeltaTransmission, "t"))
+                sampler, opacity = bsdf, None
+                if P.any_mask and (P.any_mitsuba_dr or P.any_mitsuba_dt):
+                    # a mask's lobes: its nested BSDF's, times the opacity, which is
+                    # (1 - null(mask)) / (1 - null(nested)) (Mitsuba's mask: null = 1 - a (1 - null'))
+                    sampler = dr.gather(mi.BSDFPtr, P.inner_ptr, uslot, mb)
+                    om = dr.sum(1.0 - bsdf.eval_null_transmission(sif, mb))
+                    on = dr.sum(1.0 - sampler.eval_null_transmission(sif, mb))
+                    opacity = dr.select(on > 0, om / dr.maximum(on, 1e-30), 0.0)
                 for flag, which in lobes:   # only the delta lobes some BSDF of the scene has
                     table = P.has_dr if which == "r" else P.has_dt
                     act = mb & dr.gather(mi.Bool, table, uslot, mb)
                     cx = mi.BSDFContext()
                     cx.type_mask = +flag
-                    bs, w = bsdf.sample(cx, sif, mi.Float(0.5), mi.Point2f(0.5, 0.5), act)
-                    ok = act & (bs.pdf > 0) & (dr.max(w) > 0)
+                    bs, w = sampler.sample(cx, sif, mi.Float(0.5), mi.Point2f(0.5, 0.5), act)
+                    ok = act & (bs.pdf > 0) & (dr.max(w) > 0) & \
+                        ((bs.sampled_type & mi.UInt32(+flag)) != 0)
+                    if opacity is not None:
+                        w = w * opacity
                     dw = sif.to_world(bs.wo)
                     if which == "r":
                         r = dr.select(ok, w, r)
@@ -267,6 +278,15 @@ def define_raytree(mi, dr, util):
                     else:
                         tw = dr.select(ok, w, tw)
                         dir_t = dr.select(ok, dw, dir_t)
+                if P.any_mitsuba_null:
+                    # the straight-through delta lobe (Mitsuba's BSDFFlags::Null: thindielectric's
+                    # transmission T' = 1 - R', R' = 2R/(1+R); a mask's 1 - opacity; null): weight
+                    # eval_null_transmission, direction unchanged, as Mitsuba's path follows it
+                    act = mb & dr.gather(mi.Bool, P.has_null, uslot, mb)
+                    wn = bsdf.eval_null_transmission(sif, act)
+                    ok = act & (dr.max(wn) > 0)
+                    tw = dr.select(ok, wn, tw)
+                    dir_t = dr.select(ok, d, dir_t)
             has_r = hit & (dr.max(r) > 0)
             has_tt = hit & (dr.max(tw) > 0)
             dir_r = dr.normalize(dir_r)
@@ -325,7 +345,7 @@ def define_raytree(mi, dr, util):
             cr, ct, w_r, w_t = self._children(res, act, mi.Color3f(1.0), mi.UInt32(1))
             key_r = mix32(key ^ mi.UInt32(0x63D83595))
             key_t = mix32(key ^ mi.UInt32(0xA511E9B3))
-            has_t = P.any_phong_t or P.any_mitsuba_dt
+            has_t = P.any_phong_t or P.any_mitsuba_dt or P.any_mitsuba_null
             if has_t:
                 kids = (res["o_r"], res["dir_r"], w_r, key_r, res["o_t"], res["dir_t"], w_t, key_t)
             else:       # no refraction anywhere: no refraction children to store

@@ -105,6 +105,17 @@ class Prepared:
     """Per-scene tables: slots (shapes in file order), materials, lights, camera."""
 
 
+def _unmask(mi, b):
+    """The BSDF a Mitsuba ``mask`` (nested masks too) wraps; ``b`` itself if it is no mask."""
+    while str(b).startswith("Mask["):
+        kids = [k for k, (parent, depth) in mi.traverse(b).hierarchy.items()
+                if depth == 1 and isinstance(k, mi.BSDF)]
+        if len(kids) != 1:
+            break
+        b = kids[0]
+    return b
+
+
 def define_tables(mi, dr, util):
     """The ``Tables`` part of ``Links1Whitted`` for the variant in use."""
     from . import integrator   # BVH_MIN read there at call time (tests patch it)
@@ -291,6 +302,8 @@ def define_tables(mi, dr, util):
             refl = np.zeros((nslots, 3)); trans = np.zeros((nslots, 3))
             expo = np.zeros(nslots); ior = np.ones(nslots)
             has_dr = np.zeros(nslots, dtype=bool); has_dt = np.zeros(nslots, dtype=bool)
+            has_null = np.zeros(nslots, dtype=bool)
+            inner = list(bsdfs)   # the BSDF whose delta lobes a slot samples (a mask's nested one)
             warned = set()
             for sl, b in enumerate(bsdfs):
                 if b is None:
@@ -305,6 +318,19 @@ def define_tables(mi, dr, util):
                     fl = int(b.flags())
                     has_dr[sl] = bool(fl & int(mi.BSDFFlags.DeltaReflection))
                     has_dt[sl] = bool(fl & int(mi.BSDFFlags.DeltaTransmission))
+                    # Null: a straight-through delta lobe (thindielectric's transmission, mask's
+                    # transparency, null); its weight is eval_null_transmission (issue 27)
+                    has_null[sl] = bool(fl & int(mi.BSDFFlags.Null))
+                    inner[sl] = _unmask(mi, b)
+                    if has_null[sl] and has_dt[sl]:
+                        name = str(b).split("[")[0]
+                        if ("null+dt", name) not in warned:
+                            warned.add(("null+dt", name))
+                            warnings.warn(f"links1_whitted: BSDF {name} has both a refracted and a "
+                                          "straight-through transmission (a mask around a "
+                                          "dielectric); the straight-through part is dropped",
+                                          stacklevel=2)
+                        has_null[sl] = False
                     if fl & int(mi.BSDFFlags.Glossy):
                         name = str(b).split("[")[0]
                         where = self.place(b)
@@ -321,9 +347,16 @@ def define_tables(mi, dr, util):
             P.refl, P.trans = mi.Float(refl.ravel()), mi.Float(trans.ravel())
             P.expo, P.ior = mi.Float(expo), mi.Float(ior)
             P.any_ambient = bool(np.any(amb > 0))
-            P.has_dr, P.has_dt = mi.Bool(has_dr), mi.Bool(has_dt)
+            P.has_dr, P.has_dt, P.has_null = mi.Bool(has_dr), mi.Bool(has_dt), mi.Bool(has_null)
             P.any_mitsuba_dr, P.any_mitsuba_dt = bool(has_dr.any()), bool(has_dt.any())
-            P.any_mitsuba_delta = bool(np.any(has_dr | has_dt))
+            P.any_mitsuba_null = bool(has_null.any())
+            P.any_mitsuba_delta = bool(np.any(has_dr | has_dt | has_null))
+            # masks: their delta lobes are sampled on the nested BSDF and scaled by the opacity
+            # (Mitsuba's mask.sample cannot sample one lobe alone: it returns its null lobe)
+            is_mask = np.array([b is not None and i is not b for b, i in zip(bsdfs, inner)], dtype=bool)
+            P.any_mask = bool(is_mask.any())
+            P.inner_ptr = mi.BSDFPtr([i if i is not None else default_bsdf for i in inner]) \
+                if P.any_mask else None
             P.any_phong_r = bool(np.any(refl.max(1) > 0))
             P.any_phong_t = bool(np.any(trans.max(1) > 0))
             P.any_specular = P.any_mitsuba_delta or P.any_phong_r or P.any_phong_t

@@ -40,6 +40,9 @@ REFERENCES = {
     "fig6a.xml": ("the floor where no ray nears a blob centre's 3S ball", 0.12),
     "fig6b.xml": ("the floor where no ray nears a blob centre's 3S ball", 0.12),
     "bicubic.xml": ("the floor where no ray nears the patches' control-point box", 0.1),
+    "delta_bsdfs.xml": ("the striped wall and the floor seen directly: Mitsuba diffuse under a "
+                        "directional and a point light, every delta-BSDF object blocking shadow rays "
+                        "(Mitsuba's binary shadow tests; the objects themselves not checked)", 0.7),
     "fig11.xml": ("the background (constant emitter); surfaces are lit by sampling the "
                   "environment (Monte Carlo), not checked", 0.3),
 }

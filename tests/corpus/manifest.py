@@ -60,7 +60,7 @@ SCENES = [
     _s("data_cbox_spectral", MITSUBA_DATA, "scenes/cbox/cbox-spectral.xml", NO_LICENCE, False, "direct",
        params={"spp": "4", "res": "32"}),
     _s("data_pointlight_spheres", MITSUBA_DATA, "tests/scenes/bsdf_spheres/test_pointlight_path.xml",
-       NO_LICENCE, False, "renders", warns=("roughconductor", "'mask'")),
+       NO_LICENCE, False, "renders", warns=("roughconductor",)),
     _s("data_constant_spheres", MITSUBA_DATA, "tests/scenes/bsdf_spheres/test_constant_path.xml",
        NO_LICENCE, False, "renders", warns=("roughplastic", "roughdielectric")),
     _s("data_texture_interp", MITSUBA_DATA, "tests/scenes/texture_interp/test_texture_interp_direct.xml",
