@@ -197,14 +197,22 @@ def define_film(mi, dr, mix32):
                     chans.append(c)
                 elif a == "samples":
                     chans.append(F64(n_s) + dr.zeros(F64, m))
+        # the channels in one kernel, then interleaved by a gather (scatters into one array would
+        # each evaluate the ones before: one kernel per channel)
+        chans = [dtype(ch) for ch in chans]
         C = len(chans)
-        out = dr.empty(dtype, m * C)
-        for kk, ch in enumerate(chans):
-            dr.scatter(out, dtype(ch), q * C + kk)
+        dr.eval(*chans)
+        j = dr.arange(U32, m * C)
+        p = j // C
+        c = j - p * C
+        out = dr.gather(dtype, chans[0], p, c == 0)
+        for kk in range(1, C):
+            out = dr.select(c == kk, dr.gather(dtype, chans[kk], p, c == kk), out)
         return out, C
 
     def widen(v, n):
-        """``v`` with ``n`` lanes: a frozen launch returns literals at their recorded width."""
-        return v if dr.width(v) == n else v + dr.zeros(type(v), n)
+        """``v`` with ``n`` lanes: a frozen launch returns literals at their recorded width
+        (their first lane, broadcast)."""
+        return v if dr.width(v) == n else dr.gather(type(v), v, dr.zeros(U32, n))
 
     return dict(sample_ids=sample_ids, reconstruct=reconstruct, concat=concat, widen=widen)

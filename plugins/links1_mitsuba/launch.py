@@ -412,6 +412,26 @@ def define_launches(mi, dr, mix32, u24):
             """
             return self.render_windows(scene, [window], spp=spp, seed=seed, aovs=aovs, sensor=sensor)[0]
 
+        def window_samples(self, scene, window=None, spp=1, seed=None, aovs=None, sensor=None):
+            """The samples a window's pixels are made of, as numpy (for checks and debugging):
+            ``(sample_window, {"total": (sh, sw, spp, 3), "cost": (sh, sw, spp)`` and with AOVs
+            ``"t0", "s0", "n0"``: the launch's per-sample outputs, float32 / int32``})``."""
+            P = self.prepare(scene, sensor)
+            W, H = P.film_size
+            win = (0, 0, W, H) if window is None else tuple(int(v) for v in window)
+            swin = win if P.rfilter.border == 0 else sample_window(P.rfilter, win, (W, H))
+            seed = self.seed if seed is None else int(seed)
+            want = bool(self.aovs if aovs is None else parse_aovs(aovs))
+            sid = film["sample_ids"](W, int(spp), [swin])
+            part, _ = self._launch(P, scene, sid, (dr.opaque(mi.UInt32, spp), dr.opaque(mi.UInt32, strata(spp))),
+                                   (dr.opaque(mi.UInt32, seed & 0xFFFFFFFF),
+                                    dr.opaque(mi.UInt32, (seed * 0x27D4EB2F + 0x165667B1) & 0xFFFFFFFF)), want)
+            shape = (swin[3], swin[2], int(spp))
+            out = {k: (np.stack([np.asarray(v[c]) for c in range(3)], axis=-1) if dr.size_v(v) == 3
+                       else np.asarray(v)).reshape(shape + ((3,) if dr.size_v(v) == 3 else ()))
+                   for k, v in part.items()}
+            return swin, out
+
         def render_windows(self, scene, windows, spp=1, seed=None, aovs=None, sensor=None):
             """Render several windows of the film in one launch -> one float64 ndarray ``(h, w,
             3 + aov channels)`` per window, each exactly what :meth:`render_window` returns for it
