@@ -32,6 +32,11 @@ from __future__ import annotations
 
 import math
 
+#: Largest per-window tables of 1-D filter weights (bytes: 16 per sample and neighbour offset);
+#: bigger windows evaluate the weights in the gather itself ((2b+1) times as many evaluations,
+#: the same values).
+FILM_TABLE_BYTES = 1 << 28
+
 
 def sample_window(rfilter, window, film_size):
     """The pixels whose samples a window needs: ``window`` plus ``rfilter.border`` on each
@@ -158,19 +163,39 @@ def define_film(mi, dr, mix32):
             x, y = I32(lx + op_u(x0)), I32(ly + op_u(y0))
             Wi, Hi = op_i(W), op_i(H)
 
+            ns = sw * swin[3] * spp
+            tables = ns * nb * 16 <= FILM_TABLE_BYTES
+            if tables:
+                # the 1-D weights of every sample towards its nb neighbour columns / rows, once
+                # per sample (the loop below would evaluate each (2b+1) times): the same values
+                t = dr.arange(U32, ns * nb)
+                sl = t // nb
+                d = I32(t - sl * nb) - rfilter.border
+                pl = sl // n_s
+                i = sl - pl * n_s
+                py = pl // op_u(sw)
+                ox, oy = offsets((py + op_u(sy0)) * op_u(W) + pl - py * op_u(sw) + op_u(sx0), i, n_s, k, sd)
+                wx_t = filter_eval(rfilter, (0.5 - F64(d)) - ox)
+                wy_t = filter_eval(rfilter, (0.5 - F64(d)) - oy)
+                dr.eval(wx_t, wy_t)
+
             def body(j, r, g, b, den):
                 i = j // nb2
                 rest = j - i * nb2
                 dyi = rest // nb
+                dxi = rest - dyi * nb
                 dy = I32(dyi) - rfilter.border
-                dx = I32(rest - dyi * nb) - rfilter.border
+                dx = I32(dxi) - rfilter.border
                 xx, yy = x + dx, y + dy
                 on = (xx >= 0) & (xx < Wi) & (yy >= 0) & (yy < Hi)
                 xu, yu = U32(dr.select(on, xx, 0)), U32(dr.select(on, yy, 0))
-                lane = op_u(start) + ((yu - op_u(sy0)) * op_u(sw) + xu - op_u(sx0)) * n_s + i
-                v = dr.gather(type(total), total, lane, on)
-                ox, oy = offsets(yu * op_u(W) + xu, i, n_s, k, sd)
-                wgt = filter_eval(rfilter, (0.5 - F64(dy)) - oy) * filter_eval(rfilter, (0.5 - F64(dx)) - ox)
+                local = ((yu - op_u(sy0)) * op_u(sw) + xu - op_u(sx0)) * n_s + i
+                v = dr.gather(type(total), total, op_u(start) + local, on)
+                if tables:
+                    wgt = dr.gather(F64, wy_t, local * nb + dyi, on) * dr.gather(F64, wx_t, local * nb + dxi, on)
+                else:
+                    ox, oy = offsets(yu * op_u(W) + xu, i, n_s, k, sd)
+                    wgt = filter_eval(rfilter, (0.5 - F64(dy)) - oy) * filter_eval(rfilter, (0.5 - F64(dx)) - ox)
                 r = dr.select(on, r + wgt * F64(v[0]), r)
                 g = dr.select(on, g + wgt * F64(v[1]), g)
                 b = dr.select(on, b + wgt * F64(v[2]), b)

@@ -121,10 +121,11 @@ def test_windows_and_batches_equal_full_frame_on_device(variant, tmp_path, rfilt
         assert b.dtype == np.float64 and np.array_equal(b, full[y0:y0 + h, x0:x0 + w])
 
 
-def test_split_launches_and_device_counters(llvm, tmp_path, monkeypatch):
-    """Launches split at LAUNCH_LANES give the same bits as one launch, and the ray counters
-    summed on the device (launches over LAZY_COUNT_LANES) equal those summed on the host."""
-    from links1_mitsuba import launch
+def test_split_launches_weight_tables_and_device_counters(llvm, tmp_path, monkeypatch):
+    """Launches split at LAUNCH_LANES give the same bits as one launch, weights evaluated in the
+    gather (windows over FILM_TABLE_BYTES) the same as from per-sample tables, and the ray
+    counters summed on the device (launches over LAZY_COUNT_LANES) equal those summed on the host."""
+    from links1_mitsuba import film, launch
     scene = load(tmp_path, "gaussian")
     integ = scene.integrator()
     one = integ.render_window(scene, None, spp=4, seed=1, aovs=AOVS)
@@ -132,6 +133,7 @@ def test_split_launches_and_device_counters(llvm, tmp_path, monkeypatch):
     assert host_stats["reflect"] > 0 and host_stats["shadow"] > 0
     monkeypatch.setattr(launch, "LAUNCH_LANES", 1000)
     monkeypatch.setattr(launch, "LAZY_COUNT_LANES", 0)
+    monkeypatch.setattr(film, "FILM_TABLE_BYTES", 0)
     assert np.array_equal(integ.render_window(scene, None, spp=4, seed=1, aovs=AOVS), one)
     assert integ.stats == host_stats
 
