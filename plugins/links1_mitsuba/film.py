@@ -50,7 +50,7 @@ def sample_window(rfilter, window, film_size):
 
 def define_film(mi, dr, mix32):
     """The device film for the variant in use (``mix32``: the sample pattern's hash)."""
-    F64, F32, U32, I32 = mi.Float64, mi.Float, mi.UInt32, mi.Int32
+    F64, U32, I32 = mi.Float64, mi.UInt32, mi.Int32
 
     def op_u(v):
         return dr.opaque(U32, int(v) & 0xFFFFFFFF)

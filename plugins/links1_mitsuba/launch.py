@@ -1,5 +1,7 @@
 """The launch machinery of ``links1_whitted`` (its one home): camera rays of any pixel set,
-the :func:`drjit.freeze` launch replayed for any window, batch size or spp, read-back.
+the :func:`drjit.freeze` launch replayed for any window, batch size or spp, and the frame made
+on the device from its samples (:mod:`.film`); numpy only where a caller asks for it
+(:meth:`render_windows`' float64 arrays, :meth:`trace_points` of adaptive anti-aliasing).
 
 :func:`define_launches` returns a class whose methods ``Links1Whitted`` takes (defined in a
 function, as the integrator, because the Mitsuba variant must be set first).
@@ -484,8 +486,8 @@ def define_launches(mi, dr, mix32, u24):
                 counts = [counts]
             else:
                 dr.eval(sid)
-                chunks = [self._launch(P, scene, dr.gather(mi.UInt32, sid, dr.arange(mi.UInt32, min(LAUNCH_LANES, n - a))
-                                                           + dr.opaque(mi.UInt32, a)), spp_, seeds, want)
+                lanes = lambda a: dr.arange(mi.UInt32, min(LAUNCH_LANES, n - a)) + dr.opaque(mi.UInt32, a)  # noqa: E731
+                chunks = [self._launch(P, scene, dr.gather(mi.UInt32, sid, lanes(a)), spp_, seeds, want)
                           for a in range(0, n, LAUNCH_LANES)]
                 counts = [c for _, c in chunks]
                 parts = {}
