@@ -206,11 +206,12 @@ def define_integrator():
                 spp = sensor.sampler().sample_count()
             s = int(seed) if not hasattr(seed, "__len__") else int(np.array(seed).ravel()[0])
             win = (int(off[0]), int(off[1]), int(size[0]), int(size[1]))
-            if self.adaptive is not None:
+            if self.adaptive is not None:   # refined on the host (links1.adaptive)
                 img = self.render_adaptive(scene, win, seed=self.seed + s, sensor=sensor)
-            else:
-                img = self.render_window(scene, win, spp=int(spp), seed=self.seed + s, sensor=sensor)
-            return mi.TensorXf(img.astype(np.float32))
+                return mi.TensorXf(img.astype(np.float32))
+            # the frame made on the device and returned as it is (links1_mitsuba.film)
+            return self.render_windows_device(scene, [win], spp=int(spp), seed=self.seed + s, sensor=sensor,
+                                              dtype=mi.Float)[0]
 
         def sample(self, scene, sampler, ray, medium=None, active=True):
             raise RuntimeError("links1_whitted renders whole ray trees in its own kernels; use mi.render() "

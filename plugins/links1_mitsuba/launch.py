@@ -1,5 +1,7 @@
 """The launch machinery of ``links1_whitted`` (its one home): camera rays of any pixel set,
-the :func:`drjit.freeze` launch replayed for any window, batch size or spp, read-back.
+the :func:`drjit.freeze` launch replayed for any window, batch size or spp, and the frame made
+on the device from its samples (:mod:`.film`); numpy only where a caller asks for it
+(:meth:`render_windows`' float64 arrays, :meth:`trace_points` of adaptive anti-aliasing).
 
 :func:`define_launches` returns a class whose methods ``Links1Whitted`` takes (defined in a
 function, as the integrator, because the Mitsuba variant must be set first).
@@ -11,16 +13,16 @@ import math
 
 import numpy as np
 
-from links1.filters import FilterGather, filter_samples
 from links1.sampling import strata
 
-from .util import aligned, aligned_empty, is_aligned
+from .film import define_film, sample_window
+from .util import aligned
 
 #: Most samples (lanes) per launch of the window function; more are split into launches.
 LAUNCH_LANES = 1 << 22
 
 #: Launches of at most this many lanes keep their ray counters until ``stats`` is read
-#: (``Launches._launch_counts``); bigger ones sum them at once (memory).
+#: (``Launches._launch_counts``); bigger ones sum them at once on the device (memory).
 LAZY_COUNT_LANES = 1 << 16
 
 #: The integrator whose frozen window function runs and its scene (read inside it, not
@@ -138,6 +140,8 @@ def _frozen_scene():
 def define_launches(mi, dr, mix32, u24):
     """The ``Launches`` mixin for the variant in use (``mix32``/``u24``: the integrator's hashes)."""
     from .integrator import parse_aovs
+    film = define_film(mi, dr, mix32)
+    concat, widen = film["concat"], film["widen"]
 
     class Launches:
         """Ray generation and launches; the ray tree (``_trace_tree``) and tables (``prepare``)
@@ -204,11 +208,21 @@ def define_launches(mi, dr, mix32, u24):
                     "secondary_lanes": int(np.count_nonzero(_lanes(cr, n) | _lanes(ct, n))) if cr is not None else 0}
 
         def _launch_counts(self, n, counters):
-            """A launch's ray counters for :meth:`_set_stats`: summed now when the launch is big,
-            kept as the launch's arrays when it is small (up to ``LAZY_COUNT_LANES`` lanes) and
-            summed only when ``stats`` is read: six read-backs and sums, ~0.05 ms, are a tenth
-            of a small window's launch, and nothing in a render reads them."""
-            return (n, counters) if n <= LAZY_COUNT_LANES else self._counts(n, **counters)
+            """A launch's ray counters for :meth:`_set_stats`: kept as the launch's arrays when it
+            is small (up to ``LAZY_COUNT_LANES`` lanes) and summed only when ``stats`` is read (six
+            read-backs and sums, ~0.05 ms, are a tenth of a small window's launch, and nothing in
+            a render reads them); a big launch's are summed at once on the device (``dr.sum``, no
+            read-back: ``stats`` reads the sums)."""
+            if n <= LAZY_COUNT_LANES:
+                return (n, counters)
+
+            def tot(a):
+                return 0 if a is None else dr.sum(mi.UInt64(dr.select(a, 1, 0)) if dr.is_mask_v(a) else mi.UInt64(a))
+            c = {k: counters.get(k) for k in ("nsh1", "cr", "ct", "nr", "nt", "nsh2")}
+            sec = 0 if c["cr"] is None else tot(widen(c["cr"], n) | widen(c["ct"], n))
+            return ("device", {"camera": int(n), "shadow": tot(c["nsh1"]) + tot(c["nsh2"]),
+                               "reflect": tot(c["cr"]) + tot(c["nr"]), "refract": tot(c["ct"]) + tot(c["nt"]),
+                               "secondary_lanes": sec})
 
         def _set_stats(self, counts):
             """``self.stats`` (read through :meth:`_read_stats`): the counters of the last
@@ -221,7 +235,9 @@ def define_launches(mi, dr, mix32, u24):
         def _read_stats(self):
             pending = getattr(self._hidden, "stats_pending", None)
             if pending:
-                counts = [self._counts(c[0], **c[1]) if isinstance(c, tuple) else c for c in pending]
+                counts = [c if not isinstance(c, tuple) else
+                          {k: int(v if isinstance(v, int) else v[0]) for k, v in c[1].items()} if c[0] == "device"
+                          else self._counts(c[0], **c[1]) for c in pending]
                 c = {k: sum(x[k] for x in counts) for k in counts[0]}
                 c["per_camera_ray"] = {k: c[k] / max(c["camera"], 1) for k in ("shadow", "reflect", "refract")}
                 self._hidden.stats = c
@@ -346,10 +362,11 @@ def define_launches(mi, dr, mix32, u24):
                 self._set_stats(counts)
             return np.concatenate(L), np.concatenate(cost)
 
-        def _launch(self, P, scene, sid_np, spp_, seeds, want):
-            """One launch over the sample ids ``sid_np`` -> (numpy outputs, its ray counters)."""
-            n = sid_np.size
-            sid = mi.UInt32(sid_np if is_aligned(sid_np) else aligned(sid_np, np.uint32))   # see util.aligned
+        def _launch(self, P, scene, sid, spp_, seeds, want):
+            """One launch over the sample ids ``sid`` (a ``UInt32`` array) -> (its device outputs
+            ``total``, ``cost`` and with ``want`` ``t0``, ``s0``, ``n0``, each with one lane per
+            sample; its ray counters)."""
+            n = dr.width(sid)
             if self.use_freeze:
                 cfg = (id(P), id(scene), want, int(self.max_depth), float(self.min_weight))
                 out = self._call_frozen(self._frozen_fn(), P, scene, sid, dr.opaque(mi.UInt32, n), spp_, seeds,
@@ -359,9 +376,9 @@ def define_launches(mi, dr, mix32, u24):
             else:
                 o, d, tmin, tmax, key, _ = self._camera_rays(P, sid, spp_, seeds)
                 total, cost, t0, s0, n0, counters = self._trace_tree(P, scene, o, d, tmin, tmax, key, want)
-            part = {"total": _columns(total, n), "cost": _lanes(cost, n)}
+            part = {"total": widen(total, n), "cost": widen(cost, n)}
             if want:
-                part.update(t0=_lanes(t0, n), s0=_lanes(s0, n), n0=_columns(n0, n))
+                part.update(t0=widen(t0, n), s0=widen(s0, n), n0=widen(n0, n))
             return part, self._launch_counts(n, counters)
 
         def render_adaptive(self, scene, window=None, seed=None, aovs=None, threshold=None, depth=None,
@@ -397,13 +414,47 @@ def define_launches(mi, dr, mix32, u24):
             """
             return self.render_windows(scene, [window], spp=spp, seed=seed, aovs=aovs, sensor=sensor)[0]
 
-        def render_windows(self, scene, windows, spp=1, seed=None, aovs=None, sensor=None):
-            """Render several windows of the film in one launch -> one array per window, each
-            exactly what :meth:`render_window` returns for it (pixels are independent lanes).
+        def window_samples(self, scene, window=None, spp=1, seed=None, aovs=None, sensor=None):
+            """The samples a window's pixels are made of, as numpy (for checks and debugging):
+            ``(sample_window, {"total": (sh, sw, spp, 3), "cost": (sh, sw, spp)`` and with AOVs
+            ``"t0", "s0", "n0"``: the launch's per-sample outputs, float32 / int32``})``."""
+            P = self.prepare(scene, sensor)
+            W, H = P.film_size
+            win = (0, 0, W, H) if window is None else tuple(int(v) for v in window)
+            swin = win if P.rfilter.border == 0 else sample_window(P.rfilter, win, (W, H))
+            seed = self.seed if seed is None else int(seed)
+            want = bool(self.aovs if aovs is None else parse_aovs(aovs))
+            sid = film["sample_ids"](W, int(spp), [swin])
+            part, _ = self._launch(P, scene, sid, (dr.opaque(mi.UInt32, spp), dr.opaque(mi.UInt32, strata(spp))),
+                                   (dr.opaque(mi.UInt32, seed & 0xFFFFFFFF),
+                                    dr.opaque(mi.UInt32, (seed * 0x27D4EB2F + 0x165667B1) & 0xFFFFFFFF)), want)
+            shape = (swin[3], swin[2], int(spp))
+            out = {k: (np.stack([np.asarray(v[c]) for c in range(3)], axis=-1) if dr.size_v(v) == 3
+                       else np.asarray(v)).reshape(shape + ((3,) if dr.size_v(v) == 3 else ()))
+                   for k, v in part.items()}
+            return swin, out
 
-            The pixel set reaches the kernels as a ``UInt32`` array of sample ids, so no window
-            offset, window size, batch size or sample count enters the recorded kernels: one
-            recording per configuration, then replays (:meth:`_frozen_fn`).
+        def render_windows(self, scene, windows, spp=1, seed=None, aovs=None, sensor=None):
+            """Render several windows of the film in one launch -> one float64 ndarray ``(h, w,
+            3 + aov channels)`` per window, each exactly what :meth:`render_window` returns for it
+            (pixels are independent lanes). The frame is made on the device
+            (:meth:`render_windows_device`) and copied to numpy once per window at the end."""
+            outs = self.render_windows_device(scene, windows, spp=spp, seed=seed, aovs=aovs, sensor=sensor,
+                                              dtype=mi.Float64)
+            dr.eval(*(o.array for o in outs))
+            return [o.numpy() for o in outs]
+
+        def render_windows_device(self, scene, windows, spp=1, seed=None, aovs=None, sensor=None,
+                                  dtype=None):
+            """:meth:`render_windows` on the device: one tensor ``(h, w, C)`` per window, of
+            ``dtype`` (``mi.Float``: ``mi.TensorXf``; ``mi.Float64``: ``mi.TensorXf64``), never
+            visiting numpy (:mod:`links1_mitsuba.film`: sample ids, the reconstruction filter, spp
+            and AOVs in Dr.Jit).
+
+            The pixel set reaches the kernels as a ``UInt32`` array of sample ids made on the
+            device from opaque window values, so no window offset, window size, batch size or
+            sample count enters the recorded kernels: one recording per configuration, then
+            replays (:meth:`_frozen_fn`); the film's kernels are cached likewise.
             """
             P = self.prepare(scene, sensor)
             W, H = P.film_size
@@ -419,68 +470,41 @@ def define_launches(mi, dr, mix32, u24):
             seed = self.seed if seed is None else int(seed)
             aovs = self.aovs if aovs is None else parse_aovs(aovs)
             want = bool(aovs)
+            dtype = mi.Float if dtype is None else dtype
             # each window traces the samples of its filter border too (clipped to the film)
             box = P.rfilter.border == 0
-            gathers = [None if box else FilterGather(P.rfilter, win, (W, H)) for win in wins]
-            sample_windows = wins if box else [g.sample_window for g in gathers]
-            # sample ids pixel * spp + i, written in place into one aligned buffer (see util.aligned)
-            n = sum(w * h for _, _, w, h in sample_windows) * spp
-            sid_np = aligned_empty(n, np.uint32)
-            at = 0
-            for x0, y0, w, h in sample_windows:
-                pix = (np.arange(y0, y0 + h, dtype=np.uint32) * np.uint32(W))[:, None, None] \
-                    + np.arange(x0, x0 + w, dtype=np.uint32)[None, :, None]
-                np.add(pix * np.uint32(spp), np.arange(spp, dtype=np.uint32)[None, None, :],
-                       out=sid_np[at:at + w * h * spp].reshape(h, w, spp))
-                at += w * h * spp
+            swins = wins if box else [sample_window(P.rfilter, win, (W, H)) for win in wins]
+            n = sum(w * h for _, _, w, h in swins) * spp
+            sid = film["sample_ids"](W, spp, swins)
             spp_ = (dr.opaque(mi.UInt32, spp), dr.opaque(mi.UInt32, strata(spp)))
             seeds = (dr.opaque(mi.UInt32, seed & 0xFFFFFFFF),
                      dr.opaque(mi.UInt32, (seed * 0x27D4EB2F + 0x165667B1) & 0xFFFFFFFF))
             # launches of at most LAUNCH_LANES samples (lanes are independent: the same bits as
             # one launch); one launch of W*H*spp lanes needs ~90 bytes each (512², 1024 spp: 24 GB)
-            parts, counts = zip(*(self._launch(P, scene, sid_np[a:a + LAUNCH_LANES], spp_, seeds, want)
-                                  for a in range(0, n, LAUNCH_LANES)))
-            self._set_stats(list(counts))
-            total = np.concatenate([q["total"] for q in parts])
-            cost = np.concatenate([q["cost"] for q in parts])
-            if want:
-                t0, s0, n0 = (np.concatenate([q[k] for q in parts]) for k in ("t0", "s0", "n0"))
-            npix = n // spp
-            samples = total.astype(np.float64)
-            if box:
-                rgb = samples.reshape(npix, spp, 3).mean(axis=1) if spp > 1 else samples.reshape(npix, 3)
+            if n <= LAUNCH_LANES:
+                parts, counts = self._launch(P, scene, sid, spp_, seeds, want)
+                counts = [counts]
             else:
-                samples = samples.reshape(npix, spp, 3)
-                rgb = np.zeros((npix, 0))
-            chans = [rgb]
-            if aovs:
-                first = slice(0, None, spp)
-                t0 = t0.astype(np.float64)[first]
-                s0 = s0.astype(np.int64)[first]
-                n0 = n0.astype(np.float64)[first]
-                hit0 = s0 >= 0
-                for a in aovs:
-                    if a == "depth":
-                        chans.append(np.where(hit0, t0, 0.0)[:, None])
-                    elif a == "normal":
-                        chans.append(np.where(hit0[:, None], n0, 0.0))
-                    elif a == "id":
-                        chans.append(s0.astype(np.float64)[:, None])
-                    elif a == "cost":
-                        chans.append(cost.astype(np.float64).reshape(npix, spp).sum(axis=1)[:, None])
-                    elif a == "samples":
-                        chans.append(np.full((npix, 1), float(spp)))
-            flat = np.concatenate(chans, axis=1) if len(chans) > 1 else rgb
-            out, at = [], 0
-            for g, (sx0, sy0, sw, sh) in zip(gathers, sample_windows):
-                img = flat[at:at + sw * sh].reshape(sh, sw, -1)
-                if not box:
-                    img = g.inner(img)
-                    block = samples[at:at + sw * sh].reshape(sh, sw, spp, 3)
-                    rgb = filter_samples(P.rfilter, g.window, (W, H), block, (sx0, sy0), spp, seed)
-                    img = np.concatenate([rgb, img], axis=2)
-                out.append(img)
-                at += sw * sh
+                dr.eval(sid)
+                lanes = lambda a: dr.arange(mi.UInt32, min(LAUNCH_LANES, n - a)) + dr.opaque(mi.UInt32, a)  # noqa: E731
+                chunks = [self._launch(P, scene, dr.gather(mi.UInt32, sid, lanes(a)), spp_, seeds, want)
+                          for a in range(0, n, LAUNCH_LANES)]
+                counts = [c for _, c in chunks]
+                parts = {}
+                for key in chunks[0][0]:
+                    vals = [q[key] for q, _ in chunks]
+                    if dr.size_v(vals[0]) == 3:
+                        parts[key] = type(vals[0])(*(concat([v[k] for v in vals], n, type(vals[0][k]))
+                                                     for k in range(3)))
+                    else:
+                        parts[key] = concat(vals, n, type(vals[0]))
+            self._set_stats(counts)
+            out, start = [], 0
+            Tensor = mi.TensorXf64 if dtype is mi.Float64 else mi.TensorXf
+            for win, swin in zip(wins, swins):
+                flat, C = film["reconstruct"](P.rfilter, (W, H), spp, seed, win, swin, start, parts, aovs, dtype)
+                out.append(Tensor(flat, shape=(win[3], win[2], C)))
+                start += swin[2] * swin[3] * spp
             return out
 
     return Launches

@@ -1,0 +1,176 @@
+"""The device film of ``links1_whitted`` (issue 22, item 1; plugins/links1_mitsuba/film.py)
+against the numpy film it replaced: the same samples (``window_samples``) assembled by the old
+numpy code (kept below as the reference: the box mean, the AOVs, and
+:func:`links1.filters.filter_samples` for the other filters) give the same pixels.
+
+Tolerance: box, tent, mitchell and catmullrom are bit-identical (the same float64 operations in
+the same order). Gaussian and lanczos evaluate ``exp`` / ``sin``, where Dr.Jit's float64
+functions differ from libm's by an ulp in about one call in six: the weights then differ by
+~1e-16 relative, the pixels (sums of ~25·spp weighted samples, divided by the weight sum) by a
+few 1e-14 at most (measured ≤ 4e-14; near-zero lanczos pixels ~1e-32 absolute), so the check
+is ``|device − numpy| ≤ 1e-12 · max(1, |numpy|)``, far below float32 rounding (6e-8).
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from links1.filters import filter_samples
+
+from .test_vs_mitsuba_integrators import DIFFUSE
+
+pytestmark = pytest.mark.mitsuba
+
+W, H = 24, 18
+EXACT = ("box", "tent", "mitchell", "catmullrom")
+RFILTERS = {"box": '<rfilter type="box"/>', "tent": '<rfilter type="tent"/>', "gaussian": "",
+            "mitchell": '<rfilter type="mitchell"/>', "catmullrom": '<rfilter type="catmullrom"/>',
+            "lanczos": '<rfilter type="lanczos"/>'}
+AOVS = "depth,normal,id,cost,samples"
+MIRROR = """<shape type="sphere"><point name="center" x="0.9" y="0.5" z="-0.8"/><float name="radius" value="0.5"/>
+    <bsdf type="conductor"/></shape>"""
+
+
+def load(tmp_path, rfilter):
+    import links1_mitsuba as lm
+    import mitsuba as mi
+    path = tmp_path / "film.xml"
+    path.write_text(f"""<scene version="3.0.0">
+  <integrator type="links1_whitted"><integer name="max_depth" value="3"/></integrator>
+  <sensor type="perspective"><float name="fov" value="40"/>
+    <transform name="to_world"><lookat origin="0, 2.5, 6" target="0, 0.7, 0" up="0, 1, 0"/></transform>
+    <film type="hdrfilm"><integer name="width" value="{W}"/><integer name="height" value="{H}"/>
+      {RFILTERS[rfilter]}</film></sensor>
+  {DIFFUSE}{MIRROR}</scene>""")
+    return lm.load_file(str(path), variant=mi.variant())
+
+
+def numpy_film(integ, scene, window, spp, seed, aovs):
+    """The numpy film that ``render_windows`` used before issue 22 (the reference)."""
+    P = integ.prepare(scene)
+    (sx0, sy0, sw, sh), s = integ.window_samples(scene, window, spp=spp, seed=seed, aovs=aovs)
+    samples = s["total"].astype(np.float64)
+    npix = sw * sh
+    if P.rfilter.border == 0:
+        rgb = samples.reshape(npix, spp, 3).mean(axis=1) if spp > 1 else samples.reshape(npix, 3)
+    else:
+        rgb = filter_samples(P.rfilter, window, P.film_size, samples, (sx0, sy0), spp, seed).reshape(-1, 3)
+    chans = []
+    if aovs:
+        t0 = s["t0"].reshape(npix, spp)[:, 0].astype(np.float64)
+        s0 = s["s0"].reshape(npix, spp)[:, 0].astype(np.int64)
+        n0 = s["n0"].reshape(npix, spp, 3)[:, 0].astype(np.float64)
+        hit0 = s0 >= 0
+        for a in aovs.split(","):
+            chans.append({"depth": lambda: np.where(hit0, t0, 0.0)[:, None],
+                          "normal": lambda: np.where(hit0[:, None], n0, 0.0),
+                          "id": lambda: s0.astype(np.float64)[:, None],
+                          "cost": lambda: s["cost"].astype(np.float64).reshape(npix, spp).sum(axis=1)[:, None],
+                          "samples": lambda: np.full((npix, 1), float(spp))}[a]())
+    x0, y0, w, h = window
+    aov = np.concatenate(chans, axis=1).reshape(sh, sw, -1)[y0 - sy0:y0 - sy0 + h, x0 - sx0:x0 - sx0 + w] \
+        if chans else np.zeros((h, w, 0))
+    return np.concatenate([rgb.reshape(h, w, 3), aov], axis=2)
+
+
+@pytest.mark.parametrize("aovs", ["", AOVS])
+@pytest.mark.parametrize("spp", [1, 4])
+@pytest.mark.parametrize("rfilter", list(RFILTERS))
+def test_device_film_equals_numpy_film(variant, tmp_path, rfilter, spp, aovs):
+    import drjit as dr
+    import mitsuba as mi
+    scene = load(tmp_path, rfilter)
+    integ = scene.integrator()
+    for window in [(0, 0, W, H), (3, 2, 11, 7)]:
+        ref = numpy_film(integ, scene, window, spp, 7, aovs)
+        dev = integ.render_windows_device(scene, [window], spp=spp, seed=7, aovs=aovs, dtype=mi.Float64)[0]
+        assert type(dev) is mi.TensorXf64
+        got = np.asarray(dev)
+        assert got.shape == ref.shape == (window[3], window[2], 3 + {"": 0, AOVS: 7}[aovs])
+        assert ref[..., :3].max() > 0.05          # not a black frame
+        if rfilter in EXACT:
+            assert np.array_equal(got, ref)
+        else:
+            np.testing.assert_array_less(np.abs(got - ref), 1e-12 * np.maximum(1.0, np.abs(ref)))
+            assert np.array_equal(got[..., 3:], ref[..., 3:])   # the AOVs have no filter
+        # render_window (float64 numpy) and mi.render's float32 tensor are the same pixels
+        assert np.array_equal(integ.render_window(scene, window, spp=spp, seed=7, aovs=aovs), got)
+    integ.aovs = aovs.split(",") if aovs else []
+    t = mi.render(scene, spp=spp, seed=0)
+    assert type(t) is mi.TensorXf and t.shape == (H, W, len(integ.channels()))
+    assert np.array_equal(np.asarray(t), integ.render_window(scene, None, spp=spp, seed=integ.seed,
+                                                             aovs=aovs).astype(np.float32))
+
+
+@pytest.mark.parametrize("rfilter", ["box", "gaussian", "lanczos"])
+def test_windows_and_batches_equal_full_frame_on_device(variant, tmp_path, rfilter):
+    """A window, or a batch of windows (one launch), equals the same pixels of the full frame
+    bit for bit, as device tensors (float32 and float64) and through render_windows."""
+    import mitsuba as mi
+    scene = load(tmp_path, rfilter)
+    integ = scene.integrator()
+    wins = [(0, 0, 8, 8), (8, 0, 8, 8), (12, 9, 12, 9), (1, 3, 22, 5), (23, 17, 1, 1)]
+    for dtype in (mi.Float, mi.Float64):
+        full = np.asarray(integ.render_windows_device(scene, [None], spp=4, seed=3, aovs=AOVS, dtype=dtype)[0])
+        batch = integ.render_windows_device(scene, wins, spp=4, seed=3, aovs=AOVS, dtype=dtype)
+        for (x0, y0, w, h), b in zip(wins, batch):
+            one = integ.render_windows_device(scene, [(x0, y0, w, h)], spp=4, seed=3, aovs=AOVS, dtype=dtype)[0]
+            assert np.array_equal(np.asarray(one), full[y0:y0 + h, x0:x0 + w])
+            assert np.array_equal(np.asarray(b), full[y0:y0 + h, x0:x0 + w])
+    for (x0, y0, w, h), b in zip(wins, integ.render_windows(scene, wins, spp=4, seed=3, aovs=AOVS)):
+        assert b.dtype == np.float64 and np.array_equal(b, full[y0:y0 + h, x0:x0 + w])
+
+
+def test_split_launches_weight_tables_and_device_counters(llvm, tmp_path, monkeypatch):
+    """Launches split at LAUNCH_LANES give the same bits as one launch, weights evaluated in the
+    gather (windows over FILM_TABLE_BYTES) the same as from per-sample tables, and the ray
+    counters summed on the device (launches over LAZY_COUNT_LANES) equal those summed on the host."""
+    from links1_mitsuba import film, launch
+    scene = load(tmp_path, "gaussian")
+    integ = scene.integrator()
+    one = integ.render_window(scene, None, spp=4, seed=1, aovs=AOVS)
+    host_stats = dict(integ.stats)
+    assert host_stats["reflect"] > 0 and host_stats["shadow"] > 0
+    monkeypatch.setattr(launch, "LAUNCH_LANES", 1000)
+    monkeypatch.setattr(launch, "LAZY_COUNT_LANES", 0)
+    monkeypatch.setattr(film, "FILM_TABLE_BYTES", 0)
+    assert np.array_equal(integ.render_window(scene, None, spp=4, seed=1, aovs=AOVS), one)
+    assert integ.stats == host_stats
+
+
+@pytest.mark.parametrize("rfilter", ["box", "gaussian"])
+def test_new_window_and_batch_sizes_compile_nothing(llvm, tmp_path, rfilter):
+    """Every kernel of a frame with new window sizes, origins, batch sizes and spp is one that
+    earlier frames ran (the same hash): window and batch sizes are run-time values."""
+    import drjit as dr
+    scene = load(tmp_path, rfilter)
+    integ = scene.integrator()
+
+    def kernels(wins, spp):
+        dr.set_flag(dr.JitFlag.KernelHistory, True)
+        dr.kernel_history()
+        integ.render_windows(scene, wins, spp=spp, seed=2, aovs="depth,cost")
+        hist = dr.kernel_history()
+        dr.set_flag(dr.JitFlag.KernelHistory, False)
+        return {k["hash"] for k in hist if k.get("hash")}
+
+    seen = kernels([(0, 0, 8, 8)], 4) | kernels([(0, 0, 8, 8), (8, 8, 4, 4)], 4)
+    new = kernels([(3, 5, 13, 7)], 9) | kernels([(1, 1, 5, 6), (7, 2, 9, 9), (20, 0, 4, 18)], 2)
+    assert new and new <= seen, new - seen
+
+
+def test_mi_render_never_visits_numpy(llvm, tmp_path, monkeypatch):
+    """``mi.render`` assembles the frame without numpy in the launch, film and integrator code."""
+    import mitsuba as mi
+    from links1_mitsuba import integrator, launch
+    scene = load(tmp_path, "gaussian")
+    ref = np.asarray(mi.render(scene, spp=4))
+
+    class NoNumpy:
+        def __getattr__(self, name):
+            raise AssertionError(f"numpy.{name} used while rendering")
+    for mod in (launch, integrator):
+        monkeypatch.setattr(mod, "np", NoNumpy())
+    t = mi.render(scene, spp=4)
+    monkeypatch.undo()
+    assert type(t) is mi.TensorXf and np.array_equal(np.asarray(t), ref)
