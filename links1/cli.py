@@ -242,6 +242,7 @@ def cmd_render(args) -> int:
             times.append(time.perf_counter() - t)
         print(f"timing: first={first * 1e3:.1f} median={statistics.median(times) * 1e3:.1f} "
               f"min={min(times) * 1e3:.1f} max={max(times) * 1e3:.1f}", file=sys.stderr)
+    _check_finite_image(image, args.renderer)
     from .image import write_image
     if kind == "png":
         write_image(args.output, image[..., :3])
@@ -249,6 +250,17 @@ def cmd_render(args) -> int:
         write_image(args.output, image, channels)
     print(f"links1: wrote {args.output} ({image.shape[1]}x{image.shape[0]}, {args.renderer})", file=sys.stderr)
     return 0
+
+
+def _check_finite_image(image, renderer) -> None:
+    """Never a silent NaN (issue 25): scene values are checked where they enter
+    (links1.params), so a non-finite pixel is a bug; stop with one line and write nothing."""
+    import numpy as np
+    bad = ~np.isfinite(image)
+    if bad.any():
+        y, x = (int(v[0]) for v in np.nonzero(bad.any(axis=-1)))
+        raise RenderAborted(f"the {renderer} renderer produced {int(bad.sum())} non-finite values "
+                            f"(first at pixel {x},{y}); nothing written (a bug in links1: please report the scene)")
 
 
 def _takes_progress(renderer) -> bool:

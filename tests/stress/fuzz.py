@@ -32,7 +32,9 @@ CASE_TIMEOUT = 180.0   # seconds: a case that takes longer is a hang (a 24x24 fr
 
 NUMBERS = ["nan", "NaN", "inf", "-inf", "+inf", "1e300", "-1e300", "1e39", "3.5e38", "1e20",
            "-1", "-0", "0", "1e-300", "1e-45", "2147483648", "4294967296", "99999999999999999999",
-           "0.5", "-7.25", "1e", "abc", "", "1,2", "0x10", "1 2 3 4"]
+           "0.5", "-7.25", "1e", "abc", "", "1,2", "0x10", "1 2 3 4",
+           # plausible but extreme: inside every limit, they test the arithmetic, not the checks
+           "1e14", "-1e14", "1e-14", "-1e-14", "1e29", "-1e29", "1e-30", "1e-7", "65536", "3", "1e15", "1e-15"]
 TYPES = {
     "shape": ["sphere", "cylinder", "disk", "rectangle", "cube", "obj", "ply", "links1_quadric",
               "links1_blob", "links1_bicubic", "instance", "shapegroup", "serialized", "nosuch"],
@@ -50,6 +52,20 @@ TYPES = {
 }
 PROP_TAGS = ["float", "integer", "boolean", "string", "rgb", "spectrum", "point", "vector",
              "transform", "ref", "nosuch"]
+PARAM_NAMES = ["radius", "center", "p0", "p1", "to_world", "filename", "max_depth", "light_samples",
+               "min_weight", "sample_count", "width", "height", "fov", "near_clip", "far_clip", "intensity",
+               "irradiance", "radiance", "reflectance", "diffuse", "specular", "ambient", "exponent",
+               "transmittance", "ior", "int_ior", "ext_ior", "eta", "k", "threshold", "samples", "centers",
+               "kind", "clip_0", "clip_0_offset", "clip_1", "capped", "subdivisions", "control_points",
+               "falloff", "L1", "L2", "direction", "position", "origin", "cutoff_angle", "beam_width",
+               "crop_offset_x", "crop_offset_y", "crop_width", "crop_height", "stddev", "lobes", "B", "C",
+               "flip_normals", "face_normals", "seed", "adaptive", "adaptive_depth", "aovs", "scale",
+               "fov_axis", "focal_length", "solver", "diffuse_reflectance", "specular_reflectance",
+               "specular_transmittance", "nonlinear", "material", "to_uv", "mesh_attributes",
+               "principal_point_offset_x", "rfilter", "id", "nosuch"]
+STRINGS = ["sphere", "cylinder", "exact", "paper", "none", "inverse_square", "meshes/vase.patch",
+           "nosuch.obj", "", "depth,normal", "x", "diagonal", "50mm", "-5mm", "bk7", "air", "nan",
+           "0 0 0 1 1", "1 2 3", "0 0 0 1 1e300", "Au", "nosuch"]
 _NUM = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
 
 
@@ -111,13 +127,37 @@ def apply_edit(text: str, edit: tuple) -> str:
         if e.attrib:
             a = sorted(e.attrib)[j % len(e.attrib)]
             e.set(a, NUMBERS[k % len(NUMBERS)] if k % 3 else ["m1", "nosuch", "$res", "", "a b"][k % 5])
+    elif kind == "insert":   # a parameter (any known name, any tag, any value) added to an object
+        cands = [root] + [e for e in els if e.tag in TYPES or e.tag == "scene"]
+        e = cands[i % len(cands)]
+        tag = PROP_TAGS[j % (len(PROP_TAGS) - 2)]
+        name = PARAM_NAMES[k % len(PARAM_NAMES)]
+        value = NUMBERS[(i + j + k) % len(NUMBERS)]
+        if tag in ("point", "vector"):
+            new = ET.Element(tag, {"name": name, "x": value, "y": "1", "z": "0"})
+        elif tag == "transform":
+            new = ET.Element(tag, {"name": name})
+            ET.SubElement(new, ["scale", "translate", "rotate", "matrix", "lookat"][k % 5],
+                          {"value": value, "x": value, "angle": value, "origin": "0 0 0", "target": value + " 0 1"})
+        elif tag == "boolean":
+            new = ET.Element(tag, {"name": name, "value": ["true", "false", value][k % 3]})
+        elif tag == "string":
+            new = ET.Element(tag, {"name": name, "value": STRINGS[(j + k) % len(STRINGS)]})
+        else:
+            new = ET.Element(tag, {"name": name, "value": value})
+        e.insert((i // 7) % (len(e) + 1), new)
+    elif kind == "move":   # an element moved under another one (a BSDF into a sensor, ...)
+        e, dst = els[i % len(els)], els[j % len(els)]
+        if e is not dst and e not in list(dst.iter()):
+            parents[e].remove(e)
+            dst.append(e)
     else:
         raise ValueError(kind)
     return ET.tostring(root, encoding="unicode")
 
 
 EDIT_KINDS = ("number", "number", "number", "delete", "duplicate", "attr", "type", "tag",
-              "value", "cut")
+              "value", "cut", "insert", "insert", "move")
 
 
 def make_case(directory: str, name: str, scene: str, edits) -> str:
