@@ -1,9 +1,11 @@
 """Scene fuzzer (issue 25, item 4): random edits of the real scenes in ``scenes/`` and a
 worker process that renders them through the CLI.
 
-Edits (:data:`EDITS`): a number made NaN/inf/huge/negative/zero/garbage, an element or an
-attribute deleted, an element duplicated, a plugin type or a property's tag swapped, the
-file cut short. Each case is rendered at 24x24, spp 1 by ``links1 render`` (``links1.cli.main``
+Edits (:data:`EDIT_KINDS`): a number made NaN/inf/huge/negative/zero/garbage or extreme but
+in range, an element or an attribute deleted, an element duplicated or moved elsewhere, a
+plugin type, a property's tag or an object's tag swapped, a reference pointed at another
+id, a parameter of any known name, tag and value inserted, characters inserted, the file
+cut short. Each case is rendered at 24x24, spp 1 by ``links1 render`` (``links1.cli.main``
 in a long-lived worker process, :func:`worker_main`: importing Mitsuba and compiling kernels
 costs seconds, a fresh process per case would cost them every time). The contract
 (:func:`check`): exit 0 with a finite image, or exit 2 with exactly one ``links1: error:``
@@ -66,6 +68,9 @@ PARAM_NAMES = ["radius", "center", "p0", "p1", "to_world", "filename", "max_dept
 STRINGS = ["sphere", "cylinder", "exact", "paper", "none", "inverse_square", "meshes/vase.patch",
            "nosuch.obj", "", "depth,normal", "x", "diagonal", "50mm", "-5mm", "bk7", "air", "nan",
            "0 0 0 1 1", "1 2 3", "0 0 0 1 1e300", "Au", "nosuch"]
+GARBAGE = ["<", "&", "&amp;", "&#0;", "&#x10FFFF;", "\x00", "\ufeff", "]]>", "<!-- ", "<?xml version='1.0'?>",
+           "<!DOCTYPE scene [<!ENTITY e 'x'>]>", "<scene>", "</scene>", '"', "'", "$", "${res}", "$$",
+           "\u00e9", "\ud7ff", "\t\n", "<shape>", "</shape>", "<ref id=\"white\"/>"]
 _NUM = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
 
 
@@ -87,6 +92,9 @@ def apply_edit(text: str, edit: tuple) -> str:
     kind, i, j, k = edit
     if kind == "cut":
         return text[: i % max(len(text), 1)]
+    if kind == "garbage":   # characters XML forbids or means something by, anywhere
+        at = i % max(len(text), 1)
+        return text[:at] + GARBAGE[j % len(GARBAGE)] + text[at:]
     try:
         root = ET.fromstring(text)
     except ET.ParseError:
@@ -122,6 +130,19 @@ def apply_edit(text: str, edit: tuple) -> str:
         cands = [e for e in els if e.tag in PROP_TAGS]
         if cands:
             cands[i % len(cands)].tag = PROP_TAGS[j % len(PROP_TAGS)]
+    elif kind == "objtag":   # an object becomes another kind of object (a shape an emitter, ...)
+        cands = [e for e in els if e.tag in TYPES]
+        if cands:
+            tags = sorted(TYPES) + ["scene", "include", "default", "alias", "path", "nosuch"]
+            cands[i % len(cands)].tag = tags[j % len(tags)]
+    elif kind == "ref":      # a reference pointed at another id of the file (another kind of object)
+        refs = [e for e in els if e.tag == "ref"]
+        ids = sorted({e.get("id") for e in els if e.get("id") and e.tag != "ref"})
+        if refs and ids:
+            refs[i % len(refs)].set("id", ids[j % len(ids)])
+        elif ids:                # or a new reference to an id, somewhere
+            e = ([root] + [e for e in els if e.tag in TYPES])[i % (1 + sum(e.tag in TYPES for e in els))]
+            e.append(ET.Element("ref", {"id": ids[j % len(ids)]}))
     elif kind == "value":   # a whole attribute replaced (names, ids and references too)
         e = els[i % len(els)]
         if e.attrib:
@@ -156,8 +177,8 @@ def apply_edit(text: str, edit: tuple) -> str:
     return ET.tostring(root, encoding="unicode")
 
 
-EDIT_KINDS = ("number", "number", "number", "delete", "duplicate", "attr", "type", "tag",
-              "value", "cut", "insert", "insert", "move")
+EDIT_KINDS = ("number", "number", "number", "delete", "duplicate", "attr", "type", "tag", "objtag",
+              "value", "cut", "garbage", "insert", "insert", "move", "ref")
 
 
 def make_case(directory: str, name: str, scene: str, edits) -> str:

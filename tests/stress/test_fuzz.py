@@ -10,7 +10,7 @@ worker, not pytest). Every case runs and the failures are listed together at the
 (no shrinking: each failing case is printed with its scene and edits, and written under
 the test's tmp directory).
 
-Budget: ``LINKS1_FUZZ_CASES`` cases per renderer (default 100, about a minute for both on
+Budget: ``LINKS1_FUZZ_CASES`` cases per renderer (default 200, under a minute for both on
 the project's 2-core machines once the kernel cache is warm); before a release run
 ``LINKS1_FUZZ_CASES=1000`` (and other seeds with ``LINKS1_FUZZ_SEED``).
 """
@@ -24,7 +24,7 @@ from hypothesis import strategies as st
 
 from . import fuzz
 
-CASES = int(os.environ.get("LINKS1_FUZZ_CASES", "100"))
+CASES = int(os.environ.get("LINKS1_FUZZ_CASES", "200"))
 SEED = int(os.environ.get("LINKS1_FUZZ_SEED", "25"))
 
 _edit = st.tuples(st.sampled_from(fuzz.EDIT_KINDS), st.integers(0, 10 ** 6),
