@@ -294,6 +294,7 @@ class _Parser:
         self.refs: list[tuple[Node, int, _Ref]] = []
         self.search_dirs: list[str] = []  # <path> entries, latest first
         self.include_stack: list[str] = []
+        self.depth = 0   # objects open now, across <include>s (MAX_NESTING)
         self.upgrade_names = False
         self.base_dir: str | None = None
         self.root_dir: str | None = None  # the main scene file's directory
@@ -382,7 +383,14 @@ class _Parser:
             raise elem.error(f"<{elem.tag}> needs a 'type' attribute")
         if node.id is not None:
             self.register(node.id, node, elem)
-        self.body(elem, node)
+        # objects nest across <include>s too: the same limit on the whole chain
+        self.depth += 1
+        try:
+            if self.depth > MAX_NESTING:
+                raise elem.error(f"elements nested deeper than {MAX_NESTING} levels (with the <include>s)")
+            self.body(elem, node)
+        finally:
+            self.depth -= 1
         return node
 
     def register(self, ident: str, obj, elem: _Elem) -> None:

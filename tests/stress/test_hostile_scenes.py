@@ -233,3 +233,18 @@ def test_shared_table_defaults_are_the_renderers_defaults():
     from links1.scene import Scene
     assert DEFAULT_MIN_WEIGHT == params.default("links1_whitted", "min_weight") == 1.0 / 255.0
     assert DEFAULT_MAX_DEPTH == Scene.max_depth == params.default("links1_whitted", "max_depth") == 5
+
+
+def test_nesting_counts_across_includes(tmp_path):
+    """30 included files of 50 nested elements each: 1,500 levels in all, refused by the
+    same limit (each file alone is within it)."""
+    from links1.errors import SceneError
+    from links1.loader import load_scene
+    n = 30
+    for k in range(n):
+        inner = f'<include filename="i{k + 1}.xml"/>' if k + 1 < n else '<bsdf type="diffuse"/>'
+        (tmp_path / f"i{k}.xml").write_text('<bsdf type="twosided">' * 50 + inner + "</bsdf>" * 50)
+    main_xml = tmp_path / "main.xml"
+    main_xml.write_text('<scene version="3.0.0"><shape type="sphere"><include filename="i0.xml"/></shape></scene>')
+    with pytest.raises(SceneError, match=f"nested deeper than {params.MAX_NESTING} levels"):
+        load_scene(str(main_xml))
