@@ -11,6 +11,7 @@ import statistics
 import sys
 import time
 
+from . import params
 from .errors import Links1Error, RenderAborted, UsageError, one_line_warnings
 
 RENDER_EXAMPLES = """examples:
@@ -35,8 +36,9 @@ examples:
 EXTENSIONS = ("links1.diff", "links1.partition.cli")
 
 
-def int_option(name, minimum: int = 1):
-    """An argparse type: an integer >= ``minimum``, with a message naming the option."""
+def int_option(name, minimum: int = 1, maximum: int | None = None):
+    """An argparse type: an integer >= ``minimum`` (and <= ``maximum``), with a message naming
+    the option."""
     def parse(text):
         try:
             v = int(text)
@@ -44,6 +46,8 @@ def int_option(name, minimum: int = 1):
             raise argparse.ArgumentTypeError(f"{name} must be an integer, got {text!r}") from None
         if v < minimum:
             raise argparse.ArgumentTypeError(f"{name} must be >= {minimum}, got {v}")
+        if maximum is not None and v > maximum:
+            raise argparse.ArgumentTypeError(f"{name} must be <= {maximum}, got {v}")
         return v
     return parse
 
@@ -90,10 +94,10 @@ def add_render_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--spp", type=_positive_int("--spp"), default=None, help="samples per pixel (default: the scene's)")
     p.add_argument("--width", type=_positive_int("--width"), default=None, help="film width override")
     p.add_argument("--height", type=_positive_int("--height"), default=None, help="film height override")
-    p.add_argument("--max-depth", type=_positive_int("--max-depth"), default=None,
+    p.add_argument("--max-depth", type=int_option("--max-depth", 1, params.MAX_MAX_DEPTH), default=None,
                    help="surface interactions per ray-tree branch (default: the scene's, else 5)")
     p.add_argument("--seed", type=_nonneg_int("--seed"), default=0, help="seed of the sample pattern (spp > 1)")
-    p.add_argument("--light-samples", type=_positive_int("--light-samples"), default=None,
+    p.add_argument("--light-samples", type=int_option("--light-samples", 1, params.MAX_LIGHT_SAMPLES), default=None,
                    help="shadow rays per area light / environment per sample (default 1)")
     p.add_argument("--aov", type=_aov_list, default=(), help="extra EXR channels: depth,normal,id,cost,samples")
     p.add_argument("--adaptive", type=float, default=None, metavar="THRESHOLD",

@@ -34,9 +34,10 @@ MAX_VALUE = 1e30
 MAX_SAMPLE_IDS = 2 ** 32
 #: Deepest element nesting in a scene file (Mitsuba's own scenes use < 10).
 MAX_NESTING = 64
-#: Largest subdivision count of a links1_bicubic patch (8 → 128 triangles a patch; 1024
-#: → two million).
-MAX_SUBDIVISIONS = 1024
+#: Largest subdivision count of a links1_bicubic patch: n → 2n² triangles a patch (256: the
+#: 8-patch vase of scenes/bicubic.xml becomes a million triangles, ~0.7 GB and 11 s at 24²
+#: in either renderer; 1024 would need ~11 GB).
+MAX_SUBDIVISIONS = 256
 #: Most shadow rays per light and hit.
 MAX_LIGHT_SAMPLES = 4096
 #: Most surface interactions per ray-tree branch.
