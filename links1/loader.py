@@ -380,10 +380,6 @@ def _ior(props: _Props, name: str, default: str) -> float:
     return v
 
 
-def _numbers(text: str) -> list:
-    return [t for t in re.split(r"[,\s]+", text.strip()) if t]
-
-
 def _spectrum_rgb(p: Prop, emitter: bool, unbounded: bool) -> np.ndarray:
     """A ``<spectrum value=..>`` as Mitsuba's RGB variants read it (warns where it clamps)."""
     rgb, raw = spectra.to_rgb(p.value.wavelengths, p.value.values, emitter=emitter,
@@ -802,15 +798,11 @@ class _Builder:
         clips = []
         k = 0
         while props.has(f"clip_{k}"):
-            nrm = props.vec3(f"clip_{k}", kinds=("vector", "point"))
-            if not np.linalg.norm(nrm) > 0:
-                raise props.error(f"clip_{k}", f"clip_{k}: the plane normal must be non-zero")
-            h = props.float(f"clip_{k}_offset", params.default("links1_quadric", "clip_offset"))
             try:
-                params.check("links1_quadric", "clip_offset", h)
-                params.check_finite(f"clip_{k}", nrm, params.MAX_EXTENT)
+                nrm, h = params.clip_plane(k, props.vec3(f"clip_{k}", kinds=("vector", "point")),
+                                           props.float(f"clip_{k}_offset", params.default("links1_quadric", "clip_offset")))
             except ValueError as exc:
-                raise props.error(f"clip_{k}_offset", str(exc)) from None
+                raise props.error(f"clip_{k}", str(exc)) from None
             clips.append((nrm, h))
             k += 1
         for pname in node.props:
@@ -822,25 +814,8 @@ class _Builder:
                           name=name)
 
     def _blob(self, node, props, to_world, name):
-        text = props.string("centers")
-        toks = _numbers(text)
-        if not toks:
-            raise props.error("centers", "'centers' is empty (groups of five numbers x y z w S)")
-        if len(toks) % 5:
-            raise props.error("centers", f"'centers' must hold groups of five numbers x y z w S, "
-                                         f"got {len(toks)} numbers")
         try:
-            c = np.array([float(t) for t in toks], dtype=np.float64).reshape(-1, 5)
-        except ValueError:
-            raise props.error("centers", "'centers' must contain only numbers") from None
-        if not np.all(np.isfinite(c)):
-            raise props.error("centers", "'centers' must contain only finite numbers")
-        bad = np.nonzero(~(c[:, 4] > 0))[0]
-        if bad.size:
-            raise props.error("centers", f"centre {int(bad[0])}: the range S must be > 0, "
-                                         f"got {c[bad[0], 4]:g}")
-        try:
-            params.check_finite("centers", c, params.MAX_EXTENT)
+            c = params.blob_centers(props.string("centers"))
         except ValueError as exc:
             raise props.error("centers", str(exc)) from None
         threshold = props.links1("links1_blob", "threshold")

@@ -183,6 +183,36 @@ def read(plugin: str, name: str, value):
         raise ValueError(f"{plugin}: {exc}") from None
 
 
+def blob_centers(text: str) -> np.ndarray:
+    """``links1_blob``'s ``centers``: groups of five numbers ``x y z w S`` (eq. 3.9), finite,
+    within :data:`MAX_EXTENT`, ranges ``S > 0`` -> an (n, 5) array."""
+    toks = [t for t in str(text).replace(",", " ").split() if t]
+    if not toks:
+        raise ValueError("'centers' is empty (groups of five numbers x y z w S)")
+    if len(toks) % 5:
+        raise ValueError(f"'centers' must hold groups of five numbers x y z w S, got {len(toks)} numbers")
+    try:
+        c = np.array([float(t) for t in toks], dtype=np.float64).reshape(-1, 5)
+    except ValueError:
+        raise ValueError("'centers' must contain only numbers") from None
+    if not np.all(np.isfinite(c)):
+        raise ValueError("'centers' must contain only finite numbers")
+    check_finite("centers", c, MAX_EXTENT)
+    bad = np.nonzero(~(c[:, 4] > 0))[0]
+    if bad.size:
+        raise ValueError(f"centre {int(bad[0])}: the range S must be > 0, got {c[bad[0], 4]:g}")
+    return c
+
+
+def clip_plane(k: int, normal, offset) -> tuple:
+    """``links1_quadric``'s ``clip_<k>`` (a non-zero normal) and ``clip_<k>_offset``."""
+    n = np.asarray(normal, dtype=np.float64)
+    check_finite(f"clip_{k}", n, MAX_EXTENT)
+    if not np.linalg.norm(n) > 0:
+        raise ValueError(f"clip_{k}: the plane normal must be non-zero")
+    return n, check("links1_quadric", "clip_offset", offset)
+
+
 # --------------------------------------------------------------------------- general rules
 def check_finite(name: str, values, limit: float = MAX_VALUE) -> None:
     """Every number finite and of magnitude <= ``limit``."""

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from links1.params import MAX_EXTENT, check_finite, read, transform_problem
+from links1.params import blob_centers, clip_plane, default, read, transform_problem
 
 INF = float("inf")
 #: Blob march: probe step relative to the largest S (float32 analogue of the core's).
@@ -74,11 +74,12 @@ class QuadricSpec:
         clips, k = [], 0
         while (f"clip_{k}" in props):
             v = props[f"clip_{k}"]
-            n = np.array([float(v[0]), float(v[1]), float(v[2])])
-            if not np.linalg.norm(n) > 0:
-                raise ValueError(f"links1_quadric: clip_{k}: the plane normal must be non-zero")
-            h = read("links1_quadric", "clip_offset",
-                     float(props[f"clip_{k}_offset"]) if (f"clip_{k}_offset" in props) else None)
+            try:
+                n, h = clip_plane(k, [float(v[0]), float(v[1]), float(v[2])],
+                                  float(props[f"clip_{k}_offset"]) if (f"clip_{k}_offset" in props)
+                                  else default("links1_quadric", "clip_offset"))
+            except ValueError as exc:
+                raise ValueError(f"links1_quadric: {exc}") from None
             clips.append((n, h))
             k += 1
         for key in props.keys():
@@ -254,16 +255,8 @@ class BlobSpec:
 
     @classmethod
     def from_props(cls, slot, props):
-        text = str(props["centers"]) if ("centers" in props) else ""
-        toks = text.replace(",", " ").split()
-        if not toks or len(toks) % 5:
-            raise ValueError("links1_blob: 'centers' must hold groups of five numbers x y z w S, "
-                             f"got {len(toks)} numbers")
-        c = np.array([float(t) for t in toks]).reshape(-1, 5)
-        if not np.all(np.isfinite(c)) or not np.all(c[:, 4] > 0):
-            raise ValueError("links1_blob: centres must be finite with S > 0")
         try:
-            check_finite("centers", c, MAX_EXTENT)
+            c = blob_centers(str(props["centers"]) if ("centers" in props) else "")
         except ValueError as exc:
             raise ValueError(f"links1_blob: {exc}") from None
         thr = read("links1_blob", "threshold", float(props["threshold"]) if ("threshold" in props) else None)
