@@ -265,14 +265,18 @@ def worker_main() -> None:
 class Worker:
     """A worker subprocess, restarted after a crash or a hang."""
 
-    def __init__(self, env=None):
+    #: the worker's command (tests of this harness substitute one that crashes or hangs)
+    COMMAND = [sys.executable, "-c", "from tests.stress.fuzz import worker_main; worker_main()"]
+
+    def __init__(self, env=None, command=None):
+        self.command = list(command or self.COMMAND)
         self.env = dict(os.environ if env is None else env)
         self.env["PYTHONPATH"] = os.pathsep.join([ROOT, self.env.get("PYTHONPATH", "")])
         self.env.setdefault("PYTHONFAULTHANDLER", "")
         self.proc = None
 
     def _start(self):
-        self.proc = subprocess.Popen([sys.executable, "-c", "from tests.stress.fuzz import worker_main; worker_main()"],
+        self.proc = subprocess.Popen(self.command,
                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
                                      text=True, cwd=ROOT, env=self.env)
 

@@ -10,13 +10,14 @@ worker, not pytest). Every case runs and the failures are listed together at the
 (no shrinking: each failing case is printed with its scene and edits, and written under
 the test's tmp directory).
 
-Budget: ``LINKS1_FUZZ_CASES`` cases per renderer (default 200, under a minute for both on
+Budget: ``LINKS1_FUZZ_CASES`` cases per renderer (default 400, about 35 s for both on
 the project's 2-core machines once the kernel cache is warm); before a release run
 ``LINKS1_FUZZ_CASES=1000`` (and other seeds with ``LINKS1_FUZZ_SEED``).
 """
 from __future__ import annotations
 
 import os
+import sys
 
 import pytest
 from hypothesis import HealthCheck, given, seed, settings
@@ -24,7 +25,7 @@ from hypothesis import strategies as st
 
 from . import fuzz
 
-CASES = int(os.environ.get("LINKS1_FUZZ_CASES", "200"))
+CASES = int(os.environ.get("LINKS1_FUZZ_CASES", "400"))
 SEED = int(os.environ.get("LINKS1_FUZZ_SEED", "25"))
 
 _edit = st.tuples(st.sampled_from(fuzz.EDIT_KINDS), st.integers(0, 10 ** 6),
@@ -70,3 +71,35 @@ def test_fuzzed_scenes_keep_the_contract(renderer, tmp_path):
           f"{len(results) - rendered - len(failures)} refused, {len(failures)} failures (seed {SEED})")
     assert len(results) >= min(CASES, 20)      # hypothesis really drew the cases
     assert not failures, "\n".join(f"{s} {e}: {why} ({p})" for s, e, _, why, p in failures[:20])
+
+
+# ---------------------------------------------------------------- the harness itself can fail
+@pytest.mark.parametrize("rc, stderr, image_ok, broken", [
+    (0, "links1: wrote x.exr (24x24, core)\n", True, None),
+    (2, "links1: warning: w\nlinks1: error: f.xml:3: <shape>: bad\n", None, None),
+    (0, "", False, "without a finite image"),
+    (2, "links1: error: a\nlinks1: error: b\n", None, "2 error lines"),
+    (2, "", None, "0 error lines"),
+    (1, "links1: internal error: ValueError: x\n", None, "internal error"),
+    (2, "Traceback (most recent call last):\nlinks1: error: x\n", None, "traceback"),
+    (-11, "", None, "signal"),
+    (139, "", None, "signal"),
+    (None, "", None, "hang"),
+])
+def test_contract_check(rc, stderr, image_ok, broken):
+    why = fuzz.check(rc, stderr, image_ok)
+    assert (why is None) if broken is None else (broken in why)
+
+
+@pytest.mark.parametrize("command, expect", [
+    ("import os, signal; os.kill(os.getpid(), signal.SIGSEGV)", "signal"),
+    ("import time; time.sleep(60)", "hang"),
+])
+def test_worker_reports_crash_and_hang(command, expect, tmp_path):
+    """A worker that dies of a signal or never answers is a broken contract, not a pass."""
+    w = fuzz.Worker(command=[sys.executable, "-c", command])
+    try:
+        rc, stderr, ok = w.run(["render"], str(tmp_path / "o.exr"), timeout=3)
+    finally:
+        w.close(kill=True)
+    assert expect in fuzz.check(rc, stderr, ok)
