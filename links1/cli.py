@@ -11,6 +11,7 @@ import statistics
 import sys
 import time
 
+from . import params
 from .errors import Links1Error, RenderAborted, UsageError, one_line_warnings
 
 RENDER_EXAMPLES = """examples:
@@ -35,8 +36,9 @@ examples:
 EXTENSIONS = ("links1.diff", "links1.partition.cli")
 
 
-def int_option(name, minimum: int = 1):
-    """An argparse type: an integer >= ``minimum``, with a message naming the option."""
+def int_option(name, minimum: int = 1, maximum: int | None = None):
+    """An argparse type: an integer >= ``minimum`` (and <= ``maximum``), with a message naming
+    the option."""
     def parse(text):
         try:
             v = int(text)
@@ -44,6 +46,8 @@ def int_option(name, minimum: int = 1):
             raise argparse.ArgumentTypeError(f"{name} must be an integer, got {text!r}") from None
         if v < minimum:
             raise argparse.ArgumentTypeError(f"{name} must be >= {minimum}, got {v}")
+        if maximum is not None and v > maximum:
+            raise argparse.ArgumentTypeError(f"{name} must be <= {maximum}, got {v}")
         return v
     return parse
 
@@ -95,10 +99,10 @@ def add_render_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--spp", type=_positive_int("--spp"), default=None, help="samples per pixel (default: the scene's)")
     p.add_argument("--width", type=_positive_int("--width"), default=None, help="film width override")
     p.add_argument("--height", type=_positive_int("--height"), default=None, help="film height override")
-    p.add_argument("--max-depth", type=_positive_int("--max-depth"), default=None,
+    p.add_argument("--max-depth", type=int_option("--max-depth", 1, params.MAX_MAX_DEPTH), default=None,
                    help="surface interactions per ray-tree branch (default: the scene's, else 5)")
     p.add_argument("--seed", type=_nonneg_int("--seed"), default=0, help="seed of the sample pattern (spp > 1)")
-    p.add_argument("--light-samples", type=_positive_int("--light-samples"), default=None,
+    p.add_argument("--light-samples", type=int_option("--light-samples", 1, params.MAX_LIGHT_SAMPLES), default=None,
                    help="shadow rays per area light / environment per sample (default 1)")
     p.add_argument("--aov", type=_aov_list, default=(), help="extra EXR channels: depth,normal,id,cost,samples")
     p.add_argument("--adaptive", type=float, default=None, metavar="THRESHOLD",
@@ -252,6 +256,7 @@ def cmd_render(args) -> int:
             times.append(time.perf_counter() - t)
         print(f"timing: first={first * 1e3:.1f} ms median={statistics.median(times) * 1e3:.1f} ms "
               f"min={min(times) * 1e3:.1f} ms max={max(times) * 1e3:.1f} ms", file=sys.stderr)
+    _check_finite_image(image, args.renderer)
     from .image import write_image
     if kind == "png":
         write_image(args.output, image[..., :3])
@@ -259,6 +264,17 @@ def cmd_render(args) -> int:
         write_image(args.output, image, channels)
     print(f"links1: wrote {args.output} ({image.shape[1]}x{image.shape[0]}, {args.renderer})", file=sys.stderr)
     return 0
+
+
+def _check_finite_image(image, renderer) -> None:
+    """Never a silent NaN (issue 25): scene values are checked where they enter
+    (links1.params), so a non-finite pixel is a bug; stop with one line and write nothing."""
+    import numpy as np
+    bad = ~np.isfinite(image)
+    if bad.any():
+        y, x = (int(v[0]) for v in np.nonzero(bad.any(axis=-1)))
+        raise RenderAborted(f"the {renderer} renderer produced {int(bad.sum())} non-finite values "
+                            f"(first at pixel {x},{y}); nothing written (a bug in links1: please report the scene)")
 
 
 def _takes_progress(renderer) -> bool:

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from . import params
 from .accel import Accel
 from .lights import AreaLight
 from .sampling import KEY_REFLECT, KEY_REFRACT, child_keys, light_samples_uv
@@ -26,7 +27,7 @@ from .vec import dot, max_abs
 OFFSET_SCALE = 2.0 ** -32
 
 #: Default weight below which a branch of the ray tree is not traced (POV-Ray's adc_bailout).
-DEFAULT_MIN_WEIGHT = 1.0 / 255.0
+DEFAULT_MIN_WEIGHT = params.default("links1_whitted", "min_weight")
 
 
 @dataclass

@@ -65,6 +65,7 @@ import warnings
 import numpy as np
 
 from . import materials as mat
+from . import params
 from . import meshes, textures
 from . import spectra
 from . import transform as tf
@@ -79,7 +80,7 @@ from .xmlparse import Node, Prop, SceneWarning, parse_file, parse_string
 
 __all__ = ["load_scene", "load_string", "build_scene", "focal_length_fov_x"]
 
-DEFAULT_MAX_DEPTH = 5
+DEFAULT_MAX_DEPTH = params.default("links1_whitted", "max_depth")
 DEFAULT_SPP = 4  # Mitsuba's independent sampler
 
 # Known Mitsuba 3 plugins the core does not support (for a clearer message than "unknown").
@@ -208,7 +209,7 @@ class _Props:
         return np.asarray(p.value, dtype=np.float64).copy()
 
     def color(self, name, default=_MISSING, *, nonneg=True, emitter=False,
-              unbounded=False) -> np.ndarray:
+              unbounded=False, reflectance=False) -> np.ndarray:
         """An RGB parameter: ``rgb``, ``float``, ``spectrum`` (converted as Mitsuba's RGB variants
         do, see :mod:`links1.spectra`: ``emitter`` for emitted quantities, ``unbounded`` for
         parameters Mitsuba reads unclamped) or a ``<spectrum type=..>`` plugin; a nested
@@ -234,6 +235,11 @@ class _Props:
             v = np.broadcast_to(np.asarray(p.value, dtype=np.float64), (3,)).copy()
         if nonneg and np.any(v < 0):
             raise self.error(name, f"'{name}' must be >= 0, got {v.tolist()}")
+        if reflectance and p.kind != "spectrum":   # spectra are clamped into gamut (above)
+            try:
+                params.check_reflectance(name, v)
+            except ValueError as exc:
+                raise self.error(name, str(exc)) from None
         return v
 
     def texture(self, name, default=_MISSING, **kwargs):
@@ -251,6 +257,24 @@ class _Props:
 
     def ignore(self, *names) -> None:
         self.used.update(names)
+
+    def links1(self, plugin: str, name: str):
+        """A links1 plugin's parameter, read and checked by its rules in :data:`links1.params.PLUGINS`
+        (the same table the Mitsuba plugins read)."""
+        prm = params.param(plugin, name)
+        d = _MISSING if prm.default is params.REQUIRED else prm.default
+        if prm.kind in ("float", "int", "string", "bool"):
+            v = getattr(self, prm.kind)(name, d)
+        elif prm.kind == "rgb":
+            v = self.color(name, d, nonneg=False, emitter=(plugin != "links1_phong"))
+        else:
+            v = self.vec3(name, d, kinds=("point", "vector") if prm.kind == "point" else ("vector", "point"))
+        if v is None or prm.kind == "bool":
+            return v
+        try:
+            return prm.check(name, v)
+        except ValueError as exc:
+            raise self.error(name, str(exc)) from None
 
     def finish(self) -> None:
         known = mitsuba_parameters(self.node.tag, self.node.type)
@@ -360,12 +384,16 @@ def focal_length_fov_x(focal_length_mm: float, width: int, height: int) -> float
 
 
 def _check_invertible(node: Node, m: np.ndarray, what: str = "to_world") -> None:
+    """A shape's map must be invertible and in range (:func:`links1.params.transform_problem`)."""
+    problem = params.transform_problem(m, what)
+    if problem is not None:
+        raise node.error(problem)
     lin = m[:3, :3]
     scale = max(float(np.max(np.abs(lin))), 1e-300)
     det = float(np.linalg.det(lin / scale))
     if not (np.isfinite(det) and abs(det) > 1e-12):
-        raise node.error(f"singular {what} transform (determinant {det * scale ** 3:g}): "
-                         "the quadric would be degenerate")
+        raise node.error(f"singular {what} transform (relative determinant {det:g}): "
+                         "the shape would be degenerate")
 
 
 def _ior(props: _Props, name: str, default: str) -> float:
@@ -382,10 +410,6 @@ def _ior(props: _Props, name: str, default: str) -> float:
     if not v > 0:
         raise props.error(name, f"'{name}' must be > 0, got {v:g}")
     return v
-
-
-def _numbers(text: str) -> list:
-    return [t for t in re.split(r"[,\s]+", text.strip()) if t]
 
 
 def _spectrum_rgb(p: Prop, emitter: bool, unbounded: bool) -> np.ndarray:
@@ -516,6 +540,8 @@ class _Builder:
             depth_node = inner[0]
         dp = _Props(depth_node)
         max_depth = dp.int("max_depth", DEFAULT_MAX_DEPTH)
+        if max_depth > params.MAX_MAX_DEPTH:
+            raise dp.error("max_depth", f"'max_depth' must be <= {params.MAX_MAX_DEPTH} (or -1), got {max_depth}")
         if max_depth == -1:
             depth_node.warn(f"max_depth=-1 (unlimited) is capped at {DEFAULT_MAX_DEPTH} by the core")
             max_depth = DEFAULT_MAX_DEPTH
@@ -523,10 +549,8 @@ class _Builder:
             raise dp.error("max_depth", f"'max_depth' must be >= 1 or -1, got {max_depth}")
         extra = {}
         if node.type == "links1_whitted":   # its parameters that change the image
-            extra["light_samples"] = props.int("light_samples", 1)
-            if extra["light_samples"] < 1:
-                raise props.error("light_samples", f"'light_samples' must be >= 1, got {extra['light_samples']}")
-            extra["min_weight"] = props.float("min_weight", 1.0 / 255.0, nonneg=True)
+            extra["light_samples"] = props.links1(node.type, "light_samples")
+            extra["min_weight"] = props.links1(node.type, "min_weight")
         props.ignore(*node.props)  # other integrator parameters do not apply to the core
         return node.type, max_depth, extra
 
@@ -722,9 +746,12 @@ class _Builder:
                                capped=False, name=name)
         elif t == "disk":
             self._no_flip(props)
+            m = params.planar_to_world(m)   # zero thickness is still a disk
             _check_invertible(node, m)
             shape = _construct(node, _shape_class("Disk"), m, name=name)
         elif t in ("rectangle", "cube"):
+            if t == "rectangle":
+                m = params.planar_to_world(m)   # zero thickness is still a rectangle
             v, f, n, uv = (meshes.rectangle_mesh if t == "rectangle" else meshes.cube_mesh)(uv=True)
             shape = self._mesh(node, props, v, f, n, m, closed=(t == "cube"), uv=uv)
         elif t in ("obj", "ply"):
@@ -799,6 +826,7 @@ class _Builder:
         rewound = props.bool("flip_normals", False)
         if rewound:
             f, n = meshes.flip(f, n)
+        _check_invertible(node, m)   # normals map by its inverse transpose
         v, n = meshes.transform_mesh(m, v, n)
         if not np.all(np.isfinite(v)):
             raise node.error("non-finite vertex positions after to_world")
@@ -806,50 +834,34 @@ class _Builder:
                           closed=closed, texcoords=uv, rewound=rewound, attributes=attributes)
 
     def _quadric(self, node, props, m, name):
-        kind = props.string("kind").strip().lower()
-        if kind not in ("sphere", "cylinder"):
-            raise props.error("kind", f"'kind' must be 'sphere' or 'cylinder', got '{kind}'")
+        kind = props.links1("links1_quadric", "kind")
         _check_invertible(node, m)
         clips = []
         k = 0
         while props.has(f"clip_{k}"):
-            nrm = props.vec3(f"clip_{k}", kinds=("vector", "point"))
-            if not np.linalg.norm(nrm) > 0:
-                raise props.error(f"clip_{k}", f"clip_{k}: the plane normal must be non-zero")
-            h = props.float(f"clip_{k}_offset", 0.0)
+            try:
+                nrm, h = params.clip_plane(k, props.vec3(f"clip_{k}", kinds=("vector", "point")),
+                                           props.float(f"clip_{k}_offset", params.default("links1_quadric", "clip_offset")))
+            except ValueError as exc:
+                raise props.error(f"clip_{k}", str(exc)) from None
             clips.append((nrm, h))
             k += 1
         for pname in node.props:
             if re.fullmatch(r"clip_\d+(_offset)?", pname) and pname not in props.used:
                 raise props.error(pname, f"'{pname}' without the planes before it "
                                          f"(clip planes are numbered clip_0, clip_1, ...)")
-        capped = props.bool("capped", False)
+        capped = props.links1("links1_quadric", "capped")
         return _construct(node, _shape_class("Quadric"), kind, m, clips=clips, capped=capped,
                           name=name)
 
     def _blob(self, node, props, to_world, name):
-        text = props.string("centers")
-        toks = _numbers(text)
-        if not toks:
-            raise props.error("centers", "'centers' is empty (groups of five numbers x y z w S)")
-        if len(toks) % 5:
-            raise props.error("centers", f"'centers' must hold groups of five numbers x y z w S, "
-                                         f"got {len(toks)} numbers")
         try:
-            c = np.array([float(t) for t in toks], dtype=np.float64).reshape(-1, 5)
-        except ValueError:
-            raise props.error("centers", "'centers' must contain only numbers") from None
-        if not np.all(np.isfinite(c)):
-            raise props.error("centers", "'centers' must contain only finite numbers")
-        bad = np.nonzero(~(c[:, 4] > 0))[0]
-        if bad.size:
-            raise props.error("centers", f"centre {int(bad[0])}: the range S must be > 0, "
-                                         f"got {c[bad[0], 4]:g}")
-        threshold = props.float("threshold", positive=True)
-        solver = props.string("solver", "exact").strip().lower()
-        if solver not in ("exact", "paper"):
-            raise props.error("solver", f"'solver' must be 'exact' or 'paper', got '{solver}'")
-        samples = props.int("samples", 8, minimum=1)
+            c = params.blob_centers(props.string("centers"))
+        except ValueError as exc:
+            raise props.error("centers", str(exc)) from None
+        threshold = props.links1("links1_blob", "threshold")
+        solver = props.links1("links1_blob", "solver")
+        samples = props.links1("links1_blob", "samples")
         if to_world is not None:
             _check_invertible(node, to_world)
         return _construct(node, _shape_class("Blob"), c, threshold, solver=solver, samples=samples,
@@ -867,7 +879,7 @@ class _Builder:
                 patches = meshes.parse_patches(p.value, f"{p.file}:{p.line}", with_count=False)
         except ValueError as exc:
             raise props.error("filename" if has_file else "control_points", str(exc)) from None
-        sub = props.int("subdivisions", 8, minimum=1)
+        sub = props.links1("links1_bicubic", "subdivisions")
         v, f, n = meshes.tessellate_patches(patches, sub)
         if props.bool("face_normals", False):
             n = None
@@ -879,7 +891,7 @@ class _Builder:
         props = _Props(node)
         name = node.id or ""
         if t == "diffuse":
-            m = mat.Diffuse(reflectance=props.texture("reflectance", 0.5), name=name)
+            m = mat.Diffuse(reflectance=props.texture("reflectance", 0.5, reflectance=True), name=name)
         elif t == "twosided":
             inner = node.objects("bsdf")
             if not inner:
@@ -892,7 +904,7 @@ class _Builder:
             if name:
                 m.name = name
         elif t == "conductor":
-            refl = props.texture("specular_reflectance", 1.0)
+            refl = props.texture("specular_reflectance", 1.0, reflectance=True)
             material = props.string("material", "none").strip()
             eta = props.texture("eta", None, unbounded=True)
             k = props.texture("k", None, unbounded=True)
@@ -910,25 +922,22 @@ class _Builder:
             ext_ior = _ior(props, "ext_ior", "air")
             cls = mat.Dielectric if t == "dielectric" else mat.ThinDielectric
             m = _construct(node, cls, eta=int_ior / ext_ior,
-                           specular_reflectance=props.texture("specular_reflectance", 1.0),
-                           specular_transmittance=props.texture("specular_transmittance", 1.0),
+                           specular_reflectance=props.texture("specular_reflectance", 1.0, reflectance=True),
+                           specular_transmittance=props.texture("specular_transmittance", 1.0, reflectance=True),
                            name=name)
         elif t == "plastic":
             int_ior = _ior(props, "int_ior", "polypropylene")
             ext_ior = _ior(props, "ext_ior", "air")
             m = _construct(node, mat.Plastic,
-                           diffuse_reflectance=props.texture("diffuse_reflectance", 0.5),
-                           specular_reflectance=props.texture("specular_reflectance", 1.0),
+                           diffuse_reflectance=props.texture("diffuse_reflectance", 0.5, reflectance=True),
+                           specular_reflectance=props.texture("specular_reflectance", 1.0, reflectance=True),
                            eta=int_ior / ext_ior, nonlinear=props.bool("nonlinear", False),
                            name=name)
         elif t == "links1_phong":
-            ior = props.float("ior", 1.0, positive=True)
-            m = _construct(node, mat.Phong, ambient=props.color("ambient", 0.0),
-                           diffuse=props.color("diffuse", 0.5),
-                           specular_=props.color("specular", 0.0),
-                           exponent=props.float("exponent", 20.0, nonneg=True),
-                           reflectance=props.color("reflectance", None),
-                           transmittance=props.color("transmittance", 0.0), ior=ior, name=name)
+            v = {k: props.links1(t, k) for k in params.PLUGINS[("bsdf", t)]}
+            m = _construct(node, mat.Phong, ambient=v["ambient"], diffuse=v["diffuse"],
+                           specular_=v["specular"], exponent=v["exponent"], reflectance=v["reflectance"],
+                           transmittance=v["transmittance"], ior=v["ior"], name=name)
         elif t == "mask":
             inner = node.objects("bsdf")
             if len(inner) != 1:
@@ -949,7 +958,7 @@ class _Builder:
             color = 0.5
             for key in ("reflectance", "diffuse_reflectance", "base_color", "specular_reflectance"):
                 if props.has(key) or any(nm == key for nm, _ in node.children):
-                    color = props.texture(key)
+                    color = props.texture(key, reflectance=True)
                     break
             props.ignore(*node.props)
             with warnings.catch_warnings():
@@ -980,17 +989,15 @@ class _Builder:
             light = _construct(node, PointLight, position=pos, L1=props.color("intensity", 1.0, emitter=True),
                                L2=np.zeros(3), falloff="inverse_square", name=name)
         elif t == "links1_point":
-            falloff = props.string("falloff", "none").strip().lower()
-            if falloff not in ("none", "inverse_square"):
-                raise props.error("falloff", f"'falloff' must be 'none' or 'inverse_square', got '{falloff}'")
-            pos = props.vec3("position", None)
-            direction = props.vec3("direction", (0.0, 0.0, 1.0), kinds=("vector", "point"))
+            falloff = props.links1(t, "falloff")
+            pos = props.links1(t, "position") if props.has("position") else None
+            direction = props.links1(t, "direction")
             if to_world is not None:
                 pos = tf.apply_point(to_world, np.zeros(3) if pos is None else pos)
                 direction = tf.apply_vector(to_world, direction)
             light = _construct(node, PointLight, position=np.zeros(3) if pos is None else pos,
-                               direction=direction, L1=props.color("L1", 1.0, emitter=True),
-                               L2=props.color("L2", 0.0, nonneg=False, emitter=True), falloff=falloff, name=name)
+                               direction=direction, L1=props.links1(t, "L1"),
+                               L2=props.links1(t, "L2"), falloff=falloff, name=name)
         elif t == "directional":
             if props.has("direction") and to_world is not None:
                 raise node.error("directional: give either 'direction' or 'to_world', not both")
@@ -1014,14 +1021,14 @@ class _Builder:
                                intensity=intensity, cutoff_angle=cutoff, beam_width=beam, name=name,
                                texture=texture)
         elif t == "links1_spot":
-            origin = props.vec3("origin", (0.0, 0.0, 0.0))
-            direction = props.vec3("direction", kinds=("vector", "point"))
-            radius = props.float("radius", positive=True)
+            origin = props.links1(t, "origin")
+            direction = props.links1(t, "direction")
+            radius = props.links1(t, "radius")
             if to_world is not None:
                 origin = tf.apply_point(to_world, origin)
                 direction = tf.apply_vector(to_world, direction)
             light = _construct(node, CylinderSpotLight, origin=origin, direction=direction,
-                               radius=radius, intensity=props.color("intensity", 1.0, emitter=True), name=name)
+                               radius=radius, intensity=props.links1(t, "intensity"), name=name)
         elif t == "constant":
             light = ConstantEnvironment(props.color("radiance", 1.0, emitter=True), name=name)
         elif t == "envmap":

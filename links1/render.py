@@ -146,6 +146,7 @@ def render_windows(scene, windows, *, spp: int | None = None, max_depth: int | N
     if spp < 1:
         raise UsageError(f"spp must be >= 1, got {spp}")
     min_weight, light_samples = ray_tree_options(scene, min_weight, light_samples)
+    check_resources(cam.width, cam.height, spp, light_samples)
     aovs = check_aovs(aovs)
     wins = [_check_window(win, cam.width, cam.height) for win in windows]
     if adaptive is not None:
@@ -169,6 +170,16 @@ def render_windows(scene, windows, *, spp: int | None = None, max_depth: int | N
         sh, sw = g.sample_window[3], g.sample_window[2]
         out.append(np.concatenate([g.result(), g.inner(flat[a:b].reshape(sh, sw, -1))], axis=2))
     return out
+
+
+def check_resources(width, height, spp, light_samples=1) -> None:
+    """A film and sample counts that fit the 32-bit sample ids and memory, checked before
+    anything is allocated (:func:`links1.params.check_samples`; one line: size and limit)."""
+    from .params import check_samples
+    try:
+        check_samples(width, height, spp, light_samples=light_samples)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
 
 
 def ray_tree_options(scene, min_weight=None, light_samples=None) -> tuple[float, int]:
@@ -345,6 +356,9 @@ class CoreRenderer:
         self.aovs = check_aovs(aovs)
         # the scene's own (links1_whitted) values unless given
         self.min_weight, self.light_samples = ray_tree_options(self.scene, min_weight, light_samples)
+        if self.spp < 1:
+            raise UsageError(f"spp must be >= 1, got {self.spp}")
+        check_resources(*self.film_size, self.spp, self.light_samples)
         self.adaptive, self.adaptive_depth = adaptive, adaptive_depth
         if adaptive is not None:
             from .adaptive import check_options

@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from . import params
 from .camera import Camera
 
 
@@ -35,11 +36,11 @@ class Scene:
     shapes: list = field(default_factory=list)
     lights: list = field(default_factory=list)
     spp: int = 1
-    max_depth: int = 5
+    max_depth: int = params.default("links1_whitted", "max_depth")
     background: np.ndarray = field(default_factory=lambda: np.zeros(3))
     integrator: str = "links1_whitted"
     light_samples: int = 1
-    min_weight: float = 1.0 / 255.0
+    min_weight: float = params.default("links1_whitted", "min_weight")
     environments: list = field(default_factory=list)  # envmap lights: escaping rays add their eval
     path: str | None = None
     #: what is built from the shapes and lights on first use (the BVH, the integrator's plan),

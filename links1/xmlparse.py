@@ -55,6 +55,7 @@ import numpy as np
 
 from . import transform as tf
 from .errors import SceneError
+from .params import MAX_EXTENT, MAX_NESTING, MAX_VALUE
 
 #: Elements that are objects (plugins) in Mitsuba's XML.
 OBJECT_TAGS = ("scene", "shape", "bsdf", "emitter", "sensor", "film", "sampler", "rfilter",
@@ -196,6 +197,8 @@ def _read_xml(data: bytes | str, filename: str) -> _Elem:
 
     def start(tag, attrs):
         e = _Elem(tag, dict(attrs), filename, parser.CurrentLineNumber)
+        if len(stack) >= MAX_NESTING:   # the reader and the loader recurse per level
+            raise SceneError(f"elements nested deeper than {MAX_NESTING} levels", filename, e.line, e.element())
         if stack:
             stack[-1].children.append(e)
         else:
@@ -248,6 +251,8 @@ def _float(text: str, elem: _Elem, what: str) -> float:
         raise elem.error(f"{what}: cannot parse '{text}' as a number") from None
     if not math.isfinite(v):
         raise elem.error(f"{what}: value must be finite, got '{text}'")
+    if abs(v) > MAX_VALUE:
+        raise elem.error(f"{what}: |value| must be <= {MAX_VALUE:g} (float32's reach), got '{text}'")
     return v
 
 
@@ -291,6 +296,7 @@ class _Parser:
         self.refs: list[tuple[Node, int, _Ref]] = []
         self.search_dirs: list[str] = []  # <path> entries, latest first
         self.include_stack: list[str] = []
+        self.depth = 0   # objects open now, across <include>s (MAX_NESTING)
         self.upgrade_names = False
         self.base_dir: str | None = None
         self.root_dir: str | None = None  # the main scene file's directory
@@ -392,7 +398,14 @@ class _Parser:
             raise elem.error(f"<{elem.tag}> needs a 'type' attribute")
         if node.id is not None:
             self.register(node.id, node, elem)
-        self.body(elem, node)
+        # objects nest across <include>s too: the same limit on the whole chain
+        self.depth += 1
+        try:
+            if self.depth > MAX_NESTING:
+                raise elem.error(f"elements nested deeper than {MAX_NESTING} levels (with the <include>s)")
+            self.body(elem, node)
+        finally:
+            self.depth -= 1
         return node
 
     def register(self, ident: str, obj, elem: _Elem) -> None:
@@ -505,6 +518,8 @@ class _Parser:
                 v = int(text.strip())
             except ValueError:
                 raise c.error(f"cannot parse '{text}' as an integer") from None
+            if not -2 ** 63 <= v < 2 ** 63:
+                raise c.error(f"integer '{text}' does not fit 64 bits")
             return Prop(name, tag, v, c.file, c.line)
         if tag == "float":
             return Prop(name, tag, _float(text, c, "value"), c.file, c.line)
@@ -579,6 +594,9 @@ class _Parser:
                     raise
                 raise op.error(str(exc)) from None
             m = step @ m  # Mitsuba pre-multiplies: the first child acts first
+            if not (np.all(np.isfinite(m)) and float(np.max(np.abs(m))) <= MAX_EXTENT):
+                raise op.error(f"the transform's entries must be finite and <= {MAX_EXTENT:g} in "
+                               f"magnitude, got {float(np.max(np.abs(m))):g}")
         return m
 
 

@@ -23,7 +23,7 @@ import sys
 import warnings
 
 from ..cli import int_option
-from ..errors import UsageError
+from ..errors import SceneError, UsageError
 from ..xmlparse import SceneWarning
 from .strategies import STRATEGIES, UNITS
 
@@ -137,8 +137,8 @@ def _model_and_channels(spec, args):
     except UsageError:
         raise
     except Exception as e:  # noqa: BLE001 - the core cannot read a Mitsuba-only scene: build the real one
-        if root_spec is spec:
-            raise
+        if root_spec is spec or (isinstance(e, SceneError) and "not supported by the core" not in e.message):
+            raise   # a bad scene: the renderer refuses it too (render._validate_for_mitsuba), one error line
         warnings.warn(f"the core cannot read {spec.path} ({e}); loading it with {spec.kind} in the root")
         from .runtime import get_renderer
         r = get_renderer(spec)

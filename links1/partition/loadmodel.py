@@ -25,6 +25,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from .. import params
 from ..errors import UsageError
 
 #: Default per-object load table (relative units: one quadric ~ 1).
@@ -252,7 +253,7 @@ class SceneModel:
     loads: np.ndarray                 # w_j
     rects: np.ndarray                 # (J, 4) projected rectangles, pixels, row 0 at the top
     background: float = 0.05
-    max_depth: int = 5
+    max_depth: int = params.default("links1_whitted", "max_depth")
     lights: list | None = None        # [{"position": (3,)} | {"position": None}] ; None: unknown
     many: int = 64
     leaf_size: int = 8

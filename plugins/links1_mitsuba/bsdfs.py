@@ -9,26 +9,18 @@ def _rgb(props, name, default):
 
 
 def phong_params(props) -> dict:
-    """Read and check the ``links1_phong`` parameters from Mitsuba ``Properties``."""
-    ambient = _rgb(props, "ambient", 0.0)
-    diffuse = _rgb(props, "diffuse", 0.5)
-    specular = _rgb(props, "specular", 0.0)
-    exponent = float(props.get("exponent", 20.0))
-    reflectance = _rgb(props, "reflectance", None)
-    if reflectance is None:
-        reflectance = list(specular)
-    transmittance = _rgb(props, "transmittance", 0.0)
-    ior = float(props.get("ior", 1.0))
-    if not exponent >= 0:
-        raise ValueError(f"links1_phong: 'exponent' must be >= 0, got {exponent}")
-    if not ior > 0:
-        raise ValueError(f"links1_phong: 'ior' must be > 0, got {ior}")
-    for name, v in (("ambient", ambient), ("diffuse", diffuse), ("specular", specular),
-                    ("reflectance", reflectance), ("transmittance", transmittance)):
-        if min(v) < 0:
-            raise ValueError(f"links1_phong: '{name}' must be >= 0, got {v}")
-    return dict(ambient=ambient, diffuse=diffuse, specular=specular, exponent=exponent,
-                reflectance=reflectance, transmittance=transmittance, ior=ior)
+    """Read and check the ``links1_phong`` parameters from Mitsuba ``Properties`` (defaults and
+    ranges: :data:`links1.params.PLUGINS`, the table the core's reader uses too)."""
+    from links1.params import PLUGINS, read
+    v = {}
+    for name, prm in PLUGINS[("bsdf", "links1_phong")].items():
+        raw = _rgb(props, name, None) if prm.kind == "rgb" else (float(props[name]) if name in props else None)
+        v[name] = read("links1_phong", name, raw)
+        if prm.kind == "rgb" and v[name] is not None:
+            v[name] = [float(c) for c in v[name]]
+    if v["reflectance"] is None:
+        v["reflectance"] = list(v["specular"])
+    return v
 
 
 class _Held:

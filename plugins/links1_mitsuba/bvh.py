@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .util import table
+from .util import checked_index, table
 
 INF = float("inf")
 LEAF = 1          #: quadrics per leaf (one intersection per loop iteration)
@@ -159,7 +159,8 @@ def define_bvh():
                     clips[i, j, 3] = h
             self.any_capped = any(s.capped and s.clips for s in specs)
             capped = np.array([bool(s.capped) for s in specs])
-            slot = np.array([s.slot for s in specs], dtype=np.uint32)
+            slot = np.array([s.slot for s in specs], dtype=np.int64)
+            slot = checked_index(slot, len(shadow_t), "bvh slot").astype(np.uint32)
             st = np.array([shadow_t[s.slot] for s in specs], dtype=np.float64)
             self.any_transparent = bool(np.any(st > 0))
             F = lambda a: table(mi.Float, a)  # noqa: E731

@@ -6,9 +6,11 @@ import warnings
 
 import numpy as np
 
+from links1.params import default, param, read
+
 from .bsdfs import _Held
 
-FALLOFFS = ("none", "inverse_square")
+FALLOFFS = param("links1_point", "falloff").choices
 
 
 def _vec(props, name, default):
@@ -54,35 +56,30 @@ def _unit(v, what):
 
 
 def point_params(props) -> dict:
-    pos = _vec(props, "position", (0.0, 0.0, 0.0))
-    direction = _vec(props, "direction", (0.0, 0.0, 1.0))
+    pos = _vec(props, "position", default("links1_point", "position"))
+    direction = _vec(props, "direction", default("links1_point", "direction"))
     m = _to_world(props)
     if m is not None:
         pos = m[:3, :3] @ pos + m[:3, 3]
         direction = m[:3, :3] @ direction
-    falloff = str(props.get("falloff", "none")).strip().lower()
-    if falloff not in FALLOFFS:
-        raise ValueError(f"links1_point: 'falloff' must be one of {FALLOFFS}, got '{falloff}'")
-    return dict(position=pos, direction=_unit(direction, "links1_point: direction"),
-                L1=_rgb(props, "L1", 1.0), L2=_rgb(props, "L2", 0.0), falloff=falloff)
+    falloff = read("links1_point", "falloff", str(props["falloff"]) if "falloff" in props else None)
+    return dict(position=read("links1_point", "position", pos),
+                direction=_unit(read("links1_point", "direction", direction), "links1_point: direction"),
+                L1=read("links1_point", "L1", _rgb(props, "L1", None)),
+                L2=read("links1_point", "L2", _rgb(props, "L2", None)), falloff=falloff)
 
 
 def spot_params(props) -> dict:
-    origin = _vec(props, "origin", (0.0, 0.0, 0.0))
-    if not ("direction" in props):
-        raise ValueError("links1_spot: 'direction' is required")
-    direction = _vec(props, "direction", None)
+    origin = _vec(props, "origin", default("links1_spot", "origin"))
+    direction = read("links1_spot", "direction", _vec(props, "direction", None))
     m = _to_world(props)
     if m is not None:
         origin = m[:3, :3] @ origin + m[:3, 3]
         direction = m[:3, :3] @ direction
-    if not ("radius" in props):
-        raise ValueError("links1_spot: 'radius' is required")
-    radius = float(props["radius"])
-    if not (math.isfinite(radius) and radius > 0):
-        raise ValueError(f"links1_spot: 'radius' must be > 0, got {radius}")
-    return dict(origin=origin, direction=_unit(direction, "links1_spot: direction"),
-                radius=radius, intensity=_rgb(props, "intensity", 1.0))
+    radius = read("links1_spot", "radius", float(props["radius"]) if "radius" in props else None)
+    return dict(origin=read("links1_spot", "origin", origin),
+                direction=_unit(read("links1_spot", "direction", direction), "links1_spot: direction"),
+                radius=radius, intensity=read("links1_spot", "intensity", _rgb(props, "intensity", None)))
 
 
 def define_emitters():

@@ -21,6 +21,8 @@ from __future__ import annotations
 import numpy as np
 
 from links1.render import AOVS, DEFAULT_ADAPTIVE_DEPTH, channel_names
+from links1.params import default as l1_default
+from links1.params import read as l1_read
 
 from ._registry import unsupported_variant
 from .intersect import define_intersect
@@ -38,7 +40,7 @@ OFFSET_EPS = 2.0 ** -19
 _PRECISE_MITSUBA = ("Mesh", "OBJMesh", "PLYMesh", "Rectangle", "Disk", "Links1Bicubic", "SerializedMesh")
 #: Default weight below which a branch of the ray tree is not traced (POV-Ray's adc_bailout;
 #: the same default as links1.integrator.DEFAULT_MIN_WEIGHT).
-DEFAULT_MIN_WEIGHT = 1.0 / 255.0
+DEFAULT_MIN_WEIGHT = l1_default("links1_whitted", "min_weight")
 #: Custom quadrics with finite bounds go under a BVH (bvh.py) from this many on.
 BVH_MIN = 8
 
@@ -135,19 +137,17 @@ def define_integrator():
                 raise ValueError(why)
             super().__init__(props)
             self._hidden = _Untraversed()
-            md = int(props.get("max_depth", 5))
+            def param(name, conv):   # links1.params: the rules the core's reader applies too
+                return l1_read("links1_whitted", name, conv(props[name]) if name in props else None)
+            md = param("max_depth", int)
             if md == -1:
-                md = 5
+                md = l1_default("links1_whitted", "max_depth")
             if md < 1:
                 raise ValueError(f"links1_whitted: max_depth must be >= 1 (or -1), got {md}")
             self.max_depth = md
-            self.seed = int(props.get("seed", 0))
-            self.min_weight = float(props.get("min_weight", DEFAULT_MIN_WEIGHT))
-            self.light_samples = int(props.get("light_samples", 1))
-            if self.light_samples < 1:
-                raise ValueError(f"links1_whitted: light_samples must be >= 1, got {self.light_samples}")
-            if not self.min_weight >= 0:
-                raise ValueError(f"links1_whitted: min_weight must be >= 0, got {self.min_weight}")
+            self.seed = param("seed", int)
+            self.min_weight = param("min_weight", float)
+            self.light_samples = param("light_samples", int)
             self.aovs = parse_aovs(props.get("aovs", ""))
             self.adaptive = None
             if "adaptive" in props:

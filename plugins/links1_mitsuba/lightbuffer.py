@@ -343,7 +343,7 @@ class LightBuffer:
 
     def __init__(self, bvh, geom, N, off, ob, ke, margin, mean):
         import mitsuba as mi
-        from .util import table
+        from .util import checked_index, table
         self.bvh = bvh
         self.kind = geom[0]
         self.N = int(N)
@@ -362,6 +362,10 @@ class LightBuffer:
         pairs = np.zeros((max(len(ob), 1), 2), dtype=np.float32)
         pairs[:len(ob), 0] = ob.astype(np.uint32).view(np.float32)
         pairs[:len(ob), 1] = k32
+        # the walk gathers ent[off[cell]:off[cell+1]] and BVH rows ob: both checked when built
+        if len(off) and (np.any(np.diff(off) < 0) or off[0] < 0 or off[-1] != len(ob)):
+            raise RuntimeError("links1_whitted: light buffer offsets out of order (an internal inconsistency)")
+        checked_index(ob, bvh.n, "light buffer entries")
         self.off = table(mi.UInt32, off.astype(np.uint32))
         self.ent = table(mi.Float, pairs)
 

@@ -135,6 +135,8 @@ def _prepare_state(state, config, integrator: str, base_dir: str | None):
             custom_nodes.append((slot, node))
             names.append((slot, props.id() or f"{pname}_{slot}", pname))
         else:
+            if pname in ("rectangle", "disk") and "to_world" in props:
+                _planar_to_world(props)
             if not props.id():
                 props.set_id(SLOT_ID.format(slot))
             slot_of_id[props.id()] = slot
@@ -173,6 +175,19 @@ def _prepare_state(state, config, integrator: str, base_dir: str | None):
     for k, v in moved_refs:
         integ_node.props[k] = v
     return integ_node, custom_specs, slot_of_id, names
+
+
+def _planar_to_world(props) -> None:
+    """A rectangle or disk scaled to zero thickness is still that shape: give its to_world
+    a usable third column (:func:`links1.params.planar_to_world`, as the core does) where
+    Mitsuba would derive NaN normals from the singular map."""
+    import mitsuba as mi
+
+    from links1.params import planar_to_world
+    m = np.array(props["to_world"].matrix, dtype=np.float64).reshape(4, 4)
+    fixed = planar_to_world(m)
+    if not np.array_equal(fixed, m):
+        props["to_world"] = mi.ScalarAffineTransform4d(mi.ScalarMatrix4d(fixed))
 
 
 def _add_integrator(state, plugin: str):

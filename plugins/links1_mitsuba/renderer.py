@@ -118,6 +118,8 @@ class MitsubaRenderer:
                     raise ValueError(f"light_samples must be >= 1, got {light_samples}")
                 self.integrator.light_samples = int(light_samples)
             self.light_samples = int(self.integrator.light_samples)
+            from links1.render import check_resources   # before any film-sized allocation
+            check_resources(*self._film, self.spp, self.light_samples)
             self.integrator._prep = None
             # the renderer's scene is its own (loaded here, changed by no one): launches skip the
             # parameter digest (mi.traverse) that mi.render() and render_window() check
@@ -130,6 +132,8 @@ class MitsubaRenderer:
                 raise ValueError("AOVs need the links1_whitted integrator (integrator='links1')")
             if max_depth is not None:
                 mi.traverse(self.scene)  # Mitsuba's integrators keep their own max_depth
+            from links1.render import check_resources
+            check_resources(*self._film, self.spp)
             self.integrator = self.scene.integrator()
 
     @property

@@ -14,6 +14,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from links1.params import blob_centers, clip_plane, default, read, transform_problem
+
 INF = float("inf")
 #: Blob march: probe step relative to the largest S (float32 analogue of the core's).
 PROBE_REL = 1e-4
@@ -58,32 +60,32 @@ class QuadricSpec:
     emission: np.ndarray | None = None
 
     def __post_init__(self):
-        lin = self.to_world[:3, :3]
-        if abs(np.linalg.det(lin)) < 1e-300:
-            raise ValueError(f"links1_quadric '{self.name}': to_world is singular")
+        problem = transform_problem(self.to_world)
+        if problem is not None:
+            raise ValueError(f"links1_quadric '{self.name}': {problem}")
         self.inv = np.linalg.inv(self.to_world).tolist()
         self.normal_mat = np.linalg.inv(self.to_world)[:3, :3].T.tolist()  # object → world normals
         self.clips = [(np.asarray(n, dtype=np.float64).tolist(), float(h)) for n, h in self.clips]
 
     @classmethod
     def from_props(cls, slot, props):
-        kind = str(props["kind"]).strip().lower() if ("kind" in props) else ""
-        if kind not in ("sphere", "cylinder"):
-            raise ValueError(f"links1_quadric: 'kind' must be 'sphere' or 'cylinder', got '{kind}'")
+        kind = read("links1_quadric", "kind", str(props["kind"]) if ("kind" in props) else None)
         m = _matrix(props)
         clips, k = [], 0
         while (f"clip_{k}" in props):
             v = props[f"clip_{k}"]
-            n = np.array([float(v[0]), float(v[1]), float(v[2])])
-            if not np.linalg.norm(n) > 0:
-                raise ValueError(f"links1_quadric: clip_{k}: the plane normal must be non-zero")
-            h = float(props[f"clip_{k}_offset"]) if (f"clip_{k}_offset" in props) else 0.0
+            try:
+                n, h = clip_plane(k, [float(v[0]), float(v[1]), float(v[2])],
+                                  float(props[f"clip_{k}_offset"]) if (f"clip_{k}_offset" in props)
+                                  else default("links1_quadric", "clip_offset"))
+            except ValueError as exc:
+                raise ValueError(f"links1_quadric: {exc}") from None
             clips.append((n, h))
             k += 1
         for key in props.keys():
             if re.fullmatch(r"clip_\d+(_offset)?", key) and int(key.split("_")[1]) >= k:
                 raise ValueError(f"links1_quadric: '{key}' without the planes before it")
-        capped = bool(props["capped"]) if ("capped" in props) else False
+        capped = read("links1_quadric", "capped", bool(props["capped"]) if ("capped" in props) else None)
         return cls(slot, props.id(), kind, np.eye(4) if m is None else m, clips, capped)
 
     def bounds(self):
@@ -253,25 +255,16 @@ class BlobSpec:
 
     @classmethod
     def from_props(cls, slot, props):
-        text = str(props["centers"]) if ("centers" in props) else ""
-        toks = text.replace(",", " ").split()
-        if not toks or len(toks) % 5:
-            raise ValueError("links1_blob: 'centers' must hold groups of five numbers x y z w S, "
-                             f"got {len(toks)} numbers")
-        c = np.array([float(t) for t in toks]).reshape(-1, 5)
-        if not np.all(np.isfinite(c)) or not np.all(c[:, 4] > 0):
-            raise ValueError("links1_blob: centres must be finite with S > 0")
-        if not ("threshold" in props):
-            raise ValueError("links1_blob: 'threshold' is required")
-        thr = float(props["threshold"])
-        if not thr > 0:
-            raise ValueError(f"links1_blob: 'threshold' must be > 0, got {thr}")
-        solver = str(props["solver"]).strip().lower() if ("solver" in props) else "exact"
-        if solver not in ("exact", "paper"):
-            raise ValueError(f"links1_blob: 'solver' must be 'exact' or 'paper', got '{solver}'")
-        samples = int(props["samples"]) if ("samples" in props) else 8
-        if samples < 1:
-            raise ValueError("links1_blob: 'samples' must be >= 1")
+        try:
+            c = blob_centers(str(props["centers"]) if ("centers" in props) else "")
+        except ValueError as exc:
+            raise ValueError(f"links1_blob: {exc}") from None
+        thr = read("links1_blob", "threshold", float(props["threshold"]) if ("threshold" in props) else None)
+        solver = read("links1_blob", "solver", str(props["solver"]) if ("solver" in props) else None)
+        samples = read("links1_blob", "samples", int(props["samples"]) if ("samples" in props) else None)
+        m = _matrix(props)
+        if m is not None and (problem := transform_problem(m)) is not None:
+            raise ValueError(f"links1_blob: {problem}")
         return cls(slot, props.id(), c, thr, solver, samples, _matrix(props))
 
     def bounds(self):
@@ -864,12 +857,14 @@ def tessellate_bicubic(props, base_dir=None):
         patches = meshes.read_patches(fn)
     else:
         patches = meshes.parse_patches(str(props["control_points"]), "<control_points>", with_count=False)
-    sub = int(props["subdivisions"]) if ("subdivisions" in props) else 8
+    sub = read("links1_bicubic", "subdivisions", int(props["subdivisions"]) if ("subdivisions" in props) else None)
     v, f, n = meshes.tessellate_patches(patches, sub)
     if ("flip_normals" in props) and bool(props["flip_normals"]):
         f, n = meshes.flip(f, n)
     m = _matrix(props)
     if m is not None:
+        if (problem := transform_problem(m)) is not None:
+            raise ValueError(f"links1_bicubic: {problem}")
         v, n = meshes.transform_mesh(m, v, n)
     if ("face_normals" in props) and bool(props["face_normals"]):
         n = None

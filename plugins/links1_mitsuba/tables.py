@@ -25,6 +25,7 @@ from links1.lights import ENV_LIGHT_ID
 
 from . import lightbuffer
 from .lights import _emitted_rgb
+from .util import checked_index
 
 #: Shadow rays toward a light that at most this many Mitsuba shapes can occlude first test the
 #: segment against those shapes' bounding boxes and call Embree only where one is met
@@ -274,7 +275,7 @@ def define_tables(mi, dr, util):
             table = np.full(max(reg + [0]) + 1, -1, dtype=np.int32)
             for r, sl in zip(reg, slot_list):
                 table[r] = sl
-            P.reg_to_slot = mi.Int32(table)
+            P.reg_to_slot = mi.Int32(checked_index(table, nslots, "reg_to_slot", sentinel=-1))
             P.any_mitsuba_shapes = len(shapes) > 0
             eps_np = np.full(max(nslots, 1), float(mi.math.RayEpsilon), dtype=np.float32)
             for s_, sl in zip(shapes, slot_list):
@@ -363,8 +364,18 @@ def define_tables(mi, dr, util):
             # links1_quadric shapes whose Mitsuba BSDF has a texture get the core's uv
             P.uv_slots = {sp.slot for sp in self.custom if sp.__class__.__name__ == "QuadricSpec"
                           and not is_phong[sp.slot] and _textured(bsdfs[sp.slot])}
-            P.bsdf_ptr = mi.BSDFPtr([b if b is not None else default_bsdf for b in bsdfs]) \
-                if not P.all_phong else None
+            if default_bsdf is None and any(b is None for b in bsdfs):
+                default_bsdf = mi.load_dict({"type": "diffuse"})
+            bsdfs = [b if b is not None else default_bsdf for b in bsdfs]
+            # a BSDFPtr array holds registry ids, not references: the BSDF objects (the default
+            # made here above all) must live as long as the tables, or a vcall through a freed
+            # id crashes the process (issue 25: a quadric without a BSDF beside ones with one)
+            P.keep_alive = P.keep_alive + (bsdfs,)
+            if len(bsdfs) != nslots or any(b is None for b in bsdfs):
+                raise RuntimeError("links1_whitted: the BSDF table has a hole (an internal inconsistency)")
+            for spec in self.custom:
+                checked_index([spec.slot], nslots, "custom shape slot")
+            P.bsdf_ptr = mi.BSDFPtr(bsdfs) if not P.all_phong else None
             # shadow transmittance (3-3-3): Phong t; Mitsuba BSDFs are opaque
             P.shadow_t_np = trans.copy()
             if len(P.custom_unrolled) != len(self.custom):
@@ -373,7 +384,7 @@ def define_tables(mi, dr, util):
                 s2q = np.full(max(nslots, 1), -1, dtype=np.int32)
                 for i, sp in enumerate(P.bvh.specs):
                     s2q[sp.slot] = i
-                P.bvh.slot_to_q = mi.Int32(s2q)
+                P.bvh.slot_to_q = mi.Int32(checked_index(s2q, P.bvh.n, "slot_to_q", sentinel=-1))
             P.shadow_t = mi.Float(trans.ravel())
             # transparent Mitsuba shapes, each counted once per shadow segment (3-3-3): shape j
             # owns bit j % 32 of word j // 32 of a per-lane "seen" set (as many words as needed)

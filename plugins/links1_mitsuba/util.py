@@ -14,6 +14,22 @@ _M1 = 0x7FEB352D
 _M2 = 0x846CA68B
 
 
+def checked_index(values, n: int, what: str, *, sentinel: int | None = None) -> np.ndarray:
+    """``values`` as an index table into ``n`` rows, checked when it is built (issue 25): every
+    entry in ``[0, n)`` (or the ``sentinel``, e.g. -1 for "none", which the kernels mask).
+    A gather out of range in an LLVM/CUDA kernel reads foreign memory or crashes the
+    process; a table that breaks the rule is a bug in links1, stopped here with its name."""
+    a = np.asarray(values)
+    bad = (a < 0) | (a >= n)
+    if sentinel is not None:
+        bad &= a != sentinel
+    if np.any(bad):
+        k = int(np.flatnonzero(bad.ravel())[0])
+        raise RuntimeError(f"links1_whitted: index table '{what}' holds {a.ravel()[k]} at {k}, "
+                           f"outside [0, {n}) (an internal inconsistency)")
+    return a
+
+
 def aligned(a, dtype) -> np.ndarray:
     """A 64-byte aligned contiguous copy of ``a`` as ``dtype``. A Dr.Jit array made from a
     numpy array maps its memory, and numpy aligns it to 16 bytes only. Two costs follow:
