@@ -101,6 +101,36 @@ def test_include_path_and_ref():
     assert s.path.endswith("main_include.xml")
 
 
+def test_alias_names_the_same_object():
+    """``<alias id="a" as="b"/>``: a reference to ``b`` is the object ``a`` (the BSDF named ``a``)."""
+    s = load('<bsdf type="diffuse" id="red"><rgb name="reflectance" value="0.9, 0.1, 0.1"/></bsdf>\n'
+             '<alias id="red" as="crimson"/>\n'
+             '<shape type="sphere"><ref id="crimson"/></shape><shape type="disk"><ref id="red"/></shape>')
+    a, b = (sh.material for sh in s.shapes)
+    for m in (a, b):
+        assert isinstance(m, materials.Diffuse) and m.name == "red"
+        np.testing.assert_allclose(m.reflectance, [0.9, 0.1, 0.1])
+    with pytest.raises(SceneError, match="unknown id 'nope'"):
+        load('<alias id="nope" as="x"/>')
+
+
+def test_version_before_2_upgrades_camel_case_names():
+    """A scene older than 2.0 (Mitsuba 0.6 style ``nearClip``, ``sampleCount``, ``cropOffsetX``)
+    reads as its snake_case names, with one warning naming the version."""
+    body = ('<sensor type="perspective"><float name="fov" value="40"/>'
+            '<float name="nearClip" value="0.5"/><float name="farClip" value="50"/>'
+            '<sampler type="independent"><integer name="sampleCount" value="9"/></sampler>'
+            '<film type="hdrfilm"><integer name="width" value="40"/><integer name="height" value="30"/>'
+            '<integer name="cropOffsetX" value="8"/><integer name="cropWidth" value="16"/></film></sensor>')
+    with pytest.warns(SceneWarning, match=r"scene version 0\.6\.0 is older than 2\.0"):
+        c = loader.load_string(scene_xml(body, version="0.6.0"), base_dir=DATA)
+    assert (c.camera.near_clip, c.camera.far_clip, c.spp) == (0.5, 50.0, 9)
+    assert c.camera.crop_offset[0] == 8 and c.camera.crop_size[0] == 16
+    # the same names in a 3.0 scene are Mitsuba's error: the upgrade is what made them valid
+    with pytest.raises(SceneError):
+        loader.load_string(scene_xml(body), base_dir=DATA)
+
+
 def test_forward_ref_and_named_ref():
     body = ('<shape type="sphere"><ref name="bsdf" id="m"/></shape>\n'
             '<bsdf type="conductor" id="m"/>')

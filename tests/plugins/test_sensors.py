@@ -90,3 +90,37 @@ def test_other_sensors_are_refused_in_one_line(llvm, tmp_path):
                                                    'value="50"/>', ""))
     with pytest.raises(Exception, match="perspective, thinlens and orthographic sensors, not RadianceMeter"):
         make_renderer("mitsuba", str(p), spp=1).render()
+
+
+@pytest.mark.parametrize("kind", ["core", "mitsuba"])
+@pytest.mark.parametrize("sensor", ["orthographic", "perspective"])
+def test_crop_window_is_those_pixels_of_the_full_film(llvm, kind, sensor, tmp_path):
+    """A film's crop window (``crop_offset_x/y``, ``crop_width/height``; ``links1.render`` and
+    ``mi.render`` with links1_whitted render it) is exactly those
+    pixels of the uncropped film, bit for bit, with a filter wider than a pixel (Gaussian,
+    radius 2): its border pixels gather samples from outside the window, from the whole film."""
+    body = SCENE.format(W=W, H=H, cx=0.0).replace('<rfilter type="box"/>', '<rfilter type="gaussian"/>')
+    if sensor == "perspective":
+        body = body.replace('<sensor type="orthographic">', '<sensor type="perspective"><float name="fov" value="40"/>') \
+            .replace('<scale x="2.5" y="2.5"/>', "")
+    x0, y0, w, h = 13, 5, 17, 11
+    full, crop = tmp_path / "full.xml", tmp_path / "crop.xml"
+    full.write_text(body)
+    crop.write_text(body.replace("<rfilter", f'<integer name="crop_offset_x" value="{x0}"/>'
+                                 f'<integer name="crop_offset_y" value="{y0}"/><integer name="crop_width" value="{w}"/>'
+                                 f'<integer name="crop_height" value="{h}"/><rfilter'))
+    if kind == "core":
+        import links1
+
+        def film(path):
+            return np.asarray(links1.render(links1.load_scene(str(path)), spp=4, seed=3))
+    else:
+        import mitsuba as mi
+
+        import links1_mitsuba
+
+        def film(path):   # mi.render renders the film's crop window
+            return np.array(mi.render(links1_mitsuba.load_file(str(path)), spp=4, seed=3), dtype=np.float64)
+    a, b = film(full), film(crop)
+    assert a.shape[:2] == (H, W) and b.shape[:2] == (h, w)
+    assert np.array_equal(b, a[y0:y0 + h, x0:x0 + w]) and b[..., 0].max() > 0
