@@ -791,6 +791,10 @@ class _Builder:
                     raise child.error("a shape can have only one bsdf")
                 material = self.bsdf(child)
             elif child.tag == "emitter":
+                if child.type in _IGNORED_EMITTERS:   # directionalarea: an area emitter of its own kind
+                    child.warn(f"emitter '{child.type}' is not supported by the core and is ignored")
+                    _Props(child).ignore(*child.props)
+                    continue
                 if child.type != "area":
                     raise child.error(f"emitter '{child.type}' cannot be nested in a shape "
                                       "(only 'area')")

@@ -113,8 +113,9 @@ def define_raytree(mi, dr, util):
                 sif.uv = dr.select(cw, self._custom_uv(P, o, d, t, prim, slot, uslot, hit), si.uv)
                 sif.wi = sif.to_local(wo)
                 if P.any_mitsuba_emission:
-                    em = si.emitter(scene, mits)
-                    out += dr.select(mits, em.eval(sif, mits), 0.0)
+                    emits = mits & dr.gather(mi.Bool, P.mitsuba_emits, uslot, mits)
+                    em = si.emitter(scene, emits)
+                    out += dr.select(emits, em.eval(sif, emits), 0.0)
                 bsdf = dr.gather(mi.BSDFPtr, P.bsdf_ptr, uslot, hit)
                 is_ph = dr.gather(mi.Bool, P.is_phong, uslot, hit)
                 mb = hit & ~is_ph

@@ -407,7 +407,18 @@ def define_tables(mi, dr, util):
                     emis[spec.slot] = spec.emission
             P.custom_emission = mi.Float(emis.ravel())
             P.any_custom_emission = bool(np.any(emis > 0))
-            P.any_mitsuba_emission = any(s.emitter() is not None for s in shapes)
+            # Mitsuba shapes that emit: area emitters only (a directionalarea is ignored, as the
+            # emitter loop below says, so its shape shows no emission either)
+            emits = np.zeros(max(nslots, 1), dtype=bool)
+            for s, sl in zip(shapes, slot_list):
+                if s.emitter() is not None and str(s.emitter()).split("[")[0] == "AreaLight":
+                    emits[sl] = True
+            P.any_mitsuba_emission = bool(emits.any())
+            P.mitsuba_emits = mi.Bool(emits)
+            for s in shapes:
+                if s.interior_medium() is not None or s.exterior_medium() is not None:
+                    warnings.warn(f"{self.place(s)}: its medium is not supported by links1_whitted and "
+                                  "is ignored", stacklevel=2)
             # lights
             P.lights, P.area, P.env, P.consts, P.area_tab = [], [], None, [], []
             n_env = 0
@@ -460,7 +471,7 @@ def define_tables(mi, dr, util):
                                   "lights nothing", stacklevel=2)
                     n_env += 1
                     P.env = e
-                elif int(e.flags()) & int(mi.EmitterFlags.Surface):
+                elif kind == "AreaLight":   # a directionalarea (also Surface) is ignored, as in the core
                     tab = self._area_table(e, shapes, slot_list)
                     if tab is not None:
                         P.area.append(e)
