@@ -286,9 +286,14 @@ def add_cli(subparsers) -> None:
     p.add_argument("--simulate", type=_nodes_list, default=None, metavar="1,4,16,...",
                    help="replay the measured cost map at these node counts")
     p.add_argument("--sim-plot", default=None, metavar="OUT.png", help="simulation plot (default: next to --plot)")
-    p.add_argument("--unit-overhead", type=float, default=None,
-                   help="simulated seconds per unit (default: the per-launch overhead measured in this run)")
-    p.add_argument("--object-cost", type=float, default=1e-4, help="simulated seconds per object sent to a node")
+    p.add_argument("--launch-overhead", type=float, default=None, metavar="S",
+                   help="simulated seconds per launch (default: the cost model's constant, fitted on units "
+                        "launched alone in this run)")
+    p.add_argument("--unit-overhead", type=float, default=None, metavar="S",
+                   help="simulated seconds per further unit in a launch (default: fitted on this run's launches)")
+    p.add_argument("--object-cost", type=float, default=0.0, metavar="S",
+                   help="simulated seconds per object sent to a node (default 0: local and Dask nodes load the "
+                        "whole scene before the clock starts; set it to model 4-4 shipping)")
     p.add_argument("--reference-repeat", type=_pos("--reference-repeat"), default=3, metavar="N",
                    help="the single-process reference (full frame, 64 one-unit launches, 2 batches): "
                         "medians of N rounds after one warm-up (default 3)")
@@ -301,7 +306,8 @@ def run_cli(args) -> int:
     """``links1 schedule``: a real run, its report, optional plots and simulation."""
     from .checkpoint import atomic_write_json
     from .executors import render_plan
-    from .experiment import build_report, format_table, plot_report, plot_simulation, simulate
+    from .experiment import build_report, check_simulator, format_table, plot_report, plot_simulation, simulate, \
+        work_map
     if args.renderer == "mitsuba":
         from ..render import require_mitsuba
         require_mitsuba(args.variant)
@@ -327,20 +333,34 @@ def run_cli(args) -> int:
                           meta={"scene": os.path.abspath(args.scene), "renderer": args.renderer,
                                 "cull": bool(args.cull), "spp": spec.kwargs.get("spp"),
                                 "chunk_factor": getattr(backend, "chunk_factor", None),
-                                "chunk_by": getattr(backend, "chunk_by", None)})
+                                "chunk_by": getattr(backend, "chunk_by", None)},
+                          chunk_factor=getattr(backend, "chunk_factor", None),
+                          chunk_by=getattr(backend, "chunk_by", None),
+                          task_pixels=getattr(backend, "task_pixels", None))
+    tests = res.image[..., cost_channel] if cost_channel is not None else None
+    if tests is not None:
+        report["simulator_check"] = check_simulator(report, tests, model)
     if args.simulate:
-        cm = report["cost_model"] or {"per_pixel_s": 0.0, "per_test_s": 0.0, "per_unit_s": 0.0}
-        tests = res.image[..., cost_channel] if cost_channel is not None else 0.0
-        cost_map = cm["per_pixel_s"] + cm["per_test_s"] * tests
-        measured = reference["per_launch_overhead_s"] if reference else cm["per_unit_s"]
-        overhead = measured if args.unit_overhead is None else args.unit_overhead
-        rows = simulate(cost_map, model, args.simulate, tiles_per_node=args.tiles_per_node,
-                        unit_overhead=overhead, object_cost=args.object_cost)
-        report["simulation"] = {"unit_overhead_s": overhead, "object_cost_s": args.object_cost, "rows": rows}
-        print(format_table(rows))
-        sim_plot = args.sim_plot or (os.path.splitext(args.plot)[0] + "-simulate.png" if args.plot else None)
-        if sim_plot:
-            plot_simulation(rows, sim_plot)
+        wm = work_map(report, tests) if tests is not None else None
+        if wm is None:
+            warnings.warn("no cost model (no units launched alone with the cost AOV): nothing to simulate")
+        else:
+            ov = dict(report["overheads"])
+            if args.launch_overhead is not None:
+                ov["per_launch_s"] = args.launch_overhead
+            if args.unit_overhead is not None:
+                ov["per_unit_s"] = args.unit_overhead
+            rows = simulate(wm, model, args.simulate, tiles_per_node=args.tiles_per_node, overheads=ov,
+                            object_cost=args.object_cost, full_frame_s=report.get("full_frame_s"),
+                            in_process_one=not (args.scheduler or args.dask_local))
+            report["simulation"] = {"overheads": ov, "object_cost_s": args.object_cost,
+                                    "source": "simulated: the work map (cost_model on exact ray tests) replayed "
+                                              "as the backends hand out work, with the overheads above",
+                                    "rows": rows}
+            print(format_table(rows))
+            sim_plot = args.sim_plot or (os.path.splitext(args.plot)[0] + "-simulate.png" if args.plot else None)
+            if sim_plot:
+                plot_simulation(rows, sim_plot)
     atomic_write_json(args.report, report)
     if args.plot:
         plot_report(report, args.plot)
@@ -362,14 +382,25 @@ def _reference(backend, spec, repeat=3):
 
 
 def summary_line(report, strategy) -> str:
-    """One line: which figure answers which question (docs/partitioning.md, "Reading the report")."""
+    """One line, every figure named with its source (docs/partitioning.md, "Reading the report")."""
     def f(v, nd=3):
         return "n/a" if v is None else f"{v:.{nd}f}"
     pl = (report.get("reference") or {}).get("per_launch_overhead_s")
-    return (f"links1: schedule {strategy} on {report['nodes']} nodes: makespan {f(report['makespan_s'])} s, "
-            f"full frame in one process {f(report.get('full_frame_s'))} s, "
-            f"true efficiency {f(report.get('true_efficiency'))}, busy efficiency "
-            f"{f(report['parallel_efficiency'])}, imbalance {f(report['imbalance'])}, "
+    rc = report["rank_correlation"]
+    us = report.get("unit_seconds") or {}
+    cm = report.get("cost_model") or {}
+    chk = report.get("simulator_check")
+    sim = "" if not chk else (f"; simulator on this run: {f(chk['simulated_s'], 4)} s simulated vs "
+                              f"{f(chk['measured_s'], 4)} s measured ({chk['error'] * 100:+.1f} %)")
+    return (f"links1: schedule {strategy} on {report['nodes']} nodes: "
+            f"TRUE EFFICIENCY {f(report.get('true_efficiency'))} (one-process frame {f(report.get('full_frame_s'))} s"
+            f" / ({report['nodes']} x makespan {f(report['makespan_s'])} s), measured); "
+            f"busy efficiency {f(report['parallel_efficiency'])} (node busy / (nodes x makespan): counts overhead "
+            f"as busy), imbalance {f(report['imbalance'])} (measured busy), "
             f"{report.get('launches')} launches, per-launch overhead "
-            f"{f(None if pl is None else pl * 1e3, 2)} ms, "
-            f"rank correlation {f(report['rank_correlation']['predicted_vs_seconds'])}")
+            f"{f(None if pl is None else pl * 1e3, 2)} ms (measured); "
+            f"unit seconds: {us.get('measured', 0)} measured (launched alone), {us.get('derived', 0)} derived "
+            f"(cost model fitted on {cm.get('fitted_on_units', 0)} units launched alone); "
+            f"rank correlation of predicted load (eq. 4.1) with measured seconds "
+            f"{f(rc.get('predicted_vs_measured_seconds'))} (n={rc.get('n_measured')}), with exact ray tests "
+            f"{f(rc.get('predicted_vs_ray_tests'))} (n={rc.get('n_units')})" + sim)

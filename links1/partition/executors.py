@@ -96,6 +96,7 @@ class RenderResult:
     rendered: int = 0                  # units rendered in this run
     resumed: int = 0                   # units taken from the checkpoint
     makespan_s: float = 0.0            # first dispatch to last result (root clock)
+    t0_wall: float | None = None       # time.time() at the first dispatch (for dispatch latency)
     backend: str = ""
     n_nodes: int = 0
 
@@ -154,6 +155,7 @@ def render_plan(plan, spec: RendererSpec, backend, *, checkpoint=None, progress:
         if pixels.shape[:2] != (u.h, u.w):
             raise RuntimeError(f"unit {u.window}: node returned {pixels.shape[:2]}, expected {(u.h, u.w)}")
         place(i, pixels)
+        info.setdefault("received", time.time())  # root clock (wall): the result is here
         res.records[i] = info
         res.rendered += 1
         if checkpoint is not None:
@@ -169,6 +171,7 @@ def render_plan(plan, spec: RendererSpec, backend, *, checkpoint=None, progress:
         if todo:
             backend.start(spec)
             res.n_nodes = backend.n_nodes
+            res.t0_wall = time.time()   # the nodes' records use wall clocks (same machine)
             t0 = time.perf_counter()
             backend.run(plan, todo, spec, cull or {}, on_done, on_fault)
             res.makespan_s = time.perf_counter() - t0
