@@ -268,12 +268,13 @@ def build_report(result, plan, model, *, cost_channel=None, meta=None, reference
     makespan = result.makespan_s or 1e-12
     mean = float(np.mean(busy_s)) if busy_s else 0.0
     # rank correlations, named by what they compare
-    a_pred = list(unit_loads([_Win(a["window"]) for a in alone], load_map)) if load_map is not None and alone \
+    # (over units launched alone: the reference's tiles and the run's lone units, not the whole frame)
+    a_pred = list(unit_loads([_Win(a["window"]) for a in tiles], load_map)) if load_map is not None and tiles \
         else []
     a_pred += [u["predicted_load"] for u in units if u["seconds_source"] == "measured"] if load_map is not None \
         else []
-    a_secs = [a["seconds"] for a in alone] + [u["seconds"] for u in units if u["seconds_source"] == "measured"]
-    a_tests = [a["ray_tests"] for a in alone] + [u["ray_tests"] for u in units if u["seconds_source"] == "measured"]
+    a_secs = [a["seconds"] for a in tiles] + [u["seconds"] for u in units if u["seconds_source"] == "measured"]
+    a_tests = [a["ray_tests"] for a in tiles] + [u["ray_tests"] for u in units if u["seconds_source"] == "measured"]
     pred = [u["predicted_load"] for u in units]
     tests = [u["ray_tests"] for u in units]
     in_process = (result.backend == "inprocess") if in_process is None else in_process
