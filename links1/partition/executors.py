@@ -151,17 +151,19 @@ def render_plan(plan, spec: RendererSpec, backend, *, checkpoint=None, progress:
                    dynamic_ncols=True, leave=False, smoothing=0.1)
 
     def on_done(i, pixels, info):
+        t = time.perf_counter()
+        info.setdefault("received", time.time())  # root clock (wall): the result is here
         u = plan.units[i]
         if pixels.shape[:2] != (u.h, u.w):
             raise RuntimeError(f"unit {u.window}: node returned {pixels.shape[:2]}, expected {(u.h, u.w)}")
         place(i, pixels)
-        info.setdefault("received", time.time())  # root clock (wall): the result is here
         res.records[i] = info
         res.rendered += 1
         if checkpoint is not None:
             checkpoint.save(u, pixels)
         if bar is not None:
             bar.update(1)
+        info["root_s"] = time.perf_counter() - t  # the root's own time for this unit (assembly)
 
     def on_fault(msg):
         res.faults.append(msg)

@@ -150,17 +150,30 @@ def unit_work(cm, pixels, tests):
     return cm["per_pixel_s"] * np.asarray(pixels, float) + cm["per_test_s"] * np.asarray(tests, float)
 
 
-def fit_overheads(launches, tasks, first_starts, t0_wall, cm, *, in_process=False) -> dict:
+def _fit_per_unit(values, pixels):
+    """``a + b * pixels`` (>= 0) over units; the median when the units are all one size."""
+    v, p = np.asarray(values, float), np.asarray(pixels, float)
+    if len(v) == 0:
+        return 0.0, 0.0
+    if len(v) >= 3 and np.ptp(p) > 0:
+        a, b = nnls(np.stack([np.ones_like(p), p], axis=1), v)
+        return float(a), float(b)
+    return float(np.median(v)), 0.0
+
+
+def fit_overheads(launches, tasks, first_starts, t0_wall, cm, *, in_process=False, unit_costs=None) -> dict:
     """Per-launch, per-unit, scale and transfer costs of this run, fitted on its records.
 
     ``launches``: [{seconds, units, work}] (measured launch time, units in it, derived work);
-    ``tasks``: [{gap, pixels}] (root receipt - end of the task's last launch); ``first_starts``:
+    ``tasks``: [{gap, pixels}] (root receipt - the task's end on its node); ``first_starts``:
     per node, wall time of its first launch. A launch is modelled as the cost model has it
     (``per_launch_s + per_unit_s * (units - 1) + work``, the reference's conditions: one node
     rendering alone) times ``scale``, the nodes' speed in this run relative to the reference
     (contention between nodes on shared cores, the machine's drift): the ratio of the run's
     measured launch seconds to the model's. One factor for every launch, so a run of any
-    strategy predicts the others."""
+    strategy predicts the others. ``unit_costs`` ([{pixels, wire_s, root_s}]): each unit's
+    measured time outside its launch on the node (``wire_s``: its pixels made ready to send)
+    and in the root (``root_s``: placed in the frame), fitted as ``a + b * pixels``."""
     t = np.array([ln["seconds"] for ln in launches], float)
     n = np.array([ln["units"] - 1 for ln in launches], float)
     W = np.array([ln["work"] for ln in launches], float)
@@ -180,9 +193,15 @@ def fit_overheads(launches, tasks, first_starts, t0_wall, cm, *, in_process=Fals
                 T0 = float(np.median(g))
         if first_starts and t0_wall is not None:
             D = max(0.0, float(np.median([s - t0_wall for s in first_starts])))
+    uc = unit_costs or []
+    na, nb = _fit_per_unit([u["wire_s"] for u in uc if u.get("wire_s") is not None],
+                           [u["pixels"] for u in uc if u.get("wire_s") is not None])
+    ra, rb = _fit_per_unit([u["root_s"] for u in uc if u.get("root_s") is not None],
+                           [u["pixels"] for u in uc if u.get("root_s") is not None])
     return {"per_launch_s": float(L), "per_unit_s": U, "scale": float(scale), "transfer_s": T0,
-            "transfer_per_pixel_s": Tpx, "dispatch_s": D, "fit": how, "launches": len(launches),
-            "tasks": len(tasks), "in_process": bool(in_process)}
+            "transfer_per_pixel_s": Tpx, "dispatch_s": D,
+            "node_unit_s": na, "node_unit_per_pixel_s": nb, "root_unit_s": ra, "root_unit_per_pixel_s": rb,
+            "fit": how, "launches": len(launches), "tasks": len(tasks), "in_process": bool(in_process)}
 
 
 def build_report(result, plan, model, *, cost_channel=None, meta=None, reference=None,
@@ -234,11 +253,12 @@ def build_report(result, plan, model, *, cost_channel=None, meta=None, reference
         work = float(unit_work(cm, u.pixels, tests)) if cm is not None and tests is not None else None
         ln["work"] += work or 0.0
         tk = tasks.setdefault(tuple(r.get("task", lid)), {"stop": r["stop"], "received": r.get("received"),
-                                                          "pixels": 0, "node": r["node"]})
+                                                          "pixels": 0, "node": r["node"], "wire": 0.0})
         tk["stop"] = max(tk["stop"], r["stop"])
         tk["pixels"] += u.pixels
-        if r.get("received") is not None:
-            tk["received"] = max(tk["received"] or 0.0, r["received"])
+        tk["wire"] += r.get("wire_s") or 0.0
+        if r.get("received") is not None:  # the root starts on the task's results at the first
+            tk["received"] = min(tk["received"] or r["received"], r["received"])
         if n_in == 1:
             secs, src = r.get("launch_seconds", r["seconds"]), "measured"
         elif work is not None:
@@ -285,9 +305,11 @@ def build_report(result, plan, model, *, cost_channel=None, meta=None, reference
     if cm is not None:
         overheads = fit_overheads(
             list(launches.values()),
-            [{"gap": tk["received"] - tk["stop"], "pixels": tk["pixels"]} for tk in tasks.values()
+            [{"gap": tk["received"] - tk["stop"] - tk["wire"], "pixels": tk["pixels"]} for tk in tasks.values()
              if tk["received"] is not None],
-            list(first.values()), getattr(result, "t0_wall", None), cm, in_process=in_process)
+            list(first.values()), getattr(result, "t0_wall", None), cm, in_process=in_process,
+            unit_costs=[{"pixels": u.pixels, "wire_s": r.get("wire_s"), "root_s": r.get("root_s")}
+                        for _, u, r, _ in raw])
         overheads.update(chunk_factor=CHUNK_FACTOR if chunk_factor is None else int(chunk_factor),
                          chunk_by=chunk_by or "units", task_pixels=task_pixels or TASK_PIXELS, spp=spp or 1)
     full = None if reference is None else reference["full_s"]
@@ -406,7 +428,8 @@ def _launch_groups(units, batch, spp, launch_samples):
 
 
 def replay(plan, work, *, per_launch_s=0.0, per_unit_s=0.0, scale=1.0, transfer_s=0.0, transfer_per_pixel_s=0.0,
-           dispatch_s=0.0, chunk_factor=None, chunk_by="units", task_pixels=None, prefetch=2, spp=1,
+           dispatch_s=0.0, node_unit_s=0.0, node_unit_per_pixel_s=0.0, root_unit_s=0.0, root_unit_per_pixel_s=0.0,
+           chunk_factor=None, chunk_by="units", task_pixels=None, prefetch=2, spp=1,
            in_process=None, touch=None, object_cost=0.0, launch_samples=None) -> dict:
     """Replay ``plan`` with per-unit work seconds ``work`` as the backends hand it out.
 
@@ -420,9 +443,13 @@ def replay(plan, work, *, per_launch_s=0.0, per_unit_s=0.0, scale=1.0, transfer_
     Costs: a task reaches its node ``dispatch_s`` after it is sent; each launch of a task
     (split at ``launch_samples`` samples as the nodes do) takes ``per_launch_s + per_unit_s *
     (units - 1) + scale * sum(work)``, plus ``object_cost`` per object its units touch that
-    the node does not hold yet; its result reaches the root ``transfer_s +
-    transfer_per_pixel_s * pixels`` after the task's last launch. Makespan: the last result at
-    the root. Returns makespan_s, busy (per node), launches, tasks, objects held per node.
+    the node does not hold yet; after its launches the node spends ``node_unit_s +
+    node_unit_per_pixel_s * pixels`` per unit readying the result, which reaches the root
+    ``transfer_s + transfer_per_pixel_s * pixels`` later; the root, one thread, takes results
+    in the order they arrive and spends ``root_unit_s + root_unit_per_pixel_s * pixels`` per
+    unit placing them, and only then hands that node its next chunk. Makespan: the root done
+    with the last result. In-process every cost is paid in turn. Returns makespan_s, busy
+    (per node: launches and readying), launches, tasks, objects held per node.
     """
     from .executors import CHUNK_FACTOR, TASK_PIXELS, guided_batch, take_batch
     from .runtime import LAUNCH_SAMPLES
@@ -451,10 +478,13 @@ def replay(plan, work, *, per_launch_s=0.0, per_unit_s=0.0, scale=1.0, transfer_
         elif touch is not None:
             held[k] |= touch[batch].any(axis=0)
         stats["tasks"] += 1
-        return t
+        return t + sum(node_unit_s + node_unit_per_pixel_s * units[i].pixels for i in batch)
 
     def transfer(batch):
         return transfer_s + transfer_per_pixel_s * sum(units[i].pixels for i in batch)
+
+    def at_root(batch):
+        return sum(root_unit_s + root_unit_per_pixel_s * units[i].pixels for i in batch)
 
     makespan = 0.0
     if in_process:  # InProcess.run: one queue in plan order (static: pixel budget; dynamic: guided, 1 node)
@@ -465,9 +495,10 @@ def replay(plan, work, *, per_launch_s=0.0, per_unit_s=0.0, scale=1.0, transfer_
             k = plan.owner[batch[0]] % n if plan.static else 0
             dt = task_time(batch, k)
             busy[k] += dt
-            t += dt
+            t += dt + at_root(batch)
         makespan = t
     elif plan.static:  # LocalPool / Dask static: every task of a node sent at the start
+        arrivals = []
         for k in range(n):
             q = deque(i for i in plan.order if plan.owner[i] % n == k)
             t = dispatch_s
@@ -476,7 +507,11 @@ def replay(plan, work, *, per_launch_s=0.0, per_unit_s=0.0, scale=1.0, transfer_
                 dt = task_time(batch, k)
                 busy[k] += dt
                 t += dt
-                makespan = max(makespan, t + transfer(batch))
+                arrivals.append((t + transfer(batch), at_root(batch)))
+        root = 0.0
+        for t, cost in sorted(arrivals):  # the root takes results as they come, one at a time
+            root = max(root, t) + cost
+        makespan = root
     else:  # dynamic: guided chunks, prefetch tasks per node in flight
         shared = deque(plan.order)
         inflight, free = [0] * n, [0.0] * n
@@ -491,17 +526,19 @@ def replay(plan, work, *, per_launch_s=0.0, per_unit_s=0.0, scale=1.0, transfer_
                 free[k] = start + dt
                 busy[k] += dt
                 inflight[k] += 1
-                heapq.heappush(events, (free[k] + transfer(batch), seq, k))
+                heapq.heappush(events, (free[k] + transfer(batch), seq, k, at_root(batch)))
                 seq += 1
 
         for k in range(n):
             fill(k, 0.0)
+        root = 0.0
         while events:
-            t, _, k = heapq.heappop(events)
+            t, _, k, cost = heapq.heappop(events)
+            root = max(root, t) + cost       # the root places the result, then hands out more
             inflight[k] -= 1
-            makespan = max(makespan, t)
+            makespan = max(makespan, root)
             for j in range(n):
-                fill(j, t)
+                fill(j, root)
     return {"makespan_s": float(makespan), "busy": busy, "held": held, **stats}
 
 
@@ -524,7 +561,8 @@ def simulate(cost_map, model, nodes_list, *, strategies=("subscreen", "scanline"
     h, w = cost_map.shape
     ov = dict(overheads or {})
     kw = {k: ov[k] for k in ("per_launch_s", "per_unit_s", "scale", "transfer_s", "transfer_per_pixel_s",
-                             "dispatch_s", "chunk_factor", "chunk_by", "task_pixels", "spp") if k in ov}
+                             "dispatch_s", "node_unit_s", "node_unit_per_pixel_s", "root_unit_s",
+                             "root_unit_per_pixel_s", "chunk_factor", "chunk_by", "task_pixels", "spp") if k in ov}
     kw["per_launch_s"] = kw.get("per_launch_s", 0.0) + unit_overhead
     kw["per_unit_s"] = kw.get("per_unit_s", 0.0) + unit_overhead
     rows = []

@@ -176,8 +176,10 @@ def render_unit(spec: RendererSpec, window, cull=None):
     else:
         img = renderer.render(window=tuple(int(v) for v in window))
     dt = time.perf_counter() - t0
-    return wire_pixels(img), {"seconds": dt, "start": w0, "stop": w0 + dt, "pid": os.getpid(),
-                              "launch_seconds": dt, "launch_units": 1, "launch": (os.getpid(), next(_LAUNCHES))}
+    px = wire_pixels(img)
+    return px, {"seconds": dt, "start": w0, "stop": w0 + dt, "pid": os.getpid(), "launch_seconds": dt,
+                "launch_units": 1, "launch": (os.getpid(), next(_LAUNCHES)),
+                "wire_s": time.perf_counter() - t0 - dt}
 
 
 #: Samples (pixels x spp) one launch may hold on a node; a larger batch is split into
@@ -226,9 +228,11 @@ def render_units(spec: RendererSpec, windows, culls=None):
         at = w0
         for img, a in zip(imgs, launch):
             share = dt * a[2] * a[3] / total
-            out.append((wire_pixels(img),
-                        {"seconds": share, "start": at, "stop": at + share, "pid": os.getpid(),
-                         "launch_seconds": dt, "launch_units": len(launch), "launch": lid, "task": task}))
+            tw = time.perf_counter()
+            px = wire_pixels(img)
+            out.append((px, {"seconds": share, "start": at, "stop": at + share, "pid": os.getpid(),
+                             "launch_seconds": dt, "launch_units": len(launch), "launch": lid, "task": task,
+                             "wire_s": time.perf_counter() - tw}))
             at += share
     return out
 
