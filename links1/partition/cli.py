@@ -279,7 +279,8 @@ def add_cli(subparsers) -> None:
                               "unit predicted load (eq. 4.1), measured seconds and ray-primitive tests, per node busy "
                               "time, makespan, imbalance, parallel efficiency; optionally simulate more nodes.")
     add_render_arguments(p)
-    p.add_argument("--nodes", type=_pos("--nodes"), required=True, help="node count (local worker processes)")
+    p.add_argument("--nodes", type=_pos("--nodes"), default=None,
+                   help="node count (local worker processes); required unless --sweep")
     _partition_options(p, nodes_option=True)
     p.add_argument("--report", required=True, metavar="OUT.json", help="write the report here (JSON, atomic)")
     p.add_argument("--plot", default=None, metavar="OUT.png", help="Gantt chart per node + predicted-vs-measured")
@@ -297,6 +298,19 @@ def add_cli(subparsers) -> None:
     p.add_argument("--reference-repeat", type=_pos("--reference-repeat"), default=3, metavar="N",
                    help="the single-process reference (full frame, 64 one-unit launches, 2 batches): "
                         "medians of N rounds after one warm-up (default 3)")
+    g = p.add_argument_group("sweep: strategies x node counts x unit sizes in one command (issue 26)")
+    g.add_argument("--sweep", action="store_true",
+                   help="run every strategy of --sweep-strategies at every node count of --sweep-nodes and tiles per "
+                        "node of --sweep-tiles; --report gets one tidy table (JSON, and CSV next to it), --plot the "
+                        "makespan, imbalance and true efficiency against node count: measured points, simulated curves")
+    g.add_argument("--sweep-strategies", default="subscreen,scanline,grid,dynamic/tile,dynamic/scanline",
+                   metavar="S,S", help="strategies (dynamic/tile, dynamic/scanline name the unit); default all five")
+    g.add_argument("--sweep-nodes", type=_nodes_list, default=[1, 2], metavar="1,2",
+                   help="node counts run for real (default 1,2)")
+    g.add_argument("--sweep-tiles", type=_nodes_list, default=[16], metavar="4,16",
+                   help="tiles per node (the unit size of subscreen, grid and dynamic tiles; default 16)")
+    g.add_argument("--sweep-simulate", type=_nodes_list, default=[1, 2, 4, 8, 16, 32, 64], metavar="1,2,...",
+                   help="node counts of the simulated curves (default 1,2,4,...,64)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--debug", action="store_true", help="show tracebacks")
     p.set_defaults(func=run_cli)
@@ -305,9 +319,7 @@ def add_cli(subparsers) -> None:
 def run_cli(args) -> int:
     """``links1 schedule``: a real run, its report, optional plots and simulation."""
     from .checkpoint import atomic_write_json
-    from .executors import render_plan
-    from .experiment import build_report, check_simulator, format_table, plot_report, plot_simulation, simulate, \
-        work_map
+    from .experiment import format_table, plot_report, plot_simulation, simulate, work_map
     if args.renderer == "mitsuba":
         from ..render import require_mitsuba
         require_mitsuba(args.variant)
@@ -321,25 +333,11 @@ def run_cli(args) -> int:
     aovs = tuple(args.aov or ())
     if "cost" not in aovs:
         args.aov = aovs + ("cost",)  # the per-pixel ray-primitive tests: the measured cost map
-    args.workers = 0 if args.nodes == 1 and not (args.scheduler or args.dask_local) else args.nodes
-    spec, model, channels, plan, backend = prepare(args, nodes=args.nodes)
-    cull = _cull_map(plan, model, spec) if args.cull else None
-    res = render_plan(plan, spec, backend, progress=not args.no_progress, cull=cull)
-    reference = _reference(backend, spec, args.reference_repeat)
-    backend.close()
-    from ..render import aov_channel
-    cost_channel = aov_channel(channels, "cost")
-    report = build_report(res, plan, model, cost_channel=cost_channel, reference=reference,
-                          meta={"scene": os.path.abspath(args.scene), "renderer": args.renderer,
-                                "cull": bool(args.cull), "spp": spec.kwargs.get("spp"),
-                                "chunk_factor": getattr(backend, "chunk_factor", None),
-                                "chunk_by": getattr(backend, "chunk_by", None)},
-                          chunk_factor=getattr(backend, "chunk_factor", None),
-                          chunk_by=getattr(backend, "chunk_by", None),
-                          task_pixels=getattr(backend, "task_pixels", None))
-    tests = res.image[..., cost_channel] if cost_channel is not None else None
-    if tests is not None:
-        report["simulator_check"] = check_simulator(report, tests, model)
+    if args.sweep:
+        return run_sweep(args)
+    if args.nodes is None:
+        raise UsageError("schedule needs --nodes N (or --sweep)")
+    report, model, tests, plan = _one_run(args, args.nodes, close=True)
     if args.simulate:
         wm = work_map(report, tests) if tests is not None else None
         if wm is None:
@@ -366,6 +364,116 @@ def run_cli(args) -> int:
         plot_report(report, args.plot)
     print(summary_line(report, plan.strategy) + f"; wrote {args.report}", file=sys.stderr)
     return 0
+
+
+def _one_run(args, nodes, *, close, reference=None):
+    """One real run of ``args`` on ``nodes`` nodes -> (report, model, ray tests map, plan)."""
+    from ..render import aov_channel
+    from .executors import render_plan
+    from .experiment import build_report, check_simulator
+    args.workers = 0 if nodes == 1 and not (args.scheduler or args.dask_local) else nodes
+    spec, model, channels, plan, backend = prepare(args, nodes=nodes)
+    cull = _cull_map(plan, model, spec) if args.cull else None
+    res = render_plan(plan, spec, backend, progress=not args.no_progress, cull=cull)
+    if reference is None:
+        reference = _reference(backend, spec, args.reference_repeat)
+    if close:
+        backend.close()
+    cost_channel = aov_channel(channels, "cost")
+    report = build_report(res, plan, model, cost_channel=cost_channel, reference=reference,
+                          meta={"scene": os.path.abspath(args.scene), "renderer": args.renderer,
+                                "cull": bool(args.cull), "spp": spec.kwargs.get("spp"),
+                                "chunk_factor": getattr(backend, "chunk_factor", None),
+                                "chunk_by": getattr(backend, "chunk_by", None)},
+                          chunk_factor=getattr(backend, "chunk_factor", None),
+                          chunk_by=getattr(backend, "chunk_by", None),
+                          task_pixels=getattr(backend, "task_pixels", None))
+    tests = res.image[..., cost_channel] if cost_channel is not None else None
+    if tests is not None:
+        report["simulator_check"] = check_simulator(report, tests, model)
+    return report, model, tests, plan
+
+
+SWEEP_FIELDS = ("kind", "strategy", "tiles_per_node", "nodes", "makespan_s", "imbalance", "busy_efficiency",
+                "true_efficiency", "launches", "units", "full_frame_s", "scale", "simulated_s")
+
+
+def run_sweep(args) -> int:
+    """``links1 schedule --sweep``: strategies x node counts x tiles per node, measured and simulated."""
+    import copy
+
+    from .checkpoint import atomic_write_bytes, atomic_write_json
+    from .experiment import plot_sweep, simulate, work_map
+    from .strategies import STRATEGIES as KNOWN
+    names = [v.strip() for v in args.sweep_strategies.split(",") if v.strip()]
+    for name in names:
+        part, _, unit = name.partition("/")
+        if part not in KNOWN or (unit and (part != "dynamic" or unit not in UNITS)):
+            raise UsageError(f"--sweep-strategies: unknown strategy {name!r}; choose from subscreen, scanline, grid, "
+                             "dynamic/tile, dynamic/scanline")
+    rows, refs, runs = [], {}, {}
+    for tpn in args.sweep_tiles:
+        for n in args.sweep_nodes:
+            for name in names:
+                part, _, unit = name.partition("/")
+                a = copy.copy(args)
+                a.partition, a.unit, a.tiles_per_node = part, unit or "tile", tpn
+                rep, model, tests, _ = _one_run(a, n, close=False, reference=refs.get(n))
+                refs.setdefault(n, rep["reference"])   # one reference per node count
+                chk = rep.get("simulator_check") or {}
+                rows.append({"kind": "measured", "strategy": name, "tiles_per_node": tpn, "nodes": rep["nodes"],
+                             "makespan_s": rep["makespan_s"], "imbalance": rep["imbalance"],
+                             "busy_efficiency": rep["busy_efficiency"], "true_efficiency": rep["true_efficiency"],
+                             "launches": rep["launches"], "units": len(rep["units"]),
+                             "full_frame_s": rep["full_frame_s"], "scale": (rep.get("overheads") or {}).get("scale"),
+                             "simulated_s": chk.get("simulated_s")})
+                runs[(name, tpn, n)] = (rep, model, tests)
+                print(f"links1: sweep {name} tiles/node {tpn} on {n} nodes: makespan {rep['makespan_s']:.4f} s "
+                      f"(measured), simulated {chk.get('simulated_s') or float('nan'):.4f} s, true efficiency "
+                      f"{rep['true_efficiency'] or float('nan'):.3f}", file=sys.stderr)
+        _close_backends()
+    # simulated curves: each strategy and unit size from its run on the most nodes measured
+    top = max(args.sweep_nodes)
+    for tpn in args.sweep_tiles:
+        for name in names:
+            rep, model, tests = runs[(name, tpn, top)]
+            wm = work_map(rep, tests) if tests is not None else None
+            if wm is None:
+                continue
+            for r in simulate(wm, model, args.sweep_simulate, strategies=(name,), tiles_per_node=tpn,
+                              overheads=rep["overheads"], full_frame_s=rep["full_frame_s"],
+                              in_process_one=not (args.scheduler or args.dask_local)):
+                rows.append({"kind": "simulated", "strategy": name, "tiles_per_node": tpn, "nodes": r["nodes"],
+                             "makespan_s": r["makespan_s"], "imbalance": r["imbalance"],
+                             "busy_efficiency": r["efficiency"], "true_efficiency": r["true_efficiency"],
+                             "launches": r["launches"], "units": r["units"], "full_frame_s": rep["full_frame_s"],
+                             "scale": rep["overheads"]["scale"], "simulated_s": r["makespan_s"]})
+    out = {"scene": os.path.abspath(args.scene), "renderer": args.renderer, "film": list(runs[next(iter(runs))][0]
+                                                                                          ["film"]),
+           "measured_nodes": args.sweep_nodes, "simulated_nodes": args.sweep_simulate,
+           "sources": {"kind=measured": "a real run (makespan: root clock; true efficiency: one-process frame / "
+                                        "(nodes x makespan)); simulated_s: the simulator replaying that run",
+                       "kind=simulated": "the simulator with the costs fitted on the run of the same strategy and "
+                                         f"unit size on {top} nodes"},
+           "rows": rows}
+    atomic_write_json(args.report, out)
+    csv = os.path.splitext(args.report)[0] + ".csv"
+    lines = [",".join(SWEEP_FIELDS)] + [",".join("" if r.get(k) is None else str(r[k]) for k in SWEEP_FIELDS)
+                                        for r in rows]
+    atomic_write_bytes(csv, ("\n".join(lines) + "\n").encode())
+    if args.plot:
+        plot_sweep(out, args.plot)
+    print(f"links1: sweep of {len(names)} strategies x {len(args.sweep_nodes)} node counts x "
+          f"{len(args.sweep_tiles)} unit sizes: {sum(r['kind'] == 'measured' for r in rows)} runs measured, "
+          f"{sum(r['kind'] == 'simulated' for r in rows)} points simulated; wrote {args.report} and {csv}"
+          + (f" and {args.plot}" if args.plot else ""), file=sys.stderr)
+    return 0
+
+
+def _close_backends():
+    for be in list(_BACKENDS.values()):
+        be.close()
+    _BACKENDS.clear()
 
 
 def _reference(backend, spec, repeat=3):

@@ -46,6 +46,7 @@ simulation         (with --simulate) overheads used and rows {strategy, nodes, u
 from __future__ import annotations
 
 import heapq
+import os
 import time
 from collections import deque
 
@@ -716,6 +717,46 @@ def plot_simulation(rows, path) -> None:
     axes[0].set_yscale("log")
     axes[1].axhline(1.1, color="grey", lw=0.8, ls="--")
     axes[0].legend(fontsize=8)
+    fig.tight_layout()
+    _save(fig, path)
+    plt.close(fig)
+
+
+def plot_sweep(sweep, path) -> None:
+    """Makespan, imbalance and true efficiency against node count, per strategy (and unit
+    size): measured runs as points, the simulator's curves as lines, on the same axes."""
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, 3, figsize=(16, 4.6))
+    rows = sweep["rows"]
+    keys = list(dict.fromkeys((r["strategy"], r["tiles_per_node"]) for r in rows))
+    many = len({t for _, t in keys}) > 1
+    for j, (name, tpn) in enumerate(keys):
+        color = f"C{j % 10}"
+        label = f"{name}" + (f" ({tpn}/node)" if many else "")
+        for kind, style in (("simulated", "-"), ("measured", "o")):
+            rs = sorted((r for r in rows if r["kind"] == kind and r["strategy"] == name and r["tiles_per_node"] == tpn),
+                        key=lambda r: r["nodes"])
+            if not rs:
+                continue
+            n = [r["nodes"] for r in rs]
+            kw = dict(color=color, label=f"{label}, {kind}")
+            if kind == "measured":
+                kw.update(markersize=7, markerfacecolor="none", markeredgewidth=1.5)
+            for ax, key in zip(axes, ("makespan_s", "imbalance", "true_efficiency")):
+                ax.plot(n, [np.nan if r[key] is None else r[key] for r in rs], style, **kw)
+    titles = ("makespan (s): measured points, simulated lines", "imbalance max/mean busy",
+              "true efficiency: one-process frame / (nodes x makespan)")
+    for ax, t in zip(axes, titles):
+        ax.set_xscale("log", base=2)
+        ax.set_xlabel("nodes")
+        ax.set_title(t, fontsize=9)
+    axes[0].set_yscale("log")
+    axes[1].axhline(1.1, color="grey", lw=0.8, ls="--")
+    axes[2].axhline(1.0, color="grey", lw=0.8, ls="--")
+    axes[0].legend(fontsize=6, ncol=2)
+    fig.suptitle(f"{os.path.basename(sweep.get('scene', ''))}, {sweep.get('renderer')}, film "
+                 f"{'x'.join(str(v) for v in sweep.get('film', []))}: measured at {sweep.get('measured_nodes')} nodes, "
+                 f"simulated from the runs on {max(sweep.get('measured_nodes') or [1])}", fontsize=9)
     fig.tight_layout()
     _save(fig, path)
     plt.close(fig)

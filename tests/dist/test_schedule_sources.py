@@ -186,3 +186,38 @@ def test_units_launched_alone_are_measured_and_batched_ones_derived(tmp_path):
                                              + cm["per_test_s"] * u["ray_tests"])
     chk = r["simulator_check"]
     assert chk["measured_s"] == r["makespan_s"] and chk["strategy"] == "subscreen" and chk["nodes"] == 1
+
+
+def test_sweep_writes_a_tidy_table_and_plot(tmp_path):
+    from links1.cli import main
+    out, png = tmp_path / "sw.json", tmp_path / "sw.png"
+    assert main(["schedule", MANY, "--renderer", "core", "-D", "res=16", "--sweep", "--sweep-strategies",
+                 "subscreen,dynamic/tile", "--sweep-nodes", "1", "--sweep-tiles", "2,4", "--sweep-simulate", "1,2,4",
+                 "--report", str(out), "--plot", str(png), "--no-progress", "--reference-repeat", "1"]) == 0
+    sw = json.loads(out.read_text())
+    measured = [r for r in sw["rows"] if r["kind"] == "measured"]
+    simulated = [r for r in sw["rows"] if r["kind"] == "simulated"]
+    assert sorted((r["strategy"], r["tiles_per_node"], r["nodes"]) for r in measured) == [
+        ("dynamic/tile", 2, 1), ("dynamic/tile", 4, 1), ("subscreen", 2, 1), ("subscreen", 4, 1)]
+    assert len(simulated) == 2 * 2 * 3 and {r["nodes"] for r in simulated} == {1, 2, 4}
+    for r in measured:
+        assert r["true_efficiency"] == pytest.approx(r["full_frame_s"] / (r["nodes"] * r["makespan_s"]))
+        assert r["units"] == 1 * r["tiles_per_node"]
+    csv = (tmp_path / "sw.csv").read_text().splitlines()
+    assert csv[0].split(",")[:4] == ["kind", "strategy", "tiles_per_node", "nodes"] and len(csv) == 1 + len(sw["rows"])
+    assert png.stat().st_size > 0
+
+
+def test_sweep_rejects_an_unknown_strategy(tmp_path, capsys):
+    from links1.cli import main
+    out = tmp_path / "sw.json"
+    rc = main(["schedule", MANY, "--renderer", "core", "-D", "res=8", "--sweep", "--sweep-strategies",
+               "subscreen,dynamic/blob", "--report", str(out), "--no-progress"])
+    assert rc == 2 and not out.exists()
+    assert capsys.readouterr().err.strip().startswith("links1: error: --sweep-strategies: unknown strategy")
+
+
+def test_schedule_needs_nodes_or_sweep(tmp_path, capsys):
+    from links1.cli import main
+    rc = main(["schedule", MANY, "--renderer", "core", "-D", "res=8", "--report", str(tmp_path / "r.json")])
+    assert rc == 2 and "schedule needs --nodes N (or --sweep)" in capsys.readouterr().err
