@@ -119,7 +119,7 @@ def main(argv=None):
     for renderer in a.renderers.split(","):
         res = a.core_res if renderer == "core" else a.mitsuba_res
         for n in nodes_list:
-            per = {s: {"measured": [], "self": [], "cross": []} for s in STRATEGIES}
+            per = {s: {"measured": [], "self": [], "cross": [], "spread": []} for s in STRATEGIES}
             for k in range(a.repeat):
                 results = one_repeat(renderer, res, n, a.reference_repeat)
                 cr = cross(results, n)
@@ -129,6 +129,7 @@ def main(argv=None):
                     per[s]["measured"].append(m)
                     per[s]["self"].append(sc["simulated_s"])
                     per[s]["cross"].append(cr[s])
+                    per[s]["spread"].append(sc.get("node_speed_spread") or 1.0)
                     raw.append({"renderer": renderer, "res": res, "nodes": n, "repeat": k, "strategy": s,
                                 "measured_s": m, "self_s": sc["simulated_s"], "cross_s": cr[s],
                                 "true_efficiency": rep["true_efficiency"], "busy_efficiency": rep["busy_efficiency"],
@@ -152,7 +153,8 @@ def main(argv=None):
                               "cross_s": float(np.median(per[s]["cross"])),
                               "cross_err": float(np.median(errs_cross)),
                               "cross_err_max": float(max(errs_cross, key=abs)),
-                              "measured_spread": float(np.ptp(per[s]["measured"]) / m) if m > 0 else None})
+                              "measured_spread": float(np.ptp(per[s]["measured"]) / m) if m > 0 else None,
+                              "node_speed_spread": float(np.median(per[s]["spread"]))})
     try:
         info["loadavg_end"] = os.getloadavg()
     except OSError:
@@ -169,15 +171,17 @@ def main(argv=None):
              f"{info['minutes']} min.", "",
              "Medians over the repeats. *self*: the run's own strategy and node count replayed with the costs fitted "
              "in that run. *cross*: every strategy predicted from the `dynamic/tile` run of the same repeat. "
-             "*max*: the worst repeat. *spread*: (max - min) / median of the measured makespans.", "",
+             "*max*: the worst repeat. *spread*: (max - min) / median of the measured makespans. *node speeds*: "
+             "the slowest node's launch time over the cost model's / the fastest node's (median; 1 = the nodes "
+             "ran at one speed, which is what the replay assumes).", "",
              "| renderer | res | nodes | strategy | measured ms | self ms | self err | self max | cross ms | cross err "
-             "| cross max | spread |",
-             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+             "| cross max | spread | node speeds |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for r in table:
         lines.append(f"| {r['renderer']} | {r['res']} | {r['nodes']} | {r['strategy']} | {r['measured_s'] * 1e3:.1f} | "
                      f"{r['self_s'] * 1e3:.1f} | {r['self_err'] * 100:+.1f} % | {r['self_err_max'] * 100:+.1f} % | "
                      f"{r['cross_s'] * 1e3:.1f} | {r['cross_err'] * 100:+.1f} % | {r['cross_err_max'] * 100:+.1f} % | "
-                     f"{r['measured_spread'] * 100:.0f} % |")
+                     f"{r['measured_spread'] * 100:.0f} % | {r['node_speed_spread']:.2f} |")
     within = sum(abs(r["self_err"]) <= 0.10 for r in table)
     within_c = sum(abs(r["cross_err"]) <= 0.10 for r in table)
     lines += ["", f"Within 10 % (median): self {within} of {len(table)}, cross {within_c} of {len(table)}."]

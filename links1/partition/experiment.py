@@ -172,7 +172,8 @@ def fit_overheads(launches, tasks, first_starts, t0_wall, cm, *, in_process=Fals
     rendering alone) times ``scale``, the nodes' speed in this run relative to the reference
     (contention between nodes on shared cores, the machine's drift): the ratio of the run's
     measured launch seconds to the model's. One factor for every launch, so a run of any
-    strategy predicts the others. ``unit_costs`` ([{pixels, wire_s, root_s}]): each unit's
+    strategy predicts the others; ``node_scale`` gives each node's own (how far the nodes'
+    speeds drifted apart in this run, which a one-speed replay cannot follow). ``unit_costs`` ([{pixels, wire_s, root_s}]): each unit's
     measured time outside its launch on the node (``wire_s``: its pixels made ready to send)
     and in the root (``root_s``: placed in the frame), fitted as ``a + b * pixels``."""
     t = np.array([ln["seconds"] for ln in launches], float)
@@ -180,6 +181,12 @@ def fit_overheads(launches, tasks, first_starts, t0_wall, cm, *, in_process=Fals
     W = np.array([ln["work"] for ln in launches], float)
     model = cm["per_launch_s"] + cm.get("per_unit_s", 0.0) * n + W
     scale = float(t.sum() / model.sum()) if model.sum() > 0 else 1.0
+    per_node = {}
+    for ln, ti, mi in zip(launches, t, model):
+        a = per_node.setdefault(str(ln.get("node")), [0.0, 0.0])
+        a[0] += ti
+        a[1] += mi
+    node_scale = {k: (v[0] / v[1] if v[1] > 0 else None) for k, v in per_node.items()}
     L, U, how = scale * cm["per_launch_s"], scale * cm.get("per_unit_s", 0.0), "ratio over launches"
     if scale <= 0:
         scale = 1.0
@@ -202,7 +209,8 @@ def fit_overheads(launches, tasks, first_starts, t0_wall, cm, *, in_process=Fals
     return {"per_launch_s": float(L), "per_unit_s": U, "scale": float(scale), "transfer_s": T0,
             "transfer_per_pixel_s": Tpx, "dispatch_s": D,
             "node_unit_s": na, "node_unit_per_pixel_s": nb, "root_unit_s": ra, "root_unit_per_pixel_s": rb,
-            "fit": how, "launches": len(launches), "tasks": len(tasks), "in_process": bool(in_process)}
+            "node_scale": node_scale, "fit": how, "launches": len(launches), "tasks": len(tasks),
+            "in_process": bool(in_process)}
 
 
 def build_report(result, plan, model, *, cost_channel=None, meta=None, reference=None,
@@ -617,8 +625,10 @@ def check_simulator(report, tests_map, model) -> dict | None:
                       full_frame_s=report.get("full_frame_s"),
                       in_process_one=report["overheads"].get("in_process", True))
     m = report["makespan_s"]
+    ns = [v for v in (report["overheads"].get("node_scale") or {}).values() if v]
     return {"strategy": row["strategy"], "nodes": row["nodes"], "simulated_s": row["makespan_s"], "measured_s": m,
-            "error": (row["makespan_s"] - m) / m if m > 0 else None}
+            "error": (row["makespan_s"] - m) / m if m > 0 else None,
+            "node_speed_spread": (max(ns) / min(ns)) if ns else None}
 
 
 def format_table(rows) -> str:
