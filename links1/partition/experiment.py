@@ -720,7 +720,8 @@ def plot_simulation(rows, path) -> None:
         axes[0].plot(n, [r["makespan_s"] for r in rs], "o-", label=name)
         axes[1].plot(n, [r["imbalance"] or np.nan for r in rs], "o-", label=name)
         axes[2].plot(n, [r["objects_per_node_mean"] for r in rs], "o-", label=name)
-    for ax, t in zip(axes, ("makespan (s)", "imbalance max/mean", "objects per node (mean)")):
+    for ax, t in zip(axes, ("simulated makespan (s)", "simulated imbalance max/mean busy",
+                            "objects per node (mean)")):
         ax.set_xscale("log", base=2)
         ax.set_xlabel("nodes")
         ax.set_title(t)
@@ -739,11 +740,14 @@ def plot_sweep(sweep, path) -> None:
     fig, axes = plt.subplots(1, 3, figsize=(16, 4.6))
     rows = sweep["rows"]
     keys = list(dict.fromkeys((r["strategy"], r["tiles_per_node"]) for r in rows))
-    many = len({t for _, t in keys}) > 1
-    for j, (name, tpn) in enumerate(keys):
-        color = f"C{j % 10}"
+    names = list(dict.fromkeys(k for k, _ in keys))
+    tiles = list(dict.fromkeys(t for _, t in keys))
+    many = len(tiles) > 1
+    for name, tpn in keys:
+        color = f"C{names.index(name) % 10}"   # a colour per strategy, a line style / marker per unit size
+        ls, mk = ("-", "--", ":", "-.")[tiles.index(tpn) % 4], ("o", "s", "^", "D")[tiles.index(tpn) % 4]
         label = f"{name}" + (f" ({tpn}/node)" if many else "")
-        for kind, style in (("simulated", "-"), ("measured", "o")):
+        for kind, style in (("simulated", ls), ("measured", mk)):
             rs = sorted((r for r in rows if r["kind"] == kind and r["strategy"] == name and r["tiles_per_node"] == tpn),
                         key=lambda r: r["nodes"])
             if not rs:
