@@ -439,7 +439,7 @@ def _launch_groups(units, batch, spp, launch_samples):
 def replay(plan, work, *, per_launch_s=0.0, per_unit_s=0.0, scale=1.0, transfer_s=0.0, transfer_per_pixel_s=0.0,
            dispatch_s=0.0, node_unit_s=0.0, node_unit_per_pixel_s=0.0, root_unit_s=0.0, root_unit_per_pixel_s=0.0,
            chunk_factor=None, chunk_by="units", task_pixels=None, prefetch=2, spp=1,
-           in_process=None, touch=None, object_cost=0.0, launch_samples=None) -> dict:
+           in_process=None, touch=None, object_cost=0.0, launch_samples=None, node_speed=None) -> dict:
     """Replay ``plan`` with per-unit work seconds ``work`` as the backends hand it out.
 
     Static plans: each node's units in plan order, in tasks of at most ``task_pixels`` pixels
@@ -457,8 +457,10 @@ def replay(plan, work, *, per_launch_s=0.0, per_unit_s=0.0, scale=1.0, transfer_
     ``transfer_s + transfer_per_pixel_s * pixels`` later; the root, one thread, takes results
     in the order they arrive and spends ``root_unit_s + root_unit_per_pixel_s * pixels`` per
     unit placing them, and only then hands that node its next chunk. Makespan: the root done
-    with the last result. In-process every cost is paid in turn. Returns makespan_s, busy
-    (per node: launches and readying), launches, tasks, objects held per node.
+    with the last result. In-process every cost is paid in turn. ``node_speed`` (one factor per
+    node) multiplies each node's launch times: a run's nodes replayed at their own measured
+    speeds. Returns makespan_s, busy (per node: launches and readying), launches, tasks,
+    objects held per node.
     """
     from .executors import CHUNK_FACTOR, TASK_PIXELS, guided_batch, take_batch
     from .runtime import LAUNCH_SAMPLES
@@ -478,7 +480,8 @@ def replay(plan, work, *, per_launch_s=0.0, per_unit_s=0.0, scale=1.0, transfer_
     def task_time(batch, k):
         t = 0.0
         for grp in _launch_groups(units, batch, max(1, int(spp)), launch_samples):
-            t += per_launch_s + per_unit_s * (len(grp) - 1) + scale * float(work[grp].sum())
+            t += (per_launch_s + per_unit_s * (len(grp) - 1) + scale * float(work[grp].sum())) * \
+                (1.0 if node_speed is None else float(node_speed[k]))
             stats["launches"] += 1
         if touch is not None and object_cost:
             need = touch[batch].any(axis=0)
@@ -555,7 +558,7 @@ def simulate(cost_map, model, nodes_list, *, strategies=("subscreen", "scanline"
                                                           "dynamic/scanline"),
              tiles_per_node: int = 16, unit_overhead: float = 0.0, object_cost: float = 0.0,
              load_map=None, overheads: dict | None = None, full_frame_s: float | None = None,
-             in_process_one: bool = True) -> list[dict]:
+             in_process_one: bool = True, node_speed=None) -> list[dict]:
     """Replay a per-pixel work map (seconds) for node counts this machine cannot run.
 
     Each strategy's plan is replayed by :func:`replay` with ``overheads`` (the keys of
@@ -586,7 +589,8 @@ def simulate(cost_map, model, nodes_list, *, strategies=("subscreen", "scanline"
             touch = model.touching([u.window for u in plan.units]) if model is not None and len(model.shapes) \
                 else None
             out = replay(plan, c, touch=touch, object_cost=object_cost,
-                         in_process=(int(n) == 1 and in_process_one), **kw)
+                         in_process=(int(n) == 1 and in_process_one),
+                         node_speed=node_speed if node_speed is not None and len(node_speed) == int(n) else None, **kw)
             busy, makespan = out["busy"], out["makespan_s"]
             objs = out["held"].sum(axis=1)
             rows.append({"strategy": name, "nodes": int(n), "units": len(plan.units), "launches": out["launches"],
@@ -616,19 +620,27 @@ def strategy_name(report) -> str:
 
 def check_simulator(report, tests_map, model) -> dict | None:
     """The simulator replaying the report's own strategy and node count with the costs fitted
-    in that run (cost model, overheads) against its measured makespan."""
+    in that run (cost model, overheads) against its measured makespan: with one speed for every
+    node (``simulated_s``, what ``--simulate`` assumes) and with each node's own measured speed
+    (``simulated_node_speeds_s``: what is left is the hand-out, transfer and assembly model)."""
     wm = work_map(report, tests_map)
-    if wm is None or report.get("overheads") is None:
+    ov = report.get("overheads")
+    if wm is None or ov is None:
         return None
-    (row,) = simulate(wm, model, [report["nodes"]], strategies=(strategy_name(report),),
-                      tiles_per_node=report.get("tiles_per_node") or 16, overheads=report["overheads"],
-                      full_frame_s=report.get("full_frame_s"),
-                      in_process_one=report["overheads"].get("in_process", True))
+    n = report["nodes"]
+    kw = dict(strategies=(strategy_name(report),), tiles_per_node=report.get("tiles_per_node") or 16, overheads=ov,
+              full_frame_s=report.get("full_frame_s"), in_process_one=ov.get("in_process", True))
+    (row,) = simulate(wm, model, [n], **kw)
+    ns = ov.get("node_scale") or {}
+    speeds = [(ns.get(str(k)) or ov["scale"]) / ov["scale"] for k in range(n)] if ov["scale"] else None
+    (own,) = simulate(wm, model, [n], node_speed=speeds, **kw)
     m = report["makespan_s"]
-    ns = [v for v in (report["overheads"].get("node_scale") or {}).values() if v]
+    vals = [v for v in ns.values() if v]
     return {"strategy": row["strategy"], "nodes": row["nodes"], "simulated_s": row["makespan_s"], "measured_s": m,
             "error": (row["makespan_s"] - m) / m if m > 0 else None,
-            "node_speed_spread": (max(ns) / min(ns)) if ns else None}
+            "simulated_node_speeds_s": own["makespan_s"],
+            "error_node_speeds": (own["makespan_s"] - m) / m if m > 0 else None,
+            "node_speed_spread": (max(vals) / min(vals)) if vals else None}
 
 
 def format_table(rows) -> str:
