@@ -152,14 +152,15 @@ def unit_work(cm, pixels, tests):
 
 
 def _fit_per_unit(values, pixels):
-    """``a + b * pixels`` (>= 0) over units; the median when the units are all one size."""
+    """``a + b * pixels`` (>= 0) over units, least squares; the mean when the units are all one
+    size (not the median: a rare long pause, a garbage collection, is part of the expected cost)."""
     v, p = np.asarray(values, float), np.asarray(pixels, float)
     if len(v) == 0:
         return 0.0, 0.0
     if len(v) >= 3 and np.ptp(p) > 0:
         a, b = nnls(np.stack([np.ones_like(p), p], axis=1), v)
         return float(a), float(b)
-    return float(np.median(v)), 0.0
+    return float(np.mean(v)), 0.0
 
 
 def fit_overheads(launches, tasks, first_starts, t0_wall, cm, *, in_process=False, unit_costs=None) -> dict:
