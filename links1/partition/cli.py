@@ -279,19 +279,38 @@ def add_cli(subparsers) -> None:
                               "unit predicted load (eq. 4.1), measured seconds and ray-primitive tests, per node busy "
                               "time, makespan, imbalance, parallel efficiency; optionally simulate more nodes.")
     add_render_arguments(p)
-    p.add_argument("--nodes", type=_pos("--nodes"), required=True, help="node count (local worker processes)")
+    p.add_argument("--nodes", type=_pos("--nodes"), default=None,
+                   help="node count (local worker processes); required unless --sweep")
     _partition_options(p, nodes_option=True)
     p.add_argument("--report", required=True, metavar="OUT.json", help="write the report here (JSON, atomic)")
     p.add_argument("--plot", default=None, metavar="OUT.png", help="Gantt chart per node + predicted-vs-measured")
     p.add_argument("--simulate", type=_nodes_list, default=None, metavar="1,4,16,...",
                    help="replay the measured cost map at these node counts")
     p.add_argument("--sim-plot", default=None, metavar="OUT.png", help="simulation plot (default: next to --plot)")
-    p.add_argument("--unit-overhead", type=float, default=None,
-                   help="simulated seconds per unit (default: the per-launch overhead measured in this run)")
-    p.add_argument("--object-cost", type=float, default=1e-4, help="simulated seconds per object sent to a node")
+    p.add_argument("--launch-overhead", type=float, default=None, metavar="S",
+                   help="simulated seconds per launch (default: the cost model's constant, fitted on units "
+                        "launched alone in this run)")
+    p.add_argument("--unit-overhead", type=float, default=None, metavar="S",
+                   help="simulated seconds per further unit in a launch (default: fitted on this run's launches)")
+    p.add_argument("--object-cost", type=float, default=0.0, metavar="S",
+                   help="simulated seconds per object sent to a node (default 0: local and Dask nodes load the "
+                        "whole scene before the clock starts; set it to model 4-4 shipping)")
     p.add_argument("--reference-repeat", type=_pos("--reference-repeat"), default=3, metavar="N",
                    help="the single-process reference (full frame, 64 one-unit launches, 2 batches): "
                         "medians of N rounds after one warm-up (default 3)")
+    g = p.add_argument_group("sweep: strategies x node counts x unit sizes in one command (issue 26)")
+    g.add_argument("--sweep", action="store_true",
+                   help="run every strategy of --sweep-strategies at every node count of --sweep-nodes and tiles per "
+                        "node of --sweep-tiles; --report gets one tidy table (JSON, and CSV next to it), --plot the "
+                        "makespan, imbalance and true efficiency against node count: measured points, simulated curves")
+    g.add_argument("--sweep-strategies", default="subscreen,scanline,grid,dynamic/tile,dynamic/scanline",
+                   metavar="S,S", help="strategies (dynamic/tile, dynamic/scanline name the unit); default all five")
+    g.add_argument("--sweep-nodes", type=_nodes_list, default=[1, 2], metavar="1,2",
+                   help="node counts run for real (default 1,2)")
+    g.add_argument("--sweep-tiles", type=_nodes_list, default=[16], metavar="4,16",
+                   help="tiles per node (the unit size of subscreen, grid and dynamic tiles; default 16)")
+    g.add_argument("--sweep-simulate", type=_nodes_list, default=[1, 2, 4, 8, 16, 32, 64], metavar="1,2,...",
+                   help="node counts of the simulated curves (default 1,2,4,...,64)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--debug", action="store_true", help="show tracebacks")
     p.set_defaults(func=run_cli)
@@ -300,8 +319,7 @@ def add_cli(subparsers) -> None:
 def run_cli(args) -> int:
     """``links1 schedule``: a real run, its report, optional plots and simulation."""
     from .checkpoint import atomic_write_json
-    from .executors import render_plan
-    from .experiment import build_report, format_table, plot_report, plot_simulation, simulate
+    from .experiment import format_table, plot_report, plot_simulation, simulate, work_map
     if args.renderer == "mitsuba":
         from ..render import require_mitsuba
         require_mitsuba(args.variant)
@@ -315,37 +333,147 @@ def run_cli(args) -> int:
     aovs = tuple(args.aov or ())
     if "cost" not in aovs:
         args.aov = aovs + ("cost",)  # the per-pixel ray-primitive tests: the measured cost map
-    args.workers = 0 if args.nodes == 1 and not (args.scheduler or args.dask_local) else args.nodes
-    spec, model, channels, plan, backend = prepare(args, nodes=args.nodes)
-    cull = _cull_map(plan, model, spec) if args.cull else None
-    res = render_plan(plan, spec, backend, progress=not args.no_progress, cull=cull)
-    reference = _reference(backend, spec, args.reference_repeat)
-    backend.close()
-    from ..render import aov_channel
-    cost_channel = aov_channel(channels, "cost")
-    report = build_report(res, plan, model, cost_channel=cost_channel, reference=reference,
-                          meta={"scene": os.path.abspath(args.scene), "renderer": args.renderer,
-                                "cull": bool(args.cull), "spp": spec.kwargs.get("spp"),
-                                "chunk_factor": getattr(backend, "chunk_factor", None),
-                                "chunk_by": getattr(backend, "chunk_by", None)})
+    if args.sweep:
+        return run_sweep(args)
+    if args.nodes is None:
+        raise UsageError("schedule needs --nodes N (or --sweep)")
+    report, model, tests, plan = _one_run(args, args.nodes, close=True)
     if args.simulate:
-        cm = report["cost_model"] or {"per_pixel_s": 0.0, "per_test_s": 0.0, "per_unit_s": 0.0}
-        tests = res.image[..., cost_channel] if cost_channel is not None else 0.0
-        cost_map = cm["per_pixel_s"] + cm["per_test_s"] * tests
-        measured = reference["per_launch_overhead_s"] if reference else cm["per_unit_s"]
-        overhead = measured if args.unit_overhead is None else args.unit_overhead
-        rows = simulate(cost_map, model, args.simulate, tiles_per_node=args.tiles_per_node,
-                        unit_overhead=overhead, object_cost=args.object_cost)
-        report["simulation"] = {"unit_overhead_s": overhead, "object_cost_s": args.object_cost, "rows": rows}
-        print(format_table(rows))
-        sim_plot = args.sim_plot or (os.path.splitext(args.plot)[0] + "-simulate.png" if args.plot else None)
-        if sim_plot:
-            plot_simulation(rows, sim_plot)
+        wm = work_map(report, tests) if tests is not None else None
+        if wm is None:
+            warnings.warn("no cost model (no units launched alone with the cost AOV): nothing to simulate")
+        else:
+            ov = dict(report["overheads"])
+            if args.launch_overhead is not None:
+                ov["per_launch_s"] = args.launch_overhead
+            if args.unit_overhead is not None:
+                ov["per_unit_s"] = args.unit_overhead
+            rows = simulate(wm, model, args.simulate, tiles_per_node=args.tiles_per_node, overheads=ov,
+                            object_cost=args.object_cost, full_frame_s=report.get("full_frame_s"),
+                            in_process_one=not (args.scheduler or args.dask_local))
+            report["simulation"] = {"overheads": ov, "object_cost_s": args.object_cost,
+                                    "source": "simulated: the work map (cost_model on exact ray tests) replayed "
+                                              "as the backends hand out work, with the overheads above",
+                                    "rows": rows}
+            print(format_table(rows))
+            sim_plot = args.sim_plot or (os.path.splitext(args.plot)[0] + "-simulate.png" if args.plot else None)
+            if sim_plot:
+                plot_simulation(rows, sim_plot)
     atomic_write_json(args.report, report)
     if args.plot:
         plot_report(report, args.plot)
     print(summary_line(report, plan.strategy) + f"; wrote {args.report}", file=sys.stderr)
     return 0
+
+
+def _one_run(args, nodes, *, close, reference=None):
+    """One real run of ``args`` on ``nodes`` nodes -> (report, model, ray tests map, plan)."""
+    from ..render import aov_channel
+    from .executors import render_plan
+    from .experiment import build_report, check_simulator
+    args.workers = 0 if nodes == 1 and not (args.scheduler or args.dask_local) else nodes
+    spec, model, channels, plan, backend = prepare(args, nodes=nodes)
+    cull = _cull_map(plan, model, spec) if args.cull else None
+    res = render_plan(plan, spec, backend, progress=not args.no_progress, cull=cull)
+    if reference is None:
+        reference = _reference(backend, spec, args.reference_repeat)
+    if close:
+        backend.close()
+    cost_channel = aov_channel(channels, "cost")
+    report = build_report(res, plan, model, cost_channel=cost_channel, reference=reference,
+                          meta={"scene": os.path.abspath(args.scene), "renderer": args.renderer,
+                                "cull": bool(args.cull), "spp": spec.kwargs.get("spp"),
+                                "chunk_factor": getattr(backend, "chunk_factor", None),
+                                "chunk_by": getattr(backend, "chunk_by", None)},
+                          chunk_factor=getattr(backend, "chunk_factor", None),
+                          chunk_by=getattr(backend, "chunk_by", None),
+                          task_pixels=getattr(backend, "task_pixels", None))
+    tests = res.image[..., cost_channel] if cost_channel is not None else None
+    if tests is not None:
+        report["simulator_check"] = check_simulator(report, tests, model)
+    return report, model, tests, plan
+
+
+SWEEP_FIELDS = ("kind", "strategy", "tiles_per_node", "nodes", "makespan_s", "imbalance", "busy_efficiency",
+                "true_efficiency", "launches", "units", "full_frame_s", "scale", "simulated_s")
+
+
+def run_sweep(args) -> int:
+    """``links1 schedule --sweep``: strategies x node counts x tiles per node, measured and simulated."""
+    import copy
+
+    from .checkpoint import atomic_write_bytes, atomic_write_json
+    from .experiment import plot_sweep, simulate, work_map
+    from .strategies import STRATEGIES as KNOWN
+    names = [v.strip() for v in args.sweep_strategies.split(",") if v.strip()]
+    for name in names:
+        part, _, unit = name.partition("/")
+        if part not in KNOWN or (unit and (part != "dynamic" or unit not in UNITS)):
+            raise UsageError(f"--sweep-strategies: unknown strategy {name!r}; choose from subscreen, scanline, grid, "
+                             "dynamic/tile, dynamic/scanline")
+    rows, refs, runs = [], {}, {}
+    for tpn in args.sweep_tiles:
+        for n in args.sweep_nodes:
+            for name in names:
+                part, _, unit = name.partition("/")
+                a = copy.copy(args)
+                a.partition, a.unit, a.tiles_per_node = part, unit or "tile", tpn
+                rep, model, tests, _ = _one_run(a, n, close=False, reference=refs.get(n))
+                refs.setdefault(n, rep["reference"])   # one reference per node count
+                chk = rep.get("simulator_check") or {}
+                rows.append({"kind": "measured", "strategy": name, "tiles_per_node": tpn, "nodes": rep["nodes"],
+                             "makespan_s": rep["makespan_s"], "imbalance": rep["imbalance"],
+                             "busy_efficiency": rep["busy_efficiency"], "true_efficiency": rep["true_efficiency"],
+                             "launches": rep["launches"], "units": len(rep["units"]),
+                             "full_frame_s": rep["full_frame_s"], "scale": (rep.get("overheads") or {}).get("scale"),
+                             "simulated_s": chk.get("simulated_s")})
+                runs[(name, tpn, n)] = (rep, model, tests)
+                print(f"links1: sweep {name} tiles/node {tpn} on {n} nodes: makespan {rep['makespan_s']:.4f} s "
+                      f"(measured), simulated {chk.get('simulated_s') or float('nan'):.4f} s, true efficiency "
+                      f"{rep['true_efficiency'] or float('nan'):.3f}", file=sys.stderr)
+        _close_backends()
+    # simulated curves: each strategy and unit size from its run on the most nodes measured
+    top = max(args.sweep_nodes)
+    for tpn in args.sweep_tiles:
+        for name in names:
+            rep, model, tests = runs[(name, tpn, top)]
+            wm = work_map(rep, tests) if tests is not None else None
+            if wm is None:
+                continue
+            for r in simulate(wm, model, args.sweep_simulate, strategies=(name,), tiles_per_node=tpn,
+                              overheads=rep["overheads"], full_frame_s=rep["full_frame_s"],
+                              in_process_one=not (args.scheduler or args.dask_local)):
+                rows.append({"kind": "simulated", "strategy": name, "tiles_per_node": tpn, "nodes": r["nodes"],
+                             "makespan_s": r["makespan_s"], "imbalance": r["imbalance"],
+                             "busy_efficiency": r["efficiency"], "true_efficiency": r["true_efficiency"],
+                             "launches": r["launches"], "units": r["units"], "full_frame_s": rep["full_frame_s"],
+                             "scale": rep["overheads"]["scale"], "simulated_s": r["makespan_s"]})
+    out = {"scene": os.path.abspath(args.scene), "renderer": args.renderer, "film": list(runs[next(iter(runs))][0]
+                                                                                          ["film"]),
+           "measured_nodes": args.sweep_nodes, "simulated_nodes": args.sweep_simulate,
+           "sources": {"kind=measured": "a real run (makespan: root clock; true efficiency: one-process frame / "
+                                        "(nodes x makespan)); simulated_s: the simulator replaying that run",
+                       "kind=simulated": "the simulator with the costs fitted on the run of the same strategy and "
+                                         f"unit size on {top} nodes"},
+           "rows": rows}
+    atomic_write_json(args.report, out)
+    csv = os.path.splitext(args.report)[0] + ".csv"
+    lines = [",".join(SWEEP_FIELDS)] + [",".join("" if r.get(k) is None else str(r[k]) for k in SWEEP_FIELDS)
+                                        for r in rows]
+    atomic_write_bytes(csv, ("\n".join(lines) + "\n").encode())
+    if args.plot:
+        plot_sweep(out, args.plot)
+    print(f"links1: sweep of {len(names)} strategies x {len(args.sweep_nodes)} node counts x "
+          f"{len(args.sweep_tiles)} unit sizes: {sum(r['kind'] == 'measured' for r in rows)} runs measured, "
+          f"{sum(r['kind'] == 'simulated' for r in rows)} points simulated; wrote {args.report} and {csv}"
+          + (f" and {args.plot}" if args.plot else ""), file=sys.stderr)
+    return 0
+
+
+def _close_backends():
+    for be in list(_BACKENDS.values()):
+        be.close()
+    _BACKENDS.clear()
 
 
 def _reference(backend, spec, repeat=3):
@@ -362,14 +490,25 @@ def _reference(backend, spec, repeat=3):
 
 
 def summary_line(report, strategy) -> str:
-    """One line: which figure answers which question (docs/partitioning.md, "Reading the report")."""
+    """One line, every figure named with its source (docs/partitioning.md, "Reading the report")."""
     def f(v, nd=3):
         return "n/a" if v is None else f"{v:.{nd}f}"
     pl = (report.get("reference") or {}).get("per_launch_overhead_s")
-    return (f"links1: schedule {strategy} on {report['nodes']} nodes: makespan {f(report['makespan_s'])} s, "
-            f"full frame in one process {f(report.get('full_frame_s'))} s, "
-            f"true efficiency {f(report.get('true_efficiency'))}, busy efficiency "
-            f"{f(report['parallel_efficiency'])}, imbalance {f(report['imbalance'])}, "
+    rc = report["rank_correlation"]
+    us = report.get("unit_seconds") or {}
+    cm = report.get("cost_model") or {}
+    chk = report.get("simulator_check")
+    sim = "" if not chk else (f"; simulator on this run: {f(chk['simulated_s'], 4)} s simulated vs "
+                              f"{f(chk['measured_s'], 4)} s measured ({chk['error'] * 100:+.1f} %)")
+    return (f"links1: schedule {strategy} on {report['nodes']} nodes: "
+            f"TRUE EFFICIENCY {f(report.get('true_efficiency'))} (one-process frame {f(report.get('full_frame_s'))} s"
+            f" / ({report['nodes']} x makespan {f(report['makespan_s'])} s), measured); "
+            f"busy efficiency {f(report['parallel_efficiency'])} (node busy / (nodes x makespan): counts overhead "
+            f"as busy), imbalance {f(report['imbalance'])} (measured busy), "
             f"{report.get('launches')} launches, per-launch overhead "
-            f"{f(None if pl is None else pl * 1e3, 2)} ms, "
-            f"rank correlation {f(report['rank_correlation']['predicted_vs_seconds'])}")
+            f"{f(None if pl is None else pl * 1e3, 2)} ms (measured); "
+            f"unit seconds: {us.get('measured', 0)} measured (launched alone), {us.get('derived', 0)} derived "
+            f"(cost model fitted on {cm.get('fitted_on_units', 0)} units launched alone); "
+            f"rank correlation of predicted load (eq. 4.1) with measured seconds "
+            f"{f(rc.get('predicted_vs_measured_seconds'))} (n={rc.get('n_measured')}), with exact ray tests "
+            f"{f(rc.get('predicted_vs_ray_tests'))} (n={rc.get('n_units')})" + sim)

@@ -96,6 +96,7 @@ class RenderResult:
     rendered: int = 0                  # units rendered in this run
     resumed: int = 0                   # units taken from the checkpoint
     makespan_s: float = 0.0            # first dispatch to last result (root clock)
+    t0_wall: float | None = None       # time.time() at the first dispatch (for dispatch latency)
     backend: str = ""
     n_nodes: int = 0
 
@@ -150,6 +151,8 @@ def render_plan(plan, spec: RendererSpec, backend, *, checkpoint=None, progress:
                    dynamic_ncols=True, leave=False, smoothing=0.1)
 
     def on_done(i, pixels, info):
+        t = time.perf_counter()
+        info.setdefault("received", time.time())  # root clock (wall): the result is here
         u = plan.units[i]
         if pixels.shape[:2] != (u.h, u.w):
             raise RuntimeError(f"unit {u.window}: node returned {pixels.shape[:2]}, expected {(u.h, u.w)}")
@@ -160,6 +163,7 @@ def render_plan(plan, spec: RendererSpec, backend, *, checkpoint=None, progress:
             checkpoint.save(u, pixels)
         if bar is not None:
             bar.update(1)
+        info["root_s"] = time.perf_counter() - t  # the root's own time for this unit (assembly)
 
     def on_fault(msg):
         res.faults.append(msg)
@@ -169,6 +173,7 @@ def render_plan(plan, spec: RendererSpec, backend, *, checkpoint=None, progress:
         if todo:
             backend.start(spec)
             res.n_nodes = backend.n_nodes
+            res.t0_wall = time.time()   # the nodes' records use wall clocks (same machine)
             t0 = time.perf_counter()
             backend.run(plan, todo, spec, cull or {}, on_done, on_fault)
             res.makespan_s = time.perf_counter() - t0

@@ -25,6 +25,7 @@ _RENDERERS: dict = {}
 _CULLED: dict = {}
 #: Launch numbers in this process (a record's ``launch`` = (pid, number): units sharing one)
 _LAUNCHES = itertools.count()
+_TASKS = itertools.count()
 
 THREAD_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS")
 
@@ -175,8 +176,10 @@ def render_unit(spec: RendererSpec, window, cull=None):
     else:
         img = renderer.render(window=tuple(int(v) for v in window))
     dt = time.perf_counter() - t0
-    return wire_pixels(img), {"seconds": dt, "start": w0, "stop": w0 + dt, "pid": os.getpid(),
-                              "launch_seconds": dt, "launch_units": 1, "launch": (os.getpid(), next(_LAUNCHES))}
+    px = wire_pixels(img)
+    return px, {"seconds": dt, "start": w0, "stop": w0 + dt, "pid": os.getpid(), "launch_seconds": dt,
+                "launch_units": 1, "launch": (os.getpid(), next(_LAUNCHES)),
+                "wire_s": time.perf_counter() - t0 - dt}
 
 
 #: Samples (pixels x spp) one launch may hold on a node; a larger batch is split into
@@ -191,15 +194,21 @@ def render_units(spec: RendererSpec, windows, culls=None):
     Renderers with ``render_batch(windows)`` (both links1 renderers) render the batch in as
     few launches as :data:`LAUNCH_SAMPLES` allows; each unit's pixels are exactly what
     ``render(window)`` returns for it. A unit's ``seconds`` is then its share of its launch by
-    pixel count (``launch_seconds`` and ``launch_units`` say which launch it shared). Units
+    pixel count, not a measurement (``launch_seconds`` and ``launch_units`` say which launch it
+    shared; the schedule report measures or derives unit times itself, see
+    :mod:`.experiment`); ``task`` names the task (this call). Units
     with a cull list, or renderers without ``render_batch``, are rendered one by one.
     """
     windows = [tuple(int(v) for v in w) for w in windows]
     culls = list(culls) if culls is not None else [None] * len(windows)
     renderer = get_renderer(spec)
     batch = getattr(renderer, "render_batch", None) if can_batch(renderer) else None
+    task = (os.getpid(), next(_TASKS))  # one task = the units sent to this node in one message
     if batch is None or len(windows) == 1 or any(c is not None for c in culls):
-        return [render_unit(spec, w, c) for w, c in zip(windows, culls)]
+        out = [render_unit(spec, w, c) for w, c in zip(windows, culls)]
+        for _, info in out:
+            info["task"] = task
+        return out
     spp = max(1, int(getattr(renderer, "spp", 1) or 1))
     launches, cur, size = [], [], 0
     for w in windows:  # consecutive units, at most LAUNCH_SAMPLES samples per launch (>= 1 unit)
@@ -219,9 +228,11 @@ def render_units(spec: RendererSpec, windows, culls=None):
         at = w0
         for img, a in zip(imgs, launch):
             share = dt * a[2] * a[3] / total
-            out.append((wire_pixels(img),
-                        {"seconds": share, "start": at, "stop": at + share, "pid": os.getpid(),
-                         "launch_seconds": dt, "launch_units": len(launch), "launch": lid}))
+            tw = time.perf_counter()
+            px = wire_pixels(img)
+            out.append((px, {"seconds": share, "start": at, "stop": at + share, "pid": os.getpid(),
+                             "launch_seconds": dt, "launch_units": len(launch), "launch": lid, "task": task,
+                             "wire_s": time.perf_counter() - tw}))
             at += share
     return out
 
