@@ -199,3 +199,46 @@ def test_sensor_made_apart_is_watched(llvm):
     assert (integ.n_scene_builds, integ.n_camera_views) == (1, 2)
     assert not np.array_equal(a, b)
     np.testing.assert_array_equal(b, _fresh_render(scene, sensor))
+
+
+def test_param_watch_values_of_python_plugins_and_scalars(llvm):
+    """``ParamWatch`` on a scene whose Python BSDF puts a Dr.Jit value of its own (its object,
+    which ``parameters_changed`` may replace: each check traverses again) and on a scene of
+    C++ objects only (one traversal; the scene's own scalar and a sensor's float compared by
+    value): unchanged after an ``update()`` that changes nothing, changed after each kind of
+    assignment, and a new watch agrees with the new values."""
+    import mitsuba as mi
+
+    from links1_mitsuba.tables import ParamWatch
+
+    class Tinted(mi.BSDF):
+        def __init__(self, props):
+            mi.BSDF.__init__(self, props)
+            self.tint = mi.Color3f(0.5)
+
+        def traverse(self, callback):
+            callback.put("tint", self.tint, mi.ParamFlags.Differentiable)
+
+        def parameters_changed(self, keys):
+            self.tint = mi.Color3f(self.tint)   # a new object, as a plugin may make
+
+    mi.register_bsdf("links1_test_tinted", Tinted)
+    sensor = {"type": "perspective", "film": {"type": "hdrfilm", "width": 8, "height": 8}}
+    py = mi.load_dict({"type": "scene", "s": {"type": "sphere", "bsdf": {"type": "links1_test_tinted"}},
+                       "cam": sensor})
+    cpp = mi.load_dict({"type": "scene", "s": {"type": "sphere", "bsdf": {"type": "diffuse"}}, "cam": sensor})
+    for scene, key, value in [(py, "s.bsdf.tint", mi.Color3f(0.1, 0.2, 0.3)),
+                              (py, "s.bsdf.tint", mi.Color3f(0.7)),      # the replaced object
+                              (cpp, "s.bsdf.reflectance.value", mi.Float(0.9)),
+                              (cpp, "s.silhouette_sampling_weight", 0.25),
+                              (cpp, "allow_thread_reordering", False)]:
+        w = ParamWatch(scene)
+        assert w.unchanged(scene)
+        params = mi.traverse(scene)
+        params.update()
+        assert w.unchanged(scene)
+        params[key] = value
+        params.update()
+        assert not w.unchanged(scene), key
+        assert ParamWatch(scene).unchanged(scene)
+    assert ParamWatch(py)._retraverse and not ParamWatch(cpp)._retraverse
