@@ -134,7 +134,8 @@ class ParamWatch:
     are immutable, and an assignment (``params[k] = v``), an in-place operation or a
     ``dr.scatter`` gives the value another variable. The watch keeps a reference to each
     variable it saw (``_pins``), so that no freed index is handed to a new value and a
-    ``dr.scatter`` into a variable (in place only while nothing else holds it) must copy it.
+    ``dr.scatter`` into a variable (in place only while nothing else holds it) must copy it
+    (the values replaced stay in memory until the tables are built again, at the next frame).
     A value without variables (a Python number, the film's scalar size) is compared by value:
     they are tiny.
 
@@ -153,18 +154,20 @@ class ParamWatch:
                  "_scalar", "_scalar_tokens", "_root_keys")
 
     class _Shallow:
-        """A ``TraversalCallback`` that keeps the values put (not the objects), made once."""
-        cls = None
+        """A ``TraversalCallback`` that keeps the values put (not the objects): the class is
+        made once per Mitsuba variant."""
+        classes: dict = {}
 
         @classmethod
         def make(cls, mi):
-            if cls.cls is None:
+            c = cls.classes.get(mi.variant())
+            if c is None:
                 class Shallow(mi.TraversalCallback):
                     def put(self, name, value, flags, cpptype=None):
                         if not isinstance(value, mi.Object):
                             self.out.append((name, value, cpptype))
-                cls.cls = Shallow
-            return cls.cls()
+                c = cls.classes[mi.variant()] = Shallow
+            return c()
 
     def __init__(self, obj):
         import drjit as dr
