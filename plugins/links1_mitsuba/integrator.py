@@ -171,6 +171,9 @@ def define_integrator():
             #: check the scene's parameters (mi.traverse) before reusing the prepared tables;
             #: MitsubaRenderer, whose scene is its own, turns it off for its launches
             self.verify_scene = True
+            #: the scene tables and camera views built so far (tables.py: prepare)
+            self.n_scene_builds = 0
+            self.n_camera_views = 0
             self.stats = {}
             #: render windows through a frozen function (:meth:`_frozen_fn`): no re-tracing
             self.use_freeze = True

@@ -1,6 +1,7 @@
 """The per-scene tables of ``links1_whitted`` (their one home): ``prepare`` turns a Mitsuba scene
 into what the kernels read (slots in file order, ray offsets, materials, shadow transmittance,
-emission, lights, camera, custom shapes, their BVH and light buffers), rebuilt only when the scene changes;
+emission, lights, camera, custom shapes, their BVH and light buffers), rebuilt only when the scene changes
+(:class:`ParamWatch`: by the Dr.Jit variables of its parameters, nothing read back);
 ``_occluders`` decides which shadow rays a scene needs.
 
 What a scene doesn't need is not traced (decided once per scene in ``prepare``): no
@@ -15,7 +16,6 @@ function, as the integrator, because the Mitsuba variant must be set first).
 from __future__ import annotations
 
 import copy
-import hashlib
 import warnings
 
 import numpy as np
@@ -102,6 +102,146 @@ def _textured(bsdf) -> bool:
     return bsdf is not None and any(k.endswith("to_uv") for k in mi.traverse(bsdf).keys())
 
 
+def _token(value):
+    """A value that ``mi.traverse`` hands out without Dr.Jit variables (a Python number, a
+    scalar vector or transform: the film's size, a clip distance), as something ``==`` compares
+    by value (a NaN equals itself)."""
+    t = type(value)
+    if t is float:
+        return value if value == value else "nan"
+    if t in (bool, int, str) or value is None:
+        return value
+    try:                                    # a scalar Dr.Jit vector: its numbers
+        tup = tuple(value)
+        if all(type(e) in (int, float, bool) for e in tup):
+            return tuple(_token(e) for e in tup)
+    except Exception:  # noqa: BLE001 - not iterable: as numpy reads it
+        pass
+    try:
+        a = np.asarray(value.matrix if hasattr(value, "matrix") else value)
+    except Exception:  # noqa: BLE001 - a value numpy cannot read: its text
+        return ("repr", repr(value))
+    return (a.dtype.str, a.shape, np.ascontiguousarray(a).tobytes())
+
+
+class ParamWatch:
+    """Whether a Mitsuba object's parameters (every one ``mi.traverse(obj)`` exposes: a
+    scene's shapes, BSDFs, textures, emitters, sensors, ...) changed since the watch was made,
+    without reading them back (issue 22, item 2; it replaces a digest of every value, which
+    copied all geometry to the host each frame on CUDA).
+
+    A Dr.Jit value is compared by its variables' indices (``dr.detail.collect_indices``, the
+    JIT and AD indices that ``mi.SceneParameters.update`` itself compares): Dr.Jit variables
+    are immutable, and an assignment (``params[k] = v``), an in-place operation or a
+    ``dr.scatter`` gives the value another variable. The watch keeps a reference to each
+    variable it saw (``_pins``), so that no freed index is handed to a new value and a
+    ``dr.scatter`` into a variable (in place only while nothing else holds it) must copy it
+    (the values replaced stay in memory until the tables are built again, at the next frame).
+    A value without variables (a Python number, the film's scalar size) is compared by value:
+    they are tiny.
+
+    The traversal is made once: Mitsuba's C++ objects hand ``mi.traverse`` the addresses of
+    their fields, which show what ``params.update()`` writes there later. ``obj``'s own fields
+    are traversed again at each check (one level, not its children): the watch does not keep
+    ``obj``, so a scene's tables, which its integrator keeps, do not keep the scene alive. A
+    value that a Python plugin hands out as an object (``parameters_changed`` may replace the
+    object), or an integrator's, makes each check a whole ``mi.traverse``, as another ``obj``
+    does (a scene with the same shapes, emitters and sensors).
+
+    ``__slots__``: no ``__dict__``, so the walk that gathers the frozen launch's inputs from
+    the tables (``Launches._frozen_inputs``) does not take the pins (old values) for inputs."""
+
+    __slots__ = ("_mi", "_collect", "_obj_id", "_retraverse", "state", "_pins", "_jit", "_jit_ids",
+                 "_scalar", "_scalar_tokens", "_root_keys")
+
+    class _Shallow:
+        """A ``TraversalCallback`` that keeps the values put (not the objects): the class is
+        made once per Mitsuba variant."""
+        classes: dict = {}
+
+        @classmethod
+        def make(cls, mi):
+            c = cls.classes.get(mi.variant())
+            if c is None:
+                class Shallow(mi.TraversalCallback):
+                    def put(self, name, value, flags, cpptype=None):
+                        if not isinstance(value, mi.Object):
+                            self.out.append((name, value, cpptype))
+                c = cls.classes[mi.variant()] = Shallow
+            return c()
+
+    def __init__(self, obj):
+        import drjit as dr
+        import mitsuba as mi
+        self._mi, self._collect = mi, dr.detail.collect_indices
+        params = mi.traverse(obj)
+        self._obj_id = id(obj)
+        self._retraverse = any(ct is None or isinstance(node, mi.Integrator)
+                               for _, ct, node, _ in params.properties.values())
+        self.state, self._pins = self._read_all(params, pin=True)
+        if not self._retraverse:
+            kids = [(k, v, ct, node) for k, (v, ct, node, _) in params.properties.items() if node is not obj]
+            self._jit = [(v, ct, node) for k, v, ct, node in kids if self.state[k][0] == "ids"]
+            self._jit_ids = [i for k, *_ in kids if self.state[k][0] == "ids" for i in self.state[k][1]]
+            self._scalar = [(v, ct, node) for k, v, ct, node in kids if self.state[k][0] == "value"]
+            self._scalar_tokens = [self.state[k][1] for k, *_ in kids if self.state[k][0] == "value"]
+            self._root_keys = sorted(k for k, (_, _, node, _) in params.properties.items() if node is obj)
+
+    def _read_all(self, params, pin=False):
+        """``{key: ("ids", indices) or ("value", token)}`` of every parameter, and with
+        ``pin`` the pins."""
+        collect = self._collect
+        state, pins = {}, []
+        for k, (v, ct, node, _) in params.properties.items():
+            value = v if ct is None else params.get_property(v, ct, node)
+            ids = tuple(collect(value))
+            if ids and pin:
+                try:
+                    p = type(value)(value)      # another reference to the same variables
+                except Exception:  # noqa: BLE001 - a type that cannot be copied so
+                    p = None
+                if p is not None and tuple(collect(p)) == ids:
+                    pins.append(p)
+                    state[k] = ("ids", ids)
+                    continue
+            elif ids:
+                state[k] = ("ids", ids)
+                continue
+            state[k] = ("value", _token(value))
+        return state, pins
+
+    def unchanged(self, obj) -> bool:
+        """Whether ``obj`` (the object watched, or one with the same children: the same
+        shapes, emitters and sensors) has the parameters the watch saw."""
+        mi = self._mi
+        if self._retraverse or id(obj) != self._obj_id:
+            params = mi.traverse(obj)
+            if params.properties.keys() != self.state.keys():
+                return False
+            return all(self._read_one(v if ct is None else params.get_property(v, ct, node), self.state[k][0])
+                       == self.state[k] for k, (v, ct, node, _) in params.properties.items())
+        get = mi.get_property
+        # the Dr.Jit values, one list of indices (their types, so their index counts, are fixed)
+        if self._collect([get(*e) for e in self._jit]) != self._jit_ids:
+            return False
+        if [_token(get(*e)) for e in self._scalar] != self._scalar_tokens:
+            return False
+        cb = self._Shallow.make(mi)
+        cb.out = []
+        obj.traverse(cb)
+        if sorted(name for name, _, _ in cb.out) != self._root_keys:
+            return False
+        for name, v, ct in cb.out:
+            s = self.state[name]
+            if self._read_one(v if ct is None else get(v, ct, obj), s[0]) != s:
+                return False
+        return True
+
+    def _read_one(self, value, how):
+        """One value as the state has it (``how``: "ids" or "value")."""
+        return (how, tuple(self._collect(value)) if how == "ids" else _token(value))
+
+
 class Prepared:
     """Per-scene tables: slots (shapes in file order), materials, lights, camera."""
 
@@ -133,23 +273,6 @@ def define_tables(mi, dr, util):
             ids += [id(o) for o in objs]
         return tuple(ids)
 
-    def scene_digest(scene) -> bytes:
-        """A digest of every parameter ``mi.traverse(scene)`` exposes, by value (a scene or
-        any other Mitsuba object: a sensor)."""
-        h = hashlib.blake2b(digest_size=16)
-        params = mi.traverse(scene)
-        for k in sorted(params.keys()):
-            v = params[k]
-            h.update(k.encode())
-            try:
-                a = np.asarray(v.matrix if hasattr(v, "matrix") else v)
-            except Exception:  # noqa: BLE001 - a value numpy cannot read: its text
-                h.update(repr(v).encode())
-                continue
-            h.update(f"{a.dtype.str}{a.shape}".encode())
-            h.update(np.ascontiguousarray(a).tobytes())
-        return h.digest()
-
     class Tables:
         """``prepare``: the per-scene tables; ``_occluders``: which shadow rays they need."""
 
@@ -161,8 +284,10 @@ def define_tables(mi, dr, util):
             The scene's tables (shapes, materials, lights, shadow rays) are keyed on what they
             are built from, never on ``id(scene)``: the registry ids of the scene's shapes,
             emitters and sensors (P keeps those objects alive, so no other scene can reuse the
-            ids), and, while ``verify_scene``, a digest of every parameter ``mi.traverse``
-            exposes (a ``params.update()`` after a render is seen). Each sensor gets its own
+            ids), and, while ``verify_scene``, every parameter ``mi.traverse`` exposes, watched
+            by its Dr.Jit variables (:class:`ParamWatch`: a ``params.update()`` after a render
+            is seen, and nothing is read back from the device). ``n_scene_builds`` and
+            ``n_camera_views`` count the tables built. Each sensor gets its own
             view of them (:meth:`_camera_view`: camera, film, filter, eye buffer) as a distinct
             object, so a frozen launch recorded for one sensor's camera (``cfg`` holds the
             view's id) is never replayed for another."""
@@ -170,7 +295,7 @@ def define_tables(mi, dr, util):
             V = self._prep
             B = getattr(V, "base", None)
             if not (B is not None and B.ident == ident
-                    and (not self.verify_scene or B.content == scene_digest(scene))):
+                    and (not self.verify_scene or B.watch.unchanged(scene))):
                 B = self._prepare_scene(scene, ident)
             V = self._camera_view(B, scene, self._sensor_of(scene, sensor))
             self._prep = V
@@ -194,18 +319,20 @@ def define_tables(mi, dr, util):
         def _camera_view(self, B, scene, sensor):
             """The tables ``B`` with ``sensor``'s camera, film and filter (a shallow copy of
             ``B``: the Dr.Jit tables are shared), one per sensor and kept with ``B``. A sensor
-            that is not one of the scene's is checked by value (``mi.traverse``) while
+            that is not one of the scene's is watched (:class:`ParamWatch`) while
             ``verify_scene``, as the scene is."""
             own = any(sensor is s for s in B.keep_alive[2])
-            content = None if own or not self.verify_scene else scene_digest(sensor)
+            check = self.verify_scene and not own
             V = B.views.get(id(sensor))
-            if V is not None and V.sensor is sensor and V.sensor_content == content:
+            if (V is not None and V.sensor is sensor and (V.sensor_watch is not None) == check
+                    and (not check or V.sensor_watch.unchanged(sensor))):
                 return V
             V = copy.copy(B)
             V.base = B
-            V.sensor_content = content
+            V.sensor_watch = ParamWatch(sensor) if check else None
             V.frozen_inputs = None
             V.scene_input = None
+            self.n_camera_views += 1
             self._set_camera(V, sensor)
             # light buffer around a pinhole camera's eye for the camera rays' nearest quadric
             V.eye_buf = lightbuffer.plan_eye(V, scene) if lightbuffer.ENABLED else None
@@ -240,7 +367,8 @@ def define_tables(mi, dr, util):
             """The tables of ``scene`` that do not depend on the sensor (:meth:`prepare`)."""
             P = Prepared()
             P.ident = ident
-            P.content = scene_digest(scene)
+            P.watch = ParamWatch(scene)     # before the tables read the parameters
+            self.n_scene_builds += 1
             P.keep_alive = (list(scene.shapes()), list(scene.emitters()), list(scene.sensors()))  # see scene_identity
             P.views = {}
             self._freeze = None       # recordings hold the previous tables

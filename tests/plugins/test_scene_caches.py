@@ -62,3 +62,183 @@ def test_another_scene_through_the_same_integrator(variant):
     assert not np.array_equal(ra, rb)
     np.testing.assert_array_equal(rb, _render(b))
     np.testing.assert_array_equal(_render(a, integ), ra)
+
+
+# -- issue 22, item 2: the tables are watched by their parameters' Dr.Jit variables -----------
+
+MESH_XML = """<scene version="3.0.0">
+ <sensor type="perspective" id="cam"><float name="fov" value="45"/>
+  <transform name="to_world"><lookat origin="0, 3, 6" target="0, 0.5, 0" up="0, 1, 0"/></transform>
+  <film type="hdrfilm"><integer name="width" value="24"/><integer name="height" value="20"/><rfilter type="gaussian"/></film>
+ </sensor>
+ <integrator type="links1_whitted"/>
+ <shape type="rectangle" id="floor"><transform name="to_world"><scale value="4"/><rotate x="1" angle="-90"/></transform>
+  <bsdf type="diffuse" id="floormat"><rgb name="reflectance" value="0.5"/></bsdf></shape>
+ <shape type="cube" id="box"><transform name="to_world"><translate x="0" y="0.5" z="0"/><scale value="0.5"/></transform>
+  <bsdf type="diffuse" id="boxmat"><rgb name="reflectance" value="0.2, 0.4, 0.7"/></bsdf></shape>
+ <emitter type="point" id="lamp"><point name="position" x="1" y="5" z="2"/><rgb name="intensity" value="20"/></emitter>
+</scene>"""
+
+
+def _moved_sensor(mi, params, scene):
+    params["cam.to_world"] = mi.ScalarTransform4f().look_at(origin=[1, 3, 6], target=[0, 0.5, 0], up=[0, 1, 0])
+
+
+def _fov(mi, params, scene):
+    params["cam.x_fov"] = mi.Float(30.0)
+
+
+def _bsdf_colour(mi, params, scene):
+    params["box.bsdf.reflectance.value"] = mi.Color3f(0.8, 0.1, 0.1)
+
+
+def _light_moved(mi, params, scene):
+    params["lamp.position"] = mi.Point3f(-2.0, 5.0, 1.0)
+
+
+def _light_intensity(mi, params, scene):
+    params["lamp.intensity.value"] = mi.Color3f(5.0, 30.0, 5.0)
+
+
+def _vertices_assigned(mi, params, scene):
+    v = params["box.vertex_positions"]
+    params["box.vertex_positions"] = v + 0.3      # every third coordinate too: moved diagonally
+
+
+def _vertices_scattered(mi, params, scene):
+    import drjit as dr
+    v = params["box.vertex_positions"]              # the mesh's own array, written in place
+    dr.scatter(v, dr.gather(mi.Float, v, mi.UInt32([1, 4, 7, 10])) + 0.4, mi.UInt32([1, 4, 7, 10]))
+    params.set_dirty("box.vertex_positions")
+
+
+def _film_size(mi, params, scene):
+    params["cam.film.size"] = mi.ScalarVector2u(20, 24)
+
+
+CHANGES = [_moved_sensor, _fov, _bsdf_colour, _light_moved, _light_intensity, _vertices_assigned,
+           _vertices_scattered, _film_size]
+
+
+def _fresh_render(scene, sensor=0):
+    """``scene`` as it is now, through a new links1_whitted (its own tables, built now)."""
+    import mitsuba as mi
+    return np.array(mi.render(scene, sensor=sensor, integrator=mi.load_dict({"type": "links1_whitted"}),
+                              spp=1))
+
+
+def test_unchanged_scene_prepares_nothing(variant):
+    """Frames of an unchanged scene (``mi.render``, ``render_window``, reading ``mi.traverse``'s
+    values, an ``update()`` that changes nothing) build the tables once; each frame records
+    the frozen launch at most twice in all (the second recording makes changed literals opaque)."""
+    import mitsuba as mi
+
+    from links1_mitsuba import load_string
+    scene = load_string(MESH_XML, variant=variant)
+    integ = scene.integrator()
+    first = np.array(mi.render(scene, spp=1))
+    assert integ.n_scene_builds == 1 and integ.n_camera_views == 1
+    for seed in range(4):
+        img = np.array(mi.render(scene, spp=1, seed=seed % 2))
+        if seed % 2 == 0:
+            np.testing.assert_array_equal(img, first)
+    integ.render_window(scene, (3, 2, 9, 7), spp=1)
+    params = mi.traverse(scene)
+    _ = [params[k] for k in params.keys()]
+    params.update()
+    np.testing.assert_array_equal(np.array(mi.render(scene, spp=1)), first)
+    assert integ.n_scene_builds == 1 and integ.n_camera_views == 1
+    assert integ._freeze.n_recordings <= 2
+
+
+@pytest.mark.parametrize("change", CHANGES, ids=[c.__name__.strip("_") for c in CHANGES])
+def test_each_params_update_prepares_again(variant, change):
+    """After a render, one ``params.update()`` of each kind (camera, BSDF, light, a mesh's
+    vertices assigned or scattered in place, the film) builds the tables once more, and the
+    next frame equals a new integrator's render of the changed scene; the frame after it
+    builds nothing; each set of tables records its frozen launch at most twice."""
+    import mitsuba as mi
+
+    from links1_mitsuba import load_string
+    scene = load_string(MESH_XML, variant=variant)
+    integ = scene.integrator()
+    before = np.array(mi.render(scene, spp=1))
+    mi.render(scene, spp=1)
+    assert integ.n_scene_builds == 1
+    params = mi.traverse(scene)
+    change(mi, params, scene)
+    params.update()
+    after = np.array(mi.render(scene, spp=1))
+    assert integ.n_scene_builds == 2
+    expected = _fresh_render(scene)
+    assert before.shape != expected.shape or not np.array_equal(before, expected)   # the change shows
+    np.testing.assert_array_equal(after, expected)
+    np.testing.assert_array_equal(np.array(mi.render(scene, spp=1)), after)
+    assert integ.n_scene_builds == 2
+    assert integ._freeze.n_recordings <= 2
+
+
+def test_sensor_made_apart_is_watched(llvm):
+    """A sensor from ``mi.load_dict`` gets one camera view while unchanged, and a new one after
+    its ``params.update()`` (the scene's tables are kept)."""
+    import mitsuba as mi
+
+    from links1_mitsuba import load_string
+    scene = load_string(MESH_XML, variant=llvm)
+    integ = scene.integrator()
+    sensor = mi.load_dict({"type": "perspective", "fov": 40, "to_world": mi.ScalarTransform4f().look_at(
+        origin=[-3, 2, 4], target=[0, 0.5, 0], up=[0, 1, 0]),
+        "film": {"type": "hdrfilm", "width": 16, "height": 12, "rfilter": {"type": "box"}}})
+    a = np.array(mi.render(scene, sensor=sensor, spp=1))
+    np.testing.assert_array_equal(np.array(mi.render(scene, sensor=sensor, spp=1)), a)
+    assert (integ.n_scene_builds, integ.n_camera_views) == (1, 1)
+    prm = mi.traverse(sensor)
+    prm["to_world"] = mi.ScalarTransform4f().look_at(origin=[3, 2, 4], target=[0, 0.5, 0], up=[0, 1, 0])
+    prm.update()
+    b = np.array(mi.render(scene, sensor=sensor, spp=1))
+    assert (integ.n_scene_builds, integ.n_camera_views) == (1, 2)
+    assert not np.array_equal(a, b)
+    np.testing.assert_array_equal(b, _fresh_render(scene, sensor))
+
+
+def test_param_watch_values_of_python_plugins_and_scalars(llvm):
+    """``ParamWatch`` on a scene whose Python BSDF puts a Dr.Jit value of its own (its object,
+    which ``parameters_changed`` may replace: each check traverses again) and on a scene of
+    C++ objects only (one traversal; the scene's own scalar and a sensor's float compared by
+    value): unchanged after an ``update()`` that changes nothing, changed after each kind of
+    assignment, and a new watch agrees with the new values."""
+    import mitsuba as mi
+
+    from links1_mitsuba.tables import ParamWatch
+
+    class Tinted(mi.BSDF):
+        def __init__(self, props):
+            mi.BSDF.__init__(self, props)
+            self.tint = mi.Color3f(0.5)
+
+        def traverse(self, callback):
+            callback.put("tint", self.tint, mi.ParamFlags.Differentiable)
+
+        def parameters_changed(self, keys):
+            self.tint = mi.Color3f(self.tint)   # a new object, as a plugin may make
+
+    mi.register_bsdf("links1_test_tinted", Tinted)
+    sensor = {"type": "perspective", "film": {"type": "hdrfilm", "width": 8, "height": 8}}
+    py = mi.load_dict({"type": "scene", "s": {"type": "sphere", "bsdf": {"type": "links1_test_tinted"}},
+                       "cam": sensor})
+    cpp = mi.load_dict({"type": "scene", "s": {"type": "sphere", "bsdf": {"type": "diffuse"}}, "cam": sensor})
+    for scene, key, value in [(py, "s.bsdf.tint", mi.Color3f(0.1, 0.2, 0.3)),
+                              (py, "s.bsdf.tint", mi.Color3f(0.7)),      # the replaced object
+                              (cpp, "s.bsdf.reflectance.value", mi.Float(0.9)),
+                              (cpp, "s.silhouette_sampling_weight", 0.25),
+                              (cpp, "allow_thread_reordering", False)]:
+        w = ParamWatch(scene)
+        assert w.unchanged(scene)
+        params = mi.traverse(scene)
+        params.update()
+        assert w.unchanged(scene)
+        params[key] = value
+        params.update()
+        assert not w.unchanged(scene), key
+        assert ParamWatch(scene).unchanged(scene)
+    assert ParamWatch(py)._retraverse and not ParamWatch(cpp)._retraverse
