@@ -29,21 +29,36 @@ def variant_problem(variant: str) -> str | None:
     return probe_variant(variant)
 
 
+#: The Mitsuba variants the plugin suite runs on: every test that can run on both takes the
+#: ``variant`` fixture (or ``renderer_kind`` / ``kind_with_mitsuba``, renderer x variant); the
+#: cuda_ad_rgb cases skip at once where no GPU is (variant_problem). On a GPU machine,
+#: ``python -m pytest tests/plugins -k cuda_ad_rgb`` runs exactly the CUDA cases (README).
+VARIANTS = ("llvm_ad_rgb", "cuda_ad_rgb")
+
+
+def variant_marks(v: str) -> list:
+    """The marks of a test case on variant ``v``: ``mitsuba``, and ``gpu`` for a CUDA one."""
+    return [pytest.mark.mitsuba] + ([pytest.mark.gpu] if v.startswith("cuda") else [])
+
+
+def use_variant(v: str) -> str:
+    """Register the links1 plugins for ``v`` and make it the active variant, or skip saying why
+    ``v`` cannot run here (no GPU: at once, without starting a probe)."""
+    why = variant_problem(v)
+    if why:
+        pytest.skip(f"{v} unavailable: {why}")
+    import links1_mitsuba
+    return links1_mitsuba.register(v)
+
+
 def _variant_param(v):
-    marks = [pytest.mark.mitsuba]
-    if v.startswith("cuda"):
-        marks.append(pytest.mark.gpu)
-    return pytest.param(v, marks=marks, id=v)
+    return pytest.param(v, marks=variant_marks(v), id=v)
 
 
-@pytest.fixture(params=[_variant_param("llvm_ad_rgb"), _variant_param("cuda_ad_rgb")])
+@pytest.fixture(params=[_variant_param(v) for v in VARIANTS])
 def variant(request):
     """Each test runs on llvm_ad_rgb and, where a GPU exists, on cuda_ad_rgb (validation e)."""
-    why = variant_problem(request.param)
-    if why:
-        pytest.skip(f"{request.param} unavailable: {why}")
-    import links1_mitsuba
-    return links1_mitsuba.register(request.param)
+    return use_variant(request.param)
 
 
 @pytest.fixture(scope="module")
@@ -59,19 +74,46 @@ def scalar_rgb():
 
 @pytest.fixture
 def llvm():
-    why = variant_problem("llvm_ad_rgb")
-    if why:
-        pytest.skip(f"llvm_ad_rgb unavailable: {why}")
-    import links1_mitsuba
-    return links1_mitsuba.register("llvm_ad_rgb")
+    """llvm_ad_rgb only, for a test that says why in its docstring: a path that exists on LLVM
+    only (shadow_split's sub-scenes, host-mapped table alignment), or a test of the core whose
+    reference is a Mitsuba render (no variant changes the core). Every other test that
+    renders with Mitsuba takes ``variant`` (or ``renderer_kind`` / ``kind_with_mitsuba``)."""
+    return use_variant("llvm_ad_rgb")
 
 
-@pytest.fixture(params=["core", pytest.param("mitsuba", marks=pytest.mark.mitsuba)])
+def _kind_params(core_marks):
+    return [pytest.param(("core", "llvm_ad_rgb"), marks=core_marks, id="core")] + [
+        pytest.param(("mitsuba", v), marks=variant_marks(v), id=f"mitsuba-{v}") for v in VARIANTS]
+
+
+@pytest.fixture(params=_kind_params([]))
 def renderer_kind(request):
-    """Each renderer in turn: ``"core"``, then ``"mitsuba"`` (skipped where llvm_ad_rgb cannot run)."""
-    if request.param == "mitsuba":
-        request.getfixturevalue("llvm")
-    return request.param
+    """Each renderer in turn: ``"core"``, then ``"mitsuba"`` on llvm_ad_rgb and on cuda_ad_rgb
+    (each skipped where it cannot run; that variant is the active one). The core case needs
+    no Mitsuba. A test that runs the command line passes ``cli_variant(kind)`` on to it."""
+    kind, v = request.param
+    if kind == "mitsuba":
+        use_variant(v)
+    return kind
+
+
+@pytest.fixture(params=_kind_params([pytest.mark.mitsuba]))
+def kind_with_mitsuba(request):
+    """As ``renderer_kind``, for tests whose references are Mitsuba's own renders: the core case
+    runs once, with llvm_ad_rgb active (the core does not depend on the variant), the
+    ``"mitsuba"`` case on each variant."""
+    kind, v = request.param
+    use_variant(v)
+    return kind
+
+
+def cli_variant(kind: str) -> list[str]:
+    """``--variant`` and the active variant for a ``links1 render --renderer mitsuba`` run (its
+    worker processes would otherwise take the machine's default), nothing for the core."""
+    if kind != "mitsuba":
+        return []
+    import mitsuba as mi
+    return ["--variant", mi.variant()]
 
 
 def data(name: str) -> str:

@@ -18,7 +18,7 @@ def rel_mse(a, b):
 
 
 @pytest.mark.parametrize("scene", ["lights.xml", "fig4.xml", "shadows.xml", "many.xml"])
-def test_plugin_refines_as_the_core_does(llvm, scene):
+def test_plugin_refines_as_the_core_does(variant, scene):
     from links1.render import make_renderer
     path = os.path.join(SCENES, scene)
     core = make_renderer("core", path, **KW).render()
@@ -33,7 +33,7 @@ def test_plugin_refines_as_the_core_does(llvm, scene):
     np.testing.assert_allclose(plug[..., 5][hit], core[..., 5][hit], rtol=1e-5)   # depth at the centres
 
 
-def test_plugin_windows_and_batches_equal_the_full_frame(llvm):
+def test_plugin_windows_and_batches_equal_the_full_frame(variant):
     from links1.render import make_renderer
     r = make_renderer("mitsuba", os.path.join(SCENES, "lights.xml"), **KW)
     full = r.render()
@@ -43,13 +43,13 @@ def test_plugin_windows_and_batches_equal_the_full_frame(llvm):
         assert np.array_equal(part, full[y0:y0 + h, x0:x0 + w]), win
 
 
-def test_scene_integrator_refuses_adaptive(llvm):
+def test_scene_integrator_refuses_adaptive(variant):
     from links1.render import make_renderer
     with pytest.raises(Exception, match="links1_whitted"):
         make_renderer("mitsuba", os.path.join(SCENES, "mitsuba_direct.xml"), integrator="scene", adaptive=0.1)
 
 
-def test_integrator_parameters_adaptive_in_mi_render(llvm, tmp_path):
+def test_integrator_parameters_adaptive_in_mi_render(variant, tmp_path):
     """``<float name="adaptive">`` on links1_whitted: ``mi.render`` renders adaptively, the
     same image as MitsubaRenderer(adaptive=...)."""
     import mitsuba as mi
@@ -73,7 +73,7 @@ def test_integrator_parameters_adaptive_in_mi_render(llvm, tmp_path):
         mi.load_dict({"type": "links1_whitted", "adaptive_depth": 2})
 
 
-def test_plugin_applies_the_films_filter_as_the_core(llvm, tmp_path):
+def test_plugin_applies_the_films_filter_as_the_core(variant, tmp_path):
     """A Gaussian film: the plugin reconstructs the filtered image as the core does (the same
     decisions, values to float32), tiles equal the full frame, and the filter changes the image."""
     from links1.render import make_renderer
@@ -95,7 +95,7 @@ def test_plugin_applies_the_films_filter_as_the_core(llvm, tmp_path):
         assert np.array_equal(part, plug[y0:y0 + h, x0:x0 + w]), win
 
 
-def test_points_launch_records_once_whatever_the_inputs_alignment(llvm):
+def test_points_launch_records_once_whatever_the_inputs_alignment(variant):
     """trace_points replays one recording for any point count and any alignment of the numpy
     inputs (a mapped input whose alignment changes makes drjit.freeze record again)."""
     from links1.render import make_renderer

@@ -78,46 +78,54 @@ def scenes(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def references(scenes):
-    """Mitsuba ``direct`` at 1024 spp (reference) and at 64 spp, per scene."""
+    """``references(variant)[kind]``: Mitsuba ``direct`` at 1024 spp (reference) and at 64 spp
+    on ``variant`` (made once per variant and scene; ``variant`` is then the active one)."""
     from links1_mitsuba import register
-    register("llvm_ad_rgb")
-    import mitsuba as mi
-    out = {}
-    for k, p in scenes.items():
-        sc = mi.load_file(p)
-        ref = np.array(mi.render(sc, spp=1024, seed=11), dtype=np.float64)[..., :3]
-        m64 = np.array(mi.render(sc, spp=64, seed=12), dtype=np.float64)[..., :3]
-        out[k] = (ref, m64)
-    return out
+    made = {}
+
+    def on(variant):
+        register(variant)
+        if variant not in made:
+            import mitsuba as mi
+            made[variant] = {}
+            for k, p in scenes.items():
+                sc = mi.load_file(p)
+                ref = np.array(mi.render(sc, spp=1024, seed=11), dtype=np.float64)[..., :3]
+                m64 = np.array(mi.render(sc, spp=64, seed=12), dtype=np.float64)[..., :3]
+                made[variant][k] = (ref, m64)
+        return made[variant]
+    return on
 
 
 @pytest.mark.parametrize("kind", KINDS)
-def test_core_vs_mitsuba_direct(kind, scenes, references):
+def test_core_vs_mitsuba_direct(kind, llvm, scenes, references):
+    """LLVM only: a test of the core, which no variant changes (its references are Mitsuba's
+    ``direct`` on llvm_ad_rgb)."""
     from links1 import load_scene
     from links1.render import render
-    ref, m64 = references[kind]
+    ref, m64 = references(llvm)[kind]
     core = render(load_scene(scenes[kind]), spp=64)[..., :3]
     assert abs(core.mean() / ref.mean() - 1.0) < 0.02
     assert rel_mse(core, ref) <= 2.0 * rel_mse(m64, ref)
 
 
 @pytest.mark.parametrize("kind", KINDS)
-def test_plugin_vs_mitsuba_direct_and_core(kind, scenes, references):
+def test_plugin_vs_mitsuba_direct_and_core(kind, variant, scenes, references):
     """The plugin samples the same light points as the core (float32 rounding apart) and so
     meets the same bound against Mitsuba's ``direct``."""
     from links1.render import make_renderer
-    ref, m64 = references[kind]
-    plug = make_renderer("mitsuba", scenes[kind], spp=64).render()[..., :3]
+    ref, m64 = references(variant)[kind]
+    plug = make_renderer("mitsuba", scenes[kind], spp=64, variant=variant).render()[..., :3]
     assert rel_mse(plug, ref) <= 2.0 * rel_mse(m64, ref)
     core = make_renderer("core", scenes[kind], spp=16, light_samples=2).render()[..., :3]
-    plug = make_renderer("mitsuba", scenes[kind], spp=16, light_samples=2).render()[..., :3]
+    plug = make_renderer("mitsuba", scenes[kind], spp=16, light_samples=2, variant=variant).render()[..., :3]
     # (obj differed by 1e-3 on the floor's far edge until the core's shadow rays were aimed at
     # the sampled point: tests/core/test_area_light_analytic.py)
     assert rel_mse(plug, core) < 1e-8
 
 
-def test_plugin_windows_equal_full_frame(scenes):
+def test_plugin_windows_equal_full_frame(variant, scenes):
     from links1.render import make_renderer
-    r = make_renderer("mitsuba", scenes["envmap"], spp=4, light_samples=2, seed=5)
+    r = make_renderer("mitsuba", scenes["envmap"], spp=4, light_samples=2, seed=5, variant=variant)
     full = r.render()
     assert np.array_equal(r.render((3, 5, 9, 7)), full[5:12, 3:12])

@@ -7,8 +7,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tests.plugins.llvm_probe import require_llvm_variant
-
 pytestmark = pytest.mark.mitsuba
 
 
@@ -61,8 +59,7 @@ def _plugin(spec, o, d, lists):
 
 
 @pytest.mark.parametrize("centres", ["cloud300", "row80"])
-def test_candidate_lists_match_core_and_all_centres(centres):
-    require_llvm_variant()
+def test_candidate_lists_match_core_and_all_centres(centres, variant):
     from links1.blob import Blob
     from links1_mitsuba.shapes import LIST_CAP, SLOTS, BlobSpec
     c = _cloud(300, 3) if centres == "cloud300" else _row(80)
@@ -99,11 +96,10 @@ def test_candidate_lists_match_core_and_all_centres(centres):
 
 
 @pytest.mark.parametrize("centres", ["cloud300", "row80"])
-def test_normal_reuses_hit_search_candidates(centres):
+def test_normal_reuses_hit_search_candidates(centres, variant):
     """The normal sums over the nearest-hit search's candidates of the same ray (every
     centre whose 3S sphere the line crosses) instead of walking the hierarchy again with the
     hit point: the same non-zero terms in the same (leaf) order, so the same bits."""
-    require_llvm_variant()
     import drjit as dr
     import mitsuba as mi
     from links1_mitsuba.shapes import BlobSpec
@@ -128,10 +124,9 @@ def test_normal_reuses_hit_search_candidates(centres):
     assert np.array_equal(n_reuse.view(np.uint32), n_walk.view(np.uint32))
 
 
-def test_many_centre_blob_scene_matches_core(tmp_path):
+def test_many_centre_blob_scene_matches_core(tmp_path, variant):
     """A 120-centre blob lit by a point light over a mirror floor, through the renderer
     (frozen launch, shadow rays, reflections, normals): plugin against the core."""
-    require_llvm_variant()
     import warnings
     from links1.loader import load_scene
     from links1.render import render

@@ -9,8 +9,6 @@ import warnings
 import numpy as np
 import pytest
 
-from tests.plugins.llvm_probe import require_llvm_variant
-
 from .conftest import SCENES
 
 pytestmark = pytest.mark.mitsuba
@@ -34,8 +32,7 @@ def _rays(n, seed):
     (CARVED, 0.4, 5, None),
     (FIG6A, 0.5, 8, np.diag([2.0, 0.5, 1.5, 1.0])),
 ], ids=["fig6a-8", "fig6a-3", "carved-5", "scaled-8"])
-def test_paper_solver_matches_core_rays(centers, threshold, samples, to_world):
-    require_llvm_variant()
+def test_paper_solver_matches_core_rays(centers, threshold, samples, to_world, variant):
     import drjit as dr
     import mitsuba as mi
     from links1.blob import Blob
@@ -63,8 +60,7 @@ def test_paper_solver_matches_core_rays(centers, threshold, samples, to_world):
 
 
 @pytest.mark.parametrize("name", ["fig6a.xml", "fig6b.xml"])
-def test_paper_solver_primary_hits_match_core(name):
-    require_llvm_variant()
+def test_paper_solver_primary_hits_match_core(name, variant):
     from links1.render import make_renderer
     path = os.path.join(SCENES, name)
     if not os.path.exists(path):

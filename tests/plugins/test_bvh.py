@@ -40,7 +40,7 @@ def _scene(n):
 </scene>"""
 
 
-def test_bvh_matches_every_quadric(llvm, monkeypatch):
+def test_bvh_matches_every_quadric(variant, monkeypatch):
     import links1_mitsuba
     from links1_mitsuba import integrator as integ_mod
     xml = _scene(40)
@@ -60,7 +60,11 @@ def test_bvh_matches_every_quadric(llvm, monkeypatch):
 def test_bvh_tables_are_aligned_node_lines(llvm):
     """The walk's tables sit in 64-byte aligned memory (numpy-mapped tables made the same walk
     35-62 ms at random, compare/quadric_accel.py), and a node's line holds its children's boxes
-    and its own ``first``/``count`` bit for bit."""
+    and its own ``first``/``count`` bit for bit.
+
+    LLVM only: on llvm_ad_rgb the tables are Dr.Jit arrays mapped on host memory, whose
+    alignment is what this checks; on cuda_ad_rgb they are copied to the device
+    (test_bvh_matches_every_quadric runs the walk on both)."""
     import drjit as dr
     import mitsuba as mi
 

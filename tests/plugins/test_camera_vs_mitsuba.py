@@ -11,12 +11,6 @@ mi = pytest.importorskip("mitsuba", reason="mitsuba is not installed")
 pytestmark = pytest.mark.mitsuba
 
 
-@pytest.fixture(scope="module")
-def variant():
-    from tests.plugins.llvm_probe import require_llvm_variant
-    return require_llvm_variant()
-
-
 def mitsuba_rays(sensor, xy):
     """Mitsuba's rays through film points ``xy`` (n, 2): origins, directions (n, 3), maxt."""
     ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f(xy[:, 0], xy[:, 1]), mi.Point2f(0.5, 0.5))

@@ -6,13 +6,11 @@ import pytest
 
 from links1.cli import main
 
-pytestmark = pytest.mark.mitsuba
+from .conftest import cli_variant
 
-
-@pytest.fixture(autouse=True)
-def _llvm():
-    from tests.plugins.llvm_probe import require_llvm_variant
-    require_llvm_variant()
+# every test on each variant (conftest.py): the command line and the plugins render on the
+# active one
+pytestmark = [pytest.mark.mitsuba, pytest.mark.usefixtures("variant")]
 
 
 @pytest.mark.parametrize("body,needle", [
@@ -77,7 +75,8 @@ def test_integrator_scene_without_integrator_uses_path(tmp_path):
         scene = _no_integrator_scene(tmp_path, integ)
         out = tmp_path / f"o{len(integ)}.exr"
         res = subprocess.run([sys.executable, "-m", "links1.cli", "render", str(scene), "--renderer", "mitsuba",
-                              "--integrator", "scene", "--workers", "0", "--no-progress", "-o", str(out)],
+                              "--integrator", "scene", "--workers", "0", "--no-progress", "-o", str(out),
+                              *cli_variant("mitsuba")],
                              capture_output=True, text=True, timeout=300)
         assert res.returncode == 0, res.stderr
         assert all(ln.startswith("links1: ") for ln in res.stderr.splitlines()), res.stderr
@@ -109,7 +108,7 @@ def _render_both(tmp_path, body):
     for r in ("core", "mitsuba"):
         out = tmp_path / f"{r}.exr"
         res = subprocess.run([sys.executable, "-m", "links1.cli", "render", str(scene), "--renderer", r,
-                              "--workers", "0", "--no-progress", "-o", str(out)],
+                              "--workers", "0", "--no-progress", "-o", str(out), *cli_variant(r)],
                              capture_output=True, text=True, timeout=300)
         assert res.returncode == 0, res.stderr
         imgs[r], errs[r] = read_exr(str(out))[0], res.stderr

@@ -22,7 +22,7 @@ import pytest
 from links1.render import make_renderer
 from tests.corpus.manifest import SCENES
 
-from .conftest import assert_matches_mitsuba_direct
+from .conftest import VARIANTS, assert_matches_mitsuba_direct, use_variant, variant_marks
 
 pytestmark = [pytest.mark.mitsuba, pytest.mark.slow]
 
@@ -47,24 +47,30 @@ def _render(kind, sc, path, **opts):
 
 
 def _params(expect):
+    """(scene, renderer, variant) per scene: the core once (with llvm_ad_rgb for Mitsuba's
+    references: no variant changes the core), links1_whitted on each variant."""
     out = []
     for sc in SCENES:
         if sc.expect != expect:
             continue
-        for kind in ("core", "mitsuba"):
+        for kind, v in (("core", "llvm_ad_rgb"), *(("mitsuba", v) for v in VARIANTS)):
             marks = [pytest.mark.xfail(strict=True, reason=sc.xfail[kind])] if kind in sc.xfail else []
-            out.append(pytest.param(sc, kind, id=f"{sc.id}-{kind}", marks=marks))
+            marks += variant_marks(v) if kind == "mitsuba" else []
+            name = kind if kind == "core" else f"{kind}-{v}"
+            out.append(pytest.param(sc, kind, v, id=f"{sc.id}-{name}", marks=marks))
     return out
 
 
-@pytest.mark.parametrize("sc,kind", _params("direct"))
-def test_delta_light_scene_matches_mitsuba_direct(sc, kind, llvm):
+@pytest.mark.parametrize("sc,kind,variant_name", _params("direct"))
+def test_delta_light_scene_matches_mitsuba_direct(sc, kind, variant_name):
+    use_variant(variant_name)
     assert_matches_mitsuba_direct(kind, _path(sc), spp=SPP, ref_factor=REF_FACTOR, params=dict(sc.params),
                                   width=WIDTH, height=HEIGHT)
 
 
-@pytest.mark.parametrize("sc,kind", _params("renders"))
-def test_scene_renders_and_names_its_approximations(sc, kind, llvm):
+@pytest.mark.parametrize("sc,kind,variant_name", _params("renders"))
+def test_scene_renders_and_names_its_approximations(sc, kind, variant_name):
+    use_variant(variant_name)
     path = _path(sc)
     img, messages = _render(kind, sc, path, spp=4)
     assert img.shape[:2] == (HEIGHT, WIDTH)

@@ -121,7 +121,7 @@ def test_windows_and_batches_equal_full_frame_on_device(variant, tmp_path, rfilt
         assert b.dtype == np.float64 and np.array_equal(b, full[y0:y0 + h, x0:x0 + w])
 
 
-def test_split_launches_weight_tables_and_device_counters(llvm, tmp_path, monkeypatch):
+def test_split_launches_weight_tables_and_device_counters(variant, tmp_path, monkeypatch):
     """Launches split at LAUNCH_LANES give the same bits as one launch, weights evaluated in the
     gather (windows over FILM_TABLE_BYTES) the same as from per-sample tables, and the ray
     counters summed on the device (launches over LAZY_COUNT_LANES) equal those summed on the host."""
@@ -139,7 +139,7 @@ def test_split_launches_weight_tables_and_device_counters(llvm, tmp_path, monkey
 
 
 @pytest.mark.parametrize("rfilter", ["box", "gaussian"])
-def test_new_window_and_batch_sizes_compile_nothing(llvm, tmp_path, rfilter):
+def test_new_window_and_batch_sizes_compile_nothing(variant, tmp_path, rfilter):
     """Every kernel of a frame with new window sizes, origins, batch sizes and spp is one that
     earlier frames ran (the same hash): window and batch sizes are run-time values."""
     import drjit as dr
@@ -159,7 +159,7 @@ def test_new_window_and_batch_sizes_compile_nothing(llvm, tmp_path, rfilter):
     assert new and new <= seen, new - seen
 
 
-def test_mi_render_never_visits_numpy(llvm, tmp_path, monkeypatch):
+def test_mi_render_never_visits_numpy(variant, tmp_path, monkeypatch):
     """``mi.render`` assembles the frame without numpy in the launch, film and integrator code."""
     import mitsuba as mi
     from links1_mitsuba import integrator, launch

@@ -9,6 +9,7 @@ import pytest
 from links1.diff import relmse
 from links1.filters import FILTERS, Filter
 
+from .conftest import cli_variant
 from .test_vs_mitsuba_integrators import DIFFUSE
 
 pytestmark = pytest.mark.mitsuba
@@ -47,7 +48,7 @@ def write_scene(tmp_path, rfilter):
     return str(path)
 
 
-def test_weights_radius_border_are_mitsubas(llvm):
+def test_weights_radius_border_are_mitsubas(variant):
     import mitsuba as mi
     x = np.linspace(-3.2, 3.2, 257)
     for name in FILTERS:
@@ -67,7 +68,7 @@ def test_weights_radius_border_are_mitsubas(llvm):
 
 
 @pytest.mark.parametrize("name", list(RFILTERS))
-def test_per_filter_within_2x_of_direct(llvm, tmp_path, name):
+def test_per_filter_within_2x_of_direct(variant, tmp_path, name):
     from links1.render import make_renderer
     rf = RFILTERS[name]
     ref = direct(rf, 1024, seed=1)
@@ -84,11 +85,11 @@ def test_per_filter_within_2x_of_direct(llvm, tmp_path, name):
         assert relmse(box, ref) > 2 * theirs
 
 
-@pytest.mark.parametrize("kind", ["core", "mitsuba"])
 @pytest.mark.parametrize("name", ["gaussian", "lanczos"])
-def test_windows_and_batches_equal_full_frame(llvm, tmp_path, name, kind):
+def test_windows_and_batches_equal_full_frame(tmp_path, name, renderer_kind):
     """One window, or a batch of windows in one launch (render_batch), equals the same pixels of
     the full frame bit for bit: each window gathers its own border samples."""
+    kind = renderer_kind
     from links1.render import make_renderer
     r = make_renderer(kind, write_scene(tmp_path, RFILTERS[name]), spp=4, aovs=("depth", "cost"))
     full = r.render()
@@ -107,7 +108,7 @@ def test_cli_workers_2_equal_one_process_with_lanczos(tmp_path, renderer_kind):
     from links1.image import read_image
     path = write_scene(tmp_path, RFILTERS["lanczos"])
     a, b = tmp_path / "a.exr", tmp_path / "b.exr"
-    base = ["render", path, "--renderer", kind, "--spp", "4", "--no-progress"]
+    base = ["render", path, "--renderer", kind, "--spp", "4", "--no-progress", *cli_variant(kind)]
     assert main(base + ["-o", str(a), "--workers", "0"]) == 0
     assert main(base + ["-o", str(b), "--workers", "2", "--partition", "subscreen"]) == 0
     ia, ib = (np.asarray(im[0] if isinstance(im, tuple) else im) for im in (read_image(a), read_image(b)))

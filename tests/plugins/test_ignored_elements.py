@@ -46,9 +46,9 @@ def _render(kind, path):
     return img, [str(w.message) for w in caught]
 
 
-@pytest.mark.parametrize("kind", ["core", "mitsuba"])
 @pytest.mark.parametrize("case", sorted(CASES))
-def test_ignored_element_leaves_the_image_and_warns_once(tmp_path, kind, case):
+def test_ignored_element_leaves_the_image_and_warns_once(tmp_path, renderer_kind, case):
+    kind = renderer_kind
     spec = CASES[case]
     ref = tmp_path / "ref.xml"
     ref.write_text(BASE.format(interior="", extra=spec.get("ref_extra", "")))

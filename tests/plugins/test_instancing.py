@@ -67,8 +67,8 @@ def test_instances_are_the_shapes_written_out(scenes, renderer_kind):
 
 
 @pytest.mark.mitsuba
-@pytest.mark.parametrize("kind", ["core", "mitsuba"])
-def test_instancing_matches_mitsuba_direct(llvm, scenes, kind):
+def test_instancing_matches_mitsuba_direct(scenes, kind_with_mitsuba):
+    kind = kind_with_mitsuba
     assert_matches_mitsuba_direct(kind, scenes[0])
 
 

@@ -53,7 +53,7 @@ def test_the_files_parameters_are_the_defaults(files, renderer_kind):
 
 
 @pytest.mark.mitsuba
-def test_mi_render_uses_them_too(llvm, files):
+def test_mi_render_uses_them_too(variant, files):
     import mitsuba as mi
 
     from links1_mitsuba import load_file

@@ -23,7 +23,7 @@ def _variables(obj):
 
 
 @pytest.mark.skipif(not os.path.exists(GLASS), reason="scenes/mitsuba_glass.xml missing")
-def test_launches_take_the_scene_once_each_and_without_its_sensors(llvm):
+def test_launches_take_the_scene_once_each_and_without_its_sensors(variant):
     from links1_mitsuba import MitsubaRenderer
     from links1_mitsuba.launch import SceneInputs
     r = MitsubaRenderer(GLASS, params={"res": 16})
@@ -45,7 +45,7 @@ def test_launches_take_the_scene_once_each_and_without_its_sensors(llvm):
 
 
 @pytest.mark.skipif(not os.path.exists(FIG11), reason="scenes/fig11.xml missing")
-def test_a_recording_that_needs_more_of_the_scene_is_made_with_all_of_it(llvm, monkeypatch):
+def test_a_recording_that_needs_more_of_the_scene_is_made_with_all_of_it(variant, monkeypatch):
     import links1_mitsuba.launch as launch
     from links1_mitsuba import MitsubaRenderer
     win = (2, 3, 9, 7)
@@ -71,7 +71,7 @@ def _live_jit_variables():
 
 
 @pytest.mark.skipif(not os.path.exists(FIG11), reason="scenes/fig11.xml missing")
-def test_a_dropped_renderer_frees_its_scene(llvm):
+def test_a_dropped_renderer_frees_its_scene(variant):
     # the scene owns the integrator, which holds the prepared tables: a scene reached from
     # those (as a first SceneInputs held it) is a cycle through C++ objects that Python's
     # collector cannot break, and every renderer's ~280 variables stayed alive

@@ -88,8 +88,8 @@ def test_core_mesh_attribute_values(scene):
 
 
 @pytest.mark.mitsuba
-@pytest.mark.parametrize("kind", ["core", "mitsuba"])
-def test_mesh_attribute_matches_mitsuba_direct(llvm, scene, kind):
+def test_mesh_attribute_matches_mitsuba_direct(scene, kind_with_mitsuba):
+    kind = kind_with_mitsuba
     assert_matches_mitsuba_direct(kind, scene[0])
 
 

@@ -70,7 +70,7 @@ def _rel_mse(a, b):
 
 
 @pytest.mark.parametrize("n_quadrics", [3, 12], ids=["unrolled", "bvh"])
-def test_shapes_without_bsdf_render_as_default_diffuse(llvm, tmp_path, n_quadrics):
+def test_shapes_without_bsdf_render_as_default_diffuse(variant, tmp_path, n_quadrics):
     from links1_mitsuba import integrator as integ_mod
     # 3 stays under the BVH threshold, 12 is over it (both sides of the rule that crashed)
     assert (n_quadrics >= integ_mod.BVH_MIN) == (n_quadrics == 12)

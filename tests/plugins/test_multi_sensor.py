@@ -17,7 +17,7 @@ import pytest
 from links1.diff import relmse
 from links1.render import make_renderer
 
-from .conftest import assert_matches_mitsuba_direct, mitsuba_direct
+from .conftest import assert_matches_mitsuba_direct, cli_variant, mitsuba_direct
 
 pytestmark = pytest.mark.mitsuba
 
@@ -126,17 +126,20 @@ def test_sensor_made_apart(variant, path):
     _check_against_direct(scene, sensor, moved, "sensor made apart, moved")
 
 
-@pytest.mark.parametrize("kind", ["core", "mitsuba"])
-def test_renderers_take_a_sensor_index(llvm, path, kind):
+def test_renderers_take_a_sensor_index(path, kind_with_mitsuba):
     """``make_renderer(kind, path, sensor=1)`` (``links1 render --sensor 1``): sensor 1's whole
     40x40 film, its Gaussian filter and camera, against Mitsuba's ``direct`` on that sensor."""
+    kind = kind_with_mitsuba
     ours, ref = assert_matches_mitsuba_direct(kind, path, spp=SPP, sensor=1)
     assert ours.shape == (40, 40, 3)
 
 
 def test_core_render_takes_a_sensor(llvm, path):
     """The core's ``links1.render(scene, sensor=1)``: the film's crop window (30x24) from
-    sensor 1, as ``mi.render`` gives it; sensor 1's sample count (16) when none is given."""
+    sensor 1, as ``mi.render`` gives it; sensor 1's sample count (16) when none is given.
+
+    LLVM only: a test of the core, which no variant changes; its reference (Mitsuba's direct)
+    runs once, on llvm_ad_rgb."""
     import links1
     import links1_mitsuba
     scene = links1.load_scene(path)
@@ -146,22 +149,22 @@ def test_core_render_takes_a_sensor(llvm, path):
     _check_against_direct(links1_mitsuba.load_file(path), 1, ours, "core sensor 1")
 
 
-@pytest.mark.parametrize("kind", ["core", "mitsuba"])
-def test_cli_sensor(llvm, path, tmp_path, kind, capsys):
+def test_cli_sensor(path, tmp_path, kind_with_mitsuba, capsys):
     """``links1 render --sensor 1`` writes sensor 1's film; ``--sensor 5`` is one line naming
     the scene file and its two sensors, exit status 2, no output file."""
+    kind = kind_with_mitsuba
     from links1.cli import main
     from links1.image import read_image
     out = tmp_path / "s1.exr"
     assert main(["render", path, "-o", str(out), "--renderer", kind, "--sensor", "1", "--spp", str(SPP),
-                 "--max-depth", "1", "--no-progress"]) == 0
+                 "--max-depth", "1", "--no-progress", *cli_variant(kind)]) == 0
     img = np.asarray(read_image(str(out)), dtype=np.float64)[..., :3]
     ref = mitsuba_direct(path, SPP * 16, seed=1, sensor=1)
     theirs = relmse(mitsuba_direct(path, SPP, seed=2, sensor=1), ref)
     assert img.shape == (40, 40, 3) and relmse(img, ref) <= 2 * theirs
     capsys.readouterr()
     bad = tmp_path / "bad.exr"
-    assert main(["render", path, "-o", str(bad), "--renderer", kind, "--sensor", "5"]) == 2
+    assert main(["render", path, "-o", str(bad), "--renderer", kind, "--sensor", "5", *cli_variant(kind)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and path in err[0] and "2 sensors" in err[0] and "sensor 5" in err[0], err
     assert not bad.exists()
@@ -182,7 +185,7 @@ def test_core_sensor_equals_a_file_with_that_sensor_alone(tmp_path, path):
     assert r.film_size == (40, 40) and r.spp == 2
 
 
-def test_moving_a_scene_sensor_is_seen(llvm, path):
+def test_moving_a_scene_sensor_is_seen(variant, path):
     """``params['top.to_world'] = ...; params.update()`` after a render of sensor 1: the next
     render is from the moved camera (the tables' digest covers every sensor of the scene)."""
     import mitsuba as mi
@@ -198,16 +201,16 @@ def test_moving_a_scene_sensor_is_seen(llvm, path):
     _check_against_direct(scene, 1, after, "sensor 1 moved")
 
 
-@pytest.mark.parametrize("kind", ["core", "mitsuba"])
-def test_workers_render_the_chosen_sensor(llvm, path, tmp_path, kind):
+def test_workers_render_the_chosen_sensor(path, tmp_path, kind_with_mitsuba):
     """``--sensor 1 --workers 2``: the worker processes render sensor 1 too (the same bits as
     in-process)."""
+    kind = kind_with_mitsuba
     from links1.cli import main
     from links1.image import read_image
     imgs = []
     for w in ("0", "2"):
         out = tmp_path / f"w{w}.exr"
         assert main(["render", path, "-o", str(out), "--renderer", kind, "--sensor", "1", "--spp", "2",
-                     "--max-depth", "1", "--workers", w, "--no-progress"]) == 0
+                     "--max-depth", "1", "--workers", w, "--no-progress", *cli_variant(kind)]) == 0
         imgs.append(np.asarray(read_image(str(out))))
     assert imgs[0].shape == (40, 40, 3) and np.array_equal(imgs[0], imgs[1])

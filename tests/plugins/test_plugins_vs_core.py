@@ -27,7 +27,7 @@ def _core():
 
 @pytest.mark.skipif(not SCENE_FILES, reason="no scenes/*.xml")
 @pytest.mark.parametrize("path", SCENE_FILES, ids=[os.path.basename(p) for p in SCENE_FILES])
-def test_plugin_matches_core(llvm, path):
+def test_plugin_matches_core(variant, path):
     load_scene, render = _core()
     from links1_mitsuba import MitsubaRenderer
     with warnings.catch_warnings():

@@ -41,8 +41,8 @@ def scenes(tmp_path):
     return str(a), str(b)
 
 
-@pytest.mark.parametrize("kind", ["core", "mitsuba"])
-def test_projector_matches_mitsuba_direct(llvm, scenes, kind):
+def test_projector_matches_mitsuba_direct(scenes, kind_with_mitsuba):
+    kind = kind_with_mitsuba
     projector, plain = scenes
     assert_matches_mitsuba_direct(kind, projector)
     # the pattern: inside the beam the ratio to the untextured spot is the checkerboard's 1 or 0.1

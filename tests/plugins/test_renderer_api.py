@@ -12,10 +12,10 @@ pytestmark = pytest.mark.mitsuba
 FIG11 = os.path.join(SCENES, "fig11.xml")
 
 
-def _check_windows_without_recompiling():
+def _check_windows_without_recompiling(variant="llvm_ad_rgb"):
     """Run in a fresh process (see the test): raises AssertionError on failure."""
     import links1_mitsuba
-    links1_mitsuba.register("llvm_ad_rgb")
+    links1_mitsuba.register(variant)
     import drjit as dr
     from links1_mitsuba import MitsubaRenderer
     r = MitsubaRenderer(FIG11, params={"res": 40}, spp=4, aovs=("depth", "normal", "id", "cost"))
@@ -60,21 +60,21 @@ def _check_windows_without_recompiling():
 
 
 @pytest.mark.skipif(not os.path.exists(FIG11), reason="scenes/fig11.xml missing")
-def test_windows_equal_full_frame_without_recompiling(llvm):
+def test_windows_equal_full_frame_without_recompiling(variant):
     """New crop windows reuse the kernels already built in a process (checked in a fresh
     process, so that no earlier test's kernels count as built)."""
     import subprocess
     import sys
-    proc = subprocess.run([sys.executable, "-m", "tests.plugins.test_renderer_api"], cwd=ROOT,
+    proc = subprocess.run([sys.executable, "-m", "tests.plugins.test_renderer_api", variant], cwd=ROOT,
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert "windows ok" in proc.stdout
 
 
 @pytest.mark.skipif(not os.path.exists(FIG11), reason="scenes/fig11.xml missing")
-def test_shapes_info_and_register_idempotent(llvm):
+def test_shapes_info_and_register_idempotent(variant):
     import links1_mitsuba
-    assert links1_mitsuba.register("llvm_ad_rgb") == links1_mitsuba.register("llvm_ad_rgb")
+    assert links1_mitsuba.register(variant) == links1_mitsuba.register(variant) == variant
     r = links1_mitsuba.MitsubaRenderer(FIG11, params={"res": 16})
     info = r.shapes_info()
     assert [d["index"] for d in info] == list(range(len(info)))
@@ -86,7 +86,7 @@ def test_shapes_info_and_register_idempotent(llvm):
 
 
 @pytest.mark.skipif(not os.path.exists(FIG11), reason="scenes/fig11.xml missing")
-def test_width_height_override_matches_core(llvm):
+def test_width_height_override_matches_core(variant):
     from links1.render import make_renderer
     plug = make_renderer("mitsuba", FIG11, width=24, height=18, spp=1)
     core = make_renderer("core", FIG11, width=24, height=18, spp=1)
@@ -100,7 +100,7 @@ def test_width_height_override_matches_core(llvm):
 
 @pytest.mark.skipif(not os.path.exists(FIG11), reason="scenes/fig11.xml missing")
 @pytest.mark.parametrize("min_weight", [0.0, 0.05])
-def test_min_weight_matches_core(llvm, min_weight):
+def test_min_weight_matches_core(variant, min_weight):
     from links1.render import make_renderer
     kw = dict(params={"res": 64}, spp=1, min_weight=min_weight)
     a = make_renderer("mitsuba", FIG11, **kw).render()
@@ -125,7 +125,7 @@ ONE_SPHERE = """<scene version="3.0.0">
 </scene>"""
 
 
-def test_ray_counters_and_skips(llvm):
+def test_ray_counters_and_skips(variant):
     """Rays by kind are counted; a lone convex shape casts no shadow rays, a scene without
     mirrors or glass spawns no secondary rays."""
     import links1_mitsuba
@@ -144,12 +144,13 @@ def test_ray_counters_and_skips(llvm):
 
 
 if __name__ == "__main__":
-    _check_windows_without_recompiling()
+    import sys
+    _check_windows_without_recompiling(*sys.argv[1:2])
     print("windows ok")
 
 
 @pytest.mark.skipif(not os.path.exists(FIG11), reason="scenes/fig11.xml missing")
-def test_launches_split_by_lanes_give_the_same_bits(llvm, monkeypatch):
+def test_launches_split_by_lanes_give_the_same_bits(variant, monkeypatch):
     """A render of more than LAUNCH_LANES samples is split into launches (one launch of
     512² x 1024 spp needed 24 GB): the image, AOVs and ray counts are those of one launch."""
     import links1_mitsuba.launch as launch
@@ -164,12 +165,10 @@ def test_launches_split_by_lanes_give_the_same_bits(llvm, monkeypatch):
     assert r.integrator.stats["shadow"] == counts["shadow"] > 0
 
 
-def test_python_plugins_keep_their_state_out_of_the_frozen_launchs_traversal():
+def test_python_plugins_keep_their_state_out_of_the_frozen_launchs_traversal(variant):
     # dr.freeze walks every Python plugin's __dict__ (dicts and lists item by item) on each
     # launch, once per shape that refers to it: with 3,000 Mitsuba spheres on one links1_phong
     # BSDF that walk was 80 % of a frame. The plugins keep their values behind one holder.
-    import links1_mitsuba
-    links1_mitsuba.register("llvm_ad_rgb")
     import mitsuba as mi
     objs = [mi.load_dict({"type": "links1_phong", "specular": {"type": "rgb", "value": 0.3}}),
             mi.load_dict({"type": "links1_point", "position": [0, 1, 0]}),

@@ -10,13 +10,11 @@ import pytest
 from links1.errors import SceneError
 from tests.core.test_scene_judgement import WARN_SCENE, render, scene
 
-pytestmark = pytest.mark.mitsuba
+from .conftest import cli_variant
 
-
-@pytest.fixture(autouse=True)
-def _llvm():
-    from tests.plugins.llvm_probe import require_llvm_variant
-    require_llvm_variant()
+# every test on each variant (conftest.py): the command line and the plugins render on the
+# active one
+pytestmark = [pytest.mark.mitsuba, pytest.mark.usefixtures("variant")]
 
 
 def test_unused_define_same_line_in_both_renderers(tmp_path):
@@ -24,7 +22,7 @@ def test_unused_define_same_line_in_both_renderers(tmp_path):
     lines = {}
     for kind in ("core", "mitsuba"):
         out = tmp_path / f"{kind}.exr"
-        rc, err = render(path, out, "-D", "res=64", renderer=kind)
+        rc, err = render(path, out, "-D", "res=64", *cli_variant(kind), renderer=kind)
         assert rc == 2 and len(err) == 1 and not out.exists(), err
         lines[kind] = err[0]
     assert lines["core"] == lines["mitsuba"]
@@ -45,7 +43,7 @@ def test_misspelt_parameter_same_decision_in_both_renderers(tmp_path):
     path = scene(tmp_path, reflectance="reflectnce")
     lines = {}
     for kind in ("core", "mitsuba"):
-        rc, err = render(path, tmp_path / f"{kind}.exr", renderer=kind)
+        rc, err = render(path, tmp_path / f"{kind}.exr", *cli_variant(kind), renderer=kind)
         assert rc == 2 and len(err) == 1, err
         lines[kind] = err[0]
     assert lines["core"] == lines["mitsuba"]
@@ -60,16 +58,16 @@ def test_integrator_links1_replaces_is_not_instantiated(tmp_path):
     """``<integrator type="mat">`` (a Bitterli scene): links1_whitted replaces it; with
     ``--integrator scene`` Mitsuba needs it, and refuses it in one line."""
     path = scene(tmp_path, integrator="mat")
-    rc, err = render(path, tmp_path / "o.exr", renderer="mitsuba")
+    rc, err = render(path, tmp_path / "o.exr", *cli_variant("mitsuba"), renderer="mitsuba")
     assert rc == 0 and (tmp_path / "o.exr").exists(), err
-    rc, err = render(path, tmp_path / "s.exr", "--integrator", "scene", renderer="mitsuba")
+    rc, err = render(path, tmp_path / "s.exr", "--integrator", "scene", *cli_variant("mitsuba"), renderer="mitsuba")
     assert rc == 2 and len(err) == 1 and "mat" in err[0] and str(path) in err[0], err
     assert not (tmp_path / "s.exr").exists()
 
 
 def test_plugin_warnings_name_place_once_per_element(tmp_path):
     path = scene(tmp_path, text=WARN_SCENE)
-    rc, err = render(path, tmp_path / "o.exr", renderer="mitsuba")
+    rc, err = render(path, tmp_path / "o.exr", *cli_variant("mitsuba"), renderer="mitsuba")
     assert rc == 0, err
     glossy = [ln for ln in err if "glossy lobes" in ln]
     # two roughdielectric elements (the one at line 10 is shared by two spheres): one line each

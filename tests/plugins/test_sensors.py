@@ -44,8 +44,8 @@ def scene(request, tmp_path):
     return str(p), request.param
 
 
-@pytest.mark.parametrize("kind", ["core", "mitsuba"])
-def test_orthographic_scene_matches_mitsuba_direct(llvm, scene, kind):
+def test_orthographic_scene_matches_mitsuba_direct(scene, kind_with_mitsuba):
+    kind = kind_with_mitsuba
     path, cx = scene
     assert_matches_mitsuba_direct(kind, path)
     # orthographic: the unit sphere's silhouette is a disk of radius 1 world unit around its
@@ -59,9 +59,9 @@ def test_orthographic_scene_matches_mitsuba_direct(llvm, scene, kind):
     assert sphere[r < 0.95 * px].all() and not sphere[r > 1.05 * px].any()
 
 
-@pytest.mark.parametrize("kind", ["core", "mitsuba"])
-def test_thinlens_is_rendered_as_the_pinhole_camera(llvm, kind, tmp_path):
+def test_thinlens_is_rendered_as_the_pinhole_camera(renderer_kind, tmp_path):
     """A thin lens renders as the perspective camera at its lens centre, with one warning."""
+    kind = renderer_kind
     import warnings
     persp = tmp_path / "p.xml"
     thin = tmp_path / "t.xml"
@@ -80,7 +80,7 @@ def test_thinlens_is_rendered_as_the_pinhole_camera(llvm, kind, tmp_path):
     assert len([w for w in caught if "pinhole" in str(w.message)]) == 1
 
 
-def test_other_sensors_are_refused_in_one_line(llvm, tmp_path):
+def test_other_sensors_are_refused_in_one_line(variant, tmp_path):
     p = tmp_path / "r.xml"
     p.write_text(SCENE.format(W=1, H=1, cx=0.0).replace(
         '<sensor type="orthographic">', '<sensor type="radiancemeter"><point name="origin" x="0" y="5" z="0"/><!-- 1x1 film -->'
@@ -92,13 +92,13 @@ def test_other_sensors_are_refused_in_one_line(llvm, tmp_path):
         make_renderer("mitsuba", str(p), spp=1).render()
 
 
-@pytest.mark.parametrize("kind", ["core", "mitsuba"])
 @pytest.mark.parametrize("sensor", ["orthographic", "perspective"])
-def test_crop_window_is_those_pixels_of_the_full_film(llvm, kind, sensor, tmp_path):
+def test_crop_window_is_those_pixels_of_the_full_film(renderer_kind, sensor, tmp_path):
     """A film's crop window (``crop_offset_x/y``, ``crop_width/height``; ``links1.render`` and
     ``mi.render`` with links1_whitted render it) is exactly those
     pixels of the uncropped film, bit for bit, with a filter wider than a pixel (Gaussian,
     radius 2): its border pixels gather samples from outside the window, from the whole film."""
+    kind = renderer_kind
     body = SCENE.format(W=W, H=H, cx=0.0).replace('<rfilter type="box"/>', '<rfilter type="gaussian"/>')
     if sensor == "perspective":
         body = body.replace('<sensor type="orthographic">', '<sensor type="perspective"><float name="fov" value="40"/>') \

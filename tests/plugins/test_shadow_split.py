@@ -8,6 +8,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from .conftest import use_variant, variant_marks
+
 pytestmark = pytest.mark.mitsuba
 
 # glass spheres (centre, radius, transmittance), the last two nested; an opaque wall x = 3.
@@ -87,7 +89,7 @@ def _segments(rng, lo, hi, n=4000):
     return o.astype(np.float32), d.astype(np.float32), smax.astype(np.float32)
 
 
-def test_box_cull_keeps_every_blocked_ray(llvm):
+def test_box_cull_keeps_every_blocked_ray(variant):
     """For each Mitsuba shape alone (a sub-scene of it), every segment Embree finds blocked
     meets the shape's cull box; and the cull does drop the clear rays it should."""
     import drjit as dr
@@ -129,17 +131,25 @@ def _sphere_hit(o, d, smax, c, r, margin=1e-4):
     return hit, unsure
 
 
-@pytest.mark.parametrize("split", [True, False])
-def test_split_transmittance_is_the_product_over_the_shapes_met(llvm, monkeypatch, split):
+@pytest.mark.parametrize("variant_name,split", [
+    pytest.param(v, split, marks=variant_marks(v), id=f"{v}-{'split' if split else 'walk'}")
+    for v, split in (("llvm_ad_rgb", True), ("llvm_ad_rgb", False), ("cuda_ad_rgb", False))])
+def test_split_transmittance_is_the_product_over_the_shapes_met(variant_name, split, monkeypatch):
     """T of straight segments = 0 behind the wall, else the product of the transmittances of
     the glass spheres met (each once, nested ones too), from float64 geometry; the same with
-    the crossing walk (split=False), which the split replaces."""
+    the crossing walk (split=False), which the split replaces. The split is LLVM only
+    (tables.shadow_split: OptiX traces a kernel's rays through one pipeline, so cuda_ad_rgb
+    makes no sub-scenes and walks the crossings): the walk runs on both variants."""
     import drjit as dr
     import mitsuba as mi
     from links1_mitsuba import intersect, tables
+    use_variant(variant_name)
     monkeypatch.setattr(intersect, "SPLIT", split)
     scene, integ, P = _prepared(_xml(cube=False))
-    assert (P.shadow_split is not None) and len(P.shadow_split["trans"]) == len(SPHERES)
+    if variant_name.startswith("llvm"):
+        assert (P.shadow_split is not None) and len(P.shadow_split["trans"]) == len(SPHERES)
+    else:
+        assert P.shadow_split is None
     rng = np.random.default_rng(5)
     n = 6000
     o = rng.uniform([-4, 0.05, -3], [2.9, 3, 4], (n, 3))
@@ -179,7 +189,11 @@ def test_split_transmittance_is_the_product_over_the_shapes_met(llvm, monkeypatc
 
 def test_split_image_matches_the_walk_and_the_core(llvm, monkeypatch):
     """The images with and without the split agree but for a few pixels, where the split is
-    the one nearer the core's float64 render."""
+    the one nearer the core's float64 render.
+
+    LLVM only: the split exists on LLVM only (tables.shadow_split: OptiX traces a kernel's rays
+    through one pipeline, so CUDA walks the crossings, which
+    test_split_transmittance_is_the_product_over_the_shapes_met checks there)."""
     from links1.render import make_renderer
     from links1_mitsuba import intersect
     import tempfile

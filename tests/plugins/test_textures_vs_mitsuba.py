@@ -151,7 +151,7 @@ def mitsuba(xml, variant, integrator, spp):
     return np.array(mi.render(sc, spp=spp), dtype=np.float64)[..., :3]
 
 
-def test_texture_values_match_mitsuba(files, llvm):
+def test_texture_values_match_mitsuba(files, variant):
     """Bitmap (each filter, wrap mode, raw flag; PNG, JPEG, 8/16-bit grey PNG, EXR) and
     checkerboard values at random uv, through ``to_uv``, against Mitsuba's texture plugins."""
     import mitsuba as mi
@@ -181,33 +181,33 @@ def test_texture_values_match_mitsuba(files, llvm):
 
 
 @pytest.mark.slow
-def test_textured_diffuse_scene_vs_direct(files, llvm):
+def test_textured_diffuse_scene_vs_direct(files, variant):
     """Every shape's uv and every bitmap option on diffuse surfaces under delta lights: the core
     (Whitted depth 1) against Mitsuba's ``direct`` (its error no larger than twice that of
     ``direct`` itself at equal spp) and against the plugin (same samples)."""
     xml = scene_xml(body_diffuse(files))
     spp = 64
     a = core(xml, spp=spp, max_depth=1)
-    ref = mitsuba(xml, "llvm_ad_rgb", '<integrator type="direct"/>', spp=2048)
+    ref = mitsuba(xml, variant, '<integrator type="direct"/>', spp=2048)
     own = mitsuba(xml.replace('<sampler type="independent">',
                               '<sampler type="independent"><integer name="seed" value="5"/>'),
-                  "llvm_ad_rgb", '<integrator type="direct"/>', spp=spp)
+                  variant, '<integrator type="direct"/>', spp=spp)
     err = rel_mse(a, ref)
     assert err < 1e-3 and err < 2.0 * rel_mse(own, ref), (err, rel_mse(own, ref))
     assert abs(a.mean() - ref.mean()) / ref.mean() < 5e-3
-    c = plugin(xml, "llvm_ad_rgb", spp=16, max_depth=1)
+    c = plugin(xml, variant, spp=16, max_depth=1)
     assert rel_mse(core(xml, spp=16, max_depth=1), c) < 1e-6  # same samples: float32 vs float64
 
 
 @pytest.mark.slow
-def test_textured_bsdf_parameters_vs_path(files, llvm):
+def test_textured_bsdf_parameters_vs_path(files, variant):
     """Textures on plastic, conductor, dielectric and twosided parameters: core against the
     plugin (Mitsuba's BSDFs evaluate the textures) and Mitsuba's ``path``."""
     xml = scene_xml(body_bsdfs(files))
     a = core(xml, spp=16, max_depth=3)
-    c = plugin(xml, "llvm_ad_rgb", spp=16, max_depth=3)
+    c = plugin(xml, variant, spp=16, max_depth=3)
     assert rel_mse(a, c) < 1e-5  # same samples (measured 6e-7)
-    b = mitsuba(xml, "llvm_ad_rgb", '<integrator type="path"><integer name="max_depth" value="4"/>'
+    b = mitsuba(xml, variant, '<integrator type="path"><integer name="max_depth" value="4"/>'
                                     '</integrator>', spp=1024)
     # path adds the diffuse inter-reflections Whitted leaves out (measured 1.9e-3)
     assert rel_mse(a, b) < 5e-3
@@ -235,7 +235,7 @@ SHAPES = {
 
 
 @pytest.mark.parametrize("kind", sorted(SHAPES))
-def test_shape_uv_matches_mitsuba(files, llvm, kind):
+def test_shape_uv_matches_mitsuba(files, variant, kind):
     """The uv of each shape's hits equals Mitsuba's ``si.uv`` for the same rays (u and the
     angular coordinates compared modulo 1: the seam at φ = 0 may fall on either side)."""
     import mitsuba as mi
@@ -269,7 +269,7 @@ def test_shape_uv_matches_mitsuba(files, llvm, kind):
 
 
 @pytest.mark.parametrize("count", [1, 12])
-def test_textured_links1_quadrics_plugin_matches_core(files, llvm, count):
+def test_textured_links1_quadrics_plugin_matches_core(files, variant, count):
     """links1_quadric spheres and cylinders with textured Mitsuba BSDFs: the plugin gives them
     the core's uv (one code block per quadric, or the quadric BVH from 8 on)."""
     shapes = []
@@ -286,6 +286,6 @@ def test_textured_links1_quadrics_plugin_matches_core(files, llvm, count):
                       f'<translate x="{x}" y="0.6" z="{z}"/></transform>{diffuse(tex)}</shape>')
     xml = scene_xml("".join(shapes))
     a = core(xml, spp=4, max_depth=1)
-    c = plugin(xml, "llvm_ad_rgb", spp=4, max_depth=1)
+    c = plugin(xml, variant, spp=4, max_depth=1)
     assert np.count_nonzero(a.max(axis=2)) > 25 * count
     assert rel_mse(a, c) < 1e-5
