@@ -178,13 +178,13 @@ def test_each_params_update_prepares_again(variant, change):
     assert integ._freeze.n_recordings <= 2
 
 
-def test_sensor_made_apart_is_watched(llvm):
+def test_sensor_made_apart_is_watched(variant):
     """A sensor from ``mi.load_dict`` gets one camera view while unchanged, and a new one after
     its ``params.update()`` (the scene's tables are kept)."""
     import mitsuba as mi
 
     from links1_mitsuba import load_string
-    scene = load_string(MESH_XML, variant=llvm)
+    scene = load_string(MESH_XML, variant=variant)
     integ = scene.integrator()
     sensor = mi.load_dict({"type": "perspective", "fov": 40, "to_world": mi.ScalarTransform4f().look_at(
         origin=[-3, 2, 4], target=[0, 0.5, 0], up=[0, 1, 0]),
@@ -201,7 +201,7 @@ def test_sensor_made_apart_is_watched(llvm):
     np.testing.assert_array_equal(b, _fresh_render(scene, sensor))
 
 
-def test_param_watch_values_of_python_plugins_and_scalars(llvm):
+def test_param_watch_values_of_python_plugins_and_scalars(variant):
     """``ParamWatch`` on a scene whose Python BSDF puts a Dr.Jit value of its own (its object,
     which ``parameters_changed`` may replace: each check traverses again) and on a scene of
     C++ objects only (one traversal; the scene's own scalar and a sensor's float compared by
