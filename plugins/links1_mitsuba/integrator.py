@@ -11,6 +11,7 @@ The integrator class is composed here from one part per concept, each in its own
 - :mod:`~links1_mitsuba.raytree`: one level traced and shaded, the ray trees (eq. 3.11-3.16;
   the recursion design is described there);
 - :mod:`~links1_mitsuba.launch`: camera rays, the frozen launches, read-back, ``stats``;
+- :mod:`~links1_mitsuba.gradients`: ``render_forward``/``render_backward`` (issue 23);
 - :mod:`~links1_mitsuba.util`: Dr.Jit helpers (hashes, literals, gathers).
 
 Nanobind classes take one base, so ``Links1Whitted`` (a ``mi.SamplingIntegrator``) takes the
@@ -26,6 +27,7 @@ from links1.params import read as l1_read
 
 from ._registry import unsupported_variant
 from .intersect import define_intersect
+from .gradients import define_gradients
 from .launch import define_launches
 from .lights import define_lights
 from .raytree import define_raytree
@@ -64,7 +66,8 @@ def define_integrator():
 
     util = define_util(mi, dr)
     parts = (define_tables(mi, dr, util), define_lights(mi, dr, util), define_intersect(mi, dr, util),
-             define_raytree(mi, dr, util), define_launches(mi, dr, util.mix32, util.u24))
+             define_raytree(mi, dr, util), define_launches(mi, dr, util.mix32, util.u24),
+             define_gradients(mi, dr, util))
 
     class _Untraversed:
         """Attributes that :func:`drjit.freeze` does not walk. It traverses the scene (an input
