@@ -142,7 +142,9 @@ def define_tables(mi, dr, util):
             v = params[k]
             h.update(k.encode())
             try:
-                a = np.asarray(v.matrix if hasattr(v, "matrix") else v)
+                # a transform's matrix; not a Dr.Jit array's ``.matrix`` (a swizzle: Color3f(r, g, b)
+                # .matrix is r six times, so a change of g or b went unseen; issue 23)
+                a = np.asarray(v.matrix if hasattr(v, "matrix") and not dr.is_array_v(v) else v)
             except Exception:  # noqa: BLE001 - a value numpy cannot read: its text
                 h.update(repr(v).encode())
                 continue
