@@ -141,6 +141,12 @@ def define_gradients(mi, dr, util):
                 if rows[name]:
                     setattr(Q, attr, put_rows(getattr(P, attr), rows[name], width))
             Q.any_ambient = P.any_ambient or bool(rows["ambient"])
+            tr = rows["transmittance"]
+            if tr:   # shadow transmittance (3-3-3): links1 shapes outside the BVH, split Mitsuba shapes
+                Q.shadow_t_np = [tr.get(sl, row) for sl, row in enumerate(P.shadow_t_np)]
+                if P.shadow_split is not None:
+                    Q.shadow_split = dict(P.shadow_split, trans=[(sub, sl, tr.get(sl, st))
+                                                                 for sub, sl, st in P.shadow_split["trans"]])
             # analytic lights: P.lights holds one entry per such emitter, in the scene's order
             Pt, Sp = plugin_class("links1_point"), plugin_class("links1_spot")
             lights, j = list(P.lights), 0
