@@ -163,6 +163,9 @@ def define_integrator():
             elif "adaptive_depth" in props:
                 raise ValueError("links1_whitted: adaptive_depth needs adaptive")
             self.custom_bsdfs = {}
+            #: custom slots whose BSDF is a top-level object of the file (traverse leaves it out)
+            self.shared_bsdfs = {int(k[len("_l1_topbsdf_"):]) for k in props.keys()
+                                 if k.startswith("_l1_topbsdf_") and props[k]}
             for key in props.keys():
                 if key.startswith("_l1_bsdf_"):
                     self.custom_bsdfs[int(key[len("_l1_bsdf_"):])] = props[key]
@@ -219,6 +222,20 @@ def define_integrator():
         def sample(self, scene, sampler, ray, medium=None, active=True):
             raise RuntimeError("links1_whitted renders whole ray trees in its own kernels; use mi.render() "
                                "or render_window(), not sample()")
+
+        def traverse(self, callback):
+            """The BSDFs of the links1 shapes (``links1_quadric``, ``links1_blob``: not Mitsuba
+            shapes, links1_whitted holds them), named as Mitsuba names a shape's BSDF under the
+            integrator's id: ``links1_whitted.<shape id>.bsdf.<parameter>`` (issue 23); a BSDF
+            declared at the top of the file keeps its own name (``<bsdf id>.<parameter>``)."""
+            names = {sl: name for sl, name, _ in (self.shape_names or [])}
+            for sl, b in sorted(self.custom_bsdfs.items()):
+                if sl in self.shared_bsdfs:   # named by its own id (a top-level BSDF of the file)
+                    continue
+                callback.put(f"{names.get(sl, f'_links1_slot_{sl}')}.bsdf", b, mi.ParamFlags.Differentiable)
+
+        def parameters_changed(self, keys):
+            pass
 
         def aov_names(self):
             return channel_names(self.aovs)[3:]
