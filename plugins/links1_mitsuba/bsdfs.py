@@ -1,6 +1,8 @@
 """``links1_phong``: the paper's shading model (eq. 3.11) as a Mitsuba BSDF."""
 from __future__ import annotations
 
+import numpy as np
+
 
 def _rgb(props, name, default):
     from .emitters import _rgb as read_rgb  # one reader of colours and spectra
@@ -21,6 +23,10 @@ def phong_params(props) -> dict:
     if v["reflectance"] is None:
         v["reflectance"] = list(v["specular"])
     return v
+
+
+#: the colours of links1_phong (``traverse``: ``<name>.value``)
+_PHONG_RGB = ("ambient", "diffuse", "specular", "reflectance", "transmittance")
 
 
 class _Held:
@@ -70,18 +76,28 @@ def define_phong():
 
         def __init__(self, props):
             super().__init__(props)
-            p = phong_params(props)
+            self._held = _Held()
+            self._set_params(phong_params(props))
+
+        def _set_params(self, p):
+            """Hold the checked parameters ``p`` (Python values, what ``links1_whitted``'s tables
+            read) and their Dr.Jit values (what ``traverse`` exposes and ``eval`` uses)."""
             # Plain Python values behind one attribute: dr.freeze traverses a Python BSDF's
             # attributes (dicts and lists item by item) on every call of a frozen launch, once
             # per shape that uses it; one opaque holder keeps that out of every launch
-            # (3,000 Mitsuba spheres: 365 -> 100 ms a frame). The colours are literals: no launch of
-            # links1_whitted reads them (it reads its own tables).
-            self._held = _Held(params=p, diffuse=mi.Color3f(*p["diffuse"]),
-                               specular=mi.Color3f(*p["specular"]),
-                               reflectance=mi.Color3f(*p["reflectance"]),
-                               transmittance=mi.Color3f(*p["transmittance"]),
-                               exponent=p["exponent"], ior=p["ior"],
-                               has_r=max(p["reflectance"]) > 0, has_t=max(p["transmittance"]) > 0)
+            # (3,000 Mitsuba spheres: 365 -> 100 ms a frame). The primal launches of
+            # links1_whitted read their own tables (made from ``params``); its gradient launches
+            # read these Dr.Jit values (links1_mitsuba.gradients), which ``mi.traverse`` hands out.
+            h = self._held
+            h.params = p
+            for name in _PHONG_RGB:
+                setattr(h, name, mi.Color3f(*p[name]))
+            h.t_exponent, h.t_ior = mi.Float(p["exponent"]), mi.Float(p["ior"])
+            self._set_flags()
+
+        def _set_flags(self):
+            p, h = self.params, self._held
+            h.has_r, h.has_t = max(p["reflectance"]) > 0, max(p["transmittance"]) > 0
             both = mi.BSDFFlags.FrontSide | mi.BSDFFlags.BackSide
             flags = mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.GlossyReflection | both
             comps = [mi.BSDFFlags.DiffuseReflection | both]
@@ -99,8 +115,8 @@ def define_phong():
         m_specular = property(lambda self: self._held.specular)
         m_reflectance = property(lambda self: self._held.reflectance)
         m_transmittance = property(lambda self: self._held.transmittance)
-        m_exponent = property(lambda self: self._held.exponent)
-        m_ior = property(lambda self: self._held.ior)
+        m_exponent = property(lambda self: self.params["exponent"])
+        m_ior = property(lambda self: self.params["ior"])
         has_r = property(lambda self: self._held.has_r)
         has_t = property(lambda self: self._held.has_t)
 
@@ -168,10 +184,29 @@ def define_phong():
             return bs, dr.select(ok, weight, 0.0)
 
         def traverse(self, callback):
-            pass
+            """Every coefficient of eq. (3.11)/(3.16), named as Mitsuba names a BSDF's colours
+            (``<id>.diffuse.value``, as ``diffuse``'s ``reflectance.value``) and floats
+            (``<id>.exponent``; ``<id>.ior``, which bends rays: not differentiable, as
+            ``dielectric``'s ``eta``)."""
+            D = mi.ParamFlags.Differentiable
+            for name in _PHONG_RGB:
+                callback.put(f"{name}.value", getattr(self._held, name), D)
+            callback.put("exponent", self._held.t_exponent, D)
+            callback.put("ior", self._held.t_ior, mi.ParamFlags.NonDifferentiable)
 
         def parameters_changed(self, keys):
-            pass
+            """``params.update()``: the Python values (checked as the loader checks them, ranges
+            of links1.params) follow the Dr.Jit values; links1_whitted's tables are rebuilt at
+            the next frame (its scene digest sees the change)."""
+            from links1.params import read
+            h, p = self._held, dict(self.params)
+            for name in _PHONG_RGB:
+                v = np.broadcast_to(np.array(getattr(h, name), dtype=np.float64).ravel(), (3,))
+                p[name] = [float(c) for c in read("links1_phong", name, v.copy())]
+            for name, v in (("exponent", h.t_exponent), ("ior", h.t_ior)):
+                p[name] = float(read("links1_phong", name, float(np.array(v).ravel()[0])))
+            h.params = p
+            self._set_flags()
 
         def to_string(self):
             p = self.params

@@ -92,9 +92,53 @@ def define_emitters():
     def v3(v):
         return mi.Vector3f(float(v[0]), float(v[1]), float(v[2]))
 
+    #: each light's parameters in ``mi.traverse``: (name, key, Dr.Jit type, flags). Colours as
+    #: Mitsuba names an emitter's (``<id>.L1.value`` as ``point``'s ``intensity.value``), points
+    #: and vectors as ``point``'s ``position``; moving a light moves shadow edges, which
+    #: ``links1_whitted``'s gradients leave out (Discontinuous, as Mitsuba marks such parameters)
+    D, DD = mi.ParamFlags.Differentiable, mi.ParamFlags.Differentiable | mi.ParamFlags.Discontinuous
+    TRAVERSED = {
+        "links1_point": (("position", "position", mi.Point3f, DD), ("direction", "direction", mi.Vector3f, DD),
+                         ("L1", "L1.value", mi.Color3f, D), ("L2", "L2.value", mi.Color3f, D)),
+        "links1_spot": (("origin", "origin", mi.Point3f, DD), ("direction", "direction", mi.Vector3f, DD),
+                        ("radius", "radius", mi.Float, DD), ("intensity", "intensity.value", mi.Color3f, D)),
+    }
+
     class _DeltaEmitter(mi.Emitter):
         """What both links1 lights share: delta lights have no density and emit nothing
-        a ray could hit; no differentiable parameters."""
+        a ray could hit; their parameters in ``mi.traverse`` (``TRAVERSED``): the Python values
+        (``params``, what links1_whitted's tables read) and their Dr.Jit values (``values``,
+        what ``traverse`` hands out and its gradient launches read), kept in step by
+        ``parameters_changed``."""
+
+        _kind = None
+        _check = None
+
+        def _hold(self, params):
+            vals = {}
+            for name, _, tp, _ in TRAVERSED[self._kind]:
+                v = params[name]
+                vals[name] = tp(float(v)) if tp is mi.Float else tp(*[float(c) for c in v])
+            self._held = _Held(params=params, values=vals)     # see bsdfs._Held
+
+        values = property(lambda self: self._held.values)
+
+        def traverse(self, callback):
+            for name, key, _, flags in TRAVERSED[self._kind]:
+                callback.put(key, self._held.values[name], flags)
+
+        def parameters_changed(self, keys):
+            """``params.update()``: the Python values follow the Dr.Jit ones, checked as the
+            loader checks them (links1.params; a direction is normalised)."""
+            p = dict(self.params)
+            for name, _, tp, _ in TRAVERSED[self._kind]:
+                a = np.array(self._held.values[name], dtype=np.float64).ravel()
+                v = float(a[0]) if tp is mi.Float else np.broadcast_to(a, (3,)).copy()
+                v = read(self._kind, name, v)
+                if name == "direction":
+                    v = _unit(v, f"{self._kind}: direction")
+                p[name] = v
+            self._held.params = p
 
         def pdf_direction(self, it, ds, active=True):
             return mi.Float(0.0)
@@ -104,12 +148,6 @@ def define_emitters():
 
         def eval(self, si, active=True):
             return mi.Color3f(0.0)
-
-        def traverse(self, callback):
-            pass
-
-        def parameters_changed(self, keys):
-            pass
 
     class Links1Point(_DeltaEmitter):
         r"""LINKS-1 point light with a cosine lobe (``links1_point``), eq. (3.10).
@@ -131,9 +169,11 @@ def define_emitters():
         (``falloff=inverse_square``, ``L2=0`` is Mitsuba's ``point`` with ``intensity=L1``).
         """
 
+        _kind = "links1_point"
+
         def __init__(self, props):
             super().__init__(props)
-            self._held = _Held(params=point_params(props))    # see bsdfs._Held
+            self._hold(point_params(props))
             self.m_flags = mi.EmitterFlags.DeltaPosition
 
         params = property(lambda self: self._held.params)
@@ -208,9 +248,11 @@ def define_emitters():
         shadow rays end at the base plane. A delta-direction emitter (like ``directional``).
         """
 
+        _kind = "links1_spot"
+
         def __init__(self, props):
             super().__init__(props)
-            self._held = _Held(params=spot_params(props))     # see bsdfs._Held
+            self._hold(spot_params(props))
             self.m_flags = mi.EmitterFlags.DeltaDirection
 
         params = property(lambda self: self._held.params)

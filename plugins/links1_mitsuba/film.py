@@ -123,11 +123,12 @@ def define_film(mi, dr, mix32):
         one = spp == 1
         return dr.select(one, 0.5, (F64(sx) + ux) / kf), dr.select(one, 0.5, (F64(sy) + uy) / kf)
 
-    def reconstruct(rfilter, film_size, spp, seed, window, swin, start, data, aovs, dtype=F64):
+    def reconstruct(rfilter, film_size, spp, seed, window, swin, start, data, aovs, dtype=F64, mode=None):
         """One window's pixels as a flat ``dtype`` array ``(h * w * C)`` (row-major, channels
         innermost: RGB, then ``aovs``) from ``data``: the launch's device outputs over all its
         lanes (``total`` Color3f, ``cost`` Float, and for AOVs ``t0``, ``s0``, ``n0``); this
-        window's samples start at lane ``start``, laid out over ``swin`` as :func:`sample_ids`."""
+        window's samples start at lane ``start``, laid out over ``swin`` as :func:`sample_ids`.
+        ``mode``: of the loops (``"evaluated"`` in a derivative pass: reverse-mode AD needs it)."""
         W, H = film_size
         x0, y0, w, h = window
         sx0, sy0, sw, _ = swin
@@ -152,7 +153,7 @@ def define_film(mi, dr, mix32):
                     c = c + F64(dr.gather(type(data["cost"]), data["cost"], first + i))
                 return i + 1, r, g, b, c
             z = dr.zeros(F64, m)
-            _, r, g, b, c = dr.while_loop((dr.zeros(U32, m), z, z, z, z), lambda i, *_: i < n_s, body)
+            _, r, g, b, c = dr.while_loop((dr.zeros(U32, m), z, z, z, z), lambda i, *_: i < n_s, body, mode=mode)
             if box:
                 s = F64(n_s)
                 chans += [r / s, g / s, b / s]
@@ -203,7 +204,7 @@ def define_film(mi, dr, mix32):
                 return j + 1, r, g, b, den
             z = dr.zeros(F64, m)
             _, r, g, b, den = dr.while_loop((dr.zeros(U32, m), z, z, z, z),
-                                            lambda j, *_: j < n_s * nb2, body)
+                                            lambda j, *_: j < n_s * nb2, body, mode=mode)
             den = dr.select(den == 0.0, 1.0, den)
             chans += [r / den, g / den, b / den]
         if aovs:

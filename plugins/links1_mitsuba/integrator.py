@@ -11,6 +11,7 @@ The integrator class is composed here from one part per concept, each in its own
 - :mod:`~links1_mitsuba.raytree`: one level traced and shaded, the ray trees (eq. 3.11-3.16;
   the recursion design is described there);
 - :mod:`~links1_mitsuba.launch`: camera rays, the frozen launches, read-back, ``stats``;
+- :mod:`~links1_mitsuba.gradients`: ``render_forward``/``render_backward`` (issue 23);
 - :mod:`~links1_mitsuba.util`: Dr.Jit helpers (hashes, literals, gathers).
 
 Nanobind classes take one base, so ``Links1Whitted`` (a ``mi.SamplingIntegrator``) takes the
@@ -26,6 +27,7 @@ from links1.params import read as l1_read
 
 from ._registry import unsupported_variant
 from .intersect import define_intersect
+from .gradients import define_gradients
 from .launch import define_launches
 from .lights import define_lights
 from .raytree import define_raytree
@@ -64,7 +66,8 @@ def define_integrator():
 
     util = define_util(mi, dr)
     parts = (define_tables(mi, dr, util), define_lights(mi, dr, util), define_intersect(mi, dr, util),
-             define_raytree(mi, dr, util), define_launches(mi, dr, util.mix32, util.u24))
+             define_raytree(mi, dr, util), define_launches(mi, dr, util.mix32, util.u24),
+             define_gradients(mi, dr, util))
 
     class _Untraversed:
         """Attributes that :func:`drjit.freeze` does not walk. It traverses the scene (an input
@@ -160,6 +163,9 @@ def define_integrator():
             elif "adaptive_depth" in props:
                 raise ValueError("links1_whitted: adaptive_depth needs adaptive")
             self.custom_bsdfs = {}
+            #: custom slots whose BSDF is a top-level object of the file (traverse leaves it out)
+            self.shared_bsdfs = {int(k[len("_l1_topbsdf_"):]) for k in props.keys()
+                                 if k.startswith("_l1_topbsdf_") and props[k]}
             for key in props.keys():
                 if key.startswith("_l1_bsdf_"):
                     self.custom_bsdfs[int(key[len("_l1_bsdf_"):])] = props[key]
@@ -219,6 +225,20 @@ def define_integrator():
         def sample(self, scene, sampler, ray, medium=None, active=True):
             raise RuntimeError("links1_whitted renders whole ray trees in its own kernels; use mi.render() "
                                "or render_window(), not sample()")
+
+        def traverse(self, callback):
+            """The BSDFs of the links1 shapes (``links1_quadric``, ``links1_blob``: not Mitsuba
+            shapes, links1_whitted holds them), named as Mitsuba names a shape's BSDF under the
+            integrator's id: ``links1_whitted.<shape id>.bsdf.<parameter>`` (issue 23); a BSDF
+            declared at the top of the file keeps its own name (``<bsdf id>.<parameter>``)."""
+            names = {sl: name for sl, name, _ in (self.shape_names or [])}
+            for sl, b in sorted(self.custom_bsdfs.items()):
+                if sl in self.shared_bsdfs:   # named by its own id (a top-level BSDF of the file)
+                    continue
+                callback.put(f"{names.get(sl, f'_links1_slot_{sl}')}.bsdf", b, mi.ParamFlags.Differentiable)
+
+        def parameters_changed(self, keys):
+            pass
 
         def aov_names(self):
             return channel_names(self.aovs)[3:]

@@ -367,6 +367,10 @@ def define_launches(mi, dr, mix32, u24):
             ``total``, ``cost`` and with ``want`` ``t0``, ``s0``, ``n0``, each with one lane per
             sample; its ray counters)."""
             n = dr.width(sid)
+            if getattr(P, "ad", False):   # a derivative pass (gradients.py): unfrozen, no AOVs
+                o, d, tmin, tmax, key, _ = self._camera_rays(P, sid, spp_, seeds)
+                total = self._trace_tree_ad(P, scene, o, d, tmin, tmax, key)
+                return {"total": total, "cost": dr.zeros(mi.UInt32, n)}, (n, dict(nsh1=None))
             if self.use_freeze:
                 cfg = (id(P), id(scene), want, int(self.max_depth), float(self.min_weight))
                 out = self._call_frozen(self._frozen_fn(), P, scene, sid, dr.opaque(mi.UInt32, n), spp_, seeds,
@@ -445,7 +449,7 @@ def define_launches(mi, dr, mix32, u24):
             return [o.numpy() for o in outs]
 
         def render_windows_device(self, scene, windows, spp=1, seed=None, aovs=None, sensor=None,
-                                  dtype=None):
+                                  dtype=None, tables=None):
             """:meth:`render_windows` on the device: one tensor ``(h, w, C)`` per window, of
             ``dtype`` (``mi.Float``: ``mi.TensorXf``; ``mi.Float64``: ``mi.TensorXf64``), never
             visiting numpy (:mod:`links1_mitsuba.film`: sample ids, the reconstruction filter, spp
@@ -454,9 +458,10 @@ def define_launches(mi, dr, mix32, u24):
             The pixel set reaches the kernels as a ``UInt32`` array of sample ids made on the
             device from opaque window values, so no window offset, window size, batch size or
             sample count enters the recorded kernels: one recording per configuration, then
-            replays (:meth:`_frozen_fn`); the film's kernels are cached likewise.
+            replays (:meth:`_frozen_fn`); the film's kernels are cached likewise. ``tables``: the
+            prepared tables to use instead of :meth:`prepare`'s (a derivative pass's, gradients.py).
             """
-            P = self.prepare(scene, sensor)
+            P = self.prepare(scene, sensor) if tables is None else tables
             W, H = P.film_size
             wins = []
             for window in windows:
@@ -469,6 +474,9 @@ def define_launches(mi, dr, mix32, u24):
                 raise ValueError(f"{W}x{H} pixels x {spp} samples exceed the 32-bit sample ids")
             seed = self.seed if seed is None else int(seed)
             aovs = self.aovs if aovs is None else parse_aovs(aovs)
+            ad = getattr(P, "ad", False)
+            if ad:
+                aovs = []   # a derivative pass differentiates the RGB channels
             want = bool(aovs)
             dtype = mi.Float if dtype is None else dtype
             # each window traces the samples of its filter border too (clipped to the film)
@@ -502,7 +510,8 @@ def define_launches(mi, dr, mix32, u24):
             out, start = [], 0
             Tensor = mi.TensorXf64 if dtype is mi.Float64 else mi.TensorXf
             for win, swin in zip(wins, swins):
-                flat, C = film["reconstruct"](P.rfilter, (W, H), spp, seed, win, swin, start, parts, aovs, dtype)
+                flat, C = film["reconstruct"](P.rfilter, (W, H), spp, seed, win, swin, start, parts, aovs, dtype,
+                                               mode="evaluated" if ad else None)
                 out.append(Tensor(flat, shape=(win[3], win[2], C)))
                 start += swin[2] * swin[3] * spp
             return out

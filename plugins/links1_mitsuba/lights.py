@@ -64,7 +64,7 @@ def define_lights(mi, dr, util):
                 _, pos, direction, L1, L2, inv_sq = L
                 wi, dist, cos_theta = self._toward(pos, direction, p)
                 Ls = c3(L1)
-                if np.any(L2 != 0):
+                if dr.is_array_v(L2) or np.any(L2 != 0):   # an attached L2 (gradients.py)
                     Ls = Ls + c3(L2) * dr.maximum(cos_theta, 0.0)  # eq. (3.10)
                 if inv_sq:
                     Ls = Ls / dr.square(dist)

@@ -94,6 +94,10 @@ def _prepare_state(state, config, integrator: str, base_dir: str | None):
     custom_specs = []
     custom_nodes = []
     moved_refs = []
+    # BSDFs declared at the top of the file (referenced by id): mi.traverse names them by their
+    # own id already; the integrator's traverse leaves them out (issue 23)
+    top_level = {root.props[k].index() for k in root.props.keys()
+                 if isinstance(root.props[k], mi.Properties.ResolvedReference)}
     slot_of_id = {}
     names = []
     slot = 0
@@ -130,6 +134,8 @@ def _prepare_state(state, config, integrator: str, base_dir: str | None):
                         continue
                     if child is None or child.type == mi.ObjectType.BSDF:
                         moved_refs.append((f"_l1_bsdf_{slot}", v))
+                        if child is None or v.index() in top_level:   # <ref id=...>: a named BSDF
+                            moved_refs.append((f"_l1_topbsdf_{slot}", True))
             del root.props[key]
             custom_specs.append(spec)
             custom_nodes.append((slot, node))
@@ -172,6 +178,8 @@ def _prepare_state(state, config, integrator: str, base_dir: str | None):
             if k not in keep:
                 del integ_node.props[k]
         integ_node.props.set_plugin_name("links1_whitted")
+    if not integ_node.props.id() or integ_node.props.id().startswith("_unnamed"):
+        integ_node.props.set_id("links1_whitted")   # mi.traverse's prefix of the links1 shapes' BSDFs
     for k, v in moved_refs:
         integ_node.props[k] = v
     return integ_node, custom_specs, slot_of_id, names

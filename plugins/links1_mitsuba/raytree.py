@@ -48,6 +48,7 @@ def define_raytree(mi, dr, util):
             ``sample``: the camera sample of a primary hit (see :meth:`_light_uv`).
             Returns a dict of Dr.Jit arrays."""
             n = dr.width(o)
+            ad = getattr(P, "ad", False)   # a derivative pass (gradients.py)
             if active is None:
                 active = dr.full(mi.Bool, True, n)
             cost = dr.zeros(mi.UInt32, n)
@@ -134,7 +135,11 @@ def define_raytree(mi, dr, util):
                     cos_theta = dr.dot(nf, wi)
                     mirror = nf * (2.0 * cos_theta) - wi
                     cos_phi = dr.maximum(dr.dot(mirror, wo), 0.0)
-                    sp = dr.select(expo > 0, dr.power(cos_phi, expo), 1.0)
+                    if ad:   # d/dn cos^n = cos^n ln cos: no 0 * ln 0 (NaN) where cos_phi = 0
+                        cp_ = dr.select(cos_phi > 0, cos_phi, 1.0)
+                        sp = dr.select(expo > 0, dr.select(cos_phi > 0, dr.power(cp_, expo), 0.0), 1.0)
+                    else:
+                        sp = dr.select(expo > 0, dr.power(cos_phi, expo), 1.0)
                     fp = dif * dr.maximum(cos_theta, 0.0) + spe * sp
                     f = dr.select(ph & (cos_theta > 0), fp, f)
                 if not P.all_phong:
@@ -153,7 +158,7 @@ def define_raytree(mi, dr, util):
             # ---- direct light with shadows (eq. 3.11, 3-3-3). Shadow rays of all lights are
             # built and evaluated together, then handed to Mitsuba's ray tests (each test
             # evaluates its inputs: building them first avoids recomputing shared work).
-            skip = SKIP_MISSES  # under a symbolic if on the hit (no dr.eval inside it)
+            skip = SKIP_MISSES and not ad  # under a symbolic if on the hit (no dr.eval inside it)
 
             def direct(out, cost, n_shadow):
                 pending = []

@@ -84,9 +84,13 @@ def define_util(mi, dr):
         return mi.Float(x >> 8) * (2.0 ** -24)
 
     def c3(v):
+        if dr.is_array_v(v):   # a Dr.Jit value (attached, in a derivative pass: gradients.py)
+            return mi.Color3f(v)
         return mi.Color3f(float(v[0]), float(v[1]), float(v[2]))
 
     def v3(v):
+        if dr.is_array_v(v):
+            return mi.Vector3f(v)
         return mi.Vector3f(float(v[0]), float(v[1]), float(v[2]))
 
     def gather3(table, idx, active=True):

@@ -1,0 +1,232 @@
+"""Gradients of ``links1_whitted`` (issue 23): ``render_forward`` and ``render_backward``, as
+Mitsuba's ``ADIntegrator`` has them, so ``mi.render(scene, params)`` followed by
+``dr.backward(loss)`` (or ``dr.forward``) differentiates the whole Whitted ray tree.
+
+How. The primal frame (``mi.render`` evaluates it under ``dr.suspend_grad``) is the usual frozen
+launch, bit for bit the image of a render without gradients. The derivative pass renders the
+frame again with automatic differentiation (:meth:`Gradients._render_ad`):
+
+* the tables are the primal ones (``prepare``) with the *attached* Dr.Jit values of the
+  parameters that have gradients enabled put in (:meth:`Gradients._ad_tables`): every
+  ``links1_phong`` coefficient (``ambient``, ``diffuse``, ``specular``, ``exponent``,
+  ``reflectance``, ``transmittance``), the ``links1_point`` light (``position``, ``direction``,
+  ``L1``, ``L2``), the ``links1_spot`` light (``origin``, ``intensity``) and Mitsuba's ``point``
+  light (``position``, ``intensity``). Mitsuba's own BSDFs (``diffuse.reflectance``, textures
+  ...) are differentiated by Mitsuba itself: ``bsdf.eval`` reads their attached values;
+* the launch is not frozen (gradients cannot flow through a frozen function's outputs) and the
+  ray tree is traced level by level in Python (:meth:`Gradients._trace_tree_ad`: every mirror
+  and refraction child of a level is compacted into the next level's rays, and each level's
+  ``weight · I_o`` is added to its sample by a differentiable scatter), because the primal's
+  megakernel keeps its pending refraction rays in ``dr.alloc_local`` memory, which Dr.Jit
+  cannot differentiate; the film's loops run in evaluated mode (reverse-mode AD needs it).
+
+What is differentiated: the *interior* derivative. Which surface a ray hits, which side of a
+shadow edge a point lies on, whether a branch is traced (``min_weight``, a zero reflectance)
+and the refracted direction (``ior``) are held fixed; silhouettes and shadow edges moving with
+a light or a shape are left out, as Mitsuba's non-projective integrators leave them out (a
+gradient with respect to a light's position is then the derivative of the shading at fixed
+visibility: right away from shadow edges, biased where a pixel straddles one). Not
+differentiated (zero gradient): the shadow transmittance of transparent objects (3-3-3), the
+geometry of every shape (Mitsuba's and links1's), area and environment lights and the cameras.
+
+Cost: the derivative pass keeps the whole ray tree on Dr.Jit's AD tape (no path replay as
+Mitsuba's PRB): memory grows with pixels × spp × tree size.
+
+:func:`define_gradients` returns a class whose methods ``Links1Whitted`` takes (defined in a
+function, as the integrator, because the Mitsuba variant must be set first).
+"""
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+
+from .util import INF
+
+
+def define_gradients(mi, dr, util):
+    """The ``Gradients`` part of ``Links1Whitted`` for the variant in use."""
+    from ._registry import plugin_class
+    mix32 = util.mix32
+
+    def attached(*vals):
+        return any(dr.grad_enabled(v) for v in vals)
+
+    def cat(a, b, na, nb):
+        """``a`` (``na`` lanes) followed by ``b`` (``nb`` lanes), differentiable (gathers)."""
+        if nb == 0:
+            return a
+        if na == 0:
+            return b
+        j = dr.arange(mi.UInt32, na + nb)
+        in_a = j < na
+        ga = dr.gather(type(a), a, dr.select(in_a, j, 0), in_a)
+        gb = dr.gather(type(b), b, dr.select(in_a, 0, j - na), ~in_a)
+        return dr.select(in_a, ga, gb)
+
+    def put_rows(table, rows, width):
+        """``table`` (a flat Float of ``width`` values per slot) with the rows ``{slot: value}``
+        (Dr.Jit values, attached) put in by ``select``: a differentiable copy."""
+        out = type(table)(table)
+        idx = dr.arange(mi.UInt32, dr.width(table))
+        for sl, v in rows.items():
+            for k in range(width):
+                comp = v[k] if width > 1 else v
+                out = dr.select(idx == sl * width + k, comp, out)
+        return out
+
+    class Gradients:
+        """``render_forward``/``render_backward`` and the differentiable render behind them."""
+
+        # -------------------------------------------------------------- Mitsuba entry points
+        def render_forward(self, scene, params, sensor=0, seed=0, spp=0):
+            """The image's derivative along the gradients set on the scene's parameters
+            (``dr.set_grad``): Mitsuba's ``Integrator.render_forward``."""
+            with dr.resume_grad():
+                img = self._render_ad(scene, sensor, seed, spp)
+                dr.forward_to(img)
+                return dr.grad(img)
+
+        def render_backward(self, scene, params, grad_in, sensor=0, seed=0, spp=0):
+            """Propagate the image gradient ``grad_in`` to the scene's parameters that have
+            gradients enabled: Mitsuba's ``Integrator.render_backward``."""
+            with dr.resume_grad():
+                img = self._render_ad(scene, sensor, seed, spp)
+                dr.set_grad(img, grad_in)
+                dr.enqueue(dr.ADMode.Backward, img)
+                dr.traverse(dr.ADMode.Backward)
+            dr.eval()
+
+        # -------------------------------------------------------------- the differentiable frame
+        def _render_ad(self, scene, sensor=0, seed=0, spp=0):
+            """The frame ``render()`` makes, with Dr.Jit's AD graph from the scene's
+            gradient-enabled parameters (see the module's docstring)."""
+            if self.adaptive is not None:
+                raise NotImplementedError("links1_whitted: gradients of adaptive anti-aliasing are not "
+                                          "implemented (render with spp instead of adaptive)")
+            sensor = self._sensor_of(scene, sensor)
+            film = sensor.film()
+            off, size = film.crop_offset(), film.crop_size()
+            if spp == 0 or spp is None:
+                spp = sensor.sampler().sample_count()
+            s = int(seed) if not hasattr(seed, "__len__") else int(np.array(seed).ravel()[0])
+            win = (int(off[0]), int(off[1]), int(size[0]), int(size[1]))
+            with dr.suspend_grad():
+                P = self.prepare(scene, sensor)
+            Q = self._ad_tables(P, scene)
+            return self.render_windows_device(scene, [win], spp=int(spp), seed=self.seed + s, sensor=sensor,
+                                              dtype=mi.Float, tables=Q)[0]
+
+        def _ad_tables(self, P, scene):
+            """A shallow copy of the tables ``P`` with the attached values of the parameters
+            that have gradients enabled put in (``Q.ad``: the launches then trace
+            :meth:`_trace_tree_ad`, the film differentiably)."""
+            Q = copy.copy(P)
+            Q.ad = True
+            Q.frozen_inputs = None
+            Phong = plugin_class("links1_phong")
+            bsdfs = P.keep_alive[3]       # the BSDF of each slot (tables.prepare)
+            if len(bsdfs) != P.nslots:
+                raise RuntimeError("links1_whitted: the BSDF table has another size (an internal inconsistency)")
+            rows = {k: {} for k in ("ambient", "diffuse", "specular", "reflectance", "transmittance", "exponent")}
+            for sl, b in enumerate(bsdfs):
+                if isinstance(b, Phong):
+                    for name, r in rows.items():
+                        v = b._held.t_exponent if name == "exponent" else getattr(b._held, name)
+                        if attached(v):
+                            r[sl] = v
+            for name, attr, width in (("ambient", "amb", 3), ("diffuse", "dif", 3), ("specular", "spe", 3),
+                                      ("reflectance", "refl", 3), ("transmittance", "trans", 3),
+                                      ("exponent", "expo", 1)):
+                if rows[name]:
+                    setattr(Q, attr, put_rows(getattr(P, attr), rows[name], width))
+            Q.any_ambient = P.any_ambient or bool(rows["ambient"])
+            tr = rows["transmittance"]
+            if tr:   # shadow transmittance (3-3-3): links1 shapes outside the BVH, split Mitsuba shapes
+                Q.shadow_t_np = [tr.get(sl, row) for sl, row in enumerate(P.shadow_t_np)]
+                if P.shadow_split is not None:
+                    Q.shadow_split = dict(P.shadow_split, trans=[(sub, sl, tr.get(sl, st))
+                                                                 for sub, sl, st in P.shadow_split["trans"]])
+            # analytic lights: P.lights holds one entry per such emitter, in the scene's order
+            Pt, Sp = plugin_class("links1_point"), plugin_class("links1_spot")
+            lights, j = list(P.lights), 0
+            for e in scene.emitters():
+                kind = str(e).split("[")[0]
+                if isinstance(e, Pt):
+                    v = e.values
+                    L = list(lights[j])
+                    if attached(v["position"]):
+                        L[1] = v["position"]
+                    if attached(v["direction"]):
+                        L[2] = dr.normalize(v["direction"])
+                    if attached(v["L1"]):
+                        L[3] = v["L1"]
+                    if attached(v["L2"]):
+                        L[4] = v["L2"]
+                    lights[j] = tuple(L)
+                elif isinstance(e, Sp):
+                    v = e.values
+                    L = list(lights[j])
+                    if attached(v["origin"]):
+                        L[1] = v["origin"]
+                    if attached(v["intensity"]):
+                        L[4] = v["intensity"]
+                    lights[j] = tuple(L)
+                elif kind == "PointLight":
+                    prm = mi.traverse(e)
+                    L = list(lights[j])
+                    if attached(prm["position"]):
+                        L[1] = mi.Point3f(prm["position"])
+                    if "intensity.value" in prm and attached(prm["intensity.value"]):
+                        L[3] = mi.Color3f(prm["intensity.value"])
+                    lights[j] = tuple(L)
+                elif kind not in ("SpotLight", "DirectionalEmitter"):
+                    continue
+                j += 1
+            if j != len(P.lights):
+                raise RuntimeError("links1_whitted: the light table has another size (an internal inconsistency)")
+            Q.lights = lights
+            return Q
+
+        def _trace_tree_ad(self, P, scene, o, d, tmin, tmax, key):
+            """The ray trees of :meth:`_trace_tree` (the same levels, children, weights, keys and
+            ``min_weight`` rule) traced level by level without local memory, so that Dr.Jit
+            can differentiate them: the children of a level (mirror rays first, then
+            refraction rays) are compacted into the next level's rays, and each level's
+            ``weight · I_o`` is added to its sample (eq. 3.16). Returns the samples' RGB."""
+            from .launch import _CAM_SAMPLE
+            n = dr.width(o)
+            spawn = self.max_depth > 1 and P.any_specular
+            res = self._level(P, scene, o, d, tmin, tmax, key, 1, spawn, symbolic=False,
+                              sample=_CAM_SAMPLE.pop(id(self), None))
+            total = mi.Color3f(res["L"])
+            if not spawn:
+                return total
+            own = dr.arange(mi.UInt32, n)
+            cr, ct, w_r, w_t = self._children(res, res["hit"], mi.Color3f(1.0), mi.UInt32(1))
+            depth = 2
+            while True:
+                key_r = mix32(key ^ mi.UInt32(0x63D83595))
+                key_t = mix32(key ^ mi.UInt32(0xA511E9B3))
+                ir, it = dr.compress(cr), dr.compress(ct)
+                nr, nt = dr.width(ir), dr.width(it)
+                if nr + nt == 0:
+                    return total
+
+                def pick(x_r, x_t):
+                    a = dr.gather(type(x_r), x_r, ir) if nr else None
+                    b = dr.gather(type(x_t), x_t, it) if nt else None
+                    return cat(a, b, nr, nt)
+                own = pick(own, own)
+                o, d = pick(res["o_r"], res["o_t"]), pick(res["dir_r"], res["dir_t"])
+                wgt, key = pick(w_r, w_t), pick(key_r, key_t)
+                m = nr + nt
+                res = self._level(P, scene, o, d, dr.zeros(mi.Float, m), dr.full(mi.Float, INF, m), key, 0,
+                                  True, symbolic=False)
+                acc = dr.zeros(mi.Color3f, n)
+                dr.scatter_add(acc, wgt * res["L"], own)
+                total = total + acc
+                cr, ct, w_r, w_t = self._children(res, dr.full(mi.Bool, True, m), wgt, mi.UInt32(depth))
+                depth += 1
+
+    return Gradients
