@@ -119,7 +119,7 @@ def central_difference(scene, key, comp, h):
 
 
 @pytest.mark.parametrize("key", SHADING_KEYS)
-def test_reverse_equals_finite_difference_shading(llvm, key):
+def test_reverse_equals_finite_difference_shading(variant, key):
     scene = load(SHADING)
     g = reverse_grad(scene, key)
     comps = range(len(g))
@@ -130,7 +130,7 @@ def test_reverse_equals_finite_difference_shading(llvm, key):
 
 
 @pytest.mark.parametrize("key", MOVE_KEYS)
-def test_reverse_equals_finite_difference_light_position(llvm, key):
+def test_reverse_equals_finite_difference_light_position(variant, key):
     scene = load(LIGHTS_MOVE, depth=1)
     g = reverse_grad(scene, key)
     for c in range(3):
@@ -139,7 +139,7 @@ def test_reverse_equals_finite_difference_light_position(llvm, key):
     assert np.max(np.abs(g)) > 1.0
 
 
-def test_forward_equals_reverse(llvm):
+def test_forward_equals_reverse(variant):
     """Dot-product test over several families at once, with a Gaussian film (the film's
     neighbour loop differentiated too): u·(J v) from render_forward equals (Jᵀ u)·v from
     render_backward, to float32 rounding."""
@@ -188,7 +188,7 @@ PLANE = """
 """
 
 
-def test_closed_form_diffuse_plane_point_light(llvm):
+def test_closed_form_diffuse_plane_point_light(variant):
     """The centre pixel of an odd film looks straight down at the origin of the plane y = 0:
     ``L = ρ/π · I y / r³`` (r = |p|, p the light's position), so dL/dρ = I y/(π r³),
     dL/dI = ρ y/(π r³) and dL/dp = ρ I/π · (e_y/r³ − 3 y p/r⁵)."""
@@ -214,7 +214,7 @@ def test_closed_form_diffuse_plane_point_light(llvm):
     assert dr.grad_enabled(mi.traverse(scene)["light.position"]) is False
 
 
-def test_primal_unchanged_with_gradients_enabled(llvm):
+def test_primal_unchanged_with_gradients_enabled(variant):
     """The frame mi.render returns while parameters have gradients enabled is the primal
     frozen launch: bit for bit the frame without gradients (Gaussian film, depth 4)."""
     import drjit as dr
@@ -230,7 +230,7 @@ def test_primal_unchanged_with_gradients_enabled(llvm):
     assert np.array_equal(plain, with_grad)
 
 
-def test_params_update_shows_in_next_frame(llvm):
+def test_params_update_shows_in_next_frame(variant):
     """Changing links1_phong, links1_point and links1_spot parameters through mi.traverse gives
     the frame of the scene loaded with those values, bit for bit."""
     import mitsuba as mi
@@ -259,7 +259,7 @@ def test_params_update_shows_in_next_frame(llvm):
     assert np.array_equal(after, expect)
 
 
-def test_out_of_range_update_is_refused(llvm):
+def test_out_of_range_update_is_refused(variant):
     import mitsuba as mi
     scene = load(SHADING)
     params = mi.traverse(scene)
@@ -268,7 +268,7 @@ def test_out_of_range_update_is_refused(llvm):
         params.update()
 
 
-def test_update_of_one_colour_channel_is_seen(llvm):
+def test_update_of_one_colour_channel_is_seen(variant):
     """A change of the green channel alone of Mitsuba's diffuse reflectance after a frame makes
     the next frame anew (the scene digest read colours through ``.matrix``, a Dr.Jit swizzle
     of the red channel, and missed it)."""
@@ -297,7 +297,7 @@ QUADRIC = """
 @pytest.mark.parametrize("key", ["links1_whitted.bubble.bsdf.transmittance.value",
                                  "links1_whitted.bubble.bsdf.reflectance.value",
                                  "links1_whitted.bubble.bsdf.diffuse.value", "floor.bsdf.diffuse.value"])
-def test_links1_quadric_materials_and_transparent_shadow(llvm, tmp_path, key):
+def test_links1_quadric_materials_and_transparent_shadow(variant, tmp_path, key):
     """A links1_quadric glass sphere (links1_whitted intersects it itself): its colours through
     refraction, reflection and its transparent shadow on the floor (the transmittance product
     of 3-3-3), reverse mode against central differences as above. links1_whitted holds the
