@@ -43,8 +43,7 @@ _PRECISE_MITSUBA = ("Mesh", "OBJMesh", "PLYMesh", "Rectangle", "Disk", "Links1Bi
 #: Default weight below which a branch of the ray tree is not traced (POV-Ray's adc_bailout;
 #: the same default as links1.integrator.DEFAULT_MIN_WEIGHT).
 DEFAULT_MIN_WEIGHT = l1_default("links1_whitted", "min_weight")
-#: Custom quadrics with finite bounds go under a BVH (bvh.py) from this many on.
-BVH_MIN = 8
+# Custom quadrics with finite bounds go under a BVH (bvh.py) from tuning.Tuning.bvh_min on.
 
 
 def parse_aovs(value) -> list:

@@ -10,23 +10,11 @@ function, as the integrator, because the Mitsuba variant must be set first).
 """
 from __future__ import annotations
 
+from . import tuning
 from .util import INF
 
-#: transparent shadow rays: Embree's preliminary hit, the full surface record (for the next
-#: crossing's origin) only at transparent hits (issue 12; False: ``scene.ray_intersect``)
-PRELIMINARY = True
-
-#: shadow rays first tested against the boxes of the few Mitsuba shapes that can occlude their
-#: light (``tables.occluder_boxes``); Embree only where one is met (issue 12)
-BOX_CULL = True
-
-#: camera rays of a pinhole camera find their nearest BVH quadric through the eye's buffer
-#: (``lightbuffer.plan_eye``) where there is one (issue 12; False: the BVH walk)
-EYE_BUFFER = True
-
-#: transparent shadows through few transparent Mitsuba shapes as any-hit queries on sub-scenes
-#: (``tables.shadow_split``) instead of the walk over the crossings (issue 12)
-SPLIT = True
+# the switches of issue 12 read here (preliminary, box_cull, eye_buffer, split) are fields of
+# tuning.Tuning, read while tracing: a frozen launch is keyed on them (launch.py)
 
 
 def define_intersect(mi, dr, util):
@@ -68,7 +56,7 @@ def define_intersect(mi, dr, util):
                 slot = dr.select(better, spec.slot, slot)
                 prim = dr.select(better, pc, prim)
             if P.bvh is not None:
-                eye = P.eye_buf if camera and EYE_BUFFER else None
+                eye = P.eye_buf if camera and tuning.current().eye_buffer else None
                 tq, q, part, found = (eye or P.bvh).nearest(o, d, tmin, next_up(dr.minimum(t, tmax)), active, cost)
                 sq = mi.Int32(dr.gather(mi.UInt32, P.bvh.slot, q, found))
                 better = found & ((tq < t) | ((tq == t) & ((slot < 0) | (sq < slot))))
@@ -135,7 +123,7 @@ def define_intersect(mi, dr, util):
             ``own``: see :meth:`_meets_boxes`)."""
             if not P.any_mitsuba_shapes:
                 return T
-            boxes = P.occ_boxes[light] if BOX_CULL and light is not None else None
+            boxes = P.occ_boxes[light] if tuning.current().box_cull and light is not None else None
             occ = P.occ_mslots[light] if light is not None else None
             inc = dr.zeros(mi.UInt32, dr.width(o))
             for slots, query in self._shadow_groups(P, scene, o, d, smax, occ):
@@ -159,7 +147,7 @@ def define_intersect(mi, dr, util):
             sub-scene (T = 0) and one on each transparent shape's (T times its transmittance),
             skipping groups that cannot occlude (``occ``: the light's occluder slots); else the
             scene with :meth:`_shadow_embree`."""
-            split = P.shadow_split if SPLIT else None
+            split = P.shadow_split if tuning.current().split else None
             if split is None:
                 return [(None, lambda T, inc, run: self._shadow_embree(P, scene, o, d, smax, run, T, inc))]
             ray = mi.Ray3f(o, d, smax, 0.0, mi.Color0f())
@@ -184,13 +172,14 @@ def define_intersect(mi, dr, util):
                 return dr.select(occluded, 0.0, T), inc + dr.select(act, mi.UInt32(1), 0)
             reg_to_slot, bits_t, words_t, sh_t = P.reg_to_slot, P.trans_bits, P.trans_words, P.shadow_t
             nwords, max_crossings = P.trans_nwords, P.max_crossings
+            preliminary = tuning.current().preliminary
 
             def cond(o, tleft, T, seen, run, it, cost):
                 return run
 
             def body(o, tleft, T, seen, run, it, cost):
                 ray = mi.Ray3f(o, d, tleft, 0.0, mi.Color0f())
-                if PRELIMINARY:
+                if preliminary:
                     # the full surface record only where the ray goes on (a transparent hit):
                     # scene.ray_intersect is this preliminary test plus compute_surface_interaction
                     pi = scene.ray_intersect_preliminary(ray, active=run)
@@ -206,7 +195,7 @@ def define_intersect(mi, dr, util):
                 bit = dr.gather(mi.UInt32, bits_t, mi.UInt32(slot), hit)
                 word = dr.gather(mi.UInt32, words_t, mi.UInt32(slot), hit)
                 opaque = hit & (bit == 0)
-                if PRELIMINARY:
+                if preliminary:
                     si = pi.compute_surface_interaction(ray, mi.RayFlags.All, hit & ~opaque)
                 mine = [hit & (bit != 0) & (word == k) for k in range(nwords)]
                 new = hit & mi.Bool(False)

@@ -15,6 +15,7 @@ import numpy as np
 
 from links1.sampling import strata
 
+from . import tuning
 from .film import define_film, sample_window
 from .util import aligned
 
@@ -303,8 +304,9 @@ def define_launches(mi, dr, mix32, u24):
         def _frozen_fn(self):
             """The launch as a :func:`drjit.freeze` function of run-time inputs (sample ids,
             sample count, seeds: ``UInt32``; the per-scene tables): recorded once per
-            configuration ``cfg`` (scene, AOVs, depth, weight threshold: hashed Python values)
-            and replayed without re-tracing for any pixel set, window or batch size and spp
+            configuration ``cfg`` (scene, AOVs, depth, weight threshold, the switches of
+            :class:`~links1_mitsuba.tuning.Tuning`: hashed Python values; a switch changed after
+            a recording makes another one) and replayed without re-tracing for any pixel set, window or batch size and spp
             (freeze replays recorded kernels at the widths of the new inputs)."""
             if self._freeze is None:
                 def launch_kernels(sid, n_op, spp, seeds, cfg, tables, scene_input):
@@ -348,7 +350,7 @@ def define_launches(mi, dr, mix32, u24):
                 y = mi.Float(aligned(yf[a:b], np.float32))
                 key = mi.UInt32(aligned(keys[a:b], np.uint32))
                 if self.use_freeze:
-                    cfg = (id(P), id(scene), int(self.max_depth), float(self.min_weight))
+                    cfg = (id(P), id(scene), int(self.max_depth), float(self.min_weight), tuning.current().key())
                     total, c, counters = self._call_frozen(self._frozen_points_fn(), P, scene, x, y, key,
                                                            dr.opaque(mi.UInt32, b - a), cfg,
                                                            self._frozen_inputs(P))
@@ -372,7 +374,8 @@ def define_launches(mi, dr, mix32, u24):
                 total = self._trace_tree_ad(P, scene, o, d, tmin, tmax, key)
                 return {"total": total, "cost": dr.zeros(mi.UInt32, n)}, (n, dict(nsh1=None))
             if self.use_freeze:
-                cfg = (id(P), id(scene), want, int(self.max_depth), float(self.min_weight))
+                cfg = (id(P), id(scene), want, int(self.max_depth), float(self.min_weight),
+                       tuning.current().key())
                 out = self._call_frozen(self._frozen_fn(), P, scene, sid, dr.opaque(mi.UInt32, n), spp_, seeds,
                                         cfg, self._frozen_inputs(P))
                 total, cost, counters = out[0], out[1], out[-1]

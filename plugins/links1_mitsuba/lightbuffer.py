@@ -40,8 +40,8 @@ ANGLE_MARGIN = 1e-4
 GRID_FACTOR = 14.0
 GRID_MAX = 64
 GRID_MAX_DIR = 256
-#: light buffers on (tests and benchmarks turn them off to compare with the BVH walk)
-ENABLED = True
+# light buffers on or off: tuning.Tuning.light_buffer (tests and benchmarks turn them off to
+# compare with the BVH walk)
 #: a light buffer is used for a light when its expected list length per shadow ray is below
 #: this many quadric tests (the BVH walk takes ~9.5 steps on many.xml)
 MAX_MEAN_LIST = 4.0

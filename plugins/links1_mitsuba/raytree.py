@@ -25,13 +25,13 @@ function, as the integrator, because the Mitsuba variant must be set first).
 """
 from __future__ import annotations
 
+from . import tuning
 from .launch import _CAM_SAMPLE
 from .util import INF
 
-#: direct light (every light's sample, shading and shadow rays) under a symbolic ``dr.if_stmt``
-#: on the hit: a packet of escaped rays (sky, 38 % of fig11's camera rays) skips it instead of
-#: computing it masked (issue 12; False: the old straight-line code, for before/after runs)
-SKIP_MISSES = True
+# tuning.Tuning.skip_misses: direct light (every light's sample, shading and shadow rays) under a
+# symbolic ``dr.if_stmt`` on the hit: a packet of escaped rays (sky, 38 % of fig11's camera rays)
+# skips it instead of computing it masked (issue 12; False: the old straight-line code)
 
 
 def define_raytree(mi, dr, util):
@@ -158,7 +158,7 @@ def define_raytree(mi, dr, util):
             # ---- direct light with shadows (eq. 3.11, 3-3-3). Shadow rays of all lights are
             # built and evaluated together, then handed to Mitsuba's ray tests (each test
             # evaluates its inputs: building them first avoids recomputing shared work).
-            skip = SKIP_MISSES and not ad  # under a symbolic if on the hit (no dr.eval inside it)
+            skip = tuning.current().skip_misses and not ad  # under a symbolic if on the hit (no dr.eval inside it)
 
             def direct(out, cost, n_shadow):
                 pending = []

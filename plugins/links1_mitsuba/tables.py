@@ -23,7 +23,7 @@ import numpy as np
 from links1.filters import Filter
 from links1.lights import ENV_LIGHT_ID
 
-from . import lightbuffer
+from . import lightbuffer, tuning
 from .lights import _emitted_rgb
 from .util import checked_index
 
@@ -259,7 +259,6 @@ def _unmask(mi, b):
 
 def define_tables(mi, dr, util):
     """The ``Tables`` part of ``Links1Whitted`` for the variant in use."""
-    from . import integrator   # BVH_MIN read there at call time (tests patch it)
     from ._registry import plugin_class
     from .integrator import _PRECISE_MITSUBA, OFFSET_EPS
 
@@ -284,7 +283,8 @@ def define_tables(mi, dr, util):
             The scene's tables (shapes, materials, lights, shadow rays) are keyed on what they
             are built from, never on ``id(scene)``: the registry ids of the scene's shapes,
             emitters and sensors (P keeps those objects alive, so no other scene can reuse the
-            ids), and, while ``verify_scene``, every parameter ``mi.traverse`` exposes, watched
+            ids), the part of the tuning they are built from (``tuning.Tuning.tables_key``: light
+            buffers, BVH), and, while ``verify_scene``, every parameter ``mi.traverse`` exposes, watched
             by its Dr.Jit variables (:class:`ParamWatch`: a ``params.update()`` after a render
             is seen, and nothing is read back from the device). ``n_scene_builds`` and
             ``n_camera_views`` count the tables built. Each sensor gets its own
@@ -295,6 +295,7 @@ def define_tables(mi, dr, util):
             V = self._prep
             B = getattr(V, "base", None)
             if not (B is not None and B.ident == ident
+                    and B.tuning.tables_key() == tuning.current().tables_key()
                     and (not self.verify_scene or B.watch.unchanged(scene))):
                 B = self._prepare_scene(scene, ident)
             V = self._camera_view(B, scene, self._sensor_of(scene, sensor))
@@ -335,7 +336,7 @@ def define_tables(mi, dr, util):
             self.n_camera_views += 1
             self._set_camera(V, sensor)
             # light buffer around a pinhole camera's eye for the camera rays' nearest quadric
-            V.eye_buf = lightbuffer.plan_eye(V, scene) if lightbuffer.ENABLED else None
+            V.eye_buf = lightbuffer.plan_eye(V, scene) if B.tuning.light_buffer else None
             B.views[id(sensor)] = V     # V keeps the sensor alive: its id is not reused
             return V
 
@@ -367,6 +368,7 @@ def define_tables(mi, dr, util):
             """The tables of ``scene`` that do not depend on the sensor (:meth:`prepare`)."""
             P = Prepared()
             P.ident = ident
+            P.tuning = tuning.current()     # what the tables are built with (tables_key)
             P.watch = ParamWatch(scene)     # before the tables read the parameters
             self.n_scene_builds += 1
             P.keep_alive = (list(scene.shapes()), list(scene.emitters()), list(scene.sensors()))  # see scene_identity
@@ -394,7 +396,7 @@ def define_tables(mi, dr, util):
                     and np.all(np.isfinite(np.concatenate(sp.bounds())))]
             P.bvh = None
             P.custom_unrolled = list(self.custom)
-            if len(quad) >= integrator.BVH_MIN:
+            if len(quad) >= P.tuning.bvh_min:
                 bvh_ids = {id(sp) for sp in quad}
                 P.custom_unrolled = [sp for sp in self.custom if id(sp) not in bvh_ids]
                 P.bvh_slots = {sp.slot for sp in quad}
@@ -609,7 +611,7 @@ def define_tables(mi, dr, util):
                                   stacklevel=2)
             self._occluders(P, shapes, slot_list)
             # light buffers for the quadric shadow rays toward analytic lights (where they pay)
-            P.lbuf = lightbuffer.plan(P, scene) if lightbuffer.ENABLED else [None] * len(P.lights)
+            P.lbuf = lightbuffer.plan(P, scene) if P.tuning.light_buffer else [None] * len(P.lights)
             return P
 
         def _occluders(self, P, shapes, slot_list):

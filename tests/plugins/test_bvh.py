@@ -40,16 +40,16 @@ def _scene(n):
 </scene>"""
 
 
-def test_bvh_matches_every_quadric(variant, monkeypatch):
+def test_bvh_matches_every_quadric(variant):
     import links1_mitsuba
-    from links1_mitsuba import integrator as integ_mod
+    from links1_mitsuba import tuning
     xml = _scene(40)
     scene = links1_mitsuba.load_string(xml)
     a = scene.integrator().render_window(scene, aovs=("id",))
     assert scene.integrator()._prep.bvh is not None
-    monkeypatch.setattr(integ_mod, "BVH_MIN", 10 ** 9, raising=True)
     scene2 = links1_mitsuba.load_string(xml)
-    b = scene2.integrator().render_window(scene2, aovs=("id",))
+    with tuning.tuned(bvh_min=10 ** 9):
+        b = scene2.integrator().render_window(scene2, aovs=("id",))
     assert scene2.integrator()._prep.bvh is None
     assert np.mean(a[..., 3] != b[..., 3]) <= 2e-3
     rel = float(np.sum((a[..., :3] - b[..., :3]) ** 2) / np.sum(b[..., :3] ** 2))

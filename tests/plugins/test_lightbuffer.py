@@ -172,17 +172,17 @@ def test_light_buffer_query_matches_bvh(variant, transparent):
 
 
 @pytest.mark.parametrize("transparent", [False, True])
-def test_light_buffer_images_match(variant, monkeypatch, transparent):
-    from links1_mitsuba import lightbuffer
+def test_light_buffer_images_match(variant, transparent):
+    from links1_mitsuba import tuning
     xml = _scene(120, transparent)
     scene, integ, P = _prepared(xml)
     kinds = [None if lb is None else lb.kind for lb in P.lbuf]
     assert kinds.count("point") >= 2 and "dir" in kinds     # both point lights, the spot, the sun
     a = integ.render_window(scene, spp=2)
-    monkeypatch.setattr(lightbuffer, "ENABLED", False)
-    scene2, integ2, P2 = _prepared(xml)
-    assert all(lb is None for lb in P2.lbuf)
-    b = integ2.render_window(scene2, spp=2)
+    with tuning.tuned(light_buffer=False):
+        scene2, integ2, P2 = _prepared(xml)
+        assert all(lb is None for lb in P2.lbuf)
+        b = integ2.render_window(scene2, spp=2)
     if transparent:
         np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-7)
     else:
@@ -267,14 +267,14 @@ def test_bounding_spheres_hold_the_quadrics(variant):
         assert np.all(np.linalg.norm(pts - c[k], axis=1) <= r[k] * (1 + 1e-9)), k
 
 
-def test_eye_buffer_nearest_matches_bvh(variant, monkeypatch):
+def test_eye_buffer_nearest_matches_bvh(variant):
     """The camera's eye buffer (lightbuffer.plan_eye) finds the BVH walk's nearest quadric hit
     bit for bit (t, row, part, found): rays from the eye in random directions, toward every
     quadric's bound silhouette (grazing) and along cube-map cell borders; and renders the same
     image as the BVH walk."""
     import drjit as dr
     import mitsuba as mi
-    from links1_mitsuba import intersect
+    from links1_mitsuba import tuning
     xml = _scene(120)
     scene, integ, P = _prepared(xml)
     eb = P.eye_buf
@@ -314,9 +314,9 @@ def test_eye_buffer_nearest_matches_bvh(variant, monkeypatch):
             x, y = x[b[3]], y[b[3]]
         assert np.array_equal(x, y), f"{name}: {np.sum(x != y)} rays differ"
     img = integ.render_window(scene, spp=1)
-    monkeypatch.setattr(intersect, "EYE_BUFFER", False)
-    scene2, integ2, _ = _prepared(xml)
-    assert np.array_equal(integ2.render_window(scene2, spp=1), img)
+    with tuning.tuned(eye_buffer=False):
+        scene2, integ2, _ = _prepared(xml)
+        assert np.array_equal(integ2.render_window(scene2, spp=1), img)
 
 
 def test_sampled_mean_list_estimates_the_built_buffer(variant):

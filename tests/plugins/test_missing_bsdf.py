@@ -2,7 +2,7 @@
 0.5) in both renderers whatever its neighbours have.
 
 The scenes mix shapes with and without a BSDF of every kind links1_whitted handles: quadrics
-few enough to be unrolled and many enough for the BVH (``BVH_MIN``), a blob, a bicubic
+few enough to be unrolled and many enough for the BVH (``tuning.Tuning.bvh_min``), a blob, a bicubic
 mesh, Mitsuba's own sphere and rectangle. Before the fix the default BSDF made in
 ``tables.prepare`` was freed while its registry id stayed in the BSDF pointer table, and a
 quadric without a BSDF beside quadrics with one crashed the process (exit 139). The images
@@ -71,9 +71,9 @@ def _rel_mse(a, b):
 
 @pytest.mark.parametrize("n_quadrics", [3, 12], ids=["unrolled", "bvh"])
 def test_shapes_without_bsdf_render_as_default_diffuse(variant, tmp_path, n_quadrics):
-    from links1_mitsuba import integrator as integ_mod
+    from links1_mitsuba import tuning
     # 3 stays under the BVH threshold, 12 is over it (both sides of the rule that crashed)
-    assert (n_quadrics >= integ_mod.BVH_MIN) == (n_quadrics == 12)
+    assert (n_quadrics >= tuning.current().bvh_min) == (n_quadrics == 12)
     images = {}
     for explicit in (False, True):
         path = tmp_path / f"mixed_{explicit}.xml"

@@ -134,7 +134,7 @@ def _sphere_hit(o, d, smax, c, r, margin=1e-4):
 @pytest.mark.parametrize("variant_name,split", [
     pytest.param(v, split, marks=variant_marks(v), id=f"{v}-{'split' if split else 'walk'}")
     for v, split in (("llvm_ad_rgb", True), ("llvm_ad_rgb", False), ("cuda_ad_rgb", False))])
-def test_split_transmittance_is_the_product_over_the_shapes_met(variant_name, split, monkeypatch):
+def test_split_transmittance_is_the_product_over_the_shapes_met(variant_name, split):
     """T of straight segments = 0 behind the wall, else the product of the transmittances of
     the glass spheres met (each once, nested ones too), from float64 geometry; the same with
     the crossing walk (split=False), which the split replaces. The split is LLVM only
@@ -142,9 +142,8 @@ def test_split_transmittance_is_the_product_over_the_shapes_met(variant_name, sp
     makes no sub-scenes and walks the crossings): the walk runs on both variants."""
     import drjit as dr
     import mitsuba as mi
-    from links1_mitsuba import intersect, tables
+    from links1_mitsuba import tables, tuning
     use_variant(variant_name)
-    monkeypatch.setattr(intersect, "SPLIT", split)
     scene, integ, P = _prepared(_xml(cube=False))
     if variant_name.startswith("llvm"):
         assert (P.shadow_split is not None) and len(P.shadow_split["trans"]) == len(SPHERES)
@@ -161,7 +160,8 @@ def test_split_transmittance_is_the_product_over_the_shapes_met(variant_name, sp
     o, d, smax = o.astype(np.float32), d.astype(np.float32), smax.astype(np.float32)
     O, D, S = _arrays(o, d, smax)
     cost = dr.zeros(mi.UInt32, n)
-    T = integ._shadow_mitsuba(P, scene, O, D, S, dr.full(mi.Bool, True, n), mi.Color3f(1.0), cost)
+    with tuning.tuned(split=split):
+        T = integ._shadow_mitsuba(P, scene, O, D, S, dr.full(mi.Bool, True, n), mi.Color3f(1.0), cost)
     T = np.asarray(T).T                               # (n, 3)
     o64, d64, s64 = o.astype(np.float64), d.astype(np.float64), smax.astype(np.float64)
     want = np.ones((n, 3))
@@ -187,7 +187,7 @@ def test_split_transmittance_is_the_product_over_the_shapes_met(variant_name, sp
     assert tables.SPLIT_MAX >= len(SPHERES)
 
 
-def test_split_image_matches_the_walk_and_the_core(llvm, monkeypatch):
+def test_split_image_matches_the_walk_and_the_core(llvm):
     """The images with and without the split agree but for a few pixels, where the split is
     the one nearer the core's float64 render.
 
@@ -195,7 +195,7 @@ def test_split_image_matches_the_walk_and_the_core(llvm, monkeypatch):
     through one pipeline, so CUDA walks the crossings, which
     test_split_transmittance_is_the_product_over_the_shapes_met checks there)."""
     from links1.render import make_renderer
-    from links1_mitsuba import intersect
+    from links1_mitsuba import tuning
     import tempfile
     import os
     with tempfile.TemporaryDirectory() as tmp:
@@ -204,8 +204,8 @@ def test_split_image_matches_the_walk_and_the_core(llvm, monkeypatch):
             f.write(_xml())
         imgs = {}
         for split in (True, False):
-            monkeypatch.setattr(intersect, "SPLIT", split)
-            imgs[split] = np.asarray(make_renderer("mitsuba", path, spp=2).render())
+            with tuning.tuned(split=split):
+                imgs[split] = np.asarray(make_renderer("mitsuba", path, spp=2).render())
         core = np.asarray(make_renderer("core", path, spp=2).render())
     differ = np.abs(imgs[True] - imgs[False]).max(axis=2) > 1e-5
     assert differ.mean() < 0.01
