@@ -305,9 +305,10 @@ def define_launches(mi, dr, mix32, u24):
             """The launch as a :func:`drjit.freeze` function of run-time inputs (sample ids,
             sample count, seeds: ``UInt32``; the per-scene tables): recorded once per
             configuration ``cfg`` (scene, AOVs, depth, weight threshold, the switches of
-            :class:`~links1_mitsuba.tuning.Tuning`: hashed Python values; a switch changed after
-            a recording makes another one) and replayed without re-tracing for any pixel set, window or batch size and spp
-            (freeze replays recorded kernels at the widths of the new inputs)."""
+            :class:`~links1_mitsuba.tuning.Tuning` as one number, ``Tuning.key``: hashed Python
+            values; a switch changed after a recording makes another one) and replayed without
+            re-tracing for any pixel set, window or batch size and spp (freeze replays recorded
+            kernels at the widths of the new inputs)."""
             if self._freeze is None:
                 def launch_kernels(sid, n_op, spp, seeds, cfg, tables, scene_input):
                     # no closure: freeze would traverse it (the integrator, the scene ...)

@@ -58,12 +58,14 @@ class Tuning:
     def key(self) -> int:
         """The whole value as one Python int, part of a frozen launch's key (``launch.py``):
         bit k the k-th switch, ``bvh_min`` above them, and bit 62 set. One number rather than a
-        tuple of bools: :func:`drjit.freeze` (Dr.Jit 1.5) told apart keys that differ only in
-        which of several repeated ``True``/``False`` objects is which (a tuple of switches with
-        one False replayed the recording made for another; ``tests/plugins/test_tuning.py``),
-        and bit 62 keeps the number off CPython's shared small ints."""
+        tuple of bools: :func:`drjit.freeze` (Dr.Jit 1.5) does not tell apart keys that differ
+        only in where repeated ``True``/``False`` objects sit (``f(x, (False, (True, False)))``
+        replays the recording of ``f(x, (False, (True, True)))``: box_cull=False replayed the
+        default's launch, ``tests/plugins/test_tuning.py``); bit 62 keeps the number off
+        CPython's shared small ints (a repeated object)."""
         flags = [getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "bvh_min"]
-        return (1 << 62) | (min(self.bvh_min, (1 << 40) - 1) << len(flags)) | sum(int(b) << k for k, b in enumerate(flags))
+        bits = sum(int(b) << k for k, b in enumerate(flags))
+        return (1 << 62) | (min(self.bvh_min, (1 << 40) - 1) << len(flags)) | bits
 
     def tables_key(self) -> tuple:
         """The part that the prepared tables are built from (``tables.py``: the light buffers,
