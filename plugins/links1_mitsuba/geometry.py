@@ -118,7 +118,7 @@ def updated(spec, held: dict, names) -> object:
             c = spec.centers.copy()
             n = len(c)
             if "centers" in names:
-                x = np.array(held["centers"], dtype=np.float64).reshape(-1, 3)
+                x = np.array(held["centers"], dtype=np.float64).reshape(3, -1).T   # (3, N) -> (N, 3)
                 if x.shape != (n, 3):
                     raise ValueError(f"centers: {n} centres expected, got {x.shape[0]} (the count is fixed)")
                 check_finite("centers", x, MAX_EXTENT)
@@ -226,7 +226,7 @@ def _blob_terms(mi, dr, spec, held):
     out = []
     for i, (x, y, z, w, S) in enumerate(spec.centers.tolist()):
         idx = mi.UInt32(i)
-        c = dr.gather(mi.Vector3f, cen, idx) if gc else mi.Vector3f(x, y, z)
+        c = mi.Vector3f(*[dr.gather(mi.Float, cen[k], idx) for k in range(3)]) if gc else mi.Vector3f(x, y, z)
         out.append((c, dr.gather(mi.Float, wts, idx) if gw else mi.Float(w),
                     dr.gather(mi.Float, rad, idx) if gs else mi.Float(S)))
     return out
