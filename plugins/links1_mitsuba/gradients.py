@@ -26,8 +26,10 @@ and the refracted direction (``ior``) are held fixed; silhouettes and shadow edg
 a light or a shape are left out, as Mitsuba's non-projective integrators leave them out (a
 gradient with respect to a light's position is then the derivative of the shading at fixed
 visibility: right away from shadow edges, biased where a pixel straddles one). Not
-differentiated (zero gradient): the shadow transmittance of transparent objects (3-3-3), the
-geometry of every shape (Mitsuba's and links1's), area and environment lights and the cameras.
+differentiated (zero gradient): the geometry of Mitsuba's shapes, area and environment lights
+and the cameras. The links1 shapes' geometry is differentiated (:mod:`links1_mitsuba.geometry`,
+:meth:`Gradients._surface_ad`): the hit moves with the surface by implicit differentiation of
+its equation, silhouettes and shadow edges still held fixed.
 
 Cost: the derivative pass keeps the whole ray tree on Dr.Jit's AD tape (no path replay as
 Mitsuba's PRB): memory grows with pixels × spp × tree size.
