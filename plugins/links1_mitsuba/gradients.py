@@ -26,8 +26,10 @@ and the refracted direction (``ior``) are held fixed; silhouettes and shadow edg
 a light or a shape are left out, as Mitsuba's non-projective integrators leave them out (a
 gradient with respect to a light's position is then the derivative of the shading at fixed
 visibility: right away from shadow edges, biased where a pixel straddles one). Not
-differentiated (zero gradient): the shadow transmittance of transparent objects (3-3-3), the
-geometry of every shape (Mitsuba's and links1's), area and environment lights and the cameras.
+differentiated (zero gradient): the geometry of Mitsuba's shapes, area and environment lights
+and the cameras. The links1 shapes' geometry is differentiated (:mod:`links1_mitsuba.geometry`,
+:meth:`Gradients._surface_ad`): the hit moves with the surface by implicit differentiation of
+its equation, silhouettes and shadow edges still held fixed.
 
 Cost: the derivative pass keeps the whole ray tree on Dr.Jit's AD tape (no path replay as
 Mitsuba's PRB): memory grows with pixels × spp × tree size.
@@ -41,6 +43,7 @@ import copy
 
 import numpy as np
 
+from . import geometry
 from .util import INF
 
 
@@ -186,7 +189,41 @@ def define_gradients(mi, dr, util):
             if j != len(P.lights):
                 raise RuntimeError("links1_whitted: the light table has another size (an internal inconsistency)")
             Q.lights = lights
+            # geometry (geometry.py): the links1 shapes whose parameters have gradients; with any,
+            # every links1 shape is intersected in the pass's own code (no BVH, no light or eye
+            # buffer: their tables hold primal values) and its hits re-attached (_surface_ad)
+            Q.geo_ad = geometry.attached_specs(dr, P.custom, self.geo) or None
+            if Q.geo_ad is not None and P.bvh is not None:
+                Q.bvh, Q.eye_buf, Q.custom_unrolled = None, None, list(P.custom)
             return Q
+
+        def _surface_ad(self, P, o, d, t, slot, prim, p, ng, ns):
+            """The hits on links1 shapes moving with their parameters and with the ray (``o``,
+            ``d`` are attached below a moving surface): ``(t, p, ng, ns)`` with the interior
+            derivative (:func:`geometry.surface_ad`: implicit differentiation of the surface
+            equation at the primal hit)."""
+            moving_ray = dr.grad_enabled(o) or dr.grad_enabled(d)
+            custom = False
+            for sp in P.custom_unrolled:
+                held = P.geo_ad.get(sp.slot)
+                if held is None and not moving_ray:
+                    continue
+                m = slot == sp.slot
+                tn, nn = geometry.surface_ad(mi, dr, sp, held[1] if held else {}, o, d, t, prim, m)
+                t = dr.select(m, tn, t)
+                ng = dr.select(m, nn, ng)
+                ns = dr.select(m, nn, ns)
+                custom = True
+            if custom:
+                p = dr.select(self._custom_slot(P, slot), o + d * t, p)
+            return t, p, ng, ns
+
+        @staticmethod
+        def _custom_slot(P, slot):
+            m = dr.zeros(mi.Bool, dr.width(slot))
+            for sp in P.custom_unrolled:
+                m |= slot == sp.slot
+            return m
 
         def _trace_tree_ad(self, P, scene, o, d, tmin, tmax, key):
             """The ray trees of :meth:`_trace_tree` (the same levels, children, weights, keys and

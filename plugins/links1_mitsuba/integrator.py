@@ -27,6 +27,7 @@ from links1.params import read as l1_read
 
 from ._registry import unsupported_variant
 from .intersect import define_intersect
+from . import geometry
 from .gradients import define_gradients
 from .launch import define_launches
 from .lights import define_lights
@@ -123,6 +124,9 @@ def define_integrator():
         """
 
         custom = _hidden_attr("custom")
+        #: the Dr.Jit values of the links1 shapes' geometry, by slot (geometry.hold)
+        geo = _hidden_attr("geo")
+        geo_seen = _hidden_attr("geo_seen")
         custom_bsdfs = _hidden_attr("custom_bsdfs")
         slot_of_id = _hidden_attr("slot_of_id")
         shape_names = _hidden_attr("shape_names")
@@ -189,6 +193,8 @@ def define_integrator():
             """Called by the loader: the custom shapes, the file order of all shapes and where
             each object is in the file (for warnings)."""
             self.custom = list(custom)
+            self.geo = {sp.slot: geometry.hold(sp) for sp in self.custom}
+            self.geo_seen = {sl: geometry.seen(h) for sl, h in self.geo.items()}
             self.slot_of_id = dict(slot_of_id)
             self.shape_names = shape_names
             self.places = places
@@ -226,18 +232,45 @@ def define_integrator():
                                "or render_window(), not sample()")
 
         def traverse(self, callback):
-            """The BSDFs of the links1 shapes (``links1_quadric``, ``links1_blob``: not Mitsuba
-            shapes, links1_whitted holds them), named as Mitsuba names a shape's BSDF under the
-            integrator's id: ``links1_whitted.<shape id>.bsdf.<parameter>`` (issue 23); a BSDF
-            declared at the top of the file keeps its own name (``<bsdf id>.<parameter>``)."""
-            names = {sl: name for sl, name, _ in (self.shape_names or [])}
+            """The links1 shapes (``links1_quadric``, ``links1_blob``: not Mitsuba shapes,
+            links1_whitted holds them), named as Mitsuba names a shape's parameters under the
+            integrator's id (issue 23): their BSDFs, ``links1_whitted.<shape id>.bsdf.<parameter>``
+            (a BSDF declared at the top of the file keeps its own name, ``<bsdf id>.<parameter>``),
+            and their geometry (:mod:`links1_mitsuba.geometry`): ``<shape id>.to_world``, a
+            quadric's ``clip_<k>_offset``, a blob's ``centers``, ``weights``, ``radii`` and
+            ``threshold`` (differentiable and discontinuous, as a Mitsuba shape's ``to_world``:
+            they move silhouettes, which the gradients leave out)."""
+            names = self._shape_name_of()
             for sl, b in sorted(self.custom_bsdfs.items()):
                 if sl in self.shared_bsdfs:   # named by its own id (a top-level BSDF of the file)
                     continue
-                callback.put(f"{names.get(sl, f'_links1_slot_{sl}')}.bsdf", b, mi.ParamFlags.Differentiable)
+                callback.put(f"{names(sl)}.bsdf", b, mi.ParamFlags.Differentiable)
+            flags = mi.ParamFlags.Differentiable | mi.ParamFlags.Discontinuous
+            for sp in self.custom:
+                held = (self.geo or {}).get(sp.slot)
+                for k in geometry.param_names(sp) if held is not None else []:
+                    callback.put(f"{names(sp.slot)}.{k}", held[k], flags)
+
+        def _shape_name_of(self):
+            names = {sl: name for sl, name, _ in (self.shape_names or [])}
+            return lambda sl: names.get(sl, f"_links1_slot_{sl}")
 
         def parameters_changed(self, keys):
-            pass
+            """``params.update()``: the links1 shapes whose geometry changed get a new spec
+            (checked as the loader checks a file: ValueError otherwise), and the tables are
+            built again at the next frame (BVH, blob tables). ``keys`` holds only the last part
+            of each key (``to_world``, not which shape's), so a value changed is one whose Dr.Jit
+            variables are not those seen last (:func:`geometry.changed`)."""
+            changed = False
+            for i, sp in enumerate(self.custom):
+                held = (self.geo or {}).get(sp.slot)
+                mine = geometry.changed(held, self.geo_seen[sp.slot]) if held is not None else []
+                if mine:
+                    self.custom[i] = geometry.updated(sp, held, mine)
+                    self.geo_seen[sp.slot] = geometry.seen(held)
+                    changed = True
+            if changed:
+                self._prep = None
 
         def aov_names(self):
             return channel_names(self.aovs)[3:]

@@ -41,6 +41,17 @@ def define_intersect(mi, dr, util):
                 t = dr.full(mi.Float, INF, dr.width(o))
                 slot = dr.full(mi.Int32, -1, dr.width(o))
             prim = dr.zeros(mi.UInt32, dr.width(o))
+            if getattr(P, "ad", False):
+                # a derivative pass: the links1 shapes' hits on primal values (re-attached by
+                # gradients._surface_ad: implicit differentiation, not through the solvers)
+                with dr.suspend_grad():
+                    t, slot, prim = self._nearest_custom(P, o, d, tmin, tmax, active, cost, camera, t, slot, prim)
+                return t, slot, si, prim
+            t, slot, prim = self._nearest_custom(P, o, d, tmin, tmax, active, cost, camera, t, slot, prim)
+            return t, slot, si, prim
+
+        def _nearest_custom(self, P, o, d, tmin, tmax, active, cost, camera, t, slot, prim):
+            """:meth:`_nearest` over the links1 shapes, from the Mitsuba hit ``(t, slot, prim)``."""
             # ties at the same distance go to the lower slot (file order), as in the core
             # (links1.accel): a shape after the current best may not tie, one before it may
             for spec in P.custom_unrolled:
@@ -63,7 +74,7 @@ def define_intersect(mi, dr, util):
                 t = dr.select(better, tq, t)
                 slot = dr.select(better, sq, slot)
                 prim = dr.select(better, part, prim)
-            return t, slot, si, prim
+            return t, slot, prim
 
         def _shadow_custom(self, P, o, d, smax, active, cost, specs=None, light=None):
             """Transmittance (3-3-3) through the links1 shapes: product of shadow_t over the

@@ -82,6 +82,9 @@ def define_raytree(mi, dr, util):
                 nc = P.bvh.normal(mi.UInt32(dr.maximum(qi, 0)), o, d, t, prim, m)
                 ng = dr.select(m, nc, ng)
                 ns = dr.select(m, nc, ns)
+            if ad and getattr(P, "geo_ad", None) is not None:
+                # a derivative pass with geometry: the hits move with the surfaces (gradients.py)
+                t, p, ng, ns = self._surface_ad(P, o, d, t, slot, prim, p, ng, ns)
             wo = -d
             front = dr.dot(ng, wo) > 0
             nf = dr.select(front, ns, -ns)
@@ -192,6 +195,8 @@ def define_raytree(mi, dr, util):
                     contrib = f_eval(wi) * Ls
                     lit = hit & (dr.max(contrib) > 0)
                     so, smax = offset(wi), dist - 2.0 * eps
+                    if ad:   # visibility on primal values (the shadow ray's place is attached)
+                        so, wi, smax = dr.detach(so), dr.detach(wi), dr.detach(smax)
                     T, need, occ_m = shadow(jl, so, wi, smax, lit, contrib)
                     pending.append((contrib, so, wi, smax, lit, need, T, occ_m, jl))
                 m_inv = 1.0 / self.light_samples
@@ -211,6 +216,8 @@ def define_raytree(mi, dr, util):
                         contrib = f_eval(wi) * Lw * m_inv
                         lit = hit & (dr.max(contrib) > 0)
                         so = offset(wi)
+                        if ad:
+                            so, wi, smax = dr.detach(so), dr.detach(wi), dr.detach(smax)
                         T, need, occ_m = shadow(jsh, so, wi, smax, lit, contrib)
                         pending.append((contrib, so, wi, smax, lit, need, T, occ_m, jsh))
                 if P.any_mitsuba_shapes and pending and not symbolic and not skip:
