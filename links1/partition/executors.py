@@ -99,6 +99,12 @@ class RenderResult:
     t0_wall: float | None = None       # time.time() at the first dispatch (for dispatch latency)
     backend: str = ""
     n_nodes: int = 0
+    #: the root's own time inside the makespan, measured (wall clock): [kind, start, stop] with
+    #: kind "dispatch" (handing a task to a node) or "assembly" (placing a unit's pixels)
+    root_events: list = field(default_factory=list)
+    #: node -> seconds its start took (process start, scene load, warm-up: before the clock),
+    #: measured by the backend when the node started (maybe in an earlier run of the same pool)
+    startup_s: dict = field(default_factory=dict)
 
 
 def default_log(msg: str) -> None:
@@ -152,7 +158,8 @@ def render_plan(plan, spec: RendererSpec, backend, *, checkpoint=None, progress:
 
     def on_done(i, pixels, info):
         t = time.perf_counter()
-        info.setdefault("received", time.time())  # root clock (wall): the result is here
+        w0 = time.time()
+        info.setdefault("received", w0)  # root clock (wall): the result is here
         u = plan.units[i]
         if pixels.shape[:2] != (u.h, u.w):
             raise RuntimeError(f"unit {u.window}: node returned {pixels.shape[:2]}, expected {(u.h, u.w)}")
@@ -164,6 +171,7 @@ def render_plan(plan, spec: RendererSpec, backend, *, checkpoint=None, progress:
         if bar is not None:
             bar.update(1)
         info["root_s"] = time.perf_counter() - t  # the root's own time for this unit (assembly)
+        res.root_events.append(["assembly", w0, w0 + info["root_s"]])
 
     def on_fault(msg):
         res.faults.append(msg)
@@ -173,6 +181,8 @@ def render_plan(plan, spec: RendererSpec, backend, *, checkpoint=None, progress:
         if todo:
             backend.start(spec)
             res.n_nodes = backend.n_nodes
+            res.startup_s = dict(getattr(backend, "startup_s", None) or {})
+            backend.root_events = res.root_events   # a backend may log its dispatches here
             res.t0_wall = time.time()   # the nodes' records use wall clocks (same machine)
             t0 = time.perf_counter()
             backend.run(plan, todo, spec, cull or {}, on_done, on_fault)
@@ -199,6 +209,7 @@ class InProcess:
 
     name = "inprocess"
     n_nodes = 1
+    root_events = None
 
     def __init__(self, chunk_factor: int = CHUNK_FACTOR, task_pixels: int = TASK_PIXELS, chunk_by: str = "units"):
         self.chunk_factor, self.task_pixels = int(chunk_factor), int(task_pixels)
@@ -207,8 +218,10 @@ class InProcess:
     def start(self, spec):
         # as a local worker's start (start_worker): recordings and caches before the first
         # unit, so a unit's time is work, not the frozen launch's recording (schedule --nodes 1:
-        # its first launch took 106 ms against 23 ms warm)
+        # its first launch took 106 ms against 23 ms warm); its time is the node's start-up
+        t = time.perf_counter()
         warm_up(get_renderer(spec))
+        self.startup_s = {0: time.perf_counter() - t}
 
     def call(self, fn, *args):
         """Run ``fn(*args)`` on a node (here: this process)."""
@@ -328,10 +341,18 @@ class LocalPool:
         self.hello: dict = {}      # node -> start_worker future while the node is starting
         self._spec_key = None
         self._spec = None
+        self.spawned: dict = {}    # node -> wall time its process was asked to start
+        self.startup_s: dict = {}  # node -> seconds from that to its scene loaded and warm (measured)
+        self.root_events = None    # render_plan's list: the root's dispatches are logged there
 
     @property
     def n_nodes(self) -> int:
         return self.n
+
+    def _log(self, kind, w0):
+        ev = self.root_events
+        if ev is not None:
+            ev.append([kind, w0, time.time()])
 
     def _spawn(self, k):
         """Start node k's worker process: a one-process pool whose first task loads the scene."""
@@ -344,6 +365,7 @@ class LocalPool:
             pool = ProcessPoolExecutor(1, mp_context=mp.get_context("spawn"))
             self.pools[k] = pool
             self.pids.pop(k, None)
+            self.spawned[k] = time.time()
             self.hello[k] = pool.submit(start_worker, self._spec)  # the process starts here
         finally:
             for v, old in saved.items():
@@ -405,6 +427,7 @@ class LocalPool:
                 continue
             self.hello.pop(k, None)
             self.pids[k], self.batches = pid
+            self.startup_s[k] = time.time() - self.spawned.get(k, time.time())
 
     def run(self, plan, todo, spec, cull, on_done, on_fault):
         from concurrent.futures import FIRST_COMPLETED, wait
@@ -437,6 +460,7 @@ class LocalPool:
                 else:
                     batch = guided_batch(plan, q, self.n, self.chunk_factor, self.task_pixels,
                                          by_load=self.chunk_by == "load")
+                w0 = time.time()
                 try:
                     f = self.pools[k].submit(render_units, spec, [plan.units[i].window for i in batch],
                                              [cull.get(i) for i in batch])
@@ -444,6 +468,7 @@ class LocalPool:
                     q.extendleft(reversed(batch))
                     lose(k, "while idle")
                     return
+                self._log("dispatch", w0)
                 pending[f] = (batch, k)
                 busy += 1
 
