@@ -61,10 +61,16 @@ def chunk_size(remaining, n_nodes, chunk_factor):
 
 
 def guided_batch(plan, queue, n_nodes, chunk_factor, max_pixels=TASK_PIXELS, by_load=False):
-    """The next dynamic chunk: :func:`chunk_size` units, or with ``by_load`` (and a plan that
+    """The next dynamic chunk: :func:`chunk_size` units (one node: every unit the pixel budget
+    allows), or with ``by_load`` (and a plan that
     predicts each unit's load) units up to ``remaining load / (k nodes)`` of predicted load
     (at least one): guided self-scheduling that weighs units, so a chunk of the heaviest
     units (LPT order) is not k x nodes times the work it should be."""
+    if n_nodes <= 1 and chunk_factor > 0:
+        # one node has nobody to balance with: smaller chunks would only add launches, each
+        # paying the renderer's per-launch cost (issue 28: one node's dynamic frame took 1.2-1.5x
+        # the one-process frame in 5 guided launches); it takes what the task budget allows
+        return take_batch(plan, queue, None, max_pixels)
     pred = getattr(plan, "predicted", None)
     if not by_load or pred is None or chunk_factor <= 0:
         return take_batch(plan, queue, chunk_size(len(queue), n_nodes, chunk_factor), max_pixels)
@@ -398,6 +404,9 @@ class LocalPool:
         threads = spec.threads or self.threads or threads_per_worker(self.n)
         self._spec = RendererSpec(spec.kind, spec.path, spec.options, threads)
         self._spec_key = spec.key
+        # computed here, the key travels with every pickled task: a node does not re-read and
+        # re-hash the scene file per task (0.2-4 ms each on many.xml, growing with the file)
+        self._spec.key  # noqa: B018
         self.deaths = 0
         try:
             for k in range(self.n):
