@@ -28,7 +28,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import RenderAborted
-from .runtime import THREAD_ENV, RendererSpec, can_batch, get_renderer, render_units, start_worker, warm_up
+from .runtime import (THREAD_ENV, RendererSpec, SharedFrame, can_batch, get_renderer, release_frame, render_units,
+                      start_worker, warm_up)
 
 #: A unit that has killed this many workers is reported as an error (Dask's allowed-failures).
 ALLOWED_FAILURES = 3
@@ -330,7 +331,7 @@ class LocalPool:
 
     def __init__(self, n_workers: int, threads: int | None = None, prefetch: int = 2,
                  max_deaths: int | None = None, log=default_log, chunk_factor: int = CHUNK_FACTOR,
-                 task_pixels: int = TASK_PIXELS, chunk_by: str = "units"):
+                 task_pixels: int = TASK_PIXELS, chunk_by: str = "units", shared_frame: bool = True):
         if n_workers < 1:
             raise ValueError(f"workers must be >= 1, got {n_workers}")
         self.n = int(n_workers)
@@ -339,6 +340,10 @@ class LocalPool:
         self.chunk_factor, self.task_pixels = int(chunk_factor), int(task_pixels)
         self.chunk_by = chunk_by
         self.batches = True        # the renderer renders batches (set when a worker is ready)
+        self.channels = None       # channels of its pixels (set when a worker is ready)
+        #: nodes write results into a frame the root maps (runtime.SharedFrame) instead of
+        #: sending them through the pipe
+        self.shared_frame = bool(shared_frame)
         self.max_deaths = DEATHS_PER_WORKER * self.n if max_deaths is None else int(max_deaths)
         self.log = log
         self.deaths = 0
@@ -435,13 +440,28 @@ class LocalPool:
                 self.log(f"links1: {self._died(k, 'while starting')}; a replacement is starting")
                 continue
             self.hello.pop(k, None)
-            self.pids[k], self.batches = pid
+            self.pids[k], self.batches = pid[:2]
+            self.channels = pid[2] if len(pid) > 2 else None
             self.startup_s[k] = time.time() - self.spawned.get(k, time.time())
 
     def run(self, plan, todo, spec, cull, on_done, on_fault):
+        spec = self._spec
+        frame = None
+        if self.shared_frame and self.channels:
+            try:
+                frame = SharedFrame(plan.height, plan.width, self.channels)
+            except OSError:  # no room for it: results go through the pipe
+                frame = None
+        try:
+            self._run(plan, todo, spec, cull, on_done, on_fault, frame)
+        finally:
+            if frame is not None:
+                frame.close()
+
+    def _run(self, plan, todo, spec, cull, on_done, on_fault, frame):
         from concurrent.futures import FIRST_COMPLETED, wait
         from concurrent.futures.process import BrokenProcessPool
-        spec = self._spec
+        ref = None if frame is None else frame.ref
         failures = {}
         if plan.static:
             queues = {k: deque() for k in range(self.n)}
@@ -472,7 +492,7 @@ class LocalPool:
                 w0 = time.time()
                 try:
                     f = self.pools[k].submit(render_units, spec, [plan.units[i].window for i in batch],
-                                             [cull.get(i) for i in batch])
+                                             [cull.get(i) for i in batch], ref)
                 except (BrokenProcessPool, RuntimeError):  # it died while idle: noticed at this submit
                     q.extendleft(reversed(batch))
                     lose(k, "while idle")
@@ -526,6 +546,9 @@ class LocalPool:
                 del pending[f]
                 for i, (px, info) in zip(batch, results):
                     info["node"] = k
+                    if px is None:  # written into the shared frame by the node
+                        u = plan.units[i]
+                        px = frame.array[u.y0:u.y0 + u.h, u.x0:u.x0 + u.w]
                     on_done(i, px, info)
             for k in sorted(lost):
                 lose(k, "mid-unit")
@@ -547,7 +570,7 @@ class LocalPool:
         pings = {}
         for k in [k for k in range(self.n) if k not in self.hello]:
             try:
-                pings[k] = self.pools[k].submit(os.getpid)
+                pings[k] = self.pools[k].submit(release_frame)  # -> its pid, the frame unmapped
             except (BrokenProcessPool, RuntimeError):
                 pings[k] = None
         wait([f for f in pings.values() if f is not None], timeout=60)
