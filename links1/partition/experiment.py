@@ -260,7 +260,8 @@ TIME_SPLIT_SOURCES = {
                   "than the reference: contention for cores, the machine's drift",
     "dispatch_s": "measured: first dispatch (the clock's start) to the node's first launch",
     "transfer_s": "measured: node not in a launch while one of its results is on its way to the root "
-                  "(readied, pickled, sent, until the root holds it)",
+                  "(readied, written or pickled and sent, until the root holds it); in-process: its results "
+                  "readied and placed in the frame",
     "waiting_s": "measured: the rest: the node idle with nothing to do (no task queued, or done while "
                  "others work)",
     "startup_s": "measured, before the clock (not in the makespan): process start, scene load, warm-up",
@@ -289,6 +290,8 @@ def time_split(result, launches, tasks, cm, *, planning=None) -> dict:
     if T0 is None or span <= 0:
         return None
     T1 = T0 + span
+    ev = list(getattr(result, "root_events", None) or [])
+    in_process = getattr(result, "backend", "") == "inprocess"
     per_launch = (cm or {}).get("per_launch_s", 0.0) or 0.0
     per_unit = (cm or {}).get("per_unit_s", 0.0) or 0.0
     nodes = sorted({str(ln["node"]) for ln in launches} | {str(k) for k in range(int(result.n_nodes or 0))})
@@ -313,6 +316,8 @@ def time_split(result, launches, tasks, cm, *, planning=None) -> dict:
         if T1 > at:
             gaps.append((at, T1))
         flight = [(t["stop"], t["received"]) for t in tasks if str(t["node"]) == k and t.get("received") is not None]
+        if in_process:  # the node is the root: placing its results in the frame is its transfer
+            flight += [(a, b) for kind, a, b in ev if kind == "assembly"]
         xfer = [piece for g in gaps for piece in _cut(flight, *g)]
         transfer = sum(b - a for a, b in xfer)
         dispatch = first - T0
@@ -327,10 +332,8 @@ def time_split(result, launches, tasks, cm, *, planning=None) -> dict:
                                   for iv, ln in zip(busy, mine)] if len(busy) == len(mine) else
                        [rel(iv) + [None, None] for iv in busy],
                        "transfer": [rel(iv) for iv in xfer]}
-    ev = list(getattr(result, "root_events", None) or [])
     disp = sum(b - a for a, b in _cut([(a, b) for kind, a, b in ev if kind == "dispatch"], T0, T1))
     asm = sum(b - a for a, b in _cut([(a, b) for kind, a, b in ev if kind == "assembly"], T0, T1))
-    in_process = getattr(result, "backend", "") == "inprocess"
     rendering = sum(v["launches_s"] for v in out_nodes.values()) if in_process else 0.0
     root = {"dispatch_s": disp, "assembly_s": asm, "rendering_s": rendering,
             "waiting_s": span - disp - asm - rendering, "total_s": span}
@@ -553,6 +556,20 @@ def measure_overhead(spec, n_units: int = 64, repeat: int = 3, batched: bool = T
     out["alone_units"].append({"window": [0, 0, w, h], "pixels": w * h, "ray_tests": frame_tests, "seconds": f,
                                "frame": True})
     return out
+
+
+def frame_seconds(spec, repeat: int = 1) -> float:
+    """The whole frame as one launch on this node (its threads, warm): median seconds of
+    ``repeat`` renders (the benchmark's one-process frame, measured next to each run)."""
+    from .runtime import get_renderer
+    r = get_renderer(spec)
+    w, h = r.film_size
+    out = []
+    for _ in range(max(1, int(repeat))):
+        t = time.perf_counter()
+        r.render(window=(0, 0, w, h))
+        out.append(time.perf_counter() - t)
+    return float(np.median(out))
 
 
 # ---------------------------------------------------------------------- simulator
