@@ -71,6 +71,16 @@ def one_thread(renderer):
     set_threads(1, renderer)
 
 
+def capacity(pool, spec, alone_s):
+    """What this machine gives N one-thread processes at once, measured: every node renders the
+    whole frame at the same time; N x (the frame alone on node 0) / (the slowest of them). N on a
+    machine with N free cores; less where other work takes cores (this shared VM)."""
+    from links1.partition.experiment import frame_seconds
+    futs = [pool.pools[k].submit(frame_seconds, spec) for k in range(pool.n)]
+    together = [f.result(timeout=600) for f in futs]
+    return pool.n * alone_s / max(together)
+
+
 def run_point(renderer, scene, res, nodes, strategies, repeat, ref_repeat, spp):
     """Every strategy ``repeat`` times on ``nodes`` one-thread nodes -> raw rows."""
     from functools import partial
@@ -79,7 +89,7 @@ def run_point(renderer, scene, res, nodes, strategies, repeat, ref_repeat, spp):
     from links1.partition.executors import LocalPool, render_plan
     from links1.partition.experiment import build_report, frame_seconds
     from links1.render import aov_channel
-    rows, ref = [], None
+    rows, ref, cap = [], None, {}
     for k in range(repeat):
         for strategy in strategies:
             args = _args(renderer, scene, res, strategy, nodes, spp)
@@ -90,6 +100,8 @@ def run_point(renderer, scene, res, nodes, strategies, repeat, ref_repeat, spp):
             if ref is None:  # the cost model's units launched alone, once per point
                 ref = pcli._reference(backend, spec, ref_repeat)
             frame = backend.call(partial(frame_seconds, repeat=1), spec)   # node 0, right after the run
+            if isinstance(backend, LocalPool) and cap.get(k) is None:
+                cap[k] = capacity(backend, spec, frame)
             cc = aov_channel(channels, "cost")
             rep = build_report(res_, plan, model, cost_channel=cc, reference=ref,
                                meta={"spp": spec.kwargs.get("spp")}, chunk_factor=backend.chunk_factor,
@@ -102,13 +114,19 @@ def run_point(renderer, scene, res, nodes, strategies, repeat, ref_repeat, spp):
                    "busy_efficiency": rep["busy_efficiency"], "imbalance": rep["imbalance"],
                    "launches": rep["launches"], "scale": (rep.get("overheads") or {}).get("scale"),
                    "shares": ts["shares"], "root": ts["root"], "startup_s": ts["startup_s"],
-                   "per_launch_s": (rep.get("cost_model") or {}).get("per_launch_s")}
+                   "per_launch_s": (rep.get("cost_model") or {}).get("per_launch_s"),
+                   "capacity": cap.get(k, 1.0 if nodes == 1 else None)}
             rows.append(row)
             print(f"{renderer:8s} {scene:6s} {res:5d} n={nodes:2d} #{k} {strategy:17s} makespan {m * 1e3:8.1f} ms "
                   f"frame {frame * 1e3:8.1f} ms  true eff {row['true_efficiency']:.3f}  "
                   + " ".join(f"{p} {ts['shares'][p]:.2f}" for p in PARTS), file=sys.stderr, flush=True)
     pcli._close_backends()
     return rows
+
+
+def _median(v):
+    v = [x for x in v if x is not None]
+    return float(np.median(v)) if v else None
 
 
 def summarise(raw):
@@ -135,7 +153,10 @@ def summarise(raw):
                       "imbalance": float(np.median([r["imbalance"] or 1.0 for r in rs])),
                       "launches": float(np.median([r["launches"] for r in rs])),
                       "shares": med, "target": target, "met": None if target is None else te_m >= target,
-                      "stopped_by": stop, "repeats": len(rs)})
+                      "stopped_by": stop, "repeats": len(rs),
+                      "capacity": _median([r.get("capacity") for r in rs]),
+                      "efficiency_of_capacity": _median([r["speedup"] / r["capacity"] for r in rs
+                                                         if r.get("capacity")])})
     return table
 
 
@@ -229,6 +250,10 @@ def main(argv=None):
     print(md)
 
 
+def _f(v):
+    return "" if v is None else f"{v:.2f}"
+
+
 def markdown(table, info, a) -> str:
     lines = [f"# Speed-up and true efficiency against node count (`python -m compare.scaling_nodes --nodes {a.nodes} "
              f"--scenes {a.scenes} --renderers {a.renderers} --res {a.res}{' --big' if a.big else ''} --repeat "
@@ -242,11 +267,15 @@ def markdown(table, info, a) -> str:
              "makespans. The shares split nodes x makespan (the report's `time_split`): work and launch overhead "
              "derived from the cost model (at the reference's speed), slowdown = measured launches - both (nodes "
              "slower than one node alone: contention, drift), dispatch, transfer, waiting measured. *stopped by*: "
-             "where a target is missed, the largest share that is not work.", "",
+             "where a target is missed, the largest share that is not work. *capacity*: the speed-up this "
+             "machine gave N one-thread processes at that moment, measured (every node rendering the whole frame "
+             "at once: N x frame alone / the slowest; N with N free cores); *of capacity*: speed-up / capacity, "
+             "the partitioning's efficiency on the cores it got.", "",
              "| renderer | scene | res | strategy | nodes | frame ms | makespan ms | speed-up | true eff [min-max] "
-             "| spread | launches | work | launch ovh | slowdown | dispatch | transfer | waiting | target | stopped by |",
+             "| spread | launches | work | launch ovh | slowdown | dispatch | transfer | waiting | target | stopped by "
+             "| capacity | of capacity |",
              "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- "
-             "| --- | --- |"]
+             "| --- | --- | --- | --- |"]
     for r in table:
         sh = r["shares"]
         tgt = "" if r["target"] is None else f"{r['target']:.2f} {'met' if r['met'] else 'missed'}"
@@ -254,7 +283,8 @@ def markdown(table, info, a) -> str:
                      f"{r['frame_s'] * 1e3:.0f} | {r['makespan_s'] * 1e3:.0f} | {r['speedup']:.2f}x | "
                      f"{r['true_efficiency']:.2f} [{r['te_min']:.2f}-{r['te_max']:.2f}] | "
                      f"{r['makespan_spread'] * 100:.0f} % | {r['launches']:.0f} | "
-                     + " | ".join(f"{sh[p]:.2f}" for p in PARTS) + f" | {tgt} | {r['stopped_by'] or ''} |")
+                     + " | ".join(f"{sh[p]:.2f}" for p in PARTS) + f" | {tgt} | {r['stopped_by'] or ''} | "
+                     f"{_f(r['capacity'])} | {_f(r['efficiency_of_capacity'])} |")
     return "\n".join(lines) + "\n"
 
 
