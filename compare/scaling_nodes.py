@@ -129,15 +129,33 @@ def _median(v):
     return float(np.median(v)) if v else None
 
 
+def at_run_speed(row) -> dict:
+    """A run's shares with work and launch overhead at the speed of the frame measured right after
+    it (``frame_s``) rather than the reference's (measured once per point, maybe in a slower or
+    faster minute of this shared machine): both times f = frame_s / reference frame, the
+    difference moved to slowdown, so that the work share is the true efficiency (less one
+    launch constant) and the shares still add up to 1."""
+    sh = dict(row["shares"])
+    te, te_ref = row.get("true_efficiency"), row.get("true_efficiency_reference")
+    if not te or not te_ref:
+        return sh
+    f = te / te_ref
+    moved = (1.0 - f) * (sh["work"] + sh["launch_overhead"])
+    sh["work"] *= f
+    sh["launch_overhead"] *= f
+    sh["slowdown"] += moved
+    return sh
+
+
 def summarise(raw):
-    """Medians per (renderer, scene, res, strategy, nodes)."""
+    """Medians per (renderer, scene, res, strategy, nodes); shares at each run's own speed."""
     keys = sorted({(r["renderer"], r["scene"], r["res"], r["strategy"], r["nodes"]) for r in raw},
                   key=lambda t: (t[0], t[1], t[2], t[3], t[4]))
     table = []
     for key in keys:
         rs = [r for r in raw if (r["renderer"], r["scene"], r["res"], r["strategy"], r["nodes"]) == key]
         te = [r["true_efficiency"] for r in rs]
-        med = {p: float(np.median([r["shares"][p] for r in rs])) for p in PARTS}
+        med = {p: float(np.median([at_run_speed(r)[p] for r in rs])) for p in PARTS}
         target = TARGETS.get((key[0], key[4])) if key[2] == 512 else None
         te_m = float(np.median(te))
         stop = None
@@ -221,7 +239,19 @@ def main(argv=None):
     ap.add_argument("--reference-repeat", type=int, default=1)
     ap.add_argument("--strategies", default=",".join(STRATEGIES))
     ap.add_argument("--out", default="scaling_nodes")
+    ap.add_argument("--resummarise", action="store_true",
+                    help="re-read compare/results/OUT.json's raw runs and rewrite its table, md and plot")
     a = ap.parse_args(argv)
+    if a.resummarise:
+        data = json.loads((RESULTS / f"{a.out}.json").read_text())
+        table = summarise(data["raw"])
+        data["table"] = table
+        (RESULTS / f"{a.out}.json").write_text(json.dumps(data, indent=1, default=float))
+        plot(table, RESULTS / f"{a.out}.png")
+        md = markdown(table, data["machine"], Namespace(**data["args"]))
+        (RESULTS / f"{a.out}.md").write_text(md)
+        print(md)
+        return
     nodes_list = [int(v) for v in a.nodes.split(",")]
     strategies = [s for s in a.strategies.split(",") if s]
     info = machine()
@@ -264,8 +294,9 @@ def markdown(table, info, a) -> str:
              "Every node renders with one thread; node count 1 renders in-process. *frame*: the one-process frame "
              "(the whole frame as one launch on node 0, one thread, measured right after each run). *true eff*: "
              "frame / (nodes x makespan), median over the repeats, [min-max]. *spread*: (max - min) / median of the "
-             "makespans. The shares split nodes x makespan (the report's `time_split`): work and launch overhead "
-             "derived from the cost model (at the reference's speed), slowdown = measured launches - both (nodes "
+             "makespans. The shares split nodes x makespan (the report's `time_split`, medians): work and launch "
+             "overhead derived from the cost model, rescaled to the speed of the frame measured right after the run "
+             "(so work is the true efficiency less one launch constant), slowdown = measured launches - both (nodes "
              "slower than one node alone: contention, drift), dispatch, transfer, waiting measured. *stopped by*: "
              "where a target is missed, the largest share that is not work. *capacity*: the speed-up this "
              "machine gave N one-thread processes at that moment, measured (every node rendering the whole frame "

@@ -331,7 +331,7 @@ class LocalPool:
 
     def __init__(self, n_workers: int, threads: int | None = None, prefetch: int = 2,
                  max_deaths: int | None = None, log=default_log, chunk_factor: int = CHUNK_FACTOR,
-                 task_pixels: int = TASK_PIXELS, chunk_by: str = "units", shared_frame: bool = True):
+                 task_pixels: int = TASK_PIXELS, chunk_by: str = "units", shared_frame: bool = False):
         if n_workers < 1:
             raise ValueError(f"workers must be >= 1, got {n_workers}")
         self.n = int(n_workers)
@@ -342,7 +342,8 @@ class LocalPool:
         self.batches = True        # the renderer renders batches (set when a worker is ready)
         self.channels = None       # channels of its pixels (set when a worker is ready)
         #: nodes write results into a frame the root maps (runtime.SharedFrame) instead of
-        #: sending them through the pipe
+        #: sending them through the pipe; off by default: on this 2-core VM mapping a fresh
+        #: frame's pages cost as much as the pipe (issue 28, docs/partitioning.md)
         self.shared_frame = bool(shared_frame)
         self.max_deaths = DEATHS_PER_WORKER * self.n if max_deaths is None else int(max_deaths)
         self.log = log

@@ -22,7 +22,7 @@ def _frames():
 def test_shared_frame_gives_the_same_bits_as_the_pipe(strategy, core_spec, core_ref):
     before = _frames()
     plan = make_plan(strategy, 32, 32, 2, tiles_per_node=4, unit="tile")
-    with LocalPool(2) as pool:
+    with LocalPool(2, shared_frame=True) as pool:
         res = render_plan(plan, core_spec, pool, progress=False)
         assert pool.channels == core_ref.shape[2]
         piped = LocalPool(2, shared_frame=False)
