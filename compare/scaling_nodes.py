@@ -198,6 +198,11 @@ def plot(table, path):
                         yerr=[[r["true_efficiency"] - r["te_min"] for r in rs],
                               [r["te_max"] - r["true_efficiency"] for r in rs]],
                         marker="o", capsize=3, color=colours[s], label=s)
+        caps = sorted({(r["nodes"], r["capacity"]) for r in rows if r.get("capacity")})
+        if caps:  # the best true efficiency this machine allowed at that moment (measured)
+            cn = sorted({n for n, _ in caps})
+            ax.plot(cn, [np.median([c for n2, c in caps if n2 == n]) / n for n in cn], "k--", linewidth=1,
+                    label="machine capacity / nodes")
         for (rend, n), t in TARGETS.items():
             if rend == g[0] and g[2] == 512 and n <= max(r["nodes"] for r in rows):
                 ax.plot([n], [t], marker="_", markersize=18, color="k")
