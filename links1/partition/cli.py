@@ -115,9 +115,13 @@ def _check_backend_args(args, workers):
         raise UsageError("--workers is for the local pool; with Dask give --scheduler or --dask-local only")
 
 
-def _model_and_channels(spec, args):
-    """The root's scene model (core loader: shapes, camera) and the output channel names."""
+def _model_and_channels(spec, args, timing=None):
+    """The root's scene model (core loader: shapes, camera) and the output channel names
+    (``timing``: a dict that gets ``root_load_s``, the root's scene read, and ``model_s``)."""
+    import time
+
     from ..render import channel_names
+    timing = {} if timing is None else timing
     from .loadmodel import load_table, scene_model
     table = load_table(getattr(args, "load_table", None), renderer=spec.kind)
     root_spec = spec
@@ -131,8 +135,12 @@ def _model_and_channels(spec, args):
         with warnings.catch_warnings():
             if root_spec is not spec:  # the core's approximations do not concern another renderer
                 warnings.simplefilter("ignore", SceneWarning)
+            t = time.perf_counter()
             r = get_renderer(root_spec)
+            timing["root_load_s"] = time.perf_counter() - t
+        t = time.perf_counter()
         model = scene_model(r, path=spec.path, params=spec.kwargs.get("params"), table=table)
+        timing["model_s"] = time.perf_counter() - t
         channels = list(r.channels)
     except UsageError:
         raise
@@ -202,8 +210,10 @@ def prepare(args, *, nodes=None):
     from .strategies import make_plan
     workers = getattr(args, "workers", nodes)
     _check_backend_args(args, workers)
+    import time
     spec = _spec_from_args(args)
-    model, channels = _model_and_channels(spec, args)
+    timing = {}
+    model, channels = _model_and_channels(spec, args, timing)
     if workers == "auto":
         from .executors import default_workers
         work = model.width * model.height * (spec.kwargs.get("spp") or 1)
@@ -217,8 +227,13 @@ def prepare(args, *, nodes=None):
                 n_nodes = max(1, len(c.scheduler_info(n_workers=-1)["workers"]))
     else:
         n_nodes = max(1, int(workers))
+    t = time.perf_counter()
     plan = make_plan(args.partition, model.width, model.height, n_nodes, tiles_per_node=args.tiles_per_node,
                      unit=args.unit, load_map=model.load_map(), order=args.order)
+    # the root's time before the clock (measured): the scene read (cached: 0 after the first
+    # run in this process) and planning (eq. 4.1 load map and the plan)
+    plan.meta["timing"] = {"root_load_s": timing.get("root_load_s"),
+                           "planning_s": timing.get("model_s", 0.0) + time.perf_counter() - t}
     backend = _backend(args, workers, plan.static)
     return spec, model, channels, plan, backend
 
@@ -511,4 +526,16 @@ def summary_line(report, strategy) -> str:
             f"(cost model fitted on {cm.get('fitted_on_units', 0)} units launched alone); "
             f"rank correlation of predicted load (eq. 4.1) with measured seconds "
             f"{f(rc.get('predicted_vs_measured_seconds'))} (n={rc.get('n_measured')}), with exact ray tests "
-            f"{f(rc.get('predicted_vs_ray_tests'))} (n={rc.get('n_units')})" + sim)
+            f"{f(rc.get('predicted_vs_ray_tests'))} (n={rc.get('n_units')})" + sim + split_phrase(report))
+
+
+def split_phrase(report) -> str:
+    """Where the makespan went (the report's ``time_split``), as shares of nodes x makespan."""
+    ts = report.get("time_split")
+    if not ts:
+        return ""
+    sh = ts["shares"]
+    su = [v for v in (ts.get("startup_s") or {}).values() if v is not None]
+    return ("; nodes x makespan went to " + ", ".join(f"{k.replace('_', ' ')} {v * 100:.0f} %" for k, v in sh.items())
+            + " (work, launch overhead: derived; the rest measured)"
+            + (f", start-up before the clock {max(su):.2f} s (measured)" if su else ""))

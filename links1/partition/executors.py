@@ -28,7 +28,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import RenderAborted
-from .runtime import THREAD_ENV, RendererSpec, can_batch, get_renderer, render_units, start_worker, warm_up
+from .runtime import (THREAD_ENV, RendererSpec, SharedFrame, can_batch, get_renderer, release_frame, render_units,
+                      start_worker, warm_up)
 
 #: A unit that has killed this many workers is reported as an error (Dask's allowed-failures).
 ALLOWED_FAILURES = 3
@@ -61,10 +62,16 @@ def chunk_size(remaining, n_nodes, chunk_factor):
 
 
 def guided_batch(plan, queue, n_nodes, chunk_factor, max_pixels=TASK_PIXELS, by_load=False):
-    """The next dynamic chunk: :func:`chunk_size` units, or with ``by_load`` (and a plan that
+    """The next dynamic chunk: :func:`chunk_size` units (one node: every unit the pixel budget
+    allows), or with ``by_load`` (and a plan that
     predicts each unit's load) units up to ``remaining load / (k nodes)`` of predicted load
     (at least one): guided self-scheduling that weighs units, so a chunk of the heaviest
     units (LPT order) is not k x nodes times the work it should be."""
+    if n_nodes <= 1 and chunk_factor > 0:
+        # one node has nobody to balance with: smaller chunks would only add launches, each
+        # paying the renderer's per-launch cost (issue 28: one node's dynamic frame took 1.2-1.5x
+        # the one-process frame in 5 guided launches); it takes what the task budget allows
+        return take_batch(plan, queue, None, max_pixels)
     pred = getattr(plan, "predicted", None)
     if not by_load or pred is None or chunk_factor <= 0:
         return take_batch(plan, queue, chunk_size(len(queue), n_nodes, chunk_factor), max_pixels)
@@ -99,6 +106,12 @@ class RenderResult:
     t0_wall: float | None = None       # time.time() at the first dispatch (for dispatch latency)
     backend: str = ""
     n_nodes: int = 0
+    #: the root's own time inside the makespan, measured (wall clock): [kind, start, stop] with
+    #: kind "dispatch" (handing a task to a node) or "assembly" (placing a unit's pixels)
+    root_events: list = field(default_factory=list)
+    #: node -> seconds its start took (process start, scene load, warm-up: before the clock),
+    #: measured by the backend when the node started (maybe in an earlier run of the same pool)
+    startup_s: dict = field(default_factory=dict)
 
 
 def default_log(msg: str) -> None:
@@ -152,7 +165,8 @@ def render_plan(plan, spec: RendererSpec, backend, *, checkpoint=None, progress:
 
     def on_done(i, pixels, info):
         t = time.perf_counter()
-        info.setdefault("received", time.time())  # root clock (wall): the result is here
+        w0 = time.time()
+        info.setdefault("received", w0)  # root clock (wall): the result is here
         u = plan.units[i]
         if pixels.shape[:2] != (u.h, u.w):
             raise RuntimeError(f"unit {u.window}: node returned {pixels.shape[:2]}, expected {(u.h, u.w)}")
@@ -164,6 +178,7 @@ def render_plan(plan, spec: RendererSpec, backend, *, checkpoint=None, progress:
         if bar is not None:
             bar.update(1)
         info["root_s"] = time.perf_counter() - t  # the root's own time for this unit (assembly)
+        res.root_events.append(["assembly", w0, w0 + info["root_s"]])
 
     def on_fault(msg):
         res.faults.append(msg)
@@ -173,6 +188,8 @@ def render_plan(plan, spec: RendererSpec, backend, *, checkpoint=None, progress:
         if todo:
             backend.start(spec)
             res.n_nodes = backend.n_nodes
+            res.startup_s = dict(getattr(backend, "startup_s", None) or {})
+            backend.root_events = res.root_events   # a backend may log its dispatches here
             res.t0_wall = time.time()   # the nodes' records use wall clocks (same machine)
             t0 = time.perf_counter()
             backend.run(plan, todo, spec, cull or {}, on_done, on_fault)
@@ -199,6 +216,7 @@ class InProcess:
 
     name = "inprocess"
     n_nodes = 1
+    root_events = None
 
     def __init__(self, chunk_factor: int = CHUNK_FACTOR, task_pixels: int = TASK_PIXELS, chunk_by: str = "units"):
         self.chunk_factor, self.task_pixels = int(chunk_factor), int(task_pixels)
@@ -207,8 +225,10 @@ class InProcess:
     def start(self, spec):
         # as a local worker's start (start_worker): recordings and caches before the first
         # unit, so a unit's time is work, not the frozen launch's recording (schedule --nodes 1:
-        # its first launch took 106 ms against 23 ms warm)
+        # its first launch took 106 ms against 23 ms warm); its time is the node's start-up
+        t = time.perf_counter()
         warm_up(get_renderer(spec))
+        self.startup_s = {0: time.perf_counter() - t}
 
     def call(self, fn, *args):
         """Run ``fn(*args)`` on a node (here: this process)."""
@@ -311,7 +331,7 @@ class LocalPool:
 
     def __init__(self, n_workers: int, threads: int | None = None, prefetch: int = 2,
                  max_deaths: int | None = None, log=default_log, chunk_factor: int = CHUNK_FACTOR,
-                 task_pixels: int = TASK_PIXELS, chunk_by: str = "units"):
+                 task_pixels: int = TASK_PIXELS, chunk_by: str = "units", shared_frame: bool = False):
         if n_workers < 1:
             raise ValueError(f"workers must be >= 1, got {n_workers}")
         self.n = int(n_workers)
@@ -320,6 +340,11 @@ class LocalPool:
         self.chunk_factor, self.task_pixels = int(chunk_factor), int(task_pixels)
         self.chunk_by = chunk_by
         self.batches = True        # the renderer renders batches (set when a worker is ready)
+        self.channels = None       # channels of its pixels (set when a worker is ready)
+        #: nodes write results into a frame the root maps (runtime.SharedFrame) instead of
+        #: sending them through the pipe; off by default: on this 2-core VM mapping a fresh
+        #: frame's pages cost as much as the pipe (issue 28, docs/partitioning.md)
+        self.shared_frame = bool(shared_frame)
         self.max_deaths = DEATHS_PER_WORKER * self.n if max_deaths is None else int(max_deaths)
         self.log = log
         self.deaths = 0
@@ -328,10 +353,18 @@ class LocalPool:
         self.hello: dict = {}      # node -> start_worker future while the node is starting
         self._spec_key = None
         self._spec = None
+        self.spawned: dict = {}    # node -> wall time its process was asked to start
+        self.startup_s: dict = {}  # node -> seconds from that to its scene loaded and warm (measured)
+        self.root_events = None    # render_plan's list: the root's dispatches are logged there
 
     @property
     def n_nodes(self) -> int:
         return self.n
+
+    def _log(self, kind, w0):
+        ev = self.root_events
+        if ev is not None:
+            ev.append([kind, w0, time.time()])
 
     def _spawn(self, k):
         """Start node k's worker process: a one-process pool whose first task loads the scene."""
@@ -344,6 +377,7 @@ class LocalPool:
             pool = ProcessPoolExecutor(1, mp_context=mp.get_context("spawn"))
             self.pools[k] = pool
             self.pids.pop(k, None)
+            self.spawned[k] = time.time()
             self.hello[k] = pool.submit(start_worker, self._spec)  # the process starts here
         finally:
             for v, old in saved.items():
@@ -376,6 +410,9 @@ class LocalPool:
         threads = spec.threads or self.threads or threads_per_worker(self.n)
         self._spec = RendererSpec(spec.kind, spec.path, spec.options, threads)
         self._spec_key = spec.key
+        # computed here, the key travels with every pickled task: a node does not re-read and
+        # re-hash the scene file per task (0.2-4 ms each on many.xml, growing with the file)
+        self._spec.key  # noqa: B018
         self.deaths = 0
         try:
             for k in range(self.n):
@@ -404,12 +441,28 @@ class LocalPool:
                 self.log(f"links1: {self._died(k, 'while starting')}; a replacement is starting")
                 continue
             self.hello.pop(k, None)
-            self.pids[k], self.batches = pid
+            self.pids[k], self.batches = pid[:2]
+            self.channels = pid[2] if len(pid) > 2 else None
+            self.startup_s[k] = time.time() - self.spawned.get(k, time.time())
 
     def run(self, plan, todo, spec, cull, on_done, on_fault):
+        spec = self._spec
+        frame = None
+        if self.shared_frame and self.channels:
+            try:
+                frame = SharedFrame(plan.height, plan.width, self.channels)
+            except OSError:  # no room for it: results go through the pipe
+                frame = None
+        try:
+            self._run(plan, todo, spec, cull, on_done, on_fault, frame)
+        finally:
+            if frame is not None:
+                frame.close()
+
+    def _run(self, plan, todo, spec, cull, on_done, on_fault, frame):
         from concurrent.futures import FIRST_COMPLETED, wait
         from concurrent.futures.process import BrokenProcessPool
-        spec = self._spec
+        ref = None if frame is None else frame.ref
         failures = {}
         if plan.static:
             queues = {k: deque() for k in range(self.n)}
@@ -437,13 +490,15 @@ class LocalPool:
                 else:
                     batch = guided_batch(plan, q, self.n, self.chunk_factor, self.task_pixels,
                                          by_load=self.chunk_by == "load")
+                w0 = time.time()
                 try:
                     f = self.pools[k].submit(render_units, spec, [plan.units[i].window for i in batch],
-                                             [cull.get(i) for i in batch])
+                                             [cull.get(i) for i in batch], ref)
                 except (BrokenProcessPool, RuntimeError):  # it died while idle: noticed at this submit
                     q.extendleft(reversed(batch))
                     lose(k, "while idle")
                     return
+                self._log("dispatch", w0)
                 pending[f] = (batch, k)
                 busy += 1
 
@@ -492,6 +547,9 @@ class LocalPool:
                 del pending[f]
                 for i, (px, info) in zip(batch, results):
                     info["node"] = k
+                    if px is None:  # written into the shared frame by the node
+                        u = plan.units[i]
+                        px = frame.array[u.y0:u.y0 + u.h, u.x0:u.x0 + u.w]
                     on_done(i, px, info)
             for k in sorted(lost):
                 lose(k, "mid-unit")
@@ -513,7 +571,7 @@ class LocalPool:
         pings = {}
         for k in [k for k in range(self.n) if k not in self.hello]:
             try:
-                pings[k] = self.pools[k].submit(os.getpid)
+                pings[k] = self.pools[k].submit(release_frame)  # -> its pid, the frame unmapped
             except (BrokenProcessPool, RuntimeError):
                 pings[k] = None
         wait([f for f in pings.values() if f is not None], timeout=60)

@@ -38,6 +38,13 @@ rank_correlation   Spearman, named: predicted_vs_measured_seconds (units launche
                    ray_tests_vs_measured_seconds
 simulator_check    the simulator replaying this run's own strategy and node count with the
                    fitted costs: simulated_s, measured_s, error
+time_split         where the makespan went (issue 28): per node work_s, launch_overhead_s (derived
+                   from the cost model), slowdown_s (measured launches - both), dispatch_s,
+                   transfer_s, waiting_s (measured), adding up to makespan_s, and startup_s
+                   (before the clock); root: dispatch_s, assembly_s, rendering_s (in-process),
+                   waiting_s (adding up), planning_s, root_load_s (before the clock); totals,
+                   shares (each part summed over nodes / (nodes x makespan)), segments (the
+                   Gantt chart's intervals, seconds from the first dispatch), sources
 sources            figure -> measured | exact | derived | simulated, in words
 load_table, data_per_node[], faults
 simulation         (with --simulate) overheads used and rows {strategy, nodes, units, launches,
@@ -214,8 +221,136 @@ def fit_overheads(launches, tasks, first_starts, t0_wall, cm, *, in_process=Fals
             "in_process": bool(in_process)}
 
 
+def _union(intervals, lo, hi) -> float:
+    """Total length of the union of ``intervals`` [(a, b)] clipped to [lo, hi]."""
+    segs = sorted((max(a, lo), min(b, hi)) for a, b in intervals if min(b, hi) > max(a, lo))
+    total, cur_a, cur_b = 0.0, None, None
+    for a, b in segs:
+        if cur_b is None or a > cur_b:
+            if cur_b is not None:
+                total += cur_b - cur_a
+            cur_a, cur_b = a, b
+        else:
+            cur_b = max(cur_b, b)
+    return total + (0.0 if cur_b is None else cur_b - cur_a)
+
+
+def _cut(intervals, lo, hi) -> list:
+    """The union of ``intervals`` within [lo, hi] as sorted disjoint (a, b) pieces."""
+    out = []
+    for a, b in sorted((max(a, lo), min(b, hi)) for a, b in intervals if min(b, hi) > max(a, lo)):
+        if out and a <= out[-1][1]:
+            out[-1] = (out[-1][0], max(out[-1][1], b))
+        else:
+            out.append((a, b))
+    return out
+
+
+#: node time categories inside the makespan, in the order the Gantt chart stacks them
+NODE_PARTS = ("work_s", "launch_overhead_s", "slowdown_s", "dispatch_s", "transfer_s", "waiting_s")
+ROOT_PARTS = ("dispatch_s", "assembly_s", "rendering_s", "waiting_s")
+
+TIME_SPLIT_SOURCES = {
+    "work_s": "derived: the cost model's work (pixels and exact ray tests) of the node's units, at the "
+              "reference's speed (one node alone); summed over nodes it is the one-process frame less one "
+              "launch constant",
+    "launch_overhead_s": "derived: the cost model's constant per launch (+ per further unit in a launch) for the "
+                         "node's launches, at the reference's speed",
+    "slowdown_s": "measured launch time - work - launch overhead: the node ran slower (> 0) or faster (< 0) "
+                  "than the reference: contention for cores, the machine's drift",
+    "dispatch_s": "measured: first dispatch (the clock's start) to the node's first launch",
+    "transfer_s": "measured: node not in a launch while one of its results is on its way to the root "
+                  "(readied, written or pickled and sent, until the root holds it); in-process: its results "
+                  "readied and placed in the frame",
+    "waiting_s": "measured: the rest: the node idle with nothing to do (no task queued, or done while "
+                 "others work)",
+    "startup_s": "measured, before the clock (not in the makespan): process start, scene load, warm-up",
+    "root.dispatch_s": "measured: the root handing tasks to nodes (submit calls)",
+    "root.assembly_s": "measured: the root placing units' pixels in the frame (and the checkpoint)",
+    "root.rendering_s": "measured: in-process, the root renders (its launches)",
+    "root.waiting_s": "measured: the rest (the root waiting for results; the pool's thread receiving them)",
+    "root.planning_s": "measured, before the clock: scene model (eq. 4.1 load map) and plan",
+    "root.root_load_s": "measured, before the clock: the root reading the scene",
+}
+
+
+def time_split(result, launches, tasks, cm, *, planning=None) -> dict:
+    """Where the makespan went (issue 28): per node ``NODE_PARTS`` and for the root
+    ``ROOT_PARTS``, each adding up to ``makespan_s`` (the node's clock read against the root's
+    wall clock: ``t0_wall`` = first dispatch, the end = ``t0_wall + makespan_s``).
+
+    ``launches``: [{node, start, stop, seconds, units, work}] (wall clock; ``work``: the cost
+    model's work of its units), ``tasks``: [{node, stop, received}]; ``cm``: the cost model
+    (None: a launch is all work). Start-up and planning happen before the clock and are given
+    beside it. ``shares``: each part summed over nodes / (nodes x makespan): ``work`` is about
+    the true efficiency, the others say what took the rest.
+    """
+    T0 = getattr(result, "t0_wall", None)
+    span = float(result.makespan_s or 0.0)
+    if T0 is None or span <= 0:
+        return None
+    T1 = T0 + span
+    ev = list(getattr(result, "root_events", None) or [])
+    in_process = getattr(result, "backend", "") == "inprocess"
+    per_launch = (cm or {}).get("per_launch_s", 0.0) or 0.0
+    per_unit = (cm or {}).get("per_unit_s", 0.0) or 0.0
+    nodes = sorted({str(ln["node"]) for ln in launches} | {str(k) for k in range(int(result.n_nodes or 0))})
+    out_nodes, segments = {}, {}
+    startup = {str(k): v for k, v in (getattr(result, "startup_s", None) or {}).items()}
+    for k in nodes:
+        mine = sorted((ln for ln in launches if str(ln["node"]) == k), key=lambda ln: ln["start"])
+        busy = _cut([(ln["start"], ln["stop"]) for ln in mine], T0, T1)
+        launch_s = sum(b - a for a, b in busy)
+        if cm is not None:
+            work = sum(ln["work"] for ln in mine)
+            ovh = sum(per_launch + per_unit * (ln["units"] - 1) for ln in mine)
+        else:
+            work, ovh = launch_s, 0.0
+        first = busy[0][0] if busy else T1
+        gaps = []   # the node's time outside launches, after its first launch
+        at = first
+        for a, b in busy:
+            if a > at:
+                gaps.append((at, a))
+            at = max(at, b)
+        if T1 > at:
+            gaps.append((at, T1))
+        flight = [(t["stop"], t["received"]) for t in tasks if str(t["node"]) == k and t.get("received") is not None]
+        if in_process:  # the node is the root: placing its results in the frame is its transfer
+            flight += [(a, b) for kind, a, b in ev if kind == "assembly"]
+        xfer = [piece for g in gaps for piece in _cut(flight, *g)]
+        transfer = sum(b - a for a, b in xfer)
+        dispatch = first - T0
+        waiting = span - launch_s - dispatch - transfer
+        out_nodes[k] = {"work_s": work, "launch_overhead_s": ovh, "slowdown_s": launch_s - work - ovh,
+                        "dispatch_s": dispatch, "transfer_s": transfer, "waiting_s": waiting,
+                        "launches_s": launch_s, "total_s": span, "startup_s": startup.get(k)}
+        rel = (lambda iv: [round(iv[0] - T0, 6), round(iv[1] - T0, 6)])
+        segments[k] = {"dispatch": [rel((T0, first))] if first > T0 else [],
+                       "launch": [rel(iv) + [ln["work"] if cm is not None else iv[1] - iv[0],
+                                             per_launch + per_unit * (ln["units"] - 1) if cm is not None else 0.0]
+                                  for iv, ln in zip(busy, mine)] if len(busy) == len(mine) else
+                       [rel(iv) + [None, None] for iv in busy],
+                       "transfer": [rel(iv) for iv in xfer]}
+    disp = sum(b - a for a, b in _cut([(a, b) for kind, a, b in ev if kind == "dispatch"], T0, T1))
+    asm = sum(b - a for a, b in _cut([(a, b) for kind, a, b in ev if kind == "assembly"], T0, T1))
+    rendering = sum(v["launches_s"] for v in out_nodes.values()) if in_process else 0.0
+    root = {"dispatch_s": disp, "assembly_s": asm, "rendering_s": rendering,
+            "waiting_s": span - disp - asm - rendering, "total_s": span}
+    root.update({k: v for k, v in (planning or {}).items()})
+    segments["root"] = {kind: [[round(a - T0, 6), round(b - T0, 6)] for a, b in
+                               _cut([(a, b) for kd, a, b in ev if kd == kind], T0, T1)]
+                        for kind in ("dispatch", "assembly")}
+    n = max(len(nodes), 1)
+    totals = {p: sum(v[p] for v in out_nodes.values()) for p in NODE_PARTS}
+    return {"makespan_s": span, "nodes": out_nodes, "root": root, "totals": totals,
+            "shares": {p.removesuffix("_s"): totals[p] / (n * span) for p in NODE_PARTS},
+            "startup_s": {k: v.get("startup_s") for k, v in out_nodes.items()},
+            "segments": segments, "sources": dict(TIME_SPLIT_SOURCES)}
+
+
 def build_report(result, plan, model, *, cost_channel=None, meta=None, reference=None,
-                 in_process=None, chunk_factor=None, chunk_by="units", task_pixels=None) -> dict:
+                 in_process=None, chunk_factor=None, chunk_by="units", task_pixels=None, planning=None) -> dict:
     """The schedule report of one real run (see the module docstring for the keys)."""
     from .executors import CHUNK_FACTOR, TASK_PIXELS
     recs = result.records
@@ -262,7 +397,7 @@ def build_report(result, plan, model, *, cost_channel=None, meta=None, reference
         ln["start"], ln["stop"] = min(ln["start"], r["start"]), max(ln["stop"], r["stop"])
         work = float(unit_work(cm, u.pixels, tests)) if cm is not None and tests is not None else None
         ln["work"] += work or 0.0
-        tk = tasks.setdefault(tuple(r.get("task", lid)), {"stop": r["stop"], "received": r.get("received"),
+        tk = tasks.setdefault((r["node"],) + tuple(r.get("task", lid)), {"stop": r["stop"], "received": r.get("received"),
                                                           "pixels": 0, "node": r["node"], "wire": 0.0})
         tk["stop"] = max(tk["stop"], r["stop"])
         tk["pixels"] += u.pixels
@@ -354,6 +489,8 @@ def build_report(result, plan, model, *, cost_channel=None, meta=None, reference
         "sources": dict(SOURCES),
     })
     rep["busy_efficiency"] = rep["parallel_efficiency"]
+    rep["time_split"] = time_split(result, list(launches.values()), list(tasks.values()), cm,
+                                   planning=planning if planning is not None else plan.meta.get("timing"))
     return rep
 
 
@@ -419,6 +556,20 @@ def measure_overhead(spec, n_units: int = 64, repeat: int = 3, batched: bool = T
     out["alone_units"].append({"window": [0, 0, w, h], "pixels": w * h, "ray_tests": frame_tests, "seconds": f,
                                "frame": True})
     return out
+
+
+def frame_seconds(spec, repeat: int = 1) -> float:
+    """The whole frame as one launch on this node (its threads, warm): median seconds of
+    ``repeat`` renders (the benchmark's one-process frame, measured next to each run)."""
+    from .runtime import get_renderer
+    r = get_renderer(spec)
+    w, h = r.film_size
+    out = []
+    for _ in range(max(1, int(repeat))):
+        t = time.perf_counter()
+        r.render(window=(0, 0, w, h))
+        out.append(time.perf_counter() - t)
+    return float(np.median(out))
 
 
 # ---------------------------------------------------------------------- simulator
@@ -678,21 +829,25 @@ def plot_report(report, path) -> None:
     """Gantt chart of the measured launches per node, and each unit's seconds launched alone
     (measured: filled; derived from counts: open) and exact ray tests against predicted load."""
     plt = _pyplot()
-    fig, (ax1, ax2, ax3) = plt.subplots(1, 3, figsize=(16, 4.5))
-    nodes = sorted({str(u["node"]) for u in report["units"]})
-    row = {k: j for j, k in enumerate(nodes)}
-    cmap = plt.get_cmap("tab20")
-    seen = {}
-    for u in report["units"]:
-        lid = tuple(u["launch"])
-        if lid in seen:
-            continue
-        seen[lid] = True
-        ax1.barh(row[str(u["node"])], u["launch_seconds"], left=u["start"], color=cmap(len(seen) % 20),
-                 edgecolor="k", linewidth=0.3)
-    ax1.set_yticks(range(len(nodes)), nodes)
-    ax1.set_xlabel("seconds (measured launches, node clocks)")
-    ax1.set_ylabel("node")
+    fig, (ax1, ax2, ax3) = plt.subplots(1, 3, figsize=(18, 4.8), gridspec_kw={"width_ratios": [2, 1, 1]})
+    ts = report.get("time_split")
+    if ts:
+        gantt_time_split(ax1, ts)
+    else:
+        nodes = sorted({str(u["node"]) for u in report["units"]})
+        row = {k: j for j, k in enumerate(nodes)}
+        cmap = plt.get_cmap("tab20")
+        seen = {}
+        for u in report["units"]:
+            lid = tuple(u["launch"])
+            if lid in seen:
+                continue
+            seen[lid] = True
+            ax1.barh(row[str(u["node"])], u["launch_seconds"], left=u["start"], color=cmap(len(seen) % 20),
+                     edgecolor="k", linewidth=0.3)
+        ax1.set_yticks(range(len(nodes)), nodes)
+        ax1.set_xlabel("seconds (measured launches, node clocks)")
+        ax1.set_ylabel("node")
     te = report.get("true_efficiency")
     ax1.set_title(f"{report['strategy']}: makespan {report['makespan_s']:.3g} s (measured)\n"
                   f"true efficiency {'n/a' if te is None else f'{te:.2f}'}, busy efficiency "
@@ -721,6 +876,65 @@ def plot_report(report, path) -> None:
     fig.tight_layout()
     _save(fig, path)
     plt.close(fig)
+
+
+SPLIT_COLOURS = {"work": "#2ca02c", "launch overhead": "#ff7f0e", "slowdown": "#d62728",
+                 "dispatch": "#9467bd", "transfer": "#1f77b4", "waiting": "#d9d9d9", "start-up": "#7f7f7f",
+                 "assembly": "#8c564b"}
+
+
+def gantt_time_split(ax, ts) -> None:
+    """The makespan's time split as a Gantt chart: one row per node (each launch drawn as its
+    work, launch overhead and slowdown, then its results in transfer, dispatch before its first
+    launch, waiting the rest) and one for the root (dispatches, assembly); start-up before 0."""
+    span = ts["makespan_s"]
+    nodes = [k for k in ts["nodes"]]
+    rows = nodes + ["root"]
+    used = set()
+
+    def bar(y, a, b, name, hatch=None):
+        if b > a:
+            ax.barh(y, b - a, left=a, color=SPLIT_COLOURS[name], edgecolor="k" if name != "waiting" else "none",
+                    linewidth=0.2, height=0.7, hatch=hatch, label=None if name in used else name)
+            used.add(name)
+
+    for y, k in enumerate(nodes):
+        seg = ts["segments"].get(k, {})
+        su = ts["nodes"][k].get("startup_s")
+        if su:  # drawn at most a fifth of the makespan long, its measured length written on it
+            bar(y, -min(su, 0.2 * span), 0.0, "start-up", hatch="//")
+            ax.text(-0.1 * span, y, f"{su:.2g} s", ha="center", va="center", fontsize=6, color="w")
+        bar(y, 0.0, span, "waiting")
+        for a, b in seg.get("dispatch", []):
+            bar(y, a, b, "dispatch")
+        for a, b in seg.get("transfer", []):
+            bar(y, a, b, "transfer")
+        for a, b, work, ovh in seg.get("launch", []):
+            if work is None:
+                bar(y, a, b, "work")
+                continue
+            d = b - a
+            w, o = max(work, 0.0), max(ovh, 0.0)
+            f = min(1.0, d / (w + o)) if w + o > 0 else 1.0   # a node faster than the reference: no slowdown
+            bar(y, a, a + w * f, "work")
+            bar(y, a + w * f, a + (w + o) * f, "launch overhead")
+            bar(y, a + (w + o) * f, b, "slowdown")
+    yr = len(nodes)
+    root = ts["segments"].get("root", {})
+    bar(yr, 0.0, span, "waiting")
+    for a, b in root.get("dispatch", []):
+        bar(yr, a, max(b, a + span * 2e-3), "dispatch")
+    for a, b in root.get("assembly", []):
+        bar(yr, a, max(b, a + span * 2e-3), "assembly")
+    ax.axvline(0.0, color="k", linewidth=0.5)
+    ax.axvline(span, color="k", linewidth=0.5, linestyle="--")
+    ax.set_yticks(range(len(rows)), [f"node {k}" for k in nodes] + ["root"])
+    ax.invert_yaxis()
+    sh = ts["shares"]
+    ax.set_xlabel("seconds from the first dispatch (measured; launch parts derived; start-up before 0, "
+                  "not to scale)\n"
+                  + ", ".join(f"{k} {v:.0%}" for k, v in sh.items()) + " of nodes x makespan", fontsize=8)
+    ax.legend(fontsize=6, loc="lower right", ncol=2)
 
 
 def plot_simulation(rows, path) -> None:

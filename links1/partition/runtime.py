@@ -128,7 +128,15 @@ def start_worker(spec: RendererSpec) -> tuple:
     warnings.simplefilter("ignore", SceneWarning)
     r = get_renderer(spec)
     warm_up(r)
-    return os.getpid(), can_batch(r)
+    return os.getpid(), can_batch(r), channel_count(r)
+
+
+def channel_count(renderer):
+    """Channels of the renderer's pixels (``len(renderer.channels)``), None when it does not say."""
+    try:
+        return len(renderer.channels)
+    except Exception:  # noqa: BLE001 - a renderer without channel names: results go through the pipe
+        return None
 
 
 def warm_up(renderer):
@@ -166,7 +174,84 @@ def wire_pixels(img) -> np.ndarray:
     return b if np.array_equal(b, a, equal_nan=True) else a
 
 
-def render_unit(spec: RendererSpec, window, cull=None):
+class SharedFrame:
+    """A float64 frame (H, W, C) in a file that the root and the local nodes map (``/dev/shm``
+    when there is one: memory, not disk). A node writes each unit's pixels at its window right
+    after its launch and sends the root only the unit's record, so a result does not travel
+    through the process pipe (a 256x512x4 float64 half frame: ~10 ms pickled, sent, unpickled
+    one after another by the root; issue 28) and the root copies it into the image from memory.
+    The values written are the renderer's, as float64: the bits of ``wire_pixels`` placed in
+    the root's float64 frame. Opt-in (``LocalPool(shared_frame=True)``): on the shared 2-core
+    VM the nodes' writes into fresh pages cost as much as the pipe saved (docs/partitioning.md)."""
+
+    def __init__(self, height, width, channels, directory=None):
+        import tempfile
+        d = directory or ("/dev/shm" if os.path.isdir("/dev/shm") and os.access("/dev/shm", os.W_OK) else None)
+        fd, self.path = tempfile.mkstemp(prefix="links1-frame-", suffix=".f64", dir=d)
+        os.close(fd)
+        self.shape = (int(height), int(width), int(channels))
+        try:
+            with open(self.path, "r+b") as f:
+                f.truncate(8 * int(np.prod(self.shape)))
+            self.array = _map(self.path, self.shape)
+        except BaseException:
+            os.unlink(self.path)
+            raise
+
+    @property
+    def ref(self) -> tuple:
+        """What a node needs to map it (picklable)."""
+        return (self.path, self.shape)
+
+    def close(self):
+        self.array = None
+        try:
+            os.unlink(self.path)
+        except OSError:
+            pass
+
+
+def _map(path, shape):
+    """The file as a float64 array, its pages mapped at once (``MAP_POPULATE``: one call instead of
+    a page fault per 4 KiB on first touch, which cost as much as the pipe it replaces)."""
+    import mmap
+    with open(path, "r+b") as f:
+        flags = mmap.MAP_SHARED | getattr(mmap, "MAP_POPULATE", 0)
+        mm = mmap.mmap(f.fileno(), 8 * int(np.prod(shape)), flags=flags)
+    return np.ndarray(shape, dtype=np.float64, buffer=mm)
+
+
+#: this process's mapping of the root's current shared frame: (path, array)
+_FRAME: list = [None, None]
+
+
+def _frame_array(ref):
+    path, shape = ref
+    if _FRAME[0] != path:
+        _FRAME[0], _FRAME[1] = None, None   # unmap the last run's frame (its file is gone)
+        _FRAME[1] = _map(path, shape)
+        _FRAME[0] = path
+    return _FRAME[1]
+
+
+def release_frame():
+    """Unmap the shared frame in this process -> pid (the root pings its nodes with it at the end)."""
+    _FRAME[0], _FRAME[1] = None, None
+    return os.getpid()
+
+
+def _to_frame(frame, window, img):
+    """Write ``img`` at ``window`` of the shared frame -> None (written) or the pixels to send."""
+    a = _frame_array(frame)
+    x0, y0, w, h = window
+    img = np.asarray(img)
+    if img.shape != (h, w, a.shape[2]):
+        return wire_pixels(img)   # not what the frame holds: the root checks it as it always did
+    a[y0:y0 + h, x0:x0 + w] = img
+    return None
+
+
+def render_unit(spec: RendererSpec, window, cull=None, frame=None):
     """Render one window on this node -> (pixels (h, w, C), info dict); pixels as
     :func:`wire_pixels` sends them (float32 when exact, else float64)."""
     renderer = get_renderer(spec)
@@ -176,7 +261,7 @@ def render_unit(spec: RendererSpec, window, cull=None):
     else:
         img = renderer.render(window=tuple(int(v) for v in window))
     dt = time.perf_counter() - t0
-    px = wire_pixels(img)
+    px = wire_pixels(img) if frame is None else _to_frame(frame, tuple(int(v) for v in window), img)
     return px, {"seconds": dt, "start": w0, "stop": w0 + dt, "pid": os.getpid(), "launch_seconds": dt,
                 "launch_units": 1, "launch": (os.getpid(), next(_LAUNCHES)),
                 "wire_s": time.perf_counter() - t0 - dt}
@@ -188,8 +273,10 @@ def render_unit(spec: RendererSpec, window, cull=None):
 LAUNCH_SAMPLES = 1 << 22
 
 
-def render_units(spec: RendererSpec, windows, culls=None):
+def render_units(spec: RendererSpec, windows, culls=None, frame=None):
     """Render a batch of units on this node -> ``[(pixels, info), ...]`` in ``windows`` order.
+    With ``frame`` (a :attr:`SharedFrame.ref`) each unit's pixels are written into the shared
+    frame after its launch and ``pixels`` is None.
 
     Renderers with ``render_batch(windows)`` (both links1 renderers) render the batch in as
     few launches as :data:`LAUNCH_SAMPLES` allows; each unit's pixels are exactly what
@@ -205,7 +292,7 @@ def render_units(spec: RendererSpec, windows, culls=None):
     batch = getattr(renderer, "render_batch", None) if can_batch(renderer) else None
     task = (os.getpid(), next(_TASKS))  # one task = the units sent to this node in one message
     if batch is None or len(windows) == 1 or any(c is not None for c in culls):
-        out = [render_unit(spec, w, c) for w, c in zip(windows, culls)]
+        out = [render_unit(spec, w, c, frame) for w, c in zip(windows, culls)]
         for _, info in out:
             info["task"] = task
         return out
@@ -229,7 +316,7 @@ def render_units(spec: RendererSpec, windows, culls=None):
         for img, a in zip(imgs, launch):
             share = dt * a[2] * a[3] / total
             tw = time.perf_counter()
-            px = wire_pixels(img)
+            px = wire_pixels(img) if frame is None else _to_frame(frame, a, img)
             out.append((px, {"seconds": share, "start": at, "stop": at + share, "pid": os.getpid(),
                              "launch_seconds": dt, "launch_units": len(launch), "launch": lid, "task": task,
                              "wire_s": time.perf_counter() - tw}))

@@ -105,15 +105,31 @@ def _launches(res):
 
 
 @pytest.mark.parametrize("k", [0, 1, 2])
-def test_in_process_dynamic_chunks_are_guided(k, core_spec, core_ref):
+def test_in_process_dynamic_chunks_one_node(k, core_spec, core_ref):
+    # one node: every unit in one launch (within the task's pixel budget), nobody to balance
+    # with (issue 28); --chunk-factor 0 still hands out one unit at a time (the paper's 4-3)
     plan = make_plan("dynamic", 32, 32, 1, tiles_per_node=16, unit="tile")
     res = render_plan(plan, core_spec, InProcess(chunk_factor=k), progress=False)
     assert np.array_equal(res.image, core_ref)
+    assert sorted(_launches(res), reverse=True) == ([1] * len(plan.units) if k == 0 else [len(plan.units)])
+    small = render_plan(plan, core_spec, InProcess(chunk_factor=k, task_pixels=4 * 64), progress=False)
+    assert np.array_equal(small.image, core_ref)  # 16 tiles of 8x8: four per task of 256 pixels
+    assert sorted(_launches(small), reverse=True) == ([1] * 16 if k == 0 else [4, 4, 4, 4])
+
+
+def test_guided_chunks_of_two_nodes_shrink():
+    from collections import deque
+
+    from links1.partition.executors import guided_batch
+    plan = make_plan("dynamic", 32, 32, 2, tiles_per_node=8, unit="tile")
+    q, got = deque(plan.order), []
+    while q:
+        got.append(len(guided_batch(plan, q, 2, 2)))
     left, want = len(plan.units), []
     while left:
-        want.append(chunk_size(left, 1, k))
+        want.append(chunk_size(left, 2, 2))
         left -= want[-1]
-    assert sorted(_launches(res), reverse=True) == want
+    assert got == want and got[0] > got[-1] == 1
 
 
 @pytest.mark.parametrize("strategy, k", [("subscreen", 2), ("dynamic", 2), ("dynamic", 0), ("scanline", 2)])
@@ -202,8 +218,8 @@ def test_chunks_by_load_give_the_same_bits(core_spec, core_ref):
     with LocalPool(2, chunk_factor=2, chunk_by="load") as pool:
         res = render_plan(plan, core_spec, pool, progress=False)
     assert np.array_equal(res.image, core_ref)
-    res = render_plan(plan, core_spec, InProcess(chunk_factor=2, chunk_by="load"), progress=False)
-    assert np.array_equal(res.image, core_ref)
-    by_units = render_plan(plan, core_spec, InProcess(chunk_factor=2), progress=False)
+    sizes = {}
+    for rec in res.records.values():
+        sizes.setdefault((rec["pid"], rec["launch"][1]), rec["launch_units"])
     # the heaviest units come first: by load the first chunks hold fewer of them
-    assert max(_launches(res)) < max(_launches(by_units))
+    assert max(sizes.values()) < chunk_size(len(plan.units), 2, 2)

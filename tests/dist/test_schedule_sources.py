@@ -146,11 +146,15 @@ def test_replay_dynamic_guided_chunks_with_two_in_flight():
 
 
 def test_replay_in_process_one_node():
-    # one node in the root: no dispatch, no transfer; guided chunks for 1 node: 4, 2, 1, 1 units
+    # one node in the root: no dispatch, no transfer; dynamic on one node: every unit in one
+    # chunk (issue 28; guided chunks for 1 node were 4, 2, 1, 1 units), one at a time with k = 0
     plan = make_plan("dynamic", 2, 8, 1, unit="scanline", order="walk")
     out = replay(plan, np.full(8, 2.0), **OV, chunk_factor=2)
-    assert out["launches"] == 4
-    assert out["makespan_s"] == pytest.approx(4 * 1.0 + 0.1 * (3 + 1) + 8 * 2.0)
+    assert out["launches"] == 1
+    assert out["makespan_s"] == pytest.approx(1.0 + 0.1 * 7 + 8 * 2.0)
+    out = replay(plan, np.full(8, 2.0), **OV, chunk_factor=0)
+    assert out["launches"] == 8
+    assert out["makespan_s"] == pytest.approx(8 * 1.0 + 8 * 2.0)
     # static: the units in tasks of the pixel budget, in plan order, one launch here
     plan = make_plan("subscreen", 8, 4, 1, tiles_per_node=4)
     out = replay(plan, np.array([1.0, 2.0, 3.0, 4.0]), **OV)

@@ -1,0 +1,51 @@
+"""Results through a shared frame (issue 28, item 2): local nodes write each unit's pixels into a
+frame the root maps instead of sending them through the process pipe; the image is the same bits
+and the frame's file is gone after the run."""
+from __future__ import annotations
+
+import glob
+import os
+
+import numpy as np
+import pytest
+
+from links1.partition import runtime
+from links1.partition.executors import LocalPool, render_plan
+from links1.partition.strategies import make_plan
+
+
+def _frames():
+    return set(glob.glob("/dev/shm/links1-frame-*")) | set(glob.glob(os.path.join("/tmp", "links1-frame-*")))
+
+
+@pytest.mark.parametrize("strategy", ["subscreen", "dynamic"])
+def test_shared_frame_gives_the_same_bits_as_the_pipe(strategy, core_spec, core_ref):
+    before = _frames()
+    plan = make_plan(strategy, 32, 32, 2, tiles_per_node=4, unit="tile")
+    with LocalPool(2, shared_frame=True) as pool:
+        res = render_plan(plan, core_spec, pool, progress=False)
+        assert pool.channels == core_ref.shape[2]
+        piped = LocalPool(2, shared_frame=False)
+        try:
+            res_pipe = render_plan(plan, core_spec, piped, progress=False)
+        finally:
+            piped.close()
+    assert np.array_equal(res.image, core_ref) and np.array_equal(res_pipe.image, core_ref)
+    assert _frames() == before   # the run removed its frame
+
+
+def test_units_written_to_the_frame_are_not_sent(tmp_path, core_spec, core_ref):
+    # in this process: render_units with a frame writes the pixels there and returns None for them
+    frame = runtime.SharedFrame(32, 32, core_ref.shape[2], directory=str(tmp_path))
+    try:
+        wins = [(0, 0, 16, 32), (16, 0, 16, 32)]
+        out = runtime.render_units(core_spec, wins, None, frame.ref)
+        assert [px for px, _ in out] == [None, None]
+        assert np.array_equal(np.asarray(frame.array), core_ref)
+        # a window whose pixels do not match the frame's channels goes through the pipe instead
+        bad = runtime._to_frame(frame.ref, (0, 0, 2, 2), np.zeros((2, 2, 1)))
+        assert bad is not None and bad.shape == (2, 2, 1)
+    finally:
+        runtime.release_frame()
+        frame.close()
+    assert not os.path.exists(frame.path)
