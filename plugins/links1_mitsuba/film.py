@@ -80,11 +80,6 @@ def define_film(mi, dr, mix32):
         W, s = op_u(film_width), op_u(spp)
         parts = []
         for sx0, sy0, sw, sh in swins:
-            if sx0 == 0 and sw == film_width:
-                # whole rows (a full frame, a band): the ids run on from the first one, no division
-                # (x86 has no vector integer division: 32-48 ms of a 512² spp-16 frame otherwise)
-                parts.append(dr.arange(U32, sw * sh * spp) + op_u(sy0 * film_width * spp))
-                continue
             j = dr.arange(U32, sw * sh * spp)
             pix = j // s
             i = j - pix * s
