@@ -362,6 +362,9 @@ def markdown(results, big, info, cmd):
         out.append(md_table(["case", "res", "primal ms", "iteration ms", "iter / primal"],
                             [[b["case"], f"{b['width']}²", b["primal_median_ms"], b["iteration_median_ms"], b["ratio"]]
                              for b in big]))
+    out.append("\nThe compile column: kernels built in that iteration (a parameter that enters a kernel as a "
+               "literal makes new kernels after each update; a rerun of the same trajectory finds them in "
+               "Dr.Jit's on-disk cache). \"iteration − compile\" is what an iteration costs once cached.\n")
     out.append("\nError against iterations (worst component / range, every 10th iteration):\n")
     n = max(len(r["worst_error"]) for r in results)
     steps = list(range(0, n, 10)) + ([n - 1] if (n - 1) % 10 else [])
