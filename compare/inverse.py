@@ -1,0 +1,422 @@
+"""Inverse rendering with ``links1_whitted``'s gradients (issue 23, item 4): a benchmark.
+
+    python -m compare.inverse [--width 64] [--iters 100] [--big 256] [--variant llvm_ad_rgb]
+                              [--only light phong blob quadric]
+
+From a target image rendered with known values, starting from perturbed ones, ``mi.ad.Adam``
+on the L2 image loss (``dr.mean(dr.square(img - target))``) recovers
+
+* (a) ``light``: a ``links1_point`` light's ``position``, ``L1`` and ``L2`` (eq. 3.10) above a
+  Phong floor with a highlight and a diffuse wall (nothing casts a shadow: a moving shadow
+  edge is a visibility term links1_whitted does not differentiate);
+* (b) ``phong``: a ``links1_phong`` sphere's ``diffuse`` and ``specular`` colours;
+* (c) ``blob``: the centres and weights of a 6-centre ``links1_blob`` (eq. 3.6–3.9);
+* (d) ``quadric``: a ``links1_quadric`` sphere's translation (``to_world`` =
+  translate(t) · scale, t optimised).
+
+Every render is spp 1 with a box filter (the sample at the pixel centre: deterministic),
+``max_depth`` 3, the given ``--width`` square. Parameter error = the worst component's
+``|x − x*| / range``, with the range of each parameter stated in the results (the interval the
+perturbed start is drawn from, or [0, 1] for colours); issue target: ≤ 1 % of the range.
+
+Time per iteration (render with gradients + loss + ``dr.backward`` + Adam step +
+``params.update``) against the primal frame (``mi.render`` without gradients, evaluated and
+synced), wall-clock medians in one process; with ``--big N`` the phong case also runs a few
+iterations at N² for the same ratio. Each iteration runs with ``dr.JitFlag.KernelHistory``: the
+kernels' code generation + LLVM compile time is reported per iteration (``compile_ms``) and the
+median iteration less it. Writes ``compare/results/inverse.{json,md,png}``.
+
+Every iteration renders with ``seed=0`` (with spp 1 the sample is the pixel centre whatever the
+seed). What recompiles every iteration (plugin, not changed here): the blob's kernels with new centres/weights (``Links1Blob._consts()`` and ``inv`` enter the unrolled
+per-centre loops of ``plugins/links1_mitsuba/shapes.py`` as float literals below
+``LIST_MIN_CENTRES`` centres: ~50 kernels, ~15–23 s an iteration here), the quadric's with a new
+``to_world`` (~1 s) and the light's with a new position (~0.1 s); hence ``--blob-iters``. A
+rerun of the same trajectory finds those kernels in Dr.Jit's on-disk cache (the compile column
+then drops to ~0): compare a first run's numbers with the compile column in view.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import time
+
+import numpy as np
+
+from compare.common import command_line, machine_info, machine_markdown, md_table, pyplot, write_results
+
+CAMERA = """<integrator type="links1_whitted"><integer name="max_depth" value="3"/></integrator>
+  <sensor type="perspective"><float name="fov" value="{fov}"/>
+    <transform name="to_world"><lookat origin="{origin}" target="{target}" up="0, 1, 0"/></transform>
+    <film type="hdrfilm"><integer name="width" value="{w}"/><integer name="height" value="{w}"/><rfilter type="box"/></film>
+    <sampler type="independent"><integer name="sample_count" value="1"/></sampler></sensor>"""
+
+FLOOR = """<shape type="rectangle" id="floor"><transform name="to_world"><scale value="5"/><rotate x="1" angle="-90"/></transform>
+    <bsdf type="links1_phong"><rgb name="diffuse" value="0.6, 0.5, 0.4"/><rgb name="specular" value="0.4"/>
+      <float name="exponent" value="8"/><rgb name="reflectance" value="{refl}"/></bsdf></shape>"""
+
+LIGHTS = """<emitter type="links1_point" id="lp"><point name="position" x="2" y="4" z="3"/><rgb name="L1" value="0.6"/>
+    <rgb name="L2" value="0.4"/><string name="falloff" value="inverse_square"/></emitter>
+  <emitter type="point" id="mp"><point name="position" x="-2" y="3" z="4"/><rgb name="intensity" value="6"/></emitter>"""
+
+SCENES = {
+    # (a) a links1_point over a Phong floor and a diffuse wall, no occluder
+    "light": dict(camera=dict(fov=50, origin="0, 3, 6", target="0, 0.5, 0"), body=FLOOR.format(refl=0) + """
+  <shape type="rectangle" id="wall"><transform name="to_world"><scale value="5"/><translate z="-2"/></transform>
+    <bsdf type="diffuse"><rgb name="reflectance" value="0.4, 0.5, 0.6"/></bsdf></shape>
+  <emitter type="links1_point" id="lp"><point name="position" x="0.6" y="2.5" z="0.8"/><rgb name="L1" value="0.5, 0.45, 0.4"/>
+    <rgb name="L2" value="0.6, 0.5, 0.3"/><vector name="direction" x="0.3" y="-0.7" z="1"/></emitter>
+  <emitter type="point" id="mp"><point name="position" x="-1.5" y="2" z="1.5"/><rgb name="intensity" value="2"/></emitter>"""),
+    # (b) a links1_phong sphere (Mitsuba sphere) with a highlight, on the floor
+    "phong": dict(camera=dict(fov=40, origin="0, 2.5, 5", target="0, 0.8, 0"), body=FLOOR.format(refl=0) + """
+  <shape type="sphere" id="ball"><point name="center" x="0" y="1" z="0"/><float name="radius" value="1"/>
+    <bsdf type="links1_phong"><rgb name="diffuse" value="0.7, 0.3, 0.2"/><rgb name="specular" value="0.5, 0.5, 0.6"/>
+      <float name="exponent" value="20"/></bsdf></shape>""" + LIGHTS),
+    # (c) the 6-centre blob of tests/plugins/test_geometry_gradients.py over a mirror-ish floor
+    "blob": dict(camera=dict(fov=32, origin="0, 2.6, 5", target="0.1, 1.5, 0"), body=FLOOR.format(refl=0.2) + """
+  <shape type="links1_blob" id="blob">
+    <string name="centers" value="-0.625 1.375 0 1 0.75,  0.5 1.5 0.2 1 0.6,  0 2.0 -0.2 0.8 0.6,
+                                  0 1.25 0.3 0.9 0.5,  0.875 1.25 -0.25 0.75 0.5,  0.1 1.6 0.4 0.5 0.4"/>
+    <float name="threshold" value="0.5"/>
+    <bsdf type="links1_phong"><rgb name="diffuse" value="0.5, 0.4, 0.3"/><rgb name="specular" value="0.3"/>
+      <rgb name="reflectance" value="0"/><float name="exponent" value="10"/></bsdf></shape>""" + LIGHTS),
+    # (d) a links1_quadric sphere (scale 1.2) over a mirror-ish floor
+    "quadric": dict(camera=dict(fov=40, origin="0, 3, 6", target="0, 0.8, 0"), body=FLOOR.format(refl=0.2) + """
+  <shape type="links1_quadric" id="ball"><string name="kind" value="sphere"/>
+    <transform name="to_world"><scale value="1.2"/><translate x="0.2" y="1.4" z="0.3"/></transform>
+    <bsdf type="links1_phong"><rgb name="diffuse" value="0.5, 0.4, 0.3"/><rgb name="specular" value="0.3"/>
+      <rgb name="reflectance" value="0"/><float name="exponent" value="12"/></bsdf></shape>""" + LIGHTS),
+}
+
+
+def load(case, width):
+    import links1_mitsuba as lm
+    s = SCENES[case]
+    xml = f'<scene version="3.0.0">{CAMERA.format(w=width, **s["camera"])}{s["body"]}</scene>'
+    return lm.load_string(xml)
+
+
+# ----------------------------------------------------------------------------- the cases
+class Case:
+    """Optimised variables (name -> numpy truth, start, range, lr), how they enter the scene."""
+
+    def __init__(self, name, scene, variables, lr, iters):
+        self.name, self.scene, self.vars, self.lr, self.iters = name, scene, variables, lr, iters
+
+    def setup(self, mi, params):
+        pass
+
+    def set_values(self, mi, params, values):
+        """Put numpy ``values`` (name -> array) into the scene (no gradients)."""
+        for k, v in values.items():
+            params[k] = to_dr(mi, params[k], v)
+        params.update()
+
+    def apply(self, mi, params, opt):
+        """After an Adam step: clamp, write the optimiser's variables into the scene."""
+        params.update(opt)
+
+    def read(self, opt):
+        return {k: np.array(opt[k], dtype=np.float64) for k in self.vars}
+
+
+def to_dr(mi, like, v):
+    v = np.asarray(v, dtype=np.float64)
+    if v.ndim == 2:
+        return type(like)(*[mi.Float(list(map(float, row))) for row in v])
+    if type(like).__name__ in ("Color3f", "Point3f", "Vector3f") and v.size == 3 and dr_width(like) == 1:
+        return type(like)(*map(float, v))
+    return type(like)(list(map(float, v.ravel())))
+
+
+def dr_width(x):
+    import drjit as dr
+    return dr.width(x)
+
+
+class QuadricCase(Case):
+    """``links1_whitted.ball.to_world = translate(t) · scale(1.2)``: t is the variable."""
+    KEY = "links1_whitted.ball.to_world"
+
+    def setup(self, mi, params):
+        self.scale = mi.Transform4f().scale(1.2)
+
+    def set_values(self, mi, params, values):
+        t = values["t"]
+        params[self.KEY] = mi.Transform4f().translate(mi.Vector3f(*map(float, t))) @ self.scale
+        params.update()
+
+    def apply(self, mi, params, opt):
+        params[self.KEY] = mi.Transform4f().translate(opt["t"]) @ self.scale
+        params.update()
+
+
+def make_cases(iters):
+    rng = np.random.default_rng(23)
+    cases = []
+    # (a) the light: position within ±0.5 of the truth per axis (range 1), L1/L2 in [0, 1]
+    pos = np.array([0.6, 2.5, 0.8])
+    cases.append(("light", Case, {
+        "lp.position": dict(truth=pos, start=pos + np.array([0.4, -0.35, 0.4]), range=1.0, lo=None),
+        "lp.L1.value": dict(truth=np.array([0.5, 0.45, 0.4]), start=np.array([0.3, 0.3, 0.3]), range=1.0, lo=0.0),
+        "lp.L2.value": dict(truth=np.array([0.6, 0.5, 0.3]), start=np.array([0.3, 0.3, 0.3]), range=1.0, lo=0.0),
+    }, {"lp.position": 0.06, "lp.L1.value": 0.05, "lp.L2.value": 0.05}))
+    # (b) the material: colours in [0, 1]
+    cases.append(("phong", Case, {
+        "ball.bsdf.diffuse.value": dict(truth=np.array([0.7, 0.3, 0.2]), start=np.array([0.3, 0.5, 0.6]), range=1.0, lo=0.0),
+        "ball.bsdf.specular.value": dict(truth=np.array([0.5, 0.5, 0.6]), start=np.array([0.2, 0.2, 0.2]), range=1.0, lo=0.0),
+    }, {"ball.bsdf.diffuse.value": 0.02, "ball.bsdf.specular.value": 0.02}))
+    # (c) the blob: each centre moved within ±0.1 per axis (range 0.2), weights within ±0.15 (range 0.3)
+    c0 = np.array([[-0.625, 1.375, 0], [0.5, 1.5, 0.2], [0, 2.0, -0.2], [0, 1.25, 0.3], [0.875, 1.25, -0.25],
+                   [0.1, 1.6, 0.4]]).T
+    w0 = np.array([1, 1, 0.8, 0.9, 0.75, 0.5])
+    cases.append(("blob", Case, {
+        "links1_whitted.blob.centers": dict(truth=c0, start=c0 + rng.uniform(-0.1, 0.1, c0.shape), range=0.2, lo=None),
+        "links1_whitted.blob.weights": dict(truth=w0, start=w0 + rng.uniform(-0.15, 0.15, w0.shape), range=0.3, lo=0.05),
+    }, {"links1_whitted.blob.centers": 0.01, "links1_whitted.blob.weights": 0.015}))
+    # (d) the quadric: translation within ±0.25 per axis (range 0.5)
+    t0 = np.array([0.2, 1.4, 0.3])
+    cases.append(("quadric", QuadricCase, {
+        "t": dict(truth=t0, start=t0 + np.array([0.2, -0.15, 0.2]), range=0.5, lo=None),
+    }, {"t": 0.01}))
+    return [(n, cls, v, lr, iters.get(n, iters["default"])) for n, cls, v, lr in cases]
+
+
+def err_of(case, values):
+    """name -> worst component's |x − x*| / range; and the overall worst."""
+    e = {k: float(np.max(np.abs(np.asarray(values[k]).reshape(np.shape(d["truth"])) - d["truth"])) / d["range"])
+         for k, d in case.vars.items()}
+    return e, max(e.values())
+
+
+def sync(x):
+    import drjit as dr
+    dr.eval(x)
+    dr.sync_thread()
+
+
+def primal_times(mi, scene, n):
+    ts = []
+    for i in range(n + 1):
+        t0 = time.perf_counter()
+        img = mi.render(scene, seed=i)
+        sync(img)
+        ts.append(time.perf_counter() - t0)
+    return ts[1:]          # the first: compilation
+
+
+def run_case(mi, dr, name, cls, variables, lrs, iters, width, log):
+    scene = load(name, width)
+    case = cls(name, scene, variables, lrs, iters)
+    params = mi.traverse(scene)
+    case.setup(mi, params)
+    # the target: rendered with the known values (the file's values; set anyway)
+    case.set_values(mi, params, {k: d["truth"] for k, d in variables.items()})
+    target = mi.render(scene, seed=0)
+    sync(target)
+    target_np = np.array(target)
+    primal = primal_times(mi, scene, 5)
+    # the start
+    case.set_values(mi, params, {k: d["start"] for k, d in variables.items()})
+    start_np = np.array(mi.render(scene, seed=0))
+    opt = mi.ad.Adam(lr=0.01)
+    for k, d in variables.items():
+        if k == "t":
+            opt[k] = mi.Vector3f(*map(float, d["start"]))
+        else:
+            opt[k] = type(params[k])(params[k])
+        opt.set_learning_rate({k: lrs[k]})
+    case.apply(mi, params, opt)
+    errs, worst, losses, its, comp = [], [], [], [], []
+    e, w = err_of(case, case.read(opt))
+    errs.append(e)
+    worst.append(w)
+    for it in range(iters):
+        hist = dr.scoped_set_flag(dr.JitFlag.KernelHistory, True)
+        hist.__enter__()
+        t0 = time.perf_counter()
+        img = mi.render(scene, params, seed=0)
+        loss = dr.mean(dr.square(img - target), axis=None)
+        dr.backward(loss)
+        opt.step()
+        for k, d in variables.items():
+            if d["lo"] is not None:
+                opt[k] = dr.maximum(opt[k], d["lo"])
+        case.apply(mi, params, opt)
+        sync(opt[next(iter(variables))])
+        its.append(time.perf_counter() - t0)
+        h = dr.kernel_history()
+        hist.__exit__(None, None, None)
+        comp.append(sum(k.get("codegen_time", 0) + k.get("backend_time", 0) for k in h))
+        losses.append(float(np.asarray(loss).ravel()[0]))
+        e, w = err_of(case, case.read(opt))
+        errs.append(e)
+        worst.append(w)
+        if it % 20 == 0 or it == iters - 1 or os.environ.get("INVERSE_VERBOSE"):
+            log(f"  {name} it {it:3d} loss {losses[-1]:.3e} worst err {w:.4f} ({its[-1] * 1e3:.0f} ms, compile {comp[-1]:.0f} ms)")
+    result_np = np.array(mi.render(scene, seed=0))
+    final = case.read(opt)
+    med_it = float(np.median(its[1:]))
+    med_pr = float(np.median(primal))
+    first_ok = next((i for i, w in enumerate(worst) if all(x <= 0.01 for x in worst[i:])), None)
+    return dict(
+        case=name, width=width, iters=iters, learning_rates=lrs,
+        ranges={k: d["range"] for k, d in variables.items()},
+        truth={k: d["truth"] for k, d in variables.items()},
+        start={k: d["start"] for k, d in variables.items()},
+        final={k: np.asarray(final[k]).reshape(np.shape(variables[k]["truth"])) for k in variables},
+        error_per_param=errs, worst_error=worst, loss=losses,
+        final_error=errs[-1], final_worst_error=worst[-1], within_1pct=bool(worst[-1] <= 0.01),
+        iterations_to_1pct=first_ok,
+        primal_ms=[t * 1e3 for t in primal], iteration_ms=[t * 1e3 for t in its],
+        primal_median_ms=med_pr * 1e3, iteration_median_ms=med_it * 1e3, compile_ms=comp, ratio=med_it / med_pr,
+        compile_median_ms=float(np.median(comp[1:])),
+        iteration_less_compile_median_ms=float(np.median(np.array(its[1:]) * 1e3 - np.array(comp[1:]))),
+        ratio_less_compile=float(np.median(np.array(its[1:]) * 1e3 - np.array(comp[1:]))) / (med_pr * 1e3),
+    ), (target_np, start_np, result_np)
+
+
+def timing_only(mi, dr, name, cls, variables, lrs, width, n, log):
+    """A few iterations at ``width``² for the iteration / primal ratio."""
+    scene = load(name, width)
+    case = cls(name, scene, variables, lrs, n)
+    params = mi.traverse(scene)
+    case.setup(mi, params)
+    target = mi.render(scene, seed=0)
+    sync(target)
+    primal = primal_times(mi, scene, n)
+    case.set_values(mi, params, {k: d["start"] for k, d in variables.items()})
+    opt = mi.ad.Adam(lr=0.01)
+    for k in variables:
+        opt[k] = type(params[k])(params[k])
+    params.update(opt)
+    its = []
+    for it in range(n + 1):
+        t0 = time.perf_counter()
+        img = mi.render(scene, params, seed=0)
+        dr.backward(dr.mean(dr.square(img - target), axis=None))
+        opt.step()
+        params.update(opt)
+        sync(opt[next(iter(variables))])
+        its.append(time.perf_counter() - t0)
+    its = its[1:]
+    r = dict(case=name, width=width, primal_ms=[t * 1e3 for t in primal], iteration_ms=[t * 1e3 for t in its],
+             primal_median_ms=float(np.median(primal)) * 1e3, iteration_median_ms=float(np.median(its)) * 1e3)
+    r["ratio"] = r["iteration_median_ms"] / r["primal_median_ms"]
+    log(f"  {name} at {width}²: primal {r['primal_median_ms']:.0f} ms, iteration {r['iteration_median_ms']:.0f} ms,"
+        f" ratio {r['ratio']:.2f}")
+    return r
+
+
+def tonemap(img):
+    return np.clip(np.asarray(img)[..., :3], 0, 1) ** (1 / 2.2)
+
+
+def figure(results, blob_images):
+    plt = pyplot()
+    fig = plt.figure(figsize=(13, 3.4))
+    gs = fig.add_gridspec(1, 4, width_ratios=[1.6, 1, 1, 1])
+    ax = fig.add_subplot(gs[0])
+    labels = {"light": "(a) links1_point position, L1, L2", "phong": "(b) links1_phong diffuse, specular",
+              "blob": "(c) blob centres, weights", "quadric": "(d) quadric translation"}
+    for r in results:
+        ax.semilogy(np.maximum(r["worst_error"], 1e-5), label=labels[r["case"]])
+    ax.axhline(0.01, color="k", ls=":", lw=0.8)
+    ax.set_xlabel("Adam iteration")
+    ax.set_ylabel("worst parameter error / range")
+    ax.legend(fontsize=7)
+    ax.set_title(f"links1_whitted inverse rendering ({results[0]['width']}², spp 1)", fontsize=9)
+    if blob_images is not None:
+        for i, (img, title) in enumerate(zip(blob_images, ("(c) target", "(c) start", "(c) result"))):
+            a = fig.add_subplot(gs[i + 1])
+            a.imshow(tonemap(img))
+            a.set_title(title, fontsize=9)
+            a.axis("off")
+    fig.tight_layout()
+    return fig
+
+
+def markdown(results, big, info, cmd):
+    out = ["# Inverse rendering with links1_whitted (issue 23, item 4)\n", machine_markdown(info, cmd), "",
+           "Adam on the L2 image loss, spp 1 (pixel centres), box filter, `max_depth` 3. Error: the worst "
+           "component's |x − x*| / range (ranges below). Times: wall-clock medians in one process; an iteration is "
+           "render with gradients + loss + backward + Adam step + `params.update`; the primal frame is "
+           "`mi.render` without gradients.\n"]
+    rows = []
+    for r in results:
+        rows.append([r["case"], f"{r['width']}²", r["iters"], r["worst_error"][0], r["final_worst_error"],
+                     "yes" if r["within_1pct"] else "no", r["iterations_to_1pct"], r["primal_median_ms"],
+                     r["iteration_median_ms"], r["compile_median_ms"], r["iteration_less_compile_median_ms"],
+                     r["ratio"], r["ratio_less_compile"]])
+    out.append(md_table(["case", "res", "iters", "start err", "final err", "≤ 1 %", "iters to ≤ 1 %",
+                         "primal ms", "iteration ms", "of which compile ms", "iteration − compile ms",
+                         "iter / primal", "(iter − compile) / primal"], rows))
+    out.append("\nPer parameter (final error / range; range):\n")
+    rows = []
+    for r in results:
+        for k in r["ranges"]:
+            rows.append([r["case"], f"`{k}`", r["ranges"][k], r["error_per_param"][0][k], r["final_error"][k],
+                         np.array2string(np.asarray(r["final"][k]), precision=3, separator=", ").replace("\n", " ")])
+    out.append(md_table(["case", "parameter", "range", "start err", "final err", "final value"], rows))
+    if big:
+        out.append("\nTiming at a larger film (same case, a few iterations):\n")
+        out.append(md_table(["case", "res", "primal ms", "iteration ms", "iter / primal"],
+                            [[b["case"], f"{b['width']}²", b["primal_median_ms"], b["iteration_median_ms"], b["ratio"]]
+                             for b in big]))
+    out.append("\nThe compile column: kernels built in that iteration (a parameter that enters a kernel as a "
+               "literal makes new kernels after each update; a rerun of the same trajectory finds them in "
+               "Dr.Jit's on-disk cache). \"iteration − compile\" is what an iteration costs once cached.\n")
+    out.append("\nError against iterations (worst component / range, every 10th iteration):\n")
+    n = max(len(r["worst_error"]) for r in results)
+    steps = list(range(0, n, 10)) + ([n - 1] if (n - 1) % 10 else [])
+    out.append(md_table(["iteration"] + [r["case"] for r in results],
+                        [[s] + [r["worst_error"][s] if s < len(r["worst_error"]) else None for r in results]
+                         for s in steps]))
+    return "\n".join(out)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--width", type=int, default=64)
+    ap.add_argument("--iters", type=int, default=100)
+    ap.add_argument("--blob-iters", type=int, default=15,
+                    help="the blob case's budget (each iteration recompiles its kernels: see the docstring)")
+    ap.add_argument("--big", type=int, default=256, help="also time the phong case at this width (0: no)")
+    ap.add_argument("--variant", default="llvm_ad_rgb")
+    ap.add_argument("--only", nargs="*", default=None)
+    ap.add_argument("--no-write", action="store_true")
+    a = ap.parse_args(argv)
+    import links1_mitsuba as lm
+    lm.register(a.variant)
+    import drjit as dr
+    import mitsuba as mi
+    info = machine_info()
+    info["variant"] = a.variant
+    cmd = command_line()
+    log = (lambda s: print(s, flush=True))
+    results, blob_images, big = [], None, []
+    t_all = time.perf_counter()
+    budget = {"default": a.iters, "blob": a.blob_iters}
+    for name, cls, variables, lrs, iters in make_cases(budget):
+        if a.only and name not in a.only:
+            continue
+        log(f"case {name}")
+        r, imgs = run_case(mi, dr, name, cls, variables, lrs, iters, a.width, log)
+        results.append(r)
+        if name == "blob":
+            blob_images = imgs
+        log("  per parameter: " + ", ".join(f"{k} {v:.4f}" for k, v in r["final_error"].items()))
+        log(f"  {name}: final worst error {r['final_worst_error']:.4f}, iteration {r['iteration_median_ms']:.0f} ms"
+            f" vs primal {r['primal_median_ms']:.0f} ms (×{r['ratio']:.2f})")
+        if a.big and name == "phong":
+            big.append(timing_only(mi, dr, name, cls, variables, lrs, a.big, 5, log))
+    payload = dict(machine=info, command=cmd, width=a.width, iters=a.iters, results=results, big=big,
+                   total_s=time.perf_counter() - t_all)
+    if not a.no_write:
+        paths = write_results("inverse", payload, markdown(results, big, info, cmd), figure(results, blob_images))
+        log("wrote " + ", ".join(map(str, paths)))
+    log(f"total {payload['total_s']:.0f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
