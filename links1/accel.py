@@ -32,6 +32,8 @@ resolved by index (lower primitive / shape index wins), never by visiting order.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 #: Relative enlargement of the slab test's exit distance (pbrt's 2·gamma(3) idea, with a
@@ -43,6 +45,10 @@ TRAVERSALS = ("auto", "packet", "lockstep")
 #: ``"auto"`` uses the packet traversal when a batch has at least this many rays per leaf
 #: of the hierarchy (large coherent packets), else the lock-step one (many small packets).
 PACKET_RAYS_PER_LEAF = 200
+#: The lock-step traversal hands a ray over to a plain Python walk (scalar slab tests, no
+#: numpy call per node) once at most this many rays are left: one numpy step per node costs
+#: tens of microseconds however few rays take it, a scalar node a few.
+SCALAR_RAYS = 1
 
 
 class BVH:
@@ -249,6 +255,59 @@ class BVH:
         tf = mn(tf * np.where(tf > 0, 1.0 + _SLAB_SLACK, 1.0 - _SLAB_SLACK), t1)
         return np.where(tn <= tf, tn, np.inf)
 
+    def _walk_one(self, g, nodes, tns, o, inv, dirpos, tmin, limit, visit):
+        """The rest of ray ``g``'s walk in :meth:`traverse_pairs` from its stack (``nodes``,
+        ``tns``: bottom first), in Python scalars: the same pops, culls, pushes and visits
+        in the same order, the same slab arithmetic (IEEE float64 either way; the caller
+        makes sure no operand is NaN or infinite, so min / max need no NaN rule and a
+        product is never NaN)."""
+        lo_l, hi_l = self._lo, self._hi
+        left, right, axis, start, count = self._left, self._right, self._axis, self._start, self._count
+        px, py, pz = (float(v) for v in o[g])
+        qx, qy, qz = (float(v) for v in inv[g])
+        dp = [bool(v) for v in dirpos[g]]
+        t0 = float(tmin[g])
+        up, down = 1.0 + _SLAB_SLACK, 1.0 - _SLAB_SLACK
+        inf = math.inf
+        gr = np.array([g], dtype=np.int64)
+        stack = list(zip(nodes, tns))
+
+        def slab(node, t1):
+            lo, hi = lo_l[node], hi_l[node]
+            ax0 = (lo[0] - px) * qx
+            ax1 = (hi[0] - px) * qx
+            ay0 = (lo[1] - py) * qy
+            ay1 = (hi[1] - py) * qy
+            az0 = (lo[2] - pz) * qz
+            az1 = (hi[2] - pz) * qz
+            tn = max(min(ax0, ax1), min(ay0, ay1), min(az0, az1), t0)
+            tf = min(max(ax0, ax1), max(ay0, ay1), max(az0, az1))
+            tf = min(tf * (up if tf > 0 else down), t1)
+            return tn if tn <= tf else inf
+
+        while stack:
+            node, tnode = stack.pop()
+            lim = float(limit[g])
+            if not tnode <= lim:           # re-cull with the current limit
+                continue
+            c = count[node]
+            if c == 0:
+                lc, rc = left[node], right[node]
+                tl, tr = slab(lc, lim), slab(rc, lim)
+                if dp[axis[node]]:
+                    pairs = ((rc, tr), (lc, tl))
+                else:
+                    pairs = ((lc, tl), (rc, tr))
+                for child, tc in pairs:    # far child pushed first, near child on top
+                    if tc != inf:
+                        stack.append((child, tc))
+                continue
+            st = start[node]
+            for i in range(c):
+                if i > 0 and not limit[g] >= tmin[g]:
+                    break
+                visit(gr, np.array([st + i], dtype=np.int64))
+
     def traverse_pairs(self, o: np.ndarray, d: np.ndarray, tmin: np.ndarray, limit: np.ndarray,
                        visit, rays: np.ndarray | None = None) -> None:
         """Lock-step traversal: every ray walks the tree depth first with its own stack
@@ -283,17 +342,37 @@ class BVH:
         sp = np.ones(R, dtype=np.int64)
         left, right, axis, start, count = self.left, self.right, self.axis, self.start, self.count
         act = np.arange(R)
+        # The scalar walk needs finite, non-NaN operands (then no slab value is NaN).
+        scalar_ok = (np.isfinite(o[g]).all(axis=1) & np.isfinite(inv[g]).all(axis=1)
+                     & np.isfinite(tmin[g]))
         while act.size:
+            if act.size <= SCALAR_RAYS and scalar_ok[act].all() and not np.isnan(limit[g[act]]).any():
+                for a in act.tolist():
+                    n_a = int(sp[a])
+                    self._walk_one(int(g[a]), stk[a, :n_a].tolist(), stt[a, :n_a].tolist(),
+                                   o, inv, dirpos, tmin, limit, visit)
+                return
             top = sp[act] - 1
             node = stk[act, top]
             tnode = stt[act, top]
-            sp[act] = top
             ga = g[act]
             lim = limit[ga]
             live = tnode <= lim            # re-cull with the current limit
             cnt = count[node]
-            inner = live & (cnt == 0)
             leaf = live & (cnt > 0)
+            if leaf.all():
+                # Every ray is at a leaf: all pop it and visit together (one round of
+                # visits for the batch instead of one per step that some ray reaches one).
+                sp[act] = top
+                inner = leaf[:0]
+            else:
+                # A ray at a leaf waits (keeps it on its stack) while others walk: its
+                # pops, and the limit each reads, stay in its own order (only a visit of
+                # the ray itself changes its limit), so nothing but the timing changes.
+                go = ~leaf
+                sp[act[go]] = top[go]
+                inner = live & (cnt == 0)
+                leaf = leaf[:0]
             if inner.any():
                 ii = act[inner]
                 gi = ga[inner]
@@ -315,9 +394,9 @@ class BVH:
                     sp_i = sp_i + h
                 sp[ii] = sp_i
             if leaf.any():
-                gl = ga[leaf]
-                st = start[node[leaf]]
-                cl = cnt[leaf]
+                gl = ga
+                st = start[node]
+                cl = cnt
                 alive = np.ones(gl.size, dtype=bool)
                 for i in range(int(cl.max())):
                     if i > 0:
