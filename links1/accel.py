@@ -206,6 +206,10 @@ class BVH:
         stack = [(0, rays[keep], tn[keep])]
         left, right, axis = self._left, self._right, self._axis
         start, count = self._start, self._count
+        # A one-ray packet walks its subtree in Python scalars (same order, see
+        # _walk_one): that needs finite operands.
+        scalar_ok = np.isfinite(o).all(axis=1) & np.isfinite(inv).all(axis=1) & np.isfinite(tmin)
+        dirpos_rows = None
         while stack:
             node, r, tn = stack.pop()
             # Re-cull with the current limits (lowered by hits found since the push).
@@ -218,6 +222,16 @@ class BVH:
             c = count[node]
             if c:
                 visit_leaf(start[node], c, r)
+                continue
+            if r.size <= SCALAR_RAYS and scalar_ok[r].all():
+                # The subtree's entries lie on top of the stack and are all popped before
+                # anything below them: walking it here keeps the order of the visits.
+                if dirpos_rows is None:
+                    dirpos_rows = d >= 0
+                for g_a in r.tolist():
+                    rr = np.array([g_a], dtype=np.int64)
+                    self._walk_one(g_a, [(node, float(tn[0]))], o, inv, dirpos_rows, tmin, limit,
+                                   lambda nd, rr=rr: visit_leaf(start[nd], count[nd], rr))
                 continue
             px, py, pz = ox[r], oy[r], oz[r]
             qx, qy, qz = ix[r], iy[r], iz[r]
@@ -255,22 +269,22 @@ class BVH:
         tf = mn(tf * np.where(tf > 0, 1.0 + _SLAB_SLACK, 1.0 - _SLAB_SLACK), t1)
         return np.where(tn <= tf, tn, np.inf)
 
-    def _walk_one(self, g, nodes, tns, o, inv, dirpos, tmin, limit, visit):
-        """The rest of ray ``g``'s walk in :meth:`traverse_pairs` from its stack (``nodes``,
-        ``tns``: bottom first), in Python scalars: the same pops, culls, pushes and visits
-        in the same order, the same slab arithmetic (IEEE float64 either way; the caller
-        makes sure no operand is NaN or infinite, so min / max need no NaN rule and a
-        product is never NaN)."""
+    def _walk_one(self, g, stack, o, inv, dirpos, tmin, limit, on_leaf):
+        """The rest of ray ``g``'s depth-first walk from its ``stack`` of (node, entry
+        distance) pairs (bottom first) in Python scalars: the pops, culls against the
+        current ``limit[g]``, pushes (far child first, near child on top) and slab
+        arithmetic of :meth:`traverse` and :meth:`traverse_pairs` for one ray, with no
+        numpy call per node (IEEE float64 either way; the caller makes sure that no operand
+        is NaN or infinite, so min / max need no NaN rule and a product is never NaN).
+        ``on_leaf(node)`` is called for every leaf the ray reaches (its box not culled)."""
         lo_l, hi_l = self._lo, self._hi
-        left, right, axis, start, count = self._left, self._right, self._axis, self._start, self._count
+        left, right, axis, count = self._left, self._right, self._axis, self._count
         px, py, pz = (float(v) for v in o[g])
         qx, qy, qz = (float(v) for v in inv[g])
         dp = [bool(v) for v in dirpos[g]]
         t0 = float(tmin[g])
         up, down = 1.0 + _SLAB_SLACK, 1.0 - _SLAB_SLACK
         inf = math.inf
-        gr = np.array([g], dtype=np.int64)
-        stack = list(zip(nodes, tns))
 
         def slab(node, t1):
             lo, hi = lo_l[node], hi_l[node]
@@ -290,23 +304,18 @@ class BVH:
             lim = float(limit[g])
             if not tnode <= lim:           # re-cull with the current limit
                 continue
-            c = count[node]
-            if c == 0:
-                lc, rc = left[node], right[node]
-                tl, tr = slab(lc, lim), slab(rc, lim)
-                if dp[axis[node]]:
-                    pairs = ((rc, tr), (lc, tl))
-                else:
-                    pairs = ((lc, tl), (rc, tr))
-                for child, tc in pairs:    # far child pushed first, near child on top
-                    if tc != inf:
-                        stack.append((child, tc))
+            if count[node]:
+                on_leaf(node)
                 continue
-            st = start[node]
-            for i in range(c):
-                if i > 0 and not limit[g] >= tmin[g]:
-                    break
-                visit(gr, np.array([st + i], dtype=np.int64))
+            lc, rc = left[node], right[node]
+            tl, tr = slab(lc, lim), slab(rc, lim)
+            if dp[axis[node]]:
+                pairs = ((rc, tr), (lc, tl))
+            else:
+                pairs = ((lc, tl), (rc, tr))
+            for child, tc in pairs:        # far child pushed first, near child on top
+                if tc != inf:
+                    stack.append((child, tc))
 
     def traverse_pairs(self, o: np.ndarray, d: np.ndarray, tmin: np.ndarray, limit: np.ndarray,
                        visit, rays: np.ndarray | None = None) -> None:
@@ -347,10 +356,20 @@ class BVH:
                      & np.isfinite(tmin[g]))
         while act.size:
             if act.size <= SCALAR_RAYS and scalar_ok[act].all() and not np.isnan(limit[g[act]]).any():
+                start_l = self._start
                 for a in act.tolist():
-                    n_a = int(sp[a])
-                    self._walk_one(int(g[a]), stk[a, :n_a].tolist(), stt[a, :n_a].tolist(),
-                                   o, inv, dirpos, tmin, limit, visit)
+                    n_a, g_a = int(sp[a]), int(g[a])
+                    gr = np.array([g_a], dtype=np.int64)
+
+                    def on_leaf(node):
+                        st = start_l[node]
+                        for i in range(self._count[node]):
+                            if i > 0 and not limit[g_a] >= tmin[g_a]:
+                                break
+                            visit(gr, np.array([st + i], dtype=np.int64))
+
+                    self._walk_one(g_a, list(zip(stk[a, :n_a].tolist(), stt[a, :n_a].tolist())),
+                                   o, inv, dirpos, tmin, limit, on_leaf)
                 return
             top = sp[act] - 1
             node = stk[act, top]
