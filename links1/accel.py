@@ -254,18 +254,14 @@ class BVH:
     def _slab_many(self, node, P, Q, t0, t1):
         """Entry distance (inf where missed) of rays (P origins, Q reciprocal directions)
         each against its own node ``node`` (m,): the same arithmetic as ``traverse``."""
-        lo = self.node_lo[node]
-        hi = self.node_hi[node]
         with np.errstate(over="ignore"):
-            ax0 = (lo[:, 0] - P[:, 0]) * Q[:, 0]
-            ax1 = (hi[:, 0] - P[:, 0]) * Q[:, 0]
-            ay0 = (lo[:, 1] - P[:, 1]) * Q[:, 1]
-            ay1 = (hi[:, 1] - P[:, 1]) * Q[:, 1]
-            az0 = (lo[:, 2] - P[:, 2]) * Q[:, 2]
-            az1 = (hi[:, 2] - P[:, 2]) * Q[:, 2]
+            # the per-axis products of ``traverse``, the three axes in one call
+            a0 = (self.node_lo[node] - P) * Q
+            a1 = (self.node_hi[node] - P) * Q
         mn, mx = np.minimum, np.maximum
-        tn = mx(mx(mn(ax0, ax1), mn(ay0, ay1)), mx(mn(az0, az1), t0))
-        tf = mn(mn(mx(ax0, ax1), mx(ay0, ay1)), mx(az0, az1))
+        near, far = mn(a0, a1), mx(a0, a1)
+        tn = mx(mx(near[:, 0], near[:, 1]), mx(near[:, 2], t0))
+        tf = mn(mn(far[:, 0], far[:, 1]), far[:, 2])
         tf = mn(tf * np.where(tf > 0, 1.0 + _SLAB_SLACK, 1.0 - _SLAB_SLACK), t1)
         return np.where(tn <= tf, tn, np.inf)
 
