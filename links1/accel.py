@@ -49,6 +49,8 @@ PACKET_RAYS_PER_LEAF = 200
 #: numpy call per node) once at most this many rays are left: one numpy step per node costs
 #: tens of microseconds however few rays take it, a scalar node a few.
 SCALAR_RAYS = 1
+#: Up to this many rays in a lock-step step, both children's slab tests take one call.
+_ONE_SLAB_CALL = 64
 
 
 class BVH:
@@ -347,6 +349,7 @@ class BVH:
         sp = np.ones(R, dtype=np.int64)
         left, right, axis, start, count = self.left, self.right, self.axis, self.start, self.count
         act = np.arange(R)
+        og, qg, t0g, dpg = o[g], inv[g], tmin[g], dirpos[g]
         # The scalar walk needs finite, non-NaN operands (then no slab value is NaN).
         scalar_ok = (np.isfinite(o[g]).all(axis=1) & np.isfinite(inv[g]).all(axis=1)
                      & np.isfinite(tmin[g]))
@@ -390,23 +393,31 @@ class BVH:
                 leaf = leaf[:0]
             if inner.any():
                 ii = act[inner]
-                gi = ga[inner]
                 nd = node[inner]
                 li = lim[inner]
-                P, Q, t0 = o[gi], inv[gi], tmin[gi]
                 lc, rc = left[nd], right[nd]
-                tl = self._slab_many(lc, P, Q, t0, li)
-                tr = self._slab_many(rc, P, Q, t0, li)
-                pos = dirpos[gi, axis[nd]]
-                # Per ray: far child pushed first, near child on top (popped first).
+                m = ii.size
+                if m <= _ONE_SLAB_CALL:
+                    # both children in one call (fewer numpy calls): rows [0, m) the left
+                    i2 = np.concatenate((ii, ii))
+                    T = self._slab_many(np.concatenate((lc, rc)), og[i2], qg[i2], t0g[i2],
+                                        np.concatenate((li, li)))
+                    tl, tr = T[:m], T[m:]
+                else:
+                    P, Q, t0 = og[ii], qg[ii], t0g[ii]
+                    tl = self._slab_many(lc, P, Q, t0, li)
+                    tr = self._slab_many(rc, P, Q, t0, li)
+                pos = dpg[ii, axis[nd]]
+                # Per ray: far child pushed first, near child on top (popped first). A
+                # child is written to the slot above the stack either way and counted
+                # only where its box is hit (that slot is < D: a stack holds <= depth + 1).
                 far, near = np.where(pos, rc, lc), np.where(pos, lc, rc)
                 tf, tnr = np.where(pos, tr, tl), np.where(pos, tl, tr)
                 sp_i = sp[ii]
                 for child, tc in ((far, tf), (near, tnr)):
-                    h = np.isfinite(tc)
-                    stk[ii[h], sp_i[h]] = child[h]
-                    stt[ii[h], sp_i[h]] = tc[h]
-                    sp_i = sp_i + h
+                    stk[ii, sp_i] = child
+                    stt[ii, sp_i] = tc
+                    sp_i = sp_i + np.isfinite(tc)
                 sp[ii] = sp_i
             if leaf.any():
                 gl = ga
