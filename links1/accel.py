@@ -230,9 +230,9 @@ class BVH:
                 # anything below them: walking it here keeps the order of the visits.
                 if dirpos_rows is None:
                     dirpos_rows = d >= 0
-                for g_a in r.tolist():
+                for g_a, tn_a in zip(r.tolist(), tn[m].tolist() if not m.all() else tn.tolist()):
                     rr = np.array([g_a], dtype=np.int64)
-                    self._walk_one(g_a, [(node, float(tn[0]))], o, inv, dirpos_rows, tmin, limit,
+                    self._walk_one(g_a, [(node, tn_a)], o, inv, dirpos_rows, tmin, limit,
                                    lambda nd, rr=rr: visit_leaf(start[nd], count[nd], rr))
                 continue
             px, py, pz = ox[r], oy[r], oz[r]
