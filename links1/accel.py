@@ -210,8 +210,7 @@ class BVH:
         start, count = self._start, self._count
         # A one-ray packet walks its subtree in Python scalars (same order, see
         # _walk_one): that needs finite operands.
-        scalar_ok = np.isfinite(o).all(axis=1) & np.isfinite(inv).all(axis=1) & np.isfinite(tmin)
-        dirpos_rows = None
+        scalar_ok = dirpos_rows = None
         while stack:
             node, r, tn = stack.pop()
             # Re-cull with the current limits (lowered by hits found since the push).
@@ -225,11 +224,12 @@ class BVH:
             if c:
                 visit_leaf(start[node], c, r)
                 continue
+            if r.size <= SCALAR_RAYS and scalar_ok is None:
+                scalar_ok = np.isfinite(o).all(axis=1) & np.isfinite(inv).all(axis=1) & np.isfinite(tmin)
+                dirpos_rows = d >= 0
             if r.size <= SCALAR_RAYS and scalar_ok[r].all():
                 # The subtree's entries lie on top of the stack and are all popped before
                 # anything below them: walking it here keeps the order of the visits.
-                if dirpos_rows is None:
-                    dirpos_rows = d >= 0
                 for g_a, tn_a in zip(r.tolist(), tn[m].tolist() if not m.all() else tn.tolist()):
                     rr = np.array([g_a], dtype=np.int64)
                     self._walk_one(g_a, [(node, tn_a)], o, inv, dirpos_rows, tmin, limit,
@@ -350,47 +350,66 @@ class BVH:
         left, right, axis, start, count = self.left, self.right, self.axis, self.start, self.count
         act = np.arange(R)
         og, qg, t0g, dpg = o[g], inv[g], tmin[g], dirpos[g]
-        # The scalar walk needs finite, non-NaN operands (then no slab value is NaN).
-        scalar_ok = (np.isfinite(o[g]).all(axis=1) & np.isfinite(inv[g]).all(axis=1)
-                     & np.isfinite(tmin[g]))
-        while act.size:
-            if act.size <= SCALAR_RAYS and scalar_ok[act].all() and not np.isnan(limit[g[act]]).any():
-                start_l = self._start
-                for a in act.tolist():
-                    n_a, g_a = int(sp[a]), int(g[a])
-                    gr = np.array([g_a], dtype=np.int64)
+        wt = act[:0]                       # rays waiting at a leaf (not yet popped)
+        scalar_ok = None
+        while act.size or wt.size:
+            if act.size + wt.size <= SCALAR_RAYS:
+                if scalar_ok is None:
+                    # The scalar walk needs finite, non-NaN operands (then no slab value is NaN).
+                    scalar_ok = (np.isfinite(og).all(axis=1) & np.isfinite(qg).all(axis=1)
+                                 & np.isfinite(t0g))
+                rest = np.sort(np.concatenate((act, wt)))
+                if scalar_ok[rest].all() and not np.isnan(limit[g[rest]]).any():
+                    start_l = self._start
+                    for a in rest.tolist():
+                        n_a, g_a = int(sp[a]), int(g[a])
+                        gr = np.array([g_a], dtype=np.int64)
 
-                    def on_leaf(node):
-                        st = start_l[node]
-                        for i in range(self._count[node]):
-                            if i > 0 and not limit[g_a] >= tmin[g_a]:
-                                break
-                            visit(gr, np.array([st + i], dtype=np.int64))
+                        def on_leaf(node):
+                            st = start_l[node]
+                            for i in range(self._count[node]):
+                                if i > 0 and not limit[g_a] >= tmin[g_a]:
+                                    break
+                                visit(gr, np.array([st + i], dtype=np.int64))
 
-                    self._walk_one(g_a, list(zip(stk[a, :n_a].tolist(), stt[a, :n_a].tolist())),
-                                   o, inv, dirpos, tmin, limit, on_leaf)
-                return
+                        self._walk_one(g_a, list(zip(stk[a, :n_a].tolist(), stt[a, :n_a].tolist())),
+                                       o, inv, dirpos, tmin, limit, on_leaf)
+                    return
+            if act.size == 0:
+                # Every ray waits at a leaf: all pop it and visit together (one round of
+                # visits for the batch instead of one per step in which a ray reaches one).
+                wt = np.sort(wt)
+                top = sp[wt] - 1
+                sp[wt] = top
+                node = stk[wt, top]
+                gl = g[wt]
+                st = start[node]
+                cl = count[node]
+                alive = np.ones(gl.size, dtype=bool)
+                for i in range(int(cl.max())):
+                    if i > 0:
+                        alive &= limit[gl] >= tmin[gl]
+                    sel = alive & (cl > i)
+                    if sel.any():
+                        visit(gl[sel], st[sel] + i)
+                act, wt = wt[sp[wt] > 0], wt[:0]
+                continue
             top = sp[act] - 1
             node = stk[act, top]
             tnode = stt[act, top]
-            ga = g[act]
-            lim = limit[ga]
+            lim = limit[g[act]]
             live = tnode <= lim            # re-cull with the current limit
             cnt = count[node]
             leaf = live & (cnt > 0)
-            if leaf.all():
-                # Every ray is at a leaf: all pop it and visit together (one round of
-                # visits for the batch instead of one per step that some ray reaches one).
-                sp[act] = top
-                inner = leaf[:0]
-            else:
-                # A ray at a leaf waits (keeps it on its stack) while others walk: its
-                # pops, and the limit each reads, stay in its own order (only a visit of
-                # the ray itself changes its limit), so nothing but the timing changes.
+            if leaf.any():
+                # A ray at a live leaf waits (keeps it on its stack) while the others walk:
+                # its pops, and the limit each reads, stay in its own order (only a visit
+                # of the ray itself changes its limit), so nothing but the timing changes.
+                wt = np.concatenate((wt, act[leaf]))
                 go = ~leaf
-                sp[act[go]] = top[go]
-                inner = live & (cnt == 0)
-                leaf = leaf[:0]
+                act, top, node, lim, live, cnt = act[go], top[go], node[go], lim[go], live[go], cnt[go]
+            sp[act] = top
+            inner = live & (cnt == 0)
             if inner.any():
                 ii = act[inner]
                 nd = node[inner]
@@ -419,17 +438,6 @@ class BVH:
                     stt[ii, sp_i] = tc
                     sp_i = sp_i + np.isfinite(tc)
                 sp[ii] = sp_i
-            if leaf.any():
-                gl = ga
-                st = start[node]
-                cl = cnt
-                alive = np.ones(gl.size, dtype=bool)
-                for i in range(int(cl.max())):
-                    if i > 0:
-                        alive &= limit[gl] >= tmin[gl]
-                    sel = alive & (cl > i)
-                    if sel.any():
-                        visit(gl[sel], st[sel] + i)
             act = act[sp[act] > 0]
 
 
