@@ -21,6 +21,11 @@ over in batches; all plain :class:`links1.shapes.Quadric` shapes of a batch are 
 intersected in one vectorised call (``_QuadricSet``, the same arithmetic per pair), so
 the cost per frame no longer grows with the number of nodes visited. ``Accel`` picks the
 packet traversal when a batch has at least :data:`PACKET_RAYS_PER_LEAF` rays per leaf.
+In the lock-step one a ray that reaches a leaf waits there until every ray of the batch has
+(then they all visit their leaves in one round), and once at most :data:`SCALAR_RAYS` rays
+are left (or a packet has that many rays) they walk on in Python floats (``_walk_one``):
+small batches (windows of a few pixels) no longer pay a round of numpy calls per tree node
+(issue 28). Each ray's own order of pops, culls and visits is the same in every walk.
 
 Determinism
 -----------
