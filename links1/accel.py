@@ -21,6 +21,11 @@ over in batches; all plain :class:`links1.shapes.Quadric` shapes of a batch are 
 intersected in one vectorised call (``_QuadricSet``, the same arithmetic per pair), so
 the cost per frame no longer grows with the number of nodes visited. ``Accel`` picks the
 packet traversal when a batch has at least :data:`PACKET_RAYS_PER_LEAF` rays per leaf.
+In the lock-step one a ray that reaches a leaf waits there until every ray of the batch has
+(then they all visit their leaves in one round), and once at most :data:`SCALAR_RAYS` rays
+are left (or a packet has that many rays) they walk on in Python floats (``_walk_one``):
+small batches (windows of a few pixels) no longer pay a round of numpy calls per tree node
+(issue 28). Each ray's own order of pops, culls and visits is the same in every walk.
 
 Determinism
 -----------
@@ -31,6 +36,8 @@ split axis), culling uses the ray's own current nearest distance, and equal dist
 resolved by index (lower primitive / shape index wins), never by visiting order.
 """
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
@@ -43,6 +50,12 @@ TRAVERSALS = ("auto", "packet", "lockstep")
 #: ``"auto"`` uses the packet traversal when a batch has at least this many rays per leaf
 #: of the hierarchy (large coherent packets), else the lock-step one (many small packets).
 PACKET_RAYS_PER_LEAF = 200
+#: The lock-step traversal hands a ray over to a plain Python walk (scalar slab tests, no
+#: numpy call per node) once at most this many rays are left: one numpy step per node costs
+#: tens of microseconds however few rays take it, a scalar node a few.
+SCALAR_RAYS = 1
+#: Up to this many rays in a lock-step step, both children's slab tests take one call.
+_ONE_SLAB_CALL = 64
 
 
 class BVH:
@@ -200,6 +213,9 @@ class BVH:
         stack = [(0, rays[keep], tn[keep])]
         left, right, axis = self._left, self._right, self._axis
         start, count = self._start, self._count
+        # A one-ray packet walks its subtree in Python scalars (same order, see
+        # _walk_one): that needs finite operands.
+        scalar_ok = dirpos_rows = None
         while stack:
             node, r, tn = stack.pop()
             # Re-cull with the current limits (lowered by hits found since the push).
@@ -212,6 +228,17 @@ class BVH:
             c = count[node]
             if c:
                 visit_leaf(start[node], c, r)
+                continue
+            if r.size <= SCALAR_RAYS and scalar_ok is None:
+                scalar_ok = np.isfinite(o).all(axis=1) & np.isfinite(inv).all(axis=1) & np.isfinite(tmin)
+                dirpos_rows = d >= 0
+            if r.size <= SCALAR_RAYS and scalar_ok[r].all():
+                # The subtree's entries lie on top of the stack and are all popped before
+                # anything below them: walking it here keeps the order of the visits.
+                for g_a, tn_a in zip(r.tolist(), tn[m].tolist() if not m.all() else tn.tolist()):
+                    rr = np.array([g_a], dtype=np.int64)
+                    self._walk_one(g_a, [(node, tn_a)], o, inv, dirpos_rows, tmin, limit,
+                                   lambda nd, rr=rr: visit_leaf(start[nd], count[nd], rr))
                 continue
             px, py, pz = ox[r], oy[r], oz[r]
             qx, qy, qz = ix[r], iy[r], iz[r]
@@ -234,20 +261,64 @@ class BVH:
     def _slab_many(self, node, P, Q, t0, t1):
         """Entry distance (inf where missed) of rays (P origins, Q reciprocal directions)
         each against its own node ``node`` (m,): the same arithmetic as ``traverse``."""
-        lo = self.node_lo[node]
-        hi = self.node_hi[node]
         with np.errstate(over="ignore"):
-            ax0 = (lo[:, 0] - P[:, 0]) * Q[:, 0]
-            ax1 = (hi[:, 0] - P[:, 0]) * Q[:, 0]
-            ay0 = (lo[:, 1] - P[:, 1]) * Q[:, 1]
-            ay1 = (hi[:, 1] - P[:, 1]) * Q[:, 1]
-            az0 = (lo[:, 2] - P[:, 2]) * Q[:, 2]
-            az1 = (hi[:, 2] - P[:, 2]) * Q[:, 2]
+            # the per-axis products of ``traverse``, the three axes in one call
+            a0 = (self.node_lo[node] - P) * Q
+            a1 = (self.node_hi[node] - P) * Q
         mn, mx = np.minimum, np.maximum
-        tn = mx(mx(mn(ax0, ax1), mn(ay0, ay1)), mx(mn(az0, az1), t0))
-        tf = mn(mn(mx(ax0, ax1), mx(ay0, ay1)), mx(az0, az1))
+        near, far = mn(a0, a1), mx(a0, a1)
+        tn = mx(mx(near[:, 0], near[:, 1]), mx(near[:, 2], t0))
+        tf = mn(mn(far[:, 0], far[:, 1]), far[:, 2])
         tf = mn(tf * np.where(tf > 0, 1.0 + _SLAB_SLACK, 1.0 - _SLAB_SLACK), t1)
         return np.where(tn <= tf, tn, np.inf)
+
+    def _walk_one(self, g, stack, o, inv, dirpos, tmin, limit, on_leaf):
+        """The rest of ray ``g``'s depth-first walk from its ``stack`` of (node, entry
+        distance) pairs (bottom first) in Python scalars: the pops, culls against the
+        current ``limit[g]``, pushes (far child first, near child on top) and slab
+        arithmetic of :meth:`traverse` and :meth:`traverse_pairs` for one ray, with no
+        numpy call per node (IEEE float64 either way; the caller makes sure that no operand
+        is NaN or infinite, so min / max need no NaN rule and a product is never NaN).
+        ``on_leaf(node)`` is called for every leaf the ray reaches (its box not culled)."""
+        lo_l, hi_l = self._lo, self._hi
+        left, right, axis, count = self._left, self._right, self._axis, self._count
+        px, py, pz = (float(v) for v in o[g])
+        qx, qy, qz = (float(v) for v in inv[g])
+        dp = [bool(v) for v in dirpos[g]]
+        t0 = float(tmin[g])
+        up, down = 1.0 + _SLAB_SLACK, 1.0 - _SLAB_SLACK
+        inf = math.inf
+
+        def slab(node, t1):
+            lo, hi = lo_l[node], hi_l[node]
+            ax0 = (lo[0] - px) * qx
+            ax1 = (hi[0] - px) * qx
+            ay0 = (lo[1] - py) * qy
+            ay1 = (hi[1] - py) * qy
+            az0 = (lo[2] - pz) * qz
+            az1 = (hi[2] - pz) * qz
+            tn = max(min(ax0, ax1), min(ay0, ay1), min(az0, az1), t0)
+            tf = min(max(ax0, ax1), max(ay0, ay1), max(az0, az1))
+            tf = min(tf * (up if tf > 0 else down), t1)
+            return tn if tn <= tf else inf
+
+        while stack:
+            node, tnode = stack.pop()
+            lim = float(limit[g])
+            if not tnode <= lim:           # re-cull with the current limit
+                continue
+            if count[node]:
+                on_leaf(node)
+                continue
+            lc, rc = left[node], right[node]
+            tl, tr = slab(lc, lim), slab(rc, lim)
+            if dp[axis[node]]:
+                pairs = ((rc, tr), (lc, tl))
+            else:
+                pairs = ((lc, tl), (rc, tr))
+            for child, tc in pairs:        # far child pushed first, near child on top
+                if tc != inf:
+                    stack.append((child, tc))
 
     def traverse_pairs(self, o: np.ndarray, d: np.ndarray, tmin: np.ndarray, limit: np.ndarray,
                        visit, rays: np.ndarray | None = None) -> None:
@@ -283,41 +354,42 @@ class BVH:
         sp = np.ones(R, dtype=np.int64)
         left, right, axis, start, count = self.left, self.right, self.axis, self.start, self.count
         act = np.arange(R)
-        while act.size:
-            top = sp[act] - 1
-            node = stk[act, top]
-            tnode = stt[act, top]
-            sp[act] = top
-            ga = g[act]
-            lim = limit[ga]
-            live = tnode <= lim            # re-cull with the current limit
-            cnt = count[node]
-            inner = live & (cnt == 0)
-            leaf = live & (cnt > 0)
-            if inner.any():
-                ii = act[inner]
-                gi = ga[inner]
-                nd = node[inner]
-                li = lim[inner]
-                P, Q, t0 = o[gi], inv[gi], tmin[gi]
-                lc, rc = left[nd], right[nd]
-                tl = self._slab_many(lc, P, Q, t0, li)
-                tr = self._slab_many(rc, P, Q, t0, li)
-                pos = dirpos[gi, axis[nd]]
-                # Per ray: far child pushed first, near child on top (popped first).
-                far, near = np.where(pos, rc, lc), np.where(pos, lc, rc)
-                tf, tnr = np.where(pos, tr, tl), np.where(pos, tl, tr)
-                sp_i = sp[ii]
-                for child, tc in ((far, tf), (near, tnr)):
-                    h = np.isfinite(tc)
-                    stk[ii[h], sp_i[h]] = child[h]
-                    stt[ii[h], sp_i[h]] = tc[h]
-                    sp_i = sp_i + h
-                sp[ii] = sp_i
-            if leaf.any():
-                gl = ga[leaf]
-                st = start[node[leaf]]
-                cl = cnt[leaf]
+        og, qg, t0g, dpg = o[g], inv[g], tmin[g], dirpos[g]
+        wt = act[:0]                       # rays waiting at a leaf (not yet popped)
+        scalar_ok = None
+        while act.size or wt.size:
+            if act.size + wt.size <= SCALAR_RAYS:
+                if scalar_ok is None:
+                    # The scalar walk needs finite, non-NaN operands (then no slab value is NaN).
+                    scalar_ok = (np.isfinite(og).all(axis=1) & np.isfinite(qg).all(axis=1)
+                                 & np.isfinite(t0g))
+                rest = np.sort(np.concatenate((act, wt)))
+                if scalar_ok[rest].all() and not np.isnan(limit[g[rest]]).any():
+                    start_l = self._start
+                    for a in rest.tolist():
+                        n_a, g_a = int(sp[a]), int(g[a])
+                        gr = np.array([g_a], dtype=np.int64)
+
+                        def on_leaf(node):
+                            st = start_l[node]
+                            for i in range(self._count[node]):
+                                if i > 0 and not limit[g_a] >= tmin[g_a]:
+                                    break
+                                visit(gr, np.array([st + i], dtype=np.int64))
+
+                        self._walk_one(g_a, list(zip(stk[a, :n_a].tolist(), stt[a, :n_a].tolist())),
+                                       o, inv, dirpos, tmin, limit, on_leaf)
+                    return
+            if act.size == 0:
+                # Every ray waits at a leaf: all pop it and visit together (one round of
+                # visits for the batch instead of one per step in which a ray reaches one).
+                wt = np.sort(wt)
+                top = sp[wt] - 1
+                sp[wt] = top
+                node = stk[wt, top]
+                gl = g[wt]
+                st = start[node]
+                cl = count[node]
                 alive = np.ones(gl.size, dtype=bool)
                 for i in range(int(cl.max())):
                     if i > 0:
@@ -325,6 +397,52 @@ class BVH:
                     sel = alive & (cl > i)
                     if sel.any():
                         visit(gl[sel], st[sel] + i)
+                act, wt = wt[sp[wt] > 0], wt[:0]
+                continue
+            top = sp[act] - 1
+            node = stk[act, top]
+            tnode = stt[act, top]
+            lim = limit[g[act]]
+            live = tnode <= lim            # re-cull with the current limit
+            cnt = count[node]
+            leaf = live & (cnt > 0)
+            if leaf.any():
+                # A ray at a live leaf waits (keeps it on its stack) while the others walk:
+                # its pops, and the limit each reads, stay in its own order (only a visit
+                # of the ray itself changes its limit), so nothing but the timing changes.
+                wt = np.concatenate((wt, act[leaf]))
+                go = ~leaf
+                act, top, node, lim, live, cnt = act[go], top[go], node[go], lim[go], live[go], cnt[go]
+            sp[act] = top
+            inner = live & (cnt == 0)
+            if inner.any():
+                ii = act[inner]
+                nd = node[inner]
+                li = lim[inner]
+                lc, rc = left[nd], right[nd]
+                m = ii.size
+                if m <= _ONE_SLAB_CALL:
+                    # both children in one call (fewer numpy calls): rows [0, m) the left
+                    i2 = np.concatenate((ii, ii))
+                    T = self._slab_many(np.concatenate((lc, rc)), og[i2], qg[i2], t0g[i2],
+                                        np.concatenate((li, li)))
+                    tl, tr = T[:m], T[m:]
+                else:
+                    P, Q, t0 = og[ii], qg[ii], t0g[ii]
+                    tl = self._slab_many(lc, P, Q, t0, li)
+                    tr = self._slab_many(rc, P, Q, t0, li)
+                pos = dpg[ii, axis[nd]]
+                # Per ray: far child pushed first, near child on top (popped first). A
+                # child is written to the slot above the stack either way and counted
+                # only where its box is hit (that slot is < D: a stack holds <= depth + 1).
+                far, near = np.where(pos, rc, lc), np.where(pos, lc, rc)
+                tf, tnr = np.where(pos, tr, tl), np.where(pos, tl, tr)
+                sp_i = sp[ii]
+                for child, tc in ((far, tf), (near, tnr)):
+                    stk[ii, sp_i] = child
+                    stt[ii, sp_i] = tc
+                    sp_i = sp_i + np.isfinite(tc)
+                sp[ii] = sp_i
             act = act[sp[act] > 0]
 
 

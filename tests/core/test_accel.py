@@ -308,3 +308,51 @@ def test_surface_batched_equals_each_shape_bitwise():
         pj, ngj, nsj = shapes[j].surface(o[m], d[m], t[m], p[m])
         assert np.array_equal(P[m], pj) and np.array_equal(NG[m], ngj) and np.array_equal(NS[m], nsj)
     assert np.all(P[s < 0] == 0) and np.all(NG[s < 0] == 0)
+
+
+@pytest.mark.filterwarnings("ignore:overflow encountered")
+@pytest.mark.parametrize("mode", ["packet", "lockstep"])
+def test_scalar_walk_same_bits_as_numpy_walk(monkeypatch, mode):
+    """Issue 28: the Python-scalar walk of a few rays (``SCALAR_RAYS``) visits the same
+    leaves in the same order as the numpy walk: the same nearest hits, costs (which count
+    the culled visits), shadow products and any-hit sets, with every batch walked in
+    scalars or none; also for rays with zero direction components (huge reciprocals whose
+    slab products overflow) and subnormal ones (infinite reciprocals: numpy walk)."""
+    import links1.accel as accel_mod
+    rng = np.random.default_rng(11)
+    shapes = random_scene(rng, k=40) + _quadric_zoo(rng, 30)
+    shapes.append(shapes[0])
+    n = 600
+    o, d = random_rays(rng, n)
+    d[:60, rng.integers(0, 3)] = 0.0                   # axis-parallel components
+    d[60:70, 0] = 1e-310                               # subnormal: 1/d is inf
+    d[70:80] = [0.0, 0.0, -1.0]
+    o[70:80, 2] = 6.0
+    o[75:80, 0] = shapes[0].bounds()[0][0]             # origins on a box plane
+    tmin = np.where(rng.random(n) < 0.2, 0.5, 0.0)
+    tmax = np.where(rng.random(n) < 0.3, 5.0, INF)
+    st = rng.random((len(shapes), 3))
+    st[rng.random(len(shapes)) < 0.3] = 0.0
+    out = {}
+    for k in (0, n):                                   # never / always the scalar walk
+        monkeypatch.setattr(accel_mod, "SCALAR_RAYS", k)
+        acc = Accel(shapes, traversal=mode)
+        c1, c2, c3 = (np.zeros(n, dtype=np.int64) for _ in range(3))
+        hit = acc.intersect(o, d, tmin, tmax, c1)
+        T = acc.shadow_transmittance(o, d, np.full(n, 4.0), st, c2)
+        anyh = [(j, h.copy()) for j, h in acc.any_hit_per_shape(o, d, tmin, tmax, c3)]
+        one = [acc.intersect(o[i:i + 1], d[i:i + 1], tmin[i:i + 1], tmax[i:i + 1]) for i in range(0, n, 7)]
+        out[k] = (hit, c1, T, c2, anyh, c3, one)
+    a, b = out[0], out[n]
+    assert all(np.array_equal(x, y) for x, y in zip(a[0], b[0]))
+    assert np.isfinite(a[0][0]).sum() > 100 and a[1].sum() > n     # hits and culled costs
+    assert np.array_equal(a[1], b[1]) and np.array_equal(a[2], b[2]) and np.array_equal(a[3], b[3])
+    assert [j for j, _ in a[4]] == [j for j, _ in b[4]]
+    assert all(np.array_equal(x, y) for (_, x), (_, y) in zip(a[4], b[4]))
+    assert np.array_equal(a[5], b[5])
+    for x1, y1 in zip(a[6], b[6]):
+        assert all(np.array_equal(x, y) for x, y in zip(x1, y1))
+    # a one-ray batch gives the full batch's bits
+    for r, (t, s, p) in zip(range(0, n, 7), b[6]):
+        assert t[0] == a[0][0][r] or (np.isnan(t[0]) and np.isnan(a[0][0][r]))
+        assert s[0] == a[0][1][r] and p[0] == a[0][2][r]
