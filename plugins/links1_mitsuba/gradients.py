@@ -41,8 +41,6 @@ from __future__ import annotations
 
 import copy
 
-import numpy as np
-
 from . import geometry
 from .util import INF
 
@@ -107,17 +105,11 @@ def define_gradients(mi, dr, util):
             if self.adaptive is not None:
                 raise NotImplementedError("links1_whitted: gradients of adaptive anti-aliasing are not "
                                           "implemented (render with spp instead of adaptive)")
-            sensor = self._sensor_of(scene, sensor)
-            film = sensor.film()
-            off, size = film.crop_offset(), film.crop_size()
-            if spp == 0 or spp is None:
-                spp = sensor.sampler().sample_count()
-            s = int(seed) if not hasattr(seed, "__len__") else int(np.array(seed).ravel()[0])
-            win = (int(off[0]), int(off[1]), int(size[0]), int(size[1]))
+            sensor, win, spp, seed = self._render_request(scene, sensor, seed, spp)
             with dr.suspend_grad():
                 P = self.prepare(scene, sensor)
             Q = self._ad_tables(P, scene)
-            return self.render_windows_device(scene, [win], spp=int(spp), seed=self.seed + s, sensor=sensor,
+            return self.render_windows_device(scene, [win], spp=spp, seed=seed, sensor=sensor,
                                               dtype=mi.Float, tables=Q)[0]
 
         def _ad_tables(self, P, scene):

@@ -213,6 +213,18 @@ def define_integrator():
             """``mi.render(scene, sensor=...)``: ``sensor`` (an index into ``scene.sensors()`` or
             a sensor object, the scene's or one made apart) gives the camera, the film (size,
             crop window, reconstruction filter) and, unless ``spp`` is given, the sample count."""
+            sensor, win, spp, seed = self._render_request(scene, sensor, seed, spp)
+            if self.adaptive is not None:   # refined on the host (links1.adaptive)
+                img = self.render_adaptive(scene, win, seed=seed, sensor=sensor)
+                return mi.TensorXf(img.astype(np.float32))
+            # the frame made on the device and returned as it is (links1_mitsuba.film)
+            return self.render_windows_device(scene, [win], spp=spp, seed=seed, sensor=sensor,
+                                              dtype=mi.Float)[0]
+
+        def _render_request(self, scene, sensor, seed, spp):
+            """What a ``render``-style call (``mi.render``, ``render_forward``/``_backward``) asks for:
+            ``(sensor object, its crop window, spp (the sampler's when 0 or None), the pattern's seed
+            = the integrator's seed + the call's)``."""
             sensor = self._sensor_of(scene, sensor)
             film = sensor.film()
             off, size = film.crop_offset(), film.crop_size()
@@ -220,12 +232,7 @@ def define_integrator():
                 spp = sensor.sampler().sample_count()
             s = int(seed) if not hasattr(seed, "__len__") else int(np.array(seed).ravel()[0])
             win = (int(off[0]), int(off[1]), int(size[0]), int(size[1]))
-            if self.adaptive is not None:   # refined on the host (links1.adaptive)
-                img = self.render_adaptive(scene, win, seed=self.seed + s, sensor=sensor)
-                return mi.TensorXf(img.astype(np.float32))
-            # the frame made on the device and returned as it is (links1_mitsuba.film)
-            return self.render_windows_device(scene, [win], spp=int(spp), seed=self.seed + s, sensor=sensor,
-                                              dtype=mi.Float)[0]
+            return sensor, win, int(spp), self.seed + s
 
         def sample(self, scene, sampler, ray, medium=None, active=True):
             raise RuntimeError("links1_whitted renders whole ray trees in its own kernels; use mi.render() "
