@@ -76,7 +76,12 @@ def test_every_switch_is_part_of_the_launch_key_or_the_tables_identity(variant, 
         integ.trace_points(scene, xf, yf, keys)
         return (integ.n_scene_builds, integ._freeze.n_recordings, integ._freeze_points.n_recordings)
 
-    builds, rec, rec_pts = frame()
+    # a configuration records its launch at most twice (issue 22): Dr.Jit's freeze may record
+    # again once the launch's scene input turns out stale and it takes the whole scene
+    # (launch.SceneInputs), within the first frames; from then on frames replay
+    warm = [frame() for _ in range(3)]
+    builds, rec, rec_pts = warm[-1]
+    assert builds == warm[0][0] and rec <= 2 and rec_pts <= 2, warm
     assert frame() == (builds, rec, rec_pts)                  # replays: nothing new
     with tuning.tuned(**{field: value}):
         assert tuning.current() == dataclasses.replace(default, **{field: value})
