@@ -89,19 +89,11 @@ def _delta_only(scene) -> str | None:
 
 def _resize(scene, width: int):
     """``width`` pixels wide, the film's aspect and ``x_fov`` kept; the crop = the whole film."""
-    import mitsuba as mi
+    from links1_mitsuba.renderer import resize_film
     sensor = scene.sensors()[0]
     W, H = (int(v) for v in sensor.film().size())
     h = max(1, int(round(width * H / W)))
-    prm = mi.traverse(sensor)
-    keys = set(prm.keys())
-    x_fov = prm["x_fov"] if "x_fov" in keys else None
-    prm["film.size"] = [width, h]
-    prm["film.crop_size"] = [width, h]
-    prm["film.crop_offset"] = [0, 0]
-    if x_fov is not None:
-        prm["x_fov"] = x_fov
-    prm.update()
+    resize_film(sensor, width, h)
     return width, h
 
 

@@ -45,6 +45,12 @@ from . import geometry
 from .util import INF
 
 
+#: (parameter, index in the light's ``P.lights`` entry) of the links1 lights' differentiable values:
+#: ("point", position, direction, L1, L2, ...) and ("cspot", origin, direction, radius, intensity)
+LINKS1_POINT_SLOTS = (("position", 1), ("direction", 2), ("L1", 3), ("L2", 4))
+LINKS1_SPOT_SLOTS = (("origin", 1), ("intensity", 4))
+
+
 def define_gradients(mi, dr, util):
     """The ``Gradients`` part of ``Links1Whitted`` for the variant in use."""
     from ._registry import plugin_class
@@ -147,25 +153,13 @@ def define_gradients(mi, dr, util):
             lights, j = list(P.lights), 0
             for e in scene.emitters():
                 kind = str(e).split("[")[0]
-                if isinstance(e, Pt):
-                    v = e.values
+                if isinstance(e, (Pt, Sp)):
+                    # the attached values at their places in the light's P.lights entry (tables.py)
                     L = list(lights[j])
-                    if attached(v["position"]):
-                        L[1] = v["position"]
-                    if attached(v["direction"]):
-                        L[2] = dr.normalize(v["direction"])
-                    if attached(v["L1"]):
-                        L[3] = v["L1"]
-                    if attached(v["L2"]):
-                        L[4] = v["L2"]
-                    lights[j] = tuple(L)
-                elif isinstance(e, Sp):
-                    v = e.values
-                    L = list(lights[j])
-                    if attached(v["origin"]):
-                        L[1] = v["origin"]
-                    if attached(v["intensity"]):
-                        L[4] = v["intensity"]
+                    for name, at in (LINKS1_POINT_SLOTS if isinstance(e, Pt) else LINKS1_SPOT_SLOTS):
+                        v = e.values[name]
+                        if attached(v):
+                            L[at] = dr.normalize(v) if name == "direction" else v
                     lights[j] = tuple(L)
                 elif kind == "PointLight":
                     prm = mi.traverse(e)

@@ -9,7 +9,7 @@ from links1.render import channel_names, check_sensor_index
 from .integrator import DEFAULT_MIN_WEIGHT, parse_aovs
 
 
-def _resize_film(sensor, width, height):
+def resize_film(sensor, width, height):
     """Give ``sensor``'s film a new resolution keeping ``x_fov`` (crop = whole film)."""
     import mitsuba as mi
     size = sensor.film().size()
@@ -87,7 +87,7 @@ class MitsubaRenderer:
         self.sensor_index = check_sensor_index(self.path, sensor, len(self.scene.sensors()))
         self.sensor = sensor = self.scene.sensors()[self.sensor_index]
         if width is not None or height is not None:
-            _resize_film(sensor, width, height)
+            resize_film(sensor, width, height)
         self.min_weight = DEFAULT_MIN_WEIGHT if min_weight is None else float(min_weight)
         if not self.min_weight >= 0:
             raise ValueError(f"min_weight must be >= 0, got {min_weight}")
