@@ -21,7 +21,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from links1.render import AOVS, DEFAULT_ADAPTIVE_DEPTH, channel_names
+from links1.adaptive import DEFAULT_ADAPTIVE_DEPTH
+from links1.aovs import channel_names
+from links1.aovs import check_aovs as parse_aovs  # the one AOV table and checker (links1/aovs.py)
 from links1.params import default as l1_default
 from links1.params import read as l1_read
 
@@ -45,19 +47,6 @@ _PRECISE_MITSUBA = ("Mesh", "OBJMesh", "PLYMesh", "Rectangle", "Disk", "Links1Bi
 #: the same default as links1.integrator.DEFAULT_MIN_WEIGHT).
 DEFAULT_MIN_WEIGHT = l1_default("links1_whitted", "min_weight")
 # Custom quadrics with finite bounds go under a BVH (bvh.py) from tuning.Tuning.bvh_min on.
-
-
-def parse_aovs(value) -> list:
-    if value is None:
-        return []
-    if isinstance(value, str):
-        items = [s.strip() for s in value.replace(";", ",").split(",") if s.strip()]
-    else:
-        items = [str(s).strip() for s in value]
-    for a in items:
-        if a not in AOVS:  # one naming for both renderers (links1.render)
-            raise ValueError(f"unknown AOV '{a}': allowed are {sorted(AOVS)}")
-    return items
 
 
 def define_integrator():

@@ -140,7 +140,7 @@ def _frozen_scene():
 
 def define_launches(mi, dr, mix32, u24):
     """The ``Launches`` mixin for the variant in use (``mix32``/``u24``: the integrator's hashes)."""
-    from .integrator import parse_aovs
+    from links1.aovs import check_aovs as parse_aovs
     film = define_film(mi, dr, mix32)
     concat, widen = film["concat"], film["widen"]
 
@@ -391,10 +391,10 @@ def define_launches(mi, dr, mix32, u24):
 
         def render_adaptive(self, scene, window=None, seed=None, aovs=None, threshold=None, depth=None,
                             sensor=None):
-            """Adaptive anti-aliasing of ``window`` (:func:`links1.render.render_adaptive_window`,
+            """Adaptive anti-aliasing of ``window`` (:func:`links1.adaptive.render_adaptive_window`,
             as the core): one :meth:`trace_points` launch per refinement level; AOVs depth,
             normal, id at the pixel centres (an spp-1 :meth:`render_window`)."""
-            from links1.render import render_adaptive_window
+            from links1.adaptive import render_adaptive_window
             P = self.prepare(scene, sensor)
             sensor = P.sensor
             W, H = P.film_size

@@ -87,7 +87,7 @@ def test_shapes_info_and_register_idempotent(variant):
 
 @pytest.mark.skipif(not os.path.exists(FIG11), reason="scenes/fig11.xml missing")
 def test_width_height_override_matches_core(variant):
-    from links1.render import make_renderer
+    from links1.renderers import make_renderer
     plug = make_renderer("mitsuba", FIG11, width=24, height=18, spp=1)
     core = make_renderer("core", FIG11, width=24, height=18, spp=1)
     assert plug.film_size == core.film_size == (24, 18)
@@ -101,7 +101,7 @@ def test_width_height_override_matches_core(variant):
 @pytest.mark.skipif(not os.path.exists(FIG11), reason="scenes/fig11.xml missing")
 @pytest.mark.parametrize("min_weight", [0.0, 0.05])
 def test_min_weight_matches_core(variant, min_weight):
-    from links1.render import make_renderer
+    from links1.renderers import make_renderer
     kw = dict(params={"res": 64}, spp=1, min_weight=min_weight)
     a = make_renderer("mitsuba", FIG11, **kw).render()
     b = make_renderer("core", FIG11, **kw).render()
