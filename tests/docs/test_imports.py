@@ -6,7 +6,8 @@ An import of ``a.b.c`` is an edge to the module ``a.b.c``, or to ``a.b`` when ``
 in it (``from a.b import c``); a package's ``__init__`` is a module with its own edges, and
 importing ``a.b`` is no edge to ``a`` (Python runs ``a/__init__`` first, but the package
 re-exports are not what a module depends on). Only edges between the project's own modules
-count.
+count; an import by name at run time (``importlib.import_module``: ``links1.cli.EXTENSIONS``,
+a partitioning ``module:callable`` renderer) is not an edge.
 
 The tests: no strongly connected component of more than one module (a circle, named in the
 failure); the dependencies run one way, core <- plugin <- front ends: no core module (``links1``
