@@ -38,7 +38,7 @@ def rel_mse(a, ref):
 
 
 def flip(a, ref):
-    from links1 import diff
+    from links1.imaging import diff
     try:
         return diff.flip(np.asarray(a, dtype=np.float32), np.asarray(ref, dtype=np.float32), ldr=True)
     except Exception:   # flip-evaluator missing: the column stays empty
@@ -74,7 +74,7 @@ def main(argv=None) -> int:
     ap.add_argument("--renderer", choices=("core", "mitsuba"), default="core")
     args = ap.parse_args(argv)
 
-    from links1.renderers import make_renderer
+    from links1.frontends.renderers import make_renderer
     warm, reps = (0, 1) if args.renderer == "core" else (2, 3)
 
     def renderer(path, **kw):
@@ -164,7 +164,7 @@ def main(argv=None) -> int:
 
 def _box(r):
     """The paper scenes' films say box already; make sure (the adaptive render ignores filters)."""
-    from links1.filters import Filter
+    from links1.sensor.filters import Filter
     if r.kind == "core":
         from dataclasses import replace
         r.scene.camera = replace(r.scene.camera, rfilter=Filter("box"))
@@ -173,7 +173,7 @@ def _box(r):
 
 
 def _picture(plt, img, name):
-    from links1.image import linear_to_srgb
+    from links1.imaging.image import linear_to_srgb
     fig, (a, b) = plt.subplots(1, 2, figsize=(8.4, 3.9))
     a.imshow(np.clip(linear_to_srgb(img[..., :3]), 0, 1))
     a.set_title(f"{name}: adaptive, threshold 0.03, depth 3")

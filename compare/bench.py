@@ -13,7 +13,7 @@ For every scene of ``scenes/`` (Mitsuba-only ones included) and each renderer
 and every spp of the mode, it measures the **warm median frame time** (one warm-up frame,
 then ``repeats`` timed frames in the same process; the warm-up frame's time is reported
 as ``first``: it includes kernel compilation) and the error against a **converged
-reference**: relative MSE (``links1.diff.relmse``), max abs, and mean LDR-FLIP
+reference**: relative MSE (``links1.imaging.diff.relmse``), max abs, and mean LDR-FLIP
 (flip-evaluator).
 
 Reference: the core at ``ref_spp`` (256; 64 with ``--quick``) with seed
@@ -117,7 +117,7 @@ def _cuda_status():
 def _plugin_status():
     if "plugin" not in _STATUS:
         try:
-            from links1.renderers import make_renderer  # noqa: F401
+            from links1.frontends.renderers import make_renderer  # noqa: F401
             import links1_mitsuba  # noqa: F401
             _STATUS["plugin"] = (True, None)
         except Exception as e:  # noqa: BLE001
@@ -126,7 +126,7 @@ def _plugin_status():
 
 
 def errors(img, ref) -> dict:
-    from links1 import diff
+    from links1.imaging import diff
     out = {"relmse": diff.relmse(img, ref), "max_abs": diff.max_error(img, ref)}
     try:
         out["flip"] = diff.flip(img.astype(np.float32), ref.astype(np.float32), ldr=True)

@@ -106,8 +106,8 @@ def main(argv=None):
         r1 = lm.MitsubaRenderer(path, params={"res": args.res}, spp=1, max_depth=1)
         row["plugin_depth1_ms"] = timed(r1.render, args.frames)
         if not args.skip_core:
-            from links1.loader import load_scene
-            from links1.render import render
+            from links1.scene.loader import load_scene
+            from links1.tracing.render import render
             sc = load_scene(path, res=str(args.res))
             row["core_ms"] = timed(lambda: render(sc, spp=1), 1)
         if row["custom_shapes"] == 0:

@@ -4,7 +4,7 @@ scenes.
 
     python -m compare.blob_study [--quick]
 
-Reference: a float64 root finder independent of ``links1.blob``: sphere tracing with the
+Reference: a float64 root finder independent of ``links1.geometry.blob``: sphere tracing with the
 global Lipschitz bound ``L = Σ|w_i|·2/(3S_i)`` (a step ``(T − W)/L`` cannot cross the
 surface), floored at ``1e-9`` and capped at 200,000 steps, then 80 bisection steps on the
 bracket. A ray is *in the tangent band* when the largest field value along it is within
@@ -42,8 +42,8 @@ BAND = 1e-4
 
 
 def load_blob(scene_name, res):
-    from links1.blob import Blob
-    from links1.loader import load_scene
+    from links1.geometry.blob import Blob
+    from links1.scene.loader import load_scene
     scene = load_scene(str(common.SCENES / f"{scene_name}.xml"), res=res)
     blob = next(s for s in scene.shapes if isinstance(s, Blob))
     if not np.allclose(blob.to_world, np.eye(4)):
@@ -146,7 +146,7 @@ def evaluate(t, cost, t_ref, maxw, relevant, T, seconds, label):
 
 
 def core_solver(blob, o, d, solver, samples, repeats):
-    from links1.blob import Blob
+    from links1.geometry.blob import Blob
     b = Blob(blob.centers, blob.threshold, solver=solver, samples=samples)
     n = o.shape[0]
     times = []
@@ -173,7 +173,7 @@ def mitsuba_xml(scene_name) -> str:
 
 
 def mitsuba_solver(path, res, solver, samples):
-    from links1.renderers import make_renderer
+    from links1.frontends.renderers import make_renderer
     r = make_renderer("mitsuba", str(path), params={"res": res, "solver": solver, "samples": samples},
                       spp=1, aovs=("depth", "cost"))
     img = r.render()  # warm-up (compilation)
@@ -253,7 +253,7 @@ def _markdown(out) -> str:
          common.machine_markdown(out["machine"], out["command"]),
          f"\nCamera rays of each fig6 scene at {out['res']}×{out['res']} (pixel centres). Reference: "
          "float64 sphere tracing with the global Lipschitz bound + bisection (independent of "
-         f"links1.blob). Tangent band: rays whose largest field value is within {out['band_rel']:g}·T "
+         f"links1.geometry.blob). Tangent band: rays whose largest field value is within {out['band_rel']:g}·T "
          "of T. ulp = float32 ulps of the reference depth. evals/ray: field evaluations per ray "
          "meeting a 3S sphere (all camera rays in brackets). Time: one intersect call over all rays "
          "(core) or one warm frame (links1-llvm).\n"]

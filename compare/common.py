@@ -25,7 +25,7 @@ RESULTS = ROOT / "compare" / "results"
 SCENES = ROOT / "scenes"
 
 #: Renderer names used by every benchmark.
-#: core          the float64 numpy core (links1.render.CoreRenderer)
+#: core          the float64 numpy core (links1.tracing.render.CoreRenderer)
 #: links1-llvm   the links1_whitted Dr.Jit integrator on llvm_ad_rgb (links1_mitsuba)
 #: links1-cuda   the same on cuda_ad_rgb (only where a GPU works)
 #: mitsuba-direct, mitsuba-path   Mitsuba's own integrators (Mitsuba-only scenes)

@@ -47,7 +47,7 @@ def scene_model_of(scene: str, res: int, table=None):
     """The root's model of a scene (read with the core, as ``links1 schedule`` does)."""
     import warnings
 
-    from links1.xmlparse import SceneWarning
+    from links1.scene.xmlparse import SceneWarning
     from links1.partition.loadmodel import scene_model
     from links1.partition.runtime import RendererSpec, get_renderer
     path = str(ROOT / "scenes" / f"{scene}.xml")

@@ -35,7 +35,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "compare" / "results"
-LINKS1 = [sys.executable, "-m", "links1.cli"]
+LINKS1 = [sys.executable, "-m", "links1.frontends.cli"]
 
 
 def overhead_rows(cases, repeat):

@@ -49,7 +49,7 @@ BOX_FACES = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0,
 def _camera_rays(n, res):
     """Pixel-centre rays of the scaling scene's camera (numpy float64)."""
     from .scaling import quadric_scene
-    from links1.loader import load_scene
+    from links1.scene.loader import load_scene
     with tempfile.TemporaryDirectory() as d:
         p = Path(d) / "q.xml"
         p.write_text(quadric_scene(n))
@@ -94,7 +94,7 @@ def run_frames(n, res, repeats):
     """Frame rows for N spheres: links1_whitted on quadrics and on Mitsuba spheres (both
     BSDF variants), Mitsuba ``direct`` on the Mitsuba spheres."""
     import drjit as dr
-    from links1.renderers import make_renderer
+    from links1.frontends.renderers import make_renderer
     from .scaling import quadric_scene
     rows = []
     with tempfile.TemporaryDirectory() as d:

@@ -119,7 +119,7 @@ def blob_scene(k, seed=0):
 
 def centres_met(path, res, centres):
     """Mean number of 3S spheres a pixel-centre ray crosses (over rays crossing any)."""
-    from links1.loader import load_scene
+    from links1.scene.loader import load_scene
     cam = load_scene(str(path), res=res).camera
     ys, xs = np.divmod(np.arange(cam.width * cam.height), cam.width)
     o, d, _, _ = cam.generate_rays((xs + 0.5) / cam.width, (ys + 0.5) / cam.height)
@@ -188,7 +188,7 @@ def main(argv=None) -> int:
                 if r == "core":
                     core_img = img
                 elif core_img is not None and r.startswith("links1-"):
-                    from links1 import diff
+                    from links1.imaging import diff
                     row["relmse_vs_core"] = diff.relmse(img[..., :3], core_img[..., :3])
                 row.update(load_s=res_["load_s"], first_s=rr["first_s"], median_s=rr["median_s"],
                            peak_rss_mib=res_["peak_rss_mib"], finite=rr["finite"])

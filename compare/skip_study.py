@@ -2,7 +2,7 @@
 
     python -m compare.skip_study [--quick] [--scenes ...]
 
-The core integrator (links1/integrator.py) looks at the scene once: it spawns mirror rays
+The core integrator (links1/tracing/integrator.py) looks at the scene once: it spawns mirror rays
 only from surfaces with ``r > 0``, refraction rays only from surfaces with ``t > 0``,
 shadow rays only where the BSDF and the light give a non-zero contribution, and stops a
 branch whose weight falls below ``min_weight``. This study switches each skip *off* by

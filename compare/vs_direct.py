@@ -33,7 +33,7 @@ as ``compare/host_overhead.py``. Reported: per integrator the best round's media
 Targets (issue 22): every scene ≤ 0.5× at spp 1 and 16; ``spheres10`` ≤ 0.8× at spp 1.
 
 Agreement: at the highest spp, ``relMSE(links1, direct)`` between the two frames, and both
-against a ``direct`` reference at 16× that spp (``links1.diff.relmse``): links1's error must be
+against a ``direct`` reference at 16× that spp (``links1.imaging.diff.relmse``): links1's error must be
 of the order of ``direct``'s own (both are then noise, not a different image).
 
 ``--profile``: per spp, the case with the worst ratio and the worst with a box filter (or each
@@ -166,7 +166,7 @@ def _rgb(img) -> np.ndarray:
 
 def measure(scene, spps, repeats: int, ref_factor: int, rounds: int = 1) -> dict:
     import mitsuba as mi
-    from links1.diff import relmse
+    from links1.imaging.diff import relmse
     direct = mi.load_dict({"type": "direct", "emitter_samples": 1, "bsdf_samples": 0})
     out = {}
     for spp in spps:

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 import links1
-from links1.image import write_png
+from links1.imaging.image import write_png
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = ["fig4", "fig6a", "fig6b", "fig11", "lights", "bicubic", "shadows", "many"]

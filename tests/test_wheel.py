@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from links1.image import read_exr, write_exr
+from links1.imaging.image import read_exr, write_exr
 
 PIP_TIMEOUT = 600  # a cold cache downloads Mitsuba, Dr.Jit, numpy, Dask... from the index
 # the first test that needs the venv also waits for its installation
@@ -108,8 +108,8 @@ def test_wheel_holds_every_module_and_data_file(wheel, sources):
     assert sorted(expected - packaged) == [], "left out of the wheel (pyproject.toml: packages.find / package-data)"
     assert sorted(packaged - expected) == [], "in the wheel but not in the source tree"
     lines = [ln.replace(" ", "") for ln in entry_points.splitlines()]
-    assert lines[lines.index("[console_scripts]") + 1:].count("links1=links1.cli:main") == 1
-    assert "links1=links1.pytest_plugin" in lines[lines.index("[pytest11]"):]
+    assert lines[lines.index("[console_scripts]") + 1:].count("links1=links1.frontends.cli:main") == 1
+    assert "links1=links1.frontends.pytest_plugin" in lines[lines.index("[pytest11]"):]
 
 
 # ------------------------------------------------------------------ installed in a fresh venv
@@ -145,7 +145,7 @@ def _links1(venv, work, *args, check=True):
 
 def _checkout_render(path, *args):
     """The same render by the checkout's code (the suite's own interpreter)."""
-    _run([sys.executable, "-c", "import sys; from links1.cli import main; sys.exit(main())",
+    _run([sys.executable, "-c", "import sys; from links1.frontends.cli import main; sys.exit(main())",
           "render", *args, "--no-progress", "-o", path], cwd=ROOT)
     return read_exr(path)[0]
 
@@ -236,10 +236,10 @@ PLUGIN_TEST = '''
 import sys
 from pathlib import Path
 import numpy as np
-import links1.pytest_plugin
+import links1.frontends.pytest_plugin
 
 def test_plugin_is_the_installed_one():
-    assert Path(sys.prefix).resolve() in Path(links1.pytest_plugin.__file__).resolve().parents
+    assert Path(sys.prefix).resolve() in Path(links1.frontends.pytest_plugin.__file__).resolve().parents
 
 def test_image(links1_baseline):
     y, x = np.mgrid[0:6, 0:8]
@@ -254,7 +254,7 @@ def test_pytest_plugin_loads_by_its_entry_point(venv, work):
     test = d / "test_images.py"
     pytest_cmd = [bindir / "python", "-m", "pytest", "-q", "-p", "no:cacheprovider", "--rootdir", d, test]
     test.write_text(PLUGIN_TEST.replace("SCALE", "1.0"))
-    # no "-p links1.pytest_plugin": the fixture must come from the wheel's pytest11 entry point
+    # no "-p links1.frontends.pytest_plugin": the fixture must come from the wheel's pytest11 entry point
     _run([*pytest_cmd, "--links1-update-baselines"], cwd=d, env=env)
     assert (d / "baselines" / "ramp.exr").is_file()
     _run(pytest_cmd, cwd=d, env=env)

@@ -1,7 +1,7 @@
 """Write ``links1/data/cie1931_d65.csv``: the colour tables Mitsuba 3.9.1 converts spectra with.
 
 Run once (``python tools/make_cie_data.py``); the CSV is committed and read by
-:mod:`links1.spectra` (nothing is fetched at run time). The source is the installed Mitsuba
+:mod:`links1.shading.spectra` (nothing is fetched at run time). The source is the installed Mitsuba
 itself (``scalar_rgb``), so the core uses exactly its float32 tables:
 
 * CIE 1931 2-degree colour matching functions x, y, z at 360, 365, ..., 830 nm (95 samples):

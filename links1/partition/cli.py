@@ -1,6 +1,6 @@
 """Command-line side of the partitioning layer.
 
-``links1.cli`` calls, when present:
+``links1.frontends.cli`` calls, when present:
 
 ``add_render_options(parser)``
     adds --workers/--partition/--tiles-per-node/--unit/--order/--scheduler/--dask-local/
@@ -22,9 +22,9 @@ import os
 import sys
 import warnings
 
-from ..cli_options import int_option
+from ..frontends.cli_options import int_option
 from ..errors import SceneError, UsageError
-from ..xmlparse import SceneWarning
+from ..scene.xmlparse import SceneWarning
 from .strategies import STRATEGIES, UNITS
 
 #: Frames smaller than this (pixels x samples) render in-process under --workers auto.
@@ -97,7 +97,7 @@ def _spec_from_args(args):
         opts["min_weight"] = args.min_weight
     if getattr(args, "light_samples", None) is not None:
         opts["light_samples"] = args.light_samples
-    from ..cli_options import adaptive_options
+    from ..frontends.cli_options import adaptive_options
     opts.update(adaptive_options(args))
     if args.renderer == "mitsuba":
         opts["variant"] = getattr(args, "variant", None)
@@ -120,7 +120,7 @@ def _model_and_channels(spec, args, timing=None):
     (``timing``: a dict that gets ``root_load_s``, the root's scene read, and ``model_s``)."""
     import time
 
-    from ..aovs import channel_names
+    from ..tracing.aovs import channel_names
     timing = {} if timing is None else timing
     from .loadmodel import load_table, scene_model
     table = load_table(getattr(args, "load_table", None), renderer=spec.kind)
@@ -287,7 +287,7 @@ SCHEDULE_EXAMPLES = """examples:
 
 def add_cli(subparsers) -> None:
     """Add ``links1 schedule`` to the main parser's subcommands."""
-    from ..cli_options import add_render_arguments
+    from ..frontends.cli_options import add_render_arguments
     p = subparsers.add_parser("schedule", help="run a root/node screen-partitioning experiment",
                               epilog=SCHEDULE_EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter,
                               description="Render a scene on N nodes with a partitioning strategy and report per "
@@ -336,7 +336,7 @@ def run_cli(args) -> int:
     from .checkpoint import atomic_write_json
     from .experiment import format_table, plot_report, plot_simulation, simulate, work_map
     if args.renderer == "mitsuba":
-        from ..renderers import require_mitsuba
+        from ..frontends.renderers import require_mitsuba
         require_mitsuba(args.variant)
     if args.plot or args.sim_plot:  # matplotlib is an extra: say so before rendering, not after
         try:
@@ -383,7 +383,7 @@ def run_cli(args) -> int:
 
 def _one_run(args, nodes, *, close, reference=None):
     """One real run of ``args`` on ``nodes`` nodes -> (report, model, ray tests map, plan)."""
-    from ..aovs import aov_channel
+    from ..tracing.aovs import aov_channel
     from .executors import render_plan
     from .experiment import build_report, check_simulator
     args.workers = 0 if nodes == 1 and not (args.scheduler or args.dask_local) else nodes

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .. import params
+from ..scene import params
 from ..errors import UsageError
 
 #: Default per-object load table (relative units: one quadric ~ 1).
@@ -204,7 +204,7 @@ def project_boxes(camera, lo, hi, width=None, height=None, pad: float = 0.5) -> 
         if len(p) == 0:
             continue
         # Mitsuba perspective: x_film = (1 - x/(z t)) / 2, y_film = (1 - y aspect/(z t)) / 2;
-        # orthographic: the same with z t = 1 (links1.camera)
+        # orthographic: the same with z t = 1 (links1.sensor.camera)
         zt = 1.0 if ortho else p[:, 2] * t
         fx = (1.0 - p[:, 0] / zt) * 0.5 * width
         fy = (1.0 - p[:, 1] * aspect / zt) * 0.5 * height
@@ -352,7 +352,7 @@ class SceneModel:
 
 
 def camera_of(renderer, path=None, params=None):
-    """The core :class:`~links1.camera.Camera` of a renderer's scene, at its film size, or None."""
+    """The core :class:`~links1.sensor.camera.Camera` of a renderer's scene, at its film size, or None."""
     cam = getattr(renderer, "camera", None)
     if cam is None:
         scene = getattr(renderer, "scene", None)

@@ -13,7 +13,7 @@ def _rgb(props, name, default):
 def phong_params(props) -> dict:
     """Read and check the ``links1_phong`` parameters from Mitsuba ``Properties`` (defaults and
     ranges: :data:`links1.params.PLUGINS`, the table the core's reader uses too)."""
-    from links1.params import PLUGINS, read
+    from links1.scene.params import PLUGINS, read
     v = {}
     for name, prm in PLUGINS[("bsdf", "links1_phong")].items():
         raw = _rgb(props, name, None) if prm.kind == "rgb" else (float(props[name]) if name in props else None)
@@ -198,7 +198,7 @@ def define_phong():
             """``params.update()``: the Python values (checked as the loader checks them, ranges
             of links1.params) follow the Dr.Jit values; links1_whitted's tables are rebuilt at
             the next frame (its scene digest sees the change)."""
-            from links1.params import read
+            from links1.scene.params import read
             h, p = self._held, dict(self.params)
             for name in _PHONG_RGB:
                 v = np.broadcast_to(np.array(getattr(h, name), dtype=np.float64).ravel(), (3,))

@@ -6,7 +6,7 @@ import warnings
 
 import numpy as np
 
-from links1.params import default, param, read
+from links1.scene.params import default, param, read
 
 from .bsdfs import _Held
 
@@ -26,7 +26,7 @@ def _rgb(props, name, default, *, emitter=True):
     if (name in props):
         v = props[name]
         if hasattr(v, "wavelengths") and hasattr(v, "values"):  # a <spectrum>
-            from links1.spectra import to_rgb
+            from links1.shading.spectra import to_rgb
             rgb, raw = to_rgb(list(v.wavelengths), list(v.values), emitter=emitter)
             if raw is not None:
                 from .loader import place_of

@@ -36,7 +36,7 @@ import dataclasses
 
 import numpy as np
 
-from links1.params import MAX_EXTENT, check, check_finite, read, transform_problem
+from links1.scene.params import MAX_EXTENT, check, check_finite, read, transform_problem
 
 #: a blob's parameters in ``mi.traverse`` (a quadric's: ``to_world`` and its clip offsets)
 BLOB_KEYS = ("centers", "weights", "radii", "threshold", "to_world")

@@ -21,11 +21,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from links1.adaptive import DEFAULT_ADAPTIVE_DEPTH
-from links1.aovs import channel_names
-from links1.aovs import check_aovs as parse_aovs  # the one AOV table and checker (links1/aovs.py)
-from links1.params import default as l1_default
-from links1.params import read as l1_read
+from links1.tracing.adaptive import DEFAULT_ADAPTIVE_DEPTH
+from links1.tracing.aovs import channel_names
+from links1.tracing.aovs import check_aovs as parse_aovs  # the one AOV table and checker (links1/tracing/aovs.py)
+from links1.scene.params import default as l1_default
+from links1.scene.params import read as l1_read
 
 from ._registry import unsupported_variant
 from .intersect import define_intersect
@@ -146,7 +146,7 @@ def define_integrator():
             self.aovs = parse_aovs(props.get("aovs", ""))
             self.adaptive = None
             if "adaptive" in props:
-                from links1.adaptive import check_options
+                from links1.tracing.adaptive import check_options
                 try:
                     self.adaptive, self.adaptive_depth = check_options(
                         props.get("adaptive"), props.get("adaptive_depth", DEFAULT_ADAPTIVE_DEPTH))

@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-from links1.sampling import strata
+from links1.maths.sampling import strata
 
 from . import tuning
 from .film import define_film, sample_window
@@ -140,7 +140,7 @@ def _frozen_scene():
 
 def define_launches(mi, dr, mix32, u24):
     """The ``Launches`` mixin for the variant in use (``mix32``/``u24``: the integrator's hashes)."""
-    from links1.aovs import check_aovs as parse_aovs
+    from links1.tracing.aovs import check_aovs as parse_aovs
     film = define_film(mi, dr, mix32)
     concat, widen = film["concat"], film["widen"]
 
@@ -394,7 +394,7 @@ def define_launches(mi, dr, mix32, u24):
             """Adaptive anti-aliasing of ``window`` (:func:`links1.adaptive.render_adaptive_window`,
             as the core): one :meth:`trace_points` launch per refinement level; AOVs depth,
             normal, id at the pixel centres (an spp-1 :meth:`render_window`)."""
-            from links1.adaptive import render_adaptive_window
+            from links1.tracing.adaptive import render_adaptive_window
             P = self.prepare(scene, sensor)
             sensor = P.sensor
             W, H = P.film_size

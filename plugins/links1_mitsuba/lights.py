@@ -15,7 +15,7 @@ import warnings
 
 import numpy as np
 
-from links1.sampling import light_tag
+from links1.maths.sampling import light_tag
 
 from .util import INF
 
@@ -28,7 +28,7 @@ def _emitted_rgb(prm, key: str, kind: str, where: str = "links1_whitted") -> np.
         v = np.array(prm[f"{key}.value"], dtype=np.float64).ravel()
         return np.broadcast_to(v, (3,)).copy() if v.size == 1 else v
     if f"{key}.temperature" in prm:
-        from links1.spectra import blackbody_to_rgb
+        from links1.shading.spectra import blackbody_to_rgb
         t = float(np.array(prm[f"{key}.temperature"]).ravel()[0])
         rgb = blackbody_to_rgb(t)
         warnings.warn(f"{where}: {kind} {key} is a blackbody ({t:g} K), which Mitsuba's RGB "
@@ -102,9 +102,9 @@ def define_lights(mi, dr, util):
         def _area_table(self, e, shapes, slot_list):
             """The core's :class:`links1.lights.AreaLight` for a Mitsuba area emitter (same triangles,
             CDF, sphere, disk), as Dr.Jit tables; None (with a warning) when it cannot be sampled."""
-            from links1 import meshes
-            from links1.lights import AreaLight
-            from links1.shapes import Disk, Quadric, TriangleMesh
+            from links1.geometry import meshes
+            from links1.shading.lights import AreaLight
+            from links1.geometry.shapes import Disk, Quadric, TriangleMesh
             sh = e.get_shape()
             kind = str(sh).split("[")[0]
             slot = next((sl for s_, sl in zip(shapes, slot_list) if s_.id() == sh.id()), None)
@@ -148,7 +148,7 @@ def define_lights(mi, dr, util):
         def _envmap_table(self, e):
             """The core's :class:`links1.lights.EnvironmentMap` from Mitsuba's own data (its periodic
             columns dropped), to_world and scale, with its CDFs as Dr.Jit tables."""
-            from links1.lights import EnvironmentMap
+            from links1.shading.lights import EnvironmentMap
             prm = mi.traverse(e)
             data = np.array(prm["data"], dtype=np.float64)
             m = np.array(prm["to_world"].matrix, dtype=np.float64).reshape(4, 4)

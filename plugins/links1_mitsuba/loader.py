@@ -191,7 +191,7 @@ def _planar_to_world(props) -> None:
     Mitsuba would derive NaN normals from the singular map."""
     import mitsuba as mi
 
-    from links1.params import planar_to_world
+    from links1.scene.params import planar_to_world
     m = np.array(props["to_world"].matrix, dtype=np.float64).reshape(4, 4)
     fixed = planar_to_world(m)
     if not np.array_equal(fixed, m):

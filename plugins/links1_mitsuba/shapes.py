@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from links1.params import blob_centers, clip_plane, default, read, transform_problem
+from links1.scene.params import blob_centers, clip_plane, default, read, transform_problem
 
 INF = float("inf")
 #: Blob march: probe step relative to the largest S (float32 analogue of the core's).
@@ -843,7 +843,7 @@ def tessellate_bicubic(props, base_dir=None):
     """Vertices, faces and normals of a ``links1_bicubic`` node, with ``links1.meshes``."""
     import os
     try:
-        from links1 import meshes
+        from links1.geometry import meshes
     except ImportError as exc:  # pragma: no cover
         raise RuntimeError("links1_bicubic needs links1.meshes (tessellation)") from exc
     has_file = ("filename" in props)

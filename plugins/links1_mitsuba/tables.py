@@ -20,8 +20,8 @@ import warnings
 
 import numpy as np
 
-from links1.filters import Filter
-from links1.lights import ENV_LIGHT_ID
+from links1.sensor.filters import Filter
+from links1.shading.lights import ENV_LIGHT_ID
 
 from . import lightbuffer, tuning
 from .lights import _emitted_rgb

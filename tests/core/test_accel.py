@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from links1 import transform as tf
-from links1.accel import Accel
-from links1.bvh import BVH
-from links1.blob import Blob
-from links1.shapes import Disk, Quadric, Shape, TriangleMesh
+from links1.maths import transform as tf
+from links1.geometry.accel import Accel
+from links1.geometry.bvh import BVH
+from links1.geometry.blob import Blob
+from links1.geometry.shapes import Disk, Quadric, Shape, TriangleMesh
 
 INF = np.inf
 
@@ -234,7 +234,7 @@ def _quadric_zoo(rng, k=40):
 
 def test_quadric_pairs_equal_each_quadric_bitwise():
     """The vectorised (ray, quadric) intersector gives each Quadric's own bits."""
-    from links1.accel import _QuadricSet
+    from links1.geometry.accel import _QuadricSet
     rng = np.random.default_rng(5)
     quads = _quadric_zoo(rng)
     qs = _QuadricSet(quads)
@@ -319,7 +319,7 @@ def test_scalar_walk_same_bits_as_numpy_walk(monkeypatch, mode):
     the culled visits), shadow products and any-hit sets, with every batch walked in
     scalars or none; also for rays with zero direction components (huge reciprocals whose
     slab products overflow) and subnormal ones (infinite reciprocals: numpy walk)."""
-    import links1.bvh as bvh_mod
+    import links1.geometry.bvh as bvh_mod
     rng = np.random.default_rng(11)
     shapes = random_scene(rng, k=40) + _quadric_zoo(rng, 30)
     shapes.append(shapes[0])

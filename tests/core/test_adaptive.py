@@ -1,8 +1,8 @@
-"""The adaptive lattice refinement (links1/adaptive.py) on analytic images."""
+"""The adaptive lattice refinement (links1/tracing/adaptive.py) on analytic images."""
 import numpy as np
 import pytest
 
-from links1.adaptive import check_options, render_adaptive
+from links1.tracing.adaptive import check_options, render_adaptive
 from links1.errors import UsageError
 
 W, H = 16, 12
@@ -110,7 +110,7 @@ def test_summed_channels_are_counted_not_refined_on():
 
 
 # --- the film's reconstruction filter (FilteredLeaves) ---------------------------------------
-from links1.filters import Filter  # noqa: E402
+from links1.sensor.filters import Filter  # noqa: E402
 
 NON_BOX = [Filter("gaussian"), Filter("tent"), Filter("tent", {"radius": 1.5}), Filter("mitchell"),
            Filter("catmullrom"), Filter("lanczos", {"lobes": 2})]

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from links1 import load_scene
-from links1.render import render
+from links1.tracing.render import render
 
 from . import oracle
 

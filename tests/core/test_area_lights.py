@@ -14,11 +14,11 @@ import numpy as np
 import pytest
 
 from links1 import load_scene
-from links1.image import write_exr
-from links1.integrator import WhittedIntegrator
-from links1.lights import AreaLight
-from links1.render import render
-from links1.sampling import light_samples_uv, mix32
+from links1.imaging.image import write_exr
+from links1.tracing.integrator import WhittedIntegrator
+from links1.shading.lights import AreaLight
+from links1.tracing.render import render
+from links1.maths.sampling import light_samples_uv, mix32
 
 RHO = np.array([0.7, 0.5, 0.3])
 

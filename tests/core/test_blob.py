@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from links1 import transform as tf
-from links1.blob import MAX_MARCH, MAX_REFINE, Blob
+from links1.maths import transform as tf
+from links1.geometry.blob import MAX_MARCH, MAX_REFINE, Blob
 
 INF = np.inf
 

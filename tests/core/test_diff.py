@@ -1,4 +1,4 @@
-"""links1.diff: metrics against hand-computed values, shape checks, heatmap, CLI."""
+"""links1.imaging.diff: metrics against hand-computed values, shape checks, heatmap, CLI."""
 from __future__ import annotations
 
 import argparse
@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from links1 import diff
+from links1.imaging import diff
 from links1.errors import UsageError
-from links1.image import write_exr, write_png
+from links1.imaging.image import write_exr, write_png
 
 # a = test, b = reference; differences d = a - b = [0.1, -0.2, 0, 0.3]
 A = np.array([[[1.1], [0.3]], [[0.0], [0.8]]])
@@ -81,7 +81,7 @@ def test_png_inputs_use_ldr_peak(tmp_path):
     write_png(tmp_path / "a.png", np.full((4, 4, 3), 0.25))
     write_png(tmp_path / "b.png", np.full((4, 4, 3), 0.5))
     v = diff.compare(tmp_path / "a.png", tmp_path / "b.png", "psnr")
-    from links1.image import read_image
+    from links1.imaging.image import read_image
     a, b = read_image(tmp_path / "a.png"), read_image(tmp_path / "b.png")
     assert v == pytest.approx(diff.psnr(a, b, peak=1.0))
 
@@ -162,7 +162,7 @@ def test_cli_json_infinite_psnr_is_a_string(tmp_path, capsys):
 
 
 def test_cli_subprocess(pair):
-    cmd = [sys.executable, "-m", "links1.diff", *map(str, pair), "--threshold", "1e-9",
+    cmd = [sys.executable, "-m", "links1.imaging.diff", *map(str, pair), "--threshold", "1e-9",
            "--no-flip"]
     root = Path(__file__).resolve().parents[2]
     proc = subprocess.run(cmd, capture_output=True, text=True, cwd=root, timeout=60)

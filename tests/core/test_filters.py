@@ -1,4 +1,4 @@
-"""Reconstruction filters (links1/filters.py): closed-form weights, Mitsuba's ImageBlock gather
+"""Reconstruction filters (links1/sensor/filters.py): closed-form weights, Mitsuba's ImageBlock gather
 (checked against a brute-force per-pixel sum), and windows equal to the full frame bit for bit."""
 from __future__ import annotations
 
@@ -7,9 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from links1.filters import FILTERS, Filter, FilterGather
-from links1.loader import load_string
-from links1.render import render
+from links1.sensor.filters import FILTERS, Filter, FilterGather
+from links1.scene.loader import load_string
+from links1.tracing.render import render
 
 
 def test_closed_form_weights():

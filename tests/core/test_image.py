@@ -1,4 +1,4 @@
-"""links1.image: EXR / PNG round trips, sRGB, errors, atomic writes."""
+"""links1.imaging.image: EXR / PNG round trips, sRGB, errors, atomic writes."""
 from __future__ import annotations
 
 import os
@@ -6,7 +6,7 @@ import os
 import numpy as np
 import pytest
 
-from links1 import image
+from links1.imaging import image
 from links1.errors import UsageError
 
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import links1
-from links1.loader import load_string
+from links1.scene.loader import load_string
 from tests.inside_scenes import (GLASS, OPAQUE, POINT_OUTSIDE, SHELLS, TWOSIDED, AMBIENT,
                                  glass_expected, scene)
 

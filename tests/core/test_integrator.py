@@ -6,13 +6,13 @@ import math
 import numpy as np
 import pytest
 
-from links1.camera import Camera
-from links1.integrator import WhittedIntegrator, refract
-from links1.lights import CylinderSpotLight, ParallelLight, PointLight
-from links1.materials import Diffuse, Phong
-from links1.scene import Scene
-from links1.shapes import Quadric, TriangleMesh
-from links1.transform import scale, translate
+from links1.sensor.camera import Camera
+from links1.tracing.integrator import WhittedIntegrator, refract
+from links1.shading.lights import CylinderSpotLight, ParallelLight, PointLight
+from links1.shading.materials import Diffuse, Phong
+from links1.scene.scene import Scene
+from links1.geometry.shapes import Quadric, TriangleMesh
+from links1.maths.transform import scale, translate
 
 
 def quad(z=0.0, half=10.0, material=None, normal_up=True, name="quad"):

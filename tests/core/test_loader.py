@@ -1,6 +1,6 @@
 """The core's Mitsuba XML reader: parameters, includes, references, transforms, plugins, errors.
 
-Shapes are built through ``links1.loader._shape_class``; the tests replace it by recording stubs
+Shapes are built through ``links1.scene.loader._shape_class``; the tests replace it by recording stubs
 so that they check the loader's contract (the constructor arguments) on their own.
 """
 from __future__ import annotations
@@ -12,17 +12,18 @@ import warnings
 import numpy as np
 import pytest
 
-from links1 import loader, materials
-from links1 import transform as tf
+from links1.scene import loader
+from links1.shading import materials
+from links1.maths import transform as tf
 from links1.errors import SceneError
-from links1.lights import (ENV_LIGHT_ID, ConeSpotLight, ConstantEnvironment, CylinderSpotLight,
+from links1.shading.lights import (ENV_LIGHT_ID, ConeSpotLight, ConstantEnvironment, CylinderSpotLight,
                            ParallelLight, PointLight)
-from links1.xmlparse import SceneWarning, parse_string
+from links1.scene.xmlparse import SceneWarning, parse_string
 
 DATA = os.path.join(os.path.dirname(__file__), "data")
 
 # scenes without a sensor warn; tests that check a warning use pytest.warns, which sees it anyway
-pytestmark = pytest.mark.filterwarnings("ignore::links1.xmlparse.SceneWarning")
+pytestmark = pytest.mark.filterwarnings("ignore::links1.scene.xmlparse.SceneWarning")
 
 
 class _Stub:
@@ -557,17 +558,17 @@ def test_mitsuba_parameter_the_core_ignores_warns():
                                      'value="1"/></shape>'))
 
 
-# -- the real shape classes (when links1.shapes / links1.blob exist) ---------------------------
+# -- the real shape classes (when links1.geometry.shapes / links1.geometry.blob exist) ---------------------------
 
 def test_real_shape_classes(monkeypatch):
-    pytest.importorskip("links1.shapes")
+    pytest.importorskip("links1.geometry.shapes")
     monkeypatch.undo()
     body = ('<shape type="sphere"/><shape type="cylinder"/><shape type="disk"/><shape type="cube"/>'
             '<shape type="rectangle"/><shape type="links1_quadric"><string name="kind" value="sphere"/>'
             '</shape><shape type="obj"><string name="filename" value="quad_poly.obj"/></shape>'
             '<shape type="links1_bicubic"><string name="filename" value="flat.patch"/></shape>')
     try:
-        import links1.blob  # noqa: F401
+        import links1.geometry.blob  # noqa: F401
         body += ('<shape type="links1_blob"><string name="centers" value="0 0 0 1 1"/>'
                  '<float name="threshold" value="0.5"/></shape>')
     except ImportError:

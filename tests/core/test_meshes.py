@@ -6,7 +6,7 @@ import os
 import numpy as np
 import pytest
 
-from links1 import meshes
+from links1.geometry import meshes
 
 DATA = os.path.join(os.path.dirname(__file__), "data")
 

@@ -3,14 +3,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from links1.camera import Camera
-from links1.lights import ParallelLight, PointLight
-from links1.materials import Phong
-from links1.occluders import shadow_plan
-from links1.render import render
-from links1.scene import Scene
-from links1.shapes import Quadric, TriangleMesh
-from links1.transform import look_at, scale, translate
+from links1.sensor.camera import Camera
+from links1.shading.lights import ParallelLight, PointLight
+from links1.shading.materials import Phong
+from links1.tracing.occluders import shadow_plan
+from links1.tracing.render import render
+from links1.scene.scene import Scene
+from links1.geometry.shapes import Quadric, TriangleMesh
+from links1.maths.transform import look_at, scale, translate
 
 
 def floor(y=0.0, half=5.0):
@@ -49,7 +49,7 @@ def test_skipping_changes_no_pixel_and_saves_rays():
     scene = Scene(camera=cam, shapes=shapes, lights=lights, max_depth=2)
     img = render(scene, aovs=("cost",))
     # Reference: every shape an occluder, every hit a shadow ray (what the plan avoids).
-    import links1.integrator as integ
+    import links1.tracing.integrator as integ
     orig = integ.WhittedIntegrator.__init__
 
     def all_shadows(self, *a, **k):

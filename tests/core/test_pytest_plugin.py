@@ -1,4 +1,4 @@
-"""links1.pytest_plugin: the links1_baseline fixture, run in throw-away test sessions."""
+"""links1.frontends.pytest_plugin: the links1_baseline fixture, run in throw-away test sessions."""
 from __future__ import annotations
 
 import re
@@ -7,14 +7,14 @@ from importlib.metadata import entry_points
 import numpy as np
 import pytest
 
-from links1.pytest_plugin import sidak_alpha, student_t_sf2, welch_t_test
+from links1.frontends.pytest_plugin import sidak_alpha, student_t_sf2, welch_t_test
 
 pytest_plugins = ["pytester"]
 
 # The plugin is normally loaded by its entry point; load it by name if the package's
 # entry point is not installed (e.g. running from a plain checkout).
-_ENTRY = any(e.value == "links1.pytest_plugin" for e in entry_points(group="pytest11"))
-PLUGIN_ARGS = [] if _ENTRY else ["-p", "links1.pytest_plugin"]
+_ENTRY = any(e.value == "links1.frontends.pytest_plugin" for e in entry_points(group="pytest11"))
+PLUGIN_ARGS = [] if _ENTRY else ["-p", "links1.frontends.pytest_plugin"]
 
 TESTS = '''
 import numpy as np

@@ -1,5 +1,5 @@
-"""The Renderer contract in code and the factory (links1/renderers.py, issue 24 item 2), and
-the one AOV table and checker (links1/aovs.py)."""
+"""The Renderer contract in code and the factory (links1/frontends/renderers.py, issue 24 item 2), and
+the one AOV table and checker (links1/tracing/aovs.py)."""
 from __future__ import annotations
 
 import subprocess
@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 import links1
-from links1.aovs import AOVS, aov_channel, channel_names, check_aovs
+from links1.tracing.aovs import AOVS, aov_channel, channel_names, check_aovs
 from links1.errors import UsageError
-from links1.renderers import Renderer, make_renderer
+from links1.frontends.renderers import Renderer, make_renderer
 
 ROOT = Path(__file__).resolve().parents[2]
 FIG11 = str(ROOT / "scenes" / "fig11.xml")

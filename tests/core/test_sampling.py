@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from links1.sampling import mix32, sample_offsets, strata
+from links1.maths.sampling import mix32, sample_offsets, strata
 
 
 def lowbias32_reference(x: int) -> int:

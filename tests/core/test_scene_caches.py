@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 import links1
-from links1.loader import load_scene
-from links1.materials import Phong
+from links1.scene.loader import load_scene
+from links1.shading.materials import Phong
 
 SHADOWS = os.path.join(os.path.dirname(__file__), "..", "..", "scenes", "shadows.xml")
 
@@ -28,7 +28,7 @@ def _drop_far_sphere(scene):  # a sphere far behind the camera's back: no pixel 
 
 
 def load_scene_sphere():
-    from links1.loader import load_string
+    from links1.scene.loader import load_string
     return load_string("""<scene version="3.0.0"><shape type="sphere"><point name="center" x="0" y="2.2" z="0"/>
         <float name="radius" value="0.5"/><bsdf type="links1_phong"><rgb name="diffuse" value="0.5"/></bsdf></shape>
         <emitter type="point"><point name="position" x="0" y="9" z="0"/><rgb name="intensity" value="1"/></emitter>
@@ -78,8 +78,8 @@ def test_a_pinned_scene_is_hashed_once_and_unpinned_follows_changes(monkeypatch)
     """A partition node's CoreRenderer renders one window per call: it pins its scene's key
     at load, so a window's launch does not re-hash every shape (issue 9: ~15 ms of a 32x32
     window's 31 ms on many.xml); an unpinned scene still follows changes."""
-    from links1 import scene as scene_mod
-    from links1.render import CoreRenderer
+    from links1.scene import scene as scene_mod
+    from links1.tracing.render import CoreRenderer
     r = CoreRenderer(SHADOWS, params={"res": "24"})
     full = r.render()
     calls = []

@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from links1 import transform as tf
-from links1.shapes import Disk, Quadric, TriangleMesh
+from links1.maths import transform as tf
+from links1.geometry.shapes import Disk, Quadric, TriangleMesh
 
 INF = np.inf
 

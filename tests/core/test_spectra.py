@@ -1,4 +1,4 @@
-"""Spectra → RGB in the core (links1.spectra, the loader): closed-form expectations and errors.
+"""Spectra → RGB in the core (links1.shading.spectra, the loader): closed-form expectations and errors.
 
 Value-by-value agreement with Mitsuba is in tests/plugins/test_spectra_vs_mitsuba.py.
 """
@@ -9,10 +9,10 @@ import warnings
 import numpy as np
 import pytest
 
-from links1 import spectra
+from links1.shading import spectra
 from links1.errors import SceneError
-from links1.loader import load_string
-from links1.xmlparse import SceneWarning
+from links1.scene.loader import load_string
+from links1.scene.xmlparse import SceneWarning
 
 LUMINANCE = np.array([0.212671, 0.715160, 0.072169])  # Mitsuba's luminance weights
 

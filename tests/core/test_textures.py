@@ -1,4 +1,4 @@
-"""Core textures (links1.textures) with analytic expectations: a flat-lit checkerboard
+"""Core textures (links1.shading.textures) with analytic expectations: a flat-lit checkerboard
 rectangle, bitmap lookups at known texels, wrap modes, sRGB decoding, the uv of Mitsuba's
 shapes at known points, and loader errors."""
 from __future__ import annotations
@@ -7,12 +7,13 @@ import numpy as np
 import pytest
 
 import links1
-from links1 import meshes, textures
+from links1.geometry import meshes
+from links1.shading import textures
 from links1.errors import SceneError
-from links1.image import srgb_to_linear
-from links1.loader import load_string
-from links1.xmlparse import SceneWarning
-from links1.shapes import Disk, Quadric, TriangleMesh
+from links1.imaging.image import srgb_to_linear
+from links1.scene.loader import load_string
+from links1.scene.xmlparse import SceneWarning
+from links1.geometry.shapes import Disk, Quadric, TriangleMesh
 
 RES = 40
 

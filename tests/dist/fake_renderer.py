@@ -17,7 +17,7 @@ import time
 
 import numpy as np
 
-from links1.camera import Camera
+from links1.sensor.camera import Camera
 
 FAKE = "tests.dist.fake_renderer:FakeRenderer"
 

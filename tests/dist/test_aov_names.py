@@ -19,7 +19,7 @@ BACKENDS = {"one process": ["--workers", "0"], "2 workers": ["--workers", "2"],
 def test_names_follow_mitsubas_aov_integrator():
     """The convention is Mitsuba's, asked of Mitsuba itself (not copied into the test)."""
     mi = pytest.importorskip("mitsuba")
-    from links1.aovs import AOVS
+    from links1.tracing.aovs import AOVS
     mi.set_variant("llvm_ad_rgb")
     aov = mi.load_dict({"type": "aov", "aovs": "depth:depth,normal:sh_normal,id:shape_index"})
     assert aov.aov_names() == [c for a in ("depth", "normal", "id") for c in AOVS[a]]
@@ -28,8 +28,8 @@ def test_names_follow_mitsubas_aov_integrator():
 @pytest.mark.parametrize("backend", list(BACKENDS))
 @pytest.mark.parametrize("renderer", ["core", "mitsuba"])
 def test_exr_channel_names(tmp_path, renderer, backend):
-    from links1.cli import main
-    from links1.image import read_exr
+    from links1.frontends.cli import main
+    from links1.imaging.image import read_exr
     if renderer == "mitsuba":
         pytest.importorskip("mitsuba")
     out = tmp_path / "a.exr"

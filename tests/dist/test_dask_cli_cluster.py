@@ -82,7 +82,7 @@ def cli_cluster(tmp_path):
 
 DRIVER = """
 import json, sys
-from links1.cli import main
+from links1.frontends.cli import main
 codes = [main(a) for a in json.loads(sys.argv[1])]
 print(json.dumps(codes))
 """
@@ -90,8 +90,8 @@ print(json.dumps(codes))
 
 def test_cli_renders_on_a_cluster_it_did_not_start(cli_cluster, tmp_path):
     addr, _ = cli_cluster
-    from links1.image import read_image
-    from links1.renderers import make_renderer
+    from links1.imaging.image import read_image
+    from links1.frontends.renderers import make_renderer
     runs, expect = [], []
     for kind in ("core", "mitsuba"):
         if kind == "mitsuba":

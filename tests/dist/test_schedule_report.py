@@ -26,7 +26,7 @@ def test_true_efficiency_is_full_frame_over_nodes_times_makespan():
 
 
 def test_schedule_reports_the_reference_measured_in_the_same_run(tmp_path, capsys):
-    from links1.cli import main
+    from links1.frontends.cli import main
     out = tmp_path / "r.json"
     rc = main(["schedule", MANY, "--renderer", "core", "-D", "res=32", "--nodes", "2", "--partition", "subscreen",
                "--tiles-per-node", "4", "--report", str(out), "--no-progress", "--simulate", "1,4",

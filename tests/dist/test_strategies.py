@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from links1.camera import Camera
+from links1.sensor.camera import Camera
 from links1.partition.loadmodel import SceneModel, project_boxes
 from links1.partition.strategies import STRATEGIES, make_plan, subscreen_groups
 

@@ -42,7 +42,7 @@ _REFS = {}
 def _reference(kind):
     """The single-process full frame of ``kind`` (rendered in this process)."""
     if kind not in _REFS:
-        from links1.renderers import make_renderer
+        from links1.frontends.renderers import make_renderer
         _REFS[kind] = np.asarray(make_renderer(kind, MANY, **OPTS[kind]).render(), dtype=np.float64)
     return _REFS[kind]
 
@@ -128,7 +128,7 @@ def test_cli_gives_up_in_one_line_with_exit_1_and_writes_nothing(tmp_path):
     (tmp_path / "site" / "sitecustomize.py").write_text(SITE)
     out = tmp_path / "out.exr"
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tmp_path / "site"), ROOT]))
-    p = subprocess.run([sys.executable, "-m", "links1.cli", "render", MANY, "--width", "32", "--height", "32",
+    p = subprocess.run([sys.executable, "-m", "links1.frontends.cli", "render", MANY, "--width", "32", "--height", "32",
                         "--workers", "2", "--no-progress", "-o", str(out)],
                        capture_output=True, text=True, timeout=120, env=env)
     assert p.returncode == 1, p.stderr

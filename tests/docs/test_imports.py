@@ -6,15 +6,16 @@ An import of ``a.b.c`` is an edge to the module ``a.b.c``, or to ``a.b`` when ``
 in it (``from a.b import c``); a package's ``__init__`` is a module with its own edges, and
 importing ``a.b`` is no edge to ``a`` (Python runs ``a/__init__`` first, but the package
 re-exports are not what a module depends on). Only edges between the project's own modules
-count; an import by name at run time (``importlib.import_module``: ``links1.cli.EXTENSIONS``,
+count; an import by name at run time (``importlib.import_module``: ``links1.frontends.cli.EXTENSIONS``,
 a partitioning ``module:callable`` renderer) is not an edge.
 
 The tests: no strongly connected component of more than one module (a circle, named in the
 failure); the dependencies run one way, core <- plugin <- front ends: no core module (``links1``
 less its front ends: the CLI, ``partition``, the pytest plugin, the renderer factory
-``links1.renderers``; and less the package's ``__init__``, the public API that re-exports
+``links1.frontends.renderers``; and less the package's ``__init__``, the public API that re-exports
 ``make_renderer``) names the plugin package ``links1_mitsuba`` or a front end, and the plugin
-imports no front end.
+imports no front end; inside the core, each package imports only the packages below it
+(``LAYERS``: geometry never imports scene loading, shading or tracing).
 """
 from __future__ import annotations
 
@@ -29,8 +30,23 @@ PACKAGES = {"links1": ROOT / "links1", "links1_mitsuba": ROOT / "plugins" / "lin
             "compare": ROOT / "compare"}
 
 #: The front ends of links1: they may name the plugin (they choose and drive a renderer).
-FRONT_ENDS = ("links1.cli", "links1.cli_options", "links1.partition", "links1.pytest_plugin",
-              "links1.renderers")
+FRONT_ENDS = ("links1.frontends", "links1.partition")
+
+#: The core's packages, bottom up, each with the core packages it may import: one way, so no
+#: circle between packages (docs/architecture.md, "Packages"). ``links1.errors`` is the one
+#: module outside them (the error classes every layer raises).
+LAYERS = {
+    "links1.errors": set(),
+    "links1.maths": {"links1.errors"},
+    "links1.imaging": {"links1.errors"},
+    "links1.geometry": {"links1.errors", "links1.maths"},
+    "links1.sensor": {"links1.errors", "links1.maths"},
+    "links1.shading": {"links1.errors", "links1.maths", "links1.imaging", "links1.geometry"},
+    "links1.scene": {"links1.errors", "links1.maths", "links1.imaging", "links1.geometry",
+                     "links1.sensor", "links1.shading"},
+    "links1.tracing": {"links1.errors", "links1.maths", "links1.imaging", "links1.geometry",
+                       "links1.sensor", "links1.shading", "links1.scene"},
+}
 
 
 def _front_end(module: str) -> bool:
@@ -162,10 +178,11 @@ def test_graph_sees_lazy_and_relative_imports():
     g = graph()
     assert "links1.errors" in g["links1"]                       # links1/__init__: from .errors import ...
     assert "links1.partition.runtime" in g["links1.partition.cli"]  # from .runtime import ...
-    assert "links1.loader" in g["links1.render"]                  # inside CoreRenderer.__init__
-    assert "links1_mitsuba" in g["links1.renderers"]              # the factory's lazy import
-    assert "links1.aovs" in g["links1_mitsuba.renderer"]          # a plugin -> core edge
-    assert "links1" not in g["links1.render"]                     # no edge to a parent package
+    assert "links1.scene.loader" in g["links1.tracing.render"]    # inside CoreRenderer.__init__
+    assert "links1_mitsuba" in g["links1.frontends.renderers"]     # the factory's lazy import
+    assert "links1.tracing.aovs" in g["links1_mitsuba.renderer"]   # a plugin -> core edge
+    assert "links1" not in g["links1.tracing.render"]              # no edge to a parent package
+    assert "links1.scene.params" in g["links1.scene.scene"]        # from . import params (a submodule)
 
 
 def test_no_import_circles():
@@ -180,10 +197,27 @@ def test_core_never_names_the_plugin_or_a_front_end():
     lazily or not."""
     g = graph()
     core = [m for m in g if _core(m)]
-    assert {"links1.render", "links1.errors", "links1.aovs", "links1.adaptive"} <= set(core)
+    assert {"links1.tracing.render", "links1.errors", "links1.tracing.aovs", "links1.tracing.adaptive"} <= set(core)
     bad = sorted(f"{m} -> {d}" for m in core for d in g[m]
                  if d.split(".")[0] == "links1_mitsuba" or _front_end(d))
     assert not bad, f"core modules that import the plugin or a front end: {bad}"
+
+
+def _layer(module: str) -> str | None:
+    return next((k for k in LAYERS if module == k or module.startswith(k + ".")), None)
+
+
+def test_core_packages_depend_one_way():
+    """Every core module lies in one of ``LAYERS``, and imports (lazily or not) only its own
+    package and the packages ``LAYERS`` lets its package import."""
+    names = list(LAYERS)
+    assert all(dep in names[:i] for i, k in enumerate(names) for dep in LAYERS[k])  # bottom up
+    g = graph()
+    core = [m for m in g if _core(m) and m != "links1"]
+    assert not [m for m in core if _layer(m) is None], "core modules outside the LAYERS packages"
+    bad = sorted(f"{m} -> {d}" for m in core for d in g[m] if _core(d) and d != "links1"
+                 and _layer(d) != _layer(m) and _layer(d) not in LAYERS[_layer(m)])
+    assert not bad, f"core modules importing a package above their own: {bad}"
 
 
 def test_plugin_never_imports_the_front_ends():

@@ -1,7 +1,7 @@
 """The plugin's ``exact`` blob solver with many centres: each ray sums only its candidate
 centres (those whose 3S sphere its line crosses, found with a hierarchy of boxes), held in
 registers, in a local-memory list when there are more, or all centres beyond that. Checked
-against the float64 core (links1/blob.py) and against the plugin's own all-centres sum."""
+against the float64 core (links1/geometry/blob.py) and against the plugin's own all-centres sum."""
 from __future__ import annotations
 
 import numpy as np
@@ -60,7 +60,7 @@ def _plugin(spec, o, d, lists):
 
 @pytest.mark.parametrize("centres", ["cloud300", "row80"])
 def test_candidate_lists_match_core_and_all_centres(centres, variant):
-    from links1.blob import Blob
+    from links1.geometry.blob import Blob
     from links1_mitsuba.shapes import LIST_CAP, SLOTS, BlobSpec
     c = _cloud(300, 3) if centres == "cloud300" else _row(80)
     o, d = _rays(c, 4000, 5)
@@ -128,8 +128,8 @@ def test_many_centre_blob_scene_matches_core(tmp_path, variant):
     """A 120-centre blob lit by a point light over a mirror floor, through the renderer
     (frozen launch, shadow rays, reflections, normals): plugin against the core."""
     import warnings
-    from links1.loader import load_scene
-    from links1.render import render
+    from links1.scene.loader import load_scene
+    from links1.tracing.render import render
     from links1_mitsuba import MitsubaRenderer
     from links1_mitsuba.shapes import LIST_MIN_CENTRES
     c = _cloud(120, 7)

@@ -1,5 +1,5 @@
 """The plugin's ``paper`` blob solver (float32 Dr.Jit) against the float64 core's
-(links1/blob.py ``_solve_paper``): same span samples, same quadratic fits and root choice,
+(links1/geometry/blob.py ``_solve_paper``): same span samples, same quadratic fits and root choice,
 same number of field evaluations per ray."""
 from __future__ import annotations
 
@@ -35,7 +35,7 @@ def _rays(n, seed):
 def test_paper_solver_matches_core_rays(centers, threshold, samples, to_world, variant):
     import drjit as dr
     import mitsuba as mi
-    from links1.blob import Blob
+    from links1.geometry.blob import Blob
     from links1_mitsuba.shapes import BlobSpec
 
     c = np.array(centers, dtype=np.float64)
@@ -61,7 +61,7 @@ def test_paper_solver_matches_core_rays(centers, threshold, samples, to_world, v
 
 @pytest.mark.parametrize("name", ["fig6a.xml", "fig6b.xml"])
 def test_paper_solver_primary_hits_match_core(name, variant):
-    from links1.renderers import make_renderer
+    from links1.frontends.renderers import make_renderer
     path = os.path.join(SCENES, name)
     if not os.path.exists(path):
         pytest.skip(f"no {name}")

@@ -4,8 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from links1.camera import Camera, fov_x_from
-from links1.transform import look_at
+from links1.sensor.camera import Camera, fov_x_from
+from links1.maths.transform import look_at
 
 mi = pytest.importorskip("mitsuba", reason="mitsuba is not installed")
 pytestmark = pytest.mark.mitsuba

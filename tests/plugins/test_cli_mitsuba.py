@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from links1.cli import main
+from links1.frontends.cli import main
 
 from .conftest import cli_variant
 
@@ -37,7 +37,7 @@ def test_bad_scene_one_line_exit_2(tmp_path, capsys, body, needle):
 
 def test_scene_without_integrator_renders(tmp_path):
     """A file that names no integrator gets links1_whitted (the loader adds the node)."""
-    from links1.image import read_exr
+    from links1.imaging.image import read_exr
     scene = tmp_path / "ok.xml"
     scene.write_text("<scene version='3.0.0'><sensor type='perspective'><film type='hdrfilm'>"
                      "<integer name='width' value='8'/><integer name='height' value='6'/></film></sensor>"
@@ -69,12 +69,12 @@ def test_integrator_scene_without_integrator_uses_path(tmp_path):
     import subprocess
     import sys
 
-    from links1.image import read_exr
+    from links1.imaging.image import read_exr
     imgs, errs = [], []
     for integ in ("", "<integrator type='path'/>\n"):
         scene = _no_integrator_scene(tmp_path, integ)
         out = tmp_path / f"o{len(integ)}.exr"
-        res = subprocess.run([sys.executable, "-m", "links1.cli", "render", str(scene), "--renderer", "mitsuba",
+        res = subprocess.run([sys.executable, "-m", "links1.frontends.cli", "render", str(scene), "--renderer", "mitsuba",
                               "--integrator", "scene", "--workers", "0", "--no-progress", "-o", str(out),
                               *cli_variant("mitsuba")],
                              capture_output=True, text=True, timeout=300)
@@ -98,7 +98,7 @@ def _render_both(tmp_path, body):
     import subprocess
     import sys
 
-    from links1.image import read_exr
+    from links1.imaging.image import read_exr
     scene = tmp_path / "s.xml"
     scene.write_text(
         "<scene version='3.0.0'>\n<sensor type='perspective'><float name='fov' value='40'/><film type='hdrfilm'>"
@@ -107,7 +107,7 @@ def _render_both(tmp_path, body):
     imgs, errs = {}, {}
     for r in ("core", "mitsuba"):
         out = tmp_path / f"{r}.exr"
-        res = subprocess.run([sys.executable, "-m", "links1.cli", "render", str(scene), "--renderer", r,
+        res = subprocess.run([sys.executable, "-m", "links1.frontends.cli", "render", str(scene), "--renderer", r,
                               "--workers", "0", "--no-progress", "-o", str(out), *cli_variant(r)],
                              capture_output=True, text=True, timeout=300)
         assert res.returncode == 0, res.stderr
@@ -117,7 +117,7 @@ def _render_both(tmp_path, body):
 
 def test_blackbody_emitter_same_colour_in_both_renderers(tmp_path):
     """Mitsuba's RGB variants cannot evaluate a blackbody; both renderers use the colour its
-    spectral variants integrate to (links1.spectra), each saying so in one warning line."""
+    spectral variants integrate to (links1.shading.spectra), each saying so in one warning line."""
     imgs, errs = _render_both(tmp_path, (
         "<shape type='sphere'><point name='center' x='0' y='0' z='5'/></shape>\n"
         "<emitter type='point'><point name='position' x='0' y='1' z='0'/>\n"
@@ -148,7 +148,7 @@ def test_spectra_on_links1_plugins_same_in_both_renderers(tmp_path):
 def test_scene_parameter_named_integrator(tmp_path, integ):
     """Mitsuba's own scenes declare <default name="integrator">; -D integrator=... fills it
     (it once collided with load_file's integrator keyword: an internal error)."""
-    from links1.image import read_exr
+    from links1.imaging.image import read_exr
     head = "<default name='integrator' value='path'/><integrator type='$integrator'/>\n"
     scene = _no_integrator_scene(tmp_path, head)
     outs = {}

@@ -100,8 +100,8 @@ def plugin_image(body, variant, spp):
 
 
 def core_image(body, spp):
-    from links1.loader import load_string
-    from links1.render import render
+    from links1.scene.loader import load_string
+    from links1.tracing.render import render
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         sc = load_string(scene_xml(body, WHITTED, spp))
@@ -131,8 +131,8 @@ def test_thin_sheet_keeps_its_transmission(variant):
     body = SHEET.format(a=0, b='<bsdf type="thindielectric"/>')
     xml_bg = '<emitter type="constant"><rgb name="radiance" value="0.529"/></emitter>'
     from links1_mitsuba import load_string
-    from links1.loader import load_string as core_load
-    from links1.render import render
+    from links1.scene.loader import load_string as core_load
+    from links1.tracing.render import render
     xml = scene_xml(body, WHITTED, 1).replace(BACKDROP, xml_bg)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -148,7 +148,7 @@ def test_mask_around_dielectric_warns_in_both_renderers(variant):
     """A Whitted node has one transmitted ray: a mask around a refracting dielectric keeps the
     refraction and drops the straight-through part, and both renderers say so."""
     from links1_mitsuba import load_string
-    from links1.loader import load_string as core_load
+    from links1.scene.loader import load_string as core_load
     body = SPHERE.format(b='<bsdf type="mask"><float name="opacity" value="0.5"/><bsdf type="dielectric"/></bsdf>')
     xml = scene_xml(body, WHITTED, 1)
     with pytest.warns(UserWarning, match="straight-through"):

@@ -1,7 +1,7 @@
 """The device film of ``links1_whitted`` (issue 22, item 1; plugins/links1_mitsuba/film.py)
 against the numpy film it replaced: the same samples (``window_samples``) assembled by the old
 numpy code (kept below as the reference: the box mean, the AOVs, and
-:func:`links1.filters.filter_samples` for the other filters) give the same pixels.
+:func:`links1.sensor.filters.filter_samples` for the other filters) give the same pixels.
 
 Tolerance: box, tent, mitchell and catmullrom are bit-identical (the same float64 operations in
 the same order). Gaussian and lanczos evaluate ``exp`` / ``sin``, where Dr.Jit's float64
@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from links1.filters import filter_samples
+from links1.sensor.filters import filter_samples
 
 from .test_vs_mitsuba_integrators import DIFFUSE
 

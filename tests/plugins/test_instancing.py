@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from links1.errors import SceneError
-from links1.renderers import make_renderer
+from links1.frontends.renderers import make_renderer
 
 from .conftest import assert_matches_mitsuba_direct
 
@@ -82,7 +82,7 @@ def test_instancing_matches_mitsuba_direct(scenes, kind_with_mitsuba):
      '<shape type="instance"><ref id="g"/></shape>', "emitter"),
 ])
 def test_bad_instancing_is_a_scene_error(tmp_path, body, message):
-    from links1 import loader
+    from links1.scene import loader
     p = tmp_path / "bad.xml"
     p.write_text('<scene version="3.0.0">' + body + "</scene>")
     with pytest.raises(SceneError, match=message):

@@ -9,8 +9,8 @@ import warnings
 import numpy as np
 import pytest
 
-from links1 import loader
-from links1.xmlparse import SceneWarning
+from links1.scene import loader
+from links1.scene.xmlparse import SceneWarning
 
 mi = pytest.importorskip("mitsuba")
 

@@ -39,7 +39,7 @@ def _scene():
 
 def test_core():
     import links1
-    from links1.loader import load_string
+    from links1.scene.loader import load_string
     img = links1.render(load_string(_scene()), spp=1)
     np.testing.assert_allclose(img, EXPECTED, rtol=1e-9)
 

@@ -10,8 +10,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from links1 import meshes
-from links1.renderers import make_renderer
+from links1.geometry import meshes
+from links1.frontends.renderers import make_renderer
 
 from .conftest import assert_matches_mitsuba_direct
 
@@ -102,7 +102,7 @@ def test_mesh_attribute_matches_mitsuba_direct(scene, kind_with_mitsuba):
      'type="mesh_attribute"><string name="name" value="color"/></texture></bsdf></shape>', "vertex_"),
 ])
 def test_bad_mesh_attributes_are_scene_errors(tmp_path, body, message):
-    from links1 import loader
+    from links1.scene import loader
     from links1.errors import SceneError
     (tmp_path / "quad.ply").write_text(PLY)
     p = tmp_path / "bad.xml"

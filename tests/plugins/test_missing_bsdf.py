@@ -55,8 +55,8 @@ def _scene(n_quadrics: int, explicit_default: bool) -> str:
 def _render_both(path):
     from links1_mitsuba import MitsubaRenderer
 
-    from links1.loader import load_scene
-    from links1.render import render
+    from links1.scene.loader import load_scene
+    from links1.tracing.render import render
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         r = MitsubaRenderer(str(path))

@@ -18,8 +18,8 @@ RES = 64
 
 def _core():
     try:
-        from links1.loader import load_scene
-        from links1.render import render
+        from links1.scene.loader import load_scene
+        from links1.tracing.render import render
     except ImportError as exc:  # pragma: no cover - core not there yet
         pytest.skip(f"the core renderer is not available: {exc}")
     return load_scene, render

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from links1.renderers import make_renderer
+from links1.frontends.renderers import make_renderer
 
 from .conftest import assert_matches_mitsuba_direct
 
@@ -94,7 +94,7 @@ def test_other_sensors_are_refused_in_one_line(variant, tmp_path):
 
 @pytest.mark.parametrize("sensor", ["orthographic", "perspective"])
 def test_crop_window_is_those_pixels_of_the_full_film(renderer_kind, sensor, tmp_path):
-    """A film's crop window (``crop_offset_x/y``, ``crop_width/height``; ``links1.render`` and
+    """A film's crop window (``crop_offset_x/y``, ``crop_width/height``; ``links1.tracing.render`` and
     ``mi.render`` with links1_whitted render it) is exactly those
     pixels of the uncropped film, bit for bit, with a filter wider than a pixel (Gaussian,
     radius 2): its border pixels gather samples from outside the window, from the whole film."""

@@ -11,9 +11,9 @@ import warnings
 import numpy as np
 import pytest
 
-from links1 import spectra
-from links1.loader import load_string
-from links1.xmlparse import SceneWarning
+from links1.shading import spectra
+from links1.scene.loader import load_string
+from links1.scene.xmlparse import SceneWarning
 
 mi = pytest.importorskip("mitsuba")
 

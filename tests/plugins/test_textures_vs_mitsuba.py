@@ -13,8 +13,9 @@ import os
 import numpy as np
 import pytest
 
-from links1 import meshes, textures
-from links1.image import write_exr
+from links1.geometry import meshes
+from links1.shading import textures
+from links1.imaging.image import write_exr
 
 pytestmark = pytest.mark.mitsuba
 
@@ -131,7 +132,7 @@ def body_bsdfs(d):
 
 def core(xml, spp, max_depth):
     import links1
-    from links1.loader import load_string
+    from links1.scene.loader import load_string
     return links1.render(load_string(xml), spp=spp, max_depth=max_depth)
 
 
@@ -239,7 +240,7 @@ def test_shape_uv_matches_mitsuba(files, variant, kind):
     """The uv of each shape's hits equals Mitsuba's ``si.uv`` for the same rays (u and the
     angular coordinates compared modulo 1: the seam at φ = 0 may fall on either side)."""
     import mitsuba as mi
-    from links1.loader import load_string
+    from links1.scene.loader import load_string
     (files / "plain.obj").write_text("v -1 -1 0\nv 1 -1 0\nv 0.5 1 0\nv -1 1 0\nf 1 2 3\nf 1 3 4\n")
     xml = f'<scene version="3.0.0">{SHAPES[kind].format(d=files)}</scene>'
     rng = np.random.default_rng(11)

@@ -39,7 +39,7 @@ def _check(img, first):
 @pytest.mark.parametrize("first, second", [(RED, GREEN), (GREEN, RED)], ids=["red first", "green first"])
 def test_core_tie_goes_to_the_earlier_shape(first, second, copies):
     import links1
-    from links1.loader import load_string
+    from links1.scene.loader import load_string
     _check(links1.render(load_string(_scene(first, second, copies)), spp=1), first)
 
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from links1.cli import main
+from links1.frontends.cli import main
 
 from .conftest import SCENES, variant_problem
 
@@ -54,8 +54,8 @@ def test_cli_rgb_variants_render(tmp_path, v):
     why = variant_problem(v)
     if why:
         pytest.skip(f"{v} unavailable: {why}")
-    from links1.diff import relmse
-    from links1.image import read_image
+    from links1.imaging.diff import relmse
+    from links1.imaging.image import read_image
     out, core = tmp_path / "m.exr", tmp_path / "c.exr"
     common = [SCENE, "--width", "24", "--height", "24", "--spp", "4", "--no-progress"]
     assert main(["render", *common, "-o", str(out), "--variant", v]) == 0

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from links1.blob import MAX_MARCH, MAX_REFINE, Blob
-from links1.shapes import Quadric, TriangleMesh
-from links1.transform import scale, translate
+from links1.geometry.blob import MAX_MARCH, MAX_REFINE, Blob
+from links1.geometry.shapes import Quadric, TriangleMesh
+from links1.maths.transform import scale, translate
 
 from .oracles import (blob_first_hit, blob_radius, cube_mesh, perpendicular, rays_with_impact,
                       sphere_t, unit)

@@ -15,9 +15,9 @@ import sys
 import numpy as np
 import pytest
 
-from links1 import params
-from links1.cli import main
-from links1.image import read_image
+from links1.scene import params
+from links1.frontends.cli import main
+from links1.imaging.image import read_image
 
 from .fuzz import ROOT, SCENES
 
@@ -146,7 +146,7 @@ def test_diffuse_reflectance_outside_0_1_is_refused(renderer, tmp_path, capsys, 
     ("links1_whitted", "min_weight", "1.5"),
 ])
 def test_links1_parameters_follow_the_shared_table(renderer, tmp_path, capsys, plugin, param, value):
-    """The core's reader and the plugins read the ranges of links1/params.py."""
+    """The core's reader and the plugins read the ranges of links1/scene/params.py."""
     text = open(os.path.join(SCENES, "lights.xml")).read()
     tag = "rgb" if params.param(plugin, param).kind == "rgb" else params.param(plugin, param).kind
     tag = {"int": "integer"}.get(tag, tag)
@@ -194,7 +194,7 @@ def test_nesting_deeper_than_the_limit_is_refused(renderer, tmp_path, capsys):
 
 def test_nesting_at_the_limit_is_read(tmp_path):
     """The limit is the documented one, not lower: MAX_NESTING - 1 levels load."""
-    from links1.loader import load_string
+    from links1.scene.loader import load_string
     n = params.MAX_NESTING - 4   # scene > shape > twosided ... > diffuse > rgb
     xml = ('<scene version="3.0.0"><shape type="sphere">' + '<bsdf type="twosided">' * n
            + '<bsdf type="diffuse"><rgb name="reflectance" value="0.3"/></bsdf>' + "</bsdf>" * n + "</shape></scene>")
@@ -216,7 +216,7 @@ def test_partition_workers_print_one_error_line(renderer, tmp_path):
                              '<float name="radius" value="0.8"/><float name="nosuch" value="1"/>'))
     env = dict(os.environ, PYTHONPATH=ROOT)
     for path in cases:
-        p = subprocess.run([sys.executable, "-m", "links1.cli", "render", path, "-o", str(tmp_path / "o.exr"),
+        p = subprocess.run([sys.executable, "-m", "links1.frontends.cli", "render", path, "-o", str(tmp_path / "o.exr"),
                             "--renderer", renderer, "--workers", "2", *RES], capture_output=True, text=True,
                            env=env, cwd=ROOT, timeout=240)
         errors = [ln for ln in p.stderr.splitlines() if ln.startswith("links1: error:")]
@@ -228,9 +228,9 @@ def test_partition_workers_print_one_error_line(renderer, tmp_path):
 
 def test_shared_table_defaults_are_the_renderers_defaults():
     """One home for the defaults: the core's and the plugin's constants are the table's."""
-    from links1.integrator import DEFAULT_MIN_WEIGHT
-    from links1.loader import DEFAULT_MAX_DEPTH
-    from links1.scene import Scene
+    from links1.tracing.integrator import DEFAULT_MIN_WEIGHT
+    from links1.scene.loader import DEFAULT_MAX_DEPTH
+    from links1.scene.scene import Scene
     assert DEFAULT_MIN_WEIGHT == params.default("links1_whitted", "min_weight") == 1.0 / 255.0
     assert DEFAULT_MAX_DEPTH == Scene.max_depth == params.default("links1_whitted", "max_depth") == 5
 
@@ -239,7 +239,7 @@ def test_nesting_counts_across_includes(tmp_path):
     """30 included files of 50 nested elements each: 1,500 levels in all, refused by the
     same limit (each file alone is within it)."""
     from links1.errors import SceneError
-    from links1.loader import load_scene
+    from links1.scene.loader import load_scene
     n = 30
     for k in range(n):
         inner = f'<include filename="i{k + 1}.xml"/>' if k + 1 < n else '<bsdf type="diffuse"/>'

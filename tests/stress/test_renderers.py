@@ -1,6 +1,6 @@
 """Numerical stress cases (docs/numerics.md) through both renderers.
 
-Each test renders a small generated scene with ``links1.renderers.make_renderer(kind, ...)``
+Each test renders a small generated scene with ``links1.frontends.renderers.make_renderer(kind, ...)``
 for ``kind`` = ``core`` and ``mitsuba`` (the links1_whitted Dr.Jit integrator; skipped with
 the reason when it cannot run here) and checks: no NaN/Inf in any channel; hit/miss per
 pixel equal to a float64 analytic reference on the same pixel-centre rays outside a
@@ -19,8 +19,8 @@ import math
 import numpy as np
 import pytest
 
-from links1.loader import load_scene
-from links1.renderers import make_renderer
+from links1.scene.loader import load_scene
+from links1.frontends.renderers import make_renderer
 
 KINDS = ["core", "mitsuba"]
 RES = 24
@@ -213,7 +213,7 @@ def test_glass_sphere_under_uniform_background(tmp_path, kind):
 
 
 def test_total_internal_reflection_angle():
-    from links1.integrator import refract
+    from links1.tracing.integrator import refract
     crit = math.degrees(math.asin(1 / 1.5))  # 41.81°
     ang = np.radians(np.array([crit - 0.01, crit + 0.01, 10.0, 80.0]))
     d = np.c_[np.sin(ang), np.zeros(4), -np.cos(ang)]
@@ -251,9 +251,9 @@ def test_no_shadow_acne_on_1e5_shading_points(tmp_path, kind):
 
 def test_1e5_secondary_rays_do_not_hit_their_own_surface():
     """Reflection, refraction and shadow rays from 1e5 points of a sphere and a plane (core)."""
-    from links1.integrator import OFFSET_SCALE, _offset, refract
-    from links1.shapes import Quadric, TriangleMesh
-    from links1.transform import scale, translate
+    from links1.tracing.integrator import OFFSET_SCALE, _offset, refract
+    from links1.geometry.shapes import Quadric, TriangleMesh
+    from links1.maths.transform import scale, translate
     rng = np.random.default_rng(7)
     n = 100_000
     for shape, pts, normals in (

@@ -1,0 +1,222 @@
+"""The ``links1`` command line: ``render``, ``diff``, ``schedule``.
+
+Bad input (scene or options) prints one line ``links1: error: ...`` naming what and where,
+exits with status 2 and leaves no output file behind (``--debug`` shows the traceback).
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import statistics
+import sys
+import time
+
+from .cli_options import nonneg_int, adaptive_options, add_render_arguments, renderer_options
+from ..errors import Links1Error, RenderAborted, UsageError, one_line_warnings
+
+RENDER_EXAMPLES = """examples:
+  links1 render scenes/fig11.xml -o fig11.png
+  links1 render scenes/fig4.xml -o fig4.exr --renderer core --spp 16 --aov depth,normal,id,cost
+  links1 render scenes/fig6a.xml -o blob.exr -D threshold=0.4 --width 512 --height 512
+  links1 render scenes/many.xml -o many.exr --repeat 5          # prints a timing: line
+"""
+
+MAIN_EXAMPLES = """commands:
+  render     render a Mitsuba 3 XML scene with the LINKS-1 method
+  diff       compare two images (EXR/PNG) under a metric and threshold
+  schedule   run a root/node screen-partitioning experiment
+
+examples:
+  links1 render scenes/fig11.xml -o fig11.png
+  links1 diff out/a.exr out/b.exr --metric relmse --threshold 1e-4 --heatmap d.png
+  links1 schedule scenes/many.xml --nodes 4 --partition subscreen --report r.json --plot r.png
+"""
+
+# Subcommands contributed by other modules: module path -> function adding the parser.
+EXTENSIONS = ("links1.imaging.diff", "links1.partition.cli")
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with exit status 2 and a one-line message (argparse's default is close)."""
+
+    def error(self, message):
+        cmd = self.prog.split()[-1]       # "links1" itself: no second "links1:" after the prefix
+        self.exit(2, f"links1: error: {message}\n" if cmd == "links1" else f"links1: error: {cmd}: {message}\n")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="links1", description="LINKS-1 ray tracing: render Mitsuba 3 XML scenes, "
+                     "compare images, run screen-partitioning experiments.",
+                     epilog=MAIN_EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--version", action="version", version=f"links1 {_version()}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+
+    p = sub.add_parser("render", help="render a scene to EXR or PNG", epilog=RENDER_EXAMPLES,
+                       formatter_class=argparse.RawDescriptionHelpFormatter,
+                       description="Render a Mitsuba 3 XML scene with the LINKS-1 method. EXR output is "
+                       "linear float32 (AOVs as extra channels); PNG is 8-bit sRGB.")
+    add_render_arguments(p)
+    p.add_argument("-o", "--output", required=True, help="output image (.exr or .png)")
+    p.add_argument("--repeat", type=nonneg_int("--repeat"), default=0,
+                   help="render N more frames and print 'timing: first=... ms median=... ms min=... ms max=... ms' on stderr")
+    p.add_argument("--min-weight", type=float, default=None,
+                   help="stop a ray-tree branch whose weight falls to this or below (default 1/255; 0: never)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--debug", action="store_true", help="show tracebacks")
+    p.set_defaults(func=cmd_render)
+    _distributed_options(p)
+
+    for name in EXTENSIONS:
+        try:
+            mod = importlib.import_module(name)
+        except ImportError:
+            continue
+        add = getattr(mod, "add_cli", None)
+        if add is None:
+            continue
+        before = set(sub.choices)
+        add(sub)
+        for cmd in set(sub.choices) - before:  # wire the module's runner if it did not
+            if sub.choices[cmd].get_default("func") is None and hasattr(mod, "run_cli"):
+                sub.choices[cmd].set_defaults(func=mod.run_cli)
+    return parser
+
+
+def _distributed_options(p):
+    try:
+        from ..partition import cli as pcli
+    except ImportError:
+        return
+    add = getattr(pcli, "add_render_options", None)
+    if add is not None:
+        add(p)
+
+
+def _version() -> str:
+    from .. import __version__
+    return __version__
+
+
+def _output_kind(path: str) -> str:
+    low = path.lower()
+    if low.endswith(".exr"):
+        return "exr"
+    if low.endswith(".png"):
+        return "png"
+    raise UsageError(f"output {path!r}: unknown image type (use .exr or .png)")
+
+
+def make_cli_renderer(args):
+    from .renderers import make_renderer
+    opts = renderer_options(args)
+    if getattr(args, "min_weight", None) is not None:
+        opts["min_weight"] = args.min_weight
+    if getattr(args, "light_samples", None) is not None:
+        opts["light_samples"] = args.light_samples
+    opts.update(adaptive_options(args))
+    if args.renderer == "mitsuba":
+        opts["variant"] = args.variant
+        if args.integrator == "scene":
+            opts["integrator"] = "scene"
+    elif args.variant is not None or args.integrator != "links1":
+        raise UsageError("--variant and --integrator apply to --renderer mitsuba only")
+    return make_renderer(args.renderer, args.scene, **opts)
+
+
+def cmd_render(args) -> int:
+    from .renderers import renderer_warnings, require_mitsuba
+    if args.renderer == "mitsuba":
+        require_mitsuba(args.variant)
+    renderer_warnings(args.renderer)
+    kind = _output_kind(args.output)
+    if kind == "png" and args.aov:
+        raise UsageError("AOVs need an EXR output (-o something.exr)")
+    if args.min_weight is not None and not args.min_weight >= 0:
+        raise UsageError(f"--min-weight must be >= 0, got {args.min_weight}")
+    distributed = getattr(args, "workers", None) not in (None, 0) or getattr(args, "dask_local", None) \
+        or getattr(args, "scheduler", None)
+    t0 = time.perf_counter()
+    if distributed:
+        from ..partition.cli import render_distributed
+        image, channels = render_distributed(args)
+        first = time.perf_counter() - t0
+        renderer = None
+    else:
+        renderer = make_cli_renderer(args)
+        t0 = time.perf_counter()
+        image = renderer.render(progress=not args.no_progress) if _takes_progress(renderer) else renderer.render()
+        first = time.perf_counter() - t0
+        channels = renderer.channels
+    if args.repeat:
+        times = []
+        for _ in range(args.repeat):
+            t = time.perf_counter()
+            if renderer is None:
+                render_distributed(args)
+            else:
+                renderer.render()
+            times.append(time.perf_counter() - t)
+        print(f"timing: first={first * 1e3:.1f} ms median={statistics.median(times) * 1e3:.1f} ms "
+              f"min={min(times) * 1e3:.1f} ms max={max(times) * 1e3:.1f} ms", file=sys.stderr)
+    _check_finite_image(image, args.renderer)
+    from ..imaging.image import write_image
+    if kind == "png":
+        write_image(args.output, image[..., :3])
+    else:
+        write_image(args.output, image, channels)
+    print(f"links1: wrote {args.output} ({image.shape[1]}x{image.shape[0]}, {args.renderer})", file=sys.stderr)
+    return 0
+
+
+def _check_finite_image(image, renderer) -> None:
+    """Never a silent NaN (issue 25): scene values are checked where they enter
+    (links1.scene.params), so a non-finite pixel is a bug; stop with one line and write nothing."""
+    import numpy as np
+    bad = ~np.isfinite(image)
+    if bad.any():
+        y, x = (int(v[0]) for v in np.nonzero(bad.any(axis=-1)))
+        raise RenderAborted(f"the {renderer} renderer produced {int(bad.sum())} non-finite values "
+                            f"(first at pixel {x},{y}); nothing written (a bug in links1: please report the scene)")
+
+
+def _takes_progress(renderer) -> bool:
+    import inspect
+    try:
+        return "progress" in inspect.signature(renderer.render).parameters
+    except (TypeError, ValueError):
+        return False
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "command", None):
+        parser.print_help(sys.stderr)
+        return 2
+    one_line_warnings()
+    debug = getattr(args, "debug", False)
+    try:
+        return int(args.func(args) or 0)
+    except Links1Error as e:
+        if debug:
+            raise
+        print(f"links1: error: {e}", file=sys.stderr)
+        return 2
+    except RenderAborted as e:
+        if debug:
+            raise
+        print(f"links1: error: {e}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("links1: interrupted", file=sys.stderr)
+        return 130
+    except Exception as e:  # noqa: BLE001 - last resort: one line, not a traceback
+        if debug:
+            raise
+        print(f"links1: internal error: {type(e).__name__}: {e} (run with --debug for the traceback)",
+              file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,13 @@
+"""Shapes, their bounding-box hierarchies and the scene's accelerator (docs/method.md §3).
+
+Modules
+-------
+bvh          the shape-agnostic hierarchy of bounding boxes (3-2-4): boxes in, packet and lock-step traversals
+shapes       TriangleMesh (eq. 3.1-3.3), Quadric (3.4-3.5, clip planes), Disk
+blob         weight-function surface (3.6-3.9): 'exact' and 'paper' solvers
+meshes       obj / ply readers, rectangle / cube meshes, bicubic Bezier tessellation (eq. 3.3)
+accel        the scene's accelerator (3-2-4): a BVH over the shapes; nearest hit, any-hit, shadow products
+
+Imports only :mod:`links1.maths` (and :mod:`links1.errors`); never the scene loading, shading or tracing
+(docs/architecture.md, "Packages").
+"""

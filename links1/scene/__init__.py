@@ -1,0 +1,12 @@
+"""A Mitsuba 3 XML file to a :class:`links1.scene.scene.Scene`.
+
+Modules
+-------
+params       the links1_* plugins' parameters and the scene-wide value rules (read by the plugin too)
+xmlparse     Mitsuba 3 XML -> generic nodes (defaults, $params, include, path, ref, transforms)
+loader       nodes -> Scene (Mitsuba semantics + links1 plugins; instances flattened); load_scene
+scene        the Scene: shapes, lights, camera, film, content-keyed caches
+
+Imports the packages below it (maths, imaging, geometry, shading, sensor), never tracing or a
+front end (docs/architecture.md, "Packages").
+"""

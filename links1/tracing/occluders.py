@@ -1,0 +1,141 @@
+"""Which shapes can cast a shadow toward each light: looked at once per scene, so the
+integrator traces no shadow ray where no occluder can be (issue 5 §4).
+
+Two conservative facts decide it:
+
+* a **convex** shape (an unclipped sphere or ellipsoid, a capped quadric, a disk, a planar
+  or convex closed mesh) never shadows its own points *toward a light on the outer side of
+  the surface there* (``ng · wi > 0``, ``ng`` outward): that segment leaves it at once. A
+  **closed** convex shape does shadow its points whose light lies on the inner side (seen
+  from inside it, or reached by refraction through it): that segment crosses it (issue 14);
+* a **planar** shape (disk, rectangle, flat mesh) shadows nothing toward a light when the
+  light and every other shape lie on one side of its plane (a floor under the scene); for an
+  area light the whole emitter (its bounding box) must lie on that side;
+* a convex **emitter** never hides the points sampled on it (they face the shaded point).
+
+The result per light ``j``: ``occluder[j]`` (S,) bool, the shapes a shadow ray toward ``j``
+may hit, and ``need[j]`` (S,) bool, whether a point on shape ``s`` needs a shadow ray toward
+``j`` at all (some occluder other than ``s``, or ``s`` itself when it is not convex).
+:func:`closed_convex` names the convex shapes whose points still need a shadow ray where
+``ng · wi <= 0``.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..shading.lights import AreaLight, ConeSpotLight, CylinderSpotLight, ParallelLight, PointLight
+
+#: Relative tolerance of the side-of-plane tests (scene scale units).
+SIDE_TOL = 1e-9
+
+
+def _plane_of(shape):
+    """(normal, point) of a planar shape, or None."""
+    from ..geometry.shapes import Disk, TriangleMesh
+    if isinstance(shape, Disk):
+        m = shape.to_world if hasattr(shape, "to_world") else None
+        if m is None:
+            return None
+        n = np.linalg.inv(m[:3, :3]).T @ np.array([0.0, 0.0, 1.0])
+        return n / np.linalg.norm(n), m[:3, 3].copy()
+    if isinstance(shape, TriangleMesh):
+        v, f = shape.vertices, shape.faces
+        e1, e2 = v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]
+        cr = np.cross(e1, e2)
+        k = int(np.argmax(np.linalg.norm(cr, axis=1)))
+        n = cr[k] / np.linalg.norm(cr[k])
+        p0 = v[f[k, 0]]
+        scale = 1.0 + np.max(np.abs(v))
+        if np.all(np.abs((v - p0) @ n) <= SIDE_TOL * scale):
+            return n, p0
+    return None
+
+
+def _convex(shape) -> bool:
+    from ..geometry.shapes import Disk, Quadric, TriangleMesh
+    if isinstance(shape, Disk):
+        return True
+    if isinstance(shape, Quadric):
+        return (shape.kind == "sphere" and not shape.clips) or shape.capped
+    if isinstance(shape, TriangleMesh):
+        if _plane_of(shape) is not None:
+            return True
+        if not shape.closed or len(shape.faces) > 256:
+            return False
+        v, f = shape.vertices, shape.faces
+        n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+        side = np.einsum("fk,fvk->fv", n, v[None, :, :] - v[f[:, 0]][:, None, :])
+        return bool(np.all(side <= SIDE_TOL * (1.0 + np.max(np.abs(v))) * np.linalg.norm(n, axis=1)[:, None]))
+    return False
+
+
+def closed_convex(shapes) -> np.ndarray:
+    """(S,) bool: the convex shapes that enclose a volume (not planar), whose points with the
+    light on the inner side of the surface are shadowed by the shape itself."""
+    return np.array([_convex(s) and _plane_of(s) is None and not _is_disk(s) for s in shapes], dtype=bool)
+
+
+def _is_disk(shape) -> bool:
+    from ..geometry.shapes import Disk
+    return isinstance(shape, Disk)
+
+
+def _light_side(light, n, p0):
+    """+1 / -1: the side of the plane (n, p0) the light is on; 0 when it straddles it."""
+    if isinstance(light, ParallelLight):
+        s = -float(light.direction @ n)
+        return int(np.sign(s)) if abs(s) > SIDE_TOL else 0
+    if isinstance(light, PointLight):
+        pos, reach = light.position, 0.0
+    elif isinstance(light, CylinderSpotLight):
+        pos, reach = light.origin, light.radius
+    elif isinstance(light, ConeSpotLight):
+        pos, reach = light.position, 0.0
+    elif isinstance(light, AreaLight):  # a light with extent: the whole emitter must be on one side
+        return _box_side(*light.bounds(), n, p0)
+    else:  # environments light from every direction
+        return 0
+    s = float((pos - p0) @ n)
+    return int(np.sign(s)) if abs(s) > reach + SIDE_TOL * (1.0 + np.max(np.abs(pos))) else 0
+
+
+def _box_side(lo, hi, n, p0):
+    """+1 / -1 when the whole box is on one side of the plane (touching allowed), else 0."""
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    if not np.all(np.isfinite(corners)):
+        return 0
+    s = (corners - p0) @ n
+    tol = SIDE_TOL * (1.0 + np.max(np.abs(corners)))
+    if np.all(s >= -tol):
+        return 1
+    if np.all(s <= tol):
+        return -1
+    return 0
+
+
+def shadow_plan(shapes, lights):
+    """``(occluder, need)``: lists over lights of (S,) bool arrays (see the module docstring)."""
+    S = len(shapes)
+    convex = np.array([_convex(s) for s in shapes], dtype=bool)
+    planes = [_plane_of(s) for s in shapes]
+    boxes = [s.bounds() for s in shapes]
+    occluder, need = [], []
+    for light in lights:
+        occ = np.ones(S, dtype=bool)
+        for k, pl in enumerate(planes):
+            if pl is None:
+                continue
+            n, p0 = pl
+            side = _light_side(light, n, p0)
+            if side == 0:
+                continue
+            if all(_box_side(*boxes[j], n, p0) == side for j in range(S) if j != k):
+                occ[k] = False  # the light and every other shape are on one side: a floor
+        own = [k for k, s in enumerate(shapes) if s is getattr(light, "shape", None)]
+        if own and convex[own[0]]:
+            occ[own[0]] = False  # a convex emitter never hides its own sampled (facing) points
+        total = int(occ.sum())
+        nd = np.array([(total - int(occ[s])) > 0 or (occ[s] and not convex[s]) for s in range(S)], dtype=bool)
+        occluder.append(occ)
+        need.append(nd)
+    return occluder, need
