@@ -6,8 +6,10 @@ import subprocess
 import sys
 import threading
 
+from .registered import REGISTERED as _REGISTERED
+
 _LOCK = threading.Lock()
-_REGISTERED: dict[str, dict] = {}   # variant -> {name: class}
+_LOGGING: dict[str, bool] = {}   # log_to_warnings done
 _PROBED: dict[str, str | None] = {}  # backend -> None (works) or the reason it does not
 
 _PROBE = r"""
@@ -132,12 +134,6 @@ def register(variant: str | None = None) -> str:
         return variant
 
 
-def plugin_class(name: str):
-    """The class registered under ``name`` for the active variant."""
-    import mitsuba as mi
-    return _REGISTERED[mi.variant()][name]
-
-
 class MitsubaLogWarning(UserWarning):
     """A warning Mitsuba logged (``Log(Warn, ...)``), re-issued through :mod:`warnings`."""
 
@@ -166,10 +162,10 @@ def log_to_warnings() -> None:
             pass
 
     with _LOCK:
-        if _REGISTERED.get("_log_to_warnings"):
+        if _LOGGING.get("to_warnings"):
             return
         logger = mi.logger()
         logger.clear_appenders()
         logger.add_appender(_ToWarnings())
         logger.set_formatter(_Message())
-        _REGISTERED["_log_to_warnings"] = {}
+        _LOGGING["to_warnings"] = True

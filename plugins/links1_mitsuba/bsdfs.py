@@ -38,6 +38,8 @@ class _Held:
 
 
 def define_phong():
+    """``Links1Phong`` for the variant in use: a subclass of that variant's ``mi.BSDF``, so it
+    is made per variant (``_registry.register``), unlike the integrator's mixins."""
     import drjit as dr
     import mitsuba as mi
 

@@ -83,6 +83,9 @@ def spot_params(props) -> dict:
 
 
 def define_emitters():
+    """``{"links1_point": class, "links1_spot": class}`` for the variant in use: subclasses of
+    that variant's ``mi.Emitter`` (and their ``TRAVERSED`` table names its ``mi.Point3f``, ...),
+    so they are made per variant (``_registry.register``), unlike the integrator's mixins."""
     import drjit as dr
     import mitsuba as mi
 

@@ -1,90 +1,57 @@
 """``links1_whitted``: the LINKS-1 method (docs/method.md §2–4) as a Mitsuba 3 integrator in Dr.Jit.
 
-The integrator class is composed here from one part per concept, each in its own module
-(made by a ``define_*`` function, because the Mitsuba variant must be set first):
+The integrator class is composed here from one part per concept, each a module-level class in
+its own module (their methods name ``mi.Float``, ``mi.Ray3f``, ... when called, so one part
+serves every variant):
 
-- :mod:`~links1_mitsuba.tables`: the per-scene tables (``prepare``) and which shadow rays a
-  scene needs (``_occluders``);
-- :mod:`~links1_mitsuba.lights`: analytic lights, area and environment lights (tables, samples);
-- :mod:`~links1_mitsuba.intersect`: nearest hits over Mitsuba and links1 shapes, shadow
-  transmittance (3-3-3);
-- :mod:`~links1_mitsuba.raytree`: one level traced and shaded, the ray trees (eq. 3.11-3.16;
-  the recursion design is described there);
-- :mod:`~links1_mitsuba.launch`: camera rays, the frozen launches, read-back, ``stats``;
-- :mod:`~links1_mitsuba.gradients`: ``render_forward``/``render_backward`` (issue 23);
-- :mod:`~links1_mitsuba.util`: Dr.Jit helpers (hashes, literals, gathers).
+- :class:`~links1_mitsuba.tables.Tables`: the per-scene tables (``prepare``) and which shadow
+  rays a scene needs (``_occluders``);
+- :class:`~links1_mitsuba.lights.Lights`: analytic lights, area and environment lights
+  (tables, samples);
+- :class:`~links1_mitsuba.intersect.Intersect`: nearest hits over Mitsuba and links1 shapes,
+  shadow transmittance (3-3-3);
+- :class:`~links1_mitsuba.raytree.RayTree`: one level traced and shaded, the ray trees
+  (eq. 3.11-3.16; the recursion design is described there);
+- :class:`~links1_mitsuba.launch.Launches`: camera rays, the frozen launches, read-back, ``stats``;
+- :class:`~links1_mitsuba.gradients.Gradients`: ``render_forward``/``render_backward`` (issue 23);
+- :mod:`~links1_mitsuba.util`: Dr.Jit helpers (hashes, literals, gathers), module functions.
 
-Nanobind classes take one base, so ``Links1Whitted`` (a ``mi.SamplingIntegrator``) takes the
-parts' methods as its own rather than inheriting them; a name defined twice is an error.
+``Links1Whitted`` itself subclasses ``mi.SamplingIntegrator``, a class of the variant in use,
+so it is made per variant by :func:`define_integrator` (``_registry.register``). Nanobind
+classes take one base, so it takes the parts' methods as its own rather than inheriting them;
+a name defined twice is an error.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from links1.render import AOVS, DEFAULT_ADAPTIVE_DEPTH, channel_names
+from links1.render import DEFAULT_ADAPTIVE_DEPTH, channel_names
 from links1.params import default as l1_default
 from links1.params import read as l1_read
 
 from ._registry import unsupported_variant
-from .intersect import define_intersect
 from . import geometry
-from .gradients import define_gradients
-from .launch import define_launches
-from .lights import define_lights
-from .raytree import define_raytree
-from .tables import define_tables
-from .util import define_util
+from .gradients import Gradients
+from .intersect import Intersect
+from .launch import Launches, parse_aovs
+from .lights import Lights
+from .raytree import RayTree
+from .tables import Tables
+from .util import Hidden, hidden_attr
 
-#: Relative ray-origin offset on shapes whose float32 hits are accurate to a few ulps
-#: (meshes, rectangles, disks, links1 quadrics): a small offset keeps shadow rays that graze
-#: an object on the same side as the float64 core. Mitsuba's sphere/cylinder and links1
-#: blobs (iterative roots) use Mitsuba's RayEpsilon (self-shadowing otherwise).
-OFFSET_EPS = 2.0 ** -19
-_PRECISE_MITSUBA = ("Mesh", "OBJMesh", "PLYMesh", "Rectangle", "Disk", "Links1Bicubic", "SerializedMesh")
 #: Default weight below which a branch of the ray tree is not traced (POV-Ray's adc_bailout;
 #: the same default as links1.integrator.DEFAULT_MIN_WEIGHT).
 DEFAULT_MIN_WEIGHT = l1_default("links1_whitted", "min_weight")
 # Custom quadrics with finite bounds go under a BVH (bvh.py) from tuning.Tuning.bvh_min on.
 
-
-def parse_aovs(value) -> list:
-    if value is None:
-        return []
-    if isinstance(value, str):
-        items = [s.strip() for s in value.replace(";", ",").split(",") if s.strip()]
-    else:
-        items = [str(s).strip() for s in value]
-    for a in items:
-        if a not in AOVS:  # one naming for both renderers (links1.render)
-            raise ValueError(f"unknown AOV '{a}': allowed are {sorted(AOVS)}")
-    return items
+#: the parts whose methods Links1Whitted takes
+PARTS = (Tables, Lights, Intersect, RayTree, Launches, Gradients)
 
 
 def define_integrator():
-    import drjit as dr
+    """``Links1Whitted`` for the variant in use: a subclass of its ``mi.SamplingIntegrator``
+    (hence made per variant) with the methods of :data:`PARTS`."""
     import mitsuba as mi
-
-    util = define_util(mi, dr)
-    parts = (define_tables(mi, dr, util), define_lights(mi, dr, util), define_intersect(mi, dr, util),
-             define_raytree(mi, dr, util), define_launches(mi, dr, util.mix32, util.u24),
-             define_gradients(mi, dr, util))
-
-    class _Untraversed:
-        """Attributes that :func:`drjit.freeze` does not walk. It traverses the scene (an input
-        of the frozen window function) and with it this integrator's ``__dict__``; the Dr.Jit
-        arrays of the per-scene tables reach the frozen function through
-        ``Links1Whitted._frozen_inputs``, and walking the shape specs (thousands in big scenes)
-        on every call would cost more than rendering a small window."""
-
-        def _traverse_1_cb_ro(self, fn):
-            pass
-
-        def _traverse_1_cb_rw(self, fn):
-            pass
-
-    def _hidden_attr(name):
-        return property(lambda self: getattr(self._hidden, name, None),
-                        lambda self, v: setattr(self._hidden, name, v))
 
     class Links1Whitted(mi.SamplingIntegrator):
         r"""LINKS-1 Whitted ray tracer (``links1_whitted``), paper 3-1 and 3-3, eq. (3.11)–(3.16).
@@ -123,17 +90,19 @@ def define_integrator():
         window ``(x0, y0, w, h)`` of the full film without recompiling kernels.
         """
 
-        custom = _hidden_attr("custom")
+        custom = hidden_attr("custom")
         #: the Dr.Jit values of the links1 shapes' geometry, by slot (geometry.hold)
-        geo = _hidden_attr("geo")
-        geo_seen = _hidden_attr("geo_seen")
-        custom_bsdfs = _hidden_attr("custom_bsdfs")
-        slot_of_id = _hidden_attr("slot_of_id")
-        shape_names = _hidden_attr("shape_names")
-        places = _hidden_attr("places")
-        _prep = _hidden_attr("prep")
-        _freeze = _hidden_attr("freeze")
-        _freeze_points = _hidden_attr("freeze_points")
+        geo = hidden_attr("geo")
+        geo_seen = hidden_attr("geo_seen")
+        custom_bsdfs = hidden_attr("custom_bsdfs")
+        slot_of_id = hidden_attr("slot_of_id")
+        shape_names = hidden_attr("shape_names")
+        places = hidden_attr("places")
+        _prep = hidden_attr("prep")
+        _freeze = hidden_attr("freeze")
+        _freeze_points = hidden_attr("freeze_points")
+        #: the camera sample of the last camera rays (``Launches._take_cam_sample``)
+        _cam_sample = hidden_attr("cam_sample")
         #: ray counters of the last render (``Launches._set_stats``: summed when first read)
         stats = property(lambda self: self._read_stats(), lambda self, v: self._set_stats(v))
 
@@ -142,7 +111,7 @@ def define_integrator():
             if why:   # registered for one variant, built under another
                 raise ValueError(why)
             super().__init__(props)
-            self._hidden = _Untraversed()
+            self._hidden = Hidden()
             def param(name, conv):   # links1.params: the rules the core's reader applies too
                 return l1_read("links1_whitted", name, conv(props[name]) if name in props else None)
             md = param("max_depth", int)
@@ -287,7 +256,7 @@ def define_integrator():
                     f"custom_shapes={len(self.custom)}]")
 
     # the parts' methods (nanobind classes take one base: attached rather than inherited)
-    for part in parts:
+    for part in PARTS:
         for name, fn in vars(part).items():
             if callable(fn) and not name.startswith("__"):
                 if name in vars(Links1Whitted):

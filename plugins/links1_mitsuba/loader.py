@@ -405,6 +405,6 @@ def load_string(xml: str, *, integrator: str = "links1", variant: str | None = N
 
 def whitted_of(scene):
     """The ``links1_whitted`` integrator of a loaded scene (or None)."""
-    from ._registry import plugin_class
+    from .registered import plugin_class
     integ = scene.integrator()
     return integ if isinstance(integ, plugin_class("links1_whitted")) else None

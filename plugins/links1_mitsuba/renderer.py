@@ -174,7 +174,7 @@ class MitsubaRenderer:
     def shapes_info(self) -> list:
         """One dict per shape, in file order (``index`` = the ``id`` AOV)."""
         import mitsuba as mi
-        from ._registry import plugin_class
+        from .registered import plugin_class
         info = []
         names = getattr(self.integrator, "shape_names", None) or []
         by_slot = {s: (nm, tp) for s, nm, tp in names}

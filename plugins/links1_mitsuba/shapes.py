@@ -872,6 +872,7 @@ def tessellate_bicubic(props, base_dir=None):
 
 
 def define_bicubic():
+    """``Links1Bicubic`` for the variant in use: a subclass of its ``mi.Mesh``, made per variant."""
     import drjit as dr
     import mitsuba as mi
 

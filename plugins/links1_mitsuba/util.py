@@ -1,17 +1,23 @@
 """Dr.Jit helpers shared by the parts of ``links1_whitted``: the sample pattern's hash
-(``mix32``, ``u24``), colour / vector literals, gathers, the next float up.
+(``mix32``, ``u24``), colour / vector literals, gathers, the next float up; aligned numpy
+tables and checked index tables.
 
-:func:`define_util` makes them for the Mitsuba variant in use.
+The Dr.Jit helpers name ``mi.Float``, ``mi.Color3f``, ... when called, so they serve whichever
+Mitsuba variant is set at that time (importing this module needs none).
 """
 from __future__ import annotations
 
-from types import SimpleNamespace
-
+import drjit as dr
+import mitsuba as mi
 import numpy as np
 
+from links1.sampling import _M1 as _M1_NP
+from links1.sampling import _M2 as _M2_NP
+
 INF = float("inf")
-_M1 = 0x7FEB352D
-_M2 = 0x846CA68B
+#: the multipliers of the sample pattern's hash, written once in links1.sampling (as Python
+#: ints: a Dr.Jit UInt32 times a numpy scalar is not the literal product)
+_M1, _M2 = int(_M1_NP), int(_M2_NP)
 
 
 def checked_index(values, n: int, what: str, *, sentinel: int | None = None) -> np.ndarray:
@@ -67,39 +73,68 @@ def table(mi_type, a):
     return mi_type(aligned(np.ascontiguousarray(a).ravel(), dtype))
 
 
-def define_util(mi, dr):
-    """The helpers for the variant in use: ``mix32``, ``u24``, ``c3``, ``v3``, ``gather3``, ``next_up``,
-    as attributes of one namespace."""
+def mix32(x):
+    """lowbias32 on UInt32 (wrapping), as links1.sampling.mix32."""
+    x = x ^ (x >> 16)
+    x = x * _M1
+    x = x ^ (x >> 15)
+    x = x * _M2
+    x = x ^ (x >> 16)
+    return x
 
-    def mix32(x):
-        """lowbias32 on UInt32 (wrapping), as links1.sampling.mix32."""
-        x = x ^ (x >> 16)
-        x = x * _M1
-        x = x ^ (x >> 15)
-        x = x * _M2
-        x = x ^ (x >> 16)
-        return x
 
-    def u24(x):
-        return mi.Float(x >> 8) * (2.0 ** -24)
+def u24(x):
+    return mi.Float(x >> 8) * (2.0 ** -24)
 
-    def c3(v):
-        if dr.is_array_v(v):   # a Dr.Jit value (attached, in a derivative pass: gradients.py)
-            return mi.Color3f(v)
-        return mi.Color3f(float(v[0]), float(v[1]), float(v[2]))
 
-    def v3(v):
-        if dr.is_array_v(v):
-            return mi.Vector3f(v)
-        return mi.Vector3f(float(v[0]), float(v[1]), float(v[2]))
+def c3(v):
+    if dr.is_array_v(v):   # a Dr.Jit value (attached, in a derivative pass: gradients.py)
+        return mi.Color3f(v)
+    return mi.Color3f(float(v[0]), float(v[1]), float(v[2]))
 
-    def gather3(table, idx, active=True):
-        return dr.gather(mi.Color3f, table, idx, active)
 
-    def next_up(x):
-        """The next float32 above positive ``x`` (infinity stays): a strict ``t < limit`` test
-        against ``next_up(t)`` accepts a tie at ``t``."""
-        return dr.select(dr.isfinite(x) & (x >= 0), dr.reinterpret_array(
-            mi.Float, dr.reinterpret_array(mi.UInt32, x) + 1), x)
+def v3(v):
+    if dr.is_array_v(v):
+        return mi.Vector3f(v)
+    return mi.Vector3f(float(v[0]), float(v[1]), float(v[2]))
 
-    return SimpleNamespace(mix32=mix32, u24=u24, c3=c3, v3=v3, gather3=gather3, next_up=next_up)
+
+def gather3(table, idx, active=True):
+    return dr.gather(mi.Color3f, table, idx, active)
+
+
+def next_up(x):
+    """The next float32 above positive ``x`` (infinity stays): a strict ``t < limit`` test
+    against ``next_up(t)`` accepts a tie at ``t``."""
+    return dr.select(dr.isfinite(x) & (x >= 0), dr.reinterpret_array(
+        mi.Float, dr.reinterpret_array(mi.UInt32, x) + 1), x)
+
+
+class Hidden:
+    """Attributes that :func:`drjit.freeze` does not walk: the one way the plugin keeps state
+    out of a frozen function's input traversal. Freeze walks the inputs of a frozen launch, and
+    through the scene every Python plugin's ``__dict__`` (``links1_whitted``, ``links1_phong``,
+    the links1 emitters); an object with traversal callbacks is walked through them, and these
+    walk nothing. Uses: the integrator's per-scene tables and shape specs (their Dr.Jit arrays
+    reach the frozen launch as its ``tables`` input, ``Launches._frozen_inputs``; walking the
+    shape specs, thousands in big scenes, on every call would cost more than rendering a small
+    window), the camera sample of the last camera rays, the ray counters; a Python plugin's
+    read parameters (``links1_phong``, ``links1_point``, ``links1_spot``: their values are
+    read by ``prepare`` into the tables, which are the inputs). Reach them through
+    :func:`hidden_attr` properties."""
+
+    def __init__(self, **kw):
+        self.__dict__.update(kw)
+
+    def _traverse_1_cb_ro(self, fn):
+        pass
+
+    def _traverse_1_cb_rw(self, fn):
+        pass
+
+
+def hidden_attr(name, holder="_hidden"):
+    """A property that keeps attribute ``name`` in the object's :class:`Hidden` ``holder``
+    (None until set)."""
+    return property(lambda self: getattr(getattr(self, holder), name, None),
+                    lambda self, v: setattr(getattr(self, holder), name, v))
