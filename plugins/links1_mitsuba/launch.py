@@ -8,6 +8,7 @@ on the device from its samples (:mod:`.film`); numpy only where a caller asks fo
 """
 from __future__ import annotations
 
+import dataclasses
 import gc
 import math
 
@@ -293,7 +294,10 @@ class Launches:
 
     def _frozen_inputs(self, P):
         """Every Dr.Jit array the trace reads from the per-scene tables (the frozen
-        function must receive them as inputs), gathered once per ``P``."""
+        function must receive them as inputs), gathered once per ``P``: the fields of ``P``
+        (a slotted dataclass, :class:`~links1_mitsuba.tables.Prepared`) and what they hold
+        through dicts, lists, tuples and objects' ``__dict__``; objects with ``__slots__`` only
+        (``ParamWatch``, ``SceneInputs``) are not walked."""
         if getattr(P, "frozen_inputs", None) is None:
             found, seen = [], set()
 
@@ -313,6 +317,10 @@ class Launches:
                         and not callable(x):
                     for v in vars(x).values():
                         walk(v, depth + 1)
+                elif dataclasses.is_dataclass(x) and not isinstance(x, type):
+                    # a dataclass with slots (tables.Prepared): its fields that are set
+                    for f in dataclasses.fields(x):
+                        walk(getattr(x, f.name, None), depth + 1)
             walk(P)
             P.frozen_inputs = found
         return P.frozen_inputs

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import copy
 import warnings
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -254,8 +255,180 @@ class ParamWatch:
         return (how, tuple(self._collect(value)) if how == "ids" else _token(value))
 
 
+def _set_later():
+    """A field :meth:`Tables._prepare_scene` (or the camera view, :meth:`Tables._set_camera`)
+    always sets: no default, so reading it before it is set is an AttributeError."""
+    return field(init=False, repr=False)
+
+
+def _default(value=None):
+    """A field the code reads before (or without) setting it: ``value`` until set."""
+    return field(init=False, repr=False, default=value)
+
+
+@dataclass(slots=True, eq=False)
 class Prepared:
-    """Per-scene tables: slots (shapes in file order), materials, lights, camera."""
+    """The per-scene tables the kernels read (:meth:`Tables.prepare`): slots (the shapes in
+    file order: Mitsuba's first, then the links1 shapes), materials, shadow rays, emission,
+    lights, and in a camera view (a shallow copy per sensor) the camera and film.
+
+    Every field is declared here (``slots``: assigning an undeclared name is an
+    AttributeError). The Dr.Jit arrays among them reach the frozen launches as their
+    ``tables`` input (``Launches._frozen_inputs`` walks the fields). Per-slot tables have
+    ``nslots`` rows; the RGB ones are flat Floats of 3 values per slot. ``eq=False``: tables are
+    compared (and hashed) by identity."""
+
+    # -- scene identity and bookkeeping
+    #: the scene's shapes, emitters and sensors as object ids (:func:`scene_identity`)
+    ident: tuple = _set_later()
+    #: the tuning the tables were built with (``tuning.Tuning.tables_key``)
+    tuning: tuning.Tuning = _set_later()
+    #: the scene's parameters as last seen (:class:`ParamWatch`)
+    watch: ParamWatch = _set_later()
+    #: (shapes, emitters, sensors, BSDF per slot): the objects whose ids ``ident`` and the
+    #: BSDF pointer tables hold, kept alive with the tables
+    keep_alive: tuple = _set_later()
+    #: the camera views of these tables, by ``id(sensor)`` (:meth:`Tables._camera_view`)
+    views: dict = _set_later()
+    #: number of slots (Mitsuba shapes and links1 shapes)
+    nslots: int = _set_later()
+    #: the links1 shapes (``QuadricSpec`` / ``BlobSpec``), the integrator's list
+    custom: list = _set_later()
+    #: the blobs' candidate-search tables (``BlobSpec.tables``), built before any trace
+    blob_tables: list = _set_later()
+    #: the links1 quadrics under a BVH (``bvh.QuadricBVH``), or None (fewer than ``bvh_min``)
+    bvh: object = _set_later()
+    #: the links1 shapes intersected one code block each (those not under the BVH)
+    custom_unrolled: list = _set_later()
+    #: the slots of the quadrics under the BVH
+    bvh_slots: frozenset = _default(frozenset())
+    #: Mitsuba's shape registry id -> slot (-1: none), Int32
+    reg_to_slot: object = _set_later()
+    #: whether the scene has Mitsuba shapes (else no ``scene.ray_intersect``)
+    any_mitsuba_shapes: bool = _set_later()
+    #: relative ray-origin offset per slot (``OFFSET_EPS`` or Mitsuba's RayEpsilon), Float
+    eps_table: object = _set_later()
+
+    # -- materials (links1_phong: eq. 3.11; other Mitsuba BSDFs through bsdf.eval / sample)
+    #: per slot: a links1_phong surface (numpy bool)
+    is_phong_np: object = _set_later()
+    #: every slot / some slot is links1_phong
+    all_phong: bool = _set_later()
+    any_phong: bool = _set_later()
+    #: ``is_phong_np`` as a Bool table
+    is_phong: object = _set_later()
+    #: eq. 3.11's dic, drc, src (ambient, diffuse, specular) and eq. 3.16's r, t per slot (RGB)
+    amb: object = _set_later()
+    dif: object = _set_later()
+    spe: object = _set_later()
+    refl: object = _set_later()
+    trans: object = _set_later()
+    #: the highlight exponent n and the index of refraction per slot, Float
+    expo: object = _set_later()
+    ior: object = _set_later()
+    #: some slot has an ambient term
+    any_ambient: bool = _set_later()
+    #: per slot: the Mitsuba BSDF has a delta reflection / delta transmission / Null lobe, Bool
+    has_dr: object = _set_later()
+    has_dt: object = _set_later()
+    has_null: object = _set_later()
+    #: some Mitsuba BSDF has a delta reflection / transmission / Null lobe / any delta lobe
+    any_mitsuba_dr: bool = _set_later()
+    any_mitsuba_dt: bool = _set_later()
+    any_mitsuba_null: bool = _set_later()
+    any_mitsuba_delta: bool = _set_later()
+    #: some slot's BSDF is a ``mask``; then the BSDFs masks wrap, per slot (BSDFPtr), else None
+    any_mask: bool = _set_later()
+    inner_ptr: object = _set_later()
+    #: some links1_phong slot reflects / transmits; some slot spawns a mirror or refraction ray
+    any_phong_r: bool = _set_later()
+    any_phong_t: bool = _set_later()
+    any_specular: bool = _set_later()
+    #: the links1 quadric slots whose Mitsuba BSDF has a texture (they get the core's uv)
+    uv_slots: set = _set_later()
+    #: the BSDF of each slot (BSDFPtr), None when every slot is links1_phong
+    bsdf_ptr: object = _set_later()
+
+    # -- shadow rays (3-3-3)
+    #: shadow transmittance per slot ((nslots, 3) numpy; a derivative pass: a list of rows)
+    shadow_t_np: object = _set_later()
+    #: the same as a flat Float
+    shadow_t: object = _set_later()
+    #: a transparent Mitsuba shape's bit and word in a lane's "seen" set, per slot (UInt32)
+    trans_bits: object = _set_later()
+    trans_words: object = _set_later()
+    #: words of that set
+    trans_nwords: int = _set_later()
+    #: most crossings of transparent Mitsuba shapes one shadow segment can make
+    max_crossings: int = _set_later()
+    any_transparent_mitsuba: bool = _set_later()
+    #: the sub-scenes of :func:`shadow_split`, or None (the crossings are walked)
+    shadow_split: object = _default(None)
+
+    # -- emission
+    #: the links1 shapes' emission per slot (RGB); some slot emits
+    custom_emission: object = _set_later()
+    any_custom_emission: bool = _set_later()
+    #: per slot: a Mitsuba shape with an area emitter (Bool); some slot has one
+    any_mitsuba_emission: bool = _set_later()
+    mitsuba_emits: object = _set_later()
+
+    # -- lights (docs/method.md §4.1; lights.py)
+    #: the analytic lights: ("point", pos, axis, L1, L2, inverse_square), ("cspot", origin,
+    #: direction, radius, I), ("mspot", pos, axis, I, cutoff, beam), ("dir", direction, E),
+    #: ("memitter", pos, emitter)
+    lights: list = _set_later()
+    #: the sampled area emitters and their tables (``Lights._area_table``)
+    area: list = _set_later()
+    area_tab: list = _set_later()
+    #: the environment emitter seen by escaping rays, or None
+    env: object = _set_later()
+    #: the environment lights: ("const", rgb, light id) or ("envmap", table, light id)
+    consts: list = _set_later()
+    #: per light (analytic, then area, then environment; :meth:`Tables._occluders`): the slots
+    #: whose hits need a shadow ray (Bool, None: all), the closed shapes that shadow their own
+    #: points from the inside (Bool or None), whether any shadow ray is traced, the links1
+    #: shapes / whether any Mitsuba shape can occlude it, the Mitsuba occluders' boxes
+    #: (:func:`occluder_boxes`) and slots
+    shadow_need: list = _set_later()
+    shadow_inner: list = _set_later()
+    any_shadow: list = _set_later()
+    occ_custom: list = _set_later()
+    occ_mitsuba: list = _set_later()
+    occ_boxes: list = _set_later()
+    occ_mslots: list = _set_later()
+    #: per analytic light: its light buffer (lightbuffer.plan) or None
+    lbuf: list = _set_later()
+
+    # -- the camera view (:meth:`Tables._camera_view`; None / unset on the scene's tables)
+    #: the scene's tables this view copies
+    base: Prepared | None = _default(None)
+    #: a sensor that is not the scene's, watched (:class:`ParamWatch`) while verify_scene
+    sensor_watch: ParamWatch | None = _default(None)
+    #: the Dr.Jit arrays of these tables (``Launches._frozen_inputs``), once gathered
+    frozen_inputs: list | None = _default(None)
+    #: the scene as the frozen launches' input (``launch.SceneInputs`` or "whole scene")
+    scene_input: object = _default(None)
+    sensor: object = _set_later()
+    #: the film's full size (W, H) and reconstruction filter (links1.filters.Filter)
+    film_size: tuple = _set_later()
+    rfilter: Filter = _set_later()
+    #: "perspective" or "orthographic"; perspective; its horizontal field of view (degrees)
+    projection: str = _set_later()
+    perspective: bool = _default(False)
+    x_fov: float | None = _default(None)
+    #: the camera-to-world matrix (4x4 float64) and the clip distances
+    cam: object = _set_later()
+    near: float = _set_later()
+    far: float = _set_later()
+    #: the light buffer around a pinhole camera's eye (lightbuffer.plan_eye), or None
+    eye_buf: object = _default(None)
+
+    # -- a derivative pass (gradients.py: a copy with attached values)
+    #: the launches trace ``_trace_tree_ad`` and the film differentiably
+    ad: bool = _default(False)
+    #: the attached geometry of the links1 shapes, or None
+    geo_ad: object = _default(None)
 
 
 def _unmask(mi, b):
