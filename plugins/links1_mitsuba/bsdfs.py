@@ -3,10 +3,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from .util import Hidden, read_rgb
+
 
 def _rgb(props, name, default):
-    from .emitters import _rgb as read_rgb  # one reader of colours and spectra
-    v = read_rgb(props, name, default, emitter=False)
+    v = read_rgb(props, name, default, emitter=False)   # one reader of colours and spectra
     return None if v is None else [float(c) for c in v]
 
 
@@ -27,14 +28,6 @@ def phong_params(props) -> dict:
 
 #: the colours of links1_phong (``traverse``: ``<name>.value``)
 _PHONG_RGB = ("ambient", "diffuse", "specular", "reflectance", "transmittance")
-
-
-class _Held:
-    """Attributes of a Python Mitsuba plugin kept out of ``dr.freeze``'s input traversal (it
-    walks a plugin's ``__dict__``, not into objects of other classes)."""
-
-    def __init__(self, **kw):
-        self.__dict__.update(kw)
 
 
 def define_phong():
@@ -78,7 +71,7 @@ def define_phong():
 
         def __init__(self, props):
             super().__init__(props)
-            self._held = _Held()
+            self._held = Hidden()
             self._set_params(phong_params(props))
 
         def _set_params(self, p):

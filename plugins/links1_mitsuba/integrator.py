@@ -37,7 +37,7 @@ from .launch import Launches, parse_aovs
 from .lights import Lights
 from .raytree import RayTree
 from .tables import Tables
-from .util import Hidden, hidden_attr
+from .util import Hidden, hidden_attr, place_of
 
 #: Default weight below which a branch of the ray tree is not traced (POV-Ray's adc_bailout;
 #: the same default as links1.integrator.DEFAULT_MIN_WEIGHT).
@@ -171,7 +171,6 @@ def define_integrator():
 
         def place(self, obj, what: str = "links1_whitted") -> str:
             """``FILE:LINE: <element>`` of a scene object for a warning, else ``what``."""
-            from .loader import place_of
             return place_of(obj, self.places or {}) or what
 
         def channels(self):

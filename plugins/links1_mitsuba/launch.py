@@ -93,7 +93,7 @@ class SceneInputs:
     objects alive).
     """
 
-    __slots__ = ("items", "stale")   # no __dict__: _frozen_inputs does not walk it
+    __slots__ = ("items", "stale")
 
     def __init__(self, scene, extra=()):
         import drjit as dr
@@ -296,8 +296,10 @@ class Launches:
         """Every Dr.Jit array the trace reads from the per-scene tables (the frozen
         function must receive them as inputs), gathered once per ``P``: the fields of ``P``
         (a slotted dataclass, :class:`~links1_mitsuba.tables.Prepared`) and what they hold
-        through dicts, lists, tuples and objects' ``__dict__``; objects with ``__slots__`` only
-        (``ParamWatch``, ``SceneInputs``) are not walked."""
+        through dicts, lists, tuples and objects' ``__dict__``. An object with its own traversal
+        callbacks is not walked, as freeze walks it through them: a
+        :class:`~links1_mitsuba.util.Hidden` (``ParamWatch``: nothing) or :class:`SceneInputs`
+        (the launch's scene input)."""
         if getattr(P, "frozen_inputs", None) is None:
             found, seen = [], set()
 
@@ -313,6 +315,8 @@ class Launches:
                 elif isinstance(x, (list, tuple)):
                     for v in x:
                         walk(v, depth + 1)
+                elif hasattr(x, "_traverse_1_cb_ro"):
+                    pass   # an object that hands freeze its own variables (Hidden: none)
                 elif hasattr(x, "__dict__") and not isinstance(x, (mi.Object, type)) \
                         and not callable(x):
                     for v in vars(x).values():

@@ -13,7 +13,8 @@ import warnings
 import numpy as np
 
 from ._registry import register
-from .emitters import _rgb
+from .util import LOADING, place_of
+from .util import read_rgb as _rgb
 from .shapes import BlobSpec, QuadricSpec
 
 CUSTOM = ("links1_quadric", "links1_blob")
@@ -253,9 +254,6 @@ _TAGS = {"BSDF": "bsdf", "Emitter": "emitter", "Film": "film", "Integrator": "in
 #: the id given to an object the file names none for, so that a warning can find its element
 #: (Scene.traverse names ``_unnamed_*`` objects generically, as objects without an id)
 UNNAMED_ID = "_unnamed_links1_{}"
-#: ``id -> "FILE:LINE: <element>"`` of the scene being instantiated (for the plugins' own
-#: constructors, e.g. links1_point's colour warnings); None outside :func:`_load`
-CURRENT_PLACES = None
 
 
 def _places(state, text: str | None = None) -> dict:
@@ -305,17 +303,6 @@ def _places(state, text: str | None = None) -> dict:
     return places
 
 
-def place_of(obj, places=None) -> str | None:
-    """``FILE:LINE: <element>`` of a loaded Mitsuba object (from its id), or None."""
-    places = CURRENT_PLACES if places is None else places
-    if not places:
-        return None
-    try:
-        return places.get(obj if isinstance(obj, str) else obj.id())
-    except Exception:
-        return None
-
-
 def _unused_parameters(exc, source) -> Exception:
     """Mitsuba's "Found unused parameters: - $res=64" (no file) as the core's one line."""
     from links1.errors import SceneError
@@ -335,7 +322,6 @@ def _load(parse, source, integrator, base_dir, variant, params, filename=None):
     config = mi.parser.ParserConfig(mi.variant())
     config.merge_meshes = False
     config.merge_equivalent = False
-    global CURRENT_PLACES
     fr = mi.file_resolver()
     saved = mi.FileResolver(fr)
     try:
@@ -348,10 +334,10 @@ def _load(parse, source, integrator, base_dir, variant, params, filename=None):
         integ, specs, slot_of_id, names = _prepare_state(state, config, integrator, base_dir)
         places = _places(state, None if filename else source)
         mi.parser.transform_all(config, state)
-        CURRENT_PLACES = places
+        LOADING["places"] = places
         scene = mi.parser.instantiate(config, state)
     finally:
-        CURRENT_PLACES = None
+        LOADING["places"] = None
         fr.clear()
         for i in range(len(saved)):
             fr.append(saved[i])

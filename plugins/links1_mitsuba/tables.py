@@ -31,7 +31,7 @@ from . import lightbuffer, tuning
 from .bvh import QuadricBVH
 from .registered import plugin_class
 from .lights import _emitted_rgb
-from .util import checked_index
+from .util import Hidden, checked_index
 
 #: Relative ray-origin offset on shapes whose float32 hits are accurate to a few ulps
 #: (meshes, rectangles, disks, links1 quadrics): a small offset keeps shadow rays that graze
@@ -137,7 +137,7 @@ def _token(value):
     return (a.dtype.str, a.shape, np.ascontiguousarray(a).tobytes())
 
 
-class ParamWatch:
+class ParamWatch(Hidden):
     """Whether a Mitsuba object's parameters (every one ``mi.traverse(obj)`` exposes: a
     scene's shapes, BSDFs, textures, emitters, sensors, ...) changed since the watch was made,
     without reading them back (issue 22, item 2; it replaces a digest of every value, which
@@ -161,11 +161,9 @@ class ParamWatch:
     object), or an integrator's, makes each check a whole ``mi.traverse``, as another ``obj``
     does (a scene with the same shapes, emitters and sensors).
 
-    ``__slots__``: no ``__dict__``, so the walk that gathers the frozen launch's inputs from
-    the tables (``Launches._frozen_inputs``) does not take the pins (old values) for inputs."""
-
-    __slots__ = ("_mi", "_collect", "_obj_id", "_retraverse", "state", "_pins", "_jit", "_jit_ids",
-                 "_scalar", "_scalar_tokens", "_root_keys")
+    A :class:`~links1_mitsuba.util.Hidden`: neither ``dr.freeze`` nor the walk that gathers
+    the frozen launch's inputs from the tables (``Launches._frozen_inputs``) takes the pins
+    (old values) for inputs."""
 
     class _Shallow:
         """A ``TraversalCallback`` that keeps the values put (not the objects): the class is

@@ -7,6 +7,8 @@ Mitsuba variant is set at that time (importing this module needs none).
 """
 from __future__ import annotations
 
+import warnings
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
@@ -111,17 +113,29 @@ def next_up(x):
 
 
 class Hidden:
-    """Attributes that :func:`drjit.freeze` does not walk: the one way the plugin keeps state
-    out of a frozen function's input traversal. Freeze walks the inputs of a frozen launch, and
-    through the scene every Python plugin's ``__dict__`` (``links1_whitted``, ``links1_phong``,
-    the links1 emitters); an object with traversal callbacks is walked through them, and these
-    walk nothing. Uses: the integrator's per-scene tables and shape specs (their Dr.Jit arrays
-    reach the frozen launch as its ``tables`` input, ``Launches._frozen_inputs``; walking the
-    shape specs, thousands in big scenes, on every call would cost more than rendering a small
-    window), the camera sample of the last camera rays, the ray counters; a Python plugin's
-    read parameters (``links1_phong``, ``links1_point``, ``links1_spot``: their values are
-    read by ``prepare`` into the tables, which are the inputs). Reach them through
-    :func:`hidden_attr` properties."""
+    """State kept out of :func:`drjit.freeze`'s input traversal: the plugin's one way to hide
+    state from a frozen launch (issue 22, item 5).
+
+    Freeze walks every input of a frozen launch on every call, and through the scene each
+    Python plugin's ``__dict__`` (``links1_whitted``, ``links1_phong``, ``links1_point``,
+    ``links1_spot``); an object that has traversal callbacks is walked through them, and these
+    walk nothing. ``Launches._frozen_inputs``, which gathers the per-scene tables' Dr.Jit arrays
+    as the launch's ``tables`` input, follows the same rule. So whatever a frozen launch must
+    not take as an input, or need not walk on every call, lives in a ``Hidden``:
+
+    - the integrator's per-scene state (``Links1Whitted._hidden``, reached through
+      :func:`hidden_attr` properties): the tables (their arrays reach the launch as its
+      ``tables`` input), the shape specs (thousands in big scenes: walking them each call would
+      cost more than rendering a small window), the recordings, the camera sample of the last
+      camera rays, the ray counters;
+    - a Python plugin's read parameters (``links1_phong``, ``links1_point``, ``links1_spot``:
+      ``_held``; their values reach the launches through the tables; 3,000 Mitsuba spheres
+      sharing one ``links1_phong``: 365 -> 100 ms a frame);
+    - :class:`~links1_mitsuba.tables.ParamWatch` (a subclass): the old values it pins.
+
+    (The frozen functions reach their integrator and scene through a call,
+    ``launch._frozen_caller``, rather than a closure or a global they name: that is how they
+    are passed around freeze, not state hidden from it.)"""
 
     def __init__(self, **kw):
         self.__dict__.update(kw)
@@ -138,3 +152,45 @@ def hidden_attr(name, holder="_hidden"):
     (None until set)."""
     return property(lambda self: getattr(getattr(self, holder), name, None),
                     lambda self, v: setattr(getattr(self, holder), name, v))
+
+
+#: ``{"places": id -> "FILE:LINE: <element>"}`` of the scene being instantiated
+#: (``loader._load`` sets it for the plugins' own constructors, e.g. links1_point's colour
+#: warnings); None outside a load
+LOADING = {"places": None}
+
+
+def place_of(obj, places=None) -> str | None:
+    """``FILE:LINE: <element>`` of a loaded Mitsuba object (from its id, in ``places``, else
+    the scene being loaded: :data:`LOADING`), or None."""
+    places = LOADING["places"] if places is None else places
+    if not places:
+        return None
+    try:
+        return places.get(obj if isinstance(obj, str) else obj.id())
+    except Exception:
+        return None
+
+
+def read_rgb(props, name, default, *, emitter=True):
+    """An RGB parameter as Mitsuba's RGB variants read it: ``rgb``, ``float`` or ``spectrum``
+    (:func:`links1.spectra.to_rgb`; ``emitter=False`` for reflectance-like parameters), as a
+    numpy RGB (``default``: a number, or None). The one reader of colours and spectra of the
+    links1 plugins (``links1_point``/``links1_spot``, ``links1_phong``, the loader's emitting
+    links1 shapes)."""
+    if (name in props):
+        v = props[name]
+        if hasattr(v, "wavelengths") and hasattr(v, "values"):  # a <spectrum>
+            from links1.spectra import to_rgb
+            rgb, raw = to_rgb(list(v.wavelengths), list(v.values), emitter=emitter)
+            if raw is not None:
+                where = place_of(props.id())
+                where = f"{where} <spectrum name='{name}'>" if where else f"'{name}'"
+                warnings.warn(f"{where}: clamping out-of-gamut colour {np.round(raw, 6).tolist()} "
+                              f"to {np.round(rgb, 6).tolist()} (as Mitsuba)", stacklevel=3)
+            return rgb
+        try:
+            return np.array([float(v[0]), float(v[1]), float(v[2])])
+        except TypeError:
+            return np.full(3, float(v))
+    return None if default is None else np.full(3, float(default))
