@@ -29,13 +29,13 @@ from links1.render import DEFAULT_ADAPTIVE_DEPTH, channel_names
 from links1.params import default as l1_default
 from links1.params import read as l1_read
 
-from ._registry import unsupported_variant
 from . import geometry
 from .gradients import Gradients
 from .intersect import Intersect
 from .launch import Launches, parse_aovs
 from .lights import Lights
 from .raytree import RayTree
+from .registered import unsupported_variant
 from .tables import Tables
 from .util import Hidden, hidden_attr, place_of
 

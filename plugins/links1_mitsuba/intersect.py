@@ -14,6 +14,7 @@ import drjit as dr
 import mitsuba as mi
 
 from . import tuning
+from .shapes import quadric_uv
 from .util import INF, c3, gather3, next_up
 
 # the switches of issue 12 read here (preliminary, box_cull, eye_buffer, split) are fields of
@@ -238,5 +239,5 @@ class Intersect:
         if P.bvh is not None and P.uv_slots & P.bvh_slots:
             qi = dr.gather(mi.Int32, P.bvh.slot_to_q, uslot, hit)
             m = hit & (qi >= 0)
-            uv = dr.select(m, P.bvh.uv(mi.UInt32(dr.maximum(qi, 0)), o, d, t, m), uv)
+            uv = dr.select(m, quadric_uv(*P.bvh.object_point(mi.UInt32(dr.maximum(qi, 0)), o, d, t, m)), uv)
         return uv
