@@ -126,10 +126,10 @@ def run_frames(n, res, repeats):
 def run_size(n, res, repeats):
     import drjit as dr
     import mitsuba as mi
-    from links1_mitsuba.bvh import define_bvh
+    from links1_mitsuba.bvh import QuadricBVH
     specs = _specs(n)
     slots = max(s.slot for s in specs) + 1
-    bvh = define_bvh()(specs, np.zeros((slots, 3)))
+    bvh = QuadricBVH(specs, np.zeros((slots, 3)))
     o_np, d_np = _camera_rays(n, res)
     o, d = mi.Vector3f(o_np.T), mi.Vector3f(d_np.T)
     m = len(o_np)

@@ -14,7 +14,7 @@ Public API::
     load_string(xml, *, integrator="links1", variant=None, base_dir=None, **params) -> mi.Scene
     MitsubaRenderer(path, *, params=None, spp=None, max_depth=None, seed=0, aovs=(), variant=None,
                     integrator="links1", width=None, height=None, min_weight=None)
-                                     (defaults: links1.params.PLUGINS["integrator", "links1_whitted"])
+                                     (defaults: links1.scene.params.PLUGINS["integrator", "links1_whitted"])
 """
 from __future__ import annotations
 

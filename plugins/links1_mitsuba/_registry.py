@@ -6,8 +6,11 @@ import subprocess
 import sys
 import threading
 
+from .registered import REGISTERED as _REGISTERED
+from .registered import SUPPORTED_VARIANTS, unsupported_variant  # noqa: F401 - the public names
+
 _LOCK = threading.Lock()
-_REGISTERED: dict[str, dict] = {}   # variant -> {name: class}
+_LOGGING: dict[str, bool] = {}   # log_to_warnings done
 _PROBED: dict[str, str | None] = {}  # backend -> None (works) or the reason it does not
 
 _PROBE = r"""
@@ -18,29 +21,6 @@ y = dr.minimum(dr.sqrt(x), 2.0) + dr.fma(x, x, 1.0)
 dr.eval(y)
 print(float(dr.sum(y)[0]) if hasattr(dr.sum(y), '__getitem__') else float(dr.sum(y)))
 """
-
-
-#: The Mitsuba variants links1_whitted renders on (its kernels are Dr.Jit JIT code over RGB).
-SUPPORTED_VARIANTS = ("llvm_ad_rgb", "cuda_ad_rgb")
-
-
-def unsupported_variant(variant: str) -> str | None:
-    """None if the links1 plugins can run on ``variant``, else one line saying why not and
-    what works (scalar variants have no JIT arrays for the integrator's kernels; spectral and
-    mono variants carry other spectra than the RGB triples its tables hold)."""
-    works = "use the variant llvm_ad_rgb (CPU) or cuda_ad_rgb (NVIDIA GPU), or the core renderer (--renderer core)"
-    if variant in SUPPORTED_VARIANTS:
-        return None
-    import mitsuba as mi
-    if variant not in mi.variants():
-        return f"unknown Mitsuba variant '{variant}' (this Mitsuba has {', '.join(mi.variants())}): {works}"
-    if variant.startswith("scalar"):
-        return (f"links1_whitted cannot run on variant {variant}: its kernels need a JIT variant "
-                f"(Dr.Jit LLVM or CUDA arrays); {works}")
-    what = "polarized " if "polarized" in variant else ""
-    what += "spectral" if "spectral" in variant else "monochrome" if "mono" in variant else "non-RGB"
-    return (f"links1_whitted cannot run on variant {variant}: the links1 plugins render RGB variants "
-            f"only, not {what} ones; {works}")
 
 
 def probe_variant(variant: str) -> str | None:
@@ -132,12 +112,6 @@ def register(variant: str | None = None) -> str:
         return variant
 
 
-def plugin_class(name: str):
-    """The class registered under ``name`` for the active variant."""
-    import mitsuba as mi
-    return _REGISTERED[mi.variant()][name]
-
-
 class MitsubaLogWarning(UserWarning):
     """A warning Mitsuba logged (``Log(Warn, ...)``), re-issued through :mod:`warnings`."""
 
@@ -166,10 +140,10 @@ def log_to_warnings() -> None:
             pass
 
     with _LOCK:
-        if _REGISTERED.get("_log_to_warnings"):
+        if _LOGGING.get("to_warnings"):
             return
         logger = mi.logger()
         logger.clear_appenders()
         logger.add_appender(_ToWarnings())
         logger.set_formatter(_Message())
-        _REGISTERED["_log_to_warnings"] = {}
+        _LOGGING["to_warnings"] = True

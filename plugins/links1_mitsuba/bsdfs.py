@@ -3,16 +3,17 @@ from __future__ import annotations
 
 import numpy as np
 
+from .util import Hidden, read_rgb
+
 
 def _rgb(props, name, default):
-    from .emitters import _rgb as read_rgb  # one reader of colours and spectra
-    v = read_rgb(props, name, default, emitter=False)
+    v = read_rgb(props, name, default, emitter=False)   # one reader of colours and spectra
     return None if v is None else [float(c) for c in v]
 
 
 def phong_params(props) -> dict:
     """Read and check the ``links1_phong`` parameters from Mitsuba ``Properties`` (defaults and
-    ranges: :data:`links1.params.PLUGINS`, the table the core's reader uses too)."""
+    ranges: :data:`links1.scene.params.PLUGINS`, the table the core's reader uses too)."""
     from links1.scene.params import PLUGINS, read
     v = {}
     for name, prm in PLUGINS[("bsdf", "links1_phong")].items():
@@ -29,15 +30,9 @@ def phong_params(props) -> dict:
 _PHONG_RGB = ("ambient", "diffuse", "specular", "reflectance", "transmittance")
 
 
-class _Held:
-    """Attributes of a Python Mitsuba plugin kept out of ``dr.freeze``'s input traversal (it
-    walks a plugin's ``__dict__``, not into objects of other classes)."""
-
-    def __init__(self, **kw):
-        self.__dict__.update(kw)
-
-
 def define_phong():
+    """``Links1Phong`` for the variant in use: a subclass of that variant's ``mi.BSDF``, so it
+    is made per variant (``_registry.register``), unlike the integrator's mixins."""
     import drjit as dr
     import mitsuba as mi
 
@@ -76,7 +71,7 @@ def define_phong():
 
         def __init__(self, props):
             super().__init__(props)
-            self._held = _Held()
+            self._held = Hidden()
             self._set_params(phong_params(props))
 
         def _set_params(self, p):
@@ -196,7 +191,7 @@ def define_phong():
 
         def parameters_changed(self, keys):
             """``params.update()``: the Python values (checked as the loader checks them, ranges
-            of links1.params) follow the Dr.Jit values; links1_whitted's tables are rebuilt at
+            of links1.scene.params) follow the Dr.Jit values; links1_whitted's tables are rebuilt at
             the next frame (its scene digest sees the change)."""
             from links1.scene.params import read
             h, p = self._held, dict(self.params)

@@ -2,13 +2,12 @@
 from __future__ import annotations
 
 import math
-import warnings
 
 import numpy as np
 
 from links1.scene.params import default, param, read
 
-from .bsdfs import _Held
+from .util import Hidden, read_rgb as _rgb
 
 FALLOFFS = param("links1_point", "falloff").choices
 
@@ -18,28 +17,6 @@ def _vec(props, name, default):
         v = props[name]
         return np.array([float(v[0]), float(v[1]), float(v[2])])
     return None if default is None else np.asarray(default, dtype=np.float64)
-
-
-def _rgb(props, name, default, *, emitter=True):
-    """An RGB parameter as Mitsuba's RGB variants read it: ``rgb``, ``float`` or ``spectrum``
-    (:func:`links1.spectra.to_rgb`; ``emitter=False`` for reflectance-like parameters)."""
-    if (name in props):
-        v = props[name]
-        if hasattr(v, "wavelengths") and hasattr(v, "values"):  # a <spectrum>
-            from links1.shading.spectra import to_rgb
-            rgb, raw = to_rgb(list(v.wavelengths), list(v.values), emitter=emitter)
-            if raw is not None:
-                from .loader import place_of
-                where = place_of(props.id())
-                where = f"{where} <spectrum name='{name}'>" if where else f"'{name}'"
-                warnings.warn(f"{where}: clamping out-of-gamut colour {np.round(raw, 6).tolist()} "
-                              f"to {np.round(rgb, 6).tolist()} (as Mitsuba)", stacklevel=3)
-            return rgb
-        try:
-            return np.array([float(v[0]), float(v[1]), float(v[2])])
-        except TypeError:
-            return np.full(3, float(v))
-    return None if default is None else np.full(3, float(default))
 
 
 def _to_world(props):
@@ -83,6 +60,9 @@ def spot_params(props) -> dict:
 
 
 def define_emitters():
+    """``{"links1_point": class, "links1_spot": class}`` for the variant in use: subclasses of
+    that variant's ``mi.Emitter`` (and their ``TRAVERSED`` table names its ``mi.Point3f``, ...),
+    so they are made per variant (``_registry.register``), unlike the integrator's mixins."""
     import drjit as dr
     import mitsuba as mi
 
@@ -119,7 +99,7 @@ def define_emitters():
             for name, _, tp, _ in TRAVERSED[self._kind]:
                 v = params[name]
                 vals[name] = tp(float(v)) if tp is mi.Float else tp(*[float(c) for c in v])
-            self._held = _Held(params=params, values=vals)     # see bsdfs._Held
+            self._held = Hidden(params=params, values=vals)     # see util.Hidden
 
         values = property(lambda self: self._held.values)
 
@@ -129,7 +109,7 @@ def define_emitters():
 
         def parameters_changed(self, keys):
             """``params.update()``: the Python values follow the Dr.Jit ones, checked as the
-            loader checks them (links1.params; a direction is normalised)."""
+            loader checks them (links1.scene.params; a direction is normalised)."""
             p = dict(self.params)
             for name, _, tp, _ in TRAVERSED[self._kind]:
                 a = np.array(self._held.values[name], dtype=np.float64).ravel()

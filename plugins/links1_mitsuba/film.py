@@ -4,15 +4,15 @@ reconstruction filter, spp accumulation and the AOVs in Dr.Jit, so a frame never
 Everything here is a per-output-pixel *gather* in one fixed order, never a scatter with atomics:
 
 * sample ids ``pixel * spp + i`` of a window's sample window (the window plus the filter's
-  border, clipped to the film), window after window (:func:`define_film` ``sample_ids``);
+  border, clipped to the film), window after window (:func:`sample_ids`);
 * box filter (Mitsuba's fast path): the mean of the pixel's ``spp`` samples, summed in float64
   in sample order and divided by ``spp`` (numpy's ``mean`` of ``launch.render_windows`` before);
 * any other filter: the pixel is ``Σ w·s / Σ w`` over its ``spp`` samples and those of its
   ``(2b+1)²`` neighbours on the film, summed in float64 in the order of
-  :meth:`links1.filters.FilterGather.add` (sample index, then neighbour row, then neighbour
-  column), with the 1-D weights of :meth:`links1.filters.Filter.eval` evaluated in float64 at
-  the sample offsets of :mod:`links1.sampling` (recomputed from the same integer hash, in
-  float64 as :func:`links1.sampling.sample_offsets`; the kernels' own camera rays use the
+  :meth:`links1.sensor.filters.FilterGather.add` (sample index, then neighbour row, then neighbour
+  column), with the 1-D weights of :meth:`links1.sensor.filters.Filter.eval` evaluated in float64 at
+  the sample offsets of :mod:`links1.maths.sampling` (recomputed from the same integer hash, in
+  float64 as :func:`links1.maths.sampling.sample_offsets`; the kernels' own camera rays use the
   float32 rounding of the same offsets);
 * AOVs: ``depth``/``normal``/``id`` of the pixel's sample 0, ``cost`` summed over its samples,
   ``samples`` = spp.
@@ -22,7 +22,7 @@ a window or a batch of windows equals the full frame bit for bit. Every size (wi
 and size, film width, spp, seeds, lane offsets) enters the kernels as an opaque value: new
 windows and batch sizes replay the cached kernels (one kernel per filter type and AOV list).
 
-Agreement with the numpy path (:func:`links1.filters.filter_samples`): bit for bit for box,
+Agreement with the numpy path (:func:`links1.sensor.filters.filter_samples`): bit for bit for box,
 tent, mitchell and catmullrom; gaussian and lanczos differ where Dr.Jit's float64 ``exp`` /
 ``sin`` differ from libm's by an ulp (about one evaluation in six), i.e. a relative 1e-15 in
 float64 and, after the float32 rounding of ``mi.render``, almost always nothing. A division
@@ -32,6 +32,11 @@ from __future__ import annotations
 
 import math
 
+import drjit as dr
+import mitsuba as mi
+
+from .util import mix32
+
 #: Largest per-window tables of 1-D filter weights (bytes: 16 per sample and neighbour offset);
 #: bigger windows evaluate the weights in the gather itself ((2b+1) times as many evaluations,
 #: the same values).
@@ -40,7 +45,7 @@ FILM_TABLE_BYTES = 1 << 28
 
 def sample_window(rfilter, window, film_size):
     """The pixels whose samples a window needs: ``window`` plus ``rfilter.border`` on each
-    side, clipped to the film (:attr:`links1.filters.FilterGather.sample_window`)."""
+    side, clipped to the film (:attr:`links1.sensor.filters.FilterGather.sample_window`)."""
     W, H = film_size
     x0, y0, w, h = window
     b = rfilter.border
@@ -48,197 +53,202 @@ def sample_window(rfilter, window, film_size):
     return sx0, sy0, min(W, x0 + w + b) - sx0, min(H, y0 + h + b) - sy0
 
 
-def define_film(mi, dr, mix32):
-    """The device film for the variant in use (``mix32``: the sample pattern's hash)."""
-    F64, U32, I32 = mi.Float64, mi.UInt32, mi.Int32
+def op_u(v):
+    return dr.opaque(mi.UInt32, int(v) & 0xFFFFFFFF)
 
-    def op_u(v):
-        return dr.opaque(U32, int(v) & 0xFFFFFFFF)
 
-    def op_i(v):
-        return dr.opaque(I32, int(v))
+def op_i(v):
+    return dr.opaque(mi.Int32, int(v))
 
-    def op_f(v):
-        return dr.opaque(F64, float(v))
 
-    def concat(parts, n, tp):
-        """``parts`` (flat arrays) one after another in one array of width ``n``; the offsets are
-        opaque (``dr.concat`` bakes them into its kernels)."""
-        if len(parts) == 1:
-            return parts[0]
-        out = dr.empty(tp, n)
-        at = 0
-        for p in parts:
-            m = dr.width(p)
-            dr.scatter(out, p, dr.arange(U32, m) + op_u(at))
-            at += m
-        return out
+def op_f(v):
+    return dr.opaque(mi.Float64, float(v))
 
-    def sample_ids(film_width, spp, swins):
-        """UInt32 sample ids ``(py * W + px) * spp + i`` of the sample windows ``swins``
-        (``(sx0, sy0, sw, sh)``, row-major, ``i`` innermost), one window after another."""
-        W, s = op_u(film_width), op_u(spp)
-        parts = []
-        for sx0, sy0, sw, sh in swins:
-            j = dr.arange(U32, sw * sh * spp)
-            pix = j // s
-            i = j - pix * s
-            ly = pix // op_u(sw)
-            lx = pix - ly * op_u(sw)
-            parts.append(((ly + op_u(sy0)) * W + lx + op_u(sx0)) * s + i)
-        return concat(parts, sum(sw * sh * spp for _, _, sw, sh in swins), U32)
 
-    def filter_eval(f, x):
-        """:meth:`links1.filters.Filter.eval` in float64, the same operations in the same order."""
-        x = dr.abs(x)
-        p, r = f.params, f.radius
-        if f.name == "tent":
-            return dr.maximum(0.0, 1.0 - x / op_f(r))
-        if f.name == "gaussian":
-            a = -1.0 / (2.0 * p["stddev"] ** 2)
-            return dr.maximum(0.0, dr.exp(a * x * x) - math.exp(a * r * r))
-        if f.name == "lanczos":
-            tiny = x < 2.0 ** -23   # np.finfo(np.float32).eps
-            x1 = math.pi * dr.select(tiny, 1.0, x)
-            x2 = x1 / op_f(r)
-            v = dr.sin(x1) * dr.sin(x2) / (x1 * x2)
-            return dr.select(tiny, 1.0, dr.select(x > r, 0.0, v))
-        if f.name in ("mitchell", "catmullrom"):
-            b, c = (p["B"], p["C"]) if f.name == "mitchell" else (0.0, 0.5)
-            x2, x3 = x * x, x * x * x
-            near = (12 - 9 * b - 6 * c) * x3 + (-18 + 12 * b + 6 * c) * x2 + (6 - 2 * b)
-            far = (-b - 6 * c) * x3 + (6 * b + 30 * c) * x2 + (-12 * b - 48 * c) * x + (8 * b + 24 * c)
-            return dr.select(x < 2.0, dr.select(x < 1.0, near, far) / op_f(6.0), 0.0)
-        raise ValueError(f"links1_whitted: no device film for filter {f.name!r}")
+def concat(parts, n, tp):
+    """``parts`` (flat arrays) one after another in one array of width ``n``; the offsets are
+    opaque (``dr.concat`` bakes them into its kernels)."""
+    if len(parts) == 1:
+        return parts[0]
+    out = dr.empty(tp, n)
+    at = 0
+    for p in parts:
+        m = dr.width(p)
+        dr.scatter(out, p, dr.arange(mi.UInt32, m) + op_u(at))
+        at += m
+    return out
 
-    def offsets(pix, i, spp, k, seed):
-        """Float64 offsets in the pixel of sample ``i`` of pixel ``pix`` (UInt32s):
-        :func:`links1.sampling.sample_offsets` with run-time ``spp``, strata ``k``, ``seed``."""
-        base = mix32(mix32(seed) ^ pix)
-        ux = F64(mix32(base ^ (2 * i)) >> 8) * 2.0 ** -24
-        uy = F64(mix32(base ^ (2 * i + 1)) >> 8) * 2.0 ** -24
-        sy = i // k
-        sx = i - sy * k
-        kf = F64(k)
-        one = spp == 1
-        return dr.select(one, 0.5, (F64(sx) + ux) / kf), dr.select(one, 0.5, (F64(sy) + uy) / kf)
 
-    def reconstruct(rfilter, film_size, spp, seed, window, swin, start, data, aovs, dtype=F64, mode=None):
-        """One window's pixels as a flat ``dtype`` array ``(h * w * C)`` (row-major, channels
-        innermost: RGB, then ``aovs``) from ``data``: the launch's device outputs over all its
-        lanes (``total`` Color3f, ``cost`` Float, and for AOVs ``t0``, ``s0``, ``n0``); this
-        window's samples start at lane ``start``, laid out over ``swin`` as :func:`sample_ids`.
-        ``mode``: of the loops (``"evaluated"`` in a derivative pass: reverse-mode AD needs it)."""
-        W, H = film_size
-        x0, y0, w, h = window
-        sx0, sy0, sw, _ = swin
-        m = w * h
-        n_s = op_u(spp)
-        q = dr.arange(U32, m)
-        ly = q // op_u(w)
-        lx = q - ly * op_u(w)
-        # the pixel's sample 0 in the launch
-        first = op_u(start) + ((ly + op_u(y0 - sy0)) * op_u(sw) + lx + op_u(x0 - sx0)) * n_s
-        total = data["total"]
-        want_cost = "cost" in aovs
-        box = rfilter.border == 0 and rfilter.is_box
-        chans = []
-        if box or want_cost:
-            # the pixel's own samples in order: the box mean, the cost sum
-            def body(i, r, g, b, c):
-                v = dr.gather(type(total), total, first + i) if box else None
-                if box:
-                    r, g, b = r + F64(v[0]), g + F64(v[1]), b + F64(v[2])
-                if want_cost:
-                    c = c + F64(dr.gather(type(data["cost"]), data["cost"], first + i))
-                return i + 1, r, g, b, c
-            z = dr.zeros(F64, m)
-            _, r, g, b, c = dr.while_loop((dr.zeros(U32, m), z, z, z, z), lambda i, *_: i < n_s, body, mode=mode)
+def sample_ids(film_width, spp, swins):
+    """UInt32 sample ids ``(py * W + px) * spp + i`` of the sample windows ``swins``
+    (``(sx0, sy0, sw, sh)``, row-major, ``i`` innermost), one window after another."""
+    W, s = op_u(film_width), op_u(spp)
+    parts = []
+    for sx0, sy0, sw, sh in swins:
+        j = dr.arange(mi.UInt32, sw * sh * spp)
+        pix = j // s
+        i = j - pix * s
+        ly = pix // op_u(sw)
+        lx = pix - ly * op_u(sw)
+        parts.append(((ly + op_u(sy0)) * W + lx + op_u(sx0)) * s + i)
+    return concat(parts, sum(sw * sh * spp for _, _, sw, sh in swins), mi.UInt32)
+
+
+def filter_eval(f, x):
+    """:meth:`links1.sensor.filters.Filter.eval` in float64, the same operations in the same order."""
+    x = dr.abs(x)
+    p, r = f.params, f.radius
+    if f.name == "tent":
+        return dr.maximum(0.0, 1.0 - x / op_f(r))
+    if f.name == "gaussian":
+        a = -1.0 / (2.0 * p["stddev"] ** 2)
+        return dr.maximum(0.0, dr.exp(a * x * x) - math.exp(a * r * r))
+    if f.name == "lanczos":
+        tiny = x < 2.0 ** -23   # np.finfo(np.float32).eps
+        x1 = math.pi * dr.select(tiny, 1.0, x)
+        x2 = x1 / op_f(r)
+        v = dr.sin(x1) * dr.sin(x2) / (x1 * x2)
+        return dr.select(tiny, 1.0, dr.select(x > r, 0.0, v))
+    if f.name in ("mitchell", "catmullrom"):
+        b, c = (p["B"], p["C"]) if f.name == "mitchell" else (0.0, 0.5)
+        x2, x3 = x * x, x * x * x
+        near = (12 - 9 * b - 6 * c) * x3 + (-18 + 12 * b + 6 * c) * x2 + (6 - 2 * b)
+        far = (-b - 6 * c) * x3 + (6 * b + 30 * c) * x2 + (-12 * b - 48 * c) * x + (8 * b + 24 * c)
+        return dr.select(x < 2.0, dr.select(x < 1.0, near, far) / op_f(6.0), 0.0)
+    raise ValueError(f"links1_whitted: no device film for filter {f.name!r}")
+
+
+def offsets(pix, i, spp, k, seed):
+    """Float64 offsets in the pixel of sample ``i`` of pixel ``pix`` (UInt32s):
+    :func:`links1.maths.sampling.sample_offsets` with run-time ``spp``, strata ``k``, ``seed``."""
+    base = mix32(mix32(seed) ^ pix)
+    ux = mi.Float64(mix32(base ^ (2 * i)) >> 8) * 2.0 ** -24
+    uy = mi.Float64(mix32(base ^ (2 * i + 1)) >> 8) * 2.0 ** -24
+    sy = i // k
+    sx = i - sy * k
+    kf = mi.Float64(k)
+    one = spp == 1
+    return dr.select(one, 0.5, (mi.Float64(sx) + ux) / kf), dr.select(one, 0.5, (mi.Float64(sy) + uy) / kf)
+
+
+def reconstruct(rfilter, film_size, spp, seed, window, swin, start, data, aovs, dtype=None, mode=None):
+    """One window's pixels as a flat ``dtype`` array ``(h * w * C)`` (row-major, channels
+    innermost: RGB, then ``aovs``) from ``data``: the launch's device outputs over all its
+    lanes (``total`` Color3f, ``cost`` Float, and for AOVs ``t0``, ``s0``, ``n0``); this
+    window's samples start at lane ``start``, laid out over ``swin`` as :func:`sample_ids`.
+    ``mode``: of the loops (``"evaluated"`` in a derivative pass: reverse-mode AD needs it);
+    ``dtype``: of the result (None: ``mi.Float64``)."""
+    F64, U32, I32 = mi.Float64, mi.UInt32, mi.Int32   # of the variant in use
+    dtype = F64 if dtype is None else dtype
+    W, H = film_size
+    x0, y0, w, h = window
+    sx0, sy0, sw, _ = swin
+    m = w * h
+    n_s = op_u(spp)
+    q = dr.arange(U32, m)
+    ly = q // op_u(w)
+    lx = q - ly * op_u(w)
+    # the pixel's sample 0 in the launch
+    first = op_u(start) + ((ly + op_u(y0 - sy0)) * op_u(sw) + lx + op_u(x0 - sx0)) * n_s
+    total = data["total"]
+    want_cost = "cost" in aovs
+    box = rfilter.border == 0 and rfilter.is_box
+    chans = []
+    if box or want_cost:
+        # the pixel's own samples in order: the box mean, the cost sum
+        def body(i, r, g, b, c):
+            v = dr.gather(type(total), total, first + i) if box else None
             if box:
-                s = F64(n_s)
-                chans += [r / s, g / s, b / s]
-        if not box:
-            nb = 2 * rfilter.border + 1
-            nb2 = nb * nb
-            k, sd = op_u(math.ceil(math.sqrt(spp)) if spp > 1 else 1), op_u(seed)
-            x, y = I32(lx + op_u(x0)), I32(ly + op_u(y0))
-            Wi, Hi = op_i(W), op_i(H)
+                r, g, b = r + F64(v[0]), g + F64(v[1]), b + F64(v[2])
+            if want_cost:
+                c = c + F64(dr.gather(type(data["cost"]), data["cost"], first + i))
+            return i + 1, r, g, b, c
+        z = dr.zeros(F64, m)
+        _, r, g, b, c = dr.while_loop((dr.zeros(U32, m), z, z, z, z), lambda i, *_: i < n_s, body, mode=mode)
+        if box:
+            s = F64(n_s)
+            chans += [r / s, g / s, b / s]
+    if not box:
+        nb = 2 * rfilter.border + 1
+        nb2 = nb * nb
+        k, sd = op_u(math.ceil(math.sqrt(spp)) if spp > 1 else 1), op_u(seed)
+        x, y = I32(lx + op_u(x0)), I32(ly + op_u(y0))
+        Wi, Hi = op_i(W), op_i(H)
 
-            ns = sw * swin[3] * spp
-            tables = ns * nb * 16 <= FILM_TABLE_BYTES
+        ns = sw * swin[3] * spp
+        tables = ns * nb * 16 <= FILM_TABLE_BYTES
+        if tables:
+            # the 1-D weights of every sample towards its nb neighbour columns / rows, once
+            # per sample (the loop below would evaluate each (2b+1) times): the same values
+            t = dr.arange(U32, ns * nb)
+            sl = t // nb
+            d = I32(t - sl * nb) - rfilter.border
+            pl = sl // n_s
+            i = sl - pl * n_s
+            py = pl // op_u(sw)
+            ox, oy = offsets((py + op_u(sy0)) * op_u(W) + pl - py * op_u(sw) + op_u(sx0), i, n_s, k, sd)
+            wx_t = filter_eval(rfilter, (0.5 - F64(d)) - ox)
+            wy_t = filter_eval(rfilter, (0.5 - F64(d)) - oy)
+            dr.eval(wx_t, wy_t)
+
+        def body(j, r, g, b, den):
+            i = j // nb2
+            rest = j - i * nb2
+            dyi = rest // nb
+            dxi = rest - dyi * nb
+            dy = I32(dyi) - rfilter.border
+            dx = I32(dxi) - rfilter.border
+            xx, yy = x + dx, y + dy
+            on = (xx >= 0) & (xx < Wi) & (yy >= 0) & (yy < Hi)
+            xu, yu = U32(dr.select(on, xx, 0)), U32(dr.select(on, yy, 0))
+            local = ((yu - op_u(sy0)) * op_u(sw) + xu - op_u(sx0)) * n_s + i
+            v = dr.gather(type(total), total, op_u(start) + local, on)
             if tables:
-                # the 1-D weights of every sample towards its nb neighbour columns / rows, once
-                # per sample (the loop below would evaluate each (2b+1) times): the same values
-                t = dr.arange(U32, ns * nb)
-                sl = t // nb
-                d = I32(t - sl * nb) - rfilter.border
-                pl = sl // n_s
-                i = sl - pl * n_s
-                py = pl // op_u(sw)
-                ox, oy = offsets((py + op_u(sy0)) * op_u(W) + pl - py * op_u(sw) + op_u(sx0), i, n_s, k, sd)
-                wx_t = filter_eval(rfilter, (0.5 - F64(d)) - ox)
-                wy_t = filter_eval(rfilter, (0.5 - F64(d)) - oy)
-                dr.eval(wx_t, wy_t)
+                wgt = dr.gather(F64, wy_t, local * nb + dyi, on) * dr.gather(F64, wx_t, local * nb + dxi, on)
+            else:
+                ox, oy = offsets(yu * op_u(W) + xu, i, n_s, k, sd)
+                wgt = filter_eval(rfilter, (0.5 - F64(dy)) - oy) * filter_eval(rfilter, (0.5 - F64(dx)) - ox)
+            r = dr.select(on, r + wgt * F64(v[0]), r)
+            g = dr.select(on, g + wgt * F64(v[1]), g)
+            b = dr.select(on, b + wgt * F64(v[2]), b)
+            den = dr.select(on, den + wgt, den)
+            return j + 1, r, g, b, den
+        z = dr.zeros(F64, m)
+        _, r, g, b, den = dr.while_loop((dr.zeros(U32, m), z, z, z, z),
+                                        lambda j, *_: j < n_s * nb2, body, mode=mode)
+        den = dr.select(den == 0.0, 1.0, den)
+        chans += [r / den, g / den, b / den]
+    if aovs:
+        t0 = dr.gather(type(data["t0"]), data["t0"], first)
+        s0 = I32(dr.gather(type(data["s0"]), data["s0"], first))
+        n0 = dr.gather(type(data["n0"]), data["n0"], first)
+        hit = s0 >= 0
+        for a in aovs:
+            if a == "depth":
+                chans.append(dr.select(hit, F64(t0), 0.0))
+            elif a == "normal":
+                chans += [dr.select(hit, F64(n0[kk]), 0.0) for kk in range(3)]
+            elif a == "id":
+                chans.append(F64(s0))
+            elif a == "cost":
+                chans.append(c)
+            elif a == "samples":
+                chans.append(F64(n_s) + dr.zeros(F64, m))
+    # the channels in one kernel, then interleaved by a gather (scatters into one array would
+    # each evaluate the ones before: one kernel per channel)
+    chans = [dtype(ch) for ch in chans]
+    C = len(chans)
+    dr.eval(*chans)
+    j = dr.arange(U32, m * C)
+    p = j // C
+    c = j - p * C
+    out = dr.gather(dtype, chans[0], p, c == 0)
+    for kk in range(1, C):
+        out = dr.select(c == kk, dr.gather(dtype, chans[kk], p, c == kk), out)
+    return out, C
 
-            def body(j, r, g, b, den):
-                i = j // nb2
-                rest = j - i * nb2
-                dyi = rest // nb
-                dxi = rest - dyi * nb
-                dy = I32(dyi) - rfilter.border
-                dx = I32(dxi) - rfilter.border
-                xx, yy = x + dx, y + dy
-                on = (xx >= 0) & (xx < Wi) & (yy >= 0) & (yy < Hi)
-                xu, yu = U32(dr.select(on, xx, 0)), U32(dr.select(on, yy, 0))
-                local = ((yu - op_u(sy0)) * op_u(sw) + xu - op_u(sx0)) * n_s + i
-                v = dr.gather(type(total), total, op_u(start) + local, on)
-                if tables:
-                    wgt = dr.gather(F64, wy_t, local * nb + dyi, on) * dr.gather(F64, wx_t, local * nb + dxi, on)
-                else:
-                    ox, oy = offsets(yu * op_u(W) + xu, i, n_s, k, sd)
-                    wgt = filter_eval(rfilter, (0.5 - F64(dy)) - oy) * filter_eval(rfilter, (0.5 - F64(dx)) - ox)
-                r = dr.select(on, r + wgt * F64(v[0]), r)
-                g = dr.select(on, g + wgt * F64(v[1]), g)
-                b = dr.select(on, b + wgt * F64(v[2]), b)
-                den = dr.select(on, den + wgt, den)
-                return j + 1, r, g, b, den
-            z = dr.zeros(F64, m)
-            _, r, g, b, den = dr.while_loop((dr.zeros(U32, m), z, z, z, z),
-                                            lambda j, *_: j < n_s * nb2, body, mode=mode)
-            den = dr.select(den == 0.0, 1.0, den)
-            chans += [r / den, g / den, b / den]
-        if aovs:
-            t0 = dr.gather(type(data["t0"]), data["t0"], first)
-            s0 = I32(dr.gather(type(data["s0"]), data["s0"], first))
-            n0 = dr.gather(type(data["n0"]), data["n0"], first)
-            hit = s0 >= 0
-            for a in aovs:
-                if a == "depth":
-                    chans.append(dr.select(hit, F64(t0), 0.0))
-                elif a == "normal":
-                    chans += [dr.select(hit, F64(n0[kk]), 0.0) for kk in range(3)]
-                elif a == "id":
-                    chans.append(F64(s0))
-                elif a == "cost":
-                    chans.append(c)
-                elif a == "samples":
-                    chans.append(F64(n_s) + dr.zeros(F64, m))
-        # the channels in one kernel, then interleaved by a gather (scatters into one array would
-        # each evaluate the ones before: one kernel per channel)
-        chans = [dtype(ch) for ch in chans]
-        C = len(chans)
-        dr.eval(*chans)
-        j = dr.arange(U32, m * C)
-        p = j // C
-        c = j - p * C
-        out = dr.gather(dtype, chans[0], p, c == 0)
-        for kk in range(1, C):
-            out = dr.select(c == kk, dr.gather(dtype, chans[kk], p, c == kk), out)
-        return out, C
 
-    def widen(v, n):
-        """``v`` with ``n`` lanes: a frozen launch returns literals at their recorded width
-        (their first lane, broadcast)."""
-        return v if dr.width(v) == n else dr.gather(type(v), v, dr.zeros(U32, n))
-
-    return dict(sample_ids=sample_ids, reconstruct=reconstruct, concat=concat, widen=widen)
+def widen(v, n):
+    """``v`` with ``n`` lanes: a frozen launch returns literals at their recorded width
+    (their first lane, broadcast)."""
+    return v if dr.width(v) == n else dr.gather(type(v), v, dr.zeros(mi.UInt32, n))

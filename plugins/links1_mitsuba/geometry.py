@@ -12,7 +12,7 @@ parameters are listed under the integrator, as their BSDFs are
   eq. 3.8) and ``to_world``.
 
 ``params.update()`` hands the new values to :func:`updated`, which checks them as the loader
-checks a file's (links1.params) and returns a new spec; the integrator's tables (BVH, blob
+checks a file's (links1.scene.params) and returns a new spec; the integrator's tables (BVH, blob
 candidate tables) are then built again at the next frame.
 
 Derivatives (:func:`surface_ad`): the *interior* derivative of a hit. The nearest hit (which

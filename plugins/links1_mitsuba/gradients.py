@@ -34,15 +34,19 @@ its equation, silhouettes and shadow edges still held fixed.
 Cost: the derivative pass keeps the whole ray tree on Dr.Jit's AD tape (no path replay as
 Mitsuba's PRB): memory grows with pixels × spp × tree size.
 
-:func:`define_gradients` returns a class whose methods ``Links1Whitted`` takes (defined in a
-function, as the integrator, because the Mitsuba variant must be set first).
+:class:`Gradients` is a mixin whose methods ``Links1Whitted`` takes (integrator.py); they name
+``mi.Float``, ``mi.Ray3f``, ... when called, so the class serves every Mitsuba variant.
 """
 from __future__ import annotations
 
 import copy
 
+import drjit as dr
+import mitsuba as mi
+
 from . import geometry
-from .util import INF
+from .registered import plugin_class
+from .util import INF, mix32
 
 
 #: (parameter, index in the light's ``P.lights`` entry) of the links1 lights' differentiable values:
@@ -51,205 +55,200 @@ LINKS1_POINT_SLOTS = (("position", 1), ("direction", 2), ("L1", 3), ("L2", 4))
 LINKS1_SPOT_SLOTS = (("origin", 1), ("intensity", 4))
 
 
-def define_gradients(mi, dr, util):
-    """The ``Gradients`` part of ``Links1Whitted`` for the variant in use."""
-    from ._registry import plugin_class
-    mix32 = util.mix32
+def attached(*vals):
+    return any(dr.grad_enabled(v) for v in vals)
 
-    def attached(*vals):
-        return any(dr.grad_enabled(v) for v in vals)
 
-    def cat(a, b, na, nb):
-        """``a`` (``na`` lanes) followed by ``b`` (``nb`` lanes), differentiable (gathers)."""
-        if nb == 0:
-            return a
-        if na == 0:
-            return b
-        j = dr.arange(mi.UInt32, na + nb)
-        in_a = j < na
-        ga = dr.gather(type(a), a, dr.select(in_a, j, 0), in_a)
-        gb = dr.gather(type(b), b, dr.select(in_a, 0, j - na), ~in_a)
-        return dr.select(in_a, ga, gb)
+def cat(a, b, na, nb):
+    """``a`` (``na`` lanes) followed by ``b`` (``nb`` lanes), differentiable (gathers)."""
+    if nb == 0:
+        return a
+    if na == 0:
+        return b
+    j = dr.arange(mi.UInt32, na + nb)
+    in_a = j < na
+    ga = dr.gather(type(a), a, dr.select(in_a, j, 0), in_a)
+    gb = dr.gather(type(b), b, dr.select(in_a, 0, j - na), ~in_a)
+    return dr.select(in_a, ga, gb)
 
-    def put_rows(table, rows, width):
-        """``table`` (a flat Float of ``width`` values per slot) with the rows ``{slot: value}``
-        (Dr.Jit values, attached) put in by ``select``: a differentiable copy."""
-        out = type(table)(table)
-        idx = dr.arange(mi.UInt32, dr.width(table))
-        for sl, v in rows.items():
-            for k in range(width):
-                comp = v[k] if width > 1 else v
-                out = dr.select(idx == sl * width + k, comp, out)
-        return out
 
-    class Gradients:
-        """``render_forward``/``render_backward`` and the differentiable render behind them."""
+def put_rows(table, rows, width):
+    """``table`` (a flat Float of ``width`` values per slot) with the rows ``{slot: value}``
+    (Dr.Jit values, attached) put in by ``select``: a differentiable copy."""
+    out = type(table)(table)
+    idx = dr.arange(mi.UInt32, dr.width(table))
+    for sl, v in rows.items():
+        for k in range(width):
+            comp = v[k] if width > 1 else v
+            out = dr.select(idx == sl * width + k, comp, out)
+    return out
 
-        # -------------------------------------------------------------- Mitsuba entry points
-        def render_forward(self, scene, params, sensor=0, seed=0, spp=0):
-            """The image's derivative along the gradients set on the scene's parameters
-            (``dr.set_grad``): Mitsuba's ``Integrator.render_forward``."""
-            with dr.resume_grad():
-                img = self._render_ad(scene, sensor, seed, spp)
-                dr.forward_to(img)
-                return dr.grad(img)
 
-        def render_backward(self, scene, params, grad_in, sensor=0, seed=0, spp=0):
-            """Propagate the image gradient ``grad_in`` to the scene's parameters that have
-            gradients enabled: Mitsuba's ``Integrator.render_backward``."""
-            with dr.resume_grad():
-                img = self._render_ad(scene, sensor, seed, spp)
-                dr.set_grad(img, grad_in)
-                dr.enqueue(dr.ADMode.Backward, img)
-                dr.traverse(dr.ADMode.Backward)
-            dr.eval()
+class Gradients:
+    """``render_forward``/``render_backward`` and the differentiable render behind them."""
 
-        # -------------------------------------------------------------- the differentiable frame
-        def _render_ad(self, scene, sensor=0, seed=0, spp=0):
-            """The frame ``render()`` makes, with Dr.Jit's AD graph from the scene's
-            gradient-enabled parameters (see the module's docstring)."""
-            if self.adaptive is not None:
-                raise NotImplementedError("links1_whitted: gradients of adaptive anti-aliasing are not "
-                                          "implemented (render with spp instead of adaptive)")
-            sensor, win, spp, seed = self._render_request(scene, sensor, seed, spp)
-            with dr.suspend_grad():
-                P = self.prepare(scene, sensor)
-            Q = self._ad_tables(P, scene)
-            return self.render_windows_device(scene, [win], spp=spp, seed=seed, sensor=sensor,
-                                              dtype=mi.Float, tables=Q)[0]
+    # -------------------------------------------------------------- Mitsuba entry points
+    def render_forward(self, scene, params, sensor=0, seed=0, spp=0):
+        """The image's derivative along the gradients set on the scene's parameters
+        (``dr.set_grad``): Mitsuba's ``Integrator.render_forward``."""
+        with dr.resume_grad():
+            img = self._render_ad(scene, sensor, seed, spp)
+            dr.forward_to(img)
+            return dr.grad(img)
 
-        def _ad_tables(self, P, scene):
-            """A shallow copy of the tables ``P`` with the attached values of the parameters
-            that have gradients enabled put in (``Q.ad``: the launches then trace
-            :meth:`_trace_tree_ad`, the film differentiably)."""
-            Q = copy.copy(P)
-            Q.ad = True
-            Q.frozen_inputs = None
-            Phong = plugin_class("links1_phong")
-            bsdfs = P.keep_alive[3]       # the BSDF of each slot (tables.prepare)
-            if len(bsdfs) != P.nslots:
-                raise RuntimeError("links1_whitted: the BSDF table has another size (an internal inconsistency)")
-            rows = {k: {} for k in ("ambient", "diffuse", "specular", "reflectance", "transmittance", "exponent")}
-            for sl, b in enumerate(bsdfs):
-                if isinstance(b, Phong):
-                    for name, r in rows.items():
-                        v = b._held.t_exponent if name == "exponent" else getattr(b._held, name)
-                        if attached(v):
-                            r[sl] = v
-            for name, attr, width in (("ambient", "amb", 3), ("diffuse", "dif", 3), ("specular", "spe", 3),
-                                      ("reflectance", "refl", 3), ("transmittance", "trans", 3),
-                                      ("exponent", "expo", 1)):
-                if rows[name]:
-                    setattr(Q, attr, put_rows(getattr(P, attr), rows[name], width))
-            Q.any_ambient = P.any_ambient or bool(rows["ambient"])
-            tr = rows["transmittance"]
-            if tr:   # shadow transmittance (3-3-3): links1 shapes outside the BVH, split Mitsuba shapes
-                Q.shadow_t_np = [tr.get(sl, row) for sl, row in enumerate(P.shadow_t_np)]
-                if P.shadow_split is not None:
-                    Q.shadow_split = dict(P.shadow_split, trans=[(sub, sl, tr.get(sl, st))
-                                                                 for sub, sl, st in P.shadow_split["trans"]])
-            # analytic lights: P.lights holds one entry per such emitter, in the scene's order
-            Pt, Sp = plugin_class("links1_point"), plugin_class("links1_spot")
-            lights, j = list(P.lights), 0
-            for e in scene.emitters():
-                kind = str(e).split("[")[0]
-                if isinstance(e, (Pt, Sp)):
-                    # the attached values at their places in the light's P.lights entry (tables.py)
-                    L = list(lights[j])
-                    for name, at in (LINKS1_POINT_SLOTS if isinstance(e, Pt) else LINKS1_SPOT_SLOTS):
-                        v = e.values[name]
-                        if attached(v):
-                            L[at] = dr.normalize(v) if name == "direction" else v
-                    lights[j] = tuple(L)
-                elif kind == "PointLight":
-                    prm = mi.traverse(e)
-                    L = list(lights[j])
-                    if attached(prm["position"]):
-                        L[1] = mi.Point3f(prm["position"])
-                    if "intensity.value" in prm and attached(prm["intensity.value"]):
-                        L[3] = mi.Color3f(prm["intensity.value"])
-                    lights[j] = tuple(L)
-                elif kind not in ("SpotLight", "DirectionalEmitter"):
-                    continue
-                j += 1
-            if j != len(P.lights):
-                raise RuntimeError("links1_whitted: the light table has another size (an internal inconsistency)")
-            Q.lights = lights
-            # geometry (geometry.py): the links1 shapes whose parameters have gradients; with any,
-            # every links1 shape is intersected in the pass's own code (no BVH, no light or eye
-            # buffer: their tables hold primal values) and its hits re-attached (_surface_ad)
-            Q.geo_ad = geometry.attached_specs(dr, P.custom, self.geo) or None
-            if Q.geo_ad is not None and P.bvh is not None:
-                Q.bvh, Q.eye_buf, Q.custom_unrolled = None, None, list(P.custom)
-            return Q
+    def render_backward(self, scene, params, grad_in, sensor=0, seed=0, spp=0):
+        """Propagate the image gradient ``grad_in`` to the scene's parameters that have
+        gradients enabled: Mitsuba's ``Integrator.render_backward``."""
+        with dr.resume_grad():
+            img = self._render_ad(scene, sensor, seed, spp)
+            dr.set_grad(img, grad_in)
+            dr.enqueue(dr.ADMode.Backward, img)
+            dr.traverse(dr.ADMode.Backward)
+        dr.eval()
 
-        def _surface_ad(self, P, o, d, t, slot, prim, p, ng, ns):
-            """The hits on links1 shapes moving with their parameters and with the ray (``o``,
-            ``d`` are attached below a moving surface): ``(t, p, ng, ns)`` with the interior
-            derivative (:func:`geometry.surface_ad`: implicit differentiation of the surface
-            equation at the primal hit)."""
-            moving_ray = dr.grad_enabled(o) or dr.grad_enabled(d)
-            custom = False
-            for sp in P.custom_unrolled:
-                held = P.geo_ad.get(sp.slot)
-                if held is None and not moving_ray:
-                    continue
-                m = slot == sp.slot
-                tn, nn = geometry.surface_ad(mi, dr, sp, held[1] if held else {}, o, d, t, prim, m)
-                t = dr.select(m, tn, t)
-                ng = dr.select(m, nn, ng)
-                ns = dr.select(m, nn, ns)
-                custom = True
-            if custom:
-                p = dr.select(self._custom_slot(P, slot), o + d * t, p)
-            return t, p, ng, ns
+    # -------------------------------------------------------------- the differentiable frame
+    def _render_ad(self, scene, sensor=0, seed=0, spp=0):
+        """The frame ``render()`` makes, with Dr.Jit's AD graph from the scene's
+        gradient-enabled parameters (see the module's docstring)."""
+        if self.adaptive is not None:
+            raise NotImplementedError("links1_whitted: gradients of adaptive anti-aliasing are not "
+                                      "implemented (render with spp instead of adaptive)")
+        sensor, win, spp, seed = self._render_request(scene, sensor, seed, spp)
+        with dr.suspend_grad():
+            P = self.prepare(scene, sensor)
+        Q = self._ad_tables(P, scene)
+        return self.render_windows_device(scene, [win], spp=spp, seed=seed, sensor=sensor,
+                                          dtype=mi.Float, tables=Q)[0]
 
-        @staticmethod
-        def _custom_slot(P, slot):
-            m = dr.zeros(mi.Bool, dr.width(slot))
-            for sp in P.custom_unrolled:
-                m |= slot == sp.slot
-            return m
+    def _ad_tables(self, P, scene):
+        """A shallow copy of the tables ``P`` with the attached values of the parameters
+        that have gradients enabled put in (``Q.ad``: the launches then trace
+        :meth:`_trace_tree_ad`, the film differentiably)."""
+        Q = copy.copy(P)
+        Q.ad = True
+        Q.frozen_inputs = None
+        Phong = plugin_class("links1_phong")
+        bsdfs = P.keep_alive[3]       # the BSDF of each slot (tables.prepare)
+        if len(bsdfs) != P.nslots:
+            raise RuntimeError("links1_whitted: the BSDF table has another size (an internal inconsistency)")
+        rows = {k: {} for k in ("ambient", "diffuse", "specular", "reflectance", "transmittance", "exponent")}
+        for sl, b in enumerate(bsdfs):
+            if isinstance(b, Phong):
+                for name, r in rows.items():
+                    v = b._held.t_exponent if name == "exponent" else getattr(b._held, name)
+                    if attached(v):
+                        r[sl] = v
+        for name, attr, width in (("ambient", "amb", 3), ("diffuse", "dif", 3), ("specular", "spe", 3),
+                                  ("reflectance", "refl", 3), ("transmittance", "trans", 3),
+                                  ("exponent", "expo", 1)):
+            if rows[name]:
+                setattr(Q, attr, put_rows(getattr(P, attr), rows[name], width))
+        Q.any_ambient = P.any_ambient or bool(rows["ambient"])
+        tr = rows["transmittance"]
+        if tr:   # shadow transmittance (3-3-3): links1 shapes outside the BVH, split Mitsuba shapes
+            Q.shadow_t_np = [tr.get(sl, row) for sl, row in enumerate(P.shadow_t_np)]
+            if P.shadow_split is not None:
+                Q.shadow_split = dict(P.shadow_split, trans=[(sub, sl, tr.get(sl, st))
+                                                             for sub, sl, st in P.shadow_split["trans"]])
+        # analytic lights: P.lights holds one entry per such emitter, in the scene's order
+        Pt, Sp = plugin_class("links1_point"), plugin_class("links1_spot")
+        lights, j = list(P.lights), 0
+        for e in scene.emitters():
+            kind = str(e).split("[")[0]
+            if isinstance(e, (Pt, Sp)):
+                # the attached values at their places in the light's P.lights entry (tables.py)
+                L = list(lights[j])
+                for name, at in (LINKS1_POINT_SLOTS if isinstance(e, Pt) else LINKS1_SPOT_SLOTS):
+                    v = e.values[name]
+                    if attached(v):
+                        L[at] = dr.normalize(v) if name == "direction" else v
+                lights[j] = tuple(L)
+            elif kind == "PointLight":
+                prm = mi.traverse(e)
+                L = list(lights[j])
+                if attached(prm["position"]):
+                    L[1] = mi.Point3f(prm["position"])
+                if "intensity.value" in prm and attached(prm["intensity.value"]):
+                    L[3] = mi.Color3f(prm["intensity.value"])
+                lights[j] = tuple(L)
+            elif kind not in ("SpotLight", "DirectionalEmitter"):
+                continue
+            j += 1
+        if j != len(P.lights):
+            raise RuntimeError("links1_whitted: the light table has another size (an internal inconsistency)")
+        Q.lights = lights
+        # geometry (geometry.py): the links1 shapes whose parameters have gradients; with any,
+        # every links1 shape is intersected in the pass's own code (no BVH, no light or eye
+        # buffer: their tables hold primal values) and its hits re-attached (_surface_ad)
+        Q.geo_ad = geometry.attached_specs(dr, P.custom, self.geo) or None
+        if Q.geo_ad is not None and P.bvh is not None:
+            Q.bvh, Q.eye_buf, Q.custom_unrolled = None, None, list(P.custom)
+        return Q
 
-        def _trace_tree_ad(self, P, scene, o, d, tmin, tmax, key):
-            """The ray trees of :meth:`_trace_tree` (the same levels, children, weights, keys and
-            ``min_weight`` rule) traced level by level without local memory, so that Dr.Jit
-            can differentiate them: the children of a level (mirror rays first, then
-            refraction rays) are compacted into the next level's rays, and each level's
-            ``weight · I_o`` is added to its sample (eq. 3.16). Returns the samples' RGB."""
-            from .launch import _CAM_SAMPLE
-            n = dr.width(o)
-            spawn = self.max_depth > 1 and P.any_specular
-            res = self._level(P, scene, o, d, tmin, tmax, key, 1, spawn, symbolic=False,
-                              sample=_CAM_SAMPLE.pop(id(self), None))
-            total = mi.Color3f(res["L"])
-            if not spawn:
+    def _surface_ad(self, P, o, d, t, slot, prim, p, ng, ns):
+        """The hits on links1 shapes moving with their parameters and with the ray (``o``,
+        ``d`` are attached below a moving surface): ``(t, p, ng, ns)`` with the interior
+        derivative (:func:`geometry.surface_ad`: implicit differentiation of the surface
+        equation at the primal hit)."""
+        moving_ray = dr.grad_enabled(o) or dr.grad_enabled(d)
+        custom = False
+        for sp in P.custom_unrolled:
+            held = P.geo_ad.get(sp.slot)
+            if held is None and not moving_ray:
+                continue
+            m = slot == sp.slot
+            tn, nn = geometry.surface_ad(mi, dr, sp, held[1] if held else {}, o, d, t, prim, m)
+            t = dr.select(m, tn, t)
+            ng = dr.select(m, nn, ng)
+            ns = dr.select(m, nn, ns)
+            custom = True
+        if custom:
+            p = dr.select(self._custom_slot(P, slot), o + d * t, p)
+        return t, p, ng, ns
+
+    @staticmethod
+    def _custom_slot(P, slot):
+        m = dr.zeros(mi.Bool, dr.width(slot))
+        for sp in P.custom_unrolled:
+            m |= slot == sp.slot
+        return m
+
+    def _trace_tree_ad(self, P, scene, o, d, tmin, tmax, key):
+        """The ray trees of :meth:`_trace_tree` (the same levels, children, weights, keys and
+        ``min_weight`` rule) traced level by level without local memory, so that Dr.Jit
+        can differentiate them: the children of a level (mirror rays first, then
+        refraction rays) are compacted into the next level's rays, and each level's
+        ``weight · I_o`` is added to its sample (eq. 3.16). Returns the samples' RGB."""
+        n = dr.width(o)
+        spawn = self.max_depth > 1 and P.any_specular
+        res = self._level(P, scene, o, d, tmin, tmax, key, 1, spawn, symbolic=False,
+                          sample=self._take_cam_sample())
+        total = mi.Color3f(res["L"])
+        if not spawn:
+            return total
+        own = dr.arange(mi.UInt32, n)
+        cr, ct, w_r, w_t = self._children(res, res["hit"], mi.Color3f(1.0), mi.UInt32(1))
+        depth = 2
+        while True:
+            key_r = mix32(key ^ mi.UInt32(0x63D83595))
+            key_t = mix32(key ^ mi.UInt32(0xA511E9B3))
+            ir, it = dr.compress(cr), dr.compress(ct)
+            nr, nt = dr.width(ir), dr.width(it)
+            if nr + nt == 0:
                 return total
-            own = dr.arange(mi.UInt32, n)
-            cr, ct, w_r, w_t = self._children(res, res["hit"], mi.Color3f(1.0), mi.UInt32(1))
-            depth = 2
-            while True:
-                key_r = mix32(key ^ mi.UInt32(0x63D83595))
-                key_t = mix32(key ^ mi.UInt32(0xA511E9B3))
-                ir, it = dr.compress(cr), dr.compress(ct)
-                nr, nt = dr.width(ir), dr.width(it)
-                if nr + nt == 0:
-                    return total
 
-                def pick(x_r, x_t):
-                    a = dr.gather(type(x_r), x_r, ir) if nr else None
-                    b = dr.gather(type(x_t), x_t, it) if nt else None
-                    return cat(a, b, nr, nt)
-                own = pick(own, own)
-                o, d = pick(res["o_r"], res["o_t"]), pick(res["dir_r"], res["dir_t"])
-                wgt, key = pick(w_r, w_t), pick(key_r, key_t)
-                m = nr + nt
-                res = self._level(P, scene, o, d, dr.zeros(mi.Float, m), dr.full(mi.Float, INF, m), key, 0,
-                                  True, symbolic=False)
-                acc = dr.zeros(mi.Color3f, n)
-                dr.scatter_add(acc, wgt * res["L"], own)
-                total = total + acc
-                cr, ct, w_r, w_t = self._children(res, dr.full(mi.Bool, True, m), wgt, mi.UInt32(depth))
-                depth += 1
-
-    return Gradients
+            def pick(x_r, x_t):
+                a = dr.gather(type(x_r), x_r, ir) if nr else None
+                b = dr.gather(type(x_t), x_t, it) if nt else None
+                return cat(a, b, nr, nt)
+            own = pick(own, own)
+            o, d = pick(res["o_r"], res["o_t"]), pick(res["dir_r"], res["dir_t"])
+            wgt, key = pick(w_r, w_t), pick(key_r, key_t)
+            m = nr + nt
+            res = self._level(P, scene, o, d, dr.zeros(mi.Float, m), dr.full(mi.Float, INF, m), key, 0,
+                              True, symbolic=False)
+            acc = dr.zeros(mi.Color3f, n)
+            dr.scatter_add(acc, wgt * res["L"], own)
+            total = total + acc
+            cr, ct, w_r, w_t = self._children(res, dr.full(mi.Bool, True, m), wgt, mi.UInt32(depth))
+            depth += 1

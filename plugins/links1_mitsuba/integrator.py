@@ -1,21 +1,25 @@
 """``links1_whitted``: the LINKS-1 method (docs/method.md §2–4) as a Mitsuba 3 integrator in Dr.Jit.
 
-The integrator class is composed here from one part per concept, each in its own module
-(made by a ``define_*`` function, because the Mitsuba variant must be set first):
+The integrator class is composed here from one part per concept, each a module-level class in
+its own module (their methods name ``mi.Float``, ``mi.Ray3f``, ... when called, so one part
+serves every variant):
 
-- :mod:`~links1_mitsuba.tables`: the per-scene tables (``prepare``) and which shadow rays a
-  scene needs (``_occluders``);
-- :mod:`~links1_mitsuba.lights`: analytic lights, area and environment lights (tables, samples);
-- :mod:`~links1_mitsuba.intersect`: nearest hits over Mitsuba and links1 shapes, shadow
-  transmittance (3-3-3);
-- :mod:`~links1_mitsuba.raytree`: one level traced and shaded, the ray trees (eq. 3.11-3.16;
-  the recursion design is described there);
-- :mod:`~links1_mitsuba.launch`: camera rays, the frozen launches, read-back, ``stats``;
-- :mod:`~links1_mitsuba.gradients`: ``render_forward``/``render_backward`` (issue 23);
-- :mod:`~links1_mitsuba.util`: Dr.Jit helpers (hashes, literals, gathers).
+- :class:`~links1_mitsuba.tables.Tables`: the per-scene tables (``prepare``) and which shadow
+  rays a scene needs (``_occluders``);
+- :class:`~links1_mitsuba.lights.Lights`: analytic lights, area and environment lights
+  (tables, samples);
+- :class:`~links1_mitsuba.intersect.Intersect`: nearest hits over Mitsuba and links1 shapes,
+  shadow transmittance (3-3-3);
+- :class:`~links1_mitsuba.raytree.RayTree`: one level traced and shaded, the ray trees
+  (eq. 3.11-3.16; the recursion design is described there);
+- :class:`~links1_mitsuba.launch.Launches`: camera rays, the frozen launches, read-back, ``stats``;
+- :class:`~links1_mitsuba.gradients.Gradients`: ``render_forward``/``render_backward`` (issue 23);
+- :mod:`~links1_mitsuba.util`: Dr.Jit helpers (hashes, literals, gathers), module functions.
 
-Nanobind classes take one base, so ``Links1Whitted`` (a ``mi.SamplingIntegrator``) takes the
-parts' methods as its own rather than inheriting them; a name defined twice is an error.
+``Links1Whitted`` itself subclasses ``mi.SamplingIntegrator``, a class of the variant in use,
+so it is made per variant by :func:`define_integrator` (``_registry.register``). Nanobind
+classes take one base, so it takes the parts' methods as its own rather than inheriting them;
+a name defined twice is an error.
 """
 from __future__ import annotations
 
@@ -27,53 +31,29 @@ from links1.tracing.aovs import check_aovs as parse_aovs  # the one AOV table an
 from links1.scene.params import default as l1_default
 from links1.scene.params import read as l1_read
 
-from ._registry import unsupported_variant
-from .intersect import define_intersect
 from . import geometry
-from .gradients import define_gradients
-from .launch import define_launches
-from .lights import define_lights
-from .raytree import define_raytree
-from .tables import define_tables
-from .util import define_util
+from .gradients import Gradients
+from .intersect import Intersect
+from .launch import Launches
+from .lights import Lights
+from .raytree import RayTree
+from .registered import unsupported_variant
+from .tables import Tables
+from .util import Hidden, hidden_attr, place_of
 
-#: Relative ray-origin offset on shapes whose float32 hits are accurate to a few ulps
-#: (meshes, rectangles, disks, links1 quadrics): a small offset keeps shadow rays that graze
-#: an object on the same side as the float64 core. Mitsuba's sphere/cylinder and links1
-#: blobs (iterative roots) use Mitsuba's RayEpsilon (self-shadowing otherwise).
-OFFSET_EPS = 2.0 ** -19
-_PRECISE_MITSUBA = ("Mesh", "OBJMesh", "PLYMesh", "Rectangle", "Disk", "Links1Bicubic", "SerializedMesh")
 #: Default weight below which a branch of the ray tree is not traced (POV-Ray's adc_bailout;
-#: the same default as links1.integrator.DEFAULT_MIN_WEIGHT).
+#: the same default as links1.tracing.integrator.DEFAULT_MIN_WEIGHT).
 DEFAULT_MIN_WEIGHT = l1_default("links1_whitted", "min_weight")
 # Custom quadrics with finite bounds go under a BVH (bvh.py) from tuning.Tuning.bvh_min on.
 
+#: the parts whose methods Links1Whitted takes
+PARTS = (Tables, Lights, Intersect, RayTree, Launches, Gradients)
+
 
 def define_integrator():
-    import drjit as dr
+    """``Links1Whitted`` for the variant in use: a subclass of its ``mi.SamplingIntegrator``
+    (hence made per variant) with the methods of :data:`PARTS`."""
     import mitsuba as mi
-
-    util = define_util(mi, dr)
-    parts = (define_tables(mi, dr, util), define_lights(mi, dr, util), define_intersect(mi, dr, util),
-             define_raytree(mi, dr, util), define_launches(mi, dr, util.mix32, util.u24),
-             define_gradients(mi, dr, util))
-
-    class _Untraversed:
-        """Attributes that :func:`drjit.freeze` does not walk. It traverses the scene (an input
-        of the frozen window function) and with it this integrator's ``__dict__``; the Dr.Jit
-        arrays of the per-scene tables reach the frozen function through
-        ``Links1Whitted._frozen_inputs``, and walking the shape specs (thousands in big scenes)
-        on every call would cost more than rendering a small window."""
-
-        def _traverse_1_cb_ro(self, fn):
-            pass
-
-        def _traverse_1_cb_rw(self, fn):
-            pass
-
-    def _hidden_attr(name):
-        return property(lambda self: getattr(self._hidden, name, None),
-                        lambda self, v: setattr(self._hidden, name, v))
 
     class Links1Whitted(mi.SamplingIntegrator):
         r"""LINKS-1 Whitted ray tracer (``links1_whitted``), paper 3-1 and 3-3, eq. (3.11)–(3.16).
@@ -83,13 +63,13 @@ def define_integrator():
         ==========  =======  ==========================================================  =======
         max_depth   integer  surface interactions along one branch of the ray tree       5
                              (primary hit = 1; 1 = direct light only)
-        seed        integer  seed of the sample pattern (links1.sampling)                0
+        seed        integer  seed of the sample pattern (links1.maths.sampling)                0
         aovs        string   comma-separated extra channels: depth, normal, id, cost     ""
         min_weight  float    a secondary ray is traced only if the largest RGB component  1/255
                              of its weight in the pixel (product of the r / t factors
                              down the tree) exceeds this; 0 traces every branch
         light_samples int    shadow rays per sampled light (environment) per hit        1
-        adaptive    float    adaptive anti-aliasing threshold (links1.adaptive) instead  none
+        adaptive    float    adaptive anti-aliasing threshold (links1.tracing.adaptive) instead  none
                              of the sampler's count; ``mi.render`` and render_window
         adaptive_depth int   most refinement levels of ``adaptive``                     2
         ==========  =======  ==========================================================  =======
@@ -104,7 +84,7 @@ def define_integrator():
         scaled by the transmittance of every object crossed, once per object); ``area``
         emitters (mesh, rectangle, cube, sphere, disk), ``constant`` and ``envmap`` are sampled
         with ``light_samples`` shadow rays each on the core's light-sample points
-        (:mod:`links1.lights`, :func:`links1.sampling.light_samples_uv`) and are also the
+        (:mod:`links1.shading.lights`, :func:`links1.maths.sampling.light_samples_uv`) and are also the
         radiance of escaping rays (``constant``/``envmap``). Custom shapes (``links1_quadric``, ``links1_blob``) come
         from :func:`links1_mitsuba.load_file`.
 
@@ -112,17 +92,19 @@ def define_integrator():
         window ``(x0, y0, w, h)`` of the full film without recompiling kernels.
         """
 
-        custom = _hidden_attr("custom")
+        custom = hidden_attr("custom")
         #: the Dr.Jit values of the links1 shapes' geometry, by slot (geometry.hold)
-        geo = _hidden_attr("geo")
-        geo_seen = _hidden_attr("geo_seen")
-        custom_bsdfs = _hidden_attr("custom_bsdfs")
-        slot_of_id = _hidden_attr("slot_of_id")
-        shape_names = _hidden_attr("shape_names")
-        places = _hidden_attr("places")
-        _prep = _hidden_attr("prep")
-        _freeze = _hidden_attr("freeze")
-        _freeze_points = _hidden_attr("freeze_points")
+        geo = hidden_attr("geo")
+        geo_seen = hidden_attr("geo_seen")
+        custom_bsdfs = hidden_attr("custom_bsdfs")
+        slot_of_id = hidden_attr("slot_of_id")
+        shape_names = hidden_attr("shape_names")
+        places = hidden_attr("places")
+        _prep = hidden_attr("prep")
+        _freeze = hidden_attr("freeze")
+        _freeze_points = hidden_attr("freeze_points")
+        #: the camera sample of the last camera rays (``Launches._take_cam_sample``)
+        _cam_sample = hidden_attr("cam_sample")
         #: ray counters of the last render (``Launches._set_stats``: summed when first read)
         stats = property(lambda self: self._read_stats(), lambda self, v: self._set_stats(v))
 
@@ -131,8 +113,8 @@ def define_integrator():
             if why:   # registered for one variant, built under another
                 raise ValueError(why)
             super().__init__(props)
-            self._hidden = _Untraversed()
-            def param(name, conv):   # links1.params: the rules the core's reader applies too
+            self._hidden = Hidden()
+            def param(name, conv):   # links1.scene.params: the rules the core's reader applies too
                 return l1_read("links1_whitted", name, conv(props[name]) if name in props else None)
             md = param("max_depth", int)
             if md == -1:
@@ -191,7 +173,6 @@ def define_integrator():
 
         def place(self, obj, what: str = "links1_whitted") -> str:
             """``FILE:LINE: <element>`` of a scene object for a warning, else ``what``."""
-            from .loader import place_of
             return place_of(obj, self.places or {}) or what
 
         def channels(self):
@@ -203,7 +184,7 @@ def define_integrator():
             a sensor object, the scene's or one made apart) gives the camera, the film (size,
             crop window, reconstruction filter) and, unless ``spp`` is given, the sample count."""
             sensor, win, spp, seed = self._render_request(scene, sensor, seed, spp)
-            if self.adaptive is not None:   # refined on the host (links1.adaptive)
+            if self.adaptive is not None:   # refined on the host (links1.tracing.adaptive)
                 img = self.render_adaptive(scene, win, seed=seed, sensor=sensor)
                 return mi.TensorXf(img.astype(np.float32))
             # the frame made on the device and returned as it is (links1_mitsuba.film)
@@ -276,7 +257,7 @@ def define_integrator():
                     f"custom_shapes={len(self.custom)}]")
 
     # the parts' methods (nanobind classes take one base: attached rather than inherited)
-    for part in parts:
+    for part in PARTS:
         for name, fn in vars(part).items():
             if callable(fn) and not name.startswith("__"):
                 if name in vars(Links1Whitted):

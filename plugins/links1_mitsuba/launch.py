@@ -3,21 +3,25 @@ the :func:`drjit.freeze` launch replayed for any window, batch size or spp, and 
 on the device from its samples (:mod:`.film`); numpy only where a caller asks for it
 (:meth:`render_windows`' float64 arrays, :meth:`trace_points` of adaptive anti-aliasing).
 
-:func:`define_launches` returns a class whose methods ``Links1Whitted`` takes (defined in a
-function, as the integrator, because the Mitsuba variant must be set first).
+:class:`Launches` is a mixin whose methods ``Links1Whitted`` takes (integrator.py); they name
+``mi.Float``, ``mi.Ray3f``, ... when called, so the class serves every Mitsuba variant.
 """
 from __future__ import annotations
 
+import dataclasses
 import gc
 import math
 
+import drjit as dr
+import mitsuba as mi
 import numpy as np
 
+from links1.tracing.aovs import check_aovs as parse_aovs  # the one AOV table and checker (links1/tracing/aovs.py)
 from links1.maths.sampling import strata
 
 from . import tuning
-from .film import define_film, sample_window
-from .util import aligned
+from .film import concat, reconstruct, sample_ids, sample_window, widen
+from .util import aligned, mix32, u24
 
 #: Most samples (lanes) per launch of the window function; more are split into launches.
 LAUNCH_LANES = 1 << 22
@@ -29,10 +33,6 @@ LAZY_COUNT_LANES = 1 << 16
 #: The integrator whose frozen window function runs and its scene (read inside it, not
 #: traversed by freeze: the function's scene input is there for freeze's walk only).
 _FROZEN_CALLER = {"integrator": None, "scene": None}
-
-#: the camera sample (pixel key, i, spp) of the rays last made by ``_camera_rays``, per integrator,
-#: read by the primary level of ``_trace_tree`` (kept out of the integrator: Dr.Jit freezing walks it)
-_CAM_SAMPLE: dict = {}
 
 
 def _columns(v, n=None):
@@ -78,7 +78,7 @@ class SceneInputs:
     objects alive).
     """
 
-    __slots__ = ("items", "stale")   # no __dict__: _frozen_inputs does not walk it
+    __slots__ = ("items", "stale")
 
     def __init__(self, scene, extra=()):
         import drjit as dr
@@ -138,386 +138,397 @@ def _frozen_scene():
     return _FROZEN_CALLER["scene"]
 
 
-def define_launches(mi, dr, mix32, u24):
-    """The ``Launches`` mixin for the variant in use (``mix32``/``u24``: the integrator's hashes)."""
-    from links1.tracing.aovs import check_aovs as parse_aovs
-    film = define_film(mi, dr, mix32)
-    concat, widen = film["concat"], film["widen"]
+class Launches:
+    """Ray generation and launches; the ray tree (``_trace_tree``) and tables (``prepare``)
+    come from the integrator."""
 
-    class Launches:
-        """Ray generation and launches; the ray tree (``_trace_tree``) and tables (``prepare``)
-        come from the integrator."""
+    # -------------------------------------------------------------- camera
+    def _camera_rays(self, P, sid, spp, seed):
+        """Camera rays of the samples ``sid = pixel * spp + i`` (``pixel = py * W + px``, ``i``
+        the sample's index in its pixel): any set of pixels (one window or a batch of them)
+        in one launch. ``sid``, ``spp = (spp, strata k)`` and ``seed = (pattern seed, key
+        seed)`` are run-time values (``UInt32``), so neither the pixel set nor the sample count
+        enters the kernels (see :meth:`render_windows`)."""
+        W, H = P.film_size
+        n_s, k_s = spp
+        pix = sid // n_s
+        i = sid - pix * n_s
+        py = pix // W
+        px = pix - py * W
+        kf = mi.Float(k_s)
+        sx = mi.Float(i % k_s)
+        sy = mi.Float(i // k_s)
+        base = mix32(mix32(seed[0]) ^ pix)
+        ux = u24(mix32(base ^ (2 * i)))
+        uy = u24(mix32(base ^ (2 * i + 1)))
+        centre = n_s == 1   # one sample: the pixel centre (links1.maths.sampling)
+        offx = dr.select(centre, mi.Float(0.5), (sx + ux) / kf)
+        offy = dr.select(centre, mi.Float(0.5), (sy + uy) / kf)
+        xf = (mi.Float(px) + offx) / W
+        yf = (mi.Float(py) + offy) / H
+        key = mix32(mix32(seed[1]) ^ sid)
+        # light samples of a primary hit: one set over the pixel (links1.maths.sampling.pixel_keys)
+        self._cam_sample = (mix32(mix32(seed[1] ^ 0x5BD1E995) ^ pix), i, n_s)
+        o, d, tmin, tmax = self._rays_at(P, xf, yf)
+        return o, d, tmin, tmax, key, i
 
-        # -------------------------------------------------------------- camera
-        def _camera_rays(self, P, sid, spp, seed):
-            """Camera rays of the samples ``sid = pixel * spp + i`` (``pixel = py * W + px``, ``i``
-            the sample's index in its pixel): any set of pixels (one window or a batch of them)
-            in one launch. ``sid``, ``spp = (spp, strata k)`` and ``seed = (pattern seed, key
-            seed)`` are run-time values (``UInt32``), so neither the pixel set nor the sample count
-            enters the kernels (see :meth:`render_windows`)."""
-            W, H = P.film_size
-            n_s, k_s = spp
-            pix = sid // n_s
-            i = sid - pix * n_s
-            py = pix // W
-            px = pix - py * W
-            kf = mi.Float(k_s)
-            sx = mi.Float(i % k_s)
-            sy = mi.Float(i // k_s)
-            base = mix32(mix32(seed[0]) ^ pix)
-            ux = u24(mix32(base ^ (2 * i)))
-            uy = u24(mix32(base ^ (2 * i + 1)))
-            centre = n_s == 1   # one sample: the pixel centre (links1.sampling)
-            offx = dr.select(centre, mi.Float(0.5), (sx + ux) / kf)
-            offy = dr.select(centre, mi.Float(0.5), (sy + uy) / kf)
-            xf = (mi.Float(px) + offx) / W
-            yf = (mi.Float(py) + offy) / H
-            key = mix32(mix32(seed[1]) ^ sid)
-            # light samples of a primary hit: one set over the pixel (links1.sampling.pixel_keys)
-            _CAM_SAMPLE[id(self)] = (mix32(mix32(seed[1] ^ 0x5BD1E995) ^ pix), i, n_s)
-            o, d, tmin, tmax = self._rays_at(P, xf, yf)
-            return o, d, tmin, tmax, key, i
+    def _take_cam_sample(self):
+        """The camera sample ``(pixel key, i, spp)`` of the rays last made by :meth:`_camera_rays`,
+        handed once to the primary level of the ray tree (``RayTree._trace_tree``,
+        ``Gradients``): kept in the integrator's :class:`~links1_mitsuba.util.Hidden` holder,
+        out of freeze's walk."""
+        sample, self._cam_sample = self._cam_sample, None
+        return sample
 
-        def _rays_at(self, P, xf, yf):
-            """Camera rays through film positions ``(xf, yf)`` (fractions of the film's width and
-            height, row 0 at the top) -> ``o, d, tmin, tmax``."""
-            n = dr.width(xf)
-            W, H = P.film_size
-            if P.perspective:
-                tn = math.tan(math.radians(P.x_fov) / 2.0)
-                aspect = W / H
-                dc = dr.normalize(mi.Vector3f((1.0 - 2.0 * xf) * tn, (1.0 - 2.0 * yf) * (tn / aspect), 1.0))
-                inv_z = 1.0 / dc.z
-                m = P.cam.tolist()
-                d = dr.normalize(mi.Vector3f(*[m[r][0] * dc.x + m[r][1] * dc.y + m[r][2] * dc.z
-                                               for r in range(3)]))
-                o = mi.Point3f(m[0][3], m[1][3], m[2][3]) + mi.Vector3f(dr.zeros(mi.Float, n))
-                return o, d, P.near * inv_z, P.far * inv_z
-            # orthographic (links1.camera): the film on the near plane, rays along the view axis
+    def _rays_at(self, P, xf, yf):
+        """Camera rays through film positions ``(xf, yf)`` (fractions of the film's width and
+        height, row 0 at the top) -> ``o, d, tmin, tmax``."""
+        n = dr.width(xf)
+        W, H = P.film_size
+        if P.perspective:
+            tn = math.tan(math.radians(P.x_fov) / 2.0)
+            aspect = W / H
+            dc = dr.normalize(mi.Vector3f((1.0 - 2.0 * xf) * tn, (1.0 - 2.0 * yf) * (tn / aspect), 1.0))
+            inv_z = 1.0 / dc.z
             m = P.cam.tolist()
-            pc = (1.0 - 2.0 * xf, (1.0 - 2.0 * yf) * (H / W), P.near)
-            o = mi.Point3f(*[m[r][0] * pc[0] + m[r][1] * pc[1] + m[r][2] * pc[2] + m[r][3] for r in range(3)])
-            d = dr.normalize(mi.Vector3f(m[0][2], m[1][2], m[2][2])) + mi.Vector3f(dr.zeros(mi.Float, n))
-            return o, d, dr.zeros(mi.Float, n), mi.Float(P.far - P.near) + dr.zeros(mi.Float, n)
+            d = dr.normalize(mi.Vector3f(*[m[r][0] * dc.x + m[r][1] * dc.y + m[r][2] * dc.z
+                                           for r in range(3)]))
+            o = mi.Point3f(m[0][3], m[1][3], m[2][3]) + mi.Vector3f(dr.zeros(mi.Float, n))
+            return o, d, P.near * inv_z, P.far * inv_z
+        # orthographic (links1.sensor.camera): the film on the near plane, rays along the view axis
+        m = P.cam.tolist()
+        pc = (1.0 - 2.0 * xf, (1.0 - 2.0 * yf) * (H / W), P.near)
+        o = mi.Point3f(*[m[r][0] * pc[0] + m[r][1] * pc[1] + m[r][2] * pc[2] + m[r][3] for r in range(3)])
+        d = dr.normalize(mi.Vector3f(m[0][2], m[1][2], m[2][2])) + mi.Vector3f(dr.zeros(mi.Float, n))
+        return o, d, dr.zeros(mi.Float, n), mi.Float(P.far - P.near) + dr.zeros(mi.Float, n)
 
-        # -------------------------------------------------------------- launches
-        def _counts(self, n, nsh1, cr=None, ct=None, nr=None, nt=None, nsh2=None):
-            """Ray counters of one launch of ``n`` camera rays (rays by kind)."""
-            tot = lambda a: 0 if a is None else int(np.sum(_lanes(a, dr.width(a)), dtype=np.int64))  # noqa: E731
-            return {"camera": int(n), "shadow": tot(nsh1) + tot(nsh2), "reflect": tot(cr) + tot(nr),
-                    "refract": tot(ct) + tot(nt),
-                    "secondary_lanes": int(np.count_nonzero(_lanes(cr, n) | _lanes(ct, n))) if cr is not None else 0}
+    # -------------------------------------------------------------- launches
+    def _counts(self, n, nsh1, cr=None, ct=None, nr=None, nt=None, nsh2=None):
+        """Ray counters of one launch of ``n`` camera rays (rays by kind)."""
+        tot = lambda a: 0 if a is None else int(np.sum(_lanes(a, dr.width(a)), dtype=np.int64))  # noqa: E731
+        return {"camera": int(n), "shadow": tot(nsh1) + tot(nsh2), "reflect": tot(cr) + tot(nr),
+                "refract": tot(ct) + tot(nt),
+                "secondary_lanes": int(np.count_nonzero(_lanes(cr, n) | _lanes(ct, n))) if cr is not None else 0}
 
-        def _launch_counts(self, n, counters):
-            """A launch's ray counters for :meth:`_set_stats`: kept as the launch's arrays when it
-            is small (up to ``LAZY_COUNT_LANES`` lanes) and summed only when ``stats`` is read (six
-            read-backs and sums, ~0.05 ms, are a tenth of a small window's launch, and nothing in
-            a render reads them); a big launch's are summed at once on the device (``dr.sum``, no
-            read-back: ``stats`` reads the sums)."""
-            if n <= LAZY_COUNT_LANES:
-                return (n, counters)
+    def _launch_counts(self, n, counters):
+        """A launch's ray counters for :meth:`_set_stats`: kept as the launch's arrays when it
+        is small (up to ``LAZY_COUNT_LANES`` lanes) and summed only when ``stats`` is read (six
+        read-backs and sums, ~0.05 ms, are a tenth of a small window's launch, and nothing in
+        a render reads them); a big launch's are summed at once on the device (``dr.sum``, no
+        read-back: ``stats`` reads the sums)."""
+        if n <= LAZY_COUNT_LANES:
+            return (n, counters)
 
-            def tot(a):
-                return 0 if a is None else dr.sum(mi.UInt64(dr.select(a, 1, 0)) if dr.is_mask_v(a) else mi.UInt64(a))
-            c = {k: counters.get(k) for k in ("nsh1", "cr", "ct", "nr", "nt", "nsh2")}
-            sec = 0 if c["cr"] is None else tot(widen(c["cr"], n) | widen(c["ct"], n))
-            return ("device", {"camera": int(n), "shadow": tot(c["nsh1"]) + tot(c["nsh2"]),
-                               "reflect": tot(c["cr"]) + tot(c["nr"]), "refract": tot(c["ct"]) + tot(c["nt"]),
-                               "secondary_lanes": sec})
+        def tot(a):
+            return 0 if a is None else dr.sum(mi.UInt64(dr.select(a, 1, 0)) if dr.is_mask_v(a) else mi.UInt64(a))
+        c = {k: counters.get(k) for k in ("nsh1", "cr", "ct", "nr", "nt", "nsh2")}
+        sec = 0 if c["cr"] is None else tot(widen(c["cr"], n) | widen(c["ct"], n))
+        return ("device", {"camera": int(n), "shadow": tot(c["nsh1"]) + tot(c["nsh2"]),
+                           "reflect": tot(c["cr"]) + tot(c["nr"]), "refract": tot(c["ct"]) + tot(c["nt"]),
+                           "secondary_lanes": sec})
 
-        def _set_stats(self, counts):
-            """``self.stats`` (read through :meth:`_read_stats`): the counters of the last
-            render's launches (a list of :meth:`_launch_counts`) summed, and per camera ray; or
-            the dict ``counts`` itself."""
-            pending = isinstance(counts, list)
-            self._hidden.stats = None if pending else counts
-            self._hidden.stats_pending = counts if pending else None
+    def _set_stats(self, counts):
+        """``self.stats`` (read through :meth:`_read_stats`): the counters of the last
+        render's launches (a list of :meth:`_launch_counts`) summed, and per camera ray; or
+        the dict ``counts`` itself."""
+        pending = isinstance(counts, list)
+        self._hidden.stats = None if pending else counts
+        self._hidden.stats_pending = counts if pending else None
 
-        def _read_stats(self):
-            pending = getattr(self._hidden, "stats_pending", None)
-            if pending:
-                counts = [c if not isinstance(c, tuple) else
-                          {k: int(v if isinstance(v, int) else v[0]) for k, v in c[1].items()} if c[0] == "device"
-                          else self._counts(c[0], **c[1]) for c in pending]
-                c = {k: sum(x[k] for x in counts) for k in counts[0]}
-                c["per_camera_ray"] = {k: c[k] / max(c["camera"], 1) for k in ("shadow", "reflect", "refract")}
-                self._hidden.stats = c
-                self._hidden.stats_pending = None
-            return getattr(self._hidden, "stats", None)
+    def _read_stats(self):
+        pending = getattr(self._hidden, "stats_pending", None)
+        if pending:
+            counts = [c if not isinstance(c, tuple) else
+                      {k: int(v if isinstance(v, int) else v[0]) for k, v in c[1].items()} if c[0] == "device"
+                      else self._counts(c[0], **c[1]) for c in pending]
+            c = {k: sum(x[k] for x in counts) for k in counts[0]}
+            c["per_camera_ray"] = {k: c[k] / max(c["camera"], 1) for k in ("shadow", "reflect", "refract")}
+            self._hidden.stats = c
+            self._hidden.stats_pending = None
+        return getattr(self._hidden, "stats", None)
 
-        def _call_frozen(self, fn, P, scene, *args):
-            """Call a frozen launch of this integrator (:func:`_frozen_caller` names it inside)
-            with ``args`` and, last, the scene as :class:`SceneInputs`; a recording that reads
-            more of the scene than those hold is made again with the whole scene, which the
-            launches of ``P`` then keep passing."""
-            scene_input = getattr(P, "scene_input", None)
-            extra = _extra_scenes(P)
-            if scene_input is None:
-                scene_input = P.scene_input = SceneInputs(scene, extra)
-            elif scene_input is not _WHOLE_SCENE and scene_input.stale:
-                scene_input = P.scene_input = _WHOLE_SCENE   # freeze would update the scene's own
-            _FROZEN_CALLER.update(integrator=self, scene=scene)
-            # no cyclic garbage collection while recording: freeing another renderer's Dr.Jit
-            # state (its own recordings) in the middle of one aborts the process
-            gc_on = gc.isenabled()
-            gc.disable()
+    def _call_frozen(self, fn, P, scene, *args):
+        """Call a frozen launch of this integrator (:func:`_frozen_caller` names it inside)
+        with ``args`` and, last, the scene as :class:`SceneInputs`; a recording that reads
+        more of the scene than those hold is made again with the whole scene, which the
+        launches of ``P`` then keep passing."""
+        scene_input = getattr(P, "scene_input", None)
+        extra = _extra_scenes(P)
+        if scene_input is None:
+            scene_input = P.scene_input = SceneInputs(scene, extra)
+        elif scene_input is not _WHOLE_SCENE and scene_input.stale:
+            scene_input = P.scene_input = _WHOLE_SCENE   # freeze would update the scene's own
+        _FROZEN_CALLER.update(integrator=self, scene=scene)
+        # no cyclic garbage collection while recording: freeing another renderer's Dr.Jit
+        # state (its own recordings) in the middle of one aborts the process
+        gc_on = gc.isenabled()
+        gc.disable()
+        try:
+            whole = (scene, *extra) if extra else scene
+            if scene_input is _WHOLE_SCENE:
+                return fn(*args, whole)
             try:
-                whole = (scene, *extra) if extra else scene
-                if scene_input is _WHOLE_SCENE:
-                    return fn(*args, whole)
-                try:
-                    return fn(*args, scene_input)
-                except Exception:
-                    P.scene_input = _WHOLE_SCENE
-                    return fn(*args, whole)
-            finally:
-                _FROZEN_CALLER.update(integrator=None, scene=None)
-                if gc_on:
-                    gc.enable()
+                return fn(*args, scene_input)
+            except Exception:
+                P.scene_input = _WHOLE_SCENE
+                return fn(*args, whole)
+        finally:
+            _FROZEN_CALLER.update(integrator=None, scene=None)
+            if gc_on:
+                gc.enable()
 
-        def _frozen_inputs(self, P):
-            """Every Dr.Jit array the trace reads from the per-scene tables (the frozen
-            function must receive them as inputs), gathered once per ``P``."""
-            if getattr(P, "frozen_inputs", None) is None:
-                found, seen = [], set()
+    def _frozen_inputs(self, P):
+        """Every Dr.Jit array the trace reads from the per-scene tables (the frozen
+        function must receive them as inputs), gathered once per ``P``: the fields of ``P``
+        (a slotted dataclass, :class:`~links1_mitsuba.tables.Prepared`) and what they hold
+        through dicts, lists, tuples and objects' ``__dict__``. An object with its own traversal
+        callbacks is not walked, as freeze walks it through them: a
+        :class:`~links1_mitsuba.util.Hidden` (``ParamWatch``: nothing) or :class:`SceneInputs`
+        (the launch's scene input)."""
+        if getattr(P, "frozen_inputs", None) is None:
+            found, seen = [], set()
 
-                def walk(x, depth=0):
-                    if depth > 12 or id(x) in seen:
-                        return
-                    seen.add(id(x))
-                    if dr.is_array_v(x):
-                        found.append(x)
-                    elif isinstance(x, dict):
-                        for v in x.values():
-                            walk(v, depth + 1)
-                    elif isinstance(x, (list, tuple)):
-                        for v in x:
-                            walk(v, depth + 1)
-                    elif hasattr(x, "__dict__") and not isinstance(x, (mi.Object, type)) \
-                            and not callable(x):
-                        for v in vars(x).values():
-                            walk(v, depth + 1)
-                walk(P)
-                P.frozen_inputs = found
-            return P.frozen_inputs
+            def walk(x, depth=0):
+                if depth > 12 or id(x) in seen:
+                    return
+                seen.add(id(x))
+                if dr.is_array_v(x):
+                    found.append(x)
+                elif isinstance(x, dict):
+                    for v in x.values():
+                        walk(v, depth + 1)
+                elif isinstance(x, (list, tuple)):
+                    for v in x:
+                        walk(v, depth + 1)
+                elif hasattr(x, "_traverse_1_cb_ro"):
+                    pass   # an object that hands freeze its own variables (Hidden: none)
+                elif hasattr(x, "__dict__") and not isinstance(x, (mi.Object, type)) \
+                        and not callable(x):
+                    for v in vars(x).values():
+                        walk(v, depth + 1)
+                elif dataclasses.is_dataclass(x) and not isinstance(x, type):
+                    # a dataclass with slots (tables.Prepared): its fields that are set
+                    for f in dataclasses.fields(x):
+                        walk(getattr(x, f.name, None), depth + 1)
+            walk(P)
+            P.frozen_inputs = found
+        return P.frozen_inputs
 
-        def _frozen_fn(self):
-            """The launch as a :func:`drjit.freeze` function of run-time inputs (sample ids,
-            sample count, seeds: ``UInt32``; the per-scene tables): recorded once per
-            configuration ``cfg`` (scene, AOVs, depth, weight threshold, the switches of
-            :class:`~links1_mitsuba.tuning.Tuning` as one number, ``Tuning.key``: hashed Python
-            values; a switch changed after a recording makes another one) and replayed without
-            re-tracing for any pixel set, window or batch size and spp (freeze replays recorded
-            kernels at the widths of the new inputs)."""
-            if self._freeze is None:
-                def launch_kernels(sid, n_op, spp, seeds, cfg, tables, scene_input):
-                    # no closure: freeze would traverse it (the integrator, the scene ...)
-                    self = _frozen_caller()
-                    P = self._prep
-                    want = cfg[2]
-                    o, d, tmin, tmax, key, _ = self._camera_rays(P, sid, spp, seeds)
-                    total, cost, t0, s0, n0, counters = self._trace_tree(P, _frozen_scene(), o, d, tmin,
-                                                                         tmax, key, want, frozen=n_op)
-                    return (total, cost, t0, s0, n0, counters) if want else (total, cost, counters)
-                self._freeze = dr.freeze(launch_kernels, warn_after=1000)
-            return self._freeze
+    def _frozen_fn(self):
+        """The launch as a :func:`drjit.freeze` function of run-time inputs (sample ids,
+        sample count, seeds: ``UInt32``; the per-scene tables): recorded once per
+        configuration ``cfg`` (scene, AOVs, depth, weight threshold, the switches of
+        :class:`~links1_mitsuba.tuning.Tuning` as one number, ``Tuning.key``: hashed Python
+        values; a switch changed after a recording makes another one) and replayed without
+        re-tracing for any pixel set, window or batch size and spp (freeze replays recorded
+        kernels at the widths of the new inputs)."""
+        if self._freeze is None:
+            def launch_kernels(sid, n_op, spp, seeds, cfg, tables, scene_input):
+                # no closure: freeze would traverse it (the integrator, the scene ...)
+                self = _frozen_caller()
+                P = self._prep
+                want = cfg[2]
+                o, d, tmin, tmax, key, _ = self._camera_rays(P, sid, spp, seeds)
+                total, cost, t0, s0, n0, counters = self._trace_tree(P, _frozen_scene(), o, d, tmin,
+                                                                     tmax, key, want, frozen=n_op)
+                return (total, cost, t0, s0, n0, counters) if want else (total, cost, counters)
+            self._freeze = dr.freeze(launch_kernels, warn_after=1000)
+        return self._freeze
 
-        def _frozen_points_fn(self):
-            """:meth:`trace_points` as a :func:`drjit.freeze` function (film positions and keys
-            are run-time inputs): recorded once per configuration, replayed for any point count."""
-            if getattr(self, "_freeze_points", None) is None:
-                def launch_points(xf, yf, key, n_op, cfg, tables, scene_input):
-                    self = _frozen_caller()
-                    P = self._prep
-                    o, d, tmin, tmax = self._rays_at(P, xf, yf)
-                    total, cost, _, _, _, counters = self._trace_tree(P, _frozen_scene(), o, d, tmin, tmax,
-                                                                      key, False, frozen=n_op)
-                    return total, cost, counters
-                self._freeze_points = dr.freeze(launch_points, warn_after=1000)
-            return self._freeze_points
+    def _frozen_points_fn(self):
+        """:meth:`trace_points` as a :func:`drjit.freeze` function (film positions and keys
+        are run-time inputs): recorded once per configuration, replayed for any point count."""
+        if getattr(self, "_freeze_points", None) is None:
+            def launch_points(xf, yf, key, n_op, cfg, tables, scene_input):
+                self = _frozen_caller()
+                P = self._prep
+                o, d, tmin, tmax = self._rays_at(P, xf, yf)
+                total, cost, _, _, _, counters = self._trace_tree(P, _frozen_scene(), o, d, tmin, tmax,
+                                                                  key, False, frozen=n_op)
+                return total, cost, counters
+            self._freeze_points = dr.freeze(launch_points, warn_after=1000)
+        return self._freeze_points
 
-        def trace_points(self, scene, xf, yf, keys, sensor=None):
-            """Radiance and cost of the camera rays through film positions ``(xf, yf)`` (numpy,
-            fractions of the film, row 0 at the top), ray-tree keys ``keys`` (uint32): the
-            lattice points of adaptive anti-aliasing (:mod:`links1.adaptive`). Light samples at
-            the primary hit follow the key alone, as in the core's ``trace(keys=...)``.
-            Returns ``(L (n, 3) float64, cost (n,) float64)``; launches of at most
-            ``LAUNCH_LANES`` points. ``sensor``: see :meth:`prepare` (None: the scene's first)."""
-            P = self.prepare(scene, sensor)
-            L, cost, counts = [np.zeros((0, 3))], [np.zeros(0)], []
-            for a in range(0, len(xf), LAUNCH_LANES):
-                b = min(a + LAUNCH_LANES, len(xf))
-                x = mi.Float(aligned(xf[a:b], np.float32))
-                y = mi.Float(aligned(yf[a:b], np.float32))
-                key = mi.UInt32(aligned(keys[a:b], np.uint32))
-                if self.use_freeze:
-                    cfg = (id(P), id(scene), int(self.max_depth), float(self.min_weight), tuning.current().key())
-                    total, c, counters = self._call_frozen(self._frozen_points_fn(), P, scene, x, y, key,
-                                                           dr.opaque(mi.UInt32, b - a), cfg,
-                                                           self._frozen_inputs(P))
-                else:
-                    o, d, tmin, tmax = self._rays_at(P, x, y)
-                    total, c, _, _, _, counters = self._trace_tree(P, scene, o, d, tmin, tmax, key, False)
-                L.append(_columns(total, b - a).astype(np.float64))
-                cost.append(_lanes(c, b - a).astype(np.float64))
-                counts.append(self._launch_counts(b - a, counters))
-            if counts:
-                self._set_stats(counts)
-            return np.concatenate(L), np.concatenate(cost)
-
-        def _launch(self, P, scene, sid, spp_, seeds, want):
-            """One launch over the sample ids ``sid`` (a ``UInt32`` array) -> (its device outputs
-            ``total``, ``cost`` and with ``want`` ``t0``, ``s0``, ``n0``, each with one lane per
-            sample; its ray counters)."""
-            n = dr.width(sid)
-            if getattr(P, "ad", False):   # a derivative pass (gradients.py): unfrozen, no AOVs
-                o, d, tmin, tmax, key, _ = self._camera_rays(P, sid, spp_, seeds)
-                total = self._trace_tree_ad(P, scene, o, d, tmin, tmax, key)
-                return {"total": total, "cost": dr.zeros(mi.UInt32, n)}, (n, dict(nsh1=None))
+    def trace_points(self, scene, xf, yf, keys, sensor=None):
+        """Radiance and cost of the camera rays through film positions ``(xf, yf)`` (numpy,
+        fractions of the film, row 0 at the top), ray-tree keys ``keys`` (uint32): the
+        lattice points of adaptive anti-aliasing (:mod:`links1.tracing.adaptive`). Light samples at
+        the primary hit follow the key alone, as in the core's ``trace(keys=...)``.
+        Returns ``(L (n, 3) float64, cost (n,) float64)``; launches of at most
+        ``LAUNCH_LANES`` points. ``sensor``: see :meth:`prepare` (None: the scene's first)."""
+        P = self.prepare(scene, sensor)
+        L, cost, counts = [np.zeros((0, 3))], [np.zeros(0)], []
+        for a in range(0, len(xf), LAUNCH_LANES):
+            b = min(a + LAUNCH_LANES, len(xf))
+            x = mi.Float(aligned(xf[a:b], np.float32))
+            y = mi.Float(aligned(yf[a:b], np.float32))
+            key = mi.UInt32(aligned(keys[a:b], np.uint32))
             if self.use_freeze:
-                cfg = (id(P), id(scene), want, int(self.max_depth), float(self.min_weight),
-                       tuning.current().key())
-                out = self._call_frozen(self._frozen_fn(), P, scene, sid, dr.opaque(mi.UInt32, n), spp_, seeds,
-                                        cfg, self._frozen_inputs(P))
-                total, cost, counters = out[0], out[1], out[-1]
-                t0, s0, n0 = out[2:5] if want else (None, None, None)
+                cfg = (id(P), id(scene), int(self.max_depth), float(self.min_weight), tuning.current().key())
+                total, c, counters = self._call_frozen(self._frozen_points_fn(), P, scene, x, y, key,
+                                                       dr.opaque(mi.UInt32, b - a), cfg,
+                                                       self._frozen_inputs(P))
             else:
-                o, d, tmin, tmax, key, _ = self._camera_rays(P, sid, spp_, seeds)
-                total, cost, t0, s0, n0, counters = self._trace_tree(P, scene, o, d, tmin, tmax, key, want)
-            part = {"total": widen(total, n), "cost": widen(cost, n)}
-            if want:
-                part.update(t0=widen(t0, n), s0=widen(s0, n), n0=widen(n0, n))
-            return part, self._launch_counts(n, counters)
-
-        def render_adaptive(self, scene, window=None, seed=None, aovs=None, threshold=None, depth=None,
-                            sensor=None):
-            """Adaptive anti-aliasing of ``window`` (:func:`links1.adaptive.render_adaptive_window`,
-            as the core): one :meth:`trace_points` launch per refinement level; AOVs depth,
-            normal, id at the pixel centres (an spp-1 :meth:`render_window`)."""
-            from links1.tracing.adaptive import render_adaptive_window
-            P = self.prepare(scene, sensor)
-            sensor = P.sensor
-            W, H = P.film_size
-            win = (0, 0, W, H) if window is None else tuple(int(v) for v in window)
-            seed = self.seed if seed is None else int(seed)
-            aovs = self.aovs if aovs is None else parse_aovs(aovs)
-            threshold = self.adaptive if threshold is None else threshold
-            depth = self.adaptive_depth if depth is None else depth
-            if threshold is None:
-                raise ValueError("links1_whitted: no adaptive threshold (give adaptive=...)")
-            return render_adaptive_window(
-                lambda xf, yf, keys: self.trace_points(scene, xf, yf, keys, sensor=sensor),
-                lambda w, names: self.render_window(scene, w, spp=1, seed=seed, aovs=list(names),
-                                                    sensor=sensor)[..., 3:],
-                win, (W, H), threshold, depth, seed, aovs, rfilter=P.rfilter)
-
-        def render_window(self, scene, window=None, spp=1, seed=None, aovs=None, sensor=None):
-            """Render ``window = (x0, y0, w, h)`` of the full film (row 0 at the top).
-
-            Returns a float64 ndarray ``(h, w, 3 + aov channels)``: the pixel's ``spp`` samples
-            at the positions of :mod:`links1.sampling` and those of its neighbours within the
-            film's reconstruction filter, weighted by it (:mod:`links1.filters`; box: the mean).
-            ``sensor``: an index into ``scene.sensors()`` or a sensor object (None: the first):
-            its camera, film size and filter (:meth:`prepare`).
-            """
-            return self.render_windows(scene, [window], spp=spp, seed=seed, aovs=aovs, sensor=sensor)[0]
-
-        def window_samples(self, scene, window=None, spp=1, seed=None, aovs=None, sensor=None):
-            """The samples a window's pixels are made of, as numpy (for checks and debugging):
-            ``(sample_window, {"total": (sh, sw, spp, 3), "cost": (sh, sw, spp)`` and with AOVs
-            ``"t0", "s0", "n0"``: the launch's per-sample outputs, float32 / int32``})``."""
-            P = self.prepare(scene, sensor)
-            W, H = P.film_size
-            win = (0, 0, W, H) if window is None else tuple(int(v) for v in window)
-            swin = win if P.rfilter.border == 0 else sample_window(P.rfilter, win, (W, H))
-            seed = self.seed if seed is None else int(seed)
-            want = bool(self.aovs if aovs is None else parse_aovs(aovs))
-            sid = film["sample_ids"](W, int(spp), [swin])
-            part, _ = self._launch(P, scene, sid, (dr.opaque(mi.UInt32, spp), dr.opaque(mi.UInt32, strata(spp))),
-                                   (dr.opaque(mi.UInt32, seed & 0xFFFFFFFF),
-                                    dr.opaque(mi.UInt32, (seed * 0x27D4EB2F + 0x165667B1) & 0xFFFFFFFF)), want)
-            shape = (swin[3], swin[2], int(spp))
-            out = {k: (np.stack([np.asarray(v[c]) for c in range(3)], axis=-1) if dr.size_v(v) == 3
-                       else np.asarray(v)).reshape(shape + ((3,) if dr.size_v(v) == 3 else ()))
-                   for k, v in part.items()}
-            return swin, out
-
-        def render_windows(self, scene, windows, spp=1, seed=None, aovs=None, sensor=None):
-            """Render several windows of the film in one launch -> one float64 ndarray ``(h, w,
-            3 + aov channels)`` per window, each exactly what :meth:`render_window` returns for it
-            (pixels are independent lanes). The frame is made on the device
-            (:meth:`render_windows_device`) and copied to numpy once per window at the end."""
-            outs = self.render_windows_device(scene, windows, spp=spp, seed=seed, aovs=aovs, sensor=sensor,
-                                              dtype=mi.Float64)
-            dr.eval(*(o.array for o in outs))
-            return [o.numpy() for o in outs]
-
-        def render_windows_device(self, scene, windows, spp=1, seed=None, aovs=None, sensor=None,
-                                  dtype=None, tables=None):
-            """:meth:`render_windows` on the device: one tensor ``(h, w, C)`` per window, of
-            ``dtype`` (``mi.Float``: ``mi.TensorXf``; ``mi.Float64``: ``mi.TensorXf64``), never
-            visiting numpy (:mod:`links1_mitsuba.film`: sample ids, the reconstruction filter, spp
-            and AOVs in Dr.Jit).
-
-            The pixel set reaches the kernels as a ``UInt32`` array of sample ids made on the
-            device from opaque window values, so no window offset, window size, batch size or
-            sample count enters the recorded kernels: one recording per configuration, then
-            replays (:meth:`_frozen_fn`); the film's kernels are cached likewise. ``tables``: the
-            prepared tables to use instead of :meth:`prepare`'s (a derivative pass's, gradients.py).
-            """
-            P = self.prepare(scene, sensor) if tables is None else tables
-            W, H = P.film_size
-            wins = []
-            for window in windows:
-                x0, y0, w, h = (0, 0, W, H) if window is None else (int(v) for v in window)
-                if not (0 <= x0 and 0 <= y0 and w > 0 and h > 0 and x0 + w <= W and y0 + h <= H):
-                    raise ValueError(f"window {window} is outside the {W}x{H} film")
-                wins.append((x0, y0, w, h))
-            spp = int(spp)
-            if W * H * spp >= 2 ** 32:
-                raise ValueError(f"{W}x{H} pixels x {spp} samples exceed the 32-bit sample ids")
-            seed = self.seed if seed is None else int(seed)
-            aovs = self.aovs if aovs is None else parse_aovs(aovs)
-            ad = getattr(P, "ad", False)
-            if ad:
-                aovs = []   # a derivative pass differentiates the RGB channels
-            want = bool(aovs)
-            dtype = mi.Float if dtype is None else dtype
-            # each window traces the samples of its filter border too (clipped to the film)
-            box = P.rfilter.border == 0
-            swins = wins if box else [sample_window(P.rfilter, win, (W, H)) for win in wins]
-            n = sum(w * h for _, _, w, h in swins) * spp
-            sid = film["sample_ids"](W, spp, swins)
-            spp_ = (dr.opaque(mi.UInt32, spp), dr.opaque(mi.UInt32, strata(spp)))
-            seeds = (dr.opaque(mi.UInt32, seed & 0xFFFFFFFF),
-                     dr.opaque(mi.UInt32, (seed * 0x27D4EB2F + 0x165667B1) & 0xFFFFFFFF))
-            # launches of at most LAUNCH_LANES samples (lanes are independent: the same bits as
-            # one launch); one launch of W*H*spp lanes needs ~90 bytes each (512², 1024 spp: 24 GB)
-            if n <= LAUNCH_LANES:
-                parts, counts = self._launch(P, scene, sid, spp_, seeds, want)
-                counts = [counts]
-            else:
-                dr.eval(sid)
-                lanes = lambda a: dr.arange(mi.UInt32, min(LAUNCH_LANES, n - a)) + dr.opaque(mi.UInt32, a)  # noqa: E731
-                chunks = [self._launch(P, scene, dr.gather(mi.UInt32, sid, lanes(a)), spp_, seeds, want)
-                          for a in range(0, n, LAUNCH_LANES)]
-                counts = [c for _, c in chunks]
-                parts = {}
-                for key in chunks[0][0]:
-                    vals = [q[key] for q, _ in chunks]
-                    if dr.size_v(vals[0]) == 3:
-                        parts[key] = type(vals[0])(*(concat([v[k] for v in vals], n, type(vals[0][k]))
-                                                     for k in range(3)))
-                    else:
-                        parts[key] = concat(vals, n, type(vals[0]))
+                o, d, tmin, tmax = self._rays_at(P, x, y)
+                total, c, _, _, _, counters = self._trace_tree(P, scene, o, d, tmin, tmax, key, False)
+            L.append(_columns(total, b - a).astype(np.float64))
+            cost.append(_lanes(c, b - a).astype(np.float64))
+            counts.append(self._launch_counts(b - a, counters))
+        if counts:
             self._set_stats(counts)
-            out, start = [], 0
-            Tensor = mi.TensorXf64 if dtype is mi.Float64 else mi.TensorXf
-            for win, swin in zip(wins, swins):
-                flat, C = film["reconstruct"](P.rfilter, (W, H), spp, seed, win, swin, start, parts, aovs, dtype,
-                                               mode="evaluated" if ad else None)
-                out.append(Tensor(flat, shape=(win[3], win[2], C)))
-                start += swin[2] * swin[3] * spp
-            return out
+        return np.concatenate(L), np.concatenate(cost)
 
-    return Launches
+    def _launch(self, P, scene, sid, spp_, seeds, want):
+        """One launch over the sample ids ``sid`` (a ``UInt32`` array) -> (its device outputs
+        ``total``, ``cost`` and with ``want`` ``t0``, ``s0``, ``n0``, each with one lane per
+        sample; its ray counters)."""
+        n = dr.width(sid)
+        if getattr(P, "ad", False):   # a derivative pass (gradients.py): unfrozen, no AOVs
+            o, d, tmin, tmax, key, _ = self._camera_rays(P, sid, spp_, seeds)
+            total = self._trace_tree_ad(P, scene, o, d, tmin, tmax, key)
+            return {"total": total, "cost": dr.zeros(mi.UInt32, n)}, (n, dict(nsh1=None))
+        if self.use_freeze:
+            cfg = (id(P), id(scene), want, int(self.max_depth), float(self.min_weight),
+                   tuning.current().key())
+            out = self._call_frozen(self._frozen_fn(), P, scene, sid, dr.opaque(mi.UInt32, n), spp_, seeds,
+                                    cfg, self._frozen_inputs(P))
+            total, cost, counters = out[0], out[1], out[-1]
+            t0, s0, n0 = out[2:5] if want else (None, None, None)
+        else:
+            o, d, tmin, tmax, key, _ = self._camera_rays(P, sid, spp_, seeds)
+            total, cost, t0, s0, n0, counters = self._trace_tree(P, scene, o, d, tmin, tmax, key, want)
+        part = {"total": widen(total, n), "cost": widen(cost, n)}
+        if want:
+            part.update(t0=widen(t0, n), s0=widen(s0, n), n0=widen(n0, n))
+        return part, self._launch_counts(n, counters)
+
+    def render_adaptive(self, scene, window=None, seed=None, aovs=None, threshold=None, depth=None,
+                        sensor=None):
+        """Adaptive anti-aliasing of ``window`` (:func:`links1.tracing.adaptive.render_adaptive_window`,
+        as the core): one :meth:`trace_points` launch per refinement level; AOVs depth,
+        normal, id at the pixel centres (an spp-1 :meth:`render_window`)."""
+        from links1.tracing.adaptive import render_adaptive_window
+        P = self.prepare(scene, sensor)
+        sensor = P.sensor
+        W, H = P.film_size
+        win = (0, 0, W, H) if window is None else tuple(int(v) for v in window)
+        seed = self.seed if seed is None else int(seed)
+        aovs = self.aovs if aovs is None else parse_aovs(aovs)
+        threshold = self.adaptive if threshold is None else threshold
+        depth = self.adaptive_depth if depth is None else depth
+        if threshold is None:
+            raise ValueError("links1_whitted: no adaptive threshold (give adaptive=...)")
+        return render_adaptive_window(
+            lambda xf, yf, keys: self.trace_points(scene, xf, yf, keys, sensor=sensor),
+            lambda w, names: self.render_window(scene, w, spp=1, seed=seed, aovs=list(names),
+                                                sensor=sensor)[..., 3:],
+            win, (W, H), threshold, depth, seed, aovs, rfilter=P.rfilter)
+
+    def render_window(self, scene, window=None, spp=1, seed=None, aovs=None, sensor=None):
+        """Render ``window = (x0, y0, w, h)`` of the full film (row 0 at the top).
+
+        Returns a float64 ndarray ``(h, w, 3 + aov channels)``: the pixel's ``spp`` samples
+        at the positions of :mod:`links1.maths.sampling` and those of its neighbours within the
+        film's reconstruction filter, weighted by it (:mod:`links1.sensor.filters`; box: the mean).
+        ``sensor``: an index into ``scene.sensors()`` or a sensor object (None: the first):
+        its camera, film size and filter (:meth:`prepare`).
+        """
+        return self.render_windows(scene, [window], spp=spp, seed=seed, aovs=aovs, sensor=sensor)[0]
+
+    def window_samples(self, scene, window=None, spp=1, seed=None, aovs=None, sensor=None):
+        """The samples a window's pixels are made of, as numpy (for checks and debugging):
+        ``(sample_window, {"total": (sh, sw, spp, 3), "cost": (sh, sw, spp)`` and with AOVs
+        ``"t0", "s0", "n0"``: the launch's per-sample outputs, float32 / int32``})``."""
+        P = self.prepare(scene, sensor)
+        W, H = P.film_size
+        win = (0, 0, W, H) if window is None else tuple(int(v) for v in window)
+        swin = win if P.rfilter.border == 0 else sample_window(P.rfilter, win, (W, H))
+        seed = self.seed if seed is None else int(seed)
+        want = bool(self.aovs if aovs is None else parse_aovs(aovs))
+        sid = sample_ids(W, int(spp), [swin])
+        part, _ = self._launch(P, scene, sid, (dr.opaque(mi.UInt32, spp), dr.opaque(mi.UInt32, strata(spp))),
+                               (dr.opaque(mi.UInt32, seed & 0xFFFFFFFF),
+                                dr.opaque(mi.UInt32, (seed * 0x27D4EB2F + 0x165667B1) & 0xFFFFFFFF)), want)
+        shape = (swin[3], swin[2], int(spp))
+        out = {k: (np.stack([np.asarray(v[c]) for c in range(3)], axis=-1) if dr.size_v(v) == 3
+                   else np.asarray(v)).reshape(shape + ((3,) if dr.size_v(v) == 3 else ()))
+               for k, v in part.items()}
+        return swin, out
+
+    def render_windows(self, scene, windows, spp=1, seed=None, aovs=None, sensor=None):
+        """Render several windows of the film in one launch -> one float64 ndarray ``(h, w,
+        3 + aov channels)`` per window, each exactly what :meth:`render_window` returns for it
+        (pixels are independent lanes). The frame is made on the device
+        (:meth:`render_windows_device`) and copied to numpy once per window at the end."""
+        outs = self.render_windows_device(scene, windows, spp=spp, seed=seed, aovs=aovs, sensor=sensor,
+                                          dtype=mi.Float64)
+        dr.eval(*(o.array for o in outs))
+        return [o.numpy() for o in outs]
+
+    def render_windows_device(self, scene, windows, spp=1, seed=None, aovs=None, sensor=None,
+                              dtype=None, tables=None):
+        """:meth:`render_windows` on the device: one tensor ``(h, w, C)`` per window, of
+        ``dtype`` (``mi.Float``: ``mi.TensorXf``; ``mi.Float64``: ``mi.TensorXf64``), never
+        visiting numpy (:mod:`links1_mitsuba.film`: sample ids, the reconstruction filter, spp
+        and AOVs in Dr.Jit).
+
+        The pixel set reaches the kernels as a ``UInt32`` array of sample ids made on the
+        device from opaque window values, so no window offset, window size, batch size or
+        sample count enters the recorded kernels: one recording per configuration, then
+        replays (:meth:`_frozen_fn`); the film's kernels are cached likewise. ``tables``: the
+        prepared tables to use instead of :meth:`prepare`'s (a derivative pass's, gradients.py).
+        """
+        P = self.prepare(scene, sensor) if tables is None else tables
+        W, H = P.film_size
+        wins = []
+        for window in windows:
+            x0, y0, w, h = (0, 0, W, H) if window is None else (int(v) for v in window)
+            if not (0 <= x0 and 0 <= y0 and w > 0 and h > 0 and x0 + w <= W and y0 + h <= H):
+                raise ValueError(f"window {window} is outside the {W}x{H} film")
+            wins.append((x0, y0, w, h))
+        spp = int(spp)
+        if W * H * spp >= 2 ** 32:
+            raise ValueError(f"{W}x{H} pixels x {spp} samples exceed the 32-bit sample ids")
+        seed = self.seed if seed is None else int(seed)
+        aovs = self.aovs if aovs is None else parse_aovs(aovs)
+        ad = getattr(P, "ad", False)
+        if ad:
+            aovs = []   # a derivative pass differentiates the RGB channels
+        want = bool(aovs)
+        dtype = mi.Float if dtype is None else dtype
+        # each window traces the samples of its filter border too (clipped to the film)
+        box = P.rfilter.border == 0
+        swins = wins if box else [sample_window(P.rfilter, win, (W, H)) for win in wins]
+        n = sum(w * h for _, _, w, h in swins) * spp
+        sid = sample_ids(W, spp, swins)
+        spp_ = (dr.opaque(mi.UInt32, spp), dr.opaque(mi.UInt32, strata(spp)))
+        seeds = (dr.opaque(mi.UInt32, seed & 0xFFFFFFFF),
+                 dr.opaque(mi.UInt32, (seed * 0x27D4EB2F + 0x165667B1) & 0xFFFFFFFF))
+        # launches of at most LAUNCH_LANES samples (lanes are independent: the same bits as
+        # one launch); one launch of W*H*spp lanes needs ~90 bytes each (512², 1024 spp: 24 GB)
+        if n <= LAUNCH_LANES:
+            parts, counts = self._launch(P, scene, sid, spp_, seeds, want)
+            counts = [counts]
+        else:
+            dr.eval(sid)
+            lanes = lambda a: dr.arange(mi.UInt32, min(LAUNCH_LANES, n - a)) + dr.opaque(mi.UInt32, a)  # noqa: E731
+            chunks = [self._launch(P, scene, dr.gather(mi.UInt32, sid, lanes(a)), spp_, seeds, want)
+                      for a in range(0, n, LAUNCH_LANES)]
+            counts = [c for _, c in chunks]
+            parts = {}
+            for key in chunks[0][0]:
+                vals = [q[key] for q, _ in chunks]
+                if dr.size_v(vals[0]) == 3:
+                    parts[key] = type(vals[0])(*(concat([v[k] for v in vals], n, type(vals[0][k]))
+                                                 for k in range(3)))
+                else:
+                    parts[key] = concat(vals, n, type(vals[0]))
+        self._set_stats(counts)
+        out, start = [], 0
+        Tensor = mi.TensorXf64 if dtype is mi.Float64 else mi.TensorXf
+        for win, swin in zip(wins, swins):
+            flat, C = reconstruct(P.rfilter, (W, H), spp, seed, win, swin, start, parts, aovs, dtype,
+                                           mode="evaluated" if ad else None)
+            out.append(Tensor(flat, shape=(win[3], win[2], C)))
+            start += swin[2] * swin[3] * spp
+        return out

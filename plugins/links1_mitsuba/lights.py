@@ -1,12 +1,12 @@
 """The lights of ``links1_whitted`` (their one home): analytic lights evaluated at the hits
 (``_light``: links1 point and spot lights, Mitsuba point, spot and directional emitters),
-area emitters and environment maps as the core's :mod:`links1.lights` tables
+area emitters and environment maps as the core's :mod:`links1.shading.lights` tables
 (``_area_table``, ``_envmap_table``) sampled in float32 (``_sample_area``, ``_sample_env``)
 at the core's light-sample points (``_light_uv``), and the RGB of Mitsuba emitters
 (``_emitted_rgb``, read by ``prepare``).
 
-:func:`define_lights` returns a class whose methods ``Links1Whitted`` takes (defined in a
-function, as the integrator, because the Mitsuba variant must be set first).
+:class:`Lights` is a mixin whose methods ``Links1Whitted`` takes (integrator.py); they name
+``mi.Float``, ``mi.Ray3f``, ... when called, so the class serves every Mitsuba variant.
 """
 from __future__ import annotations
 
@@ -17,13 +17,16 @@ import numpy as np
 
 from links1.maths.sampling import light_tag
 
-from .util import INF
+import drjit as dr
+import mitsuba as mi
+
+from .util import INF, c3, mix32, u24, v3
 
 
 def _emitted_rgb(prm, key: str, kind: str, where: str = "links1_whitted") -> np.ndarray:
     """An emitter's RGB ``key`` from ``mi.traverse``: its value, or for a ``blackbody`` spectrum
     (which Mitsuba's RGB variants cannot evaluate) the colour the core uses
-    (:func:`links1.spectra.blackbody_to_rgb`, with a warning)."""
+    (:func:`links1.shading.spectra.blackbody_to_rgb`, with a warning)."""
     if f"{key}.value" in prm:
         v = np.array(prm[f"{key}.value"], dtype=np.float64).ravel()
         return np.broadcast_to(v, (3,)).copy() if v.size == 1 else v
@@ -39,235 +42,228 @@ def _emitted_rgb(prm, key: str, kind: str, where: str = "links1_whitted") -> np.
                      "(textured emitters are not supported)")
 
 
+class Lights:
+    """Analytic lights at a hit; area and environment lights: tables and samples."""
 
-def define_lights(mi, dr, util):
-    """The ``Lights`` part of ``Links1Whitted`` for the variant in use."""
-    mix32, u24, c3, v3 = util.mix32, util.u24, util.c3, util.v3
+    # -------------------------------------------------------------- lights
+    @staticmethod
+    def _toward(pos, axis, p):
+        """Unit direction from ``p`` to the point light at ``pos``, the distance, and the
+        cosine between the light's ``axis`` and the direction from the light to ``p``."""
+        to_light = v3(pos) - p
+        dist = dr.norm(to_light)
+        wi = to_light / dr.maximum(dist, 1e-30)
+        return wi, dist, -dr.dot(wi, v3(axis))
 
-    class Lights:
-        """Analytic lights at a hit; area and environment lights: tables and samples."""
+    def _light(self, L, p):
+        """(wi, dist, L_s) of one analytic light at points p (docs/method.md §4.1)."""
+        kind = L[0]
+        if kind == "point":
+            _, pos, direction, L1, L2, inv_sq = L
+            wi, dist, cos_theta = self._toward(pos, direction, p)
+            Ls = c3(L1)
+            if dr.is_array_v(L2) or np.any(L2 != 0):   # an attached L2 (gradients.py)
+                Ls = Ls + c3(L2) * dr.maximum(cos_theta, 0.0)  # eq. (3.10)
+            if inv_sq:
+                Ls = Ls / dr.square(dist)
+            return wi, dist, dr.select(dist > 0, Ls, 0.0)
+        if kind == "dir":
+            _, direction, E = L
+            n = dr.width(p)
+            wi = dr.zeros(mi.Vector3f, n) - v3(direction)
+            return wi, dr.full(mi.Float, INF, n), dr.zeros(mi.Color3f, n) + c3(E)
+        if kind == "cspot":
+            _, origin, direction, radius, I = L
+            axis = v3(direction)
+            rel = p - v3(origin)
+            s = dr.dot(rel, axis)
+            radial = rel - axis * s
+            inside = (s > 0) & (dr.squared_norm(radial) <= radius * radius)
+            return -axis + mi.Vector3f(dr.zeros(mi.Float, dr.width(p))), dr.select(inside, s, 0.0), \
+                dr.select(inside, c3(I), 0.0)
+        if kind == "mspot":
+            _, pos, axis, I, cutoff, beam = L
+            wi, dist, cos_theta = self._toward(pos, axis, p)
+            co, cb = math.radians(cutoff), math.radians(beam)
+            ramp = dr.select(cos_theta >= math.cos(cb), 1.0,
+                             (co - dr.acos(dr.clip(cos_theta, -1.0, 1.0))) / max(co - cb, 1e-30))
+            ramp = dr.select(cos_theta > math.cos(co), ramp, 0.0)
+            return wi, dist, c3(I) * (ramp / dr.maximum(dr.square(dist), 1e-30))
+        if kind == "memitter":   # a Mitsuba delta emitter evaluated by Mitsuba (textured spot)
+            it = dr.zeros(mi.Interaction3f, dr.width(p))
+            it.p = p
+            ds, spec = L[2].sample_direction(it, mi.Point2f(0.5, 0.5), True)
+            return ds.d, ds.dist, mi.Color3f(spec)
+        raise AssertionError(kind)
 
-        # -------------------------------------------------------------- lights
-        @staticmethod
-        def _toward(pos, axis, p):
-            """Unit direction from ``p`` to the point light at ``pos``, the distance, and the
-            cosine between the light's ``axis`` and the direction from the light to ``p``."""
-            to_light = v3(pos) - p
-            dist = dr.norm(to_light)
-            wi = to_light / dr.maximum(dist, 1e-30)
-            return wi, dist, -dr.dot(wi, v3(axis))
-
-        def _light(self, L, p):
-            """(wi, dist, L_s) of one analytic light at points p (docs/method.md §4.1)."""
-            kind = L[0]
-            if kind == "point":
-                _, pos, direction, L1, L2, inv_sq = L
-                wi, dist, cos_theta = self._toward(pos, direction, p)
-                Ls = c3(L1)
-                if dr.is_array_v(L2) or np.any(L2 != 0):   # an attached L2 (gradients.py)
-                    Ls = Ls + c3(L2) * dr.maximum(cos_theta, 0.0)  # eq. (3.10)
-                if inv_sq:
-                    Ls = Ls / dr.square(dist)
-                return wi, dist, dr.select(dist > 0, Ls, 0.0)
-            if kind == "dir":
-                _, direction, E = L
-                n = dr.width(p)
-                wi = dr.zeros(mi.Vector3f, n) - v3(direction)
-                return wi, dr.full(mi.Float, INF, n), dr.zeros(mi.Color3f, n) + c3(E)
-            if kind == "cspot":
-                _, origin, direction, radius, I = L
-                axis = v3(direction)
-                rel = p - v3(origin)
-                s = dr.dot(rel, axis)
-                radial = rel - axis * s
-                inside = (s > 0) & (dr.squared_norm(radial) <= radius * radius)
-                return -axis + mi.Vector3f(dr.zeros(mi.Float, dr.width(p))), dr.select(inside, s, 0.0), \
-                    dr.select(inside, c3(I), 0.0)
-            if kind == "mspot":
-                _, pos, axis, I, cutoff, beam = L
-                wi, dist, cos_theta = self._toward(pos, axis, p)
-                co, cb = math.radians(cutoff), math.radians(beam)
-                ramp = dr.select(cos_theta >= math.cos(cb), 1.0,
-                                 (co - dr.acos(dr.clip(cos_theta, -1.0, 1.0))) / max(co - cb, 1e-30))
-                ramp = dr.select(cos_theta > math.cos(co), ramp, 0.0)
-                return wi, dist, c3(I) * (ramp / dr.maximum(dr.square(dist), 1e-30))
-            if kind == "memitter":   # a Mitsuba delta emitter evaluated by Mitsuba (textured spot)
-                it = dr.zeros(mi.Interaction3f, dr.width(p))
-                it.p = p
-                ds, spec = L[2].sample_direction(it, mi.Point2f(0.5, 0.5), True)
-                return ds.d, ds.dist, mi.Color3f(spec)
-            raise AssertionError(kind)
-
-        # -------------------------------------------------------------- area lights, environments
-        def _area_table(self, e, shapes, slot_list):
-            """The core's :class:`links1.lights.AreaLight` for a Mitsuba area emitter (same triangles,
-            CDF, sphere, disk), as Dr.Jit tables; None (with a warning) when it cannot be sampled."""
-            from links1.geometry import meshes
-            from links1.shading.lights import AreaLight
-            from links1.geometry.shapes import Disk, Quadric, TriangleMesh
-            sh = e.get_shape()
-            kind = str(sh).split("[")[0]
-            slot = next((sl for s_, sl in zip(shapes, slot_list) if s_.id() == sh.id()), None)
-            rad = np.array(mi.traverse(e)["radiance.value"], dtype=np.float64).ravel()
-            try:
-                prm = mi.traverse(sh)
-                if kind not in ("Rectangle", "Sphere", "Disk") and sh.is_mesh():
-                    v = np.array(sh.vertex_positions_buffer(), dtype=np.float64).reshape(-1, 3)
-                    f = np.array(sh.faces_buffer(), dtype=np.int64).reshape(-1, 3)
+    # -------------------------------------------------------------- area lights, environments
+    def _area_table(self, e, shapes, slot_list):
+        """The core's :class:`links1.shading.lights.AreaLight` for a Mitsuba area emitter (same triangles,
+        CDF, sphere, disk), as Dr.Jit tables; None (with a warning) when it cannot be sampled."""
+        from links1.geometry import meshes
+        from links1.shading.lights import AreaLight
+        from links1.geometry.shapes import Disk, Quadric, TriangleMesh
+        sh = e.get_shape()
+        kind = str(sh).split("[")[0]
+        slot = next((sl for s_, sl in zip(shapes, slot_list) if s_.id() == sh.id()), None)
+        rad = np.array(mi.traverse(e)["radiance.value"], dtype=np.float64).ravel()
+        try:
+            prm = mi.traverse(sh)
+            if kind not in ("Rectangle", "Sphere", "Disk") and sh.is_mesh():
+                v = np.array(sh.vertex_positions_buffer(), dtype=np.float64).reshape(-1, 3)
+                f = np.array(sh.faces_buffer(), dtype=np.int64).reshape(-1, 3)
+                core = TriangleMesh(v, f)
+            else:
+                m = np.array(prm["to_world"].matrix, dtype=np.float64).reshape(4, 4)
+                if kind == "Rectangle":
+                    v, f, nrm = meshes.rectangle_mesh()
+                    v, nrm = meshes.transform_mesh(m, v, nrm)
                     core = TriangleMesh(v, f)
+                elif kind == "Sphere":
+                    core = Quadric("sphere", m)
+                elif kind == "Disk":
+                    core = Disk(m)
                 else:
-                    m = np.array(prm["to_world"].matrix, dtype=np.float64).reshape(4, 4)
-                    if kind == "Rectangle":
-                        v, f, nrm = meshes.rectangle_mesh()
-                        v, nrm = meshes.transform_mesh(m, v, nrm)
-                        core = TriangleMesh(v, f)
-                    elif kind == "Sphere":
-                        core = Quadric("sphere", m)
-                    elif kind == "Disk":
-                        core = Disk(m)
-                    else:
-                        raise ValueError(f"the plugin cannot sample an area emitter on a {kind}")
-                core.index = -1 if slot is None else slot
-                L = AreaLight(core, np.broadcast_to(rad, (3,)))
-            except (ValueError, KeyError) as exc:
-                warnings.warn(f"{self.place(e, f'links1_whitted: area emitter on {sh.id()!r}')}: "
-                              f"it lights nothing: {exc}",
-                              stacklevel=3)
-                return None
-            tab = dict(kind=L.kind, id=L.light_id, slot=slot, L=L.radiance)
-            if L.kind == "mesh":
-                tab.update(cdf=mi.Float(L.cdf), v0=mi.Float(L.v0.ravel()), v1=mi.Float(L.v1.ravel()),
-                           v2=mi.Float(L.v2.ravel()), nrm=mi.Float(L.normals.ravel()), n=len(L.cdf),
-                           area=float(L.area))
-            elif L.kind == "sphere":
-                tab.update(c=L.center, r=float(L.r))
-            else:
-                tab.update(m=L.m.tolist(), nrm_d=L.normal, area=float(L.area))
-            return tab
+                    raise ValueError(f"the plugin cannot sample an area emitter on a {kind}")
+            core.index = -1 if slot is None else slot
+            L = AreaLight(core, np.broadcast_to(rad, (3,)))
+        except (ValueError, KeyError) as exc:
+            warnings.warn(f"{self.place(e, f'links1_whitted: area emitter on {sh.id()!r}')}: "
+                          f"it lights nothing: {exc}",
+                          stacklevel=3)
+            return None
+        tab = dict(kind=L.kind, id=L.light_id, slot=slot, L=L.radiance)
+        if L.kind == "mesh":
+            tab.update(cdf=mi.Float(L.cdf), v0=mi.Float(L.v0.ravel()), v1=mi.Float(L.v1.ravel()),
+                       v2=mi.Float(L.v2.ravel()), nrm=mi.Float(L.normals.ravel()), n=len(L.cdf),
+                       area=float(L.area))
+        elif L.kind == "sphere":
+            tab.update(c=L.center, r=float(L.r))
+        else:
+            tab.update(m=L.m.tolist(), nrm_d=L.normal, area=float(L.area))
+        return tab
 
-        def _envmap_table(self, e):
-            """The core's :class:`links1.lights.EnvironmentMap` from Mitsuba's own data (its periodic
-            columns dropped), to_world and scale, with its CDFs as Dr.Jit tables."""
-            from links1.shading.lights import EnvironmentMap
-            prm = mi.traverse(e)
-            data = np.array(prm["data"], dtype=np.float64)
-            m = np.array(prm["to_world"].matrix, dtype=np.float64).reshape(4, 4)
-            scale = float(np.array(prm["scale"]).ravel()[0])
-            # Mitsuba 3.9.1 pads a periodic column on each side (its eval matches the core's, tested)
-            E = EnvironmentMap(data[:, 1:-1], to_world=m, scale=scale)
-            return dict(E=E, nodes=mi.Float(E.nodes.ravel()), row=mi.Float(E.row_cdf),
-                        col=mi.Float(E.col_cdf.ravel()), pcell=mi.Float(E.p_cell.ravel()))
+    def _envmap_table(self, e):
+        """The core's :class:`links1.shading.lights.EnvironmentMap` from Mitsuba's own data (its periodic
+        columns dropped), to_world and scale, with its CDFs as Dr.Jit tables."""
+        from links1.shading.lights import EnvironmentMap
+        prm = mi.traverse(e)
+        data = np.array(prm["data"], dtype=np.float64)
+        m = np.array(prm["to_world"].matrix, dtype=np.float64).reshape(4, 4)
+        scale = float(np.array(prm["scale"]).ravel()[0])
+        # Mitsuba 3.9.1 pads a periodic column on each side (its eval matches the core's, tested)
+        E = EnvironmentMap(data[:, 1:-1], to_world=m, scale=scale)
+        return dict(E=E, nodes=mi.Float(E.nodes.ravel()), row=mi.Float(E.row_cdf),
+                    col=mi.Float(E.col_cdf.ravel()), pcell=mi.Float(E.p_cell.ravel()))
 
-        def _sample_area(self, tab, p, u, v):
-            """``AreaLight.sample`` of the core in float32: (wi, dist, L_e / pdf)."""
-            Le = c3(tab["L"])
-            if tab["kind"] == "sphere":
-                c, r = v3(tab["c"]), float(tab["r"])
-                to_c = c - p
-                dc2 = dr.squared_norm(to_c)
-                dc = dr.sqrt(dc2)
-                outside = dc > r
-                axis = to_c / dr.select(dc > 0, dc, 1.0)
-                sin2 = dr.minimum(r * r / dr.select(outside, dc2, 1.0), 1.0)
-                cos_max = dr.sqrt(1.0 - sin2)
-                one_minus = sin2 / (1.0 + cos_max)
-                cos_t = 1.0 - u * one_minus
-                sin_t = dr.safe_sqrt(1.0 - cos_t * cos_t)
-                sp_, cp_ = dr.sincos(2.0 * math.pi * v)
-                fr = mi.Frame3f(axis)
-                wi = fr.s * (sin_t * cp_) + fr.t * (sin_t * sp_) + axis * cos_t
-                dist = dc * cos_t - dr.safe_sqrt(r * r - dc2 * sin_t * sin_t)
-                w = dr.select(outside, 2.0 * math.pi * one_minus, 0.0)
-                return wi, dr.select(outside, dist, 0.0), Le * w
-            if tab["kind"] == "mesh":
-                cdf, nt = tab["cdf"], tab["n"]
-                k = dr.binary_search(0, nt - 1, lambda i: dr.gather(mi.Float, cdf, i) <= u)
-                hi = dr.gather(mi.Float, cdf, k)
-                lo = dr.select(k > 0, dr.gather(mi.Float, cdf, dr.maximum(k, 1) - 1), 0.0)
-                u2 = dr.clip((u - lo) / dr.maximum(hi - lo, 1e-30), 0.0, 1.0)
-                su = dr.sqrt(u2)
-                b0 = 1.0 - su
-                b1 = v * su
-                q = (dr.gather(mi.Vector3f, tab["v0"], k) * b0 + dr.gather(mi.Vector3f, tab["v1"], k) * b1
-                     + dr.gather(mi.Vector3f, tab["v2"], k) * (1.0 - b0 - b1))
-                nl = dr.gather(mi.Vector3f, tab["nrm"], k)
-            else:
-                m = tab["m"]
-                rr = dr.sqrt(u)
-                sp_, cp_ = dr.sincos(2.0 * math.pi * v)
-                x, y = rr * cp_, rr * sp_
-                q = mi.Vector3f(*[m[i][0] * x + m[i][1] * y + m[i][3] for i in range(3)])
-                nl = v3(tab["nrm_d"])
-            to = q - p
-            d2 = dr.squared_norm(to)
-            dist = dr.sqrt(d2)
-            wi = to / dr.select(dist > 0, dist, 1.0)
-            cos_l = -dr.dot(nl, wi)
-            w = dr.select((cos_l > 0) & (d2 > 0), tab["area"] * cos_l / dr.select(d2 > 0, d2, 1.0), 0.0)
-            return wi, dist, Le * w
+    def _sample_area(self, tab, p, u, v):
+        """``AreaLight.sample`` of the core in float32: (wi, dist, L_e / pdf)."""
+        Le = c3(tab["L"])
+        if tab["kind"] == "sphere":
+            c, r = v3(tab["c"]), float(tab["r"])
+            to_c = c - p
+            dc2 = dr.squared_norm(to_c)
+            dc = dr.sqrt(dc2)
+            outside = dc > r
+            axis = to_c / dr.select(dc > 0, dc, 1.0)
+            sin2 = dr.minimum(r * r / dr.select(outside, dc2, 1.0), 1.0)
+            cos_max = dr.sqrt(1.0 - sin2)
+            one_minus = sin2 / (1.0 + cos_max)
+            cos_t = 1.0 - u * one_minus
+            sin_t = dr.safe_sqrt(1.0 - cos_t * cos_t)
+            sp_, cp_ = dr.sincos(2.0 * math.pi * v)
+            fr = mi.Frame3f(axis)
+            wi = fr.s * (sin_t * cp_) + fr.t * (sin_t * sp_) + axis * cos_t
+            dist = dc * cos_t - dr.safe_sqrt(r * r - dc2 * sin_t * sin_t)
+            w = dr.select(outside, 2.0 * math.pi * one_minus, 0.0)
+            return wi, dr.select(outside, dist, 0.0), Le * w
+        if tab["kind"] == "mesh":
+            cdf, nt = tab["cdf"], tab["n"]
+            k = dr.binary_search(0, nt - 1, lambda i: dr.gather(mi.Float, cdf, i) <= u)
+            hi = dr.gather(mi.Float, cdf, k)
+            lo = dr.select(k > 0, dr.gather(mi.Float, cdf, dr.maximum(k, 1) - 1), 0.0)
+            u2 = dr.clip((u - lo) / dr.maximum(hi - lo, 1e-30), 0.0, 1.0)
+            su = dr.sqrt(u2)
+            b0 = 1.0 - su
+            b1 = v * su
+            q = (dr.gather(mi.Vector3f, tab["v0"], k) * b0 + dr.gather(mi.Vector3f, tab["v1"], k) * b1
+                 + dr.gather(mi.Vector3f, tab["v2"], k) * (1.0 - b0 - b1))
+            nl = dr.gather(mi.Vector3f, tab["nrm"], k)
+        else:
+            m = tab["m"]
+            rr = dr.sqrt(u)
+            sp_, cp_ = dr.sincos(2.0 * math.pi * v)
+            x, y = rr * cp_, rr * sp_
+            q = mi.Vector3f(*[m[i][0] * x + m[i][1] * y + m[i][3] for i in range(3)])
+            nl = v3(tab["nrm_d"])
+        to = q - p
+        d2 = dr.squared_norm(to)
+        dist = dr.sqrt(d2)
+        wi = to / dr.select(dist > 0, dist, 1.0)
+        cos_l = -dr.dot(nl, wi)
+        w = dr.select((cos_l > 0) & (d2 > 0), tab["area"] * cos_l / dr.select(d2 > 0, d2, 1.0), 0.0)
+        return wi, dist, Le * w
 
-        def _sample_env(self, env, nf, u, v):
-            """``ConstantEnvironment.sample`` / ``EnvironmentMap.sample`` of the core in float32:
-            (wi, L / pdf)."""
-            if env[0] == "const":
-                fr = mi.Frame3f(nf)
-                r_ = dr.sqrt(u)
-                z = dr.sqrt(dr.maximum(0.0, 1.0 - u))
-                sp_, cp_ = dr.sincos(2.0 * math.pi * v)
-                wi = fr.s * (r_ * cp_) + fr.t * (r_ * sp_) + fr.n * z
-                return wi, c3(env[1]) * dr.select(z > 0, math.pi / z, 0.0)
-            T = env[1]
-            E, H, W = T["E"], T["E"].H, T["E"].W
-            if E.dark:
-                return mi.Vector3f(nf), dr.zeros(mi.Color3f, dr.width(u))
-            row, col = T["row"], T["col"]
-            iy = dr.binary_search(0, H - 2, lambda i: dr.gather(mi.Float, row, i) <= v)
-            hi = dr.gather(mi.Float, row, iy)
-            lo = dr.select(iy > 0, dr.gather(mi.Float, row, dr.maximum(iy, 1) - 1), 0.0)
-            fy = dr.clip((v - lo) / dr.maximum(hi - lo, 1e-30), 0.0, 1.0)
-            base = iy * W
-            ix = dr.binary_search(0, W - 1, lambda i: dr.gather(mi.Float, col, base + i) <= u)
-            hi = dr.gather(mi.Float, col, base + ix)
-            lo = dr.select(ix > 0, dr.gather(mi.Float, col, base + dr.maximum(ix, 1) - 1), 0.0)
-            fx = dr.clip((u - lo) / dr.maximum(hi - lo, 1e-30), 0.0, 1.0)
-            x, y = mi.Float(ix) + fx, mi.Float(iy) + fy
-            theta = y * (math.pi / (H - 1))
-            phi = (x + 0.5) * (2.0 * math.pi / W)
-            st, ct = dr.sincos(theta)
-            sp_, cp_ = dr.sincos(phi)
-            mw = E.to_world.tolist()
-            lx, ly, lz = sp_ * st, ct, -cp_ * st
-            wi = dr.normalize(mi.Vector3f(*[mw[i][0] * lx + mw[i][1] * ly + mw[i][2] * lz for i in range(3)]))
-            pdf = dr.gather(mi.Float, T["pcell"], iy * W + ix) * (W * (H - 1)) / \
-                (2.0 * math.pi * math.pi * dr.maximum(st, 1e-30))
-            # bilinear radiance at (x, y) between the nodes (links1.lights.EnvironmentMap._bilinear)
-            ixn = dr.minimum(mi.UInt32(x), W - 1)
-            iyn = dr.minimum(mi.UInt32(y), H - 2)
-            gx, gy = x - mi.Float(ixn), y - mi.Float(iyn)
-            nodes, W1 = T["nodes"], W + 1
-            g = lambda yy, xx: dr.gather(mi.Color3f, nodes, yy * W1 + xx)  # noqa: E731
-            L = ((g(iyn, ixn) * (1 - gx) + g(iyn, ixn + 1) * gx) * (1 - gy)
-                 + (g(iyn + 1, ixn) * (1 - gx) + g(iyn + 1, ixn + 1) * gx) * gy)
-            w = dr.select((pdf > 0) & (st > 0), 1.0 / dr.select(pdf > 0, pdf, 1.0), 0.0)
-            return wi, L * w
+    def _sample_env(self, env, nf, u, v):
+        """``ConstantEnvironment.sample`` / ``EnvironmentMap.sample`` of the core in float32:
+        (wi, L / pdf)."""
+        if env[0] == "const":
+            fr = mi.Frame3f(nf)
+            r_ = dr.sqrt(u)
+            z = dr.sqrt(dr.maximum(0.0, 1.0 - u))
+            sp_, cp_ = dr.sincos(2.0 * math.pi * v)
+            wi = fr.s * (r_ * cp_) + fr.t * (r_ * sp_) + fr.n * z
+            return wi, c3(env[1]) * dr.select(z > 0, math.pi / z, 0.0)
+        T = env[1]
+        E, H, W = T["E"], T["E"].H, T["E"].W
+        if E.dark:
+            return mi.Vector3f(nf), dr.zeros(mi.Color3f, dr.width(u))
+        row, col = T["row"], T["col"]
+        iy = dr.binary_search(0, H - 2, lambda i: dr.gather(mi.Float, row, i) <= v)
+        hi = dr.gather(mi.Float, row, iy)
+        lo = dr.select(iy > 0, dr.gather(mi.Float, row, dr.maximum(iy, 1) - 1), 0.0)
+        fy = dr.clip((v - lo) / dr.maximum(hi - lo, 1e-30), 0.0, 1.0)
+        base = iy * W
+        ix = dr.binary_search(0, W - 1, lambda i: dr.gather(mi.Float, col, base + i) <= u)
+        hi = dr.gather(mi.Float, col, base + ix)
+        lo = dr.select(ix > 0, dr.gather(mi.Float, col, base + dr.maximum(ix, 1) - 1), 0.0)
+        fx = dr.clip((u - lo) / dr.maximum(hi - lo, 1e-30), 0.0, 1.0)
+        x, y = mi.Float(ix) + fx, mi.Float(iy) + fy
+        theta = y * (math.pi / (H - 1))
+        phi = (x + 0.5) * (2.0 * math.pi / W)
+        st, ct = dr.sincos(theta)
+        sp_, cp_ = dr.sincos(phi)
+        mw = E.to_world.tolist()
+        lx, ly, lz = sp_ * st, ct, -cp_ * st
+        wi = dr.normalize(mi.Vector3f(*[mw[i][0] * lx + mw[i][1] * ly + mw[i][2] * lz for i in range(3)]))
+        pdf = dr.gather(mi.Float, T["pcell"], iy * W + ix) * (W * (H - 1)) / \
+            (2.0 * math.pi * math.pi * dr.maximum(st, 1e-30))
+        # bilinear radiance at (x, y) between the nodes (links1.shading.lights.EnvironmentMap._bilinear)
+        ixn = dr.minimum(mi.UInt32(x), W - 1)
+        iyn = dr.minimum(mi.UInt32(y), H - 2)
+        gx, gy = x - mi.Float(ixn), y - mi.Float(iyn)
+        nodes, W1 = T["nodes"], W + 1
+        g = lambda yy, xx: dr.gather(mi.Color3f, nodes, yy * W1 + xx)  # noqa: E731
+        L = ((g(iyn, ixn) * (1 - gx) + g(iyn, ixn + 1) * gx) * (1 - gy)
+             + (g(iyn + 1, ixn) * (1 - gx) + g(iyn + 1, ixn + 1) * gx) * gy)
+        w = dr.select((pdf > 0) & (st > 0), 1.0 / dr.select(pdf > 0, pdf, 1.0), 0.0)
+        return wi, L * w
 
-        def _light_uv(self, key, sample, light_id, j):
-            """Light sample ``j`` of light ``light_id``: :func:`links1.sampling.light_samples_uv`
-            in float32 (``sample = (pixel key, i, spp)`` at a primary hit, else None)."""
-            m = self.light_samples
-            if sample is not None:
-                shift, i, spp = sample
-                s_, n_ = i * m + j, mi.Float(spp * m)
-            else:
-                shift, s_, n_ = key, dr.zeros(mi.UInt32, dr.width(key)) + j, float(m)
-            h = mix32(shift ^ mi.UInt32(light_tag(light_id)))
-            a, b = u24(mix32(h ^ 1)), u24(mix32(h ^ 2))
-            x = mi.UInt32(s_)
-            for sh, mask in ((1, 0x55555555), (2, 0x33333333), (4, 0x0F0F0F0F), (8, 0x00FF00FF)):
-                x = ((x >> sh) & mask) | ((x & mask) << sh)
-            x = (x >> 16) | (x << 16)
-            u = mi.Float(s_) / n_ + a
-            v = u24(x) + b
-            return u - dr.floor(u), v - dr.floor(v)
-
-    return Lights
+    def _light_uv(self, key, sample, light_id, j):
+        """Light sample ``j`` of light ``light_id``: :func:`links1.maths.sampling.light_samples_uv`
+        in float32 (``sample = (pixel key, i, spp)`` at a primary hit, else None)."""
+        m = self.light_samples
+        if sample is not None:
+            shift, i, spp = sample
+            s_, n_ = i * m + j, mi.Float(spp * m)
+        else:
+            shift, s_, n_ = key, dr.zeros(mi.UInt32, dr.width(key)) + j, float(m)
+        h = mix32(shift ^ mi.UInt32(light_tag(light_id)))
+        a, b = u24(mix32(h ^ 1)), u24(mix32(h ^ 2))
+        x = mi.UInt32(s_)
+        for sh, mask in ((1, 0x55555555), (2, 0x33333333), (4, 0x0F0F0F0F), (8, 0x00FF00FF)):
+            x = ((x >> sh) & mask) | ((x & mask) << sh)
+        x = (x >> 16) | (x << 16)
+        u = mi.Float(s_) / n_ + a
+        v = u24(x) + b
+        return u - dr.floor(u), v - dr.floor(v)

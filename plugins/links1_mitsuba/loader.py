@@ -13,7 +13,8 @@ import warnings
 import numpy as np
 
 from ._registry import register
-from .emitters import _rgb
+from .util import LOADING, place_of
+from .util import read_rgb as _rgb
 from .shapes import BlobSpec, QuadricSpec
 
 CUSTOM = ("links1_quadric", "links1_blob")
@@ -26,7 +27,7 @@ SLOT_ID = "_links1_slot_{}"
 def _flatten_instances(state) -> None:
     """Replace each ``instance`` by copies of its ``shapegroup``'s shapes, each mapped by the
     instance's ``to_world`` after its own, in the instance's place in file order (shape slots
-    are file order), and drop the groups: what the core does (links1.loader). links1_whitted
+    are file order), and drop the groups: what the core does (links1.scene.loader). links1_whitted
     then sees ordinary shapes (its per-shape tables hold one row per shape; a hit on a shape
     shared by instances would not say which copy it is)."""
     import mitsuba as mi
@@ -187,7 +188,7 @@ def _prepare_state(state, config, integrator: str, base_dir: str | None):
 
 def _planar_to_world(props) -> None:
     """A rectangle or disk scaled to zero thickness is still that shape: give its to_world
-    a usable third column (:func:`links1.params.planar_to_world`, as the core does) where
+    a usable third column (:func:`links1.scene.params.planar_to_world`, as the core does) where
     Mitsuba would derive NaN normals from the singular map."""
     import mitsuba as mi
 
@@ -253,9 +254,6 @@ _TAGS = {"BSDF": "bsdf", "Emitter": "emitter", "Film": "film", "Integrator": "in
 #: the id given to an object the file names none for, so that a warning can find its element
 #: (Scene.traverse names ``_unnamed_*`` objects generically, as objects without an id)
 UNNAMED_ID = "_unnamed_links1_{}"
-#: ``id -> "FILE:LINE: <element>"`` of the scene being instantiated (for the plugins' own
-#: constructors, e.g. links1_point's colour warnings); None outside :func:`_load`
-CURRENT_PLACES = None
 
 
 def _places(state, text: str | None = None) -> dict:
@@ -305,17 +303,6 @@ def _places(state, text: str | None = None) -> dict:
     return places
 
 
-def place_of(obj, places=None) -> str | None:
-    """``FILE:LINE: <element>`` of a loaded Mitsuba object (from its id), or None."""
-    places = CURRENT_PLACES if places is None else places
-    if not places:
-        return None
-    try:
-        return places.get(obj if isinstance(obj, str) else obj.id())
-    except Exception:
-        return None
-
-
 def _unused_parameters(exc, source) -> Exception:
     """Mitsuba's "Found unused parameters: - $res=64" (no file) as the core's one line."""
     from links1.errors import SceneError
@@ -335,7 +322,6 @@ def _load(parse, source, integrator, base_dir, variant, params, filename=None):
     config = mi.parser.ParserConfig(mi.variant())
     config.merge_meshes = False
     config.merge_equivalent = False
-    global CURRENT_PLACES
     fr = mi.file_resolver()
     saved = mi.FileResolver(fr)
     try:
@@ -348,10 +334,10 @@ def _load(parse, source, integrator, base_dir, variant, params, filename=None):
         integ, specs, slot_of_id, names = _prepare_state(state, config, integrator, base_dir)
         places = _places(state, None if filename else source)
         mi.parser.transform_all(config, state)
-        CURRENT_PLACES = places
+        LOADING["places"] = places
         scene = mi.parser.instantiate(config, state)
     finally:
-        CURRENT_PLACES = None
+        LOADING["places"] = None
         fr.clear()
         for i in range(len(saved)):
             fr.append(saved[i])
@@ -369,7 +355,7 @@ def load_file(path, *, integrator: str = "links1", variant: str | None = None, p
     Parameters
     ----------
     path : str
-        Mitsuba 3 XML (links1 plugins allowed), the same files as :func:`links1.loader.load_scene`.
+        Mitsuba 3 XML (links1 plugins allowed), the same files as :func:`links1.scene.loader.load_scene`.
     integrator : {"links1", "scene"}
         ``"links1"`` (default): render with ``links1_whitted`` whatever the file names (its
         ``max_depth`` is kept). ``"scene"``: keep the file's integrator (links1 quadrics and
@@ -405,6 +391,6 @@ def load_string(xml: str, *, integrator: str = "links1", variant: str | None = N
 
 def whitted_of(scene):
     """The ``links1_whitted`` integrator of a loaded scene (or None)."""
-    from ._registry import plugin_class
+    from .registered import plugin_class
     integ = scene.integrator()
     return integ if isinstance(integ, plugin_class("links1_whitted")) else None

@@ -20,439 +20,435 @@ never interact, so a window renders the same bits as the same pixels of the full
 every run-time input (window offset and width, seed) is an opaque value: the kernels compile
 once per scene and are reused for every window and frame.
 
-:func:`define_raytree` returns a class whose methods ``Links1Whitted`` takes (defined in a
-function, as the integrator, because the Mitsuba variant must be set first).
+:class:`RayTree` is a mixin whose methods ``Links1Whitted`` takes (integrator.py); they name
+``mi.Float``, ``mi.Ray3f``, ... when called, so the class serves every Mitsuba variant.
 """
 from __future__ import annotations
 
+import drjit as dr
+import mitsuba as mi
+
 from . import tuning
-from .launch import _CAM_SAMPLE
-from .util import INF
+from .util import INF, gather3, mix32
 
 # tuning.Tuning.skip_misses: direct light (every light's sample, shading and shadow rays) under a
 # symbolic ``dr.if_stmt`` on the hit: a packet of escaped rays (sky, 38 % of fig11's camera rays)
 # skips it instead of computing it masked (issue 12; False: the old straight-line code)
 
 
-def define_raytree(mi, dr, util):
-    """The ``RayTree`` part of ``Links1Whitted`` for the variant in use."""
-    mix32, gather3 = util.mix32, util.gather3
+class RayTree:
+    """One level, the children of a hit, the ray trees of a launch."""
 
-    class RayTree:
-        """One level, the children of a hit, the ray trees of a launch."""
+    # -------------------------------------------------------------- one level
+    def _level(self, P, scene, o, d, tmin, tmax, key, depth, spawn, active=None, symbolic=True,
+               sample=None):
+        """Trace and shade one ray per lane (inside the megakernel's loop when ``symbolic``).
+        ``sample``: the camera sample of a primary hit (see :meth:`_light_uv`).
+        Returns a dict of Dr.Jit arrays."""
+        n = dr.width(o)
+        ad = getattr(P, "ad", False)   # a derivative pass (gradients.py)
+        if active is None:
+            active = dr.full(mi.Bool, True, n)
+        cost = dr.zeros(mi.UInt32, n)
+        n_shadow = dr.zeros(mi.UInt32, n)
+        if P.any_mitsuba_shapes and not symbolic:
+            dr.eval(o, d, tmin, tmax)
+        # level 1 is the camera's rays (from its eye when it is a pinhole)
+        t, slot, si, prim = self._nearest(P, scene, o, d, tmin, tmax, active, cost,
+                                          camera=depth == 1 and P.perspective)
+        hit = slot >= 0
+        uslot = mi.UInt32(dr.maximum(slot, 0))
+        # ---- surface record of the winner
+        p = o + d * t
+        if P.any_mitsuba_shapes:
+            ng, ns = mi.Vector3f(si.n), mi.Vector3f(si.sh_frame.n)
+            mits = hit & si.is_valid() & (dr.abs(si.t + tmin - t) <= 0.0)
+            p = dr.select(mits, si.p, p)
+        else:
+            ng = dr.zeros(mi.Vector3f, n)
+            ns = dr.zeros(mi.Vector3f, n)
+            mits = dr.full(mi.Bool, False, n)
+        for spec in P.custom_unrolled:
+            m = slot == spec.slot
+            # in the kernel of _nearest's search: a shape may reuse what it found (a blob its candidates)
+            nc = spec.normal(o, d, t, prim, reuse=True)
+            ng = dr.select(m, nc, ng)
+            ns = dr.select(m, nc, ns)
+        if P.bvh is not None:
+            qi = dr.gather(mi.Int32, P.bvh.slot_to_q, uslot, hit)
+            m = hit & (qi >= 0)
+            nc = P.bvh.normal(mi.UInt32(dr.maximum(qi, 0)), o, d, t, prim, m)
+            ng = dr.select(m, nc, ng)
+            ns = dr.select(m, nc, ns)
+        if ad and getattr(P, "geo_ad", None) is not None:
+            # a derivative pass with geometry: the hits move with the surfaces (gradients.py)
+            t, p, ng, ns = self._surface_ad(P, o, d, t, slot, prim, p, ng, ns)
+        wo = -d
+        front = dr.dot(ng, wo) > 0
+        nf = dr.select(front, ns, -ns)
+        if P.any_mitsuba_shapes and not symbolic:
+            dr.eval(t, slot, prim, p, ng, ns, nf, cost)
+        out = dr.zeros(mi.Color3f, n)
+        # ---- escaping rays: background (Mitsuba constant / envmap)
+        if P.env is not None:
+            sim = dr.zeros(mi.SurfaceInteraction3f, n)
+            sim.wi = wo
+            sim.t = mi.Float(INF)
+            out = dr.select(hit, out, P.env.eval(sim, ~hit))
+        # ---- ambient (eq. 3.11, dic) and emission
+        if P.any_ambient:
+            out += dr.select(hit, gather3(P.amb, uslot, hit), 0.0)
+        if P.any_custom_emission:
+            out += dr.select(hit & front & ~mits, gather3(P.custom_emission, uslot, hit), 0.0)
+        # Mitsuba-side interaction record for BSDF calls (custom winners filled in)
+        need_si = not P.all_phong or P.any_mitsuba_emission
+        if need_si:
+            sif = mi.SurfaceInteraction3f(si)
+            cw = hit & ~mits
+            sif.p = dr.select(cw, p, si.p)
+            sif.n = dr.select(cw, mi.Normal3f(ng), si.n)
+            frame_c = mi.Frame3f(ns)
+            sif.sh_frame = mi.Frame3f(dr.select(cw, frame_c.s, si.sh_frame.s),
+                                      dr.select(cw, frame_c.t, si.sh_frame.t),
+                                      dr.select(cw, frame_c.n, si.sh_frame.n))
+            sif.t = dr.select(hit, t, INF)
+            sif.uv = dr.select(cw, self._custom_uv(P, o, d, t, prim, slot, uslot, hit), si.uv)
+            sif.wi = sif.to_local(wo)
+            if P.any_mitsuba_emission:
+                emits = mits & dr.gather(mi.Bool, P.mitsuba_emits, uslot, mits)
+                em = si.emitter(scene, emits)
+                out += dr.select(emits, em.eval(sif, emits), 0.0)
+            bsdf = dr.gather(mi.BSDFPtr, P.bsdf_ptr, uslot, hit)
+            is_ph = dr.gather(mi.Bool, P.is_phong, uslot, hit)
+            mb = hit & ~is_ph
+            ctx = mi.BSDFContext()
+        # Phong parameters
+        if P.any_phong:
+            ph = hit if P.all_phong else hit & is_ph
+            dif = gather3(P.dif, uslot, ph)
+            spe = gather3(P.spe, uslot, ph)
+            expo = dr.gather(mi.Float, P.expo, uslot, ph)
 
-        # -------------------------------------------------------------- one level
-        def _level(self, P, scene, o, d, tmin, tmax, key, depth, spawn, active=None, symbolic=True,
-                   sample=None):
-            """Trace and shade one ray per lane (inside the megakernel's loop when ``symbolic``).
-            ``sample``: the camera sample of a primary hit (see :meth:`_light_uv`).
-            Returns a dict of Dr.Jit arrays."""
-            n = dr.width(o)
-            ad = getattr(P, "ad", False)   # a derivative pass (gradients.py)
-            if active is None:
-                active = dr.full(mi.Bool, True, n)
-            cost = dr.zeros(mi.UInt32, n)
-            n_shadow = dr.zeros(mi.UInt32, n)
-            if P.any_mitsuba_shapes and not symbolic:
-                dr.eval(o, d, tmin, tmax)
-            # level 1 is the camera's rays (from its eye when it is a pinhole)
-            t, slot, si, prim = self._nearest(P, scene, o, d, tmin, tmax, active, cost,
-                                              camera=depth == 1 and P.perspective)
-            hit = slot >= 0
-            uslot = mi.UInt32(dr.maximum(slot, 0))
-            # ---- surface record of the winner
-            p = o + d * t
-            if P.any_mitsuba_shapes:
-                ng, ns = mi.Vector3f(si.n), mi.Vector3f(si.sh_frame.n)
-                mits = hit & si.is_valid() & (dr.abs(si.t + tmin - t) <= 0.0)
-                p = dr.select(mits, si.p, p)
-            else:
-                ng = dr.zeros(mi.Vector3f, n)
-                ns = dr.zeros(mi.Vector3f, n)
-                mits = dr.full(mi.Bool, False, n)
-            for spec in P.custom_unrolled:
-                m = slot == spec.slot
-                # in the kernel of _nearest's search: a shape may reuse what it found (a blob its candidates)
-                nc = spec.normal(o, d, t, prim, reuse=True)
-                ng = dr.select(m, nc, ng)
-                ns = dr.select(m, nc, ns)
-            if P.bvh is not None:
-                qi = dr.gather(mi.Int32, P.bvh.slot_to_q, uslot, hit)
-                m = hit & (qi >= 0)
-                nc = P.bvh.normal(mi.UInt32(dr.maximum(qi, 0)), o, d, t, prim, m)
-                ng = dr.select(m, nc, ng)
-                ns = dr.select(m, nc, ns)
-            if ad and getattr(P, "geo_ad", None) is not None:
-                # a derivative pass with geometry: the hits move with the surfaces (gradients.py)
-                t, p, ng, ns = self._surface_ad(P, o, d, t, slot, prim, p, ng, ns)
-            wo = -d
-            front = dr.dot(ng, wo) > 0
-            nf = dr.select(front, ns, -ns)
-            if P.any_mitsuba_shapes and not symbolic:
-                dr.eval(t, slot, prim, p, ng, ns, nf, cost)
-            out = dr.zeros(mi.Color3f, n)
-            # ---- escaping rays: background (Mitsuba constant / envmap)
-            if P.env is not None:
-                sim = dr.zeros(mi.SurfaceInteraction3f, n)
-                sim.wi = wo
-                sim.t = mi.Float(INF)
-                out = dr.select(hit, out, P.env.eval(sim, ~hit))
-            # ---- ambient (eq. 3.11, dic) and emission
-            if P.any_ambient:
-                out += dr.select(hit, gather3(P.amb, uslot, hit), 0.0)
-            if P.any_custom_emission:
-                out += dr.select(hit & front & ~mits, gather3(P.custom_emission, uslot, hit), 0.0)
-            # Mitsuba-side interaction record for BSDF calls (custom winners filled in)
-            need_si = not P.all_phong or P.any_mitsuba_emission
-            if need_si:
-                sif = mi.SurfaceInteraction3f(si)
-                cw = hit & ~mits
-                sif.p = dr.select(cw, p, si.p)
-                sif.n = dr.select(cw, mi.Normal3f(ng), si.n)
-                frame_c = mi.Frame3f(ns)
-                sif.sh_frame = mi.Frame3f(dr.select(cw, frame_c.s, si.sh_frame.s),
-                                          dr.select(cw, frame_c.t, si.sh_frame.t),
-                                          dr.select(cw, frame_c.n, si.sh_frame.n))
-                sif.t = dr.select(hit, t, INF)
-                sif.uv = dr.select(cw, self._custom_uv(P, o, d, t, prim, slot, uslot, hit), si.uv)
-                sif.wi = sif.to_local(wo)
-                if P.any_mitsuba_emission:
-                    emits = mits & dr.gather(mi.Bool, P.mitsuba_emits, uslot, mits)
-                    em = si.emitter(scene, emits)
-                    out += dr.select(emits, em.eval(sif, emits), 0.0)
-                bsdf = dr.gather(mi.BSDFPtr, P.bsdf_ptr, uslot, hit)
-                is_ph = dr.gather(mi.Bool, P.is_phong, uslot, hit)
-                mb = hit & ~is_ph
-                ctx = mi.BSDFContext()
-            # Phong parameters
+        def f_eval(wi):
+            """Factor multiplying L_s for light direction wi (eq. 3.11 / Mitsuba BSDF)."""
+            f = dr.zeros(mi.Color3f, n)
             if P.any_phong:
-                ph = hit if P.all_phong else hit & is_ph
-                dif = gather3(P.dif, uslot, ph)
-                spe = gather3(P.spe, uslot, ph)
-                expo = dr.gather(mi.Float, P.expo, uslot, ph)
+                cos_theta = dr.dot(nf, wi)
+                mirror = nf * (2.0 * cos_theta) - wi
+                cos_phi = dr.maximum(dr.dot(mirror, wo), 0.0)
+                if ad:   # d/dn cos^n = cos^n ln cos: no 0 * ln 0 (NaN) where cos_phi = 0
+                    cp_ = dr.select(cos_phi > 0, cos_phi, 1.0)
+                    sp = dr.select(expo > 0, dr.select(cos_phi > 0, dr.power(cp_, expo), 0.0), 1.0)
+                else:
+                    sp = dr.select(expo > 0, dr.power(cos_phi, expo), 1.0)
+                fp = dif * dr.maximum(cos_theta, 0.0) + spe * sp
+                f = dr.select(ph & (cos_theta > 0), fp, f)
+            if not P.all_phong:
+                fm = bsdf.eval(ctx, sif, sif.to_local(wi), mb)
+                f = dr.select(mb, fm, f)
+            return f
 
-            def f_eval(wi):
-                """Factor multiplying L_s for light direction wi (eq. 3.11 / Mitsuba BSDF)."""
-                f = dr.zeros(mi.Color3f, n)
-                if P.any_phong:
-                    cos_theta = dr.dot(nf, wi)
-                    mirror = nf * (2.0 * cos_theta) - wi
-                    cos_phi = dr.maximum(dr.dot(mirror, wo), 0.0)
-                    if ad:   # d/dn cos^n = cos^n ln cos: no 0 * ln 0 (NaN) where cos_phi = 0
-                        cp_ = dr.select(cos_phi > 0, cos_phi, 1.0)
-                        sp = dr.select(expo > 0, dr.select(cos_phi > 0, dr.power(cp_, expo), 0.0), 1.0)
+        # ray offsets (relative to 1 + max|p|), per shape: see OFFSET_EPS (tables.py)
+        eps_scale = dr.gather(mi.Float, P.eps_table, uslot, hit)
+        eps = (1.0 + dr.max(dr.abs(p))) * eps_scale
+
+        def offset(direction):
+            side = dr.select(dr.dot(ng, direction) >= 0, 1.0, -1.0)
+            return p + ng * (side * eps)
+
+        # ---- direct light with shadows (eq. 3.11, 3-3-3). Shadow rays of all lights are
+        # built and evaluated together, then handed to Mitsuba's ray tests (each test
+        # evaluates its inputs: building them first avoids recomputing shared work).
+        skip = tuning.current().skip_misses and not ad  # under a symbolic if on the hit (no dr.eval inside it)
+
+        def direct(out, cost, n_shadow):
+            pending = []
+
+            def need_of(j, lit, wi):
+                """Lanes that need a shadow ray toward light j (P.shadow_need, _occluders)."""
+                if not P.any_shadow[j]:
+                    return dr.zeros(mi.Bool, n)
+                if P.shadow_need[j] is None:
+                    return lit
+                need = dr.gather(mi.Bool, P.shadow_need[j], uslot, lit)
+                if P.shadow_inner[j] is not None:  # light on the inner side of a closed convex shape
+                    need |= dr.gather(mi.Bool, P.shadow_inner[j], uslot, lit) & (dr.dot(ng, wi) <= 0)
+                return lit & need
+
+            def shadow(j, so, wi, smax, lit, contrib):
+                nonlocal n_shadow
+                if not P.any_shadow[j]:
+                    return None, lit, None
+                need = need_of(j, lit, wi)
+                n_shadow = n_shadow + dr.select(need, mi.UInt32(1), 0)
+                T = self._shadow_custom(P, so, wi, smax, need, cost, P.occ_custom[j], light=j)
+                return T, need, P.occ_mitsuba[j]
+
+            def own_outer(wi):
+                """The hit's slot where the shadow ray leaves it on the outer side, else -1."""
+                return dr.select(hit & (dr.dot(ng, wi) > 0), slot, -1)
+
+            for jl, L in enumerate(P.lights):
+                wi, dist, Ls = self._light(L, p)
+                contrib = f_eval(wi) * Ls
+                lit = hit & (dr.max(contrib) > 0)
+                so, smax = offset(wi), dist - 2.0 * eps
+                if ad:   # visibility on primal values (the shadow ray's place is attached)
+                    so, wi, smax = dr.detach(so), dr.detach(wi), dr.detach(smax)
+                T, need, occ_m = shadow(jl, so, wi, smax, lit, contrib)
+                pending.append((contrib, so, wi, smax, lit, need, T, occ_m, jl))
+            m_inv = 1.0 / self.light_samples
+            sampled = [(len(P.lights) + j, tab, tab["id"]) for j, tab in enumerate(P.area_tab)]
+            sampled += [(len(P.lights) + len(P.area) + k, env, lid) for k, env in enumerate(P.consts)
+                        for lid in [env[2]]]
+            for jsh, tab, lid in sampled:          # area lights and environments (links1.shading.lights)
+                for js in range(self.light_samples):
+                    u, v = self._light_uv(key, sample, lid, js)
+                    if isinstance(tab, dict):
+                        wi, dist, Lw = self._sample_area(tab, p, u, v)
+                        # Mitsuba's ray tests include the emitter: stop short of it as Mitsuba does
+                        smax = dist * (1.0 - mi.math.ShadowEpsilon) - 2.0 * eps
                     else:
-                        sp = dr.select(expo > 0, dr.power(cos_phi, expo), 1.0)
-                    fp = dif * dr.maximum(cos_theta, 0.0) + spe * sp
-                    f = dr.select(ph & (cos_theta > 0), fp, f)
-                if not P.all_phong:
-                    fm = bsdf.eval(ctx, sif, sif.to_local(wi), mb)
-                    f = dr.select(mb, fm, f)
-                return f
-
-            # ray offsets (relative to 1 + max|p|), per shape: see OFFSET_EPS (integrator.py)
-            eps_scale = dr.gather(mi.Float, P.eps_table, uslot, hit)
-            eps = (1.0 + dr.max(dr.abs(p))) * eps_scale
-
-            def offset(direction):
-                side = dr.select(dr.dot(ng, direction) >= 0, 1.0, -1.0)
-                return p + ng * (side * eps)
-
-            # ---- direct light with shadows (eq. 3.11, 3-3-3). Shadow rays of all lights are
-            # built and evaluated together, then handed to Mitsuba's ray tests (each test
-            # evaluates its inputs: building them first avoids recomputing shared work).
-            skip = tuning.current().skip_misses and not ad  # under a symbolic if on the hit (no dr.eval inside it)
-
-            def direct(out, cost, n_shadow):
-                pending = []
-
-                def need_of(j, lit, wi):
-                    """Lanes that need a shadow ray toward light j (P.shadow_need, _occluders)."""
-                    if not P.any_shadow[j]:
-                        return dr.zeros(mi.Bool, n)
-                    if P.shadow_need[j] is None:
-                        return lit
-                    need = dr.gather(mi.Bool, P.shadow_need[j], uslot, lit)
-                    if P.shadow_inner[j] is not None:  # light on the inner side of a closed convex shape
-                        need |= dr.gather(mi.Bool, P.shadow_inner[j], uslot, lit) & (dr.dot(ng, wi) <= 0)
-                    return lit & need
-
-                def shadow(j, so, wi, smax, lit, contrib):
-                    nonlocal n_shadow
-                    if not P.any_shadow[j]:
-                        return None, lit, None
-                    need = need_of(j, lit, wi)
-                    n_shadow = n_shadow + dr.select(need, mi.UInt32(1), 0)
-                    T = self._shadow_custom(P, so, wi, smax, need, cost, P.occ_custom[j], light=j)
-                    return T, need, P.occ_mitsuba[j]
-
-                def own_outer(wi):
-                    """The hit's slot where the shadow ray leaves it on the outer side, else -1."""
-                    return dr.select(hit & (dr.dot(ng, wi) > 0), slot, -1)
-
-                for jl, L in enumerate(P.lights):
-                    wi, dist, Ls = self._light(L, p)
-                    contrib = f_eval(wi) * Ls
+                        wi, Lw = self._sample_env(tab, nf, u, v)
+                        smax = dr.full(mi.Float, INF, n)
+                    contrib = f_eval(wi) * Lw * m_inv
                     lit = hit & (dr.max(contrib) > 0)
-                    so, smax = offset(wi), dist - 2.0 * eps
-                    if ad:   # visibility on primal values (the shadow ray's place is attached)
+                    so = offset(wi)
+                    if ad:
                         so, wi, smax = dr.detach(so), dr.detach(wi), dr.detach(smax)
-                    T, need, occ_m = shadow(jl, so, wi, smax, lit, contrib)
-                    pending.append((contrib, so, wi, smax, lit, need, T, occ_m, jl))
-                m_inv = 1.0 / self.light_samples
-                sampled = [(len(P.lights) + j, tab, tab["id"]) for j, tab in enumerate(P.area_tab)]
-                sampled += [(len(P.lights) + len(P.area) + k, env, lid) for k, env in enumerate(P.consts)
-                            for lid in [env[2]]]
-                for jsh, tab, lid in sampled:          # area lights and environments (links1.lights)
-                    for js in range(self.light_samples):
-                        u, v = self._light_uv(key, sample, lid, js)
-                        if isinstance(tab, dict):
-                            wi, dist, Lw = self._sample_area(tab, p, u, v)
-                            # Mitsuba's ray tests include the emitter: stop short of it as Mitsuba does
-                            smax = dist * (1.0 - mi.math.ShadowEpsilon) - 2.0 * eps
-                        else:
-                            wi, Lw = self._sample_env(tab, nf, u, v)
-                            smax = dr.full(mi.Float, INF, n)
-                        contrib = f_eval(wi) * Lw * m_inv
-                        lit = hit & (dr.max(contrib) > 0)
-                        so = offset(wi)
-                        if ad:
-                            so, wi, smax = dr.detach(so), dr.detach(wi), dr.detach(smax)
-                        T, need, occ_m = shadow(jsh, so, wi, smax, lit, contrib)
-                        pending.append((contrib, so, wi, smax, lit, need, T, occ_m, jsh))
-                if P.any_mitsuba_shapes and pending and not symbolic and not skip:
-                    dr.eval(out, cost, *[x for tup in pending for x in tup[:6]])
-                for contrib, so, wi, smax, lit, need, T, occ_m, j in pending:
-                    if T is None:               # nothing can shadow this light
-                        out += dr.select(lit, contrib, 0.0)
-                        continue
-                    if P.any_mitsuba_shapes and occ_m:
-                        T = self._shadow_mitsuba(P, scene, so, wi, smax, need, T, cost, light=j,
-                                                 own=own_outer(wi))
-                    out += dr.select(lit, contrib * dr.select(need, T, 1.0), 0.0)
-                return out, cost, n_shadow
+                    T, need, occ_m = shadow(jsh, so, wi, smax, lit, contrib)
+                    pending.append((contrib, so, wi, smax, lit, need, T, occ_m, jsh))
+            if P.any_mitsuba_shapes and pending and not symbolic and not skip:
+                dr.eval(out, cost, *[x for tup in pending for x in tup[:6]])
+            for contrib, so, wi, smax, lit, need, T, occ_m, j in pending:
+                if T is None:               # nothing can shadow this light
+                    out += dr.select(lit, contrib, 0.0)
+                    continue
+                if P.any_mitsuba_shapes and occ_m:
+                    T = self._shadow_mitsuba(P, scene, so, wi, smax, need, T, cost, light=j,
+                                             own=own_outer(wi))
+                out += dr.select(lit, contrib * dr.select(need, T, 1.0), 0.0)
+            return out, cost, n_shadow
 
-            if skip:
-                out, cost, n_shadow = dr.if_stmt((out, cost, n_shadow), hit, direct,
-                                                 lambda out, cost, n_shadow: (out, cost, n_shadow),
-                                                 mode="symbolic", label="links1_direct")
-            else:
-                out, cost, n_shadow = direct(out, cost, n_shadow)
-            res = {"L": out, "cost": cost, "t": t, "slot": slot, "ns": ns, "hit": hit}
-            res["n_shadow"] = n_shadow
-            if not spawn:
-                return res
-            # ---- secondary rays, eq. (3.12)-(3.16)
-            r = dr.zeros(mi.Color3f, n)
-            tw = dr.zeros(mi.Color3f, n)
-            dir_r = dr.zeros(mi.Vector3f, n)
-            dir_t = dr.zeros(mi.Vector3f, n)
-            if P.any_phong_r or P.any_phong_t:
-                cos_i = -dr.dot(d, nf)
-                dir_r = d + nf * (2.0 * cos_i)                                  # eq. (3.12)
-                r = dr.select(ph, gather3(P.refl, uslot, ph), r)
-                if P.any_phong_t:
-                    tt = gather3(P.trans, uslot, ph)
-                    ior = dr.gather(mi.Float, P.ior, uslot, ph)
-                    eta = dr.select(front, 1.0 / ior, ior)                        # η = η_i/η_t
-                    S = (d + nf * cos_i) * eta                                     # eq. (3.14)
-                    s2 = dr.squared_norm(S)
-                    has_t = ph & (dr.max(tt) > 0)
-                    tir = has_t & (s2 > 1.0)
-                    r = dr.select(tir, r + tt, r)
-                    tw = dr.select(has_t & ~tir, tt, 0.0)
-                    dir_t = S - nf * dr.safe_sqrt(1.0 - s2)                       # eq. (3.15)
-            if P.any_mitsuba_delta:
-                lobes = [(mi.BSDFFlags.DeltaReflection, "r")] if P.any_mitsuba_dr else []
-                if P.any_mitsuba_dt:
-                    lobes.append((mi.BSDFFlags.DeltaTransmission, "t"))
-                sampler, opacity = bsdf, None
-                if P.any_mask and (P.any_mitsuba_dr or P.any_mitsuba_dt):
-                    # a mask's lobes: its nested BSDF's, times the opacity, which is
-                    # (1 - null(mask)) / (1 - null(nested)) (Mitsuba's mask: null = 1 - a (1 - null'))
-                    sampler = dr.gather(mi.BSDFPtr, P.inner_ptr, uslot, mb)
-                    om = dr.sum(1.0 - bsdf.eval_null_transmission(sif, mb))
-                    on = dr.sum(1.0 - sampler.eval_null_transmission(sif, mb))
-                    opacity = dr.select(on > 0, om / dr.maximum(on, 1e-30), 0.0)
-                for flag, which in lobes:   # only the delta lobes some BSDF of the scene has
-                    table = P.has_dr if which == "r" else P.has_dt
-                    act = mb & dr.gather(mi.Bool, table, uslot, mb)
-                    cx = mi.BSDFContext()
-                    cx.type_mask = +flag
-                    bs, w = sampler.sample(cx, sif, mi.Float(0.5), mi.Point2f(0.5, 0.5), act)
-                    ok = act & (bs.pdf > 0) & (dr.max(w) > 0) & \
-                        ((bs.sampled_type & mi.UInt32(+flag)) != 0)
-                    if opacity is not None:
-                        w = w * opacity
-                    dw = sif.to_world(bs.wo)
-                    if which == "r":
-                        r = dr.select(ok, w, r)
-                        dir_r = dr.select(ok, dw, dir_r)
-                    else:
-                        tw = dr.select(ok, w, tw)
-                        dir_t = dr.select(ok, dw, dir_t)
-                if P.any_mitsuba_null:
-                    # the straight-through delta lobe (Mitsuba's BSDFFlags::Null: thindielectric's
-                    # transmission T' = 1 - R', R' = 2R/(1+R); a mask's 1 - opacity; null): weight
-                    # eval_null_transmission, direction unchanged, as Mitsuba's path follows it
-                    act = mb & dr.gather(mi.Bool, P.has_null, uslot, mb)
-                    wn = bsdf.eval_null_transmission(sif, act)
-                    ok = act & (dr.max(wn) > 0)
-                    tw = dr.select(ok, wn, tw)
-                    dir_t = dr.select(ok, d, dir_t)
-            has_r = hit & (dr.max(r) > 0)
-            has_tt = hit & (dr.max(tw) > 0)
-            dir_r = dr.normalize(dir_r)
-            dir_t = dr.normalize(dir_t)
-            res.update(r=r, tw=tw, has_r=has_r, has_t=has_tt, dir_r=dir_r, dir_t=dir_t,
-                       o_r=offset(dir_r), o_t=offset(dir_t))
+        if skip:
+            out, cost, n_shadow = dr.if_stmt((out, cost, n_shadow), hit, direct,
+                                             lambda out, cost, n_shadow: (out, cost, n_shadow),
+                                             mode="symbolic", label="links1_direct")
+        else:
+            out, cost, n_shadow = direct(out, cost, n_shadow)
+        res = {"L": out, "cost": cost, "t": t, "slot": slot, "ns": ns, "hit": hit}
+        res["n_shadow"] = n_shadow
+        if not spawn:
             return res
+        # ---- secondary rays, eq. (3.12)-(3.16)
+        r = dr.zeros(mi.Color3f, n)
+        tw = dr.zeros(mi.Color3f, n)
+        dir_r = dr.zeros(mi.Vector3f, n)
+        dir_t = dr.zeros(mi.Vector3f, n)
+        if P.any_phong_r or P.any_phong_t:
+            cos_i = -dr.dot(d, nf)
+            dir_r = d + nf * (2.0 * cos_i)                                  # eq. (3.12)
+            r = dr.select(ph, gather3(P.refl, uslot, ph), r)
+            if P.any_phong_t:
+                tt = gather3(P.trans, uslot, ph)
+                ior = dr.gather(mi.Float, P.ior, uslot, ph)
+                eta = dr.select(front, 1.0 / ior, ior)                        # η = η_i/η_t
+                S = (d + nf * cos_i) * eta                                     # eq. (3.14)
+                s2 = dr.squared_norm(S)
+                has_t = ph & (dr.max(tt) > 0)
+                tir = has_t & (s2 > 1.0)
+                r = dr.select(tir, r + tt, r)
+                tw = dr.select(has_t & ~tir, tt, 0.0)
+                dir_t = S - nf * dr.safe_sqrt(1.0 - s2)                       # eq. (3.15)
+        if P.any_mitsuba_delta:
+            lobes = [(mi.BSDFFlags.DeltaReflection, "r")] if P.any_mitsuba_dr else []
+            if P.any_mitsuba_dt:
+                lobes.append((mi.BSDFFlags.DeltaTransmission, "t"))
+            sampler, opacity = bsdf, None
+            if P.any_mask and (P.any_mitsuba_dr or P.any_mitsuba_dt):
+                # a mask's lobes: its nested BSDF's, times the opacity, which is
+                # (1 - null(mask)) / (1 - null(nested)) (Mitsuba's mask: null = 1 - a (1 - null'))
+                sampler = dr.gather(mi.BSDFPtr, P.inner_ptr, uslot, mb)
+                om = dr.sum(1.0 - bsdf.eval_null_transmission(sif, mb))
+                on = dr.sum(1.0 - sampler.eval_null_transmission(sif, mb))
+                opacity = dr.select(on > 0, om / dr.maximum(on, 1e-30), 0.0)
+            for flag, which in lobes:   # only the delta lobes some BSDF of the scene has
+                table = P.has_dr if which == "r" else P.has_dt
+                act = mb & dr.gather(mi.Bool, table, uslot, mb)
+                cx = mi.BSDFContext()
+                cx.type_mask = +flag
+                bs, w = sampler.sample(cx, sif, mi.Float(0.5), mi.Point2f(0.5, 0.5), act)
+                ok = act & (bs.pdf > 0) & (dr.max(w) > 0) & \
+                    ((bs.sampled_type & mi.UInt32(+flag)) != 0)
+                if opacity is not None:
+                    w = w * opacity
+                dw = sif.to_world(bs.wo)
+                if which == "r":
+                    r = dr.select(ok, w, r)
+                    dir_r = dr.select(ok, dw, dir_r)
+                else:
+                    tw = dr.select(ok, w, tw)
+                    dir_t = dr.select(ok, dw, dir_t)
+            if P.any_mitsuba_null:
+                # the straight-through delta lobe (Mitsuba's BSDFFlags::Null: thindielectric's
+                # transmission T' = 1 - R', R' = 2R/(1+R); a mask's 1 - opacity; null): weight
+                # eval_null_transmission, direction unchanged, as Mitsuba's path follows it
+                act = mb & dr.gather(mi.Bool, P.has_null, uslot, mb)
+                wn = bsdf.eval_null_transmission(sif, act)
+                ok = act & (dr.max(wn) > 0)
+                tw = dr.select(ok, wn, tw)
+                dir_t = dr.select(ok, d, dir_t)
+        has_r = hit & (dr.max(r) > 0)
+        has_tt = hit & (dr.max(tw) > 0)
+        dir_r = dr.normalize(dir_r)
+        dir_t = dr.normalize(dir_t)
+        res.update(r=r, tw=tw, has_r=has_r, has_t=has_tt, dir_r=dir_r, dir_t=dir_t,
+                   o_r=offset(dir_r), o_t=offset(dir_t))
+        return res
 
-        # -------------------------------------------------------------- the tree
-        def _children(self, res, act, wgt, depth):
-            """Which children a hit spawns (eq. 3.12-3.16, ``max_depth``, weight threshold as
-            the core) and their weights in the pixel."""
-            md, mw = self.max_depth, float(self.min_weight)
-            deeper = act & (depth < md)
-            w_r, w_t = wgt * res["r"], wgt * res["tw"]
-            cr = deeper & res["has_r"]
-            ct = deeper & res["has_t"]
-            if mw > 0:
-                cr &= dr.max(w_r) > mw
-                ct &= dr.max(w_t) > mw
-            return cr, ct, w_r, w_t
+    # -------------------------------------------------------------- the tree
+    def _children(self, res, act, wgt, depth):
+        """Which children a hit spawns (eq. 3.12-3.16, ``max_depth``, weight threshold as
+        the core) and their weights in the pixel."""
+        md, mw = self.max_depth, float(self.min_weight)
+        deeper = act & (depth < md)
+        w_r, w_t = wgt * res["r"], wgt * res["tw"]
+        cr = deeper & res["has_r"]
+        ct = deeper & res["has_t"]
+        if mw > 0:
+            cr &= dr.max(w_r) > mw
+            ct &= dr.max(w_t) > mw
+        return cr, ct, w_r, w_t
 
-        def _trace_tree(self, P, scene, o, d, tmin, tmax, key, want_aovs, frozen=None):
-            """All ray trees: the camera level in one kernel, the rest in a "megakernel".
+    def _trace_tree(self, P, scene, o, d, tmin, tmax, key, want_aovs, frozen=None):
+        """All ray trees: the camera level in one kernel, the rest in a "megakernel".
 
-            Level 1 (every sample) is straight-line code. The samples whose hit spawns a
-            mirror or refraction ray are compacted (``dr.compress``), and one symbolic
-            ``dr.while_loop`` traces the rest of their trees, one ray per iteration: the mirror
-            child (eq. 3.12) is followed next, a refraction child (eq. 3.14-3.15) with a mirror
-            sibling waits on a small per-lane stack (Dr.Jit local memory, at most
-            ``max_depth - 1`` entries). ``I = I_o + r I_r + t I_t`` (eq. 3.16) is accumulated as
-            ``Σ weight · I_o`` with the weight the product of the factors down the tree (the
-            core's sum in another order). Lanes never interact and the compaction keeps the
-            order of samples, so a window renders the same bits as the full frame; the window
-            is a run-time value (no recompilation). Returns ``(RGB, cost, t0, slot0, ns0,
-            counters)`` with ``counters`` the arrays :meth:`_counts` sums (no read-back here).
+        Level 1 (every sample) is straight-line code. The samples whose hit spawns a
+        mirror or refraction ray are compacted (``dr.compress``), and one symbolic
+        ``dr.while_loop`` traces the rest of their trees, one ray per iteration: the mirror
+        child (eq. 3.12) is followed next, a refraction child (eq. 3.14-3.15) with a mirror
+        sibling waits on a small per-lane stack (Dr.Jit local memory, at most
+        ``max_depth - 1`` entries). ``I = I_o + r I_r + t I_t`` (eq. 3.16) is accumulated as
+        ``Σ weight · I_o`` with the weight the product of the factors down the tree (the
+        core's sum in another order). Lanes never interact and the compaction keeps the
+        order of samples, so a window renders the same bits as the full frame; the window
+        is a run-time value (no recompilation). Returns ``(RGB, cost, t0, slot0, ns0,
+        counters)`` with ``counters`` the arrays :meth:`_counts` sums (no read-back here).
 
-            ``frozen``: the sample count as an opaque ``UInt32`` when traced inside
-            :func:`drjit.freeze` (:meth:`_frozen_fn`), so no Python decision may depend on data:
-            the compaction always keeps the last two samples too (a lane without children starts
-            inactive and adds exact zeros, the same bits as no lane), so the loop exists whatever
-            the recorded pixels held (two lanes: a recording with one would treat the loop's
-            arrays as scalars and replay wrongly).
-            """
-            n = dr.width(o)
-            md = self.max_depth
-            spawn = md > 1 and P.any_specular
-            one = mi.UInt32(1)
-            res = self._level(P, scene, o, d, tmin, tmax, key, 1, spawn, sample=_CAM_SAMPLE.pop(id(self), None))
-            aov = (res["t"], res["slot"], res["ns"]) if want_aovs else ()
-            if not spawn:
-                rgb = mi.Color3f(res["L"])
-                dr.eval(rgb, res["cost"], res["n_shadow"], *aov)
-                return rgb, res["cost"], res["t"], res["slot"], res["ns"], dict(nsh1=res["n_shadow"])
-            act = res["hit"]
-            cr, ct, w_r, w_t = self._children(res, act, mi.Color3f(1.0), mi.UInt32(1))
-            key_r = mix32(key ^ mi.UInt32(0x63D83595))
-            key_t = mix32(key ^ mi.UInt32(0xA511E9B3))
-            has_t = P.any_phong_t or P.any_mitsuba_dt or P.any_mitsuba_null
+        ``frozen``: the sample count as an opaque ``UInt32`` when traced inside
+        :func:`drjit.freeze` (:meth:`_frozen_fn`), so no Python decision may depend on data:
+        the compaction always keeps the last two samples too (a lane without children starts
+        inactive and adds exact zeros, the same bits as no lane), so the loop exists whatever
+        the recorded pixels held (two lanes: a recording with one would treat the loop's
+        arrays as scalars and replay wrongly).
+        """
+        n = dr.width(o)
+        md = self.max_depth
+        spawn = md > 1 and P.any_specular
+        one = mi.UInt32(1)
+        res = self._level(P, scene, o, d, tmin, tmax, key, 1, spawn, sample=self._take_cam_sample())
+        aov = (res["t"], res["slot"], res["ns"]) if want_aovs else ()
+        if not spawn:
+            rgb = mi.Color3f(res["L"])
+            dr.eval(rgb, res["cost"], res["n_shadow"], *aov)
+            return rgb, res["cost"], res["t"], res["slot"], res["ns"], dict(nsh1=res["n_shadow"])
+        act = res["hit"]
+        cr, ct, w_r, w_t = self._children(res, act, mi.Color3f(1.0), mi.UInt32(1))
+        key_r = mix32(key ^ mi.UInt32(0x63D83595))
+        key_t = mix32(key ^ mi.UInt32(0xA511E9B3))
+        has_t = P.any_phong_t or P.any_mitsuba_dt or P.any_mitsuba_null
+        if has_t:
+            kids = (res["o_r"], res["dir_r"], w_r, key_r, res["o_t"], res["dir_t"], w_t, key_t)
+        else:       # no refraction anywhere: no refraction children to store
+            kids = (res["o_r"], res["dir_r"], w_r, key_r)
+        L1, cost1, nsh1 = res["L"], res["cost"], res["n_shadow"]
+        dr.eval(L1, cost1, nsh1, cr, ct, *aov, *kids)                  # kernel 1: level 1
+        if frozen is not None:  # the last two samples always: a width of 1 would record as a scalar
+            ar = dr.arange(mi.UInt32, n)
+            idx = dr.compress(cr | ct | (ar + 2 >= frozen))  # n: an input, not a literal
+        else:
+            idx = dr.compress(cr | ct)
+        m = dr.width(idx)
+        counters = dict(nsh1=nsh1, cr=cr, ct=ct)
+        if m == 0:
+            return L1, cost1, res["t"], res["slot"], res["ns"], counters
+        g = lambda x: dr.gather(type(x), x, idx)  # noqa: E731
+        if has_t:
+            o_r, d_r, wr, kr, o_t, d_t, wt, kt = (g(x) for x in kids)
+        else:
+            o_r, d_r, wr, kr = (g(x) for x in kids)
+            o_t, d_t, wt, kt = o_r, d_r, wr, kr
+        gr, gt = g(cr), g(ct)
+        push = gr & gt
+        K = md - 1
+        stk_f = dr.alloc_local(mi.Float, 9 * K, mi.Float(0.0))   # o, d, weight per entry
+        stk_u = dr.alloc_local(mi.UInt32, 2 * K, mi.UInt32(0))   # depth, key per entry
+        if has_t:
+            for k_, val in enumerate((o_t.x, o_t.y, o_t.z, d_t.x, d_t.y, d_t.z, wt.x, wt.y, wt.z)):
+                stk_f.write(val, mi.UInt32(k_), push)
+            stk_u.write(dr.full(mi.UInt32, 2, m), mi.UInt32(0), push)
+            stk_u.write(kt, mi.UInt32(1), push)
+        zu = dr.zeros(mi.UInt32, m)
+        state = dict(o=mi.Point3f(dr.select(gr, o_r, o_t)), d=mi.Vector3f(dr.select(gr, d_r, d_t)),
+                     wgt=mi.Color3f(dr.select(gr, wr, wt)),
+                     depth=zu + 2, key=dr.select(gr, kr, kt), L=dr.zeros(mi.Color3f, m),
+                     cost=mi.UInt32(zu), sp=dr.select(push, one, 0), active=gr | gt,
+                     nsh=mi.UInt32(zu), nr=mi.UInt32(zu), nt=mi.UInt32(zu))
+        names = list(state)
+
+        def cond(stk_f, stk_u, *vals):
+            return vals[names.index("active")]
+
+        def body(stk_f, stk_u, *vals):
+            v = dict(zip(names, vals))
+            act = v["active"]
+            mm = dr.width(v["o"])
+            res = self._level(P, scene, v["o"], v["d"], dr.zeros(mi.Float, mm), dr.full(mi.Float, INF, mm),
+                              v["key"], 0, True, active=act)
+            wgt = v["wgt"]
+            L = v["L"] + wgt * res["L"]
+            cost = v["cost"] + res["cost"]
+            cr, ct, w_r, w_t = self._children(res, act, wgt, v["depth"])
+            key_r = mix32(v["key"] ^ mi.UInt32(0x63D83595))
+            key_t = mix32(v["key"] ^ mi.UInt32(0xA511E9B3))
+            sp = v["sp"]
+            push = cr & ct
             if has_t:
-                kids = (res["o_r"], res["dir_r"], w_r, key_r, res["o_t"], res["dir_t"], w_t, key_t)
-            else:       # no refraction anywhere: no refraction children to store
-                kids = (res["o_r"], res["dir_r"], w_r, key_r)
-            L1, cost1, nsh1 = res["L"], res["cost"], res["n_shadow"]
-            dr.eval(L1, cost1, nsh1, cr, ct, *aov, *kids)                  # kernel 1: level 1
-            if frozen is not None:  # the last two samples always: a width of 1 would record as a scalar
-                ar = dr.arange(mi.UInt32, n)
-                idx = dr.compress(cr | ct | (ar + 2 >= frozen))  # n: an input, not a literal
-            else:
-                idx = dr.compress(cr | ct)
-            m = dr.width(idx)
-            counters = dict(nsh1=nsh1, cr=cr, ct=ct)
-            if m == 0:
-                return L1, cost1, res["t"], res["slot"], res["ns"], counters
-            g = lambda x: dr.gather(type(x), x, idx)  # noqa: E731
-            if has_t:
-                o_r, d_r, wr, kr, o_t, d_t, wt, kt = (g(x) for x in kids)
-            else:
-                o_r, d_r, wr, kr = (g(x) for x in kids)
-                o_t, d_t, wt, kt = o_r, d_r, wr, kr
-            gr, gt = g(cr), g(ct)
-            push = gr & gt
-            K = md - 1
-            stk_f = dr.alloc_local(mi.Float, 9 * K, mi.Float(0.0))   # o, d, weight per entry
-            stk_u = dr.alloc_local(mi.UInt32, 2 * K, mi.UInt32(0))   # depth, key per entry
-            if has_t:
-                for k_, val in enumerate((o_t.x, o_t.y, o_t.z, d_t.x, d_t.y, d_t.z, wt.x, wt.y, wt.z)):
-                    stk_f.write(val, mi.UInt32(k_), push)
-                stk_u.write(dr.full(mi.UInt32, 2, m), mi.UInt32(0), push)
-                stk_u.write(kt, mi.UInt32(1), push)
-            zu = dr.zeros(mi.UInt32, m)
-            state = dict(o=mi.Point3f(dr.select(gr, o_r, o_t)), d=mi.Vector3f(dr.select(gr, d_r, d_t)),
-                         wgt=mi.Color3f(dr.select(gr, wr, wt)),
-                         depth=zu + 2, key=dr.select(gr, kr, kt), L=dr.zeros(mi.Color3f, m),
-                         cost=mi.UInt32(zu), sp=dr.select(push, one, 0), active=gr | gt,
-                         nsh=mi.UInt32(zu), nr=mi.UInt32(zu), nt=mi.UInt32(zu))
-            names = list(state)
+                base = sp * 9
+                o_t, d_t = res["o_t"], res["dir_t"]
+                for k, val in enumerate((o_t.x, o_t.y, o_t.z, d_t.x, d_t.y, d_t.z, w_t.x, w_t.y, w_t.z)):
+                    stk_f.write(val, base + k, push)
+                stk_u.write(v["depth"] + 1, sp * 2, push)
+                stk_u.write(key_t, sp * 2 + 1, push)
+            pop = act & ~cr & ~ct & (sp > 0)
+            top = dr.select(pop, sp - 1, 0)
+            fp = [stk_f.read(top * 9 + k, pop) for k in range(9)]
+            dp = stk_u.read(top * 2, pop)
+            kp = stk_u.read(top * 2 + 1, pop)
+            o_n = dr.select(cr, res["o_r"], dr.select(ct, res["o_t"], mi.Point3f(fp[0], fp[1], fp[2])))
+            d_n = dr.select(cr, res["dir_r"], dr.select(ct, res["dir_t"], mi.Vector3f(fp[3], fp[4], fp[5])))
+            w_n = dr.select(cr, w_r, dr.select(ct, w_t, mi.Color3f(fp[6], fp[7], fp[8])))
+            depth_n = dr.select(cr | ct, v["depth"] + 1, dp)
+            key_n = dr.select(cr, key_r, dr.select(ct, key_t, kp))
+            sp = dr.select(push, sp + 1, dr.select(pop, sp - 1, sp))
+            out = dict(o=mi.Point3f(o_n), d=mi.Vector3f(d_n), wgt=mi.Color3f(w_n), depth=depth_n, key=key_n, L=L, cost=cost, sp=sp,
+                       active=cr | ct | pop, nsh=v["nsh"] + res["n_shadow"],
+                       nr=v["nr"] + dr.select(cr, one, 0), nt=v["nt"] + dr.select(ct, one, 0))
+            return (stk_f, stk_u, *[out[k] for k in names])
 
-            def cond(stk_f, stk_u, *vals):
-                return vals[names.index("active")]
-
-            def body(stk_f, stk_u, *vals):
-                v = dict(zip(names, vals))
-                act = v["active"]
-                mm = dr.width(v["o"])
-                res = self._level(P, scene, v["o"], v["d"], dr.zeros(mi.Float, mm), dr.full(mi.Float, INF, mm),
-                                  v["key"], 0, True, active=act)
-                wgt = v["wgt"]
-                L = v["L"] + wgt * res["L"]
-                cost = v["cost"] + res["cost"]
-                cr, ct, w_r, w_t = self._children(res, act, wgt, v["depth"])
-                key_r = mix32(v["key"] ^ mi.UInt32(0x63D83595))
-                key_t = mix32(v["key"] ^ mi.UInt32(0xA511E9B3))
-                sp = v["sp"]
-                push = cr & ct
-                if has_t:
-                    base = sp * 9
-                    o_t, d_t = res["o_t"], res["dir_t"]
-                    for k, val in enumerate((o_t.x, o_t.y, o_t.z, d_t.x, d_t.y, d_t.z, w_t.x, w_t.y, w_t.z)):
-                        stk_f.write(val, base + k, push)
-                    stk_u.write(v["depth"] + 1, sp * 2, push)
-                    stk_u.write(key_t, sp * 2 + 1, push)
-                pop = act & ~cr & ~ct & (sp > 0)
-                top = dr.select(pop, sp - 1, 0)
-                fp = [stk_f.read(top * 9 + k, pop) for k in range(9)]
-                dp = stk_u.read(top * 2, pop)
-                kp = stk_u.read(top * 2 + 1, pop)
-                o_n = dr.select(cr, res["o_r"], dr.select(ct, res["o_t"], mi.Point3f(fp[0], fp[1], fp[2])))
-                d_n = dr.select(cr, res["dir_r"], dr.select(ct, res["dir_t"], mi.Vector3f(fp[3], fp[4], fp[5])))
-                w_n = dr.select(cr, w_r, dr.select(ct, w_t, mi.Color3f(fp[6], fp[7], fp[8])))
-                depth_n = dr.select(cr | ct, v["depth"] + 1, dp)
-                key_n = dr.select(cr, key_r, dr.select(ct, key_t, kp))
-                sp = dr.select(push, sp + 1, dr.select(pop, sp - 1, sp))
-                out = dict(o=mi.Point3f(o_n), d=mi.Vector3f(d_n), wgt=mi.Color3f(w_n), depth=depth_n, key=key_n, L=L, cost=cost, sp=sp,
-                           active=cr | ct | pop, nsh=v["nsh"] + res["n_shadow"],
-                           nr=v["nr"] + dr.select(cr, one, 0), nt=v["nt"] + dr.select(ct, one, 0))
-                return (stk_f, stk_u, *[out[k] for k in names])
-
-            result = dr.while_loop((stk_f, stk_u, *[state[k] for k in names]), cond, body,
-                                   label="links1_whitted")
-            v = dict(zip(names, result[2:]))
-            # materialise the loop's outputs in one kernel first: scatters into arrays of another
-            # size are scheduled as their own kernel, which would re-run the loop
-            dr.eval(v["L"], v["cost"], v["nsh"], v["nr"], v["nt"])          # kernel 2: the trees
-            # one child forest per sample (idx is unique: no races). The scatter targets are
-            # copies of level-1 arrays, whose width is the input's at every replay (a zeros(n)
-            # target would keep the recorded width; a scatter_add would force freeze to dry-run)
-            total = mi.Color3f(L1)
-            dr.scatter(total, g(L1) + v["L"], idx)
-            cost = mi.UInt32(cost1)
-            dr.scatter(cost, g(cost1) + v["cost"], idx)
-            dr.eval(total, cost)
-            counters.update(nr=v["nr"], nt=v["nt"], nsh2=v["nsh"])
-            return total, cost, res["t"], res["slot"], res["ns"], counters
-
-    return RayTree
+        result = dr.while_loop((stk_f, stk_u, *[state[k] for k in names]), cond, body,
+                               label="links1_whitted")
+        v = dict(zip(names, result[2:]))
+        # materialise the loop's outputs in one kernel first: scatters into arrays of another
+        # size are scheduled as their own kernel, which would re-run the loop
+        dr.eval(v["L"], v["cost"], v["nsh"], v["nr"], v["nt"])          # kernel 2: the trees
+        # one child forest per sample (idx is unique: no races). The scatter targets are
+        # copies of level-1 arrays, whose width is the input's at every replay (a zeros(n)
+        # target would keep the recorded width; a scatter_add would force freeze to dry-run)
+        total = mi.Color3f(L1)
+        dr.scatter(total, g(L1) + v["L"], idx)
+        cost = mi.UInt32(cost1)
+        dr.scatter(cost, g(cost1) + v["cost"], idx)
+        dr.eval(total, cost)
+        counters.update(nr=v["nr"], nt=v["nt"], nsh2=v["nsh"])
+        return total, cost, res["t"], res["slot"], res["ns"], counters

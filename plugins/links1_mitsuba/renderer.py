@@ -42,7 +42,7 @@ class MitsubaRenderer:
     spp, max_depth : int, optional
         Override the file's sampler count / integrator depth.
     seed : int
-        Seed of the sample pattern (links1.sampling).
+        Seed of the sample pattern (links1.maths.sampling).
     aovs : sequence of str
         Extra channels: ``depth``, ``normal``, ``id``, ``cost``.
     variant : str, optional
@@ -52,7 +52,7 @@ class MitsubaRenderer:
         ...) through ``mi.render`` with a crop window (kernels then recompile per window).
     width, height : int, optional
         Override the film resolution, keeping the horizontal field of view (as the core's
-        ``links1.render._resized``); the crop window becomes the whole new film.
+        ``links1.tracing.render._resized``); the crop window becomes the whole new film.
     min_weight : float
         A secondary ray is traced only if its weight in the pixel (largest RGB component of the
         product of the r / t factors down the ray tree) exceeds this; default: the scene's
@@ -62,8 +62,8 @@ class MitsubaRenderer:
         Shadow rays per sampled light and hit; default: the scene's ``links1_whitted``
         ``light_samples``, else 1. links1 integrator only.
     adaptive, adaptive_depth : float, int, optional
-        Adaptive anti-aliasing instead of ``spp`` (:mod:`links1.adaptive`, as the core's
-        ``links1.render``): one launch per refinement level over the new lattice points
+        Adaptive anti-aliasing instead of ``spp`` (:mod:`links1.tracing.adaptive`, as the core's
+        ``links1.tracing.render``): one launch per refinement level over the new lattice points
         (:meth:`Links1Whitted.trace_points`). links1 integrator only.
     sensor : int, optional
         Which of the file's sensors renders (index in file order, default 0): its camera,
@@ -176,7 +176,7 @@ class MitsubaRenderer:
     def shapes_info(self) -> list:
         """One dict per shape, in file order (``index`` = the ``id`` AOV)."""
         import mitsuba as mi
-        from ._registry import plugin_class
+        from .registered import plugin_class
         info = []
         names = getattr(self.integrator, "shape_names", None) or []
         by_slot = {s: (nm, tp) for s, nm, tp in names}

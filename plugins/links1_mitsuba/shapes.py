@@ -182,7 +182,7 @@ class QuadricSpec:
         return dr.normalize(nw)
 
     def uv(self, o, d, t, prim):
-        """The core's uv of the hit (links1.shapes.Quadric.uv): Mitsuba's sphere / cylinder
+        """The core's uv of the hit (links1.geometry.shapes.Quadric.uv): Mitsuba's sphere / cylinder
         parameterisation of the object-space point."""
         u, v = self._to_object(o, d)
         return quadric_uv(u + v * t, 1.0 if self.kind == "sphere" else 0.0)
@@ -193,7 +193,7 @@ class QuadricSpec:
 
 def quadric_uv(x, qz):
     """uv of object-space points ``x`` on a unit sphere (``qz`` = 1) or cylinder (0):
-    ``(φ/2π, θ/π)`` or ``(φ/2π, z)``, φ = atan2(y, x) in [0, 2π) (links1.shapes.Quadric.uv)."""
+    ``(φ/2π, θ/π)`` or ``(φ/2π, z)``, φ = atan2(y, x) in [0, 2π) (links1.geometry.shapes.Quadric.uv)."""
     import drjit as dr
     import mitsuba as mi
     phi = dr.atan2(x.y, x.x)
@@ -674,7 +674,7 @@ class BlobSpec:
 
     def _paper(self, per, s_lo, s_hi, run):
         """The paper's span sampling and piecewise quadratic interpolation (3-2-3), the
-        float64 core's algorithm (links1/blob.py ``_solve_paper``) in float32.
+        float64 core's algorithm (links1/geometry/blob.py ``_solve_paper``) in float32.
 
         Every positive centre's chord (cut to the ray segment) gets ``samples`` evenly spaced
         points (``linspace(0, 1, samples)``); the samples of all chords, in increasing order
@@ -812,7 +812,7 @@ class BlobSpec:
 
 def _quad_root32(x0, x1, x2, y0, y1, y2, a, b):
     """Smallest t in [a, b] where the quadratic through (x_i, y_i) is zero (inf if none):
-    links1/blob.py ``_quad_root``, the same arithmetic in Dr.Jit float32."""
+    links1/geometry/blob.py ``_quad_root``, the same arithmetic in Dr.Jit float32."""
     import drjit as dr
     d01 = dr.select(x1 != x0, (y1 - y0) / dr.select(x1 != x0, x1 - x0, 1.0), 0.0)
     d12 = dr.select(x2 != x1, (y2 - y1) / dr.select(x2 != x1, x2 - x1, 1.0), d01)
@@ -840,12 +840,12 @@ def _quad_root32(x0, x1, x2, y0, y1, y2, a, b):
 
 # ---------------------------------------------------------------------- bicubic patches
 def tessellate_bicubic(props, base_dir=None):
-    """Vertices, faces and normals of a ``links1_bicubic`` node, with ``links1.meshes``."""
+    """Vertices, faces and normals of a ``links1_bicubic`` node, with ``links1.geometry.meshes``."""
     import os
     try:
         from links1.geometry import meshes
     except ImportError as exc:  # pragma: no cover
-        raise RuntimeError("links1_bicubic needs links1.meshes (tessellation)") from exc
+        raise RuntimeError("links1_bicubic needs links1.geometry.meshes (tessellation)") from exc
     has_file = ("filename" in props)
     has_inline = ("control_points" in props)
     if has_file == has_inline:
@@ -872,6 +872,7 @@ def tessellate_bicubic(props, base_dir=None):
 
 
 def define_bicubic():
+    """``Links1Bicubic`` for the variant in use: a subclass of its ``mi.Mesh``, made per variant."""
     import drjit as dr
     import mitsuba as mi
 
@@ -881,7 +882,7 @@ def define_bicubic():
         ==============  =======  ==========================================  =========
         Parameter       Type     Meaning                                     Default
         ==============  =======  ==========================================  =========
-        filename        string   a ``.patch`` file (see ``links1.meshes``)   —
+        filename        string   a ``.patch`` file (see ``links1.geometry.meshes``)   —
         control_points  string   inline: 48 numbers per patch                —
         subdivisions    integer  grid cells per patch side                   8
         to_world        trafo    object → world                              identity

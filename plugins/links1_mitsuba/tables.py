@@ -10,22 +10,35 @@ at all without either, no custom-shape code without custom shapes, no blob solve
 blobs, no shadow ray toward a light from a hit that no shape can shadow (``_occluders``: a
 lone convex shape, a floor below every other shape and the light, ...).
 
-:func:`define_tables` returns a class whose methods ``Links1Whitted`` takes (defined in a
-function, as the integrator, because the Mitsuba variant must be set first).
+:class:`Tables` is a mixin whose methods ``Links1Whitted`` takes (integrator.py); they name
+``mi.Float``, ``mi.Ray3f``, ... when called, so the class serves every Mitsuba variant.
 """
 from __future__ import annotations
 
 import copy
 import warnings
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from links1.sensor.filters import Filter
 from links1.shading.lights import ENV_LIGHT_ID
 
+import drjit as dr
+import mitsuba as mi
+
 from . import lightbuffer, tuning
+from .bvh import QuadricBVH
+from .registered import plugin_class
 from .lights import _emitted_rgb
-from .util import checked_index
+from .util import Hidden, checked_index
+
+#: Relative ray-origin offset on shapes whose float32 hits are accurate to a few ulps
+#: (meshes, rectangles, disks, links1 quadrics): a small offset keeps shadow rays that graze
+#: an object on the same side as the float64 core. Mitsuba's sphere/cylinder and links1
+#: blobs (iterative roots) use Mitsuba's RayEpsilon (self-shadowing otherwise).
+OFFSET_EPS = 2.0 ** -19
+_PRECISE_MITSUBA = ("Mesh", "OBJMesh", "PLYMesh", "Rectangle", "Disk", "Links1Bicubic", "SerializedMesh")
 
 #: Shadow rays toward a light that at most this many Mitsuba shapes can occlude first test the
 #: segment against those shapes' bounding boxes and call Embree only where one is met
@@ -124,7 +137,7 @@ def _token(value):
     return (a.dtype.str, a.shape, np.ascontiguousarray(a).tobytes())
 
 
-class ParamWatch:
+class ParamWatch(Hidden):
     """Whether a Mitsuba object's parameters (every one ``mi.traverse(obj)`` exposes: a
     scene's shapes, BSDFs, textures, emitters, sensors, ...) changed since the watch was made,
     without reading them back (issue 22, item 2; it replaces a digest of every value, which
@@ -148,11 +161,9 @@ class ParamWatch:
     object), or an integrator's, makes each check a whole ``mi.traverse``, as another ``obj``
     does (a scene with the same shapes, emitters and sensors).
 
-    ``__slots__``: no ``__dict__``, so the walk that gathers the frozen launch's inputs from
-    the tables (``Launches._frozen_inputs``) does not take the pins (old values) for inputs."""
-
-    __slots__ = ("_mi", "_collect", "_obj_id", "_retraverse", "state", "_pins", "_jit", "_jit_ids",
-                 "_scalar", "_scalar_tokens", "_root_keys")
+    A :class:`~links1_mitsuba.util.Hidden`: neither ``dr.freeze`` nor the walk that gathers
+    the frozen launch's inputs from the tables (``Launches._frozen_inputs``) takes the pins
+    (old values) for inputs."""
 
     class _Shallow:
         """A ``TraversalCallback`` that keeps the values put (not the objects): the class is
@@ -242,8 +253,180 @@ class ParamWatch:
         return (how, tuple(self._collect(value)) if how == "ids" else _token(value))
 
 
+def _set_later():
+    """A field :meth:`Tables._prepare_scene` (or the camera view, :meth:`Tables._set_camera`)
+    always sets: no default, so reading it before it is set is an AttributeError."""
+    return field(init=False, repr=False)
+
+
+def _default(value=None):
+    """A field the code reads before (or without) setting it: ``value`` until set."""
+    return field(init=False, repr=False, default=value)
+
+
+@dataclass(slots=True, eq=False)
 class Prepared:
-    """Per-scene tables: slots (shapes in file order), materials, lights, camera."""
+    """The per-scene tables the kernels read (:meth:`Tables.prepare`): slots (the shapes in
+    file order: Mitsuba's first, then the links1 shapes), materials, shadow rays, emission,
+    lights, and in a camera view (a shallow copy per sensor) the camera and film.
+
+    Every field is declared here (``slots``: assigning an undeclared name is an
+    AttributeError). The Dr.Jit arrays among them reach the frozen launches as their
+    ``tables`` input (``Launches._frozen_inputs`` walks the fields). Per-slot tables have
+    ``nslots`` rows; the RGB ones are flat Floats of 3 values per slot. ``eq=False``: tables are
+    compared (and hashed) by identity."""
+
+    # -- scene identity and bookkeeping
+    #: the scene's shapes, emitters and sensors as object ids (:func:`scene_identity`)
+    ident: tuple = _set_later()
+    #: the tuning the tables were built with (``tuning.Tuning.tables_key``)
+    tuning: tuning.Tuning = _set_later()
+    #: the scene's parameters as last seen (:class:`ParamWatch`)
+    watch: ParamWatch = _set_later()
+    #: (shapes, emitters, sensors, BSDF per slot): the objects whose ids ``ident`` and the
+    #: BSDF pointer tables hold, kept alive with the tables
+    keep_alive: tuple = _set_later()
+    #: the camera views of these tables, by ``id(sensor)`` (:meth:`Tables._camera_view`)
+    views: dict = _set_later()
+    #: number of slots (Mitsuba shapes and links1 shapes)
+    nslots: int = _set_later()
+    #: the links1 shapes (``QuadricSpec`` / ``BlobSpec``), the integrator's list
+    custom: list = _set_later()
+    #: the blobs' candidate-search tables (``BlobSpec.tables``), built before any trace
+    blob_tables: list = _set_later()
+    #: the links1 quadrics under a BVH (``bvh.QuadricBVH``), or None (fewer than ``bvh_min``)
+    bvh: object = _set_later()
+    #: the links1 shapes intersected one code block each (those not under the BVH)
+    custom_unrolled: list = _set_later()
+    #: the slots of the quadrics under the BVH
+    bvh_slots: frozenset = _default(frozenset())
+    #: Mitsuba's shape registry id -> slot (-1: none), Int32
+    reg_to_slot: object = _set_later()
+    #: whether the scene has Mitsuba shapes (else no ``scene.ray_intersect``)
+    any_mitsuba_shapes: bool = _set_later()
+    #: relative ray-origin offset per slot (``OFFSET_EPS`` or Mitsuba's RayEpsilon), Float
+    eps_table: object = _set_later()
+
+    # -- materials (links1_phong: eq. 3.11; other Mitsuba BSDFs through bsdf.eval / sample)
+    #: per slot: a links1_phong surface (numpy bool)
+    is_phong_np: object = _set_later()
+    #: every slot / some slot is links1_phong
+    all_phong: bool = _set_later()
+    any_phong: bool = _set_later()
+    #: ``is_phong_np`` as a Bool table
+    is_phong: object = _set_later()
+    #: eq. 3.11's dic, drc, src (ambient, diffuse, specular) and eq. 3.16's r, t per slot (RGB)
+    amb: object = _set_later()
+    dif: object = _set_later()
+    spe: object = _set_later()
+    refl: object = _set_later()
+    trans: object = _set_later()
+    #: the highlight exponent n and the index of refraction per slot, Float
+    expo: object = _set_later()
+    ior: object = _set_later()
+    #: some slot has an ambient term
+    any_ambient: bool = _set_later()
+    #: per slot: the Mitsuba BSDF has a delta reflection / delta transmission / Null lobe, Bool
+    has_dr: object = _set_later()
+    has_dt: object = _set_later()
+    has_null: object = _set_later()
+    #: some Mitsuba BSDF has a delta reflection / transmission / Null lobe / any delta lobe
+    any_mitsuba_dr: bool = _set_later()
+    any_mitsuba_dt: bool = _set_later()
+    any_mitsuba_null: bool = _set_later()
+    any_mitsuba_delta: bool = _set_later()
+    #: some slot's BSDF is a ``mask``; then the BSDFs masks wrap, per slot (BSDFPtr), else None
+    any_mask: bool = _set_later()
+    inner_ptr: object = _set_later()
+    #: some links1_phong slot reflects / transmits; some slot spawns a mirror or refraction ray
+    any_phong_r: bool = _set_later()
+    any_phong_t: bool = _set_later()
+    any_specular: bool = _set_later()
+    #: the links1 quadric slots whose Mitsuba BSDF has a texture (they get the core's uv)
+    uv_slots: set = _set_later()
+    #: the BSDF of each slot (BSDFPtr), None when every slot is links1_phong
+    bsdf_ptr: object = _set_later()
+
+    # -- shadow rays (3-3-3)
+    #: shadow transmittance per slot ((nslots, 3) numpy; a derivative pass: a list of rows)
+    shadow_t_np: object = _set_later()
+    #: the same as a flat Float
+    shadow_t: object = _set_later()
+    #: a transparent Mitsuba shape's bit and word in a lane's "seen" set, per slot (UInt32)
+    trans_bits: object = _set_later()
+    trans_words: object = _set_later()
+    #: words of that set
+    trans_nwords: int = _set_later()
+    #: most crossings of transparent Mitsuba shapes one shadow segment can make
+    max_crossings: int = _set_later()
+    any_transparent_mitsuba: bool = _set_later()
+    #: the sub-scenes of :func:`shadow_split`, or None (the crossings are walked)
+    shadow_split: object = _default(None)
+
+    # -- emission
+    #: the links1 shapes' emission per slot (RGB); some slot emits
+    custom_emission: object = _set_later()
+    any_custom_emission: bool = _set_later()
+    #: per slot: a Mitsuba shape with an area emitter (Bool); some slot has one
+    any_mitsuba_emission: bool = _set_later()
+    mitsuba_emits: object = _set_later()
+
+    # -- lights (docs/method.md §4.1; lights.py)
+    #: the analytic lights: ("point", pos, axis, L1, L2, inverse_square), ("cspot", origin,
+    #: direction, radius, I), ("mspot", pos, axis, I, cutoff, beam), ("dir", direction, E),
+    #: ("memitter", pos, emitter)
+    lights: list = _set_later()
+    #: the sampled area emitters and their tables (``Lights._area_table``)
+    area: list = _set_later()
+    area_tab: list = _set_later()
+    #: the environment emitter seen by escaping rays, or None
+    env: object = _set_later()
+    #: the environment lights: ("const", rgb, light id) or ("envmap", table, light id)
+    consts: list = _set_later()
+    #: per light (analytic, then area, then environment; :meth:`Tables._occluders`): the slots
+    #: whose hits need a shadow ray (Bool, None: all), the closed shapes that shadow their own
+    #: points from the inside (Bool or None), whether any shadow ray is traced, the links1
+    #: shapes / whether any Mitsuba shape can occlude it, the Mitsuba occluders' boxes
+    #: (:func:`occluder_boxes`) and slots
+    shadow_need: list = _set_later()
+    shadow_inner: list = _set_later()
+    any_shadow: list = _set_later()
+    occ_custom: list = _set_later()
+    occ_mitsuba: list = _set_later()
+    occ_boxes: list = _set_later()
+    occ_mslots: list = _set_later()
+    #: per analytic light: its light buffer (lightbuffer.plan) or None
+    lbuf: list = _set_later()
+
+    # -- the camera view (:meth:`Tables._camera_view`; None / unset on the scene's tables)
+    #: the scene's tables this view copies
+    base: Prepared | None = _default(None)
+    #: a sensor that is not the scene's, watched (:class:`ParamWatch`) while verify_scene
+    sensor_watch: ParamWatch | None = _default(None)
+    #: the Dr.Jit arrays of these tables (``Launches._frozen_inputs``), once gathered
+    frozen_inputs: list | None = _default(None)
+    #: the scene as the frozen launches' input (``launch.SceneInputs`` or "whole scene")
+    scene_input: object = _default(None)
+    sensor: object = _set_later()
+    #: the film's full size (W, H) and reconstruction filter (links1.sensor.filters.Filter)
+    film_size: tuple = _set_later()
+    rfilter: Filter = _set_later()
+    #: "perspective" or "orthographic"; perspective; its horizontal field of view (degrees)
+    projection: str = _set_later()
+    perspective: bool = _default(False)
+    x_fov: float | None = _default(None)
+    #: the camera-to-world matrix (4x4 float64) and the clip distances
+    cam: object = _set_later()
+    near: float = _set_later()
+    far: float = _set_later()
+    #: the light buffer around a pinhole camera's eye (lightbuffer.plan_eye), or None
+    eye_buf: object = _default(None)
+
+    # -- a derivative pass (gradients.py: a copy with attached values)
+    #: the launches trace ``_trace_tree_ad`` and the film differentiably
+    ad: bool = _default(False)
+    #: the attached geometry of the links1 shapes, or None
+    geo_ad: object = _default(None)
 
 
 def _unmask(mi, b):
@@ -257,472 +440,465 @@ def _unmask(mi, b):
     return b
 
 
-def define_tables(mi, dr, util):
-    """The ``Tables`` part of ``Links1Whitted`` for the variant in use."""
-    from ._registry import plugin_class
-    from .integrator import _PRECISE_MITSUBA, OFFSET_EPS
+def scene_identity(scene):
+    """The scene's shapes, emitters and sensors as object identities (cheap: no parameters).
+    Prepared tables keep those objects alive, so another scene's objects cannot take the
+    same identities while the tables are kept."""
+    ids = []
+    for objs in (scene.shapes(), scene.emitters(), scene.sensors()):
+        ids.append(len(objs))
+        ids += [id(o) for o in objs]
+    return tuple(ids)
 
-    def scene_identity(scene):
-        """The scene's shapes, emitters and sensors as object identities (cheap: no parameters).
-        Prepared tables keep those objects alive, so another scene's objects cannot take the
-        same identities while the tables are kept."""
-        ids = []
-        for objs in (scene.shapes(), scene.emitters(), scene.sensors()):
-            ids.append(len(objs))
-            ids += [id(o) for o in objs]
-        return tuple(ids)
 
-    class Tables:
-        """``prepare``: the per-scene tables; ``_occluders``: which shadow rays they need."""
+class Tables:
+    """``prepare``: the per-scene tables; ``_occluders``: which shadow rays they need."""
 
-        def prepare(self, scene, sensor=None):
-            """The tables of ``scene`` seen from ``sensor`` (a sensor object, an index into
-            ``scene.sensors()``, or None: the scene's first sensor), rebuilt when the scene is
-            another one or was changed.
+    def prepare(self, scene, sensor=None):
+        """The tables of ``scene`` seen from ``sensor`` (a sensor object, an index into
+        ``scene.sensors()``, or None: the scene's first sensor), rebuilt when the scene is
+        another one or was changed.
 
-            The scene's tables (shapes, materials, lights, shadow rays) are keyed on what they
-            are built from, never on ``id(scene)``: the registry ids of the scene's shapes,
-            emitters and sensors (P keeps those objects alive, so no other scene can reuse the
-            ids), the part of the tuning they are built from (``tuning.Tuning.tables_key``: light
-            buffers, BVH), and, while ``verify_scene``, every parameter ``mi.traverse`` exposes, watched
-            by its Dr.Jit variables (:class:`ParamWatch`: a ``params.update()`` after a render
-            is seen, and nothing is read back from the device). ``n_scene_builds`` and
-            ``n_camera_views`` count the tables built. Each sensor gets its own
-            view of them (:meth:`_camera_view`: camera, film, filter, eye buffer) as a distinct
-            object, so a frozen launch recorded for one sensor's camera (``cfg`` holds the
-            view's id) is never replayed for another."""
-            ident = scene_identity(scene)
-            V = self._prep
-            B = getattr(V, "base", None)
-            if not (B is not None and B.ident == ident
-                    and B.tuning.tables_key() == tuning.current().tables_key()
-                    and (not self.verify_scene or B.watch.unchanged(scene))):
-                B = self._prepare_scene(scene, ident)
-            V = self._camera_view(B, scene, self._sensor_of(scene, sensor))
-            self._prep = V
+        The scene's tables (shapes, materials, lights, shadow rays) are keyed on what they
+        are built from, never on ``id(scene)``: the registry ids of the scene's shapes,
+        emitters and sensors (P keeps those objects alive, so no other scene can reuse the
+        ids), the part of the tuning they are built from (``tuning.Tuning.tables_key``: light
+        buffers, BVH), and, while ``verify_scene``, every parameter ``mi.traverse`` exposes, watched
+        by its Dr.Jit variables (:class:`ParamWatch`: a ``params.update()`` after a render
+        is seen, and nothing is read back from the device). ``n_scene_builds`` and
+        ``n_camera_views`` count the tables built. Each sensor gets its own
+        view of them (:meth:`_camera_view`: camera, film, filter, eye buffer) as a distinct
+        object, so a frozen launch recorded for one sensor's camera (``cfg`` holds the
+        view's id) is never replayed for another."""
+        ident = scene_identity(scene)
+        V = self._prep
+        B = getattr(V, "base", None)
+        if not (B is not None and B.ident == ident
+                and B.tuning.tables_key() == tuning.current().tables_key()
+                and (not self.verify_scene or B.watch.unchanged(scene))):
+            B = self._prepare_scene(scene, ident)
+        V = self._camera_view(B, scene, self._sensor_of(scene, sensor))
+        self._prep = V
+        return V
+
+    def _sensor_of(self, scene, sensor):
+        """``sensor`` as a sensor object: an index into ``scene.sensors()`` (None: 0) or the
+        object itself (a sensor of the scene or one made apart, ``mi.load_dict``)."""
+        if sensor is None or isinstance(sensor, (int, np.integer)):
+            sensors = scene.sensors()
+            k = 0 if sensor is None else int(sensor)
+            if not 0 <= k < len(sensors):
+                raise IndexError(f"links1_whitted: sensor {k} does not exist: the scene has "
+                                 f"{len(sensors)} sensor{'s' if len(sensors) != 1 else ''}")
+            return sensors[k]
+        if not isinstance(sensor, mi.Sensor):
+            raise TypeError(f"links1_whitted: sensor must be an index or a mitsuba Sensor, got "
+                            f"{type(sensor).__name__}")
+        return sensor
+
+    def _camera_view(self, B, scene, sensor):
+        """The tables ``B`` with ``sensor``'s camera, film and filter (a shallow copy of
+        ``B``: the Dr.Jit tables are shared), one per sensor and kept with ``B``. A sensor
+        that is not one of the scene's is watched (:class:`ParamWatch`) while
+        ``verify_scene``, as the scene is."""
+        own = any(sensor is s for s in B.keep_alive[2])
+        check = self.verify_scene and not own
+        V = B.views.get(id(sensor))
+        if (V is not None and V.sensor is sensor and (V.sensor_watch is not None) == check
+                and (not check or V.sensor_watch.unchanged(sensor))):
             return V
+        V = copy.copy(B)
+        V.base = B
+        V.sensor_watch = ParamWatch(sensor) if check else None
+        V.frozen_inputs = None
+        V.scene_input = None
+        self.n_camera_views += 1
+        self._set_camera(V, sensor)
+        # light buffer around a pinhole camera's eye for the camera rays' nearest quadric
+        V.eye_buf = lightbuffer.plan_eye(V, scene) if B.tuning.light_buffer else None
+        B.views[id(sensor)] = V     # V keeps the sensor alive: its id is not reused
+        return V
 
-        def _sensor_of(self, scene, sensor):
-            """``sensor`` as a sensor object: an index into ``scene.sensors()`` (None: 0) or the
-            object itself (a sensor of the scene or one made apart, ``mi.load_dict``)."""
-            if sensor is None or isinstance(sensor, (int, np.integer)):
-                sensors = scene.sensors()
-                k = 0 if sensor is None else int(sensor)
-                if not 0 <= k < len(sensors):
-                    raise IndexError(f"links1_whitted: sensor {k} does not exist: the scene has "
-                                     f"{len(sensors)} sensor{'s' if len(sensors) != 1 else ''}")
-                return sensors[k]
-            if not isinstance(sensor, mi.Sensor):
-                raise TypeError(f"links1_whitted: sensor must be an index or a mitsuba Sensor, got "
-                                f"{type(sensor).__name__}")
-            return sensor
+    def _set_camera(self, P, sensor):
+        """The camera of ``P``: ``sensor``'s film size, filter, projection and matrix."""
+        film = sensor.film()
+        P.sensor = sensor
+        P.film_size = (int(film.size()[0]), int(film.size()[1]))
+        P.rfilter = Filter.from_mitsuba(film.rfilter())
+        # perspective and orthographic rays are made analytically (launch.py: _rays_at) from
+        # the sensor's matrix, clip distances and field of view: the same rays as Mitsuba's
+        kind = str(sensor).split("[")[0]
+        if kind == "ThinLensCamera":   # as the core: the lens centre only
+            warnings.warn(f"{self.place(sensor)}: thinlens is rendered as a pinhole perspective camera "
+                          "(no depth of field)", stacklevel=2)
+        P.projection = {"PerspectiveCamera": "perspective", "ThinLensCamera": "perspective",
+                        "OrthographicCamera": "orthographic"}.get(kind)
+        P.perspective = P.projection == "perspective"
+        if P.projection is not None:
+            if P.perspective:
+                P.x_fov = float(np.array(mi.traverse(sensor)["x_fov"]).ravel()[0])
+            P.cam = np.array(sensor.world_transform().matrix, dtype=np.float64).reshape(4, 4)
+            P.near, P.far = float(sensor.near_clip()), float(sensor.far_clip())
+        else:
+            raise ValueError(f"links1_whitted renders perspective, thinlens and orthographic sensors, "
+                             f"not {kind}")
 
-        def _camera_view(self, B, scene, sensor):
-            """The tables ``B`` with ``sensor``'s camera, film and filter (a shallow copy of
-            ``B``: the Dr.Jit tables are shared), one per sensor and kept with ``B``. A sensor
-            that is not one of the scene's is watched (:class:`ParamWatch`) while
-            ``verify_scene``, as the scene is."""
-            own = any(sensor is s for s in B.keep_alive[2])
-            check = self.verify_scene and not own
-            V = B.views.get(id(sensor))
-            if (V is not None and V.sensor is sensor and (V.sensor_watch is not None) == check
-                    and (not check or V.sensor_watch.unchanged(sensor))):
-                return V
-            V = copy.copy(B)
-            V.base = B
-            V.sensor_watch = ParamWatch(sensor) if check else None
-            V.frozen_inputs = None
-            V.scene_input = None
-            self.n_camera_views += 1
-            self._set_camera(V, sensor)
-            # light buffer around a pinhole camera's eye for the camera rays' nearest quadric
-            V.eye_buf = lightbuffer.plan_eye(V, scene) if B.tuning.light_buffer else None
-            B.views[id(sensor)] = V     # V keeps the sensor alive: its id is not reused
-            return V
-
-        def _set_camera(self, P, sensor):
-            """The camera of ``P``: ``sensor``'s film size, filter, projection and matrix."""
-            film = sensor.film()
-            P.sensor = sensor
-            P.film_size = (int(film.size()[0]), int(film.size()[1]))
-            P.rfilter = Filter.from_mitsuba(film.rfilter())
-            # perspective and orthographic rays are made analytically (launch.py: _rays_at) from
-            # the sensor's matrix, clip distances and field of view: the same rays as Mitsuba's
-            kind = str(sensor).split("[")[0]
-            if kind == "ThinLensCamera":   # as the core: the lens centre only
-                warnings.warn(f"{self.place(sensor)}: thinlens is rendered as a pinhole perspective camera "
-                              "(no depth of field)", stacklevel=2)
-            P.projection = {"PerspectiveCamera": "perspective", "ThinLensCamera": "perspective",
-                            "OrthographicCamera": "orthographic"}.get(kind)
-            P.perspective = P.projection == "perspective"
-            if P.projection is not None:
-                if P.perspective:
-                    P.x_fov = float(np.array(mi.traverse(sensor)["x_fov"]).ravel()[0])
-                P.cam = np.array(sensor.world_transform().matrix, dtype=np.float64).reshape(4, 4)
-                P.near, P.far = float(sensor.near_clip()), float(sensor.far_clip())
-            else:
-                raise ValueError(f"links1_whitted renders perspective, thinlens and orthographic sensors, "
-                                 f"not {kind}")
-
-        def _prepare_scene(self, scene, ident):
-            """The tables of ``scene`` that do not depend on the sensor (:meth:`prepare`)."""
-            P = Prepared()
-            P.ident = ident
-            P.tuning = tuning.current()     # what the tables are built with (tables_key)
-            P.watch = ParamWatch(scene)     # before the tables read the parameters
-            self.n_scene_builds += 1
-            P.keep_alive = (list(scene.shapes()), list(scene.emitters()), list(scene.sensors()))  # see scene_identity
-            P.views = {}
-            self._freeze = None       # recordings hold the previous tables
-            shapes = list(scene.shapes())
-            slot_of_id = self.slot_of_id
-            if slot_of_id is None:
-                slot_of_id = {s.id(): i for i, s in enumerate(shapes)}
-                nslots = len(shapes)
-                slot_list = [slot_of_id[s.id()] for s in shapes]
-            else:
-                slot_list = []
-                for s in shapes:
-                    if s.id() not in slot_of_id:
-                        raise RuntimeError(f"links1_whitted: shape '{s.id()}' is unknown to the loader")
-                    slot_list.append(slot_of_id[s.id()])
-                nslots = len(slot_of_id) + len(self.custom)
-            P.nslots = nslots
-            P.custom = self.custom
-            # blobs' candidate-search tables, built before any trace (frozen inputs)
-            P.blob_tables = [sp.tables() for sp in self.custom if hasattr(sp, "tables")]
-            # many bounded quadrics: tables under a BVH (bvh.py) instead of one code block each
-            quad = [sp for sp in self.custom if sp.__class__.__name__ == "QuadricSpec"
-                    and np.all(np.isfinite(np.concatenate(sp.bounds())))]
-            P.bvh = None
-            P.custom_unrolled = list(self.custom)
-            if len(quad) >= P.tuning.bvh_min:
-                bvh_ids = {id(sp) for sp in quad}
-                P.custom_unrolled = [sp for sp in self.custom if id(sp) not in bvh_ids]
-                P.bvh_slots = {sp.slot for sp in quad}
-            # registry id -> slot
-            reg = [int(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(s))[0]) for s in shapes]
-            table = np.full(max(reg + [0]) + 1, -1, dtype=np.int32)
-            for r, sl in zip(reg, slot_list):
-                table[r] = sl
-            P.reg_to_slot = mi.Int32(checked_index(table, nslots, "reg_to_slot", sentinel=-1))
-            P.any_mitsuba_shapes = len(shapes) > 0
-            eps_np = np.full(max(nslots, 1), float(mi.math.RayEpsilon), dtype=np.float32)
-            for s_, sl in zip(shapes, slot_list):
-                if s_.is_mesh() or str(s_).split("[")[0] in _PRECISE_MITSUBA:
-                    eps_np[sl] = OFFSET_EPS
-            for spec in self.custom:
-                if spec.__class__.__name__ == "QuadricSpec":
-                    eps_np[spec.slot] = OFFSET_EPS
-            P.eps_table = mi.Float(eps_np)
-            # materials
-            default_bsdf = None
-            bsdfs = [None] * nslots
-            for s, sl in zip(shapes, slot_list):
-                bsdfs[sl] = s.bsdf()
-            for spec in self.custom:
-                b = self.custom_bsdfs.get(spec.slot)
-                if b is None:
-                    if default_bsdf is None:
-                        default_bsdf = mi.load_dict({"type": "diffuse"})
-                    b = default_bsdf
-                bsdfs[spec.slot] = b
-            Phong = plugin_class("links1_phong")
-            is_phong = np.zeros(nslots, dtype=bool)
-            amb = np.zeros((nslots, 3)); dif = np.zeros((nslots, 3)); spe = np.zeros((nslots, 3))
-            refl = np.zeros((nslots, 3)); trans = np.zeros((nslots, 3))
-            expo = np.zeros(nslots); ior = np.ones(nslots)
-            has_dr = np.zeros(nslots, dtype=bool); has_dt = np.zeros(nslots, dtype=bool)
-            has_null = np.zeros(nslots, dtype=bool)
-            inner = list(bsdfs)   # the BSDF whose delta lobes a slot samples (a mask's nested one)
-            warned = set()
-            for sl, b in enumerate(bsdfs):
-                if b is None:
-                    continue
-                if isinstance(b, Phong):
-                    p = b.params
-                    is_phong[sl] = True
-                    amb[sl], dif[sl], spe[sl] = p["ambient"], p["diffuse"], p["specular"]
-                    refl[sl], trans[sl] = p["reflectance"], p["transmittance"]
-                    expo[sl], ior[sl] = p["exponent"], p["ior"]
-                else:
-                    fl = int(b.flags())
-                    has_dr[sl] = bool(fl & int(mi.BSDFFlags.DeltaReflection))
-                    has_dt[sl] = bool(fl & int(mi.BSDFFlags.DeltaTransmission))
-                    # Null: a straight-through delta lobe (thindielectric's transmission, mask's
-                    # transparency, null); its weight is eval_null_transmission (issue 27)
-                    has_null[sl] = bool(fl & int(mi.BSDFFlags.Null))
-                    inner[sl] = _unmask(mi, b)
-                    if has_null[sl] and has_dt[sl]:
-                        name = str(b).split("[")[0]
-                        if ("null+dt", name) not in warned:
-                            warned.add(("null+dt", name))
-                            warnings.warn(f"links1_whitted: BSDF {name} has both a refracted and a "
-                                          "straight-through transmission (a mask around a "
-                                          "dielectric); the straight-through part is dropped",
-                                          stacklevel=2)
-                        has_null[sl] = False
-                    if fl & int(mi.BSDFFlags.Glossy):
-                        name = str(b).split("[")[0]
-                        where = self.place(b)
-                        if (where, name) not in warned:     # once per element
-                            warned.add((where, name))
-                            warnings.warn(f"{where}: BSDF {name} has glossy lobes; it gets direct "
-                                          "light from delta lights only (no glossy indirect light)",
-                                          stacklevel=2)
-            P.is_phong_np = is_phong
-            P.all_phong = bool(is_phong.all())
-            P.any_phong = bool(is_phong.any())
-            P.is_phong = mi.Bool(is_phong)
-            P.amb, P.dif, P.spe = (mi.Float(a.ravel()) for a in (amb, dif, spe))
-            P.refl, P.trans = mi.Float(refl.ravel()), mi.Float(trans.ravel())
-            P.expo, P.ior = mi.Float(expo), mi.Float(ior)
-            P.any_ambient = bool(np.any(amb > 0))
-            P.has_dr, P.has_dt, P.has_null = mi.Bool(has_dr), mi.Bool(has_dt), mi.Bool(has_null)
-            P.any_mitsuba_dr, P.any_mitsuba_dt = bool(has_dr.any()), bool(has_dt.any())
-            P.any_mitsuba_null = bool(has_null.any())
-            P.any_mitsuba_delta = bool(np.any(has_dr | has_dt | has_null))
-            # masks: their delta lobes are sampled on the nested BSDF and scaled by the opacity
-            # (Mitsuba's mask.sample cannot sample one lobe alone: it returns its null lobe)
-            is_mask = np.array([b is not None and i is not b for b, i in zip(bsdfs, inner)], dtype=bool)
-            P.any_mask = bool(is_mask.any())
-            P.inner_ptr = mi.BSDFPtr([i if i is not None else default_bsdf for i in inner]) \
-                if P.any_mask else None
-            P.any_phong_r = bool(np.any(refl.max(1) > 0))
-            P.any_phong_t = bool(np.any(trans.max(1) > 0))
-            P.any_specular = P.any_mitsuba_delta or P.any_phong_r or P.any_phong_t
-            # links1_quadric shapes whose Mitsuba BSDF has a texture get the core's uv
-            P.uv_slots = {sp.slot for sp in self.custom if sp.__class__.__name__ == "QuadricSpec"
-                          and not is_phong[sp.slot] and _textured(bsdfs[sp.slot])}
-            if default_bsdf is None and any(b is None for b in bsdfs):
-                default_bsdf = mi.load_dict({"type": "diffuse"})
-            bsdfs = [b if b is not None else default_bsdf for b in bsdfs]
-            # a BSDFPtr array holds registry ids, not references: the BSDF objects (the default
-            # made here above all) must live as long as the tables, or a vcall through a freed
-            # id crashes the process (issue 25: a quadric without a BSDF beside ones with one)
-            P.keep_alive = P.keep_alive + (bsdfs,)
-            if len(bsdfs) != nslots or any(b is None for b in bsdfs):
-                raise RuntimeError("links1_whitted: the BSDF table has a hole (an internal inconsistency)")
-            for spec in self.custom:
-                checked_index([spec.slot], nslots, "custom shape slot")
-            P.bsdf_ptr = mi.BSDFPtr(bsdfs) if not P.all_phong else None
-            # shadow transmittance (3-3-3): Phong t; Mitsuba BSDFs are opaque
-            P.shadow_t_np = trans.copy()
-            if len(P.custom_unrolled) != len(self.custom):
-                from .bvh import define_bvh
-                P.bvh = define_bvh()([sp for sp in self.custom if sp.slot in P.bvh_slots], P.shadow_t_np)
-                s2q = np.full(max(nslots, 1), -1, dtype=np.int32)
-                for i, sp in enumerate(P.bvh.specs):
-                    s2q[sp.slot] = i
-                P.bvh.slot_to_q = mi.Int32(checked_index(s2q, P.bvh.n, "slot_to_q", sentinel=-1))
-            P.shadow_t = mi.Float(trans.ravel())
-            # transparent Mitsuba shapes, each counted once per shadow segment (3-3-3): shape j
-            # owns bit j % 32 of word j // 32 of a per-lane "seen" set (as many words as needed)
-            transparent_mitsuba = [(s, sl) for s, sl in zip(shapes, slot_list) if trans[sl].max() > 0]
-            bits = np.zeros(nslots, dtype=np.uint32)
-            words = np.zeros(nslots, dtype=np.uint32)
-            for j, (_, sl) in enumerate(transparent_mitsuba):
-                bits[sl], words[sl] = np.uint32(1 << (j % 32)), np.uint32(j // 32)
-            P.trans_bits, P.trans_words = mi.UInt32(bits), mi.UInt32(words)
-            P.trans_nwords = max(1, -(-len(transparent_mitsuba) // 32))
-            # a segment crosses each triangle at most once and an analytic shape at most twice,
-            # and stops at the first opaque one: no arbitrary cap on crossings
-            P.max_crossings = 1 + sum(int(s.face_count()) if s.is_mesh() else 2 for s, _ in transparent_mitsuba)
-            P.any_transparent_mitsuba = bool(transparent_mitsuba)
-            P.shadow_split = shadow_split(mi, shapes, slot_list, trans) if transparent_mitsuba else None
-            # emission
-            emis = np.zeros((nslots, 3))
-            for spec in self.custom:
-                if spec.emission is not None:
-                    emis[spec.slot] = spec.emission
-            P.custom_emission = mi.Float(emis.ravel())
-            P.any_custom_emission = bool(np.any(emis > 0))
-            # Mitsuba shapes that emit: area emitters only (a directionalarea is ignored, as the
-            # emitter loop below says, so its shape shows no emission either)
-            emits = np.zeros(max(nslots, 1), dtype=bool)
-            for s, sl in zip(shapes, slot_list):
-                if s.emitter() is not None and str(s.emitter()).split("[")[0] == "AreaLight":
-                    emits[sl] = True
-            P.any_mitsuba_emission = bool(emits.any())
-            P.mitsuba_emits = mi.Bool(emits)
+    def _prepare_scene(self, scene, ident):
+        """The tables of ``scene`` that do not depend on the sensor (:meth:`prepare`)."""
+        P = Prepared()
+        P.ident = ident
+        P.tuning = tuning.current()     # what the tables are built with (tables_key)
+        P.watch = ParamWatch(scene)     # before the tables read the parameters
+        self.n_scene_builds += 1
+        P.keep_alive = (list(scene.shapes()), list(scene.emitters()), list(scene.sensors()))  # see scene_identity
+        P.views = {}
+        self._freeze = None       # recordings hold the previous tables
+        shapes = list(scene.shapes())
+        slot_of_id = self.slot_of_id
+        if slot_of_id is None:
+            slot_of_id = {s.id(): i for i, s in enumerate(shapes)}
+            nslots = len(shapes)
+            slot_list = [slot_of_id[s.id()] for s in shapes]
+        else:
+            slot_list = []
             for s in shapes:
-                if s.interior_medium() is not None or s.exterior_medium() is not None:
-                    warnings.warn(f"{self.place(s)}: its medium is not supported by links1_whitted and "
-                                  "is ignored", stacklevel=2)
-            # lights
-            P.lights, P.area, P.env, P.consts, P.area_tab = [], [], None, [], []
-            n_env = 0
-            Pt, Sp = plugin_class("links1_point"), plugin_class("links1_spot")
-            for e in scene.emitters():
-                kind = str(e).split("[")[0]
-                if isinstance(e, Pt):
-                    p = e.params
-                    P.lights.append(("point", p["position"], p["direction"], p["L1"], p["L2"],
-                                     p["falloff"] == "inverse_square"))
-                elif isinstance(e, Sp):
-                    p = e.params
-                    P.lights.append(("cspot", p["origin"], p["direction"], p["radius"], p["intensity"]))
-                elif kind == "PointLight":
-                    prm = mi.traverse(e)
-                    pos = np.array(prm["position"], dtype=np.float64).ravel()
-                    I = _emitted_rgb(prm, "intensity", kind, self.place(e))
-                    P.lights.append(("point", pos, np.array([0, 0, 1.0]), I, np.zeros(3), True))
-                elif kind == "SpotLight" and any(k.startswith("texture.") and k != "texture.value"
-                                                 for k in mi.traverse(e).keys()):
-                    # a projector (its texture varies): Mitsuba's own evaluation of the emitter
-                    pos = np.array(mi.traverse(e)["to_world"].matrix, dtype=np.float64).reshape(4, 4)[:3, 3]
-                    P.lights.append(("memitter", pos, e))
-                elif kind == "SpotLight":
-                    prm = mi.traverse(e)
-                    m = np.array(prm["to_world"].matrix, dtype=np.float64).reshape(4, 4)
-                    I = _emitted_rgb(prm, "intensity", kind, self.place(e))
-                    if "texture.value" in prm.keys():   # a constant texture scales the intensity
-                        I = I * _emitted_rgb(prm, "texture", kind, self.place(e))
-                    cutoff = float(np.array(prm["cutoff_angle"]).ravel()[0])
-                    beam = float(np.array(prm["beam_width"]).ravel()[0])
-                    P.lights.append(("mspot", m[:3, 3].copy(), m[:3, 2] / np.linalg.norm(m[:3, 2]),
-                                     I, cutoff, beam))
-                elif kind == "DirectionalEmitter":
-                    prm = mi.traverse(e)
-                    m = np.array(prm["to_world"].matrix, dtype=np.float64).reshape(4, 4)
-                    E = _emitted_rgb(prm, "irradiance", kind, self.place(e))
-                    P.lights.append(("dir", m[:3, 2] / np.linalg.norm(m[:3, 2]), E))
-                elif kind == "ConstantBackgroundEmitter":
-                    rad = np.array(mi.traverse(e)["radiance.value"], dtype=np.float64).ravel()
-                    P.consts.append(("const", np.broadcast_to(rad, (3,)).copy(), ENV_LIGHT_ID + n_env))
-                    n_env += 1
-                    P.env = e
-                elif kind == "EnvironmentMapEmitter":
-                    P.consts.append(("envmap", self._envmap_table(e), ENV_LIGHT_ID + n_env))
-                    n_env += 1
-                    P.env = e
-                elif e.is_environment() or (int(e.flags()) & int(mi.EmitterFlags.Infinite)):
-                    warnings.warn(f"{self.place(e)}: emitter {kind} is seen as the background but "
-                                  "lights nothing", stacklevel=2)
-                    n_env += 1
-                    P.env = e
-                elif kind == "AreaLight":   # a directionalarea (also Surface) is ignored, as in the core
-                    tab = self._area_table(e, shapes, slot_list)
-                    if tab is not None:
-                        P.area.append(e)
-                        P.area_tab.append(tab)
-                else:
-                    warnings.warn(f"{self.place(e)}: emitter {kind} is not supported and is ignored",
-                                  stacklevel=2)
-            self._occluders(P, shapes, slot_list)
-            # light buffers for the quadric shadow rays toward analytic lights (where they pay)
-            P.lbuf = lightbuffer.plan(P, scene) if P.tuning.light_buffer else [None] * len(P.lights)
-            return P
+                if s.id() not in slot_of_id:
+                    raise RuntimeError(f"links1_whitted: shape '{s.id()}' is unknown to the loader")
+                slot_list.append(slot_of_id[s.id()])
+            nslots = len(slot_of_id) + len(self.custom)
+        P.nslots = nslots
+        P.custom = self.custom
+        # blobs' candidate-search tables, built before any trace (frozen inputs)
+        P.blob_tables = [sp.tables() for sp in self.custom if hasattr(sp, "tables")]
+        # many bounded quadrics: tables under a BVH (bvh.py) instead of one code block each
+        quad = [sp for sp in self.custom if sp.__class__.__name__ == "QuadricSpec"
+                and np.all(np.isfinite(np.concatenate(sp.bounds())))]
+        P.bvh = None
+        P.custom_unrolled = list(self.custom)
+        if len(quad) >= P.tuning.bvh_min:
+            bvh_ids = {id(sp) for sp in quad}
+            P.custom_unrolled = [sp for sp in self.custom if id(sp) not in bvh_ids]
+            P.bvh_slots = {sp.slot for sp in quad}
+        # registry id -> slot
+        reg = [int(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(s))[0]) for s in shapes]
+        table = np.full(max(reg + [0]) + 1, -1, dtype=np.int32)
+        for r, sl in zip(reg, slot_list):
+            table[r] = sl
+        P.reg_to_slot = mi.Int32(checked_index(table, nslots, "reg_to_slot", sentinel=-1))
+        P.any_mitsuba_shapes = len(shapes) > 0
+        eps_np = np.full(max(nslots, 1), float(mi.math.RayEpsilon), dtype=np.float32)
+        for s_, sl in zip(shapes, slot_list):
+            if s_.is_mesh() or str(s_).split("[")[0] in _PRECISE_MITSUBA:
+                eps_np[sl] = OFFSET_EPS
+        for spec in self.custom:
+            if spec.__class__.__name__ == "QuadricSpec":
+                eps_np[spec.slot] = OFFSET_EPS
+        P.eps_table = mi.Float(eps_np)
+        # materials
+        default_bsdf = None
+        bsdfs = [None] * nslots
+        for s, sl in zip(shapes, slot_list):
+            bsdfs[sl] = s.bsdf()
+        for spec in self.custom:
+            b = self.custom_bsdfs.get(spec.slot)
+            if b is None:
+                if default_bsdf is None:
+                    default_bsdf = mi.load_dict({"type": "diffuse"})
+                b = default_bsdf
+            bsdfs[spec.slot] = b
+        Phong = plugin_class("links1_phong")
+        is_phong = np.zeros(nslots, dtype=bool)
+        amb = np.zeros((nslots, 3)); dif = np.zeros((nslots, 3)); spe = np.zeros((nslots, 3))
+        refl = np.zeros((nslots, 3)); trans = np.zeros((nslots, 3))
+        expo = np.zeros(nslots); ior = np.ones(nslots)
+        has_dr = np.zeros(nslots, dtype=bool); has_dt = np.zeros(nslots, dtype=bool)
+        has_null = np.zeros(nslots, dtype=bool)
+        inner = list(bsdfs)   # the BSDF whose delta lobes a slot samples (a mask's nested one)
+        warned = set()
+        for sl, b in enumerate(bsdfs):
+            if b is None:
+                continue
+            if isinstance(b, Phong):
+                p = b.params
+                is_phong[sl] = True
+                amb[sl], dif[sl], spe[sl] = p["ambient"], p["diffuse"], p["specular"]
+                refl[sl], trans[sl] = p["reflectance"], p["transmittance"]
+                expo[sl], ior[sl] = p["exponent"], p["ior"]
+            else:
+                fl = int(b.flags())
+                has_dr[sl] = bool(fl & int(mi.BSDFFlags.DeltaReflection))
+                has_dt[sl] = bool(fl & int(mi.BSDFFlags.DeltaTransmission))
+                # Null: a straight-through delta lobe (thindielectric's transmission, mask's
+                # transparency, null); its weight is eval_null_transmission (issue 27)
+                has_null[sl] = bool(fl & int(mi.BSDFFlags.Null))
+                inner[sl] = _unmask(mi, b)
+                if has_null[sl] and has_dt[sl]:
+                    name = str(b).split("[")[0]
+                    if ("null+dt", name) not in warned:
+                        warned.add(("null+dt", name))
+                        warnings.warn(f"links1_whitted: BSDF {name} has both a refracted and a "
+                                      "straight-through transmission (a mask around a "
+                                      "dielectric); the straight-through part is dropped",
+                                      stacklevel=2)
+                    has_null[sl] = False
+                if fl & int(mi.BSDFFlags.Glossy):
+                    name = str(b).split("[")[0]
+                    where = self.place(b)
+                    if (where, name) not in warned:     # once per element
+                        warned.add((where, name))
+                        warnings.warn(f"{where}: BSDF {name} has glossy lobes; it gets direct "
+                                      "light from delta lights only (no glossy indirect light)",
+                                      stacklevel=2)
+        P.is_phong_np = is_phong
+        P.all_phong = bool(is_phong.all())
+        P.any_phong = bool(is_phong.any())
+        P.is_phong = mi.Bool(is_phong)
+        P.amb, P.dif, P.spe = (mi.Float(a.ravel()) for a in (amb, dif, spe))
+        P.refl, P.trans = mi.Float(refl.ravel()), mi.Float(trans.ravel())
+        P.expo, P.ior = mi.Float(expo), mi.Float(ior)
+        P.any_ambient = bool(np.any(amb > 0))
+        P.has_dr, P.has_dt, P.has_null = mi.Bool(has_dr), mi.Bool(has_dt), mi.Bool(has_null)
+        P.any_mitsuba_dr, P.any_mitsuba_dt = bool(has_dr.any()), bool(has_dt.any())
+        P.any_mitsuba_null = bool(has_null.any())
+        P.any_mitsuba_delta = bool(np.any(has_dr | has_dt | has_null))
+        # masks: their delta lobes are sampled on the nested BSDF and scaled by the opacity
+        # (Mitsuba's mask.sample cannot sample one lobe alone: it returns its null lobe)
+        is_mask = np.array([b is not None and i is not b for b, i in zip(bsdfs, inner)], dtype=bool)
+        P.any_mask = bool(is_mask.any())
+        P.inner_ptr = mi.BSDFPtr([i if i is not None else default_bsdf for i in inner]) \
+            if P.any_mask else None
+        P.any_phong_r = bool(np.any(refl.max(1) > 0))
+        P.any_phong_t = bool(np.any(trans.max(1) > 0))
+        P.any_specular = P.any_mitsuba_delta or P.any_phong_r or P.any_phong_t
+        # links1_quadric shapes whose Mitsuba BSDF has a texture get the core's uv
+        P.uv_slots = {sp.slot for sp in self.custom if sp.__class__.__name__ == "QuadricSpec"
+                      and not is_phong[sp.slot] and _textured(bsdfs[sp.slot])}
+        if default_bsdf is None and any(b is None for b in bsdfs):
+            default_bsdf = mi.load_dict({"type": "diffuse"})
+        bsdfs = [b if b is not None else default_bsdf for b in bsdfs]
+        # a BSDFPtr array holds registry ids, not references: the BSDF objects (the default
+        # made here above all) must live as long as the tables, or a vcall through a freed
+        # id crashes the process (issue 25: a quadric without a BSDF beside ones with one)
+        P.keep_alive = P.keep_alive + (bsdfs,)
+        if len(bsdfs) != nslots or any(b is None for b in bsdfs):
+            raise RuntimeError("links1_whitted: the BSDF table has a hole (an internal inconsistency)")
+        for spec in self.custom:
+            checked_index([spec.slot], nslots, "custom shape slot")
+        P.bsdf_ptr = mi.BSDFPtr(bsdfs) if not P.all_phong else None
+        # shadow transmittance (3-3-3): Phong t; Mitsuba BSDFs are opaque
+        P.shadow_t_np = trans.copy()
+        if len(P.custom_unrolled) != len(self.custom):
+            P.bvh = QuadricBVH([sp for sp in self.custom if sp.slot in P.bvh_slots], P.shadow_t_np)
+            s2q = np.full(max(nslots, 1), -1, dtype=np.int32)
+            for i, sp in enumerate(P.bvh.specs):
+                s2q[sp.slot] = i
+            P.bvh.slot_to_q = mi.Int32(checked_index(s2q, P.bvh.n, "slot_to_q", sentinel=-1))
+        P.shadow_t = mi.Float(trans.ravel())
+        # transparent Mitsuba shapes, each counted once per shadow segment (3-3-3): shape j
+        # owns bit j % 32 of word j // 32 of a per-lane "seen" set (as many words as needed)
+        transparent_mitsuba = [(s, sl) for s, sl in zip(shapes, slot_list) if trans[sl].max() > 0]
+        bits = np.zeros(nslots, dtype=np.uint32)
+        words = np.zeros(nslots, dtype=np.uint32)
+        for j, (_, sl) in enumerate(transparent_mitsuba):
+            bits[sl], words[sl] = np.uint32(1 << (j % 32)), np.uint32(j // 32)
+        P.trans_bits, P.trans_words = mi.UInt32(bits), mi.UInt32(words)
+        P.trans_nwords = max(1, -(-len(transparent_mitsuba) // 32))
+        # a segment crosses each triangle at most once and an analytic shape at most twice,
+        # and stops at the first opaque one: no arbitrary cap on crossings
+        P.max_crossings = 1 + sum(int(s.face_count()) if s.is_mesh() else 2 for s, _ in transparent_mitsuba)
+        P.any_transparent_mitsuba = bool(transparent_mitsuba)
+        P.shadow_split = shadow_split(mi, shapes, slot_list, trans) if transparent_mitsuba else None
+        # emission
+        emis = np.zeros((nslots, 3))
+        for spec in self.custom:
+            if spec.emission is not None:
+                emis[spec.slot] = spec.emission
+        P.custom_emission = mi.Float(emis.ravel())
+        P.any_custom_emission = bool(np.any(emis > 0))
+        # Mitsuba shapes that emit: area emitters only (a directionalarea is ignored, as the
+        # emitter loop below says, so its shape shows no emission either)
+        emits = np.zeros(max(nslots, 1), dtype=bool)
+        for s, sl in zip(shapes, slot_list):
+            if s.emitter() is not None and str(s.emitter()).split("[")[0] == "AreaLight":
+                emits[sl] = True
+        P.any_mitsuba_emission = bool(emits.any())
+        P.mitsuba_emits = mi.Bool(emits)
+        for s in shapes:
+            if s.interior_medium() is not None or s.exterior_medium() is not None:
+                warnings.warn(f"{self.place(s)}: its medium is not supported by links1_whitted and "
+                              "is ignored", stacklevel=2)
+        # lights
+        P.lights, P.area, P.env, P.consts, P.area_tab = [], [], None, [], []
+        n_env = 0
+        Pt, Sp = plugin_class("links1_point"), plugin_class("links1_spot")
+        for e in scene.emitters():
+            kind = str(e).split("[")[0]
+            if isinstance(e, Pt):
+                p = e.params
+                P.lights.append(("point", p["position"], p["direction"], p["L1"], p["L2"],
+                                 p["falloff"] == "inverse_square"))
+            elif isinstance(e, Sp):
+                p = e.params
+                P.lights.append(("cspot", p["origin"], p["direction"], p["radius"], p["intensity"]))
+            elif kind == "PointLight":
+                prm = mi.traverse(e)
+                pos = np.array(prm["position"], dtype=np.float64).ravel()
+                I = _emitted_rgb(prm, "intensity", kind, self.place(e))
+                P.lights.append(("point", pos, np.array([0, 0, 1.0]), I, np.zeros(3), True))
+            elif kind == "SpotLight" and any(k.startswith("texture.") and k != "texture.value"
+                                             for k in mi.traverse(e).keys()):
+                # a projector (its texture varies): Mitsuba's own evaluation of the emitter
+                pos = np.array(mi.traverse(e)["to_world"].matrix, dtype=np.float64).reshape(4, 4)[:3, 3]
+                P.lights.append(("memitter", pos, e))
+            elif kind == "SpotLight":
+                prm = mi.traverse(e)
+                m = np.array(prm["to_world"].matrix, dtype=np.float64).reshape(4, 4)
+                I = _emitted_rgb(prm, "intensity", kind, self.place(e))
+                if "texture.value" in prm.keys():   # a constant texture scales the intensity
+                    I = I * _emitted_rgb(prm, "texture", kind, self.place(e))
+                cutoff = float(np.array(prm["cutoff_angle"]).ravel()[0])
+                beam = float(np.array(prm["beam_width"]).ravel()[0])
+                P.lights.append(("mspot", m[:3, 3].copy(), m[:3, 2] / np.linalg.norm(m[:3, 2]),
+                                 I, cutoff, beam))
+            elif kind == "DirectionalEmitter":
+                prm = mi.traverse(e)
+                m = np.array(prm["to_world"].matrix, dtype=np.float64).reshape(4, 4)
+                E = _emitted_rgb(prm, "irradiance", kind, self.place(e))
+                P.lights.append(("dir", m[:3, 2] / np.linalg.norm(m[:3, 2]), E))
+            elif kind == "ConstantBackgroundEmitter":
+                rad = np.array(mi.traverse(e)["radiance.value"], dtype=np.float64).ravel()
+                P.consts.append(("const", np.broadcast_to(rad, (3,)).copy(), ENV_LIGHT_ID + n_env))
+                n_env += 1
+                P.env = e
+            elif kind == "EnvironmentMapEmitter":
+                P.consts.append(("envmap", self._envmap_table(e), ENV_LIGHT_ID + n_env))
+                n_env += 1
+                P.env = e
+            elif e.is_environment() or (int(e.flags()) & int(mi.EmitterFlags.Infinite)):
+                warnings.warn(f"{self.place(e)}: emitter {kind} is seen as the background but "
+                              "lights nothing", stacklevel=2)
+                n_env += 1
+                P.env = e
+            elif kind == "AreaLight":   # a directionalarea (also Surface) is ignored, as in the core
+                tab = self._area_table(e, shapes, slot_list)
+                if tab is not None:
+                    P.area.append(e)
+                    P.area_tab.append(tab)
+            else:
+                warnings.warn(f"{self.place(e)}: emitter {kind} is not supported and is ignored",
+                              stacklevel=2)
+        self._occluders(P, shapes, slot_list)
+        # light buffers for the quadric shadow rays toward analytic lights (where they pay)
+        P.lbuf = lightbuffer.plan(P, scene) if P.tuning.light_buffer else [None] * len(P.lights)
+        return P
 
-        def _occluders(self, P, shapes, slot_list):
-            """Which shapes can lie between a lit point and each light (skip what can't).
+    def _occluders(self, P, shapes, slot_list):
+        """Which shapes can lie between a lit point and each light (skip what can't).
 
-            A convex shape (sphere, capped quadric, rectangle, disk) never shadows its own
-            points toward a light on the outer side of the surface there; a closed one (sphere,
-            capped quadric) does where the light is on the inner side (``P.shadow_inner``, same
-            rule as links1.occluders). A planar shape shadows nothing when the light and every
-            other shape lie on the same side of its plane. ``P.shadow_need[j]``: per slot,
-            whether hits on that slot need a shadow ray toward light ``j``; ``P.occ_custom[j]``
-            / ``P.occ_mitsuba[j]``: the links1 shapes / whether any Mitsuba shape can occlude
-            it. Conservative."""
-            nslots = P.nslots
-            lo = np.full((nslots, 3), -np.inf)
-            hi = np.full((nslots, 3), np.inf)
-            convex = np.zeros(nslots, dtype=bool)
-            closed = np.zeros(nslots, dtype=bool)   # convex and enclosing a volume
-            plane = [None] * nslots
-            mitsuba_slot = np.zeros(nslots, dtype=bool)
-            for s_, sl in zip(shapes, slot_list):
-                mitsuba_slot[sl] = True
-                b = s_.bbox()
-                lo[sl] = [b.min[0], b.min[1], b.min[2]]
-                hi[sl] = [b.max[0], b.max[1], b.max[2]]
-                kind = str(s_).split("[")[0]
-                if kind in ("Sphere", "Rectangle", "Disk"):
-                    convex[sl] = True
-                    closed[sl] = kind == "Sphere"
-                if kind in ("Rectangle", "Disk"):
-                    try:
-                        m = np.array(mi.traverse(s_)["to_world"].matrix, dtype=np.float64).reshape(4, 4)
-                        nrm = np.cross(m[:3, 0], m[:3, 1])
-                        if np.linalg.norm(nrm) > 0:
-                            nrm = nrm / np.linalg.norm(nrm)
-                            plane[sl] = (nrm, float(nrm @ m[:3, 3]))
-                    except Exception:
-                        pass
-            for spec in self.custom:
-                a, b = spec.bounds()
-                lo[spec.slot], hi[spec.slot] = a, b
-                if spec.__class__.__name__ == "QuadricSpec":
-                    convex[spec.slot] = (spec.kind == "sphere" and (not spec.clips or spec.capped)) or \
-                        (spec.kind == "cylinder" and spec.capped and len(spec.clips) >= 2)
-                    closed[spec.slot] = convex[spec.slot]
-            scale = 1.0 + float(np.max(np.abs(np.where(np.isfinite(lo), lo, 0.0)))) + \
-                float(np.max(np.abs(np.where(np.isfinite(hi), hi, 0.0))))
-            tol = 1e-6 * scale
+        A convex shape (sphere, capped quadric, rectangle, disk) never shadows its own
+        points toward a light on the outer side of the surface there; a closed one (sphere,
+        capped quadric) does where the light is on the inner side (``P.shadow_inner``, same
+        rule as links1.tracing.occluders). A planar shape shadows nothing when the light and every
+        other shape lie on the same side of its plane. ``P.shadow_need[j]``: per slot,
+        whether hits on that slot need a shadow ray toward light ``j``; ``P.occ_custom[j]``
+        / ``P.occ_mitsuba[j]``: the links1 shapes / whether any Mitsuba shape can occlude
+        it. Conservative."""
+        nslots = P.nslots
+        lo = np.full((nslots, 3), -np.inf)
+        hi = np.full((nslots, 3), np.inf)
+        convex = np.zeros(nslots, dtype=bool)
+        closed = np.zeros(nslots, dtype=bool)   # convex and enclosing a volume
+        plane = [None] * nslots
+        mitsuba_slot = np.zeros(nslots, dtype=bool)
+        for s_, sl in zip(shapes, slot_list):
+            mitsuba_slot[sl] = True
+            b = s_.bbox()
+            lo[sl] = [b.min[0], b.min[1], b.min[2]]
+            hi[sl] = [b.max[0], b.max[1], b.max[2]]
+            kind = str(s_).split("[")[0]
+            if kind in ("Sphere", "Rectangle", "Disk"):
+                convex[sl] = True
+                closed[sl] = kind == "Sphere"
+            if kind in ("Rectangle", "Disk"):
+                try:
+                    m = np.array(mi.traverse(s_)["to_world"].matrix, dtype=np.float64).reshape(4, 4)
+                    nrm = np.cross(m[:3, 0], m[:3, 1])
+                    if np.linalg.norm(nrm) > 0:
+                        nrm = nrm / np.linalg.norm(nrm)
+                        plane[sl] = (nrm, float(nrm @ m[:3, 3]))
+                except Exception:
+                    pass
+        for spec in self.custom:
+            a, b = spec.bounds()
+            lo[spec.slot], hi[spec.slot] = a, b
+            if spec.__class__.__name__ == "QuadricSpec":
+                convex[spec.slot] = (spec.kind == "sphere" and (not spec.clips or spec.capped)) or \
+                    (spec.kind == "cylinder" and spec.capped and len(spec.clips) >= 2)
+                closed[spec.slot] = convex[spec.slot]
+        scale = 1.0 + float(np.max(np.abs(np.where(np.isfinite(lo), lo, 0.0)))) + \
+            float(np.max(np.abs(np.where(np.isfinite(hi), hi, 0.0))))
+        tol = 1e-6 * scale
 
-            def side_of_box(nrm, c, a, b):
-                """-1 / +1 if the box is in the closed half-space below / above the plane, else 0."""
-                if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
-                    return 0
-                corners = np.array([[x, y, z] for x in (a[0], b[0]) for y in (a[1], b[1]) for z in (a[2], b[2])])
-                dist = corners @ nrm - c
-                if np.all(dist >= -tol):
-                    return 1
-                if np.all(dist <= tol):
-                    return -1
+        def side_of_box(nrm, c, a, b):
+            """-1 / +1 if the box is in the closed half-space below / above the plane, else 0."""
+            if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
                 return 0
+            corners = np.array([[x, y, z] for x in (a[0], b[0]) for y in (a[1], b[1]) for z in (a[2], b[2])])
+            dist = corners @ nrm - c
+            if np.all(dist >= -tol):
+                return 1
+            if np.all(dist <= tol):
+                return -1
+            return 0
 
-            lights = []   # (position or None, direction toward the light or None, emitter slot or None)
-            for L in P.lights:
-                if L[0] == "dir":
-                    lights.append(("dir", -np.asarray(L[1], dtype=np.float64)))
-                elif L[0] == "cspot":
-                    lights.append(("dir", -np.asarray(L[2], dtype=np.float64)))
+        lights = []   # (position or None, direction toward the light or None, emitter slot or None)
+        for L in P.lights:
+            if L[0] == "dir":
+                lights.append(("dir", -np.asarray(L[1], dtype=np.float64)))
+            elif L[0] == "cspot":
+                lights.append(("dir", -np.asarray(L[2], dtype=np.float64)))
+            else:
+                lights.append(("pos", np.asarray(L[1], dtype=np.float64)))
+        for e in P.area:
+            lights.append(("area", e))
+        for _ in P.consts:
+            lights.append(("env", None))
+        P.shadow_need, P.occ_custom, P.occ_mitsuba, P.any_shadow = [], [], [], []
+        P.shadow_inner, P.occ_boxes, P.occ_mslots = [], [], []
+        for light in lights:
+            occ = np.ones(nslots, dtype=bool)
+            for sl in range(nslots):
+                if plane[sl] is None or light[0] == "env":   # environments: every direction
+                    continue
+                nrm, c = plane[sl]
+                if light[0] == "area":
+                    sh = light[1].get_shape()
+                    bb = sh.bbox() if sh is not None else None
+                    if bb is None:
+                        continue
+                    lside = side_of_box(nrm, c, np.array([bb.min[0], bb.min[1], bb.min[2]]),
+                                        np.array([bb.max[0], bb.max[1], bb.max[2]]))
+                elif light[0] == "dir":
+                    v = float(light[1] @ nrm)
+                    lside = 1 if v > 0 else (-1 if v < 0 else 0)
                 else:
-                    lights.append(("pos", np.asarray(L[1], dtype=np.float64)))
-            for e in P.area:
-                lights.append(("area", e))
-            for _ in P.consts:
-                lights.append(("env", None))
-            P.shadow_need, P.occ_custom, P.occ_mitsuba, P.any_shadow = [], [], [], []
-            P.shadow_inner, P.occ_boxes, P.occ_mslots = [], [], []
-            for light in lights:
-                occ = np.ones(nslots, dtype=bool)
-                for sl in range(nslots):
-                    if plane[sl] is None or light[0] == "env":   # environments: every direction
-                        continue
-                    nrm, c = plane[sl]
-                    if light[0] == "area":
-                        sh = light[1].get_shape()
-                        bb = sh.bbox() if sh is not None else None
-                        if bb is None:
-                            continue
-                        lside = side_of_box(nrm, c, np.array([bb.min[0], bb.min[1], bb.min[2]]),
-                                            np.array([bb.max[0], bb.max[1], bb.max[2]]))
-                    elif light[0] == "dir":
-                        v = float(light[1] @ nrm)
-                        lside = 1 if v > 0 else (-1 if v < 0 else 0)
-                    else:
-                        v = float(light[1] @ nrm - c)
-                        lside = 1 if v > tol else (-1 if v < -tol else 0)
-                    if lside == 0:
-                        continue
-                    if all(side_of_box(nrm, c, lo[o], hi[o]) == lside for o in range(nslots) if o != sl):
-                        occ[sl] = False
-                if light[0] == "area":      # a convex emitter never hides its own sampled points
-                    own = P.area_tab[P.area.index(light[1])]["slot"]
-                    if own is not None and convex[own]:
-                        occ[own] = False
-                need = np.array([bool(np.any(occ & ~((np.arange(nslots) == sl) & convex[sl])))
-                                 for sl in range(nslots)], dtype=bool)
-                inner = occ & closed & ~need
-                P.shadow_need.append(None if need.all() else mi.Bool(need))
-                P.shadow_inner.append(mi.Bool(inner) if inner.any() else None)
-                P.any_shadow.append(bool(need.any() or inner.any()))
-                P.occ_custom.append([spec for spec in self.custom if occ[spec.slot]])
-                P.occ_mitsuba.append(bool(np.any(occ & mitsuba_slot)))
-                P.occ_boxes.append(occluder_boxes(occ & mitsuba_slot, lo, hi, convex))
-                P.occ_mslots.append(frozenset(int(v) for v in np.flatnonzero(occ & mitsuba_slot)))
-
-    return Tables
+                    v = float(light[1] @ nrm - c)
+                    lside = 1 if v > tol else (-1 if v < -tol else 0)
+                if lside == 0:
+                    continue
+                if all(side_of_box(nrm, c, lo[o], hi[o]) == lside for o in range(nslots) if o != sl):
+                    occ[sl] = False
+            if light[0] == "area":      # a convex emitter never hides its own sampled points
+                own = P.area_tab[P.area.index(light[1])]["slot"]
+                if own is not None and convex[own]:
+                    occ[own] = False
+            need = np.array([bool(np.any(occ & ~((np.arange(nslots) == sl) & convex[sl])))
+                             for sl in range(nslots)], dtype=bool)
+            inner = occ & closed & ~need
+            P.shadow_need.append(None if need.all() else mi.Bool(need))
+            P.shadow_inner.append(mi.Bool(inner) if inner.any() else None)
+            P.any_shadow.append(bool(need.any() or inner.any()))
+            P.occ_custom.append([spec for spec in self.custom if occ[spec.slot]])
+            P.occ_mitsuba.append(bool(np.any(occ & mitsuba_slot)))
+            P.occ_boxes.append(occluder_boxes(occ & mitsuba_slot, lo, hi, convex))
+            P.occ_mslots.append(frozenset(int(v) for v in np.flatnonzero(occ & mitsuba_slot)))

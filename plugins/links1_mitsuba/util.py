@@ -1,17 +1,25 @@
 """Dr.Jit helpers shared by the parts of ``links1_whitted``: the sample pattern's hash
-(``mix32``, ``u24``), colour / vector literals, gathers, the next float up.
+(``mix32``, ``u24``), colour / vector literals, gathers, the next float up; aligned numpy
+tables and checked index tables.
 
-:func:`define_util` makes them for the Mitsuba variant in use.
+The Dr.Jit helpers name ``mi.Float``, ``mi.Color3f``, ... when called, so they serve whichever
+Mitsuba variant is set at that time (importing this module needs none).
 """
 from __future__ import annotations
 
-from types import SimpleNamespace
+import warnings
 
+import drjit as dr
+import mitsuba as mi
 import numpy as np
 
+from links1.maths.sampling import _M1 as _M1_NP
+from links1.maths.sampling import _M2 as _M2_NP
+
 INF = float("inf")
-_M1 = 0x7FEB352D
-_M2 = 0x846CA68B
+#: the multipliers of the sample pattern's hash, written once in links1.maths.sampling (as Python
+#: ints: a Dr.Jit UInt32 times a numpy scalar is not the literal product)
+_M1, _M2 = int(_M1_NP), int(_M2_NP)
 
 
 def checked_index(values, n: int, what: str, *, sentinel: int | None = None) -> np.ndarray:
@@ -67,39 +75,122 @@ def table(mi_type, a):
     return mi_type(aligned(np.ascontiguousarray(a).ravel(), dtype))
 
 
-def define_util(mi, dr):
-    """The helpers for the variant in use: ``mix32``, ``u24``, ``c3``, ``v3``, ``gather3``, ``next_up``,
-    as attributes of one namespace."""
+def mix32(x):
+    """lowbias32 on UInt32 (wrapping), as links1.maths.sampling.mix32."""
+    x = x ^ (x >> 16)
+    x = x * _M1
+    x = x ^ (x >> 15)
+    x = x * _M2
+    x = x ^ (x >> 16)
+    return x
 
-    def mix32(x):
-        """lowbias32 on UInt32 (wrapping), as links1.sampling.mix32."""
-        x = x ^ (x >> 16)
-        x = x * _M1
-        x = x ^ (x >> 15)
-        x = x * _M2
-        x = x ^ (x >> 16)
-        return x
 
-    def u24(x):
-        return mi.Float(x >> 8) * (2.0 ** -24)
+def u24(x):
+    return mi.Float(x >> 8) * (2.0 ** -24)
 
-    def c3(v):
-        if dr.is_array_v(v):   # a Dr.Jit value (attached, in a derivative pass: gradients.py)
-            return mi.Color3f(v)
-        return mi.Color3f(float(v[0]), float(v[1]), float(v[2]))
 
-    def v3(v):
-        if dr.is_array_v(v):
-            return mi.Vector3f(v)
-        return mi.Vector3f(float(v[0]), float(v[1]), float(v[2]))
+def c3(v):
+    if dr.is_array_v(v):   # a Dr.Jit value (attached, in a derivative pass: gradients.py)
+        return mi.Color3f(v)
+    return mi.Color3f(float(v[0]), float(v[1]), float(v[2]))
 
-    def gather3(table, idx, active=True):
-        return dr.gather(mi.Color3f, table, idx, active)
 
-    def next_up(x):
-        """The next float32 above positive ``x`` (infinity stays): a strict ``t < limit`` test
-        against ``next_up(t)`` accepts a tie at ``t``."""
-        return dr.select(dr.isfinite(x) & (x >= 0), dr.reinterpret_array(
-            mi.Float, dr.reinterpret_array(mi.UInt32, x) + 1), x)
+def v3(v):
+    if dr.is_array_v(v):
+        return mi.Vector3f(v)
+    return mi.Vector3f(float(v[0]), float(v[1]), float(v[2]))
 
-    return SimpleNamespace(mix32=mix32, u24=u24, c3=c3, v3=v3, gather3=gather3, next_up=next_up)
+
+def gather3(table, idx, active=True):
+    return dr.gather(mi.Color3f, table, idx, active)
+
+
+def next_up(x):
+    """The next float32 above positive ``x`` (infinity stays): a strict ``t < limit`` test
+    against ``next_up(t)`` accepts a tie at ``t``."""
+    return dr.select(dr.isfinite(x) & (x >= 0), dr.reinterpret_array(
+        mi.Float, dr.reinterpret_array(mi.UInt32, x) + 1), x)
+
+
+class Hidden:
+    """State kept out of :func:`drjit.freeze`'s input traversal: the plugin's one way to hide
+    state from a frozen launch (issue 22, item 5).
+
+    Freeze walks every input of a frozen launch on every call, and through the scene each
+    Python plugin's ``__dict__`` (``links1_whitted``, ``links1_phong``, ``links1_point``,
+    ``links1_spot``); an object that has traversal callbacks is walked through them, and these
+    walk nothing. ``Launches._frozen_inputs``, which gathers the per-scene tables' Dr.Jit arrays
+    as the launch's ``tables`` input, follows the same rule. So whatever a frozen launch must
+    not take as an input, or need not walk on every call, lives in a ``Hidden``:
+
+    - the integrator's per-scene state (``Links1Whitted._hidden``, reached through
+      :func:`hidden_attr` properties): the tables (their arrays reach the launch as its
+      ``tables`` input), the shape specs (thousands in big scenes: walking them each call would
+      cost more than rendering a small window), the recordings, the camera sample of the last
+      camera rays, the ray counters;
+    - a Python plugin's read parameters (``links1_phong``, ``links1_point``, ``links1_spot``:
+      ``_held``; their values reach the launches through the tables; 3,000 Mitsuba spheres
+      sharing one ``links1_phong``: 365 -> 100 ms a frame);
+    - :class:`~links1_mitsuba.tables.ParamWatch` (a subclass): the old values it pins.
+
+    (The frozen functions reach their integrator and scene through a call,
+    ``launch._frozen_caller``, rather than a closure or a global they name: that is how they
+    are passed around freeze, not state hidden from it.)"""
+
+    def __init__(self, **kw):
+        self.__dict__.update(kw)
+
+    def _traverse_1_cb_ro(self, fn):
+        pass
+
+    def _traverse_1_cb_rw(self, fn):
+        pass
+
+
+def hidden_attr(name, holder="_hidden"):
+    """A property that keeps attribute ``name`` in the object's :class:`Hidden` ``holder``
+    (None until set)."""
+    return property(lambda self: getattr(getattr(self, holder), name, None),
+                    lambda self, v: setattr(getattr(self, holder), name, v))
+
+
+#: ``{"places": id -> "FILE:LINE: <element>"}`` of the scene being instantiated
+#: (``loader._load`` sets it for the plugins' own constructors, e.g. links1_point's colour
+#: warnings); None outside a load
+LOADING = {"places": None}
+
+
+def place_of(obj, places=None) -> str | None:
+    """``FILE:LINE: <element>`` of a loaded Mitsuba object (from its id, in ``places``, else
+    the scene being loaded: :data:`LOADING`), or None."""
+    places = LOADING["places"] if places is None else places
+    if not places:
+        return None
+    try:
+        return places.get(obj if isinstance(obj, str) else obj.id())
+    except Exception:
+        return None
+
+
+def read_rgb(props, name, default, *, emitter=True):
+    """An RGB parameter as Mitsuba's RGB variants read it: ``rgb``, ``float`` or ``spectrum``
+    (:func:`links1.shading.spectra.to_rgb`; ``emitter=False`` for reflectance-like parameters), as a
+    numpy RGB (``default``: a number, or None). The one reader of colours and spectra of the
+    links1 plugins (``links1_point``/``links1_spot``, ``links1_phong``, the loader's emitting
+    links1 shapes)."""
+    if (name in props):
+        v = props[name]
+        if hasattr(v, "wavelengths") and hasattr(v, "values"):  # a <spectrum>
+            from links1.shading.spectra import to_rgb
+            rgb, raw = to_rgb(list(v.wavelengths), list(v.values), emitter=emitter)
+            if raw is not None:
+                where = place_of(props.id())
+                where = f"{where} <spectrum name='{name}'>" if where else f"'{name}'"
+                warnings.warn(f"{where}: clamping out-of-gamut colour {np.round(raw, 6).tolist()} "
+                              f"to {np.round(rgb, 6).tolist()} (as Mitsuba)", stacklevel=3)
+            return rgb
+        try:
+            return np.array([float(v[0]), float(v[1]), float(v[2])])
+        except TypeError:
+            return np.full(3, float(v))
+    return None if default is None else np.full(3, float(default))

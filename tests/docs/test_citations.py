@@ -48,7 +48,7 @@ def test_cited_documents_are_in_the_repository():
 #: name the sub-packages (issue 24 item 3 moved links1's modules; the plugin's import lines
 #: were updated, its prose is another change's): add "plugins" here then.
 #: compare/results/ is left out too: measured records (profiles name the files as they were).
-MODULE_PATH_SOURCES = [p for d in ("links1", "tests", "compare", "tools", "docs") for p in (ROOT / d).rglob("*")
+MODULE_PATH_SOURCES = [p for d in ("links1", "plugins", "tests", "compare", "tools", "docs") for p in (ROOT / d).rglob("*")
                        if p.suffix in (".py", ".md") and p != Path(__file__).resolve()
                        and (ROOT / "compare" / "results") not in p.parents] + [ROOT / "README.md"]
 DOTTED = re.compile(r"(?<![\w./-])links1((?:\.\w+)+)")

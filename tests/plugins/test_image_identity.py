@@ -88,6 +88,8 @@ def test_core_images_unchanged(scene):
 
 @pytest.mark.parametrize("scene", SCENES)
 def test_plugin_images_unchanged(scene, llvm):
+    """LLVM only: the digests were made by the LLVM backend (a CUDA image differs by float32
+    roundings the plugin-against-core tests bound)."""
     made_on = _stored()["vector_unit"]
     if vector_unit() != made_on:
         pytest.skip(f"digests made on {made_on}, this machine has {vector_unit()}: LLVM kernels differ by an ulp")

@@ -1,0 +1,45 @@
+"""The per-scene tables of links1_whitted (``tables.Prepared``) have a declared shape (issue 22,
+item 5): every field named and typed in one dataclass, an undeclared name refused, and every
+field a prepared scene's camera view needs actually set."""
+from __future__ import annotations
+
+import dataclasses
+import os
+
+import pytest
+
+from .conftest import SCENES
+
+pytestmark = pytest.mark.mitsuba
+
+
+def test_prepared_refuses_an_undeclared_attribute():
+    from links1_mitsuba.tables import Prepared
+    P = Prepared()
+    P.nslots = 3                      # a declared field
+    assert P.nslots == 3
+    with pytest.raises(AttributeError):
+        P.n_slots = 3                 # a typo of it: refused, not a new attribute
+    with pytest.raises(AttributeError):
+        P.nslots_extra                # noqa: B018 - reading an undeclared name
+    assert not hasattr(P, "__dict__")
+    # a field without a default is unset until the tables set it; defaults where code reads it
+    with pytest.raises(AttributeError):
+        P.lights                      # noqa: B018
+    assert P.ad is False and P.base is None and P.shadow_split is None
+
+
+@pytest.mark.parametrize("name", ["fig11", "mitsuba_glass", "lights"])
+def test_a_prepared_view_sets_every_field(variant, name):
+    from links1_mitsuba import MitsubaRenderer
+    from links1_mitsuba.tables import Prepared
+    path = os.path.join(SCENES, f"{name}.xml")
+    r = MitsubaRenderer(path, width=8, height=6, spp=1)
+    r.render()
+    V = r.integrator._prep
+    assert isinstance(V, Prepared) and isinstance(V.base, Prepared) and V.base is not V
+    unset = [f.name for f in dataclasses.fields(Prepared) if not hasattr(V, f.name)]
+    assert unset == []
+    # the scene's own tables (no camera): the camera fields are the only ones unset
+    camera = {"sensor", "film_size", "rfilter", "projection", "cam", "near", "far"}
+    assert {f.name for f in dataclasses.fields(Prepared) if not hasattr(V.base, f.name)} == camera
