@@ -88,7 +88,7 @@ def run_point(renderer, scene, res, nodes, strategies, repeat, ref_repeat, spp):
     from links1.partition import cli as pcli
     from links1.partition.executors import LocalPool, render_plan
     from links1.partition.experiment import build_report, frame_seconds
-    from links1.render import aov_channel
+    from links1.aovs import aov_channel
     rows, ref, cap = [], None, {}
     for k in range(repeat):
         for strategy in strategies:

@@ -56,7 +56,7 @@ def one_repeat(renderer, res, nodes, ref_repeat):
     from links1.partition import cli as pcli
     from links1.partition.executors import render_plan
     from links1.partition.experiment import build_report, check_simulator, work_map
-    from links1.render import aov_channel
+    from links1.aovs import aov_channel
     out, ref = {}, None
     for strategy in STRATEGIES:
         args = _args(renderer, res, strategy, nodes)

@@ -7,7 +7,9 @@ The standalone core renders Mitsuba 3 XML scenes in float64 numpy::
     image = links1.render(scene)            # (H, W, 3) linear radiance, float64
     links1.write_image("fig11.exr", image)
 
-The Mitsuba 3 plugin suite is the package :mod:`links1_mitsuba`.
+The Mitsuba 3 plugin suite is the package :mod:`links1_mitsuba`; ``make_renderer("core" |
+"mitsuba", path)`` gives either renderer (:mod:`links1.renderers`, the one module that names
+the plugin; docs/architecture.md, "Dependencies").
 """
 from __future__ import annotations
 
@@ -23,7 +25,8 @@ def load_scene(path, **params):
 
 
 # Imported eagerly so that ``links1.render`` stays the function after ``import links1.render``.
-from .render import make_renderer, render  # noqa: E402
+from .render import render  # noqa: E402
+from .renderers import Renderer, make_renderer  # noqa: E402  (imports no plugin until asked)
 
 
 def write_image(path, image, channels=None):
@@ -32,4 +35,4 @@ def write_image(path, image, channels=None):
     return _write(path, image, channels) if channels is not None else _write(path, image)
 
 
-__all__ = ["load_scene", "render", "make_renderer", "write_image", "SceneError", "UsageError", "Links1Error"]
+__all__ = ["load_scene", "render", "make_renderer", "Renderer", "write_image", "SceneError", "UsageError", "Links1Error"]

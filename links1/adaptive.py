@@ -37,10 +37,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from .aovs import AOVS
 from .errors import UsageError
+from .sampling import lattice_keys
 
 #: Largest supported depth (a (2**8+1)² lattice per pixel; keys stay well inside int64).
 MAX_DEPTH = 8
+#: Default refinement depth (a pixel holds up to (2**D + 1)² points).
+DEFAULT_ADAPTIVE_DEPTH = 2
 
 
 def check_options(threshold, depth) -> tuple[float, int]:
@@ -339,3 +343,42 @@ class FilteredLeaves:
     def result(self):
         """``(n, C)``: weighted sums over summed weights (a zero weight divides by 1)."""
         return self.num / np.where(self.den == 0.0, 1.0, self.den)[:, None]
+
+
+def render_adaptive_window(trace_points, centre_aovs, win, film_size, threshold, depth, seed, aovs,
+                           bar=None, rfilter=None) -> np.ndarray:
+    """Adaptive anti-aliasing of window ``win`` with any renderer (the core's
+    :func:`links1.render.render`, ``links1_whitted``'s ``render_adaptive``): lattice point
+    ``(i, j)`` is the camera ray through film position ``(i, j) / 2**depth`` pixels, its ray
+    tree keyed by :func:`links1.sampling.lattice_keys` (a function of the point and the seed
+    alone, so every window and renderer traces the same tree).
+
+    ``trace_points(xf, yf, keys) -> (L (n, 3), cost (n,))`` traces rays through film fractions
+    ``(xf, yf)``; ``centre_aovs(win, names) -> (h, w, k)`` renders the AOVs ``names`` (of depth,
+    normal, id) at the pixel centres. Returns ``(h, w, 3 + AOV channels)``: cost summed over the
+    pixel's lattice points, samples = their number. ``bar``: a progress bar (``update(n)``,
+    ``close()``, e.g. tqdm's) told of every traced point and closed when the refinement ends.
+    ``rfilter``: the film's reconstruction filter (:class:`links1.filters.Filter`; default box)."""
+    threshold, depth = check_options(threshold, depth)
+    W, H = film_size
+
+    def sample(i, j, step, keys):
+        L, cost = trace_points(i / step / W, j / step / H, lattice_keys(keys, seed))
+        if bar is not None:
+            bar.update(len(i))
+        return np.concatenate([np.asarray(L, dtype=np.float64), np.asarray(cost, dtype=np.float64)[:, None]], axis=1)
+
+    rgb, samples, cost = render_adaptive(sample, win, (W, H), threshold, depth, summed=1, rfilter=rfilter)
+    if bar is not None:
+        bar.close()
+    centre = [a for a in aovs if a in ("depth", "normal", "id")]
+    parts = {}
+    if centre:
+        c, at = centre_aovs(win, centre), 0
+        for a in centre:
+            parts[a] = c[..., at:at + len(AOVS[a])]
+            at += len(AOVS[a])
+    chans = [rgb]
+    for a in aovs:
+        chans.append(parts[a] if a in parts else cost if a == "cost" else samples[..., None].astype(np.float64))
+    return np.concatenate(chans, axis=2)

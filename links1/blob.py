@@ -49,7 +49,7 @@ compacted once per ray into a padded (n, kmax) candidate list sorted by centre i
 (:meth:`Blob._candidates`), and every field evaluation sums over those only, left to
 right in centre index order, so an evaluation costs O(centres met), not O(all centres).
 From :data:`BVH_MIN_CENTRES` centres on, the crossed centres themselves are found with a
-hierarchy of boxes over the 3S spheres (``accel.BVH.traverse_pairs``; same pairs, same
+hierarchy of boxes over the 3S spheres (``links1.bvh.BVH.traverse_pairs``; same pairs, same
 bits as testing every centre), and the normal sums over them too.
 
 ``cost`` gets +1 per field evaluation per ray (the contract's blob rule).
@@ -165,7 +165,7 @@ class Blob(Shape):
         # that a crossed sphere's box is never missed; the exact test h^2 < 9 S^2 follows.
         self._centre_bvh = None
         if c.shape[0] >= BVH_MIN_CENTRES:
-            from .accel import BVH
+            from .bvh import BVH
             R = 3.0 * S_ * (1.0 + 1e-9)
             self._centre_bvh = BVH(self._p - R[:, None], self._p + R[:, None], max_leaf=4)
 

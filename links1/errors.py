@@ -60,10 +60,7 @@ def format_warning(message, category, filename, lineno, line=None) -> str:
     return f"links1: warning: {message}\n"
 
 
-def one_line_warnings(renderer: str | None = None) -> None:
+def one_line_warnings() -> None:
     """Print warnings as :func:`format_warning` does, in this process (the CLI, its workers);
-    for ``renderer="mitsuba"`` Mitsuba's own log warnings too."""
+    Mitsuba's own log warnings join them through :func:`links1.renderers.renderer_warnings`."""
     warnings.formatwarning = format_warning
-    if renderer == "mitsuba":
-        from links1_mitsuba import log_to_warnings  # lazy: the core never needs Mitsuba
-        log_to_warnings()

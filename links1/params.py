@@ -295,6 +295,16 @@ def check_samples(width: int, height: int, spp: int, *, light_samples: int = 1,
                          f"memory of this machine ({avail / 2 ** 30:.1f} GiB)")
 
 
+def check_resources(width, height, spp, light_samples=1) -> None:
+    """:func:`check_samples` for a renderer about to allocate its film (both renderers): the
+    same check, its message as one-line :class:`links1.errors.UsageError`."""
+    from .errors import UsageError
+    try:
+        check_samples(width, height, spp, light_samples=light_samples)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+
+
 def _memory_bytes() -> int | None:
     try:
         import os

@@ -1,56 +1,25 @@
-"""Rendering a scene (or a window of its film) with the core, and the renderer factory.
+"""Rendering a scene (or windows of its film) with the core, and the core's renderer.
 
-``render`` is the core's public entry point; ``make_renderer`` gives the partitioning layer
-one object per worker that loads a scene once and renders any window of it (the core here,
-or the Mitsuba plugin integrator via :mod:`links1_mitsuba`).
+``render`` is the core's public entry point; :class:`CoreRenderer` is the core's side of the
+Renderer contract (:class:`links1.renderers.Renderer`: load a scene file once, render any
+window of it), which the front ends get from :func:`links1.renderers.make_renderer`. Nothing
+here names the Mitsuba plugin (docs/architecture.md, "Dependencies").
 """
 from __future__ import annotations
 
-import os
-import re
-
 import numpy as np
 
-from .errors import Links1Error, SceneError, UsageError
+from .adaptive import DEFAULT_ADAPTIVE_DEPTH, check_options, render_adaptive_window
+from .aovs import channel_names, check_aovs
+from .errors import UsageError
 from .filters import FilterGather
 from .integrator import DEFAULT_MIN_WEIGHT, WhittedIntegrator
-from .sampling import lattice_keys, pixel_keys, ray_keys, sample_offsets
-
-#: AOV -> its channel names, one table for every renderer, back end and worker count, in
-#: Mitsuba's ``name.X`` convention (what its ``aov`` integrator writes: depth ``.T``, normals
-#: ``.X .Y .Z``, shape index ``.I``); ``cost`` (ray-primitive tests) and ``samples`` (camera
-#: samples of the pixel: spp, or the adaptive lattice points it used) are counts, ``.N``.
-AOVS = {"depth": ("depth.T",), "normal": ("normal.X", "normal.Y", "normal.Z"), "id": ("id.I",),
-        "cost": ("cost.N",), "samples": ("samples.N",)}
-
-#: Default refinement depth of adaptive anti-aliasing (a pixel holds up to (2**D + 1)² points).
-DEFAULT_ADAPTIVE_DEPTH = 2
+from .params import check_resources
+from .sampling import pixel_keys, ray_keys, sample_offsets
+from .scene import check_sensor_index
 
 #: Sample rays traced per numpy batch (bounds memory: ~40 arrays of 3 doubles per ray).
 BATCH = 1 << 16
-
-
-def channel_names(aovs=()) -> list[str]:
-    """Channel names of a render with the given AOVs: R, G, B, then the AOV channels."""
-    names = ["R", "G", "B"]
-    for a in aovs:
-        names.extend(AOVS[a])
-    return names
-
-
-def aov_channel(channels, aov: str) -> int | None:
-    """Index of the first channel of ``aov`` in ``channels`` (a render's channel names), or
-    None when the render has no such AOV."""
-    first = AOVS[aov][0]
-    return list(channels).index(first) if first in channels else None
-
-
-def check_aovs(aovs) -> tuple[str, ...]:
-    aovs = tuple(a for a in (aovs or ()) if a)
-    for a in aovs:
-        if a not in AOVS:
-            raise UsageError(f"unknown AOV {a!r}; choose from {', '.join(AOVS)}")
-    return aovs
 
 
 def _check_window(window, width, height):
@@ -172,16 +141,6 @@ def render_windows(scene, windows, *, spp: int | None = None, max_depth: int | N
     return out
 
 
-def check_resources(width, height, spp, light_samples=1) -> None:
-    """A film and sample counts that fit the 32-bit sample ids and memory, checked before
-    anything is allocated (:func:`links1.params.check_samples`; one line: size and limit)."""
-    from .params import check_samples
-    try:
-        check_samples(width, height, spp, light_samples=light_samples)
-    except ValueError as exc:
-        raise UsageError(str(exc)) from None
-
-
 def ray_tree_options(scene, min_weight=None, light_samples=None) -> tuple[float, int]:
     """``(min_weight, light_samples)``: the given values, else the scene's (its
     ``links1_whitted`` element's, else the defaults), checked."""
@@ -269,46 +228,7 @@ def _render_adaptive(scene, cam, win, *, threshold, depth, max_depth, seed, aovs
                               light_samples=light_samples).reshape(h, w, -1)
 
     return render_adaptive_window(trace_points, centre_aovs, win, (cam.width, cam.height), threshold, depth,
-                                  seed, aovs, progress, rfilter=cam.rfilter)
-
-
-def render_adaptive_window(trace_points, centre_aovs, win, film_size, threshold, depth, seed, aovs,
-                           progress=False, rfilter=None) -> np.ndarray:
-    """Adaptive anti-aliasing of window ``win`` with any renderer (:mod:`links1.adaptive`):
-    lattice point ``(i, j)`` is the camera ray through film position ``(i, j) / 2**depth``
-    pixels, its ray tree keyed by :func:`links1.sampling.lattice_keys` (a function of the point
-    and the seed alone, so every window and renderer traces the same tree).
-
-    ``trace_points(xf, yf, keys) -> (L (n, 3), cost (n,))`` traces rays through film fractions
-    ``(xf, yf)``; ``centre_aovs(win, names) -> (h, w, k)`` renders the AOVs ``names`` (of depth,
-    normal, id) at the pixel centres. Returns ``(h, w, 3 + AOV channels)``: cost summed over the
-    pixel's lattice points, samples = their number. ``rfilter``: the film's reconstruction
-    filter (:class:`links1.filters.Filter`; default box)."""
-    from .adaptive import check_options, render_adaptive
-    threshold, depth = check_options(threshold, depth)
-    W, H = film_size
-    bar = _progress(None, progress)
-
-    def sample(i, j, step, keys):
-        L, cost = trace_points(i / step / W, j / step / H, lattice_keys(keys, seed))
-        if bar is not None:
-            bar.update(len(i))
-        return np.concatenate([np.asarray(L, dtype=np.float64), np.asarray(cost, dtype=np.float64)[:, None]], axis=1)
-
-    rgb, samples, cost = render_adaptive(sample, win, (W, H), threshold, depth, summed=1, rfilter=rfilter)
-    if bar is not None:
-        bar.close()
-    centre = [a for a in aovs if a in ("depth", "normal", "id")]
-    parts = {}
-    if centre:
-        c, at = centre_aovs(win, centre), 0
-        for a in centre:
-            parts[a] = c[..., at:at + len(AOVS[a])]
-            at += len(AOVS[a])
-    chans = [rgb]
-    for a in aovs:
-        chans.append(parts[a] if a in parts else cost if a == "cost" else samples[..., None].astype(np.float64))
-    return np.concatenate(chans, axis=2)
+                                  seed, aovs, bar=_progress(None, progress), rfilter=cam.rfilter)
 
 
 def _resized(cam, width, height):
@@ -361,7 +281,6 @@ class CoreRenderer:
         check_resources(*self.film_size, self.spp, self.light_samples)
         self.adaptive, self.adaptive_depth = adaptive, adaptive_depth
         if adaptive is not None:
-            from .adaptive import check_options
             self.adaptive, self.adaptive_depth = check_options(adaptive, adaptive_depth)
 
     @property
@@ -402,101 +321,3 @@ def shapes_info(scene) -> list[dict]:
             "nbytes": int(getattr(s, "nbytes", 0) or 0),
         })
     return out
-
-
-def check_sensor_index(path, sensor, count: int) -> int:
-    """``sensor`` (None: 0) as an index into a scene's ``count`` sensors, or a one-line error
-    naming the scene file and how many sensors it has."""
-    from .scene import sensor_range_message
-    k = 0 if sensor is None else sensor
-    if isinstance(k, bool) or not isinstance(k, (int, np.integer)):
-        raise UsageError(f"sensor must be an integer index, got {sensor!r}")
-    k = int(k)
-    if not 0 <= k < count:
-        raise SceneError(sensor_range_message(k, count), file=str(path))
-    return k
-
-
-def require_mitsuba(variant: str | None = None) -> None:
-    """Raise a one-line ``UsageError`` naming the extra to install when Mitsuba 3 / Dr.Jit
-    cannot be imported (the core renderer needs neither), or naming the variants that work
-    when ``variant`` is one the links1 plugins cannot run on (before any worker starts)."""
-    try:
-        import drjit  # noqa: F401
-        import mitsuba  # noqa: F401
-    except ImportError as e:
-        raise UsageError(f"the mitsuba renderer needs Mitsuba 3 and Dr.Jit ({e}): install them with "
-                         "pip install 'links1[mitsuba]', or render with --renderer core") from None
-    if variant is not None:
-        from links1_mitsuba import unsupported_variant
-        why = unsupported_variant(variant)
-        if why:
-            raise UsageError(why)
-
-
-def make_renderer(kind: str, path, **options):
-    """A renderer for ``kind`` = ``"core"`` or ``"mitsuba"`` (the plugin integrator)."""
-    if kind == "core":
-        return CoreRenderer(path, **options)
-    if kind == "mitsuba":
-        require_mitsuba()
-        try:
-            from links1_mitsuba import MitsubaRenderer
-        except ImportError as e:
-            raise UsageError(f"the mitsuba renderer is unavailable: {e}") from None
-        _validate_for_mitsuba(path, options.get("params") or {})
-        try:
-            return MitsubaRenderer(path, **options)
-        except (RuntimeError, ValueError, OSError, IndexError) as e:
-            if isinstance(e, Links1Error):
-                raise
-            if isinstance(e, IndexError):  # the plugin found no sensor to render from
-                raise SceneError("the scene has no sensor (add a <sensor type='perspective'>)",
-                                 file=str(path)) from None
-            raise SceneError(mitsuba_message(e, path)) from None
-    raise UsageError(f"unknown renderer {kind!r}; choose 'mitsuba' or 'core'")
-
-
-def _validate_for_mitsuba(path, params) -> None:
-    """Check a scene with the core's reader before Mitsuba sees it: the reader names file,
-    line and element for bad values (NaN, negative sizes, bad links1 parameters) that
-    Mitsuba would accept or crash on. Plugins the core lacks are left to Mitsuba."""
-    import warnings
-
-    from .loader import load_scene
-    if not os.path.exists(path):
-        raise SceneError("scene file not found", file=str(path))
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            load_scene(path, **params)
-    except SceneError as e:
-        if "not supported by the core" not in e.message:
-            raise
-
-
-def mitsuba_message(exc: BaseException, path) -> str:
-    """One line from a Mitsuba loading error: the last line of a Python traceback, no
-    ``[parser.cpp:NNN]`` source tags, and ``(offset N)`` turned into the file's line number."""
-    text = str(exc)
-    lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
-    msg = lines[-1] if lines else type(exc).__name__
-    if len(lines) > 1 and "Traceback" in text:
-        where = _SOURCE_TAG.sub("", lines[0]).split(": failed")[0]  # "At FILE (line L, col C)"
-        msg = f"{where}: {msg}"
-    elif len(lines) > 1:  # "While loading FILE (line L, col C): Found 1 unreferenced property ...:" + a list
-        msg = " ".join(lines)
-    msg = _SOURCE_TAG.sub("", msg)
-
-    def line_of(m):
-        try:
-            with open(m.group(1), "rb") as f:
-                line = f.read(int(m.group(2))).count(b"\n") + 1
-            return f"{m.group(1)}:{line}"
-        except OSError:
-            return m.group(0)
-    return _OFFSET.sub(line_of, msg)
-
-
-_SOURCE_TAG = re.compile(r"\[[\w./]+:\d+\]\s*")
-_OFFSET = re.compile(r"(\S+) \(offset (\d+)\)")

@@ -169,3 +169,16 @@ def sensor_range_message(k: int, count: int) -> str:
         return f"sensor {k} does not exist: the scene has no sensor (add a <sensor type='perspective'>)"
     return (f"sensor {k} does not exist: the scene has {count} sensor{'s' if count != 1 else ''} "
             f"(--sensor 0{'..' + str(count - 1) if count > 1 else ''})")
+
+
+def check_sensor_index(path, sensor, count: int) -> int:
+    """``sensor`` (None: 0) as an index into a scene's ``count`` sensors, or a one-line error
+    naming the scene file and how many sensors it has (both renderers)."""
+    from .errors import SceneError, UsageError
+    k = 0 if sensor is None else sensor
+    if isinstance(k, bool) or not isinstance(k, (int, np.integer)):
+        raise UsageError(f"sensor must be an integer index, got {sensor!r}")
+    k = int(k)
+    if not 0 <= k < count:
+        raise SceneError(sensor_range_message(k, count), file=str(path))
+    return k

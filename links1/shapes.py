@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .accel import BVH
+from .bvh import BVH
 from .vec import cross, dot, matvec, normalize
 
 

@@ -22,7 +22,7 @@ import os
 import sys
 import warnings
 
-from ..cli import int_option
+from ..cli_options import int_option
 from ..errors import SceneError, UsageError
 from ..xmlparse import SceneWarning
 from .strategies import STRATEGIES, UNITS
@@ -97,7 +97,7 @@ def _spec_from_args(args):
         opts["min_weight"] = args.min_weight
     if getattr(args, "light_samples", None) is not None:
         opts["light_samples"] = args.light_samples
-    from ..cli import adaptive_options
+    from ..cli_options import adaptive_options
     opts.update(adaptive_options(args))
     if args.renderer == "mitsuba":
         opts["variant"] = getattr(args, "variant", None)
@@ -120,7 +120,7 @@ def _model_and_channels(spec, args, timing=None):
     (``timing``: a dict that gets ``root_load_s``, the root's scene read, and ``model_s``)."""
     import time
 
-    from ..render import channel_names
+    from ..aovs import channel_names
     timing = {} if timing is None else timing
     from .loadmodel import load_table, scene_model
     table = load_table(getattr(args, "load_table", None), renderer=spec.kind)
@@ -146,7 +146,7 @@ def _model_and_channels(spec, args, timing=None):
         raise
     except Exception as e:  # noqa: BLE001 - the core cannot read a Mitsuba-only scene: build the real one
         if root_spec is spec or (isinstance(e, SceneError) and "not supported by the core" not in e.message):
-            raise   # a bad scene: the renderer refuses it too (render._validate_for_mitsuba), one error line
+            raise   # a bad scene: the renderer refuses it too (renderers._validate_for_mitsuba), one error line
         warnings.warn(f"the core cannot read {spec.path} ({e}); loading it with {spec.kind} in the root")
         from .runtime import get_renderer
         r = get_renderer(spec)
@@ -287,7 +287,7 @@ SCHEDULE_EXAMPLES = """examples:
 
 def add_cli(subparsers) -> None:
     """Add ``links1 schedule`` to the main parser's subcommands."""
-    from ..cli import add_render_arguments
+    from ..cli_options import add_render_arguments
     p = subparsers.add_parser("schedule", help="run a root/node screen-partitioning experiment",
                               epilog=SCHEDULE_EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter,
                               description="Render a scene on N nodes with a partitioning strategy and report per "
@@ -336,7 +336,7 @@ def run_cli(args) -> int:
     from .checkpoint import atomic_write_json
     from .experiment import format_table, plot_report, plot_simulation, simulate, work_map
     if args.renderer == "mitsuba":
-        from ..render import require_mitsuba
+        from ..renderers import require_mitsuba
         require_mitsuba(args.variant)
     if args.plot or args.sim_plot:  # matplotlib is an extra: say so before rendering, not after
         try:
@@ -383,7 +383,7 @@ def run_cli(args) -> int:
 
 def _one_run(args, nodes, *, close, reference=None):
     """One real run of ``args`` on ``nodes`` nodes -> (report, model, ray tests map, plan)."""
-    from ..render import aov_channel
+    from ..aovs import aov_channel
     from .executors import render_plan
     from .experiment import build_report, check_simulator
     args.workers = 0 if nodes == 1 and not (args.scheduler or args.dask_local) else nodes

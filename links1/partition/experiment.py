@@ -510,7 +510,7 @@ def measure_overhead(spec, n_units: int = 64, repeat: int = 3, batched: bool = T
     launched alone, with its measured seconds (median) and exact ray tests (when the renderer
     has the ``cost`` AOV): what the schedule report's cost model is fitted on.
     """
-    from ..render import aov_channel
+    from ..aovs import aov_channel
     from .runtime import can_batch, get_renderer
     from .strategies import grid_shape, tile_units
     r = get_renderer(spec)

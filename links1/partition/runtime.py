@@ -34,7 +34,7 @@ THREAD_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUM
 class RendererSpec:
     """How a node builds its renderer.
 
-    kind : "core" | "mitsuba" (``links1.render.make_renderer``) or "module:callable"
+    kind : "core" | "mitsuba" (``links1.renderers.make_renderer``) or "module:callable"
            (any factory ``f(path, **options)`` following the Renderer contract)
     path : scene file
     options : keyword options of the factory (params, spp, max_depth, seed, aovs, ...)
@@ -71,7 +71,7 @@ class RendererSpec:
         if ":" in self.kind:
             mod, _, name = self.kind.partition(":")
             return getattr(importlib.import_module(mod), name)(self.path, **self.kwargs)
-        from ..render import make_renderer
+        from ..renderers import make_renderer
         return make_renderer(self.kind, self.path, **self.kwargs)
 
 
@@ -122,9 +122,9 @@ def start_worker(spec: RendererSpec) -> tuple:
     and only a dead process breaks the pool. Warnings print as one line; the scene's own
     (:class:`~links1.xmlparse.SceneWarning`) are left to the root, which read the scene too.
     """
-    from ..errors import one_line_warnings
+    from ..renderers import renderer_warnings
     from ..xmlparse import SceneWarning
-    one_line_warnings(spec.kind)
+    renderer_warnings(spec.kind)
     warnings.simplefilter("ignore", SceneWarning)
     r = get_renderer(spec)
     warm_up(r)
@@ -338,7 +338,8 @@ def _render_culled(spec, renderer, window, ids):
     if scene is None or not hasattr(scene, "shapes"):
         return renderer.render(window=tuple(window))  # cannot cull: render everything
     from dataclasses import replace
-    from ..render import aov_channel, render
+    from ..aovs import aov_channel
+    from ..render import render
     key = (spec.key, ids)
     sub = _CULLED.get(key)
     if sub is None:

@@ -186,15 +186,16 @@ def reconstruct(rfilter, film_size, spp, seed, batch, data, aovs, dtype=None, mo
     operations whatever the batch, so it has the same bits in any batch. ``mode``: of the loops
     (``"evaluated"`` in a derivative pass: reverse-mode AD needs it). ``dtype``: of the result
     (None: ``mi.Float64``). Returns ``(flat, C)``."""
-    dtype = mi.Float64 if dtype is None else dtype
+    F64, U32, I32 = mi.Float64, mi.UInt32, mi.Int32   # of the variant in use
+    dtype = F64 if dtype is None else dtype
     W, H = film_size
     m = batch.pixels
     n_s = op_u(spp)
     kw = batch.window_of(batch.pixel_start, m)
-    g = lambda t: dr.gather(mi.UInt32, t, kw)  # noqa: E731  (this pixel's window's value)
+    g = lambda t: dr.gather(U32, t, kw)  # noqa: E731  (this pixel's window's value)
     x0, y0, sx0, sy0, sw = g(batch.x0), g(batch.y0), g(batch.sx0), g(batch.sy0), g(batch.sw)
     start = g(batch.first_lane)
-    q = dr.arange(mi.UInt32, m) - g(batch.first_pixel)
+    q = dr.arange(U32, m) - g(batch.first_pixel)
     w = _divisor(g(batch.w))
     ly = q // w
     lx = q - ly * w
@@ -209,20 +210,20 @@ def reconstruct(rfilter, film_size, spp, seed, batch, data, aovs, dtype=None, mo
         def body(i, r, g, b, c):
             v = dr.gather(type(total), total, first + i) if box else None
             if box:
-                r, g, b = r + mi.Float64(v[0]), g + mi.Float64(v[1]), b + mi.Float64(v[2])
+                r, g, b = r + F64(v[0]), g + F64(v[1]), b + F64(v[2])
             if want_cost:
-                c = c + mi.Float64(dr.gather(type(data["cost"]), data["cost"], first + i))
+                c = c + F64(dr.gather(type(data["cost"]), data["cost"], first + i))
             return i + 1, r, g, b, c
-        z = dr.zeros(mi.Float64, m)
-        _, r, g, b, c = dr.while_loop((dr.zeros(mi.UInt32, m), z, z, z, z), lambda i, *_: i < n_s, body, mode=mode)
+        z = dr.zeros(F64, m)
+        _, r, g, b, c = dr.while_loop((dr.zeros(U32, m), z, z, z, z), lambda i, *_: i < n_s, body, mode=mode)
         if box:
-            s = mi.Float64(n_s)
+            s = F64(n_s)
             chans += [r / s, g / s, b / s]
     if not box:
         nb = 2 * rfilter.border + 1
         nb2 = nb * nb
         k, sd = op_u(math.ceil(math.sqrt(spp)) if spp > 1 else 1), op_u(seed)
-        x, y = mi.Int32(lx + x0), mi.Int32(ly + y0)
+        x, y = I32(lx + x0), I32(ly + y0)
         Wi, Hi = op_i(W), op_i(H)
 
         ns = batch.lanes
@@ -230,18 +231,18 @@ def reconstruct(rfilter, film_size, spp, seed, batch, data, aovs, dtype=None, mo
         if tables:
             # the 1-D weights of every sample towards its nb neighbour columns / rows, once
             # per sample (the loop below would evaluate each (2b+1) times): the same values
-            t = dr.arange(mi.UInt32, ns * nb)
+            t = dr.arange(U32, ns * nb)
             kt = batch.window_of(batch.lane_start, ns * nb, scale=nb)
             sl = t // nb
-            d = mi.Int32(t - sl * nb) - rfilter.border
-            pl = (sl - dr.gather(mi.UInt32, batch.first_lane, kt)) // n_s
-            i = sl - dr.gather(mi.UInt32, batch.first_lane, kt) - pl * n_s
-            swt = _divisor(dr.gather(mi.UInt32, batch.sw, kt))
+            d = I32(t - sl * nb) - rfilter.border
+            pl = (sl - dr.gather(U32, batch.first_lane, kt)) // n_s
+            i = sl - dr.gather(U32, batch.first_lane, kt) - pl * n_s
+            swt = _divisor(dr.gather(U32, batch.sw, kt))
             py = pl // swt
-            ox, oy = offsets((py + dr.gather(mi.UInt32, batch.sy0, kt)) * op_u(W) + pl - py * swt
-                             + dr.gather(mi.UInt32, batch.sx0, kt), i, n_s, k, sd)
-            wx_t = filter_eval(rfilter, (0.5 - mi.Float64(d)) - ox)
-            wy_t = filter_eval(rfilter, (0.5 - mi.Float64(d)) - oy)
+            ox, oy = offsets((py + dr.gather(U32, batch.sy0, kt)) * op_u(W) + pl - py * swt
+                             + dr.gather(U32, batch.sx0, kt), i, n_s, k, sd)
+            wx_t = filter_eval(rfilter, (0.5 - F64(d)) - ox)
+            wy_t = filter_eval(rfilter, (0.5 - F64(d)) - oy)
             dr.eval(wx_t, wy_t)
 
         def body(j, r, g, b, den):
@@ -249,50 +250,50 @@ def reconstruct(rfilter, film_size, spp, seed, batch, data, aovs, dtype=None, mo
             rest = j - i * nb2
             dyi = rest // nb
             dxi = rest - dyi * nb
-            dy = mi.Int32(dyi) - rfilter.border
-            dx = mi.Int32(dxi) - rfilter.border
+            dy = I32(dyi) - rfilter.border
+            dx = I32(dxi) - rfilter.border
             xx, yy = x + dx, y + dy
             on = (xx >= 0) & (xx < Wi) & (yy >= 0) & (yy < Hi)
-            xu, yu = mi.UInt32(dr.select(on, xx, 0)), mi.UInt32(dr.select(on, yy, 0))
+            xu, yu = U32(dr.select(on, xx, 0)), U32(dr.select(on, yy, 0))
             lane = start + ((yu - sy0) * sw + xu - sx0) * n_s + i
             v = dr.gather(type(total), total, lane, on)
             if tables:
-                wgt = dr.gather(mi.Float64, wy_t, lane * nb + dyi, on) * dr.gather(mi.Float64, wx_t, lane * nb + dxi, on)
+                wgt = dr.gather(F64, wy_t, lane * nb + dyi, on) * dr.gather(F64, wx_t, lane * nb + dxi, on)
             else:
                 ox, oy = offsets(yu * op_u(W) + xu, i, n_s, k, sd)
-                wgt = filter_eval(rfilter, (0.5 - mi.Float64(dy)) - oy) * filter_eval(rfilter, (0.5 - mi.Float64(dx)) - ox)
-            r = dr.select(on, r + wgt * mi.Float64(v[0]), r)
-            g = dr.select(on, g + wgt * mi.Float64(v[1]), g)
-            b = dr.select(on, b + wgt * mi.Float64(v[2]), b)
+                wgt = filter_eval(rfilter, (0.5 - F64(dy)) - oy) * filter_eval(rfilter, (0.5 - F64(dx)) - ox)
+            r = dr.select(on, r + wgt * F64(v[0]), r)
+            g = dr.select(on, g + wgt * F64(v[1]), g)
+            b = dr.select(on, b + wgt * F64(v[2]), b)
             den = dr.select(on, den + wgt, den)
             return j + 1, r, g, b, den
-        z = dr.zeros(mi.Float64, m)
-        _, r, g, b, den = dr.while_loop((dr.zeros(mi.UInt32, m), z, z, z, z),
+        z = dr.zeros(F64, m)
+        _, r, g, b, den = dr.while_loop((dr.zeros(U32, m), z, z, z, z),
                                         lambda j, *_: j < n_s * nb2, body, mode=mode)
         den = dr.select(den == 0.0, 1.0, den)
         chans += [r / den, g / den, b / den]
     if aovs:
         t0 = dr.gather(type(data["t0"]), data["t0"], first)
-        s0 = mi.Int32(dr.gather(type(data["s0"]), data["s0"], first))
+        s0 = I32(dr.gather(type(data["s0"]), data["s0"], first))
         n0 = dr.gather(type(data["n0"]), data["n0"], first)
         hit = s0 >= 0
         for a in aovs:
             if a == "depth":
-                chans.append(dr.select(hit, mi.Float64(t0), 0.0))
+                chans.append(dr.select(hit, F64(t0), 0.0))
             elif a == "normal":
-                chans += [dr.select(hit, mi.Float64(n0[kk]), 0.0) for kk in range(3)]
+                chans += [dr.select(hit, F64(n0[kk]), 0.0) for kk in range(3)]
             elif a == "id":
-                chans.append(mi.Float64(s0))
+                chans.append(F64(s0))
             elif a == "cost":
                 chans.append(c)
             elif a == "samples":
-                chans.append(mi.Float64(n_s) + dr.zeros(mi.Float64, m))
+                chans.append(F64(n_s) + dr.zeros(F64, m))
     # the channels in one kernel, then interleaved by a gather (scatters into one array would
     # each evaluate the ones before: one kernel per channel)
     chans = [dtype(ch) for ch in chans]
     C = len(chans)
     dr.eval(*chans)
-    j = dr.arange(mi.UInt32, m * C)
+    j = dr.arange(U32, m * C)
     p = j // C
     c = j - p * C
     out = dr.gather(dtype, chans[0], p, c == 0)

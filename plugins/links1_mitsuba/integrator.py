@@ -25,14 +25,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from links1.render import DEFAULT_ADAPTIVE_DEPTH, channel_names
+from links1.adaptive import DEFAULT_ADAPTIVE_DEPTH
+from links1.aovs import channel_names
+from links1.aovs import check_aovs as parse_aovs  # the one AOV table and checker (links1/aovs.py)
 from links1.params import default as l1_default
 from links1.params import read as l1_read
 
 from . import geometry
 from .gradients import Gradients
 from .intersect import Intersect
-from .launch import Launches, parse_aovs
+from .launch import Launches
 from .lights import Lights
 from .raytree import RayTree
 from .registered import unsupported_variant

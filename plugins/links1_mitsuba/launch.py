@@ -16,7 +16,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from links1.render import AOVS
+from links1.aovs import check_aovs as parse_aovs  # the one AOV table and checker (links1/aovs.py)
 from links1.sampling import strata
 
 from . import tuning
@@ -52,21 +52,6 @@ def _lanes(v, n):
     value; a frozen function returns literals at their recorded width): broadcast to ``n``."""
     a = np.asarray(v.numpy())
     return a if a.shape[0] == n else np.broadcast_to(a[:1], (n,) + a.shape[1:])
-
-
-def parse_aovs(value) -> list:
-    """The AOV names of ``value`` (a comma- or semicolon-separated string, or a list): each
-    one of links1.render.AOVS, else ValueError."""
-    if value is None:
-        return []
-    if isinstance(value, str):
-        items = [s.strip() for s in value.replace(";", ",").split(",") if s.strip()]
-    else:
-        items = [str(s).strip() for s in value]
-    for a in items:
-        if a not in AOVS:  # one naming for both renderers (links1.render)
-            raise ValueError(f"unknown AOV '{a}': allowed are {sorted(AOVS)}")
-    return items
 
 
 class SceneInputs:
@@ -419,10 +404,10 @@ class Launches:
 
     def render_adaptive(self, scene, window=None, seed=None, aovs=None, threshold=None, depth=None,
                         sensor=None):
-        """Adaptive anti-aliasing of ``window`` (:func:`links1.render.render_adaptive_window`,
+        """Adaptive anti-aliasing of ``window`` (:func:`links1.adaptive.render_adaptive_window`,
         as the core): one :meth:`trace_points` launch per refinement level; AOVs depth,
         normal, id at the pixel centres (an spp-1 :meth:`render_window`)."""
-        from links1.render import render_adaptive_window
+        from links1.adaptive import render_adaptive_window
         P = self.prepare(scene, sensor)
         sensor = P.sensor
         W, H = P.film_size

@@ -4,9 +4,11 @@ from __future__ import annotations
 import numpy as np
 
 from ._registry import register
-from links1.render import channel_names, check_sensor_index
+from links1.aovs import channel_names
+from links1.aovs import check_aovs as parse_aovs  # the one AOV table and checker (links1/aovs.py)
+from links1.scene import check_sensor_index
 
-from .integrator import DEFAULT_MIN_WEIGHT, parse_aovs
+from .integrator import DEFAULT_MIN_WEIGHT
 
 
 def resize_film(sensor, width, height):
@@ -100,7 +102,7 @@ class MitsubaRenderer:
         self.adaptive = None
         if adaptive is not None:
             from links1.adaptive import check_options
-            from links1.render import DEFAULT_ADAPTIVE_DEPTH
+            from links1.adaptive import DEFAULT_ADAPTIVE_DEPTH
             self.adaptive, self.adaptive_depth = check_options(
                 adaptive, DEFAULT_ADAPTIVE_DEPTH if adaptive_depth is None else adaptive_depth)
         if integrator == "links1":
@@ -118,7 +120,7 @@ class MitsubaRenderer:
                     raise ValueError(f"light_samples must be >= 1, got {light_samples}")
                 self.integrator.light_samples = int(light_samples)
             self.light_samples = int(self.integrator.light_samples)
-            from links1.render import check_resources   # before any film-sized allocation
+            from links1.params import check_resources   # before any film-sized allocation
             check_resources(*self._film, self.spp, self.light_samples)
             self.integrator._prep = None
             # the renderer's scene is its own (loaded here, changed by no one): launches skip the
@@ -132,7 +134,7 @@ class MitsubaRenderer:
                 raise ValueError("AOVs need the links1_whitted integrator (integrator='links1')")
             if max_depth is not None:
                 mi.traverse(self.scene)  # Mitsuba's integrators keep their own max_depth
-            from links1.render import check_resources
+            from links1.params import check_resources
             check_resources(*self._film, self.spp)
             self.integrator = self.scene.integrator()
 

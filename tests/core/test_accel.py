@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from links1 import transform as tf
-from links1.accel import BVH, Accel
+from links1.accel import Accel
+from links1.bvh import BVH
 from links1.blob import Blob
 from links1.shapes import Disk, Quadric, Shape, TriangleMesh
 
@@ -318,7 +319,7 @@ def test_scalar_walk_same_bits_as_numpy_walk(monkeypatch, mode):
     the culled visits), shadow products and any-hit sets, with every batch walked in
     scalars or none; also for rays with zero direction components (huge reciprocals whose
     slab products overflow) and subnormal ones (infinite reciprocals: numpy walk)."""
-    import links1.accel as accel_mod
+    import links1.bvh as bvh_mod
     rng = np.random.default_rng(11)
     shapes = random_scene(rng, k=40) + _quadric_zoo(rng, 30)
     shapes.append(shapes[0])
@@ -335,7 +336,7 @@ def test_scalar_walk_same_bits_as_numpy_walk(monkeypatch, mode):
     st[rng.random(len(shapes)) < 0.3] = 0.0
     out = {}
     for k in (0, n):                                   # never / always the scalar walk
-        monkeypatch.setattr(accel_mod, "SCALAR_RAYS", k)
+        monkeypatch.setattr(bvh_mod, "SCALAR_RAYS", k)
         acc = Accel(shapes, traversal=mode)
         c1, c2, c3 = (np.zeros(n, dtype=np.int64) for _ in range(3))
         hit = acc.intersect(o, d, tmin, tmax, c1)

@@ -12,7 +12,8 @@ import pytest
 
 from links1.cli import main
 from links1.image import read_exr
-from links1.render import make_renderer, render
+from links1.render import render
+from links1.renderers import make_renderer
 
 from . import oracle
 

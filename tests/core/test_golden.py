@@ -111,7 +111,7 @@ def test_oracle_sees_lit_shadowed_and_tinted_pixels():
 def test_oracle_rejects_a_slightly_wrong_image(scene, change):
     """The check can fail: the core's image of a slightly different view, or one 0.1 % too
     bright, is rejected; the right one passes."""
-    from links1.render import make_renderer
+    from links1.renderers import make_renderer
     path = str(ROOT / "scenes" / scene)
     right = make_renderer("core", path, spp=1, params={"res": RES}).render()
     check_against_oracle(scene, right, 1)

@@ -32,5 +32,5 @@ def core_spec():
 
 @pytest.fixture(scope="session")
 def core_ref(core_spec):
-    from links1.render import make_renderer
+    from links1.renderers import make_renderer
     return make_renderer("core", MANY, params={"res": "32"}, aovs=("id", "cost")).render()

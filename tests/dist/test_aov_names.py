@@ -19,7 +19,7 @@ BACKENDS = {"one process": ["--workers", "0"], "2 workers": ["--workers", "2"],
 def test_names_follow_mitsubas_aov_integrator():
     """The convention is Mitsuba's, asked of Mitsuba itself (not copied into the test)."""
     mi = pytest.importorskip("mitsuba")
-    from links1.render import AOVS
+    from links1.aovs import AOVS
     mi.set_variant("llvm_ad_rgb")
     aov = mi.load_dict({"type": "aov", "aovs": "depth:depth,normal:sh_normal,id:shape_index"})
     assert aov.aov_names() == [c for a in ("depth", "normal", "id") for c in AOVS[a]]

@@ -58,7 +58,7 @@ def test_core_renderer_cull_keeps_the_image(tmp_path):
     """--cull: nodes get only the objects their units need (4-4); the image is unchanged."""
     from links1.partition.cli import _cull_map
     from links1.partition.runtime import RendererSpec
-    from links1.render import make_renderer
+    from links1.renderers import make_renderer
     path = tmp_path / "cull.xml"
     path.write_text(CULL_SCENE % "".join(SPHERE % (x, y) for x in (-4, -1.5, 1.5, 4) for y in (-1.5, 1.5)))
     spec = RendererSpec.make("core", str(path), aovs=("id",))

@@ -45,7 +45,7 @@ def test_a_task_stays_within_its_pixel_budget():
 
 @pytest.mark.parametrize("scene", ["many", "fig11", "fig6a"])
 def test_core_batch_equals_each_window_alone(scene):
-    from links1.render import make_renderer
+    from links1.renderers import make_renderer
     r = make_renderer("core", os.path.join(SCENES, f"{scene}.xml"), params={"res": "40"}, spp=4,
                       aovs=("depth", "normal", "id", "cost"))
     full = r.render()

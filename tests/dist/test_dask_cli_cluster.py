@@ -91,7 +91,7 @@ print(json.dumps(codes))
 def test_cli_renders_on_a_cluster_it_did_not_start(cli_cluster, tmp_path):
     addr, _ = cli_cluster
     from links1.image import read_image
-    from links1.render import make_renderer
+    from links1.renderers import make_renderer
     runs, expect = [], []
     for kind in ("core", "mitsuba"):
         if kind == "mitsuba":

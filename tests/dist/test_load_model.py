@@ -13,7 +13,8 @@ import pytest
 
 from links1.partition.experiment import spearman
 from links1.partition.loadmodel import scene_model
-from links1.render import aov_channel, make_renderer
+from links1.aovs import aov_channel
+from links1.renderers import make_renderer
 
 STRIPS, STRIP_W, H = 6, 16, 32
 COUNTS = [1 + 3 * c for c in range(STRIPS)]

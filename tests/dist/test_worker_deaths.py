@@ -42,7 +42,7 @@ _REFS = {}
 def _reference(kind):
     """The single-process full frame of ``kind`` (rendered in this process)."""
     if kind not in _REFS:
-        from links1.render import make_renderer
+        from links1.renderers import make_renderer
         _REFS[kind] = np.asarray(make_renderer(kind, MANY, **OPTS[kind]).render(), dtype=np.float64)
     return _REFS[kind]
 

@@ -19,7 +19,7 @@ import warnings
 import numpy as np
 import pytest
 
-from links1.render import make_renderer
+from links1.renderers import make_renderer
 from tests.corpus.manifest import SCENES
 
 from .conftest import VARIANTS, assert_matches_mitsuba_direct, use_variant, variant_marks

@@ -9,7 +9,7 @@ import warnings
 import numpy as np
 import pytest
 
-from links1.render import make_renderer
+from links1.renderers import make_renderer
 
 pytestmark = pytest.mark.mitsuba
 

@@ -12,7 +12,7 @@ import pytest
 
 from links1.cli import main
 from links1.image import read_exr
-from links1.render import make_renderer
+from links1.renderers import make_renderer
 
 SCENE = """<scene version="3.0.0">
   <integrator type="links1_whitted"><integer name="max_depth" value="3"/>{params}</integrator>

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from links1 import meshes
-from links1.render import make_renderer
+from links1.renderers import make_renderer
 
 from .conftest import assert_matches_mitsuba_direct
 

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from links1.diff import relmse
-from links1.render import make_renderer
+from links1.renderers import make_renderer
 
 from .conftest import assert_matches_mitsuba_direct, cli_variant, mitsuba_direct
 

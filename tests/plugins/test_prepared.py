@@ -30,7 +30,7 @@ def test_prepared_refuses_an_undeclared_attribute():
 
 
 @pytest.mark.parametrize("name", ["fig11", "mitsuba_glass", "lights"])
-def test_a_prepared_view_sets_every_field(llvm, name):
+def test_a_prepared_view_sets_every_field(variant, name):
     from links1_mitsuba import MitsubaRenderer
     from links1_mitsuba.tables import Prepared
     path = os.path.join(SCENES, f"{name}.xml")

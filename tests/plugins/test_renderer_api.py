@@ -83,11 +83,27 @@ def test_shapes_info_and_register_idempotent(variant):
                           "transmissive", "nbytes"}
         assert np.all(d["bounds_lo"] <= d["bounds_hi"])
     assert any(d["reflective"] for d in info) and any(d["transmissive"] for d in info)
+    from links1.renderers import Renderer
+    assert isinstance(r, Renderer)   # the contract in code (links1/renderers.py)
+    assert isinstance(r.render_batch([(0, 0, 2, 2)]), list) and r.kind == "mitsuba"
+
+
+def test_integrator_checks_aovs_with_the_core_table(variant):
+    """One AOV table and one checker (links1/aovs.py) for links1_whitted's ``aovs`` property
+    as for the core: the same channel names, an unknown name refused with the core's message."""
+    import links1_mitsuba
+    from links1.aovs import channel_names
+    scene = links1_mitsuba.load_string(ONE_SPHERE.replace(
+        '<integer name="max_depth" value="3"/>', '<string name="aovs" value="depth; id,cost"/>'))
+    assert scene.integrator().aov_names() == channel_names(("depth", "id", "cost"))[3:]
+    with pytest.raises(Exception, match="unknown AOV 'albedo'; choose from depth, normal, id, cost, samples"):
+        links1_mitsuba.load_string(ONE_SPHERE.replace(
+            '<integer name="max_depth" value="3"/>', '<string name="aovs" value="depth,albedo"/>'))
 
 
 @pytest.mark.skipif(not os.path.exists(FIG11), reason="scenes/fig11.xml missing")
 def test_width_height_override_matches_core(variant):
-    from links1.render import make_renderer
+    from links1.renderers import make_renderer
     plug = make_renderer("mitsuba", FIG11, width=24, height=18, spp=1)
     core = make_renderer("core", FIG11, width=24, height=18, spp=1)
     assert plug.film_size == core.film_size == (24, 18)
@@ -101,7 +117,7 @@ def test_width_height_override_matches_core(variant):
 @pytest.mark.skipif(not os.path.exists(FIG11), reason="scenes/fig11.xml missing")
 @pytest.mark.parametrize("min_weight", [0.0, 0.05])
 def test_min_weight_matches_core(variant, min_weight):
-    from links1.render import make_renderer
+    from links1.renderers import make_renderer
     kw = dict(params={"res": 64}, spp=1, min_weight=min_weight)
     a = make_renderer("mitsuba", FIG11, **kw).render()
     b = make_renderer("core", FIG11, **kw).render()
