@@ -18,9 +18,10 @@ Everything here is a per-output-pixel *gather* in one fixed order, never a scatt
   ``samples`` = spp.
 
 So a pixel depends only on its own samples and those of its neighbours, never on the window:
-a window or a batch of windows equals the full frame bit for bit. Every size (window origin
-and size, film width, spp, seeds, lane offsets) enters the kernels as an opaque value: new
-windows and batch sizes replay the cached kernels (one kernel per filter type and AOV list).
+a window or a batch of windows equals the full frame bit for bit. Every size (film width,
+spp, seeds) enters the kernels as an opaque value and the windows' origins, sizes and offsets
+as tables (:class:`Batch`): new windows and batch sizes replay the cached kernels (one kernel
+per filter type and AOV list), and a batch of hundreds of windows is still one kernel.
 
 Agreement with the numpy path (:func:`links1.sensor.filters.filter_samples`): bit for bit for box,
 tent, mitchell and catmullrom; gaussian and lanczos differ where Dr.Jit's float64 ``exp`` /
@@ -34,8 +35,9 @@ import math
 
 import drjit as dr
 import mitsuba as mi
+import numpy as np
 
-from .util import mix32
+from .util import mix32, table
 
 #: Largest per-window tables of 1-D filter weights (bytes: 16 per sample and neighbour offset);
 #: bigger windows evaluate the weights in the gather itself ((2b+1) times as many evaluations,
@@ -79,19 +81,63 @@ def concat(parts, n, tp):
     return out
 
 
-def sample_ids(film_width, spp, swins):
-    """UInt32 sample ids ``(py * W + px) * spp + i`` of the sample windows ``swins``
-    (``(sx0, sy0, sw, sh)``, row-major, ``i`` innermost), one window after another."""
+class Batch:
+    """The windows of one launch, laid one after another: their samples in the launch's lanes
+    (each window's sample window, row-major, ``spp`` samples innermost) and their output pixels
+    in the film's result (each window row-major). The per-window values reach the kernels as
+    ``UInt32`` tables, gathered by the window an entry belongs to (:meth:`window_of`), so one
+    kernel makes the sample ids or the pixels of every window of a batch, whatever their number,
+    sizes and places: no recompilation, no per-window kernel or Python work (a scanline
+    partition hands a node hundreds of windows)."""
+
+    def __init__(self, wins, swins, spp):
+        self.wins, self.swins, self.spp = [tuple(w) for w in wins], [tuple(s) for s in swins], int(spp)
+        m = np.array([w * h for _, _, w, h in self.wins], dtype=np.int64)
+        ns = np.array([sw * sh for _, _, sw, sh in self.swins], dtype=np.int64) * self.spp
+        #: first output pixel / first sample lane of each window; their totals
+        self.pixel_start = np.concatenate([[0], np.cumsum(m)[:-1]])
+        self.lane_start = np.concatenate([[0], np.cumsum(ns)[:-1]])
+        self.pixels, self.lanes = int(m.sum()), int(ns.sum())
+        if self.lanes >= 2 ** 32 or self.pixels >= 2 ** 32:
+            raise ValueError(f"{self.lanes} samples in one batch exceed the 32-bit lane indices")
+        u = lambda v: table(mi.UInt32, np.asarray(v, dtype=np.uint32))  # noqa: E731
+        w, s = np.array(self.wins, dtype=np.int64), np.array(self.swins, dtype=np.int64)
+        self.x0, self.y0, self.w = u(w[:, 0]), u(w[:, 1]), u(w[:, 2])
+        self.sx0, self.sy0, self.sw = u(s[:, 0]), u(s[:, 1]), u(s[:, 2])
+        self.first_lane, self.first_pixel = u(self.lane_start), u(self.pixel_start)
+
+    def window_of(self, starts, n, scale=1):
+        """The window (``UInt32``) of each of ``n`` entries laid out window after window from
+        ``starts * scale``: a mark at each window's first entry, summed (one prefix sum)."""
+        if len(starts) == 1:
+            return dr.zeros(mi.UInt32, n)
+        marks = dr.zeros(mi.UInt32, n)
+        # at least two indices (the last repeated: a second write of the same 1): Dr.Jit makes a
+        # one-entry array a scalar of the kernel, which would be another kernel for two windows
+        at = np.asarray(starts[1:] * scale, dtype=np.uint32)
+        dr.scatter(marks, mi.UInt32(1), table(mi.UInt32, np.append(at, at[-1]) if at.size == 1 else at))
+        return dr.cumsum(marks)
+
+
+def _divisor(v):
+    """A gathered ``UInt32`` divisor (a window's width, always >= 1) kept >= 1 in the lanes a
+    kernel computes past the array's end: a masked gather gives 0 there, and the LLVM backend's
+    per-lane integer division traps on 0 (SIGFPE) even in lanes it then discards."""
+    return dr.maximum(v, 1)
+
+
+def sample_ids(film_width, spp, batch):
+    """UInt32 sample ids ``(py * W + px) * spp + i`` of the sample windows of ``batch``
+    (:class:`Batch`: row-major, ``i`` innermost), one window after another."""
     W, s = op_u(film_width), op_u(spp)
-    parts = []
-    for sx0, sy0, sw, sh in swins:
-        j = dr.arange(mi.UInt32, sw * sh * spp)
-        pix = j // s
-        i = j - pix * s
-        ly = pix // op_u(sw)
-        lx = pix - ly * op_u(sw)
-        parts.append(((ly + op_u(sy0)) * W + lx + op_u(sx0)) * s + i)
-    return concat(parts, sum(sw * sh * spp for _, _, sw, sh in swins), mi.UInt32)
+    k = batch.window_of(batch.lane_start, batch.lanes)
+    j = dr.arange(mi.UInt32, batch.lanes) - dr.gather(mi.UInt32, batch.first_lane, k)
+    pix = j // s
+    i = j - pix * s
+    sw = _divisor(dr.gather(mi.UInt32, batch.sw, k))
+    ly = pix // sw
+    lx = pix - ly * sw
+    return ((ly + dr.gather(mi.UInt32, batch.sy0, k)) * W + lx + dr.gather(mi.UInt32, batch.sx0, k)) * s + i
 
 
 def filter_eval(f, x):
@@ -131,25 +177,30 @@ def offsets(pix, i, spp, k, seed):
     return dr.select(one, 0.5, (mi.Float64(sx) + ux) / kf), dr.select(one, 0.5, (mi.Float64(sy) + uy) / kf)
 
 
-def reconstruct(rfilter, film_size, spp, seed, window, swin, start, data, aovs, dtype=None, mode=None):
-    """One window's pixels as a flat ``dtype`` array ``(h * w * C)`` (row-major, channels
-    innermost: RGB, then ``aovs``) from ``data``: the launch's device outputs over all its
-    lanes (``total`` Color3f, ``cost`` Float, and for AOVs ``t0``, ``s0``, ``n0``); this
-    window's samples start at lane ``start``, laid out over ``swin`` as :func:`sample_ids`.
-    ``mode``: of the loops (``"evaluated"`` in a derivative pass: reverse-mode AD needs it);
-    ``dtype``: of the result (None: ``mi.Float64``)."""
+def reconstruct(rfilter, film_size, spp, seed, batch, data, aovs, dtype=None, mode=None):
+    """The pixels of every window of ``batch`` (:class:`Batch`) as one flat ``dtype`` array,
+    window after window, each ``(h * w * C)`` (row-major, channels innermost: RGB, then
+    ``aovs``), from ``data``: the launch's device outputs over all its lanes (``total``
+    Color3f, ``cost`` Float, and for AOVs ``t0``, ``s0``, ``n0``) laid out as
+    :func:`sample_ids`. A pixel is computed from its own window's values only, in the same
+    operations whatever the batch, so it has the same bits in any batch. ``mode``: of the loops
+    (``"evaluated"`` in a derivative pass: reverse-mode AD needs it). ``dtype``: of the result
+    (None: ``mi.Float64``). Returns ``(flat, C)``."""
     F64, U32, I32 = mi.Float64, mi.UInt32, mi.Int32   # of the variant in use
     dtype = F64 if dtype is None else dtype
     W, H = film_size
-    x0, y0, w, h = window
-    sx0, sy0, sw, _ = swin
-    m = w * h
+    m = batch.pixels
     n_s = op_u(spp)
-    q = dr.arange(U32, m)
-    ly = q // op_u(w)
-    lx = q - ly * op_u(w)
+    kw = batch.window_of(batch.pixel_start, m)
+    g = lambda t: dr.gather(U32, t, kw)  # noqa: E731  (this pixel's window's value)
+    x0, y0, sx0, sy0, sw = g(batch.x0), g(batch.y0), g(batch.sx0), g(batch.sy0), g(batch.sw)
+    start = g(batch.first_lane)
+    q = dr.arange(U32, m) - g(batch.first_pixel)
+    w = _divisor(g(batch.w))
+    ly = q // w
+    lx = q - ly * w
     # the pixel's sample 0 in the launch
-    first = op_u(start) + ((ly + op_u(y0 - sy0)) * op_u(sw) + lx + op_u(x0 - sx0)) * n_s
+    first = start + ((ly + (y0 - sy0)) * sw + lx + (x0 - sx0)) * n_s
     total = data["total"]
     want_cost = "cost" in aovs
     box = rfilter.border == 0 and rfilter.is_box
@@ -172,21 +223,24 @@ def reconstruct(rfilter, film_size, spp, seed, window, swin, start, data, aovs, 
         nb = 2 * rfilter.border + 1
         nb2 = nb * nb
         k, sd = op_u(math.ceil(math.sqrt(spp)) if spp > 1 else 1), op_u(seed)
-        x, y = I32(lx + op_u(x0)), I32(ly + op_u(y0))
+        x, y = I32(lx + x0), I32(ly + y0)
         Wi, Hi = op_i(W), op_i(H)
 
-        ns = sw * swin[3] * spp
+        ns = batch.lanes
         tables = ns * nb * 16 <= FILM_TABLE_BYTES
         if tables:
             # the 1-D weights of every sample towards its nb neighbour columns / rows, once
             # per sample (the loop below would evaluate each (2b+1) times): the same values
             t = dr.arange(U32, ns * nb)
+            kt = batch.window_of(batch.lane_start, ns * nb, scale=nb)
             sl = t // nb
             d = I32(t - sl * nb) - rfilter.border
-            pl = sl // n_s
-            i = sl - pl * n_s
-            py = pl // op_u(sw)
-            ox, oy = offsets((py + op_u(sy0)) * op_u(W) + pl - py * op_u(sw) + op_u(sx0), i, n_s, k, sd)
+            pl = (sl - dr.gather(U32, batch.first_lane, kt)) // n_s
+            i = sl - dr.gather(U32, batch.first_lane, kt) - pl * n_s
+            swt = _divisor(dr.gather(U32, batch.sw, kt))
+            py = pl // swt
+            ox, oy = offsets((py + dr.gather(U32, batch.sy0, kt)) * op_u(W) + pl - py * swt
+                             + dr.gather(U32, batch.sx0, kt), i, n_s, k, sd)
             wx_t = filter_eval(rfilter, (0.5 - F64(d)) - ox)
             wy_t = filter_eval(rfilter, (0.5 - F64(d)) - oy)
             dr.eval(wx_t, wy_t)
@@ -201,10 +255,10 @@ def reconstruct(rfilter, film_size, spp, seed, window, swin, start, data, aovs, 
             xx, yy = x + dx, y + dy
             on = (xx >= 0) & (xx < Wi) & (yy >= 0) & (yy < Hi)
             xu, yu = U32(dr.select(on, xx, 0)), U32(dr.select(on, yy, 0))
-            local = ((yu - op_u(sy0)) * op_u(sw) + xu - op_u(sx0)) * n_s + i
-            v = dr.gather(type(total), total, op_u(start) + local, on)
+            lane = start + ((yu - sy0) * sw + xu - sx0) * n_s + i
+            v = dr.gather(type(total), total, lane, on)
             if tables:
-                wgt = dr.gather(F64, wy_t, local * nb + dyi, on) * dr.gather(F64, wx_t, local * nb + dxi, on)
+                wgt = dr.gather(F64, wy_t, lane * nb + dyi, on) * dr.gather(F64, wx_t, lane * nb + dxi, on)
             else:
                 ox, oy = offsets(yu * op_u(W) + xu, i, n_s, k, sd)
                 wgt = filter_eval(rfilter, (0.5 - F64(dy)) - oy) * filter_eval(rfilter, (0.5 - F64(dx)) - ox)

@@ -20,7 +20,7 @@ from links1.tracing.aovs import check_aovs as parse_aovs  # the one AOV table an
 from links1.maths.sampling import strata
 
 from . import tuning
-from .film import concat, reconstruct, sample_ids, sample_window, widen
+from .film import Batch, concat, reconstruct, sample_ids, sample_window, widen
 from .util import aligned, mix32, u24
 
 #: Most samples (lanes) per launch of the window function; more are split into launches.
@@ -445,7 +445,7 @@ class Launches:
         swin = win if P.rfilter.border == 0 else sample_window(P.rfilter, win, (W, H))
         seed = self.seed if seed is None else int(seed)
         want = bool(self.aovs if aovs is None else parse_aovs(aovs))
-        sid = sample_ids(W, int(spp), [swin])
+        sid = sample_ids(W, int(spp), Batch([win], [swin], spp))
         part, _ = self._launch(P, scene, sid, (dr.opaque(mi.UInt32, spp), dr.opaque(mi.UInt32, strata(spp))),
                                (dr.opaque(mi.UInt32, seed & 0xFFFFFFFF),
                                 dr.opaque(mi.UInt32, (seed * 0x27D4EB2F + 0x165667B1) & 0xFFFFFFFF)), want)
@@ -459,11 +459,11 @@ class Launches:
         """Render several windows of the film in one launch -> one float64 ndarray ``(h, w,
         3 + aov channels)`` per window, each exactly what :meth:`render_window` returns for it
         (pixels are independent lanes). The frame is made on the device
-        (:meth:`render_windows_device`) and copied to numpy once per window at the end."""
-        outs = self.render_windows_device(scene, windows, spp=spp, seed=seed, aovs=aovs, sensor=sensor,
-                                          dtype=mi.Float64)
-        dr.eval(*(o.array for o in outs))
-        return [o.numpy() for o in outs]
+        (:meth:`render_windows_device`) and copied to numpy once, at the end."""
+        flat, C, batch = self._render_flat(scene, windows, spp, seed, aovs, sensor, mi.Float64, None)
+        a = flat.numpy()
+        return [a[p * C:(p + w * h) * C].reshape(h, w, C)
+                for p, (_, _, w, h) in zip(batch.pixel_start, batch.wins)]
 
     def render_windows_device(self, scene, windows, spp=1, seed=None, aovs=None, sensor=None,
                               dtype=None, tables=None):
@@ -473,11 +473,23 @@ class Launches:
         and AOVs in Dr.Jit).
 
         The pixel set reaches the kernels as a ``UInt32`` array of sample ids made on the
-        device from opaque window values, so no window offset, window size, batch size or
+        device from the windows' tables (:class:`~links1_mitsuba.film.Batch`), so no window offset, window size, batch size or
         sample count enters the recorded kernels: one recording per configuration, then
         replays (:meth:`_frozen_fn`); the film's kernels are cached likewise. ``tables``: the
         prepared tables to use instead of :meth:`prepare`'s (a derivative pass's, gradients.py).
         """
+        flat, C, batch = self._render_flat(scene, windows, spp, seed, aovs, sensor,
+                                           mi.Float if dtype is None else dtype, tables)
+        Tensor = mi.TensorXf64 if type(flat) is mi.Float64 else mi.TensorXf
+        if len(batch.wins) == 1:
+            _, _, w, h = batch.wins[0]
+            return [Tensor(flat, shape=(h, w, C))]
+        return [Tensor(dr.gather(type(flat), flat, dr.arange(mi.UInt32, w * h * C) + dr.opaque(mi.UInt32, p * C)),
+                       shape=(h, w, C)) for p, (_, _, w, h) in zip(batch.pixel_start, batch.wins)]
+
+    def _render_flat(self, scene, windows, spp, seed, aovs, sensor, dtype, tables):
+        """The windows' pixels as one flat ``dtype`` array, window after window, with their
+        channel count and :class:`~links1_mitsuba.film.Batch` (for the callers above)."""
         P = self.prepare(scene, sensor) if tables is None else tables
         W, H = P.film_size
         wins = []
@@ -495,12 +507,12 @@ class Launches:
         if ad:
             aovs = []   # a derivative pass differentiates the RGB channels
         want = bool(aovs)
-        dtype = mi.Float if dtype is None else dtype
         # each window traces the samples of its filter border too (clipped to the film)
         box = P.rfilter.border == 0
         swins = wins if box else [sample_window(P.rfilter, win, (W, H)) for win in wins]
-        n = sum(w * h for _, _, w, h in swins) * spp
-        sid = sample_ids(W, spp, swins)
+        batch = Batch(wins, swins, spp)
+        n = batch.lanes
+        sid = sample_ids(W, spp, batch)
         spp_ = (dr.opaque(mi.UInt32, spp), dr.opaque(mi.UInt32, strata(spp)))
         seeds = (dr.opaque(mi.UInt32, seed & 0xFFFFFFFF),
                  dr.opaque(mi.UInt32, (seed * 0x27D4EB2F + 0x165667B1) & 0xFFFFFFFF))
@@ -524,11 +536,6 @@ class Launches:
                 else:
                     parts[key] = concat(vals, n, type(vals[0]))
         self._set_stats(counts)
-        out, start = [], 0
-        Tensor = mi.TensorXf64 if dtype is mi.Float64 else mi.TensorXf
-        for win, swin in zip(wins, swins):
-            flat, C = reconstruct(P.rfilter, (W, H), spp, seed, win, swin, start, parts, aovs, dtype,
-                                           mode="evaluated" if ad else None)
-            out.append(Tensor(flat, shape=(win[3], win[2], C)))
-            start += swin[2] * swin[3] * spp
-        return out
+        flat, C = reconstruct(P.rfilter, (W, H), spp, seed, batch, parts, aovs, dtype,
+                              mode="evaluated" if ad else None)
+        return flat, C, batch

@@ -156,7 +156,34 @@ def test_new_window_and_batch_sizes_compile_nothing(variant, tmp_path, rfilter):
 
     seen = kernels([(0, 0, 8, 8)], 4) | kernels([(0, 0, 8, 8), (8, 8, 4, 4)], 4)
     new = kernels([(3, 5, 13, 7)], 9) | kernels([(1, 1, 5, 6), (7, 2, 9, 9), (20, 0, 4, 18)], 2)
+    # a scanline partition's batch: one window a row, the same kernels as two windows
+    rows = kernels([(0, y, W, 1) for y in range(H)], 3)
     assert new and new <= seen, new - seen
+    assert rows <= seen, rows - seen
+
+
+@pytest.mark.parametrize("rfilter", ["box", "gaussian"])
+def test_batch_film_work_does_not_grow_with_windows(variant, tmp_path, rfilter):
+    """The film of a batch is made by the same number of kernels for 2 windows as for one a
+    row (a scanline partition): no kernel or Python work per window (issue 28), and each row
+    equals the full frame bit for bit."""
+    import drjit as dr
+    scene = load(tmp_path, rfilter)
+    integ = scene.integrator()
+    full = integ.render_window(scene, None, spp=2, seed=5, aovs="depth,cost")
+
+    def launched(wins):
+        dr.set_flag(dr.JitFlag.KernelHistory, True)
+        dr.kernel_history()
+        out = integ.render_windows(scene, wins, spp=2, seed=5, aovs="depth,cost")
+        n = len(dr.kernel_history())
+        dr.set_flag(dr.JitFlag.KernelHistory, False)
+        return out, n
+
+    _, two = launched([(0, 0, W, 9), (0, 9, W, H - 9)])
+    rows, many = launched([(0, y, W, 1) for y in range(H)])
+    assert many <= two
+    assert np.array_equal(np.concatenate(rows, axis=0), full)
 
 
 def test_mi_render_never_visits_numpy(variant, tmp_path, monkeypatch):
