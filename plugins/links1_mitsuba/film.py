@@ -39,7 +39,7 @@ import numpy as np
 
 from .util import mix32, table
 
-#: Largest per-window tables of 1-D filter weights (bytes: 16 per sample and neighbour offset);
+#: Largest tables of 1-D filter weights of a batch (bytes: 16 per sample and neighbour offset);
 #: bigger windows evaluate the weights in the gather itself ((2b+1) times as many evaluations,
 #: the same values).
 FILM_TABLE_BYTES = 1 << 28
@@ -221,7 +221,6 @@ def reconstruct(rfilter, film_size, spp, seed, batch, data, aovs, dtype=None, mo
             chans += [r / s, g / s, b / s]
     if not box:
         nb = 2 * rfilter.border + 1
-        nb2 = nb * nb
         k, sd = op_u(math.ceil(math.sqrt(spp)) if spp > 1 else 1), op_u(seed)
         x, y = I32(lx + x0), I32(ly + y0)
         Wi, Hi = op_i(W), op_i(H)
@@ -230,46 +229,57 @@ def reconstruct(rfilter, film_size, spp, seed, batch, data, aovs, dtype=None, mo
         tables = ns * nb * 16 <= FILM_TABLE_BYTES
         if tables:
             # the 1-D weights of every sample towards its nb neighbour columns / rows, once
-            # per sample (the loop below would evaluate each (2b+1) times): the same values
+            # per sample (the loop below would evaluate each (2b+1) times), from the sample's
+            # offsets made once (hashes and integer divisions, which the LLVM backend does
+            # lane by lane, not once per weight): the same values
+            sl = dr.arange(U32, ns)
+            kl = batch.window_of(batch.lane_start, ns)
+            local = sl - dr.gather(U32, batch.first_lane, kl)
+            pl = local // n_s
+            i = local - pl * n_s
+            swl = _divisor(dr.gather(U32, batch.sw, kl))
+            py = pl // swl
+            ox, oy = offsets((py + dr.gather(U32, batch.sy0, kl)) * op_u(W) + pl - py * swl
+                             + dr.gather(U32, batch.sx0, kl), i, n_s, k, sd)
+            dr.eval(ox, oy)
             t = dr.arange(U32, ns * nb)
-            kt = batch.window_of(batch.lane_start, ns * nb, scale=nb)
             sl = t // nb
             d = I32(t - sl * nb) - rfilter.border
-            pl = (sl - dr.gather(U32, batch.first_lane, kt)) // n_s
-            i = sl - dr.gather(U32, batch.first_lane, kt) - pl * n_s
-            swt = _divisor(dr.gather(U32, batch.sw, kt))
-            py = pl // swt
-            ox, oy = offsets((py + dr.gather(U32, batch.sy0, kt)) * op_u(W) + pl - py * swt
-                             + dr.gather(U32, batch.sx0, kt), i, n_s, k, sd)
+            ox, oy = dr.gather(F64, ox, sl), dr.gather(F64, oy, sl)
             wx_t = filter_eval(rfilter, (0.5 - F64(d)) - ox)
             wy_t = filter_eval(rfilter, (0.5 - F64(d)) - oy)
             dr.eval(wx_t, wy_t)
 
         def body(j, r, g, b, den):
-            i = j // nb2
-            rest = j - i * nb2
-            dyi = rest // nb
-            dxi = rest - dyi * nb
+            # one neighbour row of one sample a step, its nb columns unrolled: the order of the
+            # sum is the same (sample, row, column), with the loop's overhead once per row
+            i = j // nb
+            dyi = j - i * nb
             dy = I32(dyi) - rfilter.border
-            dx = I32(dxi) - rfilter.border
-            xx, yy = x + dx, y + dy
-            on = (xx >= 0) & (xx < Wi) & (yy >= 0) & (yy < Hi)
-            xu, yu = U32(dr.select(on, xx, 0)), U32(dr.select(on, yy, 0))
-            lane = start + ((yu - sy0) * sw + xu - sx0) * n_s + i
-            v = dr.gather(type(total), total, lane, on)
-            if tables:
-                wgt = dr.gather(F64, wy_t, lane * nb + dyi, on) * dr.gather(F64, wx_t, lane * nb + dxi, on)
-            else:
-                ox, oy = offsets(yu * op_u(W) + xu, i, n_s, k, sd)
-                wgt = filter_eval(rfilter, (0.5 - F64(dy)) - oy) * filter_eval(rfilter, (0.5 - F64(dx)) - ox)
-            r = dr.select(on, r + wgt * F64(v[0]), r)
-            g = dr.select(on, g + wgt * F64(v[1]), g)
-            b = dr.select(on, b + wgt * F64(v[2]), b)
-            den = dr.select(on, den + wgt, den)
+            yy = y + dy
+            on_y = (yy >= 0) & (yy < Hi)
+            yu = U32(dr.select(on_y, yy, 0))
+            row = (yu - sy0) * sw
+            for dxi in range(nb):
+                dx = dxi - rfilter.border
+                xx = x + dx
+                on = on_y & (xx >= 0) & (xx < Wi)
+                xu = U32(dr.select(on, xx, 0))
+                lane = start + (row + xu - sx0) * n_s + i
+                v = dr.gather(type(total), total, lane, on)
+                if tables:
+                    wgt = dr.gather(F64, wy_t, lane * nb + dyi, on) * dr.gather(F64, wx_t, lane * nb + dxi, on)
+                else:
+                    ox, oy = offsets(yu * op_u(W) + xu, i, n_s, k, sd)
+                    wgt = filter_eval(rfilter, (0.5 - F64(dy)) - oy) * filter_eval(rfilter, (0.5 - float(dx)) - ox)
+                r = dr.select(on, r + wgt * F64(v[0]), r)
+                g = dr.select(on, g + wgt * F64(v[1]), g)
+                b = dr.select(on, b + wgt * F64(v[2]), b)
+                den = dr.select(on, den + wgt, den)
             return j + 1, r, g, b, den
         z = dr.zeros(F64, m)
         _, r, g, b, den = dr.while_loop((dr.zeros(U32, m), z, z, z, z),
-                                        lambda j, *_: j < n_s * nb2, body, mode=mode)
+                                        lambda j, *_: j < n_s * nb, body, mode=mode)
         den = dr.select(den == 0.0, 1.0, den)
         chans += [r / den, g / den, b / den]
     if aovs:
