@@ -44,8 +44,9 @@ import numpy as np
 
 from compare.common import command_line, machine_info, machine_markdown, md_table, pyplot, write_results
 
-CAMERA = """<integrator type="links1_whitted"><integer name="max_depth" value="3"/></integrator>
-  <sensor type="perspective"><float name="fov" value="{fov}"/>
+INTEGRATOR = """<integrator type="links1_whitted"><integer name="max_depth" value="3"/></integrator>"""
+
+CAMERA = """<sensor type="perspective"><float name="fov" value="{fov}"/>
     <transform name="to_world"><lookat origin="{origin}" target="{target}" up="0, 1, 0"/></transform>
     <film type="hdrfilm"><integer name="width" value="{w}"/><integer name="height" value="{w}"/><rfilter type="box"/></film>
     <sampler type="independent"><integer name="sample_count" value="1"/></sampler></sensor>"""
@@ -57,6 +58,10 @@ FLOOR = """<shape type="rectangle" id="floor"><transform name="to_world"><scale 
 LIGHTS = """<emitter type="links1_point" id="lp"><point name="position" x="2" y="4" z="3"/><rgb name="L1" value="0.6"/>
     <rgb name="L2" value="0.4"/><string name="falloff" value="inverse_square"/></emitter>
   <emitter type="point" id="mp"><point name="position" x="-2" y="3" z="4"/><rgb name="intensity" value="6"/></emitter>"""
+
+#: the blob case's fitted views (sensors 1...): the whole blob from five sides
+BLOB_FOV = 36
+BLOB_ORIGINS = ["0.1, 2.0, 5", "5, 2.2, 0", "-4.9, 1.2, 0.5", "0.6, 6.5, 0.6", "0.4, 1.0, -5"]
 
 SCENES = {
     # (a) a links1_point over a Phong floor and a diffuse wall, no occluder
@@ -71,14 +76,19 @@ SCENES = {
   <shape type="sphere" id="ball"><point name="center" x="0" y="1" z="0"/><float name="radius" value="1"/>
     <bsdf type="links1_phong"><rgb name="diffuse" value="0.7, 0.3, 0.2"/><rgb name="specular" value="0.5, 0.5, 0.6"/>
       <float name="exponent" value="20"/></bsdf></shape>""" + LIGHTS),
-    # (c) the 6-centre blob of tests/plugins/test_geometry_gradients.py over a mirror-ish floor
-    "blob": dict(camera=dict(fov=32, origin="0, 2.6, 5", target="0.1, 1.5, 0"), body=FLOOR.format(refl=0.2) + """
+    # (c) the 6-centre blob of tests/plugins/test_geometry_gradients.py in the dark (no floor: the
+    # masked loss below), lit from the front and from behind, seen from five sides (sensor 0 pictures it)
+    "blob": dict(camera=dict(fov=32, origin="0, 2.6, 5", target="0.1, 1.5, 0"),
+                 views=[dict(fov=BLOB_FOV, origin=o, target="0.1, 1.55, 0.05") for o in BLOB_ORIGINS],
+                 masked=True, body="""
   <shape type="links1_blob" id="blob">
     <string name="centers" value="-0.625 1.375 0 1 0.75,  0.5 1.5 0.2 1 0.6,  0 2.0 -0.2 0.8 0.6,
                                   0 1.25 0.3 0.9 0.5,  0.875 1.25 -0.25 0.75 0.5,  0.1 1.6 0.4 0.5 0.4"/>
     <float name="threshold" value="0.5"/>
     <bsdf type="links1_phong"><rgb name="diffuse" value="0.5, 0.4, 0.3"/><rgb name="specular" value="0.3"/>
-      <rgb name="reflectance" value="0"/><float name="exponent" value="10"/></bsdf></shape>""" + LIGHTS),
+      <rgb name="reflectance" value="0"/><float name="exponent" value="10"/></bsdf></shape>""" + LIGHTS + """
+  <emitter type="links1_point" id="back"><point name="position" x="-1" y="-2" z="-4"/><rgb name="L1" value="0.5"/>
+    <rgb name="L2" value="0.3"/><string name="falloff" value="inverse_square"/></emitter>"""),
     # (d) a links1_quadric sphere (scale 1.2) over a mirror-ish floor
     "quadric": dict(camera=dict(fov=40, origin="0, 3, 6", target="0, 0.8, 0"), body=FLOOR.format(refl=0.2) + """
   <shape type="links1_quadric" id="ball"><string name="kind" value="sphere"/>
@@ -91,7 +101,8 @@ SCENES = {
 def load(case, width):
     import links1_mitsuba as lm
     s = SCENES[case]
-    xml = f'<scene version="3.0.0">{CAMERA.format(w=width, **s["camera"])}{s["body"]}</scene>'
+    cams = "".join(CAMERA.format(w=width, **c) for c in [s["camera"], *s.get("views", [])])
+    xml = f'<scene version="3.0.0">{INTEGRATOR}{cams}{s["body"]}</scene>'
     return lm.load_string(xml)
 
 
@@ -211,9 +222,13 @@ def run_case(mi, dr, name, cls, variables, lrs, iters, width, log):
     case.setup(mi, params)
     # the target: rendered with the known values (the file's values; set anyway)
     case.set_values(mi, params, {k: d["truth"] for k, d in variables.items()})
-    target = mi.render(scene, seed=0)
-    sync(target)
-    target_np = np.array(target)
+    views = range(len(scene.sensors()))
+    fit = [k for k in views if k > 0] or [0]   # sensor 0 only pictures a case with more views
+    masked = SCENES[name].get("masked", False)
+    targets = [mi.render(scene, sensor=k, seed=0) for k in views]
+    sync(targets)
+    target_on = [np.asarray(t).sum(-1) > 0 for t in targets]
+    target_np = np.array(targets[0])
     primal = primal_times(mi, scene, 5)
     # the start
     case.set_values(mi, params, {k: d["start"] for k, d in variables.items()})
@@ -234,9 +249,18 @@ def run_case(mi, dr, name, cls, variables, lrs, iters, width, log):
         hist = dr.scoped_set_flag(dr.JitFlag.KernelHistory, True)
         hist.__enter__()
         t0 = time.perf_counter()
-        img = mi.render(scene, params, seed=0)
-        loss = dr.mean(dr.square(img - target), axis=None)
-        dr.backward(loss)
+        loss = 0.0
+        for k in fit:   # the views' losses, each differentiated at once (one AD graph at a time)
+            img = mi.render(scene, params, sensor=k, seed=0)
+            err = dr.square(img - targets[k])
+            if masked:   # only pixels on the blob in both images: no silhouette term (left out)
+                m = (np.asarray(img).sum(-1) > 0) & target_on[k]
+                err = err * mi.TensorXf(np.repeat(m[..., None], 3, -1).astype(np.float32))
+                loss_k = dr.sum(err, axis=None) / (max(int(m.sum()), 1) * 3 * len(fit))
+            else:
+                loss_k = dr.mean(err, axis=None) / len(fit)
+            dr.backward(loss_k)
+            loss += float(np.asarray(loss_k).ravel()[0])
         opt.step()
         for k, d in variables.items():
             if d["lo"] is not None:
@@ -247,7 +271,7 @@ def run_case(mi, dr, name, cls, variables, lrs, iters, width, log):
         h = dr.kernel_history()
         hist.__exit__(None, None, None)
         comp.append(sum(k.get("codegen_time", 0) + k.get("backend_time", 0) for k in h))
-        losses.append(float(np.asarray(loss).ravel()[0]))
+        losses.append(loss)
         e, w = err_of(case, case.read(opt))
         errs.append(e)
         worst.append(w)
