@@ -270,8 +270,10 @@ def run_case(mi, dr, name, cls, variables, lrs, iters, width, log):
             err = dr.square(img - targets[k])
             if masked:   # only pixels on the blob in both images: no silhouette term (left out)
                 m = (np.asarray(img).sum(-1) > 0) & target_on[k]
-                err = err * mi.TensorXf(np.repeat(m[..., None], 3, -1).astype(np.float32))
-                loss_k = dr.sum(err, axis=None) / (max(int(m.sum()), 1) * 3 * len(fit))
+                # the mean over the mask's pixels: weights 1/count in an array (a divisor given
+                # as a Python number would be a literal, new kernel code as the count changes)
+                wm = np.repeat(m[..., None], 3, -1) / (max(int(m.sum()), 1) * 3 * len(fit))
+                loss_k = dr.sum(err * mi.TensorXf(wm.astype(np.float32)), axis=None)
             else:
                 loss_k = dr.mean(err, axis=None) / len(fit)
             dr.backward(loss_k)
