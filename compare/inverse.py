@@ -95,7 +95,7 @@ SCENES = {
       <float name="exponent" value="20"/></bsdf></shape>""" + LIGHTS),
     # (c) the 6-centre blob of tests/plugins/test_geometry_gradients.py in the dark (no floor: the
     # masked loss below), lit from the front and from behind, seen from five sides (sensor 0 pictures it)
-    "blob": dict(camera=dict(fov=32, origin="0, 2.6, 5", target="0.1, 1.5, 0"),
+    "blob": dict(camera=dict(fov=50, origin="0, 2.6, 5", target="0.1, 1.5, 0"),
                  views=[dict(fov=BLOB_FOV, origin=o, target="0.1, 1.55, 0.05") for o in BLOB_ORIGINS],
                  masked=True, body="""
   <shape type="links1_blob" id="blob">
