@@ -50,17 +50,19 @@ def param_names(spec) -> list:
 
 
 def hold(spec) -> dict:
-    """``{name: Dr.Jit value}`` of ``spec``'s parameters (float32, what ``traverse`` hands out)."""
+    """``{name: Dr.Jit value}`` of ``spec``'s parameters (float32, what ``traverse`` hands out),
+    evaluated arrays (never literals, which a kernel would take as constants)."""
+    import drjit as dr
     import mitsuba as mi
     if spec.__class__.__name__ == "QuadricSpec":
         h = {"to_world": mi.Transform4f(np.asarray(spec.to_world, dtype=np.float64).tolist())}
         for k, (_, off) in enumerate(spec.clips):
-            h[f"clip_{k}_offset"] = mi.Float(float(off))
+            h[f"clip_{k}_offset"] = dr.opaque(mi.Float, float(off))   # not a literal (a kernel constant)
         return h
     c = spec.centers
     m = np.eye(4) if spec.to_world is None else spec.to_world
     return {"centers": mi.Point3f(c[:, 0], c[:, 1], c[:, 2]), "weights": mi.Float(c[:, 3]),
-            "radii": mi.Float(c[:, 4]), "threshold": mi.Float(float(spec.threshold)),
+            "radii": mi.Float(c[:, 4]), "threshold": dr.opaque(mi.Float, float(spec.threshold)),
             "to_world": mi.Transform4f(np.asarray(m, dtype=np.float64).tolist())}
 
 
@@ -149,10 +151,11 @@ def _attached(dr, held, names):
     return any(dr.grad_enabled(held[k]) for k in names if k in held)
 
 
-def _inverse(mi, dr, spec_inv, T):
-    """``M⁻¹`` as a Matrix4f: the primal's (``spec_inv``) with the derivative of ``T``'s
-    matrix attached, ``M₀⁻¹ − M₀⁻¹ (M − M₀) M₀⁻¹``."""
-    inv0 = mi.Matrix4f(np.asarray(spec_inv, dtype=np.float64).tolist())
+def _inverse(mi, dr, rows, T):
+    """``M⁻¹`` as a Matrix4f: the primal's (``rows``, its 3x4 rows gathered from the spec's
+    table: not literals, so a new ``to_world`` replays the same kernels) with the derivative
+    of ``T``'s matrix attached, ``M₀⁻¹ − M₀⁻¹ (M − M₀) M₀⁻¹``."""
+    inv0 = mi.Matrix4f(*[mi.Float(x) for r in rows for x in r], 0.0, 0.0, 0.0, 1.0)
     if T is None or not dr.grad_enabled(T.matrix):
         return inv0
     M = T.matrix
@@ -186,7 +189,7 @@ def surface_ad(mi, dr, spec, held, o, d, t, prim, m):
 
 
 def _quadric_ad(mi, dr, spec, held, o, d, t, prim, m):
-    A = _inverse(mi, dr, spec.inv, held.get("to_world"))
+    A = _inverse(mi, dr, spec._inv(), held.get("to_world"))
     sphere = spec.kind == "sphere"
     td = dr.detach(t)
     x = o + d * td
@@ -199,7 +202,8 @@ def _quadric_ad(mi, dr, spec, held, o, d, t, prim, m):
     n_obj = mi.Vector3f(u.x, u.y, u.z * zz)
     for j, (nc, h) in enumerate(spec.clips if spec.capped else []):
         cap = prim == j + 1
-        hh = held.get(f"clip_{j}_offset", h)
+        hh = held.get(f"clip_{j}_offset")
+        hh = hh if hh is not None and dr.grad_enabled(hh) else spec._offset(j)
         Fc = nc[0] * u.x + nc[1] * u.y + nc[2] * u.z - hh
         Fct = nc[0] * v.x + nc[1] * v.y + nc[2] * v.z
         F = dr.select(cap, Fc, F)
@@ -218,17 +222,17 @@ def _quadric_ad(mi, dr, spec, held, o, d, t, prim, m):
 
 def _blob_terms(mi, dr, spec, held):
     """Per centre ``(c, w, S)``: attached Dr.Jit values where the parameter has gradients,
-    else the spec's (float64 rounded to float32, as the primal's constants)."""
+    else the spec's (float64 rounded to float32, gathered from its table as the primal's)."""
     cen, wts, rad = (held.get(k) for k in ("centers", "weights", "radii"))
     gc = cen is not None and dr.grad_enabled(cen)
     gw = wts is not None and dr.grad_enabled(wts)
     gs = rad is not None and dr.grad_enabled(rad)
     out = []
-    for i, (x, y, z, w, S) in enumerate(spec.centers.tolist()):
+    for i in range(len(spec.centers)):
+        x, y, z, w, S = spec._crow(i)[:5]
         idx = mi.UInt32(i)
         c = mi.Vector3f(*[dr.gather(mi.Float, cen[k], idx) for k in range(3)]) if gc else mi.Vector3f(x, y, z)
-        out.append((c, dr.gather(mi.Float, wts, idx) if gw else mi.Float(w),
-                    dr.gather(mi.Float, rad, idx) if gs else mi.Float(S)))
+        out.append((c, dr.gather(mi.Float, wts, idx) if gw else w, dr.gather(mi.Float, rad, idx) if gs else S))
     return out
 
 
@@ -252,10 +256,10 @@ def blob_field(mi, dr, terms, x):
 
 
 def _blob_ad(mi, dr, spec, held, o, d, t, m):
-    A = _inverse(mi, dr, spec.inv, held.get("to_world"))
+    A = _inverse(mi, dr, spec._mats()[0], held.get("to_world"))
     terms = _blob_terms(mi, dr, spec, held)
     T = held.get("threshold", spec.threshold)
-    T = T if dr.grad_enabled(T) else float(spec.threshold)
+    T = T if dr.grad_enabled(T) else spec._threshold()
     td = dr.detach(t)
     x = _affine(mi, A, o + d * td)
     v = _affine(mi, A, d, 0.0)

@@ -58,6 +58,7 @@ class QuadricSpec:
     clips: list = field(default_factory=list)
     capped: bool = False
     emission: np.ndarray | None = None
+    _tables: dict | None = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self):
         problem = transform_problem(self.to_world)
@@ -111,9 +112,35 @@ class QuadricSpec:
         return w.min(0), w.max(0)
 
     # ------------------------------------------------------------------ Dr.Jit
+    def tables(self):
+        """The Dr.Jit table of the constants a ``params.update()`` may change (built once):
+        the 3x4 inverse transform, the normal matrix (3x3) and the clip offsets ``h``. The
+        kernels gather them instead of taking them as literals, so a new ``to_world`` or
+        offset replays the same kernels (issue 23, item 4); the planes' normals, fixed by
+        the file, stay literals."""
+        if self._tables is None:
+            import mitsuba as mi
+
+            from .util import table
+            vals = np.concatenate([np.asarray(self.inv)[:3].ravel(), np.asarray(self.normal_mat).ravel(),
+                                   [h for _, h in self.clips]])
+            self._tables = {"values": table(mi.Float, vals)}
+        return self._tables
+
+    def _value(self, k):
+        import drjit as dr
+        import mitsuba as mi
+        return dr.gather(mi.Float, self.tables()["values"], k)
+
+    def _inv(self):
+        return [[self._value(4 * i + j) for j in range(4)] for i in range(3)]
+
+    def _offset(self, j):
+        return self._value(21 + j)
+
     def _to_object(self, o, d):
         import mitsuba as mi
-        a = self.inv
+        a = self._inv()
         u = mi.Vector3f(*[a[i][0] * o.x + a[i][1] * o.y + a[i][2] * o.z + a[i][3] for i in range(3)])
         v = mi.Vector3f(*[a[i][0] * d.x + a[i][1] * d.y + a[i][2] * d.z for i in range(3)])
         return u, v
@@ -127,9 +154,9 @@ class QuadricSpec:
     def _inside_clips(self, x, skip=-1):
         import mitsuba as mi
         ok = mi.Bool(True)
-        for j, (n, h) in enumerate(self.clips):
+        for j, (n, _) in enumerate(self.clips):
             if j != skip:
-                ok &= n[0] * x.x + n[1] * x.y + n[2] * x.z <= h
+                ok &= n[0] * x.x + n[1] * x.y + n[2] * x.z <= self._offset(j)
         return ok
 
     def intersect(self, o, d, tmin, tmax, active):
@@ -156,9 +183,9 @@ class QuadricSpec:
         t = dr.select(ok_n, tn, dr.select(ok_f, tf, INF))
         prim = dr.zeros(mi.UInt32, dr.width(t))
         if self.capped:
-            for j, (n, h) in enumerate(self.clips):
+            for j, (n, _) in enumerate(self.clips):
                 den = n[0] * v.x + n[1] * v.y + n[2] * v.z
-                num = h - (n[0] * u.x + n[1] * u.y + n[2] * u.z)
+                num = self._offset(j) - (n[0] * u.x + n[1] * u.y + n[2] * u.z)
                 tc = num / dr.select(den != 0, den, 1.0)
                 x = u + v * tc
                 ok = active & (den != 0) & (tc > tmin) & (tc < tmax) & (tc < t) \
@@ -177,7 +204,7 @@ class QuadricSpec:
         n_obj = mi.Vector3f(x.x, x.y, x.z if self.kind == "sphere" else 0.0)
         for j, (n, h) in enumerate(self.clips if self.capped else []):
             n_obj = dr.select(prim == j + 1, mi.Vector3f(*[float(c) for c in n]), n_obj)
-        m = self.normal_mat
+        m = [[self._value(12 + 3 * i + j) for j in range(3)] for i in range(3)]
         nw = mi.Vector3f(*[m[i][0] * n_obj.x + m[i][1] * n_obj.y + m[i][2] * n_obj.z for i in range(3)])
         return dr.normalize(nw)
 
@@ -288,11 +315,45 @@ class BlobSpec:
         return np.c_[x, y, z, w, S, 9.0 * S * S, inv3s2, 3.0 * S, 0.5 * inv3s2, -2.0 * inv3s2,
                      np.abs(w) * 2.0 / (3.0 * S), np.abs(w) * 2.0 / (3.0 * S * S)]
 
+    def _values(self):
+        """The constants a ``params.update()`` may change, one flat float64 row: the
+        :meth:`_consts` rows (12 per centre), the 3x4 inverse transform, the normal matrix
+        (3x3), the threshold and the march's probe step. The kernels gather them from a
+        Dr.Jit table (:meth:`tables`, ``"values"``) instead of taking them as literals, so new
+        values (same count) replay the same kernels (issue 23, item 4); float32 rounding of
+        each is that of the literal it replaces (same bits)."""
+        probe = PROBE_REL * float(self.centers[:, 4].max())
+        return np.concatenate([self._consts().ravel(), np.asarray(self.inv)[:3].ravel(),
+                               np.asarray(self.normal_mat).ravel(), [float(self.threshold), probe]])
+
+    def _value(self, k):
+        """Entry ``k`` of the ``"values"`` table (:meth:`_values`), one gather."""
+        import drjit as dr
+        import mitsuba as mi
+        return dr.gather(mi.Float, self.tables()["values"], k)
+
+    def _crow(self, i):
+        """Centre ``i``'s :meth:`_consts` row, gathered (12 Floats)."""
+        return [self._value(12 * i + c) for c in range(12)]
+
+    def _mats(self):
+        """The inverse transform's 3x4 rows and the normal matrix's 3x3, gathered."""
+        base = 12 * len(self.centers)
+        a = [[self._value(base + 4 * i + j) for j in range(4)] for i in range(3)]
+        m = [[self._value(base + 12 + 3 * i + j) for j in range(3)] for i in range(3)]
+        return a, m
+
+    def _threshold(self):
+        return self._value(12 * len(self.centers) + 21)
+
+    def _probe(self):
+        return self._value(12 * len(self.centers) + 22)
+
     def _unit_ray(self, o, d):
         """Object-space origin, unit direction and the length scale of ``d``."""
         import drjit as dr
         import mitsuba as mi
-        a = self.inv
+        a = self._mats()[0]
         u = mi.Vector3f(*[a[i][0] * o.x + a[i][1] * o.y + a[i][2] * o.z + a[i][3] for i in range(3)])
         v = mi.Vector3f(*[a[i][0] * d.x + a[i][1] * d.y + a[i][2] * d.z for i in range(3)])
         scale = dr.norm(v)
@@ -323,7 +384,8 @@ class BlobSpec:
         enter, leave = mi.Float(INF), mi.Float(-INF)
         Lb, Gb = mi.Float(0.0), mi.Float(0.0)
         per = []
-        for row in self._consts().tolist():
+        for i in range(len(self.centers)):
+            row = self._crow(i)
             tau, h2, enter, leave, Lb, Gb = self._chord(u, v, row, enter, leave, Lb, Gb)
             per.append((tau, h2, *row[3:5], *row[6:10]))
         start = dr.maximum(s_lo, enter)
@@ -336,8 +398,9 @@ class BlobSpec:
         return self.solver == "exact" and len(self.centers) >= LIST_MIN_CENTRES
 
     def tables(self):
-        """Dr.Jit tables of the candidate search, built once (``None`` below
-        :data:`LIST_MIN_CENTRES`): a hierarchy of boxes over the centres' 3S spheres (up to
+        """Dr.Jit tables of the blob, built once: ``"values"``, the constants of
+        :meth:`_values` (every blob); and with :data:`LIST_MIN_CENTRES` centres or more
+        those of the candidate search: a hierarchy of boxes over the centres' 3S spheres (up to
         :data:`LEAF_CENTRES` centres per leaf, bvh.py's SAH build) in depth-first order, and
         the constants of :meth:`_consts` in its leaf order, so that the walk meets the
         candidates in increasing row. Both are packets of 4 floats, read with packet gathers:
@@ -346,7 +409,12 @@ class BlobSpec:
         ``(lo, skip)`` and ``(hi, 0)``, a leaf as ``(first, 0, 0, skip)`` and ``(0, 0, 0,
         count)``, where ``skip`` is the node after its subtree (small integers, exact in
         float32)."""
-        if self._tables is None and self.uses_lists():
+        if self._tables is None:
+            import mitsuba as mi
+
+            from .util import table
+            self._tables = {"values": table(mi.Float, self._values())}
+        if self.uses_lists() and "rows" not in self._tables:
             import mitsuba as mi
 
             from .bvh import build
@@ -357,8 +425,8 @@ class BlobSpec:
             pad = (1e-3 * R + 1e-5 * np.abs(c).max(1))[:, None]
             order, nlo, nhi, first, count = build(c - R[:, None] - pad, c + R[:, None] + pad,
                                                   leaf=LEAF_CENTRES)
-            self._tables = {"rows": table(mi.Float, k[order][:, _ROW_PACKETS]),
-                            "nodes": table(mi.Float, _depth_first(nlo, nhi, first, count))}
+            self._tables.update(rows=table(mi.Float, k[order][:, _ROW_PACKETS]),
+                                nodes=table(mi.Float, _depth_first(nlo, nhi, first, count)))
         return self._tables
 
     def _row(self, idx, act):
@@ -566,9 +634,9 @@ class BlobSpec:
             def field_at(s):
                 return BlobSpec._field(per, s)
         s_lo, s_hi = tmin * scale, tmax * scale   # the segment, as in _setup
-        T = self.threshold
+        T = self._threshold()
         run = active & (start < end)
-        eps = 1e-6 * max(T, 1.0)
+        eps = 1e-6 * max(self.threshold, 1.0)
 
         def solve(start, end, Lb, Gb):
             if self.solver == "paper":
@@ -596,8 +664,8 @@ class BlobSpec:
         grazes the surface never brackets a root: a miss, as in the float64 core."""
         import drjit as dr
         import mitsuba as mi
-        T = self.threshold
-        probe = PROBE_REL * float(self.centers[:, 4].max())
+        T = self._threshold()
+        probe = self._probe()
         Lb = dr.maximum(Lb, 1e-30)
         Gb = dr.maximum(Gb, 1e-30)
         max_steps = self.max_steps
@@ -685,17 +753,17 @@ class BlobSpec:
         field evaluation per sample (the core's count)."""
         import drjit as dr
         import mitsuba as mi
-        T = self.threshold
+        T = self._threshold()
         M = int(self.samples)
         step = float(np.linspace(0.0, 1.0, M)[1]) if M > 1 else 0.0
         n = dr.width(s_lo)
         hi_cap = dr.minimum(s_hi, float(np.finfo(np.float32).max))
         bases, widths, nxs, js = [], [], [], []
         cnt = dr.zeros(mi.UInt32, n)
-        for tau, h2, w, S, *_ in per:
-            if not w > 0:
+        for i, (tau, h2, w, S, *_) in enumerate(per):
+            if not self.centers[i, 3] > 0:   # the sign of a weight is structure (a literal)
                 continue
-            R2 = 9.0 * S * S
+            R2 = self._value(12 * i + 5)      # 9S² (_consts)
             half = dr.sqrt(dr.maximum(R2 - h2, 0.0))
             cross = h2 < R2
             lo = dr.maximum(dr.select(cross, tau - half, INF), s_lo)
@@ -767,7 +835,7 @@ class BlobSpec:
         that search (its candidate list is a local array of that kernel), as raytree.py does."""
         import drjit as dr
         import mitsuba as mi
-        a = self.inv
+        a, m = self._mats()
         p = o + d * t
         x = mi.Vector3f(*[a[i][0] * p.x + a[i][1] * p.y + a[i][2] * p.z + a[i][3] for i in range(3)])
 
@@ -802,9 +870,8 @@ class BlobSpec:
             g, = self._each(*cands, (dr.zeros(mi.Vector3f, dr.width(x)),), grad)
         else:
             g = mi.Vector3f(0.0)
-            for row in self._consts().tolist():
-                g, = grad(row, g)
-        m = self.normal_mat
+            for i in range(len(self.centers)):
+                g, = grad(self._crow(i), g)
         nw = -mi.Vector3f(*[m[i][0] * g.x + m[i][1] * g.y + m[i][2] * g.z for i in range(3)])
         ln = dr.norm(nw)
         return dr.select(ln > 1e-20, nw / dr.maximum(ln, 1e-30), -d)

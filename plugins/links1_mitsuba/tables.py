@@ -292,7 +292,8 @@ class Prepared:
     nslots: int = _set_later()
     #: the links1 shapes (``QuadricSpec`` / ``BlobSpec``), the integrator's list
     custom: list = _set_later()
-    #: the blobs' candidate-search tables (``BlobSpec.tables``), built before any trace
+    #: the tables of the links1 shapes traced in their own code (``QuadricSpec.tables`` /
+    #: ``BlobSpec.tables``: the constants an update may change, a blob's candidate search)
     blob_tables: list = _set_later()
     #: the links1 quadrics under a BVH (``bvh.QuadricBVH``), or None (fewer than ``bvh_min``)
     bvh: object = _set_later()
@@ -568,8 +569,6 @@ class Tables:
             nslots = len(slot_of_id) + len(self.custom)
         P.nslots = nslots
         P.custom = self.custom
-        # blobs' candidate-search tables, built before any trace (frozen inputs)
-        P.blob_tables = [sp.tables() for sp in self.custom if hasattr(sp, "tables")]
         # many bounded quadrics: tables under a BVH (bvh.py) instead of one code block each
         quad = [sp for sp in self.custom if sp.__class__.__name__ == "QuadricSpec"
                 and np.all(np.isfinite(np.concatenate(sp.bounds())))]
@@ -579,6 +578,9 @@ class Tables:
             bvh_ids = {id(sp) for sp in quad}
             P.custom_unrolled = [sp for sp in self.custom if id(sp) not in bvh_ids]
             P.bvh_slots = {sp.slot for sp in quad}
+        # the tables of the shapes traced in their own code (shapes.py ``tables()``: their
+        # constants, a blob's candidate search), built before any trace (frozen inputs)
+        P.blob_tables = [sp.tables() for sp in P.custom_unrolled]
         # registry id -> slot
         reg = [int(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(s))[0]) for s in shapes]
         table = np.full(max(reg + [0]) + 1, -1, dtype=np.int32)

@@ -1,0 +1,146 @@
+"""``params.update()`` of a links1 shape's values replays the same kernels (issue 23, item 4).
+
+``links1_blob`` and ``links1_quadric`` hand their changeable constants (a blob's centres,
+weights, radii, threshold; a quadric's inverse transform and clip offsets) to the kernels as a
+Dr.Jit table they gather from (``BlobSpec.tables()["values"]``), not as literals. So a frame
+after ``params.update()`` with new values (the same count) launches only kernels already
+launched before it: every kernel Dr.Jit reports (``dr.kernel_history()``) has the code of one
+launched after the previous update (less alignment: :func:`code`), and the frozen launch is
+not recorded again. With literals each
+new value makes new kernel code (another hash; ~100 kernels compiled per inverse-rendering
+iteration of the 6-centre blob before this change).
+
+And the frame after the update is the frame of the file with those values, bit for bit: the
+new float32 values (what ``traverse`` hands out) written in a file are read back as the same
+numbers, and the values not changed keep the file's float64 (geometry._keep)."""
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import pytest
+
+pytestmark = pytest.mark.mitsuba
+
+CENTRES = np.array([[-0.625, 1.375, 0, 1, 0.75], [0.5, 1.5, 0.2, 1, 0.6], [0, 2.0, -0.2, 0.8, 0.6],
+                    [0, 1.25, 0.3, 0.9, 0.5], [0.875, 1.25, -0.25, 0.75, 0.5], [0.1, 1.6, 0.4, 0.5, 0.4]])
+
+
+def scene_xml(centres, translate="0.2, 1.4, 0.3"):
+    """A 6-centre blob (unrolled field sum: fewer than LIST_MIN_CENTRES centres), a clipped
+    quadric and a floor, two delta lights, spp 1 with a box filter. No mirror: the derivative
+    pass's ray tree joins each level's mirror and refraction rays with their counts as
+    literals (gradients.py ``cat``), which change with the geometry (not this test's subject)."""
+    c = ", ".join(" ".join(repr(float(x)) for x in row) for row in centres)
+    x, y, z = translate.split(",")
+    return f"""<scene version="3.0.0">
+  <integrator type="links1_whitted"><integer name="max_depth" value="2"/></integrator>
+  <sensor type="perspective"><float name="fov" value="40"/>
+    <transform name="to_world"><lookat origin="0, 2.6, 6" target="0.1, 1.4, 0" up="0, 1, 0"/></transform>
+    <film type="hdrfilm"><integer name="width" value="24"/><integer name="height" value="20"/><rfilter type="box"/></film>
+    <sampler type="independent"><integer name="sample_count" value="1"/></sampler></sensor>
+  <shape type="rectangle" id="floor"><transform name="to_world"><scale value="5"/><rotate x="1" angle="-90"/></transform>
+    <bsdf type="links1_phong"><rgb name="diffuse" value="0.6, 0.5, 0.4"/></bsdf></shape>
+  <shape type="links1_blob" id="blob"><string name="centers" value="{c}"/><float name="threshold" value="0.5"/>
+    <bsdf type="links1_phong"><rgb name="diffuse" value="0.5, 0.4, 0.3"/><rgb name="specular" value="0.3"/>
+      <float name="exponent" value="10"/></bsdf></shape>
+  <shape type="links1_quadric" id="can"><string name="kind" value="cylinder"/>
+    <vector name="clip_0" x="0" y="0" z="1"/><float name="clip_0_offset" value="0.5"/>
+    <vector name="clip_1" x="0" y="0" z="-1"/><float name="clip_1_offset" value="0.5"/>
+    <boolean name="capped" value="true"/>
+    <transform name="to_world"><rotate x="1" angle="-60"/><scale value="0.4"/>
+      <translate x="{x}" y="{y}" z="{z}"/></transform>
+    <bsdf type="links1_phong"><rgb name="diffuse" value="0.3, 0.5, 0.4"/></bsdf></shape>
+  <emitter type="links1_point" id="lp"><point name="position" x="2" y="4" z="3"/><rgb name="L1" value="0.6"/>
+    <rgb name="L2" value="0.4"/><string name="falloff" value="inverse_square"/></emitter>
+  <emitter type="point" id="mp"><point name="position" x="-2" y="3" z="4"/><rgb name="intensity" value="6"/></emitter>
+</scene>"""
+
+
+def code(k):
+    """A kernel's code less what depends on where its buffers lie: Dr.Jit specialises a
+    kernel on whether an array is 64-byte aligned (``align 64`` or ``align 1`` on its loads,
+    the alignment argument of masked gathers and scatters, hence another hash); seen on the
+    derivative pass's small scatter kernels, whose arrays move between frames."""
+    ir = k["ir"].getvalue()
+    ir = re.sub(r"drjit_[0-9a-f]+", "drjit_", ir)
+    ir = re.sub(r"align \d+", "align", ir)
+    return re.sub(r"i32 \d+, (<\d+ x i1>)", r"i32 A, \1", ir)
+
+
+def launched(fn):
+    """(``fn()`` as numpy, the code (:func:`code`) of the kernels it compiled or found in a
+    cache; the replays of a frozen launch report none)."""
+    import drjit as dr
+    with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
+        dr.kernel_history()                          # clear
+        out = fn()
+        out = np.array(out)
+        dr.sync_thread()
+        hist = dr.kernel_history()
+    return out, {code(k) for k in hist if "ir" in k}
+
+
+def test_new_blob_and_quadric_values_replay_the_same_kernels(variant):
+    import drjit as dr
+    import mitsuba as mi
+
+    import links1_mitsuba as lm
+    scene = lm.load_string(scene_xml(CENTRES, "-1.2, 0.6, 1.0"))
+    integ = scene.integrator()
+    params = mi.traverse(scene)
+    C, W = "links1_whitted.blob.centers", "links1_whitted.blob.weights"
+    Q = "links1_whitted.can.to_world"
+
+    def primal():
+        return mi.render(scene, seed=0)
+
+    def derivative():
+        # an inverse-rendering step's derivative pass (gradients.py), on the centres and weights
+        dr.enable_grad(params[C])
+        dr.enable_grad(params[W])
+        params.update()
+        img = mi.render(scene, params, seed=0)
+        dr.backward(dr.sum(img, axis=None))
+        g = dr.grad(params[W])
+        dr.disable_grad(params[C])
+        dr.disable_grad(params[W])
+        return g
+
+    rng = np.random.default_rng(7)
+
+    def update():
+        """New centres, weights and quadric transform (the same counts): the new values."""
+        cen = (CENTRES[:, :3] + rng.uniform(-0.05, 0.05, (6, 3))).astype(np.float32)
+        wts = (CENTRES[:, 3] * rng.uniform(0.9, 1.1, 6)).astype(np.float32)
+        params[C] = mi.Point3f(*[mi.Float(cen[:, k]) for k in range(3)])
+        params[W] = mi.Float(wts)
+        params[Q] = mi.Transform4f().translate(mi.Vector3f(*map(float, rng.uniform(-0.1, 0.1, 3)))) @ mi.Transform4f(params[Q])
+        params.update()
+        return cen, wts
+
+    # a first update: the kernels of an update (the tables' build) and of the frame after it
+    update()
+    before, seen = launched(primal)
+    g0, seen_d = launched(derivative)
+    recordings = integ._freeze.n_recordings
+    assert np.any(np.asarray(g0) != 0)               # the pass differentiates the blob
+
+    cen, wts = update()
+    after, now = launched(primal)
+    assert not np.array_equal(after, before)         # the frame shows the new values
+    assert now <= seen, f"{len(now - seen)} kernels with new code after params.update()"
+    assert integ._freeze.n_recordings == recordings  # the frozen launch replays
+    _, now_d = launched(derivative)
+    assert now_d <= seen_d, f"{len(now_d - seen_d)} derivative-pass kernels with new code"
+
+    # the same frame as a fresh load of the file with the new values
+    new = CENTRES.copy()
+    new[:, :3] = cen
+    new[:, 3] = wts
+    m = np.array(mi.Transform4f(params[Q]).matrix, dtype=np.float64).reshape(4, 4)
+    fresh = lm.load_string(scene_xml(new, "-1.2, 0.6, 1.0"))
+    fp = mi.traverse(fresh)
+    fp[Q] = mi.Transform4f(m.tolist())                # the same float32 matrix as the updated scene's
+    fp.update()
+    assert np.array_equal(np.array(mi.render(fresh, seed=0)), after)
