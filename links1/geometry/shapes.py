@@ -80,6 +80,62 @@ def _row_extent(lin: np.ndarray, cols) -> np.ndarray:
     return np.sqrt(np.sum(lin[:, cols] ** 2, axis=1))
 
 
+def quadric_bounds(kind: str, to_world, clips) -> tuple[np.ndarray, np.ndarray]:
+    """World box of a clipped quadric (eq. 3.4; ``kind`` "sphere" or "cylinder", ``to_world``
+    4x4, ``clips`` the planes ``n.y <= h`` in object space): the one rule of both renderers.
+
+    Two boxes hold the shape, and the box is their intersection, axis by axis:
+
+    * exact for the unclipped surface: the ellipsoid's ``m ± |L rows|``; for a cylinder, the
+      unit disk swept between the ends of the ``z`` range its clip planes allow over the disk
+      (any plane with a ``z`` component bounds one end);
+    * the object box ``[-1, 1]² × [-1, 1]`` (cylinder: ``× [z range]``) tightened by the clip
+      planes that are perpendicular to an object axis, its eight corners mapped to the world.
+
+    A cylinder no plane bounds along its axis has an infinite box (the core refuses it; the
+    plugin traces it outside its BVH)."""
+    m4 = np.asarray(to_world, dtype=np.float64)
+    lin, m = m4[:3, :3], m4[:3, 3]
+    if kind == "sphere":
+        ext = _row_extent(lin, [0, 1, 2])  # |M| rows: exact box of the ellipsoid
+        lo_a, hi_a = m - ext, m + ext
+        zlo, zhi = -1.0, 1.0
+    else:
+        zhi, zlo = np.inf, -np.inf
+        for nv, h in clips:
+            nv = np.asarray(nv, dtype=np.float64)
+            nxy = float(np.hypot(nv[0], nv[1]))
+            if nv[2] > 0:
+                zhi = min(zhi, (float(h) + nxy) / nv[2])
+            elif nv[2] < 0:
+                zlo = max(zlo, (float(h) + nxy) / nv[2])
+        if not (np.isfinite(zhi) and np.isfinite(zlo)):
+            return np.full(3, -np.inf), np.full(3, np.inf)
+        if zlo > zhi:
+            zlo = zhi = 0.5 * (zlo + zhi)  # empty: a degenerate (but finite) box
+        ext = _row_extent(lin, [0, 1])
+        ends = m[None, :] + np.array([zlo, zhi])[:, None] * lin[:, 2][None, :]
+        lo_a, hi_a = ends.min(axis=0) - ext, ends.max(axis=0) + ext
+    # the object box, cut by the axis-perpendicular clip planes
+    olo, ohi = np.array([-1.0, -1.0, zlo]), np.array([1.0, 1.0, zhi])
+    for nv, h in clips:
+        nv = np.asarray(nv, dtype=np.float64)
+        nn = nv / np.linalg.norm(nv)
+        hh = float(h) / np.linalg.norm(nv)
+        for ax in range(3):
+            if abs(abs(nn[ax]) - 1) < 1e-12:
+                if nn[ax] > 0:
+                    ohi[ax] = min(ohi[ax], hh)
+                else:
+                    olo[ax] = max(olo[ax], -hh)
+    olo, ohi = np.minimum(olo, ohi), np.maximum(olo, ohi)   # cut away entirely: degenerate
+    corners = np.array([[x, y, z] for x in (olo[0], ohi[0]) for y in (olo[1], ohi[1]) for z in (olo[2], ohi[2])])
+    w = corners @ lin.T + m
+    lo, hi = np.maximum(lo_a, w.min(0)), np.minimum(hi_a, w.max(0))
+    mid = 0.5 * (lo + hi)
+    return np.where(lo <= hi, lo, mid), np.where(lo <= hi, hi, mid)
+
+
 class Shape:
     """Base class: the attributes the scene and integrator read, and the interface."""
 
@@ -522,26 +578,11 @@ class Quadric(Shape):
         return int(16 * 8 + 9 * 8 + len(self.clips) * 4 * 8)
 
     def _compute_bounds(self):
-        lin = self.to_world[:3, :3]
-        if self.kind == "sphere":
-            ext = _row_extent(lin, [0, 1, 2])  # |M| rows: exact box of the ellipsoid
-            return self.m - ext, self.m + ext
-        # Cylinder: the z range that the clip planes allow over the unit disk.
-        zmax, zmin = np.inf, -np.inf
-        for nv, h in self.clips:
-            nxy = float(np.hypot(nv[0], nv[1]))
-            if nv[2] > 0:
-                zmax = min(zmax, (h + nxy) / nv[2])
-            elif nv[2] < 0:
-                zmin = max(zmin, (h + nxy) / nv[2])
-        if not (np.isfinite(zmax) and np.isfinite(zmin)):
+        lo, hi = quadric_bounds(self.kind, self.to_world, self.clips)
+        if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
             raise ValueError(f"quadric {self.name!r}: an infinite cylinder needs clip planes "
                              "that bound it along its axis (both ends)")
-        if zmin > zmax:
-            zmin = zmax = 0.5 * (zmin + zmax)  # empty: a degenerate (but finite) box
-        ext = _row_extent(lin, [0, 1])
-        ends = self.m[None, :] + np.array([zmin, zmax])[:, None] * lin[:, 2][None, :]
-        return ends.min(axis=0) - ext, ends.max(axis=0) + ext
+        return lo, hi
 
     def bounds(self):
         return self._bounds[0].copy(), self._bounds[1].copy()

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from links1.geometry.shapes import quadric_bounds
 from links1.scene.params import blob_centers, clip_plane, default, read, transform_problem
 
 INF = float("inf")
@@ -90,26 +91,9 @@ class QuadricSpec:
         return cls(slot, props.id(), kind, np.eye(4) if m is None else m, clips, capped)
 
     def bounds(self):
-        """World AABB (object box [-1,1]² × z-range from axis-aligned clip planes)."""
-        lo, hi = np.array([-1.0, -1, -1]), np.array([1.0, 1, 1])
-        if self.kind == "cylinder":
-            lo[2], hi[2] = -INF, INF
-        for n, h in self.clips:
-            n = np.asarray(n)
-            nn = n / np.linalg.norm(n)
-            hh = h / np.linalg.norm(n)
-            for ax in range(3):
-                if abs(abs(nn[ax]) - 1) < 1e-12:
-                    if nn[ax] > 0:
-                        hi[ax] = min(hi[ax], hh)
-                    else:
-                        lo[ax] = max(lo[ax], -hh)
-        if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
-            return np.full(3, -INF), np.full(3, INF)
-        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
-                            for z in (lo[2], hi[2])])
-        w = corners @ self.to_world[:3, :3].T + self.to_world[:3, 3]
-        return w.min(0), w.max(0)
+        """World AABB: the core's rule (:func:`links1.geometry.shapes.quadric_bounds`);
+        infinite for a cylinder no clip plane bounds along its axis."""
+        return quadric_bounds(self.kind, self.to_world, self.clips)
 
     # ------------------------------------------------------------------ Dr.Jit
     def tables(self):

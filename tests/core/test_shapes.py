@@ -443,3 +443,46 @@ def test_disk_hit_normal_and_coplanar_miss():
     np.testing.assert_allclose(lo, [0, -2, 0], atol=1e-14)
     np.testing.assert_allclose(hi, [0, 2, 4], atol=1e-14)
     assert not dk.closed
+
+
+def test_quadric_bounds_hold_the_surface_and_are_the_tighter_rule():
+    """One bounds rule for both renderers (issue 24 item 4): every point of a clipped sphere or
+    cylinder lies in ``quadric_bounds``; an unclipped rotated ellipsoid gets its exact box
+    (``m ± |L rows|``), a sphere cut at z <= 0.25 the object box's top at 0.25 (the rule the
+    plugin had), an obliquely clipped cylinder a finite box."""
+    from links1.geometry.shapes import quadric_bounds
+    rng = np.random.default_rng(7)
+    for trial in range(40):
+        kind = "sphere" if trial % 2 == 0 else "cylinder"
+        q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+        M = np.eye(4)
+        M[:3, :3] = q @ np.diag(rng.uniform(0.3, 2.0, 3))
+        M[:3, 3] = rng.normal(size=3)
+        clips = [((0.0, 0.0, 1.0), float(rng.uniform(0.2, 1.5))), ((0.0, 0.0, -1.0), float(rng.uniform(0.2, 1.5)))]
+        if trial % 3 == 0:
+            clips.append((tuple(rng.normal(size=3)), float(rng.uniform(0.0, 0.8))))
+        lo, hi = quadric_bounds(kind, M, clips)
+        assert np.all(np.isfinite(lo)) and np.all(lo <= hi)
+        # surface points: the unit sphere, or the unit cylinder between z = -2 and 2
+        u = rng.normal(size=(20000, 3))
+        if kind == "sphere":
+            y = u / np.linalg.norm(u, axis=1, keepdims=True)
+        else:
+            a = np.arctan2(u[:, 1], u[:, 0])
+            y = np.stack([np.cos(a), np.sin(a), rng.uniform(-2, 2, len(a))], axis=1)
+        keep = np.all([y @ np.asarray(n) <= h for n, h in clips], axis=0)
+        x = y[keep] @ M[:3, :3].T + M[:3, 3]
+        tol = 1e-12 * (1 + np.abs(x))
+        assert np.all(x >= lo - tol) and np.all(x <= hi + tol)
+    # exact box of an unclipped rotated ellipsoid
+    M = np.eye(4)
+    M[:3, :3] = np.array([[1.0, 0.5, 0.0], [0.0, 1.0, 0.3], [0.2, 0.0, 2.0]])
+    lo, hi = quadric_bounds("sphere", M, [])
+    ext = np.sqrt((M[:3, :3] ** 2).sum(axis=1))
+    assert np.allclose(lo, -ext) and np.allclose(hi, ext)
+    # a cut sphere: the axis-aligned clip sets the top
+    lo, hi = quadric_bounds("sphere", np.eye(4), [((0.0, 0.0, 1.0), 0.25)])
+    assert np.allclose(lo, [-1, -1, -1]) and np.allclose(hi, [1, 1, 0.25])
+    # an unbounded cylinder
+    lo, hi = quadric_bounds("cylinder", np.eye(4), [((0.0, 0.0, 1.0), 1.0)])
+    assert np.all(np.isinf(lo)) and np.all(np.isinf(hi))
