@@ -1,7 +1,9 @@
 """The shape-agnostic bounding-volume hierarchy (paper 3-2-4) in float64 numpy.
 
 :class:`BVH` is the generic hierarchy over axis-aligned boxes (object-median split along the
-widest axis of the box centres, leaves of at most ``max_leaf`` items). It knows boxes only:
+widest axis of the box centres, or the surface-area heuristic; leaves of at most ``max_leaf``
+items): the one builder of links1, also of the Mitsuba plugin's Dr.Jit hierarchies
+(:func:`links1_mitsuba.bvh.build`: SAH, over its quadrics and blob centres). It knows boxes only:
 :class:`links1.geometry.shapes.TriangleMesh` builds one over its triangles, :class:`links1.geometry.accel.Accel`
 over the shapes of a scene, :class:`links1.geometry.blob.Blob` over its centres' spheres.
 
@@ -44,6 +46,31 @@ SCALAR_RAYS = 1
 _ONE_SLAB_CALL = 64
 
 
+def _area(lo, hi):
+    """Half the surface area of boxes ``lo, hi`` (..., 3) (empty: 0)."""
+    e = np.maximum(hi - lo, 0.0)
+    return e[..., 0] * e[..., 1] + e[..., 1] * e[..., 2] + e[..., 2] * e[..., 0]
+
+
+def _sah_split(idx, lo, hi, cen):
+    """Surface-area-heuristic split of the items ``idx`` (a sweep over their centres sorted on
+    each axis, stable): ``(idx reordered, number of items in the left child, axis)``."""
+    best = (np.inf, None, None, 0)
+    k = len(idx)
+    for ax in range(3):
+        srt = idx[np.argsort(cen[idx, ax], kind="stable")]
+        l_lo = np.minimum.accumulate(lo[srt], axis=0)
+        l_hi = np.maximum.accumulate(hi[srt], axis=0)
+        r_lo = np.minimum.accumulate(lo[srt][::-1], axis=0)[::-1]
+        r_hi = np.maximum.accumulate(hi[srt][::-1], axis=0)[::-1]
+        i = np.arange(1, k)
+        cost = _area(l_lo[:-1], l_hi[:-1]) * i + _area(r_lo[1:], r_hi[1:]) * (k - i)
+        j = int(np.argmin(cost))
+        if cost[j] < best[0]:
+            best = (cost[j], srt, j + 1, ax)
+    return best[1], best[2], best[3]
+
+
 class BVH:
     """A bounding-volume hierarchy over ``P`` axis-aligned boxes.
 
@@ -54,6 +81,11 @@ class BVH:
     max_leaf : int
         Largest number of items in a leaf (items whose centres all coincide are split
         by their position in the list instead).
+    split : str
+        ``"median"`` (the core's trees): half the items on each side along the widest axis of
+        their centres, each leaf's items sorted by index (ties resolved by index);
+        ``"sah"`` (the plugin's Dr.Jit trees, walked by every lane of a kernel): the cut of
+        least surface-area cost over the centres sorted along each axis, leaves in that order.
 
     Attributes
     ----------
@@ -66,7 +98,7 @@ class BVH:
     start, count : (M,) int64    item range of a leaf (count 0 for an interior node)
     """
 
-    def __init__(self, lo: np.ndarray, hi: np.ndarray, max_leaf: int = 8):
+    def __init__(self, lo: np.ndarray, hi: np.ndarray, max_leaf: int = 8, split: str = "median"):
         lo = np.asarray(lo, dtype=np.float64).reshape(-1, 3)
         hi = np.asarray(hi, dtype=np.float64).reshape(-1, 3)
         if lo.shape != hi.shape:
@@ -75,6 +107,8 @@ class BVH:
             raise ValueError("BVH: needs at least one box")
         if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
             raise ValueError("BVH: boxes must be finite")
+        if split not in ("median", "sah"):
+            raise ValueError(f"BVH: split must be 'median' or 'sah', got {split!r}")
         self.max_leaf = max(1, int(max_leaf))
         cen = 0.5 * (lo + hi)
         order = np.arange(lo.shape[0], dtype=np.int64)
@@ -96,17 +130,21 @@ class BVH:
             node_lo[nid], node_hi[nid] = blo - pad, bhi + pad
             n = e - s
             if n <= self.max_leaf:
-                order[s:e] = np.sort(items)
+                if split == "median":
+                    order[s:e] = np.sort(items)
                 start[nid], count[nid] = s, n
                 continue
-            c = cen[items]
-            ext = c.max(axis=0) - c.min(axis=0)
-            ax = int(np.argmax(ext))
-            mid = n // 2
-            if ext[ax] > 0:
-                part = np.argpartition(c[:, ax], mid, kind="introselect")
-                order[s:e] = items[part]
-            # else: all centres coincide; split by position in the list.
+            if split == "sah":
+                order[s:e], mid, ax = _sah_split(items, lo, hi, cen)
+            else:
+                c = cen[items]
+                ext = c.max(axis=0) - c.min(axis=0)
+                ax = int(np.argmax(ext))
+                mid = n // 2
+                if ext[ax] > 0:
+                    part = np.argpartition(c[:, ax], mid, kind="introselect")
+                    order[s:e] = items[part]
+                # else: all centres coincide; split by position in the list.
             axis[nid] = ax
             lc, rc = new_node(), new_node()
             left[nid], right[nid] = lc, rc

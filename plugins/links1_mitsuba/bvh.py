@@ -21,6 +21,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from links1.geometry.bvh import BVH
+
 from .util import checked_index, table
 
 INF = float("inf")
@@ -29,62 +31,15 @@ STACK = 64        #: traversal stack entries per lane (depth of a median-split t
 
 
 def build(lo, hi, leaf=LEAF):
-    """SAH BVH over boxes ``lo, hi`` (N, 3). Returns (order, node_lo, node_hi, first, count)."""
-    n = lo.shape[0]
-    cen = 0.5 * (lo + hi)
-    order = np.arange(n)
-    nodes = []          # [lo, hi, first, count]
-
-    def box(idx):
-        return lo[idx].min(0), hi[idx].max(0)
-
-    # breadth-first so that children are allocated as consecutive pairs
-    nodes.append(None)
-    work = [(0, 0, n)]
-    while work:
-        k, a, b = work.pop()
-        idx = order[a:b]
-        blo, bhi = box(idx)
-        if b - a <= leaf:
-            nodes[k] = [blo, bhi, a, b - a]
-            continue
-        srt, cut = _sah_split(idx, lo, hi, cen)
-        order[a:b] = srt
-        m = a + cut
-        left = len(nodes)
-        nodes.extend([None, None])
-        nodes[k] = [blo, bhi, left, 0]
-        work.append((left, a, m))
-        work.append((left + 1, m, b))
-    node_lo = np.array([nd[0] for nd in nodes], dtype=np.float64)
-    node_hi = np.array([nd[1] for nd in nodes], dtype=np.float64)
-    first = np.array([nd[2] for nd in nodes], dtype=np.uint32)
-    count = np.array([nd[3] for nd in nodes], dtype=np.uint32)
-    return order, node_lo, node_hi, first, count
-
-
-def _area(lo, hi):
-    e = np.maximum(hi - lo, 0.0)
-    return e[..., 0] * e[..., 1] + e[..., 1] * e[..., 2] + e[..., 2] * e[..., 0]
-
-
-def _sah_split(idx, lo, hi, cen):
-    """Surface-area-heuristic split (sweep over the sorted centroids on each axis):
-    returns (idx reordered, number of items in the left child)."""
-    best = (np.inf, None, None)
-    k = len(idx)
-    for ax in range(3):
-        srt = idx[np.argsort(cen[idx, ax], kind="stable")]
-        l_lo = np.minimum.accumulate(lo[srt], axis=0)
-        l_hi = np.maximum.accumulate(hi[srt], axis=0)
-        r_lo = np.minimum.accumulate(lo[srt][::-1], axis=0)[::-1]
-        r_hi = np.maximum.accumulate(hi[srt][::-1], axis=0)[::-1]
-        i = np.arange(1, k)
-        cost = _area(l_lo[:-1], l_hi[:-1]) * i + _area(r_lo[1:], r_hi[1:]) * (k - i)
-        j = int(np.argmin(cost))
-        if cost[j] < best[0]:
-            best = (cost[j], srt, j + 1)
-    return best[1], best[2]
+    """SAH BVH over boxes ``lo, hi`` (N, 3), built by the core's one builder
+    (:class:`links1.geometry.bvh.BVH`, ``split="sah"``) and given in this module's layout:
+    ``(order, node_lo, node_hi, first, count)`` (an inner node's children are ``first`` and
+    ``first + 1``, as the core allocates them)."""
+    t = BVH(lo, hi, max_leaf=leaf, split="sah")
+    inner = t.count == 0
+    assert np.all(t.right[inner] == t.left[inner] + 1)
+    first = np.where(inner, t.left, t.start).astype(np.uint32)
+    return t.order, t.node_lo, t.node_hi, first, t.count.astype(np.uint32)
 
 
 def tree_depth(first, count):

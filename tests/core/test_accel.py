@@ -112,6 +112,37 @@ def test_bvh_structure_covers_items():
         assert np.all(lo[items] >= b.node_lo[nid]) and np.all(hi[items] <= b.node_hi[nid])
 
 
+def test_sah_split_separates_clusters_and_covers_items():
+    """The one builder's SAH rule (the plugin's trees, issue 24 item 4): two far clusters of
+    boxes of unequal size (30 and 170) are cut apart at the root (a median cut would mix
+    them: 100 and 100), every item sits in one leaf inside its node's box, and
+    children are allocated as consecutive pairs (the plugin's flat layout relies on it)."""
+    rng = np.random.default_rng(5)
+    a = rng.normal(size=(30, 3)) * 0.1
+    b = rng.normal(size=(170, 3)) * 0.1 + [10.0, 0, 0]
+    lo = np.vstack([a, b])
+    hi = lo + 0.05
+    t = BVH(lo, hi, max_leaf=1, split="sah")
+    assert sorted(t.order.tolist()) == list(range(200)) and t.count.sum() == 200
+    inner = np.nonzero(t.count == 0)[0]
+    assert np.all(t.right[inner] == t.left[inner] + 1)
+    left = t.left[0]
+    left_items = set()
+    stack = [left]
+    while stack:
+        k = stack.pop()
+        if t.count[k]:
+            left_items |= set(t.order[t.start[k]:t.start[k] + t.count[k]].tolist())
+        else:
+            stack += [t.left[k], t.right[k]]
+    assert left_items in (set(range(30)), set(range(30, 200)))
+    for k in np.nonzero(t.count)[0]:
+        items = t.order[t.start[k]:t.start[k] + t.count[k]]
+        assert np.all(lo[items] >= t.node_lo[k]) and np.all(hi[items] <= t.node_hi[k])
+    with pytest.raises(ValueError, match="split"):
+        BVH(lo, hi, split="middle")
+
+
 def test_exact_ties_lower_index_wins():
     s0 = Quadric("sphere", tf.translate([0, 0, 0]))
     s1 = Quadric("sphere", tf.translate([0, 0, 0]))
