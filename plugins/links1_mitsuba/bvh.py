@@ -23,7 +23,7 @@ import numpy as np
 
 from links1.geometry.bvh import BVH
 
-from .util import checked_index, table
+from .util import checked_index, quadric_roots, table
 
 INF = float("inf")
 LEAF = 1          #: quadrics per leaf (one intersection per loop iteration)
@@ -161,20 +161,8 @@ class QuadricBVH:
         u = mi.Vector3f(*[a[i][0] * o.x + a[i][1] * o.y + a[i][2] * o.z + a[i][3] for i in range(3)])
         v = mi.Vector3f(*[a[i][0] * d.x + a[i][1] * d.y + a[i][2] * d.z for i in range(3)])
         # sphere: qform = dot; cylinder: x, y only (qz = 0 drops z exactly)
-        aa = self._qform(qz, v, v)
-        ok_a = aa > 0
-        a_safe = dr.select(ok_a, aa, 1.0)
-        t0 = -self._qform(qz, u, v) / a_safe
-        u0 = u + v * t0
-        b = self._qform(qz, u0, v)
-        c = self._qform(qz, u0, u0) - 1.0
-        disc = dr.square(b) - aa * c
-        hit = ok_a & (disc >= 0) & act
-        qq = -(b + dr.copysign(dr.sqrt(dr.maximum(disc, 0.0)), b))
-        r1 = c / dr.select(qq != 0, qq, 1.0)
-        r2 = qq / a_safe
-        tn = t0 + dr.minimum(r1, r2)
-        tf = t0 + dr.maximum(r1, r2)
+        hit, tn, tf = quadric_roots(lambda x, y: self._qform(qz, x, y), u, v)   # eq. (3.5)
+        hit &= act
         planes = [self._clip(q, j, act) for j in range(self.kc)]
 
         def inside(x, skip=-1):

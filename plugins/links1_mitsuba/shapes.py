@@ -147,21 +147,10 @@ class QuadricSpec:
         """Nearest ``t`` in (tmin, tmax) (inf on a miss) and the part hit (0 side, 1+j cap j)."""
         import drjit as dr
         import mitsuba as mi
+        from .util import quadric_roots
         u, v = self._to_object(o, d)
-        a = self._qform(v, v)
-        ok_a = a > 0
-        a_safe = dr.select(ok_a, a, 1.0)
-        t0 = -self._qform(u, v) / a_safe               # closest approach (docs/numerics.md)
-        u0 = u + v * t0
-        b = self._qform(u0, v)
-        c = self._qform(u0, u0) - 1.0
-        disc = dr.square(b) - a * c
-        hit = ok_a & (disc >= 0) & active
-        q = -(b + dr.copysign(dr.sqrt(dr.maximum(disc, 0.0)), b))
-        r1 = c / dr.select(q != 0, q, 1.0)
-        r2 = q / a_safe
-        tn = t0 + dr.minimum(r1, r2)
-        tf = t0 + dr.maximum(r1, r2)
+        hit, tn, tf = quadric_roots(self._qform, u, v)   # eq. (3.5)
+        hit &= active
         ok_n = hit & (tn > tmin) & (tn < tmax) & self._inside_clips(u + v * tn)
         ok_f = hit & (tf > tmin) & (tf < tmax) & self._inside_clips(u + v * tf)
         t = dr.select(ok_n, tn, dr.select(ok_f, tf, INF))

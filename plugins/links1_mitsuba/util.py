@@ -194,3 +194,23 @@ def read_rgb(props, name, default, *, emitter=True):
         except TypeError:
             return np.full(3, float(v))
     return None if default is None else np.full(3, float(default))
+
+
+def quadric_roots(qform, u, v):
+    """The two roots along ``u + t v`` of the unit quadric ``qform(y, y) = 1`` in object space
+    (eq. 3.5), from the closest approach ``t0`` (docs/numerics.md: no cancellation for far
+    origins) and the stable quadratic formula: ``(hit, t_near, t_far)``, ``hit`` where the
+    line meets it. One home for :meth:`links1_mitsuba.shapes.QuadricSpec.intersect` and the
+    BVH's quadric rows (:class:`links1_mitsuba.bvh.QuadricBVH`), which must give the same bits."""
+    a = qform(v, v)
+    ok_a = a > 0
+    a_safe = dr.select(ok_a, a, 1.0)
+    t0 = -qform(u, v) / a_safe
+    u0 = u + v * t0
+    b = qform(u0, v)
+    c = qform(u0, u0) - 1.0
+    disc = dr.square(b) - a * c
+    q = -(b + dr.copysign(dr.sqrt(dr.maximum(disc, 0.0)), b))
+    r1 = c / dr.select(q != 0, q, 1.0)
+    r2 = q / a_safe
+    return ok_a & (disc >= 0), t0 + dr.minimum(r1, r2), t0 + dr.maximum(r1, r2)
