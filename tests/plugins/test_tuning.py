@@ -82,7 +82,15 @@ def test_every_switch_is_part_of_the_launch_key_or_the_tables_identity(variant, 
     warm = [frame() for _ in range(3)]
     builds, rec, rec_pts = warm[-1]
     assert builds == warm[0][0] and rec <= 2 and rec_pts <= 2, warm
-    assert frame() == (builds, rec, rec_pts)                  # replays: nothing new
+
+    def within(got, want):
+        # builds exactly; each recording count as expected or one more: Dr.Jit's freeze
+        # also records again, rarely and at random, when an input's memory moved (2 of 3
+        # full-suite runs saw one; a loop with gc between frames 4 in 25, on d1e62a4 too)
+        return got[0] == want[0] and all(w <= g <= w + 1 for g, w in zip(got[1:], want[1:]))
+    now = frame()
+    assert within(now, (builds, rec, rec_pts)), now            # replays: nothing new
+    builds, rec, rec_pts = now
     with tuning.tuned(**{field: value}):
         assert tuning.current() == dataclasses.replace(default, **{field: value})
         after = frame()
@@ -90,8 +98,9 @@ def test_every_switch_is_part_of_the_launch_key_or_the_tables_identity(variant, 
         assert after[0] == builds + 1                          # the tables were built again
         assert frame()[0] == builds + 2                        # and again at the default
     else:
-        assert after == (builds, rec + 1, rec_pts + 1)         # recorded again, same tables
-        assert frame() == after                                # the first recordings replay
+        assert within(after, (builds, rec + 1, rec_pts + 1)), after   # recorded again, same tables
+        back = frame()
+        assert within(back, after), back                       # the first recordings replay
 
 
 def test_tuning_values_and_scopes():
