@@ -29,7 +29,7 @@ import numpy as np
 
 from ..errors import RenderAborted
 from .runtime import (THREAD_ENV, RendererSpec, SharedFrame, can_batch, get_renderer, release_frame, render_units,
-                      start_worker, warm_up)
+                      start_worker, warm_samples, warm_up)
 
 #: A unit that has killed this many workers is reported as an error (Dask's allowed-failures).
 ALLOWED_FAILURES = 3
@@ -227,7 +227,8 @@ class InProcess:
         # unit, so a unit's time is work, not the frozen launch's recording (schedule --nodes 1:
         # its first launch took 106 ms against 23 ms warm); its time is the node's start-up
         t = time.perf_counter()
-        warm_up(get_renderer(spec))
+        r = get_renderer(spec)
+        warm_up(r, warm_samples(spec, r))
         self.startup_s = {0: time.perf_counter() - t}
 
     def call(self, fn, *args):
@@ -244,7 +245,7 @@ class InProcess:
                 batch = guided_batch(plan, queue, 1, self.chunk_factor, self.task_pixels,
                                      by_load=self.chunk_by == "load")
             for i, (px, info) in zip(batch, render_units(spec, [plan.units[i].window for i in batch],
-                                                         [cull.get(i) for i in batch])):
+                                                         [cull.get(i) for i in batch], wire=False)):
                 info["node"] = plan.owner[i] if plan.static else 0
                 on_done(i, px, info)
 
