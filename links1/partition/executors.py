@@ -14,7 +14,9 @@ LocalPool   ``--workers N``: N spawned worker processes, one
             static strategy's units stay on their node; each worker loads the scene once
             (its first task). A worker that dies (starting, idle or mid-unit) breaks only its
             own pool (``BrokenProcessPool``): its unfinished units go to the other nodes and
-            a replacement process starts, up to a documented number of deaths.
+            a replacement process starts, up to a documented number of deaths. Nodes write
+            their pixels into a frame the root maps (``runtime.SharedFrame``, made before the
+            clock) and send back only the units' records; ``shared_frame=False``: the pipe.
 The Dask backend is in :mod:`.dask_backend`.
 """
 from __future__ import annotations
@@ -190,6 +192,9 @@ def render_plan(plan, spec: RendererSpec, backend, *, checkpoint=None, progress:
             res.n_nodes = backend.n_nodes
             res.startup_s = dict(getattr(backend, "startup_s", None) or {})
             backend.root_events = res.root_events   # a backend may log its dispatches here
+            before = getattr(backend, "before_run", None)   # a backend's set-up for this plan
+            if before is not None:
+                before(plan)
             res.t0_wall = time.time()   # the nodes' records use wall clocks (same machine)
             t0 = time.perf_counter()
             backend.run(plan, todo, spec, cull or {}, on_done, on_fault)
@@ -335,7 +340,7 @@ class LocalPool:
 
     def __init__(self, n_workers: int, threads: int | None = None, prefetch: int = 2,
                  max_deaths: int | None = None, log=default_log, chunk_factor: int = CHUNK_FACTOR,
-                 task_pixels: int = TASK_PIXELS, chunk_by: str = "units", shared_frame: bool = False):
+                 task_pixels: int = TASK_PIXELS, chunk_by: str = "units", shared_frame: bool = True):
         if n_workers < 1:
             raise ValueError(f"workers must be >= 1, got {n_workers}")
         self.n = int(n_workers)
@@ -346,9 +351,11 @@ class LocalPool:
         self.batches = True        # the renderer renders batches (set when a worker is ready)
         self.channels = None       # channels of its pixels (set when a worker is ready)
         #: nodes write results into a frame the root maps (runtime.SharedFrame) instead of
-        #: sending them through the pipe; off by default: on this 2-core VM mapping a fresh
-        #: frame's pages cost as much as the pipe (issue 28, docs/partitioning.md)
+        #: sending them through the pipe (issue 28, docs/partitioning.md: a result's trip back
+        #: 0.18-0.28 of nodes x makespan through the pipe, 0.05-0.09 through the frame, plugin
+        #: at 512², 2 nodes); False, or no room for the frame: the pipe
         self.shared_frame = bool(shared_frame)
+        self._frame = None
         self.max_deaths = DEATHS_PER_WORKER * self.n if max_deaths is None else int(max_deaths)
         self.log = log
         self.deaths = 0
@@ -449,19 +456,29 @@ class LocalPool:
             self.channels = pid[2] if len(pid) > 2 else None
             self.startup_s[k] = time.time() - self.spawned.get(k, time.time())
 
-    def run(self, plan, todo, spec, cull, on_done, on_fault):
-        spec = self._spec
-        frame = None
+    def before_run(self, plan):
+        """Before the clock (:func:`render_plan`): map the shared frame the nodes write into, as
+        the root allocates its frame buffer (a 512² frame's file and pages: a few ms)."""
+        self._drop_frame()
         if self.shared_frame and self.channels:
             try:
-                frame = SharedFrame(plan.height, plan.width, self.channels)
+                self._frame = SharedFrame(plan.height, plan.width, self.channels)
             except OSError:  # no room for it: results go through the pipe
-                frame = None
+                self._frame = None
+
+    def _drop_frame(self):
+        if self._frame is not None:
+            self._frame.close()
+            self._frame = None
+
+    def run(self, plan, todo, spec, cull, on_done, on_fault):
+        spec = self._spec
+        if self._frame is None or self._frame.shape[:2] != (plan.height, plan.width):
+            self.before_run(plan)   # called without render_plan
         try:
-            self._run(plan, todo, spec, cull, on_done, on_fault, frame)
-        finally:
-            if frame is not None:
-                frame.close()
+            self._run(plan, todo, spec, cull, on_done, on_fault, self._frame)
+        finally:   # its file is removed at once; the nodes unmap it at their next task or ping
+            self._drop_frame()
 
     def _run(self, plan, todo, spec, cull, on_done, on_fault, frame):
         from concurrent.futures import FIRST_COMPLETED, wait
@@ -592,6 +609,7 @@ class LocalPool:
                 on_fault(f"{self._died(k, 'while idle')}; it had no unfinished units; a replacement is starting")
 
     def close(self):
+        self._drop_frame()
         for p in self.pools.values():
             if _alive(p):
                 p.shutdown(wait=True, cancel_futures=True)

@@ -208,8 +208,9 @@ class SharedFrame:
     through the process pipe (a 256x512x4 float64 half frame: ~10 ms pickled, sent, unpickled
     one after another by the root; issue 28) and the root copies it into the image from memory.
     The values written are the renderer's, as float64: the bits of ``wire_pixels`` placed in
-    the root's float64 frame. Opt-in (``LocalPool(shared_frame=True)``): on the shared 2-core
-    VM the nodes' writes into fresh pages cost as much as the pipe saved (docs/partitioning.md)."""
+    the root's float64 frame. The local pool's default (``LocalPool(shared_frame=False)``: the
+    pipe); the root makes it before the clock and removes its file when the run ends, whatever
+    happens (a root killed with SIGKILL leaves it in ``/dev/shm``: ``links1-frame-*``)."""
 
     def __init__(self, height, width, channels, directory=None):
         import tempfile
