@@ -76,10 +76,10 @@ def test_local_pool_writes_into_the_frame_by_default_and_leaves_none_behind(core
 
 
 @pytest.mark.mitsuba
-def test_plugin_results_through_the_frame_are_the_in_process_bits():
-    """The plugin's float32-exact results written as float64 into the frame: the same bits as the
-    in-process node, which hands over the renderer's float64 arrays unconverted."""
-    from links1.partition.executors import InProcess
+def test_plugin_results_through_the_frame_are_the_pipes_bits():
+    """The plugin's float32-exact results written as float64 into the frame: the same bits as
+    through the pipe (float32 on the wire, placed in the root's float64 frame). Both in worker
+    processes: this test process keeps no plugin renderer (the plugin tests count recordings)."""
     from links1.partition.runtime import RendererSpec
     from tests.plugins.conftest import variant_problem
 
@@ -92,7 +92,9 @@ def test_plugin_results_through_the_frame_are_the_in_process_bits():
     before = _frames()
     plan = make_plan("subscreen", 24, 24, 2, tiles_per_node=4, unit="tile")
     with LocalPool(2, threads=1) as pool:
-        local = render_plan(plan, spec, pool, progress=False)
-    alone = render_plan(plan, spec, InProcess(), progress=False)
-    assert local.image.shape[2] == 5 and np.array_equal(local.image, alone.image, equal_nan=True)
+        framed = render_plan(plan, spec, pool, progress=False)
+    with LocalPool(2, threads=1, shared_frame=False) as pool:
+        piped = render_plan(plan, spec, pool, progress=False)
+    assert framed.image.shape[2] == 5 and np.array_equal(framed.image, piped.image, equal_nan=True)
+    assert np.isfinite(framed.image[..., :3]).all() and framed.image[..., :3].any()
     assert _frames() == before
