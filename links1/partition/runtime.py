@@ -221,6 +221,10 @@ class SharedFrame:
         try:
             with open(self.path, "r+b") as f:
                 f.truncate(8 * int(np.prod(self.shape)))
+                if hasattr(os, "posix_fallocate"):
+                    # reserve the pages now: a full /dev/shm (a container's 64 MiB) raises
+                    # ENOSPC here, and the pool uses the pipe, instead of a node's SIGBUS later
+                    os.posix_fallocate(f.fileno(), 0, 8 * int(np.prod(self.shape)))
             self.array = _map(self.path, self.shape)
         except BaseException:
             os.unlink(self.path)

@@ -98,3 +98,19 @@ def test_plugin_results_through_the_frame_are_the_pipes_bits():
     assert framed.image.shape[2] == 5 and np.array_equal(framed.image, piped.image, equal_nan=True)
     assert np.isfinite(framed.image[..., :3]).all() and framed.image[..., :3].any()
     assert _frames() == before
+
+
+def test_no_room_for_the_frame_falls_back_to_the_pipe(monkeypatch, core_spec, core_ref):
+    """A full /dev/shm: SharedFrame raises ENOSPC (posix_fallocate) and the run goes by the pipe."""
+    import errno
+
+    from links1.partition import executors
+
+    def full(*a, **kw):
+        raise OSError(errno.ENOSPC, "No space left on device")
+    monkeypatch.setattr(executors, "SharedFrame", full)
+    plan = make_plan("subscreen", 32, 32, 2, tiles_per_node=4, unit="tile")
+    with _Watched(2) as pool:
+        res = render_plan(plan, core_spec, pool, progress=False)
+        assert pool.seen and not any(pool.seen)   # no frame: every result by the pipe
+    assert np.array_equal(res.image, core_ref)
