@@ -19,7 +19,7 @@ from collections import deque
 
 from ..errors import RenderAborted
 from .executors import ALLOWED_FAILURES, CHUNK_FACTOR, TASK_PIXELS, guided_batch, take_batch
-from .runtime import THREAD_ENV, get_renderer, render_units, spec_batches, warm_up
+from .runtime import THREAD_ENV, get_renderer, render_units, spec_batches, warm_samples, warm_up
 
 try:  # the plugin base class only when distributed is there (lazy for everything else)
     from distributed.diagnostics.plugin import WorkerPlugin as _WorkerPluginBase
@@ -40,7 +40,8 @@ class ScenePreload(_WorkerPluginBase):
 
 
 def _load_and_warm_up(spec):
-    warm_up(get_renderer(spec))
+    r = get_renderer(spec)
+    warm_up(r, warm_samples(spec, r))
 
 
 async def _set_resource(name, value, dask_worker=None):

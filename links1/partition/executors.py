@@ -14,7 +14,9 @@ LocalPool   ``--workers N``: N spawned worker processes, one
             static strategy's units stay on their node; each worker loads the scene once
             (its first task). A worker that dies (starting, idle or mid-unit) breaks only its
             own pool (``BrokenProcessPool``): its unfinished units go to the other nodes and
-            a replacement process starts, up to a documented number of deaths.
+            a replacement process starts, up to a documented number of deaths. Nodes write
+            their pixels into a frame the root maps (``runtime.SharedFrame``, made before the
+            clock) and send back only the units' records; ``shared_frame=False``: the pipe.
 The Dask backend is in :mod:`.dask_backend`.
 """
 from __future__ import annotations
@@ -29,7 +31,7 @@ import numpy as np
 
 from ..errors import RenderAborted
 from .runtime import (THREAD_ENV, RendererSpec, SharedFrame, can_batch, get_renderer, release_frame, render_units,
-                      start_worker, warm_up)
+                      start_worker, warm_samples, warm_up)
 
 #: A unit that has killed this many workers is reported as an error (Dask's allowed-failures).
 ALLOWED_FAILURES = 3
@@ -190,10 +192,16 @@ def render_plan(plan, spec: RendererSpec, backend, *, checkpoint=None, progress:
             res.n_nodes = backend.n_nodes
             res.startup_s = dict(getattr(backend, "startup_s", None) or {})
             backend.root_events = res.root_events   # a backend may log its dispatches here
+            before = getattr(backend, "before_run", None)   # a backend's set-up for this plan
+            if before is not None:
+                before(plan)
             res.t0_wall = time.time()   # the nodes' records use wall clocks (same machine)
             t0 = time.perf_counter()
             backend.run(plan, todo, spec, cull or {}, on_done, on_fault)
             res.makespan_s = time.perf_counter() - t0
+            after = getattr(backend, "after_run", None)   # a backend's checks past the last result
+            if after is not None:
+                after(on_fault)
         else:
             res.n_nodes = getattr(backend, "n_nodes", 0)
     finally:
@@ -227,7 +235,8 @@ class InProcess:
         # unit, so a unit's time is work, not the frozen launch's recording (schedule --nodes 1:
         # its first launch took 106 ms against 23 ms warm); its time is the node's start-up
         t = time.perf_counter()
-        warm_up(get_renderer(spec))
+        r = get_renderer(spec)
+        warm_up(r, warm_samples(spec, r))
         self.startup_s = {0: time.perf_counter() - t}
 
     def call(self, fn, *args):
@@ -244,7 +253,7 @@ class InProcess:
                 batch = guided_batch(plan, queue, 1, self.chunk_factor, self.task_pixels,
                                      by_load=self.chunk_by == "load")
             for i, (px, info) in zip(batch, render_units(spec, [plan.units[i].window for i in batch],
-                                                         [cull.get(i) for i in batch])):
+                                                         [cull.get(i) for i in batch], wire=False)):
                 info["node"] = plan.owner[i] if plan.static else 0
                 on_done(i, px, info)
 
@@ -331,7 +340,7 @@ class LocalPool:
 
     def __init__(self, n_workers: int, threads: int | None = None, prefetch: int = 2,
                  max_deaths: int | None = None, log=default_log, chunk_factor: int = CHUNK_FACTOR,
-                 task_pixels: int = TASK_PIXELS, chunk_by: str = "units", shared_frame: bool = False):
+                 task_pixels: int = TASK_PIXELS, chunk_by: str = "units", shared_frame: bool = True):
         if n_workers < 1:
             raise ValueError(f"workers must be >= 1, got {n_workers}")
         self.n = int(n_workers)
@@ -342,9 +351,11 @@ class LocalPool:
         self.batches = True        # the renderer renders batches (set when a worker is ready)
         self.channels = None       # channels of its pixels (set when a worker is ready)
         #: nodes write results into a frame the root maps (runtime.SharedFrame) instead of
-        #: sending them through the pipe; off by default: on this 2-core VM mapping a fresh
-        #: frame's pages cost as much as the pipe (issue 28, docs/partitioning.md)
+        #: sending them through the pipe (issue 28, docs/partitioning.md: a result's trip back
+        #: 0.18-0.28 of nodes x makespan through the pipe, 0.05-0.09 through the frame, plugin
+        #: at 512², 2 nodes); False, or no room for the frame: the pipe
         self.shared_frame = bool(shared_frame)
+        self._frame = None
         self.max_deaths = DEATHS_PER_WORKER * self.n if max_deaths is None else int(max_deaths)
         self.log = log
         self.deaths = 0
@@ -445,19 +456,29 @@ class LocalPool:
             self.channels = pid[2] if len(pid) > 2 else None
             self.startup_s[k] = time.time() - self.spawned.get(k, time.time())
 
-    def run(self, plan, todo, spec, cull, on_done, on_fault):
-        spec = self._spec
-        frame = None
+    def before_run(self, plan):
+        """Before the clock (:func:`render_plan`): map the shared frame the nodes write into, as
+        the root allocates its frame buffer (a 512² frame's file and pages: a few ms)."""
+        self._drop_frame()
         if self.shared_frame and self.channels:
             try:
-                frame = SharedFrame(plan.height, plan.width, self.channels)
+                self._frame = SharedFrame(plan.height, plan.width, self.channels)
             except OSError:  # no room for it: results go through the pipe
-                frame = None
+                self._frame = None
+
+    def _drop_frame(self):
+        if self._frame is not None:
+            self._frame.close()
+            self._frame = None
+
+    def run(self, plan, todo, spec, cull, on_done, on_fault):
+        spec = self._spec
+        if self._frame is None or self._frame.shape[:2] != (plan.height, plan.width):
+            self.before_run(plan)   # called without render_plan
         try:
-            self._run(plan, todo, spec, cull, on_done, on_fault, frame)
-        finally:
-            if frame is not None:
-                frame.close()
+            self._run(plan, todo, spec, cull, on_done, on_fault, self._frame)
+        finally:   # its file is removed at once; the nodes unmap it at their next task or ping
+            self._drop_frame()
 
     def _run(self, plan, todo, spec, cull, on_done, on_fault, frame):
         from concurrent.futures import FIRST_COMPLETED, wait
@@ -555,17 +576,19 @@ class LocalPool:
                 lose(k, "mid-unit")
             for k in range(self.n):
                 fill(k)
-        self._check_idle(on_fault)
 
     def call(self, fn, *args):
         """Run ``fn(*args)`` on a ready node (its threads, its loaded renderer) -> the result."""
         k = min(k for k in range(self.n) if k not in self.hello)
         return self.pools[k].submit(fn, *args).result(timeout=600)
 
-    def _check_idle(self, on_fault):
+    def after_run(self, on_fault):
         """Ping every ready worker: one that died after its last unit is replaced now (N stay N).
 
-        A SIGKILLed process cannot answer, so a death before this point is always seen."""
+        A SIGKILLed process cannot answer, so a death before this point is always seen.
+        :func:`render_plan` calls it after the clock stops: the makespan runs from the first
+        dispatch to the last result, and this round trip to every node (2-4 ms at 2 nodes,
+        issue 28) is neither."""
         from concurrent.futures import wait
         from concurrent.futures.process import BrokenProcessPool
         pings = {}
@@ -586,6 +609,7 @@ class LocalPool:
                 on_fault(f"{self._died(k, 'while idle')}; it had no unfinished units; a replacement is starting")
 
     def close(self):
+        self._drop_frame()
         for p in self.pools.values():
             if _alive(p):
                 p.shutdown(wait=True, cancel_futures=True)

@@ -127,7 +127,7 @@ def start_worker(spec: RendererSpec) -> tuple:
     renderer_warnings(spec.kind)
     warnings.simplefilter("ignore", SceneWarning)
     r = get_renderer(spec)
-    warm_up(r)
+    warm_up(r, warm_samples(spec, r))
     return os.getpid(), can_batch(r), channel_count(r)
 
 
@@ -139,15 +139,42 @@ def channel_count(renderer):
         return None
 
 
-def warm_up(renderer):
+#: Samples of the full-size warm-up launch (:func:`warm_samples`): at most this many, so that a
+#: node's start-up stays a fraction of a second (512², spp 4 on the plugin: ~0.15 s here).
+WARM_SAMPLES = 1 << 20
+
+
+def warm_samples(spec: RendererSpec, renderer) -> int:
+    """Samples of the large warm-up launch ``spec``'s node renders before its first unit: the
+    plugin's (a Dr.Jit renderer keeps the memory of its launches): the film's pixels x spp, at most
+    :data:`WARM_SAMPLES` and :data:`LAUNCH_SAMPLES`; 0 for the core (numpy allocates per launch,
+    nothing to warm; a core frame is seconds)."""
+    if spec.kind != "mitsuba" or not can_batch(renderer):
+        return 0
+    w, h = renderer.film_size
+    spp = max(1, int(getattr(renderer, "spp", 1) or 1))
+    return min(w * h * spp, WARM_SAMPLES, LAUNCH_SAMPLES)
+
+
+def warm_up(renderer, samples: int = 0):
     """Render a few tiny windows and batches of different sizes, so that kernels, Dr.Jit's
     frozen recordings (the first call records, the second makes changed literals opaque) and
-    caches are ready before the node's first unit: start-up, not work."""
+    caches are ready before the node's first unit: start-up, not work.
+
+    ``samples`` > 0 (:func:`warm_samples`): then one batch of scanlines holding about that many
+    samples, so that the renderer's memory for a launch of a task's size is allocated and
+    touched before the clock too (issue 28: the plugin's first 512-scanline launch of fig11 at
+    512², spp 1 took 51-58 ms after the tiny warm-up, the same launch 36-39 ms after this one; one
+    node's first schedule run 99 ms against 45 ms for the next, docs/partitioning.md)."""
     w, h = renderer.film_size
     tiny = [(0, 0, min(w, 3), min(h, 2)), (0, 0, min(w, 2), min(h, 3)), (0, 0, min(w, 4), min(h, 4))]
     if can_batch(renderer):  # the links1 renderers (others are left as they are)
         for k in range(3):
             renderer.render_batch(tiny[k:] + tiny[:k][:1])
+        if samples > 0:
+            spp = max(1, int(getattr(renderer, "spp", 1) or 1))
+            rows = max(1, min(h, samples // max(1, w * spp)))
+            renderer.render_batch([(0, y, w, 1) for y in range(rows)])
 
 
 def spec_batches(spec: RendererSpec) -> bool:
@@ -181,8 +208,9 @@ class SharedFrame:
     through the process pipe (a 256x512x4 float64 half frame: ~10 ms pickled, sent, unpickled
     one after another by the root; issue 28) and the root copies it into the image from memory.
     The values written are the renderer's, as float64: the bits of ``wire_pixels`` placed in
-    the root's float64 frame. Opt-in (``LocalPool(shared_frame=True)``): on the shared 2-core
-    VM the nodes' writes into fresh pages cost as much as the pipe saved (docs/partitioning.md)."""
+    the root's float64 frame. The local pool's default (``LocalPool(shared_frame=False)``: the
+    pipe); the root makes it before the clock and removes its file when the run ends, whatever
+    happens (a root killed with SIGKILL leaves it in ``/dev/shm``: ``links1-frame-*``)."""
 
     def __init__(self, height, width, channels, directory=None):
         import tempfile
@@ -193,6 +221,10 @@ class SharedFrame:
         try:
             with open(self.path, "r+b") as f:
                 f.truncate(8 * int(np.prod(self.shape)))
+                if hasattr(os, "posix_fallocate"):
+                    # reserve the pages now: a full /dev/shm (a container's 64 MiB) raises
+                    # ENOSPC here, and the pool uses the pipe, instead of a node's SIGBUS later
+                    os.posix_fallocate(f.fileno(), 0, 8 * int(np.prod(self.shape)))
             self.array = _map(self.path, self.shape)
         except BaseException:
             os.unlink(self.path)
@@ -251,9 +283,18 @@ def _to_frame(frame, window, img):
     return None
 
 
-def render_unit(spec: RendererSpec, window, cull=None, frame=None):
+def _ready(img, frame, window, wire):
+    """A unit's pixels as :func:`render_units` returns them: written into the shared ``frame``
+    (None), as :func:`wire_pixels` sends them, or (``wire`` False: the root is this process,
+    nothing crosses a pipe) the renderer's array as it is: the same values either way."""
+    if frame is not None:
+        return _to_frame(frame, window, img)
+    return wire_pixels(img) if wire else np.asarray(img)
+
+
+def render_unit(spec: RendererSpec, window, cull=None, frame=None, wire=True):
     """Render one window on this node -> (pixels (h, w, C), info dict); pixels as
-    :func:`wire_pixels` sends them (float32 when exact, else float64)."""
+    :func:`wire_pixels` sends them (float32 when exact, else float64), see :func:`_ready`."""
     renderer = get_renderer(spec)
     t0, w0 = time.perf_counter(), time.time()
     if cull is not None:
@@ -261,7 +302,7 @@ def render_unit(spec: RendererSpec, window, cull=None, frame=None):
     else:
         img = renderer.render(window=tuple(int(v) for v in window))
     dt = time.perf_counter() - t0
-    px = wire_pixels(img) if frame is None else _to_frame(frame, tuple(int(v) for v in window), img)
+    px = _ready(img, frame, tuple(int(v) for v in window), wire)
     return px, {"seconds": dt, "start": w0, "stop": w0 + dt, "pid": os.getpid(), "launch_seconds": dt,
                 "launch_units": 1, "launch": (os.getpid(), next(_LAUNCHES)),
                 "wire_s": time.perf_counter() - t0 - dt}
@@ -273,10 +314,11 @@ def render_unit(spec: RendererSpec, window, cull=None, frame=None):
 LAUNCH_SAMPLES = 1 << 22
 
 
-def render_units(spec: RendererSpec, windows, culls=None, frame=None):
+def render_units(spec: RendererSpec, windows, culls=None, frame=None, wire=True):
     """Render a batch of units on this node -> ``[(pixels, info), ...]`` in ``windows`` order.
     With ``frame`` (a :attr:`SharedFrame.ref`) each unit's pixels are written into the shared
-    frame after its launch and ``pixels`` is None.
+    frame after its launch and ``pixels`` is None; ``wire`` False (the in-process node) returns
+    the renderer's arrays unconverted (:func:`_ready`).
 
     Renderers with ``render_batch(windows)`` (both links1 renderers) render the batch in as
     few launches as :data:`LAUNCH_SAMPLES` allows; each unit's pixels are exactly what
@@ -292,7 +334,7 @@ def render_units(spec: RendererSpec, windows, culls=None, frame=None):
     batch = getattr(renderer, "render_batch", None) if can_batch(renderer) else None
     task = (os.getpid(), next(_TASKS))  # one task = the units sent to this node in one message
     if batch is None or len(windows) == 1 or any(c is not None for c in culls):
-        out = [render_unit(spec, w, c, frame) for w, c in zip(windows, culls)]
+        out = [render_unit(spec, w, c, frame, wire) for w, c in zip(windows, culls)]
         for _, info in out:
             info["task"] = task
         return out
@@ -316,7 +358,7 @@ def render_units(spec: RendererSpec, windows, culls=None, frame=None):
         for img, a in zip(imgs, launch):
             share = dt * a[2] * a[3] / total
             tw = time.perf_counter()
-            px = wire_pixels(img) if frame is None else _to_frame(frame, a, img)
+            px = _ready(img, frame, a, wire)
             out.append((px, {"seconds": share, "start": at, "stop": at + share, "pid": os.getpid(),
                              "launch_seconds": dt, "launch_units": len(launch), "launch": lid, "task": task,
                              "wire_s": time.perf_counter() - tw}))
