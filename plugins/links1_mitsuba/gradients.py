@@ -65,10 +65,13 @@ def cat(a, b, na, nb):
         return a
     if na == 0:
         return b
+    # the split as an opaque value: a literal would make a kernel per count (a geometry
+    # change that moves mirror/refraction counts would compile the pass again)
+    split = dr.opaque(mi.UInt32, na)
     j = dr.arange(mi.UInt32, na + nb)
-    in_a = j < na
+    in_a = j < split
     ga = dr.gather(type(a), a, dr.select(in_a, j, 0), in_a)
-    gb = dr.gather(type(b), b, dr.select(in_a, 0, j - na), ~in_a)
+    gb = dr.gather(type(b), b, dr.select(in_a, 0, j - split), ~in_a)
     return dr.select(in_a, ga, gb)
 
 

@@ -29,8 +29,8 @@ CENTRES = np.array([[-0.625, 1.375, 0, 1, 0.75], [0.5, 1.5, 0.2, 1, 0.6], [0, 2.
 def scene_xml(centres, translate="0.2, 1.4, 0.3"):
     """A 6-centre blob (unrolled field sum: fewer than LIST_MIN_CENTRES centres), a clipped
     quadric and a floor, two delta lights, spp 1 with a box filter. No mirror: the derivative
-    pass's ray tree joins each level's mirror and refraction rays with their counts as
-    literals (gradients.py ``cat``), which change with the geometry (not this test's subject)."""
+    pass's secondary levels (gradients.py ``_trace_tree_ad``; ``cat`` takes the mirror/refraction
+    split as an opaque value) are not this test's subject."""
     c = ", ".join(" ".join(repr(float(x)) for x in row) for row in centres)
     x, y, z = translate.split(",")
     return f"""<scene version="3.0.0">
