@@ -210,12 +210,12 @@ class SharedFrame:
     The values written are the renderer's, as float64: the bits of ``wire_pixels`` placed in
     the root's float64 frame. The local pool's default (``LocalPool(shared_frame=False)``: the
     pipe); the root makes it before the clock and removes its file when the run ends, whatever
-    happens (a root killed with SIGKILL leaves it in ``/dev/shm``: ``links1-frame-*``)."""
+    happens (a root killed with SIGKILL leaves it in ``/dev/shm``: ``links1-frame-<root pid>-*``)."""
 
     def __init__(self, height, width, channels, directory=None):
         import tempfile
         d = directory or ("/dev/shm" if os.path.isdir("/dev/shm") and os.access("/dev/shm", os.W_OK) else None)
-        fd, self.path = tempfile.mkstemp(prefix="links1-frame-", suffix=".f64", dir=d)
+        fd, self.path = tempfile.mkstemp(prefix=f"links1-frame-{os.getpid()}-", suffix=".f64", dir=d)
         os.close(fd)
         self.shape = (int(height), int(width), int(channels))
         try:

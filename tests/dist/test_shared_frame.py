@@ -15,7 +15,10 @@ from links1.partition.strategies import make_plan
 
 
 def _frames():
-    return set(glob.glob("/dev/shm/links1-frame-*")) | set(glob.glob(os.path.join("/tmp", "links1-frame-*")))
+    """This process's frames (the name holds the root's pid: other runs on the machine, e.g. a
+    second test session, make and remove their own meanwhile)."""
+    pat = f"links1-frame-{os.getpid()}-*"
+    return set(glob.glob(os.path.join("/dev/shm", pat))) | set(glob.glob(os.path.join("/tmp", pat)))
 
 
 @pytest.mark.parametrize("strategy", ["subscreen", "dynamic"])
