@@ -26,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 
 from .bvh import BVH
-from .shapes import Quadric, _finite_or_zero, clip_interval, quadric_roots
+from .shapes import Quadric, _finite_or_zero, clip_interval, quadric_first_hit, quadric_roots
 from ..maths.vec import normalize
 
 #: Traversals of :class:`Accel` (they give the same bits and costs; only speed differs).
@@ -136,37 +136,8 @@ class _QuadricSet:
         q_lo, q_hi = quadric_roots(a, b, c, disc, pos)
         c_in, c_out, j_in, j_out = clip_interval(
             u, v, ((self.cn[qi, j], self.ch[qi, j]) for j in range(self.cn.shape[1])))
-        cap = self.capped[qi]
-        if not cap.any():
-            ok1 = (c_in <= q_lo) & (q_lo <= c_out) & (q_lo <= q_hi)
-            ok2 = (c_in <= q_hi) & (q_hi <= c_out) & (q_lo <= q_hi)
-            t1 = s + np.where(ok1, q_lo, np.inf)
-            t2 = s + np.where(ok2, q_hi, np.inf)
-            g1 = np.isfinite(t1) & (t1 > tmin) & (t1 < tmax)
-            g2 = np.isfinite(t2) & (t2 > tmin) & (t2 < tmax)
-            t = np.where(g1, t1, np.where(g2, t2, np.inf))
-            prim = np.where(g1, 0, np.where(g2, 0, -1)).astype(np.int64)
-            return t, prim
-        # capped solid
-        lo = np.maximum(q_lo, c_in)
-        hi = np.minimum(q_hi, c_out)
-        solid = lo <= hi
-        cp1 = np.where(c_in > q_lo, 1 + j_in, 0)
-        cp2 = np.where(c_out < q_hi, 1 + j_out, 0)
-        ct1 = np.where(solid, lo, np.inf)
-        ct2 = np.where(solid, hi, np.inf)
-        # open shell
-        ok1 = (c_in <= q_lo) & (q_lo <= c_out) & (q_lo <= q_hi)
-        ok2 = (c_in <= q_hi) & (q_hi <= c_out) & (q_lo <= q_hi)
-        t1 = s + np.where(cap, ct1, np.where(ok1, q_lo, np.inf))
-        t2 = s + np.where(cap, ct2, np.where(ok2, q_hi, np.inf))
-        p1 = np.where(cap, cp1, 0)
-        p2 = np.where(cap, cp2, 0)
-        g1 = np.isfinite(t1) & (t1 > tmin) & (t1 < tmax)
-        g2 = np.isfinite(t2) & (t2 > tmin) & (t2 < tmax)
-        t = np.where(g1, t1, np.where(g2, t2, np.inf))
-        prim = np.where(g1, p1, np.where(g2, p2, -1)).astype(np.int64)
-        return t, prim
+        return quadric_first_hit(s, q_lo, q_hi, c_in, c_out, j_in, j_out, self.capped[qi],
+                                 tmin, tmax)
 
 
 class Accel:

@@ -504,6 +504,38 @@ def clip_interval(u, v, planes):
     return c_in, c_out, j_in, j_out
 
 
+def quadric_first_hit(s, q_lo, q_hi, c_in, c_out, j_in, j_out, capped, tmin, tmax):
+    """The first surface point of a clipped quadric along each ray in ``(tmin, tmax)``:
+    ``(t, prim)`` (inf, -1 on a miss; prim 0 the quadric, ``1 + j`` clip plane ``j``'s cap).
+
+    From :meth:`Quadric._intervals`' inside interval ``[q_lo, q_hi]`` and clip interval
+    ``[c_in, c_out]`` (planes ``j_in``, ``j_out``), in the shifted frame whose origin is
+    ``s`` along the ray. ``capped`` (bool or (N,) bool): a capped quadric is the solid
+    ``quadric ∩ clip`` (its ends are caps where a plane sets them), an open one the shell
+    points inside the clip interval. The one rule of the core's :class:`Quadric` and the
+    scene accel's quadric table (:class:`links1.geometry.accel.Accel`)."""
+    # capped solid
+    lo = np.maximum(q_lo, c_in)
+    hi = np.minimum(q_hi, c_out)
+    solid = lo <= hi
+    cp1 = np.where(c_in > q_lo, 1 + j_in, 0)
+    cp2 = np.where(c_out < q_hi, 1 + j_out, 0)
+    ct1 = np.where(solid, lo, np.inf)
+    ct2 = np.where(solid, hi, np.inf)
+    # open shell
+    ok1 = (c_in <= q_lo) & (q_lo <= c_out) & (q_lo <= q_hi)
+    ok2 = (c_in <= q_hi) & (q_hi <= c_out) & (q_lo <= q_hi)
+    t1 = s + np.where(capped, ct1, np.where(ok1, q_lo, np.inf))
+    t2 = s + np.where(capped, ct2, np.where(ok2, q_hi, np.inf))
+    p1 = np.where(capped, cp1, 0)
+    p2 = np.where(capped, cp2, 0)
+    g1 = np.isfinite(t1) & (t1 > tmin) & (t1 < tmax)
+    g2 = np.isfinite(t2) & (t2 > tmin) & (t2 < tmax)
+    t = np.where(g1, t1, np.where(g2, t2, np.inf))
+    prim = np.where(g1, p1, np.where(g2, p2, -1)).astype(np.int64)
+    return t, prim
+
+
 class Quadric(Shape):
     """Sphere / ellipsoid or infinite elliptic cylinder ``|A(x - m)|^2 = 1`` (eq. 3.4),
     optionally cut by planes.
@@ -625,29 +657,7 @@ class Quadric(Shape):
 
     def _hits(self, o, d, tmin, tmax):
         s, q_lo, q_hi, c_in, c_out, j_in, j_out = self._intervals(o, d)
-        # Candidate surface points in order along the ray: (t, prim) pairs.
-        if self.capped:
-            lo = np.maximum(q_lo, c_in)
-            hi = np.minimum(q_hi, c_out)
-            solid = lo <= hi
-            p1 = np.where(c_in > q_lo, 1 + j_in, 0)
-            p2 = np.where(c_out < q_hi, 1 + j_out, 0)
-            t1 = np.where(solid, lo, np.inf)
-            t2 = np.where(solid, hi, np.inf)
-        else:
-            ok1 = (c_in <= q_lo) & (q_lo <= c_out) & (q_lo <= q_hi)
-            ok2 = (c_in <= q_hi) & (q_hi <= c_out) & (q_lo <= q_hi)
-            t1 = np.where(ok1, q_lo, np.inf)
-            t2 = np.where(ok2, q_hi, np.inf)
-            p1 = np.zeros(o.shape[0], dtype=np.int64)
-            p2 = p1
-        t1 = s + t1
-        t2 = s + t2
-        g1 = np.isfinite(t1) & (t1 > tmin) & (t1 < tmax)
-        g2 = np.isfinite(t2) & (t2 > tmin) & (t2 < tmax)
-        t = np.where(g1, t1, np.where(g2, t2, np.inf))
-        prim = np.where(g1, p1, np.where(g2, p2, -1)).astype(np.int64)
-        return t, prim
+        return quadric_first_hit(s, q_lo, q_hi, c_in, c_out, j_in, j_out, self.capped, tmin, tmax)
 
     def intersect(self, o, d, tmin, tmax, cost=None):
         o, d, tmin, tmax = _as_rays(o, d, tmin, tmax)
