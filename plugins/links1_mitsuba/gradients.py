@@ -65,10 +65,13 @@ def cat(a, b, na, nb):
         return a
     if na == 0:
         return b
+    # ``na`` enters as an opaque value, not a literal: the counts change with the geometry
+    # (compaction of each level's children), and a literal would make new kernels each time
+    n_a = dr.opaque(mi.UInt32, na)
     j = dr.arange(mi.UInt32, na + nb)
-    in_a = j < na
+    in_a = j < n_a
     ga = dr.gather(type(a), a, dr.select(in_a, j, 0), in_a)
-    gb = dr.gather(type(b), b, dr.select(in_a, 0, j - na), ~in_a)
+    gb = dr.gather(type(b), b, dr.select(in_a, 0, j - n_a), ~in_a)
     return dr.select(in_a, ga, gb)
 
 
