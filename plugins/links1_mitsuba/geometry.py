@@ -223,7 +223,7 @@ def _quadric_ad(mi, dr, spec, held, o, d, t, prim, m):
 def _blob_terms(mi, dr, spec, held, n):
     """Per centre ``(c, w, S)``: attached Dr.Jit values where the parameter has gradients,
     else the spec's (float64 rounded to float32, gathered from its table as the primal's).
-    The attached ones are gathered at ``n`` lanes, not one: a width-1 value read by ``n``
+    The attached ones are gathered at ``n`` lanes (``dr.full``), not one: a width-1 value read by ``n``
     lanes has a horizontal sum as its reverse-mode derivative, one kernel per value (each
     recomputing the field), where ``n``-lane gathers scatter-add into the parameter's
     gradient, and the scatters of a level share a kernel."""
@@ -234,7 +234,7 @@ def _blob_terms(mi, dr, spec, held, n):
     out = []
     for i in range(len(spec.centers)):
         x, y, z, w, S = spec._crow(i)[:5]
-        idx = dr.opaque(mi.UInt32, i, n)
+        idx = dr.full(mi.UInt32, i, n)
         c = mi.Vector3f(*[dr.gather(mi.Float, cen[k], idx) for k in range(3)]) if gc else mi.Vector3f(x, y, z)
         out.append((c, dr.gather(mi.Float, wts, idx) if gw else w, dr.gather(mi.Float, rad, idx) if gs else S))
     return out

@@ -32,7 +32,8 @@ and the cameras. The links1 shapes' geometry is differentiated (:mod:`links1_mit
 its equation, silhouettes and shadow edges still held fixed.
 
 Cost: the derivative pass keeps the whole ray tree on Dr.Jit's AD tape (no path replay as
-Mitsuba's PRB): memory grows with pixels × spp × tree size.
+Mitsuba's PRB): memory grows with pixels × spp × tree size (~0.75 KiB a pixel for scenes/fig11.xml
+at max_depth 5: docs/benchmarks.md, inverse rendering).
 
 :class:`Gradients` is a mixin whose methods ``Links1Whitted`` takes (integrator.py); they name
 ``mi.Float``, ``mi.Ray3f``, ... when called, so the class serves every Mitsuba variant.
