@@ -26,20 +26,25 @@ CENTRES = np.array([[-0.625, 1.375, 0, 1, 0.75], [0.5, 1.5, 0.2, 1, 0.6], [0, 2.
                     [0, 1.25, 0.3, 0.9, 0.5], [0.875, 1.25, -0.25, 0.75, 0.5], [0.1, 1.6, 0.4, 0.5, 0.4]])
 
 
+def head(max_depth, origin, target, w, h):
+    """The scenes' start: the integrator, a camera (spp 1, box filter) and a floor."""
+    return f"""<scene version="3.0.0">
+  <integrator type="links1_whitted"><integer name="max_depth" value="{max_depth}"/></integrator>
+  <sensor type="perspective"><float name="fov" value="40"/>
+    <transform name="to_world"><lookat origin="{origin}" target="{target}" up="0, 1, 0"/></transform>
+    <film type="hdrfilm"><integer name="width" value="{w}"/><integer name="height" value="{h}"/><rfilter type="box"/></film>
+    <sampler type="independent"><integer name="sample_count" value="1"/></sampler></sensor>
+  <shape type="rectangle" id="floor"><transform name="to_world"><scale value="5"/><rotate x="1" angle="-90"/></transform>
+    <bsdf type="links1_phong"><rgb name="diffuse" value="0.6, 0.5, 0.4"/></bsdf></shape>"""
+
+
 def scene_xml(centres, translate="0.2, 1.4, 0.3"):
     """A 6-centre blob (unrolled field sum: fewer than LIST_MIN_CENTRES centres), a clipped
     quadric and a floor, two delta lights, spp 1 with a box filter. No mirror (the ray tree's
     counts changing with the geometry: :func:`test_ray_tree_counts_changing_with_geometry_replay_the_same_kernels`)."""
     c = ", ".join(" ".join(repr(float(x)) for x in row) for row in centres)
     x, y, z = translate.split(",")
-    return f"""<scene version="3.0.0">
-  <integrator type="links1_whitted"><integer name="max_depth" value="2"/></integrator>
-  <sensor type="perspective"><float name="fov" value="40"/>
-    <transform name="to_world"><lookat origin="0, 2.6, 6" target="0.1, 1.4, 0" up="0, 1, 0"/></transform>
-    <film type="hdrfilm"><integer name="width" value="24"/><integer name="height" value="20"/><rfilter type="box"/></film>
-    <sampler type="independent"><integer name="sample_count" value="1"/></sampler></sensor>
-  <shape type="rectangle" id="floor"><transform name="to_world"><scale value="5"/><rotate x="1" angle="-90"/></transform>
-    <bsdf type="links1_phong"><rgb name="diffuse" value="0.6, 0.5, 0.4"/></bsdf></shape>
+    return head(2, "0, 2.6, 6", "0.1, 1.4, 0", 24, 20) + f"""
   <shape type="links1_blob" id="blob"><string name="centers" value="{c}"/><float name="threshold" value="0.5"/>
     <bsdf type="links1_phong"><rgb name="diffuse" value="0.5, 0.4, 0.3"/><rgb name="specular" value="0.3"/>
       <float name="exponent" value="10"/></bsdf></shape>
@@ -80,6 +85,22 @@ def launched(fn):
     return out, {code(k) for k in hist if "ir" in k}
 
 
+def derivative_pass(scene, params, keys):
+    """A frame with gradients on ``params[keys]`` and its reverse pass (gradients.py) on the
+    pixel sum: the gradients, as numpy."""
+    import drjit as dr
+    import mitsuba as mi
+    for k in keys:
+        dr.enable_grad(params[k])
+    params.update()
+    img = mi.render(scene, params, seed=0)
+    dr.backward(dr.sum(img, axis=None))
+    g = [np.array(dr.grad(params[k])) for k in keys]
+    for k in keys:
+        dr.disable_grad(params[k])
+    return g
+
+
 def test_new_blob_and_quadric_values_replay_the_same_kernels(variant):
     import drjit as dr
     import mitsuba as mi
@@ -96,15 +117,7 @@ def test_new_blob_and_quadric_values_replay_the_same_kernels(variant):
 
     def derivative():
         # an inverse-rendering step's derivative pass (gradients.py), on the centres and weights
-        dr.enable_grad(params[C])
-        dr.enable_grad(params[W])
-        params.update()
-        img = mi.render(scene, params, seed=0)
-        dr.backward(dr.sum(img, axis=None))
-        g = dr.grad(params[W])
-        dr.disable_grad(params[C])
-        dr.disable_grad(params[W])
-        return g
+        return derivative_pass(scene, params, [C, W])[1]
 
     rng = np.random.default_rng(7)
 
@@ -145,14 +158,7 @@ def test_new_blob_and_quadric_values_replay_the_same_kernels(variant):
     assert np.array_equal(np.array(mi.render(fresh, seed=0)), after)
 
 
-MIRROR_GLASS = """<scene version="3.0.0">
-  <integrator type="links1_whitted"><integer name="max_depth" value="4"/></integrator>
-  <sensor type="perspective"><float name="fov" value="40"/>
-    <transform name="to_world"><lookat origin="0, 2.0, 6" target="0, 1.0, 0" up="0, 1, 0"/></transform>
-    <film type="hdrfilm"><integer name="width" value="32"/><integer name="height" value="24"/><rfilter type="box"/></film>
-    <sampler type="independent"><integer name="sample_count" value="1"/></sampler></sensor>
-  <shape type="rectangle" id="floor"><transform name="to_world"><scale value="5"/><rotate x="1" angle="-90"/></transform>
-    <bsdf type="links1_phong"><rgb name="diffuse" value="0.6, 0.5, 0.4"/></bsdf></shape>
+MIRROR_GLASS = head(4, "0, 2.0, 6", "0, 1.0, 0", 32, 24) + """
   <shape type="links1_quadric" id="mirror"><string name="kind" value="sphere"/>
     <transform name="to_world"><scale value="0.7"/><translate x="-0.9" y="1" z="0"/></transform>
     <bsdf type="links1_phong"><rgb name="diffuse" value="0.1"/><rgb name="reflectance" value="0.8"/></bsdf></shape>
@@ -185,13 +191,7 @@ def test_ray_tree_counts_changing_with_geometry_replay_the_same_kernels(variant,
     K, M = "links1_whitted.glass.bsdf.diffuse.value", "links1_whitted.mirror.to_world"
 
     def derivative():
-        dr.enable_grad(params[K])
-        params.update()
-        img = mi.render(scene, params, seed=0)
-        dr.backward(dr.sum(img, axis=None))
-        g = dr.grad(params[K])
-        dr.disable_grad(params[K])
-        return g
+        return derivative_pass(scene, params, [K])[0]
 
     def move(dx):
         params[M] = mi.Transform4f().translate(mi.Vector3f(dx, 0, 0)) @ mi.Transform4f(params[M])
