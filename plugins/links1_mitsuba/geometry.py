@@ -220,9 +220,13 @@ def _quadric_ad(mi, dr, spec, held, o, d, t, prim, m):
     return t_new, dr.normalize(_transposed(mi, A, n_obj))
 
 
-def _blob_terms(mi, dr, spec, held):
+def _blob_terms(mi, dr, spec, held, n):
     """Per centre ``(c, w, S)``: attached Dr.Jit values where the parameter has gradients,
-    else the spec's (float64 rounded to float32, gathered from its table as the primal's)."""
+    else the spec's (float64 rounded to float32, gathered from its table as the primal's).
+    The attached ones are gathered at ``n`` lanes (``dr.full``), not one: a width-1 value read by ``n``
+    lanes has a horizontal sum as its reverse-mode derivative, one kernel per value (each
+    recomputing the field), where ``n``-lane gathers scatter-add into the parameter's
+    gradient, and the scatters of a level share a kernel."""
     cen, wts, rad = (held.get(k) for k in ("centers", "weights", "radii"))
     gc = cen is not None and dr.grad_enabled(cen)
     gw = wts is not None and dr.grad_enabled(wts)
@@ -230,7 +234,7 @@ def _blob_terms(mi, dr, spec, held):
     out = []
     for i in range(len(spec.centers)):
         x, y, z, w, S = spec._crow(i)[:5]
-        idx = mi.UInt32(i)
+        idx = dr.full(mi.UInt32, i, n)
         c = mi.Vector3f(*[dr.gather(mi.Float, cen[k], idx) for k in range(3)]) if gc else mi.Vector3f(x, y, z)
         out.append((c, dr.gather(mi.Float, wts, idx) if gw else w, dr.gather(mi.Float, rad, idx) if gs else S))
     return out
@@ -257,7 +261,7 @@ def blob_field(mi, dr, terms, x):
 
 def _blob_ad(mi, dr, spec, held, o, d, t, m):
     A = _inverse(mi, dr, spec._mats()[0], held.get("to_world"))
-    terms = _blob_terms(mi, dr, spec, held)
+    terms = _blob_terms(mi, dr, spec, held, dr.width(t))
     T = held.get("threshold", spec.threshold)
     T = T if dr.grad_enabled(T) else spec._threshold()
     td = dr.detach(t)

@@ -32,7 +32,8 @@ and the cameras. The links1 shapes' geometry is differentiated (:mod:`links1_mit
 its equation, silhouettes and shadow edges still held fixed.
 
 Cost: the derivative pass keeps the whole ray tree on Dr.Jit's AD tape (no path replay as
-Mitsuba's PRB): memory grows with pixels × spp × tree size.
+Mitsuba's PRB): memory grows with pixels × spp × tree size (~0.75 KiB a pixel for scenes/fig11.xml
+at max_depth 5: docs/benchmarks.md, inverse rendering).
 
 :class:`Gradients` is a mixin whose methods ``Links1Whitted`` takes (integrator.py); they name
 ``mi.Float``, ``mi.Ray3f``, ... when called, so the class serves every Mitsuba variant.
@@ -65,13 +66,13 @@ def cat(a, b, na, nb):
         return a
     if na == 0:
         return b
-    # the split as an opaque value: a literal would make a kernel per count (a geometry
-    # change that moves mirror/refraction counts would compile the pass again)
-    split = dr.opaque(mi.UInt32, na)
+    # ``na`` enters as an opaque value, not a literal: the counts change with the geometry
+    # (compaction of each level's children), and a literal would make new kernels each time
+    n_a = dr.opaque(mi.UInt32, na)
     j = dr.arange(mi.UInt32, na + nb)
-    in_a = j < split
+    in_a = j < n_a
     ga = dr.gather(type(a), a, dr.select(in_a, j, 0), in_a)
-    gb = dr.gather(type(b), b, dr.select(in_a, 0, j - split), ~in_a)
+    gb = dr.gather(type(b), b, dr.select(in_a, 0, j - n_a), ~in_a)
     return dr.select(in_a, ga, gb)
 
 

@@ -26,21 +26,25 @@ CENTRES = np.array([[-0.625, 1.375, 0, 1, 0.75], [0.5, 1.5, 0.2, 1, 0.6], [0, 2.
                     [0, 1.25, 0.3, 0.9, 0.5], [0.875, 1.25, -0.25, 0.75, 0.5], [0.1, 1.6, 0.4, 0.5, 0.4]])
 
 
-def scene_xml(centres, translate="0.2, 1.4, 0.3"):
-    """A 6-centre blob (unrolled field sum: fewer than LIST_MIN_CENTRES centres), a clipped
-    quadric and a floor, two delta lights, spp 1 with a box filter. No mirror: the derivative
-    pass's secondary levels (gradients.py ``_trace_tree_ad``; ``cat`` takes the mirror/refraction
-    split as an opaque value) are not this test's subject."""
-    c = ", ".join(" ".join(repr(float(x)) for x in row) for row in centres)
-    x, y, z = translate.split(",")
+def head(max_depth, origin, target, w, h):
+    """The scenes' start: the integrator, a camera (spp 1, box filter) and a floor."""
     return f"""<scene version="3.0.0">
-  <integrator type="links1_whitted"><integer name="max_depth" value="2"/></integrator>
+  <integrator type="links1_whitted"><integer name="max_depth" value="{max_depth}"/></integrator>
   <sensor type="perspective"><float name="fov" value="40"/>
-    <transform name="to_world"><lookat origin="0, 2.6, 6" target="0.1, 1.4, 0" up="0, 1, 0"/></transform>
-    <film type="hdrfilm"><integer name="width" value="24"/><integer name="height" value="20"/><rfilter type="box"/></film>
+    <transform name="to_world"><lookat origin="{origin}" target="{target}" up="0, 1, 0"/></transform>
+    <film type="hdrfilm"><integer name="width" value="{w}"/><integer name="height" value="{h}"/><rfilter type="box"/></film>
     <sampler type="independent"><integer name="sample_count" value="1"/></sampler></sensor>
   <shape type="rectangle" id="floor"><transform name="to_world"><scale value="5"/><rotate x="1" angle="-90"/></transform>
-    <bsdf type="links1_phong"><rgb name="diffuse" value="0.6, 0.5, 0.4"/></bsdf></shape>
+    <bsdf type="links1_phong"><rgb name="diffuse" value="0.6, 0.5, 0.4"/></bsdf></shape>"""
+
+
+def scene_xml(centres, translate="0.2, 1.4, 0.3"):
+    """A 6-centre blob (unrolled field sum: fewer than LIST_MIN_CENTRES centres), a clipped
+    quadric and a floor, two delta lights, spp 1 with a box filter. No mirror (the ray tree's
+    counts changing with the geometry: :func:`test_ray_tree_counts_changing_with_geometry_replay_the_same_kernels`)."""
+    c = ", ".join(" ".join(repr(float(x)) for x in row) for row in centres)
+    x, y, z = translate.split(",")
+    return head(2, "0, 2.6, 6", "0.1, 1.4, 0", 24, 20) + f"""
   <shape type="links1_blob" id="blob"><string name="centers" value="{c}"/><float name="threshold" value="0.5"/>
     <bsdf type="links1_phong"><rgb name="diffuse" value="0.5, 0.4, 0.3"/><rgb name="specular" value="0.3"/>
       <float name="exponent" value="10"/></bsdf></shape>
@@ -81,6 +85,22 @@ def launched(fn):
     return out, {code(k) for k in hist if "ir" in k}
 
 
+def derivative_pass(scene, params, keys):
+    """A frame with gradients on ``params[keys]`` and its reverse pass (gradients.py) on the
+    pixel sum: the gradients, as numpy."""
+    import drjit as dr
+    import mitsuba as mi
+    for k in keys:
+        dr.enable_grad(params[k])
+    params.update()
+    img = mi.render(scene, params, seed=0)
+    dr.backward(dr.sum(img, axis=None))
+    g = [np.array(dr.grad(params[k])) for k in keys]
+    for k in keys:
+        dr.disable_grad(params[k])
+    return g
+
+
 def test_new_blob_and_quadric_values_replay_the_same_kernels(variant):
     import drjit as dr
     import mitsuba as mi
@@ -97,15 +117,7 @@ def test_new_blob_and_quadric_values_replay_the_same_kernels(variant):
 
     def derivative():
         # an inverse-rendering step's derivative pass (gradients.py), on the centres and weights
-        dr.enable_grad(params[C])
-        dr.enable_grad(params[W])
-        params.update()
-        img = mi.render(scene, params, seed=0)
-        dr.backward(dr.sum(img, axis=None))
-        g = dr.grad(params[W])
-        dr.disable_grad(params[C])
-        dr.disable_grad(params[W])
-        return g
+        return derivative_pass(scene, params, [C, W])[1]
 
     rng = np.random.default_rng(7)
 
@@ -144,3 +156,90 @@ def test_new_blob_and_quadric_values_replay_the_same_kernels(variant):
     fp[Q] = mi.Transform4f(m.tolist())                # the same float32 matrix as the updated scene's
     fp.update()
     assert np.array_equal(np.array(mi.render(fresh, seed=0)), after)
+
+
+MIRROR_GLASS = head(4, "0, 2.0, 6", "0, 1.0, 0", 32, 24) + """
+  <shape type="links1_quadric" id="mirror"><string name="kind" value="sphere"/>
+    <transform name="to_world"><scale value="0.7"/><translate x="-0.9" y="1" z="0"/></transform>
+    <bsdf type="links1_phong"><rgb name="diffuse" value="0.1"/><rgb name="reflectance" value="0.8"/></bsdf></shape>
+  <shape type="links1_quadric" id="glass"><string name="kind" value="sphere"/>
+    <transform name="to_world"><scale value="0.6"/><translate x="0.9" y="0.9" z="0.5"/></transform>
+    <bsdf type="links1_phong"><rgb name="diffuse" value="0.05"/><rgb name="reflectance" value="0.1"/>
+      <rgb name="transmittance" value="0.85"/><float name="ior" value="1.5"/></bsdf></shape>
+  <emitter type="links1_point" id="lp"><point name="position" x="2" y="4" z="3"/><rgb name="L1" value="0.6"/>
+    <rgb name="L2" value="0.4"/><string name="falloff" value="inverse_square"/></emitter>
+</scene>"""
+
+
+def test_ray_tree_counts_changing_with_geometry_replay_the_same_kernels(variant, monkeypatch):
+    """The derivative pass joins each level's mirror and refraction rays (gradients.py ``cat``)
+    with their counts as opaque values: moving a sphere changes the counts, not the kernels."""
+    import drjit as dr
+    import mitsuba as mi
+
+    import links1_mitsuba as lm
+    from links1_mitsuba import gradients
+    counts = []
+    real_cat = gradients.cat
+
+    def recording_cat(a, b, na, nb):
+        counts.append((na, nb))
+        return real_cat(a, b, na, nb)
+    monkeypatch.setattr(gradients, "cat", recording_cat)
+    scene = lm.load_string(MIRROR_GLASS)
+    params = mi.traverse(scene)
+    K, M = "links1_whitted.glass.bsdf.diffuse.value", "links1_whitted.mirror.to_world"
+
+    def derivative():
+        return derivative_pass(scene, params, [K])[0]
+
+    def move(dx):
+        params[M] = mi.Transform4f().translate(mi.Vector3f(dx, 0, 0)) @ mi.Transform4f(params[M])
+        params.update()
+
+    move(0.05)
+    g0, seen = launched(derivative)
+    first, counts[:] = list(counts), []
+    assert np.all(np.asarray(g0) > 0)                 # the glass sphere's diffuse shows
+    move(0.3)                                         # the mirror sphere grows in the frame
+    _, now = launched(derivative)
+    assert len(counts) == len(first) and counts != first, (first, counts)   # new counts, same levels
+    assert now <= seen, f"{len(now - seen)} derivative-pass kernels with new code after the counts changed"
+
+
+def test_blob_reverse_pass_kernels_do_not_grow_with_its_parameters(variant):
+    """Reverse mode through the blob (geometry.py ``_blob_terms``): its centres and weights are
+    gathered at every lane, so their derivatives are scatter-adds that share the pass's
+    kernels. Gathered as width-1 values, each of the 24 values (18 centre coordinates, 6
+    weights) had a horizontal sum as its derivative, a kernel of its own recomputing the field:
+    a frame and its reverse pass on the centres and weights launched 4× the kernels of one on
+    the weights alone."""
+    import drjit as dr
+    import mitsuba as mi
+
+    import links1_mitsuba as lm
+    scene = lm.load_string(scene_xml(CENTRES, "-1.2, 0.6, 1.0"))
+    params = mi.traverse(scene)
+    C, W = "links1_whitted.blob.centers", "links1_whitted.blob.weights"
+
+    def backward_kernels(keys):
+        for k in keys:
+            dr.enable_grad(params[k])
+        params.update()
+        with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
+            dr.kernel_history()
+            img = mi.render(scene, params, seed=0)
+            dr.backward(dr.sum(img, axis=None))
+            g = [np.array(dr.grad(params[k])) for k in keys]
+            dr.sync_thread()
+            n = len(dr.kernel_history())
+        for k in keys:
+            dr.disable_grad(params[k])
+        assert all(np.any(x != 0) for x in g)
+        return n
+
+    backward_kernels([W])                              # warm-up (compilation)
+    n_w = backward_kernels([W])
+    n_cw = backward_kernels([C, W])
+    # one kernel per value would add at least 24 (270 measured before: 24 values × levels)
+    assert n_cw - n_w < 24, (n_w, n_cw)
