@@ -31,6 +31,7 @@ by a Python float would become a reciprocal multiply in Dr.Jit: divisors are opa
 """
 from __future__ import annotations
 
+import functools
 import math
 
 import drjit as dr
@@ -106,6 +107,12 @@ class Batch:
         self.sx0, self.sy0, self.sw = u(s[:, 0]), u(s[:, 1]), u(s[:, 2])
         self.first_lane, self.first_pixel = u(self.lane_start), u(self.pixel_start)
 
+    @functools.cached_property
+    def lane_window(self):
+        """The window of each sample lane (:meth:`window_of`), made once a batch: the sample
+        ids and the filter's weight tables both read it."""
+        return self.window_of(self.lane_start, self.lanes)
+
     def window_of(self, starts, n, scale=1):
         """The window (``UInt32``) of each of ``n`` entries laid out window after window from
         ``starts * scale``: a mark at each window's first entry, summed (one prefix sum)."""
@@ -130,7 +137,7 @@ def sample_ids(film_width, spp, batch):
     """UInt32 sample ids ``(py * W + px) * spp + i`` of the sample windows of ``batch``
     (:class:`Batch`: row-major, ``i`` innermost), one window after another."""
     W, s = op_u(film_width), op_u(spp)
-    k = batch.window_of(batch.lane_start, batch.lanes)
+    k = batch.lane_window
     j = dr.arange(mi.UInt32, batch.lanes) - dr.gather(mi.UInt32, batch.first_lane, k)
     pix = j // s
     i = j - pix * s
@@ -233,7 +240,7 @@ def reconstruct(rfilter, film_size, spp, seed, batch, data, aovs, dtype=None, mo
             # offsets made once (hashes and integer divisions, which the LLVM backend does
             # lane by lane, not once per weight): the same values
             sl = dr.arange(U32, ns)
-            kl = batch.window_of(batch.lane_start, ns)
+            kl = batch.lane_window
             local = sl - dr.gather(U32, batch.first_lane, kl)
             pl = local // n_s
             i = local - pl * n_s
