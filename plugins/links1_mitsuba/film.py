@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import functools
 import math
+import sys
 
 import drjit as dr
 import mitsuba as mi
@@ -44,6 +45,14 @@ from .util import mix32, table
 #: bigger windows evaluate the weights in the gather itself ((2b+1) times as many evaluations,
 #: the same values).
 FILM_TABLE_BYTES = 1 << 28
+
+#: A batch of at most this many sample lanes keeps what depends only on its windows (sample
+#: ids, the filter's weight tables) evaluated between frames (:func:`cached_batch`): 4 bytes a
+#: lane for the ids, 16 per lane and neighbour offset for the weights (at most 32 MiB + 256 MiB).
+KEEP_LANES = 1 << 23
+
+#: Batches kept by :func:`cached_batch` (per integrator: the last few window sets).
+KEEP_BATCHES = 2
 
 
 def sample_window(rfilter, window, film_size):
@@ -106,6 +115,22 @@ class Batch:
         self.x0, self.y0, self.w = u(w[:, 0]), u(w[:, 1]), u(w[:, 2])
         self.sx0, self.sy0, self.sw = u(s[:, 0]), u(s[:, 1]), u(s[:, 2])
         self.first_lane, self.first_pixel = u(self.lane_start), u(self.pixel_start)
+        #: whether the values below are kept evaluated with the batch (:data:`KEEP_LANES`)
+        self.keep = self.lanes <= KEEP_LANES
+        self._kept = {}
+
+    def kept(self, key, make):
+        """``make()`` (a tuple of Dr.Jit arrays), evaluated and kept with the batch under
+        ``key`` when the batch keeps values (one value a kind: ``key[0]``), else made anew."""
+        if not self.keep:
+            return make()
+        hit = self._kept.get(key[0])
+        if hit is not None and hit[0] == key:
+            return hit[1]
+        vals = make()
+        dr.eval(*vals)
+        self._kept[key[0]] = (key, vals)
+        return vals
 
     @functools.cached_property
     def lane_window(self):
@@ -133,9 +158,29 @@ def _divisor(v):
     return dr.maximum(v, 1)
 
 
+def cached_batch(cache, wins, swins, spp):
+    """The :class:`Batch` of ``wins``/``swins``/``spp`` from ``cache`` (a dict the caller
+    keeps: the last :data:`KEEP_BATCHES` batches), or a new one put in it: a frame of the same
+    windows reuses its tables, sample ids and weight tables (the same values: they depend
+    only on the windows, the film and the sample pattern) instead of making them again."""
+    key = (tuple(map(tuple, wins)), tuple(map(tuple, swins)), int(spp))
+    b = cache.pop(key, None)
+    if b is None:
+        b = Batch(wins, swins, spp)
+    cache[key] = b                    # the most recent last
+    while len(cache) > KEEP_BATCHES:
+        cache.pop(next(iter(cache)))
+    return b
+
+
 def sample_ids(film_width, spp, batch):
     """UInt32 sample ids ``(py * W + px) * spp + i`` of the sample windows of ``batch``
-    (:class:`Batch`: row-major, ``i`` innermost), one window after another."""
+    (:class:`Batch`: row-major, ``i`` innermost), one window after another; kept with the
+    batch (:meth:`Batch.kept`)."""
+    return batch.kept(("sid", int(film_width), int(spp)), lambda: (_sample_ids(film_width, spp, batch),))[0]
+
+
+def _sample_ids(film_width, spp, batch):
     W, s = op_u(film_width), op_u(spp)
     k = batch.lane_window
     j = dr.arange(mi.UInt32, batch.lanes) - dr.gather(mi.UInt32, batch.first_lane, k)
@@ -235,27 +280,8 @@ def reconstruct(rfilter, film_size, spp, seed, batch, data, aovs, dtype=None, mo
         ns = batch.lanes
         tables = ns * nb * 16 <= FILM_TABLE_BYTES
         if tables:
-            # the 1-D weights of every sample towards its nb neighbour columns / rows, once
-            # per sample (the loop below would evaluate each (2b+1) times), from the sample's
-            # offsets made once (hashes and integer divisions, which the LLVM backend does
-            # lane by lane, not once per weight): the same values
-            sl = dr.arange(U32, ns)
-            kl = batch.lane_window
-            local = sl - dr.gather(U32, batch.first_lane, kl)
-            pl = local // n_s
-            i = local - pl * n_s
-            swl = _divisor(dr.gather(U32, batch.sw, kl))
-            py = pl // swl
-            ox, oy = offsets((py + dr.gather(U32, batch.sy0, kl)) * op_u(W) + pl - py * swl
-                             + dr.gather(U32, batch.sx0, kl), i, n_s, k, sd)
-            dr.eval(ox, oy)
-            t = dr.arange(U32, ns * nb)
-            sl = t // nb
-            d = I32(t - sl * nb) - rfilter.border
-            ox, oy = dr.gather(F64, ox, sl), dr.gather(F64, oy, sl)
-            wx_t = filter_eval(rfilter, (0.5 - F64(d)) - ox)
-            wy_t = filter_eval(rfilter, (0.5 - F64(d)) - oy)
-            dr.eval(wx_t, wy_t)
+            wx_t, wy_t = batch.kept(("weights", rfilter, W, int(spp), int(seed)),
+                                    lambda: _weight_tables(rfilter, W, n_s, k, sd, batch, nb))
 
         def body(j, r, g, b, den):
             # one neighbour row of one sample a step, its nb columns unrolled: the order of the
@@ -305,18 +331,41 @@ def reconstruct(rfilter, film_size, spp, seed, batch, data, aovs, dtype=None, mo
                 chans.append(c)
             elif a == "samples":
                 chans.append(F64(n_s) + dr.zeros(F64, m))
-    # the channels in one kernel, then interleaved by a gather (scatters into one array would
-    # each evaluate the ones before: one kernel per channel)
+    # the channels interleaved by one scatter of a nested array (index p -> p * C + channel):
+    # one kernel with the channels' own (separate scatters into one array would each
+    # evaluate the ones before: a kernel per channel)
     chans = [dtype(ch) for ch in chans]
     C = len(chans)
-    dr.eval(*chans)
-    j = dr.arange(U32, m * C)
-    p = j // C
-    c = j - p * C
-    out = dr.gather(dtype, chans[0], p, c == 0)
-    for kk in range(1, C):
-        out = dr.select(c == kk, dr.gather(dtype, chans[kk], p, c == kk), out)
+    ArrayX = getattr(sys.modules[dtype.__module__], "ArrayXf64" if dtype is F64 else "ArrayXf")
+    out = dr.empty(dtype, m * C)
+    dr.scatter(out, ArrayX(*chans), dr.arange(U32, m))
     return out, C
+
+
+def _weight_tables(rfilter, W, n_s, k, sd, batch, nb):
+    """The 1-D filter weights of every sample of ``batch`` towards its ``nb`` neighbour
+    columns and rows (``(wx, wy)``, float64, ``nb`` per sample), once per sample (the gather
+    would evaluate each ``nb`` times), from the sample's offsets made once (hashes and integer
+    divisions, which the LLVM backend does lane by lane, not once per weight): the same values."""
+    U32, I32, F64 = mi.UInt32, mi.Int32, mi.Float64
+    ns = batch.lanes
+    sl = dr.arange(U32, ns)
+    kl = batch.lane_window
+    local = sl - dr.gather(U32, batch.first_lane, kl)
+    pl = local // n_s
+    i = local - pl * n_s
+    swl = _divisor(dr.gather(U32, batch.sw, kl))
+    py = pl // swl
+    ox, oy = offsets((py + dr.gather(U32, batch.sy0, kl)) * op_u(W) + pl - py * swl
+                     + dr.gather(U32, batch.sx0, kl), i, n_s, k, sd)
+    dr.eval(ox, oy)
+    t = dr.arange(U32, ns * nb)
+    sl = t // nb
+    d = I32(t - sl * nb) - rfilter.border
+    ox, oy = dr.gather(F64, ox, sl), dr.gather(F64, oy, sl)
+    wx, wy = filter_eval(rfilter, (0.5 - F64(d)) - ox), filter_eval(rfilter, (0.5 - F64(d)) - oy)
+    dr.eval(wx, wy)
+    return wx, wy
 
 
 def widen(v, n):

@@ -20,7 +20,7 @@ from links1.tracing.aovs import check_aovs as parse_aovs  # the one AOV table an
 from links1.maths.sampling import strata
 
 from . import tuning
-from .film import Batch, concat, reconstruct, sample_ids, sample_window, widen
+from .film import Batch, cached_batch, concat, reconstruct, sample_ids, sample_window, widen
 from .util import aligned, mix32, u24
 
 #: Most samples (lanes) per launch of the window function; more are split into launches.
@@ -510,7 +510,10 @@ class Launches:
         # each window traces the samples of its filter border too (clipped to the film)
         box = P.rfilter.border == 0
         swins = wins if box else [sample_window(P.rfilter, win, (W, H)) for win in wins]
-        batch = Batch(wins, swins, spp)
+        cache = getattr(self._hidden, "batches", None)
+        if cache is None:
+            cache = self._hidden.batches = {}
+        batch = cached_batch(cache, wins, swins, spp)
         n = batch.lanes
         sid = sample_ids(W, spp, batch)
         spp_ = (dr.opaque(mi.UInt32, spp), dr.opaque(mi.UInt32, strata(spp)))

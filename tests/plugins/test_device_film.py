@@ -201,3 +201,41 @@ def test_mi_render_never_visits_numpy(variant, tmp_path, monkeypatch):
     t = mi.render(scene, spp=4)
     monkeypatch.undo()
     assert type(t) is mi.TensorXf and np.array_equal(np.asarray(t), ref)
+
+
+@pytest.mark.parametrize("rfilter", ["box", "gaussian"])
+def test_frames_of_the_same_windows_reuse_the_batch(variant, tmp_path, monkeypatch, rfilter):
+    """A second frame of the same windows reuses the batch's sample ids and filter weight
+    tables (film.cached_batch, KEEP_LANES): its kernels are the first frame's less those, its
+    pixels the same bits, and the same as a frame that keeps nothing (KEEP_LANES = 0). The
+    channels are interleaved in the pixel kernel: no kernel runs over pixels x channels."""
+    import drjit as dr
+    from links1_mitsuba import film
+    scene = load(tmp_path, rfilter)
+    integ = scene.integrator()
+    wins = [(0, 0, W, 7), (2, 7, 15, 11)]
+
+    def frame():
+        dr.set_flag(dr.JitFlag.KernelHistory, True)
+        dr.kernel_history()
+        out = integ.render_windows(scene, wins, spp=4, seed=3, aovs=AOVS)
+        hist = [k for k in dr.kernel_history() if str(k["type"]).endswith("JIT")]
+        dr.set_flag(dr.JitFlag.KernelHistory, False)
+        return out, hist
+
+    integ.render_windows(scene, [(0, 0, 5, 5)], spp=4, seed=3, aovs=AOVS)   # the scene's tables
+    first, k1 = frame()
+    again, k2 = frame()
+    pixels = sum(w * h for *_, w, h in wins)
+    C = 3 + 1 + 3 + 1 + 1 + 1
+    monkeypatch.setattr(film, "KEEP_LANES", 0)
+    integ._hidden.batches = {}
+    none, k3 = frame()
+    for a, b, c in zip(first, again, none):
+        assert np.array_equal(a, b) and np.array_equal(a, c)
+    # kept: the lanes' windows (a scatter of marks), the sample ids, and for gaussian the
+    # sample offsets and the weight tables; the launch and the pixels' kernels run again
+    assert {k["hash"] for k in k2} <= {k["hash"] for k in k1}
+    assert len(k2) == len(k1) - (2 if rfilter == "box" else 4), ([k["size"] for k in k1], [k["size"] for k in k2])
+    assert len(k3) == len(k1)
+    assert not [k for k in k1 if k["size"] == pixels * C]
