@@ -553,7 +553,9 @@ class Tables:
         self.n_scene_builds += 1
         P.keep_alive = (list(scene.shapes()), list(scene.emitters()), list(scene.sensors()))  # see scene_identity
         P.views = {}
-        self._freeze = None       # recordings hold the previous tables
+        # recordings hold the previous tables, and their key names the tables by id(P): a new
+        # P may get a dead one's id, so both frozen launches start anew
+        self._freeze = self._freeze_points = None
         shapes = list(scene.shapes())
         slot_of_id = self.slot_of_id
         if slot_of_id is None:

@@ -114,3 +114,22 @@ def test_points_launch_records_once_whatever_the_inputs_alignment(variant):
         L, _ = r.integrator.trace_points(r.scene, xf, yf, keys)
         assert np.isfinite(L).all() and L.shape == (n, 3)
     assert r.integrator._freeze_points.n_recordings == 1
+
+
+def test_table_rebuild_drops_the_points_recording(variant):
+    """A rebuild of the scene's tables drops both frozen launches' recordings: they are keyed on
+    ``id(P)``, which a new ``P`` may share with a dead one, so a kept points recording could be
+    replayed with the old tables' Python-side values (the window launch's was already dropped).
+    The adaptive image after the rebuild equals the one before (the same scene)."""
+    from links1.frontends.renderers import make_renderer
+    from links1_mitsuba.tuning import tuned
+    r = make_renderer("mitsuba", os.path.join(SCENES, "shadows.xml"), params={"res": 24}, adaptive=0.03)
+    integ = r.integrator
+    before = integ.render_adaptive(r.scene, threshold=0.03, depth=2)
+    assert integ._freeze_points is not None
+    builds = integ.n_scene_builds
+    with tuned(bvh_min=integ.prepare(r.scene).tuning.bvh_min + 1):
+        integ.prepare(r.scene)
+        assert integ.n_scene_builds == builds + 1
+        assert integ._freeze is None and integ._freeze_points is None
+        assert np.array_equal(integ.render_adaptive(r.scene, threshold=0.03, depth=2), before)
