@@ -210,11 +210,13 @@ class SharedFrame:
     The values written are the renderer's, as float64: the bits of ``wire_pixels`` placed in
     the root's float64 frame. The local pool's default (``LocalPool(shared_frame=False)``: the
     pipe); the root makes it before the clock and removes its file when the run ends, whatever
-    happens (a root killed with SIGKILL leaves it in ``/dev/shm``: ``links1-frame-<root pid>-*``)."""
+    happens; a root killed with SIGKILL leaves it in ``/dev/shm`` (``links1-frame-<root pid>-*``),
+    and the next frame made in that directory removes it (:func:`remove_stale_frames`)."""
 
     def __init__(self, height, width, channels, directory=None):
         import tempfile
         d = directory or ("/dev/shm" if os.path.isdir("/dev/shm") and os.access("/dev/shm", os.W_OK) else None)
+        remove_stale_frames(d or tempfile.gettempdir())
         fd, self.path = tempfile.mkstemp(prefix=f"links1-frame-{os.getpid()}-", suffix=".f64", dir=d)
         os.close(fd)
         self.shape = (int(height), int(width), int(channels))
@@ -241,6 +243,33 @@ class SharedFrame:
             os.unlink(self.path)
         except OSError:
             pass
+
+
+def remove_stale_frames(directory) -> list:
+    """Remove the shared frames in ``directory`` whose root process is gone (its pid is in the
+    name: ``links1-frame-<pid>-*.f64``; a root killed with SIGKILL leaves its file, which would
+    hold memory in ``/dev/shm`` until reboot). A frame of a live process (any user's: its pid
+    exists) is kept. Returns the paths removed."""
+    import glob
+    import re
+    gone = []
+    for path in glob.glob(os.path.join(directory, "links1-frame-*-*.f64")):
+        m = re.fullmatch(r"links1-frame-(\d+)-.*\.f64", os.path.basename(path))
+        if m is None or int(m.group(1)) == os.getpid():
+            continue
+        try:
+            os.kill(int(m.group(1)), 0)
+            continue                      # alive
+        except ProcessLookupError:
+            pass                          # gone: its file is stale
+        except (PermissionError, OverflowError):
+            continue                      # another user's live process, or no such pid
+        try:
+            os.unlink(path)
+            gone.append(path)
+        except OSError:
+            pass
+    return gone
 
 
 def _map(path, shape):

@@ -117,3 +117,31 @@ def test_no_room_for_the_frame_falls_back_to_the_pipe(monkeypatch, core_spec, co
         res = render_plan(plan, core_spec, pool, progress=False)
         assert pool.seen and not any(pool.seen)   # no frame: every result by the pipe
     assert np.array_equal(res.image, core_ref)
+
+
+def test_a_killed_roots_frame_is_removed_by_the_next_frame(tmp_path):
+    """A root killed with SIGKILL leaves its frame file; the next frame made in that directory
+    removes it, and keeps those of live processes (this one's, another's)."""
+    import signal
+    import subprocess
+    import sys
+    code = ("import os, sys; from links1.partition import runtime; "
+            "f = runtime.SharedFrame(4, 4, 3, directory=sys.argv[1]); print(f.path, flush=True); "
+            "os.kill(os.getpid(), 9)")
+    proc = subprocess.run([sys.executable, "-c", code, str(tmp_path)], capture_output=True, text=True)
+    assert proc.returncode == -signal.SIGKILL
+    dead = proc.stdout.strip()
+    assert os.path.exists(dead)
+    live = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        alive = tmp_path / f"links1-frame-{live.pid}-x.f64"
+        alive.write_bytes(b"")
+        mine = runtime.SharedFrame(4, 4, 3, directory=str(tmp_path))
+        try:
+            assert not os.path.exists(dead)
+            assert alive.exists() and os.path.exists(mine.path)
+        finally:
+            mine.close()
+    finally:
+        live.kill()
+        live.wait()
