@@ -39,7 +39,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from .util import mix32, table
+from .util import mix32, table, udiv
 
 #: Largest tables of 1-D filter weights of a batch (bytes: 16 per sample and neighbour offset);
 #: bigger windows evaluate the weights in the gather itself ((2b+1) times as many evaluations,
@@ -184,10 +184,10 @@ def _sample_ids(film_width, spp, batch):
     W, s = op_u(film_width), op_u(spp)
     k = batch.lane_window
     j = dr.arange(mi.UInt32, batch.lanes) - dr.gather(mi.UInt32, batch.first_lane, k)
-    pix = j // s
+    pix = udiv(j, s)
     i = j - pix * s
     sw = _divisor(dr.gather(mi.UInt32, batch.sw, k))
-    ly = pix // sw
+    ly = udiv(pix, sw)
     lx = pix - ly * sw
     return ((ly + dr.gather(mi.UInt32, batch.sy0, k)) * W + lx + dr.gather(mi.UInt32, batch.sx0, k)) * s + i
 
@@ -222,7 +222,7 @@ def offsets(pix, i, spp, k, seed):
     base = mix32(mix32(seed) ^ pix)
     ux = mi.Float64(mix32(base ^ (2 * i)) >> 8) * 2.0 ** -24
     uy = mi.Float64(mix32(base ^ (2 * i + 1)) >> 8) * 2.0 ** -24
-    sy = i // k
+    sy = udiv(i, k)
     sx = i - sy * k
     kf = mi.Float64(k)
     one = spp == 1
@@ -249,7 +249,7 @@ def reconstruct(rfilter, film_size, spp, seed, batch, data, aovs, dtype=None, mo
     start = g(batch.first_lane)
     q = dr.arange(U32, m) - g(batch.first_pixel)
     w = _divisor(g(batch.w))
-    ly = q // w
+    ly = udiv(q, w)
     lx = q - ly * w
     # the pixel's sample 0 in the launch
     first = start + ((ly + (y0 - sy0)) * sw + lx + (x0 - sx0)) * n_s
@@ -352,10 +352,10 @@ def _weight_tables(rfilter, W, n_s, k, sd, batch, nb):
     sl = dr.arange(U32, ns)
     kl = batch.lane_window
     local = sl - dr.gather(U32, batch.first_lane, kl)
-    pl = local // n_s
+    pl = udiv(local, n_s)
     i = local - pl * n_s
     swl = _divisor(dr.gather(U32, batch.sw, kl))
-    py = pl // swl
+    py = udiv(pl, swl)
     ox, oy = offsets((py + dr.gather(U32, batch.sy0, kl)) * op_u(W) + pl - py * swl
                      + dr.gather(U32, batch.sx0, kl), i, n_s, k, sd)
     dr.eval(ox, oy)

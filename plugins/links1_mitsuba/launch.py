@@ -21,7 +21,7 @@ from links1.maths.sampling import strata
 
 from . import tuning
 from .film import Batch, cached_batch, concat, reconstruct, sample_ids, sample_window, widen
-from .util import aligned, mix32, u24
+from .util import aligned, mix32, u24, udiv
 
 #: Most samples (lanes) per launch of the window function; more are split into launches.
 LAUNCH_LANES = 1 << 22
@@ -151,13 +151,14 @@ class Launches:
         enters the kernels (see :meth:`render_windows`)."""
         W, H = P.film_size
         n_s, k_s = spp
-        pix = sid // n_s
+        pix = udiv(sid, n_s)          # run-time divisors: util.udiv (exact, vectorised)
         i = sid - pix * n_s
         py = pix // W
         px = pix - py * W
         kf = mi.Float(k_s)
-        sx = mi.Float(i % k_s)
-        sy = mi.Float(i // k_s)
+        row = udiv(i, k_s)
+        sx = mi.Float(i - row * k_s)
+        sy = mi.Float(row)
         base = mix32(mix32(seed[0]) ^ pix)
         ux = u24(mix32(base ^ (2 * i)))
         uy = u24(mix32(base ^ (2 * i + 1)))

@@ -239,3 +239,24 @@ def test_frames_of_the_same_windows_reuse_the_batch(variant, tmp_path, monkeypat
     assert len(k2) == len(k1) - (2 if rfilter == "box" else 4), ([k["size"] for k in k1], [k["size"] for k in k2])
     assert len(k3) == len(k1)
     assert not [k for k in k1 if k["size"] == pixels * C]
+
+
+def test_udiv_is_exact_integer_division(variant):
+    """util.udiv (float64 quotient on LLVM, ``//`` elsewhere) equals numpy's ``//`` on random
+    32-bit operands, the extremes, exact multiples and their neighbours (the cases where a
+    rounded float64 quotient could land on the wrong side of an integer)."""
+    import mitsuba as mi
+    from links1_mitsuba.util import udiv
+    rng = np.random.default_rng(7)
+    a = np.concatenate([rng.integers(0, 2**32, 200_000, dtype=np.uint64), [2**32 - 1, 2**32 - 2, 0, 1]])
+    b = np.concatenate([rng.integers(1, 2**32, 100_000, dtype=np.uint64),
+                        rng.integers(1, 70_000, 100_000, dtype=np.uint64), [1, 2**32 - 1, 3, 2**32 - 1]])
+    bm = rng.integers(1, 2**16, 100_000, dtype=np.int64)
+    km = rng.integers(0, 2**16, 100_000, dtype=np.int64)
+    for d in (-1, 0, 1):
+        a = np.concatenate([a, (bm * km + d).clip(0, 2**32 - 1)])
+        b = np.concatenate([b, bm])
+    a, b = a.astype(np.uint32), b.astype(np.uint32)
+    assert np.array_equal(np.asarray(udiv(mi.UInt32(a), mi.UInt32(b))), a // b)
+    # a literal divisor keeps ``//`` (a float64 reciprocal multiply would not be exact)
+    assert np.array_equal(np.asarray(udiv(mi.UInt32(a), mi.UInt32(3))), a // 3)
