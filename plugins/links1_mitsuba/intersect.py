@@ -25,12 +25,16 @@ class Intersect:
     """Nearest hits, shadow transmittance, uv of custom hits."""
 
     # -------------------------------------------------------------- geometry
-    def _nearest(self, P, scene, o, d, tmin, tmax, active, cost, camera=False):
+    def _nearest(self, P, scene, o, d, tmin, tmax, active, cost, camera=False, coherent=False):
         """Nearest hit over Mitsuba shapes and custom shapes: (t, slot, si, prim, custom_won).
-        ``camera``: the rays start at a pinhole camera's eye (its buffer replaces the BVH)."""
+        ``camera``: the rays start at a pinhole camera's eye (its buffer replaces the BVH).
+        ``coherent``: the camera's rays, neighbours in the lanes (Embree's coherent mode, as
+        Mitsuba's own integrators trace their camera rays: ~1.2-2x faster for spp 16 eye rays;
+        a ray that meets an edge shared by two triangles at the same distance may get the other
+        one, as in Mitsuba)."""
         if P.any_mitsuba_shapes:
             ray = mi.Ray3f(o + d * tmin, d, tmax - tmin)
-            si = scene.ray_intersect(ray, active=active)
+            si = scene.ray_intersect(ray, mi.RayFlags.All, bool(coherent), active)
             valid = active & si.is_valid()
             t = dr.select(valid, si.t + tmin, INF)
             reg = dr.reinterpret_array(mi.UInt32, si.shape)

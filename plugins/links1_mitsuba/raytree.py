@@ -55,7 +55,7 @@ class RayTree:
             dr.eval(o, d, tmin, tmax)
         # level 1 is the camera's rays (from its eye when it is a pinhole)
         t, slot, si, prim = self._nearest(P, scene, o, d, tmin, tmax, active, cost,
-                                          camera=depth == 1 and P.perspective)
+                                          camera=depth == 1 and P.perspective, coherent=depth == 1)
         hit = slot >= 0
         uslot = mi.UInt32(dr.maximum(slot, 0))
         # ---- surface record of the winner
