@@ -17,6 +17,11 @@ Everything here is a per-output-pixel *gather* in one fixed order, never a scatt
 * AOVs: ``depth``/``normal``/``id`` of the pixel's sample 0, ``cost`` summed over its samples,
   ``samples`` = spp.
 
+What depends only on the windows (the :class:`Batch` tables, the sample ids, the filter's
+weight tables) is kept with the batch while the same windows are rendered again
+(:func:`cached_batch`); each neighbour's RGB is read as one packet of four floats, and the
+divisions by run-time values go through :func:`links1_mitsuba.util.udiv` (exact).
+
 So a pixel depends only on its own samples and those of its neighbours, never on the window:
 a window or a batch of windows equals the full frame bit for bit. Every size (film width,
 spp, seeds) enters the kernels as an opaque value and the windows' origins, sizes and offsets
