@@ -31,9 +31,14 @@ and the cameras. The links1 shapes' geometry is differentiated (:mod:`links1_mit
 :meth:`Gradients._surface_ad`): the hit moves with the surface by implicit differentiation of
 its equation, silhouettes and shadow edges still held fixed.
 
-Cost: the derivative pass keeps the whole ray tree on Dr.Jit's AD tape (no path replay as
-Mitsuba's PRB): memory grows with pixels × spp × tree size (~0.75 KiB a pixel for scenes/fig11.xml
-at max_depth 5: docs/benchmarks.md, inverse rendering).
+Cost: the derivative pass keeps a ray tree on Dr.Jit's AD tape (no path replay as Mitsuba's
+PRB), so it goes over the film in blocks of rows (:func:`row_blocks`) of at most
+:data:`AD_BLOCK_LANES` samples: each block is rendered with AD, its part of the image gradient
+propagated (reverse) or its derivative image taken (forward), and its graph freed before the
+next. A block renders the samples of its filter border too (``film.sample_window``), so its
+pixels are the full frame's and the loss ``Σ g_p I_p`` splits exactly by blocks; memory is
+bounded by one block's tree (~0.75 KiB a sample for scenes/fig11.xml at max_depth 5), not the
+frame's (docs/benchmarks.md, inverse rendering). A 256² frame at spp 1 is one block.
 
 :class:`Gradients` is a mixin whose methods ``Links1Whitted`` takes (integrator.py); they name
 ``mi.Float``, ``mi.Ray3f``, ... when called, so the class serves every Mitsuba variant.
@@ -45,7 +50,7 @@ import copy
 import drjit as dr
 import mitsuba as mi
 
-from . import geometry
+from . import film, geometry
 from .registered import plugin_class
 from .util import INF, mix32
 
@@ -54,6 +59,24 @@ from .util import INF, mix32
 #: ("point", position, direction, L1, L2, ...) and ("cspot", origin, direction, radius, intensity)
 LINKS1_POINT_SLOTS = (("position", 1), ("direction", 2), ("L1", 3), ("L2", 4))
 LINKS1_SPOT_SLOTS = (("origin", 1), ("intensity", 4))
+
+
+#: Most sample lanes (pixels of a block and of its filter border, times spp) the derivative
+#: pass puts on Dr.Jit's AD tape at once (see the module's docstring): 256² at spp 2 is one
+#: block; 1024² at spp 1 eight (~0.7 KiB a lane at max_depth 5: ~90 MiB a block).
+AD_BLOCK_LANES = 1 << 17
+
+
+def row_blocks(win, film_size, border, spp, budget=None):
+    """The window ``win = (x0, y0, w, h)`` cut into windows of whole rows, each with at most
+    ``budget`` (default :data:`AD_BLOCK_LANES`) sample lanes counting the filter's ``border``
+    rows and columns around it (clipped to the film), and at least one row each."""
+    budget = AD_BLOCK_LANES if budget is None else int(budget)
+    x0, y0, w, h = win
+    W, H = film_size
+    cols = min(W, x0 + w + border) - max(0, x0 - border)
+    rows = max(1, budget // max(1, cols * int(spp)) - 2 * border)
+    return [(x0, y, w, min(rows, y0 + h - y)) for y in range(y0, y0 + h, rows)]
 
 
 def attached(*vals):
@@ -94,30 +117,68 @@ class Gradients:
     # -------------------------------------------------------------- Mitsuba entry points
     def render_forward(self, scene, params, sensor=0, seed=0, spp=0):
         """The image's derivative along the gradients set on the scene's parameters
-        (``dr.set_grad``): Mitsuba's ``Integrator.render_forward``."""
+        (``dr.set_grad``): Mitsuba's ``Integrator.render_forward``. Block by block
+        (:func:`row_blocks`), the blocks' derivative rows laid one after another."""
+        parts, shape = [], None
+        blocks = self._ad_blocks(scene, sensor, seed, spp)
+        n = next(blocks)
         with dr.resume_grad():
-            img = self._render_ad(scene, sensor, seed, spp)
-            dr.forward_to(img)
-            return dr.grad(img)
+            for j, (win, img) in enumerate(blocks):
+                # the parameters' gradients (the traversal's input) are cleared after the
+                # last block only: every block propagates from them
+                dr.forward_to(img, flags=dr.ADFlag.Default if j == n - 1 else
+                              dr.ADFlag.ClearEdges | dr.ADFlag.ClearInterior)
+                g = dr.grad(img)
+                dr.eval(g)
+                parts.append(g.array)
+                shape = (shape[0] + win[3] if shape else win[3],) + tuple(g.shape[1:])
+                del img
+        flat = parts[0] if len(parts) == 1 else film.concat(parts, sum(dr.width(q) for q in parts), type(parts[0]))
+        return type(g)(flat, shape=shape)
 
     def render_backward(self, scene, params, grad_in, sensor=0, seed=0, spp=0):
         """Propagate the image gradient ``grad_in`` to the scene's parameters that have
-        gradients enabled: Mitsuba's ``Integrator.render_backward``."""
+        gradients enabled: Mitsuba's ``Integrator.render_backward``. Block by block
+        (:func:`row_blocks`): each block's rows of ``grad_in`` propagated, its graph freed."""
+        y = 0
+        blocks = self._ad_blocks(scene, sensor, seed, spp)
+        next(blocks)
         with dr.resume_grad():
-            img = self._render_ad(scene, sensor, seed, spp)
-            dr.set_grad(img, grad_in)
-            dr.enqueue(dr.ADMode.Backward, img)
-            dr.traverse(dr.ADMode.Backward)
+            for win, img in blocks:
+                h = win[3]
+                g = grad_in if h == grad_in.shape[0] else grad_in[y:y + h]
+                y += h
+                dr.set_grad(img, g)
+                dr.enqueue(dr.ADMode.Backward, img)
+                dr.traverse(dr.ADMode.Backward)
+                del img
         dr.eval()
 
+    def _ad_blocks(self, scene, sensor, seed, spp):
+        """The number of blocks, then ``(block window, its frame with AD)`` for each block of
+        :func:`row_blocks`, made one at a time: the caller (under ``dr.resume_grad``) uses a
+        block's graph before the next is built."""
+        sensor_, win, spp_, _ = self._render_request(scene, sensor, seed, spp)
+        with dr.suspend_grad():
+            P = self.prepare(scene, sensor_)
+        blocks = row_blocks(win, P.film_size, P.rfilter.border, spp_)
+        if len(blocks) > 1:
+            # the primal frame's buffers wait in Dr.Jit's allocation cache, in sizes the
+            # blocks do not reuse: give them back first, or the peak is the primal's plus a block's
+            dr.flush_malloc_cache()
+        yield len(blocks)
+        for block in blocks:
+            yield block, self._render_ad(scene, sensor, seed, spp, window=block)
+
     # -------------------------------------------------------------- the differentiable frame
-    def _render_ad(self, scene, sensor=0, seed=0, spp=0):
-        """The frame ``render()`` makes, with Dr.Jit's AD graph from the scene's
-        gradient-enabled parameters (see the module's docstring)."""
+    def _render_ad(self, scene, sensor=0, seed=0, spp=0, window=None):
+        """The frame ``render()`` makes (or its ``window``), with Dr.Jit's AD graph from the
+        scene's gradient-enabled parameters (see the module's docstring)."""
         if self.adaptive is not None:
             raise NotImplementedError("links1_whitted: gradients of adaptive anti-aliasing are not "
                                       "implemented (render with spp instead of adaptive)")
         sensor, win, spp, seed = self._render_request(scene, sensor, seed, spp)
+        win = win if window is None else window
         with dr.suspend_grad():
             P = self.prepare(scene, sensor)
         Q = self._ad_tables(P, scene)

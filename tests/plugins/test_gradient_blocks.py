@@ -1,0 +1,117 @@
+"""The derivative pass of ``links1_whitted`` in blocks of rows (issue 23, item 4: memory bounded;
+plugins/links1_mitsuba/gradients.py ``row_blocks``, ``AD_BLOCK_LANES``).
+
+A block renders its filter border's samples too, so its pixels are the frame's and the loss
+``Σ g_p I_p`` splits exactly by blocks: the gradients with blocks equal those of one block up
+to the order in which float32 contributions are summed into each parameter's gradient (each
+block's sum is added to the running total: a relative difference of a few float32 ulps of the
+total, ~1e-6; tolerance 1e-5 relative). Forward mode: each pixel's derivative is made by its
+own block alone, the same operations as in one block: equal to the same tolerance. A
+Gaussian film, so that blocks share border samples, and a budget that cuts the 24x18 film
+into 4+ blocks.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from .test_geometry_gradients import SPHERE
+from .test_geometry_gradients import load as load_geo
+from .test_gradients import SHADING, load
+
+pytestmark = pytest.mark.mitsuba
+
+BUDGET = 200     # sample lanes: 24 columns (the border clipped) × spp 1 → 8 rows with the border, 4 without
+
+
+def test_row_blocks_cover_the_window_once_within_the_budget():
+    from links1_mitsuba.gradients import row_blocks
+    for win, size, border, spp, budget in [((0, 0, 24, 18), (24, 18), 2, 1, BUDGET),
+                                            ((3, 5, 10, 7), (24, 18), 1, 4, 200),
+                                            ((0, 0, 256, 256), (256, 256), 0, 1, 1 << 18),
+                                            ((0, 0, 50, 9), (50, 9), 2, 16, 10)]:
+        blocks = row_blocks(win, size, border, spp, budget)
+        rows = [y for x0, y0, w, h in blocks for y in range(y0, y0 + h)]
+        assert rows == list(range(win[1], win[1] + win[3]))
+        assert all((x0, w) == (win[0], win[2]) and h >= 1 for x0, _, w, h in blocks)
+        cols = min(size[0], win[0] + win[2] + border) - max(0, win[0] - border)
+        for x0, y0, w, h in blocks:
+            lanes = cols * (min(size[1], y0 + h + border) - max(0, y0 - border)) * spp
+            assert lanes <= budget or h == 1, (win, blocks)
+    assert len(row_blocks((0, 0, 256, 256), (256, 256), 0, 1)) == 1     # 256², spp 1: one block
+    assert len(row_blocks((0, 0, 1024, 1024), (1024, 1024), 0, 1)) == 8
+
+
+def _grads(scene, keys, weights, monkeypatch, budget):
+    import drjit as dr
+    import mitsuba as mi
+    from links1_mitsuba import gradients
+    monkeypatch.setattr(gradients, "AD_BLOCK_LANES", budget)
+    widths = []
+    cls = type(scene.integrator())
+    real = cls._launch
+
+    def counted(self, P, scene_, sid, *a, **k):
+        if getattr(P, "ad", False):
+            widths.append(dr.width(sid))
+        return real(self, P, scene_, sid, *a, **k)
+    monkeypatch.setattr(cls, "_launch", counted)
+    params = mi.traverse(scene)
+    for k in keys:
+        dr.enable_grad(params[k])
+    img = mi.render(scene, params)
+    dr.backward(dr.sum(img * mi.TensorXf(weights), axis=None))
+    out = {k: np.array(getattr(dr.grad(params[k]), "matrix", dr.grad(params[k])), dtype=np.float64).ravel()
+           for k in keys}
+    for k in keys:
+        dr.disable_grad(params[k])
+    monkeypatch.setattr(cls, "_launch", real)
+    return out, widths
+
+
+@pytest.mark.parametrize("case", ["shading", "quadric"])
+def test_blocks_give_the_gradients_of_one_block(variant, tmp_path, monkeypatch, case):
+    if case == "shading":
+        scene = load(SHADING, rfilter="")
+        keys = ["ball.bsdf.diffuse.value", "lp.position", "mp.intensity.value", "glass.bsdf.transmittance.value"]
+    else:
+        import links1_mitsuba as lm
+        path = tmp_path / "s.xml"
+        load_geo(tmp_path, SPHERE)      # the file, with its box filter replaced by the default gaussian
+        path.write_text((tmp_path / "scene.xml").read_text().replace('<rfilter type="box"/>', ""))
+        scene = lm.load_file(str(path))
+        keys = ["links1_whitted.ball.to_world", "lp.L1.value"]
+    w = np.random.default_rng(5).normal(size=(18, 24, 3)).astype(np.float32)
+    one, w1 = _grads(scene, keys, w, monkeypatch, 1 << 18)
+    many, wn = _grads(scene, keys, w, monkeypatch, BUDGET)
+    assert len(w1) == 1 and w1[0] == 24 * 18       # one block: the whole film (no border to clip)
+    assert len(wn) >= 4 and max(wn) <= BUDGET, wn  # every AD launch within the budget
+    for k in keys:
+        assert np.abs(one[k]).max() > 1e-3, (k, one[k])
+        assert np.allclose(many[k], one[k], rtol=1e-5, atol=1e-5 * np.abs(one[k]).max()), (k, one[k], many[k])
+
+
+def test_forward_blocks_equal_one_block(variant, monkeypatch):
+    import drjit as dr
+    import mitsuba as mi
+    from links1_mitsuba import gradients
+    scene = load(SHADING, rfilter="")
+    keys = ["ball.bsdf.diffuse.value", "lp.position"]
+
+    def forward(budget):
+        monkeypatch.setattr(gradients, "AD_BLOCK_LANES", budget)
+        params = mi.traverse(scene)
+        for k in keys:
+            dr.enable_grad(params[k])
+            dr.set_grad(params[k], type(params[k])(0.3, -0.2, 0.5))
+        img = mi.render(scene, params)
+        dr.forward_to(img)
+        out = np.array(dr.grad(img), dtype=np.float64)
+        for k in keys:
+            dr.disable_grad(params[k])
+        return out
+
+    one, many = forward(1 << 18), forward(BUDGET)
+    assert one.shape == many.shape == (18, 24, 3)
+    assert np.abs(one).max() > 1e-3
+    assert np.allclose(many, one, rtol=1e-5, atol=1e-6 * np.abs(one).max())
