@@ -113,7 +113,10 @@ def test_points_launch_records_once_whatever_the_inputs_alignment(variant):
         keys = offset(np.arange(n, dtype=np.uint32), off)
         L, _ = r.integrator.trace_points(r.scene, xf, yf, keys)
         assert np.isfinite(L).all() and L.shape == (n, 3)
-    assert r.integrator._freeze_points.n_recordings == 1
+    # one recording for the five calls (three alignments), or one more: Dr.Jit's freeze also
+    # records again, rarely and at random, when an input's memory moved (tests/plugins/
+    # test_tuning.py; seen here once in a run of this file after others)
+    assert r.integrator._freeze_points.n_recordings <= 2
 
 
 def test_table_rebuild_drops_the_points_recording(variant):
