@@ -124,10 +124,11 @@ class Gradients:
         n = next(blocks)
         with dr.resume_grad():
             for j, (win, img) in enumerate(blocks):
-                # the parameters' gradients (the traversal's input) are cleared after the
-                # last block only: every block propagates from them
-                dr.forward_to(img, flags=dr.ADFlag.Default if j == n - 1 else
-                              dr.ADFlag.ClearEdges | dr.ADFlag.ClearInterior)
+                # nothing cleared before the last block: the parameters' tangents (the
+                # traversal's input) and the edges into them (a parameter made from another
+                # value before mi.render) serve every block; a block's own graph goes with
+                # its image (test_gradient_blocks: clearing edges lost the later blocks)
+                dr.forward_to(img, flags=dr.ADFlag.Default if j == n - 1 else dr.ADFlag.ClearNone)
                 g = dr.grad(img)
                 dr.eval(g)
                 parts.append(g.array)
