@@ -45,7 +45,7 @@ from compare.simulator_check import machine
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "compare" / "results"
-STRATEGIES = ("subscreen", "scanline", "grid", "dynamic/tile", "dynamic/scanline")
+STRATEGIES = ("subscreen", "scanline", "grid", "dynamic/tile", "dynamic/scanline", "subscreen-balanced")
 PARTS = ("work", "launch_overhead", "slowdown", "dispatch", "transfer", "waiting")
 TARGETS = {("core", 2): 0.9, ("core", 8): 0.85, ("core", 16): 0.7, ("mitsuba", 2): 0.85}
 

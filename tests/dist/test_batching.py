@@ -132,7 +132,8 @@ def test_guided_chunks_of_two_nodes_shrink():
     assert got == want and got[0] > got[-1] == 1
 
 
-@pytest.mark.parametrize("strategy, k", [("subscreen", 2), ("dynamic", 2), ("dynamic", 0), ("scanline", 2)])
+@pytest.mark.parametrize("strategy, k", [("subscreen", 2), ("dynamic", 2), ("dynamic", 0), ("scanline", 2),
+                                         ("subscreen-balanced", 2)])
 def test_local_pool_batches_give_the_same_bits(strategy, k, core_spec, core_ref):
     plan = make_plan(strategy, 32, 32, 2, tiles_per_node=8, unit="tile")
     with LocalPool(2, chunk_factor=k) as pool:
