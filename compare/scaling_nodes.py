@@ -45,7 +45,7 @@ from compare.simulator_check import machine
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "compare" / "results"
-STRATEGIES = ("subscreen", "scanline", "grid", "dynamic/tile", "dynamic/scanline")
+STRATEGIES = ("subscreen", "scanline", "grid", "dynamic/tile", "dynamic/scanline", "subscreen-balanced")
 PARTS = ("work", "launch_overhead", "slowdown", "dispatch", "transfer", "waiting")
 TARGETS = {("core", 2): 0.9, ("core", 8): 0.85, ("core", 16): 0.7, ("mitsuba", 2): 0.85}
 
@@ -115,7 +115,7 @@ def run_point(renderer, scene, res, nodes, strategies, repeat, ref_repeat, spp):
                    "launches": rep["launches"], "scale": (rep.get("overheads") or {}).get("scale"),
                    "shares": ts["shares"], "root": ts["root"], "startup_s": ts["startup_s"],
                    "per_launch_s": (rep.get("cost_model") or {}).get("per_launch_s"),
-                   "capacity": cap.get(k, 1.0 if nodes == 1 else None)}
+                   "capacity": cap.get(k, 1.0 if nodes == 1 else None), "off_cpu": ts.get("off_cpu_share")}
             rows.append(row)
             print(f"{renderer:8s} {scene:6s} {res:5d} n={nodes:2d} #{k} {strategy:17s} makespan {m * 1e3:8.1f} ms "
                   f"frame {frame * 1e3:8.1f} ms  true eff {row['true_efficiency']:.3f}  "
@@ -173,6 +173,7 @@ def summarise(raw):
                       "shares": med, "target": target, "met": None if target is None else te_m >= target,
                       "stopped_by": stop, "repeats": len(rs),
                       "capacity": _median([r.get("capacity") for r in rs]),
+                      "off_cpu": _median([r.get("off_cpu") for r in rs]),
                       "efficiency_of_capacity": _median([r["speedup"] / r["capacity"] for r in rs
                                                          if r.get("capacity")])})
     return table
@@ -306,12 +307,14 @@ def markdown(table, info, a) -> str:
              "where a target is missed, the largest share that is not work. *capacity*: the speed-up this "
              "machine gave N one-thread processes at that moment, measured (every node rendering the whole frame "
              "at once: N x frame alone / the slowest; N with N free cores); *of capacity*: speed-up / capacity, "
-             "the partitioning's efficiency on the cores it got.", "",
+             "the partitioning's efficiency on the cores it got. *off-CPU*: the part of nodes x makespan the nodes spent "
+             "inside launches without a core (launch wall time - the node's CPU time, measured in the node; "
+             "inside slowdown): contention, not work that fails to scale.", "",
              "| renderer | scene | res | strategy | nodes | frame ms | makespan ms | speed-up | true eff [min-max] "
              "| spread | launches | work | launch ovh | slowdown | dispatch | transfer | waiting | target | stopped by "
-             "| capacity | of capacity |",
+             "| capacity | of capacity | off-CPU |",
              "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- "
-             "| --- | --- | --- | --- |"]
+             "| --- | --- | --- | --- | --- |"]
     for r in table:
         sh = r["shares"]
         tgt = "" if r["target"] is None else f"{r['target']:.2f} {'met' if r['met'] else 'missed'}"
@@ -320,7 +323,7 @@ def markdown(table, info, a) -> str:
                      f"{r['true_efficiency']:.2f} [{r['te_min']:.2f}-{r['te_max']:.2f}] | "
                      f"{r['makespan_spread'] * 100:.0f} % | {r['launches']:.0f} | "
                      + " | ".join(f"{sh[p]:.2f}" for p in PARTS) + f" | {tgt} | {r['stopped_by'] or ''} | "
-                     f"{_f(r['capacity'])} | {_f(r['efficiency_of_capacity'])} |")
+                     f"{_f(r['capacity'])} | {_f(r['efficiency_of_capacity'])} | {_f(r.get('off_cpu'))} |")
     return "\n".join(lines) + "\n"
 
 

@@ -58,7 +58,8 @@ def _partition_options(p, *, nodes_option: bool):
                        help="local worker processes: 0 renders in-process; default auto: the usable cores "
                             "when more than one (and the frame is not tiny)")
     g.add_argument("--partition", choices=STRATEGIES, default="dynamic",
-                   help="subscreen (4-1, eq. 4.1), scanline (4-2), dynamic (4-3, default), grid (baseline)")
+                   help="subscreen (4-1, eq. 4.1), scanline (4-2), dynamic (4-3, default), grid (baseline), "
+                        "subscreen-balanced (4-1's tiles and walk, cuts at the least max load; not the paper's)")
     g.add_argument("--tiles-per-node", type=_pos("--tiles-per-node"), default=16,
                    help="tiles per node for subscreen/grid/dynamic tiles (paper: 16 or 64; default 16)")
     g.add_argument("--unit", choices=UNITS, default="tile", help="unit handed out by dynamic (default tile)")
@@ -425,7 +426,7 @@ def run_sweep(args) -> int:
         part, _, unit = name.partition("/")
         if part not in KNOWN or (unit and (part != "dynamic" or unit not in UNITS)):
             raise UsageError(f"--sweep-strategies: unknown strategy {name!r}; choose from subscreen, scanline, grid, "
-                             "dynamic/tile, dynamic/scanline")
+                             "dynamic/tile, dynamic/scanline, subscreen-balanced")
     rows, refs, runs = [], {}, {}
     for tpn in args.sweep_tiles:
         for n in args.sweep_nodes:

@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import RenderAborted
-from .runtime import (THREAD_ENV, RendererSpec, SharedFrame, can_batch, get_renderer, release_frame, render_units,
+from .runtime import (THREAD_ENV, RendererSpec, SharedFrame, can_batch, get_renderer, limit_blas, release_frame, render_units,
                       start_worker, warm_samples, warm_up)
 
 #: A unit that has killed this many workers is reported as an error (Dask's allowed-failures).
@@ -356,6 +356,7 @@ class LocalPool:
         #: at 512², 2 nodes); False, or no room for the frame: the pipe
         self.shared_frame = bool(shared_frame)
         self._frame = None
+        self._root_blas = None   # the root's BLAS thread count during a run (limit_blas)
         self.max_deaths = DEATHS_PER_WORKER * self.n if max_deaths is None else int(max_deaths)
         self.log = log
         self.deaths = 0
@@ -418,6 +419,7 @@ class LocalPool:
         if self.pools and self._spec_key == spec.key:
             return
         self.close()
+        self._limit_root_blas()
         threads = spec.threads or self.threads or threads_per_worker(self.n)
         self._spec = RendererSpec(spec.kind, spec.path, spec.options, threads)
         self._spec_key = spec.key
@@ -460,6 +462,7 @@ class LocalPool:
         """Before the clock (:func:`render_plan`): map the shared frame the nodes write into, as
         the root allocates its frame buffer (a 512² frame's file and pages: a few ms)."""
         self._drop_frame()
+        self._limit_root_blas()
         if self.shared_frame and self.channels:
             try:
                 self._frame = SharedFrame(plan.height, plan.width, self.channels)
@@ -619,6 +622,17 @@ class LocalPool:
         self.pids.clear()
         self.hello.clear()
         self._spec_key = None
+        if self._root_blas:   # the root's BLAS threads as they were before the pool started
+            limit_blas(self._root_blas)
+        self._root_blas = None
+
+    def _limit_root_blas(self):
+        """The root renders nothing: one BLAS thread from the pool's start to its close, so that
+        no OpenBLAS worker of the root spins on a core the nodes need (:func:`.runtime.limit_blas`;
+        a worker spins ~40-50 ms after each threaded BLAS call, whatever the limit set later:
+        the planning of the next run, right before the clock, then runs on one BLAS thread)."""
+        if self._root_blas is None:
+            self._root_blas = limit_blas(1) or 0
 
     def __enter__(self):
         return self

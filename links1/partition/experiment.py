@@ -258,6 +258,9 @@ TIME_SPLIT_SOURCES = {
                          "node's launches, at the reference's speed",
     "slowdown_s": "measured launch time - work - launch overhead: the node ran slower (> 0) or faster (< 0) "
                   "than the reference: contention for cores, the machine's drift",
+    "launch_cpu_s": "measured, beside the parts: the node's CPU time (all its threads) in its launches",
+    "off_cpu_s": "measured, beside the parts (inside launch time): launch wall time - its CPU time, i.e. the "
+                 "node waiting for a core (other processes on it: the part of slowdown that is contention)",
     "dispatch_s": "measured: first dispatch (the clock's start) to the node's first launch",
     "transfer_s": "measured: node not in a launch while one of its results is on its way to the root "
                   "(readied, written or pickled and sent, until the root holds it); in-process: its results "
@@ -322,9 +325,15 @@ def time_split(result, launches, tasks, cm, *, planning=None) -> dict:
         transfer = sum(b - a for a, b in xfer)
         dispatch = first - T0
         waiting = span - launch_s - dispatch - transfer
+        cpu = [ln.get("cpu_s") for ln in mine]
+        known = bool(mine) and all(c is not None and ln.get("seconds") is not None for c, ln in zip(cpu, mine))
         out_nodes[k] = {"work_s": work, "launch_overhead_s": ovh, "slowdown_s": launch_s - work - ovh,
                         "dispatch_s": dispatch, "transfer_s": transfer, "waiting_s": waiting,
-                        "launches_s": launch_s, "total_s": span, "startup_s": startup.get(k)}
+                        "launches_s": launch_s, "total_s": span, "startup_s": startup.get(k),
+                        # beside the parts, not one of them (within launch time): the node's CPU
+                        # time in its launches, and the launch time it spent off its core
+                        "launch_cpu_s": sum(cpu) if known else None,
+                        "off_cpu_s": sum(max(0.0, ln["seconds"] - c) for c, ln in zip(cpu, mine)) if known else None}
         rel = (lambda iv: [round(iv[0] - T0, 6), round(iv[1] - T0, 6)])
         segments[k] = {"dispatch": [rel((T0, first))] if first > T0 else [],
                        "launch": [rel(iv) + [ln["work"] if cm is not None else iv[1] - iv[0],
@@ -345,6 +354,8 @@ def time_split(result, launches, tasks, cm, *, planning=None) -> dict:
     totals = {p: sum(v[p] for v in out_nodes.values()) for p in NODE_PARTS}
     return {"makespan_s": span, "nodes": out_nodes, "root": root, "totals": totals,
             "shares": {p.removesuffix("_s"): totals[p] / (n * span) for p in NODE_PARTS},
+            "off_cpu_share": (sum(v["off_cpu_s"] for v in out_nodes.values()) / (n * span)
+                              if all(v["off_cpu_s"] is not None for v in out_nodes.values()) else None),
             "startup_s": {k: v.get("startup_s") for k, v in out_nodes.items()},
             "segments": segments, "sources": dict(TIME_SPLIT_SOURCES)}
 
@@ -388,7 +399,8 @@ def build_report(result, plan, model, *, cost_channel=None, meta=None, reference
     for i, u, r, tests in raw:
         lid = tuple(r.get("launch", ("unit", i)))
         n_in = int(r.get("launch_units", 1))
-        ln = launches.setdefault(lid, {"node": r["node"], "seconds": r.get("launch_seconds"), "units": 0,
+        ln = launches.setdefault(lid, {"node": r["node"], "seconds": r.get("launch_seconds"),
+                                       "cpu_s": r.get("launch_cpu_s"), "units": 0,
                                        "start": r["start"], "stop": r["stop"], "work": 0.0, "pixels": 0,
                                        "sum_s": 0.0})
         ln["units"] += 1

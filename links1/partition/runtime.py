@@ -92,17 +92,74 @@ def _thaw(v):
 
 
 def set_threads(threads, kind="core"):
-    """Limit the renderer's threads in this process (drjit when already imported / mitsuba)."""
+    """Limit the renderer's threads in this process (drjit when already imported / mitsuba),
+    and the OpenBLAS that numpy has already loaded (:func:`limit_blas`: the environment
+    variables reach only a BLAS loaded later)."""
     if not threads:
         return
     for k in THREAD_ENV:
         os.environ[k] = str(threads)
+    limit_blas(int(threads))
     if kind == "mitsuba":
         try:
             import drjit
             drjit.set_thread_count(int(threads))
         except Exception:  # noqa: BLE001 - the renderer reports a missing drjit itself
             pass
+
+
+#: the OpenBLAS of this process (numpy's) as [library, setter, getter]; [None] * 3 when none
+_BLAS: list = []
+_BLAS_SYMBOLS = (("openblas_set_num_threads", "openblas_get_num_threads"),
+                 ("openblas_set_num_threads64_", "openblas_get_num_threads64_"),
+                 ("scipy_openblas_set_num_threads64_", "scipy_openblas_get_num_threads64_"),
+                 ("scipy_openblas_set_num_threads", "scipy_openblas_get_num_threads"))
+
+
+def _blas():
+    """The loaded OpenBLAS's thread setter and getter (found among the libraries this process
+    has mapped, ``/proc/self/maps``), or ``(None, None)`` (no OpenBLAS, not Linux)."""
+    if not _BLAS:
+        import ctypes
+        found = [None, None, None]
+        try:
+            with open("/proc/self/maps") as f:
+                paths = (ln.split()[-1] for ln in f if ln.strip())
+                libs = sorted({p for p in paths if "openblas" in os.path.basename(p).lower() and ".so" in p})
+        except OSError:
+            libs = []
+        for path in libs:
+            try:
+                lib = ctypes.CDLL(path)   # the mapped one: dlopen returns the same handle
+            except OSError:
+                continue
+            for setter, getter in _BLAS_SYMBOLS:
+                if hasattr(lib, setter) and hasattr(lib, getter):
+                    found = [lib, getattr(lib, setter), getattr(lib, getter)]
+                    found[1].argtypes, found[2].restype = [ctypes.c_int], ctypes.c_int
+                    break
+            if found[0] is not None:
+                break
+        _BLAS.extend(found)
+    return _BLAS[1], _BLAS[2]
+
+
+def limit_blas(threads: int):
+    """Set the thread count of the OpenBLAS numpy has loaded in this process -> the count it
+    had (None where there is none to set). Issue 28: an OpenBLAS worker thread keeps spinning
+    on a core for ~0.1 s after each threaded BLAS call (the root's cost model, a node's
+    matrix products), which is a whole plugin frame (30-40 ms): in the root of a two-node
+    plugin render it took 28 ms of CPU inside a 40 ms makespan on this 2-core machine, and
+    each node's half-frame launch (17 ms of CPU) took 33 ms of wall time. One thread stops
+    the spinning thread at once; numpy's environment variables act only before its import."""
+    import numpy  # noqa: F401 - the BLAS to limit is the one numpy loads
+    setter, getter = _blas()
+    if setter is None:
+        return None
+    old = int(getter())
+    if threads and int(threads) != old:
+        setter(int(threads))
+    return old
 
 
 def get_renderer(spec: RendererSpec):
@@ -325,14 +382,16 @@ def render_unit(spec: RendererSpec, window, cull=None, frame=None, wire=True):
     """Render one window on this node -> (pixels (h, w, C), info dict); pixels as
     :func:`wire_pixels` sends them (float32 when exact, else float64), see :func:`_ready`."""
     renderer = get_renderer(spec)
-    t0, w0 = time.perf_counter(), time.time()
+    t0, w0, c0 = time.perf_counter(), time.time(), time.process_time()
     if cull is not None:
         img = _render_culled(spec, renderer, window, cull)
     else:
         img = renderer.render(window=tuple(int(v) for v in window))
     dt = time.perf_counter() - t0
+    cpu = time.process_time() - c0
     px = _ready(img, frame, tuple(int(v) for v in window), wire)
     return px, {"seconds": dt, "start": w0, "stop": w0 + dt, "pid": os.getpid(), "launch_seconds": dt,
+                "launch_cpu_s": cpu,
                 "launch_units": 1, "launch": (os.getpid(), next(_LAUNCHES)),
                 "wire_s": time.perf_counter() - t0 - dt}
 
@@ -353,7 +412,8 @@ def render_units(spec: RendererSpec, windows, culls=None, frame=None, wire=True)
     few launches as :data:`LAUNCH_SAMPLES` allows; each unit's pixels are exactly what
     ``render(window)`` returns for it. A unit's ``seconds`` is then its share of its launch by
     pixel count, not a measurement (``launch_seconds`` and ``launch_units`` say which launch it
-    shared; the schedule report measures or derives unit times itself, see
+    shared; ``launch_cpu_s``: the CPU time this process spent in that launch, all its threads:
+    below ``launch_seconds`` when the node was off its core, issue 28; the schedule report measures or derives unit times itself, see
     :mod:`.experiment`); ``task`` names the task (this call). Units
     with a cull list, or renderers without ``render_batch``, are rendered one by one.
     """
@@ -378,10 +438,11 @@ def render_units(spec: RendererSpec, windows, culls=None, frame=None, wire=True)
     launches.append(cur)
     out = []
     for launch in launches:
-        t0, w0 = time.perf_counter(), time.time()
+        t0, w0, c0 = time.perf_counter(), time.time(), time.process_time()
         lid = (os.getpid(), next(_LAUNCHES))
         imgs = batch(launch)
         dt = time.perf_counter() - t0
+        cpu = time.process_time() - c0
         total = sum(a[2] * a[3] for a in launch)
         at = w0
         for img, a in zip(imgs, launch):
@@ -389,7 +450,8 @@ def render_units(spec: RendererSpec, windows, culls=None, frame=None, wire=True)
             tw = time.perf_counter()
             px = _ready(img, frame, a, wire)
             out.append((px, {"seconds": share, "start": at, "stop": at + share, "pid": os.getpid(),
-                             "launch_seconds": dt, "launch_units": len(launch), "launch": lid, "task": task,
+                             "launch_seconds": dt, "launch_cpu_s": cpu, "launch_units": len(launch), "launch": lid,
+                             "task": task,
                              "wire_s": time.perf_counter() - tw}))
             at += share
     return out

@@ -122,17 +122,24 @@ def test_guided_chunks_of_two_nodes_shrink():
 
     from links1.partition.executors import guided_batch
     plan = make_plan("dynamic", 32, 32, 2, tiles_per_node=8, unit="tile")
-    q, got = deque(plan.order), []
+    q, got, cover = deque(plan.order), [], np.zeros((32, 32), int)
     while q:
-        got.append(len(guided_batch(plan, q, 2, 2)))
+        chunk = guided_batch(plan, q, 2, 2)
+        got.append(len(chunk))
+        for i in chunk:
+            u = plan.units[i]
+            cover[u.y0:u.y0 + u.h, u.x0:u.x0 + u.w] += 1
     left, want = len(plan.units), []
     while left:
         want.append(chunk_size(left, 2, 2))
         left -= want[-1]
     assert got == want and got[0] > got[-1] == 1
+    assert all(a >= b for a, b in zip(got, got[1:]))   # never growing
+    assert (cover == 1).all()                           # every pixel in exactly one chunk
 
 
-@pytest.mark.parametrize("strategy, k", [("subscreen", 2), ("dynamic", 2), ("dynamic", 0), ("scanline", 2)])
+@pytest.mark.parametrize("strategy, k", [("subscreen", 2), ("dynamic", 2), ("dynamic", 0), ("scanline", 2),
+                                         ("subscreen-balanced", 2)])
 def test_local_pool_batches_give_the_same_bits(strategy, k, core_spec, core_ref):
     plan = make_plan(strategy, 32, 32, 2, tiles_per_node=8, unit="tile")
     with LocalPool(2, chunk_factor=k) as pool:

@@ -6,7 +6,7 @@ import pytest
 
 from links1.sensor.camera import Camera
 from links1.partition.loadmodel import SceneModel, project_boxes
-from links1.partition.strategies import STRATEGIES, make_plan, subscreen_groups
+from links1.partition.strategies import STRATEGIES, balanced_groups, make_plan, subscreen_groups
 
 from .fake_renderer import FakeRenderer
 
@@ -38,6 +38,50 @@ def test_subscreen_walk_hand_computed():
     assert subscreen_groups([3, 1, 2, 2, 1, 3], 3) == [0, 0, 1, 1, 2, 2]
     # a heavy first tile must not leave nodes without tiles
     assert subscreen_groups([10, 1, 1], 3) == [0, 1, 2]
+
+
+def test_balanced_subscreen_hand_computed():
+    # loads 4 1 1 1 1 4 (walk order), 2 nodes, average 6: 4-1 closes group 0 where the sum
+    # first reaches 6 (4+1+1 = 6 -> tiles 0-2 | 3-5: 6 and 6); with 3 1 3 1 1 1 and 2 nodes
+    # (average 5) 4-1 closes after 3+1+3 = 7 (7 | 3), the least max cut is after 3+1 (4 | 6)
+    assert balanced_groups([4, 1, 1, 1, 1, 4], 2) == [0, 0, 0, 1, 1, 1]
+    assert subscreen_groups([3, 1, 3, 1, 1, 1], 2) == [0, 0, 0, 1, 1, 1]
+    assert balanced_groups([3, 1, 3, 1, 1, 1], 2) == [0, 0, 1, 1, 1, 1]
+    # 3 nodes, 9 9 1 1 1 1 1 1: every group gets a tile, the heaviest is one 9
+    assert balanced_groups([9, 9, 1, 1, 1, 1, 1, 1], 3) == [0, 1, 2, 2, 2, 2, 2, 2]
+
+
+def _brute_min_max(loads, n):
+    """The least heaviest group over every cut of ``loads`` into ``n`` non-empty runs."""
+    from itertools import combinations
+    c = np.concatenate([[0.0], np.cumsum(loads)])
+    best = np.inf
+    for cuts in combinations(range(1, len(loads)), n - 1):
+        e = (0,) + cuts + (len(loads),)
+        best = min(best, max(c[b] - c[a] for a, b in zip(e, e[1:])))
+    return best
+
+
+@pytest.mark.parametrize("nodes", [1, 2, 3, 4])
+def test_balanced_subscreen_is_the_least_max_walk_cut(nodes):
+    rng = np.random.default_rng(nodes)
+    for _ in range(40):
+        loads = rng.exponential(size=9) ** 3
+        g = np.array(balanced_groups(loads, nodes))
+        assert np.all(np.diff(g) >= 0) and sorted(set(g)) == list(range(nodes))   # runs of the walk
+        heaviest = max(loads[g == k].sum() for k in range(nodes))
+        assert heaviest == pytest.approx(_brute_min_max(loads, nodes), rel=1e-9)
+        paper = np.array(subscreen_groups(loads, nodes))
+        assert heaviest <= max(loads[paper == k].sum() for k in range(nodes)) * (1 + 1e-12)
+
+
+def test_balanced_subscreen_keeps_the_paper_tiles_and_walk():
+    rng = np.random.default_rng(5)
+    lm = rng.random((23, 37)) ** 4
+    a = make_plan("subscreen", 37, 23, 3, tiles_per_node=4, load_map=lm)
+    b = make_plan("subscreen-balanced", 37, 23, 3, tiles_per_node=4, load_map=lm)
+    assert [u.window for u in a.units] == [u.window for u in b.units] and a.order == b.order
+    assert b.static and np.array_equal(a.predicted, b.predicted)
 
 
 def test_subscreen_walks_bottom_left_to_top_right():

@@ -44,6 +44,25 @@ def test_time_split_of_a_hand_made_timeline():
     for v in ts["nodes"].values():
         assert sum(v[p] for p in NODE_PARTS) == pytest.approx(1.0)
     assert ts["shares"]["work"] == pytest.approx((0.45 + 0.9) / 2.0)
+    # no CPU times in these launches: nothing said about off-CPU time
+    assert n0["off_cpu_s"] is None and ts["off_cpu_share"] is None
+
+
+def test_off_cpu_time_is_launch_time_without_cpu():
+    # node 0's launches of 0.4 s and 0.2 s used 0.3 s and 0.2 s of CPU: 0.1 s off its core;
+    # node 1's 0.95 s launch used 0.5 s: 0.45 s; share (0.1 + 0.45) / (2 nodes x 1 s)
+    T0 = 1000.0
+    launches = [{"node": 0, "start": T0 + 0.1, "stop": T0 + 0.5, "seconds": 0.4, "cpu_s": 0.3, "units": 1, "work": 0.3},
+                {"node": 0, "start": T0 + 0.6, "stop": T0 + 0.8, "seconds": 0.2, "cpu_s": 0.2, "units": 1, "work": 0.2},
+                {"node": 1, "start": T0, "stop": T0 + 0.95, "seconds": 0.95, "cpu_s": 0.5, "units": 1, "work": 0.5}]
+    res = RenderResult(None, None, makespan_s=1.0, t0_wall=T0, n_nodes=2, backend="local")
+    ts = time_split(res, launches, [], None)
+    assert ts["nodes"]["0"]["launch_cpu_s"] == pytest.approx(0.5)
+    assert ts["nodes"]["0"]["off_cpu_s"] == pytest.approx(0.1)
+    assert ts["nodes"]["1"]["off_cpu_s"] == pytest.approx(0.45)
+    assert ts["off_cpu_share"] == pytest.approx(0.275)
+    for v in ts["nodes"].values():   # beside the parts: they still add up to the makespan
+        assert sum(v[p] for p in NODE_PARTS) == pytest.approx(1.0)
 
 
 def _check_adds_up(rep, in_process):
@@ -62,6 +81,8 @@ def _check_adds_up(rep, in_process):
         for p in ("dispatch_s", "transfer_s", "waiting_s"):
             assert v[p] >= -eps
         assert v["startup_s"] is not None and v["startup_s"] > 0
+        # measured in the node: CPU time within its launches' wall time (one thread: at most it)
+        assert 0 < v["launch_cpu_s"] and v["off_cpu_s"] >= 0
     root = ts["root"]
     assert sum(root[p] for p in ROOT_PARTS) == pytest.approx(span, abs=1e-9)
     assert root["assembly_s"] > 0
