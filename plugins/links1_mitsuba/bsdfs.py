@@ -192,7 +192,8 @@ def define_phong():
         def parameters_changed(self, keys):
             """``params.update()``: the Python values (checked as the loader checks them, ranges
             of links1.scene.params) follow the Dr.Jit values; links1_whitted's tables are rebuilt at
-            the next frame (its scene digest sees the change)."""
+            the next frame (its scene digest sees the change), in place when only coefficients
+            change (tables.Tables._update_values)."""
             from links1.scene.params import read
             h, p = self._held, dict(self.params)
             for name in _PHONG_RGB:

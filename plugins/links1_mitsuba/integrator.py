@@ -154,6 +154,7 @@ def define_integrator():
             #: the scene tables and camera views built so far (tables.py: prepare)
             self.n_scene_builds = 0
             self.n_camera_views = 0
+            self.n_value_updates = 0
             self.stats = {}
             #: render windows through a frozen function (:meth:`_frozen_fn`): no re-tracing
             self.use_freeze = True

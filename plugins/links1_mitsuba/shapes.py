@@ -17,6 +17,30 @@ import numpy as np
 from links1.geometry.shapes import quadric_bounds
 from links1.scene.params import blob_centers, clip_plane, default, read, transform_problem
 
+
+def table_value(spec, k):
+    """Entry ``k`` of ``spec``'s ``"values"`` table (``spec.tables()``), one gather. Outside a
+    frozen recording and a symbolic scope (the derivative pass, traced each time: each shape
+    reads its ~20-100 constants in every intersection and shadow test, and Dr.Jit copies a
+    gather at a literal index from a table into a one-value array at once: 585 copies an
+    iteration for the inverse benchmark's blob) the gathered value is kept per table
+    (``spec._values_cache``, a :class:`~.util.Hidden` that frozen launches do not walk) and
+    reused; a frozen recording gathers anew (what it reads must be its inputs)."""
+    import drjit as dr
+    import mitsuba as mi
+    from .util import Hidden
+    tab = spec.tables()["values"]
+    if dr.flag(dr.JitFlag.FreezingScope) or dr.flag(dr.JitFlag.SymbolicScope):
+        return dr.gather(mi.Float, tab, k)
+    c = spec._values_cache
+    if c is None or c.table is not tab:
+        c = spec._values_cache = Hidden()
+        c.table, c.values = tab, {}
+    v = c.values.get(k)
+    if v is None:
+        v = c.values[k] = dr.gather(mi.Float, tab, k)
+    return v
+
 INF = float("inf")
 #: Blob march: probe step relative to the largest S (float32 analogue of the core's).
 PROBE_REL = 1e-4
@@ -60,6 +84,7 @@ class QuadricSpec:
     capped: bool = False
     emission: np.ndarray | None = None
     _tables: dict | None = field(default=None, init=False, repr=False, compare=False)
+    _values_cache: object = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self):
         problem = transform_problem(self.to_world)
@@ -112,9 +137,7 @@ class QuadricSpec:
         return self._tables
 
     def _value(self, k):
-        import drjit as dr
-        import mitsuba as mi
-        return dr.gather(mi.Float, self.tables()["values"], k)
+        return table_value(self, k)
 
     def _inv(self):
         return [[self._value(4 * i + j) for j in range(4)] for i in range(3)]
@@ -244,6 +267,7 @@ class BlobSpec:
     emission: np.ndarray | None = None
     max_steps: int = 256
     _tables: dict | None = field(default=None, init=False, repr=False, compare=False)
+    _values_cache: object = field(default=None, init=False, repr=False, compare=False)
     # the last nearest-hit search's ray (o, d) and candidate lists, for :meth:`normal`
     _line: tuple | None = field(default=None, init=False, repr=False, compare=False)
 
@@ -300,10 +324,8 @@ class BlobSpec:
                                np.asarray(self.normal_mat).ravel(), [float(self.threshold), probe]])
 
     def _value(self, k):
-        """Entry ``k`` of the ``"values"`` table (:meth:`_values`), one gather."""
-        import drjit as dr
-        import mitsuba as mi
-        return dr.gather(mi.Float, self.tables()["values"], k)
+        """Entry ``k`` of the ``"values"`` table (:meth:`_values`): :func:`table_value`."""
+        return table_value(self, k)
 
     def _crow(self, i):
         """Centre ``i``'s :meth:`_consts` row, gathered (12 Floats)."""

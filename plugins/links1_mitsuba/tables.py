@@ -215,6 +215,15 @@ class ParamWatch(Hidden):
                     pins.append(p)
                     state[k] = ("ids", ids)
                     continue
+                if p is not None and any(i >> 32 for i in ids):
+                    # an attached value (an optimiser's, ``params.update(opt)``: an AD index in
+                    # the upper 32 bits): its copy (under ``suspend_grad``, as ``prepare`` runs)
+                    # has none, so the value itself is pinned (it holds its JIT and
+                    # AD variables; a later assignment puts another object there). Compared
+                    # by value instead, each check read it back to the host (a device sync)
+                    pins.append(value)
+                    state[k] = ("ids", ids)
+                    continue
             elif ids:
                 state[k] = ("ids", ids)
                 continue
@@ -247,6 +256,21 @@ class ParamWatch(Hidden):
             if self._read_one(v if ct is None else get(v, ct, obj), s[0]) != s:
                 return False
         return True
+
+    def changed(self, obj):
+        """The parameters of ``obj`` that differ from the watch's, as ``(name, object)``: the
+        parameter's last name (``diffuse.value``'s ``diffuse``; ``exponent``) and the Mitsuba
+        object that holds it; None when the parameters are other ones (keys added or gone)."""
+        params = self._mi.traverse(obj)
+        if params.properties.keys() != self.state.keys():
+            return None
+        out = []
+        for k, (v, ct, node, _) in params.properties.items():
+            if self._read_one(v if ct is None else params.get_property(v, ct, node), self.state[k][0]) \
+                    != self.state[k]:
+                parts = k.split(".")
+                out.append((parts[-2] if parts[-1] == "value" and len(parts) > 1 else parts[-1], node))
+        return out
 
     def _read_one(self, value, how):
         """One value as the state has it (``how``: "ids" or "value")."""
@@ -311,6 +335,9 @@ class Prepared:
     # -- materials (links1_phong: eq. 3.11; other Mitsuba BSDFs through bsdf.eval / sample)
     #: per slot: a links1_phong surface (numpy bool)
     is_phong_np: object = _set_later()
+    #: the material tables' values as numpy ({"amb": (nslots, 3), ..., "ior": (nslots,)}):
+    #: what a value update (:meth:`Tables._update_values`) compares with
+    phong_np: object = _set_later()
     #: every slot / some slot is links1_phong
     all_phong: bool = _set_later()
     any_phong: bool = _set_later()
@@ -476,11 +503,53 @@ class Tables:
         B = getattr(V, "base", None)
         if not (B is not None and B.ident == ident
                 and B.tuning.tables_key() == tuning.current().tables_key()
-                and (not self.verify_scene or B.watch.unchanged(scene))):
+                and (not self.verify_scene or B.watch.unchanged(scene))
+                or B is not None and self._update_values(B, scene, ident)):
             B = self._prepare_scene(scene, ident)
         V = self._camera_view(B, scene, self._sensor_of(scene, sensor))
         self._prep = V
         return V
+
+    def _update_values(self, B, scene, ident) -> bool:
+        """The tables ``B`` brought up to a change of ``links1_phong`` coefficients only (issue
+        23, item 1: ``params.update()`` re-prepares what the change touches), in place: the
+        material rows re-read from the BSDFs, every other table (shadow rays, BVH, light
+        buffers, lights) and the frozen launch kept, as they do not depend on those values.
+        False (the caller rebuilds all) for another scene or tuning, or any other change: a
+        Mitsuba object's, a light's, a shape's, or a Phong change that alters what the other
+        tables are built from (the transmittance: shadow rays; which slots reflect or have
+        ambient light: the kernels traced). ``n_value_updates`` counts the updates."""
+        if not (self.verify_scene and B.ident == ident
+                and B.tuning.tables_key() == tuning.current().tables_key()):
+            return False
+        changed = B.watch.changed(scene)
+        Phong = plugin_class("links1_phong")
+        if not changed or any(not isinstance(node, Phong) for _, node in changed):
+            return False
+        names = {"amb": "ambient", "dif": "diffuse", "spe": "specular", "refl": "reflectance",
+                 "expo": "exponent", "ior": "ior"}
+        now = {k: np.zeros_like(v) for k, v in B.phong_np.items()}
+        trans = np.zeros((B.nslots, 3))
+        for sl, b in enumerate(B.keep_alive[3]):
+            if isinstance(b, Phong):
+                p = b.params
+                for k, name in names.items():
+                    now[k][sl] = p[name]
+                trans[sl] = p["transmittance"]
+        if not (np.array_equal(trans, B.shadow_t_np) and bool(np.any(now["amb"] > 0)) == B.any_ambient
+                and bool(np.any(now["refl"].max(1) > 0)) == B.any_phong_r):
+            return False
+        # the tables whose values changed, made as _prepare_scene makes them (the same bits)
+        new = {k: mi.Float(v.ravel()) for k, v in now.items() if not np.array_equal(v, B.phong_np[k])}
+        for P in (B, *B.views.values()):
+            for k, v in new.items():
+                setattr(P, k, v)
+            P.phong_np = now
+            P.frozen_inputs = None       # gathered again: the new arrays are the launch's inputs
+            P.scene_input = None         # the scene's variables (the BSDFs' new values) too
+        B.watch = ParamWatch(scene)
+        self.n_value_updates += 1
+        return True
 
     def _sensor_of(self, scene, sensor):
         """``sensor`` as a sensor object: an index into ``scene.sensors()`` (None: 0) or the
@@ -660,6 +729,7 @@ class Tables:
         P.amb, P.dif, P.spe = (mi.Float(a.ravel()) for a in (amb, dif, spe))
         P.refl, P.trans = mi.Float(refl.ravel()), mi.Float(trans.ravel())
         P.expo, P.ior = mi.Float(expo), mi.Float(ior)
+        P.phong_np = dict(amb=amb, dif=dif, spe=spe, refl=refl, expo=expo, ior=ior)
         P.any_ambient = bool(np.any(amb > 0))
         P.has_dr, P.has_dt, P.has_null = mi.Bool(has_dr), mi.Bool(has_dt), mi.Bool(has_null)
         P.any_mitsuba_dr, P.any_mitsuba_dt = bool(has_dr.any()), bool(has_dt.any())

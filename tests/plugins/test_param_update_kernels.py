@@ -243,3 +243,57 @@ def test_blob_reverse_pass_kernels_do_not_grow_with_its_parameters(variant):
     n_cw = backward_kernels([C, W])
     # one kernel per value would add at least 24 (270 measured before: 24 values × levels)
     assert n_cw - n_w < 24, (n_w, n_cw)
+
+
+def test_phong_value_update_rebuilds_only_the_material_rows(variant):
+    """``params.update()`` of ``links1_phong`` coefficients (issue 23, item 1) updates the
+    material rows of the prepared tables in place: no scene build (``n_scene_builds``), one
+    value update (``n_value_updates``), the other tables the same arrays, the frozen launch
+    replayed (no kernel but the launch's own), and the frame the one of the file with those
+    values, bit for bit. A change of the transmittance (shadow rays, BVH, light buffers are
+    built from it) or of a light rebuilds all, and its frame is the file's too."""
+    import drjit as dr
+    import mitsuba as mi
+    import links1_mitsuba as lm
+    scene = lm.load_string(scene_xml(CENTRES))
+    integ = scene.integrator()
+    mi.render(scene, seed=0)
+    before, codes = launched(lambda: mi.render(scene, seed=0))
+    P = integ._prep
+    builds, kept = integ.n_scene_builds, (P.shadow_t, P.is_phong, P.eps_table, P.trans, P.ior)
+    params = mi.traverse(scene)
+    params["floor.bsdf.diffuse.value"] = mi.Color3f(0.25, 0.5, 0.75)
+    params["floor.bsdf.specular.value"] = mi.Color3f(0.125, 0.25, 0.375)
+    params["links1_whitted.blob.bsdf.exponent"] = mi.Float(20.0)
+    params.update()
+    after, codes_after = launched(lambda: mi.render(scene, seed=0))
+    assert codes_after <= codes     # the frozen launch replayed
+    Q = integ._prep
+    assert integ.n_scene_builds == builds and integ.n_value_updates == 1
+    assert Q is P and all(a is b for a, b in zip(kept, (Q.shadow_t, Q.is_phong, Q.eps_table, Q.trans, Q.ior)))
+    assert not np.array_equal(after, before)
+    xml = scene_xml(CENTRES).replace(
+        '<rgb name="diffuse" value="0.6, 0.5, 0.4"/>',
+        '<rgb name="diffuse" value="0.25, 0.5, 0.75"/><rgb name="specular" value="0.125, 0.25, 0.375"/>').replace(
+        '<float name="exponent" value="10"/>', '<float name="exponent" value="20"/>')
+    assert xml.count("0.25, 0.375") == 1 and xml.count('name="exponent" value="20"') == 1
+    fresh = np.array(mi.render(lm.load_string(xml), seed=0))
+    assert np.array_equal(after, fresh)
+    # nothing changed: neither a build nor an update
+    mi.render(scene, seed=0)
+    assert integ.n_scene_builds == builds and integ.n_value_updates == 1
+    # a transmittance, then a light: whole rebuilds, the file's frames
+    params["floor.bsdf.transmittance.value"] = mi.Color3f(0.5, 0.5, 0.5)
+    params.update()
+    t_img = np.array(mi.render(scene, seed=0))
+    assert integ.n_scene_builds == builds + 1 and integ.n_value_updates == 1
+    xml_t = xml.replace('<rgb name="diffuse" value="0.25, 0.5, 0.75"/>',
+                        '<rgb name="diffuse" value="0.25, 0.5, 0.75"/><rgb name="transmittance" value="0.5"/>')
+    assert np.array_equal(t_img, np.array(mi.render(lm.load_string(xml_t), seed=0)))
+    params["lp.position"] = mi.Point3f(2.5, 4, 3)
+    params.update()
+    l_img = np.array(mi.render(scene, seed=0))
+    assert integ.n_scene_builds == builds + 2 and integ.n_value_updates == 1
+    xml_l = xml_t.replace('<point name="position" x="2" y="4" z="3"/>', '<point name="position" x="2.5" y="4" z="3"/>')
+    assert np.array_equal(l_img, np.array(mi.render(lm.load_string(xml_l), seed=0)))
+    dr.sync_thread()
