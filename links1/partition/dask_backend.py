@@ -19,7 +19,7 @@ from collections import deque
 
 from ..errors import RenderAborted
 from .executors import ALLOWED_FAILURES, CHUNK_FACTOR, TASK_PIXELS, guided_batch, take_batch
-from .runtime import THREAD_ENV, get_renderer, render_units, spec_batches, warm_samples, warm_up
+from .runtime import THREAD_ENV, get_renderer, limit_blas, render_units, spec_batches, warm_samples, warm_up
 
 try:  # the plugin base class only when distributed is there (lazy for everything else)
     from distributed.diagnostics.plugin import WorkerPlugin as _WorkerPluginBase
@@ -68,6 +68,7 @@ class DaskBackend:
         self.chunk_by = chunk_by
         self.token = uuid.uuid4().hex[:8]
         self._plugin = None
+        self._root_blas = None   # the root's BLAS thread count before a LocalCluster started
 
     # ---------------------------------------------------------------- lifecycle
     def start(self, spec):
@@ -88,6 +89,9 @@ class DaskBackend:
                                                 env={k: str(t) for k in THREAD_ENV})
                 self.client = Client(self.cluster)
                 self.threads = t
+                # the nodes share this machine's cores: the root (it renders nothing) keeps
+                # one BLAS thread until close, as LocalPool's does (runtime.limit_blas)
+                self._root_blas = limit_blas(1) or 0
         if self._plugin != spec.key:
             if spec.threads is None and self.threads:
                 from .runtime import RendererSpec
@@ -119,6 +123,9 @@ class DaskBackend:
         if self.cluster is not None:
             self.cluster.close()
             self.cluster = None
+        if self._root_blas:
+            limit_blas(self._root_blas)
+        self._root_blas = None
         self._plugin = None
 
     def __enter__(self):

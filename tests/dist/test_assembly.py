@@ -77,7 +77,9 @@ def test_core_renderer_cull_keeps_the_image(tmp_path):
 def test_dask_local_every_strategy(fake_spec, fake_ref, core_spec, core_ref):
     pytest.importorskip("distributed")
     from links1.partition.dask_backend import DaskBackend
+    from links1.partition.runtime import limit_blas
     _, plans = _plans(fake_spec, 2)
+    blas = limit_blas(2)    # None where numpy has no OpenBLAS
     for static in (True, False):
         with DaskBackend(n_local=2, static=static) as be:
             for plan in plans:
@@ -85,7 +87,12 @@ def test_dask_local_every_strategy(fake_spec, fake_ref, core_spec, core_ref):
                     continue
                 res = render_plan(plan, fake_spec, be, progress=False)
                 assert np.array_equal(res.image, fake_ref), plan
+            # the root keeps one BLAS thread while its local nodes render (issue 28)
+            assert blas is None or limit_blas(0) == 1
             if static:  # one real scene through Dask too
                 _, cplans = _plans(core_spec, 2)
                 res = render_plan(cplans[0], core_spec, be, progress=False)
                 assert np.array_equal(res.image, core_ref)
+        assert blas is None or limit_blas(0) == 2   # as it was, once the cluster is closed
+    if blas is not None:
+        limit_blas(blas)
