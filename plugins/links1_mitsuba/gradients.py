@@ -32,10 +32,10 @@ and the cameras. The links1 shapes' geometry is differentiated (:mod:`links1_mit
 its equation, silhouettes and shadow edges still held fixed.
 
 Cost: the derivative pass keeps a ray tree on Dr.Jit's AD tape (no path replay as Mitsuba's
-PRB), so it goes over the film in blocks of rows (:func:`row_blocks`) of at most
+PRB), so reverse mode goes over the film in blocks of rows (:func:`row_blocks`) of at most
 :data:`AD_BLOCK_LANES` samples: each block is rendered with AD, its part of the image gradient
-propagated (reverse) or its derivative image taken (forward), and its graph freed before the
-next. A block renders the samples of its filter border too (``film.sample_window``), so its
+propagated, and its graph freed before the next (forward mode renders one block: see
+:meth:`Gradients.render_forward`). A block renders the samples of its filter border too (``film.sample_window``), so its
 pixels are the full frame's and the loss ``Σ g_p I_p`` splits exactly by blocks; memory is
 bounded by one block's tree (~0.75 KiB a sample for scenes/fig11.xml at max_depth 5), not the
 frame's (docs/benchmarks.md, inverse rendering). A 256² frame at spp 1 is one block.
@@ -117,25 +117,17 @@ class Gradients:
     # -------------------------------------------------------------- Mitsuba entry points
     def render_forward(self, scene, params, sensor=0, seed=0, spp=0):
         """The image's derivative along the gradients set on the scene's parameters
-        (``dr.set_grad``): Mitsuba's ``Integrator.render_forward``. Block by block
-        (:func:`row_blocks`), the blocks' derivative rows laid one after another."""
-        parts, shape = [], None
-        blocks = self._ad_blocks(scene, sensor, seed, spp)
-        n = next(blocks)
+        (``dr.set_grad``): Mitsuba's ``Integrator.render_forward``. In one block (the whole
+        frame's graph at once, unlike :meth:`render_backward`): inside ``mi.render``'s custom
+        operation a tangent must cross the edges into the parameters (a parameter made from
+        another value) in every block, and a traversal that keeps them for the next block
+        (``ADFlag.ClearNone``) left state that a later forward pass in the same process
+        tripped over ("... lies outside of the current dr.isolate_grad() scope", seen in CI
+        with two scenes alive); one traversal with the default flags, as before the blocks."""
         with dr.resume_grad():
-            for j, (win, img) in enumerate(blocks):
-                # nothing cleared before the last block: the parameters' tangents (the
-                # traversal's input) and the edges into them (a parameter made from another
-                # value before mi.render) serve every block; a block's own graph goes with
-                # its image (test_gradient_blocks: clearing edges lost the later blocks)
-                dr.forward_to(img, flags=dr.ADFlag.Default if j == n - 1 else dr.ADFlag.ClearNone)
-                g = dr.grad(img)
-                dr.eval(g)
-                parts.append(g.array)
-                shape = (shape[0] + win[3] if shape else win[3],) + tuple(g.shape[1:])
-                del img
-        flat = parts[0] if len(parts) == 1 else film.concat(parts, sum(dr.width(q) for q in parts), type(parts[0]))
-        return type(g)(flat, shape=shape)
+            img = self._render_ad(scene, sensor, seed, spp)
+            dr.forward_to(img)
+            return dr.grad(img)
 
     def render_backward(self, scene, params, grad_in, sensor=0, seed=0, spp=0):
         """Propagate the image gradient ``grad_in`` to the scene's parameters that have
