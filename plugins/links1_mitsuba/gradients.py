@@ -35,7 +35,8 @@ Cost: the derivative pass keeps a ray tree on Dr.Jit's AD tape (no path replay a
 PRB), so reverse mode goes over the film in blocks of rows (:func:`row_blocks`) of at most
 :data:`AD_BLOCK_LANES` samples: each block is rendered with AD, its part of the image gradient
 propagated, and its graph freed before the next (forward mode renders one block: see
-:meth:`Gradients.render_forward`). A block renders the samples of its filter border too (``film.sample_window``), so its
+:meth:`Gradients.render_forward`). A block renders the samples of its filter border too
+(``film.sample_window``), so its
 pixels are the full frame's and the loss ``Σ g_p I_p`` splits exactly by blocks; memory is
 bounded by one block's tree (~0.75 KiB a sample for scenes/fig11.xml at max_depth 5), not the
 frame's (docs/benchmarks.md, inverse rendering). A 256² frame at spp 1 is one block.
@@ -50,7 +51,7 @@ import copy
 import drjit as dr
 import mitsuba as mi
 
-from . import film, geometry
+from . import geometry
 from .registered import plugin_class
 from .util import INF, mix32
 
@@ -134,11 +135,11 @@ class Gradients:
         gradients enabled: Mitsuba's ``Integrator.render_backward``. Block by block
         (:func:`row_blocks`): each block's rows of ``grad_in`` propagated, its graph freed."""
         y = 0
-        blocks = self._ad_blocks(scene, sensor, seed, spp)
-        next(blocks)
         with dr.resume_grad():
-            for win, img in blocks:
-                h = win[3]
+            for block in self._ad_blocks(scene, sensor, seed, spp):
+                # one block's graph at a time: built, its rows of grad_in propagated, dropped
+                img = self._render_ad(scene, sensor, seed, spp, window=block)
+                h = block[3]
                 g = grad_in if h == grad_in.shape[0] else grad_in[y:y + h]
                 y += h
                 dr.set_grad(img, g)
@@ -148,20 +149,16 @@ class Gradients:
         dr.eval()
 
     def _ad_blocks(self, scene, sensor, seed, spp):
-        """The number of blocks, then ``(block window, its frame with AD)`` for each block of
-        :func:`row_blocks`, made one at a time: the caller (under ``dr.resume_grad``) uses a
-        block's graph before the next is built."""
+        """The blocks (:func:`row_blocks`) of the frame a derivative pass renders; with more
+        than one, Dr.Jit's allocation cache is flushed first (the primal frame's buffers wait
+        there, in sizes the blocks do not reuse: the peak would be the primal's plus a block's)."""
         sensor_, win, spp_, _ = self._render_request(scene, sensor, seed, spp)
         with dr.suspend_grad():
             P = self.prepare(scene, sensor_)
         blocks = row_blocks(win, P.film_size, P.rfilter.border, spp_)
         if len(blocks) > 1:
-            # the primal frame's buffers wait in Dr.Jit's allocation cache, in sizes the
-            # blocks do not reuse: give them back first, or the peak is the primal's plus a block's
             dr.flush_malloc_cache()
-        yield len(blocks)
-        for block in blocks:
-            yield block, self._render_ad(scene, sensor, seed, spp, window=block)
+        return blocks
 
     # -------------------------------------------------------------- the differentiable frame
     def _render_ad(self, scene, sensor=0, seed=0, spp=0, window=None):
