@@ -51,7 +51,7 @@ import copy
 import drjit as dr
 import mitsuba as mi
 
-from . import geometry
+from . import geometry, tuning
 from .registered import plugin_class
 from .util import INF, mix32
 
@@ -112,6 +112,20 @@ def put_rows(table, rows, width):
     return out
 
 
+def _render_op_caller():
+    """Mitsuba's ``_RenderOp`` (``mi.render(scene, params)``) when it is the caller of the
+    integrator's ``render()`` (``render`` -> ``_render_keeping_graph`` -> here), else None."""
+    import sys
+    f = sys._getframe(3)
+    op = f.f_locals.get("self") if f.f_code.co_name == "eval" else None
+    return op if type(op).__name__ == "_RenderOp" and hasattr(op, "spp") else None
+
+
+def _mitsuba_attached(scene):
+    """Whether a parameter of Mitsuba's own objects has gradients enabled."""
+    return any(dr.grad_enabled(v) for _, v in mi.traverse(scene).items())
+
+
 class Gradients:
     """``render_forward``/``render_backward`` and the differentiable render behind them."""
 
@@ -125,6 +139,9 @@ class Gradients:
         (``ADFlag.ClearNone``) left state that a later forward pass in the same process
         tripped over ("... lies outside of the current dr.isolate_grad() scope", seen in CI
         with two scenes alive); one traversal with the default flags, as before the blocks."""
+        # a graph the primal kept (for reverse mode) is dropped first: forward propagation
+        # from the parameters would enter it, outside this pass's isolation scope
+        self._hidden.kept_graph = None
         with dr.resume_grad():
             img = self._render_ad(scene, sensor, seed, spp)
             dr.forward_to(img)
@@ -133,7 +150,18 @@ class Gradients:
     def render_backward(self, scene, params, grad_in, sensor=0, seed=0, spp=0):
         """Propagate the image gradient ``grad_in`` to the scene's parameters that have
         gradients enabled: Mitsuba's ``Integrator.render_backward``. Block by block
-        (:func:`row_blocks`): each block's rows of ``grad_in`` propagated, its graph freed."""
+        (:func:`row_blocks`): each block's rows of ``grad_in`` propagated, its graph freed.
+        A frame whose graph the primal kept (:meth:`_render_keeping_graph`) is propagated
+        through that graph instead of being rendered again."""
+        kept = self._take_kept(scene, sensor, seed, spp)
+        if kept is not None:
+            with dr.resume_grad():
+                dr.set_grad(kept, grad_in)
+                dr.enqueue(dr.ADMode.Backward, kept)
+                dr.traverse(dr.ADMode.Backward)
+                del kept
+            dr.eval()
+            return
         y = 0
         with dr.resume_grad():
             for block in self._ad_blocks(scene, sensor, seed, spp):
@@ -159,6 +187,54 @@ class Gradients:
         if len(blocks) > 1:
             dr.flush_malloc_cache()
         return blocks
+
+    # -------------------------------------------------------------- the kept graph
+    def _render_keeping_graph(self, scene, sensor, win, spp, seed):
+        """The frame of ``mi.render(scene, params)``, made by the derivative pass with its
+        AD graph kept for :meth:`render_backward`, or None where the usual primal applies.
+
+        ``mi.render`` with parameters calls ``render()`` (Mitsuba's ``_RenderOp.eval``) and,
+        at ``dr.backward``, ``render_backward`` with another seed (``seed_grad``), which renders
+        the frame again with AD. Where the frame does not depend on the seed (one sample a
+        pixel, at the pixel's centre, and only analytic lights: no light is sampled) both
+        renders are the same function of the parameters, so the derivative pass's frame is made
+        once, here, and its graph propagated later: one render an iteration instead of two.
+        Only for a frame of one block (:func:`row_blocks`: the graph's memory is bounded
+        as the blocks bound it), with some parameter attached, and when the caller is
+        ``mi.render``'s differentiable operation given parameters (its ``spp_grad`` equal to
+        ``spp``): ``mi.render(scene)`` while values have gradients enabled renders the primal."""
+        self._hidden.kept_graph = None
+        op = _render_op_caller()
+        if op is None or op.params is None or not tuning.current().keep_graph or spp != 1 or op.spp[1] not in (0, op.spp[0]):
+            return None
+        with dr.suspend_grad():
+            P = self.prepare(scene, sensor)
+        if P.area_tab or P.consts or len(row_blocks(win, P.film_size, P.rfilter.border, spp)) != 1:
+            return None
+        with dr.resume_grad():
+            Q = self._ad_tables(P, scene)
+            if not Q.attached_any:
+                return None
+            img = self.render_windows_device(scene, [win], spp=spp, seed=seed, sensor=sensor,
+                                             dtype=mi.Float, tables=Q)[0]
+            dr.eval(img)
+        self._hidden.kept_graph = (img, sensor, win, P)
+        return dr.detach(img)
+
+    def _take_kept(self, scene, sensor, seed, spp):
+        """The frame :meth:`_render_keeping_graph` kept for this request (once), or None."""
+        kept = getattr(self._hidden, "kept_graph", None)
+        self._hidden.kept_graph = None
+        if kept is None:
+            return None
+        img, sensor_k, win_k, P = kept
+        sensor_, win, spp_, _ = self._render_request(scene, sensor, seed, spp)
+        if sensor_ is not sensor_k or win != win_k or spp_ != 1:
+            return None
+        with dr.suspend_grad():
+            if self.prepare(scene, sensor_) is not P:   # the scene changed since
+                return None
+        return img
 
     # -------------------------------------------------------------- the differentiable frame
     def _render_ad(self, scene, sensor=0, seed=0, spp=0, window=None):
@@ -207,7 +283,7 @@ class Gradients:
                                                              for sub, sl, st in P.shadow_split["trans"]])
         # analytic lights: P.lights holds one entry per such emitter, in the scene's order
         Pt, Sp = plugin_class("links1_point"), plugin_class("links1_spot")
-        lights, j = list(P.lights), 0
+        lights, j, any_light = list(P.lights), 0, False
         for e in scene.emitters():
             kind = str(e).split("[")[0]
             if isinstance(e, (Pt, Sp)):
@@ -217,14 +293,17 @@ class Gradients:
                     v = e.values[name]
                     if attached(v):
                         L[at] = dr.normalize(v) if name == "direction" else v
+                        any_light = True
                 lights[j] = tuple(L)
             elif kind == "PointLight":
                 prm = mi.traverse(e)
                 L = list(lights[j])
                 if attached(prm["position"]):
                     L[1] = mi.Point3f(prm["position"])
+                    any_light = True
                 if "intensity.value" in prm and attached(prm["intensity.value"]):
                     L[3] = mi.Color3f(prm["intensity.value"])
+                    any_light = True
                 lights[j] = tuple(L)
             elif kind not in ("SpotLight", "DirectionalEmitter"):
                 continue
@@ -238,6 +317,8 @@ class Gradients:
         Q.geo_ad = geometry.attached_specs(dr, P.custom, self.geo) or None
         if Q.geo_ad is not None and P.bvh is not None:
             Q.bvh, Q.eye_buf, Q.custom_unrolled = None, None, list(P.custom)
+        Q.attached_any = (any(rows.values()) or Q.geo_ad is not None or any_light
+                          or (not P.all_phong and _mitsuba_attached(scene)))
         return Q
 
     def _surface_ad(self, P, o, d, t, slot, prim, p, ng, ns):

@@ -188,6 +188,9 @@ def define_integrator():
             if self.adaptive is not None:   # refined on the host (links1.tracing.adaptive)
                 img = self.render_adaptive(scene, win, seed=seed, sensor=sensor)
                 return mi.TensorXf(img.astype(np.float32))
+            kept = self._render_keeping_graph(scene, sensor, win, spp, seed)
+            if kept is not None:   # mi.render(scene, params): the derivative pass's frame (gradients.py)
+                return kept
             # the frame made on the device and returned as it is (links1_mitsuba.film)
             return self.render_windows_device(scene, [win], spp=spp, seed=seed, sensor=sensor,
                                               dtype=mi.Float)[0]

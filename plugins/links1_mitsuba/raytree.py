@@ -56,6 +56,11 @@ class RayTree:
         # level 1 is the camera's rays (from its eye when it is a pinhole)
         t, slot, si, prim = self._nearest(P, scene, o, d, tmin, tmax, active, cost,
                                           camera=depth == 1 and P.perspective, coherent=depth == 1)
+        if ad and not symbolic and P.custom and not P.any_mitsuba_shapes:
+            # a derivative pass through links1 shapes: the search's results (detached) kept in
+            # memory, so that each kernel of the AD traversal reads them instead of marching
+            # again (with Mitsuba's shapes they are evaluated below)
+            dr.eval(t, slot, prim)
         hit = slot >= 0
         uslot = mi.UInt32(dr.maximum(slot, 0))
         # ---- surface record of the winner
@@ -218,6 +223,8 @@ class RayTree:
                         so, wi, smax = dr.detach(so), dr.detach(wi), dr.detach(smax)
                     T, need, occ_m = shadow(jsh, so, wi, smax, lit, contrib)
                     pending.append((contrib, so, wi, smax, lit, need, T, occ_m, jsh))
+            if ad and not symbolic and P.custom:   # the shadow tests' results kept (as the hits above)
+                dr.eval(*[tup[6] for tup in pending if tup[6] is not None])
             if P.any_mitsuba_shapes and pending and not symbolic and not skip:
                 dr.eval(out, cost, *[x for tup in pending for x in tup[:6]])
             for contrib, so, wi, smax, lit, need, T, occ_m, j in pending:

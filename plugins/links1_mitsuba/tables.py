@@ -455,6 +455,8 @@ class Prepared:
     ad: bool = _default(False)
     #: the attached geometry of the links1 shapes, or None
     geo_ad: object = _default(None)
+    #: whether any parameter the pass reads has gradients enabled
+    attached_any: bool = _default(False)
 
 
 def _unmask(mi, b):

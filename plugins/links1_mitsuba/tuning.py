@@ -43,6 +43,10 @@ class Tuning:
     #: light buffers (``lightbuffer.plan``, ``plan_eye``) built with the tables (False: none;
     #: shadow and camera rays walk the BVH)
     light_buffer: bool = True
+    #: ``mi.render(scene, params)`` of a frame that does not depend on the seed keeps the
+    #: derivative pass's graph for ``dr.backward`` instead of rendering the frame twice
+    #: (``gradients.Gradients._render_keeping_graph``; False: the primal, then the pass again)
+    keep_graph: bool = True
     #: custom quadrics with finite bounds go under a BVH (bvh.py) from this many on
     bvh_min: int = 8
 

@@ -134,8 +134,8 @@ def test_new_blob_and_quadric_values_replay_the_same_kernels(variant):
     # a first update: the kernels of an update (the tables' build) and of the frame after it
     update()
     before, seen = launched(primal)
-    g0, seen_d = launched(derivative)
     recordings = integ._freeze.n_recordings
+    g0, seen_d = launched(derivative)
     assert np.any(np.asarray(g0) != 0)               # the pass differentiates the blob
 
     cen, wts = update()

@@ -22,7 +22,8 @@ MEASURABLE = [("box_cull", False, "quadrics"), ("eye_buffer", False, "quadrics")
               ("split", False, "glass")]
 
 #: every field of Tuning (test_tuning_values_and_scopes checks the list)
-FIELDS = ["preliminary", "box_cull", "eye_buffer", "split", "skip_misses", "light_buffer", "bvh_min"]
+FIELDS = ["preliminary", "box_cull", "eye_buffer", "split", "skip_misses", "light_buffer", "keep_graph",
+          "bvh_min"]
 
 
 def _xml(name):
