@@ -4,7 +4,14 @@ Mitsuba's ``ADIntegrator`` has them, so ``mi.render(scene, params)`` followed by
 
 How. The primal frame (``mi.render`` evaluates it under ``dr.suspend_grad``) is the usual frozen
 launch, bit for bit the image of a render without gradients. The derivative pass renders the
-frame again with automatic differentiation (:meth:`Gradients._render_ad`):
+frame again with automatic differentiation (:meth:`Gradients._render_ad`). Where the frame
+does not depend on the seed (spp 1 at the pixel centres, analytic lights only: the primal's
+``seed`` and the pass's ``seed_grad`` give the same rays) and is one block, ``mi.render(scene,
+params)`` renders the derivative pass's frame instead of the primal, returns its values and
+keeps its graph, which ``render_backward`` then propagates (:meth:`Gradients._render_keeping_graph`,
+``Tuning.keep_graph``): one render an iteration instead of two. That frame equals the primal to
+float32 rounding (its tree is summed level by level, the megakernel's depth first: 1-2 ulp
+in some pixels of a glass scene, ``tests/plugins/test_gradients.py``).
 
 * the tables are the primal ones (``prepare``) with the *attached* Dr.Jit values of the
   parameters that have gradients enabled put in (:meth:`Gradients._ad_tables`): every

@@ -80,7 +80,7 @@ class SceneInputs:
 
     __slots__ = ("items", "stale")
 
-    def __init__(self, scene, extra=()):
+    def __init__(self, scene, extra=(), skip=()):
         import drjit as dr
 
         def collect(obj):
@@ -91,6 +91,10 @@ class SceneInputs:
 
         used = {i for objs in (scene.shapes(), scene.emitters()) for o in objs for i, _, _ in collect(o)}
         camera_only = {i for s in scene.sensors() for i, _, _ in collect(s)} - used
+        # objects whose values the launches never read (``skip``: the links1_phong BSDFs of a
+        # scene whose BSDFs are all links1_phong: the kernels read their tables, never call them),
+        # so that a new coefficient (``Tables._update_values``) leaves this input as it is
+        camera_only |= {i for o in skip for i, _, _ in collect(o)}
         items = {}
         # an extra scene's own items 1 and 2 (Mitsuba 3.9.1's Scene traversal: two scene-level
         # values equal to the main scene's) are not read by its ray tests, and freeze merges
@@ -117,6 +121,12 @@ class SceneInputs:
 
 #: ``P.scene_input`` when a recording needed more than :class:`SceneInputs` holds
 _WHOLE_SCENE = "whole scene"
+
+
+def _unread_bsdfs(P) -> list:
+    """The BSDFs whose values no launch of ``P`` reads: every one when all are ``links1_phong``
+    (the kernels read the material tables and never call a BSDF), else none."""
+    return [b for b in P.keep_alive[3] if b is not None] if P.all_phong and not P.any_mitsuba_emission else []
 
 
 def _extra_scenes(P) -> tuple:
@@ -256,7 +266,7 @@ class Launches:
         scene_input = getattr(P, "scene_input", None)
         extra = _extra_scenes(P)
         if scene_input is None:
-            scene_input = P.scene_input = SceneInputs(scene, extra)
+            scene_input = P.scene_input = SceneInputs(scene, extra, _unread_bsdfs(P))
         elif scene_input is not _WHOLE_SCENE and scene_input.stale:
             scene_input = P.scene_input = _WHOLE_SCENE   # freeze would update the scene's own
         _FROZEN_CALLER.update(integrator=self, scene=scene)

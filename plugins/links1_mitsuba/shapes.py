@@ -25,20 +25,25 @@ def table_value(spec, k):
     gather at a literal index from a table into a one-value array at once: 585 copies an
     iteration for the inverse benchmark's blob) the gathered value is kept per table
     (``spec._values_cache``, a :class:`~.util.Hidden` that frozen launches do not walk) and
-    reused; a frozen recording gathers anew (what it reads must be its inputs)."""
+    reused; a frozen recording gathers anew (what it reads must be its inputs). Called ~1000
+    times a derivative pass for a 6-centre blob: the cached case is kept short."""
     import drjit as dr
-    import mitsuba as mi
-    from .util import Hidden
-    tab = spec.tables()["values"]
-    if dr.flag(dr.JitFlag.FreezingScope) or dr.flag(dr.JitFlag.SymbolicScope):
+    tab = spec._tables["values"] if spec._tables is not None else spec.tables()["values"]
+    flag, JF = dr.flag, dr.JitFlag
+    if flag(JF.FreezingScope) or flag(JF.SymbolicScope):
+        import mitsuba as mi
         return dr.gather(mi.Float, tab, k)
     c = spec._values_cache
-    if c is None or c.table is not tab:
+    if c is not None and c.table is tab:
+        v = c.values.get(k)
+        if v is not None:
+            return v
+    else:
+        from .util import Hidden
         c = spec._values_cache = Hidden()
         c.table, c.values = tab, {}
-    v = c.values.get(k)
-    if v is None:
-        v = c.values[k] = dr.gather(mi.Float, tab, k)
+    import mitsuba as mi
+    v = c.values[k] = dr.gather(mi.Float, tab, k)
     return v
 
 INF = float("inf")

@@ -548,7 +548,9 @@ class Tables:
                 setattr(P, k, v)
             P.phong_np = now
             P.frozen_inputs = None       # gathered again: the new arrays are the launch's inputs
-            P.scene_input = None         # the scene's variables (the BSDFs' new values) too
+            if not B.all_phong or B.any_mitsuba_emission:
+                P.scene_input = None     # the scene's variables (the BSDFs' new values) too
+            # (all links1_phong: the launch's scene input leaves them out, launch._unread_bsdfs)
         B.watch = ParamWatch(scene)
         self.n_value_updates += 1
         return True

@@ -52,8 +52,8 @@ def test_a_recording_that_needs_more_of_the_scene_is_made_with_all_of_it(variant
     ref = MitsubaRenderer(FIG11, params={"res": 16}, spp=2, aovs=("depth", "id")).render(win)
     init = launch.SceneInputs.__init__
 
-    def holding_nothing(self, scene, extra=()):
-        init(self, scene, extra)
+    def holding_nothing(self, scene, extra=(), skip=()):
+        init(self, scene, extra, skip)
         self.items = ()   # the recording reads shapes and emitters: Dr.Jit refuses it
 
     monkeypatch.setattr(launch.SceneInputs, "__init__", holding_nothing)
