@@ -452,7 +452,7 @@ def main(argv=None):
         log(f"  {name}: final worst error {r['final_worst_error']:.4f}, iteration {r['iteration_median_ms']:.0f} ms"
             f" vs primal {r['primal_median_ms']:.0f} ms (×{r['ratio']:.2f})")
         if a.big and name in ("phong", "blob"):
-            big.append(timing_only(mi, dr, name, cls, variables, lrs, a.big, 5, log))
+            big.append(timing_only(mi, dr, name, cls, variables, lrs, a.big, 15, log))
     payload = dict(machine=info, command=cmd, width=a.width, iters=a.iters, results=results, big=big,
                    total_s=time.perf_counter() - t_all)
     if not a.no_write:
