@@ -92,7 +92,9 @@ class RayTree:
         front = dr.dot(ng, wo) > 0
         nf = dr.select(front, ns, -ns)
         if P.any_mitsuba_shapes and not symbolic:
-            dr.eval(t, slot, prim, p, ng, ns, nf, cost)
+            # (a derivative pass: Embree's surface record too, which the BSDF calls and their
+            # derivatives read: unevaluated, each kernel of the AD traversal would trace again)
+            dr.eval(t, slot, prim, p, ng, ns, nf, cost, *([si] if ad else []))
         out = dr.zeros(mi.Color3f, n)
         # ---- escaping rays: background (Mitsuba constant / envmap)
         if P.env is not None:
@@ -234,6 +236,8 @@ class RayTree:
                 if P.any_mitsuba_shapes and occ_m:
                     T = self._shadow_mitsuba(P, scene, so, wi, smax, need, T, cost, light=j,
                                              own=own_outer(wi))
+                    if ad and not symbolic:   # its ray tests kept (as the hits above)
+                        dr.eval(T)
                 out += dr.select(lit, contrib * dr.select(need, T, 1.0), 0.0)
             return out, cost, n_shadow
 
