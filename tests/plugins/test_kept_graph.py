@@ -136,3 +136,34 @@ def test_a_kept_graph_is_dropped_by_the_next_frame_and_by_forward_mode(variant):
     g, _, _ = gradients(scene, [key], np.ones((18, 24, 3)), keep_graph=True)
     # the dot-product test: Σ (J e_r) = (Jᵀ 1) · e_r
     np.testing.assert_allclose(tangent.sum(), g[0][0], rtol=1e-4)
+
+
+def test_two_frames_then_one_backward(variant, render_count):
+    """Two sensors' frames rendered before one dr.backward of their losses' sum: the second
+    render drops the first's kept graph, so the first frame's pass is rendered again (the
+    sensor is checked) and the gradient is the sum of the two frames' own gradients."""
+    import drjit as dr
+    import mitsuba as mi
+    from .test_gradients import CAMERA
+    second = CAMERA.split("</integrator>")[1].replace('origin="0, 3, 6"', 'origin="2, 2.5, 5"')
+    scene = mi.load_string(f'<scene version="3.0.0">{CAMERA.format(depth=4, rfilter="")}{second}{SHADING}</scene>')
+    assert len(scene.sensors()) == 2
+    keys = ["ball.bsdf.diffuse.value", "lp.position"]
+    params = mi.traverse(scene)
+
+    def grads(sensors):
+        for k in keys:
+            dr.enable_grad(params[k])
+        loss = sum(dr.sum(mi.render(scene, params, sensor=s), axis=None) for s in sensors)
+        dr.backward(loss)
+        g = [np.array(dr.grad(params[k]), dtype=np.float64).ravel() for k in keys]
+        for k in keys:
+            dr.disable_grad(params[k])
+        return g
+    a, b = grads([0]), grads([1])
+    n = len(render_count)
+    both = grads([0, 1])
+    assert len(render_count) - n == 1      # the first frame's pass rendered again, the second kept
+    for k, ga, gb, g in zip(keys, a, b, both):
+        assert np.any(ga != 0) and np.any(gb != 0), k
+        np.testing.assert_allclose(g, ga + gb, rtol=1e-5, atol=1e-6 * np.abs(g).max(), err_msg=k)
