@@ -303,3 +303,28 @@ def test_phong_value_update_rebuilds_only_the_material_rows(variant):
     xml_l = xml_t.replace('<point name="position" x="2" y="4" z="3"/>', '<point name="position" x="2.5" y="4" z="3"/>')
     assert np.array_equal(l_img, np.array(mi.render(lm.load_string(xml_l), seed=0)))
     dr.sync_thread()
+
+
+def test_specular_update_keeps_the_reflectance_it_defaulted_to(variant):
+    """A ``links1_phong`` without ``reflectance`` gets ``r = specular`` when loaded; in
+    ``mi.traverse`` the two are separate parameters, so a new ``specular`` leaves ``r`` at the
+    loaded value: the frame is the file's with the new specular and the old reflectance written
+    out (and not the file's with only the new specular, whose r would follow it)."""
+    import mitsuba as mi
+    import links1_mitsuba as lm
+    xml = scene_xml(CENTRES)
+    old = '<rgb name="specular" value="0.3"/>'
+    assert xml.count(old) == 1
+    scene = lm.load_string(xml)
+    params = mi.traverse(scene)
+    key = "links1_whitted.blob.bsdf"
+    assert np.allclose(np.array(params[f"{key}.reflectance.value"]).ravel(), 0.3)
+    params[f"{key}.specular.value"] = mi.Color3f(0.125, 0.5, 0.375)
+    params.update()
+    got = np.array(mi.render(scene, seed=0))
+    assert np.allclose(np.array(params[f"{key}.reflectance.value"]).ravel(), 0.3)
+    new = '<rgb name="specular" value="0.125, 0.5, 0.375"/>'
+    kept = np.array(mi.render(lm.load_string(xml.replace(old, new + '<rgb name="reflectance" value="0.3"/>')), seed=0))
+    assert np.array_equal(got, kept)
+    followed = np.array(mi.render(lm.load_string(xml.replace(old, new)), seed=0))
+    assert not np.array_equal(got, followed)
