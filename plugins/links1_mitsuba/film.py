@@ -19,8 +19,12 @@ Everything here is a per-output-pixel *gather* in one fixed order, never a scatt
 
 What depends only on the windows (the :class:`Batch` tables, the sample ids, the filter's
 weight tables) is kept with the batch while the same windows are rendered again
-(:func:`cached_batch`); each neighbour's RGB is read as one packet of four floats, and the
-divisions by run-time values go through :func:`links1_mitsuba.util.udiv` (exact).
+(:func:`cached_batch`), and the divisions by run-time values go through
+:func:`links1_mitsuba.util.udiv` (exact). The gather of the non-box filters computes a strip of
+:data:`STRIP` pixels of a window row a lane, reading each neighbour sample once for the strip
+(its RGB as one packet of four floats, its column weights as one packet) from a sample-major
+copy of the samples (:func:`_planes`); every pixel keeps its own sums in the order above
+(:func:`_filter_gather`).
 
 So a pixel depends only on its own samples and those of its neighbours, never on the window:
 a window or a batch of windows equals the full frame bit for bit. Every size (film width,
@@ -46,17 +50,18 @@ import numpy as np
 
 from .util import mix32, table, udiv
 
-#: Largest tables of 1-D filter weights of a batch (bytes: 16 per sample and neighbour offset);
-#: bigger windows evaluate the weights in the gather itself ((2b+1) times as many evaluations,
-#: the same values).
+#: Largest tables of 1-D filter weights of a batch (bytes: 8 per sample and weight, ``2b+1`` row
+#: weights and ``2b+1`` column weights padded to a power of two: 104 a sample for a gaussian);
+#: bigger windows evaluate the weights in the gather itself (more evaluations, the same values).
 FILM_TABLE_BYTES = 1 << 30
 
 #: A batch of at most this many sample lanes keeps what depends only on its windows (sample
 #: ids, the filter's weight tables) evaluated between frames (:func:`cached_batch`): 4 bytes a
 #: lane for the ids (at most 32 MiB) ...
 KEEP_LANES = 1 << 23
-#: ... and its weight tables when they take at most this many bytes (512², spp 12, a gaussian)
-KEEP_TABLE_BYTES = 1 << 28
+#: ... and its weight tables when they take at most this many bytes (512², spp 12, a gaussian:
+#: 327 MB; spp 16 makes them every frame)
+KEEP_TABLE_BYTES = 3 << 27
 
 #: Batches kept by :func:`cached_batch` (per integrator: the last few window sets).
 KEEP_BATCHES = 2
