@@ -352,7 +352,8 @@ STRIP = 8
 class _Lanes:
     """The lanes of a reconstruction kernel: lane ``t`` computes ``P`` consecutive output
     pixels of one row of one window (``P = 1``: one pixel), the lanes laid window after window,
-    row-major. Per lane (Dr.Jit arrays): its window's tables (``x0 y0 sx0 sy0 sw w start``),
+    row-major. Per lane (Dr.Jit arrays): its window (``window``) and the window's tables
+    (``x0 y0 sx0 sy0 sw npix w start``),
     its first pixel's place ``lx, ly`` in the window and index ``pixel`` in the result,
     ``first`` (that pixel's sample 0 in the launch) and ``valid[p]`` (pixel ``p`` is inside the
     row; ``True`` for ``P = 1``)."""
