@@ -121,6 +121,38 @@ def test_windows_and_batches_equal_full_frame_on_device(variant, tmp_path, rfilt
         assert b.dtype == np.float64 and np.array_equal(b, full[y0:y0 + h, x0:x0 + w])
 
 
+@pytest.mark.parametrize("rfilter", [f for f in RFILTERS if f != "box"])
+def test_filter_strips_at_film_edges_and_row_ends(variant, tmp_path, monkeypatch, rfilter):
+    """The non-box gather computes film.STRIP pixels of a row a lane (film._filter_gather):
+    windows whose width is not a multiple of STRIP (narrower than a strip too), at each film
+    edge, alone and in one batch, with the weight tables and without them (weights evaluated
+    in the gather, FILM_TABLE_BYTES = 0), give the numpy film's pixels (bit for bit for the
+    filters without exp/sin) and the full frame's bits."""
+    import mitsuba as mi
+    from links1_mitsuba import film
+    assert film.STRIP > 1 and W % film.STRIP == 0    # the full frame's rows are whole strips
+    scene = load(tmp_path, rfilter)
+    integ = scene.integrator()
+    wins = [(W - 13, 0, 13, 5), (0, H - 3, 5, 3), (W - 3, H - 7, 3, 7), (10, 4, 1, 9), (1, 1, W - 1, 2)]
+    full = np.asarray(integ.render_windows_device(scene, [None], spp=4, seed=5, aovs=AOVS, dtype=mi.Float64)[0])
+    for tables in (True, False):
+        if not tables:
+            monkeypatch.setattr(film, "FILM_TABLE_BYTES", 0)
+        batch = integ.render_windows_device(scene, wins, spp=4, seed=5, aovs=AOVS, dtype=mi.Float64)
+        for (x0, y0, w, h), b in zip(wins, batch):
+            one = integ.render_windows_device(scene, [(x0, y0, w, h)], spp=4, seed=5, aovs=AOVS, dtype=mi.Float64)[0]
+            assert np.array_equal(np.asarray(one), full[y0:y0 + h, x0:x0 + w])
+            assert np.array_equal(np.asarray(b), full[y0:y0 + h, x0:x0 + w])
+            if tables:
+                ref = numpy_film(integ, scene, (x0, y0, w, h), 4, 5, AOVS)
+                got = np.asarray(b)
+                if rfilter in EXACT:
+                    assert np.array_equal(got, ref)
+                else:
+                    np.testing.assert_array_less(np.abs(got - ref), 1e-12 * np.maximum(1.0, np.abs(ref)))
+                    assert np.array_equal(got[..., 3:], ref[..., 3:])
+
+
 def test_split_launches_weight_tables_and_device_counters(variant, tmp_path, monkeypatch):
     """Launches split at LAUNCH_LANES give the same bits as one launch, weights evaluated in the
     gather (windows over FILM_TABLE_BYTES) the same as from per-sample tables, and the ray
