@@ -256,6 +256,23 @@ def offsets(pix, i, spp, k, seed):
     return dr.select(one, 0.5, (mi.Float64(sx) + ux) / kf), dr.select(one, 0.5, (mi.Float64(sy) + uy) / kf)
 
 
+#: A derivative pass (``mode="evaluated"``) runs a film loop of at most this many steps as
+#: straight-line code: an evaluated loop launches a kernel and reads its condition back to the
+#: host at every step; the same operations in the same order.
+UNROLL_MAX = 8
+
+
+def _loop(state, cond, body, mode, steps):
+    """``dr.while_loop(state, cond, body, mode=mode)``, whose loop makes ``steps`` steps (a
+    Python int); in a derivative pass (``mode="evaluated"``) with at most :data:`UNROLL_MAX`
+    steps, ``body`` applied ``steps`` times instead (``cond`` is then true for exactly those)."""
+    if mode == "evaluated" and steps <= UNROLL_MAX:
+        for _ in range(steps):
+            state = body(*state)
+        return state
+    return dr.while_loop(state, cond, body, mode=mode)
+
+
 def reconstruct(rfilter, film_size, spp, seed, batch, data, aovs, dtype=None, mode=None):
     """The pixels of every window of ``batch`` (:class:`Batch`) as one flat ``dtype`` array,
     window after window, each ``(h * w * C)`` (row-major, channels innermost: RGB, then
@@ -294,8 +311,8 @@ def reconstruct(rfilter, film_size, spp, seed, batch, data, aovs, dtype=None, mo
                     acc[-P + p] = acc[-P + p] + F64(c)
             return (i + 1, *acc)
         z = dr.zeros(F64, L.n)
-        _, *acc = dr.while_loop((dr.zeros(U32, L.n), *[z] * ((3 if box else 0) + (P if want_cost else 0))),
-                                lambda i, *_: i < n_s, body, mode=mode)
+        _, *acc = _loop((dr.zeros(U32, L.n), *[z] * ((3 if box else 0) + (P if want_cost else 0))),
+                        lambda i, *_: i < n_s, body, mode, int(spp))
         if box:
             s = F64(n_s)
             chans[0] += [a / s for a in acc[:3]]
@@ -459,7 +476,7 @@ def _filter_gather(rfilter, film_size, spp, seed, batch, data, L, mode):
                 den[p] = dr.select(on, den[p] + wgt, den[p])
         return (j + 1, *r, *g, *bl, *den)
     z = dr.zeros(F64, L.n)
-    _, *acc = dr.while_loop((dr.zeros(U32, L.n), *[z] * (4 * P)), lambda j, *_: j < n_s * nb, body, mode=mode)
+    _, *acc = _loop((dr.zeros(U32, L.n), *[z] * (4 * P)), lambda j, *_: j < n_s * nb, body, mode, int(spp) * nb)
     out = []
     for p in range(P):
         den = dr.select(acc[3 * P + p] == 0.0, 1.0, acc[3 * P + p])
