@@ -22,6 +22,15 @@ from links1.sensor.camera import Camera
 FAKE = "tests.dist.fake_renderer:FakeRenderer"
 
 
+def _mark(path):
+    """Write this process's pid to ``path`` atomically (a test that waits for the file reads
+    it as soon as it exists: written in place, it could read it empty)."""
+    tmp = f"{path}.{os.getpid()}.tmp"
+    with open(tmp, "w") as f:
+        f.write(str(os.getpid()))
+    os.replace(tmp, path)
+
+
 def pixel_values(x0, y0, w, h, nc):
     y, x = np.mgrid[y0:y0 + h, x0:x0 + w].astype(np.int64)
     out = np.empty((h, w, nc))
@@ -62,20 +71,17 @@ class FakeRenderer:
             with open(self.count_file, "a") as f:
                 f.write(f"{win}\n")
         if self.kill_window == win and self.marker and not os.path.exists(self.marker):
-            with open(self.marker, "w") as f:
-                f.write(str(os.getpid()))
+            _mark(self.marker)
             os.kill(os.getpid(), signal.SIGKILL)
         if self.kill_in_send and self.kill_in_send[0] == win and self.marker and not os.path.exists(self.marker):
             import threading
-            with open(self.marker, "w") as f:
-                f.write(str(os.getpid()))
+            _mark(self.marker)
             delay = self.kill_in_send[1]
             threading.Thread(target=lambda: (time.sleep(delay), os.kill(os.getpid(), signal.SIGKILL)),
                              daemon=True).start()
         if self.hold_window == win and self.marker:
             if not os.path.exists(self.marker):
-                with open(self.marker, "w") as f:
-                    f.write(str(os.getpid()))
+                _mark(self.marker)
             from distributed import Event
             Event(self.event).wait(timeout=60)
         if self.sleep_per_row:
