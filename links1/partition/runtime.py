@@ -457,6 +457,47 @@ def render_units(spec: RendererSpec, windows, culls=None, frame=None, wire=True)
     return out
 
 
+def serve(spec: RendererSpec, line, frame=None):
+    """A local node's side of its direct line to the root for one run (issue 28): map the run's
+    shared ``frame`` (a :attr:`SharedFrame.ref`, before the root's clock starts), say
+    ``("ready", pid)``, then render each task the root sends, ``(windows, culls)``, with
+    :func:`render_units` and send back ``("ok", results)`` (or ``("error", exception)``), until
+    the root sends None or closes its end -> pid.
+
+    The line is one end of a :func:`multiprocessing.Pipe` the root made; the task arrives as this
+    process's pool task, so the process pool still starts, watches and replaces the node. Through
+    the line a task is one pickled message written by the root's own thread and read by this
+    loop, instead of passing a pool's two helper threads in the root each way (its queue
+    manager and queue feeder: on this 2-core machine, with both cores rendering, the root's
+    first submit of a two-node plugin run took 2-8 ms, the second node's task arriving that
+    late)."""
+    if frame is not None:
+        _frame_array(frame)
+    line.send(("ready", os.getpid()))
+    try:
+        while True:
+            try:
+                msg = line.recv()
+            except (EOFError, OSError):   # the root closed its end
+                break
+            if msg is None:
+                break
+            windows, culls = msg
+            try:
+                out = ("ok", render_units(spec, windows, culls, frame))
+            except Exception as e:  # noqa: BLE001 - the root raises it, as a pool task's error
+                out = ("error", e)
+            try:
+                line.send(out)
+            except (BrokenPipeError, OSError):
+                break
+            except Exception as e:  # noqa: BLE001 - an exception that does not pickle
+                line.send(("error", RuntimeError(f"{type(out[1]).__name__}: {out[1]}")))
+    finally:
+        line.close()
+    return os.getpid()
+
+
 def _render_culled(spec, renderer, window, ids):
     """Render with only the objects ``ids`` present (4-4 culling).
 
