@@ -14,9 +14,13 @@ LocalPool   ``--workers N``: N spawned worker processes, one
             static strategy's units stay on their node; each worker loads the scene once
             (its first task). A worker that dies (starting, idle or mid-unit) breaks only its
             own pool (``BrokenProcessPool``): its unfinished units go to the other nodes and
-            a replacement process starts, up to a documented number of deaths. Nodes write
-            their pixels into a frame the root maps (``runtime.SharedFrame``, made before the
-            clock) and send back only the units' records; ``shared_frame=False``: the pipe.
+            a replacement process starts, up to a documented number of deaths. During a run
+            each node serves a direct line (``runtime.serve``, opened before the clock): the
+            root's thread writes tasks into it and reads results from it, no pool helper
+            threads. Nodes write their pixels into a frame the root maps
+            (``runtime.SharedFrame``, made before the clock), which is the root's image
+            (``image_buffer``), and send back only the units' records; ``shared_frame=False``:
+            the pixels come through the line.
 The Dask backend is in :mod:`.dask_backend`.
 """
 from __future__ import annotations
