@@ -571,23 +571,27 @@ class LocalPool:
         else:
             shared = deque(todo)
         inflight = {k: deque() for k in range(self.n)}   # node -> its tasks on the line, in order
-        # a task queued behind the running one (static: the node's next; dynamic: units or a
-        # guided chunk) hides the round trip (result back, next task out: 10-70 ms idle per chunk
-        # measured on many.xml with one in flight); guided chunks shrink, so the queued one keeps
-        # the tail short; at most ``prefetch`` per node, so that a line's buffer never fills
+        # static plans and one-unit tasks: up to ``prefetch`` tasks on a node's line, the next
+        # queued behind the running one to hide the round trip (result back, next task out),
+        # and so few that a line's buffer never fills. Guided chunks: one per node at a time.
+        # A second chunk queued at once was handed out when chunks are largest and waited
+        # behind the first (issue 28: fig11 512², plugin, 2 nodes, dynamic/tile, LPT order: node
+        # 0 got the 8 heaviest tiles, 19 ms of a 32 ms frame, and a 6-tile chunk behind them;
+        # node 1 idled the last 13 ms of a 26 ms makespan), while through the lines the round
+        # trip it hid is 0.1-0.3 ms (it was 10-70 ms per chunk through the pool's threads)
         prefetch = self.prefetch
 
         def queue_of(k):
             return queues[k] if plan.static else shared
 
-        def fill(k):
+        def fill(k, depth=prefetch):
             if k in self.hello:  # still starting: units wait for a ready node
                 return
             q = queue_of(k)
             if q and k not in self.lines and not self._open_line(k):
                 lose(k, "while idle")   # it died while idle: noticed as its line would not open
                 return
-            while q and len(inflight[k]) < prefetch:
+            while q and len(inflight[k]) < (depth if plan.static or not self.batches else 1):  # (above)
                 if plan.static or not self.batches:
                     batch = take_batch(plan, q, None if self.batches else 1, self.task_pixels)
                 else:
@@ -648,8 +652,9 @@ class LocalPool:
                 on_done(i, px, info)
             return True
 
-        for k in range(self.n):
-            fill(k)
+        for depth in range(1, prefetch + 1):   # every node's first task before any node's second
+            for k in range(self.n):
+                fill(k, depth)
         while any(inflight.values()) or (self.hello and any(queue_of(k) for k in range(self.n))):
             busy = [k for k in range(self.n) if inflight[k]]
             if busy:
