@@ -606,10 +606,10 @@ class LocalPool:
                     return
                 self._log("dispatch", w0)
                 self.line_tasks += 1
-                inflight[k].append(batch)
+                inflight[k].append((batch, w0))
 
         def lose(k, when):
-            mine = sorted(i for b in inflight[k] for i in b)
+            mine = sorted(i for b, _ in inflight[k] for i in b)
             inflight[k].clear()
             line = self.lines.pop(k, None)
             if line is not None:
@@ -643,9 +643,10 @@ class LocalPool:
             tag, payload = pickle.loads(data)
             if tag == "error":
                 raise payload
-            batch = inflight[k].popleft()
+            batch, sent = inflight[k].popleft()
+            fill(k)   # the node's next task leaves before the root places this one's units
             for i, (px, info) in zip(batch, payload):
-                info["node"] = k
+                info["node"], info["sent"] = k, sent   # sent: when the root wrote the task (wall)
                 if px is None:  # written into the shared frame by the node
                     u = plan.units[i]
                     px = frame.array[u.y0:u.y0 + u.h, u.x0:u.x0 + u.w]

@@ -414,9 +414,11 @@ def render_units(spec: RendererSpec, windows, culls=None, frame=None, wire=True)
     pixel count, not a measurement (``launch_seconds`` and ``launch_units`` say which launch it
     shared; ``launch_cpu_s``: the CPU time this process spent in that launch, all its threads:
     below ``launch_seconds`` when the node was off its core, issue 28; the schedule report measures or derives unit times itself, see
-    :mod:`.experiment`); ``task`` names the task (this call). Units
+    :mod:`.experiment`); ``task`` names the task (this call), ``task_in`` is when it reached this
+    node (wall clock). Units
     with a cull list, or renderers without ``render_batch``, are rendered one by one.
     """
+    task_in = time.time()   # the task reached this node (wall clock): its record's ``task_in``
     windows = [tuple(int(v) for v in w) for w in windows]
     culls = list(culls) if culls is not None else [None] * len(windows)
     renderer = get_renderer(spec)
@@ -425,7 +427,7 @@ def render_units(spec: RendererSpec, windows, culls=None, frame=None, wire=True)
     if batch is None or len(windows) == 1 or any(c is not None for c in culls):
         out = [render_unit(spec, w, c, frame, wire) for w, c in zip(windows, culls)]
         for _, info in out:
-            info["task"] = task
+            info["task"], info["task_in"] = task, task_in
         return out
     spp = max(1, int(getattr(renderer, "spp", 1) or 1))
     launches, cur, size = [], [], 0
@@ -456,7 +458,7 @@ def render_units(spec: RendererSpec, windows, culls=None, frame=None, wire=True)
             share = dt * f
             out.append((px, {"seconds": share, "start": at, "stop": at + share, "pid": pid,
                              "launch_seconds": dt, "launch_cpu_s": cpu, "launch_units": n_in, "launch": lid,
-                             "task": task, "wire_s": ready_s * f}))
+                             "task": task, "task_in": task_in, "wire_s": ready_s * f}))
             at += share
     return out
 

@@ -73,22 +73,22 @@ def test_a_node_error_reaches_the_root_through_its_line(core_spec):
 
 def test_a_node_holds_one_guided_chunk_at_a_time(core_spec, core_ref):
     """Dynamic with a batching renderer: a node's next guided chunk leaves the root only once its
-    last chunk's results are in (the chunk's first launch starts after they were received), so a
-    chunk handed out early never waits behind another on a node that turned out slow."""
+    last chunk's results are in (the root sends it after that chunk's launch ended), so a chunk
+    handed out early never waits behind another on a node that turned out slow."""
     plan = make_plan("dynamic", 32, 32, 2, unit="scanline")
     with LocalPool(2, chunk_factor=2) as pool:
         res = render_plan(plan, core_spec, pool, progress=False)
     assert np.array_equal(res.image, core_ref)
     tasks = {}
     for info in res.records.values():
-        t = tasks.setdefault(info["task"], {"node": info["node"], "start": info["start"], "received": info["received"],
+        t = tasks.setdefault(info["task"], {"node": info["node"], "sent": info["sent"], "stop": info["stop"],
                                             "units": 0})
-        t["start"] = min(t["start"], info["start"])
-        t["received"] = min(t["received"], info["received"])
+        t["stop"] = max(t["stop"], info["stop"])
         t["units"] += 1
+        assert info["sent"] <= info["task_in"] <= info["start"]
     assert max(t["units"] for t in tasks.values()) > 1   # guided chunks, not single units
     gaps = []
     for k in (0, 1):
-        mine = sorted((t for t in tasks.values() if t["node"] == k), key=lambda t: t["start"])
-        gaps += [b["start"] - a["received"] for a, b in zip(mine, mine[1:])]
+        mine = sorted((t for t in tasks.values() if t["node"] == k), key=lambda t: t["sent"])
+        gaps += [b["sent"] - a["stop"] for a, b in zip(mine, mine[1:])]
     assert len(gaps) >= 3 and min(gaps) > 0
