@@ -680,7 +680,7 @@ class LocalPool:
             for r in ready:
                 if r in ends and inflight[ends[r]]:
                     k = ends[r]
-                    while inflight[k] and k not in lost and self.lines[k][0].poll(0):
+                    while inflight[k] and k not in lost and k in self.lines and self.lines[k][0].poll(0):
                         if not receive(k):   # what it sent before it died, then its end
                             lost.add(k)
                     lost.add(k)
