@@ -14,14 +14,19 @@ LocalPool   ``--workers N``: N spawned worker processes, one
             static strategy's units stay on their node; each worker loads the scene once
             (its first task). A worker that dies (starting, idle or mid-unit) breaks only its
             own pool (``BrokenProcessPool``): its unfinished units go to the other nodes and
-            a replacement process starts, up to a documented number of deaths. Nodes write
-            their pixels into a frame the root maps (``runtime.SharedFrame``, made before the
-            clock) and send back only the units' records; ``shared_frame=False``: the pipe.
+            a replacement process starts, up to a documented number of deaths. During a run
+            each node serves a direct line (``runtime.serve``, opened before the clock): the
+            root's thread writes tasks into it and reads results from it, no pool helper
+            threads. Nodes write their pixels into a frame the root maps
+            (``runtime.SharedFrame``, made before the clock), which is the root's image
+            (``image_buffer``), and send back only the units' records; ``shared_frame=False``:
+            the pixels come through the line.
 The Dask backend is in :mod:`.dask_backend`.
 """
 from __future__ import annotations
 
 import os
+import pickle
 import sys
 import time
 from collections import deque
@@ -31,7 +36,7 @@ import numpy as np
 
 from ..errors import RenderAborted
 from .runtime import (THREAD_ENV, RendererSpec, SharedFrame, can_batch, get_renderer, limit_blas, release_frame, render_units,
-                      start_worker, warm_samples, warm_up)
+                      serve, start_worker, warm_samples, warm_up)
 
 #: A unit that has killed this many workers is reported as an error (Dask's allowed-failures).
 ALLOWED_FAILURES = 3
@@ -148,7 +153,10 @@ def render_plan(plan, spec: RendererSpec, backend, *, checkpoint=None, progress:
         u = plan.units[i]
         if image is None:
             image = np.zeros((plan.height, plan.width, pixels.shape[2]), dtype=np.float64)
-        image[u.y0:u.y0 + u.h, u.x0:u.x0 + u.w] = pixels
+        at = image[u.y0:u.y0 + u.h, u.x0:u.x0 + u.w]
+        if _same_place(at, pixels):   # a node wrote them into the image itself (image_buffer)
+            return
+        at[...] = pixels
 
     todo = []
     for i in plan.order:
@@ -195,6 +203,11 @@ def render_plan(plan, spec: RendererSpec, backend, *, checkpoint=None, progress:
             before = getattr(backend, "before_run", None)   # a backend's set-up for this plan
             if before is not None:
                 before(plan)
+            buf = getattr(backend, "image_buffer", None)   # where its nodes write pixels themselves
+            if buf is not None and buf.shape[:2] == (plan.height, plan.width):
+                if image is not None:   # units from the checkpoint
+                    buf[...] = image
+                image = buf
             res.t0_wall = time.time()   # the nodes' records use wall clocks (same machine)
             t0 = time.perf_counter()
             backend.run(plan, todo, spec, cull or {}, on_done, on_fault)
@@ -211,6 +224,12 @@ def render_plan(plan, spec: RendererSpec, backend, *, checkpoint=None, progress:
         raise RuntimeError("nothing rendered: the plan has no units")
     res.image = image
     return res
+
+
+def _same_place(a, b) -> bool:
+    """Whether arrays ``a`` and ``b`` are the same memory (address, shape, strides, dtype)."""
+    return (a.shape == b.shape and a.strides == b.strides and a.dtype == b.dtype
+            and a.__array_interface__["data"][0] == b.__array_interface__["data"][0])
 
 
 def _owners(plan, todo):
@@ -356,6 +375,11 @@ class LocalPool:
         #: at 512², 2 nodes); False, or no room for the frame: the pipe
         self.shared_frame = bool(shared_frame)
         self._frame = None
+        #: node -> (the root's end of its direct line, the node's serve future), open from before
+        #: the clock to after it (runtime.serve): tasks and results of a run travel there
+        self.lines: dict = {}
+        self.line_tasks = 0        # tasks sent through lines (counted: tests see that they were)
+        self.line_bytes = 0        # bytes of results received through lines (pixels only without a frame)
         self._root_blas = None   # the root's BLAS thread count during a run (limit_blas)
         self.max_deaths = DEATHS_PER_WORKER * self.n if max_deaths is None else int(max_deaths)
         self.log = log
@@ -402,6 +426,9 @@ class LocalPool:
         """Node k's process is gone: count it, give up past the limit, else start a replacement."""
         pid = self.pids.get(k)
         self.deaths += 1
+        line = self.lines.pop(k, None)
+        if line is not None:
+            line[0].close()
         old = self.pools.pop(k, None)
         self.hello.pop(k, None)
         if old is not None:
@@ -461,6 +488,7 @@ class LocalPool:
     def before_run(self, plan):
         """Before the clock (:func:`render_plan`): map the shared frame the nodes write into, as
         the root allocates its frame buffer (a 512² frame's file and pages: a few ms)."""
+        self._close_lines()
         self._drop_frame()
         self._limit_root_blas()
         if self.shared_frame and self.channels:
@@ -468,6 +496,50 @@ class LocalPool:
                 self._frame = SharedFrame(plan.height, plan.width, self.channels)
             except OSError:  # no room for it: results go through the pipe
                 self._frame = None
+        for k in range(self.n):   # a node that fails here is found dead by the run (fill)
+            if k not in self.hello:
+                self._open_line(k)
+
+    @property
+    def image_buffer(self):
+        """The run's shared frame as the root's image (:func:`render_plan`): a unit a node wrote
+        there is in place when its record arrives, nothing to copy (None: no shared frame)."""
+        return None if self._frame is None else self._frame.array
+
+    def _open_line(self, k) -> bool:
+        """Open node k's direct line for this run (:func:`.runtime.serve`): a pipe whose other end
+        goes to the node as its pool task; wait for its ``ready`` (the node has mapped the frame)
+        -> whether it is open. False: the node is gone (its pool broken) or never answered."""
+        import multiprocessing as mp
+        from concurrent.futures.process import BrokenProcessPool
+        if k in self.lines:
+            return True
+        ours, theirs = mp.Pipe(duplex=True)
+        ref = None if self._frame is None else self._frame.ref
+        try:
+            fut = self.pools[k].submit(serve, self._spec, theirs, ref)
+            while not ours.poll(POLL_S):
+                if fut.done() or not _alive(self.pools.get(k)):
+                    raise EOFError
+            tag, _ = ours.recv()
+        except (BrokenProcessPool, RuntimeError, EOFError, OSError, KeyError):
+            ours.close()
+            return False
+        finally:   # the node holds its own copy now (or is gone): its death closes the line
+            theirs.close()
+        self.lines[k] = (ours, fut)
+        return True
+
+    def _close_lines(self):
+        """End the nodes' serve loops (after the clock): each returns and its worker takes pool
+        tasks again (pings, calls)."""
+        for ours, _ in self.lines.values():
+            try:
+                ours.send(None)
+            except (OSError, ValueError):
+                pass
+            ours.close()
+        self.lines.clear()
 
     def _drop_frame(self):
         if self._frame is not None:
@@ -476,17 +548,21 @@ class LocalPool:
 
     def run(self, plan, todo, spec, cull, on_done, on_fault):
         spec = self._spec
-        if self._frame is None or self._frame.shape[:2] != (plan.height, plan.width):
-            self.before_run(plan)   # called without render_plan
+        alone = not self.lines   # called without render_plan's before_run: lines opened here
+        if alone or (self._frame is not None and self._frame.shape[:2] != (plan.height, plan.width)):
+            self.before_run(plan)
         try:
             self._run(plan, todo, spec, cull, on_done, on_fault, self._frame)
+        except BaseException:
+            self._close_lines()
+            raise
         finally:   # its file is removed at once; the nodes unmap it at their next task or ping
             self._drop_frame()
+        if alone:
+            self._close_lines()
 
     def _run(self, plan, todo, spec, cull, on_done, on_fault, frame):
-        from concurrent.futures import FIRST_COMPLETED, wait
-        from concurrent.futures.process import BrokenProcessPool
-        ref = None if frame is None else frame.ref
+        from multiprocessing.connection import wait
         failures = {}
         if plan.static:
             queues = {k: deque() for k in range(self.n)}
@@ -494,21 +570,28 @@ class LocalPool:
                 queues[plan.owner[i] % self.n].append(i)
         else:
             shared = deque(todo)
-        pending = {}  # future -> (units, node)
-        # dynamic: a task queued behind the running one (units or a guided chunk) hides the
-        # round trip (result back, next task out: 10-70 ms idle per chunk measured on many.xml
-        # with one in flight); guided chunks shrink, so the queued one keeps the tail short
+        inflight = {k: deque() for k in range(self.n)}   # node -> its tasks on the line, in order
+        # static plans and one-unit tasks: up to ``prefetch`` tasks on a node's line, the next
+        # queued behind the running one to hide the round trip (result back, next task out),
+        # and so few that a line's buffer never fills. Guided chunks: one per node at a time.
+        # A second chunk queued at once was handed out when chunks are largest and waited
+        # behind the first (issue 28: fig11 512², plugin, 2 nodes, dynamic/tile, LPT order: node
+        # 0 got the 8 heaviest tiles, 19 ms of a 32 ms frame, and a 6-tile chunk behind them;
+        # node 1 idled the last 13 ms of a 26 ms makespan), while through the lines the round
+        # trip it hid is 0.1-0.3 ms (it was 10-70 ms per chunk through the pool's threads)
         prefetch = self.prefetch
 
         def queue_of(k):
             return queues[k] if plan.static else shared
 
-        def fill(k):
+        def fill(k, depth=prefetch):
             if k in self.hello:  # still starting: units wait for a ready node
                 return
-            busy = sum(1 for (_, n) in pending.values() if n == k)
             q = queue_of(k)
-            while q and (plan.static or busy < prefetch):
+            if q and k not in self.lines and not self._open_line(k):
+                lose(k, "while idle")   # it died while idle: noticed as its line would not open
+                return
+            while q and len(inflight[k]) < (depth if plan.static or not self.batches else 1):  # (above)
                 if plan.static or not self.batches:
                     batch = take_batch(plan, q, None if self.batches else 1, self.task_pixels)
                 else:
@@ -516,20 +599,21 @@ class LocalPool:
                                          by_load=self.chunk_by == "load")
                 w0 = time.time()
                 try:
-                    f = self.pools[k].submit(render_units, spec, [plan.units[i].window for i in batch],
-                                             [cull.get(i) for i in batch], ref)
-                except (BrokenProcessPool, RuntimeError):  # it died while idle: noticed at this submit
+                    self.lines[k][0].send(([plan.units[i].window for i in batch], [cull.get(i) for i in batch]))
+                except (OSError, ValueError):  # it died while idle: noticed at this send
                     q.extendleft(reversed(batch))
                     lose(k, "while idle")
                     return
                 self._log("dispatch", w0)
-                pending[f] = (batch, k)
-                busy += 1
+                self.line_tasks += 1
+                inflight[k].append((batch, w0))
 
         def lose(k, when):
-            mine = sorted(i for f, (b, n) in pending.items() if n == k for i in b)
-            for f in [f for f, (_, n) in pending.items() if n == k]:
-                del pending[f]
+            mine = sorted(i for b, _ in inflight[k] for i in b)
+            inflight[k].clear()
+            line = self.lines.pop(k, None)
+            if line is not None:
+                line[0].close()
             for i in mine:
                 failures[i] = failures.get(i, 0) + 1
                 if failures[i] >= ALLOWED_FAILURES:
@@ -549,32 +633,57 @@ class LocalPool:
                 shared.extendleft(reversed(mine))
                 on_fault(f"{msg}; its {len(mine)} units in flight go back to the queue; a replacement is starting")
 
-        for k in range(self.n):
-            fill(k)
-        while pending or (self.hello and any(queue_of(k) for k in range(self.n))):
-            if pending:
-                # bounded: a worker killed while it sends a result may never complete its
-                # future (see _abandon), so its process is checked too
-                wait(list(pending) + list(self.hello.values()), timeout=POLL_S, return_when=FIRST_COMPLETED)
+        def receive(k):
+            """Node k's next result from its line -> False when the line is dead."""
+            try:
+                data = self.lines[k][0].recv_bytes()
+            except (EOFError, OSError):
+                return False
+            self.line_bytes += len(data)
+            tag, payload = pickle.loads(data)
+            if tag == "error":
+                raise payload
+            batch, sent = inflight[k].popleft()
+            fill(k)   # the node's next task leaves before the root places this one's units
+            for i, (px, info) in zip(batch, payload):
+                info["node"], info["sent"] = k, sent   # sent: when the root wrote the task (wall)
+                if px is None:  # written into the shared frame by the node
+                    u = plan.units[i]
+                    px = frame.array[u.y0:u.y0 + u.h, u.x0:u.x0 + u.w]
+                on_done(i, px, info)
+            return True
+
+        for depth in range(1, prefetch + 1):   # every node's first task before any node's second
+            for k in range(self.n):
+                fill(k, depth)
+        while any(inflight.values()) or (self.hello and any(queue_of(k) for k in range(self.n))):
+            busy = [k for k in range(self.n) if inflight[k]]
+            if busy:
+                # the root's thread sleeps until a line has a result or a node's process ends
+                # (its sentinel: a node killed mid-message); bounded while nodes are starting,
+                # to give them work as soon as they are ready
+                lines = {self.lines[k][0]: k for k in busy}
+                ends = {p.sentinel: k for k in busy
+                        for p in list((getattr(self.pools.get(k), "_processes", None) or {}).values())}
+                ready = wait(list(lines) + list(ends), timeout=0.05 if self.hello else POLL_S)
                 if self.hello:
                     self._await_hello(timeout=0)
             else:  # only starting nodes are left to render the remaining units
                 self._await_hello(timeout=None)
-            lost = {k for (_, k) in pending.values() if k in self.pools and not _alive(self.pools[k])}
-            for f in [f for f in pending if f.done()]:
-                batch, k = pending[f]
-                try:
-                    results = f.result()
-                except BrokenProcessPool:
+                ready = []
+            lost = set()
+            for r in ready:
+                if r in lines:
+                    k = lines[r]
+                    if not receive(k):
+                        lost.add(k)
+            for r in ready:
+                if r in ends and inflight[ends[r]]:
+                    k = ends[r]
+                    while inflight[k] and k not in lost and k in self.lines and self.lines[k][0].poll(0):
+                        if not receive(k):   # what it sent before it died, then its end
+                            lost.add(k)
                     lost.add(k)
-                    continue
-                del pending[f]
-                for i, (px, info) in zip(batch, results):
-                    info["node"] = k
-                    if px is None:  # written into the shared frame by the node
-                        u = plan.units[i]
-                        px = frame.array[u.y0:u.y0 + u.h, u.x0:u.x0 + u.w]
-                    on_done(i, px, info)
             for k in sorted(lost):
                 lose(k, "mid-unit")
             for k in range(self.n):
@@ -582,6 +691,7 @@ class LocalPool:
 
     def call(self, fn, *args):
         """Run ``fn(*args)`` on a ready node (its threads, its loaded renderer) -> the result."""
+        self._close_lines()   # a worker in its serve loop takes no other task
         k = min(k for k in range(self.n) if k not in self.hello)
         return self.pools[k].submit(fn, *args).result(timeout=600)
 
@@ -594,6 +704,7 @@ class LocalPool:
         issue 28) is neither."""
         from concurrent.futures import wait
         from concurrent.futures.process import BrokenProcessPool
+        self._close_lines()   # the serve loops end; each worker then answers its ping
         pings = {}
         for k in [k for k in range(self.n) if k not in self.hello]:
             try:
@@ -612,6 +723,7 @@ class LocalPool:
                 on_fault(f"{self._died(k, 'while idle')}; it had no unfinished units; a replacement is starting")
 
     def close(self):
+        self._close_lines()
         self._drop_frame()
         for p in self.pools.values():
             if _alive(p):

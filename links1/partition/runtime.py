@@ -414,9 +414,11 @@ def render_units(spec: RendererSpec, windows, culls=None, frame=None, wire=True)
     pixel count, not a measurement (``launch_seconds`` and ``launch_units`` say which launch it
     shared; ``launch_cpu_s``: the CPU time this process spent in that launch, all its threads:
     below ``launch_seconds`` when the node was off its core, issue 28; the schedule report measures or derives unit times itself, see
-    :mod:`.experiment`); ``task`` names the task (this call). Units
+    :mod:`.experiment`); ``task`` names the task (this call), ``task_in`` is when it reached this
+    node (wall clock). Units
     with a cull list, or renderers without ``render_batch``, are rendered one by one.
     """
+    task_in = time.time()   # the task reached this node (wall clock): its record's ``task_in``
     windows = [tuple(int(v) for v in w) for w in windows]
     culls = list(culls) if culls is not None else [None] * len(windows)
     renderer = get_renderer(spec)
@@ -425,7 +427,7 @@ def render_units(spec: RendererSpec, windows, culls=None, frame=None, wire=True)
     if batch is None or len(windows) == 1 or any(c is not None for c in culls):
         out = [render_unit(spec, w, c, frame, wire) for w, c in zip(windows, culls)]
         for _, info in out:
-            info["task"] = task
+            info["task"], info["task_in"] = task, task_in
         return out
     spp = max(1, int(getattr(renderer, "spp", 1) or 1))
     launches, cur, size = [], [], 0
@@ -444,17 +446,79 @@ def render_units(spec: RendererSpec, windows, culls=None, frame=None, wire=True)
         dt = time.perf_counter() - t0
         cpu = time.process_time() - c0
         total = sum(a[2] * a[3] for a in launch)
-        at = w0
-        for img, a in zip(imgs, launch):
-            share = dt * a[2] * a[3] / total
-            tw = time.perf_counter()
-            px = _ready(img, frame, a, wire)
-            out.append((px, {"seconds": share, "start": at, "stop": at + share, "pid": os.getpid(),
-                             "launch_seconds": dt, "launch_cpu_s": cpu, "launch_units": len(launch), "launch": lid,
-                             "task": task,
-                             "wire_s": time.perf_counter() - tw}))
+        # the launch's units readied together (into the frame: one loop of copies; issue 28: a
+        # 256-scanline task took ~1.2 ms of per-unit calls and timers after its launch), each
+        # unit's ``wire_s`` its share of that time by pixel count, as ``seconds`` is of the launch
+        tw = time.perf_counter()
+        pxs = _ready_all(imgs, frame, launch, wire)
+        ready_s = time.perf_counter() - tw
+        pid, n_in, at = os.getpid(), len(launch), w0
+        for px, a in zip(pxs, launch):
+            f = a[2] * a[3] / total
+            share = dt * f
+            out.append((px, {"seconds": share, "start": at, "stop": at + share, "pid": pid,
+                             "launch_seconds": dt, "launch_cpu_s": cpu, "launch_units": n_in, "launch": lid,
+                             "task": task, "task_in": task_in, "wire_s": ready_s * f}))
             at += share
     return out
+
+
+def _ready_all(imgs, frame, windows, wire):
+    """:func:`_ready` for a launch's units -> their pixels as :func:`render_units` returns them."""
+    if frame is None:
+        return [_ready(img, None, a, wire) for img, a in zip(imgs, windows)]
+    arr = _frame_array(frame)
+    C = arr.shape[2]
+    out = []
+    for img, (x0, y0, w, h) in zip(imgs, windows):
+        img = np.asarray(img)
+        if img.shape == (h, w, C):
+            arr[y0:y0 + h, x0:x0 + w] = img
+            out.append(None)
+        else:   # not what the frame holds: the root checks it as it always did
+            out.append(wire_pixels(img))
+    return out
+
+
+def serve(spec: RendererSpec, line, frame=None):
+    """A local node's side of its direct line to the root for one run (issue 28): map the run's
+    shared ``frame`` (a :attr:`SharedFrame.ref`, before the root's clock starts), say
+    ``("ready", pid)``, then render each task the root sends, ``(windows, culls)``, with
+    :func:`render_units` and send back ``("ok", results)`` (or ``("error", exception)``), until
+    the root sends None or closes its end -> pid.
+
+    The line is one end of a :func:`multiprocessing.Pipe` the root made; the task arrives as this
+    process's pool task, so the process pool still starts, watches and replaces the node. Through
+    the line a task is one pickled message written by the root's own thread and read by this
+    loop, instead of passing a pool's two helper threads in the root each way (its queue
+    manager and queue feeder: on this 2-core machine, with both cores rendering, the root's
+    first submit of a two-node plugin run took 2-8 ms, the second node's task arriving that
+    late)."""
+    if frame is not None:
+        _frame_array(frame)
+    line.send(("ready", os.getpid()))
+    try:
+        while True:
+            try:
+                msg = line.recv()
+            except (EOFError, OSError):   # the root closed its end
+                break
+            if msg is None:
+                break
+            windows, culls = msg
+            try:
+                out = ("ok", render_units(spec, windows, culls, frame))
+            except Exception as e:  # noqa: BLE001 - the root raises it, as a pool task's error
+                out = ("error", e)
+            try:
+                line.send(out)
+            except (BrokenPipeError, OSError):
+                break
+            except Exception as e:  # noqa: BLE001 - an exception that does not pickle
+                line.send(("error", RuntimeError(f"{type(out[1]).__name__}: {out[1]}")))
+    finally:
+        line.close()
+    return os.getpid()
 
 
 def _render_culled(spec, renderer, window, ids):
