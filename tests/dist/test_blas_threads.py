@@ -61,7 +61,9 @@ def test_no_blas_thread_spins_under_the_limit():
             a @ a                         # one BLAS thread: no worker left to spin after it
         c0 = others()
         time.sleep(0.2)
-        assert others() - c0 < 10e6      # < 10 ms of 200 ms (a spinning worker: 40-50 ms here)
+        # < 20 ms of 200 ms: a spinning worker takes 40-50 ms here; the other threads of the
+        # test process (Dr.Jit's pool, earlier tests' event loops) took up to 10.1 ms under load
+        assert others() - c0 < 20e6
     finally:
         limit_blas(old)
 
