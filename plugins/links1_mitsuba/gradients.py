@@ -212,7 +212,8 @@ class Gradients:
         ``spp``): ``mi.render(scene)`` while values have gradients enabled renders the primal."""
         self._hidden.kept_graph = None
         op = _render_op_caller()
-        if op is None or op.params is None or not tuning.current().keep_graph or spp != 1 or op.spp[1] not in (0, op.spp[0]):
+        if (op is None or op.params is None or not tuning.current().keep_graph or spp != 1
+                or op.spp[1] not in (0, op.spp[0])):
             return None
         with dr.suspend_grad():
             P = self.prepare(scene, sensor)
