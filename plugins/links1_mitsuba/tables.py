@@ -470,6 +470,20 @@ def _unmask(mi, b):
     return b
 
 
+def own_param(obj, name):
+    """``mi.traverse(obj)[name]`` for a parameter of ``obj`` itself (not of a child object),
+    read through one ``obj.traverse`` with :class:`ParamWatch`'s callback class: Mitsuba's
+    ``mi.traverse`` defines its callback class anew at every call (~0.2 ms, most of a rebuild's
+    five calls on a small scene). KeyError as ``mi.traverse`` when ``obj`` has no such one."""
+    cb = ParamWatch._Shallow.make(mi)
+    cb.out = []
+    obj.traverse(cb)
+    for n, v, ct in cb.out:
+        if n == name:
+            return v if ct is None else mi.get_property(v, ct, obj)
+    raise KeyError(name)
+
+
 def scene_identity(scene):
     """The scene's shapes, emitters and sensors as object identities (cheap: no parameters).
     Prepared tables keep those objects alive, so another scene's objects cannot take the
@@ -610,7 +624,7 @@ class Tables:
         P.perspective = P.projection == "perspective"
         if P.projection is not None:
             if P.perspective:
-                P.x_fov = float(np.array(mi.traverse(sensor)["x_fov"]).ravel()[0])
+                P.x_fov = float(np.array(own_param(sensor, "x_fov")).ravel()[0])
             P.cam = np.array(sensor.world_transform().matrix, dtype=np.float64).reshape(4, 4)
             P.near, P.far = float(sensor.near_clip()), float(sensor.far_clip())
         else:
@@ -899,7 +913,7 @@ class Tables:
                 closed[sl] = kind == "Sphere"
             if kind in ("Rectangle", "Disk"):
                 try:
-                    m = np.array(mi.traverse(s_)["to_world"].matrix, dtype=np.float64).reshape(4, 4)
+                    m = np.array(own_param(s_, "to_world").matrix, dtype=np.float64).reshape(4, 4)
                     nrm = np.cross(m[:3, 0], m[:3, 1])
                     if np.linalg.norm(nrm) > 0:
                         nrm = nrm / np.linalg.norm(nrm)

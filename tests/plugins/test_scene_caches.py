@@ -242,3 +242,27 @@ def test_param_watch_values_of_python_plugins_and_scalars(variant):
         assert not w.unchanged(scene), key
         assert ParamWatch(scene).unchanged(scene)
     assert ParamWatch(py)._retraverse and not ParamWatch(cpp)._retraverse
+
+
+def test_own_param_reads_what_mi_traverse_reads(variant):
+    """``tables.own_param`` (one ``obj.traverse`` with a callback class made once, instead of
+    ``mi.traverse``, which makes its class at every call) gives ``mi.traverse(obj)[name]``: a
+    rectangle's ``to_world`` after a ``params.update()`` and a sensor's ``x_fov``; a name the
+    object does not hold, or one of a child object, is a KeyError."""
+    import mitsuba as mi
+
+    from links1_mitsuba.tables import own_param
+    scene = _scene(variant)
+    floor = next(s for s in scene.shapes() if s.id() == "floor")
+    params = mi.traverse(scene)
+    params["floor.to_world"] = mi.Transform4f().translate(mi.Vector3f(0.5, 0.25, 0)) @ mi.Transform4f(params["floor.to_world"])
+    params.update()
+    for obj, name in ((floor, "to_world"), (scene.sensors()[0], "x_fov")):
+        got, want = own_param(obj, name), mi.traverse(obj)[name]
+        got, want = (got.matrix, want.matrix) if name == "to_world" else (got, want)
+        assert np.array_equal(np.array(got), np.array(want)), name
+    assert np.array(own_param(floor, "to_world").matrix)[0][3] == 0.5
+    with pytest.raises(KeyError):
+        own_param(floor, "no_such_parameter")
+    with pytest.raises(KeyError):
+        own_param(floor, "bsdf.reflectance.value")     # a child's (the BSDF's), not the shape's
