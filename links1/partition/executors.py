@@ -610,10 +610,7 @@ class LocalPool:
 
         def lose(k, when):
             mine = sorted(i for b, _ in inflight[k] for i in b)
-            inflight[k].clear()
-            line = self.lines.pop(k, None)
-            if line is not None:
-                line[0].close()
+            inflight[k].clear()   # (its line is closed by _died, or by close() when giving up)
             for i in mine:
                 failures[i] = failures.get(i, 0) + 1
                 if failures[i] >= ALLOWED_FAILURES:

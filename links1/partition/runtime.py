@@ -465,19 +465,7 @@ def render_units(spec: RendererSpec, windows, culls=None, frame=None, wire=True)
 
 def _ready_all(imgs, frame, windows, wire):
     """:func:`_ready` for a launch's units -> their pixels as :func:`render_units` returns them."""
-    if frame is None:
-        return [_ready(img, None, a, wire) for img, a in zip(imgs, windows)]
-    arr = _frame_array(frame)
-    C = arr.shape[2]
-    out = []
-    for img, (x0, y0, w, h) in zip(imgs, windows):
-        img = np.asarray(img)
-        if img.shape == (h, w, C):
-            arr[y0:y0 + h, x0:x0 + w] = img
-            out.append(None)
-        else:   # not what the frame holds: the root checks it as it always did
-            out.append(wire_pixels(img))
-    return out
+    return [_ready(img, frame, a, wire) for img, a in zip(imgs, windows)]
 
 
 def serve(spec: RendererSpec, line, frame=None):

@@ -516,8 +516,9 @@ def _weight_tables(rfilter, W, n_s, k, sd, batch, nb, pad):
     sl = dr.arange(U32, ns)
     kl = batch.lane_window
     local = sl - dr.gather(U32, batch.first_lane, kl)
-    i = udiv(local, _divisor(dr.gather(U32, batch.npix, kl)))
-    pl = local - i * dr.gather(U32, batch.npix, kl)
+    npix = dr.gather(U32, batch.npix, kl)
+    i = udiv(local, _divisor(npix))
+    pl = local - i * npix
     swl = _divisor(dr.gather(U32, batch.sw, kl))
     py = udiv(pl, swl)
     ox, oy = offsets((py + dr.gather(U32, batch.sy0, kl)) * op_u(W) + pl - py * swl

@@ -160,21 +160,15 @@ class Gradients:
         (:func:`row_blocks`): each block's rows of ``grad_in`` propagated, its graph freed.
         A frame whose graph the primal kept (:meth:`_render_keeping_graph`) is propagated
         through that graph instead of being rendered again."""
-        kept = self._take_kept(scene, sensor, seed, spp)
-        if kept is not None:
-            with dr.resume_grad():
-                dr.set_grad(kept, grad_in)
-                dr.enqueue(dr.ADMode.Backward, kept)
-                dr.traverse(dr.ADMode.Backward)
-                del kept
-            dr.eval()
-            return
+        kept = self._take_kept(scene, sensor, seed, spp)   # the whole frame as one block
+        blocks = [None] if kept is not None else self._ad_blocks(scene, sensor, seed, spp)
         y = 0
         with dr.resume_grad():
-            for block in self._ad_blocks(scene, sensor, seed, spp):
+            for block in blocks:
                 # one block's graph at a time: built, its rows of grad_in propagated, dropped
-                img = self._render_ad(scene, sensor, seed, spp, window=block)
-                h = block[3]
+                img = kept if block is None else self._render_ad(scene, sensor, seed, spp, window=block)
+                kept = None
+                h = img.shape[0]
                 g = grad_in if h == grad_in.shape[0] else grad_in[y:y + h]
                 y += h
                 dr.set_grad(img, g)
