@@ -60,7 +60,7 @@ import mitsuba as mi
 
 from . import geometry, tuning
 from .registered import plugin_class
-from .util import INF, mix32
+from .util import INF, kind_of, mix32
 
 
 #: (parameter, index in the light's ``P.lights`` entry) of the links1 lights' differentiable values:
@@ -287,7 +287,7 @@ class Gradients:
         Pt, Sp = plugin_class("links1_point"), plugin_class("links1_spot")
         lights, j, any_light = list(P.lights), 0, False
         for e in scene.emitters():
-            kind = str(e).split("[")[0]
+            kind = kind_of(e)
             if isinstance(e, (Pt, Sp)):
                 # the attached values at their places in the light's P.lights entry (tables.py)
                 L = list(lights[j])

@@ -20,7 +20,7 @@ from links1.maths.sampling import light_tag
 import drjit as dr
 import mitsuba as mi
 
-from .util import INF, c3, mix32, u24, v3
+from .util import INF, c3, kind_of, mix32, u24, v3
 
 
 def _emitted_rgb(prm, key: str, kind: str, where: str = "links1_whitted") -> np.ndarray:
@@ -42,6 +42,19 @@ def _emitted_rgb(prm, key: str, kind: str, where: str = "links1_whitted") -> np.
                      "(textured emitters are not supported)")
 
 
+def _spread(L, n):
+    """The light entry ``L`` with its attached one-lane values (a derivative pass's parameters,
+    gradients.py) gathered to ``n`` lanes. Broadcast as they are, each value's reverse pass is a
+    reduction of its own over the lanes, and each reduction a kernel of its own that recomputes
+    the shading (three per position or colour); a gather's is a scatter-add, and the light's
+    scatter-adds all run in one kernel."""
+    if n <= 1 or not any(dr.grad_enabled(x) for x in L[1:] if dr.is_array_v(x)):
+        return L
+    idx = dr.zeros(mi.UInt32, n)
+    return tuple(dr.gather(type(x), x, idx) if dr.is_array_v(x) and dr.grad_enabled(x)
+                 and dr.width(x) == 1 else x for x in L)
+
+
 class Lights:
     """Analytic lights at a hit; area and environment lights: tables and samples."""
 
@@ -57,6 +70,7 @@ class Lights:
 
     def _light(self, L, p):
         """(wi, dist, L_s) of one analytic light at points p (docs/method.md §4.1)."""
+        L = _spread(L, dr.width(p))
         kind = L[0]
         if kind == "point":
             _, pos, direction, L1, L2, inv_sq = L
@@ -104,7 +118,7 @@ class Lights:
         from links1.shading.lights import AreaLight
         from links1.geometry.shapes import Disk, Quadric, TriangleMesh
         sh = e.get_shape()
-        kind = str(sh).split("[")[0]
+        kind = kind_of(sh)
         slot = next((sl for s_, sl in zip(shapes, slot_list) if s_.id() == sh.id()), None)
         rad = np.array(mi.traverse(e)["radiance.value"], dtype=np.float64).ravel()
         try:

@@ -9,6 +9,7 @@ from links1.tracing.aovs import check_aovs as parse_aovs  # the one AOV table an
 from links1.scene.scene import check_sensor_index
 
 from .integrator import DEFAULT_MIN_WEIGHT
+from .util import kind_of
 
 
 def resize_film(sensor, width, height):
@@ -181,7 +182,7 @@ class MitsubaRenderer:
         names = getattr(self.integrator, "shape_names", None) or []
         by_slot = {s: (nm, tp) for s, nm, tp in names}
         if self.mode != "links1":
-            return [dict(index=i, name=s.id(), type=str(s).split("[")[0],
+            return [dict(index=i, name=s.id(), type=kind_of(s),
                          bounds_lo=np.array(s.bbox().min, dtype=np.float64),
                          bounds_hi=np.array(s.bbox().max, dtype=np.float64),
                          reflective=False, transmissive=False, nbytes=0)
@@ -204,7 +205,7 @@ class MitsubaRenderer:
                 nb = int(s.vertex_count()) * 12 * (2 if s.has_vertex_normals() else 1) + int(s.face_count()) * 12
             else:
                 nb = 64
-            name, tp = by_slot.get(sl, (s.id(), str(s).split("[")[0]))
+            name, tp = by_slot.get(sl, (s.id(), kind_of(s)))
             info.append(dict(index=sl, name=name, type=tp,
                              bounds_lo=np.array([b.min[0], b.min[1], b.min[2]], dtype=np.float64),
                              bounds_hi=np.array([b.max[0], b.max[1], b.max[2]], dtype=np.float64),

@@ -31,7 +31,7 @@ from . import lightbuffer, tuning
 from .bvh import QuadricBVH
 from .registered import plugin_class
 from .lights import _emitted_rgb
-from .util import Hidden, checked_index
+from .util import Hidden, checked_index, kind_of
 
 #: Relative ray-origin offset on shapes whose float32 hits are accurate to a few ulps
 #: (meshes, rectangles, disks, links1 quadrics): a small offset keeps shadow rays that graze
@@ -461,7 +461,7 @@ class Prepared:
 
 def _unmask(mi, b):
     """The BSDF a Mitsuba ``mask`` (nested masks too) wraps; ``b`` itself if it is no mask."""
-    while str(b).startswith("Mask["):
+    while kind_of(b) == "Mask":
         kids = [k for k, (parent, depth) in mi.traverse(b).hierarchy.items()
                 if depth == 1 and isinstance(k, mi.BSDF)]
         if len(kids) != 1:
@@ -615,7 +615,7 @@ class Tables:
         P.rfilter = Filter.from_mitsuba(film.rfilter())
         # perspective and orthographic rays are made analytically (launch.py: _rays_at) from
         # the sensor's matrix, clip distances and field of view: the same rays as Mitsuba's
-        kind = str(sensor).split("[")[0]
+        kind = kind_of(sensor)
         if kind == "ThinLensCamera":   # as the core: the lens centre only
             warnings.warn(f"{self.place(sensor)}: thinlens is rendered as a pinhole perspective camera "
                           "(no depth of field)", stacklevel=2)
@@ -679,7 +679,7 @@ class Tables:
         P.any_mitsuba_shapes = len(shapes) > 0
         eps_np = np.full(max(nslots, 1), float(mi.math.RayEpsilon), dtype=np.float32)
         for s_, sl in zip(shapes, slot_list):
-            if s_.is_mesh() or str(s_).split("[")[0] in _PRECISE_MITSUBA:
+            if s_.is_mesh() or kind_of(s_) in _PRECISE_MITSUBA:
                 eps_np[sl] = OFFSET_EPS
         for spec in self.custom:
             if spec.__class__.__name__ == "QuadricSpec":
@@ -724,7 +724,7 @@ class Tables:
                 has_null[sl] = bool(fl & int(mi.BSDFFlags.Null))
                 inner[sl] = _unmask(mi, b)
                 if has_null[sl] and has_dt[sl]:
-                    name = str(b).split("[")[0]
+                    name = kind_of(b)
                     if ("null+dt", name) not in warned:
                         warned.add(("null+dt", name))
                         warnings.warn(f"links1_whitted: BSDF {name} has both a refracted and a "
@@ -733,7 +733,7 @@ class Tables:
                                       stacklevel=2)
                     has_null[sl] = False
                 if fl & int(mi.BSDFFlags.Glossy):
-                    name = str(b).split("[")[0]
+                    name = kind_of(b)
                     where = self.place(b)
                     if (where, name) not in warned:     # once per element
                         warned.add((where, name))
@@ -811,7 +811,7 @@ class Tables:
         # emitter loop below says, so its shape shows no emission either)
         emits = np.zeros(max(nslots, 1), dtype=bool)
         for s, sl in zip(shapes, slot_list):
-            if s.emitter() is not None and str(s.emitter()).split("[")[0] == "AreaLight":
+            if s.emitter() is not None and kind_of(s.emitter()) == "AreaLight":
                 emits[sl] = True
         P.any_mitsuba_emission = bool(emits.any())
         P.mitsuba_emits = mi.Bool(emits)
@@ -824,7 +824,7 @@ class Tables:
         n_env = 0
         Pt, Sp = plugin_class("links1_point"), plugin_class("links1_spot")
         for e in scene.emitters():
-            kind = str(e).split("[")[0]
+            kind = kind_of(e)
             if isinstance(e, Pt):
                 p = e.params
                 P.lights.append(("point", p["position"], p["direction"], p["L1"], p["L2"],
@@ -907,7 +907,7 @@ class Tables:
             b = s_.bbox()
             lo[sl] = [b.min[0], b.min[1], b.min[2]]
             hi[sl] = [b.max[0], b.max[1], b.max[2]]
-            kind = str(s_).split("[")[0]
+            kind = kind_of(s_)
             if kind in ("Sphere", "Rectangle", "Disk"):
                 convex[sl] = True
                 closed[sl] = kind == "Sphere"
