@@ -293,19 +293,28 @@ def reconstruct(rfilter, film_size, spp, seed, batch, data, aovs, dtype=None, mo
     box = rfilter.border == 0 and rfilter.is_box
     P = 1 if box else STRIP
     L = _Lanes(batch, P, n_s)
+    if box:
+        # a box filter's sample windows are its windows (sample_window), laid out as the
+        # pixels are (Batch): a pixel's sample 0 is pixel · spp, found without a division
+        L.first = dr.arange(U32, L.n) * n_s
+    # each sample is one pixel's (box): in a derivative pass a gather's reverse is then a
+    # plain scatter (Permute), not a scatter-add with conflict checks (~4x cheaper)
+    red = dr.ReduceMode.Permute if mode == "evaluated" else dr.ReduceMode.Auto
     want_cost = "cost" in aovs
     # the channels of each of the lane's P pixels
     chans = [[] for _ in range(P)]
-    if box or want_cost:
+    if box and int(spp) == 1 and not want_cost:
+        # one sample a pixel: its value (the mean below, v / 1 in float64, is v itself)
+        v = data["total"]
+        v = dr.gather(type(v), v, L.first, mode=red)
+        chans[0] += [v[kk] for kk in range(3)]
+    elif box or want_cost:
         total, cost = data["total"], data.get("cost")
-        red = dr.ReduceMode.Permute if mode == "evaluated" else dr.ReduceMode.Auto
 
         # the pixel's own samples in order: the box mean, the cost sum
         def body(i, *acc):
             acc = list(acc)
             if box:
-                # each sample is one pixel's: in a derivative pass the gather's reverse is then
-                # a plain scatter (Permute), not a scatter-add with conflict checks (~4x cheaper)
                 v = dr.gather(type(total), total, L.first + i, mode=red)
                 acc[:3] = [a + F64(v[kk]) for kk, a in enumerate(acc[:3])]
             if want_cost:

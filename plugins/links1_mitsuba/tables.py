@@ -423,6 +423,8 @@ class Prepared:
     occ_mitsuba: list = _set_later()
     occ_boxes: list = _set_later()
     occ_mslots: list = _set_later()
+    #: what the shapes alone decide of those (``Tables._occluder_shapes``)
+    occ_shapes: dict = _set_later()
     #: per analytic light: its light buffer (lightbuffer.plan) or None
     lbuf: list = _set_later()
 
@@ -495,6 +497,26 @@ def scene_identity(scene):
     return tuple(ids)
 
 
+def _side_of_box(nrm, c, a, b, tol):
+    """-1 / +1 if the box ``a``-``b`` is in the closed half-space below / above the plane
+    ``x · nrm = c`` (within ``tol``), else 0 (an unbounded box: 0)."""
+    if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
+        return 0
+    corners = np.array([[x, y, z] for x in (a[0], b[0]) for y in (a[1], b[1]) for z in (a[2], b[2])])
+    dist = corners @ nrm - c
+    if np.all(dist >= -tol):
+        return 1
+    if np.all(dist <= tol):
+        return -1
+    return 0
+
+
+#: The fields of the tables planned from the analytic lights' places (``Tables._shadow_tables``),
+#: with the lights themselves: what a light's update (``Tables._update_values``) makes anew.
+LIGHT_FIELDS = ("lights", "shadow_need", "occ_custom", "occ_mitsuba", "any_shadow", "shadow_inner",
+                "occ_boxes", "occ_mslots", "lbuf")
+
+
 class Tables:
     """``prepare``: the per-scene tables; ``_occluders``: which shadow rays they need."""
 
@@ -527,42 +549,76 @@ class Tables:
         return V
 
     def _update_values(self, B, scene, ident) -> bool:
-        """The tables ``B`` brought up to a change of ``links1_phong`` coefficients only (issue
-        23, item 1: ``params.update()`` re-prepares what the change touches), in place: the
-        material rows re-read from the BSDFs, every other table (shadow rays, BVH, light
-        buffers, lights) and the frozen launch kept, as they do not depend on those values.
-        False (the caller rebuilds all) for another scene or tuning, or any other change: a
-        Mitsuba object's, a light's, a shape's, or a Phong change that alters what the other
-        tables are built from (the transmittance: shadow rays; which slots reflect or have
-        ambient light: the kernels traced). ``n_value_updates`` counts the updates."""
+        """The tables ``B`` brought up to a change of ``links1_phong`` coefficients or of
+        analytic lights only (issue 23, item 1: ``params.update()`` re-prepares what the change
+        touches), in place:
+
+        - coefficients: the material rows re-read from the BSDFs; the frozen launch is kept
+          (the rows are its inputs);
+        - a light's values (a ``links1_point``'s or ``links1_spot``'s, a Mitsuba point, spot or
+          directional emitter's own parameters): its ``P.lights`` entry and the tables planned
+          from the lights' places (:meth:`_shadow_tables`: shadow rays, light buffers); the
+          frozen launches start anew (the lights are constants in their kernels).
+
+        Every other table (shapes, BVH, blob tables, materials, area and environment lights)
+        is kept. False (the caller rebuilds all) for another scene or tuning, or any other
+        change: a shape's, another Mitsuba object's (a light's texture too), or a Phong change
+        that alters what the other tables are built from (the transmittance: shadow rays;
+        which slots reflect or have ambient light: the kernels traced). ``n_value_updates``
+        counts the updates."""
         if not (self.verify_scene and B.ident == ident
                 and B.tuning.tables_key() == tuning.current().tables_key()):
             return False
         changed = B.watch.changed(scene)
         Phong = plugin_class("links1_phong")
-        if not changed or any(not isinstance(node, Phong) for _, node in changed):
+        Pt, Sp = plugin_class("links1_point"), plugin_class("links1_spot")
+        if not changed:
             return False
-        names = {"amb": "ambient", "dif": "diffuse", "spe": "specular", "refl": "reflectance",
-                 "expo": "exponent", "ior": "ior"}
-        now = {k: np.zeros_like(v) for k, v in B.phong_np.items()}
-        trans = np.zeros((B.nslots, 3))
-        for sl, b in enumerate(B.keep_alive[3]):
-            if isinstance(b, Phong):
-                p = b.params
-                for k, name in names.items():
-                    now[k][sl] = p[name]
-                trans[sl] = p["transmittance"]
-        if not (np.array_equal(trans, B.shadow_t_np) and bool(np.any(now["amb"] > 0)) == B.any_ambient
-                and bool(np.any(now["refl"].max(1) > 0)) == B.any_phong_r):
-            return False
-        # the tables whose values changed, made as _prepare_scene makes them (the same bits)
-        new = {k: mi.Float(v.ravel()) for k, v in now.items() if not np.array_equal(v, B.phong_np[k])}
+        phong = any(isinstance(node, Phong) for _, node in changed)
+        light = False
+        for _, node in changed:
+            if isinstance(node, Phong):
+                continue
+            if not (isinstance(node, (Pt, Sp)) or isinstance(node, mi.Emitter)
+                    and kind_of(node) in ("PointLight", "SpotLight", "DirectionalEmitter")):
+                return False
+            light = True
+        new, now = {}, None
+        if phong:
+            names = {"amb": "ambient", "dif": "diffuse", "spe": "specular", "refl": "reflectance",
+                     "expo": "exponent", "ior": "ior"}
+            now = {k: np.zeros_like(v) for k, v in B.phong_np.items()}
+            trans = np.zeros((B.nslots, 3))
+            for sl, b in enumerate(B.keep_alive[3]):
+                if isinstance(b, Phong):
+                    p = b.params
+                    for k, name in names.items():
+                        now[k][sl] = p[name]
+                    trans[sl] = p["transmittance"]
+            if not (np.array_equal(trans, B.shadow_t_np) and bool(np.any(now["amb"] > 0)) == B.any_ambient
+                    and bool(np.any(now["refl"].max(1) > 0)) == B.any_phong_r):
+                return False
+            # the tables whose values changed, made as _prepare_scene makes them (the same bits)
+            new = {k: mi.Float(v.ravel()) for k, v in now.items() if not np.array_equal(v, B.phong_np[k])}
+        if light:
+            lights = [L for e in scene.emitters()
+                      for L in [self._analytic_light(e, kind_of(e), Pt, Sp)] if L is not None]
+            if len(lights) != len(B.lights):
+                return False
+            B.lights = lights
+            shapes = B.keep_alive[0]
+            self._shadow_tables(B, scene, shapes, self._slots(shapes)[0], reuse=True)
+            self._freeze = self._freeze_points = None
         for P in (B, *B.views.values()):
             for k, v in new.items():
                 setattr(P, k, v)
-            P.phong_np = now
+            if now is not None:
+                P.phong_np = now
+            if light and P is not B:
+                for f in LIGHT_FIELDS:
+                    setattr(P, f, getattr(B, f))
             P.frozen_inputs = None       # gathered again: the new arrays are the launch's inputs
-            if not B.all_phong or B.any_mitsuba_emission:
+            if light or not B.all_phong or B.any_mitsuba_emission:
                 P.scene_input = None     # the scene's variables (the BSDFs' new values) too
             # (all links1_phong: the launch's scene input leaves them out, launch._unread_bsdfs)
         B.watch = ParamWatch(scene)
@@ -644,18 +700,7 @@ class Tables:
         # P may get a dead one's id, so both frozen launches start anew
         self._freeze = self._freeze_points = None
         shapes = list(scene.shapes())
-        slot_of_id = self.slot_of_id
-        if slot_of_id is None:
-            slot_of_id = {s.id(): i for i, s in enumerate(shapes)}
-            nslots = len(shapes)
-            slot_list = [slot_of_id[s.id()] for s in shapes]
-        else:
-            slot_list = []
-            for s in shapes:
-                if s.id() not in slot_of_id:
-                    raise RuntimeError(f"links1_whitted: shape '{s.id()}' is unknown to the loader")
-                slot_list.append(slot_of_id[s.id()])
-            nslots = len(slot_of_id) + len(self.custom)
+        slot_list, nslots = self._slots(shapes)
         P.nslots = nslots
         P.custom = self.custom
         # many bounded quadrics: tables under a BVH (bvh.py) instead of one code block each
@@ -825,38 +870,9 @@ class Tables:
         Pt, Sp = plugin_class("links1_point"), plugin_class("links1_spot")
         for e in scene.emitters():
             kind = kind_of(e)
-            if isinstance(e, Pt):
-                p = e.params
-                P.lights.append(("point", p["position"], p["direction"], p["L1"], p["L2"],
-                                 p["falloff"] == "inverse_square"))
-            elif isinstance(e, Sp):
-                p = e.params
-                P.lights.append(("cspot", p["origin"], p["direction"], p["radius"], p["intensity"]))
-            elif kind == "PointLight":
-                prm = mi.traverse(e)
-                pos = np.array(prm["position"], dtype=np.float64).ravel()
-                I = _emitted_rgb(prm, "intensity", kind, self.place(e))
-                P.lights.append(("point", pos, np.array([0, 0, 1.0]), I, np.zeros(3), True))
-            elif kind == "SpotLight" and any(k.startswith("texture.") and k != "texture.value"
-                                             for k in mi.traverse(e).keys()):
-                # a projector (its texture varies): Mitsuba's own evaluation of the emitter
-                pos = np.array(mi.traverse(e)["to_world"].matrix, dtype=np.float64).reshape(4, 4)[:3, 3]
-                P.lights.append(("memitter", pos, e))
-            elif kind == "SpotLight":
-                prm = mi.traverse(e)
-                m = np.array(prm["to_world"].matrix, dtype=np.float64).reshape(4, 4)
-                I = _emitted_rgb(prm, "intensity", kind, self.place(e))
-                if "texture.value" in prm.keys():   # a constant texture scales the intensity
-                    I = I * _emitted_rgb(prm, "texture", kind, self.place(e))
-                cutoff = float(np.array(prm["cutoff_angle"]).ravel()[0])
-                beam = float(np.array(prm["beam_width"]).ravel()[0])
-                P.lights.append(("mspot", m[:3, 3].copy(), m[:3, 2] / np.linalg.norm(m[:3, 2]),
-                                 I, cutoff, beam))
-            elif kind == "DirectionalEmitter":
-                prm = mi.traverse(e)
-                m = np.array(prm["to_world"].matrix, dtype=np.float64).reshape(4, 4)
-                E = _emitted_rgb(prm, "irradiance", kind, self.place(e))
-                P.lights.append(("dir", m[:3, 2] / np.linalg.norm(m[:3, 2]), E))
+            L = self._analytic_light(e, kind, Pt, Sp)
+            if L is not None:
+                P.lights.append(L)
             elif kind == "ConstantBackgroundEmitter":
                 rad = np.array(mi.traverse(e)["radiance.value"], dtype=np.float64).ravel()
                 P.consts.append(("const", np.broadcast_to(rad, (3,)).copy(), ENV_LIGHT_ID + n_env))
@@ -879,12 +895,67 @@ class Tables:
             else:
                 warnings.warn(f"{self.place(e)}: emitter {kind} is not supported and is ignored",
                               stacklevel=2)
-        self._occluders(P, shapes, slot_list)
-        # light buffers for the quadric shadow rays toward analytic lights (where they pay)
-        P.lbuf = lightbuffer.plan(P, scene) if P.tuning.light_buffer else [None] * len(P.lights)
+        self._shadow_tables(P, scene, shapes, slot_list)
         return P
 
-    def _occluders(self, P, shapes, slot_list):
+    def _shadow_tables(self, P, scene, shapes, slot_list, reuse=False):
+        """The tables planned from the analytic lights' places (:data:`LIGHT_FIELDS`): what
+        each light's shadow rays test (:meth:`_occluders`, ``reuse``: of the shapes' part
+        made before) and the light buffers."""
+        self._occluders(P, shapes, slot_list, reuse)
+        # light buffers for the quadric shadow rays toward analytic lights (where they pay)
+        P.lbuf = lightbuffer.plan(P, scene) if P.tuning.light_buffer else [None] * len(P.lights)
+
+    def _slots(self, shapes):
+        """``(slot_list, nslots)``: the slot of each of the Mitsuba ``shapes`` (file order, or the
+        loader's ``slot_of_id``) and the number of slots (links1 shapes included)."""
+        slot_of_id = self.slot_of_id
+        if slot_of_id is None:
+            slot_of_id = {s.id(): i for i, s in enumerate(shapes)}
+            nslots = len(shapes)
+            slot_list = [slot_of_id[s.id()] for s in shapes]
+        else:
+            slot_list = []
+            for s in shapes:
+                if s.id() not in slot_of_id:
+                    raise RuntimeError(f"links1_whitted: shape '{s.id()}' is unknown to the loader")
+                slot_list.append(slot_of_id[s.id()])
+            nslots = len(slot_of_id) + len(self.custom)
+        return slot_list, nslots
+
+    def _analytic_light(self, e, kind, Pt, Sp):
+        """The ``P.lights`` entry of the emitter ``e`` (its ``kind``: :func:`~.util.kind_of`) when
+        it is an analytic light: a ``links1_point`` (``Pt``) or ``links1_spot`` (``Sp``), a
+        Mitsuba point, spot (a projector: ``memitter``) or directional emitter; else None."""
+        if isinstance(e, Pt):
+            p = e.params
+            return ("point", p["position"], p["direction"], p["L1"], p["L2"],
+                    p["falloff"] == "inverse_square")
+        if isinstance(e, Sp):
+            p = e.params
+            return ("cspot", p["origin"], p["direction"], p["radius"], p["intensity"])
+        if kind not in ("PointLight", "SpotLight", "DirectionalEmitter"):
+            return None
+        prm = mi.traverse(e)
+        if kind == "PointLight":
+            pos = np.array(prm["position"], dtype=np.float64).ravel()
+            I = _emitted_rgb(prm, "intensity", kind, self.place(e))
+            return ("point", pos, np.array([0, 0, 1.0]), I, np.zeros(3), True)
+        m = np.array(prm["to_world"].matrix, dtype=np.float64).reshape(4, 4)
+        if kind == "DirectionalEmitter":
+            E = _emitted_rgb(prm, "irradiance", kind, self.place(e))
+            return ("dir", m[:3, 2] / np.linalg.norm(m[:3, 2]), E)
+        if any(k.startswith("texture.") and k != "texture.value" for k in prm.keys()):
+            # a projector (its texture varies): Mitsuba's own evaluation of the emitter
+            return ("memitter", m[:3, 3], e)
+        I = _emitted_rgb(prm, "intensity", kind, self.place(e))
+        if "texture.value" in prm.keys():   # a constant texture scales the intensity
+            I = I * _emitted_rgb(prm, "texture", kind, self.place(e))
+        cutoff = float(np.array(prm["cutoff_angle"]).ravel()[0])
+        beam = float(np.array(prm["beam_width"]).ravel()[0])
+        return ("mspot", m[:3, 3].copy(), m[:3, 2] / np.linalg.norm(m[:3, 2]), I, cutoff, beam)
+
+    def _occluders(self, P, shapes, slot_list, reuse=False):
         """Which shapes can lie between a lit point and each light (skip what can't).
 
         A convex shape (sphere, capped quadric, rectangle, disk) never shadows its own
@@ -894,7 +965,69 @@ class Tables:
         other shape lie on the same side of its plane. ``P.shadow_need[j]``: per slot,
         whether hits on that slot need a shadow ray toward light ``j``; ``P.occ_custom[j]``
         / ``P.occ_mitsuba[j]``: the links1 shapes / whether any Mitsuba shape can occlude
-        it. Conservative."""
+        it. Conservative. What the shapes alone decide (``P.occ_shapes``:
+        :meth:`_occluder_shapes`) is made once per build: a light's update ``reuse``\ s it."""
+        if not reuse:
+            P.occ_shapes = self._occluder_shapes(P, shapes, slot_list)
+        G = P.occ_shapes
+        nslots, convex, plane, tol = P.nslots, G["convex"], G["plane"], G["tol"]
+        lights = []   # (position or None, direction toward the light or None, emitter slot or None)
+        for L in P.lights:
+            if L[0] == "dir":
+                lights.append(("dir", -np.asarray(L[1], dtype=np.float64)))
+            elif L[0] == "cspot":
+                lights.append(("dir", -np.asarray(L[2], dtype=np.float64)))
+            else:
+                lights.append(("pos", np.asarray(L[1], dtype=np.float64)))
+        for e in P.area:
+            lights.append(("area", e))
+        for _ in P.consts:
+            lights.append(("env", None))
+        P.shadow_need, P.occ_custom, P.occ_mitsuba, P.any_shadow = [], [], [], []
+        P.shadow_inner, P.occ_boxes, P.occ_mslots = [], [], []
+        for light in lights:
+            occ = np.ones(nslots, dtype=bool)
+            for sl in range(nslots):
+                if plane[sl] is None or light[0] == "env":   # environments: every direction
+                    continue
+                nrm, c = plane[sl]
+                if light[0] == "area":
+                    sh = light[1].get_shape()
+                    bb = sh.bbox() if sh is not None else None
+                    if bb is None:
+                        continue
+                    lside = _side_of_box(nrm, c, np.array([bb.min[0], bb.min[1], bb.min[2]]),
+                                         np.array([bb.max[0], bb.max[1], bb.max[2]]), tol)
+                elif light[0] == "dir":
+                    v = float(light[1] @ nrm)
+                    lside = 1 if v > 0 else (-1 if v < 0 else 0)
+                else:
+                    v = float(light[1] @ nrm - c)
+                    lside = 1 if v > tol else (-1 if v < -tol else 0)
+                if lside != 0 and G["others"][sl] in (lside, None):   # None: no other shape
+                    occ[sl] = False
+            if light[0] == "area":      # a convex emitter never hides its own sampled points
+                own = P.area_tab[P.area.index(light[1])]["slot"]
+                if own is not None and convex[own]:
+                    occ[own] = False
+            # a hit needs a shadow ray if any shape but itself (when convex) can occlude
+            need = np.count_nonzero(occ) - (occ & convex) > 0
+            inner = occ & G["closed"] & ~need
+            P.shadow_need.append(None if need.all() else mi.Bool(need))
+            P.shadow_inner.append(mi.Bool(inner) if inner.any() else None)
+            P.any_shadow.append(bool(need.any() or inner.any()))
+            P.occ_custom.append([spec for spec in self.custom if occ[spec.slot]])
+            msl = occ & G["mitsuba_slot"]
+            P.occ_mitsuba.append(bool(np.any(msl)))
+            P.occ_boxes.append(occluder_boxes(msl, G["lo"], G["hi"], convex))
+            P.occ_mslots.append(frozenset(int(v) for v in np.flatnonzero(msl)))
+
+    def _occluder_shapes(self, P, shapes, slot_list):
+        """What :meth:`_occluders` needs of the shapes, whatever the lights: per slot its box
+        (``lo``, ``hi``), whether it is ``convex`` / ``closed`` / a Mitsuba shape, a planar
+        shape's ``plane`` (unit normal, offset) and the side of that plane every other
+        shape's box lies on (``others``: +1, -1, 0 for neither, None for no other shape),
+        and the tolerance ``tol`` of those tests."""
         nslots = P.nslots
         lo = np.full((nslots, 3), -np.inf)
         hi = np.full((nslots, 3), np.inf)
@@ -930,67 +1063,10 @@ class Tables:
         scale = 1.0 + float(np.max(np.abs(np.where(np.isfinite(lo), lo, 0.0)))) + \
             float(np.max(np.abs(np.where(np.isfinite(hi), hi, 0.0))))
         tol = 1e-6 * scale
-
-        def side_of_box(nrm, c, a, b):
-            """-1 / +1 if the box is in the closed half-space below / above the plane, else 0."""
-            if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
-                return 0
-            corners = np.array([[x, y, z] for x in (a[0], b[0]) for y in (a[1], b[1]) for z in (a[2], b[2])])
-            dist = corners @ nrm - c
-            if np.all(dist >= -tol):
-                return 1
-            if np.all(dist <= tol):
-                return -1
-            return 0
-
-        lights = []   # (position or None, direction toward the light or None, emitter slot or None)
-        for L in P.lights:
-            if L[0] == "dir":
-                lights.append(("dir", -np.asarray(L[1], dtype=np.float64)))
-            elif L[0] == "cspot":
-                lights.append(("dir", -np.asarray(L[2], dtype=np.float64)))
-            else:
-                lights.append(("pos", np.asarray(L[1], dtype=np.float64)))
-        for e in P.area:
-            lights.append(("area", e))
-        for _ in P.consts:
-            lights.append(("env", None))
-        P.shadow_need, P.occ_custom, P.occ_mitsuba, P.any_shadow = [], [], [], []
-        P.shadow_inner, P.occ_boxes, P.occ_mslots = [], [], []
-        for light in lights:
-            occ = np.ones(nslots, dtype=bool)
-            for sl in range(nslots):
-                if plane[sl] is None or light[0] == "env":   # environments: every direction
-                    continue
-                nrm, c = plane[sl]
-                if light[0] == "area":
-                    sh = light[1].get_shape()
-                    bb = sh.bbox() if sh is not None else None
-                    if bb is None:
-                        continue
-                    lside = side_of_box(nrm, c, np.array([bb.min[0], bb.min[1], bb.min[2]]),
-                                        np.array([bb.max[0], bb.max[1], bb.max[2]]))
-                elif light[0] == "dir":
-                    v = float(light[1] @ nrm)
-                    lside = 1 if v > 0 else (-1 if v < 0 else 0)
-                else:
-                    v = float(light[1] @ nrm - c)
-                    lside = 1 if v > tol else (-1 if v < -tol else 0)
-                if lside == 0:
-                    continue
-                if all(side_of_box(nrm, c, lo[o], hi[o]) == lside for o in range(nslots) if o != sl):
-                    occ[sl] = False
-            if light[0] == "area":      # a convex emitter never hides its own sampled points
-                own = P.area_tab[P.area.index(light[1])]["slot"]
-                if own is not None and convex[own]:
-                    occ[own] = False
-            need = np.array([bool(np.any(occ & ~((np.arange(nslots) == sl) & convex[sl])))
-                             for sl in range(nslots)], dtype=bool)
-            inner = occ & closed & ~need
-            P.shadow_need.append(None if need.all() else mi.Bool(need))
-            P.shadow_inner.append(mi.Bool(inner) if inner.any() else None)
-            P.any_shadow.append(bool(need.any() or inner.any()))
-            P.occ_custom.append([spec for spec in self.custom if occ[spec.slot]])
-            P.occ_mitsuba.append(bool(np.any(occ & mitsuba_slot)))
-            P.occ_boxes.append(occluder_boxes(occ & mitsuba_slot, lo, hi, convex))
-            P.occ_mslots.append(frozenset(int(v) for v in np.flatnonzero(occ & mitsuba_slot)))
+        others = [None] * nslots
+        for sl in range(nslots):
+            if plane[sl] is not None:
+                sides = {_side_of_box(*plane[sl], lo[o], hi[o], tol) for o in range(nslots) if o != sl}
+                others[sl] = None if not sides else (sides.pop() if len(sides) == 1 else 0)
+        return dict(lo=lo, hi=hi, convex=convex, closed=closed, plane=plane,
+                    mitsuba_slot=mitsuba_slot, others=others, tol=tol)

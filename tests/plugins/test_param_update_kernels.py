@@ -72,6 +72,15 @@ def code(k):
     return re.sub(r"i32 \d+, (<\d+ x i1>)", r"i32 A, \1", ir)
 
 
+def collect_earlier_scenes():
+    """The scenes of earlier tests freed now, not between two frames a test compares: the
+    kernels of a Dr.Jit call through the shapes or BSDFs depend on how many instances of a
+    class are alive (a call with one target is inlined), so a collection in between gives a
+    frame other code."""
+    import gc
+    gc.collect()
+
+
 def launched(fn):
     """(``fn()`` as numpy, the code (:func:`code`) of the kernels it compiled or found in a
     cache; the replays of a frozen launch report none)."""
@@ -186,6 +195,7 @@ def test_ray_tree_counts_changing_with_geometry_replay_the_same_kernels(variant,
         counts.append((na, nb))
         return real_cat(a, b, na, nb)
     monkeypatch.setattr(gradients, "cat", recording_cat)
+    collect_earlier_scenes()
     scene = lm.load_string(MIRROR_GLASS)
     params = mi.traverse(scene)
     K, M = "links1_whitted.glass.bsdf.diffuse.value", "links1_whitted.mirror.to_world"
@@ -218,6 +228,7 @@ def test_blob_reverse_pass_kernels_do_not_grow_with_its_parameters(variant):
     import mitsuba as mi
 
     import links1_mitsuba as lm
+    collect_earlier_scenes()
     scene = lm.load_string(scene_xml(CENTRES, "-1.2, 0.6, 1.0"))
     params = mi.traverse(scene)
     C, W = "links1_whitted.blob.centers", "links1_whitted.blob.weights"
@@ -251,7 +262,8 @@ def test_phong_value_update_rebuilds_only_the_material_rows(variant):
     value update (``n_value_updates``), the other tables the same arrays, the frozen launch
     replayed (no kernel but the launch's own), and the frame the one of the file with those
     values, bit for bit. A change of the transmittance (shadow rays, BVH, light buffers are
-    built from it) or of a light rebuilds all, and its frame is the file's too."""
+    built from it) rebuilds all; a light's is an update in place (the next test); both
+    frames are the file's too."""
     import drjit as dr
     import mitsuba as mi
     import links1_mitsuba as lm
@@ -299,7 +311,7 @@ def test_phong_value_update_rebuilds_only_the_material_rows(variant):
     params["lp.position"] = mi.Point3f(2.5, 4, 3)
     params.update()
     l_img = np.array(mi.render(scene, seed=0))
-    assert integ.n_scene_builds == builds + 2 and integ.n_value_updates == 1
+    assert integ.n_scene_builds == builds + 1 and integ.n_value_updates == 2
     xml_l = xml_t.replace('<point name="position" x="2" y="4" z="3"/>', '<point name="position" x="2.5" y="4" z="3"/>')
     assert np.array_equal(l_img, np.array(mi.render(lm.load_string(xml_l), seed=0)))
     dr.sync_thread()
@@ -328,3 +340,79 @@ def test_specular_update_keeps_the_reflectance_it_defaulted_to(variant):
     assert np.array_equal(got, kept)
     followed = np.array(mi.render(lm.load_string(xml.replace(old, new)), seed=0))
     assert not np.array_equal(got, followed)
+
+
+def light_scene_xml(pos, spot_to_world, intensity):
+    """test_lightbuffer.py's 120 quadrics (a BVH, light buffers) with its point light at
+    ``pos`` (id ``pl``, RGB ``intensity``), its spot light's ``to_world`` the 4x4 matrix
+    ``spot_to_world`` (id ``sp``), and a second sensor."""
+    from tests.plugins.test_lightbuffer import LIGHT, _scene
+    xml = _scene(120)
+    old = f'<emitter type="point"><point name="position" value="{LIGHT[0]},{LIGHT[1]},{LIGHT[2]}"/>\n    <rgb name="intensity" value="20"/>'
+    assert xml.count(old) == 1
+    xml = xml.replace(old, f'<emitter type="point" id="pl"><point name="position" value="{pos[0]!r},{pos[1]!r},{pos[2]!r}"/>'
+                           f'<rgb name="intensity" value="{intensity!r}"/>')
+    spot = re.search(r'<emitter type="spot">.*?</transform>', xml, re.S).group(0)
+    m = " ".join(repr(float(x)) for x in np.asarray(spot_to_world, dtype=np.float32).ravel())
+    xml = xml.replace(spot, f'<emitter type="spot" id="sp"><transform name="to_world"><matrix value="{m}"/></transform>')
+    cam = re.search(r"<sensor .*?</sensor>", xml, re.S).group(0)
+    return xml.replace(cam, cam + cam.replace('origin="0,7,10"', 'origin="6,5,6"'))
+
+
+def test_light_update_replans_only_the_shadow_tables(variant):
+    """``params.update()`` of an analytic light's own values (issue 23, item 1) updates the
+    prepared tables in place (``Tables._update_values``): the light's entry and the tables
+    planned from the lights' places (``tables.LIGHT_FIELDS``: which shapes each light's shadow
+    rays test, the light buffers) are made anew, every other table (BVH, materials) is kept,
+    no scene build. The scene: 120 quadrics under a BVH with light buffers
+    (test_lightbuffer.py), a Mitsuba point light moved from inside three nested transparent
+    spheres to outside them and a spot light moved. Both
+    sensors' frames are then the frames of the file with the new lights, bit for bit. A
+    light's texture (here a point light's intensity) is another object: a whole rebuild,
+    the file's frame too."""
+    import mitsuba as mi
+    import links1_mitsuba as lm
+    from links1_mitsuba.tables import LIGHT_FIELDS
+
+    spot_to = np.array([[0.6, 0.0, -0.8, 4.0], [-0.48, 0.8, -0.36, 5.0], [0.64, 0.6, 0.48, -3.0], [0, 0, 0, 1]])
+    moved_to = np.array(spot_to)
+    moved_to[:3, 3] = [3.5, 4.5, -2.5]
+
+    def xml(pos=(0.7, 2.2, 0.4), to=spot_to, intensity=20):
+        return light_scene_xml(pos, to, intensity)
+
+    scene = lm.load_string(xml())
+    integ = scene.integrator()
+    frames = lambda sc: [np.array(mi.render(sc, sensor=k, seed=0)) for k in (0, 1)]  # noqa: E731
+    before = frames(scene)
+    P = integ._prep.base
+    assert P.bvh is not None and any(lb is not None for lb in P.lbuf)
+    builds, updates = integ.n_scene_builds, integ.n_value_updates
+    kept = (P.bvh, P.dif, P.eps_table, P.reg_to_slot)
+    old = {f: getattr(P, f) for f in LIGHT_FIELDS}
+    params = mi.traverse(scene)
+    params["pl.position"] = mi.Point3f(-1.5, 4.25, 2.75)
+    params["sp.to_world"] = mi.Transform4f(moved_to.tolist())
+    params.update()
+    after = frames(scene)
+    assert integ.n_scene_builds == builds and integ.n_value_updates == updates + 1
+    Q = integ._prep.base
+    assert Q is P and all(a is b for a, b in zip(kept, (Q.bvh, Q.dif, Q.eps_table, Q.reg_to_slot)))
+    assert all(getattr(Q, f) is not old[f] for f in LIGHT_FIELDS)
+    for V in Q.views.values():   # each sensor's view has the new light tables
+        assert all(getattr(V, f) is getattr(Q, f) for f in LIGHT_FIELDS)
+    # the point light's buffer (its cells' occluder lists) is planned around its new place
+    assert old["lbuf"][0].pos == [0.7, 2.2, 0.4] or np.allclose(old["lbuf"][0].pos, [0.7, 2.2, 0.4])
+    assert Q.lbuf[0].pos == [-1.5, 4.25, 2.75]
+    fresh = frames(lm.load_string(xml(pos=(-1.5, 4.25, 2.75), to=moved_to)))
+    for a, b, c in zip(before, after, fresh):
+        assert not np.array_equal(a, b)
+        assert np.array_equal(b, c)
+    # a texture of a light (the point light's intensity): a whole rebuild, the file's frames
+    params["pl.intensity.value"] = mi.Color3f(30.0)
+    params.update()
+    t_frames = frames(scene)
+    assert integ.n_scene_builds == builds + 1 and integ.n_value_updates == updates + 1
+    fresh = frames(lm.load_string(xml(pos=(-1.5, 4.25, 2.75), to=moved_to, intensity=30)))
+    for b, c in zip(t_frames, fresh):
+        assert np.array_equal(b, c)
