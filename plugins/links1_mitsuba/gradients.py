@@ -128,8 +128,12 @@ def _render_op_caller():
     return op if type(op).__name__ == "_RenderOp" and hasattr(op, "spp") else None
 
 
-def _mitsuba_attached(scene):
-    """Whether a parameter of Mitsuba's own objects has gradients enabled."""
+def _mitsuba_attached(scene, P, watched):
+    """Whether a parameter of the scene (of Mitsuba's own objects among them) has gradients
+    enabled: ``watched`` (the tables ``P`` were just checked against the scene's parameters,
+    ``tables.ParamWatch``), as the watch read them; else by a traversal."""
+    if watched:
+        return (P.base if P.base is not None else P).watch.attached()
     return any(dr.grad_enabled(v) for _, v in mi.traverse(scene).items())
 
 
@@ -298,7 +302,7 @@ class Gradients:
                         any_light = True
                 lights[j] = tuple(L)
             elif kind == "PointLight":
-                prm = mi.traverse(e)
+                prm = self._params_of(P, e)
                 L = list(lights[j])
                 if attached(prm["position"]):
                     L[1] = mi.Point3f(prm["position"])
@@ -320,7 +324,7 @@ class Gradients:
         if Q.geo_ad is not None and P.bvh is not None:
             Q.bvh, Q.eye_buf, Q.custom_unrolled = None, None, list(P.custom)
         Q.attached_any = (any(rows.values()) or Q.geo_ad is not None or any_light
-                          or (not P.all_phong and _mitsuba_attached(scene)))
+                          or (not P.all_phong and _mitsuba_attached(scene, P, self.verify_scene)))
         return Q
 
     def _surface_ad(self, P, o, d, t, slot, prim, p, ng, ns):

@@ -137,6 +137,10 @@ def _token(value):
     return (a.dtype.str, a.shape, np.ascontiguousarray(a).tobytes())
 
 
+#: :class:`ParamWatch`'s stand-in for the watched scene's integrator (not held: its tables hold the watch)
+_INTEGRATOR = object()
+
+
 class ParamWatch(Hidden):
     """Whether a Mitsuba object's parameters (every one ``mi.traverse(obj)`` exposes: a
     scene's shapes, BSDFs, textures, emitters, sensors, ...) changed since the watch was made,
@@ -158,8 +162,10 @@ class ParamWatch(Hidden):
     are traversed again at each check (one level, not its children): the watch does not keep
     ``obj``, so a scene's tables, which its integrator keeps, do not keep the scene alive. A
     value that a Python plugin hands out as an object (``parameters_changed`` may replace the
-    object), or an integrator's, makes each check a whole ``mi.traverse``, as another ``obj``
-    does (a scene with the same shapes, emitters and sensors).
+    object), or the scene's integrator's, is read again by traversing its node (one level,
+    :meth:`_own_values`); another ``obj`` (a scene with the same shapes, emitters and
+    sensors) makes the check a whole ``mi.traverse`` (~0.15 ms), as a node whose values
+    cannot be matched to their keys does.
 
     A :class:`~links1_mitsuba.util.Hidden`: neither ``dr.freeze`` nor the walk that gathers
     the frozen launch's inputs from the tables (``Launches._frozen_inputs``) takes the pins
@@ -181,29 +187,95 @@ class ParamWatch(Hidden):
                 c = cls.classes[mi.variant()] = Shallow
             return c()
 
-    def __init__(self, obj):
+    def __init__(self, obj, params=None, renew=None):
         import drjit as dr
         import mitsuba as mi
         self._mi, self._collect = mi, dr.detail.collect_indices
-        params = mi.traverse(obj)
+        params = mi.traverse(obj) if params is None else params   # (changed()'s, just read)
         self._obj_id = id(obj)
-        self._retraverse = any(ct is None or isinstance(node, mi.Integrator)
-                               for _, ct, node, _ in params.properties.values())
-        self.state, self._pins = self._read_all(params, pin=True)
+        self.traversed = self.changed_keys = None
+        if renew is not None:
+            # the watch ``renew`` with the keys its :meth:`changed` found read again (the
+            # others' variables are the ones it pinned, and the traversal's structure its own)
+            self.state, self._pins = dict(renew.state), dict(renew._pins)
+            state, pins = self._read_all(params, pin=True, keys=renew.changed_keys)
+            self.state.update(state)
+            for k in renew.changed_keys:
+                self._pins.pop(k, None)
+            self._pins.update(pins)
+            for name in ("_own", "_retraverse", "_jit", "_jit_keys", "_scalar", "_scalar_keys", "_root_keys"):
+                setattr(self, name, getattr(renew, name, None))
+        else:
+            self.state, self._pins = self._read_all(params, pin=True)
+            # values a Python plugin (or the scene's integrator) hands out as objects: their
+            # nodes traversed again at each check, one level each (:meth:`_own_values`)
+            self._own = self._own_values(obj, params)
+            self._retraverse = self._own is None
+            if not self._retraverse:
+                kids = [(k, v, ct, node) for k, (v, ct, node, _) in params.properties.items()
+                        if node is not obj and ct is not None and not isinstance(node, mi.Integrator)]
+                self._jit = [(v, ct, node) for k, v, ct, node in kids if self.state[k][0] == "ids"]
+                self._jit_keys = [k for k, *_ in kids if self.state[k][0] == "ids"]
+                self._scalar = [(v, ct, node) for k, v, ct, node in kids if self.state[k][0] == "value"]
+                self._scalar_keys = [k for k, *_ in kids if self.state[k][0] == "value"]
+                self._root_keys = sorted(k for k, (_, _, node, _) in params.properties.items() if node is obj)
         if not self._retraverse:
-            kids = [(k, v, ct, node) for k, (v, ct, node, _) in params.properties.items() if node is not obj]
-            self._jit = [(v, ct, node) for k, v, ct, node in kids if self.state[k][0] == "ids"]
-            self._jit_ids = [i for k, *_ in kids if self.state[k][0] == "ids" for i in self.state[k][1]]
-            self._scalar = [(v, ct, node) for k, v, ct, node in kids if self.state[k][0] == "value"]
-            self._scalar_tokens = [self.state[k][1] for k, *_ in kids if self.state[k][0] == "value"]
-            self._root_keys = sorted(k for k, (_, _, node, _) in params.properties.items() if node is obj)
+            self._jit_ids = [i for k in self._jit_keys for i in self.state[k][1]]
+            self._scalar_tokens = [self.state[k][1] for k in self._scalar_keys]
 
-    def _read_all(self, params, pin=False):
-        """``{key: ("ids", indices) or ("value", token)}`` of every parameter, and with
-        ``pin`` the pins."""
-        collect = self._collect
-        state, pins = {}, []
+    def renewed(self, obj):
+        """A watch of ``obj``'s parameters now, made from this one after :meth:`changed` found
+        which differ (only those read again: a rebuild's watch of the blob scene's 90
+        parameters took ~0.5 ms); a whole new watch where the keys changed or a value's kind
+        (variables or not) did."""
+        keys, params = self.changed_keys, self.traversed
+        if keys is None or params is None or id(obj) != self._obj_id:
+            return ParamWatch(obj)
+        fresh, _ = self._read_all(params, keys=keys)
+        if any(fresh[k][0] != self.state[k][0] for k in keys):
+            return ParamWatch(obj, params)
+        return ParamWatch(obj, params, renew=self)
+
+    def _own_values(self, obj, params):
+        """``[(node, keys)]``: each node whose values ``mi.traverse`` took as they were (a
+        Python plugin's: ``cpptype`` None; the scene's integrator's, held as
+        :data:`_INTEGRATOR` and asked of the scene at each check, since the watch lives in
+        its tables), with the keys of its values in the order its ``traverse`` puts them.
+        None where that order cannot be matched to the keys (then every check traverses
+        ``obj`` whole)."""
+        mi = self._mi
+        groups = {}
         for k, (v, ct, node, _) in params.properties.items():
+            if node is not obj and (ct is None or isinstance(node, mi.Integrator)):
+                groups.setdefault(id(node), (node, []))[1].append(k)
+        out = []
+        for node, keys in groups.values():
+            ref = node
+            if isinstance(node, mi.Integrator):
+                if not (isinstance(obj, mi.Scene) and obj.integrator() is node):
+                    return None
+                ref = _INTEGRATOR
+            names = [n for n, _, _ in self._shallow(node)]
+            if len(names) != len(keys) or not all(k == n or k.endswith("." + n) for k, n in zip(keys, names)):
+                return None
+            out.append((ref, keys))
+        return out
+
+    def _shallow(self, node):
+        """``(name, value, cpptype)`` of the values ``node`` itself puts (one level)."""
+        cb = self._Shallow.make(self._mi)
+        cb.out = []
+        node.traverse(cb)
+        return cb.out
+
+    def _read_all(self, params, pin=False, keys=None):
+        """``{key: ("ids", indices) or ("value", token)}`` of every parameter (or of ``keys``),
+        and with ``pin`` the pins (``{key: pin}``)."""
+        collect = self._collect
+        state, pins = {}, {}
+        props = params.properties
+        for k in (props.keys() if keys is None else keys):
+            v, ct, node, _ = props[k]
             value = v if ct is None else params.get_property(v, ct, node)
             ids = tuple(collect(value))
             if ids and pin:
@@ -212,7 +284,7 @@ class ParamWatch(Hidden):
                 except Exception:  # noqa: BLE001 - a type that cannot be copied so
                     p = None
                 if p is not None and tuple(collect(p)) == ids:
-                    pins.append(p)
+                    pins[k] = p
                     state[k] = ("ids", ids)
                     continue
                 if p is not None and any(i >> 32 for i in ids):
@@ -221,7 +293,7 @@ class ParamWatch(Hidden):
                     # has none, so the value itself is pinned (it holds its JIT and
                     # AD variables; a later assignment puts another object there). Compared
                     # by value instead, each check read it back to the host (a device sync)
-                    pins.append(value)
+                    pins[k] = value
                     state[k] = ("ids", ids)
                     continue
             elif ids:
@@ -246,31 +318,48 @@ class ParamWatch(Hidden):
             return False
         if [_token(get(*e)) for e in self._scalar] != self._scalar_tokens:
             return False
-        cb = self._Shallow.make(mi)
-        cb.out = []
-        obj.traverse(cb)
-        if sorted(name for name, _, _ in cb.out) != self._root_keys:
+        out = self._shallow(obj)
+        if sorted(name for name, _, _ in out) != self._root_keys:
             return False
-        for name, v, ct in cb.out:
+        for name, v, ct in out:
             s = self.state[name]
             if self._read_one(v if ct is None else get(v, ct, obj), s[0]) != s:
                 return False
+        for ref, keys in self._own:
+            node = obj.integrator() if ref is _INTEGRATOR else ref
+            out = self._shallow(node)
+            if len(out) != len(keys):
+                return False
+            for (name, v, ct), k in zip(out, keys):
+                s = self.state[k]
+                if not (k == name or k.endswith("." + name)) or \
+                        self._read_one(v if ct is None else get(v, ct, node), s[0]) != s:
+                    return False
         return True
 
     def changed(self, obj):
         """The parameters of ``obj`` that differ from the watch's, as ``(name, object)``: the
         parameter's last name (``diffuse.value``'s ``diffuse``; ``exponent``) and the Mitsuba
         object that holds it; None when the parameters are other ones (keys added or gone)."""
-        params = self._mi.traverse(obj)
+        params = self.traversed = self._mi.traverse(obj)   # (for the next watch: renewed())
+        self.changed_keys = None
         if params.properties.keys() != self.state.keys():
             return None
-        out = []
+        out, keys = [], []
         for k, (v, ct, node, _) in params.properties.items():
             if self._read_one(v if ct is None else params.get_property(v, ct, node), self.state[k][0]) \
                     != self.state[k]:
                 parts = k.split(".")
                 out.append((parts[-2] if parts[-1] == "value" and len(parts) > 1 else parts[-1], node))
+                keys.append(k)
+        self.changed_keys = keys
         return out
+
+    def attached(self) -> bool:
+        """Whether a parameter had gradients enabled when the watch read it (an AD index in
+        the upper 32 bits of one of its variables): with :meth:`unchanged`, whether one has now,
+        without reading the parameters again."""
+        return any(how == "ids" and any(i >> 32 for i in v) for how, v in self.state.values())
 
     def _read_one(self, value, how):
         """One value as the state has it (``how``: "ids" or "value")."""
@@ -312,6 +401,8 @@ class Prepared:
     keep_alive: tuple = _set_later()
     #: the camera views of these tables, by ``id(sensor)`` (:meth:`Tables._camera_view`)
     views: dict = _set_later()
+    #: ``mi.traverse`` of objects the tables read again on updates (:meth:`Tables._params_of`)
+    obj_params: dict = _set_later()
     #: number of slots (Mitsuba shapes and links1 shapes)
     nslots: int = _set_later()
     #: the links1 shapes (``QuadricSpec`` / ``BlobSpec``), the integrator's list
@@ -539,11 +630,13 @@ class Tables:
         ident = scene_identity(scene)
         V = self._prep
         B = getattr(V, "base", None)
-        if not (B is not None and B.ident == ident
-                and B.tuning.tables_key() == tuning.current().tables_key()
-                and (not self.verify_scene or B.watch.unchanged(scene))
-                or B is not None and self._update_values(B, scene, ident)):
-            B = self._prepare_scene(scene, ident)
+        same = B is not None and B.ident == ident and B.tuning.tables_key() == tuning.current().tables_key()
+        if same and (not self.verify_scene or B.watch.unchanged(scene)):
+            pass
+        elif not (same and self._update_values(B, scene, ident)):
+            # (after _update_values, B's watch knows which parameters changed: the new watch
+            # reads only those again)
+            B = self._prepare_scene(scene, ident, B.watch if same else None)
         V = self._camera_view(B, scene, self._sensor_of(scene, sensor))
         self._prep = V
         return V
@@ -602,7 +695,7 @@ class Tables:
             new = {k: mi.Float(v.ravel()) for k, v in now.items() if not np.array_equal(v, B.phong_np[k])}
         if light:
             lights = [L for e in scene.emitters()
-                      for L in [self._analytic_light(e, kind_of(e), Pt, Sp)] if L is not None]
+                      for L in [self._analytic_light(e, kind_of(e), Pt, Sp, B)] if L is not None]
             if len(lights) != len(B.lights):
                 return False
             B.lights = lights
@@ -621,7 +714,7 @@ class Tables:
             if light or not B.all_phong or B.any_mitsuba_emission:
                 P.scene_input = None     # the scene's variables (the BSDFs' new values) too
             # (all links1_phong: the launch's scene input leaves them out, launch._unread_bsdfs)
-        B.watch = ParamWatch(scene)
+        B.watch = B.watch.renewed(scene)
         self.n_value_updates += 1
         return True
 
@@ -687,15 +780,17 @@ class Tables:
             raise ValueError(f"links1_whitted renders perspective, thinlens and orthographic sensors, "
                              f"not {kind}")
 
-    def _prepare_scene(self, scene, ident):
-        """The tables of ``scene`` that do not depend on the sensor (:meth:`prepare`)."""
+    def _prepare_scene(self, scene, ident, watch=None):
+        """The tables of ``scene`` that do not depend on the sensor (:meth:`prepare`); ``watch``:
+        the last tables' (:meth:`ParamWatch.renewed`), or None."""
         P = Prepared()
         P.ident = ident
         P.tuning = tuning.current()     # what the tables are built with (tables_key)
-        P.watch = ParamWatch(scene)     # before the tables read the parameters
+        # before the tables read the parameters
+        P.watch = ParamWatch(scene) if watch is None else watch.renewed(scene)
         self.n_scene_builds += 1
         P.keep_alive = (list(scene.shapes()), list(scene.emitters()), list(scene.sensors()))  # see scene_identity
-        P.views = {}
+        P.views, P.obj_params = {}, {}
         # recordings hold the previous tables, and their key names the tables by id(P): a new
         # P may get a dead one's id, so both frozen launches start anew
         self._freeze = self._freeze_points = None
@@ -870,7 +965,7 @@ class Tables:
         Pt, Sp = plugin_class("links1_point"), plugin_class("links1_spot")
         for e in scene.emitters():
             kind = kind_of(e)
-            L = self._analytic_light(e, kind, Pt, Sp)
+            L = self._analytic_light(e, kind, Pt, Sp, P)
             if L is not None:
                 P.lights.append(L)
             elif kind == "ConstantBackgroundEmitter":
@@ -923,10 +1018,22 @@ class Tables:
             nslots = len(slot_of_id) + len(self.custom)
         return slot_list, nslots
 
-    def _analytic_light(self, e, kind, Pt, Sp):
+    @staticmethod
+    def _params_of(P, obj):
+        """``mi.traverse(obj)`` of a native Mitsuba object, made once for the tables ``P`` (their
+        base's): it reads each parameter when asked (``mi.get_property``), so it gives the
+        current values after ``params.update()``, and a traversal costs ~0.15 ms a call."""
+        B = P.base if P.base is not None else P
+        prm = B.obj_params.get(id(obj))
+        if prm is None:
+            prm = B.obj_params[id(obj)] = mi.traverse(obj)
+        return prm
+
+    def _analytic_light(self, e, kind, Pt, Sp, P):
         """The ``P.lights`` entry of the emitter ``e`` (its ``kind``: :func:`~.util.kind_of`) when
         it is an analytic light: a ``links1_point`` (``Pt``) or ``links1_spot`` (``Sp``), a
-        Mitsuba point, spot (a projector: ``memitter``) or directional emitter; else None."""
+        Mitsuba point, spot (a projector: ``memitter``) or directional emitter; else None.
+        ``P``: the tables it is for (:meth:`_params_of`)."""
         if isinstance(e, Pt):
             p = e.params
             return ("point", p["position"], p["direction"], p["L1"], p["L2"],
@@ -936,7 +1043,7 @@ class Tables:
             return ("cspot", p["origin"], p["direction"], p["radius"], p["intensity"])
         if kind not in ("PointLight", "SpotLight", "DirectionalEmitter"):
             return None
-        prm = mi.traverse(e)
+        prm = self._params_of(P, e)
         if kind == "PointLight":
             pos = np.array(prm["position"], dtype=np.float64).ravel()
             I = _emitted_rgb(prm, "intensity", kind, self.place(e))

@@ -154,9 +154,10 @@ def test_unchanged_scene_prepares_nothing(variant):
 @pytest.mark.parametrize("change", CHANGES, ids=[c.__name__.strip("_") for c in CHANGES])
 def test_each_params_update_prepares_again(variant, change):
     """After a render, one ``params.update()`` of each kind (camera, BSDF, light, a mesh's
-    vertices assigned or scattered in place, the film) builds the tables once more, and the
-    next frame equals a new integrator's render of the changed scene; the frame after it
-    builds nothing; each set of tables records its frozen launch at most twice."""
+    vertices assigned or scattered in place, the film) builds the tables once more (a light's
+    own position: updates them in place, ``Tables._update_values``), and the next frame
+    equals a new integrator's render of the changed scene; the frame after it builds nothing;
+    each set of tables records its frozen launch at most twice."""
     import mitsuba as mi
 
     from links1_mitsuba import load_string
@@ -169,12 +170,13 @@ def test_each_params_update_prepares_again(variant, change):
     change(mi, params, scene)
     params.update()
     after = np.array(mi.render(scene, spp=1))
-    assert integ.n_scene_builds == 2
+    in_place = change is _light_moved
+    assert (integ.n_scene_builds, integ.n_value_updates) == ((1, 1) if in_place else (2, 0))
     expected = _fresh_render(scene)
     assert before.shape != expected.shape or not np.array_equal(before, expected)   # the change shows
     np.testing.assert_array_equal(after, expected)
     np.testing.assert_array_equal(np.array(mi.render(scene, spp=1)), after)
-    assert integ.n_scene_builds == 2
+    assert (integ.n_scene_builds, integ.n_value_updates) == ((1, 1) if in_place else (2, 0))
     assert integ._freeze.n_recordings <= 2
 
 
@@ -203,7 +205,7 @@ def test_sensor_made_apart_is_watched(variant):
 
 def test_param_watch_values_of_python_plugins_and_scalars(variant):
     """``ParamWatch`` on a scene whose Python BSDF puts a Dr.Jit value of its own (its object,
-    which ``parameters_changed`` may replace: each check traverses again) and on a scene of
+    which ``parameters_changed`` may replace: each check traverses that BSDF again) and on a scene of
     C++ objects only (one traversal; the scene's own scalar and a sensor's float compared by
     value): unchanged after an ``update()`` that changes nothing, changed after each kind of
     assignment, and a new watch agrees with the new values."""
@@ -241,7 +243,10 @@ def test_param_watch_values_of_python_plugins_and_scalars(variant):
         params.update()
         assert not w.unchanged(scene), key
         assert ParamWatch(scene).unchanged(scene)
-    assert ParamWatch(py)._retraverse and not ParamWatch(cpp)._retraverse
+    # neither is traversed whole at a check: the Python BSDF's node is traversed again alone
+    wp, wc = ParamWatch(py), ParamWatch(cpp)
+    assert not wp._retraverse and not wc._retraverse
+    assert [keys for _, keys in wp._own] == [["s.bsdf.tint"]] and wc._own == []
 
 
 def test_own_param_reads_what_mi_traverse_reads(variant):
@@ -266,3 +271,45 @@ def test_own_param_reads_what_mi_traverse_reads(variant):
         own_param(floor, "no_such_parameter")
     with pytest.raises(KeyError):
         own_param(floor, "bsdf.reflectance.value")     # a child's (the BSDF's), not the shape's
+
+
+def test_a_renewed_watch_is_a_new_watch(variant):
+    """``ParamWatch.renewed`` (a rebuild's watch made from the last one, issue 23): after
+    ``changed`` found the changed parameters (a Mitsuba BSDF's value, a links1_phong
+    colour, a Mitsuba light's position), the renewed watch reads only those again and has
+    the state of a whole new watch; it sees the scene unchanged, and a later change."""
+    import mitsuba as mi
+
+    from links1_mitsuba import load_string
+    from links1_mitsuba.tables import ParamWatch
+    scene = load_string(XML.replace("LX", "0.0").replace("BX", "0.0"), variant=variant)
+    params = mi.traverse(scene)
+    w = ParamWatch(scene)
+    params["floor.bsdf.reflectance.value"] = mi.Float(0.3)
+    params["ball.bsdf.diffuse.value"] = mi.Color3f(0.1, 0.5, 0.9)
+    params["lamp.position"] = mi.Point3f(1.0, 4.0, 2.0)
+    params.update()
+    assert not w.unchanged(scene)
+    # (a links1_phong hands out new objects for all its values at an update: those too)
+    assert {"diffuse", "position", "reflectance"} <= {n for n, _ in w.changed(scene)}
+    read = []
+    real = ParamWatch._read_all
+
+    def counting(self, params, pin=False, keys=None):
+        read.append(None if keys is None else sorted(keys))
+        return real(self, params, pin, keys)
+    ParamWatch._read_all = counting
+    try:
+        w2 = w.renewed(scene)
+    finally:
+        ParamWatch._read_all = real
+    changed = sorted(w.changed_keys)
+    assert {"floor.bsdf.reflectance.value", "ball.bsdf.diffuse.value", "lamp.position"} <= set(changed)
+    assert len(changed) < len(w.state) // 2
+    assert read and all(r == changed for r in read)          # never the whole scene
+    fresh = ParamWatch(scene)
+    assert w2.state == fresh.state and w2._jit_ids == fresh._jit_ids
+    assert w2.unchanged(scene) and fresh.unchanged(scene)
+    params["lamp.position"] = mi.Point3f(1.0, 4.0, 3.0)
+    params.update()
+    assert not w2.unchanged(scene)
