@@ -605,7 +605,7 @@ def _side_of_box(nrm, c, a, b, tol):
 #: The fields of the tables planned from the analytic lights' places (``Tables._shadow_tables``),
 #: with the lights themselves: what a light's update (``Tables._update_values``) makes anew.
 LIGHT_FIELDS = ("lights", "shadow_need", "occ_custom", "occ_mitsuba", "any_shadow", "shadow_inner",
-                "occ_boxes", "occ_mslots", "lbuf")
+                "occ_boxes", "occ_mslots", "occ_shapes", "lbuf")
 
 
 class Tables:
@@ -655,10 +655,11 @@ class Tables:
 
         Every other table (shapes, BVH, blob tables, materials, area and environment lights)
         is kept. False (the caller rebuilds all) for another scene or tuning, or any other
-        change: a shape's, another Mitsuba object's (a light's texture too), or a Phong change
-        that alters what the other tables are built from (the transmittance: shadow rays;
-        which slots reflect or have ambient light: the kernels traced). ``n_value_updates``
-        counts the updates."""
+        change: a shape's (a links1 shape's geometry drops the tables at once:
+        ``Links1Whitted.parameters_changed``), another Mitsuba object's (a light's texture
+        too), or a Phong change that alters what the other tables are built from (the
+        transmittance: shadow rays; which slots reflect or have ambient light: the kernels
+        traced). ``n_value_updates`` counts the updates."""
         if not (self.verify_scene and B.ident == ident
                 and B.tuning.tables_key() == tuning.current().tables_key()):
             return False
@@ -699,6 +700,7 @@ class Tables:
             if len(lights) != len(B.lights):
                 return False
             B.lights = lights
+        if light:
             shapes = B.keep_alive[0]
             self._shadow_tables(B, scene, shapes, self._slots(shapes)[0], reuse=True)
             self._freeze = self._freeze_points = None
@@ -798,18 +800,6 @@ class Tables:
         slot_list, nslots = self._slots(shapes)
         P.nslots = nslots
         P.custom = self.custom
-        # many bounded quadrics: tables under a BVH (bvh.py) instead of one code block each
-        quad = [sp for sp in self.custom if sp.__class__.__name__ == "QuadricSpec"
-                and np.all(np.isfinite(np.concatenate(sp.bounds())))]
-        P.bvh = None
-        P.custom_unrolled = list(self.custom)
-        if len(quad) >= P.tuning.bvh_min:
-            bvh_ids = {id(sp) for sp in quad}
-            P.custom_unrolled = [sp for sp in self.custom if id(sp) not in bvh_ids]
-            P.bvh_slots = {sp.slot for sp in quad}
-        # the tables of the shapes traced in their own code (shapes.py ``tables()``: their
-        # constants, a blob's candidate search), built before any trace (frozen inputs)
-        P.blob_tables = [sp.tables() for sp in P.custom_unrolled]
         # registry id -> slot
         reg = [int(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(s))[0]) for s in shapes]
         table = np.full(max(reg + [0]) + 1, -1, dtype=np.int32)
@@ -919,12 +909,7 @@ class Tables:
         P.bsdf_ptr = mi.BSDFPtr(bsdfs) if not P.all_phong else None
         # shadow transmittance (3-3-3): Phong t; Mitsuba BSDFs are opaque
         P.shadow_t_np = trans.copy()
-        if len(P.custom_unrolled) != len(self.custom):
-            P.bvh = QuadricBVH([sp for sp in self.custom if sp.slot in P.bvh_slots], P.shadow_t_np)
-            s2q = np.full(max(nslots, 1), -1, dtype=np.int32)
-            for i, sp in enumerate(P.bvh.specs):
-                s2q[sp.slot] = i
-            P.bvh.slot_to_q = mi.Int32(checked_index(s2q, P.bvh.n, "slot_to_q", sentinel=-1))
+        self._shape_tables(P, self._bvh_quadrics(P))
         P.shadow_t = mi.Float(trans.ravel())
         # transparent Mitsuba shapes, each counted once per shadow segment (3-3-3): shape j
         # owns bit j % 32 of word j // 32 of a per-lane "seen" set (as many words as needed)
@@ -992,6 +977,32 @@ class Tables:
                               stacklevel=2)
         self._shadow_tables(P, scene, shapes, slot_list)
         return P
+
+    def _bvh_quadrics(self, P):
+        """The links1 quadrics to put under a BVH (bvh.py) instead of one code block each:
+        the bounded ones, when there are ``bvh_min`` of them; else none."""
+        quad = [sp for sp in self.custom if sp.__class__.__name__ == "QuadricSpec"
+                and np.all(np.isfinite(np.concatenate(sp.bounds())))]
+        return quad if len(quad) >= P.tuning.bvh_min else []
+
+    def _shape_tables(self, P, quad):
+        """The tables made from the links1 shapes' geometry (what a ``params.update()`` of it
+        redoes, :meth:`_update_values`): the quadrics ``quad`` under a BVH (its slots, the
+        tree, each slot's place in it), the others traced in their own code
+        (``custom_unrolled``) with their tables (shapes.py ``tables()``: their constants, a
+        blob's candidate search), built before any trace (frozen inputs)."""
+        in_bvh = {id(sp) for sp in quad}
+        P.custom = self.custom
+        P.custom_unrolled = [sp for sp in self.custom if id(sp) not in in_bvh]
+        P.bvh_slots = frozenset(sp.slot for sp in quad)
+        P.bvh = None
+        if quad:
+            P.bvh = QuadricBVH(quad, P.shadow_t_np)
+            s2q = np.full(max(P.nslots, 1), -1, dtype=np.int32)
+            for i, sp in enumerate(P.bvh.specs):
+                s2q[sp.slot] = i
+            P.bvh.slot_to_q = mi.Int32(checked_index(s2q, P.bvh.n, "slot_to_q", sentinel=-1))
+        P.blob_tables = [sp.tables() for sp in P.custom_unrolled]
 
     def _shadow_tables(self, P, scene, shapes, slot_list, reuse=False):
         """The tables planned from the analytic lights' places (:data:`LIGHT_FIELDS`): what
