@@ -189,7 +189,8 @@ def surface_ad(mi, dr, spec, held, o, d, t, prim, m):
 
 
 def _quadric_ad(mi, dr, spec, held, o, d, t, prim, m):
-    A = _inverse(mi, dr, spec._inv(), held.get("to_world"))
+    from .util import spread     # (attached one-lane values at the lanes: one scatter-add kernel)
+    A = spread(_inverse(mi, dr, spec._inv(), held.get("to_world")), dr.width(o))
     sphere = spec.kind == "sphere"
     td = dr.detach(t)
     x = o + d * td
@@ -203,7 +204,7 @@ def _quadric_ad(mi, dr, spec, held, o, d, t, prim, m):
     for j, (nc, h) in enumerate(spec.clips if spec.capped else []):
         cap = prim == j + 1
         hh = held.get(f"clip_{j}_offset")
-        hh = hh if hh is not None and dr.grad_enabled(hh) else spec._offset(j)
+        hh = spread(hh, dr.width(o)) if hh is not None and dr.grad_enabled(hh) else spec._offset(j)
         Fc = nc[0] * u.x + nc[1] * u.y + nc[2] * u.z - hh
         Fct = nc[0] * v.x + nc[1] * v.y + nc[2] * v.z
         F = dr.select(cap, Fc, F)

@@ -282,7 +282,16 @@ class Launches:
                 return fn(*args, scene_input)
             except Exception:
                 P.scene_input = _WHOLE_SCENE
-                return fn(*args, whole)
+                try:
+                    return fn(*args, whole)
+                except Exception:
+                    # a call through a pointer array reaches every registered instance of
+                    # its class, also those of scenes that are garbage not yet collected
+                    # (cycles through Python plugins), which are in no input: freeze fails
+                    # to record ("... no such object instance was found in the function's
+                    # inputs"). Those scenes freed, the same recording succeeds.
+                    gc.collect()
+                    return fn(*args, whole)
         finally:
             _FROZEN_CALLER.update(integrator=None, scene=None)
             if gc_on:

@@ -20,7 +20,7 @@ from links1.maths.sampling import light_tag
 import drjit as dr
 import mitsuba as mi
 
-from .util import INF, c3, kind_of, mix32, u24, v3
+from .util import INF, c3, kind_of, mix32, spread, u24, v3
 
 
 def _emitted_rgb(prm, key: str, kind: str, where: str = "links1_whitted") -> np.ndarray:
@@ -43,16 +43,9 @@ def _emitted_rgb(prm, key: str, kind: str, where: str = "links1_whitted") -> np.
 
 
 def _spread(L, n):
-    """The light entry ``L`` with its attached one-lane values (a derivative pass's parameters,
-    gradients.py) gathered to ``n`` lanes. Broadcast as they are, each value's reverse pass is a
-    reduction of its own over the lanes, and each reduction a kernel of its own that recomputes
-    the shading (three per position or colour); a gather's is a scatter-add, and the light's
-    scatter-adds all run in one kernel."""
-    if n <= 1 or not any(dr.grad_enabled(x) for x in L[1:] if dr.is_array_v(x)):
-        return L
-    idx = dr.zeros(mi.UInt32, n)
-    return tuple(dr.gather(type(x), x, idx) if dr.is_array_v(x) and dr.grad_enabled(x)
-                 and dr.width(x) == 1 else x for x in L)
+    """The light entry ``L`` with its attached one-lane values (a derivative pass's
+    parameters, gradients.py) at ``n`` lanes (:func:`~.util.spread`)."""
+    return tuple(spread(x, n) for x in L)
 
 
 class Lights:

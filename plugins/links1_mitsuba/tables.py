@@ -187,7 +187,7 @@ class ParamWatch(Hidden):
                 c = cls.classes[mi.variant()] = Shallow
             return c()
 
-    def __init__(self, obj, params=None, renew=None):
+    def __init__(self, obj, params=None, renew=None, keys=()):
         import drjit as dr
         import mitsuba as mi
         self._mi, self._collect = mi, dr.detail.collect_indices
@@ -195,12 +195,12 @@ class ParamWatch(Hidden):
         self._obj_id = id(obj)
         self.traversed = self.changed_keys = None
         if renew is not None:
-            # the watch ``renew`` with the keys its :meth:`changed` found read again (the
+            # the watch ``renew`` with the ``keys`` its :meth:`changed` found read again (the
             # others' variables are the ones it pinned, and the traversal's structure its own)
             self.state, self._pins = dict(renew.state), dict(renew._pins)
-            state, pins = self._read_all(params, pin=True, keys=renew.changed_keys)
+            state, pins = self._read_all(params, pin=True, keys=keys)
             self.state.update(state)
-            for k in renew.changed_keys:
+            for k in keys:
                 self._pins.pop(k, None)
             self._pins.update(pins)
             for name in ("_own", "_retraverse", "_jit", "_jit_keys", "_scalar", "_scalar_keys", "_root_keys"):
@@ -229,12 +229,16 @@ class ParamWatch(Hidden):
         parameters took ~0.5 ms); a whole new watch where the keys changed or a value's kind
         (variables or not) did."""
         keys, params = self.changed_keys, self.traversed
+        # the traversal let go: it holds the scene, and this watch lives in the scene's tables
+        # (and in their camera views): kept, it would keep every scene alive (a cycle through
+        # C++ objects), whose registered objects then break freeze's recordings of others
+        self.changed_keys = self.traversed = None
         if keys is None or params is None or id(obj) != self._obj_id:
             return ParamWatch(obj)
         fresh, _ = self._read_all(params, keys=keys)
         if any(fresh[k][0] != self.state[k][0] for k in keys):
             return ParamWatch(obj, params)
-        return ParamWatch(obj, params, renew=self)
+        return ParamWatch(obj, params, renew=self, keys=keys)
 
     def _own_values(self, obj, params):
         """``[(node, keys)]``: each node whose values ``mi.traverse`` took as they were (a

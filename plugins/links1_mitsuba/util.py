@@ -39,6 +39,17 @@ def kind_of(obj) -> str:
     return k
 
 
+def spread(v, n):
+    """An attached one-lane Dr.Jit value (a derivative pass's parameter) gathered at ``n``
+    lanes; anything else as it is. Read by ``n`` lanes as it is, a one-lane value's reverse-mode
+    derivative is a horizontal sum per component, each a kernel of its own that recomputes
+    what reads it (a light's shading, a quadric's hit: three per position or colour, twelve
+    per transform); a gather's is a scatter-add, and the scatter-adds of a pass share one."""
+    if n <= 1 or not dr.is_array_v(v) or not dr.grad_enabled(v) or dr.width(v) != 1:
+        return v
+    return dr.gather(type(v), v, dr.zeros(mi.UInt32, n))
+
+
 def udiv(a, b):
     """``a // b`` of two ``UInt32`` arrays (``b`` >= 1 in every lane, not a literal), exact.
 

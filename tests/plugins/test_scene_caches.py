@@ -292,6 +292,7 @@ def test_a_renewed_watch_is_a_new_watch(variant):
     assert not w.unchanged(scene)
     # (a links1_phong hands out new objects for all its values at an update: those too)
     assert {"diffuse", "position", "reflectance"} <= {n for n, _ in w.changed(scene)}
+    changed = sorted(w.changed_keys)
     read = []
     real = ParamWatch._read_all
 
@@ -303,7 +304,7 @@ def test_a_renewed_watch_is_a_new_watch(variant):
         w2 = w.renewed(scene)
     finally:
         ParamWatch._read_all = real
-    changed = sorted(w.changed_keys)
+    assert w.traversed is None     # let go (it holds the scene: a cycle through the tables)
     assert {"floor.bsdf.reflectance.value", "ball.bsdf.diffuse.value", "lamp.position"} <= set(changed)
     assert len(changed) < len(w.state) // 2
     assert read and all(r == changed for r in read)          # never the whole scene
@@ -313,3 +314,66 @@ def test_a_renewed_watch_is_a_new_watch(variant):
     params["lamp.position"] = mi.Point3f(1.0, 4.0, 3.0)
     params.update()
     assert not w2.unchanged(scene)
+
+
+PHONG_BALL = """<scene version="3.0.0">
+ <integrator type="links1_whitted"/>
+ <sensor type="perspective"><float name="fov" value="40"/>
+  <transform name="to_world"><lookat origin="0, 2.5, 5" target="0, 0.8, 0" up="0, 1, 0"/></transform>
+  <film type="hdrfilm"><integer name="width" value="32"/><integer name="height" value="32"/><rfilter type="box"/></film>
+  <sampler type="independent"><integer name="sample_count" value="1"/></sampler></sensor>
+ <shape type="rectangle" id="floor"><transform name="to_world"><scale value="5"/><rotate x="1" angle="-90"/></transform>
+  <bsdf type="FLOOR_BSDF"/></shape>
+ <shape type="sphere" id="ball"><point name="center" x="0" y="1" z="0"/><float name="radius" value="1"/>
+  <bsdf type="links1_phong"><rgb name="diffuse" value="0.7, 0.3, 0.2"/></bsdf></shape>
+ <emitter type="links1_point" id="lp"><point name="position" x="2" y="4" z="3"/><rgb name="L1" value="0.6"/></emitter>
+ <emitter type="point" id="mp"><point name="position" x="-2" y="3" z="4"/><rgb name="intensity" value="6"/></emitter>
+</scene>"""
+
+
+def test_a_scene_dropped_after_gradients_is_freed_and_another_records(variant):
+    """An inverse-rendering loop on one scene (its parameters changed and updated each
+    iteration: the tables' watch sees which, ``ParamWatch.renewed``), then the scene dropped
+    while Python's cyclic collector is off, then another scene's first frame. Two faults
+    seen in ``compare.inverse`` (issue 23): the watch kept the scene's traversal, a cycle
+    through C++ objects that kept every such scene alive; and a scene that is garbage but
+    not yet collected still has its BSDFs registered, so the new scene's frozen launch,
+    whose calls through the BSDF pointers reach them, failed to record (Dr.Jit: "... no such
+    object instance was found in the function's inputs"). Now the first scene is freed once
+    collected, and the second records and renders (as a fresh process renders it)."""
+    import gc
+    import weakref
+
+    import drjit as dr
+    import mitsuba as mi
+
+    from links1_mitsuba import load_string
+
+    def fit_a_few(xml):
+        scene = load_string(xml, variant=variant)
+        params = mi.traverse(scene)
+        target = mi.render(scene, seed=0)
+        opt = mi.ad.Adam(lr=0.05)
+        opt["ball.bsdf.diffuse.value"] = mi.Color3f(0.4, 0.4, 0.4)
+        params.update(opt)
+        for _ in range(3):
+            img = mi.render(scene, params, seed=0)
+            dr.backward(dr.mean(dr.square(img - target), axis=None))
+            opt.step()
+            params.update(opt)
+        return weakref.ref(scene.integrator())
+
+    all_phong = PHONG_BALL.replace('<bsdf type="FLOOR_BSDF"/>', '<bsdf type="links1_phong"/>')
+    mixed = PHONG_BALL.replace('<bsdf type="FLOOR_BSDF"/>', '<bsdf type="diffuse"/>')
+    expected = np.array(mi.render(load_string(mixed, variant=variant), seed=0))
+    gc.collect()
+    gc.disable()
+    try:
+        integrator = fit_a_few(all_phong)      # the scene is garbage now, not collected
+        # (a new integrator: its frozen launch records anew)
+        second = np.array(mi.render(load_string(mixed, variant=variant), seed=0))
+    finally:
+        gc.enable()
+    np.testing.assert_array_equal(second, expected)
+    gc.collect()
+    assert integrator() is None, "the first scene is still alive after a collection"
