@@ -238,8 +238,8 @@ def define_integrator():
 
         def parameters_changed(self, keys):
             """``params.update()``: the links1 shapes whose geometry changed get a new spec
-            (checked as the loader checks a file: ValueError otherwise), and the tables are
-            built again at the next frame (BVH, blob tables). ``keys`` holds only the last part
+            (checked as the loader checks a file: ValueError otherwise), and the next frame
+            makes their tables again (BVH, blob tables: ``Tables._update_values``). ``keys`` holds only the last part
             of each key (``to_world``, not which shape's), so a value changed is one whose Dr.Jit
             variables are not those seen last (:func:`geometry.changed`)."""
             changed = False
@@ -250,8 +250,9 @@ def define_integrator():
                     self.custom[i] = geometry.updated(sp, held, mine)
                     self.geo_seen[sp.slot] = geometry.seen(held)
                     changed = True
-            if changed:
-                self._prep = None
+            if changed and not self.verify_scene:
+                self._prep = None    # (while verify_scene, the next frame's prepare sees the change
+                #                       and makes the shapes' tables again: Tables._update_values)
 
         def aov_names(self):
             return channel_names(self.aovs)[3:]

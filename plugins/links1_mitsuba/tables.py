@@ -610,6 +610,9 @@ def _side_of_box(nrm, c, a, b, tol):
 #: with the lights themselves: what a light's update (``Tables._update_values``) makes anew.
 LIGHT_FIELDS = ("lights", "shadow_need", "occ_custom", "occ_mitsuba", "any_shadow", "shadow_inner",
                 "occ_boxes", "occ_mslots", "occ_shapes", "lbuf")
+#: The fields of the tables made from the links1 shapes' geometry (``Tables._shape_tables``): with
+#: the light tables (planned from the shapes' bounds too), what a geometry update makes anew.
+SHAPE_FIELDS = ("custom", "custom_unrolled", "bvh_slots", "bvh", "blob_tables")
 
 
 class Tables:
@@ -655,15 +658,21 @@ class Tables:
         - a light's values (a ``links1_point``'s or ``links1_spot``'s, a Mitsuba point, spot or
           directional emitter's own parameters): its ``P.lights`` entry and the tables planned
           from the lights' places (:meth:`_shadow_tables`: shadow rays, light buffers); the
-          frozen launches start anew (the lights are constants in their kernels).
+          frozen launches start anew (the lights are constants in their kernels);
+        - the links1 shapes' geometry (the integrator's parameters: a quadric's ``to_world``
+          or clip offsets, a blob's centres, weights, radii, threshold; their specs already
+          made anew by ``parameters_changed``): the shapes' tables (:meth:`_shape_tables`: the
+          BVH built again over the same quadrics, the blob and quadric tables), the light
+          tables (planned from the shapes' bounds too) and each camera view's eye buffer; the
+          frozen launches start anew.
 
-        Every other table (shapes, BVH, blob tables, materials, area and environment lights)
+        Every other table (Mitsuba shapes, materials, emission, area and environment lights)
         is kept. False (the caller rebuilds all) for another scene or tuning, or any other
-        change: a shape's (a links1 shape's geometry drops the tables at once:
-        ``Links1Whitted.parameters_changed``), another Mitsuba object's (a light's texture
-        too), or a Phong change that alters what the other tables are built from (the
-        transmittance: shadow rays; which slots reflect or have ambient light: the kernels
-        traced). ``n_value_updates`` counts the updates."""
+        change: a Mitsuba shape's or other object's (a light's texture too), a quadric that
+        leaves or joins the BVH (its bounds become infinite or finite), or a Phong change that
+        alters what the other tables are built from (the transmittance: shadow rays; which
+        slots reflect or have ambient light: the kernels traced). ``n_value_updates`` counts
+        the updates."""
         if not (self.verify_scene and B.ident == ident
                 and B.tuning.tables_key() == tuning.current().tables_key()):
             return False
@@ -673,14 +682,22 @@ class Tables:
         if not changed:
             return False
         phong = any(isinstance(node, Phong) for _, node in changed)
-        light = False
+        light = geo = False
         for _, node in changed:
             if isinstance(node, Phong):
+                continue
+            if node is scene.integrator():    # the links1 shapes' geometry (integrator.traverse)
+                geo = True
                 continue
             if not (isinstance(node, (Pt, Sp)) or isinstance(node, mi.Emitter)
                     and kind_of(node) in ("PointLight", "SpotLight", "DirectionalEmitter")):
                 return False
             light = True
+        quad = None
+        if geo:
+            quad = self._bvh_quadrics(B)
+            if frozenset(sp.slot for sp in quad) != B.bvh_slots:
+                return False      # another split of the quadrics (one became unbounded)
         new, now = {}, None
         if phong:
             names = {"amb": "ambient", "dif": "diffuse", "spe": "specular", "refl": "reflectance",
@@ -704,20 +721,24 @@ class Tables:
             if len(lights) != len(B.lights):
                 return False
             B.lights = lights
-        if light:
+        if geo:
+            self._shape_tables(B, quad)
+        if light or geo:
             shapes = B.keep_alive[0]
-            self._shadow_tables(B, scene, shapes, self._slots(shapes)[0], reuse=True)
+            self._shadow_tables(B, scene, shapes, self._slots(shapes)[0], reuse=not geo)
             self._freeze = self._freeze_points = None
         for P in (B, *B.views.values()):
             for k, v in new.items():
                 setattr(P, k, v)
             if now is not None:
                 P.phong_np = now
-            if light and P is not B:
-                for f in LIGHT_FIELDS:
+            if (light or geo) and P is not B:
+                for f in LIGHT_FIELDS + (SHAPE_FIELDS if geo else ()):
                     setattr(P, f, getattr(B, f))
+                if geo:   # the camera rays' buffer around the eye (_camera_view)
+                    P.eye_buf = lightbuffer.plan_eye(P, scene) if B.tuning.light_buffer else None
             P.frozen_inputs = None       # gathered again: the new arrays are the launch's inputs
-            if light or not B.all_phong or B.any_mitsuba_emission:
+            if light or geo or not B.all_phong or B.any_mitsuba_emission:
                 P.scene_input = None     # the scene's variables (the BSDFs' new values) too
             # (all links1_phong: the launch's scene input leaves them out, launch._unread_bsdfs)
         B.watch = B.watch.renewed(scene)

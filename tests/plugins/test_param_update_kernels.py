@@ -419,3 +419,52 @@ def test_light_update_replans_only_the_shadow_tables(variant):
     for b, c in zip(t_frames, fresh):
         assert np.array_equal(b, c)
 
+
+
+def test_shape_update_remakes_only_the_shapes_tables(variant):
+    """``params.update()`` of a links1 shape's geometry (issue 23, item 1: a refit, not a
+    reload) updates the prepared tables in place: the BVH is built again over the same
+    quadrics, the shapes' own tables, the light tables (their occluders' bounds) and each
+    camera view's eye buffer are made anew; the materials, slots and lights are kept; no
+    scene build. The scene: test_lightbuffer.py's 120 quadrics (a BVH, light buffers), one of
+    the transparent spheres around the point light moved, two sensors. Each sensor's frame
+    is then the frame of a fresh scene given the same transform, bit for bit."""
+    import mitsuba as mi
+    import links1_mitsuba as lm
+    from links1_mitsuba.tables import SHAPE_FIELDS
+
+    spot_to = np.array([[0.6, 0.0, -0.8, 4.0], [-0.48, 0.8, -0.36, 5.0], [0.64, 0.6, 0.48, -3.0], [0, 0, 0, 1]])
+    xml = light_scene_xml((0.7, 2.2, 0.4), spot_to, 20).replace(
+        '<shape type="links1_quadric">', '<shape type="links1_quadric" id="q0">', 1)
+    key = "links1_whitted.q0.to_world"
+    scene = lm.load_string(xml)
+    integ = scene.integrator()
+    frames = lambda sc: [np.array(mi.render(sc, sensor=k, seed=0)) for k in (0, 1)]  # noqa: E731
+    before = frames(scene)
+    P = integ._prep.base
+    assert P.bvh is not None and len(P.bvh_slots) == 120    # q0 among them
+    builds, updates = integ.n_scene_builds, integ.n_value_updates
+    kept = (P.dif, P.eps_table, P.reg_to_slot, P.lights, P.bsdf_ptr)
+    old = {f: getattr(P, f) for f in ("bvh", "blob_tables", "lbuf", "occ_shapes")}
+    old_eye = {k: V.eye_buf for k, V in P.views.items()}
+    params = mi.traverse(scene)
+    params[key] = mi.Transform4f().translate(mi.Vector3f(0.5, 0.25, -0.5)) @ mi.Transform4f(params[key])
+    params.update()
+    after = frames(scene)
+    assert integ.n_scene_builds == builds and integ.n_value_updates == updates + 1
+    Q = integ._prep.base
+    assert Q is P and all(a is b for a, b in zip(kept, (Q.dif, Q.eps_table, Q.reg_to_slot, Q.lights, Q.bsdf_ptr)))
+    assert all(getattr(Q, f) is not v for f, v in old.items())
+    for k, V in Q.views.items():     # each sensor's view: the new shape tables, its own new eye buffer
+        assert all(getattr(V, f) is getattr(Q, f) for f in SHAPE_FIELDS)
+        assert old_eye[k] is None or V.eye_buf is not old_eye[k]
+    m = np.array(mi.Transform4f(params[key]).matrix, dtype=np.float64).reshape(4, 4)
+    fresh = lm.load_string(xml)
+    fp = mi.traverse(fresh)
+    fp[key] = mi.Transform4f(m.tolist())       # the same float32 matrix, before any frame: a whole build
+    fp.update()
+    expected = frames(fresh)
+    assert fresh.integrator().n_value_updates == 0
+    for a, b, c in zip(before, after, expected):
+        assert not np.array_equal(a, b)
+        assert np.array_equal(b, c)
