@@ -414,7 +414,7 @@ class LocalPool:
             self.pools[k] = pool
             self.pids.pop(k, None)
             self.spawned[k] = time.time()
-            self.hello[k] = pool.submit(start_worker, self._spec)  # the process starts here
+            self.hello[k] = pool.submit(start_worker, self._spec, os.getpid())  # the process starts here
         finally:
             for v, old in saved.items():
                 if old is None:

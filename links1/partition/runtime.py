@@ -171,9 +171,29 @@ def get_renderer(spec: RendererSpec):
     return r
 
 
-def start_worker(spec: RendererSpec) -> tuple:
+#: Seconds between a local worker's checks that its root is alive (:func:`watch_root`).
+ROOT_WATCH_S = 0.5
+
+
+def watch_root(root: int) -> None:
+    """End this worker process when its root (pid ``root``, its parent) is gone. A root that
+    crashes or is killed by a signal closes no pool, and its workers, orphaned, would wait for
+    tasks forever (seen: 18 idle workers left by test runs whose process segfaulted). A
+    daemon thread compares the parent pid every :data:`ROOT_WATCH_S` seconds."""
+    import threading
+
+    def watch():
+        while True:
+            time.sleep(ROOT_WATCH_S)
+            if os.getppid() != root:
+                os._exit(0)
+    threading.Thread(target=watch, name="links1-root-watch", daemon=True).start()
+
+
+def start_worker(spec: RendererSpec, root: int | None = None) -> tuple:
     """A local worker's first task: set its threads, load the scene once -> ``(pid, batches)``
-    (``batches``: the renderer renders many units per launch, see :func:`render_units`).
+    (``batches``: the renderer renders many units per launch, see :func:`render_units`);
+    with ``root`` (the root's pid), the worker ends when the root is gone (:func:`watch_root`).
 
     A task rather than a pool initializer, so that a scene error comes back as that error
     and only a dead process breaks the pool. Warnings print as one line; the scene's own
@@ -181,6 +201,8 @@ def start_worker(spec: RendererSpec) -> tuple:
     """
     from ..frontends.renderers import renderer_warnings
     from ..scene.xmlparse import SceneWarning
+    if root is not None:
+        watch_root(root)
     renderer_warnings(spec.kind)
     warnings.simplefilter("ignore", SceneWarning)
     r = get_renderer(spec)

@@ -208,3 +208,43 @@ def test_local_worker_killed_while_sending_its_result(tmp_path, delay):
     assert (tmp_path / "killed").exists()
     assert np.array_equal(res.image, pixel_values(0, 0, W, H, 4))
     assert time.perf_counter() - t < 120
+
+
+def test_local_workers_end_when_their_root_is_killed(tmp_path):
+    """A root killed by a signal (or crashed) closes no pool: its local workers notice that
+    their parent is gone (``runtime.watch_root``) and end within a second or two, instead of
+    waiting for tasks forever."""
+    script = tmp_path / "root.py"
+    script.write_text(f"""
+import os, signal, sys
+sys.path.insert(0, {str(ROOT)!r})
+from links1.partition.executors import LocalPool, render_plan
+from links1.partition.runtime import RendererSpec
+from links1.partition.strategies import make_plan
+from tests.dist.fake_renderer import FAKE
+if __name__ == "__main__":
+    pool = LocalPool(2)
+    plan = make_plan("scanline", 16, 8, 2, unit="scanline")
+    render_plan(plan, RendererSpec.make(FAKE, "fake"), pool, progress=False)
+    print(" ".join(str(p) for p in pool.pids.values()), flush=True)
+    os.kill(os.getpid(), signal.SIGKILL)
+""")
+    # (the workers inherit its stdout: run() returns once they are gone too)
+    out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=60)
+    assert out.returncode == -signal.SIGKILL, out.stderr[-2000:]
+    pids = [int(p) for p in out.stdout.split()]
+    assert len(pids) == 2
+
+    def alive(pid):
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return False
+        return True
+    deadline = time.monotonic() + 10
+    while any(alive(p) for p in pids) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    left = [p for p in pids if alive(p)]
+    for p in left:                     # not to leave them behind when the test fails
+        os.kill(p, signal.SIGKILL)
+    assert not left, f"workers {left} outlived their root"
