@@ -171,9 +171,33 @@ def get_renderer(spec: RendererSpec):
     return r
 
 
-def start_worker(spec: RendererSpec) -> tuple:
-    """A local worker's first task: set its threads, load the scene once -> ``(pid, batches)``
-    (``batches``: the renderer renders many units per launch, see :func:`render_units`).
+def pin_cpus(cpus) -> tuple | None:
+    """Bind every thread of this process to the CPUs ``cpus`` (threads it starts later inherit
+    the binding) -> the CPUs its main thread is bound to, or None where nothing was bound
+    (``cpus`` empty or None, no ``sched_setaffinity``: not Linux). Issue 28: a local node's
+    process is bound to CPUs of its own (:func:`.executors.node_cpus`), because the kernel put
+    both one-thread nodes of a two-node plugin run on one core of this 2-core machine, each node's
+    half-frame launch waiting in the run queue as long as it ran (docs/partitioning.md)."""
+    if not cpus or not hasattr(os, "sched_setaffinity"):
+        return None
+    cpus = {int(c) for c in cpus}
+    try:
+        tids = [int(t) for t in os.listdir("/proc/self/task")]
+    except OSError:
+        tids = [0]
+    for tid in tids:
+        try:
+            os.sched_setaffinity(tid, cpus)
+        except (ProcessLookupError, PermissionError):   # a thread that ended meanwhile
+            pass
+    os.sched_setaffinity(0, cpus)   # this thread at least: a bad CPU set raises here
+    return tuple(sorted(os.sched_getaffinity(0)))
+
+
+def start_worker(spec: RendererSpec, cpus=None) -> tuple:
+    """A local worker's first task: bind it to ``cpus`` (:func:`pin_cpus`; None: leave it to the
+    kernel), set its threads, load the scene once -> ``(pid, batches, channels)`` (``batches``:
+    the renderer renders many units per launch, see :func:`render_units`).
 
     A task rather than a pool initializer, so that a scene error comes back as that error
     and only a dead process breaks the pool. Warnings print as one line; the scene's own
@@ -181,6 +205,7 @@ def start_worker(spec: RendererSpec) -> tuple:
     """
     from ..frontends.renderers import renderer_warnings
     from ..scene.xmlparse import SceneWarning
+    pin_cpus(cpus)   # before the renderer starts its threads (Dr.Jit's pool): they inherit it
     renderer_warnings(spec.kind)
     warnings.simplefilter("ignore", SceneWarning)
     r = get_renderer(spec)
