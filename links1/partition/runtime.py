@@ -247,7 +247,12 @@ def warm_up(renderer, samples: int = 0):
     samples, so that the renderer's memory for a launch of a task's size is allocated and
     touched before the clock too (issue 28: the plugin's first 512-scanline launch of fig11 at
     512², spp 1 took 51-58 ms after the tiny warm-up, the same launch 36-39 ms after this one; one
-    node's first schedule run 99 ms against 45 ms for the next, docs/partitioning.md)."""
+    node's first schedule run 99 ms against 45 ms for the next, docs/partitioning.md), then
+    batches of half as many scanlines, a quarter, ... down to one: Dr.Jit keeps freed memory for
+    a later launch of the same size class only, so a node's first half-frame launch after a
+    whole-frame warm-up still took fresh pages (fig11 at 512², 2 nodes: ~4800 page faults and
+    8-12 ms of system time per node in the first run, 0-20 after these batches; start-up about
+    one more frame)."""
     w, h = renderer.film_size
     tiny = [(0, 0, min(w, 3), min(h, 2)), (0, 0, min(w, 2), min(h, 3)), (0, 0, min(w, 4), min(h, 4))]
     if can_batch(renderer):  # the links1 renderers (others are left as they are)
@@ -256,7 +261,11 @@ def warm_up(renderer, samples: int = 0):
         if samples > 0:
             spp = max(1, int(getattr(renderer, "spp", 1) or 1))
             rows = max(1, min(h, samples // max(1, w * spp)))
-            renderer.render_batch([(0, y, w, 1) for y in range(rows)])
+            while True:   # then half as many, and so on down to one scanline (above)
+                renderer.render_batch([(0, y, w, 1) for y in range(rows)])
+                if rows == 1:
+                    break
+                rows //= 2
 
 
 def spec_batches(spec: RendererSpec) -> bool:
