@@ -305,6 +305,24 @@ def threads_per_worker(n_workers: int) -> int:
     return max(1, cores // max(1, n_workers))
 
 
+def node_cpus(n_workers: int, threads: int, cpus=None) -> list | None:
+    """CPUs for each of ``n_workers`` local nodes of ``threads`` threads: disjoint sets of
+    ``threads`` CPUs taken in order from ``cpus`` (default: the CPUs this process may use) ->
+    one tuple per node, or None when they do not fit (more nodes x threads than CPUs: the
+    kernel shares them out). Issue 28: left to itself the kernel put both one-thread nodes of
+    a two-node run on one core of two (docs/partitioning.md, "CPU placement")."""
+    if cpus is None:
+        try:
+            cpus = os.sched_getaffinity(0)
+        except AttributeError:  # pragma: no cover - not Linux: no binding
+            return None
+    cpus = sorted(int(c) for c in cpus)
+    n, t = int(n_workers), max(1, int(threads))
+    if n < 1 or n * t > len(cpus):
+        return None
+    return [tuple(cpus[k * t:(k + 1) * t]) for k in range(n)]
+
+
 #: A local pool gives up after this many worker deaths per worker it runs (``max_deaths``).
 DEATHS_PER_WORKER = 3
 
@@ -353,13 +371,18 @@ class LocalPool:
     workers stay N. After ``max_deaths`` deaths (default ``DEATHS_PER_WORKER × N``) in the
     pool's life, or when one unit was lost with ``ALLOWED_FAILURES`` workers, the render
     stops with :class:`~links1.errors.RenderAborted` (CLI: one line, exit 1, no output).
+
+    ``pin`` (default): where nodes x threads fit the CPUs this process may use, each node's
+    process is bound to CPUs of its own (:func:`node_cpus`, :attr:`cpus`); the root is not
+    bound (it sleeps while the nodes render).
     """
 
     name = "local"
 
     def __init__(self, n_workers: int, threads: int | None = None, prefetch: int = 2,
                  max_deaths: int | None = None, log=default_log, chunk_factor: int = CHUNK_FACTOR,
-                 task_pixels: int = TASK_PIXELS, chunk_by: str = "units", shared_frame: bool = True):
+                 task_pixels: int = TASK_PIXELS, chunk_by: str = "units", shared_frame: bool = True,
+                 pin: bool = True):
         if n_workers < 1:
             raise ValueError(f"workers must be >= 1, got {n_workers}")
         self.n = int(n_workers)
@@ -381,6 +404,9 @@ class LocalPool:
         self.line_tasks = 0        # tasks sent through lines (counted: tests see that they were)
         self.line_bytes = 0        # bytes of results received through lines (pixels only without a frame)
         self._root_blas = None   # the root's BLAS thread count during a run (limit_blas)
+        self.pin = bool(pin)
+        #: node -> the CPUs its process is bound to (node_cpus), None: not bound (set by start)
+        self.cpus: list | None = None
         self.max_deaths = DEATHS_PER_WORKER * self.n if max_deaths is None else int(max_deaths)
         self.log = log
         self.deaths = 0
@@ -414,7 +440,8 @@ class LocalPool:
             self.pools[k] = pool
             self.pids.pop(k, None)
             self.spawned[k] = time.time()
-            self.hello[k] = pool.submit(start_worker, self._spec, os.getpid())  # the process starts here
+            cpus = self.cpus[k] if self.cpus else None
+            self.hello[k] = pool.submit(start_worker, self._spec, cpus, os.getpid())  # the process starts here
         finally:
             for v, old in saved.items():
                 if old is None:
@@ -450,6 +477,7 @@ class LocalPool:
         threads = spec.threads or self.threads or threads_per_worker(self.n)
         self._spec = RendererSpec(spec.kind, spec.path, spec.options, threads)
         self._spec_key = spec.key
+        self.cpus = node_cpus(self.n, threads) if self.pin else None
         # computed here, the key travels with every pickled task: a node does not re-read and
         # re-hash the scene file per task (0.2-4 ms each on many.xml, growing with the file)
         self._spec.key  # noqa: B018

@@ -190,10 +190,34 @@ def watch_root(root: int) -> None:
     threading.Thread(target=watch, name="links1-root-watch", daemon=True).start()
 
 
-def start_worker(spec: RendererSpec, root: int | None = None) -> tuple:
-    """A local worker's first task: set its threads, load the scene once -> ``(pid, batches)``
-    (``batches``: the renderer renders many units per launch, see :func:`render_units`);
-    with ``root`` (the root's pid), the worker ends when the root is gone (:func:`watch_root`).
+def pin_cpus(cpus) -> tuple | None:
+    """Bind every thread of this process to the CPUs ``cpus`` (threads it starts later inherit
+    the binding) -> the CPUs its main thread is bound to, or None where nothing was bound
+    (``cpus`` empty or None, no ``sched_setaffinity``: not Linux). Issue 28: a local node's
+    process is bound to CPUs of its own (:func:`.executors.node_cpus`), because the kernel put
+    both one-thread nodes of a two-node plugin run on one core of this 2-core machine, each node's
+    half-frame launch waiting in the run queue as long as it ran (docs/partitioning.md)."""
+    if not cpus or not hasattr(os, "sched_setaffinity"):
+        return None
+    cpus = {int(c) for c in cpus}
+    try:
+        tids = [int(t) for t in os.listdir("/proc/self/task")]
+    except OSError:
+        tids = [0]
+    for tid in tids:
+        try:
+            os.sched_setaffinity(tid, cpus)
+        except (ProcessLookupError, PermissionError):   # a thread that ended meanwhile
+            pass
+    os.sched_setaffinity(0, cpus)   # this thread at least: a bad CPU set raises here
+    return tuple(sorted(os.sched_getaffinity(0)))
+
+
+def start_worker(spec: RendererSpec, cpus=None, root: int | None = None) -> tuple:
+    """A local worker's first task: bind it to ``cpus`` (:func:`pin_cpus`; None: leave it to the
+    kernel), with ``root`` (the root's pid) end it when the root is gone (:func:`watch_root`),
+    set its threads, load the scene once -> ``(pid, batches, channels)`` (``batches``: the
+    renderer renders many units per launch, see :func:`render_units`).
 
     A task rather than a pool initializer, so that a scene error comes back as that error
     and only a dead process breaks the pool. Warnings print as one line; the scene's own
@@ -201,6 +225,7 @@ def start_worker(spec: RendererSpec, root: int | None = None) -> tuple:
     """
     from ..frontends.renderers import renderer_warnings
     from ..scene.xmlparse import SceneWarning
+    pin_cpus(cpus)   # before the renderer starts its threads (Dr.Jit's pool): they inherit it
     if root is not None:
         watch_root(root)
     renderer_warnings(spec.kind)
@@ -244,7 +269,12 @@ def warm_up(renderer, samples: int = 0):
     samples, so that the renderer's memory for a launch of a task's size is allocated and
     touched before the clock too (issue 28: the plugin's first 512-scanline launch of fig11 at
     512², spp 1 took 51-58 ms after the tiny warm-up, the same launch 36-39 ms after this one; one
-    node's first schedule run 99 ms against 45 ms for the next, docs/partitioning.md)."""
+    node's first schedule run 99 ms against 45 ms for the next, docs/partitioning.md), then
+    batches of half as many scanlines, a quarter, ... down to one: Dr.Jit keeps freed memory for
+    a later launch of the same size class only, so a node's first half-frame launch after a
+    whole-frame warm-up still took fresh pages (fig11 at 512², 2 nodes: ~4800 page faults and
+    8-12 ms of system time per node in the first run, 0-20 after these batches; start-up about
+    one more frame)."""
     w, h = renderer.film_size
     tiny = [(0, 0, min(w, 3), min(h, 2)), (0, 0, min(w, 2), min(h, 3)), (0, 0, min(w, 4), min(h, 4))]
     if can_batch(renderer):  # the links1 renderers (others are left as they are)
@@ -253,7 +283,11 @@ def warm_up(renderer, samples: int = 0):
         if samples > 0:
             spp = max(1, int(getattr(renderer, "spp", 1) or 1))
             rows = max(1, min(h, samples // max(1, w * spp)))
-            renderer.render_batch([(0, y, w, 1) for y in range(rows)])
+            while True:   # then half as many, and so on down to one scanline (above)
+                renderer.render_batch([(0, y, w, 1) for y in range(rows)])
+                if rows == 1:
+                    break
+                rows //= 2
 
 
 def spec_batches(spec: RendererSpec) -> bool:

@@ -39,10 +39,14 @@ def test_warm_up_renders_a_batch_of_scanlines_holding_the_samples_asked_for():
     warm_up(r)                              # the tiny windows only
     assert len(r.batches) == 3 and all(w[2] * w[3] <= 16 for b in r.batches for w in b)
     r.batches.clear()
+    r.batches.clear()
     warm_up(r, samples=48 * 2 * 10 + 5)     # 10 scanlines of 48 pixels x 2 spp (the rest rounds down)
-    assert r.batches[-1] == [(0, y, 48, 1) for y in range(10)]
+    rows = [len(b) for b in r.batches[3:]]  # then halved down to one: each size class touched once
+    assert r.batches[3] == [(0, y, 48, 1) for y in range(10)] and rows == [10, 5, 2, 1]
+    r.batches.clear()
     warm_up(r, samples=10 ** 9)             # never more than the film
-    assert r.batches[-1] == [(0, y, 48, 1) for y in range(32)]
+    assert r.batches[3] == [(0, y, 48, 1) for y in range(32)]
+    assert [len(b) for b in r.batches[3:]] == [32, 16, 8, 4, 2, 1]
 
 
 def test_warm_samples_none_for_the_core():
