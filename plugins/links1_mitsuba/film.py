@@ -298,7 +298,7 @@ def reconstruct(rfilter, film_size, spp, seed, batch, data, aovs, dtype=None, mo
         # pixels are (Batch): a pixel's sample 0 is pixel · spp, found without a division
         L.first = dr.arange(U32, L.n) * n_s
     # each sample is one pixel's (box): in a derivative pass a gather's reverse is then a
-    # plain scatter (Permute), not a scatter-add with conflict checks (~4x cheaper)
+    # plain scatter (Permute), not a scatter-add with conflict checks (0.58 -> 0.27 ms at 256²)
     red = dr.ReduceMode.Permute if mode == "evaluated" else dr.ReduceMode.Auto
     want_cost = "cost" in aovs
     # the channels of each of the lane's P pixels

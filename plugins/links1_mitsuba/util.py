@@ -29,9 +29,9 @@ def kind_of(obj) -> str:
     """The name a Mitsuba object's ``to_string`` starts with (``"Rectangle"``, ``"PointLight"``,
     ``"Mask"``, ``"Links1Point"``), as ``str(obj).split("[")[0]`` gives it, without printing the
     object each time: a native shape's or emitter's ``to_string`` reads its transforms and
-    its BSDF's values back from the device (one synchronising read each: 70 of them a table
-    rebuild in a 3-shape scene). Made once per class (``type`` and ``class_name()``: Python
-    plugins share a ``class_name()`` and differ in ``type``)."""
+    its BSDF's values back from the device (one synchronising read each: 78 a table rebuild
+    of a 3-shape scene). Made once per class (``type`` and ``class_name()``: Python plugins
+    share a ``class_name()`` and differ in ``type``)."""
     key = (type(obj), obj.class_name())
     k = _KINDS.get(key)
     if k is None:
