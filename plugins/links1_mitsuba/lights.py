@@ -42,12 +42,6 @@ def _emitted_rgb(prm, key: str, kind: str, where: str = "links1_whitted") -> np.
                      "(textured emitters are not supported)")
 
 
-def _spread(L, n):
-    """The light entry ``L`` with its attached one-lane values (a derivative pass's
-    parameters, gradients.py) at ``n`` lanes (:func:`~.util.spread`)."""
-    return tuple(spread(x, n) for x in L)
-
-
 class Lights:
     """Analytic lights at a hit; area and environment lights: tables and samples."""
 
@@ -63,7 +57,7 @@ class Lights:
 
     def _light(self, L, p):
         """(wi, dist, L_s) of one analytic light at points p (docs/method.md §4.1)."""
-        L = _spread(L, dr.width(p))
+        L = tuple(spread(x, dr.width(p)) for x in L)   # attached values at the lanes (util.spread)
         kind = L[0]
         if kind == "point":
             _, pos, direction, L1, L2, inv_sq = L

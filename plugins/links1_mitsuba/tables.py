@@ -196,9 +196,13 @@ class ParamWatch(Hidden):
         self.traversed = self.changed_keys = None
         if renew is not None:
             # the watch ``renew`` with the ``keys`` its :meth:`changed` found read again (the
-            # others' variables are the ones it pinned, and the traversal's structure its own)
-            self.state, self._pins = dict(renew.state), dict(renew._pins)
+            # others' variables are the ones it pinned, and the traversal's structure its own),
+            # unless a value changed kind (variables or not): then a whole new watch
             state, pins = self._read_all(params, pin=True, keys=keys)
+            if any(state[k][0] != renew.state[k][0] for k in keys):
+                renew = None
+        if renew is not None:
+            self.state, self._pins = dict(renew.state), dict(renew._pins)
             self.state.update(state)
             for k in keys:
                 self._pins.pop(k, None)
@@ -226,8 +230,7 @@ class ParamWatch(Hidden):
     def renewed(self, obj):
         """A watch of ``obj``'s parameters now, made from this one after :meth:`changed` found
         which differ (only those read again: a rebuild's watch of the blob scene's 90
-        parameters took ~0.5 ms); a whole new watch where the keys changed or a value's kind
-        (variables or not) did."""
+        parameters took ~0.5 ms); a whole new watch where the keys changed."""
         keys, params = self.changed_keys, self.traversed
         # the traversal let go: it holds the scene, and this watch lives in the scene's tables
         # (and in their camera views): kept, it would keep every scene alive (a cycle through
@@ -235,9 +238,6 @@ class ParamWatch(Hidden):
         self.changed_keys = self.traversed = None
         if keys is None or params is None or id(obj) != self._obj_id:
             return ParamWatch(obj)
-        fresh, _ = self._read_all(params, keys=keys)
-        if any(fresh[k][0] != self.state[k][0] for k in keys):
-            return ParamWatch(obj, params)
         return ParamWatch(obj, params, renew=self, keys=keys)
 
     def _own_values(self, obj, params):
@@ -649,9 +649,9 @@ class Tables:
         return V
 
     def _update_values(self, B, scene, ident) -> bool:
-        """The tables ``B`` brought up to a change of ``links1_phong`` coefficients or of
-        analytic lights only (issue 23, item 1: ``params.update()`` re-prepares what the change
-        touches), in place:
+        """The tables ``B`` brought up to a change of ``links1_phong`` coefficients, analytic
+        lights or links1 shapes' geometry only (issue 23, item 1: ``params.update()``
+        re-prepares what the change touches), in place:
 
         - coefficients: the material rows re-read from the BSDFs; the frozen launch is kept
           (the rows are its inputs);

@@ -342,6 +342,10 @@ def test_specular_update_keeps_the_reflectance_it_defaulted_to(variant):
     assert not np.array_equal(got, followed)
 
 
+#: light_scene_xml's spot light (a rotation and a translation, exact in float32)
+SPOT_TO = np.array([[0.6, 0.0, -0.8, 4.0], [-0.48, 0.8, -0.36, 5.0], [0.64, 0.6, 0.48, -3.0], [0, 0, 0, 1]])
+
+
 def light_scene_xml(pos, spot_to_world, intensity):
     """test_lightbuffer.py's 120 quadrics (a BVH, light buffers) with its point light at
     ``pos`` (id ``pl``, RGB ``intensity``), its spot light's ``to_world`` the 4x4 matrix
@@ -374,11 +378,10 @@ def test_light_update_replans_only_the_shadow_tables(variant):
     import links1_mitsuba as lm
     from links1_mitsuba.tables import LIGHT_FIELDS
 
-    spot_to = np.array([[0.6, 0.0, -0.8, 4.0], [-0.48, 0.8, -0.36, 5.0], [0.64, 0.6, 0.48, -3.0], [0, 0, 0, 1]])
-    moved_to = np.array(spot_to)
+    moved_to = np.array(SPOT_TO)
     moved_to[:3, 3] = [3.5, 4.5, -2.5]
 
-    def xml(pos=(0.7, 2.2, 0.4), to=spot_to, intensity=20):
+    def xml(pos=(0.7, 2.2, 0.4), to=SPOT_TO, intensity=20):
         return light_scene_xml(pos, to, intensity)
 
     scene = lm.load_string(xml())
@@ -433,8 +436,7 @@ def test_shape_update_remakes_only_the_shapes_tables(variant):
     import links1_mitsuba as lm
     from links1_mitsuba.tables import SHAPE_FIELDS
 
-    spot_to = np.array([[0.6, 0.0, -0.8, 4.0], [-0.48, 0.8, -0.36, 5.0], [0.64, 0.6, 0.48, -3.0], [0, 0, 0, 1]])
-    xml = light_scene_xml((0.7, 2.2, 0.4), spot_to, 20).replace(
+    xml = light_scene_xml((0.7, 2.2, 0.4), SPOT_TO, 20).replace(
         '<shape type="links1_quadric">', '<shape type="links1_quadric" id="q0">', 1)
     key = "links1_whitted.q0.to_world"
     scene = lm.load_string(xml)
