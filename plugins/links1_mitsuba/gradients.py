@@ -119,6 +119,15 @@ def put_rows(table, rows, width):
     return out
 
 
+def _spawns(P, slot):
+    """Whether a hit on ``slot`` may spawn a mirror or refraction ray (eq. 3.12-3.16): a
+    ``links1_phong`` with some reflectance or transmittance, any other BSDF where the scene
+    has delta lobes."""
+    if not P.is_phong_np[slot]:
+        return P.any_mitsuba_delta
+    return bool(P.phong_np["refl"][slot].max() > 0 or max(P.shadow_t_np[slot]) > 0)
+
+
 def _render_op_caller():
     """Mitsuba's ``_RenderOp`` (``mi.render(scene, params)``) when it is the caller of the
     integrator's ``render()`` (``render`` -> ``_render_keeping_graph`` -> here), else None."""
@@ -323,6 +332,7 @@ class Gradients:
         Q.geo_ad = geometry.attached_specs(dr, P.custom, self.geo) or None
         if Q.geo_ad is not None and P.bvh is not None:
             Q.bvh, Q.eye_buf, Q.custom_unrolled = None, None, list(P.custom)
+        Q.fixed_children = Q.geo_ad is None or not any(_spawns(P, sl) for sl in Q.geo_ad)
         Q.attached_any = (any(rows.values()) or Q.geo_ad is not None or any_light
                           or (not P.all_phong and _mitsuba_attached(scene, P, self.verify_scene)))
         return Q
@@ -378,6 +388,10 @@ class Gradients:
             nr, nt = dr.width(ir), dr.width(it)
             if nr + nt == 0:
                 return total
+            # what the children take of this level, made in one kernel (a gather evaluates its
+            # source alone: a kernel per component, each recomputing the shared terms)
+            dr.eval(*([res["o_r"], res["dir_r"], w_r, key_r] if nr else []),
+                    *([res["o_t"], res["dir_t"], w_t, key_t] if nt else []))
 
             def pick(x_r, x_t):
                 a = dr.gather(type(x_r), x_r, ir) if nr else None
@@ -385,6 +399,11 @@ class Gradients:
                 return cat(a, b, nr, nt)
             own = pick(own, own)
             o, d = pick(res["o_r"], res["o_t"]), pick(res["dir_r"], res["dir_t"])
+            if P.fixed_children:
+                # spawned by surfaces that do not move, from rays that carry no derivative
+                # (the camera's; by induction the children's): the AD graph skips their
+                # place (zero derivative, computed in every backward kernel otherwise)
+                o, d = dr.detach(o), dr.detach(d)
             wgt, key = pick(w_r, w_t), pick(key_r, key_t)
             m = nr + nt
             res = self._level(P, scene, o, d, dr.zeros(mi.Float, m), dr.full(mi.Float, INF, m), key, 0,

@@ -91,10 +91,19 @@ class RayTree:
         wo = -d
         front = dr.dot(ng, wo) > 0
         nf = dr.select(front, ns, -ns)
+        # a BSDF call or Mitsuba emitter reads Mitsuba's whole surface record (need_si below)
+        need_si = not P.all_phong or P.any_mitsuba_emission
+        held = []
         if P.any_mitsuba_shapes and not symbolic:
-            # (a derivative pass: Embree's surface record too, which the BSDF calls and their
-            # derivatives read: unevaluated, each kernel of the AD traversal would trace again)
-            dr.eval(t, slot, prim, p, ng, ns, nf, cost, *([si] if ad else []))
+            if ad:
+                # a derivative pass keeps the hits in memory, and what reads Embree's record
+                # later, ``mits`` or the record itself for the BSDF calls and their
+                # derivatives (~40 floats a lane, only then): unevaluated, each kernel of the
+                # AD traversal would trace again. Evaluated with the shadow tests (direct below):
+                # one kernel for both
+                held = [t, slot, prim, p, ng, ns, nf, mits, *([si] if need_si else [])]
+            else:
+                dr.eval(t, slot, prim, p, ng, ns, nf, cost)
         out = dr.zeros(mi.Color3f, n)
         # ---- escaping rays: background (Mitsuba constant / envmap)
         if P.env is not None:
@@ -108,7 +117,6 @@ class RayTree:
         if P.any_custom_emission:
             out += dr.select(hit & front & ~mits, gather3(P.custom_emission, uslot, hit), 0.0)
         # Mitsuba-side interaction record for BSDF calls (custom winners filled in)
-        need_si = not P.all_phong or P.any_mitsuba_emission
         if need_si:
             sif = mi.SurfaceInteraction3f(si)
             cw = hit & ~mits
@@ -225,10 +233,14 @@ class RayTree:
                         so, wi, smax = dr.detach(so), dr.detach(wi), dr.detach(smax)
                     T, need, occ_m = shadow(jsh, so, wi, smax, lit, contrib)
                     pending.append((contrib, so, wi, smax, lit, need, T, occ_m, jsh))
-            if ad and not symbolic and P.custom:   # the shadow tests' results kept (as the hits above)
-                dr.eval(*[tup[6] for tup in pending if tup[6] is not None])
-            if P.any_mitsuba_shapes and pending and not symbolic and not skip:
-                dr.eval(out, cost, *[x for tup in pending for x in tup[:6]])
+            if not symbolic:
+                # in one kernel: a derivative pass's hits and its shadow tests through links1
+                # shapes (kept, as the hits), and the inputs of Mitsuba's ray tests where one follows
+                ev = held + ([tup[6] for tup in pending if tup[6] is not None] if ad and P.custom else [])
+                if P.any_mitsuba_shapes and not skip and any(tup[7] for tup in pending):
+                    ev += [out, cost, *[x for tup in pending for x in tup[:6]]]
+                if ev:
+                    dr.eval(*ev)
             for contrib, so, wi, smax, lit, need, T, occ_m, j in pending:
                 if T is None:               # nothing can shadow this light
                     out += dr.select(lit, contrib, 0.0)

@@ -552,6 +552,9 @@ class Prepared:
     ad: bool = _default(False)
     #: the attached geometry of the links1 shapes, or None
     geo_ad: object = _default(None)
+    #: whether no moving surface (``geo_ad``) can spawn a mirror or refraction ray: the
+    #: children's rays then carry no derivative (``_trace_tree_ad`` detaches them)
+    fixed_children: bool = _default(True)
     #: whether any parameter the pass reads has gradients enabled
     attached_any: bool = _default(False)
 
