@@ -290,10 +290,17 @@ def _f(v):
     return "" if v is None else f"{v:.2f}"
 
 
+def _nondefault(a) -> str:
+    """The options of the run besides those the title names, where not their defaults."""
+    return "".join(f" --{k.replace('_', '-')} {v}" for k, v, default in
+                   (("spp", a.spp, 1), ("strategies", a.strategies, ",".join(STRATEGIES)), ("out", a.out, "scaling_nodes"))
+                   if v != default)
+
+
 def markdown(table, info, a) -> str:
     lines = [f"# Speed-up and true efficiency against node count (`python -m compare.scaling_nodes --nodes {a.nodes} "
              f"--scenes {a.scenes} --renderers {a.renderers} --res {a.res}{' --big' if a.big else ''} --repeat "
-             f"{a.repeat}`)", "",
+             f"{a.repeat}{_nondefault(a)}`)", "",
              f"Machine: {info.get('cpu', '?')}, {info.get('cores')} cores, {info.get('platform')}; git {info.get('git')}; "
              f"load average at start {info.get('loadavg_start')}, at end {info.get('loadavg_end')}; "
              f"{info.get('minutes')} min.", "",
