@@ -241,15 +241,19 @@ class RayTree:
                     ev += [out, cost, *[x for tup in pending for x in tup[:6]]]
                 if ev:
                     dr.eval(*ev)
+            tested = []                     # Mitsuba's ray tests, light by light
+            for k, (contrib, so, wi, smax, lit, need, T, occ_m, j) in enumerate(pending):
+                if T is not None and P.any_mitsuba_shapes and occ_m:
+                    T = self._shadow_mitsuba(P, scene, so, wi, smax, need, T, cost, light=j,
+                                             own=own_outer(wi))
+                    pending[k] = (contrib, so, wi, smax, lit, need, T, occ_m, j)
+                    tested.append(T)
+            if ad and not symbolic and tested:   # the ray tests kept (as the hits above), in one kernel
+                dr.eval(*tested)
             for contrib, so, wi, smax, lit, need, T, occ_m, j in pending:
                 if T is None:               # nothing can shadow this light
                     out += dr.select(lit, contrib, 0.0)
                     continue
-                if P.any_mitsuba_shapes and occ_m:
-                    T = self._shadow_mitsuba(P, scene, so, wi, smax, need, T, cost, light=j,
-                                             own=own_outer(wi))
-                    if ad and not symbolic:   # its ray tests kept (as the hits above)
-                        dr.eval(T)
                 out += dr.select(lit, contrib * dr.select(need, T, 1.0), 0.0)
             return out, cost, n_shadow
 
