@@ -19,7 +19,7 @@ from collections import deque
 
 from ..errors import RenderAborted
 from .executors import ALLOWED_FAILURES, CHUNK_FACTOR, TASK_PIXELS, guided_batch, take_batch
-from .runtime import THREAD_ENV, get_renderer, limit_blas, render_units, spec_batches, warm_samples, warm_up
+from .runtime import THREAD_ENV, get_renderer, limit_blas, pin_cpus, render_units, spec_batches, warm_samples, warm_up
 
 try:  # the plugin base class only when distributed is there (lazy for everything else)
     from distributed.diagnostics.plugin import WorkerPlugin as _WorkerPluginBase
@@ -28,14 +28,20 @@ except ImportError:  # pragma: no cover
 
 
 class ScenePreload(_WorkerPluginBase):
-    """Loads the scene on each worker once, on the thread that runs its tasks."""
+    """Loads the scene on each worker once, on the thread that runs its tasks; first, on a
+    LocalCluster started here, binds the worker's process to its node's CPUs (``cpus``: one
+    tuple per worker name ``0 .. n-1``, :func:`.executors.node_cpus`; a worker the nanny
+    restarts is bound again, as this runs on every worker that starts)."""
 
-    def __init__(self, spec):
-        self.spec = spec
+    def __init__(self, spec, cpus=None):
+        self.spec, self.cpus = spec, cpus
 
     async def setup(self, worker):
         ex = worker.executors.get("default")
         loop = asyncio.get_running_loop()
+        name = worker.name
+        if self.cpus and isinstance(name, int) and 0 <= name < len(self.cpus):
+            pin_cpus(self.cpus[name])   # every thread of the process, and those it starts later
         await loop.run_in_executor(ex, _load_and_warm_up, self.spec)
 
 
@@ -55,7 +61,7 @@ class DaskBackend:
 
     def __init__(self, scheduler: str | None = None, n_local: int | None = None, threads: int | None = None,
                  static: bool = False, client=None, poll_s: float = 0.25, chunk_factor: int = CHUNK_FACTOR,
-                 task_pixels: int = TASK_PIXELS, chunk_by: str = "units"):
+                 task_pixels: int = TASK_PIXELS, chunk_by: str = "units", pin: bool = True):
         if scheduler is None and not n_local and client is None:
             raise ValueError("give a scheduler address, a LocalCluster size or a client")
         self.scheduler, self.n_local, self.threads = scheduler, n_local, threads
@@ -69,6 +75,10 @@ class DaskBackend:
         self.token = uuid.uuid4().hex[:8]
         self._plugin = None
         self._root_blas = None   # the root's BLAS thread count before a LocalCluster started
+        # a LocalCluster's workers bound to CPUs of their own, as LocalPool's nodes (issue 28):
+        # ``pin`` (default), where they fit; ``cpus`` the sets (None: left to the kernel; a
+        # cluster of other machines is never bound)
+        self.pin, self.cpus = bool(pin), None
 
     # ---------------------------------------------------------------- lifecycle
     def start(self, spec):
@@ -89,6 +99,8 @@ class DaskBackend:
                                                 env={k: str(t) for k in THREAD_ENV})
                 self.client = Client(self.cluster)
                 self.threads = t
+                from .executors import node_cpus
+                self.cpus = node_cpus(int(self.n_local), t) if self.pin else None
                 # the nodes share this machine's cores: the root (it renders nothing) keeps
                 # one BLAS thread until close, as LocalPool's does (runtime.limit_blas)
                 self._root_blas = limit_blas(1) or 0
@@ -96,7 +108,7 @@ class DaskBackend:
             if spec.threads is None and self.threads:
                 from .runtime import RendererSpec
                 spec = RendererSpec(spec.kind, spec.path, spec.options, self.threads)
-            self.client.register_plugin(ScenePreload(spec), name=f"links1-preload-{spec.key}")
+            self.client.register_plugin(ScenePreload(spec, self.cpus), name=f"links1-preload-{spec.key}")
             self._plugin = spec.key
         self._spec = spec
 

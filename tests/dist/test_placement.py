@@ -121,3 +121,42 @@ def test_plugin_nodes_and_root_use_no_cpu_while_they_wait():
         # a spinning worker would take most of the 0.3 s; measured here: 0.00 s
         assert max(idle) < 0.03, idle
     assert np.isfinite(res.image[..., :3]).all() and res.image[..., :3].any()
+
+
+def _affinities():
+    """{thread id: its CPUs} of every thread of this process (run on a Dask worker)."""
+    out = {}
+    for tid in _tids(os.getpid()):
+        try:
+            out[tid] = sorted(os.sched_getaffinity(tid))
+        except OSError:   # a thread that ended meanwhile
+            pass
+    return out
+
+
+@linux
+@two_cpus
+@pytest.mark.parametrize("pin", [True, False])
+def test_dask_local_workers_are_bound_like_local_nodes(core_spec, core_ref, pin):
+    """A LocalCluster started for ``--dask-local`` binds each worker's process (every thread)
+    to CPUs of its own, as LocalPool does (``pin=False``: left to the kernel); its frame is
+    the same."""
+    pytest.importorskip("distributed")
+    from links1.partition.dask_backend import DaskBackend
+    cpus = os.sched_getaffinity(0)
+    plan = make_plan("grid", 32, 32, 2, tiles_per_node=2)
+    with DaskBackend(n_local=2, static=True, pin=pin) as be:
+        res = render_plan(plan, core_spec, be, progress=False)
+        got = be.client.run(_affinities)
+        names = be.client.run(lambda dask_worker: dask_worker.name)
+    np.testing.assert_array_equal(res.image, core_ref)
+    assert len(got) == 2
+    if not pin:
+        assert be.cpus is None
+        assert all(set(c) == cpus for per in got.values() for c in per.values())
+        return
+    assert be.cpus == node_cpus(2, be.threads, cpus)
+    for addr, per in got.items():
+        want = list(be.cpus[names[addr]])
+        assert per and all(c == want for c in per.values()), (addr, per)
+    assert not set(be.cpus[0]) & set(be.cpus[1])
