@@ -1,6 +1,6 @@
 """Inverse rendering with ``links1_whitted``'s gradients (issue 23, item 4): a benchmark.
 
-    python -m compare.inverse [--width 64] [--iters 100] [--big 256] [--variant llvm_ad_rgb]
+    python -m compare.inverse [--width 64] [--iters 100] [--big 256] [--rounds 25] [--variant llvm_ad_rgb]
                               [--only light phong blob quadric]
 
 From a target image rendered with known values, starting from perturbed ones, ``mi.ad.Adam``
@@ -28,7 +28,8 @@ perturbed start is drawn from, or [0, 1] for colours); issue target: ≤ 1 % of 
 Time per iteration (render with gradients + loss + ``dr.backward`` + Adam step +
 ``params.update``; the blob case: its five views) against the primal frame (``mi.render``
 without gradients, evaluated and synced), wall-clock medians in one process; with ``--big N``
-every case also runs a few one-view iterations at N² for the same ratio (issue 23: ≤ 3×). Each
+every case is also timed in one view at N² for the same ratio (issue 23: ≤ 3×), ``--rounds``
+rounds of an iteration and a primal frame interleaved (:func:`timing_only`). Each
 iteration runs with ``dr.JitFlag.KernelHistory``: the kernels compiled in it (found in none of
 Dr.Jit's caches) and their code generation + LLVM time are reported (``kernels_compiled``,
 ``compile_ms``). Writes ``compare/results/inverse.{json,md,png}`` and the figure to
@@ -328,32 +329,52 @@ def optimizer(mi, case, params, variables, lrs):
 
 
 def timing_only(mi, dr, name, cls, variables, lrs, width, n, log):
-    """``n`` iterations at ``width``² (after 3 warm-up ones) for the iteration / primal ratio."""
+    """``n`` rounds at ``width``² (after 3 warm-up ones) for the iteration / primal ratio.
+
+    A round: an iteration, a timed iteration, a primal frame, a timed primal frame. The two
+    are interleaved, so that a machine whose speed drifts (other jobs on a shared one) slows
+    both alike; each timed one is the second of its pair: the timed iteration pays for the
+    previous iteration's ``params.update()`` (re-prepared at its render, as in a loop of
+    iterations), the timed primal frame renders an unchanged scene (the first one of the pair
+    re-prepared it). Medians of each, and of the rounds' own ratios."""
     scene = load(name, width)
     case = cls(name, scene, variables, lrs, n)
     params = mi.traverse(scene)
     case.setup(mi, params)
     target = mi.render(scene, seed=0)
     sync(target)
-    primal = primal_times(mi, scene, n)
     case.set_values(mi, params, {k: d["start"] for k, d in variables.items()})
     opt = optimizer(mi, case, params, variables, lrs)
-    its = []
-    warm = 3   # the first iterations trace and compile (freeze recordings, kernel look-ups)
-    for it in range(n + warm):
-        t0 = time.perf_counter()
+
+    def iteration():
         img = mi.render(scene, params, seed=0)
         dr.backward(dr.mean(dr.square(img - target), axis=None))
         opt.step()
         case.apply(mi, params, opt)
         sync(opt[next(iter(variables))])
-        its.append(time.perf_counter() - t0)
-    its = its[warm:]
+
+    def frame():
+        sync(mi.render(scene, seed=0))
+
+    def timed(f):
+        t0 = time.perf_counter()
+        f()
+        return time.perf_counter() - t0
+    its, primal = [], []
+    for r in range(n + 3):   # the first rounds trace and compile (freeze recordings, kernel look-ups)
+        iteration()
+        ti = timed(iteration)
+        frame()
+        tp = timed(frame)
+        if r >= 3:
+            its.append(ti)
+            primal.append(tp)
     r = dict(case=name, width=width, primal_ms=[t * 1e3 for t in primal], iteration_ms=[t * 1e3 for t in its],
-             primal_median_ms=float(np.median(primal)) * 1e3, iteration_median_ms=float(np.median(its)) * 1e3)
+             primal_median_ms=float(np.median(primal)) * 1e3, iteration_median_ms=float(np.median(its)) * 1e3,
+             ratio_of_rounds=float(np.median(np.array(its) / np.array(primal))))
     r["ratio"] = r["iteration_median_ms"] / r["primal_median_ms"]
-    log(f"  {name} at {width}²: primal {r['primal_median_ms']:.0f} ms, iteration {r['iteration_median_ms']:.0f} ms,"
-        f" ratio {r['ratio']:.2f}")
+    log(f"  {name} at {width}²: primal {r['primal_median_ms']:.2f} ms, iteration {r['iteration_median_ms']:.2f} ms,"
+        f" ratio {r['ratio']:.2f} (of the rounds: {r['ratio_of_rounds']:.2f})")
     return r
 
 
@@ -408,10 +429,11 @@ def markdown(results, big, info, cmd):
                          np.array2string(np.asarray(r["final"][k]), precision=3, separator=", ").replace("\n", " ")])
     out.append(md_table(["case", "parameter", "range", "start err", "final err", "final value"], rows))
     if big:
-        out.append("\nTiming at a larger film (same case, a few iterations):\n")
-        out.append(md_table(["case", "res", "primal ms", "iteration ms", "iter / primal"],
-                            [[b["case"], f"{b['width']}²", b["primal_median_ms"], b["iteration_median_ms"], b["ratio"]]
-                             for b in big]))
+        out.append("\nTiming at a larger film (same case; rounds of an iteration and a primal frame interleaved, "
+                   "each the second of a pair: `timing_only`; medians, and the median of the rounds' ratios):\n")
+        out.append(md_table(["case", "res", "rounds", "primal ms", "iteration ms", "iter / primal", "median of round ratios"],
+                            [[b["case"], f"{b['width']}²", len(b["iteration_ms"]), b["primal_median_ms"],
+                              b["iteration_median_ms"], b["ratio"], b.get("ratio_of_rounds")] for b in big]))
     out.append("\nThe compile column: kernels built in that iteration (a parameter that enters a kernel as a "
                "literal makes new kernels after each update; a rerun of the same trajectory finds them in "
                "Dr.Jit's on-disk cache). \"iteration − compile\" is what an iteration costs once cached.\n")
@@ -430,6 +452,7 @@ def main(argv=None):
     ap.add_argument("--iters", type=int, default=100)
     ap.add_argument("--blob-iters", type=int, default=400, help="the blob case's budget")
     ap.add_argument("--big", type=int, default=256, help="also time every case at this width (0: no)")
+    ap.add_argument("--rounds", type=int, default=25, help="timing rounds at --big (interleaved iteration / frame)")
     ap.add_argument("--variant", default="llvm_ad_rgb")
     ap.add_argument("--only", nargs="*", default=None)
     ap.add_argument("--no-write", action="store_true")
@@ -450,7 +473,7 @@ def main(argv=None):
     # the fits they came out ~10 % slower: 3.03-3.24x against 2.72x for phong in a fresh one)
     for name, cls, variables, lrs, _ in cases:
         if a.big:
-            big.append(timing_only(mi, dr, name, cls, variables, lrs, a.big, 15, log))
+            big.append(timing_only(mi, dr, name, cls, variables, lrs, a.big, a.rounds, log))
     for name, cls, variables, lrs, iters in cases:
         log(f"case {name}")
         r, imgs = run_case(mi, dr, name, cls, variables, lrs, iters, a.width, log)
