@@ -370,13 +370,15 @@ class Gradients:
         ``min_weight`` rule) traced level by level without local memory, so that Dr.Jit
         can differentiate them: the children of a level (mirror rays first, then
         refraction rays) are compacted into the next level's rays, and each level's
-        ``weight · I_o`` is added to its sample (eq. 3.16). Returns the samples' RGB."""
+        ``weight · I_o`` is added to its sample (eq. 3.16). Returns the samples' RGB, evaluated."""
         n = dr.width(o)
         spawn = self.max_depth > 1 and P.any_specular
+        later = []    # a level's shadow tests, evaluated with what its children take (below)
         res = self._level(P, scene, o, d, tmin, tmax, key, 1, spawn, symbolic=False,
-                          sample=self._take_cam_sample())
+                          sample=self._take_cam_sample(), later=later)
         total = mi.Color3f(res["L"])
         if not spawn:
+            dr.eval(total, *later)
             return total
         own = dr.arange(mi.UInt32, n)
         cr, ct, w_r, w_t = self._children(res, res["hit"], mi.Color3f(1.0), mi.UInt32(1))
@@ -387,11 +389,14 @@ class Gradients:
             ir, it = dr.compress(cr), dr.compress(ct)
             nr, nt = dr.width(ir), dr.width(it)
             if nr + nt == 0:
+                dr.eval(total, *later)
                 return total
             # what the children take of this level, made in one kernel (a gather evaluates its
-            # source alone: a kernel per component, each recomputing the shared terms)
+            # source alone: a kernel per component, each recomputing the shared terms), with the
+            # level's shadow tests: it runs while the next level is traced
             dr.eval(*([res["o_r"], res["dir_r"], w_r, key_r] if nr else []),
-                    *([res["o_t"], res["dir_t"], w_t, key_t] if nt else []))
+                    *([res["o_t"], res["dir_t"], w_t, key_t] if nt else []), *later)
+            later.clear()
 
             def pick(x_r, x_t):
                 a = dr.gather(type(x_r), x_r, ir) if nr else None
@@ -407,7 +412,7 @@ class Gradients:
             wgt, key = pick(w_r, w_t), pick(key_r, key_t)
             m = nr + nt
             res = self._level(P, scene, o, d, dr.zeros(mi.Float, m), dr.full(mi.Float, INF, m), key, 0,
-                              True, symbolic=False)
+                              True, symbolic=False, later=later)
             acc = dr.zeros(mi.Color3f, n)
             dr.scatter_add(acc, wgt * res["L"], own)
             total = total + acc

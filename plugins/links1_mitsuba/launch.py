@@ -405,10 +405,9 @@ class Launches:
         n = dr.width(sid)
         if getattr(P, "ad", False):   # a derivative pass (gradients.py): unfrozen, no AOVs
             o, d, tmin, tmax, key, _ = self._camera_rays(P, sid, spp_, seeds)
+            # (the samples' RGB evaluated in one kernel: the film's gather would evaluate each
+            # channel alone, recomputing the shading of the ray tree three times)
             total = self._trace_tree_ad(P, scene, o, d, tmin, tmax, key)
-            # the samples' RGB in one kernel: the film's gather would evaluate each channel
-            # alone, recomputing the shading of the ray tree three times
-            dr.eval(total)
             return {"total": total, "cost": dr.zeros(mi.UInt32, n)}, (n, dict(nsh1=None))
         if self.use_freeze:
             cfg = (id(P), id(scene), want, int(self.max_depth), float(self.min_weight),

@@ -41,9 +41,12 @@ class RayTree:
 
     # -------------------------------------------------------------- one level
     def _level(self, P, scene, o, d, tmin, tmax, key, depth, spawn, active=None, symbolic=True,
-               sample=None):
+               sample=None, later=None):
         """Trace and shade one ray per lane (inside the megakernel's loop when ``symbolic``).
-        ``sample``: the camera sample of a primary hit (see :meth:`_light_uv`).
+        ``sample``: the camera sample of a primary hit (see :meth:`_light_uv`). ``later``
+        (a derivative pass): a list that takes the shadow tests' results the pass keeps in
+        memory, for the caller to evaluate (``Gradients._trace_tree_ad``: after it has read
+        which rays the level spawns, so that reading waits for the hits' kernel only).
         Returns a dict of Dr.Jit arrays."""
         n = dr.width(o)
         ad = getattr(P, "ad", False)   # a derivative pass (gradients.py)
@@ -235,6 +238,9 @@ class RayTree:
                 ev = [tup[6] for tup in pending if tup[6] is not None] if ad and P.custom else []
                 if P.any_mitsuba_shapes and not skip and any(tup[7] for tup in pending):
                     ev += [out, cost, *[x for tup in pending for x in tup[:6]]]
+                elif later is not None:
+                    later.extend(ev)
+                    ev = []
                 if ev:
                     dr.eval(*ev)
             tested = []                     # Mitsuba's ray tests, light by light
