@@ -59,6 +59,7 @@ import drjit as dr
 import mitsuba as mi
 
 from . import geometry, tuning
+from .tables import PHONG_TABLES
 from .registered import plugin_class
 from .util import INF, kind_of, mix32
 
@@ -277,16 +278,15 @@ class Gradients:
         bsdfs = P.keep_alive[3]       # the BSDF of each slot (tables.prepare)
         if len(bsdfs) != P.nslots:
             raise RuntimeError("links1_whitted: the BSDF table has another size (an internal inconsistency)")
-        rows = {k: {} for k in ("ambient", "diffuse", "specular", "reflectance", "transmittance", "exponent")}
+        tabs = {attr: nw for attr, nw in PHONG_TABLES.items() if attr != "ior"}   # (ior: held fixed)
+        rows = {name: {} for name, _ in tabs.values()}
         for sl, b in enumerate(bsdfs):
             if isinstance(b, Phong):
                 for name, r in rows.items():
                     v = b._held.t_exponent if name == "exponent" else getattr(b._held, name)
                     if attached(v):
                         r[sl] = v
-        for name, attr, width in (("ambient", "amb", 3), ("diffuse", "dif", 3), ("specular", "spe", 3),
-                                  ("reflectance", "refl", 3), ("transmittance", "trans", 3),
-                                  ("exponent", "expo", 1)):
+        for attr, (name, width) in tabs.items():
             if rows[name]:
                 setattr(Q, attr, put_rows(getattr(P, attr), rows[name], width))
         Q.any_ambient = P.any_ambient or bool(rows["ambient"])

@@ -609,6 +609,14 @@ def _side_of_box(nrm, c, a, b, tol):
     return 0
 
 
+#: The ``links1_phong`` coefficients as the tables hold them: table field -> (the BSDF's parameter
+#: name, values a slot). ``trans`` is also the shadow transmittance (``shadow_t_np``); the
+#: derivative pass differentiates all but ``ior`` (``Gradients._ad_tables``: the refracted
+#: direction is held fixed).
+PHONG_TABLES = {"amb": ("ambient", 3), "dif": ("diffuse", 3), "spe": ("specular", 3),
+                "refl": ("reflectance", 3), "trans": ("transmittance", 3), "expo": ("exponent", 1),
+                "ior": ("ior", 1)}
+
 #: The fields of the tables planned from the analytic lights' places (``Tables._shadow_tables``),
 #: with the lights themselves: what a light's update (``Tables._update_values``) makes anew.
 LIGHT_FIELDS = ("lights", "shadow_need", "occ_custom", "occ_mitsuba", "any_shadow", "shadow_inner",
@@ -703,8 +711,7 @@ class Tables:
                 return False      # another split of the quadrics (one became unbounded)
         new, now = {}, None
         if phong:
-            names = {"amb": "ambient", "dif": "diffuse", "spe": "specular", "refl": "reflectance",
-                     "expo": "exponent", "ior": "ior"}
+            names = {k: PHONG_TABLES[k][0] for k in B.phong_np}   # (the transmittance: below)
             now = {k: np.zeros_like(v) for k, v in B.phong_np.items()}
             trans = np.zeros((B.nslots, 3))
             for sl, b in enumerate(B.keep_alive[3]):
