@@ -180,17 +180,31 @@ def _reattach(dr, t, F, Ft, m):
     return dr.select(ok, t - (F - dr.detach(F)) / dr.select(ok, Ft, 1.0), t)
 
 
-def surface_ad(mi, dr, spec, held, o, d, t, prim, m):
+def surface_ad(mi, dr, spec, held, o, d, t, prim, m, memo=None):
     """The hit ``o + t d`` of ``spec`` on lanes ``m`` (``t``: primal, detached) as attached
-    values: ``(t, n)``, the distance moving with the surface and the outward unit normal."""
+    values: ``(t, n)``, the distance moving with the surface and the outward unit normal.
+    ``memo``: a dict kept for one derivative pass, which then makes each shape's attached
+    ``M⁻¹`` once for all its levels (:func:`_inverse_of`)."""
     if spec.__class__.__name__ == "QuadricSpec":
-        return _quadric_ad(mi, dr, spec, held, o, d, t, prim, m)
-    return _blob_ad(mi, dr, spec, held, o, d, t, m)
+        return _quadric_ad(mi, dr, spec, held, o, d, t, prim, m, memo)
+    return _blob_ad(mi, dr, spec, held, o, d, t, m, memo)
 
 
-def _quadric_ad(mi, dr, spec, held, o, d, t, prim, m):
+def _inverse_of(mi, dr, spec, rows, held, memo):
+    """:func:`_inverse` of ``spec`` (its primal rows ``rows``, ``held``'s ``to_world``), once
+    per ``memo`` (None: every call)."""
+    key = id(spec)
+    if memo is not None and key in memo:
+        return memo[key]
+    A = _inverse(mi, dr, rows, held.get("to_world"))
+    if memo is not None:
+        memo[key] = A
+    return A
+
+
+def _quadric_ad(mi, dr, spec, held, o, d, t, prim, m, memo=None):
     from .util import spread     # (attached one-lane values at the lanes: one scatter-add kernel)
-    A = spread(_inverse(mi, dr, spec._inv(), held.get("to_world")), dr.width(o))
+    A = spread(_inverse_of(mi, dr, spec, spec._inv(), held, memo), dr.width(o))
     sphere = spec.kind == "sphere"
     td = dr.detach(t)
     x = o + d * td
@@ -260,8 +274,8 @@ def blob_field(mi, dr, terms, x):
     return W, g
 
 
-def _blob_ad(mi, dr, spec, held, o, d, t, m):
-    A = _inverse(mi, dr, spec._mats()[0], held.get("to_world"))
+def _blob_ad(mi, dr, spec, held, o, d, t, m, memo=None):
+    A = _inverse_of(mi, dr, spec, spec._mats()[0], held, memo)
     terms = _blob_terms(mi, dr, spec, held, dr.width(t))
     T = held.get("threshold", spec.threshold)
     T = T if dr.grad_enabled(T) else spec._threshold()

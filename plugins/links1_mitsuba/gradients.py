@@ -332,6 +332,7 @@ class Gradients:
         Q.geo_ad = geometry.attached_specs(dr, P.custom, self.geo) or None
         if Q.geo_ad is not None and P.bvh is not None:
             Q.bvh, Q.eye_buf, Q.custom_unrolled = None, None, list(P.custom)
+        Q.ad_memo = {}
         Q.fixed_children = Q.geo_ad is None or not any(_spawns(P, sl) for sl in Q.geo_ad)
         Q.attached_any = (any(rows.values()) or Q.geo_ad is not None or any_light
                           or (not P.all_phong and _mitsuba_attached(scene, P, self.verify_scene)))
@@ -349,7 +350,7 @@ class Gradients:
             if held is None and not moving_ray:
                 continue
             m = slot == sp.slot
-            tn, nn = geometry.surface_ad(mi, dr, sp, held[1] if held else {}, o, d, t, prim, m)
+            tn, nn = geometry.surface_ad(mi, dr, sp, held[1] if held else {}, o, d, t, prim, m, P.ad_memo)
             t = dr.select(m, tn, t)
             ng = dr.select(m, nn, ng)
             ns = dr.select(m, nn, ns)

@@ -470,3 +470,12 @@ def test_shape_update_remakes_only_the_shapes_tables(variant):
     for a, b, c in zip(before, after, expected):
         assert not np.array_equal(a, b)
         assert np.array_equal(b, c)
+    # the occluder planning's shapes part (the Mitsuba floor's box and plane taken from the last
+    # planning, the quadrics' boxes made anew) is the fresh build's
+    G, F = Q.occ_shapes, fresh.integrator()._prep.base.occ_shapes
+    assert G["mitsuba_slot"].any() and any(p is not None for p in G["plane"])
+    for k in ("lo", "hi", "convex", "closed", "mitsuba_slot"):
+        assert np.array_equal(G[k], F[k]), k
+    assert G["others"] == F["others"] and G["tol"] == F["tol"]
+    assert [None if p is None else (tuple(p[0]), p[1]) for p in G["plane"]] == \
+        [None if p is None else (tuple(p[0]), p[1]) for p in F["plane"]]
