@@ -1121,7 +1121,7 @@ class Tables:
         whether hits on that slot need a shadow ray toward light ``j``; ``P.occ_custom[j]``
         / ``P.occ_mitsuba[j]``: the links1 shapes / whether any Mitsuba shape can occlude
         it. Conservative. What the shapes alone decide (``P.occ_shapes``:
-        :meth:`_occluder_shapes`) is made once per build: a light's update ``reuse``\ s it."""
+        :meth:`_occluder_shapes`) is made once per build, and a light's update reuses it (``reuse``)."""
         if not reuse:
             # (a geometry update: the Mitsuba shapes' part of the last planning kept)
             P.occ_shapes = self._occluder_shapes(P, shapes, slot_list, getattr(P, "occ_shapes", None))

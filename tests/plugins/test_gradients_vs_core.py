@@ -1,0 +1,117 @@
+"""The plugin's gradients against the float64 core's finite differences (issue 23, item 3: an
+independent check of their direction and size).
+
+The same file, its values given as ``$name`` parameters, is rendered by ``links1_whitted``
+(reverse mode: ``mi.render(scene, params)`` + ``dr.backward``) and by the core
+(``links1.tracing.render.render``, float64 numpy, another implementation of the same method:
+its own quadric roots, shading and ray tree), whose central differences come from loading the
+file with each value moved by ±h. The loss is the weighted sum over the pixels that see the
+moving sphere, eroded twice (``test_geometry_gradients.interior``: no silhouette or shadow edge
+in it), so both are derivatives of a smooth function there.
+
+Step and tolerance: h = 1e-3 moves the sphere's silhouette by ~0.006 pixel (one unit is ~5.5
+pixels at this camera), far from the loss's pixels; the core's central difference then errs by
+h²/6 · f''' (~1e-7 relative) plus float64 rounding (~1e-13 / 2h). The two renderers' frames
+differ by float32 rounding and their own arithmetic (the plugin's quadric in float32 against the
+core's float64 roots: ~1e-6 relative in these pixels): the plugin's gradient vector must equal
+the core's to 1e-4 of its length (measured: 2e-6 for the translation, 4e-7 for the light; a
+gradient missing a term is far off: with the moving hit's normal held fixed, 0.84).
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tests.plugins.test_geometry_gradients import CAMERA, FLOOR, interior
+
+pytestmark = pytest.mark.mitsuba
+
+DEFAULTS = dict(tx=0.2, ty=1.4, tz=0.3, lx=2.0, ly=4.0, lz=3.0)
+
+# test_geometry_gradients' sphere over the mirror-ish floor (a diffuse floor here), its
+# translation and the links1 point light's position as parameters
+SCENE = ("".join(f'<default name="{k}" value="{v!r}"/>' for k, v in DEFAULTS.items()) + CAMERA.format(depth=3)
+         + FLOOR.replace('<rgb name="reflectance" value="0.2"/>', "") + """
+  <shape type="links1_quadric" id="ball"><string name="kind" value="sphere"/>
+    <transform name="to_world"><scale value="1.2"/><translate x="$tx" y="$ty" z="$tz"/></transform>
+    <bsdf type="links1_phong"><rgb name="diffuse" value="0.5, 0.4, 0.3"/><rgb name="specular" value="0.3"/>
+      <rgb name="reflectance" value="0"/><float name="exponent" value="12"/></bsdf></shape>
+  <emitter type="links1_point" id="lp"><point name="position" x="$lx" y="$ly" z="$lz"/><rgb name="L1" value="0.6"/>
+    <rgb name="L2" value="0.4"/><string name="falloff" value="inverse_square"/></emitter>
+  <emitter type="point" id="mp"><point name="position" x="-2" y="3" z="4"/><rgb name="intensity" value="6"/></emitter>""")
+
+H = 1e-3
+
+
+@pytest.fixture(scope="module")
+def scene_file(tmp_path_factory):
+    path = tmp_path_factory.mktemp("grad_core") / "scene.xml"
+    path.write_text(f'<scene version="3.0.0">{SCENE}</scene>')
+    return path
+
+
+def core_sum(path, weights, **moved):
+    from links1.scene.loader import load_scene
+    from links1.tracing.render import render
+    values = {k: repr(float(v)) for k, v in {**DEFAULTS, **moved}.items()}
+    img = render(load_scene(str(path), **values), spp=1)
+    return float(np.sum(img[..., :3] * weights))
+
+
+def core_gradient(path, weights, names):
+    return np.array([(core_sum(path, weights, **{k: DEFAULTS[k] + H}) - core_sum(path, weights, **{k: DEFAULTS[k] - H}))
+                     / (2 * H) for k in names])
+
+
+def assert_same_vector(g, ref):
+    err = float(np.linalg.norm(g - ref) / np.linalg.norm(ref))
+    assert err <= 1e-4, (g, ref, err)
+
+
+def test_quadric_translation_matches_the_cores_finite_difference(variant, scene_file):
+    """d(loss)/d(translation) of a ``links1_quadric``: the plugin's implicit differentiation of
+    the moving hit against the core's frames with the file's translation moved."""
+    import drjit as dr
+    import mitsuba as mi
+    import links1_mitsuba as lm
+    scene = lm.load_file(str(scene_file))
+    w = interior(scene, "ball")
+    key = "links1_whitted.ball.to_world"
+    params = mi.traverse(scene)
+    old = mi.Transform4f(params[key])
+    t = mi.Vector3f(0.0)
+    dr.enable_grad(t)
+    params[key] = mi.Transform4f().translate(t) @ old
+    params.update()
+    img = mi.render(scene, params)
+    dr.backward(dr.sum(img * mi.TensorXf(w), axis=None))
+    g = np.array(dr.grad(t), dtype=np.float64).ravel()
+    params[key] = old
+    params.update()
+    ref = core_gradient(scene_file, w, ("tx", "ty", "tz"))
+    assert np.linalg.norm(ref) > 0.3, ref
+    assert_same_vector(g, ref)
+
+
+def test_light_position_matches_the_cores_finite_difference(variant, scene_file):
+    """d(loss)/d(position) of a ``links1_point`` light (eq. 3.10 with inverse-square falloff):
+    the plugin's reverse mode against the core's frames with the file's light moved."""
+    import drjit as dr
+    import mitsuba as mi
+    import links1_mitsuba as lm
+    scene = lm.load_file(str(scene_file))
+    w = interior(scene, "ball")
+    params = mi.traverse(scene)
+    old = mi.Point3f(params["lp.position"])
+    pos = mi.Point3f(old)
+    dr.enable_grad(pos)
+    params["lp.position"] = pos
+    params.update()
+    img = mi.render(scene, params)
+    dr.backward(dr.sum(img * mi.TensorXf(w), axis=None))
+    g = np.array(dr.grad(pos), dtype=np.float64).ravel()
+    params["lp.position"] = old
+    params.update()
+    ref = core_gradient(scene_file, w, ("lx", "ly", "lz"))
+    assert np.linalg.norm(ref) > 0.05, ref
+    assert_same_vector(g, ref)
