@@ -100,8 +100,9 @@ class RayTree:
             # a derivative pass keeps the hits in memory, and what reads Embree's record later,
             # ``mits`` or the record itself for the BSDF calls and their derivatives (~40 floats
             # a lane, only then): unevaluated, each kernel of the AD traversal would trace
-            # again. Launched here, the kernel runs while the rest of the level is traced
-            # (with the shadow tests in one kernel instead: 0.1-0.3 ms slower an iteration)
+            # again. Launched here, the kernel runs while the rest of the level is traced (made
+            # in one kernel with the shadow tests instead, a 256² iteration of the inverse
+            # benchmark's light case was 0.1-0.3 ms slower: that overlap lost)
             dr.eval(t, slot, prim, p, ng, ns, nf, cost, *(([mits, si] if need_si else [mits]) if ad else []))
         out = dr.zeros(mi.Color3f, n)
         # ---- escaping rays: background (Mitsuba constant / envmap)
@@ -234,7 +235,8 @@ class RayTree:
                     pending.append((contrib, so, wi, smax, lit, need, T, occ_m, jsh))
             if not symbolic:
                 # in one kernel: a derivative pass's shadow tests through links1 shapes (kept, as
-                # the hits above), and the inputs of Mitsuba's ray tests where one follows
+                # the hits above), and the inputs of Mitsuba's ray tests where one follows; with
+                # no such test, the tests go to ``later`` (the caller evaluates them)
                 ev = [tup[6] for tup in pending if tup[6] is not None] if ad and P.custom else []
                 if P.any_mitsuba_shapes and not skip and any(tup[7] for tup in pending):
                     ev += [out, cost, *[x for tup in pending for x in tup[:6]]]
