@@ -336,24 +336,30 @@ class ParamWatch(Hidden):
             return False
         if [_token(get(*e)) for e in self._scalar] != self._scalar_tokens:
             return False
-        out = self._shallow(obj)
-        if sorted(name for name, _, _ in out) != self._root_keys:
-            return False
-        for name, v, ct in out:
-            s = self.state[name]
-            if self._read_one(v if ct is None else get(v, ct, obj), s[0]) != s:
-                return False
+        entries = self._node_entries(obj)
+        return entries is not None and not any(self._differs(k, e) for k, e in entries)
+
+    def _node_entries(self, obj):
+        """``[(key, (value, cpptype, node))]`` of ``obj``'s own values and those the Python
+        plugins (and the scene's integrator) hand out, their nodes traversed one level, in the
+        watch's keys; None where they are not the watched ones (keys added or gone)."""
+        own = self._shallow(obj)
+        if sorted(name for name, _, _ in own) != self._root_keys:
+            return None
+        out = [(name, (v, ct, obj)) for name, v, ct in own]
         for ref, keys in self._own:
             node = obj.integrator() if ref is _INTEGRATOR else ref
-            out = self._shallow(node)
-            if len(out) != len(keys):
-                return False
-            for (name, v, ct), k in zip(out, keys):
-                s = self.state[k]
-                if not (k == name or k.endswith("." + name)) or \
-                        self._read_one(v if ct is None else get(v, ct, node), s[0]) != s:
-                    return False
-        return True
+            vals = self._shallow(node)
+            if len(vals) != len(keys) or not all(k == n or k.endswith("." + n) for (n, _, _), k in zip(vals, keys)):
+                return None
+            out += [(k, (v, ct, node)) for (_, v, ct), k in zip(vals, keys)]
+        return out
+
+    def _differs(self, k, entry):
+        """Whether parameter ``k`` (its ``entry``: value, cpptype, node) is not what the watch saw."""
+        v, ct, node = entry
+        s = self.state[k]
+        return self._read_one(v if ct is None else self._mi.get_property(v, ct, node), s[0]) != s
 
     def changed(self, obj):
         """The parameters of ``obj`` that differ from the watch's, as ``(name, object)``: the
@@ -385,34 +391,11 @@ class ParamWatch(Hidden):
         :meth:`unchanged` reads them (the C++ objects' fields by address, ``obj``'s own and the
         Python plugins' values by traversing their nodes one level); None where the structure
         is not the watched one (keys added or gone: the caller traverses)."""
-        mi = self._mi
-        get = mi.get_property
-        out = []
-        for k, e in zip(self._jit_keys, self._jit):
-            if self._read_one(get(*e), "ids") != self.state[k]:
-                out.append((k, e))
-        for k, e in zip(self._scalar_keys, self._scalar):
-            if self._read_one(get(*e), "value") != self.state[k]:
-                out.append((k, e))
-        own = self._shallow(obj)
-        if sorted(name for name, _, _ in own) != self._root_keys:
+        entries = self._node_entries(obj)
+        if entries is None:
             return None
-        for name, v, ct in own:
-            s = self.state[name]
-            if self._read_one(v if ct is None else get(v, ct, obj), s[0]) != s:
-                out.append((name, (v, ct, obj)))
-        for ref, keys in self._own:
-            node = obj.integrator() if ref is _INTEGRATOR else ref
-            vals = self._shallow(node)
-            if len(vals) != len(keys):
-                return None
-            for (name, v, ct), k in zip(vals, keys):
-                if not (k == name or k.endswith("." + name)):
-                    return None
-                s = self.state[k]
-                if self._read_one(v if ct is None else get(v, ct, node), s[0]) != s:
-                    out.append((k, (v, ct, node)))
-        return out
+        return [(k, e) for k, e in [*zip(self._jit_keys, self._jit), *zip(self._scalar_keys, self._scalar), *entries]
+                if self._differs(k, e)]
 
     def attached(self) -> bool:
         """Whether a parameter had gradients enabled when the watch read it (an AD index in
