@@ -376,9 +376,13 @@ def timing_only(mi, dr, name, cls, variables, lrs, width, n, log):
              primal_median_ms=float(np.median(primal)) * 1e3, iteration_median_ms=float(np.median(its)) * 1e3,
              ratio_of_rounds=float(np.median(np.array(its) / np.array(primal))))
     r["ratio"] = r["iteration_median_ms"] / r["primal_median_ms"]
-    log(f"  {name} at {width}²: primal {r['primal_median_ms']:.2f} ms, iteration {r['iteration_median_ms']:.2f} ms,"
-        f" ratio {r['ratio']:.2f} (of the rounds: {r['ratio_of_rounds']:.2f})")
+    log(_timing_line(r))
     return r
+
+
+def _timing_line(r, where=""):
+    return (f"  {r['case']} at {r['width']}²: primal {r['primal_median_ms']:.2f} ms, iteration "
+            f"{r['iteration_median_ms']:.2f} ms, ratio {r['ratio']:.2f} (of the rounds: {r['ratio_of_rounds']:.2f}{where})")
 
 
 def _timed_apart(name, a, log):
@@ -392,8 +396,7 @@ def _timed_apart(name, a, log):
     if out.returncode != 0:
         raise RuntimeError(f"compare.inverse: timing {name} failed:\n{out.stderr[-2000:]}")
     r = json.loads(out.stdout.strip().splitlines()[-1])
-    log(f"  {name} at {r['width']}²: primal {r['primal_median_ms']:.2f} ms, iteration {r['iteration_median_ms']:.2f} ms,"
-        f" ratio {r['ratio']:.2f} (of the rounds: {r['ratio_of_rounds']:.2f}; own process)")
+    log(_timing_line(r, "; own process"))
     return r
 
 

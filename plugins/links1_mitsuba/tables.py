@@ -691,7 +691,7 @@ class Tables:
         same = B is not None and B.ident == ident and B.tuning.tables_key() == tuning.current().tables_key()
         if same and (not self.verify_scene or B.watch.unchanged(scene)):
             pass
-        elif not (same and self._update_values(B, scene, ident)):
+        elif not (same and self._update_values(B, scene)):
             # (after _update_values, B's watch knows which parameters changed: the new watch
             # reads only those again)
             B = self._prepare_scene(scene, ident, B.watch if same else None)
@@ -699,7 +699,7 @@ class Tables:
         self._prep = V
         return V
 
-    def _update_values(self, B, scene, ident) -> bool:
+    def _update_values(self, B, scene) -> bool:
         """The tables ``B`` brought up to a change of ``links1_phong`` coefficients, analytic
         lights or links1 shapes' geometry only (issue 23, item 1: ``params.update()``
         re-prepares what the change touches), in place:
@@ -723,10 +723,8 @@ class Tables:
         leaves or joins the BVH (its bounds become infinite or finite), or a Phong change that
         alters what the other tables are built from (the transmittance: shadow rays; which
         slots reflect or have ambient light: the kernels traced). ``n_value_updates`` counts
-        the updates."""
-        if not (self.verify_scene and B.ident == ident
-                and B.tuning.tables_key() == tuning.current().tables_key()):
-            return False
+        the updates. Called by :meth:`prepare` only for tables of this scene and
+        tuning, while ``verify_scene``, whose watch saw a change."""
         changed = B.watch.changed(scene)
         Phong = plugin_class("links1_phong")
         Pt, Sp = plugin_class("links1_point"), plugin_class("links1_spot")
