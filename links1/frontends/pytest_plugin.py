@@ -148,25 +148,30 @@ def student_t_sf2(t, dof) -> np.ndarray:
     return np.clip(_betainc(dof / 2.0, np.full_like(x, 0.5), x), 0.0, 1.0)
 
 
-def welch_t_test(mean_a, var_a, n_a, mean_b, var_b, n_b) -> np.ndarray:
+def welch_t_test(mean_a, var_a, n_a, mean_b, var_b, n_b, tolerance=0.0) -> np.ndarray:
     """Per-element two-sided p-values of Welch's t-test for equal means.
 
     ``var_*`` are sample variances of single samples (ddof=1) and ``n_*`` sample counts
-    (>= 2), so ``var/n`` is the variance of each mean. Where both variances are zero the
-    p-value is 1 for equal means and 0 otherwise.
+    (>= 2), so ``var/n`` is the variance of each mean. ``tolerance`` (per element, >= 0)
+    is how far apart the means may be for want of precision (e.g. the resolution they
+    are stored at): the test sees ``max(|mean_a - mean_b| - tolerance, 0)``. Where both
+    variances are zero the p-value is 1 for means within ``tolerance`` and 0 otherwise.
     """
     ma, va, na, mb, vb, nb = (np.asarray(v, dtype=np.float64)
                               for v in (mean_a, var_a, n_a, mean_b, var_b, n_b))
     sa, sb = np.maximum(va, 0.0) / na, np.maximum(vb, 0.0) / nb
     se2 = sa + sb
+    with np.errstate(invalid="ignore"):
+        diff = np.where(ma == mb, 0.0, np.abs(ma - mb))     # inf == inf: no difference
+        diff = np.maximum(diff - np.asarray(tolerance, dtype=np.float64), 0.0)
     with np.errstate(divide="ignore", invalid="ignore"):
-        t = (ma - mb) / np.sqrt(se2)
+        t = diff / np.sqrt(se2)
         dof = se2 * se2 / (sa * sa / np.maximum(na - 1, 1) + sb * sb / np.maximum(nb - 1, 1))
     degenerate = ~(se2 > 0)
     t = np.where(degenerate, 0.0, t)
     dof = np.where(degenerate | ~np.isfinite(dof), 1.0, np.maximum(dof, 1e-12))
     p = student_t_sf2(t, dof)
-    p = np.where(degenerate, np.where(ma == mb, 1.0, 0.0), p)
+    p = np.where(degenerate, np.where(diff == 0.0, 1.0, 0.0), p)
     return np.where(np.isnan(ma) | np.isnan(mb), 0.0, p)
 
 
@@ -191,6 +196,31 @@ def _hwc(x) -> np.ndarray:
     if x.ndim != 3:
         raise ValueError(f"expected an (H, W) or (H, W, C) image, got shape {x.shape}")
     return x
+
+
+STORED_DTYPE = np.float32   # what links1.imaging.image.write_exr stores
+
+
+def _as_stored(x: np.ndarray, what: str) -> np.ndarray:
+    """``x`` (float64) rounded as a baseline EXR stores it, so that an image is compared
+    at the precision its baseline was kept at; a finite value beyond that range is an
+    error rather than a baseline holding inf."""
+    stored = x.astype(STORED_DTYPE)
+    overflow = np.isfinite(x) & ~np.isfinite(stored)
+    if overflow.any():
+        row, col, ch = (int(i[0]) for i in np.nonzero(overflow))
+        raise ValueError(f"{what} {x[row, col, ch]:g} at pixel (x={col}, y={row}), channel {ch}, "
+                         f"does not fit a {np.dtype(STORED_DTYPE).name} baseline (largest "
+                         f"{float(np.finfo(STORED_DTYPE).max):.4g})")
+    return stored.astype(np.float64)
+
+
+def _stored_resolution(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """One stored-precision ulp at the larger magnitude: two values each rounded to the
+    nearest stored number from the same true value lie at most this far apart."""
+    big = np.maximum(np.abs(a), np.abs(b))
+    finite = np.where(np.isfinite(big), big, 0.0).astype(STORED_DTYPE)
+    return np.spacing(finite).astype(np.float64)
 
 
 def _default_names(c: int) -> list[str]:
@@ -353,7 +383,7 @@ class Baseline:
             raise ValueError(f"unknown metric {metric!r}; choose from {', '.join(METRICS)}")
         threshold = self._ini_float("links1_threshold", DEFAULT_THRESHOLD) if threshold is None \
             else float(threshold)
-        img = _hwc(image() if callable(image) else image)
+        img = _as_stored(_hwc(image() if callable(image) else image), "image value")
         names = list(channel_names) if channel_names else _default_names(img.shape[2])
         path = self.path(name)
 
@@ -417,6 +447,10 @@ class Baseline:
             if stack.ndim != 4 or stack.shape[0] < 2:
                 raise ValueError(f"samples must be (K, H, W[, C]) with K >= 2, got {stack.shape}")
             m, v = stack.mean(axis=0), stack.var(axis=0, ddof=1)
+            # Identical samples: their value and no spread, not a mean and a variance
+            # carrying the sum's rounding.
+            constant = (stack == stack[0]).all(axis=0)
+            m, v = np.where(constant, stack[0], m), np.where(constant, 0.0, v)
             n = np.full(m.shape[:2] + (1,), float(stack.shape[0]))
         else:
             if mean is None or variance is None or count is None:
@@ -427,6 +461,7 @@ class Baseline:
             n = np.broadcast_to(np.asarray(count, dtype=np.float64), m.shape[:2]).reshape(m.shape[:2] + (1,))
             if np.any(n < 2):
                 raise ValueError("count must be >= 2 samples per pixel")
+        m, v = _as_stored(m, "mean"), _as_stored(v, "variance")
         c = m.shape[2]
         names = list(channel_names) if channel_names else _default_names(c)
         path = self.path(name)
@@ -453,7 +488,7 @@ class Baseline:
             files = self._write_report(name, m, bm, names)
             self._fail(f"'{name}': image is {m.shape[1]}x{m.shape[0]}x{m.shape[2]}, baseline "
                        f"{path} is {bm.shape[1]}x{bm.shape[0]}x{bm.shape[2]}", files)
-        p = welch_t_test(m, v, n, bm, bv, bn)
+        p = welch_t_test(m, v, n, bm, bv, bn, tolerance=_stored_resolution(m, bm))
         level = sidak_alpha(alpha, p.size)
         failing = p < level
         pmin = float(p.min())

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import re
 from importlib.metadata import entry_points
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -152,3 +153,97 @@ def test_welch_degenerate_variances():
 def test_sidak_level():
     assert sidak_alpha(0.01, 1) == pytest.approx(0.01)
     assert sidak_alpha(0.01, 1000) == pytest.approx(1 - 0.99 ** (1 / 1000))
+
+
+# ------------------------------------------------ unchanged reruns pass -----------------
+
+CONSTANTS = '''
+import numpy as np
+import pytest
+
+DTYPE = np.__DTYPE__
+LARGE = {np.float16: 65504.0, np.float32: float(np.finfo(np.float32).max), np.float64: 3e38}
+
+@pytest.mark.parametrize("value", [0.06, 0.5, 0.0, 1e-30, "large"])
+def test_constant(links1_baseline, value):
+    value = LARGE[DTYPE] if value == "large" else value
+    links1_baseline.check_statistical(f"const_{value}", np.full((8, 4, 4, 3), value, dtype=DTYPE))
+
+def test_spread_of_one_ulp(links1_baseline):
+    # float64 samples a rounding apart (a deterministic pixel under jitter): a variance
+    # of ~1e-35, far below what the float32 baseline can hold of the mean
+    x = np.array(0.06, dtype=DTYPE)
+    stack = np.stack([np.full((4, 4, 3), x), np.full((4, 4, 3), np.nextafter(x, DTYPE(1)))] * 4)
+    links1_baseline.check_statistical("spread", stack)
+
+def test_moments(links1_baseline):
+    links1_baseline.check_statistical("moments", mean=np.full((4, 4, 3), 0.06, dtype=DTYPE),
+                                      variance=np.zeros((4, 4, 3), dtype=DTYPE), count=8)
+
+def test_exact(links1_baseline):
+    links1_baseline.check("exact", np.full((4, 4, 3), 0.06, dtype=DTYPE), metric="max", threshold=0)
+'''
+
+
+@pytest.mark.parametrize("dtype", ["float16", "float32", "float64"])
+def test_unchanged_rerun_of_constants_passes(pytester, dtype):
+    pytester.makepyfile(test_const=CONSTANTS.replace("__DTYPE__", dtype))
+    _run(pytester, "--links1-update-baselines").assert_outcomes(passed=8)
+    _run(pytester).assert_outcomes(passed=8)
+
+
+def test_a_changed_constant_still_fails(pytester):
+    pytester.makepyfile(test_const='''
+import numpy as np
+VALUE = np.float32(0.06)
+
+def test_const(links1_baseline):
+    links1_baseline.check_statistical("const", np.full((8, 4, 4, 3), VALUE))
+''')
+    _run(pytester, "--links1-update-baselines").assert_outcomes(passed=1)
+    _run(pytester).assert_outcomes(passed=1)
+    # three float32 steps up: beyond the baseline's rounding, and no variance to hide it
+    pytester.makepyfile(test_const=f'''
+import numpy as np
+VALUE = np.float32({float(np.float32(0.06) + 3 * np.spacing(np.float32(0.06)))!r})
+
+def test_const(links1_baseline):
+    links1_baseline.check_statistical("const", np.full((8, 4, 4, 3), VALUE))
+''')
+    res = _run(pytester)
+    res.assert_outcomes(failed=1)
+    res.stdout.fnmatch_lines(["*16 of 16 pixels have p <*smallest p = 0*"])
+
+
+def test_a_value_a_baseline_cannot_hold_is_an_error(pytester):
+    pytester.makepyfile(test_big='''
+import numpy as np
+
+def test_big(links1_baseline):
+    links1_baseline.check_statistical("big", np.full((8, 2, 3, 3), 1e300))
+''')
+    res = _run(pytester, "--links1-update-baselines")
+    res.assert_outcomes(failed=1)
+    res.stdout.fnmatch_lines(["*ValueError: mean 1e+300 at pixel (x=0, y=0), channel 0, does not "
+                              "fit a float32 baseline*"])
+    assert not (pytester.path / "baselines" / "big.exr").exists()
+
+
+def test_unchanged_statistical_scene_rerun_passes(pytester):
+    fig4 = Path(__file__).resolve().parents[2] / "scenes" / "fig4.xml"
+    pytester.makepyfile(test_scene=f'''
+def test_fig4(links1_baseline):
+    links1_baseline.check_scene({str(fig4)!r}, spp=2, statistical=True, runs=8,
+                                params={{"res": 16}})
+''')
+    _run(pytester, "--links1-update-baselines").assert_outcomes(passed=1)
+    _run(pytester).assert_outcomes(passed=1)
+
+
+def test_welch_means_within_the_tolerance_are_equal():
+    p = welch_t_test([1.0, 1.0, np.inf], [0.0, 0.0, np.nan], 4, [1.5, 2.0, np.inf],
+                     [0.0, 0.0, np.nan], 4, tolerance=0.5)
+    assert p.tolist() == [1.0, 0.0, 1.0]
+    # with noise, only the part of the difference beyond the tolerance counts
+    shifted = welch_t_test(0.0, 1.0, 8, 1.5, 1.0, 8, tolerance=0.5)
+    assert shifted == pytest.approx(welch_t_test(0.0, 1.0, 8, 1.0, 1.0, 8))
