@@ -108,6 +108,10 @@ def register(variant: str | None = None) -> str:
         mi.register_integrator("links1_whitted",
                                lambda props, c=classes["links1_whitted"]: c(props))
         mi.register_shape("links1_bicubic", lambda props, c=classes["links1_bicubic"]: c(props))
+        from .proxies import define_proxies
+        for name, c in define_proxies().items():   # for scenes loaded by Mitsuba itself
+            classes[name] = c
+            mi.register_shape(name, lambda props, c=c: c(props))
         _REGISTERED[variant] = classes
         return variant
 

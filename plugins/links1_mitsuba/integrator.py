@@ -31,7 +31,7 @@ from links1.tracing.aovs import check_aovs as parse_aovs  # the one AOV table an
 from links1.scene.params import default as l1_default
 from links1.scene.params import read as l1_read
 
-from . import geometry
+from . import geometry, proxies
 from .gradients import Gradients
 from .intersect import Intersect
 from .launch import Launches
@@ -97,6 +97,9 @@ def define_integrator():
         geo = hidden_attr("geo")
         geo_seen = hidden_attr("geo_seen")
         custom_bsdfs = hidden_attr("custom_bsdfs")
+        #: the scene's shapes (ids) whose proxies :meth:`adopt` made ``custom`` of, and their slots
+        adopted = hidden_attr("adopted")
+        proxy_slots = hidden_attr("proxy_slots")
         slot_of_id = hidden_attr("slot_of_id")
         shape_names = hidden_attr("shape_names")
         places = hidden_attr("places")
@@ -170,6 +173,28 @@ def define_integrator():
             self.slot_of_id = dict(slot_of_id)
             self.shape_names = shape_names
             self.places = places
+            self._prep = None
+
+        def adopt(self, scene):
+            """A scene the loader did not attach (``mi.load_file``, ``mi.load_string``,
+            ``mi.load_dict``): its links1 shapes are the proxies among its shapes
+            (:mod:`links1_mitsuba.proxies`), each shape's slot its place in ``scene.shapes()``,
+            and each proxy's BSDF its own (matched by object, never by id). Made again only
+            for another scene (or other shapes)."""
+            if self.slot_of_id is not None:      # the loader's scene: attach() said it all
+                return
+            shapes = list(scene.shapes())
+            key = tuple(id(s) for s in shapes)
+            if self.adopted == key:
+                return
+            found = proxies.specs_of(shapes)
+            self.custom = [sp for _, sp in found]
+            self.geo = {sp.slot: geometry.hold(sp) for sp in self.custom}
+            self.geo_seen = {sl: geometry.seen(h) for sl, h in self.geo.items()}
+            self.custom_bsdfs = {sl: shapes[sl].bsdf() for sl, _ in found}
+            self.shared_bsdfs = set(self.custom_bsdfs)    # each proxy's BSDF is named under its shape
+            self.proxy_slots = frozenset(sl for sl, _ in found)
+            self.adopted = key
             self._prep = None
 
         def place(self, obj, what: str = "links1_whitted") -> str:

@@ -106,7 +106,7 @@ class Lights:
         from links1.geometry.shapes import Disk, Quadric, TriangleMesh
         sh = e.get_shape()
         kind = kind_of(sh)
-        slot = next((sl for s_, sl in zip(shapes, slot_list) if s_.id() == sh.id()), None)
+        slot = next((sl for s_, sl in zip(shapes, slot_list) if s_ is sh), None)
         rad = np.array(mi.traverse(e)["radiance.value"], dtype=np.float64).ravel()
         try:
             prm = mi.traverse(sh)

@@ -189,9 +189,8 @@ class MitsubaRenderer:
                     for i, s in enumerate(self.scene.shapes())]
         P = self.integrator.prepare(self.scene, self.sensor)
         Phong = plugin_class("links1_phong")
-        slot_of_id = self.integrator.slot_of_id or {s.id(): i for i, s in enumerate(self.scene.shapes())}
-        for s in self.scene.shapes():
-            sl = slot_of_id[s.id()]
+        slot_list, _ = self.integrator._slots(list(self.scene.shapes()))
+        for s, sl in zip(self.scene.shapes(), slot_list):
             b = s.bbox()
             bsdf = s.bsdf()
             if isinstance(bsdf, Phong):

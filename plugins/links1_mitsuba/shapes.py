@@ -921,6 +921,10 @@ def tessellate_bicubic(props, base_dir=None):
         fn = str(props["filename"])
         if not os.path.isabs(fn) and base_dir:
             fn = os.path.join(base_dir, fn)
+        elif not os.path.isabs(fn):
+            # mi.load_file / load_string: Mitsuba's file resolver holds the scene's folder
+            import mitsuba as mi
+            fn = str(mi.file_resolver().resolve(fn))
         patches = meshes.read_patches(fn)
     else:
         patches = meshes.parse_patches(str(props["control_points"]), "<control_points>", with_count=False)

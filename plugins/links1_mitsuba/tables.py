@@ -27,7 +27,7 @@ from links1.shading.lights import ENV_LIGHT_ID
 import drjit as dr
 import mitsuba as mi
 
-from . import lightbuffer, tuning
+from . import lightbuffer, proxies, tuning
 from .bvh import QuadricBVH
 from .registered import plugin_class
 from .lights import _emitted_rgb
@@ -68,14 +68,14 @@ def shadow_split(mi, shapes, slot_list, trans):
         return None
 
     def scene_of(group):
-        # keyed by the shapes' own ids: load_dict names each object after its key
+        # load_dict names each object after its key: keyed by slot, the shapes' own ids
+        # (empty for a plain mi.load_file without ids) given back afterwards
         ids = [s.id() for s, _ in group]
-        if len(set(ids)) != len(ids) or "" in ids or "type" in ids:
-            raise ValueError("shapes without distinct ids")
-        sub = mi.load_dict({"type": "scene", **{i: s for i, (s, _) in zip(ids, group)}})
-        if [s.id() for s, _ in group] != ids:
-            raise ValueError("a sub-scene renamed its shapes")
-        return sub
+        try:
+            return mi.load_dict({"type": "scene", **{f"_links1_slot_{sl}": s for s, sl in group}})
+        finally:
+            for (s, _), i in zip(group, ids):
+                s.set_id(i)
 
     try:
         return {"opaque": scene_of(op) if op else None, "opaque_slots": frozenset(sl for _, sl in op),
@@ -685,6 +685,7 @@ class Tables:
         view of them (:meth:`_camera_view`: camera, film, filter, eye buffer) as a distinct
         object, so a frozen launch recorded for one sensor's camera (``cfg`` holds the
         view's id) is never replayed for another."""
+        self.adopt(scene)
         ident = scene_identity(scene)
         V = self._prep
         B = getattr(V, "base", None)
@@ -869,7 +870,7 @@ class Tables:
         # recordings hold the previous tables, and their key names the tables by id(P): a new
         # P may get a dead one's id, so both frozen launches start anew
         self._freeze = self._freeze_points = None
-        shapes = list(scene.shapes())
+        shapes = [s for s in scene.shapes() if not proxies.is_proxy(s)]   # Mitsuba's own shapes
         slot_list, nslots = self._slots(shapes)
         P.nslots = nslots
         P.custom = self.custom
@@ -1090,9 +1091,14 @@ class Tables:
         loader's ``slot_of_id``) and the number of slots (links1 shapes included)."""
         slot_of_id = self.slot_of_id
         if slot_of_id is None:
-            slot_of_id = {s.id(): i for i, s in enumerate(shapes)}
-            nslots = len(shapes)
-            slot_list = [slot_of_id[s.id()] for s in shapes]
+            # a scene the loader did not see (mi.load_file / load_string / load_dict): each
+            # shape's slot is its place in the scene's shapes (links1 proxies included:
+            # Integrator.adopt), whatever its id (none, or shared)
+            order = self.adopted
+            if order is None:
+                return list(range(len(shapes))), len(shapes)
+            pos = {k: i for i, k in enumerate(order)}
+            return [pos[id(s)] for s in shapes], len(order)
         else:
             slot_list = []
             for s in shapes:
