@@ -1,4 +1,5 @@
-"""Triangle-mesh sources: OBJ and PLY files, Mitsuba's rectangle and cube, bicubic Bézier patches.
+"""Triangle-mesh sources: OBJ, PLY and Mitsuba ``serialized`` files, Mitsuba's rectangle and cube,
+bicubic Bézier patches.
 
 Every function returns plain arrays ``(vertices (V, 3) float64, faces (F, 3) int64,
 normals (V, 3) float64 or None)``; :mod:`links1.scene.loader` hands them to
@@ -13,6 +14,13 @@ Mitsuba semantics kept here
 * PLY: ``ascii``, ``binary_little_endian`` and ``binary_big_endian``; vertex ``x y z``,
   optional ``nx ny nz`` and texcoords ``u v`` (or ``texture_u texture_v``, or ``s t``); faces
   from the list ``vertex_indices`` (or ``vertex_index``), fans again.
+* Mitsuba ``serialized`` (:func:`read_serialized`): header ``0x041C``, version 3 or 4, then a
+  zlib stream: ``uint32`` flags (``0x1`` normals, ``0x2`` texcoords, ``0x8`` vertex colours,
+  skipped; ``0x2000`` double precision, else single), the shape's name (version 4, NUL-terminated),
+  ``uint64`` vertex and face counts, positions, [normals], [texcoords], [colours], ``uint32``
+  faces. Several meshes are concatenated, each with its own header; ``shape_index`` k > 0 is found
+  through the table at the end of the file (k-th ``uint64`` offset, ``uint32`` in version 3, then
+  the ``uint32`` count). The ``0x10`` face-normals flag is not read (as Mitsuba 3.9.1).
 * Texcoords (``uv=True``) come back as stored; Mitsuba's ``flip_tex_coords`` (``v -> 1 - v``,
   default on for OBJ, off for PLY) is the loader's business.
 * A mesh without normals gets Mitsuba's smooth vertex normals
@@ -48,6 +56,8 @@ from __future__ import annotations
 
 import os
 import re
+import struct
+import zlib
 
 import numpy as np
 
@@ -466,6 +476,95 @@ def write_ply(path: str, vertices, faces, normals=None, binary: bool = True) -> 
                 fh.write((" ".join("%.9g" % x for x in row) + "\n").encode())
             for row in f:
                 fh.write(("3 %d %d %d\n" % tuple(row)).encode())
+
+
+# --------------------------------------------------------------------------------------------
+# Mitsuba serialized
+# --------------------------------------------------------------------------------------------
+
+SERIALIZED_MAGIC = 0x041C
+#: flags of a serialized mesh (Mitsuba's ``TriMeshFlags``)
+SERIALIZED_NORMALS, SERIALIZED_TEXCOORDS, SERIALIZED_COLORS = 0x1, 0x2, 0x8
+SERIALIZED_FACE_NORMALS, SERIALIZED_SINGLE, SERIALIZED_DOUBLE = 0x10, 0x1000, 0x2000
+
+
+def read_serialized(path: str, shape_index: int = 0):
+    """Read mesh ``shape_index`` of a Mitsuba ``.serialized`` file (format in the module doc) →
+    ``(vertices, faces, normals or None, texcoords or None)``."""
+    try:
+        with open(path, "rb") as fh:
+            data = fh.read()
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot read: {exc.strerror}") from None
+    if len(data) < 4:
+        raise ValueError(f"{path}: too short for a serialized mesh ({len(data)} bytes)")
+    magic, version = struct.unpack_from("<HH", data, 0)
+    if magic != SERIALIZED_MAGIC:
+        raise ValueError(f"{path}: not a Mitsuba serialized mesh (header 0x{magic:04X}, "
+                         f"expected 0x{SERIALIZED_MAGIC:04X})")
+    if version not in (3, 4):
+        raise ValueError(f"{path}: serialized format version {version} is not supported (3 or 4)")
+    k = int(shape_index)
+    if k < 0:
+        raise ValueError(f"{path}: shape_index must be >= 0, got {k}")
+    start = 4
+    if k > 0:
+        (count,) = struct.unpack_from("<I", data, len(data) - 4)
+        if k >= count:
+            raise ValueError(f"{path}: shape_index {k} is out of range (the file holds {count} "
+                             f"mesh{'es' if count != 1 else ''}: 0..{count - 1})")
+        width = 8 if version == 4 else 4
+        at = len(data) - 4 - width * (count - k)
+        if at < 4:
+            raise ValueError(f"{path}: the end-of-file table of {count} meshes does not fit in the file")
+        (start,) = struct.unpack_from("<Q" if width == 8 else "<I", data, at)
+        if start + 4 > at or struct.unpack_from("<H", data, start)[0] != SERIALIZED_MAGIC:
+            raise ValueError(f"{path}: the end-of-file table gives mesh {k} a bad offset {start}")
+        start += 4
+    stream = zlib.decompressobj()
+    try:
+        body = stream.decompress(data[start:])
+    except zlib.error as exc:
+        raise ValueError(f"{path}: mesh {k}: corrupt compressed data ({exc})") from None
+    if not stream.eof:
+        raise ValueError(f"{path}: mesh {k}: truncated compressed data")
+
+    pos = 0
+
+    def take(n_bytes, what):
+        nonlocal pos
+        if pos + n_bytes > len(body):
+            raise ValueError(f"{path}: mesh {k}: truncated data in its {what}")
+        chunk = body[pos:pos + n_bytes]
+        pos += n_bytes
+        return chunk
+
+    (flags,) = struct.unpack("<I", take(4, "flags"))
+    if version == 4:
+        end = body.find(b"\0", pos)
+        if end < 0:
+            raise ValueError(f"{path}: mesh {k}: truncated data in its name")
+        pos = end + 1
+    n_vertices, n_faces = struct.unpack("<QQ", take(16, "counts"))
+    real = np.dtype("<f8" if flags & SERIALIZED_DOUBLE else "<f4")
+
+    def array(cols, what):
+        return np.frombuffer(take(n_vertices * cols * real.itemsize, what), real).reshape(-1, cols).astype(np.float64)
+
+    vertices = array(3, "vertex positions")
+    normals = array(3, "vertex normals") if flags & SERIALIZED_NORMALS else None
+    texcoords = array(2, "texcoords") if flags & SERIALIZED_TEXCOORDS else None
+    if flags & SERIALIZED_COLORS:
+        array(3, "vertex colours")   # skipped, as Mitsuba does
+    faces = np.frombuffer(take(n_faces * 12, "faces"), "<u4").reshape(-1, 3).astype(np.int64)
+    if not np.all(np.isfinite(vertices)):
+        raise ValueError(f"{path}: mesh {k}: non-finite vertex positions")
+    if faces.size and faces.max() >= n_vertices:
+        raise ValueError(f"{path}: mesh {k}: a face indexes vertex {int(faces.max())}, out of "
+                         f"range (0..{n_vertices - 1})")
+    if normals is not None:
+        normals = tf.normalize(normals)
+    return vertices, faces, normals, texcoords
 
 
 # --------------------------------------------------------------------------------------------

@@ -19,7 +19,8 @@ film            ``hdrfilm``: ``width`` (768), ``height`` (576), ``crop_offset_x/
 sampler         any type: ``sample_count`` (4) → ``Scene.spp``.
 integrator      its type → ``Scene.integrator``; ``max_depth`` (*links1*: 5; -1 → 5 with warning).
 shape           ``sphere`` (center, radius), ``cylinder`` (p0, p1, radius; open), ``disk``,
-                ``rectangle``, ``cube``, ``obj`` / ``ply`` (filename, face_normals), all with
+                ``rectangle``, ``cube``, ``obj`` / ``ply`` / ``serialized`` (filename, face_normals;
+                serialized: shape_index), all with
                 ``to_world`` and ``flip_normals`` (meshes); *links1*: ``links1_quadric``,
                 ``links1_blob``, ``links1_bicubic`` (see below). No bsdf → ``diffuse`` 0.5.
                 ``shapegroup`` + ``instance`` (its ``to_world`` after each member's): flattened
@@ -85,7 +86,7 @@ DEFAULT_MAX_DEPTH = params.default("links1_whitted", "max_depth")
 DEFAULT_SPP = 4  # Mitsuba's independent sampler
 
 # Known Mitsuba 3 plugins the core does not support (for a clearer message than "unknown").
-_MITSUBA_SHAPES = {"serialized", "shapegroup", "instance", "bsplinecurve", "linearcurve",
+_MITSUBA_SHAPES = {"shapegroup", "instance", "bsplinecurve", "linearcurve",
                    "sdfgrid", "ellipsoids", "ellipsoidsmesh", "merge"}
 _APPROX_BSDFS = {"roughconductor", "roughdielectric", "roughplastic", "principled",
                  "principledthin", "blendbsdf", "hair", "measured", "pplastic", "polarizer",
@@ -135,6 +136,7 @@ def build_scene(root: Node, path: str | None = None) -> Scene:
 # --------------------------------------------------------------------------------------------
 
 _MISSING = object()
+_RECOMPUTE = object()   # a mesh's vertex normals still to be computed (_Builder._mesh)
 _COLOR_KINDS = ("rgb", "spectrum", "float")
 
 
@@ -755,23 +757,27 @@ class _Builder:
                 m = params.planar_to_world(m)   # zero thickness is still a rectangle
             v, f, n, uv = (meshes.rectangle_mesh if t == "rectangle" else meshes.cube_mesh)(uv=True)
             shape = self._mesh(node, props, v, f, n, m, closed=(t == "cube"), uv=uv)
-        elif t in ("obj", "ply"):
+        elif t in ("obj", "ply", "serialized"):
             fn = props.string("filename")
             path = node.resolve(fn)
+            index = props.int("shape_index", 0, minimum=0) if t == "serialized" else 0
             try:
                 if t == "obj":
                     (v, f, n, uv), attrs = meshes.read_obj(path, uv=True), {}
-                else:
+                elif t == "ply":
                     v, f, n, uv, attrs = meshes.read_ply(path, uv=True, attributes=True)
+                else:
+                    (v, f, n, uv), attrs = meshes.read_serialized(path, index), {}
             except ValueError as exc:
                 raise props.error("filename", str(exc)) from None
             if props.bool("face_normals", False):
                 n = None
             elif n is None:
-                n = meshes.angle_weighted_normals(v, f)
-            if uv is not None and props.bool("flip_tex_coords", t == "obj"):
+                n = _RECOMPUTE
+            if t != "serialized" and uv is not None and props.bool("flip_tex_coords", t == "obj"):
                 uv = uv * np.array([1.0, -1.0]) + np.array([0.0, 1.0])  # Mitsuba: v -> 1 - v
-            props.ignore("mesh_attributes", "flip_tex_coords")
+            if t != "serialized":
+                props.ignore("mesh_attributes", "flip_tex_coords")
             shape = self._mesh(node, props, v, f, n, m, closed=None, uv=uv, attributes=attrs)
         elif t == "links1_quadric":
             shape = self._quadric(node, props, m, name)
@@ -828,13 +834,24 @@ class _Builder:
             props.node.warn("flip_normals is not supported on analytic shapes by the core; ignored")
 
     def _mesh(self, node, props, v, f, n, m, closed, uv=None, attributes=None):
+        """A triangle mesh placed by ``m``; ``n``: vertex normals, None (face normals) or
+        ``_RECOMPUTE`` (Mitsuba's angle-weighted normals of the placed mesh, as it computes them
+        after ``to_world``)."""
+        recompute = n is _RECOMPUTE
+        n = None if recompute else n
         rewound = props.bool("flip_normals", False)
         if rewound:
             f, n = meshes.flip(f, n)
         _check_invertible(node, m)   # normals map by its inverse transpose
+        if n is not None and np.linalg.det(m[:3, :3]) < 0:
+            # a mirroring to_world turns the winding but not the given normals: Mitsuba's
+            # BSDFs and area emitters follow the normals, so the faces are turned back
+            f, rewound = f[:, [0, 2, 1]], not rewound
         v, n = meshes.transform_mesh(m, v, n)
         if not np.all(np.isfinite(v)):
             raise node.error("non-finite vertex positions after to_world")
+        if recompute:
+            n = meshes.angle_weighted_normals(v, f)
         return _construct(node, _shape_class("TriangleMesh"), v, f, normals=n, name=node.id or "",
                           closed=closed, texcoords=uv, rewound=rewound, attributes=attributes)
 
