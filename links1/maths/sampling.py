@@ -143,3 +143,22 @@ def light_samples_uv(shift_keys, light_id: int, s, n) -> tuple[np.ndarray, np.nd
     u = s.astype(np.float64) / n + a
     v = radical_inverse2(s.astype(np.uint32)).astype(np.float64) * 2.0 ** -24 + b
     return u - np.floor(u), v - np.floor(v)
+
+
+#: The stream id of the BSDF samples (beside the lights' ids of :func:`light_tag`).
+BSDF_SAMPLE_ID = 0x60000000
+
+
+def bsdf_samples_uv(shift_keys, s, n) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The BSDF sample ``(u1, u, v)`` of a hit (the direction BSDF sampling draws, combined with
+    the light samples by multiple importance sampling): ``(u, v)`` is point ``s`` of ``n`` of
+    :func:`light_samples_uv` with the id ``BSDF_SAMPLE_ID`` (the same shift keys, ``s`` and ``n``
+    as one light sample per hit), and ``u1`` (the lobe choice) a hash of the point::
+
+        u1 = (mix(mix(h ^ 3) ^ s) >> 8) * 2**-24,   h = mix(shift_key ^ light_tag(BSDF_SAMPLE_ID))
+
+    The plugin computes the same in float32."""
+    u, v = light_samples_uv(shift_keys, BSDF_SAMPLE_ID, s, n)
+    h = mix32(np.asarray(shift_keys, dtype=np.uint32) ^ np.uint32(light_tag(BSDF_SAMPLE_ID)))
+    u1 = (mix32(mix32(h ^ np.uint32(3)) ^ np.asarray(s, dtype=np.uint32)) >> np.uint32(8))
+    return u1.astype(np.float64) * 2.0 ** -24, u, v

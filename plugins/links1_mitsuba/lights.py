@@ -15,7 +15,7 @@ import warnings
 
 import numpy as np
 
-from links1.maths.sampling import light_tag
+from links1.maths.sampling import BSDF_SAMPLE_ID, light_tag
 
 import drjit as dr
 import mitsuba as mi
@@ -158,7 +158,8 @@ class Lights:
                     col=mi.Float(E.col_cdf.ravel()), pcell=mi.Float(E.p_cell.ravel()))
 
     def _sample_area(self, tab, p, u, v):
-        """``AreaLight.sample`` of the core in float32: (wi, dist, L_e / pdf)."""
+        """``AreaLight.sample`` of the core in float32: (wi, dist, L_e / pdf, pdf), the pdf in
+        solid angle (0 where nothing is sampled)."""
         Le = c3(tab["L"])
         if tab["kind"] == "sphere":
             c, r = v3(tab["c"]), float(tab["r"])
@@ -177,7 +178,7 @@ class Lights:
             wi = fr.s * (sin_t * cp_) + fr.t * (sin_t * sp_) + axis * cos_t
             dist = dc * cos_t - dr.safe_sqrt(r * r - dc2 * sin_t * sin_t)
             w = dr.select(outside, 2.0 * math.pi * one_minus, 0.0)
-            return wi, dr.select(outside, dist, 0.0), Le * w
+            return wi, dr.select(outside, dist, 0.0), Le * w, dr.select(w > 0, 1.0 / dr.select(w > 0, w, 1.0), 0.0)
         if tab["kind"] == "mesh":
             cdf, nt = tab["cdf"], tab["n"]
             k = dr.binary_search(0, nt - 1, lambda i: dr.gather(mi.Float, cdf, i) <= u)
@@ -203,22 +204,35 @@ class Lights:
         wi = to / dr.select(dist > 0, dist, 1.0)
         cos_l = -dr.dot(nl, wi)
         w = dr.select((cos_l > 0) & (d2 > 0), tab["area"] * cos_l / dr.select(d2 > 0, d2, 1.0), 0.0)
-        return wi, dist, Le * w
+        return wi, dist, Le * w, dr.select(w > 0, 1.0 / dr.select(w > 0, w, 1.0), 0.0)
+
+    def _area_pdf(self, tab, p, wi, dist, n_hit):
+        """The solid-angle pdf with which :meth:`_sample_area` draws direction ``wi`` from ``p``,
+        where it meets the light at distance ``dist`` with normal ``n_hit`` (a sphere's cone:
+        ``1 / (2π (1 - cos θ_max))``; a mesh or disk: ``d² / (A |cos θ_light|)``)."""
+        if tab["kind"] == "sphere":
+            r = float(tab["r"])
+            dc2 = dr.squared_norm(v3(tab["c"]) - p)
+            sin2 = dr.minimum(r * r / dr.select(dc2 > r * r, dc2, 1.0), 1.0)
+            one_minus = sin2 / (1.0 + dr.sqrt(1.0 - sin2))
+            return dr.select(dc2 > r * r, 1.0 / (2.0 * math.pi * dr.maximum(one_minus, 1e-30)), 0.0)
+        cos_l = dr.abs(dr.dot(n_hit, wi))
+        return dr.select(cos_l > 0, dr.square(dist) / (tab["area"] * dr.select(cos_l > 0, cos_l, 1.0)), 0.0)
 
     def _sample_env(self, env, nf, u, v):
         """``ConstantEnvironment.sample`` / ``EnvironmentMap.sample`` of the core in float32:
-        (wi, L / pdf)."""
+        (wi, L / pdf, pdf)."""
         if env[0] == "const":
             fr = mi.Frame3f(nf)
             r_ = dr.sqrt(u)
             z = dr.sqrt(dr.maximum(0.0, 1.0 - u))
             sp_, cp_ = dr.sincos(2.0 * math.pi * v)
             wi = fr.s * (r_ * cp_) + fr.t * (r_ * sp_) + fr.n * z
-            return wi, c3(env[1]) * dr.select(z > 0, math.pi / z, 0.0)
+            return wi, c3(env[1]) * dr.select(z > 0, math.pi / z, 0.0), z * (1.0 / math.pi)
         T = env[1]
         E, H, W = T["E"], T["E"].H, T["E"].W
         if E.dark:
-            return mi.Vector3f(nf), dr.zeros(mi.Color3f, dr.width(u))
+            return mi.Vector3f(nf), dr.zeros(mi.Color3f, dr.width(u)), dr.zeros(mi.Float, dr.width(u))
         row, col = T["row"], T["col"]
         iy = dr.binary_search(0, H - 2, lambda i: dr.gather(mi.Float, row, i) <= v)
         hi = dr.gather(mi.Float, row, iy)
@@ -237,23 +251,60 @@ class Lights:
         mw = E.to_world.tolist()
         lx, ly, lz = sp_ * st, ct, -cp_ * st
         wi = dr.normalize(mi.Vector3f(*[mw[i][0] * lx + mw[i][1] * ly + mw[i][2] * lz for i in range(3)]))
-        pdf = dr.gather(mi.Float, T["pcell"], iy * W + ix) * (W * (H - 1)) / \
+        pdf = self._env_cell_pdf(T, ix, iy, st)
+        L = self._env_bilinear(T, x, y)
+        ok = (pdf > 0) & (st > 0)
+        w = dr.select(ok, 1.0 / dr.select(pdf > 0, pdf, 1.0), 0.0)
+        return wi, L * w, dr.select(ok, pdf, 0.0)
+
+    @staticmethod
+    def _env_cell_pdf(T, ix, iy, st):
+        """The solid-angle pdf of an envmap's cell ``(ix, iy)`` at ``sin θ = st``."""
+        E = T["E"]
+        return dr.gather(mi.Float, T["pcell"], iy * E.W + ix) * (E.W * (E.H - 1)) / \
             (2.0 * math.pi * math.pi * dr.maximum(st, 1e-30))
-        # bilinear radiance at (x, y) between the nodes (links1.shading.lights.EnvironmentMap._bilinear)
+
+    @staticmethod
+    def _env_bilinear(T, x, y):
+        """Bilinear radiance at node coordinates ``(x, y)`` (links1.shading.lights.EnvironmentMap._bilinear)."""
+        W, H = T["E"].W, T["E"].H
         ixn = dr.minimum(mi.UInt32(x), W - 1)
         iyn = dr.minimum(mi.UInt32(y), H - 2)
         gx, gy = x - mi.Float(ixn), y - mi.Float(iyn)
         nodes, W1 = T["nodes"], W + 1
         g = lambda yy, xx: dr.gather(mi.Color3f, nodes, yy * W1 + xx)  # noqa: E731
-        L = ((g(iyn, ixn) * (1 - gx) + g(iyn, ixn + 1) * gx) * (1 - gy)
-             + (g(iyn + 1, ixn) * (1 - gx) + g(iyn + 1, ixn + 1) * gx) * gy)
-        w = dr.select((pdf > 0) & (st > 0), 1.0 / dr.select(pdf > 0, pdf, 1.0), 0.0)
-        return wi, L * w
+        return ((g(iyn, ixn) * (1 - gx) + g(iyn, ixn + 1) * gx) * (1 - gy)
+                + (g(iyn + 1, ixn) * (1 - gx) + g(iyn + 1, ixn + 1) * gx) * gy)
 
-    def _light_uv(self, key, sample, light_id, j):
-        """Light sample ``j`` of light ``light_id``: :func:`links1.maths.sampling.light_samples_uv`
-        in float32 (``sample = (pixel key, i, spp)`` at a primary hit, else None)."""
-        m = self.light_samples
+    def _env_eval_pdf(self, env, nf, wi):
+        """Radiance of an environment light toward ``-wi`` and the pdf with which
+        :meth:`_sample_env` draws ``wi`` (constant: ``cos θ / π`` about ``nf``; envmap: its
+        cell's, ``EnvironmentMap.eval``'s mapping)."""
+        n = dr.width(wi)
+        if env[0] == "const":
+            return dr.zeros(mi.Color3f, n) + c3(env[1]), dr.maximum(dr.dot(nf, wi), 0.0) * (1.0 / math.pi)
+        T = env[1]
+        E = T["E"]
+        if E.dark:
+            return dr.zeros(mi.Color3f, n), dr.zeros(mi.Float, n)
+        W, H = E.W, E.H
+        inv = E.inv.tolist()
+        lx, ly, lz = (inv[i][0] * wi.x + inv[i][1] * wi.y + inv[i][2] * wi.z for i in range(3))
+        u = dr.atan2(lx, -lz) * (1.0 / (2.0 * math.pi)) - 0.5 / W
+        u = u - dr.floor(u)
+        ct = dr.clip(ly / dr.maximum(dr.sqrt(lx * lx + ly * ly + lz * lz), 1e-30), -1.0, 1.0)
+        x, y = u * W, dr.acos(ct) * ((H - 1) / math.pi)
+        ix = dr.minimum(mi.UInt32(x), W - 1)
+        iy = dr.minimum(mi.UInt32(y), H - 2)
+        st = dr.safe_sqrt(1.0 - ct * ct)
+        pdf = self._env_cell_pdf(T, ix, iy, st)
+        return self._env_bilinear(T, x, y), dr.select(st > 0, pdf, 0.0)
+
+    def _light_uv(self, key, sample, light_id, j, m=None):
+        """Light sample ``j`` of ``m`` (default ``light_samples``) of light ``light_id``:
+        :func:`links1.maths.sampling.light_samples_uv` in float32 (``sample = (pixel key, i,
+        spp)`` at a primary hit, else None)."""
+        m = self.light_samples if m is None else m
         if sample is not None:
             shift, i, spp = sample
             s_, n_ = i * m + j, mi.Float(spp * m)
@@ -268,3 +319,14 @@ class Lights:
         u = mi.Float(s_) / n_ + a
         v = u24(x) + b
         return u - dr.floor(u), v - dr.floor(v)
+
+    def _bsdf_uv(self, key, sample):
+        """The hit's BSDF sample ``(u1, u, v)``: :func:`links1.maths.sampling.bsdf_samples_uv`
+        in float32 (one per hit, keyed as :meth:`_light_uv`)."""
+        u, v = self._light_uv(key, sample, BSDF_SAMPLE_ID, 0, m=1)
+        if sample is not None:
+            shift, s_ = sample[0], sample[1]
+        else:
+            shift, s_ = key, dr.zeros(mi.UInt32, dr.width(key))
+        h = mix32(shift ^ mi.UInt32(light_tag(BSDF_SAMPLE_ID)))
+        return u24(mix32(mix32(h ^ 3) ^ mi.UInt32(s_))), u, v

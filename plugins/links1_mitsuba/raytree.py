@@ -29,11 +29,19 @@ import drjit as dr
 import mitsuba as mi
 
 from . import tuning
-from .util import INF, gather3, mix32
+from .util import INF, c3, gather3, mix32
 
 # tuning.Tuning.skip_misses: direct light (every light's sample, shading and shadow rays) under a
 # symbolic ``dr.if_stmt`` on the hit: a packet of escaped rays (sky, 38 % of fig11's camera rays)
 # skips it instead of computing it masked (issue 12; False: the old straight-line code)
+
+
+def _power_heuristic(pdf_a, pdf_b):
+    """Veach's power heuristic (β = 2) of strategy a against b, each pdf times its sample
+    count; 0 where it is not finite (Mitsuba's ``direct``: ``mis_weight``)."""
+    a, b = dr.square(pdf_a), dr.square(pdf_b)
+    w = a / (a + b)
+    return dr.select(dr.isfinite(w), w, 0.0)
 
 
 class RayTree:
@@ -175,6 +183,13 @@ class RayTree:
         # built and evaluated together, then handed to Mitsuba's ray tests (each test
         # evaluates its inputs: building them first avoids recomputing shared work).
         skip = tuning.current().skip_misses and not ad  # under a symbolic if on the hit (no dr.eval inside it)
+        # glossy Mitsuba BSDFs under area and environment lights: light samples and one BSDF
+        # sample combined by multiple importance sampling (power heuristic, Mitsuba's ``direct``)
+        mis = P.any_mis and not ad
+        if mis:
+            glossy = mb & dr.gather(mi.Bool, P.glossy, uslot, mb)
+            ctx_s = mi.BSDFContext()
+            ctx_s.type_mask = +mi.BSDFFlags.Smooth   # the delta lobes are the ray tree's
 
         def direct(out, cost, n_shadow):
             pending = []
@@ -220,19 +235,27 @@ class RayTree:
                 for js in range(self.light_samples):
                     u, v = self._light_uv(key, sample, lid, js)
                     if isinstance(tab, dict):
-                        wi, dist, Lw = self._sample_area(tab, p, u, v)
+                        wi, dist, Lw, pdf_l = self._sample_area(tab, p, u, v)
                         # Mitsuba's ray tests include the emitter: stop short of it as Mitsuba does
                         smax = dist * (1.0 - mi.math.ShadowEpsilon) - 2.0 * eps
                     else:
-                        wi, Lw = self._sample_env(tab, nf, u, v)
+                        wi, Lw, pdf_l = self._sample_env(tab, nf, u, v)
                         smax = dr.full(mi.Float, INF, n)
                     contrib = f_eval(wi) * Lw * m_inv
+                    if mis:
+                        pdf_b = bsdf.pdf(ctx_s, sif, sif.to_local(wi), glossy)
+                        contrib *= dr.select(glossy, _power_heuristic(self.light_samples * pdf_l, pdf_b), 1.0)
                     lit = hit & (dr.max(contrib) > 0)
                     so = offset(wi)
                     if ad:
                         so, wi, smax = dr.detach(so), dr.detach(wi), dr.detach(smax)
                     T, need, occ_m = shadow(jsh, so, wi, smax, lit, contrib)
                     pending.append((contrib, so, wi, smax, lit, need, T, occ_m, jsh))
+            if mis:
+                L_b, n_b = self._bsdf_sample_light(P, scene, key, sample, bsdf, ctx_s, sif, glossy,
+                                                   p, nf, offset, cost)
+                out += L_b
+                n_shadow = n_shadow + n_b
             if not symbolic:
                 # in one kernel: a derivative pass's shadow tests through links1 shapes (kept, as
                 # the hits above), and the inputs of Mitsuba's ray tests where one follows; with
@@ -336,6 +359,35 @@ class RayTree:
         res.update(r=r, tw=tw, has_r=has_r, has_t=has_tt, dir_r=dir_r, dir_t=dir_t,
                    o_r=offset(dir_r), o_t=offset(dir_t))
         return res
+
+    def _bsdf_sample_light(self, P, scene, key, sample, bsdf, ctx, sif, active, p, nf, offset, cost):
+        """The BSDF-sampled part of the direct light at glossy hits ``active``: one direction
+        drawn by the BSDF's smooth lobes at the hit's BSDF sample (:meth:`_bsdf_uv`), traced
+        (nearest hit over every shape); where it meets a sampled area light's front or escapes to
+        an environment light, that light's radiance times the BSDF's weight, weighted by the
+        power heuristic against that light's ``light_samples`` samples (their pdf:
+        :meth:`_area_pdf`, :meth:`_env_eval_pdf`). Returns (radiance, rays traced)."""
+        n = dr.width(p)
+        u1, u, v = self._bsdf_uv(key, sample)
+        bs, weight = bsdf.sample(ctx, sif, u1, mi.Point2f(u, v), active)
+        wi = sif.to_world(bs.wo)
+        ok = active & (bs.pdf > 0) & (dr.max(weight) > 0)
+        t, slot, si, _ = self._nearest(P, scene, offset(wi), wi, dr.zeros(mi.Float, n),
+                                       dr.full(mi.Float, INF, n), ok, cost)
+        m = self.light_samples
+        out = dr.zeros(mi.Color3f, n)
+        for tab in P.area_tab:
+            if tab["slot"] is None:
+                continue
+            on = ok & (slot == tab["slot"]) & (dr.dot(si.n, wi) < 0)   # the light's front side
+            pdf_l = self._area_pdf(tab, p, wi, dr.norm(si.p - p), si.n)
+            out += dr.select(on, weight * c3(tab["L"]) * _power_heuristic(bs.pdf, m * pdf_l), 0.0)
+        if P.consts:
+            on = ok & (slot < 0)
+            for env in P.consts:
+                Le, pdf_l = self._env_eval_pdf(env, nf, wi)
+                out += dr.select(on, weight * Le * _power_heuristic(bs.pdf, m * pdf_l), 0.0)
+        return out, dr.select(ok, mi.UInt32(1), 0)
 
     # -------------------------------------------------------------- the tree
     def _children(self, res, act, wgt, depth):

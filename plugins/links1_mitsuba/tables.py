@@ -503,6 +503,11 @@ class Prepared:
     any_phong_r: bool = _set_later()
     any_phong_t: bool = _set_later()
     any_specular: bool = _set_later()
+    #: per slot: the Mitsuba BSDF has a glossy lobe (Bool); direct light from the sampled lights
+    #: at such hits adds a BSDF sample, combined by multiple importance sampling (``any_mis``:
+    #: some glossy slot and some area or environment light)
+    glossy: object = _set_later()
+    any_mis: bool = _set_later()
     #: the links1 quadric slots whose Mitsuba BSDF has a texture (they get the core's uv)
     uv_slots: set = _set_later()
     #: the BSDF of each slot (BSDFPtr), None when every slot is links1_phong
@@ -908,6 +913,7 @@ class Tables:
         expo = np.zeros(nslots); ior = np.ones(nslots)
         has_dr = np.zeros(nslots, dtype=bool); has_dt = np.zeros(nslots, dtype=bool)
         has_null = np.zeros(nslots, dtype=bool)
+        glossy = np.zeros(nslots, dtype=bool)
         inner = list(bsdfs)   # the BSDF whose delta lobes a slot samples (a mask's nested one)
         warned = set()
         for sl, b in enumerate(bsdfs):
@@ -937,6 +943,7 @@ class Tables:
                                       stacklevel=2)
                     has_null[sl] = False
                 if fl & int(mi.BSDFFlags.Glossy):
+                    glossy[sl] = True
                     name = kind_of(b)
                     where = self.place(b)
                     if (where, name) not in warned:     # once per element
@@ -966,6 +973,7 @@ class Tables:
         P.any_phong_r = bool(np.any(refl.max(1) > 0))
         P.any_phong_t = bool(np.any(trans.max(1) > 0))
         P.any_specular = P.any_mitsuba_delta or P.any_phong_r or P.any_phong_t
+        P.glossy = mi.Bool(glossy)
         # links1_quadric shapes whose Mitsuba BSDF has a texture get the core's uv
         P.uv_slots = {sp.slot for sp in self.custom if sp.__class__.__name__ == "QuadricSpec"
                       and not is_phong[sp.slot] and _textured(bsdfs[sp.slot])}
@@ -1049,6 +1057,7 @@ class Tables:
             else:
                 warnings.warn(f"{self.place(e)}: emitter {kind} is not supported and is ignored",
                               stacklevel=2)
+        P.any_mis = bool(np.any(glossy)) and bool(P.area_tab or P.consts)
         self._shadow_tables(P, scene, shapes, slot_list)
         return P
 
