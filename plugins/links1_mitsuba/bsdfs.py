@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .util import Hidden, read_rgb
+from .util import Hidden, place_of, read_rgb
 
 
 def _rgb(props, name, default):
@@ -73,6 +73,7 @@ def define_phong():
             super().__init__(props)
             self._held = Hidden()
             self._set_params(phong_params(props))
+            self._held.where = place_of(props.id())   # FILE:LINE: <bsdf ...> while a file loads
 
         def _set_params(self, p):
             """Hold the checked parameters ``p`` (Python values, what ``links1_whitted``'s tables
@@ -194,13 +195,23 @@ def define_phong():
             of links1.scene.params) follow the Dr.Jit values; links1_whitted's tables are rebuilt at
             the next frame (its scene digest sees the change), in place when only coefficients
             change (tables.Tables._update_values)."""
-            from links1.scene.params import read
+            from links1.scene.params import check
             h, p = self._held, dict(self.params)
-            for name in _PHONG_RGB:
-                v = np.broadcast_to(np.array(getattr(h, name), dtype=np.float64).ravel(), (3,))
-                p[name] = [float(c) for c in read("links1_phong", name, v.copy())]
-            for name, v in (("exponent", h.t_exponent), ("ior", h.t_ior)):
-                p[name] = float(read("links1_phong", name, float(np.array(v).ravel()[0])))
+            ident = self.id()
+            what = h.where or (f"links1_phong '{ident}'" if ident and not ident.startswith("_")
+                               else "links1_phong")
+            for name, key, want in ([(n, f"{n}.value", 3) for n in _PHONG_RGB]
+                                    + [("exponent", "exponent", 1), ("ior", "ior", 1)]):
+                v = np.array(getattr(h, name if want == 3 else f"t_{name}"), dtype=np.float64)
+                if v.size != want:   # one value for the whole surface: width 1
+                    kind = "Color3f" if want == 3 else "Float"
+                    raise ValueError(f"{what}: '{key}' must be one {kind} (width 1), got width "
+                                     f"{v.size // want}")
+                try:
+                    v = check("links1_phong", name, v.ravel() if want == 3 else float(v.ravel()[0]))
+                except ValueError as exc:
+                    raise ValueError(f"{what}: {exc}") from None
+                p[name] = [float(c) for c in v] if want == 3 else float(v)
             h.params = p
             self._set_flags()
 

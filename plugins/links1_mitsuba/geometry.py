@@ -38,6 +38,8 @@ import numpy as np
 
 from links1.scene.params import MAX_EXTENT, check, check_finite, read, transform_problem
 
+from .shapes import shape_label
+
 #: a blob's parameters in ``mi.traverse`` (a quadric's: ``to_world`` and its clip offsets)
 BLOB_KEYS = ("centers", "weights", "radii", "threshold", "to_world")
 
@@ -97,16 +99,18 @@ def _keep(old, new):
 
 def updated(spec, held: dict, names) -> object:
     """A new spec with the parameters ``names`` (changed by ``params.update()``) read from
-    ``held``, checked as the loader checks them; ValueError naming the shape otherwise."""
+    ``held``, checked as the loader checks them; ValueError naming the shape (``FILE:LINE``
+    where the loader knows its element) otherwise."""
     names = set(names)
-    what = f"{'links1_quadric' if spec.__class__.__name__ == 'QuadricSpec' else 'links1_blob'} '{spec.name}'"
+    plugin = "links1_quadric" if spec.__class__.__name__ == "QuadricSpec" else "links1_blob"
+    what = shape_label(plugin, spec.name, spec.where)
     kw = {}
     try:
         if "to_world" in names:
             m = _keep(np.eye(4) if spec.to_world is None else spec.to_world, _matrix_of(held["to_world"]))
             problem = transform_problem(m)
             if problem is not None:
-                raise ValueError(f"to_world: {problem}")
+                raise ValueError(problem)
             kw["to_world"] = m
         if spec.__class__.__name__ == "QuadricSpec":
             clips = list(spec.clips)

@@ -121,6 +121,7 @@ def _prepare_state(state, config, integrator: str, base_dir: str | None):
             except ValueError as exc:
                 raise ValueError(f"{_where(state, node)}: {exc}") from None
             for k in list(props.keys()):
+            spec.where = _where(state, node)    # (for a params.update() that it refuses)
                 v = props[k]
                 if isinstance(v, refs):
                     child = nodes[v.index()] if isinstance(v, mi.Properties.ResolvedReference) else None

@@ -77,6 +77,13 @@ def _matrix(props, name="to_world"):
 
 @dataclass
 class QuadricSpec:
+def shape_label(plugin: str, name: str, where: str | None = None) -> str:
+    """How a message names a links1 shape: ``FILE:LINE: links1_quadric`` where its place in
+    the file is known, its id where it has one (never an empty ``''``)."""
+    named = f"{plugin} '{name}'" if name else plugin
+    return f"{where}: {named}" if where else named
+
+
     """``links1_quadric``: unit sphere or unit infinite cylinder (axis z) in object space,
     mapped by ``to_world``; clip planes ``n·x ≤ h`` in object space; ``capped`` closes the
     cut with the planes (eq. 3.4–3.5)."""
@@ -90,11 +97,13 @@ class QuadricSpec:
     emission: np.ndarray | None = None
     _tables: dict | None = field(default=None, init=False, repr=False, compare=False)
     _values_cache: object = field(default=None, init=False, repr=False, compare=False)
+    #: ``FILE:LINE`` of its element (set by the loader), for messages after the load
+    where: str | None = field(default=None, repr=False, compare=False)
 
     def __post_init__(self):
         problem = transform_problem(self.to_world)
         if problem is not None:
-            raise ValueError(f"links1_quadric '{self.name}': {problem}")
+            raise ValueError(f"{shape_label('links1_quadric', self.name, self.where)}: {problem}")
         self.inv = np.linalg.inv(self.to_world).tolist()
         self.normal_mat = np.linalg.inv(self.to_world)[:3, :3].T.tolist()  # object → world normals
         self.clips = [(np.asarray(n, dtype=np.float64).tolist(), float(h)) for n, h in self.clips]
@@ -272,6 +281,8 @@ class BlobSpec:
     emission: np.ndarray | None = None
     max_steps: int = 256
     _tables: dict | None = field(default=None, init=False, repr=False, compare=False)
+    #: ``FILE:LINE`` of its element (set by the loader), for messages after the load
+    where: str | None = field(default=None, repr=False, compare=False)
     _values_cache: object = field(default=None, init=False, repr=False, compare=False)
     # the last nearest-hit search's ray (o, d) and candidate lists, for :meth:`normal`
     _line: tuple | None = field(default=None, init=False, repr=False, compare=False)
