@@ -113,7 +113,7 @@ def main(argv=None):
         if row["custom_shapes"] == 0:
             for integ in ("direct", "path"):
                 try:
-                    s2 = lm.load_file(path, integrator="scene", res=str(args.res))
+                    s2 = lm.load_file(path, links1_integrator="scene", res=str(args.res))
                     xml_depth = row["max_depth"] + 1
                     d = {"type": integ} if integ == "direct" else {"type": "path", "max_depth": xml_depth}
                     it = mi.load_dict(d)

@@ -59,7 +59,7 @@ def measure(res: int, integrator: str, rfilter: str, repeats: int, variant: str)
     with tempfile.TemporaryDirectory() as d:
         path = Path(d) / "scene.xml"
         path.write_text(_scene_xml(integrator, rfilter))
-        scene = lm.load_file(str(path), integrator="scene", variant=variant, res=res)
+        scene = lm.load_file(str(path), links1_integrator="scene", variant=variant, res=res)
 
     def frame():
         img = mi.render(scene, spp=1, seed=0)

@@ -108,11 +108,11 @@ def _load(sc_or_xml, rfilter: str | None, variant: str):
             if xml.count('<rfilter type="box"/>') != 1:
                 raise RuntimeError("quadric_scene's film no longer has one box filter")
             xml = xml.replace('<rfilter type="box"/>', f'<rfilter type="{rfilter}"/>')
-        scene = lm.load_string(xml, integrator="links1", variant=variant, res=512)
+        scene = lm.load_string(xml, links1_integrator="links1", variant=variant, res=512)
     else:
         path = sc_or_xml.local_path
         if not rfilter:
-            scene = lm.load_file(path, integrator="links1", variant=variant)
+            scene = lm.load_file(path, links1_integrator="links1", variant=variant)
         else:
             text = Path(path).read_text()
             if text.count('<rfilter type="box"/>') != 1:
@@ -121,7 +121,7 @@ def _load(sc_or_xml, rfilter: str | None, variant: str):
             try:
                 with os.fdopen(fd, "w") as f:
                     f.write(text.replace('<rfilter type="box"/>', f'<rfilter type="{rfilter}"/>'))
-                scene = lm.load_file(tmp, integrator="links1", variant=variant)
+                scene = lm.load_file(tmp, links1_integrator="links1", variant=variant)
             finally:
                 os.unlink(tmp)
     scene.integrator().max_depth = MAX_DEPTH

@@ -144,6 +144,8 @@ class _Props:
     def __init__(self, node: Node):
         self.node = node
         self.used: set = set()
+        if params.is_links1(node.type):   # all its names are known: judged before any is read
+            self._refuse_unknown()
 
     def has(self, name: str) -> bool:
         return name in self.node.props
@@ -279,19 +281,39 @@ class _Props:
         except ValueError as exc:
             raise self.error(name, str(exc)) from None
 
+    def _refuse_unknown(self) -> None:
+        names = [n for n in self.node.props if n not in self.used]
+        found = refused_parameter(self.node.tag, self.node.type, names)
+        if found is not None:
+            p = self.node.props[found[0]]
+            raise SceneError(found[1], p.file, p.line, f"{self.node.element()} {p.element()}")
+
+    def finish_quietly(self) -> None:
+        """Refuse a parameter the plugin does not take; the others need no word."""
+        self._refuse_unknown()
+        self.ignore(*self.node.props)
+
     def finish(self) -> None:
-        known = mitsuba_parameters(self.node.tag, self.node.type)
+        """Refuse a parameter the plugin does not take (:func:`refused_parameter`), warn about
+        one it takes that the core does not use."""
+        self._refuse_unknown()
         for name, p in self.node.props.items():
-            if name in self.used:
-                continue
-            if known is not None and name not in known:   # Mitsuba refuses it: so does the core
-                raise SceneError(f"unknown parameter '{name}': Mitsuba's {self.node.tag} "
-                                 f"'{self.node.type or self.node.tag}' does not take it (Mitsuba "
-                                 "refuses unreferenced properties)", p.file, p.line,
-                                 f"{self.node.element()} {p.element()}")
-            warnings.warn(str(SceneError(
-                f"parameter '{name}' is not used by the core and is ignored", p.file, p.line,
-                f"{self.node.element()} {p.element()}")), SceneWarning, stacklevel=3)
+            if name not in self.used:
+                warnings.warn(str(SceneError(
+                    f"parameter '{name}' is not used by the core and is ignored", p.file, p.line,
+                    f"{self.node.element()} {p.element()}")), SceneWarning, stacklevel=3)
+
+
+def refused_parameter(tag: str, plugin: str | None, names) -> tuple | None:
+    """``(name, message)`` for the first of ``names`` that plugin ``plugin`` of element ``tag``
+    does not take (Mitsuba refuses such a property: "unreferenced property"), else None. links1's
+    plugins are judged by :mod:`links1.scene.params`, Mitsuba's by :func:`mitsuba_parameters`
+    (a plugin in neither table is not judged). The rule of both renderers and every loader."""
+    if params.is_links1(plugin):
+        return params.unknown_in(tag, plugin, names)
+    known = mitsuba_parameters(tag, plugin)
+    bad = [n for n in names if known is not None and n not in known]
+    return (bad[0], params.unknown_parameter(tag, plugin, bad[0], known)) if bad else None
 
 
 _MITSUBA_PARAMETERS = None
@@ -554,7 +576,10 @@ class _Builder:
         if node.type == "links1_whitted":   # its parameters that change the image
             extra["light_samples"] = props.links1(node.type, "light_samples")
             extra["min_weight"] = props.links1(node.type, "min_weight")
-        props.ignore(*node.props)  # other integrator parameters do not apply to the core
+        for p in (props, dp):
+            # other parameters do not apply to the core; one the integrator does not take is
+            # refused all the same (the file is judged as Mitsuba judges it, whichever renderer)
+            p.finish_quietly()
         return node.type, max_depth, extra
 
     # -- sensor ----------------------------------------------------------------------------

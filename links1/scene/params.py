@@ -14,7 +14,9 @@ parameter; the callers add file, line and element.
 """
 from __future__ import annotations
 
+import difflib
 import math
+import re
 from dataclasses import dataclass
 
 import numpy as np
@@ -145,6 +147,69 @@ PLUGINS: dict = {
         "flip_normals": Param("bool", False),
     },
 }
+
+
+#: Names a links1 plugin takes besides its checked parameters above: read by the plugin without
+#: a rule of its own (``aovs``, ``filename``), or by the Mitsuba base class it derives from
+#: (``mi.SamplingIntegrator``: ``block_size`` ...; ``mi.Emitter``: ``sampling_weight``;
+#: ``mi.Mesh``: ``flip_normals``, ``silhouette_sampling_weight``). With :data:`PLUGINS` this is
+#: everything each one takes: any other name is an error, as Mitsuba refuses a property no
+#: plugin reads ("unreferenced property").
+OTHER_NAMES: dict = {
+    ("integrator", "links1_whitted"): ("aovs", "adaptive", "adaptive_depth", "block_size",
+                                       "hide_emitters", "samples_per_pass", "timeout"),
+    ("bsdf", "links1_phong"): (),
+    ("emitter", "links1_point"): ("to_world", "sampling_weight"),
+    ("emitter", "links1_spot"): ("to_world", "sampling_weight"),
+    ("shape", "links1_quadric"): ("to_world",),
+    ("shape", "links1_blob"): ("to_world",),
+    ("shape", "links1_bicubic"): ("to_world", "filename", "control_points", "silhouette_sampling_weight"),
+}
+#: Parameters named by a pattern: ``clip_<k>`` and ``clip_<k>_offset`` (k = 0, 1, ...).
+_PATTERNS = {"links1_quadric": re.compile(r"clip_\d+(_offset)?")}
+
+
+def is_links1(plugin: str | None) -> bool:
+    """Whether ``plugin`` (a type such as ``links1_phong``) is one of links1's plugins."""
+    return any(t == plugin for _, t in PLUGINS)
+
+
+def takes(plugin: str, name: str) -> bool:
+    """Whether links1 plugin ``plugin`` takes a parameter called ``name``."""
+    for (tag, t), table in PLUGINS.items():
+        if t == plugin:
+            pattern = _PATTERNS.get(plugin)
+            return (name in table and name != "clip_offset") or name in OTHER_NAMES[(tag, t)] or \
+                bool(pattern and pattern.fullmatch(name))
+    raise KeyError(plugin)
+
+
+def names_of(plugin: str) -> list:
+    """Every parameter name links1 plugin ``plugin`` takes (patterns as their first instance)."""
+    for (tag, t), table in PLUGINS.items():
+        if t == plugin:
+            names = [n for n in table if n != "clip_offset"] + list(OTHER_NAMES[(tag, t)])
+            return names + (["clip_0", "clip_0_offset"] if plugin in _PATTERNS else [])
+    raise KeyError(plugin)
+
+
+def unknown_parameter(tag: str, plugin: str | None, name: str, known) -> str:
+    """The message for a parameter ``name`` that plugin ``plugin`` (of element ``tag``) does not
+    take, naming the closest of the ``known`` names where one is close (a typo)."""
+    close = difflib.get_close_matches(name, sorted(known), n=1)
+    hint = f" (did you mean '{close[0]}'?)" if close else ""
+    owner = "links1's" if is_links1(plugin) else "Mitsuba's"
+    return (f"unknown parameter '{name}'{hint}: {owner} {tag} '{plugin or tag}' does not take it "
+            "(Mitsuba refuses unreferenced properties)")
+
+
+def unknown_in(tag: str, plugin: str, names) -> tuple | None:
+    """``(name, message)`` for the first of ``names`` that links1 plugin ``plugin`` does not
+    take (:func:`unknown_parameter`), else None: the rule both renderers and every loader apply."""
+    for name in names:
+        if not takes(plugin, name):
+            return name, unknown_parameter(tag, plugin, name, names_of(plugin))
+    return None
 
 
 def param(plugin: str, name: str) -> Param:

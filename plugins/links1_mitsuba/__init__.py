@@ -10,8 +10,10 @@ Public API::
 
     register(variant=None) -> str
     log_to_warnings() -> None        Mitsuba's log warnings through Python's warnings (the CLI)
-    load_file(path, *, integrator="links1", variant=None, **params) -> mi.Scene
-    load_string(xml, *, integrator="links1", variant=None, base_dir=None, **params) -> mi.Scene
+    load_file(path, *, links1_integrator="links1", variant=None, params=None, **scene_params) -> mi.Scene
+    load_string(xml, *, links1_integrator="links1", variant=None, base_dir=None, params=None,
+                **scene_params) -> mi.Scene
+                                     (every other keyword is a scene's $name, as mi.load_file's)
     MitsubaRenderer(path, *, params=None, spp=None, max_depth=None, seed=0, aovs=(), variant=None,
                     integrator="links1", width=None, height=None, min_weight=None)
                                      (defaults: links1.scene.params.PLUGINS["integrator", "links1_whitted"])

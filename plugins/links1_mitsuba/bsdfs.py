@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .registered import check_properties
 from .util import Hidden, place_of, read_rgb
 
 
@@ -15,6 +16,7 @@ def phong_params(props) -> dict:
     """Read and check the ``links1_phong`` parameters from Mitsuba ``Properties`` (defaults and
     ranges: :data:`links1.scene.params.PLUGINS`, the table the core's reader uses too)."""
     from links1.scene.params import PLUGINS, read
+    check_properties("bsdf", "links1_phong", props)
     v = {}
     for name, prm in PLUGINS[("bsdf", "links1_phong")].items():
         raw = _rgb(props, name, None) if prm.kind == "rgb" else (float(props[name]) if name in props else None)

@@ -7,6 +7,7 @@ import numpy as np
 
 from links1.scene.params import default, param, read
 
+from .registered import check_properties
 from .util import Hidden, read_rgb as _rgb
 
 FALLOFFS = param("links1_point", "falloff").choices
@@ -33,6 +34,7 @@ def _unit(v, what):
 
 
 def point_params(props) -> dict:
+    check_properties("emitter", "links1_point", props)
     pos = _vec(props, "position", default("links1_point", "position"))
     direction = _vec(props, "direction", default("links1_point", "direction"))
     m = _to_world(props)
@@ -47,6 +49,7 @@ def point_params(props) -> dict:
 
 
 def spot_params(props) -> dict:
+    check_properties("emitter", "links1_spot", props)
     origin = _vec(props, "origin", default("links1_spot", "origin"))
     direction = read("links1_spot", "direction", _vec(props, "direction", None))
     m = _to_world(props)

@@ -37,7 +37,7 @@ from .intersect import Intersect
 from .launch import Launches
 from .lights import Lights
 from .raytree import RayTree
-from .registered import unsupported_variant
+from .registered import check_properties, unsupported_variant
 from .tables import Tables
 from .util import Hidden, hidden_attr, place_of
 
@@ -115,6 +115,7 @@ def define_integrator():
             why = unsupported_variant(mi.variant())
             if why:   # registered for one variant, built under another
                 raise ValueError(why)
+            check_properties("integrator", "links1_whitted", props)
             super().__init__(props)
             self._hidden = Hidden()
             def param(name, conv):   # links1.scene.params: the rules the core's reader applies too

@@ -8,6 +8,7 @@ BSDFs travel to it as nested objects. ``links1_bicubic`` stays: it is a register
 from __future__ import annotations
 
 import os
+import re
 import warnings
 
 import numpy as np
@@ -18,7 +19,7 @@ from .util import read_rgb as _rgb
 from .shapes import BlobSpec, QuadricSpec
 
 CUSTOM = ("links1_quadric", "links1_blob")
-#: What ``integrator="scene"`` renders a file without ``<integrator>`` with: Mitsuba 3 has no
+#: What ``links1_integrator="scene"`` renders a file without ``<integrator>`` with: Mitsuba 3 has no
 #: default (``mi.render`` raises "No integrator specified!"); Mitsuba 2 instantiated ``path``.
 DEFAULT_SCENE_INTEGRATOR = "path"
 SLOT_ID = "_links1_slot_{}"
@@ -120,8 +121,8 @@ def _prepare_state(state, config, integrator: str, base_dir: str | None):
                 spec = (QuadricSpec if pname == "links1_quadric" else BlobSpec).from_props(slot, props)
             except ValueError as exc:
                 raise ValueError(f"{_where(state, node)}: {exc}") from None
-            for k in list(props.keys()):
             spec.where = _where(state, node)    # (for a params.update() that it refuses)
+            for k in list(props.keys()):
                 v = props[k]
                 if isinstance(v, refs):
                     child = nodes[v.index()] if isinstance(v, mi.Properties.ResolvedReference) else None
@@ -160,8 +161,8 @@ def _prepare_state(state, config, integrator: str, base_dir: str | None):
     if integrator == "scene":
         for _, node in custom_nodes:
             warnings.warn(f"{_where(state, node)}: <shape type='{node.props.plugin_name()}'>: "
-                          "integrator='scene': Mitsuba's own integrators cannot see this shape; "
-                          "it is left out", stacklevel=3)
+                          "the file's own integrator (--integrator scene, links1_integrator='scene') "
+                          "cannot see this shape; it is left out", stacklevel=3)
         if integ_node is None:
             warnings.warn(f"{_where(state, root)}: <scene>: the scene names no integrator (Mitsuba 3.9.1 "
                           f"would refuse to render it): using '{DEFAULT_SCENE_INTEGRATOR}' with "
@@ -257,11 +258,9 @@ _TAGS = {"BSDF": "bsdf", "Emitter": "emitter", "Film": "film", "Integrator": "in
 UNNAMED_ID = "_unnamed_links1_{}"
 
 
-def _places(state, text: str | None = None) -> dict:
-    """``FILE:LINE: <tag type='..' id='..' name='..'>`` of every parsed object, keyed by its
-    id; objects without one get :data:`UNNAMED_ID` (the core's messages have the same form)."""
+def _ref_names(nodes) -> dict:
+    """Node index -> the name its parent gives it (``<bsdf name='..'>``), where one was given."""
     import mitsuba as mi
-    nodes = state.nodes
     names = {}
     for n in nodes:
         for k in n.props.keys():
@@ -270,7 +269,41 @@ def _places(state, text: str | None = None) -> dict:
             was = n.props.was_queried(k)
             names.setdefault(n.props[k].index(), k)
             n.props.mark_queried(k, was)   # reading marks it: Mitsuba must still see what it was
-    data, lines = {}, {}
+    return names
+
+
+def _element(node, user_id: str, name: str | None) -> str:
+    """``<tag type='..' id='..' name='..'>`` of a parsed node, as the core's messages write it."""
+    elem = f"<{_TAGS.get(node.type.name, node.type.name.lower())} type='{node.props.plugin_name()}'"
+    if user_id:
+        elem += f" id='{user_id}'"
+    if name:
+        elem += f" name='{name}'"
+    return elem + ">"
+
+
+def _source(state, node, text, cache) -> tuple:
+    """``(path, bytes or None)`` of the file a node comes from (``text``: a string's scene)."""
+    path = str(state.files[node.file_index])
+    if path not in cache:
+        try:
+            if text is not None and node.file_index == 0 and not os.path.isfile(path):
+                cache[path] = text.encode()
+            else:
+                with open(path, "rb") as f:
+                    cache[path] = f.read()
+        except OSError:
+            cache[path] = None
+    return path, cache[path]
+
+
+def _places(state, text: str | None = None) -> dict:
+    """``FILE:LINE: <tag type='..' id='..' name='..'>`` of every parsed object, keyed by its
+    id; objects without one get :data:`UNNAMED_ID` (the core's messages have the same form)."""
+    import mitsuba as mi
+    nodes = state.nodes
+    names = _ref_names(nodes)
+    data = {}
     places = {}
     for i, n in enumerate(nodes):
         if n.type == mi.ObjectType.Scene:
@@ -281,27 +314,48 @@ def _places(state, text: str | None = None) -> dict:
         elif user_id.startswith("_"):     # the loader's own (shape slots)
             user_id = ""
         try:
-            path = str(state.files[n.file_index])
+            path, buf = _source(state, n, text, data)
         except Exception:                 # a node the loader added
             continue
-        if path not in data:
-            try:
-                if text is not None and n.file_index == 0 and not os.path.isfile(path):
-                    data[path] = text.encode()
-                else:
-                    with open(path, "rb") as f:
-                        data[path] = f.read()
-            except OSError:
-                data[path] = None
-        buf = data[path]
         line = buf[:int(n.offset)].count(b"\n") + 1 if buf is not None else None
-        elem = f"<{_TAGS.get(n.type.name, n.type.name.lower())} type='{n.props.plugin_name()}'"
-        if user_id:
-            elem += f" id='{user_id}'"
-        if i in names:
-            elem += f" name='{names[i]}'"
-        places[n.props.id()] = f"{path}:{line}: {elem}>" if line is not None else f"{path}: {elem}>"
+        elem = _element(n, user_id, names.get(i))
+        places[n.props.id()] = f"{path}:{line}: {elem}" if line is not None else f"{path}: {elem}"
     return places
+
+
+#: Properties.Type names of parameter values (the others are nested objects)
+_VALUE_KINDS = ("Bool", "Integer", "Float", "Vector", "Transform", "Color", "Spectrum", "String")
+
+
+def _judge_parameters(state, integrator: str, text: str | None) -> None:
+    """A parameter its plugin does not take is a :class:`links1.errors.SceneError` naming the
+    property's FILE:LINE, the element and the property, as the core's reader names it: links1's
+    plugins by their table (:func:`links1.scene.params.unknown_in`), an integrator that
+    ``links1_whitted`` replaces by Mitsuba's table (Mitsuba never sees it). Mitsuba judges its
+    other plugins itself when it instantiates them."""
+    from links1.errors import SceneError
+    from links1.scene.loader import refused_parameter
+    from links1.scene.params import is_links1
+    names, data = None, {}
+    for i, node in enumerate(state.nodes):
+        plugin = node.props.plugin_name()
+        tag = _TAGS.get(node.type.name, node.type.name.lower())
+        if not (is_links1(plugin) or (tag == "integrator" and integrator != "scene")):
+            continue
+        given = [k for k in node.props.keys() if not k.startswith("_") and node.props.type(k).name in _VALUE_KINDS]
+        found = refused_parameter(tag, plugin, given)
+        if found is None:
+            continue
+        name, message = found
+        names = _ref_names(state.nodes) if names is None else names
+        path, buf = _source(state, node, text, data)
+        elem = _element(node, node.props.id(), names.get(i))
+        at = re.compile(rb"<(\w+)\b[^>]*\bname\s*=\s*[\"']" + re.escape(name.encode()) + rb"[\"']")
+        m = at.search(buf or b"", int(node.offset))
+        if m is None:
+            raise SceneError(message, path, None, f"{elem} <{name}>")
+        line = buf[:m.start()].count(b"\n") + 1
+        raise SceneError(message, path, line, f"{elem} <{m.group(1).decode()} name='{name}'>")
 
 
 def _unused_parameters(exc, source) -> Exception:
@@ -313,8 +367,11 @@ def _unused_parameters(exc, source) -> Exception:
     given = [ln.strip()[2:].lstrip("$") for ln in text.splitlines() if ln.strip().startswith("- $")]
     what = ", ".join(f"-D {g}" for g in given) or "parameters"
     names = ", ".join(f"${g.split('=')[0]}" for g in given)
+    hint = ""
+    if any(g in ("integrator=links1", "integrator=scene") for g in given):   # meant as links1's own option
+        hint = "; links1's own choice of integrator is the keyword links1_integrator="
     return SceneError(f"unused parameter{'s' if len(given) > 1 else ''} {what}: the scene has no "
-                      f"{names} (Mitsuba refuses unused parameters)", source, 1, "<scene>")
+                      f"{names} (Mitsuba refuses unused parameters){hint}", source, 1, "<scene>")
 
 
 def _load(parse, source, integrator, base_dir, variant, params, filename=None):
@@ -332,6 +389,7 @@ def _load(parse, source, integrator, base_dir, variant, params, filename=None):
             state = parse(config, source, **{k: str(v) for k, v in params.items()})
         except RuntimeError as exc:
             raise _unused_parameters(exc, filename or "<string>") from None
+        _judge_parameters(state, integrator, None if filename else source)
         integ, specs, slot_of_id, names = _prepare_state(state, config, integrator, base_dir)
         places = _places(state, None if filename else source)
         mi.parser.transform_all(config, state)
@@ -349,45 +407,58 @@ def _load(parse, source, integrator, base_dir, variant, params, filename=None):
     return scene
 
 
-def load_file(path, *, integrator: str = "links1", variant: str | None = None, params: dict | None = None,
-              **kwparams):
+def _integrator_choice(links1_integrator: str) -> str:
+    if links1_integrator not in ("links1", "scene"):
+        raise ValueError(f"links1_integrator must be 'links1' or 'scene', got {links1_integrator!r}")
+    return links1_integrator
+
+
+def load_file(path, *, links1_integrator: str = "links1", variant: str | None = None,
+              params: dict | None = None, **kwparams):
     """Load a scene file for Mitsuba with the links1 plugins.
+
+    Every keyword but the three below is a ``$name`` substitution of the scene, as for
+    ``mi.load_file``: ``load_file(path, integrator="path", max_depth=2)`` sets a scene's
+    ``$integrator`` and ``$max_depth`` (what ``links1 render -D integrator=path`` does).
 
     Parameters
     ----------
     path : str
         Mitsuba 3 XML (links1 plugins allowed), the same files as :func:`links1.scene.loader.load_scene`.
-    integrator : {"links1", "scene"}
+    links1_integrator : {"links1", "scene"}
         ``"links1"`` (default): render with ``links1_whitted`` whatever the file names (its
         ``max_depth`` is kept). ``"scene"``: keep the file's integrator (links1 quadrics and
-        blobs are then left out, with a warning).
+        blobs are then left out, with a warning). ``links1 render --integrator``.
     variant : str, optional
         Mitsuba variant (default: the active one, else ``llvm_ad_rgb`` / ``cuda_ad_rgb``).
     params : dict, optional
-        ``$name`` substitutions (any name, also ``integrator`` or ``variant``, which
-        Mitsuba's own scenes often declare with ``<default>``).
+        ``$name`` substitutions whatever their names, also ``links1_integrator``, ``variant``
+        or ``params`` should a scene declare those.
     **kwparams
-        More ``$name`` substitutions, as ``mi.load_file``.
+        More ``$name`` substitutions.
+
+    A parameter that a plugin does not take (a misspelt ``difuse``) is a
+    :class:`links1.errors.SceneError` naming FILE:LINE and the element, as the core's reader
+    says it (:func:`links1.scene.params.unknown_in`).
     """
-    if integrator not in ("links1", "scene"):
-        raise ValueError(f"integrator must be 'links1' or 'scene', got {integrator!r}")
     import mitsuba as mi
+    choice = _integrator_choice(links1_integrator)
     path = os.fspath(path)
     if not os.path.exists(path):
         raise FileNotFoundError(path)
-    return _load(lambda c, p, **kw: mi.parser.parse_file(c, p, **kw), path, integrator,
-                 os.path.dirname(os.path.abspath(path)), variant, {**(params or {}), **kwparams},
+    return _load(lambda c, p, **kw: mi.parser.parse_file(c, p, **kw), path, choice,
+                 os.path.dirname(os.path.abspath(path)), variant, {**kwparams, **(params or {})},
                  filename=path)
 
 
-def load_string(xml: str, *, integrator: str = "links1", variant: str | None = None,
+def load_string(xml: str, *, links1_integrator: str = "links1", variant: str | None = None,
                 base_dir: str | None = None, params: dict | None = None, **kwparams):
-    """:func:`load_file` for an XML string (relative file names resolve against ``base_dir``)."""
-    if integrator not in ("links1", "scene"):
-        raise ValueError(f"integrator must be 'links1' or 'scene', got {integrator!r}")
+    """:func:`load_file` for an XML string (relative file names resolve against ``base_dir``;
+    a scene's own ``$base_dir`` goes through ``params``)."""
     import mitsuba as mi
-    return _load(lambda c, s, **kw: mi.parser.parse_string(c, s, **kw), xml, integrator,
-                 base_dir or os.getcwd(), variant, {**(params or {}), **kwparams})
+    choice = _integrator_choice(links1_integrator)
+    return _load(lambda c, s, **kw: mi.parser.parse_string(c, s, **kw), xml, choice,
+                 base_dir or os.getcwd(), variant, {**kwparams, **(params or {})})
 
 
 def whitted_of(scene):

@@ -37,3 +37,25 @@ def unsupported_variant(variant: str) -> str | None:
     what += "spectral" if "spectral" in variant else "monochrome" if "mono" in variant else "non-RGB"
     return (f"links1_whitted cannot run on variant {variant}: the links1 plugins render RGB variants "
             f"only, not {what} ones; {works}")
+
+
+_KIND_TAGS = {"Bool": "boolean", "Integer": "integer", "Float": "float", "Vector": "vector",
+              "Transform": "transform", "Color": "rgb", "Spectrum": "spectrum", "String": "string"}
+
+
+def check_properties(tag: str, plugin: str, props) -> None:
+    """Refuse a property links1 plugin ``plugin`` does not take, before Mitsuba's own
+    "unreferenced property" check would: ValueError ``<tag type='plugin' id='..'> <kind
+    name='..'>: unknown parameter ...`` (:func:`links1.scene.params.unknown_in`, the rule of the
+    core's reader and of :func:`links1_mitsuba.load_file`). This is what ``mi.load_file`` and
+    ``mi.load_dict`` meet; :func:`links1_mitsuba.load_file` has judged the file before, naming
+    its lines. Nested objects and the loader's own entries (``_...``) are not parameters."""
+    from links1.scene.params import unknown_in
+    kinds = {k: _KIND_TAGS[props.type(k).name] for k in props.keys()
+             if not k.startswith("_") and props.type(k).name in _KIND_TAGS}
+    found = unknown_in(tag, plugin, kinds)
+    if found:
+        name, message = found
+        pid = props.id()
+        elem = f"<{tag} type='{plugin}'" + (f" id='{pid}'" if pid and not pid.startswith("_") else "") + ">"
+        raise ValueError(f"{elem} <{kinds[name]} name='{name}'>: {message}")

@@ -83,7 +83,7 @@ class MitsubaRenderer:
         import mitsuba as mi
         from .loader import load_file
         self.path = str(path)
-        self.scene = load_file(self.path, integrator=integrator, params=params)
+        self.scene = load_file(self.path, links1_integrator=integrator, params=params)
         self.mode = integrator
         self.seed = int(seed)
         self.aovs = parse_aovs(aovs)

@@ -17,6 +17,8 @@ import numpy as np
 from links1.geometry.shapes import quadric_bounds
 from links1.scene.params import blob_centers, clip_plane, default, read, transform_problem
 
+from .registered import check_properties
+
 
 def table_value(spec, k):
     """Entry ``k`` of ``spec``'s ``"values"`` table (``spec.tables()``), one gather. Outside a
@@ -110,6 +112,7 @@ def shape_label(plugin: str, name: str, where: str | None = None) -> str:
 
     @classmethod
     def from_props(cls, slot, props):
+        check_properties("shape", "links1_quadric", props)
         kind = read("links1_quadric", "kind", str(props["kind"]) if ("kind" in props) else None)
         m = _matrix(props)
         clips, k = [], 0
@@ -295,6 +298,7 @@ class BlobSpec:
 
     @classmethod
     def from_props(cls, slot, props):
+        check_properties("shape", "links1_blob", props)
         try:
             c = blob_centers(str(props["centers"]) if ("centers" in props) else "")
         except ValueError as exc:
@@ -924,6 +928,7 @@ def tessellate_bicubic(props, base_dir=None):
         from links1.geometry import meshes
     except ImportError as exc:  # pragma: no cover
         raise RuntimeError("links1_bicubic needs links1.geometry.meshes (tessellation)") from exc
+    check_properties("shape", "links1_bicubic", props)
     has_file = ("filename" in props)
     has_inline = ("control_points" in props)
     if has_file == has_inline:

@@ -87,7 +87,7 @@ def rel_mse(a, b):
 def path_image(body, variant, spp, seed):
     import mitsuba as mi
     from links1_mitsuba import load_string
-    sc = load_string(scene_xml(body, PATH, spp), integrator="scene", variant=variant)
+    sc = load_string(scene_xml(body, PATH, spp), links1_integrator="scene", variant=variant)
     return np.array(mi.render(sc, spp=spp, seed=seed), dtype=np.float64)[..., :3]
 
 

@@ -35,7 +35,7 @@ def test_mitsuba_direct_agrees_inside_a_sphere(variant):
     xml = scene(SHELLS["sphere"], TWOSIDED, POINT_OUTSIDE).replace(
         '<integrator type="links1_whitted"><integer name="max_depth" value="3"/></integrator>',
         '<integrator type="direct"/>')
-    ref = np.asarray(mi.render(load_string(xml, variant=variant, integrator="scene"), spp=4))
+    ref = np.asarray(mi.render(load_string(xml, variant=variant, links1_integrator="scene"), spp=4))
     assert np.all(ref == 0.0)  # Mitsuba's own integrator: the shell hides the light
 
 

@@ -147,7 +147,7 @@ def plugin(xml, variant, spp, max_depth):
 def mitsuba(xml, variant, integrator, spp):
     import mitsuba as mi
     from links1_mitsuba import load_string
-    sc = load_string(xml.replace("<emitter", f"{integrator}<emitter", 1), integrator="scene",
+    sc = load_string(xml.replace("<emitter", f"{integrator}<emitter", 1), links1_integrator="scene",
                      variant=variant)
     return np.array(mi.render(sc, spp=spp), dtype=np.float64)[..., :3]
 

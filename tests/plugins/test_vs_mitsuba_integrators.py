@@ -45,7 +45,7 @@ def mitsuba(body, variant, integrator, max_depth, spp):
     sc = load_string(scene_xml(body, f'<integrator type="{integrator}"><integer name="max_depth" '
                                      f'value="{max_depth}"/></integrator>' if integrator == "path" else
                                f'<integrator type="{integrator}"/>', spp=spp),
-                     integrator="scene", variant=variant)
+                     links1_integrator="scene", variant=variant)
     return np.array(mi.render(sc, spp=spp), dtype=np.float64)[..., :3]
 
 
