@@ -29,7 +29,7 @@ import drjit as dr
 import mitsuba as mi
 
 from . import tuning
-from .util import INF, c3, gather3, mix32
+from .util import INF, gather3, mix32
 
 # tuning.Tuning.skip_misses: direct light (every light's sample, shading and shadow rays) under a
 # symbolic ``dr.if_stmt`` on the hit: a packet of escaped rays (sky, 38 % of fig11's camera rays)
@@ -381,7 +381,8 @@ class RayTree:
                 continue
             on = ok & (slot == tab["slot"]) & (dr.dot(si.n, wi) < 0)   # the light's front side
             pdf_l = self._area_pdf(tab, p, wi, dr.norm(si.p - p), si.n)
-            out += dr.select(on, weight * c3(tab["L"]) * _power_heuristic(bs.pdf, m * pdf_l), 0.0)
+            Le = si.emitter(scene, on).eval(si, on)   # Mitsuba's own radiance there (a texture too)
+            out += dr.select(on, weight * Le * _power_heuristic(bs.pdf, m * pdf_l), 0.0)
         if P.consts:
             on = ok & (slot < 0)
             for env in P.consts:
