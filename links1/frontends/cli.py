@@ -11,7 +11,8 @@ import statistics
 import sys
 import time
 
-from .cli_options import nonneg_int, adaptive_options, add_render_arguments, renderer_options
+from .cli_options import (nonneg_int, adaptive_options, add_progress_arguments, add_render_arguments,
+                          progress_choice, renderer_options)
 from ..errors import Links1Error, RenderAborted, UsageError, one_line_warnings
 
 RENDER_EXAMPLES = """examples:
@@ -61,7 +62,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="render N more frames and print 'timing: first=... ms median=... ms min=... ms max=... ms' on stderr")
     p.add_argument("--min-weight", type=float, default=None,
                    help="stop a ray-tree branch whose weight falls to this or below (default 1/255; 0: never)")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_progress_arguments(p)
     p.add_argument("--debug", action="store_true", help="show tracebacks")
     p.set_defaults(func=cmd_render)
     _distributed_options(p)
@@ -144,7 +145,7 @@ def cmd_render(args) -> int:
     else:
         renderer = make_cli_renderer(args)
         t0 = time.perf_counter()
-        image = renderer.render(progress=not args.no_progress) if _takes_progress(renderer) else renderer.render()
+        image = renderer.render(progress=progress_choice(args)) if _takes_progress(renderer) else renderer.render()
         first = time.perf_counter() - t0
         channels = renderer.channels
     if args.repeat:

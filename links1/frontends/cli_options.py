@@ -84,6 +84,22 @@ def add_render_arguments(p: argparse.ArgumentParser) -> None:
                    help="set a scene parameter ($NAME), overriding its <default>")
 
 
+def add_progress_arguments(p: argparse.ArgumentParser) -> None:
+    """``--progress`` / ``--no-progress``; neither: a bar only when stderr is a terminal."""
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--progress", action="store_true",
+                   help="show the progress bar even when stderr is not a terminal")
+    g.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def progress_choice(args) -> bool | None:
+    """``progress=`` of the renderers from :func:`add_progress_arguments`'s options: True
+    (``--progress``), False (``--no-progress``) or None (a bar only on a terminal)."""
+    if getattr(args, "progress", False):
+        return True
+    return False if getattr(args, "no_progress", False) else None
+
+
 def renderer_options(args) -> dict:
     opts = dict(params=dict(args.defines), spp=args.spp, max_depth=args.max_depth, seed=args.seed,
                 aovs=tuple(args.aov))

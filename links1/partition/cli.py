@@ -22,7 +22,7 @@ import os
 import sys
 import warnings
 
-from ..frontends.cli_options import int_option
+from ..frontends.cli_options import add_progress_arguments, int_option, progress_choice
 from ..errors import SceneError, UsageError
 from ..scene.xmlparse import SceneWarning
 from .strategies import STRATEGIES, UNITS
@@ -266,7 +266,7 @@ def render_distributed(args):
         ckpt = Checkpoint(args.checkpoint, spec.key, {"scene": os.path.abspath(spec.path), "kind": spec.kind,
                                                       "options": repr(spec.options)})
     cull = _cull_map(plan, model, spec) if args.cull else None
-    res = render_plan(plan, spec, backend, checkpoint=ckpt, progress=not getattr(args, "no_progress", False),
+    res = render_plan(plan, spec, backend, checkpoint=ckpt, progress=progress_choice(args),
                       cull=cull)
     if res.resumed:
         print(f"links1: resumed {res.resumed} of {len(plan.units)} units from the checkpoint {ckpt.dir}",
@@ -327,7 +327,7 @@ def add_cli(subparsers) -> None:
                    help="tiles per node (the unit size of subscreen, grid and dynamic tiles; default 16)")
     g.add_argument("--sweep-simulate", type=_nodes_list, default=[1, 2, 4, 8, 16, 32, 64], metavar="1,2,...",
                    help="node counts of the simulated curves (default 1,2,4,...,64)")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_progress_arguments(p)
     p.add_argument("--debug", action="store_true", help="show tracebacks")
     p.set_defaults(func=run_cli)
 
@@ -390,7 +390,7 @@ def _one_run(args, nodes, *, close, reference=None):
     args.workers = 0 if nodes == 1 and not (args.scheduler or args.dask_local) else nodes
     spec, model, channels, plan, backend = prepare(args, nodes=nodes)
     cull = _cull_map(plan, model, spec) if args.cull else None
-    res = render_plan(plan, spec, backend, progress=not args.no_progress, cull=cull)
+    res = render_plan(plan, spec, backend, progress=progress_choice(args), cull=cull)
     if reference is None:
         reference = _reference(backend, spec, args.reference_repeat)
     if close:

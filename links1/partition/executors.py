@@ -131,7 +131,7 @@ def default_log(msg: str) -> None:
     sys.stderr.flush()
 
 
-def render_plan(plan, spec: RendererSpec, backend, *, checkpoint=None, progress: bool = True,
+def render_plan(plan, spec: RendererSpec, backend, *, checkpoint=None, progress: bool | None = None,
                 cull: dict | None = None, log=default_log) -> RenderResult:
     """Render every unit of ``plan`` on ``backend`` and assemble the frame.
 
@@ -141,7 +141,8 @@ def render_plan(plan, spec: RendererSpec, backend, *, checkpoint=None, progress:
     spec : RendererSpec        what nodes load (the scene path and renderer options)
     backend : InProcess | LocalPool | DaskBackend   started on first use
     checkpoint : Checkpoint, optional   finished units are read from / written to it
-    progress : bool            tqdm bar over units on stderr
+    progress : bool or None    tqdm bar over units on stderr: True always, None (default) only
+                               when stderr is a terminal (tqdm's ``disable=None``), False never
     cull : dict, optional      unit index -> object ids the unit's node receives (4-4)
     log : callable(str)        where fault messages go (stderr)
     """
@@ -168,10 +169,11 @@ def render_plan(plan, spec: RendererSpec, backend, *, checkpoint=None, progress:
             todo.append(i)
 
     bar = None
-    if progress:
+    if progress is not False:
         from tqdm import tqdm
         bar = tqdm(total=len(plan.units), initial=res.resumed, unit="unit", desc="links1", file=sys.stderr,
-                   dynamic_ncols=True, leave=False, smoothing=0.1)
+                   dynamic_ncols=True, leave=False, smoothing=0.1,
+                   disable=None if progress is None else False)
 
     def on_done(i, pixels, info):
         t = time.perf_counter()

@@ -35,7 +35,7 @@ def _check_window(window, width, height):
 
 
 def render(scene, *, spp: int | None = None, max_depth: int | None = None, seed: int = 0,
-           window=None, aovs=(), min_weight: float | None = None, progress: bool = False,
+           window=None, aovs=(), min_weight: float | None = None, progress: bool | None = False,
            width: int | None = None, height: int | None = None, light_samples: int | None = None,
            adaptive: float | None = None, adaptive_depth: int = DEFAULT_ADAPTIVE_DEPTH,
            sensor: int | None = None) -> np.ndarray:
@@ -76,6 +76,9 @@ def render(scene, *, spp: int | None = None, max_depth: int | None = None, seed:
         Render from the file's sensor ``k`` (0-based, file order; as ``mi.render(scene,
         sensor=k)``): its camera, film (size, crop window, filter) and sample count. Default:
         ``scene.camera`` and ``scene.spp`` (the first sensor unless ``scene.use_sensor``).
+    progress : bool or None
+        A tqdm bar on stderr for renders longer than a second: True always, None only when
+        stderr is a terminal (tqdm's ``disable=None``), False (default) never.
 
     Returns
     -------
@@ -242,14 +245,16 @@ def _resized(cam, width, height):
 
 
 def _progress(total, enabled):
-    if not enabled:
+    """A tqdm bar on stderr: ``enabled`` True always, None only on a terminal, False never."""
+    if enabled is False:
         return None
     try:
         from tqdm import tqdm
     except ImportError:  # pragma: no cover - tqdm is a declared dependency
         return None
     # delay: the bar appears only for renders that last more than a second
-    return tqdm(total=total, desc="render", unit="batch", delay=1.0, leave=False)
+    return tqdm(total=total, desc="render", unit="batch", delay=1.0, leave=False,
+                disable=None if enabled is None else False)
 
 
 # ---------------------------------------------------------------------- renderers
