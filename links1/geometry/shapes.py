@@ -431,7 +431,10 @@ class TriangleMesh(Shape):
         o = np.asarray(o, dtype=np.float64).reshape(-1, 3)
         d = np.asarray(d, dtype=np.float64).reshape(-1, 3)
         prim = np.asarray(prim, dtype=np.int64)
-        b = self.barycentrics(o, d, prim)
+        return self.uv_at(self.barycentrics(o, d, prim), prim)
+
+    def uv_at(self, b, prim):
+        """Texcoords at barycentrics ``b`` (N, 3) of triangles ``prim`` (as :meth:`uv`)."""
         if self.texcoords is None:
             return b[:, self._bary_uv]
         f = self.faces[prim]
@@ -699,14 +702,14 @@ class Quadric(Shape):
 class Disk(Shape):
     """Mitsuba's ``disk``: the unit disk in the object xy plane, normal +z, placed by
     ``to_world``. One-sided in Mitsuba's sense only for shading; intersected from both
-    sides here (ng is the transformed +z, never flipped)."""
+    sides here (ng is the transformed +z, or −z with ``flip``: Mitsuba's ``flip_normals``)."""
 
-    def __init__(self, to_world=None, name: str = ""):
+    def __init__(self, to_world=None, name: str = "", flip: bool = False):
         super().__init__(name)
         self.to_world = check_to_world(to_world, f"disk {name!r}")
         self.A = np.linalg.inv(self.to_world[:3, :3])
         self.m = self.to_world[:3, 3].copy()
-        self._normal = normalize(self.A.T @ np.array([0.0, 0.0, 1.0]))
+        self._normal = normalize(self.A.T @ np.array([0.0, 0.0, -1.0 if flip else 1.0]))
         ext = _row_extent(self.to_world[:3, :3], [0, 1])
         self._bounds = (self.m - ext, self.m + ext)
 

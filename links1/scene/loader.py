@@ -773,10 +773,10 @@ class _Builder:
             shape = _construct(node, _shape_class("Quadric"), "cylinder", full, clips=clips,
                                capped=False, name=name)
         elif t == "disk":
-            self._no_flip(props)
+            flip = props.bool("flip_normals", False)
             m = params.planar_to_world(m)   # zero thickness is still a disk
             _check_invertible(node, m)
-            shape = _construct(node, _shape_class("Disk"), m, name=name)
+            shape = _construct(node, _shape_class("Disk"), m, name=name, flip=flip)
         elif t in ("rectangle", "cube"):
             if t == "rectangle":
                 m = params.planar_to_world(m)   # zero thickness is still a rectangle

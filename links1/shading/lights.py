@@ -234,6 +234,12 @@ class AreaLight(SampledLight):
         if isinstance(shape, TriangleMesh):
             self.kind = "mesh"
             v, f = shape.vertices, shape.faces
+            if getattr(shape, "normals", None) is not None:
+                # Mitsuba emits on the side of a mesh's shading normals where it has them
+                # (mesh.cpp sample_position): a face wound against them (a mirroring to_world
+                # turns the winding, not the normals) is turned back, as the loader turns it
+                f = np.where((dot(cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]),
+                                  shape.normals[f].sum(axis=1)) < 0)[:, None], f[:, [0, 2, 1]], f)
             self.v0, self.v1, self.v2 = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
             cr = cross(self.v1 - self.v0, self.v2 - self.v0)
             dbl = length(cr)

@@ -90,7 +90,7 @@ class Lights:
                              (co - dr.acos(dr.clip(cos_theta, -1.0, 1.0))) / max(co - cb, 1e-30))
             ramp = dr.select(cos_theta > math.cos(co), ramp, 0.0)
             return wi, dist, c3(I) * (ramp / dr.maximum(dr.square(dist), 1e-30))
-        if kind == "memitter":   # a Mitsuba delta emitter evaluated by Mitsuba (textured spot)
+        if kind == "memitter":   # a Mitsuba delta emitter evaluated by Mitsuba (textured spot, projector)
             it = dr.zeros(mi.Interaction3f, dr.width(p))
             it.p = p
             ds, spec = L[2].sample_direction(it, mi.Point2f(0.5, 0.5), True)
@@ -107,25 +107,51 @@ class Lights:
         sh = e.get_shape()
         kind = kind_of(sh)
         slot = next((sl for s_, sl in zip(shapes, slot_list) if s_ is sh), None)
-        rad = np.array(mi.traverse(e)["radiance.value"], dtype=np.float64).ravel()
+        eprm = mi.traverse(e)
+        # a textured radiance (bitmap, checkerboard, ...) is Mitsuba's to evaluate at each light
+        # sample's uv (_area_radiance); the tables then hold the triangles' uv
+        textured = "radiance.value" not in eprm
+        rad = np.ones(3) if textured else np.array(eprm["radiance.value"], dtype=np.float64).ravel()
+        uv = None
         try:
             prm = mi.traverse(sh)
             if kind not in ("Rectangle", "Sphere", "Disk") and sh.is_mesh():
+                # (Mitsuba's flip_normals is in the faces' winding already)
                 v = np.array(sh.vertex_positions_buffer(), dtype=np.float64).reshape(-1, 3)
                 f = np.array(sh.faces_buffer(), dtype=np.int64).reshape(-1, 3)
-                core = TriangleMesh(v, f)
+                vn = (np.array(sh.vertex_normals_buffer(), dtype=np.float64).reshape(-1, 3)
+                      if sh.has_vertex_normals() else None)
+                core = TriangleMesh(v, f, vn)
+                if textured:
+                    if not sh.has_vertex_texcoords():
+                        raise ValueError("a textured radiance needs the mesh's texture coordinates, "
+                                         "which it has not (Mitsuba refuses it too)")
+                    uv = np.array(sh.vertex_texcoords_buffer(), dtype=np.float64).reshape(-1, 2)[f]
             else:
                 m = np.array(prm["to_world"].matrix, dtype=np.float64).reshape(4, 4)
+                # flip_normals of an analytic shape: Mitsuba's own sampled normal says it
+                ps = sh.sample_position(0.0, mi.Point2f(0.3, 0.4))
+                n_mi = np.array(ps.n, dtype=np.float64).ravel()
                 if kind == "Rectangle":
-                    v, f, nrm = meshes.rectangle_mesh()
+                    v, f, nrm, tc = meshes.rectangle_mesh(uv=True)
                     v, nrm = meshes.transform_mesh(m, v, nrm)
+                    if float(np.dot(n_mi, nrm[0])) < 0:
+                        f, nrm = meshes.flip(f, nrm)
                     core = TriangleMesh(v, f)
+                    uv = tc[f] if textured else None
                 elif kind == "Sphere":
                     core = Quadric("sphere", m)
+                    if textured:
+                        raise ValueError("a textured radiance on a sphere is not sampled (meshes, rectangles "
+                                         "and disks are)")
                 elif kind == "Disk":
                     core = Disk(m)
+                    if float(np.dot(n_mi, core._normal)) < 0:
+                        core = Disk(m, flip=True)
                 else:
                     raise ValueError(f"the plugin cannot sample an area emitter on a {kind}")
+                if kind == "Sphere" and float(np.dot(n_mi, np.array(ps.p, dtype=np.float64).ravel() - m[:3, 3])) < 0:
+                    raise ValueError("a sphere with flip_normals emits inward, which is not sampled")
             core.index = -1 if slot is None else slot
             L = AreaLight(core, np.broadcast_to(rad, (3,)))
         except (ValueError, KeyError) as exc:
@@ -133,16 +159,31 @@ class Lights:
                           f"it lights nothing: {exc}",
                           stacklevel=3)
             return None
-        tab = dict(kind=L.kind, id=L.light_id, slot=slot, L=L.radiance)
+        tab = dict(kind=L.kind, id=L.light_id, slot=slot, L=L.radiance, emitter=e if textured else None)
         if L.kind == "mesh":
             tab.update(cdf=mi.Float(L.cdf), v0=mi.Float(L.v0.ravel()), v1=mi.Float(L.v1.ravel()),
                        v2=mi.Float(L.v2.ravel()), nrm=mi.Float(L.normals.ravel()), n=len(L.cdf),
                        area=float(L.area))
+            if uv is not None:
+                tab.update(**{f"uv{k}": mi.Float(np.ascontiguousarray(uv[:, k]).ravel()) for k in range(3)})
         elif L.kind == "sphere":
             tab.update(c=L.center, r=float(L.r))
         else:
             tab.update(m=L.m.tolist(), nrm_d=L.normal, area=float(L.area))
         return tab
+
+    @staticmethod
+    def _area_radiance(tab, uv):
+        """The radiance of an area light at light samples of surface coordinates ``uv``: its
+        constant, or Mitsuba's evaluation of its texture (``emitter.eval`` on the front side)."""
+        e = tab.get("emitter")
+        if e is None:
+            return c3(tab["L"])
+        si = dr.zeros(mi.SurfaceInteraction3f, dr.width(uv))
+        si.uv = uv
+        si.wi = mi.Vector3f(0.0, 0.0, 1.0)
+        si.sh_frame = mi.Frame3f(mi.Vector3f(0.0, 0.0, 1.0))
+        return mi.Color3f(e.eval(si))
 
     def _envmap_table(self, e):
         """The core's :class:`links1.shading.lights.EnvironmentMap` from Mitsuba's own data (its periodic
@@ -160,8 +201,8 @@ class Lights:
     def _sample_area(self, tab, p, u, v):
         """``AreaLight.sample`` of the core in float32: (wi, dist, L_e / pdf, pdf), the pdf in
         solid angle (0 where nothing is sampled)."""
-        Le = c3(tab["L"])
         if tab["kind"] == "sphere":
+            Le = c3(tab["L"])
             c, r = v3(tab["c"]), float(tab["r"])
             to_c = c - p
             dc2 = dr.squared_norm(to_c)
@@ -191,6 +232,10 @@ class Lights:
             q = (dr.gather(mi.Vector3f, tab["v0"], k) * b0 + dr.gather(mi.Vector3f, tab["v1"], k) * b1
                  + dr.gather(mi.Vector3f, tab["v2"], k) * (1.0 - b0 - b1))
             nl = dr.gather(mi.Vector3f, tab["nrm"], k)
+            uv = None
+            if "uv0" in tab:
+                uv = (dr.gather(mi.Point2f, tab["uv0"], k) * b0 + dr.gather(mi.Point2f, tab["uv1"], k) * b1
+                      + dr.gather(mi.Point2f, tab["uv2"], k) * (1.0 - b0 - b1))
         else:
             m = tab["m"]
             rr = dr.sqrt(u)
@@ -198,6 +243,8 @@ class Lights:
             x, y = rr * cp_, rr * sp_
             q = mi.Vector3f(*[m[i][0] * x + m[i][1] * y + m[i][3] for i in range(3)])
             nl = v3(tab["nrm_d"])
+            uv = mi.Point2f(rr, v)     # Mitsuba's disk: (r, φ / 2π)
+        Le = self._area_radiance(tab, uv)
         to = q - p
         d2 = dr.squared_norm(to)
         dist = dr.sqrt(d2)

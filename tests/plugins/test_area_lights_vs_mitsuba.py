@@ -38,6 +38,23 @@ LIGHTS = {
       <emitter type="area"><rgb name="radiance" value="10, 9, 7"/></emitter></shape>""",
     "obj": """<shape type="obj"><string name="filename" value="lum.obj"/>
       <emitter type="area"><rgb name="radiance" value="6"/></emitter></shape>""",
+    # a downward light made by flip_normals (how Blender exports lights), on a rectangle and a disk
+    "rectangle_flipped": """<shape type="rectangle"><boolean name="flip_normals" value="true"/><transform name="to_world">
+      <scale value="0.7"/><rotate x="1" angle="-90"/><translate value="0.5, 3, 0.3"/></transform>
+      <emitter type="area"><rgb name="radiance" value="8"/></emitter></shape>""",
+    "disk_flipped": """<shape type="disk"><boolean name="flip_normals" value="true"/><transform name="to_world">
+      <scale value="0.6"/><rotate x="1" angle="-90"/><translate value="-0.5, 3, 0.3"/></transform>
+      <emitter type="area"><rgb name="radiance" value="8"/></emitter></shape>""",
+    # a mirroring to_world turns the winding, not the vertex normals (which face down)
+    "obj_mirrored": """<shape type="obj"><string name="filename" value="lum_vn.obj"/>
+      <transform name="to_world"><scale x="-1" y="1" z="1"/></transform>
+      <emitter type="area"><rgb name="radiance" value="6"/></emitter></shape>""",
+    # a textured radiance (bitmap), on a rectangle and on a mesh without texcoords
+    "rectangle_bitmap": """<shape type="rectangle"><transform name="to_world"><scale value="0.8"/><rotate x="1" angle="90"/>
+      <translate value="0.5, 3, 0.3"/></transform><emitter type="area">
+      <texture type="bitmap" name="radiance"><string name="filename" value="tex.exr"/></texture></emitter></shape>""",
+    "obj_bitmap": """<shape type="obj"><string name="filename" value="lum_uv.obj"/><emitter type="area">
+      <texture type="bitmap" name="radiance"><string name="filename" value="tex.exr"/></texture></emitter></shape>""",
     "constant": """<emitter type="constant"><rgb name="radiance" value="0.8, 0.9, 1.0"/></emitter>""",
     "envmap": """<emitter type="envmap"><string name="filename" value="env.exr"/>
       <transform name="to_world"><rotate y="1" angle="30"/></transform></emitter>""",
@@ -56,6 +73,16 @@ def write_files(d):
     with open(os.path.join(d, "lum.obj"), "w") as fh:
         fh.write("v -0.5 3 -0.4\nv 0.5 3 -0.4\nv 0.5 3 0.4\nv -0.5 3 0.4\n"
                  "v 1.2 2.2 0\nv 1.6 2.6 0.6\nv 1.9 2.0 -0.3\nf 1 2 3\nf 1 3 4\nf 5 6 7\n")
+    with open(os.path.join(d, "lum_vn.obj"), "w") as fh:
+        fh.write("v -0.5 3 -0.4\nv 0.5 3 -0.4\nv 0.5 3 0.4\nv -0.5 3 0.4\nvn 0 -1 0\n"
+                 "f 1//1 2//1 3//1\nf 1//1 3//1 4//1\n")
+    with open(os.path.join(d, "lum_uv.obj"), "w") as fh:
+        fh.write("v -0.5 3 -0.4\nv 0.5 3 -0.4\nv 0.5 3 0.4\nv -0.5 3 0.4\n"
+                 "vt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nf 1/1 2/2 3/3\nf 1/1 3/3 4/4\n")
+    tex = np.full((6, 8, 3), 2.0)     # a bright checker of two colours
+    tex[::2, ::2] = [12.0, 3.0, 1.0]
+    tex[1::2, 1::2] = [1.0, 4.0, 14.0]
+    write_exr(os.path.join(d, "tex.exr"), tex.astype(np.float32))
 
 
 def write_scene(d, kind, integrator='<integrator type="direct"/>', spp=1, res=RES) -> str:
