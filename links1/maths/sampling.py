@@ -104,6 +104,43 @@ def child_keys(keys: np.ndarray, tag: int) -> np.ndarray:
     return mix32(np.asarray(keys, dtype=np.uint32) ^ np.uint32(tag))
 
 
+# ----------------------------------------------------------------------------- lens samples
+#: Tags of a camera ray's lens sample (a thin lens's aperture point), drawn from the ray's key.
+KEY_LENS_U = 0x2C1B3C6D
+KEY_LENS_V = 0x297A2D39
+
+
+def lens_samples(keys) -> tuple[np.ndarray, np.ndarray]:
+    """The aperture sample ``(u, v)`` in [0, 1)² of camera rays with keys ``keys``
+    (:func:`ray_keys`; an adaptive lattice point's key likewise)::
+
+        u = (mix(key ^ KEY_LENS_U) >> 8) * 2**-24,   v = (mix(key ^ KEY_LENS_V) >> 8) * 2**-24
+
+    independent of the film position (a per-pixel stratification of both would correlate them).
+    The plugin computes the same in float32."""
+    k = np.asarray(keys, dtype=np.uint32)
+    u = (mix32(k ^ np.uint32(KEY_LENS_U)) >> np.uint32(8)).astype(np.float64) * 2.0 ** -24
+    v = (mix32(k ^ np.uint32(KEY_LENS_V)) >> np.uint32(8)).astype(np.float64) * 2.0 ** -24
+    return u, v
+
+
+def square_to_uniform_disk_concentric(u, v) -> tuple[np.ndarray, np.ndarray]:
+    """Shirley and Chiu's concentric map of [0, 1)² onto the unit disk, as Mitsuba's
+    ``warp::square_to_uniform_disk_concentric`` (Dave Cline's form): ``x = 2u - 1``,
+    ``y = 2v - 1``; ``r = x``, ``φ = π/4 · y/x`` where ``|x| >= |y|``, else ``r = y``,
+    ``φ = π/2 - π/4 · x/y``; ``(r cos φ, r sin φ)``, the centre for ``x = y = 0``."""
+    x = 2.0 * np.asarray(u, dtype=np.float64) - 1.0
+    y = 2.0 * np.asarray(v, dtype=np.float64) - 1.0
+    steep = np.abs(x) < np.abs(y)
+    r = np.where(steep, y, x)
+    rp = np.where(steep, x, y)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        phi = 0.25 * np.pi * rp / r
+    phi = np.where(steep, 0.5 * np.pi - phi, phi)
+    phi = np.where((x == 0.0) & (y == 0.0), 0.0, phi)
+    return r * np.cos(phi), r * np.sin(phi)
+
+
 def radical_inverse2(s) -> np.ndarray:
     """Van der Corput radical inverse in base 2 of ``s`` (uint32), as 24-bit integers:
     ``bit_reverse32(s) >> 8``."""

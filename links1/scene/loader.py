@@ -11,7 +11,8 @@ element         types and parameters (Mitsuba defaults unless marked *links1*)
 ==============  =================================================================================
 sensor          ``perspective``: ``fov`` + ``fov_axis`` (x) or ``focal_length`` (``"50mm"``: the
                 diagonal field of view of a 36 x 24 mm film, as Mitsuba), ``near_clip`` (1e-2), ``far_clip`` (1e4), ``to_world`` (no scaling).
-                ``thinlens`` is rendered as a pinhole (warning). ``orthographic``: ``near_clip``,
+                ``thinlens``: as ``perspective`` plus ``aperture_radius`` (required) and
+                ``focus_distance`` (``far_clip``): depth of field. ``orthographic``: ``near_clip``,
                 ``far_clip``, ``to_world`` (its scale sizes the sensor plane, as in Mitsuba).
 film            ``hdrfilm``: ``width`` (768), ``height`` (576), ``crop_offset_x/y``,
                 ``crop_width/height``; ``rfilter``: ``box``, ``tent`` (radius), ``gaussian``
@@ -586,13 +587,11 @@ class _Builder:
     def sensor(self, node: Node):
         if node.type not in _SENSORS:
             raise node.error(f"unknown plugin '{node.type}' (sensor)")
-        if node.type == "thinlens":
-            node.warn("thinlens is rendered as a pinhole perspective camera (no depth of field)")
-        elif node.type not in ("perspective", "orthographic"):
+        if node.type not in ("perspective", "thinlens", "orthographic"):
             raise node.error(f"sensor type '{node.type}' is not supported by the core "
                              "(only 'perspective', 'thinlens' and 'orthographic')")
         props = _Props(node)
-        props.ignore("aperture_radius", "focus_distance", "srf")
+        props.ignore("srf")
         # film first: fov_axis conversions need the film's aspect ratio
         films = node.objects("film")
         width, height, crop_offset, crop_size, rfilter = (self.film(films[0]) if films
@@ -645,8 +644,14 @@ class _Builder:
                                           "are not allowed (as in Mitsuba)")
         if abs(np.linalg.det(lin)) < 1e-300:
             raise props.error("to_world", "the camera-to-world transformation is singular")
-        props.finish()
         extra = {"projection": "orthographic"} if fov_x is None else {"fov_x": fov_x}
+        if node.type == "thinlens":   # Mitsuba: a zero aperture becomes float32's epsilon
+            extra["aperture_radius"] = props.float("aperture_radius") or 2.0 ** -24
+            extra["focus_distance"] = props.float("focus_distance", far, positive=True)
+            for k in ("aperture_radius", "focus_distance"):
+                if abs(extra[k]) > params.MAX_EXTENT:
+                    raise props.error(k, f"'{k}' must be <= {params.MAX_EXTENT:g} in magnitude, got {extra[k]:g}")
+        props.finish()
         cam = _construct(node, Camera, to_world=to_world, near_clip=near,
                          far_clip=far, width=width, height=height, crop_offset=crop_offset,
                          crop_size=crop_size, rfilter=rfilter, **extra)

@@ -9,6 +9,13 @@ near plane and ends on the far plane, as in Mitsuba. Orthographic: the film cove
 ``orthographic_projection``): the ray starts at ``to_world · (1 − 2x, (1 − 2y)/aspect,
 near)``, runs along ``to_world · (0, 0, 1)`` (normalised) and is ``far − near`` long;
 ``to_world`` may scale (it sizes the sensor plane).
+
+A thin lens (Mitsuba's ``thinlens``: ``aperture_radius``, ``focus_distance``) changes the
+perspective ray only: the ray starts at the aperture point ``a = aperture_radius ·
+concentric_disk(u, v)`` (camera space, z = 0; ``(u, v)`` the ray's lens sample,
+:func:`links1.maths.sampling.lens_samples`) and passes through the point of the focus plane
+(``z = focus_distance``) that the pinhole ray of the same film point meets, as Mitsuba's
+``ThinLensCamera::sample_ray``.
 """
 from __future__ import annotations
 
@@ -18,6 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .filters import Filter
+from ..maths.sampling import lens_samples, square_to_uniform_disk_concentric
 from ..maths.vec import matvec, normalize
 
 FOV_AXES = ("x", "y", "diagonal", "smaller", "larger")
@@ -59,19 +67,30 @@ class Camera:
     rfilter: Filter = field(default_factory=Filter)
     #: ``"perspective"`` or ``"orthographic"``
     projection: str = "perspective"
+    #: a thin lens's aperture radius (perspective only), or None: a pinhole
+    aperture_radius: float | None = None
+    #: a thin lens's distance to the plane in focus (Mitsuba's default: ``far_clip``)
+    focus_distance: float | None = None
 
     def __post_init__(self):
         if self.crop_size is None:
             self.crop_size = (self.width, self.height)
         if self.projection not in PROJECTIONS:
             raise ValueError(f"projection must be one of {PROJECTIONS}, got {self.projection!r}")
+        if self.aperture_radius is not None and self.focus_distance is None:
+            self.focus_distance = self.far_clip
+
+    @property
+    def thin_lens(self) -> bool:
+        return self.aperture_radius is not None and self.projection == "perspective"
 
     @property
     def origin(self) -> np.ndarray:
         return self.to_world[:3, 3].copy()
 
-    def generate_rays(self, x_film: np.ndarray, y_film: np.ndarray):
-        """Rays through film points in [0,1]² → ``(o, d, tmin, tmax)`` (d unit, world space)."""
+    def generate_rays(self, x_film: np.ndarray, y_film: np.ndarray, keys=None):
+        """Rays through film points in [0,1]² → ``(o, d, tmin, tmax)`` (d unit, world space);
+        ``keys``: the rays' keys (their lens samples), needed by a thin lens only."""
         aspect = self.width / self.height
         if self.projection == "orthographic":
             n = np.shape(x_film)[0]
@@ -83,6 +102,16 @@ class Camera:
         t = math.tan(math.radians(self.fov_x) / 2.0)
         d_cam = np.stack([(1.0 - 2.0 * x_film) * t, (1.0 - 2.0 * y_film) * t / aspect,
                           np.ones_like(x_film)], axis=-1)
+        if self.thin_lens:
+            if keys is None:
+                raise ValueError("a thin-lens camera's rays need their keys (lens samples)")
+            ax, ay = square_to_uniform_disk_concentric(*lens_samples(keys))
+            a_cam = np.stack([self.aperture_radius * ax, self.aperture_radius * ay, np.zeros_like(ax)], axis=-1)
+            # the pinhole ray's point on the focus plane (d_cam.z = 1), seen from the aperture point
+            d_cam = normalize(d_cam * self.focus_distance - a_cam)
+            inv_z = 1.0 / d_cam[:, 2]
+            o = matvec(self.to_world[:3, :3], a_cam) + self.to_world[:3, 3]
+            return o, normalize(matvec(self.to_world, d_cam)), self.near_clip * inv_z, self.far_clip * inv_z
         d_cam = normalize(d_cam)
         inv_z = 1.0 / d_cam[:, 2]
         d = normalize(matvec(self.to_world, d_cam))

@@ -179,9 +179,9 @@ def _render_pixels(scene, cam, px, py, add_layer, *, spp, max_depth, seed, aovs,
     bar = _progress(len(chunks), progress)
     for i, a, b in chunks:
         ox, oy = sample_offsets(px[a:b], py[a:b], i, spp, seed, cam.width)
-        o, d, tmin, tmax = cam.generate_rays((px[a:b] + ox) / cam.width, (py[a:b] + oy) / cam.height)
-        c = np.zeros(b - a, dtype=np.int64)
         keys = ray_keys(px[a:b], py[a:b], i, spp, seed, cam.width)
+        o, d, tmin, tmax = cam.generate_rays((px[a:b] + ox) / cam.width, (py[a:b] + oy) / cam.height, keys)
+        c = np.zeros(b - a, dtype=np.int64)
         L, hits, rec = integ.trace(o, d, tmin, tmax, c, keys=keys,
                                    sample=(pixel_keys(px[a:b], py[a:b], seed, cam.width), i, spp))
         integ.stats.rays["camera"] += b - a
@@ -216,7 +216,7 @@ def _render_adaptive(scene, cam, win, *, threshold, depth, max_depth, seed, aovs
         L, cost = np.empty((len(xf), 3)), np.empty(len(xf))
         for a in range(0, len(xf), BATCH):
             b = min(a + BATCH, len(xf))
-            o, d, tmin, tmax = cam.generate_rays(xf[a:b], yf[a:b])
+            o, d, tmin, tmax = cam.generate_rays(xf[a:b], yf[a:b], keys[a:b])
             c = np.zeros(b - a, dtype=np.int64)
             L[a:b], _, _ = integ.trace(o, d, tmin, tmax, c, keys=keys[a:b])
             integ.stats.rays["camera"] += b - a

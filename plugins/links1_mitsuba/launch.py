@@ -17,7 +17,7 @@ import mitsuba as mi
 import numpy as np
 
 from links1.tracing.aovs import check_aovs as parse_aovs  # the one AOV table and checker (links1/tracing/aovs.py)
-from links1.maths.sampling import strata
+from links1.maths.sampling import KEY_LENS_U, KEY_LENS_V, strata
 
 from . import tuning
 from .film import Batch, cached_batch, concat, reconstruct, sample_ids, sample_window, widen
@@ -180,7 +180,7 @@ class Launches:
         key = mix32(mix32(seed[1]) ^ sid)
         # light samples of a primary hit: one set over the pixel (links1.maths.sampling.pixel_keys)
         self._cam_sample = (mix32(mix32(seed[1] ^ 0x5BD1E995) ^ pix), i, n_s)
-        o, d, tmin, tmax = self._rays_at(P, xf, yf)
+        o, d, tmin, tmax = self._rays_at(P, xf, yf, key)
         return o, d, tmin, tmax, key, i
 
     def _take_cam_sample(self):
@@ -191,20 +191,30 @@ class Launches:
         sample, self._cam_sample = self._cam_sample, None
         return sample
 
-    def _rays_at(self, P, xf, yf):
+    def _rays_at(self, P, xf, yf, key):
         """Camera rays through film positions ``(xf, yf)`` (fractions of the film's width and
-        height, row 0 at the top) -> ``o, d, tmin, tmax``."""
+        height, row 0 at the top) with keys ``key`` (a thin lens's aperture samples,
+        links1.maths.sampling.lens_samples) -> ``o, d, tmin, tmax``."""
         n = dr.width(xf)
         W, H = P.film_size
         if P.perspective:
             tn = math.tan(math.radians(P.x_fov) / 2.0)
             aspect = W / H
-            dc = dr.normalize(mi.Vector3f((1.0 - 2.0 * xf) * tn, (1.0 - 2.0 * yf) * (tn / aspect), 1.0))
-            inv_z = 1.0 / dc.z
+            dc = mi.Vector3f((1.0 - 2.0 * xf) * tn, (1.0 - 2.0 * yf) * (tn / aspect), 1.0)
             m = P.cam.tolist()
+            if P.lens is not None:   # a thin lens (links1.sensor.camera): from the aperture point
+                radius, focus = P.lens
+                disk = mi.warp.square_to_uniform_disk_concentric(
+                    mi.Point2f(u24(mix32(key ^ KEY_LENS_U)), u24(mix32(key ^ KEY_LENS_V))))
+                a = mi.Vector3f(radius * disk.x, radius * disk.y, 0.0)
+                dc = dr.normalize(dc * focus - a)
+                o = mi.Point3f(*[m[r][0] * a.x + m[r][1] * a.y + m[r][3] for r in range(3)])
+            else:
+                dc = dr.normalize(dc)
+                o = mi.Point3f(m[0][3], m[1][3], m[2][3]) + mi.Vector3f(dr.zeros(mi.Float, n))
+            inv_z = 1.0 / dc.z
             d = dr.normalize(mi.Vector3f(*[m[r][0] * dc.x + m[r][1] * dc.y + m[r][2] * dc.z
                                            for r in range(3)]))
-            o = mi.Point3f(m[0][3], m[1][3], m[2][3]) + mi.Vector3f(dr.zeros(mi.Float, n))
             return o, d, P.near * inv_z, P.far * inv_z
         # orthographic (links1.sensor.camera): the film on the near plane, rays along the view axis
         m = P.cam.tolist()
@@ -362,7 +372,7 @@ class Launches:
             def launch_points(xf, yf, key, n_op, cfg, tables, scene_input):
                 self = _frozen_caller()
                 P = self._prep
-                o, d, tmin, tmax = self._rays_at(P, xf, yf)
+                o, d, tmin, tmax = self._rays_at(P, xf, yf, key)
                 total, cost, _, _, _, counters = self._trace_tree(P, _frozen_scene(), o, d, tmin, tmax,
                                                                   key, False, frozen=n_op)
                 return total, cost, counters
@@ -389,7 +399,7 @@ class Launches:
                                                        dr.opaque(mi.UInt32, b - a), cfg,
                                                        self._frozen_inputs(P))
             else:
-                o, d, tmin, tmax = self._rays_at(P, x, y)
+                o, d, tmin, tmax = self._rays_at(P, x, y, key)
                 total, c, _, _, _, counters = self._trace_tree(P, scene, o, d, tmin, tmax, key, False)
             L.append(_columns(total, b - a).astype(np.float64))
             cost.append(_lanes(c, b - a).astype(np.float64))

@@ -297,7 +297,7 @@ def plan_eye(P, scene):
     speed-up in Haines and Greenberg's form): camera rays all start there, so a cube map around
     it lists the quadrics each ray can meet, nearest first (``LightBuffer.nearest``). None
     where there is no BVH, the camera is not a pinhole or it does not pay (as :func:`plan`)."""
-    if P.bvh is None or not getattr(P, "perspective", False):
+    if P.bvh is None or not getattr(P, "perspective", False) or P.lens is not None:
         return None
     eye = np.asarray(P.cam, dtype=np.float64)[:3, 3]
     ext = scene_extent(P, scene, [("point", eye)])

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from links1.scene.params import MAX_EXTENT
 from links1.sensor.filters import Filter
 from links1.shading.lights import ENV_LIGHT_ID
 
@@ -583,6 +584,8 @@ class Prepared:
     projection: str = _set_later()
     perspective: bool = _default(False)
     x_fov: float | None = _default(None)
+    #: a thin lens's (aperture radius, focus distance), or None: a pinhole
+    lens: tuple | None = _default(None)
     #: the camera-to-world matrix (4x4 float64) and the clip distances
     cam: object = _set_later()
     near: float = _set_later()
@@ -846,9 +849,13 @@ class Tables:
         # perspective and orthographic rays are made analytically (launch.py: _rays_at) from
         # the sensor's matrix, clip distances and field of view: the same rays as Mitsuba's
         kind = kind_of(sensor)
-        if kind == "ThinLensCamera":   # as the core: the lens centre only
-            warnings.warn(f"{self.place(sensor)}: thinlens is rendered as a pinhole perspective camera "
-                          "(no depth of field)", stacklevel=2)
+        P.lens = None
+        if kind == "ThinLensCamera":   # depth of field (launch.py: _rays_at)
+            P.lens = tuple(float(np.array(own_param(sensor, k)).ravel()[0])
+                           for k in ("aperture_radius", "focus_distance"))
+            if not (abs(P.lens[0]) <= MAX_EXTENT and 0 < P.lens[1] <= MAX_EXTENT):
+                raise ValueError(f"{self.place(sensor)}: thinlens: 'aperture_radius' must be finite, "
+                                 f"'focus_distance' > 0, both <= {MAX_EXTENT:g} in magnitude, got {P.lens}")
         P.projection = {"PerspectiveCamera": "perspective", "ThinLensCamera": "perspective",
                         "OrthographicCamera": "orthographic"}.get(kind)
         P.perspective = P.projection == "perspective"

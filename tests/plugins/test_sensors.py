@@ -59,27 +59,6 @@ def test_orthographic_scene_matches_mitsuba_direct(scene, kind_with_mitsuba):
     assert sphere[r < 0.95 * px].all() and not sphere[r > 1.05 * px].any()
 
 
-def test_thinlens_is_rendered_as_the_pinhole_camera(renderer_kind, tmp_path):
-    """A thin lens renders as the perspective camera at its lens centre, with one warning."""
-    kind = renderer_kind
-    import warnings
-    persp = tmp_path / "p.xml"
-    thin = tmp_path / "t.xml"
-    body = SCENE.format(W=W, H=H, cx=0.0).replace('<sensor type="orthographic">', '<sensor type="{t}">') \
-        .replace('<scale x="2.5" y="2.5"/>', "").replace('<float name="near_clip"', '<float name="fov" value="40"/>'
-                                                         '<float name="near_clip"')
-    persp.write_text(body.replace("{t}", "perspective"))
-    thin.write_text(body.replace("{t}", "thinlens").replace(
-        '<float name="fov"', '<float name="aperture_radius" value="0.3"/><float name="focus_distance" value="4"/>'
-                             '<float name="fov"'))
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        a = make_renderer(kind, str(thin), spp=4).render()
-    b = make_renderer(kind, str(persp), spp=4).render()
-    assert np.array_equal(a, b) and a[..., 0].max() > 0
-    assert len([w for w in caught if "pinhole" in str(w.message)]) == 1
-
-
 def test_other_sensors_are_refused_in_one_line(variant, tmp_path):
     p = tmp_path / "r.xml"
     p.write_text(SCENE.format(W=1, H=1, cx=0.0).replace(
