@@ -36,7 +36,8 @@ colours        ``rgb``, ``float``, ``spectrum`` (one value or ``wavelength:value
                 srgb|blackbody">`` (blackbody on emitters only, warning).
 emitter         ``point``, ``directional``, ``spot``, ``constant`` and ``envmap`` (filename, scale,
                 to_world: background and sampled light), ``area`` in a mesh, rectangle, cube,
-                sphere or disk (→ ``shape.emission`` and a sampled :class:`AreaLight`; on other
+                sphere or disk (radiance: a colour or a ``bitmap`` / ``checkerboard`` texture at the
+                shape's uv; → ``shape.emission`` and a sampled :class:`AreaLight`; on other
                 shapes seen only, warning), *links1* ``links1_point``, ``links1_spot``;
                 ``sunsky`` etc. → ignored (warning).
 ==============  =================================================================================
@@ -339,6 +340,12 @@ def mitsuba_parameters(tag: str, plugin: str | None):
 # --------------------------------------------------------------------------------------------
 
 _TEXTURES = ("bitmap", "checkerboard", "mesh_attribute")
+
+
+def _is_mesh_attribute(node: Node, name: str) -> bool:
+    """Whether parameter ``name`` of ``node`` is a ``mesh_attribute`` texture (which an
+    emitter's radiance cannot be in the core: it then becomes a 0.5 grey, warned)."""
+    return any(nm == name and c.tag == "texture" and c.type == "mesh_attribute" for nm, c in node.children)
 
 
 def _texture(node: Node):
@@ -838,7 +845,8 @@ class _Builder:
                 if emission is not None:
                     raise child.error("a shape can have only one area emitter")
                 ep = _Props(child)
-                emission = ep.color("radiance", 1.0, emitter=True)
+                emission = (ep.color if _is_mesh_attribute(child, "radiance") else ep.texture)(
+                    "radiance", 1.0, emitter=True)
                 ep.finish()
                 emitter_node = child
             elif child.tag in ("medium",):

@@ -214,7 +214,9 @@ def _uniform_triangle(u, v):
 
 class AreaLight(SampledLight):
     """Mitsuba's ``area`` emitter on a shape: radiance ``L_e`` leaving the front side (the side
-    its outward normal points to), one-sided as Mitsuba's.
+    its outward normal points to), one-sided as Mitsuba's. ``L_e`` may be a texture
+    (:mod:`links1.shading.textures`), evaluated at the sampled point's uv: the estimate stays
+    unbiased (Mitsuba samples the texture instead; both converge to the same image).
 
     Sampling by shape: a triangle mesh (obj, ply, rectangle, cube) picks a triangle by the
     area CDF with ``u`` (remapped to [0, 1) inside the chosen triangle) then a uniform point
@@ -227,8 +229,12 @@ class AreaLight(SampledLight):
 
     def __init__(self, shape, radiance, name: str = ""):
         from ..geometry.shapes import Disk, Quadric, TriangleMesh
+        from .textures import is_texture
         self.shape = shape
-        self.radiance = _rgb(radiance)
+        #: a ``bitmap`` / ``checkerboard`` radiance, evaluated at the sampled point's uv (the
+        #: shape's own parameterisation, as where a ray hits it); ``radiance`` is then None
+        self.texture = radiance if is_texture(radiance) else None
+        self.radiance = None if self.texture is not None else _rgb(radiance)
         self.name = name or getattr(shape, "name", "")
         self.light_id = int(getattr(shape, "index", 0))
         if isinstance(shape, TriangleMesh):
@@ -284,12 +290,16 @@ class AreaLight(SampledLight):
             b0, b1, b2 = _uniform_triangle(u2, v)
             q = self.v0[k] * b0[:, None] + self.v1[k] * b1[:, None] + self.v2[k] * b2[:, None]
             nl = self.normals[k]
+            if self.texture is not None:
+                uv = self.shape.uv_at(np.stack([b0, b1, b2], axis=1), k)
         else:  # disk
             r = np.sqrt(u)
             phi = 2.0 * np.pi * v
             local = np.stack([r * np.cos(phi), r * np.sin(phi), np.zeros_like(r)], axis=-1)
             q = matvec(self.m, local) + self.m[:3, 3]
             nl = np.broadcast_to(self.normal, q.shape)
+            if self.texture is not None:
+                uv = self.shape.uv(q, np.zeros_like(q), np.zeros(len(q)), np.zeros(len(q), dtype=np.int64))
         to = q - p
         d2 = dot(to, to)
         dist = np.sqrt(d2)
@@ -297,7 +307,11 @@ class AreaLight(SampledLight):
             wi = to / np.where(dist > 0, dist, 1.0)[:, None]
             cos_l = -dot(nl, wi)
             w = np.where((cos_l > 0) & (d2 > 0), self.area * cos_l / np.where(d2 > 0, d2, 1.0), 0.0)
-        return wi, dist, self.radiance * w[:, None]
+        return wi, dist, self._emitted(uv if self.texture is not None else None) * w[:, None]
+
+    def _emitted(self, uv):
+        """``L_e`` (3,) or, textured, at the sampled points' ``uv`` (N, 3)."""
+        return self.radiance if self.texture is None else self.texture.eval(uv)
 
     def _sample_sphere(self, p, u, v):
         to_c = self.center - p
@@ -317,7 +331,11 @@ class AreaLight(SampledLight):
         # nearest intersection with the sphere along wi
         dist = dc * cos_t - np.sqrt(np.maximum(0.0, self.r * self.r - dc2 * sin_t * sin_t))
         w = np.where(outside, 2.0 * np.pi * one_minus, 0.0)
-        return wi, np.where(outside, dist, 0.0), self.radiance * w[:, None]
+        uv = None
+        if self.texture is not None:
+            q = p + wi * dist[:, None]
+            uv = self.shape.uv(q, np.zeros_like(q), np.zeros(len(q)), np.zeros(len(q), dtype=np.int64))
+        return wi, np.where(outside, dist, 0.0), self._emitted(uv) * w[:, None]
 
 
 class ConstantEnvironment(SampledLight):

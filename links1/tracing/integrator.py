@@ -19,7 +19,7 @@ from ..scene import params
 from ..geometry.accel import Accel
 from ..shading.lights import AreaLight
 from ..maths.sampling import KEY_REFLECT, KEY_REFRACT, child_keys, light_samples_uv
-from ..shading.textures import MeshAttribute
+from ..shading.textures import MeshAttribute, is_texture
 from ..maths.vec import dot, max_abs
 
 #: Relative size of the ray-origin offset (float64: about 1e6 ulps of |p|, far above the
@@ -228,8 +228,13 @@ class WhittedIntegrator:
         if self.any_emission:
             for s in np.unique(hits.shape):
                 e = self.shapes[s].emission
-                if e is not None:
-                    m = (hits.shape == s) & front
+                if e is None:
+                    continue
+                m = (hits.shape == s) & front
+                if is_texture(e):   # a textured area emitter: at the hits' uv
+                    sel = np.nonzero(m)[0]
+                    out[sel] += e.eval(self.shapes[s].uv(o[sel], d[sel], hits.t[sel], hits.prim[sel]))
+                else:
                     out[m] += e
 
         eps = (1.0 + max_abs(rec.p)) * OFFSET_SCALE
