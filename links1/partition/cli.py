@@ -419,7 +419,7 @@ def run_sweep(args) -> int:
     import copy
 
     from .checkpoint import atomic_write_bytes, atomic_write_json
-    from .experiment import plot_sweep, simulate, work_map
+    from .experiment import efficiency_text, plot_sweep, simulate, work_map
     from .strategies import STRATEGIES as KNOWN
     names = [v.strip() for v in args.sweep_strategies.split(",") if v.strip()]
     for name in names:
@@ -446,7 +446,8 @@ def run_sweep(args) -> int:
                 runs[(name, tpn, n)] = (rep, model, tests)
                 print(f"links1: sweep {name} tiles/node {tpn} on {n} nodes: makespan {rep['makespan_s']:.4f} s "
                       f"(measured), simulated {chk.get('simulated_s') or float('nan'):.4f} s, true efficiency "
-                      f"{rep['true_efficiency'] or float('nan'):.3f}", file=sys.stderr)
+                      f"{efficiency_text(rep['true_efficiency'], rep.get('true_efficiency_spread'))}",
+                      file=sys.stderr)
         _close_backends()
     # simulated curves: each strategy and unit size from its run on the most nodes measured
     top = max(args.sweep_nodes)
@@ -507,6 +508,7 @@ def _reference(backend, spec, repeat=3):
 
 def summary_line(report, strategy) -> str:
     """One line, every figure named with its source (docs/partitioning.md, "Reading the report")."""
+    from .experiment import efficiency_text
     def f(v, nd=3):
         return "n/a" if v is None else f"{v:.{nd}f}"
     pl = (report.get("reference") or {}).get("per_launch_overhead_s")
@@ -517,7 +519,8 @@ def summary_line(report, strategy) -> str:
     sim = "" if not chk else (f"; simulator on this run: {f(chk['simulated_s'], 4)} s simulated vs "
                               f"{f(chk['measured_s'], 4)} s measured ({chk['error'] * 100:+.1f} %)")
     return (f"links1: schedule {strategy} on {report['nodes']} nodes: "
-            f"TRUE EFFICIENCY {f(report.get('true_efficiency'))} (one-process frame {f(report.get('full_frame_s'))} s"
+            f"TRUE EFFICIENCY {efficiency_text(report.get('true_efficiency'), report.get('true_efficiency_spread'))}"
+            f" (one-process frame {f(report.get('full_frame_s'))} s"
             f" / ({report['nodes']} x makespan {f(report['makespan_s'])} s), measured); "
             f"busy efficiency {f(report['parallel_efficiency'])} (node busy / (nodes x makespan): counts overhead "
             f"as busy), imbalance {f(report['imbalance'])} (measured busy), "
@@ -532,11 +535,12 @@ def summary_line(report, strategy) -> str:
 
 def split_phrase(report) -> str:
     """Where the makespan went (the report's ``time_split``), as shares of nodes x makespan."""
+    from .experiment import share_text
     ts = report.get("time_split")
     if not ts:
         return ""
     sh = ts["shares"]
     su = [v for v in (ts.get("startup_s") or {}).values() if v is not None]
-    return ("; nodes x makespan went to " + ", ".join(f"{k.replace('_', ' ')} {v * 100:.0f} %" for k, v in sh.items())
+    return ("; nodes x makespan went to " + ", ".join(share_text(k, v) for k, v in sh.items())
             + " (work, launch overhead: derived; the rest measured)"
             + (f", start-up before the clock {max(su):.2f} s (measured)" if su else ""))

@@ -64,7 +64,10 @@ from .strategies import make_plan, unit_loads
 SOURCES = {
     "makespan_s": "measured: root clock, first dispatch to last result",
     "full_frame_s": "measured: the whole frame as one launch on one node, same run",
-    "true_efficiency": "measured: full_frame_s / (nodes x makespan_s)",
+    "true_efficiency": "measured: full_frame_s / (nodes x makespan_s); above 1 only by noise (the "
+                       "one-process frame is measured slower than it is)",
+    "true_efficiency_spread": "measured: [fastest, slowest] of the one-process frame's trials / (nodes x "
+                              "makespan_s): what the reference's noise alone moves the true efficiency by",
     "parallel_efficiency": "busy efficiency (measured): sum of node busy / (nodes x makespan_s); "
                            "per-launch overhead counts as busy",
     "imbalance": "measured: max / mean node busy",
@@ -481,6 +484,8 @@ def build_report(result, plan, model, *, cost_channel=None, meta=None, reference
         "makespan_s": makespan,
         "full_frame_s": full,
         "true_efficiency": None if full is None else full / (n * makespan),
+        "true_efficiency_spread": ([min(trials) / (n * makespan), max(trials) / (n * makespan)]
+                                   if (trials := (reference or {}).get("full_trials_s")) else None),
         "parallel_efficiency": min(1.0, float(np.sum(busy_s)) / (n * makespan)) if makespan > 0 else None,
         "imbalance": (max(busy_s) / mean) if mean > 0 else None,
         "unit_seconds": {"measured": sum(u["seconds_source"] == "measured" for u in units),
@@ -559,7 +564,7 @@ def measure_overhead(spec, n_units: int = 64, repeat: int = 3, batched: bool = T
             tiled.append(t2 - t1)
             two.append(t3 - t2)
     f, t = float(np.median(full)), float(np.median(tiled))
-    out = {"units": len(wins), "full_s": f, "tiled_s": t, "ratio": t / f,
+    out = {"units": len(wins), "full_s": f, "full_trials_s": full, "tiled_s": t, "ratio": t / f,
            "per_launch_overhead_s": max(0.0, (t - f) / max(len(wins) - 1, 1)), "repeat": repeat}
     if batched:
         out.update(batched_s=float(np.median(two)), batched_ratio=float(np.median(two)) / f)
@@ -805,6 +810,34 @@ def check_simulator(report, tests_map, model) -> dict | None:
             "simulated_node_speeds_s": own["makespan_s"],
             "error_node_speeds": (own["makespan_s"] - m) / m if m > 0 else None,
             "node_speed_spread": (max(vals) / min(vals)) if vals else None}
+
+
+def efficiency_text(value, spread=None) -> str:
+    """A true efficiency as the report prints it. Above 1 a split frame would beat the one-process
+    frame, which uses every core itself: that figure is the reference's noise, so it reads as 1
+    with the measured value and the spread the reference's own trials give (``spread``:
+    :func:`build_report`'s ``true_efficiency_spread``)."""
+    if value is None:
+        return "n/a"
+    if value <= 1.0:
+        return f"{value:.3f}"
+    trials = f"; the one-process frame's trials give {spread[0]:.3f} to {spread[1]:.3f}" if spread else ""
+    if spread and spread[0] > 1.0:
+        return (f"1 at most (measured {value:.3f}: above 1 even at the fastest reference trial{trials}; "
+                "the reference ran slower than this run's nodes, rerun with more --reference-repeat)")
+    return f"1 within noise (measured {value:.3f}{trials})"
+
+
+def share_text(part: str, share: float) -> str:
+    """A share of nodes x makespan (``time_split``'s ``shares``) as the report prints it: a
+    negative one (a part is a difference of measured and derived times) is noise, said so."""
+    name = part.replace("_", " ")
+    if share >= -0.005:
+        return f"{name} {max(share, 0.0) * 100:.0f} %"
+    if part == "slowdown":
+        return (f"slowdown 0 % (the launches took {-share * 100:.0f} % less than the work and overhead "
+                "derived at the reference's speed: the reference's noise)")
+    return f"{name} 0 % (measured {share * 100:.0f} %: noise)"
 
 
 def format_table(rows) -> str:
