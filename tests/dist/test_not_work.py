@@ -81,18 +81,35 @@ def test_in_process_pixels_are_the_renderers_values_unconverted(core_spec):
 
 
 class CheckedAfter(InProcess):
-    """InProcess with a slow check after its last result, reporting one fault."""
+    """InProcess with a slow check after its last result, reporting one fault; it notes when
+    each of its hooks ran (the root's clock starts after ``before_run``, runs through ``run``)."""
+
+    def before_run(self, plan):
+        self.times = {"before_run": time.perf_counter()}
+
+    def run(self, *args):
+        self.times["run_start"] = time.perf_counter()
+        super().run(*args)
+        self.times["run_end"] = time.perf_counter()
 
     def after_run(self, on_fault):
+        self.times["check_start"] = time.perf_counter()
         time.sleep(0.5)
         on_fault("checked after the run")
+        self.times["check_end"] = time.perf_counter()
 
 
 def test_checks_after_the_last_result_are_outside_the_makespan(core_spec, core_ref):
+    """Relations between the clock and the hooks' own times, whatever the machine's load: the
+    clock starts between ``before_run`` and ``run`` and stops between the run's end and the
+    check's start. Were the check on the clock, the makespan would outlast the check's 0.5 s
+    from the run's start, past the bound below by the sleep less the instant before ``run``."""
     plan = make_plan("subscreen", 32, 32, 1, tiles_per_node=4, unit="tile")
-    t = time.perf_counter()
-    res = render_plan(plan, core_spec, CheckedAfter(), progress=False, log=lambda m: None)
-    assert time.perf_counter() - t >= 0.5          # it ran
-    assert res.faults == ["checked after the run"]
-    assert res.makespan_s < 0.5                     # but not on the clock
+    backend = CheckedAfter()
+    res = render_plan(plan, core_spec, backend, progress=False, log=lambda m: None)
+    t = backend.times
+    assert res.faults == ["checked after the run"]                       # it ran
+    assert t["before_run"] <= t["run_start"] <= t["run_end"] <= t["check_start"] < t["check_end"]
+    assert res.makespan_s >= t["run_end"] - t["run_start"]              # the run is on the clock
+    assert res.makespan_s <= t["check_start"] - t["before_run"]         # the check is not
     assert np.array_equal(res.image, core_ref)
