@@ -26,9 +26,11 @@ shape           ``sphere`` (center, radius), ``cylinder`` (p0, p1, radius; open)
                 ``links1_blob``, ``links1_bicubic`` (see below). No bsdf → ``diffuse`` 0.5.
                 ``shapegroup`` + ``instance`` (its ``to_world`` after each member's): flattened
                 into copies of the group's shapes.
-bsdf            ``diffuse``, ``twosided``, ``conductor`` (perfect mirror, or ``eta``/``k``),
-                ``dielectric``, ``thindielectric``, ``plastic``, *links1* ``links1_phong``;
-                rough/other BSDFs → diffuse stand-in (warning); ``bitmap`` / ``checkerboard``
+bsdf            ``diffuse``, ``twosided``, ``conductor`` (perfect mirror, ``eta``/``k`` or a
+                ``material`` preset), ``dielectric``, ``thindielectric``, ``plastic``,
+                ``roughconductor``, ``roughplastic``, ``roughdielectric``, ``blendbsdf``
+                (:mod:`links1.shading.glossy`), *links1* ``links1_phong``;
+                principled/other BSDFs → diffuse stand-in (warning); ``bitmap`` / ``checkerboard``
                 textures (:mod:`links1.shading.textures`) and ``mesh_attribute`` (a PLY's ``vertex_*`` / ``face_*``
                 properties) on their colour parameters; other textures → 0.5 grey (warning).
 colours        ``rgb``, ``float``, ``spectrum`` (one value or ``wavelength:value`` pairs, converted
@@ -67,6 +69,7 @@ import warnings
 
 import numpy as np
 
+from ..shading import glossy
 from ..shading import materials as mat
 from . import params
 from ..geometry import meshes
@@ -90,8 +93,7 @@ DEFAULT_SPP = 4  # Mitsuba's independent sampler
 # Known Mitsuba 3 plugins the core does not support (for a clearer message than "unknown").
 _MITSUBA_SHAPES = {"shapegroup", "instance", "bsplinecurve", "linearcurve",
                    "sdfgrid", "ellipsoids", "ellipsoidsmesh", "merge"}
-_APPROX_BSDFS = {"roughconductor", "roughdielectric", "roughplastic", "principled",
-                 "principledthin", "blendbsdf", "hair", "measured", "pplastic", "polarizer",
+_APPROX_BSDFS = {"principled", "principledthin", "hair", "measured", "pplastic", "polarizer",
                  "retarder", "circular", "measured_polarized", "bumpmap",
                  "normalmap"}
 _IGNORED_EMITTERS = {"sunsky", "projector", "directionalarea"}
@@ -427,6 +429,24 @@ def _check_invertible(node: Node, m: np.ndarray, what: str = "to_world") -> None
     if not (np.isfinite(det) and abs(det) > 1e-12):
         raise node.error(f"singular {what} transform (relative determinant {det:g}): "
                          "the shape would be degenerate")
+
+
+def _roughness(props: _Props, name: str, default=_MISSING):
+    """A microfacet roughness: a float, or a texture (read as its luminance, Mitsuba's ``eval_1``)."""
+    v = props.texture(name, default, unbounded=True)
+    if isinstance(v, textures.Texture):
+        return v
+    v = np.asarray(v, dtype=np.float64)
+    return float(v[0]) if np.all(v == v[0]) else float(v @ textures.LUMINANCE)
+
+
+def _conductor_preset(props: _Props, material: str):
+    """Mitsuba's RGB ``(eta, k)`` of a conductor ``material`` name (:data:`glossy.CONDUCTORS`)."""
+    table = glossy.conductors()
+    if material not in table:
+        raise props.error("material", f"unknown conductor material '{material}' "
+                                      f"(known: none, {', '.join(table)})")
+    return table[material]
 
 
 def _ior(props: _Props, name: str, default: str) -> float:
@@ -972,11 +992,24 @@ class _Builder:
                 raise node.error("conductor: give both 'eta' and 'k', or neither")
             if eta is not None:
                 m = mat.Conductor(specular_reflectance=refl, eta=eta, k=k, name=name)
+            elif material != "none":
+                eta, k = _conductor_preset(props, material)
+                m = mat.Conductor(specular_reflectance=refl, eta=eta, k=k, name=name)
             else:
-                if material.lower() != "none":
-                    node.warn(f"conductor material '{material}' is not tabulated in the core; "
-                              "rendered as a perfect mirror")
                 m = mat.Conductor(specular_reflectance=refl, name=name)
+        elif t in ("roughconductor", "roughdielectric", "roughplastic"):
+            m = self._rough_bsdf(node, props, t, name)
+        elif t == "blendbsdf":
+            inner = node.objects("bsdf")
+            if len(inner) != 2:
+                raise node.error("blendbsdf needs exactly two nested bsdfs")
+            a, b = self.bsdf(inner[0]), self.bsdf(inner[1])
+            if (a.has_transmission and b.has_transmission and not a.straight_transmission
+                    and getattr(a, "eta", None) != getattr(b, "eta", None)):
+                raise node.error("blendbsdf of two refracting bsdfs of different index: a Whitted "
+                                 "node has one refracted ray (not supported by the core)")
+            m = _construct(node, glossy.Blend, bsdf_0=a, bsdf_1=b,
+                           weight=props.texture("weight", unbounded=True), name=name)
         elif t in ("dielectric", "thindielectric"):
             int_ior = _ior(props, "int_ior", "bk7")
             ext_ior = _ior(props, "ext_ior", "air")
@@ -1032,6 +1065,58 @@ class _Builder:
             raise node.error(f"unknown plugin '{t}' (bsdf)")
         props.finish()
         return m
+
+    def _rough_bsdf(self, node: Node, props: _Props, t: str, name: str):
+        """``roughconductor``, ``roughdielectric``, ``roughplastic`` (:mod:`links1.shading.glossy`)."""
+        distribution = props.string("distribution", "beckmann").strip().lower()
+        if distribution not in ("beckmann", "ggx"):
+            raise props.error("distribution", f"invalid distribution '{distribution}', must be "
+                                              "'beckmann' or 'ggx'")
+        common = dict(distribution=distribution, sample_visible=props.bool("sample_visible", True),
+                      name=name)
+        anisotropic = props.has("alpha_u") or props.has("alpha_v")
+        if anisotropic:
+            if props.has("alpha"):
+                raise props.error("alpha", "give either 'alpha' or 'alpha_u'/'alpha_v'")
+            if not (props.has("alpha_u") and props.has("alpha_v")):
+                raise node.error("both 'alpha_u' and 'alpha_v' must be given")
+            if t == "roughplastic":
+                raise node.error("roughplastic does not support anisotropic roughness (Mitsuba "
+                                 "refuses it too)")
+            alpha = (_roughness(props, "alpha_u"), _roughness(props, "alpha_v"))
+        else:
+            alpha = (_roughness(props, "alpha", 0.1),) * 2
+        if t == "roughplastic":
+            int_ior, ext_ior = _ior(props, "int_ior", "polypropylene"), _ior(props, "ext_ior", "air")
+            if int_ior == ext_ior:
+                raise node.error("the interior and exterior indices of refraction must differ")
+            if isinstance(alpha[0], textures.Texture):
+                raise props.error("alpha", "roughplastic's 'alpha' cannot be a texture (Mitsuba "
+                                           "precomputes its tables for one roughness)")
+            return _construct(node, glossy.RoughPlastic, alpha=alpha[0], eta=int_ior / ext_ior,
+                              diffuse_reflectance=props.texture("diffuse_reflectance", 0.5, reflectance=True),
+                              specular_reflectance=props.texture("specular_reflectance", 1.0, reflectance=True),
+                              nonlinear=props.bool("nonlinear", False), **common)
+        if t == "roughdielectric":
+            int_ior, ext_ior = _ior(props, "int_ior", "bk7"), _ior(props, "ext_ior", "air")
+            if int_ior == ext_ior:
+                raise node.error("the interior and exterior indices of refraction must differ")
+            return _construct(node, glossy.RoughDielectric, alpha_u=alpha[0], alpha_v=alpha[1],
+                              eta=int_ior / ext_ior,
+                              specular_reflectance=props.texture("specular_reflectance", 1.0, reflectance=True),
+                              specular_transmittance=props.texture("specular_transmittance", 1.0, reflectance=True),
+                              **common)
+        material = props.string("material", "none").strip()
+        if props.has("eta") or material == "none":
+            if material != "none":
+                raise node.error("give either 'eta'/'k' or 'material', not both")
+            eta = props.texture("eta", 0.0, unbounded=True)
+            k = props.texture("k", 1.0, unbounded=True)
+        else:
+            eta, k = _conductor_preset(props, material)
+        return _construct(node, glossy.RoughConductor, alpha_u=alpha[0], alpha_v=alpha[1], eta=eta, k=k,
+                          specular_reflectance=props.texture("specular_reflectance", 1.0, reflectance=True),
+                          **common)
 
     # -- emitters --------------------------------------------------------------------------
     def emitter(self, node: Node):

@@ -105,8 +105,38 @@ class Material:
     straight_transmission = False
     name = ""
 
+    #: has non-delta lobes (``eval`` can be non-zero): BSDF sampling applies
+    smooth = False
+
     def eval(self, wo, wi, n, n_raw):
         return np.zeros((wo.shape[0], 3))
+
+    def sample(self, wo, n, n_raw, u, uv):
+        """A direction ``wi`` toward the light drawn from the non-delta lobes with samples ``u``
+        (N,) and ``uv`` (N, 2): ``(wi, eval / pdf (N, 3), pdf (N,))``. Here: cosine-weighted
+        about ``n`` (Mitsuba's ``diffuse``); the glossy BSDFs (:mod:`links1.shading.glossy`)
+        draw from their microfacet lobes."""
+        from .microfacet import square_to_cosine_hemisphere
+        from ..maths.vec import coordinate_system
+        nn = self._sampling_normal(n, n_raw)
+        local = square_to_cosine_hemisphere(uv[:, 0], uv[:, 1])
+        s, t = coordinate_system(nn)
+        wi = local[:, 0:1] * s + local[:, 1:2] * t + local[:, 2:3] * nn
+        pdf = self.pdf(wo, wi, n, n_raw)
+        ok = pdf > 0
+        f = self.eval(wo, wi, n, n_raw)
+        return wi, np.where(ok[:, None], f / np.where(ok, pdf, 1.0)[:, None], 0.0), pdf
+
+    def pdf(self, wo, wi, n, n_raw):
+        """The density (N,) in solid angle that :meth:`sample` draws ``wi`` with (0 where the
+        viewer or ``wi`` is behind a one-sided surface, as Mitsuba's ``diffuse``)."""
+        nn = self._sampling_normal(n, n_raw)
+        cos_l = _dot(nn, wi)
+        ok = (_dot(nn, wo) > 0) & (cos_l > 0) & self.smooth
+        return np.where(ok, cos_l / np.pi, 0.0)
+
+    def _sampling_normal(self, n, n_raw):
+        return n if getattr(self, "two_sided", True) else n_raw
 
     def specular(self, wo, n, entering):
         z = np.zeros((wo.shape[0], 3))
@@ -138,6 +168,8 @@ class Phong(Material):
     shadow rays through the object, once per object.
     At total internal reflection the transmitted weight moves to the mirror ray.
     """
+
+    smooth = True
 
     ambient: np.ndarray = field(default_factory=lambda: np.zeros(3))
     diffuse: np.ndarray = field(default_factory=lambda: np.full(3, 0.5))
@@ -186,6 +218,8 @@ class Phong(Material):
 @dataclass
 class Diffuse(Material):
     """Mitsuba ``diffuse``: f = ρ/π, one-sided (black from behind unless wrapped by twosided)."""
+
+    smooth = True
 
     reflectance: np.ndarray = field(default_factory=lambda: np.full(3, 0.5))
     two_sided: bool = False
@@ -281,6 +315,8 @@ class ThinDielectric(Dielectric):
 class Plastic(Material):
     """Mitsuba ``plastic`` (smooth): a Fresnel-weighted mirror coating over a diffuse base."""
 
+    smooth = True
+
     diffuse_reflectance: np.ndarray = field(default_factory=lambda: np.full(3, 0.5))
     specular_reflectance: np.ndarray = field(default_factory=lambda: np.ones(3))
     eta: float = 1.49 / 1.000277
@@ -344,6 +380,10 @@ class Mask(Material):
         #: the nested transmission bends the ray: the straight part cannot ride on it
         self.refracts = self.nested.has_transmission and not self.nested.straight_transmission
         self.straight_transmission = not self.refracts
+
+    @property
+    def smooth(self) -> bool:
+        return self.nested.smooth
 
     @property
     def textured(self) -> tuple:
