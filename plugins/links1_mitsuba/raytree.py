@@ -327,22 +327,24 @@ class RayTree:
                 on = dr.sum(1.0 - sampler.eval_null_transmission(sif, mb))
                 opacity = dr.select(on > 0, om / dr.maximum(on, 1e-30), 0.0)
             for flag, which in lobes:   # only the delta lobes some BSDF of the scene has
-                table = P.has_dr if which == "r" else P.has_dt
-                act = mb & dr.gather(mi.Bool, table, uslot, mb)
-                cx = mi.BSDFContext()
-                cx.type_mask = +flag
-                bs, w = sampler.sample(cx, sif, mi.Float(0.5), mi.Point2f(0.5, 0.5), act)
-                ok = act & (bs.pdf > 0) & (dr.max(w) > 0) & \
-                    ((bs.sampled_type & mi.UInt32(+flag)) != 0)
-                if opacity is not None:
-                    w = w * opacity
-                dw = sif.to_world(bs.wo)
-                if which == "r":
-                    r = dr.select(ok, w, r)
-                    dir_r = dr.select(ok, dw, dir_r)
-                else:
-                    tw = dr.select(ok, w, tw)
-                    dir_t = dr.select(ok, dw, dir_t)
+                for c, table in P.delta_components[which]:
+                    # one component at a time (a blendbsdf's nested ones, weighted by its weight)
+                    act = mb & dr.gather(mi.Bool, table, uslot, mb)
+                    cx = mi.BSDFContext()
+                    cx.type_mask = +flag
+                    cx.component = c
+                    bs, w = sampler.sample(cx, sif, mi.Float(0.5), mi.Point2f(0.5, 0.5), act)
+                    ok = act & (bs.pdf > 0) & (dr.max(w) > 0) & \
+                        ((bs.sampled_type & mi.UInt32(+flag)) != 0)
+                    if opacity is not None:
+                        w = w * opacity
+                    dw = sif.to_world(bs.wo)
+                    if which == "r":
+                        r = dr.select(ok, r + w, r)
+                        dir_r = dr.select(ok, dw, dir_r)
+                    else:
+                        tw = dr.select(ok, tw + w, tw)
+                        dir_t = dr.select(ok, dw, dir_t)
             if P.any_mitsuba_null:
                 # the straight-through delta lobe (Mitsuba's BSDFFlags::Null: thindielectric's
                 # transmission T' = 1 - R', R' = 2R/(1+R); a mask's 1 - opacity; null): weight

@@ -497,6 +497,9 @@ class Prepared:
     any_mitsuba_dt: bool = _set_later()
     any_mitsuba_null: bool = _set_later()
     any_mitsuba_delta: bool = _set_later()
+    #: per delta lobe ("r", "t"): the components of the slots' samplers that have it, with the
+    #: slots whose sampler has it there: [(component, Bool per slot)]
+    delta_components: dict = _set_later()
     #: some slot's BSDF is a ``mask``; then the BSDFs masks wrap, per slot (BSDFPtr), else None
     any_mask: bool = _set_later()
     inner_ptr: object = _set_later()
@@ -956,7 +959,7 @@ class Tables:
                     if (where, name) not in warned:     # once per element
                         warned.add((where, name))
                         warnings.warn(f"{where}: BSDF {name} has glossy lobes; it gets direct "
-                                      "light from delta lights only (no glossy indirect light)",
+                                      "light only (its glossy interreflections are not Whitted's light paths)",
                                       stacklevel=2)
         P.is_phong_np = is_phong
         P.all_phong = bool(is_phong.all())
@@ -973,6 +976,22 @@ class Tables:
         P.any_mitsuba_delta = bool(np.any(has_dr | has_dt | has_null))
         # masks: their delta lobes are sampled on the nested BSDF and scaled by the opacity
         # (Mitsuba's mask.sample cannot sample one lobe alone: it returns its null lobe)
+        # the delta lobes by component: each component of a slot's sampler (a mask's nested BSDF)
+        # with a delta lobe is sampled on its own (BSDFContext.component): a blendbsdf weighs its
+        # nested components by its weight there, where sampling the whole BSDF would pick one
+        # nested BSDF by the sample; every smooth reflection has one direction, so the
+        # components' weights add up (delta_components: lobe -> [(component, Bool per slot)])
+        comp = {"r": {}, "t": {}}
+        for sl, b in enumerate(bsdfs):
+            if b is None or is_phong[sl] or not (has_dr[sl] or has_dt[sl]):
+                continue
+            s = inner[sl]
+            for c in range(s.component_count()):
+                fc = int(s.flags(c))
+                for which, flag in (("r", mi.BSDFFlags.DeltaReflection), ("t", mi.BSDFFlags.DeltaTransmission)):
+                    if fc & int(flag):
+                        comp[which].setdefault(c, np.zeros(nslots, dtype=bool))[sl] = True
+        P.delta_components = {k: [(c, mi.Bool(v)) for c, v in sorted(d.items())] for k, d in comp.items()}
         is_mask = np.array([b is not None and i is not b for b, i in zip(bsdfs, inner)], dtype=bool)
         P.any_mask = bool(is_mask.any())
         P.inner_ptr = mi.BSDFPtr([i if i is not None else default_bsdf for i in inner]) \

@@ -58,6 +58,13 @@ CASES = {
                                             '<transform name="to_uv"><scale value="3"/></transform></texture>'
                                             '<bsdf type="conductor"/></bsdf>'),
     "null": SPHERE.format(b='<bsdf type="null"/>'),
+    # a blendbsdf's delta lobes come weighted by the blend's weight (a float, a texture)
+    "blend_diffuse_conductor": SPHERE.format(b='<bsdf type="blendbsdf"><float name="weight" value="0.35"/>'
+                                               '<bsdf type="diffuse"/><bsdf type="conductor"/></bsdf>'),
+    "blend_dielectric_conductor": SPHERE.format(b='<bsdf type="blendbsdf"><texture name="weight" type="checkerboard">'
+                                                  '<float name="color0" value="0.8"/><float name="color1" value="0.3"/>'
+                                                  '</texture><bsdf type="dielectric"/><bsdf type="conductor">'
+                                                  '<string name="material" value="Au"/></bsdf></bsdf>'),
 }
 
 

@@ -73,9 +73,9 @@ def test_plugin_warnings_name_place_once_per_element(tmp_path):
     # two roughdielectric elements (the one at line 10 is shared by two spheres): one line each
     assert sorted(glossy) == [
         f"links1: warning: {path}:10: <bsdf type='roughdielectric' id='frosted'>: BSDF RoughDielectric has glossy "
-        "lobes; it gets direct light from delta lights only (no glossy indirect light)",
+        "lobes; it gets direct light only (its glossy interreflections are not Whitted's light paths)",
         f"links1: warning: {path}:14: <bsdf type='roughdielectric'>: BSDF RoughDielectric has glossy lobes; it "
-        "gets direct light from delta lights only (no glossy indirect light)"], err
+        "gets direct light only (its glossy interreflections are not Whitted's light paths)"], err
     assert not [ln for ln in err if "thinlens" in ln], err   # its depth of field is rendered
     assert all(ln.startswith("links1: ") for ln in err), err
 
