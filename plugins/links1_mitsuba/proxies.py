@@ -8,7 +8,7 @@ such help: for it each of the two is registered as a *proxy*, an empty :class:`m
 read by the same ``from_props`` as the loader, and its nested BSDF. ``links1_whitted`` finds the
 proxies among the scene's shapes (:func:`specs_of`) and intersects the analytic surfaces
 itself, as for a scene from :func:`links1_mitsuba.load_file`. Mitsuba's own integrators see
-nothing there (as ``load_file(..., integrator="scene")``, which warns).
+nothing there (as ``load_file(..., links1_integrator="scene")``, which warns).
 """
 from __future__ import annotations
 

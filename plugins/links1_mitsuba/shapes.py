@@ -77,8 +77,6 @@ def _matrix(props, name="to_world"):
     return None
 
 
-@dataclass
-class QuadricSpec:
 def shape_label(plugin: str, name: str, where: str | None = None) -> str:
     """How a message names a links1 shape: ``FILE:LINE: links1_quadric`` where its place in
     the file is known, its id where it has one (never an empty ``''``)."""
@@ -86,6 +84,8 @@ def shape_label(plugin: str, name: str, where: str | None = None) -> str:
     return f"{where}: {named}" if where else named
 
 
+@dataclass
+class QuadricSpec:
     """``links1_quadric``: unit sphere or unit infinite cylinder (axis z) in object space,
     mapped by ``to_world``; clip planes ``n·x ≤ h`` in object space; ``capped`` closes the
     cut with the planes (eq. 3.4–3.5)."""
@@ -97,10 +97,10 @@ def shape_label(plugin: str, name: str, where: str | None = None) -> str:
     clips: list = field(default_factory=list)
     capped: bool = False
     emission: np.ndarray | None = None
-    _tables: dict | None = field(default=None, init=False, repr=False, compare=False)
-    _values_cache: object = field(default=None, init=False, repr=False, compare=False)
     #: ``FILE:LINE`` of its element (set by the loader), for messages after the load
     where: str | None = field(default=None, repr=False, compare=False)
+    _tables: dict | None = field(default=None, init=False, repr=False, compare=False)
+    _values_cache: object = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self):
         problem = transform_problem(self.to_world)
@@ -283,9 +283,9 @@ class BlobSpec:
     to_world: np.ndarray | None = None
     emission: np.ndarray | None = None
     max_steps: int = 256
-    _tables: dict | None = field(default=None, init=False, repr=False, compare=False)
     #: ``FILE:LINE`` of its element (set by the loader), for messages after the load
     where: str | None = field(default=None, repr=False, compare=False)
+    _tables: dict | None = field(default=None, init=False, repr=False, compare=False)
     _values_cache: object = field(default=None, init=False, repr=False, compare=False)
     # the last nearest-hit search's ray (o, d) and candidate lists, for :meth:`normal`
     _line: tuple | None = field(default=None, init=False, repr=False, compare=False)
