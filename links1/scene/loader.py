@@ -40,7 +40,8 @@ emitter         ``point``, ``directional``, ``spot``, ``constant`` and ``envmap`
                 to_world: background and sampled light), ``area`` in a mesh, rectangle, cube,
                 sphere or disk (radiance: a colour or a ``bitmap`` / ``checkerboard`` texture at the
                 shape's uv; → ``shape.emission`` and a sampled :class:`AreaLight`; on other
-                shapes seen only, warning), *links1* ``links1_point``, ``links1_spot``;
+                shapes seen only, warning), ``projector`` (irradiance: a colour or a texture,
+                scale, fov / focal_length, to_world), *links1* ``links1_point``, ``links1_spot``;
                 ``sunsky`` etc. → ignored (warning).
 ==============  =================================================================================
 
@@ -80,7 +81,7 @@ from ..sensor.camera import FOV_AXES, Camera, fov_x_from
 from ..errors import SceneError
 from ..sensor.filters import FILTERS, Filter
 from ..shading.lights import (ENV_LIGHT_ID, AreaLight, ConeSpotLight, ConstantEnvironment, CylinderSpotLight,
-                     EnvironmentMap, ParallelLight, PointLight)
+                     EnvironmentMap, ParallelLight, PointLight, ProjectorLight)
 from ..maths.vec import coordinate_system
 from .scene import Scene
 from .xmlparse import Node, Prop, SceneWarning, parse_file, parse_string
@@ -96,7 +97,7 @@ _MITSUBA_SHAPES = {"shapegroup", "instance", "bsplinecurve", "linearcurve",
 _APPROX_BSDFS = {"principled", "principledthin", "hair", "measured", "pplastic", "polarizer",
                  "retarder", "circular", "measured_polarized", "bumpmap",
                  "normalmap"}
-_IGNORED_EMITTERS = {"sunsky", "projector", "directionalarea"}
+_IGNORED_EMITTERS = {"sunsky", "directionalarea"}
 _FILMS = {"hdrfilm", "specfilm"}
 _SAMPLERS = {"independent", "stratified", "multijitter", "orthogonal", "ldsampler"}
 _SENSORS = {"perspective", "thinlens", "orthographic", "radiancemeter", "irradiancemeter",
@@ -418,6 +419,33 @@ def focal_length_fov_x(focal_length_mm: float, width: int, height: int) -> float
     return fov_x_from(diag_fov, "diagonal", width, height)
 
 
+def _fov_x(node, props, width: int, height: int) -> float:
+    """The horizontal field of view (degrees) of a perspective sensor or a projector on a
+    ``width`` x ``height`` image: ``fov`` along ``fov_axis``, else ``focal_length`` (Mitsuba's
+    ``parse_fov``)."""
+    if props.has("fov") and props.has("focal_length"):
+        raise node.error("give either 'fov' or 'focal_length', not both")
+    if props.has("fov"):
+        fov = props.float("fov")
+        if not 0 < fov < 180:
+            raise props.error("fov", f"'fov' must be in (0, 180) degrees, got {fov:g}")
+        axis = props.string("fov_axis", "x").strip().lower()
+        if axis not in FOV_AXES:
+            raise props.error("fov_axis", f"'fov_axis' must be one of {', '.join(FOV_AXES)}, got '{axis}'")
+        return fov_x_from(fov, axis, width, height)
+    text = props.string("focal_length", "50mm").strip()
+    m = re.fullmatch(r"([0-9.eE+-]+)\s*(mm)?", text)
+    try:
+        f = float(m.group(1)) if m else float("nan")
+    except ValueError:
+        f = float("nan")
+    if not (math.isfinite(f) and f > 0):
+        raise props.error("focal_length", f"'focal_length' must be a positive length such "
+                                          f"as '50mm', got '{text}'")
+    props.ignore("fov_axis")  # Mitsuba ignores it with a focal length too
+    return focal_length_fov_x(f, width, height)
+
+
 def _check_invertible(node: Node, m: np.ndarray, what: str = "to_world") -> None:
     """A shape's map must be invertible and in range (:func:`links1.scene.params.transform_problem`)."""
     problem = params.transform_problem(m, what)
@@ -633,28 +661,8 @@ class _Builder:
 
         if node.type == "orthographic":
             fov_x = None   # the sensor plane's size comes from to_world (below)
-        elif props.has("fov") and props.has("focal_length"):
-            raise node.error("give either 'fov' or 'focal_length', not both")
-        elif props.has("fov"):
-            fov = props.float("fov")
-            if not 0 < fov < 180:
-                raise props.error("fov", f"'fov' must be in (0, 180) degrees, got {fov:g}")
-            axis = props.string("fov_axis", "x").strip().lower()
-            if axis not in FOV_AXES:
-                raise props.error("fov_axis", f"'fov_axis' must be one of {', '.join(FOV_AXES)}, got '{axis}'")
-            fov_x = fov_x_from(fov, axis, width, height)
         else:
-            text = props.string("focal_length", "50mm").strip()
-            m = re.fullmatch(r"([0-9.eE+-]+)\s*(mm)?", text)
-            try:
-                f = float(m.group(1)) if m else float("nan")
-            except ValueError:
-                f = float("nan")
-            if not (math.isfinite(f) and f > 0):
-                raise props.error("focal_length", f"'focal_length' must be a positive length such "
-                                                  f"as '50mm', got '{text}'")
-            fov_x = focal_length_fov_x(f, width, height)
-            props.ignore("fov_axis")  # Mitsuba ignores it with a focal length too
+            fov_x = _fov_x(node, props, width, height)
         near = props.float("near_clip", 1e-2, positive=True)
         far = props.float("far_clip", 1e4, positive=True)
         if not near < far:
@@ -1165,6 +1173,12 @@ class _Builder:
             light = _construct(node, ConeSpotLight, to_world=np.eye(4) if to_world is None else to_world,
                                intensity=intensity, cutoff_angle=cutoff, beam_width=beam, name=name,
                                texture=texture)
+        elif t == "projector":
+            irradiance = props.texture("irradiance", 1.0, unbounded=True)
+            w, h = irradiance.resolution if isinstance(irradiance, textures.Bitmap) else (1, 1)
+            light = _construct(node, ProjectorLight, to_world=np.eye(4) if to_world is None else to_world,
+                               irradiance=irradiance, x_fov=_fov_x(node, props, w, h), aspect=w / h,
+                               scale=props.float("scale", 1.0), name=name)
         elif t == "links1_spot":
             origin = props.links1(t, "origin")
             direction = props.links1(t, "direction")

@@ -193,6 +193,58 @@ class ConeSpotLight(Light):
         return wi, dist, L
 
 
+@dataclass
+class ProjectorLight(Light):
+    """Mitsuba's ``projector`` emitter: a point light at the origin of ``to_world`` projecting
+    the ``irradiance`` image (a :class:`links1.shading.textures.Texture` or an RGB constant)
+    through a perspective frustum of horizontal field of view ``x_fov`` (degrees) and the
+    image's aspect ratio, along the frame's +z, as Mitsuba's ``Projector::sample_direction``:
+    a point at ``(x, y, z)`` in the light's frame (``z > 0``) takes the image at
+
+        ``uv = (1/2 - x / (2 z tan(x_fov/2)), 1/2 - aspect · y / (2 z tan(x_fov/2)))``
+
+    (the perspective camera's film position, row 0 at the top; nothing outside [0, 1]²) and
+    receives ``π · scale · irradiance(uv) / (z² cos θ)``, ``θ`` between the light's axis and
+    the direction to the point: the irradiance on the plane ``z = 1`` facing the light is the
+    image's."""
+
+    to_world: np.ndarray
+    irradiance: object
+    x_fov: float
+    aspect: float = 1.0
+    scale: float = 1.0
+    name: str = ""
+
+    def __post_init__(self):
+        self.to_world = np.asarray(self.to_world, dtype=np.float64)
+        if not callable(getattr(self.irradiance, "eval", None)):
+            self.irradiance = _rgb(self.irradiance)
+        self.position = self.to_world[:3, 3].copy()
+        self.axis = self.to_world[:3, 2].copy()   # as Mitsuba: to_world · (0, 0, 1), unnormalised
+        self._from_world = np.linalg.inv(self.to_world)
+        self._tan = float(np.tan(np.deg2rad(self.x_fov) / 2.0))
+
+    def illuminate(self, p):
+        to_light = self.position - p
+        dist = length(to_light)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            wi = to_light / np.where(dist > 0, dist, 1.0)[:, None]
+        local = matvec(self._from_world, p) + self._from_world[:3, 3]
+        z = local[:, 2]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            k = 0.5 / (z * self._tan)
+            u = 0.5 - local[:, 0] * k
+            v = 0.5 - self.aspect * local[:, 1] * k
+            lit = (z > 0) & (u >= 0) & (u <= 1) & (v >= 0) & (v <= 1)
+            falloff = np.where(lit, np.pi * self.scale / (z * z * -dot(self.axis, wi)), 0.0)
+        L = np.zeros((p.shape[0], 3))
+        if isinstance(self.irradiance, np.ndarray):
+            L[lit] = self.irradiance
+        else:
+            L[lit] = self.irradiance.eval(np.stack([u[lit], v[lit]], axis=1))
+        return wi, dist, L * falloff[:, None]
+
+
 # ------------------------------------------------------------------------ sampled lights
 class SampledLight(Light):
     """A light sampled at points ``(u, v)`` (module docstring)."""

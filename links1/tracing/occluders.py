@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..shading.lights import AreaLight, ConeSpotLight, CylinderSpotLight, ParallelLight, PointLight
+from ..shading.lights import AreaLight, ConeSpotLight, CylinderSpotLight, ParallelLight, PointLight, ProjectorLight
 
 #: Relative tolerance of the side-of-plane tests (scene scale units).
 SIDE_TOL = 1e-9
@@ -89,7 +89,7 @@ def _light_side(light, n, p0):
         pos, reach = light.position, 0.0
     elif isinstance(light, CylinderSpotLight):
         pos, reach = light.origin, light.radius
-    elif isinstance(light, ConeSpotLight):
+    elif isinstance(light, (ConeSpotLight, ProjectorLight)):
         pos, reach = light.position, 0.0
     elif isinstance(light, AreaLight):  # a light with extent: the whole emitter must be on one side
         return _box_side(*light.bounds(), n, p0)

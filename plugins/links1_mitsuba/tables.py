@@ -1157,7 +1157,8 @@ class Tables:
     def _analytic_light(self, e, kind, Pt, Sp, P):
         """The ``P.lights`` entry of the emitter ``e`` (its ``kind``: :func:`~.util.kind_of`) when
         it is an analytic light: a ``links1_point`` (``Pt``) or ``links1_spot`` (``Sp``), a
-        Mitsuba point, spot (a projector: ``memitter``) or directional emitter; else None.
+        Mitsuba point, spot, projector (these two with an image: ``memitter``) or directional
+        emitter; else None.
         ``P``: the tables it is for (:meth:`_params_of`)."""
         if isinstance(e, Pt):
             p = e.params
@@ -1166,7 +1167,7 @@ class Tables:
         if isinstance(e, Sp):
             p = e.params
             return ("cspot", p["origin"], p["direction"], p["radius"], p["intensity"])
-        if kind not in ("PointLight", "SpotLight", "DirectionalEmitter"):
+        if kind not in ("PointLight", "SpotLight", "DirectionalEmitter", "Projector"):
             return None
         prm = self._params_of(P, e)
         if kind == "PointLight":
@@ -1174,6 +1175,8 @@ class Tables:
             I = _emitted_rgb(prm, "intensity", kind, self.place(e))
             return ("point", pos, np.array([0, 0, 1.0]), I, np.zeros(3), True)
         m = np.array(prm["to_world"].matrix, dtype=np.float64).reshape(4, 4)
+        if kind == "Projector":   # a delta light projecting an image: Mitsuba's own evaluation
+            return ("memitter", m[:3, 3], e)
         if kind == "DirectionalEmitter":
             E = _emitted_rgb(prm, "irradiance", kind, self.place(e))
             return ("dir", m[:3, 2] / np.linalg.norm(m[:3, 2]), E)

@@ -153,3 +153,18 @@ def assert_matches_mitsuba_direct(kind, path, spp: int = 16, ref_factor: int = 1
     err = relmse(ours, ref)
     assert err <= 2 * theirs, f"{kind} {os.path.basename(str(path))}: relMSE {err:.3g} vs Mitsuba direct's own {theirs:.3g}"
     return ours, ref
+
+
+def assert_both_match_mitsuba_direct(path, spp: int, render, ref_factor: int = 16, factor: float = 1.5):
+    """The core's and the plugin's renders of ``path`` at ``spp`` (``render(kind, path, spp)``
+    -> (h, w, 3)) are each within ``factor`` times the relMSE of Mitsuba's ``direct`` at the same
+    spp, all against Mitsuba's ``direct`` at ``ref_factor`` times the spp; and the core equals the
+    plugin (relMSE <= 1e-4: the same samples)."""
+    from links1.imaging.diff import relmse
+    ref = mitsuba_direct(path, spp * ref_factor, seed=1)
+    theirs = relmse(mitsuba_direct(path, spp, seed=2), ref)
+    core, plugin = render("core", path, spp), render("mitsuba", path, spp)
+    for kind, img in (("core", core), ("mitsuba", plugin)):
+        err = relmse(img, ref)
+        assert err <= factor * theirs, f"{kind}: relMSE {err:.3g} vs Mitsuba direct's own {theirs:.3g}"
+    assert relmse(plugin, core) <= 1e-4

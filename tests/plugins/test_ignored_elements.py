@@ -1,5 +1,5 @@
 """What both renderers ignore is ignored alike, with one warning naming its place (README's
-support table: ``sunsky`` / ``projector`` / ``directionalarea`` emitters, media).
+support table: ``sunsky`` / ``directionalarea`` emitters, media).
 
 The reference is the same scene without the element: adding an ignored element must leave the
 image bit for bit as it was, and say so in one ``FILE:LINE: <element>`` warning.

@@ -22,9 +22,8 @@ import numpy as np
 import pytest
 
 from links1.frontends.renderers import make_renderer
-from links1.imaging.diff import relmse
 
-from .conftest import mitsuba_direct
+from .conftest import assert_both_match_mitsuba_direct
 
 pytestmark = pytest.mark.mitsuba
 
@@ -101,14 +100,7 @@ def test_matches_mitsuba_direct_and_each_other(variant, tmp_path):
     <float name="radius" value="0.3"/><bsdf type="diffuse"><rgb name="reflectance" value="0.5, 0.6, 0.7"/></bsdf>
     </shape></scene>""")
     open(path, "w").write(text)
-    spp = 16
-    ref = mitsuba_direct(path, spp * 16, seed=1)
-    theirs = relmse(mitsuba_direct(path, spp, seed=2), ref)
-    core, plugin = _render("core", path, spp), _render("mitsuba", path, spp)
-    for kind, img in (("core", core), ("mitsuba", plugin)):
-        err = relmse(img, ref)
-        assert err <= 1.5 * theirs, f"{kind}: relMSE {err:.3g} vs Mitsuba direct's own {theirs:.3g}"
-    assert relmse(plugin, core) <= 1e-4
+    assert_both_match_mitsuba_direct(path, 16, _render)
 
 
 def test_a_zero_aperture_is_the_pinhole(renderer_kind, tmp_path):
