@@ -46,11 +46,10 @@ def conductors() -> dict:
 
 
 def _scalar(v):
-    """A roughness or weight as Mitsuba's ``eval_1`` reads it: RGB → luminance."""
+    """A roughness or weight bound to N hits as Mitsuba's ``eval_1`` reads it: (N, 3) RGB (a
+    mesh attribute) → luminance; (N,) or a constant as it is."""
     a = np.asarray(v, dtype=np.float64)
-    if a.ndim >= 1 and a.shape[-1] == 3:
-        return a @ LUMINANCE
-    return a
+    return a @ LUMINANCE if a.ndim == 2 else a
 
 
 def _texture_mean(v) -> float:
@@ -110,12 +109,26 @@ class _Local(Material):
     def _bcast(self, v, n):
         return np.broadcast_to(np.asarray(v, dtype=np.float64), (n, 3))
 
+    #: parameters Mitsuba reads with ``eval_1`` (one value per point): a texture's scalar
+    #: lookup, which is not always the luminance of ``eval`` (``checkerboard`` swaps its colours)
+    scalar_params: tuple = ()
+
+    def at(self, uv, given=None):
+        bound = super().at(uv, given)
+        for k in self.scalar_params:
+            v = getattr(self, k)
+            if isinstance(v, Texture) and not (given and k in given):
+                setattr(bound, k, v.eval_1(uv))
+        return bound
+
 
 @dataclass
 class RoughConductor(_Local):
     """Mitsuba ``roughconductor``: a microfacet metal, f = F D G / (4 cos θ_i cos θ_o)
     (Walter et al. eq. 20), Fresnel of the complex index ``eta + i k``; ``eta = 0, k = 1``
     (Mitsuba's ``material='none'``) is a perfect reflector."""
+
+    scalar_params = ("alpha_u", "alpha_v")
 
     distribution: str = mf.BECKMANN
     alpha_u: object = 0.1
@@ -269,6 +282,8 @@ class RoughDielectric(_Local):
     transmitted, with Mitsuba's radiance scaling (η_i/η_t)² of the transmitted part).
     Both sides act; ``eta`` is inside over outside."""
 
+    scalar_params = ("alpha_u", "alpha_v")
+
     distribution: str = mf.BECKMANN
     alpha_u: object = 0.1
     alpha_v: object = None
@@ -378,8 +393,9 @@ class Blend(Material):
 
     def __post_init__(self):
         if not isinstance(self.weight, Texture):
-            self.weight = np.asarray(np.clip(_scalar(_rgb(self.weight))
-                                             if np.ndim(self.weight) else float(self.weight), 0.0, 1.0))
+            w = np.asarray(self.weight, dtype=np.float64)
+            w = w if w.ndim == 0 or np.all(w == w.flat[0]) else w @ LUMINANCE
+            self.weight = np.asarray(np.clip(float(np.ravel(w)[0]), 0.0, 1.0))
         a, b = self.bsdf_0, self.bsdf_1
         self.smooth = bool(getattr(a, "smooth", True) or getattr(b, "smooth", True))
         self.has_reflection = a.has_reflection or b.has_reflection

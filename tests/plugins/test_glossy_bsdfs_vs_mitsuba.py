@@ -26,6 +26,9 @@ CASES = {
                                    '<float name="alpha_v" value="0.4"/></bsdf>'),
     "roughconductor_not_visible": ('<bsdf type="roughconductor"><boolean name="sample_visible" value="false"/>'
                                    '<float name="alpha" value="0.2"/></bsdf>'),
+    "roughconductor_textured_alpha": ('<bsdf type="roughconductor"><texture name="alpha" type="checkerboard">'
+                                      '<float name="color0" value="0.1"/><float name="color1" value="0.4"/>'
+                                      '<transform name="to_uv"><scale value="4"/></transform></texture></bsdf>'),
     "twosided_roughconductor": '<bsdf type="twosided"><bsdf type="roughconductor"><float name="alpha" value="0.25"/></bsdf></bsdf>',
     "roughplastic": '<bsdf type="roughplastic"/>',
     "roughplastic_ggx_nonlinear": ('<bsdf type="roughplastic"><string name="distribution" value="ggx"/>'
@@ -70,6 +73,7 @@ def _mitsuba(bsdf_xml, viewer, light, u, uv):
     si = dr.zeros(mi.SurfaceInteraction3f, N)
     si.sh_frame = mi.Frame3f(mi.Normal3f(0, 0, 1))
     si.wi = mi.Vector3f(*viewer.T)
+    si.uv = mi.Point2f(*uv.T)           # where textures are looked up (the sample values reused)
     wo = mi.Vector3f(*light.T)
     bs, weight = bsdf.sample(ctx, si, mi.Float(u), mi.Point2f(*uv.T))
     return (np.array(bsdf.eval(ctx, si, wo), dtype=np.float64).T,
@@ -114,7 +118,7 @@ def test_eval_pdf_sample_match_mitsuba(case, variant):
     weights (0) only."""
     viewer, light, u, uv = _directions()
     E, P, WO, W, PS = _mitsuba(CASES[case], viewer, light, u, uv)
-    m = _core_material(CASES[case])
+    m = _core_material(CASES[case]).at(uv)
     e, p, wo, w, ps = _core(m, viewer, light, u, uv)
     z = np.tile([0.0, 0.0, 1.0], (N, 1))
     n = z * np.where(viewer[:, 2] >= 0, 1.0, -1.0)[:, None]
