@@ -126,3 +126,23 @@ def _define():
             return L, mi.Bool(True), []
 
     return WhittedReference
+
+
+def render_reference(path, spp: int, seed: int, width=None, height=None, params=None,
+                     max_depth: int = DEFAULT_MAX_DEPTH):
+    """``whitted_reference`` on the scene file ``path`` loaded by plain ``mi.load_file`` (the
+    active variant; ``params``: its ``$name`` values), its film resized as the links1
+    renderers resize it (``width`` x ``height``, ``x_fov`` kept; ``height`` None: the file's
+    aspect) -> (h, w, 3) float64."""
+    import mitsuba as mi
+    import numpy as np
+    from links1_mitsuba.renderer import resize_film
+    register()
+    scene = mi.load_file(str(path), **{k: str(v) for k, v in (params or {}).items()})
+    sensor = scene.sensors()[0]
+    if width is not None:
+        W, H = (int(v) for v in sensor.film().size())
+        resize_film(sensor, width, height or max(1, round(width * H / W)))
+    integrator = mi.load_dict({"type": "whitted_reference", "max_depth": max_depth})
+    img = mi.render(scene, integrator=integrator, sensor=sensor, spp=spp, seed=seed)
+    return np.array(img, dtype=np.float64)[..., :3]

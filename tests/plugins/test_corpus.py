@@ -9,6 +9,10 @@ Per scene, what tests/corpus/manifest.py states:
 * ``renders``: both renderers give a finite image, and every approximation the entry names is
   in a one-line scene warning (``FILE:LINE: ...``).
 
+And every scene: links1_whitted (its default depth) against ``whitted_reference``, Mitsuba's
+own sampling restricted to Whitted's light paths (tests/corpus/whitted_reference.py) at 16x the
+spp: its relMSE within 1.5x the reference's own at equal spp.
+
 Scenes are rendered small (32 pixels wide, the file's field of view kept).
 """
 from __future__ import annotations
@@ -66,6 +70,30 @@ def test_delta_light_scene_matches_mitsuba_direct(sc, kind, variant_name):
     use_variant(variant_name)
     assert_matches_mitsuba_direct(kind, _path(sc), spp=SPP, ref_factor=REF_FACTOR, params=dict(sc.params),
                                   width=WIDTH, height=HEIGHT)
+
+
+def _reference_params():
+    out = []
+    for sc in SCENES:
+        for v in VARIANTS:
+            marks = [pytest.mark.xfail(strict=True, reason=sc.vs_reference)] if sc.vs_reference else []
+            out.append(pytest.param(sc, v, id=f"{sc.id}-mitsuba-{v}", marks=marks + variant_marks(v)))
+    return out
+
+
+@pytest.mark.parametrize("sc,variant_name", _reference_params())
+def test_plugin_matches_whitted_reference(sc, variant_name):
+    from links1.imaging.diff import relmse
+    from tests.corpus.whitted_reference import render_reference
+    use_variant(variant_name)
+    path = _path(sc)
+    kw = dict(width=WIDTH, height=HEIGHT, params=dict(sc.params))
+    ref = render_reference(path, SPP * REF_FACTOR, seed=1, **kw)
+    theirs = relmse(render_reference(path, SPP, seed=2, **kw), ref)
+    ours, _ = _render("mitsuba", sc, path, spp=SPP)
+    assert np.all(np.isfinite(ours)), f"{sc.id}: NaN or Inf in the image"
+    err = relmse(ours, ref)
+    assert err <= 1.5 * theirs, f"{sc.id}: relMSE {err:.3g} vs the reference's own {theirs:.3g} at spp {SPP}"
 
 
 @pytest.mark.parametrize("sc,kind,variant_name", _params("renders"))
