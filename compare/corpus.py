@@ -1,7 +1,7 @@
 """Every corpus scene in both renderers against Mitsuba's sampling restricted to Whitted's paths.
 
     python -m compare.corpus [--width 128] [--spp 4] [--ref-factor 16] [--only ID ...]
-                             [--timeout 300] [--variant llvm_ad_rgb] [--stem corpus]
+                             [--timeout 300] [--variant llvm_ad_rgb] [--stem corpus] [--update]
 
 Scenes: every entry of ``tests/corpus/manifest.py`` whose files are here (the ones that cannot
 be committed come from ``tools/fetch_corpus.py``; a missing one is listed as not fetched).
@@ -194,6 +194,8 @@ def main(argv=None) -> int:
     p.add_argument("--timeout", type=float, default=300)
     p.add_argument("--variant", default="llvm_ad_rgb")
     p.add_argument("--stem", default="corpus")
+    p.add_argument("--update", action="store_true",
+                   help="replace only the rows of the scenes rendered now in an existing <stem>.json")
     args = p.parse_args(argv)
     if args.job:
         print(json.dumps(_job(json.loads(args.job))))
@@ -212,6 +214,15 @@ def main(argv=None) -> int:
         print(f"{sc.id}: " + (row.get("skipped") or
               f"plugin {row['plugin_verdict']} ({fmt(row['plugin_err'])} vs {fmt(row['mitsuba_err'])}), "
               f"core {row['core_verdict']} ({fmt(row['core_err'])})"), flush=True)
+    if args.update:
+        from .common import RESULTS
+        old = json.loads((RESULTS / f"{args.stem}.json").read_text())
+        new = {r["id"]: r for r in rows}
+        order = [sc.id for sc in SCENES]
+        rows = sorted([new.pop(r["id"], r) for r in old["rows"]] + list(new.values()),
+                      key=lambda r: order.index(r["id"]) if r["id"] in order else len(order))
+        args.command = old["command"] + f" (rows {', '.join(args.only or [])} from `{args.command}`)"
+        info = old["machine"]
     md = _markdown(rows, args, info)
     for path in write_results(args.stem, {"machine": info, "command": args.command, "rows": rows}, md):
         print(f"wrote {path}")
