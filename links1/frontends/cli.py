@@ -125,10 +125,12 @@ def make_cli_renderer(args):
 
 
 def cmd_render(args) -> int:
+    from ..interrupts import held_interrupts
     from .renderers import renderer_warnings, require_mitsuba
-    if args.renderer == "mitsuba":
-        require_mitsuba(args.variant)
-    renderer_warnings(args.renderer)
+    with held_interrupts():   # Mitsuba's native imports: Ctrl-C is raised once they are done
+        if args.renderer == "mitsuba":
+            require_mitsuba(args.variant)
+        renderer_warnings(args.renderer)
     kind = _output_kind(args.output)
     if kind == "png" and args.aov:
         raise UsageError("AOVs need an EXR output (-o something.exr)")
@@ -161,6 +163,8 @@ def cmd_render(args) -> int:
               f"min={min(times) * 1e3:.1f} ms max={max(times) * 1e3:.1f} ms", file=sys.stderr)
     _check_finite_image(image, args.renderer)
     from ..imaging.image import write_image
+    from ..interrupts import ignore_interrupts
+    ignore_interrupts()   # the frame is complete: Ctrl-C from here on no longer stops its writing
     if kind == "png":
         write_image(args.output, image[..., :3])
     else:
@@ -189,6 +193,23 @@ def _takes_progress(renderer) -> bool:
 
 
 def main(argv=None) -> int:
+    """The command line -> exit status. Ctrl-C (SIGINT) at any moment: the line ``links1:
+    interrupted``, status 130, no output file (it is written atomically, and once a finished
+    frame is being written the interrupt is ignored: the file is then complete), no process left
+    (the partitioning back ends stop their workers and clusters, :mod:`links1.interrupts`)."""
+    from ..interrupts import ignore_interrupts, restore_interrupts
+    handler = ignore_interrupts(False)
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:
+        ignore_interrupts()   # a second Ctrl-C does not break what is left of the clean-up
+        print("links1: interrupted", file=sys.stderr)
+        return 130
+    finally:
+        restore_interrupts(handler)   # main() called from Python: as it was
+
+
+def _main(argv) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "command", None):
@@ -208,9 +229,6 @@ def main(argv=None) -> int:
             raise
         print(f"links1: error: {e}", file=sys.stderr)
         return 1
-    except KeyboardInterrupt:
-        print("links1: interrupted", file=sys.stderr)
-        return 130
     except Exception as e:  # noqa: BLE001 - last resort: one line, not a traceback
         if debug:
             raise

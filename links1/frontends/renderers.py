@@ -20,6 +20,7 @@ from typing import Protocol, Sequence, runtime_checkable
 import numpy as np
 
 from ..errors import Links1Error, SceneError, UsageError, one_line_warnings
+from ..interrupts import held_interrupts
 from ..tracing.render import CoreRenderer
 
 
@@ -71,39 +72,47 @@ def make_renderer(kind: str, path, **options) -> Renderer:
     if kind == "core":
         return CoreRenderer(path, **options)
     if kind == "mitsuba":
-        require_mitsuba()
-        try:
-            from links1_mitsuba import MitsubaRenderer
-        except ImportError as e:
-            raise UsageError(f"the mitsuba renderer is unavailable: {e}") from None
-        _validate_for_mitsuba(path, options.get("params") or {})
-        try:
-            return MitsubaRenderer(path, **options)
-        except (RuntimeError, ValueError, OSError, IndexError) as e:
-            if isinstance(e, Links1Error):
-                raise
-            if isinstance(e, IndexError):  # the plugin found no sensor to render from
-                raise SceneError("the scene has no sensor (add a <sensor type='perspective'>)",
-                                 file=str(path)) from None
-            raise SceneError(mitsuba_message(e, path)) from None
+        # Ctrl-C during Mitsuba's imports and loading is raised once they are done: inside a
+        # native call it can be lost, or leave a native module half made (links1.interrupts)
+        with held_interrupts():
+            return _make_mitsuba_renderer(path, options)
     raise UsageError(f"unknown renderer {kind!r}; choose 'mitsuba' or 'core'")
+
+
+def _make_mitsuba_renderer(path, options):
+    require_mitsuba()
+    try:
+        from links1_mitsuba import MitsubaRenderer
+    except ImportError as e:
+        raise UsageError(f"the mitsuba renderer is unavailable: {e}") from None
+    _validate_for_mitsuba(path, options.get("params") or {})
+    try:
+        return MitsubaRenderer(path, **options)
+    except (RuntimeError, ValueError, OSError, IndexError) as e:
+        if isinstance(e, Links1Error):
+            raise
+        if isinstance(e, IndexError):  # the plugin found no sensor to render from
+            raise SceneError("the scene has no sensor (add a <sensor type='perspective'>)",
+                             file=str(path)) from None
+        raise SceneError(mitsuba_message(e, path)) from None
 
 
 def require_mitsuba(variant: str | None = None) -> None:
     """Raise a one-line ``UsageError`` naming the extra to install when Mitsuba 3 / Dr.Jit
     cannot be imported (the core renderer needs neither), or naming the variants that work
     when ``variant`` is one the links1 plugins cannot run on (before any worker starts)."""
-    try:
-        import drjit  # noqa: F401
-        import mitsuba  # noqa: F401
-    except ImportError as e:
-        raise UsageError(f"the mitsuba renderer needs Mitsuba 3 and Dr.Jit ({e}): install them with "
-                         "pip install 'links1[mitsuba]', or render with --renderer core") from None
-    if variant is not None:
-        from links1_mitsuba import unsupported_variant
-        why = unsupported_variant(variant)
-        if why:
-            raise UsageError(why)
+    with held_interrupts():   # Ctrl-C raised after the imports, not inside a native one
+        try:
+            import drjit  # noqa: F401
+            import mitsuba  # noqa: F401
+        except ImportError as e:
+            raise UsageError(f"the mitsuba renderer needs Mitsuba 3 and Dr.Jit ({e}): install them with "
+                             "pip install 'links1[mitsuba]', or render with --renderer core") from None
+        if variant is not None:
+            from links1_mitsuba import unsupported_variant
+            why = unsupported_variant(variant)
+            if why:
+                raise UsageError(why)
 
 
 def renderer_warnings(kind: str | None = None) -> None:

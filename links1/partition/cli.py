@@ -253,7 +253,30 @@ def _auto_in_process(args) -> bool:
 
 
 def render_distributed(args):
-    """Render per ``args`` on the chosen nodes -> ``(image (H, W, C) float64, channel names)``."""
+    """Render per ``args`` on the chosen nodes -> ``(image (H, W, C) float64, channel names)``.
+    Interrupted (Ctrl-C): every back end of this process is stopped at once (workers killed,
+    clusters closed, :func:`_stop_backends`) before the ``KeyboardInterrupt`` goes on."""
+    import multiprocessing
+    before = {p.pid for p in multiprocessing.active_children()}
+    try:
+        return _render_distributed(args)
+    except KeyboardInterrupt:
+        from ..interrupts import ignore_interrupts, restore_interrupts
+        handler = ignore_interrupts()   # the stop is not itself interrupted
+        try:
+            _stop_backends()
+            # and any process started here that no back end knew of yet (a cluster interrupted
+            # while it started its workers)
+            for p in multiprocessing.active_children():
+                if p.pid not in before:
+                    p.kill()
+                    p.join(timeout=5)
+        finally:
+            restore_interrupts(handler)
+        raise
+
+
+def _render_distributed(args):
     from .executors import render_plan
     if _auto_in_process(args):  # --workers auto found nothing worth distributing: one full frame here
         from .runtime import get_renderer
@@ -490,6 +513,13 @@ def run_sweep(args) -> int:
 def _close_backends():
     for be in list(_BACKENDS.values()):
         be.close()
+    _BACKENDS.clear()
+
+
+def _stop_backends():
+    """Stop every back end at once (``terminate``: no waiting on work in flight), forget them."""
+    for be in list(_BACKENDS.values()):
+        getattr(be, "terminate", be.close)()
     _BACKENDS.clear()
 
 

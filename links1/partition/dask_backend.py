@@ -14,10 +14,14 @@ itself reruns a lost worker's task elsewhere. dask/distributed are imported lazi
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import os
+import signal
 import uuid
 from collections import deque
 
 from ..errors import RenderAborted
+from ..interrupts import children_ignore_interrupts
 from .executors import ALLOWED_FAILURES, CHUNK_FACTOR, TASK_PIXELS, guided_batch, take_batch
 from .runtime import THREAD_ENV, get_renderer, limit_blas, pin_cpus, render_units, spec_batches, warm_samples, warm_up
 
@@ -88,15 +92,15 @@ class DaskBackend:
                 self.client = Client(self.scheduler)
             else:
                 import dask
-                from distributed import LocalCluster
-
                 from .executors import threads_per_worker
                 t = self.threads or threads_per_worker(self.n_local)
                 cfg = {"distributed.scheduler.work-stealing": not self.static}
+                # its nannies and workers never see Ctrl-C (SIGINT): the root alone stops, and
+                # closes the cluster (terminate)
                 with dask.config.set(cfg):
-                    self.cluster = LocalCluster(n_workers=int(self.n_local), threads_per_worker=1, processes=True,
-                                                host="127.0.0.1", dashboard_address="127.0.0.1:0",
-                                                env={k: str(t) for k in THREAD_ENV})
+                    self.cluster = self._local_cluster(
+                        n_workers=int(self.n_local), threads_per_worker=1, processes=True, host="127.0.0.1",
+                        dashboard_address="127.0.0.1:0", env={k: str(t) for k in THREAD_ENV})
                 self.client = Client(self.cluster)
                 self.threads = t
                 from .executors import node_cpus
@@ -111,6 +115,34 @@ class DaskBackend:
             self.client.register_plugin(ScenePreload(spec, self.cpus), name=f"links1-preload-{spec.key}")
             self._plugin = spec.key
         self._spec = spec
+
+    def _local_cluster(self, **kwargs):
+        """``LocalCluster(**kwargs)`` made by a thread that blocks SIGINT, so that the cluster's
+        threads, nannies and workers never see Ctrl-C (they inherit the blocked signal); this
+        thread waits for it and stays interruptible. Interrupted, :attr:`cluster` is the cluster
+        being made, for :meth:`terminate`."""
+        import threading
+
+        from distributed import LocalCluster
+        known, made = set(_clusters()), []
+
+        def make():
+            try:
+                made.append(LocalCluster(**kwargs))
+            except BaseException as e:  # noqa: BLE001 - raised in the caller's thread
+                made.append(e)
+        with children_ignore_interrupts():
+            maker = threading.Thread(target=make, name="links1-cluster-start", daemon=True)
+            maker.start()
+        try:
+            while maker.is_alive():
+                maker.join(0.05)
+        except KeyboardInterrupt:
+            self.cluster = next((c for c in _clusters() if c not in known), None)
+            raise
+        if isinstance(made[0], BaseException):
+            raise made[0]
+        return made[0]
 
     @property
     def n_nodes(self) -> int:
@@ -139,6 +171,30 @@ class DaskBackend:
             limit_blas(self._root_blas)
         self._root_blas = None
         self._plugin = None
+
+    def terminate(self):
+        """Stop now (Ctrl-C): kill the workers of a cluster started here (their nannies told
+        not to restart them), close the client and that cluster; a cluster of other machines
+        is only left. distributed's and asyncio's logs are silenced for the rest of this process:
+        a nanny's warnings about the workers it lost, errors of workers still starting and of
+        closed connections would follow the CLI's one line as the cluster's threads wind down."""
+        import logging
+        for name in ("distributed", "asyncio"):   # asyncio: "Future exception was never retrieved"
+            logging.getLogger(name).setLevel(logging.CRITICAL + 1)
+        for nanny in list(getattr(self.cluster, "workers", {}).values()):
+            with contextlib.suppress(Exception):   # no restart, and its worker ends now
+                nanny.close_gracefully(reason="links1-interrupted")
+                if nanny.pid:
+                    os.kill(nanny.pid, signal.SIGKILL)
+        if self.client is not None and self._own_client:
+            with contextlib.suppress(Exception):
+                self.client.close(timeout=2)
+            self.client = None
+        if self.cluster is not None:
+            with contextlib.suppress(Exception):
+                self.cluster.close(timeout=2)
+            self.cluster = None
+        self.close()
 
     def __enter__(self):
         return self
@@ -255,6 +311,12 @@ class DaskBackend:
                 for addr in sorted(joined):
                     workers.append(addr)
                 top_up()
+
+
+def _clusters() -> list:
+    """The clusters this process has made (distributed keeps them in ``SpecCluster._instances``)."""
+    from distributed.deploy.spec import SpecCluster
+    return list(getattr(SpecCluster, "_instances", ()))
 
 
 def _node_of(info, workers):

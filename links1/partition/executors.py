@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import RenderAborted
+from ..interrupts import children_ignore_interrupts
 from .runtime import (THREAD_ENV, RendererSpec, SharedFrame, can_batch, get_renderer, limit_blas, release_frame, render_units,
                       serve, start_worker, warm_samples, warm_up)
 
@@ -443,7 +444,9 @@ class LocalPool:
             self.pids.pop(k, None)
             self.spawned[k] = time.time()
             cpus = self.cpus[k] if self.cpus else None
-            self.hello[k] = pool.submit(start_worker, self._spec, cpus, os.getpid())  # the process starts here
+            # the process starts here, deaf to Ctrl-C (SIGINT): the root alone stops, and ends it
+            with children_ignore_interrupts():
+                self.hello[k] = pool.submit(start_worker, self._spec, cpus, os.getpid())
         finally:
             for v, old in saved.items():
                 if old is None:
@@ -489,8 +492,8 @@ class LocalPool:
                 self._spawn(k)
             while self.hello:
                 self._await_hello(timeout=None)
-        except BaseException:
-            self.close()
+        except BaseException as e:
+            self.close(kill=isinstance(e, KeyboardInterrupt))
             raise
 
     def _await_hello(self, timeout):
@@ -583,6 +586,9 @@ class LocalPool:
             self.before_run(plan)
         try:
             self._run(plan, todo, spec, cull, on_done, on_fault, self._frame)
+        except KeyboardInterrupt:
+            self.terminate()
+            raise
         except BaseException:
             self._close_lines()
             raise
@@ -749,11 +755,17 @@ class LocalPool:
             if f is None or f.done():
                 on_fault(f"{self._died(k, 'while idle')}; it had no unfinished units; a replacement is starting")
 
-    def close(self):
+    def close(self, kill: bool = False):
+        """Shut the workers down (they finish the task in hand); ``kill``: :meth:`terminate`."""
         self._close_lines()
         self._drop_frame()
+        if kill:   # every process at once, then each pool is left without waiting on it
+            for p in self.pools.values():
+                for proc in list((getattr(p, "_processes", None) or {}).values()):
+                    if proc.is_alive():
+                        proc.kill()
         for p in self.pools.values():
-            if _alive(p):
+            if _alive(p) and not kill:
                 p.shutdown(wait=True, cancel_futures=True)
             else:
                 _abandon(p)
@@ -764,6 +776,13 @@ class LocalPool:
         if self._root_blas:   # the root's BLAS threads as they were before the pool started
             limit_blas(self._root_blas)
         self._root_blas = None
+
+    def terminate(self):
+        """Stop now (Ctrl-C): kill every worker process, whatever it is doing, and leave its
+        pool without waiting on it (:func:`_abandon`: no task in flight, no pool thread and no
+        ``multiprocessing`` exit handler waits on a worker); the shared frame is removed. The
+        pool starts afresh on its next :meth:`start`."""
+        self.close(kill=True)
 
     def _limit_root_blas(self):
         """The root renders nothing: one BLAS thread from the pool's start to its close, so that
