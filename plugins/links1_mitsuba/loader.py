@@ -45,19 +45,33 @@ def _flatten_instances(state) -> None:
     kinds = [nodes[i].props.plugin_name() if (i := shape_node(v)) is not None else None for _, v in entries]
     if "instance" not in kinds and "shapegroup" not in kinds:
         return
+    def groups_of(inst):
+        gs = [shape_node(inst.props[q]) for q in inst.props.keys()
+              if isinstance(inst.props[q], (R, mi.Properties.Reference))]
+        return [g for g in gs if g is not None and nodes[g].props.plugin_name() == "shapegroup"]
+
+    def kept(g):
+        # an sdfgrid cannot be mapped by a rotating to_world (Mitsuba: "use instancing"): its
+        # group stays instanced, and links1_whitted shades the members' hits (tables.group_members)
+        return any(nodes[m].props.plugin_name() == "sdfgrid" for q in nodes[g].props.keys()
+                   if (m := shape_node(nodes[g].props[q])) is not None)
+
     copies, order = [], []        # new nodes (made before any append), the root's new entries
     for (k, v), kind in zip(entries, kinds):
         if kind == "shapegroup":
+            if kept(shape_node(v)):
+                order.append((k, v))
             continue
         if kind != "instance":
             order.append((k, v))
             continue
         inst = nodes[shape_node(v)]
-        groups = [shape_node(inst.props[q]) for q in inst.props.keys()
-                  if isinstance(inst.props[q], (R, mi.Properties.Reference))]
-        groups = [g for g in groups if g is not None and nodes[g].props.plugin_name() == "shapegroup"]
+        groups = groups_of(inst)
         if len(groups) != 1:
             raise ValueError(f"{_where(state, inst)}: an instance needs exactly one shapegroup")
+        if kept(groups[0]):
+            order.append((k, v))
+            continue
         outer = inst.props["to_world"] if "to_world" in inst.props else mi.ScalarAffineTransform4d()
         group = nodes[groups[0]]
         for j, q in enumerate(group.props.keys()):

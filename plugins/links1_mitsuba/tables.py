@@ -442,6 +442,10 @@ class Prepared:
     #: (shapes, emitters, sensors, BSDF per slot): the objects whose ids ``ident`` and the
     #: BSDF pointer tables hold, kept alive with the tables
     keep_alive: tuple = _set_later()
+    #: Mitsuba's shapes (top-level, then shapegroup members), their slots, the members' slots
+    shape_list: list = _set_later()
+    slot_list: list = _set_later()
+    member_slots: frozenset = _set_later()
     #: the camera views of these tables, by ``id(sensor)`` (:meth:`Tables._camera_view`)
     views: dict = _set_later()
     #: ``mi.traverse`` of objects the tables read again on updates (:meth:`Tables._params_of`)
@@ -621,6 +625,27 @@ def _unmask(mi, b):
     return b
 
 
+def group_members(scene) -> list:
+    """The shapes inside the scene's ``shapegroup``s (drawn by its ``instance``s: a hit on one
+    names the member, ``si.instance`` the instance), each once, in the scene's order."""
+    found, seen = [], set()
+
+    class Collect(mi.TraversalCallback):
+        def put(self, name, value, flags, cpptype=None):
+            if isinstance(value, mi.Shape) and id(value) not in seen:
+                seen.add(id(value))
+                found.append(value)
+
+    scene.traverse(Collect())
+    groups = [s for s in found if s.class_name() == "ShapeGroupPlugin"]
+    members = []
+    for g in groups:
+        found.clear()
+        g.traverse(Collect())
+        members += [s for s in found if s.class_name() not in ("ShapeGroupPlugin", "Instance")]
+    return members
+
+
 def own_param(obj, name):
     """``mi.traverse(obj)[name]`` for a parameter of ``obj`` itself (not of a child object),
     read through one ``obj.traverse`` with :class:`ParamWatch`'s callback class: Mitsuba's
@@ -784,8 +809,7 @@ class Tables:
         if geo:
             self._shape_tables(B, quad)
         if light or geo:
-            shapes = B.keep_alive[0]
-            self._shadow_tables(B, scene, shapes, self._slots(shapes)[0], reuse=not geo)
+            self._shadow_tables(B, scene, B.shape_list, B.slot_list, reuse=not geo)
             self._freeze = self._freeze_points = None
         for P in (B, *B.views.values()):
             for k, v in new.items():
@@ -885,8 +909,8 @@ class Tables:
         # recordings hold the previous tables, and their key names the tables by id(P): a new
         # P may get a dead one's id, so both frozen launches start anew
         self._freeze = self._freeze_points = None
-        shapes = [s for s in scene.shapes() if not proxies.is_proxy(s)]   # Mitsuba's own shapes
-        slot_list, nslots = self._slots(shapes)
+        shapes, slot_list, nslots, P.member_slots = self._mitsuba_shapes(scene)
+        P.shape_list, P.slot_list = shapes, slot_list
         P.nslots = nslots
         P.custom = self.custom
         # registry id -> slot
@@ -1032,7 +1056,9 @@ class Tables:
         # and stops at the first opaque one: no arbitrary cap on crossings
         P.max_crossings = 1 + sum(int(s.face_count()) if s.is_mesh() else 2 for s, _ in transparent_mitsuba)
         P.any_transparent_mitsuba = bool(transparent_mitsuba)
-        P.shadow_split = shadow_split(mi, shapes, slot_list, trans) if transparent_mitsuba else None
+        # (sub-scenes hold top-level shapes: a transparent shape inside an instance walks its crossings)
+        P.shadow_split = shadow_split(mi, shapes, slot_list, trans) \
+            if transparent_mitsuba and not any(sl in P.member_slots for _, sl in transparent_mitsuba) else None
         # emission
         emis = np.zeros((nslots, 3))
         for spec in self.custom:
@@ -1120,6 +1146,17 @@ class Tables:
         self._occluders(P, shapes, slot_list, reuse)
         # light buffers for the quadric shadow rays toward analytic lights (where they pay)
         P.lbuf = lightbuffer.plan(P, scene) if P.tuning.light_buffer else [None] * len(P.lights)
+
+    def _mitsuba_shapes(self, scene):
+        """``(shapes, slot_list, nslots, member_slots)``: Mitsuba's own shapes of ``scene``
+        (links1 proxies left out) with their slots (:meth:`_slots`), then the shapes inside its
+        shapegroups (:func:`group_members`), each a slot of its own after all others: a hit
+        on an instance names the member, whose BSDF it takes (shared by every instance)."""
+        shapes = [s for s in scene.shapes() if not proxies.is_proxy(s)]
+        slot_list, nslots = self._slots(shapes)
+        members = group_members(scene) if any(s.class_name() == "Instance" for s in shapes) else []
+        member_slots = frozenset(range(nslots, nslots + len(members)))
+        return shapes + members, slot_list + sorted(member_slots), nslots + len(members), member_slots
 
     def _slots(self, shapes):
         """``(slot_list, nslots)``: the slot of each of the Mitsuba ``shapes`` (file order, or the
@@ -1282,6 +1319,8 @@ class Tables:
             mitsuba_slot = np.zeros(nslots, dtype=bool)
         for s_, sl in zip(shapes, slot_list):
             mitsuba_slot[sl] = True
+            if sl in P.member_slots:     # its box is the group's, not the world's: unbounded
+                continue
             b = s_.bbox()
             lo[sl] = [b.min[0], b.min[1], b.min[2]]
             hi[sl] = [b.max[0], b.max[1], b.max[2]]
