@@ -46,6 +46,43 @@ SCALAR_RAYS = 1
 _ONE_SLAB_CALL = 64
 
 
+def keep_nearest(t, items, r, best_t, best_p, limit, any_hit: bool) -> None:
+    """Fold a leaf's distances ``t`` (R, c) of rays ``r`` (R,) against ``items`` (c,) (``inf``
+    where missed, already cut to each ray's segment) into ``best_t``/``best_p``: each ray's
+    first minimum wins when nearer than its best, or as near with a lower item index; its
+    ``limit`` follows (``-inf`` once an any-hit ray has a hit)."""
+    k = np.argmin(t, axis=1)  # first minimum: lowest index inside the leaf
+    tk = t[np.arange(r.size), k]
+    pk = items[k]
+    bt = best_t[r]
+    win = (tk < bt) | ((tk == bt) & (pk < best_p[r]) & np.isfinite(tk))
+    win &= tk <= limit[r]
+    if win.any():
+        w = r[win]
+        best_t[w] = tk[win]
+        best_p[w] = pk[win]
+        limit[w] = -np.inf if any_hit else tk[win]
+
+
+def nearest_hits(bvh, o, d, tmin, tmax, cost, any_hit: bool, leaf_times):
+    """The nearest hit of each ray over ``bvh``'s items: ``leaf_times(s, c, r)`` gives the
+    distances (R, c) of rays ``r`` to the leaf's items ``bvh.order[s:s+c]`` (``inf`` where
+    missed or outside the ray's ``(tmin, tmax)``). Returns ``(t, item)``, ``inf``/-1 on a
+    miss; ``cost`` gets +1 per ray-item test; ``any_hit`` stops a ray at its first hit."""
+    n = o.shape[0]
+    best_t = np.full(n, np.inf)
+    best_p = np.full(n, -1, dtype=np.int64)
+    limit = np.array(tmax, dtype=np.float64)
+
+    def visit_leaf(s, c, r):
+        if cost is not None:
+            cost[r] += c
+        keep_nearest(leaf_times(s, c, r), bvh.order[s:s + c], r, best_t, best_p, limit, any_hit)
+
+    bvh.traverse(o, d, tmin, limit, visit_leaf)
+    return best_t, best_p
+
+
 def _area(lo, hi):
     """Half the surface area of boxes ``lo, hi`` (..., 3) (empty: 0)."""
     e = np.maximum(hi - lo, 0.0)

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .bvh import BVH
+from .bvh import BVH, nearest_hits
 from ..maths.vec import cross, dot, matvec, normalize
 
 
@@ -351,37 +351,17 @@ class TriangleMesh(Shape):
                 (d[:, 0], o[:, 0]), (d[:, 1], o[:, 1]), (d[:, 2], o[:, 2]))
 
     def _trace(self, o, d, tmin, tmax, cost, any_hit: bool):
-        n = o.shape[0]
-        best_t = np.full(n, np.inf)
-        best_p = np.full(n, -1, dtype=np.int64)
-        limit = tmax.copy()
-        order = self.bvh.order
         frame = self._ray_frame(o, d)
 
-        def visit_leaf(s, c, r):
-            if cost is not None:
-                cost[r] += c
+        def leaf_times(s, c, r):
             kx, ky, kz, px, py, pz, sx, sy, dz, ex, ey, ez = frame
             col = lambda a: a[r, None]
             sub = (kx[r], ky[r], kz[r], col(px), col(py), col(pz), col(sx), col(sy), col(dz),
                    (col(ex[0]), col(ex[1])), (col(ey[0]), col(ey[1])), (col(ez[0]), col(ez[1])))
             t = self._leaf(s, c, sub)
-            lim = limit[r]
-            bt = best_t[r]
-            t = np.where((t > tmin[r, None]) & (t < tmax[r, None]), t, np.inf)
-            k = np.argmin(t, axis=1)  # first minimum: lowest index inside the leaf
-            tk = t[np.arange(r.size), k]
-            pk = order[s + k]
-            win = (tk < bt) | ((tk == bt) & (pk < best_p[r]) & np.isfinite(tk))
-            win &= tk <= lim
-            if win.any():
-                w = r[win]
-                best_t[w] = tk[win]
-                best_p[w] = pk[win]
-                limit[w] = -np.inf if any_hit else tk[win]
+            return np.where((t > tmin[r, None]) & (t < tmax[r, None]), t, np.inf)
 
-        self.bvh.traverse(o, d, tmin, limit, visit_leaf)
-        return best_t, best_p
+        return nearest_hits(self.bvh, o, d, tmin, tmax, cost, any_hit, leaf_times)
 
     def intersect(self, o, d, tmin, tmax, cost=None):
         o, d, tmin, tmax = _as_rays(o, d, tmin, tmax)

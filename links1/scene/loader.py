@@ -92,8 +92,8 @@ DEFAULT_MAX_DEPTH = params.default("links1_whitted", "max_depth")
 DEFAULT_SPP = 4  # Mitsuba's independent sampler
 
 # Known Mitsuba 3 plugins the core does not support (for a clearer message than "unknown").
-_MITSUBA_SHAPES = {"shapegroup", "instance", "bsplinecurve", "linearcurve",
-                   "sdfgrid", "ellipsoids", "ellipsoidsmesh", "merge"}
+_MITSUBA_SHAPES = {"shapegroup", "instance", "bsplinecurve",
+                   "ellipsoids", "ellipsoidsmesh", "merge"}
 _APPROX_BSDFS = {"principled", "principledthin", "hair", "measured", "pplastic", "polarizer",
                  "retarder", "circular", "measured_polarized", "bumpmap",
                  "normalmap"}
@@ -850,6 +850,10 @@ class _Builder:
             shape = self._blob(node, props, to_world, name)
         elif t == "links1_bicubic":
             shape = self._bicubic(node, props, m)
+        elif t == "sdfgrid":
+            shape = self._sdfgrid(node, props, m, name)
+        elif t == "linearcurve":
+            shape = self._curves(node, props, m, name)
         elif t in _MITSUBA_SHAPES:
             raise node.error(f"shape type '{t}' is not supported by the core")
         else:
@@ -894,6 +898,33 @@ class _Builder:
         if emission is not None:
             shape._emitter_node = emitter_node
         return shape
+
+    def _sdfgrid(self, node, props, m, name):
+        """Mitsuba's ``sdfgrid``: a ``.vol`` grid over [0, 1]³ placed by ``to_world``."""
+        from ..geometry import sdfgrid
+        path = node.resolve(props.string("filename"))
+        normals = props.string("normals", "smooth")
+        if normals not in ("smooth", "analytic"):
+            raise props.error("normals", f"normals must be 'analytic' or 'smooth', got {normals!r}")
+        try:
+            grid = sdfgrid.read_vol(path)
+        except (OSError, ValueError) as exc:
+            raise props.error("filename", str(exc)) from None
+        if grid.shape[3] != 1:
+            raise props.error("filename", f"{path}: an SDF grid has 1 channel, this one {grid.shape[3]}")
+        _check_invertible(node, m)
+        return _construct(node, sdfgrid.SDFGrid, grid, m, normals=normals, name=name)
+
+    def _curves(self, node, props, m, name):
+        """Mitsuba's ``linearcurve``: control points moved by ``to_world``, radii as written."""
+        from ..geometry import curves
+        path = node.resolve(props.string("filename"))
+        try:
+            cs = curves.read_curves(path, min_points=2)
+        except (OSError, ValueError) as exc:
+            raise props.error("filename", str(exc)) from None
+        placed = [np.concatenate([c[:, :3] @ m[:3, :3].T + m[:3, 3], c[:, 3:]], axis=1) for c in cs]
+        return _construct(node, curves.RoundLinearCurves, placed, name=name)
 
     def _no_flip(self, props: _Props) -> None:
         if props.bool("flip_normals", False):
