@@ -116,7 +116,7 @@ WARN_SCENE = """<scene version="3.0.0">
   </sensor>
   <emitter type="point"><point name="position" x="2" y="2" z="4"/></emitter>
   <shape type="sphere"><bsdf type="diffuse"><spectrum name="reflectance" value="500:0, 540:1, 545:0"/></bsdf></shape>
-  <shape type="sphere"><point name="center" x="1" y="0" z="0"/><bsdf type="principled"/></shape>
+  <shape type="sphere"><point name="center" x="1" y="0" z="0"/><bsdf type="hair"/></shape>
 </scene>
 """
 
@@ -136,5 +136,5 @@ def test_warnings_are_one_clean_line_each(tmp_path, workers):
     warns = [ln for ln in lines if ln.startswith("links1: warning: ")]
     assert len(warns) == 2 and len(set(warns)) == 2, res.stderr
     assert warns[0].startswith(f"links1: warning: {scene}:7: ") and "clamping out-of-gamut" in warns[0]
-    assert warns[1].startswith(f"links1: warning: {scene}:8: ") and "principled" in warns[1]
+    assert warns[1].startswith(f"links1: warning: {scene}:8: ") and "hair" in warns[1]
     assert "SceneWarning" not in res.stderr and ".py:" not in res.stderr

@@ -35,10 +35,15 @@ def _uniform_sphere(rng, m):
 def test_pdf_integrates_to_one_and_samples_follow_it(name):
     """∫ pdf dω = 1 (uniform sphere estimate), and E[weight] over samples = ∫ eval dω, per
     viewer elevation: a sampler that drew other directions than ``pdf`` says fails both."""
-    b = _bsdfs()[name]
+    check_density_and_samples(_bsdfs()[name], (0.9, 0.4))
+
+
+def check_density_and_samples(b, elevations, low=0.8):
+    """∫ pdf dω (uniform sphere estimate) = the fraction of samples drawn, E[weight] = ∫ eval dω,
+    for a viewer at each of ``elevations`` (cos θ) in the xz plane."""
     rng = np.random.default_rng(4)
     z = np.tile([0.0, 0.0, 1.0], (M, 1))
-    for cos_v in (0.9, 0.4):
+    for cos_v in elevations:
         viewer = np.tile([np.sqrt(1 - cos_v ** 2), 0.0, cos_v], (M, 1))
         light = _uniform_sphere(rng, M)
         integral_pdf = np.mean(b.pdf(viewer, light, z, z)) * 4 * np.pi
@@ -46,7 +51,7 @@ def test_pdf_integrates_to_one_and_samples_follow_it(name):
         _, weight, pdf = b.sample(viewer, z, z, rng.random(M), rng.random((M, 2)))
         # visible normals can send some samples below the horizon (no sample, pdf 0): the
         # density integrates to the fraction of samples drawn
-        assert 0.8 < integral_pdf <= 1.02
+        assert low < integral_pdf <= 1.02
         assert integral_pdf == pytest.approx(np.mean(pdf > 0), rel=0.02)
         np.testing.assert_allclose(np.mean(weight, axis=0), integral_f, rtol=0.03)
 
@@ -54,7 +59,11 @@ def test_pdf_integrates_to_one_and_samples_follow_it(name):
 @pytest.mark.parametrize("name", ["conductor_beckmann", "conductor_ggx_aniso", "blend"])
 def test_reflection_is_reciprocal(name):
     """f(wo, wi) = f(wi, wo) for microfacet reflection (eval is f·cos θ of the light side)."""
-    b = _bsdfs()[name]
+    check_reciprocal(_bsdfs()[name])
+
+
+def check_reciprocal(b):
+    """``eval(a, c) / cos θ_c = eval(c, a) / cos θ_a`` on 1000 random pairs above the surface."""
     rng = np.random.default_rng(6)
     a, c = _uniform_sphere(rng, 1000), _uniform_sphere(rng, 1000)
     a[:, 2], c[:, 2] = np.abs(a[:, 2]) + 0.05, np.abs(c[:, 2]) + 0.05

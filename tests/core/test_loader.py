@@ -395,8 +395,8 @@ def test_bsdf_mapping():
 
 
 def test_unsupported_bsdf_and_texture_warn_with_location():
-    with pytest.warns(SceneWarning, match=r"<string>:3: <bsdf type='principled'>.*approximated"):
-        loader.load_string(scene_xml('<shape type="sphere">\n<bsdf type="principled"/></shape>'))
+    with pytest.warns(SceneWarning, match=r"<string>:3: <bsdf type='hair'>.*approximated"):
+        loader.load_string(scene_xml('<shape type="sphere">\n<bsdf type="hair"/></shape>'))
     with pytest.warns(SceneWarning, match="0.5 grey"):
         s = loader.load_string(scene_xml('<shape type="sphere"><bsdf type="diffuse">'
                                          '<texture type="volume" name="reflectance"/></bsdf></shape>'))
