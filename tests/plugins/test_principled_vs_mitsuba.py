@@ -5,7 +5,6 @@ render under a point light (delta light: exact) against Mitsuba's ``direct`` wit
 samples. The comparison helpers are those of the glossy BSDFs' test."""
 from __future__ import annotations
 
-import numpy as np
 import pytest
 
 from tests.plugins.test_glossy_bsdfs_vs_mitsuba import check_against_mitsuba, check_point_light_render
