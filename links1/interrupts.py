@@ -78,19 +78,22 @@ def check_interrupt() -> None:
 def children_ignore_interrupts():
     """Block SIGINT in this thread during the block: processes (and threads) started here
     inherit the blocked signal through fork and exec and never receive it. A SIGINT sent to
-    this process meanwhile waits and is delivered at the block's end."""
+    this process meanwhile is held (:func:`held_interrupts`: another thread of the process may
+    take it, and Python would raise it in the main thread in the middle of starting a child,
+    whose start-up data then never arrives) and raised at the block's end."""
     if not hasattr(signal, "pthread_sigmask"):   # pragma: no cover - not POSIX
         yield
         return
     # multiprocessing starts its resource tracker with the first child process and unblocks
     # SIGINT in that thread afterwards (resource_tracker.ensure_running): started first, here
     from multiprocessing import resource_tracker
-    resource_tracker.ensure_running()
-    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
-    try:
-        yield
-    finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+    with held_interrupts():
+        resource_tracker.ensure_running()
+        old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+        try:
+            yield
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
 
 def ignore_interrupts(ignore: bool = True):
