@@ -199,3 +199,13 @@ def bsdf_samples_uv(shift_keys, s, n) -> tuple[np.ndarray, np.ndarray, np.ndarra
     h = mix32(np.asarray(shift_keys, dtype=np.uint32) ^ np.uint32(light_tag(BSDF_SAMPLE_ID)))
     u1 = (mix32(mix32(h ^ np.uint32(3)) ^ np.asarray(s, dtype=np.uint32)) >> np.uint32(8))
     return u1.astype(np.float64) * 2.0 ** -24, u, v
+
+
+def power_heuristic(pdf_a, pdf_b) -> np.ndarray:
+    """Veach's power heuristic (β = 2; Veach's thesis eq. 9.13) of strategy a against b, each
+    pdf times its sample count: ``a² / (a² + b²)``, 0 where that is not finite (Mitsuba's
+    ``direct``: ``mis_weight``)."""
+    a, b = np.square(pdf_a), np.square(pdf_b)
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        w = a / (a + b)
+    return np.where(np.isfinite(w), w, 0.0)

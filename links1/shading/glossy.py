@@ -66,6 +66,7 @@ class _Local(Material):
     ``_pdf`` and ``_sample`` (local frame, Mitsuba's naming: ``wi`` viewer, ``wo`` light)."""
 
     smooth = True
+    glossy = True
     two_sided = False
     #: evaluates both sides itself (roughdielectric): the frame's normal is ``n_raw``
     both_sides = False
@@ -398,6 +399,7 @@ class Blend(Material):
             self.weight = np.asarray(np.clip(float(np.ravel(w)[0]), 0.0, 1.0))
         a, b = self.bsdf_0, self.bsdf_1
         self.smooth = bool(getattr(a, "smooth", True) or getattr(b, "smooth", True))
+        self.glossy = bool(a.glossy or b.glossy)
         self.has_reflection = a.has_reflection or b.has_reflection
         self.has_transmission = a.has_transmission or b.has_transmission
         refr = [m for m in (a, b) if m.has_transmission]

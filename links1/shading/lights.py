@@ -15,6 +15,11 @@ returns the direction and distance to the sampled light point and ``Lw = L_e / p
 solid angle at ``p``), so that ``material.eval(wo, wi) · Lw`` estimates the light's direct
 term; averaged over samples this converges to Mitsuba's ``direct`` for diffuse surfaces.
 Each has ``light_id`` (the stream tag, see :func:`links1.maths.sampling.light_tag`).
+
+For multiple importance sampling with BSDF samples, ``sample_pdf(p, n, u, v)`` returns the
+same and the pdf as a fourth value, and ``pdf(p, n, wi, dist, ng)`` gives the solid-angle
+density with which ``sample`` draws ``wi`` from ``p`` (``dist`` and ``ng``: where ``wi`` meets
+an area light and its geometric normal there; environments need neither).
 """
 from __future__ import annotations
 
@@ -252,8 +257,21 @@ class SampledLight(Light):
     light_id: int = 0
     sampled = True
 
-    def sample(self, p, n, u, v):  # pragma: no cover - interface
+    def sample(self, p, n, u, v):
+        """``(wi, dist, L_e / pdf)`` of the light points ``(u, v)`` (module docstring)."""
+        return self.sample_pdf(p, n, u, v)[:3]
+
+    def sample_pdf(self, p, n, u, v):  # pragma: no cover - interface
+        """:meth:`sample` and the solid-angle pdf (N,) of each direction (0: no sample)."""
         raise NotImplementedError
+
+    def pdf(self, p, n, wi, dist=None, ng=None):  # pragma: no cover - interface
+        raise NotImplementedError
+
+
+def _inverse(w):
+    """``1 / w`` where ``w > 0``, else 0 (the pdf of a sample of weight ``w = 1 / pdf``)."""
+    return np.where(w > 0, 1.0 / np.where(w > 0, w, 1.0), 0.0)
 
 
 def _uniform_triangle(u, v):
@@ -332,7 +350,7 @@ class AreaLight(SampledLight):
     def illuminate(self, p):  # pragma: no cover - sampled lights use sample()
         raise TypeError("an area light is sampled: use sample()")
 
-    def sample(self, p, n, u, v):
+    def sample_pdf(self, p, n, u, v):
         if self.kind == "sphere":
             return self._sample_sphere(p, u, v)
         if self.kind == "mesh":
@@ -359,7 +377,22 @@ class AreaLight(SampledLight):
             wi = to / np.where(dist > 0, dist, 1.0)[:, None]
             cos_l = -dot(nl, wi)
             w = np.where((cos_l > 0) & (d2 > 0), self.area * cos_l / np.where(d2 > 0, d2, 1.0), 0.0)
-        return wi, dist, self._emitted(uv if self.texture is not None else None) * w[:, None]
+        return wi, dist, self._emitted(uv if self.texture is not None else None) * w[:, None], _inverse(w)
+
+    def pdf(self, p, n, wi, dist=None, ng=None):
+        """The solid-angle pdf with which :meth:`sample` draws ``wi`` from ``p``, where ``wi``
+        meets the light at distance ``dist`` with geometric normal ``ng``: a sphere's cone,
+        ``1 / (2π (1 - cos θ_max))`` (0 from inside); a mesh or disk, uniform in area,
+        ``d² / (A |cos θ_light|)``."""
+        if self.kind == "sphere":
+            to_c = self.center - p
+            dc2 = dot(to_c, to_c)
+            outside = dc2 > self.r * self.r
+            sin2_max = np.minimum(self.r * self.r / np.where(outside, dc2, 1.0), 1.0)
+            one_minus = sin2_max / (1.0 + np.sqrt(1.0 - sin2_max))
+            return np.where(outside, _inverse(2.0 * np.pi * one_minus), 0.0)
+        cos_l = np.abs(dot(ng, wi))
+        return np.where(cos_l > 0, dist * dist / (self.area * np.where(cos_l > 0, cos_l, 1.0)), 0.0)
 
     def _emitted(self, uv):
         """``L_e`` (3,) or, textured, at the sampled points' ``uv`` (N, 3)."""
@@ -387,7 +420,7 @@ class AreaLight(SampledLight):
         if self.texture is not None:
             q = p + wi * dist[:, None]
             uv = self.shape.uv(q, np.zeros_like(q), np.zeros(len(q)), np.zeros(len(q), dtype=np.int64))
-        return wi, np.where(outside, dist, 0.0), self._emitted(uv) * w[:, None]
+        return wi, np.where(outside, dist, 0.0), self._emitted(uv) * w[:, None], _inverse(w)
 
 
 class ConstantEnvironment(SampledLight):
@@ -406,7 +439,7 @@ class ConstantEnvironment(SampledLight):
     def illuminate(self, p):  # pragma: no cover - sampled lights use sample()
         raise TypeError("an environment is sampled: use sample()")
 
-    def sample(self, p, n, u, v):
+    def sample_pdf(self, p, n, u, v):
         r = np.sqrt(u)
         phi = 2.0 * np.pi * v
         z = np.sqrt(np.maximum(0.0, 1.0 - u))
@@ -414,7 +447,11 @@ class ConstantEnvironment(SampledLight):
         wi = s * (r * np.cos(phi))[:, None] + t * (r * np.sin(phi))[:, None] + n * z[:, None]
         with np.errstate(divide="ignore"):
             w = np.where(z > 0, np.pi / np.where(z > 0, z, 1.0), 0.0)
-        return wi, np.full(p.shape[0], np.inf), self.radiance * w[:, None]
+        return wi, np.full(p.shape[0], np.inf), self.radiance * w[:, None], z / np.pi
+
+    def pdf(self, p, n, wi, dist=None, ng=None):
+        """``cos θ / π`` about ``n`` (0 below it)."""
+        return np.maximum(dot(n, wi), 0.0) / np.pi
 
 
 class EnvironmentMap(SampledLight):
@@ -480,10 +517,27 @@ class EnvironmentMap(SampledLight):
     def illuminate(self, p):  # pragma: no cover - sampled lights use sample()
         raise TypeError("an environment is sampled: use sample()")
 
-    def sample(self, p, n, u, v):
+    def _cell_pdf(self, ix, iy, st):
+        """The solid-angle pdf of cell ``(ix, iy)`` at ``sin θ = st``."""
+        return self.p_cell[iy, ix] * (self.W * (self.H - 1)) / (2.0 * np.pi * np.pi * np.maximum(st, 1e-300))
+
+    def pdf(self, p, n, wi, dist=None, ng=None):
+        """The pdf of the cell :meth:`eval`'s mapping puts ``wi`` in."""
+        if self.dark:
+            return np.zeros(wi.shape[0])
+        loc = matvec(self.inv, wi)
+        u = np.arctan2(loc[:, 0], -loc[:, 2]) / (2.0 * np.pi) - 0.5 / self.W
+        u = u - np.floor(u)
+        ct = np.clip(loc[:, 1] / np.maximum(length(loc), 1e-300), -1.0, 1.0)
+        ix = np.minimum(np.floor(u * self.W).astype(np.int64), self.W - 1)
+        iy = np.minimum(np.floor(np.arccos(ct) * ((self.H - 1) / np.pi)).astype(np.int64), self.H - 2)
+        st = np.sqrt(np.maximum(0.0, 1.0 - ct * ct))
+        return np.where(st > 0, self._cell_pdf(ix, iy, st), 0.0)
+
+    def sample_pdf(self, p, n, u, v):
         npts = p.shape[0]
         if self.dark:
-            return np.broadcast_to(n, (npts, 3)).copy(), np.full(npts, np.inf), np.zeros((npts, 3))
+            return np.broadcast_to(n, (npts, 3)).copy(), np.full(npts, np.inf), np.zeros((npts, 3)), np.zeros(npts)
         iy = np.minimum(np.searchsorted(self.row_cdf, v, side="right"), self.H - 2)
         lo = np.where(iy > 0, self.row_cdf[np.maximum(iy - 1, 0)], 0.0)
         fy = np.clip((v - lo) / np.maximum(self.row_cdf[iy] - lo, 1e-300), 0.0, 1.0)
@@ -502,7 +556,8 @@ class EnvironmentMap(SampledLight):
         loc = np.stack([np.sin(phi) * st, np.cos(theta), -np.cos(phi) * st], axis=-1)
         wi = matvec(self.to_world, loc)
         wi = wi / length(wi)[:, None]
-        pdf = self.p_cell[iy, ix] * (self.W * (self.H - 1)) / (2.0 * np.pi * np.pi * np.maximum(st, 1e-300))
+        pdf = self._cell_pdf(ix, iy, st)
         L = self._bilinear(x, y)
-        w = np.where((pdf > 0) & (st > 0), 1.0 / np.where(pdf > 0, pdf, 1.0), 0.0)
-        return wi, np.full(npts, np.inf), L * w[:, None]
+        ok = (pdf > 0) & (st > 0)
+        w = np.where(ok, 1.0 / np.where(pdf > 0, pdf, 1.0), 0.0)
+        return wi, np.full(npts, np.inf), L * w[:, None], np.where(ok, pdf, 0.0)

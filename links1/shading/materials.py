@@ -107,6 +107,10 @@ class Material:
 
     #: has non-delta lobes (``eval`` can be non-zero): BSDF sampling applies
     smooth = False
+    #: has glossy lobes (Mitsuba's ``BSDFFlags::Glossy``): under area and environment lights
+    #: the integrator adds a BSDF sample to the light samples, combined by multiple importance
+    #: sampling (:mod:`links1.tracing.integrator`)
+    glossy = False
 
     def eval(self, wo, wi, n, n_raw):
         return np.zeros((wo.shape[0], 3))
@@ -384,6 +388,10 @@ class Mask(Material):
     @property
     def smooth(self) -> bool:
         return self.nested.smooth
+
+    @property
+    def glossy(self) -> bool:
+        return self.nested.glossy
 
     @property
     def textured(self) -> tuple:

@@ -7,6 +7,14 @@ and refraction rays recurse (eq. 3.12–3.16) until ``max_depth``. The batch is 
 the subsets that need each next step, so a scene without mirrors spawns no mirror rays,
 a scene without glass no refraction rays.
 
+Area and environment lights are sampled (``light_samples`` points per hit). At a hit whose
+material has glossy lobes (``material.glossy``), one BSDF sample joins them: the direction the
+material draws at the hit's BSDF sample (:func:`links1.maths.sampling.bsdf_samples_uv`) is
+traced to the nearest surface; where it meets a sampled area light's front or escapes to an
+environment, that light's radiance counts. Both strategies are weighted by the power
+heuristic (Veach's multiple importance sampling), as Mitsuba's ``direct``; delta lights stay
+exact, and other hits use the light samples alone.
+
 The method decisions shared with the Mitsuba plugin are listed in docs/architecture.md.
 """
 from __future__ import annotations
@@ -17,10 +25,12 @@ import numpy as np
 
 from ..scene import params
 from ..geometry.accel import Accel
-from ..shading.lights import AreaLight
-from ..maths.sampling import KEY_REFLECT, KEY_REFRACT, child_keys, light_samples_uv
+from ..shading.glossy import _call_sample
+from ..shading.lights import AreaLight, ConstantEnvironment, EnvironmentMap
+from ..maths.sampling import (KEY_REFLECT, KEY_REFRACT, bsdf_samples_uv, child_keys, light_samples_uv,
+                              power_heuristic)
 from ..shading.textures import MeshAttribute, is_texture
-from ..maths.vec import dot, max_abs
+from ..maths.vec import coordinate_system, dot, max_abs
 
 #: Relative size of the ray-origin offset (float64: about 1e6 ulps of |p|, far above the
 #: intersection error of every primitive here, far below any feature size a scene has).
@@ -151,6 +161,11 @@ class WhittedIntegrator:
         self._shadow_need = plan.shadow_need
         self._shadow_inner = plan.shadow_inner
         self._shadow_t_light = plan.shadow_t_light
+        #: per material: glossy lobes, so BSDF samples join the light samples (None: no glossy
+        #: material meets a sampled light, and no hit takes a BSDF sample)
+        self._glossy = np.array([bool(getattr(m, "glossy", False)) for m in self._materials])
+        if not (self._glossy.any() and any(getattr(lt, "sampled", False) for lt in self.lights)):
+            self._glossy = None
         self.stats = TraceStats()
 
     # ------------------------------------------------------------------ geometry
@@ -238,21 +253,34 @@ class WhittedIntegrator:
                     out[m] += e
 
         eps = (1.0 + max_abs(rec.p)) * OFFSET_SCALE
+        # glossy hits: their light samples are weighted against a BSDF sample (multiple
+        # importance sampling, power heuristic; Veach's thesis eq. 9.13)
+        glossy = [] if self._glossy is None else [(k, g) for k, g in groups if self._glossy[k]]
+        gl = np.concatenate([g for _, g in glossy]) if glossy else None
+        m = self.light_samples
         # --- direct light, eq. (3.11), with shadows (3-3-3)
         for j, light in enumerate(self.lights):
             if getattr(light, "sampled", False):   # area / environment: light_samples points each
-                inv_m = 1.0 / self.light_samples
-                rays = [light.sample(rec.p, nf, u, v) for u, v in self._light_points(light, keys, sample)]
+                inv_m = 1.0 / m
+                points = self._light_points(light, keys, sample)
+                rays = ([light.sample(rec.p, nf, u, v) + (None,) for u, v in points] if gl is None
+                        else [light.sample_pdf(rec.p, nf, u, v) for u, v in points])
             else:
                 inv_m = None
-                rays = [light.illuminate(rec.p)]
-            for wi, dist, L in rays:
+                rays = [light.illuminate(rec.p) + (None,)]
+            for wi, dist, L, pdf_l in rays:
                 f = np.zeros((n, 3))
                 for k, g in groups:
                     f[g] = mats[k].eval(wo[g], wi[g], nf[g], rec.ns[g])
                 contrib = f * L if inv_m is None else f * L * inv_m
+                if pdf_l is not None:
+                    for k, g in glossy:
+                        pdf_b = mats[k].pdf(wo[g], wi[g], nf[g], rec.ns[g])
+                        contrib[g] *= power_heuristic(m * pdf_l[g], pdf_b)[:, None]
                 self._shadowed(out, contrib, wi, dist, j, hits, rec, eps, cost, idx,
                                aim=isinstance(light, AreaLight))
+        if gl is not None:
+            self._bsdf_sampled(out, glossy, mats, o, d, hits, nf, rec, eps, cost, idx, keys, sample)
 
         if depth >= self.max_depth or not (self.any_reflection or self.any_transmission):
             return out
@@ -298,6 +326,85 @@ class WhittedIntegrator:
             out[sel] += factor[sel] * Li  # eq. (3.13) / (3.16)
         return out
 
+
+    def _bsdf_sampled(self, out, glossy, mats, o, d, hits, nf, rec, eps, cost, idx, keys, sample):
+        """Add the BSDF-sampled part of the direct light at the glossy hits (``glossy``: groups
+        ``(material, hits)``): one direction drawn by each hit's material at its BSDF sample
+        (:func:`links1.maths.sampling.bsdf_samples_uv`, keyed as one light sample per hit) in
+        Mitsuba's shading frame (:meth:`_shading_tangents`), traced to the nearest surface.
+        Where it meets a sampled area light's front, that light's radiance (a texture at the
+        point's uv); where it escapes, each environment's; times ``eval / pdf``, weighted by the
+        power heuristic against the light's ``light_samples`` samples (``light.pdf``)."""
+        gl = np.concatenate([g for _, g in glossy])
+        if sample is not None:
+            u1, u, v = bsdf_samples_uv(sample[0], sample[1], sample[2])
+        else:
+            u1, u, v = bsdf_samples_uv(keys, 0, 1)
+        uv = np.stack([u, v], axis=1)
+        wo = -d
+        wi = np.zeros((gl.size, 3))
+        weight = np.zeros((gl.size, 3))
+        pdf_b = np.zeros(gl.size)
+        at = 0
+        for k, g in glossy:
+            wi[at:at + g.size], weight[at:at + g.size], pdf_b[at:at + g.size] = \
+                _call_sample(mats[k], wo[g], nf[g], rec.ns[g], u1[g], uv[g],
+                             self._shading_tangents(o[g], d[g], hits, g, rec.ns[g]))
+            at += g.size
+        ok = (pdf_b > 0) & np.any(weight > 0, axis=1)
+        sel, wi, weight, pdf_b = gl[ok], wi[ok], weight[ok], pdf_b[ok]
+        if sel.size == 0:
+            return
+        p = rec.p[sel]
+        ob = _offset(p, rec.ng[sel], wi, eps[sel])
+        c = np.zeros(sel.size, dtype=np.int64)
+        bh = self.intersect(ob, wi, np.zeros(sel.size), np.full(sel.size, np.inf), c)
+        cost[idx[sel]] += c
+        self.stats.rays["shadow"] += sel.size
+        m = self.light_samples
+        L = np.zeros((sel.size, 3))
+        hit = bh.valid
+        if np.any(hit):
+            h = np.nonzero(hit)[0]
+            sub = Hits(bh.t[h], bh.shape[h], bh.prim[h])
+            srf = self.surface(ob[h], wi[h], sub)
+            for light in self.lights:
+                if not isinstance(light, AreaLight):
+                    continue
+                on = np.nonzero((sub.shape == light.shape.index) & (dot(srf.ng, wi[h]) < 0.0))[0]
+                if on.size == 0:
+                    continue
+                hh = h[on]
+                e = light.shape.emission
+                if is_texture(e):
+                    e = e.eval(light.shape.uv(ob[hh], wi[hh], sub.t[on], sub.prim[on]))
+                to = srf.p[on] - p[hh]
+                pdf_l = light.pdf(p[hh], nf[sel[hh]], wi[hh], np.sqrt(dot(to, to)), srf.ng[on])
+                L[hh] += e * power_heuristic(pdf_b[hh], m * pdf_l)[:, None]
+        miss = np.nonzero(~hit)[0]
+        if miss.size:
+            for light in self.lights:
+                if not isinstance(light, (ConstantEnvironment, EnvironmentMap)):
+                    continue
+                pdf_l = light.pdf(p[miss], nf[sel[miss]], wi[miss])
+                L[miss] += light.eval(wi[miss]) * power_heuristic(pdf_b[miss], m * pdf_l)[:, None]
+        out[sel] += weight * L
+
+    def _shading_tangents(self, o, d, hits, sel, ns):
+        """Mitsuba's shading-frame tangent ``s`` at hits ``sel`` (rays ``o, d``): the part of
+        the shape's ``dp_du`` across the shading normal ``ns`` (``initialize_sh_frame``), or
+        ``coordinate_system(ns)``'s where the shape has none."""
+        du = np.zeros((sel.size, 3))
+        shape = hits.shape[sel]
+        for s in np.unique(shape):
+            tangents = getattr(self.shapes[s], "tangents", None)   # a shape without dp_du: none
+            if tangents is not None:
+                m = shape == s
+                du[m] = tangents(o[m], d[m], hits.t[sel][m], hits.prim[sel][m])[0]
+        s_ = du - ns * dot(ns, du)[:, None]
+        ln = np.sqrt(dot(s_, s_))
+        ok = ln > 0
+        return np.where(ok[:, None], s_ / np.where(ok, ln, 1.0)[:, None], coordinate_system(ns)[0])
 
     def _shadowed(self, out, contrib, wi, dist, j, hits, rec, eps, cost, idx, aim=False):
         """Add ``contrib`` of light ``j`` to ``out``, dimmed by the transmittance of the shapes

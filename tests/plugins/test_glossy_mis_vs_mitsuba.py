@@ -11,7 +11,7 @@ import os
 import numpy as np
 import pytest
 
-from .test_area_lights_vs_mitsuba import BASE, rel_mse, write_files
+from .test_area_lights_vs_mitsuba import BASE, LIGHTS as AREA_LIGHTS, rel_mse, write_files
 
 pytestmark = pytest.mark.mitsuba
 
@@ -23,14 +23,18 @@ BSDFS = {
                       '<float name="alpha" value="0.15"/></bsdf>',
     "roughplastic": '<bsdf type="roughplastic"><rgb name="diffuse_reflectance" value="0.3, 0.5, 0.8"/>'
                     '<float name="alpha" value="0.1"/></bsdf>',
+    "roughdielectric": '<bsdf type="roughdielectric"><string name="distribution" value="ggx"/>'
+                       '<float name="alpha" value="0.2"/></bsdf>',
 }
 LIGHTS = {
     "rectangle": """<shape type="rectangle"><transform name="to_world"><scale value="0.7"/><rotate x="1" angle="90"/>
       <translate value="0.5, 3, 0.3"/></transform><emitter type="area"><rgb name="radiance" value="8"/></emitter></shape>""",
     "constant": """<emitter type="constant"><rgb name="radiance" value="0.8, 0.9, 1.0"/></emitter>""",
+    "envmap": AREA_LIGHTS["envmap"],
+    "sphere": AREA_LIGHTS["sphere"],
     "point": """<emitter type="point"><point name="position" value="0.5, 3, 0.3"/><rgb name="intensity" value="8"/></emitter>""",
 }
-CASES = [(b, k) for b in BSDFS for k in ("rectangle", "constant")]
+CASES = [(b, k) for b in BSDFS for k in ("rectangle", "constant", "envmap")]
 
 
 def write_scene(d, bsdf, light) -> str:
@@ -50,22 +54,57 @@ def scene_dir(tmp_path_factory):
     return str(d)
 
 
-@pytest.mark.parametrize("bsdf,light", CASES)
-def test_plugin_converges_as_fast_as_mitsuba_direct(bsdf, light, variant, scene_dir):
+@pytest.fixture(scope="module")
+def references():
+    """Per (variant, bsdf, light): the 2048-spp Mitsuba ``direct`` reference and ``direct``'s own
+    relMSEs at ``SPP`` (seeds 100..), made once for both renderers' tests."""
+    return {}
+
+
+def direct_reference(references, variant, path):
     import mitsuba as mi
+    if (variant, path) not in references:
+        scene = mi.load_file(path)
+        direct = mi.load_dict({"type": "direct"})
+        ref = np.array(mi.render(scene, integrator=direct, spp=2048, seed=11), dtype=np.float64)[..., :3]
+        err = [rel_mse(np.array(mi.render(scene, integrator=direct, spp=SPP, seed=100 + s),
+                                dtype=np.float64)[..., :3], ref) for s in range(SEEDS)]
+        references[(variant, path)] = ref, float(np.mean(err))
+    return references[(variant, path)]
+
+
+@pytest.mark.parametrize("renderer", ["mitsuba", "core"])
+@pytest.mark.parametrize("bsdf,light", CASES)
+def test_converges_as_fast_as_mitsuba_direct(bsdf, light, renderer, variant, scene_dir, references):
     from links1.frontends.renderers import make_renderer
     path = write_scene(scene_dir, bsdf, light)
-    scene = mi.load_file(path)
-    direct = mi.load_dict({"type": "direct"})
-    ref = np.array(mi.render(scene, integrator=direct, spp=2048, seed=11), dtype=np.float64)[..., :3]
-    err_m, err_p = [], []
+    ref, err_m = direct_reference(references, variant, path)
+    opts = {"variant": variant} if renderer == "mitsuba" else {}
+    err = []
     for s in range(SEEDS):
-        m = np.array(mi.render(scene, integrator=direct, spp=SPP, seed=100 + s), dtype=np.float64)
-        err_m.append(rel_mse(m[..., :3], ref))
-        plug = make_renderer("mitsuba", path, spp=SPP, seed=200 + s, variant=variant).render()[..., :3]
-        err_p.append(rel_mse(plug, ref))
-        assert abs(plug.mean() / ref.mean() - 1.0) < 0.03      # no bias a ratio of errors could hide
-    assert np.mean(err_p) <= 1.5 * np.mean(err_m), (np.mean(err_p), np.mean(err_m))
+        img = make_renderer(renderer, path, spp=SPP, seed=200 + s, **opts).render()[..., :3]
+        err.append(rel_mse(img, ref))
+        assert abs(img.mean() / ref.mean() - 1.0) < 0.03      # no bias a ratio of errors could hide
+    assert np.mean(err) <= 1.5 * err_m, (np.mean(err), err_m)
+
+
+# the core samples in Mitsuba's shading frame where its shapes give dp/du (Shape.tangents);
+# without it a cosine-sampled lobe (roughplastic's diffuse base) turns about the normal
+_NO_DPDU = not hasattr(__import__("links1.geometry.shapes", fromlist=["Shape"]).Shape, "tangents")
+
+
+@pytest.mark.parametrize("bsdf,light", [
+    pytest.param(b, k, marks=[pytest.mark.xfail(_NO_DPDU and b == "roughplastic",
+                                                reason="the core's shapes give no dp/du")])
+    for b in BSDFS for k in ("rectangle", "constant", "envmap")])
+def test_core_equals_plugin(bsdf, light, variant, scene_dir):
+    """The core draws the same BSDF and light samples as the plugin (in float64): equal images
+    at equal spp, to float32 rounding and a rare sample that rounding moves across an edge."""
+    from links1.frontends.renderers import make_renderer
+    path = write_scene(scene_dir, bsdf, light)
+    core = make_renderer("core", path, spp=SPP, seed=5).render()[..., :3]
+    plug = make_renderer("mitsuba", path, spp=SPP, seed=5, variant=variant).render()[..., :3]
+    assert rel_mse(core, plug) <= 1e-4
 
 
 @pytest.mark.parametrize("bsdf,light,expected", [("roughconductor", "rectangle", True),
