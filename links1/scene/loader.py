@@ -29,7 +29,8 @@ shape           ``sphere`` (center, radius), ``cylinder`` (p0, p1, radius; open)
 bsdf            ``diffuse``, ``twosided``, ``conductor`` (perfect mirror, ``eta``/``k`` or a
                 ``material`` preset), ``dielectric``, ``thindielectric``, ``plastic``,
                 ``roughconductor``, ``roughplastic``, ``roughdielectric``, ``blendbsdf``
-                (:mod:`links1.shading.glossy`), ``principled`` (:mod:`links1.shading.principled`),
+                (:mod:`links1.shading.glossy`), ``principled``, ``principledthin``
+                (:mod:`links1.shading.principled`),
                 *links1* ``links1_phong``; other BSDFs → diffuse stand-in (warning); ``bitmap`` / ``checkerboard``
                 textures (:mod:`links1.shading.textures`) and ``mesh_attribute`` (a PLY's ``vertex_*`` / ``face_*``
                 properties) on their colour parameters; other textures → 0.5 grey (warning).
@@ -94,7 +95,7 @@ DEFAULT_SPP = 4  # Mitsuba's independent sampler
 # Known Mitsuba 3 plugins the core does not support (for a clearer message than "unknown").
 _MITSUBA_SHAPES = {"shapegroup", "instance", "bsplinecurve",
                    "ellipsoids", "ellipsoidsmesh", "merge"}
-_APPROX_BSDFS = {"principledthin", "hair", "measured", "pplastic", "polarizer",
+_APPROX_BSDFS = {"hair", "measured", "pplastic", "polarizer",
                  "retarder", "circular", "measured_polarized", "bumpmap",
                  "normalmap"}
 _IGNORED_EMITTERS = {"sunsky", "directionalarea"}
@@ -1038,8 +1039,8 @@ class _Builder:
                 m = mat.Conductor(specular_reflectance=refl, name=name)
         elif t in ("roughconductor", "roughdielectric", "roughplastic"):
             m = self._rough_bsdf(node, props, t, name)
-        elif t == "principled":
-            m = self._principled(node, props, name)
+        elif t in ("principled", "principledthin"):
+            m = self._principled(node, props, t, name)
         elif t == "blendbsdf":
             inner = node.objects("bsdf")
             if len(inner) != 2:
@@ -1107,15 +1108,20 @@ class _Builder:
         props.finish()
         return m
 
-    def _principled(self, node: Node, props: _Props, name: str):
-        """``principled`` (:mod:`links1.shading.principled`): its weights are floats or textures."""
-        weights = {k: _roughness(props, k, 0.5 if k == "roughness" else 0.0)
-                   for k in principled.Principled.scalar_params}
-        rates = {k: props.float(k, 1.0, nonneg=True) for k in (
-            "main_specular_sampling_rate", "clearcoat_sampling_rate", "diffuse_reflectance_sampling_rate")}
-        return _construct(node, principled.Principled,
-                          base_color=props.texture("base_color", 0.5, reflectance=True),
-                          eta=props.float("eta", None), specular=props.float("specular", None),
+    def _principled(self, node: Node, props: _Props, t: str, name: str):
+        """``principled``, ``principledthin`` (:mod:`links1.shading.principled`): their weights
+        are floats or textures."""
+        thin = t == "principledthin"
+        cls = principled.PrincipledThin if thin else principled.Principled
+        defaults = {"roughness": 0.5, "eta": 1.5}
+        weights = {k: _roughness(props, k, defaults.get(k, 0.0)) for k in cls.scalar_params}
+        rates = ("specular_reflectance_sampling_rate", "specular_transmittance_sampling_rate",
+                 "diffuse_reflectance_sampling_rate", "diffuse_transmittance_sampling_rate") if thin else (
+            "main_specular_sampling_rate", "clearcoat_sampling_rate", "diffuse_reflectance_sampling_rate")
+        rates = {k: props.float(k, 1.0, nonneg=True) for k in rates}
+        if not thin:
+            rates.update(eta=props.float("eta", None), specular=props.float("specular", None))
+        return _construct(node, cls, base_color=props.texture("base_color", 0.5, reflectance=True),
                           name=name, **weights, **rates)
 
     def _rough_bsdf(self, node: Node, props: _Props, t: str, name: str):

@@ -124,14 +124,70 @@ def _half(wi, wo, reflect, eta_path):
     return wh * np.copysign(1.0, wh[:, 2])[:, None]
 
 
-# ------------------------------------------------------------------ the BSDF
+def _diffuse(co, ci, cos_d, roughness, flatness=None):
+    """Burley's diffuse factor (2015, eq. 4): ``f_d`` with retro-reflection, blended toward the
+    fake subsurface term ``f_ss`` by ``flatness`` (None: off); ``co``, ``ci`` are |cos θ|."""
+    f_o, f_i = schlick_weight(co), schlick_weight(ci)
+    rr = 2.0 * roughness * cos_d * cos_d
+    f = (1.0 - 0.5 * f_i) * (1.0 - 0.5 * f_o) + rr * (f_o + f_i + f_o * f_i * (rr - 1.0))
+    if flatness is None:
+        return f
+    fss90 = 0.5 * rr
+    fss = (1.0 + (fss90 - 1.0) * f_o) * (1.0 + (fss90 - 1.0) * f_i)
+    f_ss = 1.25 * (fss * (1.0 / (co + ci) - 0.5) + 0.5)
+    return f * (1.0 - flatness) + f_ss * flatness
+
+
+class _Disney(_Local):
+    """What ``principled`` and ``principledthin`` share: per-hit weights (0 where a lobe is
+    off, as Mitsuba's ``get_flag``), the base colour and its luminance-normalised tint."""
+
+    always_read = ("roughness",)
+
+    def _flags(self):
+        for k in self.scalar_params:
+            v = getattr(self, k)
+            if not isinstance(v, Texture):
+                setattr(self, k, float(v))
+        self.has = {k: isinstance(getattr(self, k), Texture) or getattr(self, k) != 0.0
+                    for k in self.scalar_params}
+
+    def _w(self, k, n):
+        """Parameter ``k`` at the N hits (N,), 0 where its lobe is off."""
+        if not self.has[k] and k not in self.always_read:
+            return np.zeros(n)
+        return np.broadcast_to(np.asarray(_scalar(getattr(self, k)), dtype=np.float64), (n,))
+
+    def _base(self, n):
+        return np.broadcast_to(np.asarray(self.base_color, dtype=np.float64), (n, 3))
+
+    @staticmethod
+    def _tint(base):
+        lum = base @ LUMINANCE
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where((lum > 0.0)[:, None], base / lum[:, None], 1.0)
+
+    def _sheen_tint(self, base, n):
+        if not self.has["sheen_tint"]:
+            return np.ones((n, 3))
+        st = self._w("sheen_tint", n)[:, None]
+        return (1.0 - st) + st * self._tint(base)
+
+    def _distr(self, n, scale=1.0):
+        ax, ay = dist_params(self._w("anisotropic", n), scale * self._w("roughness", n),
+                             self.has["anisotropic"])
+        return mf.Microfacet(mf.GGX, ax, ay)
+
+
+# ------------------------------------------------------------------ the BSDFs
 @dataclass
-class Principled(_Local):
+class Principled(_Disney):
     """Mitsuba ``principled``. ``eta`` (interior over exterior) or ``specular`` (which sets
     ``eta = 2 / (1 - sqrt(0.08 specular)) - 1``) gives the dielectric's index; a lobe whose
     weight is 0 (not a texture) is off, as Mitsuba's ``get_flag``."""
 
     scalar_params = _SCALARS
+    always_read = ("roughness", "clearcoat_gloss")
 
     base_color: object = 0.5
     roughness: object = 0.5
@@ -154,12 +210,8 @@ class Principled(_Local):
 
     def __post_init__(self):
         self.base_color = _rgb(self.base_color)
-        for k in _SCALARS:
-            v = getattr(self, k)
-            if not isinstance(v, Texture):
-                setattr(self, k, float(v))
-        on = {k: isinstance(getattr(self, k), Texture) or getattr(self, k) != 0.0 for k in _SCALARS}
-        self.has = on
+        self._flags()
+        on = self.has
         if self.eta is not None and self.specular is not None:
             raise ValueError("give either 'eta' or 'specular', not both")
         if self.eta is not None:
@@ -176,28 +228,9 @@ class Principled(_Local):
                 raise ValueError(f"'specular' must be in [0, 12.5), got {spec}")
             self.eta = 2.0 / (1.0 - math.sqrt(0.08 * spec)) - 1.0
 
-    # -- per-hit values ----------------------------------------------------------------------
-    def _w(self, k, n):
-        """Parameter ``k`` at the N hits (N,), 0 where its lobe is off."""
-        if not self.has[k] and k not in ("roughness", "clearcoat_gloss"):
-            return np.zeros(n)
-        return np.broadcast_to(np.asarray(_scalar(getattr(self, k)), dtype=np.float64), (n,))
-
-    def _base(self, n):
-        return np.broadcast_to(np.asarray(self.base_color, dtype=np.float64), (n, 3))
-
-    def _distr(self, n):
-        ax, ay = dist_params(self._w("anisotropic", n), self._w("roughness", n), self.has["anisotropic"])
-        return mf.Microfacet(mf.GGX, ax, ay)
-
     def _gtr1(self, n):
         g = self._w("clearcoat_gloss", n)
         return GTR1(0.1 * (1.0 - g) + 0.001 * g)
-
-    def _lum(self, base):
-        lum = base @ LUMINANCE
-        with np.errstate(divide="ignore", invalid="ignore"):
-            return np.where((lum > 0.0)[:, None], base / lum[:, None], 1.0)
 
     def _probabilities(self, n, front, F):
         """Lobe selection probabilities (diffuse, clear coat, transmission, reflection),
@@ -247,7 +280,7 @@ class Principled(_Local):
                 f_schlick += metallic[:, None] * calc_schlick(base, cos_ih, eta)
             if self.has["spec_tint"]:
                 eta_it = np.where(cos_ih >= 0.0, eta, 1.0 / eta)
-                f0 = self._lum(base) * schlick_r0(eta_it)[:, None]
+                f0 = self._tint(base) * schlick_r0(eta_it)[:, None]
                 f_schlick += ((1.0 - metallic) * spec_tint)[:, None] * calc_schlick(f0, cos_ih, eta)
             f_front = ((1.0 - metallic) * (1.0 - spec_tint) * F)[:, None] + f_schlick
             f_p = np.where(front[:, None], f_front, (bsdf * F)[:, None])
@@ -267,30 +300,17 @@ class Principled(_Local):
                 g_cc = smith_ggx1(wi, wh, 0.25) * smith_ggx1(wo, wh, 0.25)
                 c = cc * 0.25 * f_cc * self._gtr1(n).eval(wh) * g_cc * np.abs(co)
                 value += np.where(on, c, 0.0)[:, None]
-            # diffuse with retro-reflection and flattening (Burley 2015, eq. 4)
+            # diffuse with retro-reflection and flattening (Burley 2015, eq. 4), sheen
             on = active & (brdf > 0.0) & reflect & front
-            f_o, f_i = schlick_weight(np.abs(co)), schlick_weight(np.abs(ci))
-            f_diff = (1.0 - 0.5 * f_i) * (1.0 - 0.5 * f_o)
             cos_d = dot(wh, wo)
-            rr = 2.0 * roughness * cos_d * cos_d
-            f = f_diff + rr * (f_o + f_i + f_o * f_i * (rr - 1.0))
-            if self.has["flatness"]:
-                fss90 = 0.5 * rr
-                fss = (1.0 + (fss90 - 1.0) * f_o) * (1.0 + (fss90 - 1.0) * f_i)
-                f_ss = 1.25 * (fss * (1.0 / (np.abs(co) + np.abs(ci)) - 0.5) + 0.5)
-                flat = self._w("flatness", n)
-                f = f * (1.0 - flat) + f_ss * flat
+            f = _diffuse(np.abs(co), np.abs(ci), cos_d, roughness,
+                         self._w("flatness", n) if self.has["flatness"] else None)
             value += np.where(on[:, None], base * (brdf * np.abs(co) / math.pi * f)[:, None], 0.0)
-            # sheen
             if self.has["sheen"]:
                 sheen = self._w("sheen", n)
                 on = active & (sheen > 0.0) & reflect & (1.0 - metallic > 0.0) & front
                 s = sheen * (1.0 - metallic) * schlick_weight(np.abs(cos_d)) * np.abs(co)
-                tint = np.ones((n, 3))
-                if self.has["sheen_tint"]:
-                    st = self._w("sheen_tint", n)[:, None]
-                    tint = (1.0 - st) + st * self._lum(base)
-                value += np.where(on[:, None], s[:, None] * tint, 0.0)
+                value += np.where(on[:, None], s[:, None] * self._sheen_tint(base, n), 0.0)
         return np.where(active[:, None], np.nan_to_num(value), 0.0)
 
     def _pdf(self, wi, wo):
@@ -350,6 +370,159 @@ class Principled(_Local):
         wd = mf.square_to_cosine_hemisphere(uv[:, 0], uv[:, 1])
         wo[pick_d] = wd[pick_d]
         active &= ~pick_d | (ci * wd[:, 2] > 0.0)
+        pdf = self._pdf(wi, wo)
+        active &= pdf > 0.0
+        with np.errstate(divide="ignore", invalid="ignore"):
+            weight = self._eval(wi, wo) / pdf[:, None]
+        return wo, np.where(active[:, None], weight, 0.0), np.where(active, pdf, 0.0)
+
+
+@dataclass
+class PrincipledThin(_Disney):
+    """Mitsuba ``principledthin``: the principled model on a thin sheet, alike from both
+    sides. The specular lobe reflects (GGX of ``roughness``) and transmits straight through
+    (the reflection mirrored below, GGX of roughness ``(0.65 η - 0.35) roughness``), both
+    weighted ``spec_trans``; a Fresnel of ``eta`` (a float or texture, default 1.5) tinted by
+    ``spec_tint``; diffuse reflection as ``principled``'s and diffuse transmission
+    ``diff_trans / 2`` (``diff_trans`` in [0, 2])."""
+
+    scalar_params = ("roughness", "anisotropic", "spec_trans", "sheen", "sheen_tint", "flatness",
+                     "spec_tint", "eta", "diff_trans")
+    always_read = ("roughness", "eta")
+    both_sides = True
+
+    base_color: object = 0.5
+    roughness: object = 0.5
+    anisotropic: object = 0.0
+    spec_trans: object = 0.0
+    eta: object = 1.5
+    spec_tint: object = 0.0
+    sheen: object = 0.0
+    sheen_tint: object = 0.0
+    flatness: object = 0.0
+    diff_trans: object = 0.0
+    specular_reflectance_sampling_rate: float = 1.0
+    specular_transmittance_sampling_rate: float = 1.0
+    diffuse_reflectance_sampling_rate: float = 1.0
+    diffuse_transmittance_sampling_rate: float = 1.0
+    name: str = ""
+
+    def __post_init__(self):
+        self.base_color = _rgb(self.base_color)
+        self._flags()
+
+    def _weights(self, n):
+        return (self._w("spec_trans", n), 0.5 * self._w("diff_trans", n), self._w("eta", n))
+
+    def _probabilities(self, n):
+        """Lobe selection probabilities (specular reflection, specular transmission, diffuse
+        reflection, diffuse transmission), normalised."""
+        st, dt, _ = self._weights(n)
+        z = np.zeros(n)
+        p_sr = st * self.specular_reflectance_sampling_rate / 2.0 if self.has["spec_trans"] else z
+        p_st = st * self.specular_transmittance_sampling_rate / 2.0 if self.has["spec_trans"] else z
+        p_dr = self.diffuse_reflectance_sampling_rate * (1.0 - st) * (1.0 - dt)
+        p_dt = self.diffuse_transmittance_sampling_rate * (1.0 - st) * dt if self.has["diff_trans"] else z
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inv = 1.0 / (p_sr + p_st + p_dr + p_dt)
+        return p_sr * inv, p_st * inv, p_dr * inv, p_dt * inv
+
+    @staticmethod
+    def _upper(wi, wo):
+        """The viewer turned above the sheet, the light turned alike, the half vector of the
+        light mirrored above (transmission is reflection mirrored below)."""
+        s = np.copysign(1.0, wi[:, 2])[:, None]
+        wi, wo_t = wi * s, wo * s
+        wo_r = wo_t * np.array([1.0, 1.0, 0.0]) + np.abs(wo_t) * np.array([0.0, 0.0, 1.0])
+        return wi, wo_t, mf._normalize(wi + wo_r), wo_r
+
+    def _eval(self, wi, wo):
+        n = wi.shape[0]
+        active = wi[:, 2] != 0.0
+        st, dt, eta = self._weights(n)
+        roughness = self._w("roughness", n)
+        base = self._base(n)
+        wi, wo_t, wh, _ = self._upper(wi, wo)
+        ci, co = wi[:, 2], wo_t[:, 2]
+        reflect, refract = co > 0.0, co < 0.0
+        value = np.zeros((n, 3))
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            if self.has["spec_trans"]:
+                F = mf.fresnel(dot(wi, wh), eta)[0]
+                on = active & (st > 0.0) & reflect & compatible(wh, wi, wo_t, ci, True)
+                d = self._distr(n)
+                f_thin = np.broadcast_to(F[:, None], (n, 3))
+                if self.has["spec_tint"]:
+                    tint = self._w("spec_tint", n)[:, None]
+                    f0 = self._tint(base) * schlick_r0(eta)[:, None]
+                    f_thin = f_thin * (1.0 - tint) + calc_schlick(f0, dot(wi, wh), eta) * tint
+                lobe = st * d.eval(wh) * d.G(wi, wo_t, wh) / (4.0 * ci)     # Walter et al. eq. (20)
+                value += np.where(on[:, None], f_thin * lobe[:, None], 0.0)
+                on = active & refract & (st > 0.0) & compatible(wh, wi, wo_t, ci, False)
+                d = self._distr(n, 0.65 * eta - 0.35)
+                lobe = st * (1.0 - F) * d.eval(wh) * d.G(wi, wo_t, wh) / (4.0 * ci)
+                value += np.where(on[:, None], base * lobe[:, None], 0.0)
+            on = active & reflect & (st < 1.0) & (dt < 1.0)
+            cos_d = dot(wh, wo_t)
+            f = _diffuse(np.abs(co), ci, cos_d, roughness,
+                         self._w("flatness", n) if self.has["flatness"] else None)
+            value += np.where(on[:, None], base * ((1.0 - st) * co / math.pi * (1.0 - dt) * f)[:, None], 0.0)
+            if self.has["sheen"]:
+                s = (self._w("sheen", n) * (1.0 - st) * schlick_weight(np.abs(cos_d)) * (1.0 - dt)
+                     * np.abs(co))
+                value += np.where(on[:, None], s[:, None] * self._sheen_tint(base, n), 0.0)
+            if self.has["diff_trans"]:
+                on = active & refract & (st < 1.0) & (dt > 0.0)
+                value += np.where(on[:, None], base * ((1.0 - st) * dt / math.pi * np.abs(co))[:, None], 0.0)
+        return np.where(active[:, None], np.nan_to_num(value), 0.0)
+
+    def _pdf(self, wi, wo):
+        n = wi.shape[0]
+        _, _, eta = self._weights(n)
+        active = wi[:, 2] != 0.0
+        wi, wo_t, wh, wo_r = self._upper(wi, wo)
+        co = wo_t[:, 2]
+        reflect, refract = co > 0.0, co < 0.0
+        p_sr, p_st, p_dr, p_dt = self._probabilities(n)
+        pdf = np.zeros(n)
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            if self.has["spec_trans"]:
+                dwh = np.abs(1.0 / (4.0 * dot(wo_r, wh)))
+                on = compatible(wh, wi, wo_t, wi[:, 2], True) & reflect
+                pdf += np.where(on, p_sr * self._distr(n).pdf(wi, wh) * dwh, 0.0)
+                on = compatible(wh, wi, wo_t, wi[:, 2], False) & refract
+                pdf += np.where(on, p_st * self._distr(n, 0.65 * eta - 0.35).pdf(wi, wh) * dwh, 0.0)
+            pdf += np.where(reflect, p_dr * co / math.pi, 0.0)
+            if self.has["diff_trans"]:
+                pdf += np.where(refract, p_dt * -co / math.pi, 0.0)
+        return np.where(active, np.nan_to_num(pdf, posinf=0.0, neginf=0.0), 0.0)
+
+    def _sample(self, wi, u, uv):
+        n = wi.shape[0]
+        active = wi[:, 2] != 0.0
+        sign = np.copysign(1.0, wi[:, 2])[:, None]
+        up = wi * sign
+        _, _, eta = self._weights(n)
+        p_sr, p_st, p_dr, _ = self._probabilities(n)
+        has_st = self.has["spec_trans"]
+        pick_sr = has_st & active & (u < p_sr)
+        pick_st = has_st & active & (u >= p_sr) & (u < p_sr + p_st)
+        pick_dr = active & (u >= p_sr + p_st) & (u < p_sr + p_st + p_dr)
+        pick_dt = self.has["diff_trans"] & active & (u >= p_sr + p_st + p_dr)
+        wo = np.zeros((n, 3))
+        if has_st:
+            m, _ = self._distr(n).sample(up, uv[:, 0], uv[:, 1])
+            wr = mf.reflect(up, m)
+            wo[pick_sr] = wr[pick_sr]
+            active &= ~pick_sr | (compatible(m, up, wr, up[:, 2], True) & (wr[:, 2] > 0.0))
+            m, _ = self._distr(n, 0.65 * eta - 0.35).sample(up, uv[:, 0], uv[:, 1])
+            wt = mf.reflect(up, m) * np.array([1.0, 1.0, -1.0])
+            wo[pick_st] = wt[pick_st]
+            active &= ~pick_st | (compatible(m, up, wt, up[:, 2], False) & (wt[:, 2] < 0.0))
+        wd = mf.square_to_cosine_hemisphere(uv[:, 0], uv[:, 1])
+        wo[pick_dr] = wd[pick_dr]
+        wo[pick_dt] = -wd[pick_dt]
+        wo = wo * sign
         pdf = self._pdf(wi, wo)
         active &= pdf > 0.0
         with np.errstate(divide="ignore", invalid="ignore"):

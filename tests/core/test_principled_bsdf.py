@@ -14,7 +14,7 @@ import pytest
 from links1.errors import SceneError
 from links1.scene import loader
 from links1.shading import glossy
-from links1.shading.principled import Principled
+from links1.shading.principled import Principled, PrincipledThin
 from tests.core.test_glossy_bsdfs import check_density_and_samples, check_reciprocal
 
 Z = np.array([[0.0, 0.0, 1.0]])
@@ -61,6 +61,8 @@ def _bsdfs():
         "glass": Principled(base_color=[0.9, 0.7, 0.8], spec_trans=0.8, eta=1.4, roughness=0.5),
         "clearcoat_rates": Principled(roughness=0.7, clearcoat=1.0, clearcoat_gloss=0.3,
                                       clearcoat_sampling_rate=4.0, diffuse_reflectance_sampling_rate=0.5),
+        "thin": PrincipledThin(base_color=[0.3, 0.8, 0.5], spec_trans=0.6, diff_trans=0.8, eta=1.33,
+                               roughness=0.5, spec_tint=0.3, sheen=0.5, sheen_tint=0.4, flatness=0.6),
     }
 
 
@@ -79,8 +81,8 @@ def test_pdf_integrates_and_samples_follow_it(name):
     direction drawn (a diffuse sample's half vector is not its microfacet): there ``pdf`` is
     not the sampler's density, in Mitsuba as here, and only the side below is checked."""
     b = _bsdfs()[name]
-    check_density_and_samples(b, (-0.6,) if name == "glass" else (0.9, 0.4), low=0.7)
-    if name != "glass":     # one-sided without transmission: nothing from below
+    check_density_and_samples(b, {"glass": (-0.6,), "thin": (0.9, 0.4, -0.6)}.get(name, (0.9, 0.4)), low=0.7)
+    if name not in ("glass", "thin"):     # one-sided without transmission: nothing from below
         viewer = np.tile([0.8, 0.0, -0.6], (1000, 1))
         z = np.repeat(Z, 1000, axis=0)
         rng = np.random.default_rng(5)
@@ -89,7 +91,7 @@ def test_pdf_integrates_and_samples_follow_it(name):
         assert not np.any(pdf) and not np.any(weight) and not np.any(b.eval(viewer, light, z, z))
 
 
-@pytest.mark.parametrize("name", ["default", "every_lobe", "clearcoat_rates"])
+@pytest.mark.parametrize("name", ["default", "every_lobe", "clearcoat_rates", "thin"])
 def test_reflection_is_reciprocal(name):
     """f(wo, wi) = f(wi, wo) for the reflection lobes (eval is f·cos θ of the light side)."""
     check_reciprocal(_bsdfs()[name])
@@ -116,6 +118,31 @@ def test_loader_reads_mitsubas_parameters():
     glass = _material('<bsdf type="principled"><float name="spec_trans" value="1"/><float name="eta" value="1"/></bsdf>')
     assert glass.eta == 1.001      # Mitsuba's stand-in for an index of 1 with transmission
     assert _material('<bsdf type="twosided"><bsdf type="principled"/></bsdf>').two_sided
+
+
+def test_thin_sheet_is_alike_from_both_sides():
+    """``principledthin``: eval, pdf and sample with every direction negated (seen from the
+    other side) are the same, the sampled direction negated."""
+    b = _bsdfs()["thin"]
+    rng = np.random.default_rng(7)
+    a, c = _uniform_sphere(rng, 1000), _uniform_sphere(rng, 1000)
+    z = np.repeat(Z, 1000, axis=0)
+    u, uv = rng.random(1000), rng.random((1000, 2))
+    np.testing.assert_allclose(b.eval(a, c, z, z), b.eval(-a, -c, z, z), rtol=1e-12)
+    np.testing.assert_allclose(b.pdf(a, c, z, z), b.pdf(-a, -c, z, z), rtol=1e-12)
+    wi, w, p = b.sample(a, z, z, u, uv)
+    wi_f, w_f, p_f = b.sample(-a, z, z, u, uv)
+    np.testing.assert_allclose(-wi, wi_f, atol=1e-12)
+    np.testing.assert_allclose(w, w_f, rtol=1e-12)
+    assert np.array_equal(p, p_f) and np.mean(p > 0) > 0.9
+
+
+def test_loader_reads_principledthin():
+    m = _material('<bsdf type="principledthin"><float name="diff_trans" value="1.2"/>'
+                  '<texture name="eta" type="checkerboard"/></bsdf>')
+    assert isinstance(m, PrincipledThin) and m.diff_trans == 1.2 and m.roughness == 0.5
+    assert m.has["eta"] and m.has["diff_trans"] and not m.has["spec_trans"]
+    assert _material('<bsdf type="principledthin"/>').eta == 1.5
 
 
 def test_loader_refuses_eta_and_specular_together():

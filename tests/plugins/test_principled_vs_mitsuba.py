@@ -36,6 +36,17 @@ CASES = {
                  '<float name="spec_tint" value="0.5"/><float name="sheen" value="0.3"/></bsdf>'),
     "twosided": ('<bsdf type="twosided"><bsdf type="principled"><float name="roughness" value="0.4"/>'
                  '<float name="clearcoat" value="0.3"/></bsdf></bsdf>'),
+    "thin_default": '<bsdf type="principledthin"/>',
+    "thin_every_lobe": ('<bsdf type="principledthin"><rgb name="base_color" value="0.3, 0.8, 0.5"/>'
+                        '<float name="spec_trans" value="0.6"/><float name="diff_trans" value="0.8"/>'
+                        '<float name="eta" value="1.33"/><float name="roughness" value="0.4"/>'
+                        '<float name="anisotropic" value="0.5"/><float name="spec_tint" value="0.3"/>'
+                        '<float name="sheen" value="0.5"/><float name="sheen_tint" value="0.4"/>'
+                        '<float name="flatness" value="0.6"/>'
+                        '<float name="diffuse_transmittance_sampling_rate" value="2"/></bsdf>'),
+    "thin_textured": ('<bsdf type="principledthin">' + _CHECKER.format("spec_trans", 0.9, 0.2)
+                      + _CHECKER.format("eta", 1.2, 1.7) + _CHECKER.format("diff_trans", 0.3, 1.5)
+                      + '<float name="roughness" value="0.3"/></bsdf>'),
 }
 
 
@@ -54,3 +65,10 @@ def test_point_light_render_matches_direct(variant):
     ``coordinate_system(n)``, Mitsuba about a shape's dp/du."""
     check_point_light_render(variant, floor=CASES["textured"], right=CASES["glass"],
                              left=CASES["every_lobe"].replace('<float name="anisotropic" value="0.6"/>', ''))
+
+
+def test_thin_point_light_render_matches_direct(variant):
+    """``principledthin`` likewise: a floor lit from above, spheres seen by the light through their
+    diffuse and glossy transmission (thin sheets alike from both sides)."""
+    check_point_light_render(variant, floor=CASES["thin_textured"], right=CASES["thin_default"],
+                             left=CASES["thin_every_lobe"].replace('<float name="anisotropic" value="0.5"/>', ''))
