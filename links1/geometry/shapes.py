@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from .bvh import BVH, nearest_hits
-from ..maths.vec import cross, dot, matvec, normalize
+from ..maths.vec import coordinate_system, cross, dot, matvec, normalize
 
 
 # ---------------------------------------------------------------------------- helpers
@@ -169,6 +169,13 @@ class Shape:
     def uv(self, o, d, t, prim):
         """Surface coordinates (N, 2) of the hits (default: none, zeros)."""
         return np.zeros((np.asarray(prim).shape[0], 2))
+
+    def tangents(self, o, d, t, prim):
+        """``(dp_du, dp_dv)`` (N, 3) each: the world derivatives of the hit point along the
+        shape's ``uv`` (Mitsuba's ``si.dp_du``, ``si.dp_dv``; default: none, zeros, whose
+        shading frame Mitsuba then builds with ``coordinate_system(n)``)."""
+        z = np.zeros((np.asarray(prim).shape[0], 3))
+        return z, z.copy()
 
     @property
     def nbytes(self) -> int:
@@ -421,6 +428,31 @@ class TriangleMesh(Shape):
         tc = self.texcoords
         return b[:, :1] * tc[f[:, 0]] + b[:, 1:2] * tc[f[:, 1]] + b[:, 2:] * tc[f[:, 2]]
 
+
+    def tangents(self, o, d, t, prim):
+        """Mitsuba's ``Mesh::compute_surface_interaction``: with texcoords, ``dp/du``, ``dp/dv``
+        of the triangle's affine map from uv (its face's ``coordinate_system`` where the uv
+        triangle is degenerate); without, the barycentric edges ``p1 - p0``, ``p2 - p0`` in the
+        file's winding."""
+        prim = np.asarray(prim, dtype=np.int64)
+        f = self.faces[prim]
+        v = self.vertices
+        i1, i2 = self._bary_uv   # the file's second and third vertex (rewound faces: swapped)
+        p0, p1, p2 = v[f[:, 0]], v[f[:, i1]], v[f[:, i2]]
+        dp0, dp1 = p1 - p0, p2 - p0
+        if self.texcoords is None:
+            return dp0, dp1
+        tc = self.texcoords
+        duv0, duv1 = tc[f[:, i1]] - tc[f[:, 0]], tc[f[:, i2]] - tc[f[:, 0]]
+        det = duv0[:, 0] * duv1[:, 1] - duv0[:, 1] * duv1[:, 0]
+        ok = det != 0
+        inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)[:, None]
+        dp_du = (duv1[:, 1:2] * dp0 - duv0[:, 1:2] * dp1) * inv
+        dp_dv = (duv0[:, 0:1] * dp1 - duv1[:, 0:1] * dp0) * inv
+        if not np.all(ok):
+            s, t_ = coordinate_system(normalize(cross(dp0, dp1)[~ok]))
+            dp_du[~ok], dp_dv[~ok] = s, t_
+        return dp_du, dp_dv
 
     def attribute(self, key: str, o, d, prim) -> np.ndarray:
         """Mesh attribute ``key`` at the hits (N, k): a face's value, or the vertices' values
@@ -677,6 +709,29 @@ class Quadric(Shape):
         y = normalize(y)  # Mitsuba re-projects the hit onto the sphere
         return np.stack([phi, np.arccos(np.clip(y[:, 2], -1.0, 1.0)) / np.pi], axis=1)
 
+    def tangents(self, o, d, t, prim):
+        """Mitsuba's ``dp_du``, ``dp_dv`` of :meth:`uv` (world): sphere ``2π L(-y_y, y_x, 0)`` and
+        ``π L(y_z cos φ, y_z sin φ, -r)`` (``L(1, 0, 0) π`` at a pole, r = 0); cylinder
+        ``2π L(-y_y, y_x, 0)`` and ``L(0, 0, 1)``; ``L`` the linear part of ``to_world``."""
+        o = np.asarray(o, dtype=np.float64).reshape(-1, 3)
+        d = np.asarray(d, dtype=np.float64).reshape(-1, 3)
+        y = matvec(self.A, o + _finite_or_zero(t)[:, None] * d - self.m)
+        L = self.to_world[:3, :3]
+        if self.kind == "sphere":
+            y = normalize(y)
+        zero = np.zeros(y.shape[0])
+        du = 2.0 * np.pi * np.stack([-y[:, 1], y[:, 0], zero], axis=1)
+        if self.kind == "cylinder":
+            dv = np.tile([0.0, 0.0, 1.0], (y.shape[0], 1))
+        else:
+            rd = np.hypot(y[:, 0], y[:, 1])
+            pole = rd == 0
+            inv = np.where(pole, 0.0, 1.0 / np.where(pole, 1.0, rd))
+            dv = np.stack([y[:, 2] * y[:, 0] * inv, y[:, 2] * y[:, 1] * inv, -rd], axis=1)
+            dv[pole] = [1.0, 0.0, 0.0]
+            dv = np.pi * dv
+        return matvec(L, du), matvec(L, dv)
+
 
 # ---------------------------------------------------------------------------- disk
 class Disk(Shape):
@@ -729,3 +784,17 @@ class Disk(Shape):
         d = np.asarray(d, dtype=np.float64).reshape(-1, 3)
         y = matvec(self.A, o + _finite_or_zero(t)[:, None] * d - self.m)
         return np.stack([np.hypot(y[:, 0], y[:, 1]), _turn(np.arctan2(y[:, 1], y[:, 0]))], axis=1)
+
+    def tangents(self, o, d, t, prim):
+        """Mitsuba's disk: ``dp_du = L(cos φ, sin φ, 0)``, ``dp_dv = 2π r L(-sin φ, cos φ, 0)``
+        (``L`` the linear part of ``to_world``; both zero at the centre)."""
+        o = np.asarray(o, dtype=np.float64).reshape(-1, 3)
+        d = np.asarray(d, dtype=np.float64).reshape(-1, 3)
+        y = matvec(self.A, o + _finite_or_zero(t)[:, None] * d - self.m)
+        r = np.hypot(y[:, 0], y[:, 1])
+        inv = np.where(r > 0, 1.0 / np.where(r > 0, r, 1.0), 0.0)
+        c, s = y[:, 0] * inv, y[:, 1] * inv
+        zero = np.zeros(r.shape[0])
+        L = self.to_world[:3, :3]
+        return (matvec(L, np.stack([c, s, zero], axis=1)),
+                matvec(L, 2.0 * np.pi * r[:, None] * np.stack([-s, c, zero], axis=1)))

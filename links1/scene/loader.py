@@ -73,6 +73,7 @@ import numpy as np
 
 from ..shading import glossy, principled
 from ..shading import materials as mat
+from ..shading import normalmaps
 from . import params
 from ..geometry import meshes
 from ..shading import textures
@@ -1085,10 +1086,10 @@ class _Builder:
                           "is dropped (a Whitted node has one transmitted ray)")
         elif t == "null":   # Mitsuba's null: every ray goes straight through (BSDFFlags::Null)
             m = mat.Mask(nested=mat.Material(), opacity=0.0, name=name)
-        elif t in ("bumpmap", "normalmap") and node.objects("bsdf"):
-            node.warn(f"'{t}' is not supported by the core; the nested bsdf is used as is")
-            props.ignore(*node.props)
-            return self.bsdf(node.objects("bsdf")[0])
+        elif t in ("bumpmap", "normalmap"):
+            m = self._perturbed(node, props, t, name)
+        elif t == "pplastic":
+            m = self._pplastic(node, props, name)
         elif t in _APPROX_BSDFS:
             color = 0.5
             for key in ("reflectance", "diffuse_reflectance", "base_color", "specular_reflectance"):
@@ -1123,6 +1124,61 @@ class _Builder:
             rates.update(eta=props.float("eta", None), specular=props.float("specular", None))
         return _construct(node, cls, base_color=props.texture("base_color", 0.5, reflectance=True),
                           name=name, **weights, **rates)
+
+    def _perturbed(self, node: Node, props: _Props, t: str, name: str):
+        """``normalmap`` / ``bumpmap`` around their nested bsdf (:mod:`links1.shading.normalmaps`)."""
+        inner = node.objects("bsdf")
+        if len(inner) != 1:
+            raise node.error(f"{t} needs exactly one nested bsdf")
+        nested = self.bsdf(inner[0])
+        common = dict(nested=nested, flip_invalid_normals=props.bool("flip_invalid_normals", True),
+                      use_shadowing_function=props.bool("use_shadowing_function", True), name=name)
+        if t == "normalmap":
+            m = _construct(node, normalmaps.NormalMap,
+                           normalmap=props.texture("normalmap", nonneg=False, unbounded=True), **common)
+        else:
+            tex = node.objects("texture")
+            if len(tex) != 1:
+                raise node.error("bumpmap needs exactly one nested texture (the height)")
+            if tex[0].type != "bitmap":
+                raise tex[0].error(f"bumpmap: Mitsuba takes the gradient of a bitmap height texture "
+                                   f"only, not of a '{tex[0].type}'")
+            props.ignore(*[nm for nm, c in node.children if c is tex[0] and nm])
+            m = _construct(node, normalmaps.BumpMap, texture=_texture(tex[0]),
+                           scale=props.float("scale", 1.0), **common)
+        if nested.has_reflection or nested.has_transmission:
+            node.warn(f"{t}: the mirror and refraction rays of the nested bsdf leave about the "
+                      "unperturbed normal in the core")
+        return m
+
+    def _pplastic(self, node: Node, props: _Props, name: str):
+        """``pplastic`` as Mitsuba's RGB variants evaluate it (:class:`links1.shading.glossy.PolarizedPlastic`)."""
+        distribution = props.string("distribution", "beckmann").strip().lower()
+        if distribution not in ("beckmann", "ggx"):
+            raise props.error("distribution", f"invalid distribution '{distribution}', must be "
+                                              "'beckmann' or 'ggx'")
+        if props.has("eta"):
+            if props.has("int_ior"):
+                raise props.error("eta", "give either 'eta' or 'int_ior' and 'ext_ior', not both")
+            eta = props.float("eta", positive=True)
+        else:
+            int_ior, ext_ior = _ior(props, "int_ior", "polypropylene"), _ior(props, "ext_ior", "air")
+            if int_ior == ext_ior:
+                raise node.error("the interior and exterior indices of refraction must differ")
+            eta = int_ior / ext_ior
+        if props.has("alpha_u") or props.has("alpha_v"):
+            if props.has("alpha"):
+                raise props.error("alpha", "give either 'alpha' or 'alpha_u'/'alpha_v'")
+            if not (props.has("alpha_u") and props.has("alpha_v")):
+                raise node.error("both 'alpha_u' and 'alpha_v' must be given")
+            alpha = (_roughness(props, "alpha_u"), _roughness(props, "alpha_v"))
+        else:
+            alpha = (_roughness(props, "alpha", 0.1),) * 2
+        return _construct(node, glossy.PolarizedPlastic, distribution=distribution,
+                          alpha_u=alpha[0], alpha_v=alpha[1], eta=eta,
+                          diffuse_reflectance=props.texture("diffuse_reflectance", 0.5, reflectance=True),
+                          specular_reflectance=props.texture("specular_reflectance", 1.0, reflectance=True),
+                          sample_visible=props.bool("sample_visible", True), name=name)
 
     def _rough_bsdf(self, node: Node, props: _Props, t: str, name: str):
         """``roughconductor``, ``roughdielectric``, ``roughplastic`` (:mod:`links1.shading.glossy`)."""

@@ -510,3 +510,51 @@ def _call_sample(mat, wo, n, n_raw, u, uv, tangent):
     if tangent is not None and isinstance(mat, (_Local, Blend)):
         return mat.sample(wo, n, n_raw, u, uv, tangent=tangent)
     return mat.sample(wo, n, n_raw, u, uv)
+
+
+@dataclass
+class PolarizedPlastic(RoughPlastic):
+    """Mitsuba ``pplastic`` as its RGB variants evaluate it (``src/bsdfs/pplastic.cpp``, the
+    unpolarised branch): a rough specular lobe ``F D G / (4 cos θ_i)`` (Walter et al. eq. 20,
+    times cos θ_o; anisotropic roughness allowed) over a diffuse base
+    ``(1 - F(cos θ_i)) ρ (1 - F(cos θ_o)) cos θ_o / π``, without roughplastic's internal
+    scattering; its density and samples are roughplastic's with a constant probability
+    ``s / (d + s)`` (the textures' means) of the microfacet lobe. ``alpha`` and ``nonlinear``
+    are not used."""
+
+    scalar_params = ("alpha_u", "alpha_v")
+
+    alpha_u: object = 0.1
+    alpha_v: object = None
+
+    def __post_init__(self):
+        if self.alpha_v is None:
+            self.alpha_v = self.alpha_u
+        self.eta = float(self.eta)
+        if not (np.isfinite(self.eta) and self.eta > 0):
+            raise ValueError(f"relative ior must be > 0, got {self.eta}")
+        self.diffuse_reflectance = _rgb(self.diffuse_reflectance)
+        self.specular_reflectance = _rgb(self.specular_reflectance)
+        s_mean = _texture_mean(self.specular_reflectance)
+        self.specular_sampling_weight = s_mean / (_texture_mean(self.diffuse_reflectance) + s_mean)
+        mf.Microfacet(self.distribution, 0.1)
+
+    def _distr(self):
+        return mf.Microfacet(self.distribution, _scalar(self.alpha_u), _scalar(self.alpha_v),
+                             self.sample_visible)
+
+    def _prob_specular(self, cos_i):
+        return np.full(np.shape(cos_i), self.specular_sampling_weight)
+
+    def _eval(self, wi, wo):
+        ok = (wi[:, 2] > 0) & (wo[:, 2] > 0)
+        d = self._distr()
+        h = mf._normalize(wi + wo)
+        F = mf.fresnel(dot(wi, h), self.eta)[0]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            spec = np.nan_to_num(F * d.eval(h) * d.G(wi, wo, h) / (4.0 * wi[:, 2]))
+        r_i, r_o = mf.fresnel(wi[:, 2], self.eta)[0], mf.fresnel(wo[:, 2], self.eta)[0]
+        diffuse = (1.0 - r_o) * (1.0 - r_i) * wo[:, 2] / math.pi
+        val = (spec[:, None] * self.specular_reflectance
+               + np.asarray(self.diffuse_reflectance) * diffuse[:, None])
+        return np.where(ok[:, None], val, 0.0)

@@ -115,16 +115,22 @@ class Material:
     def eval(self, wo, wi, n, n_raw):
         return np.zeros((wo.shape[0], 3))
 
-    def sample(self, wo, n, n_raw, u, uv):
+    def sample(self, wo, n, n_raw, u, uv, tangent=None):
         """A direction ``wi`` toward the light drawn from the non-delta lobes with samples ``u``
         (N,) and ``uv`` (N, 2): ``(wi, eval / pdf (N, 3), pdf (N,))``. Here: cosine-weighted
         about ``n`` (Mitsuba's ``diffuse``); the glossy BSDFs (:mod:`links1.shading.glossy`)
-        draw from their microfacet lobes."""
+        draw from their microfacet lobes. ``tangent`` (N, 3): the shading frame's ``s``
+        (Mitsuba's, from ``dp_du``), else ``coordinate_system(n)``'s."""
         from .microfacet import square_to_cosine_hemisphere
-        from ..maths.vec import coordinate_system
+        from ..maths.vec import coordinate_system, cross
         nn = self._sampling_normal(n, n_raw)
         local = square_to_cosine_hemisphere(uv[:, 0], uv[:, 1])
-        s, t = coordinate_system(nn)
+        if tangent is None:
+            s, t = coordinate_system(nn)
+        else:   # the frame of the raw normal, its normal turned as nn (Mitsuba's twosided mirrors)
+            s = tangent - n_raw * _dot(n_raw, tangent)[:, None]
+            s = s / np.sqrt(_dot(s, s))[:, None]
+            t = cross(n_raw, s)
         wi = local[:, 0:1] * s + local[:, 1:2] * t + local[:, 2:3] * nn
         pdf = self.pdf(wo, wi, n, n_raw)
         ok = pdf > 0

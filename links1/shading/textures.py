@@ -233,6 +233,29 @@ class Bitmap(Texture):
         bottom = (1.0 - ax) * d[i1, j0] + ax * d[i1, j1]
         return (1.0 - ay) * top + ay * bottom
 
+    def eval_1_grad(self, uv) -> np.ndarray:
+        """Mitsuba's ``Bitmap::eval_1_grad``: the gradient (N, 2) of the bilinear lookup of the
+        texels' luminance in pixel units, taken through ``to_uv``'s transpose and scaled by the
+        resolution ``(W, H)`` as Mitsuba does; zero for ``nearest`` (piecewise constant)."""
+        s, t = self._uv(uv)
+        if self.filter_type == "nearest":
+            return np.zeros((s.shape[0], 2))
+        h, w = self.data.shape[:2]
+        mode = self.wrap_mode
+        x, y = s * w - 0.5, t * h - 0.5
+        x0, y0 = np.floor(x), np.floor(y)
+        ax, ay = x - x0, y - y0
+        x0, y0 = x0.astype(np.int64), y0.astype(np.int64)
+        j0, j1 = _wrap(x0, w, mode), _wrap(x0 + 1, w, mode)
+        i0, i1 = _wrap(y0, h, mode), _wrap(y0 + 1, h, mode)
+        lum = self.data @ LUMINANCE
+        f00, f10, f01, f11 = lum[i0, j0], lum[i0, j1], lum[i1, j0], lum[i1, j1]
+        dfx = (1.0 - ay) * (f10 - f00) + ay * (f11 - f01)
+        dfy = (1.0 - ax) * (f01 - f00) + ax * (f11 - f10)
+        m = self.to_uv
+        return np.stack([w * (m[0, 0] * dfx + m[1, 0] * dfy),
+                         h * (m[0, 1] * dfx + m[1, 1] * dfy)], axis=1)
+
     def max(self) -> np.ndarray:
         return self.data.reshape(-1, 3).max(axis=0)
 

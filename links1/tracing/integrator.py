@@ -30,6 +30,7 @@ from ..shading.lights import AreaLight, ConstantEnvironment, EnvironmentMap
 from ..maths.sampling import (KEY_REFLECT, KEY_REFRACT, bsdf_samples_uv, child_keys, light_samples_uv,
                               power_heuristic)
 from ..shading.textures import MeshAttribute, is_texture
+from ..shading.normalmaps import FRAME_KEYS, needs_frame
 from ..maths.vec import coordinate_system, dot, max_abs
 
 #: Relative size of the ray-origin offset (float64: about 1e6 ulps of |p|, far above the
@@ -447,11 +448,17 @@ class WhittedIntegrator:
         shape = hits.shape[sel]
         attrs = {k: v for k, v in vars(material).items() if isinstance(v, MeshAttribute)}
         given = {k: np.zeros((sel.size, 3)) for k in attrs}
+        frame = needs_frame(material)   # normal and bump maps: the hits' dp_du, dp_dv, ng
+        given.update({k: np.zeros((sel.size, 3)) for k in FRAME_KEYS} if frame else {})
         for s in np.unique(shape):
             m = shape == s
             uv[m] = self.shapes[s].uv(o[m], d[m], hits.t[sel][m], hits.prim[sel][m])
             for k, tex in attrs.items():   # mesh attributes: at the hit itself
                 given[k][m] = tex.values(self.shapes[s].attribute(tex.attribute, o[m], d[m], hits.prim[sel][m]))
+            if frame:
+                th, ph = hits.t[sel][m], hits.prim[sel][m]
+                given["dp_du"][m], given["dp_dv"][m] = self.shapes[s].tangents(o[m], d[m], th, ph)
+                given["ng"][m] = self.shapes[s].surface(o[m], d[m], th, ph)[1]
         return material.at(uv, given)
 
 
