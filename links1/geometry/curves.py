@@ -1,4 +1,5 @@
-"""Mitsuba's ``linearcurve``: Embree's round linear curve, in float64.
+"""Mitsuba's ``linearcurve`` and ``bsplinecurve``: Embree's round linear and round cubic
+B-spline curves, in float64 (the B-spline: :class:`RoundBSplineCurves`).
 
 A segment from control point ``p0`` (radius ``r0``) to ``p1`` (``r1``) is the convex hull of
 the two balls: the cone tangent to both spheres between its two circles of tangency, and the
@@ -51,6 +52,23 @@ def read_curves(path, min_points: int = 2) -> list:
     return curves
 
 
+def _segments(curves, what: str, order: int):
+    """All curves' control points (P, 4) stacked, and the index of each segment's first point
+    (a curve of ``K`` points has ``K - order + 1`` segments of ``order`` points)."""
+    pts, starts = [], []
+    n = 0
+    for c in curves:
+        c = np.asarray(c, dtype=np.float64)
+        if c.ndim != 2 or c.shape[1] != 4 or c.shape[0] < order:
+            raise ValueError(f"{what}: each curve needs (K >= {order}, 4) control points, got {c.shape}")
+        if not np.all(np.isfinite(c)) or np.any(c[:, 3] < 0):
+            raise ValueError(f"{what}: control points must be finite with radii >= 0")
+        pts.append(c)
+        starts.extend(range(n, n + c.shape[0] - order + 1))
+        n += c.shape[0]
+    return np.concatenate(pts), np.array(starts, dtype=np.int64)
+
+
 def _sphere_front(o, d, c, r):
     """Entry distance of unit rays into the balls ``(c, r)``: ``nan`` where missed."""
     oc = o - c
@@ -69,20 +87,7 @@ class RoundLinearCurves(PrimitiveSet):
     """
 
     def __init__(self, curves, name: str = ""):
-        pts, starts = [], []
-        n = 0
-        for c in curves:
-            c = np.asarray(c, dtype=np.float64)
-            if c.ndim != 2 or c.shape[1] != 4 or c.shape[0] < 2:
-                raise ValueError(f"linearcurve {name!r}: each curve needs (K >= 2, 4) control points, "
-                                 f"got {c.shape}")
-            if not np.all(np.isfinite(c)) or np.any(c[:, 3] < 0):
-                raise ValueError(f"linearcurve {name!r}: control points must be finite with radii >= 0")
-            pts.append(c)
-            starts.extend(range(n, n + c.shape[0] - 1))
-            n += c.shape[0]
-        self.points = np.concatenate(pts)
-        self.segments = np.array(starts, dtype=np.int64)
+        self.points, self.segments = _segments(curves, f"linearcurve {name!r}", 2)
         a, b = self.points[self.segments], self.points[self.segments + 1]
         lo = np.minimum(a[:, :3] - a[:, 3:], b[:, :3] - b[:, 3:])
         hi = np.maximum(a[:, :3] + a[:, 3:], b[:, :3] + b[:, 3:])
@@ -161,15 +166,209 @@ class RoundLinearCurves(PrimitiveSet):
         return p, ng, ng.copy()
 
     def uv(self, o, d, t, prim):
-        """Mitsuba's curve parameterisation: ``u`` the angle about the segment in a frame
-        built from ``+z`` (``y`` where the segment is along ``z``), ``v = (u_seg + segment) /
-        segments``."""
         p, c, u_seg, dP, prim = self._hit_record(o, d, t, prim)
-        axis = normalize(dP)
-        guide = np.array([0.0, 0.0, 1.0])
-        rot = normalize(guide - axis * dot(axis, guide)[:, None])
-        rot = np.where((np.abs(axis[:, 2]) == 1.0)[:, None], np.array([0.0, 1.0, 0.0]), rot)
-        rad = cross(rot, axis)
-        n = normalize(p - c)
-        u = _turn(np.arctan2(dot(rot, n), dot(rad, n)))
-        return np.stack([u, (u_seg + prim) / self.segments.size], axis=1)
+        return _curve_uv(p - c, dP, u_seg, prim, self.segments.size)
+
+
+def _curve_uv(rad, tangent, v_local, prim, segments):
+    """Mitsuba's curve parameterisation: ``u`` the angle of ``rad`` about ``tangent`` in a
+    frame built from ``+z`` (``y`` where the tangent is along ``z``), ``v = (v_local +
+    segment) / segments``."""
+    axis = normalize(tangent)
+    guide = np.array([0.0, 0.0, 1.0])
+    rot = normalize(guide - axis * dot(axis, guide)[:, None])
+    rot = np.where((np.abs(axis[:, 2]) == 1.0)[:, None], np.array([0.0, 1.0, 0.0]), rot)
+    n = normalize(rad)
+    u = _turn(np.arctan2(dot(rot, n), dot(cross(rot, axis), n)))
+    return np.stack([u, (v_local + prim) / segments], axis=1)
+
+
+# ---------------------------------------------------------------------------- cubic B-splines
+#: Initial samples of a ray's stretch through a segment's box, and the refinement rounds.
+BSPLINE_SAMPLES = 16
+_REFINE_ROUNDS = 40
+_BISECTIONS_T = 52
+#: Lipschitz constant assumed for the distance along the ray (1 for a constant radius).
+_LIPSCHITZ = 1.5
+_CHUNK = 4096
+
+
+def _bspline_basis(v):
+    """Uniform cubic B-spline basis at ``v`` (...,): values, first and second derivatives,
+    each (..., 4) (Mitsuba's ``cubic_interpolation``)."""
+    v2, v3 = v * v, v * v * v
+    b = np.stack([-v3 + 3 * v2 - 3 * v + 1, 3 * v3 - 6 * v2 + 4, -3 * v3 + 3 * v2 + 3 * v + 1, v3], -1) / 6.0
+    db = np.stack([-3 * v2 + 6 * v - 3, 9 * v2 - 12 * v, -9 * v2 + 6 * v + 3, 3 * v2], -1) / 6.0
+    ddb = np.stack([1 - v, 3 * v - 2, 1 - 3 * v, v], -1)
+    return b, db, ddb
+
+
+def _eval(ctrl, v):
+    """Centre, first and second derivatives, radius and its derivative of the segments
+    ``ctrl`` (N, 4, 4) at ``v`` (N,)."""
+    b, db, ddb = _bspline_basis(v)
+    c = np.einsum("nj,njd->nd", b, ctrl)
+    dc = np.einsum("nj,njd->nd", db, ctrl)
+    ddc = np.einsum("nj,njd->nd", ddb, ctrl[:, :, :3])
+    return c[:, :3], dc[:, :3], ddc, c[:, 3], dc[:, 3]
+
+
+def _closest(ctrl, q):
+    """The centre line's point nearest ``q`` (N, 3): ``v`` in [0, 1] (17 samples, then Newton
+    on ``(c - q)·c' = 0``) and the distance ``|q - c(v)| - r(v)`` to the swept circle there
+    (a surface point only where ``v`` is not an end: the tube is open)."""
+    vs = np.linspace(0.0, 1.0, 17)
+    b, _, _ = _bspline_basis(vs)
+    c = np.einsum("mj,njd->nmd", b, ctrl[:, :, :3])
+    v = vs[np.argmin(np.sum((c - q[:, None]) ** 2, axis=2), axis=1)]
+    for _ in range(6):
+        c, dc, ddc, _, _ = _eval(ctrl, v)
+        g = dot(c - q, dc)
+        dg = dot(dc, dc) + dot(c - q, ddc)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            step = np.where(dg > 0, g / np.where(dg > 0, dg, 1.0), 0.0)
+        v = np.clip(v - step, 0.0, 1.0)
+    c, dc, _, r, _ = _eval(ctrl, v)
+    return v, np.sqrt(dot(q - c, q - c)) - r
+class RoundBSplineCurves(PrimitiveSet):
+    """Mitsuba's ``bsplinecurve``: Embree's round cubic B-spline curve, the sweep of a circle
+    of radius ``r(v)`` centred on the uniform cubic B-spline ``c(v)`` in the plane normal to
+    ``c'(v)``, open at the ends (``v`` in [0, 1] per segment; Embree
+    ``kernels/geometry/curve_intersector_sweep.h``: ``dot(R, T) = 0``, ``|R| = r``).
+
+    Intersection: along the ray, the distance to the tube ``φ(t) = |q - c(v*)| - r(v*)``
+    with ``c(v*)`` the centre line's point nearest ``q = o + t d`` (where ``(q - c)·c' = 0``:
+    the swept circle through ``q``'s normal plane); an entry is a change of ``φ`` from + to -
+    with ``v*`` inside (0, 1) (the tube is open at its ends). The ray's stretch through the
+    segment's box is sampled, pieces that could hide a root (``φ`` changes by at most
+    :data:`_LIPSCHITZ` per unit of ``t``) are split, each entry is bisected to float64. This
+    assumes the radius below the centre line's radius of curvature (Embree's condition too);
+    roots closer than 1e-12 relative are not separated. Back faces culled as Mitsuba; normals as
+    Mitsuba's (``(|c'|² - (p - c)·c'') (p - c) - r r' c'``, the sweep's exact normal).
+    """
+
+    def __init__(self, curves, name: str = ""):
+        self.points, self.segments = _segments(curves, f"bsplinecurve {name!r}", 4)
+        super().__init__(*self.bvh_boxes(np.arange(self.segments.size)), name=name)
+
+    def _repr_extra(self) -> str:
+        return f"control_points={self.points.shape[0]}, segments={self.segments.size}"
+
+    def _ctrl(self, prim):
+        return self.points[self.segments[prim][:, None] + np.arange(4)]
+
+    def _normal(self, prim, p, v):
+        """Mitsuba's normal: ``(|c'|² - (p - c)·c'') (p - c) - r r' c'``, normalised."""
+        c, dc, ddc, r, dr = _eval(self._ctrl(prim), v)
+        rad = p - c
+        return normalize((dot(dc, dc) - dot(rad, ddc))[:, None] * rad - (dr * r)[:, None] * dc), c, dc
+
+    def _phi(self, prim, o, d, t):
+        """Distance to the tube at ``o + t d``, ``v``, and whether ``v`` is inside (0, 1)."""
+        v = np.empty(prim.size)
+        phi = np.empty(prim.size)
+        for s in range(0, prim.size, _CHUNK):
+            sl = slice(s, s + _CHUNK)
+            v[sl], phi[sl] = _closest(self._ctrl(prim[sl]), o[sl] + t[sl, None] * d[sl])
+        return phi, v, (v > 0.0) & (v < 1.0)
+
+    def _nearest(self, prim, o, d, tmin, tmax):
+        """Nearest front-facing hit of each pair in ``(tmin, tmax)``: ``(t, v)``, inf/nan.
+
+        The ray's stretch through the segment's box is cut into :data:`BSPLINE_SAMPLES`
+        pieces; a piece whose ends' distances go from + to - holds an entry (bisected to
+        float64); one whose ends are both outside but closer together than the distance can
+        change along it (Lipschitz bound) is split into four, up to :data:`_REFINE_ROUNDS`
+        times, so that no entry is skipped between samples."""
+        k = prim.size
+        lo_b, hi_b = self.bvh_boxes(prim)
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            inv = 1.0 / np.where(d == 0, 1e-300, d)
+            ta, tb = (lo_b - o) * inv, (hi_b - o) * inv
+        t0 = np.maximum(np.minimum(ta, tb).max(axis=1), tmin)
+        t1 = np.minimum(np.maximum(ta, tb).min(axis=1), tmax)
+        best_t, best_v = np.full(k, np.inf), np.full(k, np.nan)
+        live = np.nonzero(t0 < t1)[0]
+        if live.size == 0:
+            return best_t, best_v
+        n = BSPLINE_SAMPLES
+        pair = np.repeat(live, n + 1)
+        ts = (t0[live, None] + (t1 - t0)[live, None] * np.linspace(0.0, 1.0, n + 1)).ravel()
+        phi, _, inner = self._phi(prim[pair], o[pair], d[pair], ts)
+        # pieces: pair, t at its ends, distances at its ends, whether each end is off the open ends
+        j = np.arange(pair.size).reshape(live.size, n + 1)
+        lo_i, hi_i = j[:, :-1].ravel(), j[:, 1:].ravel()
+        P, TL, TH, FL, FH = pair[lo_i], ts[lo_i], ts[hi_i], phi[lo_i], phi[hi_i]
+        IL, IH = inner[lo_i], inner[hi_i]
+        brackets = []
+        for _ in range(_REFINE_ROUNDS):
+            wide = TH - TL > 1e-12 * (1.0 + np.abs(TH))
+            entry = (FL > 0) & (FH <= 0) & IL & IH
+            suspect = wide & (((FL > 0) & (FH > 0) & (FL + FH < _LIPSCHITZ * (TH - TL)))
+                              | ((FL > 0) != (FH > 0)) & ~(IL & IH))
+            brackets.append((P[entry], TL[entry], TH[entry]))
+            if not suspect.any():
+                break
+            P, TL, TH = P[suspect], TL[suspect], TH[suspect]
+            FL, FH, IL, IH = FL[suspect], FH[suspect], IL[suspect], IH[suspect]
+            m = 4
+            tm = (TL[:, None] + (TH - TL)[:, None] * (np.arange(1, m) / m)).ravel()
+            pm = np.repeat(P, m - 1)
+            fm, _, im = self._phi(prim[pm], o[pm], d[pm], tm)
+            tt = np.concatenate([TL[:, None], tm.reshape(-1, m - 1), TH[:, None]], axis=1)
+            ff = np.concatenate([FL[:, None], fm.reshape(-1, m - 1), FH[:, None]], axis=1)
+            ii = np.concatenate([IL[:, None], im.reshape(-1, m - 1), IH[:, None]], axis=1)
+            P = np.repeat(P, m)
+            TL, TH, FL, FH = tt[:, :-1].ravel(), tt[:, 1:].ravel(), ff[:, :-1].ravel(), ff[:, 1:].ravel()
+            IL, IH = ii[:, :-1].ravel(), ii[:, 1:].ravel()
+        P = np.concatenate([b[0] for b in brackets])
+        if P.size == 0:
+            return best_t, best_v
+        TL = np.concatenate([b[1] for b in brackets])
+        TH = np.concatenate([b[2] for b in brackets])
+        # only each pair's first bracket matters
+        order = np.lexsort((TL, P))
+        first = np.ones(order.size, dtype=bool)
+        first[1:] = P[order][1:] != P[order][:-1]
+        sel = order[first]
+        P, TL, TH = P[sel], TL[sel], TH[sel]
+        sp, so, sd = prim[P], o[P], d[P]
+        for _ in range(_BISECTIONS_T):
+            mid = 0.5 * (TL + TH)
+            fm, _, _ = self._phi(sp, so, sd, mid)
+            out = fm > 0
+            TL, TH = np.where(out, mid, TL), np.where(out, TH, mid)
+        _, v, _ = self._phi(sp, so, sd, TH)
+        best_t[P] = TH
+        best_v[P] = v
+        return best_t, best_v
+
+    def bvh_boxes(self, prim):
+        """The world boxes of segments ``prim``."""
+        ctrl = self._ctrl(prim)
+        rmax = ctrl[:, :, 3].max(axis=1, keepdims=True)
+        return ctrl[:, :, :3].min(axis=1) - rmax, ctrl[:, :, :3].max(axis=1) + rmax
+
+    def _pair_hits(self, prim, o, d, tmin, tmax):
+        return self._nearest(prim, o, d, tmin, tmax)[0]
+
+    def _hit_record(self, o, d, t, prim):
+        o = np.asarray(o, dtype=np.float64).reshape(-1, 3)
+        d = np.asarray(d, dtype=np.float64).reshape(-1, 3)
+        prim = np.maximum(np.asarray(prim, dtype=np.int64), 0)
+        t = _finite_or_zero(t)
+        slack = 1e-9 * (1.0 + np.abs(t))
+        _, v = self._nearest(prim, o, d, t - slack, t + slack)
+        v = np.nan_to_num(v)
+        p = o + t[:, None] * d
+        n, c, dc = self._normal(prim, p, v)
+        return p, n, c, dc, v, prim
+
+    def surface(self, o, d, t, prim):
+        p, n, _, _, _, _ = self._hit_record(o, d, t, prim)
+        return p, n, n.copy()
+
+    def uv(self, o, d, t, prim):
+        """Mitsuba's parameterisation, as :meth:`RoundLinearCurves.uv` about ``c'(v)``."""
+        p, _, c, dc, v, prim = self._hit_record(o, d, t, prim)
+        return _curve_uv(p - c, dc, v, prim, self.segments.size)

@@ -1,13 +1,14 @@
-"""Mitsuba's ``sdfgrid`` and ``linearcurve`` in the core, against Mitsuba 3.9.1's own
+"""Mitsuba's ``sdfgrid``, ``linearcurve`` and ``bsplinecurve`` in the core, against Mitsuba 3.9.1's own
 intersection (``scene.ray_intersect``, llvm_ad_rgb: Embree for the curves, the sdfgrid's
 voxel-cubic solver) and against the plugin's render, which traces them through Mitsuba.
 
 The SDF grid: a bumpy sphere's distance on a 12³ grid (``.vol`` written here), scaled and
 moved by ``to_world``. The curves: two round linear curves (3 and 4 control points, radii
-0.1-0.4), rotated, scaled and moved (the radii stay as written). Random rays from a sphere of
+0.1-0.4), rotated, scaled and moved (the radii stay as written); two cubic B-spline curves
+of 5 control points each (Embree's round curve: a circle swept along the spline, open ends). Random rays from a sphere of
 radius 4-5 toward the shapes: the same rays hit and miss in both (none of the rays grazes
 within float32 rounding of a silhouette), at distances within float32 rounding of Mitsuba's
-(SDF: Mitsuba's regula falsi stops at 1e-5; curves: Embree's float32 cone solver), with the
+(SDF: Mitsuba's regula falsi stops at 1e-5; curves: Embree's float32 solvers), with the
 same geometric and shading normals (both ``normals`` modes), segment index and ``uv``."""
 from __future__ import annotations
 
@@ -17,7 +18,7 @@ import numpy as np
 import pytest
 
 from links1.frontends.renderers import make_renderer
-from links1.geometry.curves import RoundLinearCurves, read_curves
+from links1.geometry.curves import RoundBSplineCurves, RoundLinearCurves, read_curves
 from links1.geometry.sdfgrid import SDFGrid, read_vol
 
 from .conftest import assert_both_match_mitsuba_direct
@@ -32,6 +33,19 @@ CURVES = """-1.0 0.1 0.1 0.3
 -0.3 -1.0 0.3 0.25
  0.8 -0.6 -0.4 0.15
  1.2 0.2 -0.3 0.3
+"""
+
+BSPLINES = """-1.0 0.1 0.1 0.2
+-0.3 1.2 1.0 0.3
+ 0.3 0.3 1.1 0.25
+ 1.0 1.4 1.2 0.2
+ 1.5 0.4 0.2 0.3
+
+-1.0 -0.5 -0.2 0.1
+-0.3 -1.0 0.3 0.25
+ 0.8 -0.6 -0.4 0.15
+ 1.2 0.2 -0.3 0.3
+ 0.9 0.6 -0.8 0.2
 """
 
 
@@ -52,6 +66,7 @@ def bumpy_sphere(n=12):
 def files(tmp_path):
     write_vol(tmp_path / "sdf.vol", bumpy_sphere())
     (tmp_path / "curves.txt").write_text(CURVES)
+    (tmp_path / "bsplines.txt").write_text(BSPLINES)
     return tmp_path
 
 
@@ -94,29 +109,31 @@ def test_sdfgrid_hits_match_mitsuba(files, llvm, normals):
         assert np.max(np.abs(ns - ng)) > 1e-2
 
 
-def test_linearcurve_hits_match_mitsuba(files, llvm):
+@pytest.mark.parametrize("plugin", ["linearcurve", "bsplinecurve"])
+def test_curve_hits_match_mitsuba(files, llvm, plugin):
     import mitsuba as mi
+    linear = plugin == "linearcurve"
     to_world = mi.ScalarTransform4f().translate([0.1, -0.2, 0.3]).rotate([1, 2, 3], 30).scale([1.2, 1.0, 0.9])
-    o, d = _rays([0.0, 0.0, 0.0], 0.8, n=4000, radius=5.0)
-    tm, ngm, _, uvm, pm = _mitsuba_hits({"type": "linearcurve", "filename": str(files / "curves.txt"),
-                                         "to_world": to_world}, o, d)
+    o, d = _rays([0.0, 0.0, 0.0], 0.8 if linear else 0.6, n=4000 if linear else 2000, radius=5.0)
+    name = files / ("curves.txt" if linear else "bsplines.txt")
+    tm, ngm, _, uvm, pm = _mitsuba_hits({"type": plugin, "filename": str(name), "to_world": to_world}, o, d)
     m = np.array(to_world.matrix)
     placed = [np.concatenate([c[:, :3] @ m[:3, :3].T + m[:3, 3], c[:, 3:]], axis=1)
-              for c in read_curves(files / "curves.txt")]
-    core = RoundLinearCurves(placed)
+              for c in read_curves(name, 2 if linear else 4)]
+    core = (RoundLinearCurves if linear else RoundBSplineCurves)(placed)
     t, prim = core.intersect(o, d, 0.0, np.inf)
     hit = np.isfinite(t)
-    assert 400 < hit.sum() < 3500
+    assert 150 < hit.sum() < 0.8 * t.size
     assert np.array_equal(hit, np.isfinite(tm))
     _, ng, ns = core.surface(o[hit], d[hit], t[hit], prim[hit])
     uv = core.uv(o[hit], d[hit], t[hit], prim[hit])
     assert np.array_equal(prim[hit], pm[hit])
-    assert np.max(np.abs(t[hit] - tm[hit])) < 2e-5 * 5.0   # Embree's float32 cone solver
+    assert np.max(np.abs(t[hit] - tm[hit])) < 2e-5 * 5.0   # Embree's float32 solvers
     assert np.max(np.abs(ng - ngm[hit])) < 1e-3
+    assert np.array_equal(ns, ng)
     assert np.max(np.abs(uv - uvm[hit])) < 1e-4
-    # the end caps are spheres: some rays hit a curve's first and last control point's sphere
-    first = np.isin(prim[hit], [0, 2]) & (np.abs(uv[:, 1] * 5 - prim[hit]) < 1e-12)
-    assert first.any()
+    if linear:   # the ends are spheres: some rays hit a curve's first control point's sphere
+        assert np.any((uv[:, 1] == 0.0) | (uv[:, 1] == 2 / 5))
 
 
 SCENE = """<scene version="3.0.0">
@@ -135,6 +152,9 @@ SCENE = """<scene version="3.0.0">
   <shape type="linearcurve"><string name="filename" value="{curves}"/>
     <transform name="to_world"><rotate y="1" angle="20"/><translate x="-0.6" y="0.2" z="0.2"/></transform>
     <bsdf type="diffuse"><rgb name="reflectance" value="0.2, 0.5, 0.8"/></bsdf></shape>
+  <shape type="bsplinecurve"><string name="filename" value="{bsplines}"/>
+    <transform name="to_world"><scale value="0.6"/><translate x="1.2" y="0.9" z="-0.4"/></transform>
+    <bsdf type="diffuse"><rgb name="reflectance" value="0.8, 0.7, 0.2"/></bsdf></shape>
 </scene>"""
 
 
@@ -146,10 +166,11 @@ def _render(kind, path, spp):
 
 @pytest.mark.parametrize("normals", ["smooth", "analytic"])
 def test_render_matches_mitsuba_direct_and_plugin(files, llvm, normals):
-    """A point-lit floor under the SDF grid and the curves (shadows of both on the floor, of
+    """A point-lit floor under the SDF grid and the curves (shadows of all on the floor, of
     the curves on the grid): both renderers within 1.5x the relMSE of Mitsuba's ``direct``
     (bsdf_samples 0) at the same spp against its 16x reference, and the core equal to the
     plugin (relMSE <= 1e-4)."""
     path = files / "scene.xml"
-    path.write_text(SCENE.format(vol=files / "sdf.vol", curves=files / "curves.txt", normals=normals))
+    path.write_text(SCENE.format(vol=files / "sdf.vol", curves=files / "curves.txt",
+                                bsplines=files / "bsplines.txt", normals=normals))
     assert_both_match_mitsuba_direct(str(path), 4, _render)
