@@ -29,7 +29,8 @@ shape           ``sphere`` (center, radius), ``cylinder`` (p0, p1, radius; open)
 bsdf            ``diffuse``, ``twosided``, ``conductor`` (perfect mirror, ``eta``/``k`` or a
                 ``material`` preset), ``dielectric``, ``thindielectric``, ``plastic``,
                 ``roughconductor``, ``roughplastic``, ``roughdielectric``, ``blendbsdf``
-                (:mod:`links1.shading.glossy`), ``principled`` (:mod:`links1.shading.principled`),
+                (:mod:`links1.shading.glossy`), ``principled``, ``principledthin``
+                (:mod:`links1.shading.principled`),
                 *links1* ``links1_phong``; other BSDFs → diffuse stand-in (warning); ``bitmap`` / ``checkerboard``
                 textures (:mod:`links1.shading.textures`) and ``mesh_attribute`` (a PLY's ``vertex_*`` / ``face_*``
                 properties) on their colour parameters; other textures → 0.5 grey (warning).
@@ -72,6 +73,7 @@ import numpy as np
 
 from ..shading import glossy, principled
 from ..shading import materials as mat
+from ..shading import normalmaps
 from . import params
 from ..geometry import meshes
 from ..shading import textures
@@ -94,7 +96,7 @@ DEFAULT_SPP = 4  # Mitsuba's independent sampler
 # Known Mitsuba 3 plugins the core does not support (for a clearer message than "unknown").
 _MITSUBA_SHAPES = {"shapegroup", "instance",
                    "ellipsoids", "ellipsoidsmesh", "merge"}
-_APPROX_BSDFS = {"principledthin", "hair", "measured", "pplastic", "polarizer",
+_APPROX_BSDFS = {"hair", "measured", "pplastic", "polarizer",
                  "retarder", "circular", "measured_polarized", "bumpmap",
                  "normalmap"}
 _IGNORED_EMITTERS = {"sunsky", "directionalarea"}
@@ -1042,8 +1044,8 @@ class _Builder:
                 m = mat.Conductor(specular_reflectance=refl, name=name)
         elif t in ("roughconductor", "roughdielectric", "roughplastic"):
             m = self._rough_bsdf(node, props, t, name)
-        elif t == "principled":
-            m = self._principled(node, props, name)
+        elif t in ("principled", "principledthin"):
+            m = self._principled(node, props, t, name)
         elif t == "blendbsdf":
             inner = node.objects("bsdf")
             if len(inner) != 2:
@@ -1088,10 +1090,10 @@ class _Builder:
                           "is dropped (a Whitted node has one transmitted ray)")
         elif t == "null":   # Mitsuba's null: every ray goes straight through (BSDFFlags::Null)
             m = mat.Mask(nested=mat.Material(), opacity=0.0, name=name)
-        elif t in ("bumpmap", "normalmap") and node.objects("bsdf"):
-            node.warn(f"'{t}' is not supported by the core; the nested bsdf is used as is")
-            props.ignore(*node.props)
-            return self.bsdf(node.objects("bsdf")[0])
+        elif t in ("bumpmap", "normalmap"):
+            m = self._perturbed(node, props, t, name)
+        elif t == "pplastic":
+            m = self._pplastic(node, props, name)
         elif t in _APPROX_BSDFS:
             color = 0.5
             for key in ("reflectance", "diffuse_reflectance", "base_color", "specular_reflectance"):
@@ -1111,16 +1113,76 @@ class _Builder:
         props.finish()
         return m
 
-    def _principled(self, node: Node, props: _Props, name: str):
-        """``principled`` (:mod:`links1.shading.principled`): its weights are floats or textures."""
-        weights = {k: _roughness(props, k, 0.5 if k == "roughness" else 0.0)
-                   for k in principled.Principled.scalar_params}
-        rates = {k: props.float(k, 1.0, nonneg=True) for k in (
-            "main_specular_sampling_rate", "clearcoat_sampling_rate", "diffuse_reflectance_sampling_rate")}
-        return _construct(node, principled.Principled,
-                          base_color=props.texture("base_color", 0.5, reflectance=True),
-                          eta=props.float("eta", None), specular=props.float("specular", None),
+    def _principled(self, node: Node, props: _Props, t: str, name: str):
+        """``principled``, ``principledthin`` (:mod:`links1.shading.principled`): their weights
+        are floats or textures."""
+        thin = t == "principledthin"
+        cls = principled.PrincipledThin if thin else principled.Principled
+        defaults = {"roughness": 0.5, "eta": 1.5}
+        weights = {k: _roughness(props, k, defaults.get(k, 0.0)) for k in cls.scalar_params}
+        rates = ("specular_reflectance_sampling_rate", "specular_transmittance_sampling_rate",
+                 "diffuse_reflectance_sampling_rate", "diffuse_transmittance_sampling_rate") if thin else (
+            "main_specular_sampling_rate", "clearcoat_sampling_rate", "diffuse_reflectance_sampling_rate")
+        rates = {k: props.float(k, 1.0, nonneg=True) for k in rates}
+        if not thin:
+            rates.update(eta=props.float("eta", None), specular=props.float("specular", None))
+        return _construct(node, cls, base_color=props.texture("base_color", 0.5, reflectance=True),
                           name=name, **weights, **rates)
+
+    def _perturbed(self, node: Node, props: _Props, t: str, name: str):
+        """``normalmap`` / ``bumpmap`` around their nested bsdf (:mod:`links1.shading.normalmaps`)."""
+        inner = node.objects("bsdf")
+        if len(inner) != 1:
+            raise node.error(f"{t} needs exactly one nested bsdf")
+        nested = self.bsdf(inner[0])
+        common = dict(nested=nested, flip_invalid_normals=props.bool("flip_invalid_normals", True),
+                      use_shadowing_function=props.bool("use_shadowing_function", True), name=name)
+        if t == "normalmap":
+            m = _construct(node, normalmaps.NormalMap,
+                           normalmap=props.texture("normalmap", nonneg=False, unbounded=True), **common)
+        else:
+            tex = node.objects("texture")
+            if len(tex) != 1:
+                raise node.error("bumpmap needs exactly one nested texture (the height)")
+            if tex[0].type != "bitmap":
+                raise tex[0].error(f"bumpmap: Mitsuba takes the gradient of a bitmap height texture "
+                                   f"only, not of a '{tex[0].type}'")
+            props.ignore(*[nm for nm, c in node.children if c is tex[0] and nm])
+            m = _construct(node, normalmaps.BumpMap, texture=_texture(tex[0]),
+                           scale=props.float("scale", 1.0), **common)
+        if nested.has_reflection or nested.has_transmission:
+            node.warn(f"{t}: the mirror and refraction rays of the nested bsdf leave about the "
+                      "unperturbed normal in the core")
+        return m
+
+    def _pplastic(self, node: Node, props: _Props, name: str):
+        """``pplastic`` as Mitsuba's RGB variants evaluate it (:class:`links1.shading.glossy.PolarizedPlastic`)."""
+        distribution = props.string("distribution", "beckmann").strip().lower()
+        if distribution not in ("beckmann", "ggx"):
+            raise props.error("distribution", f"invalid distribution '{distribution}', must be "
+                                              "'beckmann' or 'ggx'")
+        if props.has("eta"):
+            if props.has("int_ior"):
+                raise props.error("eta", "give either 'eta' or 'int_ior' and 'ext_ior', not both")
+            eta = props.float("eta", positive=True)
+        else:
+            int_ior, ext_ior = _ior(props, "int_ior", "polypropylene"), _ior(props, "ext_ior", "air")
+            if int_ior == ext_ior:
+                raise node.error("the interior and exterior indices of refraction must differ")
+            eta = int_ior / ext_ior
+        if props.has("alpha_u") or props.has("alpha_v"):
+            if props.has("alpha"):
+                raise props.error("alpha", "give either 'alpha' or 'alpha_u'/'alpha_v'")
+            if not (props.has("alpha_u") and props.has("alpha_v")):
+                raise node.error("both 'alpha_u' and 'alpha_v' must be given")
+            alpha = (_roughness(props, "alpha_u"), _roughness(props, "alpha_v"))
+        else:
+            alpha = (_roughness(props, "alpha", 0.1),) * 2
+        return _construct(node, glossy.PolarizedPlastic, distribution=distribution,
+                          alpha_u=alpha[0], alpha_v=alpha[1], eta=eta,
+                          diffuse_reflectance=props.texture("diffuse_reflectance", 0.5, reflectance=True),
+                          specular_reflectance=props.texture("specular_reflectance", 1.0, reflectance=True),
+                          sample_visible=props.bool("sample_visible", True), name=name)
 
     def _rough_bsdf(self, node: Node, props: _Props, t: str, name: str):
         """``roughconductor``, ``roughdielectric``, ``roughplastic`` (:mod:`links1.shading.glossy`)."""
