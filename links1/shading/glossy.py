@@ -507,9 +507,13 @@ def _call(fn, wo, wi, n, n_raw, tangent):
 
 
 def _call_sample(mat, wo, n, n_raw, u, uv, tangent):
-    if tangent is not None and isinstance(mat, (_Local, Blend)):
+    """``mat.sample`` in the shading frame of ``tangent`` (Mitsuba's ``dp_du``) where one is
+    given: every material's sampler takes it (a diffuse one too, whose cosine samples turn
+    with the frame)."""
+    if tangent is not None:
         return mat.sample(wo, n, n_raw, u, uv, tangent=tangent)
     return mat.sample(wo, n, n_raw, u, uv)
+
 
 
 @dataclass

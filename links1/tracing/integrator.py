@@ -8,7 +8,8 @@ the subsets that need each next step, so a scene without mirrors spawns no mirro
 a scene without glass no refraction rays.
 
 Area and environment lights are sampled (``light_samples`` points per hit). At a hit whose
-material has glossy lobes (``material.glossy``), one BSDF sample joins them: the direction the
+material has diffuse or glossy lobes (``material.smooth``; not links1_phong, which keeps the
+paper's light samples alone), one BSDF sample joins them: the direction the
 material draws at the hit's BSDF sample (:func:`links1.maths.sampling.bsdf_samples_uv`) is
 traced to the nearest surface; where it meets a sampled area light's front or escapes to an
 environment, that light's radiance counts. Both strategies are weighted by the power
@@ -164,7 +165,10 @@ class WhittedIntegrator:
         self._shadow_t_light = plan.shadow_t_light
         #: per material: glossy lobes, so BSDF samples join the light samples (None: no glossy
         #: material meets a sampled light, and no hit takes a BSDF sample)
-        self._glossy = np.array([bool(getattr(m, "glossy", False)) for m in self._materials])
+        # (diffuse lobes too, as Mitsuba's direct samples every smooth BSDF; links1_phong keeps
+        # the paper's light samples alone)
+        self._glossy = np.array([bool(getattr(m, "glossy", False) or getattr(m, "smooth", False)
+                                      and type(m).__name__ != "Phong") for m in self._materials])
         if not (self._glossy.any() and any(getattr(lt, "sampled", False) for lt in self.lights)):
             self._glossy = None
         self.stats = TraceStats()

@@ -511,9 +511,10 @@ class Prepared:
     any_phong_r: bool = _set_later()
     any_phong_t: bool = _set_later()
     any_specular: bool = _set_later()
-    #: per slot: the Mitsuba BSDF has a glossy lobe (Bool); direct light from the sampled lights
-    #: at such hits adds a BSDF sample, combined by multiple importance sampling (``any_mis``:
-    #: some glossy slot and some area or environment light)
+    #: per slot: the Mitsuba BSDF has a diffuse or glossy lobe (Bool); direct light from the
+    #: sampled lights at such hits adds a BSDF sample, combined by multiple importance sampling
+    #: (``any_mis``: some such slot and some area or environment light); links1_phong keeps
+    #: the paper's light samples alone
     glossy: object = _set_later()
     any_mis: bool = _set_later()
     #: the links1 quadric slots whose Mitsuba BSDF has a texture (they get the core's uv)
@@ -976,6 +977,8 @@ class Tables:
                                       "dielectric); the straight-through part is dropped",
                                       stacklevel=2)
                     has_null[sl] = False
+                if fl & int(mi.BSDFFlags.Diffuse):
+                    glossy[sl] = True    # (a BSDF sample as for glossy lobes: Mitsuba's direct)
                 if fl & int(mi.BSDFFlags.Glossy):
                     glossy[sl] = True
                     name = kind_of(b)

@@ -109,11 +109,13 @@ def test_core_equals_plugin(bsdf, light, variant, scene_dir):
 
 @pytest.mark.parametrize("bsdf,light,expected", [("roughconductor", "rectangle", True),
                                                  ("roughplastic", "constant", True),
-                                                 ("diffuse", "rectangle", False),
-                                                 ("roughconductor", "point", False)])
+                                                 ("diffuse", "rectangle", True),
+                                                 ("roughconductor", "point", False),
+                                                 ("diffuse", "point", False)])
 def test_bsdf_samples_only_where_a_glossy_bsdf_meets_a_sampled_light(bsdf, light, expected, variant,
                                                                      scene_dir):
-    """A diffuse scene or a delta light traces no BSDF sample: its kernels are those of light
+    """Diffuse and glossy BSDFs under a sampled light take BSDF samples (as Mitsuba's direct);
+    under delta lights alone no BSDF sample is traced: the kernels are those of light
     sampling alone."""
     from links1.frontends.renderers import make_renderer
     r = make_renderer("mitsuba", write_scene(scene_dir, bsdf, light), spp=1, variant=variant)
