@@ -127,6 +127,12 @@ class Lights:
                         raise ValueError("a textured radiance needs the mesh's texture coordinates, "
                                          "which it has not (Mitsuba refuses it too)")
                     uv = np.array(sh.vertex_texcoords_buffer(), dtype=np.float64).reshape(-1, 2)[f]
+                    # Mitsuba's own sampling of this emitter (its direct, path, and any symbolic
+                    # call that traces every registered emitter) builds the mesh's uv
+                    # parameterization on first use, a scene of its own, with the GIL released;
+                    # the Python references taken here then make that unsafe (a segfault):
+                    # build it now, while the GIL is held
+                    sh.eval_parameterization(mi.Point2f(0.5, 0.5))
             else:
                 m = np.array(prm["to_world"].matrix, dtype=np.float64).reshape(4, 4)
                 # flip_normals of an analytic shape: Mitsuba's own sampled normal says it
