@@ -202,9 +202,9 @@ def test_referenced_and_nested_textures():
 
 def test_unsupported_bsdf_keeps_its_texture_in_the_diffuse_stand_in():
     xml = """<scene version="3.0.0"><sensor type="perspective"/><shape type="rectangle">
-      <bsdf type="roughconductor"><texture type="checkerboard" name="specular_reflectance"/></bsdf>
+      <bsdf type="hair"><texture type="checkerboard" name="reflectance"/></bsdf>
       </shape></scene>"""
-    with pytest.warns(SceneWarning, match="roughconductor.*approximated as a diffuse surface of "
+    with pytest.warns(SceneWarning, match="hair.*approximated as a diffuse surface of "
                                           "reflectance its texture"):
         m = load_string(xml).shapes[0].material
     np.testing.assert_allclose(m.at([[0.1, 0.1], [0.6, 0.1]]).reflectance, [[0.4] * 3, [0.2] * 3])

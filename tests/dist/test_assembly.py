@@ -46,7 +46,7 @@ CULL_SCENE = """<scene version="3.0.0">
     <film type="hdrfilm"><integer name="width" value="40"/><integer name="height" value="24"/>
       <rfilter type="box"/></film></sensor>
   <integrator type="links1_whitted"><integer name="max_depth" value="1"/></integrator>
-  <emitter type="links1_point"><point name="position" x="0" y="0" z="12"/><rgb name="color" value="50"/></emitter>
+  <emitter type="links1_point"><point name="position" x="0" y="0" z="12"/><rgb name="L1" value="50"/></emitter>
   %s
 </scene>"""
 SPHERE = ('<shape type="links1_quadric"><string name="kind" value="sphere"/><transform name="to_world">'

@@ -33,10 +33,12 @@ PACKAGES = {"links1": ROOT / "links1", "links1_mitsuba": ROOT / "plugins" / "lin
 FRONT_ENDS = ("links1.frontends", "links1.partition")
 
 #: The core's packages, bottom up, each with the core packages it may import: one way, so no
-#: circle between packages (docs/architecture.md, "Packages"). ``links1.errors`` is the one
-#: module outside them (the error classes every layer raises).
+#: circle between packages (docs/architecture.md, "Packages"). ``links1.errors`` (the error
+#: classes every layer raises) and ``links1.interrupts`` (Ctrl-C held and raised at safe points,
+#: for the front ends and the plugin) are the modules outside them.
 LAYERS = {
     "links1.errors": set(),
+    "links1.interrupts": set(),
     "links1.maths": {"links1.errors"},
     "links1.imaging": {"links1.errors"},
     "links1.geometry": {"links1.errors", "links1.maths"},

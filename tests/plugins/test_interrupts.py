@@ -15,6 +15,9 @@ pytestmark = pytest.mark.mitsuba
 
 
 def test_ctrl_c_stops_a_plugin_render(tmp_path, llvm):
+    """20 seeded Ctrl-Cs at random moments of ``links1 render`` with the plugin: one line, status
+    130, no file, no process left. LLVM only: the stop between launches is the same code on
+    every variant, and 20 CLI runs are the time of one variant."""
     # 512², 64 spp: 16.7 M samples, four launches of LAUNCH_LANES (the stop comes between them)
     args = ["scenes/fig11.xml", "--width", "512", "--height", "512", "--spp", "64", "--variant", llvm]
     bad = interrupt_tries(args, tmp_path, seed=4)

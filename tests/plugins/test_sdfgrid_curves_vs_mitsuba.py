@@ -91,6 +91,8 @@ def _mitsuba_hits(shape_dict, o, d):
 
 @pytest.mark.parametrize("normals", ["smooth", "analytic"])
 def test_sdfgrid_hits_match_mitsuba(files, llvm, normals):
+    """The core's sdfgrid hits, distances and normals against Mitsuba's ``ray_intersect``.
+    LLVM only: a test of the core against a reference Mitsuba computes once."""
     import mitsuba as mi
     to_world = mi.ScalarTransform4f().translate([0.1, -0.2, 0.3]).scale([1.5, 1.2, 0.9])
     o, d = _rays([0.85, 0.34, 0.75], 0.5)
@@ -111,6 +113,8 @@ def test_sdfgrid_hits_match_mitsuba(files, llvm, normals):
 
 @pytest.mark.parametrize("plugin", ["linearcurve", "bsplinecurve"])
 def test_curve_hits_match_mitsuba(files, llvm, plugin):
+    """The core's curve hits, distances, normals, uv and segments against Mitsuba's
+    ``ray_intersect``. LLVM only: a test of the core against a reference Mitsuba computes once."""
     import mitsuba as mi
     linear = plugin == "linearcurve"
     to_world = mi.ScalarTransform4f().translate([0.1, -0.2, 0.3]).rotate([1, 2, 3], 30).scale([1.2, 1.0, 0.9])
@@ -169,7 +173,8 @@ def test_render_matches_mitsuba_direct_and_plugin(files, llvm, normals):
     """A point-lit floor under the SDF grid and the curves (shadows of all on the floor, of
     the curves on the grid): both renderers within 1.5x the relMSE of Mitsuba's ``direct``
     (bsdf_samples 0) at the same spp against its 16x reference, and the core equal to the
-    plugin (relMSE <= 1e-4)."""
+    plugin (relMSE <= 1e-4). LLVM only: the shapes are Mitsuba's own (Embree on LLVM, OptiX on
+    CUDA: the plugin adds nothing of its own to test on the GPU), against the core."""
     path = files / "scene.xml"
     path.write_text(SCENE.format(vol=files / "sdf.vol", curves=files / "curves.txt",
                                 bsplines=files / "bsplines.txt", normals=normals))
