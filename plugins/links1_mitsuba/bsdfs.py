@@ -74,8 +74,8 @@ def define_phong():
         def __init__(self, props):
             super().__init__(props)
             self._held = Hidden()
-            self._set_params(phong_params(props))
             self._held.where = place_of(props.id())   # FILE:LINE: <bsdf ...> while a file loads
+            self._set_params(phong_params(props))
 
         def _set_params(self, p):
             """Hold the checked parameters ``p`` (Python values, what ``links1_whitted``'s tables
