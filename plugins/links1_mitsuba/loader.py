@@ -191,6 +191,16 @@ def _prepare_state(state, config, integrator: str, base_dir: str | None):
         keep = {"max_depth", "seed", "aovs", "min_weight", "light_samples", "adaptive", "adaptive_depth"}
         if old != "links1_whitted":
             keep = {"max_depth"}
+            if "max_depth" not in integ_node.props:
+                # a wrapper (moment, aov) without a depth of its own: its nested integrator's,
+                # as the core reads it
+                for k in integ_node.props.keys():
+                    v = integ_node.props[k]
+                    if isinstance(v, mi.Properties.ResolvedReference):
+                        inner = nodes[v.index()]
+                        if inner.type == mi.ObjectType.Integrator and "max_depth" in inner.props:
+                            integ_node.props["max_depth"] = inner.props["max_depth"]
+                            break
         for k in list(integ_node.props.keys()):
             if k not in keep:
                 del integ_node.props[k]

@@ -252,8 +252,9 @@ class RayTree:
                     T, need, occ_m = shadow(jsh, so, wi, smax, lit, contrib)
                     pending.append((contrib, so, wi, smax, lit, need, T, occ_m, jsh))
             if mis:
-                L_b, n_b = self._bsdf_sample_light(P, scene, key, sample, bsdf, ctx_s, sif, glossy,
-                                                   p, nf, offset, cost)
+                sampler_b, opacity_b = self._unmasked(P, bsdf, sif, uslot, glossy)
+                L_b, n_b = self._bsdf_sample_light(P, scene, key, sample, sampler_b, ctx_s, sif, glossy,
+                                                   p, nf, offset, cost, opacity_b)
                 out += L_b
                 n_shadow = n_shadow + n_b
             if not symbolic:
@@ -319,13 +320,8 @@ class RayTree:
             if P.any_mitsuba_dt:
                 lobes.append((mi.BSDFFlags.DeltaTransmission, "t"))
             sampler, opacity = bsdf, None
-            if P.any_mask and (P.any_mitsuba_dr or P.any_mitsuba_dt):
-                # a mask's lobes: its nested BSDF's, times the opacity, which is
-                # (1 - null(mask)) / (1 - null(nested)) (Mitsuba's mask: null = 1 - a (1 - null'))
-                sampler = dr.gather(mi.BSDFPtr, P.inner_ptr, uslot, mb)
-                om = dr.sum(1.0 - bsdf.eval_null_transmission(sif, mb))
-                on = dr.sum(1.0 - sampler.eval_null_transmission(sif, mb))
-                opacity = dr.select(on > 0, om / dr.maximum(on, 1e-30), 0.0)
+            if P.any_mitsuba_dr or P.any_mitsuba_dt:
+                sampler, opacity = self._unmasked(P, bsdf, sif, uslot, mb)
             for flag, which in lobes:   # only the delta lobes some BSDF of the scene has
                 for c, table in P.delta_components[which]:
                     # one component at a time (a blendbsdf's nested ones, weighted by its weight)
@@ -362,7 +358,22 @@ class RayTree:
                    o_r=offset(dir_r), o_t=offset(dir_t))
         return res
 
-    def _bsdf_sample_light(self, P, scene, key, sample, bsdf, ctx, sif, active, p, nf, offset, cost):
+    @staticmethod
+    def _unmasked(P, bsdf, sif, uslot, active):
+        """``(sampler, opacity)``: where a slot's BSDF is a ``mask``, its nested BSDF and the
+        opacity, ``(1 - null(mask)) / (1 - null(nested))`` (Mitsuba's mask: null = 1 - a (1 -
+        null')); its lobes are the nested one's times the opacity. Mitsuba's ``mask.sample``
+        cannot sample the nested lobes alone (asked for them only, it returns its null lobe).
+        ``(bsdf, None)`` in a scene without masks."""
+        if not P.any_mask:
+            return bsdf, None
+        sampler = dr.gather(mi.BSDFPtr, P.inner_ptr, uslot, active)
+        om = dr.sum(1.0 - bsdf.eval_null_transmission(sif, active))
+        on = dr.sum(1.0 - sampler.eval_null_transmission(sif, active))
+        return sampler, dr.select(on > 0, om / dr.maximum(on, 1e-30), 0.0)
+
+    def _bsdf_sample_light(self, P, scene, key, sample, bsdf, ctx, sif, active, p, nf, offset, cost,
+                           opacity=None):
         """The BSDF-sampled part of the direct light at glossy hits ``active``: one direction
         drawn by the BSDF's smooth lobes at the hit's BSDF sample (:meth:`_bsdf_uv`), traced
         (nearest hit over every shape); where it meets a sampled area light's front or escapes to
@@ -372,6 +383,8 @@ class RayTree:
         n = dr.width(p)
         u1, u, v = self._bsdf_uv(key, sample)
         bs, weight = bsdf.sample(ctx, sif, u1, mi.Point2f(u, v), active)
+        if opacity is not None:    # a mask's nested lobes (its pdf is the nested one's: mask.pdf)
+            weight = weight * opacity
         wi = sif.to_world(bs.wo)
         ok = active & (bs.pdf > 0) & (dr.max(weight) > 0)
         t, slot, si, _ = self._nearest(P, scene, offset(wi), wi, dr.zeros(mi.Float, n),

@@ -35,7 +35,9 @@ def kind_of(obj) -> str:
     key = (type(obj), obj.class_name())
     k = _KINDS.get(key)
     if k is None:
-        k = _KINDS[key] = str(obj).split("[")[0]
+        # (one line: a few plugins' to_string is not "Name[...]", principled's is
+        # "Principled BSDF :\nbase_color: ...")
+        k = _KINDS[key] = str(obj).split("[")[0].splitlines()[0].strip().rstrip(":").strip()
     return k
 
 
