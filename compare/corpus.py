@@ -10,8 +10,8 @@ the file's own film filter.
 
 The reference is ``whitted_reference`` (tests/corpus/whitted_reference.py): Mitsuba's emitter
 and BSDF sampling with MIS at each hit, recursion through delta lobes only, on the file loaded
-by plain ``mi.load_file``, at ``max_depth`` 6 (links1_whitted's default 5, counted as Mitsuba
-counts). Per scene, in a process of its own (a crash or a hang costs one row):
+by plain ``mi.load_file``, at links1's ``max_depth`` for the file (its integrator's, else 5)
+plus one (Mitsuba counts the emitter's vertex). Per scene, in a process of its own (a crash or a hang costs one row):
 
 * ``ref``: the reference at ``spp x ref-factor`` (seed 1): the image everything is judged by;
 * ``mitsuba``: the reference at ``spp`` (seed 2): Mitsuba's own error at equal spp;
@@ -69,7 +69,11 @@ def _job(job: dict) -> dict:
             import links1_mitsuba
             links1_mitsuba.register(job["variant"])
             from tests.corpus.whitted_reference import render_reference
-            kw = dict(width=w, params=dict(sc.params))
+            from links1 import load_scene
+            # links1's depth for the file (its integrator's max_depth, a wrapper's nested one,
+            # else 5), counted as Mitsuba counts: one more
+            kw = dict(width=w, params=dict(sc.params),
+                      max_depth=load_scene(sc.local_path, **dict(sc.params)).max_depth + 1)
             t0 = time.perf_counter()
             out["ref"] = render_reference(sc.local_path, spp * job["ref_factor"], seed=1, **kw)
             res["ref_s"] = time.perf_counter() - t0
