@@ -235,13 +235,18 @@ class RoughPlastic(_Local):
         pd = t_i * (1.0 - self.specular_sampling_weight)
         return ps / (ps + pd)
 
-    def _eval(self, wi, wo):
+    def _coat(self, wi, wo):
+        """Both sides above the surface, and the rough coat's ``F D G / (4 cos θ_i)`` (Walter
+        et al. eq. 20 times cos θ_o): the specular lobe of roughplastic and pplastic."""
         ok = (wi[:, 2] > 0) & (wo[:, 2] > 0)
         d = self._distr()
         h = mf._normalize(wi + wo)
         F = mf.fresnel(dot(wi, h), self.eta)[0]
         with np.errstate(divide="ignore", invalid="ignore"):
-            spec = np.nan_to_num(F * d.eval(h) * d.G(wi, wo, h) / (4.0 * wi[:, 2]))
+            return ok, np.nan_to_num(F * d.eval(h) * d.G(wi, wo, h) / (4.0 * wi[:, 2]))
+
+    def _eval(self, wi, wo):
+        ok, spec = self._coat(wi, wo)
         t_i = mf.lerp_table(self.external_transmittance, wi[:, 2])
         t_o = mf.lerp_table(self.external_transmittance, wo[:, 2])
         diff = np.asarray(self.diffuse_reflectance)
@@ -551,12 +556,7 @@ class PolarizedPlastic(RoughPlastic):
         return np.full(np.shape(cos_i), self.specular_sampling_weight)
 
     def _eval(self, wi, wo):
-        ok = (wi[:, 2] > 0) & (wo[:, 2] > 0)
-        d = self._distr()
-        h = mf._normalize(wi + wo)
-        F = mf.fresnel(dot(wi, h), self.eta)[0]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            spec = np.nan_to_num(F * d.eval(h) * d.G(wi, wo, h) / (4.0 * wi[:, 2]))
+        ok, spec = self._coat(wi, wo)
         r_i, r_o = mf.fresnel(wi[:, 2], self.eta)[0], mf.fresnel(wo[:, 2], self.eta)[0]
         diffuse = (1.0 - r_o) * (1.0 - r_i) * wo[:, 2] / math.pi
         val = (spec[:, None] * self.specular_reflectance
