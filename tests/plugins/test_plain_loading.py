@@ -258,3 +258,30 @@ def test_sdfgrid_in_a_rotating_instance(tmp_path):
     for img in (loaded, got):
         assert _rel_mse(img, ref) < 3e-3, _rel_mse(img, ref)
         assert np.abs(img[green] - ref[green]).mean() < 0.02
+
+
+def test_ellipsoids_from_mi_load_dict():
+    """Mitsuba's ``ellipsoids`` shape (its own intersection) in a dict scene: links1_whitted at
+    max_depth 1 equals Mitsuba's ``direct`` (bsdf_samples 0) to its noise at 256 spp, and the
+    red ellipsoids are in the picture."""
+    use_variant("llvm_ad_rgb")
+    import mitsuba as mi
+    d = {"type": "scene",
+         "cam": {"type": "perspective", "fov": 40,
+                 "to_world": mi.ScalarTransform4f().look_at([0, 1.5, 5], [0, 0.5, 0], [0, 1, 0]),
+                 "film": {"type": "hdrfilm", "width": 40, "height": 30, "rfilter": {"type": "box"}}},
+         "floor": {"type": "rectangle", "to_world": mi.ScalarTransform4f().rotate([1, 0, 0], -90).scale(4),
+                   "bsdf": {"type": "diffuse"}},
+         "ell": {"type": "ellipsoids",
+                 "centers": mi.TensorXf(np.array([[0, 0.6, 0], [1, 0.5, 0.3]], np.float32)),
+                 "scales": mi.TensorXf(np.array([[0.5, 0.3, 0.4], [0.3, 0.3, 0.3]], np.float32)),
+                 "quaternions": mi.TensorXf(np.array([[0, 0, 0, 1], [0, 0, 0, 1]], np.float32)),
+                 "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.8, 0.2, 0.1]}}},
+         "light": {"type": "point", "position": [1, 3, 2], "intensity": {"type": "rgb", "value": [10, 10, 10]}}}
+    s = mi.load_dict(d)
+    got = np.array(mi.render(s, integrator=mi.load_dict({"type": "links1_whitted", "max_depth": 1}), spp=16),
+                   dtype=np.float64)
+    ref = np.array(mi.render(s, integrator=mi.load_dict({"type": "direct", "bsdf_samples": 0}), spp=256),
+                   dtype=np.float64)
+    assert _rel_mse(got, ref) < 2e-3, _rel_mse(got, ref)
+    assert (ref[..., 0] > 2 * ref[..., 1]).sum() > 100
