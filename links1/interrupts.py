@@ -111,3 +111,18 @@ def restore_interrupts(handler) -> None:
     """Put back a SIGINT handler :func:`ignore_interrupts` returned (None: nothing to do)."""
     if handler is not None and _main_thread():
         signal.signal(signal.SIGINT, handler)
+
+
+def stop_resource_sharer() -> None:
+    """Stop multiprocessing's resource-sharer thread of this process, if a pool started it
+    (it serves connections handed to workers until the interpreter exits). After an interrupt
+    the exit can close its listener under it, and its thread then prints a traceback after
+    ``links1: interrupted``: asked to stop first, it ends quietly."""
+    from multiprocessing import resource_sharer
+    sharer = getattr(resource_sharer, "_resource_sharer", None)
+    if sharer is None or getattr(sharer, "_address", None) is None:
+        return
+    try:
+        sharer.stop(timeout=1.0)
+    except Exception:   # noqa: BLE001 - best effort at an interrupted exit
+        pass

@@ -197,12 +197,13 @@ def main(argv=None) -> int:
     interrupted``, status 130, no output file (it is written atomically, and once a finished
     frame is being written the interrupt is ignored: the file is then complete), no process left
     (the partitioning back ends stop their workers and clusters, :mod:`links1.interrupts`)."""
-    from ..interrupts import ignore_interrupts, restore_interrupts
+    from ..interrupts import ignore_interrupts, restore_interrupts, stop_resource_sharer
     handler = ignore_interrupts(False)
     try:
         return _main(argv)
     except KeyboardInterrupt:
         ignore_interrupts()   # a second Ctrl-C does not break what is left of the clean-up
+        stop_resource_sharer()
         print("links1: interrupted", file=sys.stderr)
         return 130
     finally:
