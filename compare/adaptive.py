@@ -1,4 +1,4 @@
-"""Adaptive anti-aliasing (issue 11): time against error, uniform spp vs adaptive.
+"""Adaptive anti-aliasing: time against error, uniform spp vs adaptive.
 
     python -m compare.adaptive --renderer mitsuba --res 512          # every scene in scenes/
     python -m compare.adaptive --renderer core [--res 128] [--ref-spp 1024] [--scenes lights fig4 ...]

@@ -1,4 +1,4 @@
-"""Area lights and environments (issue 13): time and error against Mitsuba's ``direct``.
+"""Area lights and environments: time and error against Mitsuba's ``direct``.
 
     python -m compare.area_lights [--res 64] [--spp 64] [--ref-spp 1024]
 

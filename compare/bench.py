@@ -1,4 +1,4 @@
-"""Frame time and error of every renderer on every scene (issue 5, part 1 and 6).
+"""Frame time and error of every renderer on every scene.
 
     python -m compare.bench [--quick] [--scenes fig4 many ...] [--renderers core links1-llvm ...]
 

@@ -199,7 +199,7 @@ def _before_after(args, argv):
 
 
 def _scaling(args, lm):
-    """Plugin frame time against the number of links1 quadrics (issue 5: 10,000 <= 10x of 10)."""
+    """Plugin frame time against the number of links1 quadrics."""
     import tempfile
     sys.path.insert(0, ROOT)
     from compare.scaling import quadric_scene

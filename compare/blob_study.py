@@ -1,4 +1,4 @@
-"""Blob solver study (issue 5, part 2): the paper's sampled-quadratic solver at 3…64
+"""Blob solver study: the paper's sampled-quadratic solver at 3…64
 samples per centre chord against the ``exact`` solver, on the camera rays of the fig6
 scenes.
 
@@ -18,7 +18,7 @@ The core solvers are float64; where the Mitsuba renderer works, its float32 ``ex
 ``paper`` solvers are measured too, from the ``depth`` and ``cost`` AOVs of a blob-only
 scene with primary rays only (its depths include float32 camera-ray rounding).
 
-Targets (issue 5): exact on the fig6 scenes ≤ 16 field evaluations per ray on average,
+Targets: exact on the fig6 scenes ≤ 16 field evaluations per ray on average,
 ≤ 8 ulp float32 depth error, no hit/miss disagreement outside the tangent band.
 Note: the core rejects ``samples`` < 3 (a quadratic needs three points), so the paper
 sweep starts at 3, not 2.

@@ -1,5 +1,5 @@
 """The filter gather of ``links1_whitted``'s device film alone (``film.reconstruct``), timed
-against a reference copy of ``film.py`` in the same process (issue 22, item 3).
+against a reference copy of ``film.py`` in the same process.
 
     python -m compare.film_gather --ref /path/to/other/film.py [--res 512] [--spp 16]
                                   [--filter gaussian] [--repeats 9] [--variant llvm_ad_rgb]

@@ -1,4 +1,4 @@
-"""What reconstruction filters cost (issue 10): frame time per filter against box, both renderers.
+"""What reconstruction filters cost: frame time per filter against box, both renderers.
 
     python -m compare.filters [--res 256] [--spp 4] [--units 16]
 

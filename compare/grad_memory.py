@@ -1,5 +1,4 @@
-"""Peak memory of a reverse-mode iteration against the primal frame (issue 23, item 4: "memory
-bounded, no whole-ray-tree tape at 1024²").
+"""Peak memory of a reverse-mode iteration against the primal frame.
 
     python -m compare.grad_memory [--res 1024] [--depths 1 3 5 8] [--budgets 262144 1099511627776]
 
@@ -91,7 +90,7 @@ def main(argv=None) -> int:
     out.parent.mkdir(parents=True, exist_ok=True)
     out.with_suffix(".json").write_text(json.dumps(dict(machine=machine, res=a.res, rows=rows), indent=1))
     peak = {(r["depth"], r["mode"], r["budget"]): r["peak_mib"] for r in rows}
-    md = ["# Peak memory of a reverse-mode iteration (issue 23, item 4)\n\n",
+    md = ["# Peak memory of a reverse-mode iteration\n\n",
           f"`python -m compare.grad_memory --res {a.res} --depths {' '.join(map(str, a.depths))} --budgets "
           f"{' '.join(map(str, a.budgets))}` on {machine}. `scenes/fig11.xml` at {a.res}², spp 1, "
           "`transmittance` of its glass with gradients; peak resident memory (VmHWM) of a fresh process: "

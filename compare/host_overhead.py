@@ -1,4 +1,4 @@
-"""Host (non-kernel) time of a ``links1_whitted`` frame against the pixel count (issue 22, item 2).
+"""Host (non-kernel) time of a ``links1_whitted`` frame against the pixel count.
 
     python -m compare.host_overhead [--res 256 1024 2048] [--repeats 7] [--variant llvm_ad_rgb]
 

@@ -1,4 +1,4 @@
-"""Inverse rendering with ``links1_whitted``'s gradients (issue 23, item 4): a benchmark.
+"""Inverse rendering with ``links1_whitted``'s gradients: a benchmark.
 
     python -m compare.inverse [--width 64] [--iters 100] [--big 256] [--rounds 25] [--trials 3]
                               [--variant llvm_ad_rgb]
@@ -29,14 +29,14 @@ perturbed start is drawn from, or [0, 1] for colours); issue target: ≤ 1 % of 
 Time per iteration (render with gradients + loss + ``dr.backward`` + Adam step +
 ``params.update``; the blob case: its five views) against the primal frame (``mi.render``
 without gradients, evaluated and synced), wall-clock medians in one process; with ``--big N``
-every case is also timed in one view at N² for the same ratio (issue 23: ≤ 3×), ``--rounds``
+every case is also timed in one view at N² for the same ratio, ``--rounds``
 rounds of an iteration and a primal frame interleaved (:func:`timing_only`), each case in a
 Python process of its own (:func:`_timed_apart`), ``--trials`` such processes a case, the
 cases taking turns (the median trial reported, :func:`_over_trials`). Each
 iteration runs with ``dr.JitFlag.KernelHistory``: the kernels compiled in it (found in none of
 Dr.Jit's caches) and their code generation + LLVM time are reported (``kernels_compiled``,
 ``compile_ms``). Writes ``compare/results/inverse.{json,md,png}`` and the figure to
-``docs/images/inverse.png`` (README).
+``docs/images/inverse.png`` (docs/guide.md).
 
 Every iteration renders with ``seed=0`` (with spp 1 the sample is the pixel centre whatever the
 seed). New values of a blob's or a quadric's parameters replay the same kernels (the shapes
@@ -56,7 +56,7 @@ import numpy as np
 
 from compare.common import command_line, machine_info, machine_markdown, md_table, pyplot, write_results
 
-#: where the figure goes for the README (with the blob case)
+#: where the figure goes for docs/guide.md (with the blob case)
 DOC_IMAGE = Path(__file__).resolve().parent.parent / "docs" / "images" / "inverse.png"
 
 INTEGRATOR = """<integrator type="links1_whitted"><integer name="max_depth" value="3"/></integrator>"""
@@ -455,7 +455,7 @@ def figure(results, blob_images):
 
 
 def markdown(results, big, info, cmd):
-    out = ["# Inverse rendering with links1_whitted (issue 23, item 4)\n", machine_markdown(info, cmd), "",
+    out = ["# Inverse rendering with links1_whitted\n", machine_markdown(info, cmd), "",
            "Adam on the L2 image loss, spp 1 (pixel centres), box filter, `max_depth` 3. Error: the worst "
            "component's |x − x*| / range (ranges below). Times: wall-clock medians in one process; an iteration is "
            "render with gradients + loss + backward + Adam step + `params.update`; the primal frame is "
@@ -551,7 +551,7 @@ def main(argv=None):
                    total_s=time.perf_counter() - t_all)
     if not a.no_write:
         paths = write_results("inverse", payload, markdown(results, big, info, cmd), figure(results, blob_images))
-        if blob_images is not None:   # the README's picture of the blob fit converging
+        if blob_images is not None:   # the guide's picture of the blob fit converging
             shutil.copyfile(paths[-1], DOC_IMAGE)
             paths.append(DOC_IMAGE)
         log("wrote " + ", ".join(map(str, paths)))

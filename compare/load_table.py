@@ -1,4 +1,4 @@
-"""Fit the partitioning load table (eq. 4.1) to a renderer's measured tile times (issue 9).
+"""Fit the partitioning load table (eq. 4.1) to a renderer's measured tile times.
 
     python -m compare.load_table [--renderer mitsuba] [--res 512] [--tiles 32] [--rounds 5]
 

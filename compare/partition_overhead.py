@@ -1,4 +1,4 @@
-"""What partitioning costs and gains (issue 9, items 3 and 7). A benchmark, not a test.
+"""What partitioning costs and gains. A benchmark, not a test.
 
 Table 1, per-launch overhead (one process, the renderer's own threads): the full frame vs
 the same frame as 64 and as 256 tiles each in its own launch (the paper's one-unit-at-a-time
@@ -159,7 +159,7 @@ def main(argv=None):
 
 def markdown(out):
     m = out["meta"]
-    lines = ["# Partitioning overhead and gain (issue 9)", "",
+    lines = ["# Partitioning overhead and gain", "",
              f"Command: `{m['command']}`; machine: {m['machine']}; load average at the end {m.get('load_avg_at_end')}.",
              f"{m['note']} (median of {m['repeat']}).", "",
              "## Per-launch overhead, one process (targets: 64 units <= 1.15, 256 units <= 1.3, batched <= 1.05)",

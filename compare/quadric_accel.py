@@ -1,6 +1,6 @@
 """Nearest-hit queries over N ``links1_quadric`` spheres: the plugin's own BVH walk against
 Embree finding the candidates through proxy meshes, with Mitsuba's ``sphere`` shapes as the
-yardstick (issue 12: measure both ideas before choosing).
+yardstick.
 
     python -m compare.quadric_accel [--res 512] [--sizes 10,300,3000,10000] [--repeats 7]
 

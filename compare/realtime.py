@@ -1,4 +1,4 @@
-"""The paper's real-time goal on this machine (issue 12): every scene against a calibration.
+"""The paper's real-time goal on this machine: every scene against a calibration.
 
     python -m compare.realtime [--res 512] [--frames 9]
 

@@ -1,4 +1,4 @@
-"""Scaling with scene size (issue 5, part 5): frame time and peak memory against the number
+"""Scaling with scene size: frame time and peak memory against the number
 of quadrics (10 … 10,000) and of blob centres (10 … 1,000).
 
     python -m compare.scaling [--quick]
@@ -19,7 +19,7 @@ Each (scene, renderer) runs in its own process (peak memory = its ``ru_maxrss``,
 includes the interpreter and, for Mitsuba, its libraries: compare against the smallest
 size). Once a renderer times out at some size, larger sizes of that family are skipped.
 
-Targets (issue 5): 10,000 quadrics ≤ 10× the frame time of 10; blob cost per ray grows with
+Targets: 10,000 quadrics ≤ 10× the frame time of 10; blob cost per ray grows with
 the centres the ray meets, not with all centres.
 """
 from __future__ import annotations

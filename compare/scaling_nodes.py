@@ -1,4 +1,4 @@
-"""Speed-up and true efficiency against node count (issue 28, item 3). A benchmark, not a test.
+"""Speed-up and true efficiency against node count. A benchmark, not a test.
 
 For each renderer, scene, resolution and node count, every strategy is run for real on
 ``links1 schedule``'s code path (same plans, backends and report), each node with **one
@@ -8,7 +8,7 @@ plugin's Dr.Jit thread count is set to 1 in every node and in this process), rep
 thread, warm, the other nodes idle): the whole frame as one launch. Per run:
 
 * speed-up = one-process frame / makespan; **true efficiency** = frame / (nodes x makespan);
-* the report's ``time_split`` (issue 28, item 1): the shares of nodes x makespan that went to
+* the report's ``time_split``: the shares of nodes x makespan that went to
   work, launch overhead (derived from the cost model), slowdown (nodes slower than the
   reference), dispatch, transfer and waiting (measured). Where a target is missed, the largest
   share that is not work is named: that is what stops it.
@@ -16,7 +16,7 @@ thread, warm, the other nodes idle): the whole frame as one launch. Per run:
 Medians over the repeats, with the spread of the true efficiency (min-max) to say how noisy the
 machine was. Node count 1 renders in-process (as ``links1 schedule --nodes 1`` does).
 
-Targets (issue 28): core at 512^2, spp 1, many and fig11: true efficiency >= 0.9 at 2 nodes
+Targets: core at 512^2, spp 1, many and fig11: true efficiency >= 0.9 at 2 nodes
 (>= 0.85 at 8, >= 0.7 at 16 on a 16-core machine); the plugin (one thread per node) >= 0.85 at
 2 nodes.
 

@@ -1,5 +1,5 @@
-"""Is the schedule simulator right? Simulated vs measured makespan per strategy and node count
-(issue 26, item 2). A benchmark, not a test.
+"""Is the schedule simulator right? Simulated vs measured makespan per strategy and node count.
+A benchmark, not a test.
 
 For each renderer, node count and repeat: the real runs of every strategy (``links1
 schedule``'s code path: the same backends, plans, reference and report), then

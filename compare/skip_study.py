@@ -1,4 +1,4 @@
-"""What skipping unneeded work saves (issue 5, part 4), measured on the core.
+"""What skipping unneeded work saves, measured on the core.
 
     python -m compare.skip_study [--quick] [--scenes ...]
 

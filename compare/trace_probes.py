@@ -1,4 +1,4 @@
-"""Two probes behind the suggestions of ``compare/vs_direct.py``'s profile (issue 22, item 3).
+"""Two probes behind the suggestions of ``compare/vs_direct.py``'s profile.
 
     python -m compare.trace_probes [--scene data_instancing] [--repeats 5]
 

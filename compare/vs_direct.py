@@ -1,4 +1,4 @@
-"""``links1_whitted`` against Mitsuba's own ``direct`` on real scenes, on the CPU (issue 22, item 3).
+"""``links1_whitted`` against Mitsuba's own ``direct`` on real scenes, on the CPU.
 
     python -m compare.vs_direct [--width 512] [--spp 1 16] [--repeats 7] [--variant llvm_ad_rgb]
                                 [--only ID ...] [--profile]
@@ -30,7 +30,7 @@ one warm-up frame each (compilation), then ``rounds`` × ``repeats`` frames alte
 frame's tensor is kept on the device (``dr.eval`` + ``dr.sync_thread``, never copied to numpy),
 as ``compare/host_overhead.py``. Reported: per integrator the best round's median, their ratio
 (links1 / direct) and the range of the per-round ratios (each round's frames interleaved).
-Targets (issue 22): every scene ≤ 0.5× at spp 1 and 16; ``spheres10`` ≤ 0.8× at spp 1.
+Targets: every scene ≤ 0.5× at spp 1 and 16; ``spheres10`` ≤ 0.8× at spp 1.
 
 Agreement: at the highest spp, ``relMSE(links1, direct)`` between the two frames, and both
 against a ``direct`` reference at 16× that spp (``links1.imaging.diff.relmse``): links1's error must be
@@ -378,7 +378,7 @@ def _target(row, spp) -> float | None:
 
 def _markdown(rows, skipped, profs, a, machine, cmd) -> str:
     spps = a.spp
-    md = ["# links1_whitted against Mitsuba `direct` on the CPU (issue 22, item 3)\n\n",
+    md = ["# links1_whitted against Mitsuba `direct` on the CPU\n\n",
           f"`{cmd}` on {machine}.\n\n",
           f"`mi.render(scene, spp=…)` of one scene object, {a.width} px wide (aspect and field of view kept; "
           "`spheres10` = `compare.scaling.quadric_scene(10, mitsuba_shapes=True)` at 512²), links1_whitted at "

@@ -1,4 +1,4 @@
-"""Scenes seen from inside a closed shape, with their analytic radiance (issue 14).
+"""Scenes seen from inside a closed shape, with their analytic radiance.
 
 Shared by ``tests/core/test_inside.py`` and ``tests/plugins/test_inside.py``: both renderers
 are checked against the same closed-form expectations, not against each other.

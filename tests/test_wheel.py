@@ -1,4 +1,4 @@
-"""The wheel as a user gets it (issue 24): built, installed into a fresh venv, run elsewhere.
+"""The wheel as a user gets it: built, installed into a fresh venv, run elsewhere.
 
 ``make setup`` installs the checkout in editable mode, which imports every module straight from
 the source tree and so hides a wheel that leaves modules out (``links1.partition`` once was:

@@ -1,5 +1,5 @@
 """Write ``links1/data/mitsuba_properties.json``: for each Mitsuba 3 plugin, the property names
-its constructor may query (issue 27: the core refuses a property Mitsuba would refuse).
+its constructor may query.
 
 Mitsuba's parser refuses a scene whose plugin leaves a property unqueried ("Found 1
 unreferenced property in bsdf plugin of type ..."). The core reads only part of each

@@ -174,7 +174,7 @@ def cmd_render(args) -> int:
 
 
 def _check_finite_image(image, renderer) -> None:
-    """Never a silent NaN (issue 25): scene values are checked where they enter
+    """Never a silent NaN: scene values are checked where they enter
     (links1.scene.params), so a non-finite pixel is a bug; stop with one line and write nothing."""
     import numpy as np
     bad = ~np.isfinite(image)

@@ -17,7 +17,7 @@ batches. In the lock-step one a ray that reaches a leaf waits there until every 
 batch has (then they all visit their leaves in one round), and once at most
 :data:`SCALAR_RAYS` rays are left (or a packet has that many rays) they walk on in Python
 floats (``_walk_one``): small batches (windows of a few pixels) no longer pay a round of
-numpy calls per tree node (issue 28). Each ray's own order of pops, culls and visits is the
+numpy calls per tree node. Each ray's own order of pops, culls and visits is the
 same in every walk.
 
 Determinism

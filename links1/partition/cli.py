@@ -337,7 +337,7 @@ def add_cli(subparsers) -> None:
     p.add_argument("--reference-repeat", type=_pos("--reference-repeat"), default=3, metavar="N",
                    help="the single-process reference (full frame, 64 one-unit launches, 2 batches): "
                         "medians of N rounds after one warm-up (default 3)")
-    g = p.add_argument_group("sweep: strategies x node counts x unit sizes in one command (issue 26)")
+    g = p.add_argument_group("sweep: strategies x node counts x unit sizes in one command")
     g.add_argument("--sweep", action="store_true",
                    help="run every strategy of --sweep-strategies at every node count of --sweep-nodes and tiles per "
                         "node of --sweep-tiles; --report gets one tidy table (JSON, and CSV next to it), --plot the "

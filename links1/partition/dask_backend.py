@@ -79,7 +79,7 @@ class DaskBackend:
         self.token = uuid.uuid4().hex[:8]
         self._plugin = None
         self._root_blas = None   # the root's BLAS thread count before a LocalCluster started
-        # a LocalCluster's workers bound to CPUs of their own, as LocalPool's nodes (issue 28):
+        # a LocalCluster's workers bound to CPUs of their own, as LocalPool's nodes:
         # ``pin`` (default), where they fit; ``cpus`` the sets (None: left to the kernel; a
         # cluster of other machines is never bound)
         self.pin, self.cpus = bool(pin), None

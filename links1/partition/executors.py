@@ -77,8 +77,7 @@ def guided_batch(plan, queue, n_nodes, chunk_factor, max_pixels=TASK_PIXELS, by_
     units (LPT order) is not k x nodes times the work it should be."""
     if n_nodes <= 1 and chunk_factor > 0:
         # one node has nobody to balance with: smaller chunks would only add launches, each
-        # paying the renderer's per-launch cost (issue 28: one node's dynamic frame took 1.2-1.5x
-        # the one-process frame in 5 guided launches); it takes what the task budget allows
+        # paying the renderer's per-launch cost; it takes what the task budget allows
         return take_batch(plan, queue, None, max_pixels)
     pred = getattr(plan, "predicted", None)
     if not by_load or pred is None or chunk_factor <= 0:
@@ -312,7 +311,7 @@ def node_cpus(n_workers: int, threads: int, cpus=None) -> list | None:
     """CPUs for each of ``n_workers`` local nodes of ``threads`` threads: disjoint sets of
     ``threads`` CPUs taken in order from ``cpus`` (default: the CPUs this process may use) ->
     one tuple per node, or None when they do not fit (more nodes x threads than CPUs: the
-    kernel shares them out). Issue 28: left to itself the kernel put both one-thread nodes of
+    kernel shares them out). Left to itself the kernel put both one-thread nodes of
     a two-node run on one core of two (docs/partitioning.md, "CPU placement")."""
     if cpus is None:
         try:
@@ -396,9 +395,7 @@ class LocalPool:
         self.batches = True        # the renderer renders batches (set when a worker is ready)
         self.channels = None       # channels of its pixels (set when a worker is ready)
         #: nodes write results into a frame the root maps (runtime.SharedFrame) instead of
-        #: sending them through the pipe (issue 28, docs/partitioning.md: a result's trip back
-        #: 0.18-0.28 of nodes x makespan through the pipe, 0.05-0.09 through the frame, plugin
-        #: at 512², 2 nodes); False, or no room for the frame: the pipe
+        #: sending them through the pipe; False, or no room for the frame: the pipe
         self.shared_frame = bool(shared_frame)
         self._frame = None
         #: node -> (the root's end of its direct line, the node's serve future), open from before
@@ -611,9 +608,7 @@ class LocalPool:
         # queued behind the running one to hide the round trip (result back, next task out),
         # and so few that a line's buffer never fills. Guided chunks: one per node at a time.
         # A second chunk queued at once was handed out when chunks are largest and waited
-        # behind the first (issue 28: fig11 512², plugin, 2 nodes, dynamic/tile, LPT order: node
-        # 0 got the 8 heaviest tiles, 19 ms of a 32 ms frame, and a 6-tile chunk behind them;
-        # node 1 idled the last 13 ms of a 26 ms makespan), while through the lines the round
+        # behind the first, while through the lines the round
         # trip it hid is 0.1-0.3 ms (it was 10-70 ms per chunk through the pool's threads)
         prefetch = self.prefetch
 
@@ -733,8 +728,8 @@ class LocalPool:
 
         A SIGKILLed process cannot answer, so a death before this point is always seen.
         :func:`render_plan` calls it after the clock stops: the makespan runs from the first
-        dispatch to the last result, and this round trip to every node (2-4 ms at 2 nodes,
-        issue 28) is neither."""
+        dispatch to the last result, and this round trip to every node (2-4 ms at 2 nodes)
+        is neither."""
         from concurrent.futures import wait
         from concurrent.futures.process import BrokenProcessPool
         self._close_lines()   # the serve loops end; each worker then answers its ping

@@ -38,7 +38,7 @@ rank_correlation   Spearman, named: predicted_vs_measured_seconds (units launche
                    ray_tests_vs_measured_seconds
 simulator_check    the simulator replaying this run's own strategy and node count with the
                    fitted costs: simulated_s, measured_s, error
-time_split         where the makespan went (issue 28): per node work_s, launch_overhead_s (derived
+time_split         where the makespan went: per node work_s, launch_overhead_s (derived
                    from the cost model), slowdown_s (measured launches - both), dispatch_s,
                    transfer_s, waiting_s (measured), adding up to makespan_s, and startup_s
                    (before the clock); root: dispatch_s, assembly_s, rendering_s (in-process),
@@ -281,7 +281,7 @@ TIME_SPLIT_SOURCES = {
 
 
 def time_split(result, launches, tasks, cm, *, planning=None) -> dict:
-    """Where the makespan went (issue 28): per node ``NODE_PARTS`` and for the root
+    """Where the makespan went: per node ``NODE_PARTS`` and for the root
     ``ROOT_PARTS``, each adding up to ``makespan_s`` (the node's clock read against the root's
     wall clock: ``t0_wall`` = first dispatch, the end = ``t0_wall + makespan_s``).
 

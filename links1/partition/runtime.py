@@ -146,7 +146,7 @@ def _blas():
 
 def limit_blas(threads: int):
     """Set the thread count of the OpenBLAS numpy has loaded in this process -> the count it
-    had (None where there is none to set). Issue 28: an OpenBLAS worker thread keeps spinning
+    had (None where there is none to set). An OpenBLAS worker thread keeps spinning
     on a core for ~0.1 s after each threaded BLAS call (the root's cost model, a node's
     matrix products), which is a whole plugin frame (30-40 ms): in the root of a two-node
     plugin render it took 28 ms of CPU inside a 40 ms makespan on this 2-core machine, and
@@ -193,7 +193,7 @@ def watch_root(root: int) -> None:
 def pin_cpus(cpus) -> tuple | None:
     """Bind every thread of this process to the CPUs ``cpus`` (threads it starts later inherit
     the binding) -> the CPUs its main thread is bound to, or None where nothing was bound
-    (``cpus`` empty or None, no ``sched_setaffinity``: not Linux). Issue 28: a local node's
+    (``cpus`` empty or None, no ``sched_setaffinity``: not Linux). A local node's
     process is bound to CPUs of its own (:func:`.executors.node_cpus`), because the kernel put
     both one-thread nodes of a two-node plugin run on one core of this 2-core machine, each node's
     half-frame launch waiting in the run queue as long as it ran (docs/partitioning.md)."""
@@ -267,9 +267,7 @@ def warm_up(renderer, samples: int = 0):
 
     ``samples`` > 0 (:func:`warm_samples`): then one batch of scanlines holding about that many
     samples, so that the renderer's memory for a launch of a task's size is allocated and
-    touched before the clock too (issue 28: the plugin's first 512-scanline launch of fig11 at
-    512², spp 1 took 51-58 ms after the tiny warm-up, the same launch 36-39 ms after this one; one
-    node's first schedule run 99 ms against 45 ms for the next, docs/partitioning.md), then
+    touched before the clock too, then
     batches of half as many scanlines, a quarter, ... down to one: Dr.Jit keeps freed memory for
     a later launch of the same size class only, so a node's first half-frame launch after a
     whole-frame warm-up still took fresh pages (fig11 at 512², 2 nodes: ~4800 page faults and
@@ -319,7 +317,7 @@ class SharedFrame:
     when there is one: memory, not disk). A node writes each unit's pixels at its window right
     after its launch and sends the root only the unit's record, so a result does not travel
     through the process pipe (a 256x512x4 float64 half frame: ~10 ms pickled, sent, unpickled
-    one after another by the root; issue 28) and the root copies it into the image from memory.
+    one after another by the root) and the root copies it into the image from memory.
     The values written are the renderer's, as float64: the bits of ``wire_pixels`` placed in
     the root's float64 frame. The local pool's default (``LocalPool(shared_frame=False)``: the
     pipe); the root makes it before the clock and removes its file when the run ends, whatever
@@ -469,7 +467,7 @@ def render_units(spec: RendererSpec, windows, culls=None, frame=None, wire=True)
     ``render(window)`` returns for it. A unit's ``seconds`` is then its share of its launch by
     pixel count, not a measurement (``launch_seconds`` and ``launch_units`` say which launch it
     shared; ``launch_cpu_s``: the CPU time this process spent in that launch, all its threads:
-    below ``launch_seconds`` when the node was off its core, issue 28; the schedule report measures or derives unit times itself, see
+    below ``launch_seconds`` when the node was off its core; the schedule report measures or derives unit times itself, see
     :mod:`.experiment`); ``task`` names the task (this call), ``task_in`` is when it reached this
     node (wall clock). Units
     with a cull list, or renderers without ``render_batch``, are rendered one by one.
@@ -502,7 +500,7 @@ def render_units(spec: RendererSpec, windows, culls=None, frame=None, wire=True)
         dt = time.perf_counter() - t0
         cpu = time.process_time() - c0
         total = sum(a[2] * a[3] for a in launch)
-        # the launch's units readied together (into the frame: one loop of copies; issue 28: a
+        # the launch's units readied together (into the frame: one loop of copies: a
         # 256-scanline task took ~1.2 ms of per-unit calls and timers after its launch), each
         # unit's ``wire_s`` its share of that time by pixel count, as ``seconds`` is of the launch
         tw = time.perf_counter()
@@ -525,7 +523,7 @@ def _ready_all(imgs, frame, windows, wire):
 
 
 def serve(spec: RendererSpec, line, frame=None):
-    """A local node's side of its direct line to the root for one run (issue 28): map the run's
+    """A local node's side of its direct line to the root for one run: map the run's
     shared ``frame`` (a :attr:`SharedFrame.ref`, before the root's clock starts), say
     ``("ready", pid)``, then render each task the root sends, ``(windows, culls)``, with
     :func:`render_units` and send back ``("ok", results)`` (or ``("error", exception)``), until

@@ -1,4 +1,4 @@
-"""One home for the rules a scene's values must follow (issue 25), read by both loaders.
+"""One home for the rules a scene's values must follow, read by both loaders.
 
 The core's reader (:mod:`links1.scene.loader`, :mod:`links1.scene.xmlparse`) and the Mitsuba plugins
 (``links1_mitsuba``: the loader and the plugin constructors in ``shapes.py``,

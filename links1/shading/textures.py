@@ -149,7 +149,7 @@ class Checkerboard(Texture):
     def eval_1(self, uv) -> np.ndarray:
         """Mitsuba 3.9.1's scalar lookup (``Checkerboard::eval_1``): it tests ``!=`` where
         ``eval`` tests ``==``, so it returns ``color1`` where ``eval`` returns ``color0`` and the
-        reverse. A mask's opacity reads it (issue 27); followed so both renderers agree with it."""
+        reverse. A mask's opacity reads it; followed so both renderers agree with it."""
         uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
         s, t = self._uv(uv)
         first = (s - np.floor(s) > 0.5) != (t - np.floor(t) > 0.5)

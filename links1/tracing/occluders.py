@@ -1,5 +1,5 @@
 """Which shapes can cast a shadow toward each light: looked at once per scene, so the
-integrator traces no shadow ray where no occluder can be (issue 5 §4).
+integrator traces no shadow ray where no occluder can be.
 
 Two conservative facts decide it:
 
@@ -7,7 +7,7 @@ Two conservative facts decide it:
   or convex closed mesh) never shadows its own points *toward a light on the outer side of
   the surface there* (``ng · wi > 0``, ``ng`` outward): that segment leaves it at once. A
   **closed** convex shape does shadow its points whose light lies on the inner side (seen
-  from inside it, or reached by refraction through it): that segment crosses it (issue 14);
+  from inside it, or reached by refraction through it): that segment crosses it;
 * a **planar** shape (disk, rectangle, flat mesh) shadows nothing toward a light when the
   light and every other shape lie on one side of its plane (a floor under the scene); for an
   area light the whole emitter (its bounding box) must lie on that side;

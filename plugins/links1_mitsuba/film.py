@@ -1,4 +1,4 @@
-"""The film of ``links1_whitted`` on the device (issue 22, item 1): sample ids, the
+"""The film of ``links1_whitted`` on the device: sample ids, the
 reconstruction filter, spp accumulation and the AOVs in Dr.Jit, so a frame never visits numpy.
 
 Everything here is a per-output-pixel *gather* in one fixed order, never a scatter with atomics:

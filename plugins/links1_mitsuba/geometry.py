@@ -1,4 +1,4 @@
-"""The geometry of the links1 shapes in ``mi.traverse`` and its derivatives (issue 23).
+"""The geometry of the links1 shapes in ``mi.traverse`` and its derivatives.
 
 ``links1_quadric`` and ``links1_blob`` are not Mitsuba shapes: ``links1_whitted`` holds them
 (:class:`~links1_mitsuba.shapes.QuadricSpec`, :class:`~links1_mitsuba.shapes.BlobSpec`). Their

@@ -1,4 +1,4 @@
-"""Gradients of ``links1_whitted`` (issue 23): ``render_forward`` and ``render_backward``, as
+"""Gradients of ``links1_whitted``: ``render_forward`` and ``render_backward``, as
 Mitsuba's ``ADIntegrator`` has them, so ``mi.render(scene, params)`` followed by
 ``dr.backward(loss)`` (or ``dr.forward``) differentiates the whole Whitted ray tree.
 

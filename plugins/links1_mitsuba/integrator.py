@@ -13,7 +13,7 @@ serves every variant):
 - :class:`~links1_mitsuba.raytree.RayTree`: one level traced and shaded, the ray trees
   (eq. 3.11-3.16; the recursion design is described there);
 - :class:`~links1_mitsuba.launch.Launches`: camera rays, the frozen launches, read-back, ``stats``;
-- :class:`~links1_mitsuba.gradients.Gradients`: ``render_forward``/``render_backward`` (issue 23);
+- :class:`~links1_mitsuba.gradients.Gradients`: ``render_forward``/``render_backward``;
 - :mod:`~links1_mitsuba.util`: Dr.Jit helpers (hashes, literals, gathers), module functions.
 
 ``Links1Whitted`` itself subclasses ``mi.SamplingIntegrator``, a class of the variant in use,
@@ -241,7 +241,7 @@ def define_integrator():
         def traverse(self, callback):
             """The links1 shapes (``links1_quadric``, ``links1_blob``: not Mitsuba shapes,
             links1_whitted holds them), named as Mitsuba names a shape's parameters under the
-            integrator's id (issue 23): their BSDFs, ``links1_whitted.<shape id>.bsdf.<parameter>``
+            integrator's id: their BSDFs, ``links1_whitted.<shape id>.bsdf.<parameter>``
             (a BSDF declared at the top of the file keeps its own name, ``<bsdf id>.<parameter>``),
             and their geometry (:mod:`links1_mitsuba.geometry`): ``<shape id>.to_world``, a
             quadric's ``clip_<k>_offset``, a blob's ``centers``, ``weights``, ``radii`` and

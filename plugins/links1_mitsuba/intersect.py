@@ -17,7 +17,7 @@ from . import tuning
 from .shapes import quadric_uv
 from .util import INF, c3, gather3, next_up
 
-# the switches of issue 12 read here (preliminary, box_cull, eye_buffer, split) are fields of
+# the switches read here (preliminary, box_cull, eye_buffer, split) are fields of
 # tuning.Tuning, read while tracing: a frozen launch is keyed on them (launch.py)
 
 

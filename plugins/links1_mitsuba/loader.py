@@ -111,7 +111,7 @@ def _prepare_state(state, config, integrator: str, base_dir: str | None):
     custom_nodes = []
     moved_refs = []
     # BSDFs declared at the top of the file (referenced by id): mi.traverse names them by their
-    # own id already; the integrator's traverse leaves them out (issue 23)
+    # own id already; the integrator's traverse leaves them out
     top_level = {root.props[k].index() for k in root.props.keys()
                  if isinstance(root.props[k], mi.Properties.ResolvedReference)}
     slot_of_id = {}

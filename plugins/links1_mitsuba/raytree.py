@@ -33,7 +33,7 @@ from .util import INF, gather3, mix32
 
 # tuning.Tuning.skip_misses: direct light (every light's sample, shading and shadow rays) under a
 # symbolic ``dr.if_stmt`` on the hit: a packet of escaped rays (sky, 38 % of fig11's camera rays)
-# skips it instead of computing it masked (issue 12; False: the old straight-line code)
+# skips it instead of computing it masked
 
 
 def _power_heuristic(pdf_a, pdf_b):

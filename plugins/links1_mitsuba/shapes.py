@@ -142,7 +142,7 @@ class QuadricSpec:
         """The Dr.Jit table of the constants a ``params.update()`` may change (built once):
         the 3x4 inverse transform, the normal matrix (3x3) and the clip offsets ``h``. The
         kernels gather them instead of taking them as literals, so a new ``to_world`` or
-        offset replays the same kernels (issue 23, item 4); the planes' normals, fixed by
+        offset replays the same kernels; the planes' normals, fixed by
         the file, stay literals."""
         if self._tables is None:
             import mitsuba as mi
@@ -337,7 +337,7 @@ class BlobSpec:
         :meth:`_consts` rows (12 per centre), the 3x4 inverse transform, the normal matrix
         (3x3), the threshold and the march's probe step. The kernels gather them from a
         Dr.Jit table (:meth:`tables`, ``"values"``) instead of taking them as literals, so new
-        values (same count) replay the same kernels (issue 23, item 4); float32 rounding of
+        values (same count) replay the same kernels; float32 rounding of
         each is that of the literal it replaces (same bits)."""
         probe = PROBE_REL * float(self.centers[:, 4].max())
         return np.concatenate([self._consts().ravel(), np.asarray(self.inv)[:3].ravel(),

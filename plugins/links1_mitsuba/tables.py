@@ -43,7 +43,7 @@ _PRECISE_MITSUBA = ("Mesh", "OBJMesh", "PLYMesh", "Rectangle", "Disk", "Links1Bi
 
 #: Shadow rays toward a light that at most this many Mitsuba shapes can occlude first test the
 #: segment against those shapes' bounding boxes and call Embree only where one is met
-#: (``Intersect._shadow_mitsuba``); above it Embree's own BVH culls better (issue 12)
+#: (``Intersect._shadow_mitsuba``); above it Embree's own BVH culls better
 BOX_CULL_MAX = 8
 
 #: Scenes with at most this many transparent Mitsuba shapes test shadow rays with one any-hit
@@ -157,8 +157,7 @@ class _Entries:
 class ParamWatch(Hidden):
     """Whether a Mitsuba object's parameters (every one ``mi.traverse(obj)`` exposes: a
     scene's shapes, BSDFs, textures, emitters, sensors, ...) changed since the watch was made,
-    without reading them back (issue 22, item 2; it replaces a digest of every value, which
-    copied all geometry to the host each frame on CUDA).
+    without reading them back.
 
     A Dr.Jit value is compared by its variables' indices (``dr.detail.collect_indices``, the
     JIT and AD indices that ``mi.SceneParameters.update`` itself compares): Dr.Jit variables
@@ -739,7 +738,7 @@ class Tables:
 
     def _update_values(self, B, scene) -> bool:
         """The tables ``B`` brought up to a change of ``links1_phong`` coefficients, analytic
-        lights or links1 shapes' geometry only (issue 23, item 1: ``params.update()``
+        lights or links1 shapes' geometry only (``params.update()``
         re-prepares what the change touches), in place:
 
         - coefficients: the material rows re-read from the BSDFs; the frozen launch is kept
@@ -965,7 +964,7 @@ class Tables:
                 has_dr[sl] = bool(fl & int(mi.BSDFFlags.DeltaReflection))
                 has_dt[sl] = bool(fl & int(mi.BSDFFlags.DeltaTransmission))
                 # Null: a straight-through delta lobe (thindielectric's transmission, mask's
-                # transparency, null); its weight is eval_null_transmission (issue 27)
+                # transparency, null); its weight is eval_null_transmission
                 has_null[sl] = bool(fl & int(mi.BSDFFlags.Null))
                 inner[sl] = _unmask(mi, b)
                 if has_null[sl] and has_dt[sl]:
@@ -1035,7 +1034,7 @@ class Tables:
         bsdfs = [b if b is not None else default_bsdf for b in bsdfs]
         # a BSDFPtr array holds registry ids, not references: the BSDF objects (the default
         # made here above all) must live as long as the tables, or a vcall through a freed
-        # id crashes the process (issue 25: a quadric without a BSDF beside ones with one)
+        # id crashes the process
         P.keep_alive = P.keep_alive + (bsdfs,)
         if len(bsdfs) != nslots or any(b is None for b in bsdfs):
             raise RuntimeError("links1_whitted: the BSDF table has a hole (an internal inconsistency)")

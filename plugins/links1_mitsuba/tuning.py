@@ -1,7 +1,7 @@
 """The switches of ``links1_whitted`` (its one home): one frozen :class:`Tuning` value that every
-part reads, part of the frozen launches' key and of the prepared tables' identity (issue 22).
+part reads, part of the frozen launches' key and of the prepared tables' identity.
 
-Each switch turns one acceleration of issue 12 on or off (for before/after runs and for tests
+Each switch turns one acceleration on or off (for before/after runs and for tests
 that compare it with the plain code); none changes what is rendered beyond float32 rounding
 (the tests of each acceleration say how much). The current value is module-wide::
 

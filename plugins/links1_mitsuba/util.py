@@ -69,7 +69,7 @@ def udiv(a, b):
 
 
 def checked_index(values, n: int, what: str, *, sentinel: int | None = None) -> np.ndarray:
-    """``values`` as an index table into ``n`` rows, checked when it is built (issue 25): every
+    """``values`` as an index table into ``n`` rows, checked when it is built: every
     entry in ``[0, n)`` (or the ``sentinel``, e.g. -1 for "none", which the kernels mask).
     A gather out of range in an LLVM/CUDA kernel reads foreign memory or crashes the
     process; a table that breaks the rule is a bug in links1, stopped here with its name."""
@@ -160,7 +160,7 @@ def next_up(x):
 
 class Hidden:
     """State kept out of :func:`drjit.freeze`'s input traversal: the plugin's one way to hide
-    state from a frozen launch (issue 22, item 5).
+    state from a frozen launch.
 
     Freeze walks every input of a frozen launch on every call, and through the scene each
     Python plugin's ``__dict__`` (``links1_whitted``, ``links1_phong``, ``links1_point``,

@@ -406,7 +406,7 @@ class Scene:
         miss = idx < 0
         out[miss] = self.background
         for i, s in enumerate(self.shapes):
-            # an environment lights surfaces by sampling (Monte Carlo, issue 13): not modelled
+            # an environment lights surfaces by sampling (Monte Carlo): not modelled
             if s.unknown or s.material is None or not s.material.simple or self.env_lit:
                 known[idx == i] = False
         sel = np.flatnonzero(known & ~miss)       # exact, opaque, non-mirroring first hits

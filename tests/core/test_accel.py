@@ -113,7 +113,7 @@ def test_bvh_structure_covers_items():
 
 
 def test_sah_split_separates_clusters_and_covers_items():
-    """The one builder's SAH rule (the plugin's trees, issue 24 item 4): two far clusters of
+    """The one builder's SAH rule (the plugin's trees): two far clusters of
     boxes of unequal size (30 and 170) are cut apart at the root (a median cut would mix
     them: 100 and 100), every item sits in one leaf inside its node's box, and
     children are allocated as consecutive pairs (the plugin's flat layout relies on it)."""
@@ -345,7 +345,7 @@ def test_surface_batched_equals_each_shape_bitwise():
 @pytest.mark.filterwarnings("ignore:overflow encountered")
 @pytest.mark.parametrize("mode", ["packet", "lockstep"])
 def test_scalar_walk_same_bits_as_numpy_walk(monkeypatch, mode):
-    """Issue 28: the Python-scalar walk of a few rays (``SCALAR_RAYS``) visits the same
+    """The Python-scalar walk of a few rays (``SCALAR_RAYS``) visits the same
     leaves in the same order as the numpy walk: the same nearest hits, costs (which count
     the culled visits), shadow products and any-hit sets, with every batch walked in
     scalars or none; also for rays with zero direction components (huge reciprocals whose

@@ -1,4 +1,4 @@
-"""Adaptive anti-aliasing wired into the core renderer, the CLI and the partitioning (issue 11).
+"""Adaptive anti-aliasing wired into the core renderer, the CLI and the partitioning.
 
 The refinement logic itself is tested on analytic images in test_adaptive.py; here a rendered
 silhouette must be refined exactly where the corner rays of a pixel disagree (computed

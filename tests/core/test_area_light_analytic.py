@@ -1,4 +1,4 @@
-"""Area emitters against Lambert's closed form (issue 13): the irradiance a uniformly
+"""Area emitters against Lambert's closed form: the irradiance a uniformly
 emitting polygon gives a point is E = L/2 Σ_edges Θ_i (γ_i · n) (Lambert 1760; Arvo 1995),
 Θ_i the angle the edge subtends at the point and γ_i the unit normal of the plane through the
 point and the edge. A diffuse floor of albedo ρ then leaves ρ E / π.
@@ -7,7 +7,7 @@ The luminaire is a downward quad plus a triangle facing up (lighting nothing bel
 non-convex mesh, so it is an occluder of its own light. Floor points that see the quad
 obliquely were shadowed by the quad itself (their shadow rays, started from the offset
 origin along the unoffset direction, met its plane before the sampled point), up to 25×
-too dark (found against Mitsuba's ``direct`` in issue 13)."""
+too dark (found against Mitsuba's ``direct``)."""
 from __future__ import annotations
 
 import numpy as np

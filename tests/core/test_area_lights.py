@@ -1,4 +1,4 @@
-"""Area emitters and environments light the scene in the core (issue 13).
+"""Area emitters and environments light the scene in the core.
 
 Analytic first: a diffuse plane under a ``constant`` sky is exactly ``ρ L`` (cosine-weighted
 environment samples), under a uniform ``envmap`` ``ρ c``, under a facing disk of radiance ``L``

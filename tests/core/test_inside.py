@@ -1,4 +1,4 @@
-"""The core seen from inside closed shapes (issue 14): a closed convex shape shadows its own
+"""The core seen from inside closed shapes: a closed convex shape shadows its own
 points whose light is on the inner side; expectations are analytic (tests/inside_scenes.py)."""
 from __future__ import annotations
 

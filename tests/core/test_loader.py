@@ -544,7 +544,7 @@ def test_shape_constructor_value_error_becomes_scene_error(monkeypatch):
 
 
 def test_unknown_parameter_is_refused_as_mitsuba_refuses_it():
-    """Issue 27: a name Mitsuba's plugin never queries is an error (Mitsuba: "Found 1
+    """A name Mitsuba's plugin never queries is an error (Mitsuba: "Found 1
     unreferenced property"), naming file, line and element."""
     with pytest.raises(SceneError, match=r"<string>:2: <shape type='sphere'> <float name='colour'>: "
                                          r"unknown parameter 'colour'"):

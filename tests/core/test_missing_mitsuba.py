@@ -1,4 +1,4 @@
-"""An install without the ``mitsuba`` extra (issue 27, item 3): ``links1 render`` (default
+"""An install without the ``mitsuba`` extra: ``links1 render`` (default
 renderer) and ``links1 schedule`` say in one line which extra to install or to use the core,
 exit 2 and write nothing; ``--renderer core`` still renders. Run in a subprocess whose
 ``import mitsuba`` fails (a ``mitsuba`` package first on PYTHONPATH that raises ImportError)."""

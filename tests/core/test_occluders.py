@@ -1,4 +1,4 @@
-"""No shadow rays where no occluder can be (issue 5 §4), with unchanged images."""
+"""No shadow rays where no occluder can be, with unchanged images."""
 from __future__ import annotations
 
 import numpy as np

@@ -1,4 +1,4 @@
-"""The Renderer contract in code and the factory (links1/frontends/renderers.py, issue 24 item 2), and
+"""The Renderer contract in code and the factory (links1/frontends/renderers.py), and
 the one AOV table and checker (links1/tracing/aovs.py)."""
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The core's per-scene caches (BVH, integrator plan) follow the scene's content (issue 14):
+"""The core's per-scene caches (BVH, integrator plan) follow the scene's content:
 changed after its first render, a scene renders as a scene built that way from the start."""
 from __future__ import annotations
 
@@ -76,8 +76,7 @@ def test_a_culled_copy_does_not_share_the_plan():
 
 def test_a_pinned_scene_is_hashed_once_and_unpinned_follows_changes(monkeypatch):
     """A partition node's CoreRenderer renders one window per call: it pins its scene's key
-    at load, so a window's launch does not re-hash every shape (issue 9: ~15 ms of a 32x32
-    window's 31 ms on many.xml); an unpinned scene still follows changes."""
+    at load, so a window's launch does not re-hash every shape; an unpinned scene still follows changes."""
     from links1.scene import scene as scene_mod
     from links1.tracing.render import CoreRenderer
     r = CoreRenderer(SHADOWS, params={"res": "24"})

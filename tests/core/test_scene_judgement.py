@@ -1,4 +1,4 @@
-"""Issue 27 items 4-6 (core renderer): one judgement of a scene file, as Mitsuba's parser
+"""Items 4-6 (core renderer): one judgement of a scene file, as Mitsuba's parser
 judges it; every message names FILE:LINE and the element, once per element; the smaller CLI
 points. Each test runs the real ``links1`` command line in a subprocess."""
 from __future__ import annotations

@@ -446,7 +446,7 @@ def test_disk_hit_normal_and_coplanar_miss():
 
 
 def test_quadric_bounds_hold_the_surface_and_are_the_tighter_rule():
-    """One bounds rule for both renderers (issue 24 item 4): every point of a clipped sphere or
+    """One bounds rule for both renderers: every point of a clipped sphere or
     cylinder lies in ``quadric_bounds``; an unclipped rotated ellipsoid gets its exact box
     (``m ± |L rows|``), a sphere cut at z <= 0.25 the object box's top at 0.25 (the rule the
     plugin had), an obliquely clipped cylinder a finite box."""

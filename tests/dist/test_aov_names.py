@@ -1,4 +1,4 @@
-"""AOV channel names (issue 14): one naming, Mitsuba's ``name.X`` convention (what its own
+"""AOV channel names: one naming, Mitsuba's ``name.X`` convention (what its own
 ``aov`` integrator writes), whatever the renderer, back end or worker count."""
 from __future__ import annotations
 

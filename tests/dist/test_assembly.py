@@ -87,7 +87,7 @@ def test_dask_local_every_strategy(fake_spec, fake_ref, core_spec, core_ref):
                     continue
                 res = render_plan(plan, fake_spec, be, progress=False)
                 assert np.array_equal(res.image, fake_ref), plan
-            # the root keeps one BLAS thread while its local nodes render (issue 28)
+            # the root keeps one BLAS thread while its local nodes render
             assert blas is None or limit_blas(0) == 1
             if static:  # one real scene through Dask too
                 _, cplans = _plans(core_spec, 2)

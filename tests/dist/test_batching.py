@@ -1,4 +1,4 @@
-"""Many units per launch (issue 9, items 1-2): batches render exactly what each window
+"""Many units per launch: batches render exactly what each window
 renders alone, guided chunks follow their formula, and new shapes replay without recording."""
 from __future__ import annotations
 
@@ -107,7 +107,7 @@ def _launches(res):
 @pytest.mark.parametrize("k", [0, 1, 2])
 def test_in_process_dynamic_chunks_one_node(k, core_spec, core_ref):
     # one node: every unit in one launch (within the task's pixel budget), nobody to balance
-    # with (issue 28); --chunk-factor 0 still hands out one unit at a time (the paper's 4-3)
+    # with; --chunk-factor 0 still hands out one unit at a time (the paper's 4-3)
     plan = make_plan("dynamic", 32, 32, 1, tiles_per_node=16, unit="tile")
     res = render_plan(plan, core_spec, InProcess(chunk_factor=k), progress=False)
     assert np.array_equal(res.image, core_ref)

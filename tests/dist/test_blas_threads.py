@@ -1,4 +1,4 @@
-"""The root's and the nodes' OpenBLAS threads (issue 28): a spinning BLAS worker takes a core
+"""The root's and the nodes' OpenBLAS threads: a spinning BLAS worker takes a core
 from the nodes, so the root keeps one BLAS thread while its nodes render and a node's thread
 limit reaches the BLAS numpy has already loaded."""
 from __future__ import annotations

@@ -20,5 +20,5 @@ def test_render_workers_2_matches_in_process(tmp_path, core_ref):
     ib = ib[0] if isinstance(ib, tuple) else ib
     assert np.array_equal(np.asarray(ia), np.asarray(ib))
 
-# The 64-unit overhead target (issue 4 §2) is a timing: it is measured by the benchmark
+# The 64-unit overhead target is a timing: it is measured by the benchmark
 # compare/partition_overhead.py (results in compare/results/partition_overhead.md), not tested here.

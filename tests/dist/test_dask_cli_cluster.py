@@ -1,4 +1,4 @@
-"""A real Dask cluster that links1 did not start (issue 9, item 6): ``dask scheduler`` and two
+"""A real Dask cluster that links1 did not start: ``dask scheduler`` and two
 ``dask worker`` processes started with Dask's own command line on 127.0.0.1 (free ports),
 ``links1 render --scheduler`` with both renderers and every strategy, one worker SIGKILLed
 mid-render. Every process the test starts is stopped (bounded waits), whatever happens."""

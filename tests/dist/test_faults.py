@@ -146,7 +146,7 @@ def test_checkpoint_ignores_other_configurations(tmp_path):
 
 @pytest.mark.dask
 def test_dask_worker_joining_mid_render_gets_units(tmp_path):
-    """A worker that joins mid-render gets units. Deterministic (issue 14): the first worker
+    """A worker that joins mid-render gets units. Deterministic: the first worker
     holds its first chunk on a ``distributed.Event`` while the second one starts; the event is
     set when a unit finishes during the hold, which only the joiner can have rendered. If the
     joiner never gets work, the hold times out (60 s) and the pid check fails."""

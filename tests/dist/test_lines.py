@@ -1,4 +1,4 @@
-"""A local node's direct line (issue 28): during a run the root sends each task to a node through
+"""A local node's direct line: during a run the root sends each task to a node through
 one pipe, written by its own thread, and reads the node's answer from it (``runtime.serve``), not
 through the process pool's helper threads; with the shared frame only the units' records come
 back that way, and the frame the nodes write into is the root's image (nothing copied)."""

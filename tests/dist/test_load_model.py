@@ -1,4 +1,4 @@
-"""The eq. 4.1 load model against a scene built with a known load gradient (issue 14).
+"""The eq. 4.1 load model against a scene built with a known load gradient.
 
 Six vertical strips of the screen hold 1, 4, 7, 10, 13 and 16 small spheres: the work a strip
 costs grows from left to right by construction. The model's predicted strip loads (eq. 4.1:

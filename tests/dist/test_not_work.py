@@ -1,4 +1,4 @@
-"""What is not work stays out of a node's units and the makespan (issue 28, item 2): a node
+"""What is not work stays out of a node's units and the makespan: a node
 warms up with a launch of a task's size, the in-process node hands its pixels over unconverted,
 and a backend's checks after the last result run after the clock stops."""
 from __future__ import annotations

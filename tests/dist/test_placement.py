@@ -1,4 +1,4 @@
-"""Where local nodes run (issue 28, docs/partitioning.md "CPU placement"): left to itself the
+"""Where local nodes run: left to itself the
 kernel put both one-thread nodes of a two-node run on one core of this 2-core machine (each
 launch as long in the run queue as on the core), so a local pool binds each node's process to
 CPUs of its own where they fit; and no thread of a node or of the root burns CPU while it waits."""

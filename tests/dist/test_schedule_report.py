@@ -1,4 +1,4 @@
-"""Honest schedule reports (issue 9, item 4): the full frame of the same renderer measured in
+"""Honest schedule reports: the full frame of the same renderer measured in
 the same run, true efficiency = full / (nodes x makespan), launches, per-launch overhead."""
 from __future__ import annotations
 
@@ -39,7 +39,7 @@ def test_schedule_reports_the_reference_measured_in_the_same_run(tmp_path, capsy
     assert r["true_efficiency"] == pytest.approx(r["full_frame_s"] / (r["nodes"] * r["makespan_s"]))
     assert ref["per_launch_overhead_s"] == pytest.approx(max(0.0, (ref["tiled_s"] - ref["full_s"]) / 63))
     assert r["launches"] == 2  # each node's 4 tiles in one launch
-    # the simulation replays the overheads fitted in this run (issue 26), not a fixed per-unit charge
+    # the simulation replays the overheads fitted in this run, not a fixed per-unit charge
     assert r["simulation"]["overheads"] == r["overheads"]
     assert r["overheads"]["per_launch_s"] == pytest.approx(r["cost_model"]["per_launch_s"] * r["overheads"]["scale"])
     from links1.partition.loadmodel import load_table

@@ -1,4 +1,4 @@
-"""Scheduling experiments you can trust (issue 26): every unit time says whether it was measured
+"""Scheduling experiments you can trust: every unit time says whether it was measured
 (the unit launched alone) or derived (a cost model fitted on units launched alone), and the
 simulator replays a known workload exactly as the backends hand it out."""
 from __future__ import annotations
@@ -147,7 +147,7 @@ def test_replay_dynamic_guided_chunks_with_two_in_flight():
 
 def test_replay_in_process_one_node():
     # one node in the root: no dispatch, no transfer; dynamic on one node: every unit in one
-    # chunk (issue 28; guided chunks for 1 node were 4, 2, 1, 1 units), one at a time with k = 0
+    # chunk, one at a time with k = 0
     plan = make_plan("dynamic", 2, 8, 1, unit="scanline", order="walk")
     out = replay(plan, np.full(8, 2.0), **OV, chunk_factor=2)
     assert out["launches"] == 1

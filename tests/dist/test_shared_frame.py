@@ -1,4 +1,4 @@
-"""Results through a shared frame (issue 28, item 2): local nodes write each unit's pixels into a
+"""Results through a shared frame: local nodes write each unit's pixels into a
 frame the root maps instead of sending them through the process pipe; the image is the same bits
 and the frame's file is gone after the run."""
 from __future__ import annotations

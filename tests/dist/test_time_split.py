@@ -1,4 +1,4 @@
-"""Where a makespan goes (issue 28, item 1): the schedule report splits each node's time into
+"""Where a makespan goes: the schedule report splits each node's time into
 work, launch overhead, slowdown, dispatch, transfer and waiting, and the root's into dispatch,
 assembly, rendering and waiting; the parts add up to the makespan."""
 from __future__ import annotations

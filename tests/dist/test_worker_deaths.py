@@ -1,6 +1,6 @@
 """Local workers SIGKILLed while starting, idle or mid-unit: replaced, units redone, same bits.
 
-Real processes, real SIGKILLs, both renderers (issue 9, item 5). Every wait is bounded
+Real processes, real SIGKILLs, both renderers. Every wait is bounded
 (pytest-timeout and the pool's own death limit).
 """
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Every citation in the code resolves inside the repository (issue 24, item 5).
+"""Every citation in the code resolves inside the repository.
 
 Comments cite the method as ``docs/method.md §N`` (a section heading ``§N`` there) and other
 documents as ``docs/NAME.md``; a citation of a document that is not in the repository (the
@@ -45,8 +45,7 @@ def test_cited_documents_are_in_the_repository():
 
 
 #: Where module paths are checked. plugins/links1_mitsuba/ is left out until its docstrings
-#: name the sub-packages (issue 24 item 3 moved links1's modules; the plugin's import lines
-#: were updated, its prose is another change's): add "plugins" here then.
+#: name the sub-packages: add "plugins" here then.
 #: compare/results/ is left out too: measured records (profiles name the files as they were).
 MODULE_PATH_SOURCES = [p for d in ("links1", "plugins", "tests", "compare", "tools", "docs") for p in (ROOT / d).rglob("*")
                        if p.suffix in (".py", ".md") and p != Path(__file__).resolve()

@@ -1,4 +1,4 @@
-"""The GPU-capable plugin suite (issue 22 item 4): README's command
+"""The GPU-capable plugin suite: the user's guide's command (docs/guide.md)
 ``python -m pytest tests/plugins -k cuda_ad_rgb`` selects exactly the cases marked ``gpu``
 (the cuda_ad_rgb parameters of ``variant``, ``renderer_kind``, ``kind_with_mitsuba`` and the
 tests that list the variants themselves), and a plugin test that runs on llvm_ad_rgb only
@@ -29,7 +29,7 @@ def collected(*args) -> set[str]:
 
 
 def test_readme_command_selects_exactly_the_gpu_cases():
-    assert COMMAND in (ROOT / "README.md").read_text()
+    assert COMMAND in (ROOT / "docs" / "guide.md").read_text()
     by_k, by_marker, every = collected("-k", "cuda_ad_rgb"), collected("-m", "gpu"), collected()
     assert by_k == by_marker
     assert by_k == {t for t in every if "cuda_ad_rgb" in t.split("::", 1)[1]}

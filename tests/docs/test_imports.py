@@ -1,4 +1,4 @@
-"""One direction of dependency, no circles (issue 24, item 2; docs/architecture.md, "Dependencies").
+"""One direction of dependency, no circles.
 
 Every module of ``links1/``, ``plugins/links1_mitsuba/`` and ``compare/`` is parsed with
 :mod:`ast` (imports inside functions count: a lazy import couples two modules all the same).

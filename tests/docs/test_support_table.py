@@ -1,6 +1,6 @@
-"""README's support table ("What of Mitsuba's scene format each renderer supports"): every
+"""The user's guide's support table (docs/guide.md) ("What of Mitsuba's scene format each renderer supports"): every
 cell marked ✓ or ≈ names the test file(s) that assert it for that renderer, and those files
-exist; a ≈ cell may instead say ``untested``, and a ✓ cell never does (issue 27)."""
+exist; a ≈ cell may instead say ``untested``, and a ✓ cell never does."""
 from __future__ import annotations
 
 import re
@@ -47,7 +47,7 @@ def problems(rows, root: Path = ROOT) -> list[str]:
 
 
 def test_every_supported_row_names_existing_tests():
-    rows = support_table((ROOT / "README.md").read_text(encoding="utf-8"))
+    rows = support_table((ROOT / "docs" / "guide.md").read_text(encoding="utf-8"))
     assert len(rows) >= 25
     assert problems(rows) == []
 

@@ -32,7 +32,7 @@ def variant_problem(variant: str) -> str | None:
 #: The Mitsuba variants the plugin suite runs on: every test that can run on both takes the
 #: ``variant`` fixture (or ``renderer_kind`` / ``kind_with_mitsuba``, renderer x variant); the
 #: cuda_ad_rgb cases skip at once where no GPU is (variant_problem). On a GPU machine,
-#: ``python -m pytest tests/plugins -k cuda_ad_rgb`` runs exactly the CUDA cases (README).
+#: ``python -m pytest tests/plugins -k cuda_ad_rgb`` runs exactly the CUDA cases (docs/guide.md).
 VARIANTS = ("llvm_ad_rgb", "cuda_ad_rgb")
 
 

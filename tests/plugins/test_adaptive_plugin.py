@@ -1,4 +1,4 @@
-"""Adaptive anti-aliasing in links1_whitted (issue 11): the same lattice, keys and decisions as
+"""Adaptive anti-aliasing in links1_whitted: the same lattice, keys and decisions as
 the core (links1.tracing.adaptive.render_adaptive_window), one launch per refinement level."""
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Area emitters and environments against Mitsuba's ``direct`` (issue 13): diffuse-only scenes
+"""Area emitters and environments against Mitsuba's ``direct``: diffuse-only scenes
 lit by an area rectangle, an area sphere, an ``obj`` luminaire, a ``constant`` and an
 ``envmap`` environment. At 64 spp the relMSE against a 1024-spp Mitsuba ``direct`` reference
 must be at most twice Mitsuba ``direct``'s own at 64 spp (the reference's own noise is in both).

@@ -1,4 +1,4 @@
-"""Issue 27: every Mitsuba BSDF with a delta lobe, in both renderers, against Mitsuba's ``path``.
+"""Every Mitsuba BSDF with a delta lobe, in both renderers, against Mitsuba's ``path``.
 
 Each scene holds one object with a delta BSDF (``dielectric``, ``thindielectric`` as a sphere
 and as a tilted sheet, ``conductor``, ``plastic``'s specular coat, ``twosided`` and ``mask``
@@ -9,8 +9,7 @@ receives from the emitters only): Whitted with ``max_depth`` k and ``path`` with
 k (rr_depth beyond it) estimate the same light paths, and a missing or wrong lobe shows.
 
 Judged as the issue asks: links1's relMSE against a high-spp ``path`` reference is at most
-twice ``path``'s own relMSE at the same spp (a different seed). A lost lobe (issue 27: the
-thin sheet's transmission, 0.078 instead of 0.529) is a bias far above that bound.
+twice ``path``'s own relMSE at the same spp (a different seed). A lost lobe is a bias far above that bound.
 """
 from __future__ import annotations
 
@@ -132,7 +131,7 @@ def test_delta_bsdf_vs_path(variant, case):
 
 
 def test_thin_sheet_keeps_its_transmission(variant):
-    """Issue 27's report: a thin sheet under ``constant`` only transmits T' = 1 - R' of the
+    """A thin sheet under ``constant`` only transmits T' = 1 - R' of the
     background straight through (R' = 2R/(1+R), Mitsuba's thindielectric); with the
     reflection, a grey background is seen unchanged through and off the sheet."""
     body = SHEET.format(a=0, b='<bsdf type="thindielectric"/>')

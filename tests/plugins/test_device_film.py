@@ -1,4 +1,4 @@
-"""The device film of ``links1_whitted`` (issue 22, item 1; plugins/links1_mitsuba/film.py)
+"""The device film of ``links1_whitted``
 against the numpy film it replaced: the same samples (``window_samples``) assembled by the old
 numpy code (kept below as the reference: the box mean, the AOVs, and
 :func:`links1.sensor.filters.filter_samples` for the other filters) give the same pixels.
@@ -46,7 +46,7 @@ def load(tmp_path, rfilter):
 
 
 def numpy_film(integ, scene, window, spp, seed, aovs):
-    """The numpy film that ``render_windows`` used before issue 22 (the reference)."""
+    """The numpy film that ``render_windows`` used (the reference)."""
     P = integ.prepare(scene)
     (sx0, sy0, sw, sh), s = integ.window_samples(scene, window, spp=spp, seed=seed, aovs=aovs)
     samples = s["total"].astype(np.float64)
@@ -197,7 +197,7 @@ def test_new_window_and_batch_sizes_compile_nothing(variant, tmp_path, rfilter):
 @pytest.mark.parametrize("rfilter", ["box", "gaussian"])
 def test_batch_film_work_does_not_grow_with_windows(variant, tmp_path, rfilter):
     """The film of a batch is made by the same number of kernels for 2 windows as for one a
-    row (a scanline partition): no kernel or Python work per window (issue 28), and each row
+    row (a scanline partition): no kernel or Python work per window, and each row
     equals the full frame bit for bit."""
     import drjit as dr
     scene = load(tmp_path, rfilter)

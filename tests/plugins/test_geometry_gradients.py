@@ -1,4 +1,4 @@
-"""Gradients of the links1 shapes' geometry (issue 23; plugins/links1_mitsuba/geometry.py).
+"""Gradients of the links1 shapes' geometry.
 
 ``links1_whitted`` lists the geometry of ``links1_quadric`` (``to_world``, ``clip_<k>_offset``)
 and ``links1_blob`` (``centers``, ``weights``, ``radii``, ``threshold``, ``to_world``) under its

@@ -1,5 +1,4 @@
-"""The derivative pass of ``links1_whitted`` in blocks of rows (issue 23, item 4: memory bounded;
-plugins/links1_mitsuba/gradients.py ``row_blocks``, ``AD_BLOCK_LANES``).
+"""The derivative pass of ``links1_whitted`` in blocks of rows.
 
 A block renders its filter border's samples too, so its pixels are the frame's and the loss
 ``Σ g_p I_p`` splits exactly by blocks: the gradients with blocks equal those of one block up

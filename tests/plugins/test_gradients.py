@@ -1,4 +1,4 @@
-"""Gradients of ``links1_whitted`` (issue 23; plugins/links1_mitsuba/gradients.py) on LLVM.
+"""Gradients of ``links1_whitted`` on LLVM.
 
 * every parameter family: the reverse-mode gradient (``mi.render(scene, params)``,
   ``dr.backward``) of a pixel-sum loss equals a central finite difference of the same

@@ -1,5 +1,4 @@
-"""The plugin's gradients against the float64 core's finite differences (issue 23, item 3: an
-independent check of their direction and size).
+"""The plugin's gradients against the float64 core's finite differences.
 
 The same file, its values given as ``$name`` parameters, is rendered by ``links1_whitted``
 (reverse mode: ``mi.render(scene, params)`` + ``dr.backward``) and by the core

@@ -1,4 +1,4 @@
-"""What both renderers ignore is ignored alike, with one warning naming its place (README's
+"""What both renderers ignore is ignored alike, with one warning naming its place (docs/guide.md's
 support table: ``sunsky`` / ``directionalarea`` emitters, media).
 
 The reference is the same scene without the element: adding an ignored element must leave the

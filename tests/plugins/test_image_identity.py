@@ -1,9 +1,9 @@
-"""Every committed scene renders to the same bits as before the restructuring of issues 22 and 24.
+"""Every committed scene renders to the same bits as before the restructuring and 24.
 
 The digests in ``data/image_digests.json`` were taken from images rendered at commit d1e62a4,
-before the plugin's parts became module classes (issue 22 item 5), before the core's one
-dependency direction and its subpackages (issue 24 items 2-3) and before the film of a batch
-became one kernel (issue 28): every ``scenes/*.xml`` at 48x40, spp 2, with the ``depth``,
+before the plugin's parts became module classes, before the core's one
+dependency direction and its subpackages and before the film of a batch
+became one kernel: every ``scenes/*.xml`` at 48x40, spp 2, with the ``depth``,
 ``normal`` and ``cost`` AOVs, by the core and by the Mitsuba plugin (and by the plugin as a
 batch of two windows, which must equal the full frame). A digest is the SHA-256 of the image
 rounded to float32 (the precision of a written EXR), so a float64 difference of an ulp in the

@@ -1,4 +1,4 @@
-"""links1_whitted seen from inside closed shapes (issue 14): analytic expectations
+"""links1_whitted seen from inside closed shapes: analytic expectations
 (tests/inside_scenes.py) and Mitsuba's own ``direct`` integrator, not the core."""
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Light buffers (lightbuffer.py, issue 12): a shadow query through a light buffer gives the same
+"""Light buffers (lightbuffer.py): a shadow query through a light buffer gives the same
 occlusion as the BVH walk (the same exact quadric test on a conservative candidate list), on
 random shadow rays over many spheres, spheres that contain the light, rays that graze spheres
 and rays along the borders of the buffer's cells; and the images match (bit for bit with opaque

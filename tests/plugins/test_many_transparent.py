@@ -1,4 +1,4 @@
-"""Transparent shadows through many Mitsuba shapes (issue 14): no cap on how many transparent
+"""Transparent shadows through many Mitsuba shapes: no cap on how many transparent
 shapes are told apart (was 31) or how many surfaces a shadow ray crosses (was 64).
 
 A wall (links1_phong, ambient 0, diffuse kd) is lit by a directional light at 45 degrees

@@ -1,4 +1,4 @@
-"""Issue 25, item 1: a shape without a BSDF gets Mitsuba's default (``diffuse``, reflectance
+"""A shape without a BSDF gets Mitsuba's default (``diffuse``, reflectance
 0.5) in both renderers whatever its neighbours have.
 
 The scenes mix shapes with and without a BSDF of every kind links1_whitted handles: quadrics

@@ -1,4 +1,4 @@
-"""Scenes with several sensors (issue 27, item 2): ``mi.render(scene, sensor=k)``, a sensor
+"""Scenes with several sensors: ``mi.render(scene, sensor=k)``, a sensor
 object (the scene's or one made apart with ``mi.load_dict``), ``links1.render(scene,
 sensor=k)`` and ``links1 render --sensor k`` render that sensor's camera, film (size, crop
 window, reconstruction filter) and sample count, in both renderers.
@@ -7,8 +7,7 @@ Judged against Mitsuba's own ``direct`` integrator on the same sensor: a point l
 diffuse surfaces, so Whitted at max_depth 1 computes what ``direct`` estimates; our relMSE
 against ``direct`` at 16x the spp must be within 2x ``direct``'s own at equal spp (the corpus
 criterion). Sensor 1 differs from sensor 0 in position, field of view, film size, crop window
-and filter, so an image from sensor 0's camera fails by orders of magnitude (issue 27 measured
-0.135 against ``direct``)."""
+and filter, so an image from sensor 0's camera fails by orders of magnitude."""
 from __future__ import annotations
 
 import numpy as np

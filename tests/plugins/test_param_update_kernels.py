@@ -1,4 +1,4 @@
-"""``params.update()`` of a links1 shape's values replays the same kernels (issue 23, item 4).
+"""``params.update()`` of a links1 shape's values replays the same kernels.
 
 ``links1_blob`` and ``links1_quadric`` hand their changeable constants (a blob's centres,
 weights, radii, threshold; a quadric's inverse transform and clip offsets) to the kernels as a
@@ -257,7 +257,7 @@ def test_blob_reverse_pass_kernels_do_not_grow_with_its_parameters(variant):
 
 
 def test_phong_value_update_rebuilds_only_the_material_rows(variant):
-    """``params.update()`` of ``links1_phong`` coefficients (issue 23, item 1) updates the
+    """``params.update()`` of ``links1_phong`` coefficients updates the
     material rows of the prepared tables in place: no scene build (``n_scene_builds``), one
     value update (``n_value_updates``), the other tables the same arrays, the frozen launch
     replayed (no kernel but the launch's own), and the frame the one of the file with those
@@ -364,7 +364,7 @@ def light_scene_xml(pos, spot_to_world, intensity):
 
 
 def test_light_update_replans_only_the_shadow_tables(variant):
-    """``params.update()`` of an analytic light's own values (issue 23, item 1) updates the
+    """``params.update()`` of an analytic light's own values updates the
     prepared tables in place (``Tables._update_values``): the light's entry and the tables
     planned from the lights' places (``tables.LIGHT_FIELDS``: which shapes each light's shadow
     rays test, the light buffers) are made anew, every other table (BVH, materials) is kept,
@@ -425,8 +425,7 @@ def test_light_update_replans_only_the_shadow_tables(variant):
 
 
 def test_shape_update_remakes_only_the_shapes_tables(variant):
-    """``params.update()`` of a links1 shape's geometry (issue 23, item 1: a refit, not a
-    reload) updates the prepared tables in place: the BVH is built again over the same
+    """``params.update()`` of a links1 shape's geometry updates the prepared tables in place: the BVH is built again over the same
     quadrics, the shapes' own tables, the light tables (their occluders' bounds) and each
     camera view's eye buffer are made anew; the materials, slots and lights are kept; no
     scene build. The scene: test_lightbuffer.py's 120 quadrics (a BVH, light buffers), one of

@@ -1,5 +1,4 @@
-"""The per-scene tables of links1_whitted (``tables.Prepared``) have a declared shape (issue 22,
-item 5): every field named and typed in one dataclass, an undeclared name refused, and every
+"""The per-scene tables of links1_whitted (``tables.Prepared``) have a declared shape: every field named and typed in one dataclass, an undeclared name refused, and every
 field a prepared scene's camera view needs actually set."""
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""links1_whitted's prepared tables follow the scene (issue 14): keyed on the scene's objects
+"""links1_whitted's prepared tables follow the scene: keyed on the scene's objects
 and parameters, not on ``id(scene)``; a scene changed with ``mi.traverse`` after a render, or
 another scene given to the same integrator, renders as a scene loaded that way."""
 from __future__ import annotations
@@ -64,7 +64,7 @@ def test_another_scene_through_the_same_integrator(variant):
     np.testing.assert_array_equal(_render(a, integ), ra)
 
 
-# -- issue 22, item 2: the tables are watched by their parameters' Dr.Jit variables -----------
+# --: the tables are watched by their parameters' Dr.Jit variables -----------
 
 MESH_XML = """<scene version="3.0.0">
  <sensor type="perspective" id="cam"><float name="fov" value="45"/>
@@ -319,7 +319,7 @@ def test_changed_reads_what_a_traversal_reads(variant):
 
 
 def test_a_renewed_watch_is_a_new_watch(variant):
-    """``ParamWatch.renewed`` (a rebuild's watch made from the last one, issue 23): after
+    """``ParamWatch.renewed`` (a rebuild's watch made from the last one): after
     ``changed`` found the changed parameters (a Mitsuba BSDF's value, a links1_phong
     colour, a Mitsuba light's position), the renewed watch reads only those again and has
     the state of a whole new watch; it sees the scene unchanged, and a later change."""
@@ -380,7 +380,7 @@ def test_a_scene_dropped_after_gradients_is_freed_and_another_records(variant):
     """An inverse-rendering loop on one scene (its parameters changed and updated each
     iteration: the tables' watch sees which, ``ParamWatch.renewed``), then the scene dropped
     while Python's cyclic collector is off, then another scene's first frame. Two faults
-    seen in ``compare.inverse`` (issue 23): the watch kept the scene's traversal, a cycle
+    seen in ``compare.inverse``: the watch kept the scene's traversal, a cycle
     through C++ objects that kept every such scene alive; and a scene that is garbage but
     not yet collected still has its BSDFs registered, so the new scene's frozen launch,
     whose calls through the BSDF pointers reach them, failed to record (Dr.Jit: "... no such

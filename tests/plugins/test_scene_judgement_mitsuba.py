@@ -1,4 +1,4 @@
-"""Issue 27 items 4-5 (Mitsuba renderer): the same judgement of a scene file as the core
+"""Items 4-5 (Mitsuba renderer): the same judgement of a scene file as the core
 (tests/core/test_scene_judgement.py), the plugin's warnings with FILE:LINE and element once
 per element, no deprecated Mitsuba API."""
 from __future__ import annotations

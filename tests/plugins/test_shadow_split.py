@@ -1,4 +1,4 @@
-"""Shadow rays through Mitsuba's shapes (issue 12): the occluders' box cull never drops a ray
+"""Shadow rays through Mitsuba's shapes: the occluders' box cull never drops a ray
 that Embree finds blocked (grazing rays, rays along box faces and axes, origins on faces), and
 the split transmittance (one any-hit query over the opaque shapes, one per transparent shape:
 ``tables.shadow_split``) is 3-3-3's product over the shapes a segment meets, checked against

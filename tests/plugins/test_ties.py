@@ -1,4 +1,4 @@
-"""Ties (issue 14): two shapes hit at exactly the same distance (coincident copies) resolve to
+"""Ties: two shapes hit at exactly the same distance (coincident copies) resolve to
 the one earlier in the file, in both renderers, on the unrolled and the BVH paths of
 links1_whitted. Expectation: each shape is ambient-only in its own colour, so every covered
 pixel must be exactly the earlier shape's colour."""

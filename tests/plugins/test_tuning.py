@@ -1,6 +1,6 @@
-"""The switches of ``links1_whitted`` as one value (``links1_mitsuba.tuning.Tuning``, issue 22):
+"""The switches of ``links1_whitted`` as one value (``links1_mitsuba.tuning.Tuning``):
 a switch changed after a frame takes effect at the next frame of the same integrator, which
-then equals a fresh integrator's frame made with that setting (before issue 22 the frozen
+then equals a fresh integrator's frame made with that setting (before the frozen
 launch replayed its first recording and the prepared tables were kept: the change was
 silently ignored); changing it back replays the first recording."""
 from __future__ import annotations
@@ -77,7 +77,7 @@ def test_every_switch_is_part_of_the_launch_key_or_the_tables_identity(variant, 
         integ.trace_points(scene, xf, yf, keys)
         return (integ.n_scene_builds, integ._freeze.n_recordings, integ._freeze_points.n_recordings)
 
-    # a configuration records its launch at most twice (issue 22): Dr.Jit's freeze may record
+    # a configuration records its launch at most twice: Dr.Jit's freeze may record
     # again once the launch's scene input turns out stale and it takes the whole scene
     # (launch.SceneInputs), within the first frames; from then on frames replay
     warm = [frame() for _ in range(3)]

@@ -1,4 +1,4 @@
-"""Which Mitsuba variants the links1 plugins run on (issue 27, item 3): the RGB JIT variants
+"""Which Mitsuba variants the links1 plugins run on: the RGB JIT variants
 render; scalar, spectral and mono variants are refused with one line naming what works, from
 ``links1 render --variant`` (exit 2, no output) and from the Python API (``register``,
 ``load_file``) alike, instead of an internal error deep in a frozen launch."""

@@ -1,4 +1,4 @@
-"""Scene fuzzer (issue 25, item 4): random edits of the real scenes in ``scenes/`` and a
+"""Scene fuzzer: random edits of the real scenes in ``scenes/`` and a
 worker process that renders them through the CLI.
 
 Edits (:data:`EDIT_KINDS`): a number made NaN/inf/huge/negative/zero/garbage or extreme but

@@ -1,4 +1,4 @@
-"""Scene fuzzer (issue 25): seeded random edits of every scene in ``scenes/``, rendered by
+"""Scene fuzzer: seeded random edits of every scene in ``scenes/``, rendered by
 both renderers through ``links1 render`` at 24x24, spp 1 (see :mod:`tests.stress.fuzz`).
 
 Contract for every case: exit 0 with a finite image, or exit 2 with exactly one

@@ -1,4 +1,4 @@
-"""Issue 25: the edited scenes that crashed, printed "internal error" or wrote NaN pixels,
+"""The edited scenes that crashed, printed "internal error" or wrote NaN pixels,
 each through ``links1 render`` with both renderers (in process: the segfault they once
 caused is fixed and guarded by tests/plugins/test_missing_bsdf.py).
 
