@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 
 from .bvh import BVH, nearest_hits
-from .shapes import Shape, _as_rays
+from .shapes import HierarchyTraced
 
 
-class PrimitiveSet(Shape):
+class PrimitiveSet(HierarchyTraced):
     """Base class: primitives with world boxes ``lo, hi`` (P, 3) in a hierarchy.
 
     A subclass gives ``_pair_hits(prim (K,), o (K,3), d (K,3), tmin (K,), tmax (K,)) -> t
@@ -41,11 +41,3 @@ class PrimitiveSet(Shape):
 
         return nearest_hits(self.bvh, o, d, tmin, tmax, cost, any_hit, leaf_times)
 
-    def intersect(self, o, d, tmin, tmax, cost=None):
-        o, d, tmin, tmax = _as_rays(o, d, tmin, tmax)
-        return self._trace(o, d, tmin, tmax, cost, any_hit=False)
-
-    def any_hit(self, o, d, tmin, tmax, cost=None):
-        o, d, tmin, tmax = _as_rays(o, d, tmin, tmax)
-        t, _ = self._trace(o, d, tmin, tmax, cost, any_hit=True)
-        return np.isfinite(t)

@@ -191,7 +191,25 @@ class Shape:
 
 
 # ---------------------------------------------------------------------------- triangles
-class TriangleMesh(Shape):
+class HierarchyTraced(Shape):
+    """A shape whose rays walk a per-shape hierarchy of its primitives: ``_trace(o, d, tmin,
+    tmax, cost, any_hit) -> (t, prim)`` (:func:`links1.geometry.bvh.nearest_hits`) gives both
+    queries (meshes, :class:`links1.geometry.primset.PrimitiveSet`)."""
+
+    def _trace(self, o, d, tmin, tmax, cost, any_hit: bool):  # pragma: no cover - interface
+        raise NotImplementedError
+
+    def intersect(self, o, d, tmin, tmax, cost=None):
+        o, d, tmin, tmax = _as_rays(o, d, tmin, tmax)
+        return self._trace(o, d, tmin, tmax, cost, any_hit=False)
+
+    def any_hit(self, o, d, tmin, tmax, cost=None):
+        o, d, tmin, tmax = _as_rays(o, d, tmin, tmax)
+        t, _ = self._trace(o, d, tmin, tmax, cost, any_hit=True)
+        return np.isfinite(t)
+
+
+class TriangleMesh(HierarchyTraced):
     """A triangle mesh intersected by the paper's inverse-matrix method (eq. 3.1-3.3).
 
     With the vertices translated by the ray origin (``a_i = v_i - o``) and ``e`` the unit
@@ -370,14 +388,6 @@ class TriangleMesh(Shape):
 
         return nearest_hits(self.bvh, o, d, tmin, tmax, cost, any_hit, leaf_times)
 
-    def intersect(self, o, d, tmin, tmax, cost=None):
-        o, d, tmin, tmax = _as_rays(o, d, tmin, tmax)
-        return self._trace(o, d, tmin, tmax, cost, any_hit=False)
-
-    def any_hit(self, o, d, tmin, tmax, cost=None):
-        o, d, tmin, tmax = _as_rays(o, d, tmin, tmax)
-        t, _ = self._trace(o, d, tmin, tmax, cost, any_hit=True)
-        return np.isfinite(t)
 
     def barycentrics(self, o, d, prim) -> np.ndarray:
         """Barycentric coordinates (N, 3) of the hits of rays ``o + t d`` on ``prim``
