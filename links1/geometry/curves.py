@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..maths.vec import cross, dot, normalize
+from ..maths.vec import coordinate_system, cross, dot, normalize
 from .primset import PrimitiveSet
 from .shapes import _finite_or_zero, _turn
 
@@ -230,6 +230,8 @@ def _closest(ctrl, q):
         v = np.clip(v - step, 0.0, 1.0)
     c, dc, _, r, _ = _eval(ctrl, v)
     return v, np.sqrt(dot(q - c, q - c)) - r
+
+
 class RoundBSplineCurves(PrimitiveSet):
     """Mitsuba's ``bsplinecurve``: Embree's round cubic B-spline curve, the sweep of a circle
     of radius ``r(v)`` centred on the uniform cubic B-spline ``c(v)`` in the plane normal to
@@ -372,3 +374,34 @@ class RoundBSplineCurves(PrimitiveSet):
         """Mitsuba's parameterisation, as :meth:`RoundLinearCurves.uv` about ``c'(v)``."""
         p, _, c, dc, v, prim = self._hit_record(o, d, t, prim)
         return _curve_uv(p - c, dc, v, prim, self.segments.size)
+
+    def tangents(self, o, d, t, prim):
+        """Mitsuba's ``partials``: ``dp_du = 2π r (B cos θ - N sin θ)`` and ``dp_dv = S (c' +
+        r' ρ + r ρ_v)``, ``ρ = N cos θ + B sin θ`` the unit radial direction of the hit in the
+        Frenet frame ``(T, N, B)`` of the centre line (curvature ``κ``, torsion ``τ``; ``ρ_v =
+        |c'| (cos θ (τ B - κ T) - sin θ τ N)``; ``S`` segments). Mitsuba's shading frame takes
+        its tangent from ``dp_du``: the direction around the tube, ``T × ρ``."""
+        p, _, c, dc, v, prim = self._hit_record(o, d, t, prim)
+        ctrl = self._ctrl(prim)
+        _, _, ddc, r, dr = _eval(ctrl, v)
+        dddc = np.einsum("j,njd->nd", np.array([-1.0, 3.0, -3.0, 1.0]), ctrl[:, :, :3])
+        ldc = np.sqrt(dot(dc, dc))
+        T = dc / ldc[:, None]
+        b = cross(dc, ddc)
+        lb = np.sqrt(dot(b, b))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            kappa = lb / (ldc * ldc * ldc)
+            tau = np.where((lb < 1e-6) | (np.sqrt(dot(dddc, dddc)) < 1e-6), 0.0, dot(dddc, b) / (lb * lb))
+        N = normalize(cross(b, dc))
+        B = normalize(cross(T, N))
+        flat = ~(kappa >= np.finfo(np.float32).eps / 2)     # Mitsuba: κ < Epsilon, a degenerate frame
+        if flat.any():
+            s_, t_ = coordinate_system(T[flat])
+            N[flat], B[flat], kappa[flat], tau[flat] = s_, t_, 0.0, 0.0
+        rho = normalize(cross(cross(T, p - c), T))
+        cos_t, sin_t = dot(N, rho), dot(B, rho)
+        rho_v = ldc[:, None] * (cos_t[:, None] * (tau[:, None] * B - kappa[:, None] * T)
+                                - (sin_t * tau)[:, None] * N)
+        dp_du = (2.0 * np.pi * r)[:, None] * (cos_t[:, None] * B - sin_t[:, None] * N)
+        dp_dv = self.segments.size * (dc + dr[:, None] * rho + r[:, None] * rho_v)
+        return dp_du, dp_dv
