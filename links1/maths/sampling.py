@@ -154,8 +154,9 @@ def radical_inverse2(s) -> np.ndarray:
 
 
 def light_tag(light_id: int) -> int:
-    """Per-light stream tag: ``0x9E3779B9 + 2 * light_id`` (uint32). ``light_id`` is the emitting
-    shape's index in file order for an area light, ``0x40000000 + k`` for the k-th environment."""
+    """Per-light stream tag: ``0x9E3779B9 + 2 * light_id`` (uint32). ``light_id`` is an area light's
+    rank by place (:func:`links1.shading.lights.number_area_lights`: the same whichever order a
+    loader gives the shapes), ``0x40000000 + k`` for the k-th environment."""
     return (0x9E3779B9 + 2 * int(light_id)) & 0xFFFFFFFF
 
 

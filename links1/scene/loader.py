@@ -83,7 +83,7 @@ from ..sensor.camera import FOV_AXES, Camera, fov_x_from
 from ..errors import SceneError
 from ..sensor.filters import FILTERS, Filter
 from ..shading.lights import (ENV_LIGHT_ID, AreaLight, ConeSpotLight, ConstantEnvironment, CylinderSpotLight,
-                     EnvironmentMap, ParallelLight, PointLight, ProjectorLight)
+                     EnvironmentMap, ParallelLight, PointLight, ProjectorLight, number_area_lights)
 from ..maths.vec import coordinate_system
 from .scene import Scene
 from .xmlparse import Node, Prop, SceneWarning, parse_file, parse_string
@@ -604,6 +604,10 @@ class _Builder:
                     lights.append(AreaLight(shape, shape.emission))
                 except ValueError as exc:
                     (enode or root).warn(f"{exc}: it is seen but lights nothing in the core")
+        # sample streams by place (the same whichever order a loader gives the shapes), and the
+        # area lights in that order, as the plugin orders them
+        lights = [light for light in lights if not isinstance(light, AreaLight)] + \
+            [lights[i] for i in number_area_lights(lights)]
         kwargs = dict(camera=camera, sensors=sensors, shapes=shapes, lights=lights, spp=spp, max_depth=max_depth,
                       background=background, path=path,
                       environments=[e for e in environments if isinstance(e, EnvironmentMap)])

@@ -14,7 +14,8 @@ Lights with extent (Mitsuba ``area`` emitters, ``constant`` and ``envmap`` envir
 returns the direction and distance to the sampled light point and ``Lw = L_e / pdf`` (pdf in
 solid angle at ``p``), so that ``material.eval(wo, wi) · Lw`` estimates the light's direct
 term; averaged over samples this converges to Mitsuba's ``direct`` for diffuse surfaces.
-Each has ``light_id`` (the stream tag, see :func:`links1.maths.sampling.light_tag`).
+Each has ``light_id`` (the stream tag, see :func:`links1.maths.sampling.light_tag`): for an
+area light its rank by place (:func:`number_area_lights`), whatever order the shapes were loaded in.
 
 For multiple importance sampling with BSDF samples, ``sample_pdf(p, n, u, v)`` returns the
 same and the pdf as a fourth value, and ``pdf(p, n, wi, dist, ng)`` gives the solid-angle
@@ -269,6 +270,33 @@ class SampledLight(Light):
         raise NotImplementedError
 
 
+def number_area_lights(lights) -> list[int]:
+    """Give the area lights among ``lights`` their ``light_id`` (the tag of their sample streams,
+    :func:`links1.maths.sampling.light_tag`) by where they are, so that every loader of a scene
+    gives the same light the same samples: the core's reader (shapes in file order), Mitsuba's
+    ``mi.load_file`` (which orders its shapes by kind) and ``links1_mitsuba.load_file`` alike.
+
+    The lights are sorted by their :meth:`AreaLight.place` (centroid, size, normal), each
+    rounded to a grid of ``1e-4`` of the lights' extent (centroid and size) or ``1e-4`` (normal),
+    so the float32 and float64 copies of one light sort alike; lights on the same grid point keep
+    the order given. ``light_id`` is the rank; returns the indices of the area lights (into
+    ``lights``) in that order."""
+    idx = [i for i, light in enumerate(lights) if isinstance(light, AreaLight)]
+    places = [lights[i].place() for i in idx]
+    extent = max((float(np.abs(c).max()) + size for c, size, _ in places), default=0.0)
+    grid = 1e-4 * extent if extent > 0 else 1.0
+
+    def key(k):
+        c, size, n = places[k]
+        return (*np.rint(c / grid).astype(np.int64).tolist(), int(np.rint(size / grid)),
+                *np.rint(n * 1e4).astype(np.int64).tolist(), k)
+
+    order = sorted(range(len(idx)), key=key)
+    for rank, k in enumerate(order):
+        lights[idx[k]].light_id = rank
+    return [idx[k] for k in order]
+
+
 def _inverse(w):
     """``1 / w`` where ``w > 0``, else 0 (the pdf of a sample of weight ``w = 1 / pdf``)."""
     return np.where(w > 0, 1.0 / np.where(w > 0, w, 1.0), 0.0)
@@ -306,7 +334,7 @@ class AreaLight(SampledLight):
         self.texture = radiance if is_texture(radiance) else None
         self.radiance = None if self.texture is not None else _rgb(radiance)
         self.name = name or getattr(shape, "name", "")
-        self.light_id = int(getattr(shape, "index", 0))
+        self.light_id = 0   # numbered by place among the scene's area lights: number_area_lights
         if isinstance(shape, TriangleMesh):
             self.kind = "mesh"
             v, f = shape.vertices, shape.faces
@@ -346,6 +374,22 @@ class AreaLight(SampledLight):
 
     def bounds(self):
         return self.shape.bounds()
+
+    def place(self):
+        """Where the light is, independent of how it was loaded: ``(centre, size, normal)``, its
+        area-weighted centroid, the square root of its area and its area-weighted mean normal
+        (zero for a closed shape). :func:`number_area_lights` orders lights by it."""
+        if self.kind == "mesh":
+            cr = cross(self.v1 - self.v0, self.v2 - self.v0)
+            a = 0.5 * length(cr)
+            centre = ((self.v0 + self.v1 + self.v2) * a[:, None]).sum(axis=0) / (3.0 * a.sum())
+            n, area = cr.sum(axis=0), self.area
+        elif self.kind == "sphere":
+            centre, n, area = np.asarray(self.center, dtype=np.float64), np.zeros(3), 4.0 * np.pi * self.r ** 2
+        else:
+            centre, n, area = self.m[:3, 3], self.normal, self.area
+        ln = float(np.linalg.norm(n))
+        return np.asarray(centre, dtype=np.float64), float(np.sqrt(area)), (n / ln if ln > 1e-12 * area else np.zeros(3))
 
     def illuminate(self, p):  # pragma: no cover - sampled lights use sample()
         raise TypeError("an area light is sampled: use sample()")

@@ -165,7 +165,8 @@ class Lights:
                           f"it lights nothing: {exc}",
                           stacklevel=3)
             return None
-        tab = dict(kind=L.kind, id=L.light_id, slot=slot, L=L.radiance, emitter=e if textured else None)
+        # id: the sample streams' tag, set once every area light is known (number_area_lights)
+        tab = dict(kind=L.kind, id=None, light=L, slot=slot, L=L.radiance, emitter=e if textured else None)
         if L.kind == "mesh":
             tab.update(cdf=mi.Float(L.cdf), v0=mi.Float(L.v0.ravel()), v1=mi.Float(L.v1.ravel()),
                        v2=mi.Float(L.v2.ravel()), nrm=mi.Float(L.normals.ravel()), n=len(L.cdf),

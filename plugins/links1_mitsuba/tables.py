@@ -23,7 +23,7 @@ import numpy as np
 
 from links1.scene.params import MAX_EXTENT
 from links1.sensor.filters import Filter
-from links1.shading.lights import ENV_LIGHT_ID
+from links1.shading.lights import ENV_LIGHT_ID, number_area_lights
 
 import drjit as dr
 import mitsuba as mi
@@ -1111,6 +1111,12 @@ class Tables:
             else:
                 warnings.warn(f"{self.place(e)}: emitter {kind} is not supported and is ignored",
                               stacklevel=2)
+        # sample streams by place (as the core numbers them, whichever order Mitsuba gives the
+        # shapes), and the area lights in that order
+        order = number_area_lights([tab["light"] for tab in P.area_tab])
+        P.area, P.area_tab = [P.area[i] for i in order], [P.area_tab[i] for i in order]
+        for tab in P.area_tab:
+            tab["id"] = tab["light"].light_id
         P.any_mis = bool(np.any(glossy)) and bool(P.area_tab or P.consts)
         self._shadow_tables(P, scene, shapes, slot_list)
         return P
