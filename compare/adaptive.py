@@ -74,7 +74,7 @@ def main(argv=None) -> int:
     ap.add_argument("--renderer", choices=("core", "mitsuba"), default="core")
     args = ap.parse_args(argv)
 
-    from links1.frontends.renderers import make_renderer
+    from links1_app.renderers import make_renderer
     warm, reps = (0, 1) if args.renderer == "core" else (2, 3)
 
     def renderer(path, **kw):

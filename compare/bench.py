@@ -117,7 +117,7 @@ def _cuda_status():
 def _plugin_status():
     if "plugin" not in _STATUS:
         try:
-            from links1.frontends.renderers import make_renderer  # noqa: F401
+            from links1_app.renderers import make_renderer  # noqa: F401
             import links1_mitsuba  # noqa: F401
             _STATUS["plugin"] = (True, None)
         except Exception as e:  # noqa: BLE001

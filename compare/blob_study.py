@@ -173,7 +173,7 @@ def mitsuba_xml(scene_name) -> str:
 
 
 def mitsuba_solver(path, res, solver, samples):
-    from links1.frontends.renderers import make_renderer
+    from links1_app.renderers import make_renderer
     r = make_renderer("mitsuba", str(path), params={"res": res, "solver": solver, "samples": samples},
                       spp=1, aovs=("depth", "cost"))
     img = r.render()  # warm-up (compilation)

@@ -64,7 +64,7 @@ def _job(job: dict) -> dict:
     out, res = {}, {"ok": True}
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        from links1.frontends.renderers import make_renderer
+        from links1_app.renderers import make_renderer
         if job["kind"] == "mitsuba":
             import links1_mitsuba
             links1_mitsuba.register(job["variant"])

@@ -41,7 +41,7 @@ def main(argv=None) -> int:
     import mitsuba as mi
 
     import links1_mitsuba
-    from links1.frontends.renderers import make_renderer
+    from links1_app.renderers import make_renderer
     from tests.plugins import test_filters_vs_mitsuba as t
     links1_mitsuba.register("llvm_ad_rgb")
     t.RES = args.res

@@ -26,7 +26,7 @@ from compare.realtime import SCENES
 
 def tile_times(kind: str, scene: str, res: int, tiles: int, rounds: int):
     """(units, median seconds per unit) with one launch per unit on one thread."""
-    from links1.partition.runtime import RendererSpec, get_renderer, set_threads
+    from links1_app.partition.runtime import RendererSpec, get_renderer, set_threads
     from links1.partition.strategies import grid_shape, tile_units
     set_threads(1, kind)
     r = get_renderer(RendererSpec.make(kind, str(ROOT / "scenes" / f"{scene}.xml"), params={"res": str(res)}, spp=1))
@@ -49,7 +49,7 @@ def scene_model_of(scene: str, res: int, table=None):
 
     from links1.scene.xmlparse import SceneWarning
     from links1.partition.loadmodel import scene_model
-    from links1.partition.runtime import RendererSpec, get_renderer
+    from links1_app.partition.runtime import RendererSpec, get_renderer
     path = str(ROOT / "scenes" / f"{scene}.xml")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SceneWarning)

@@ -35,12 +35,12 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "compare" / "results"
-LINKS1 = [sys.executable, "-m", "links1.frontends.cli"]
+LINKS1 = [sys.executable, "-m", "links1_app.cli"]
 
 
 def overhead_rows(cases, repeat):
-    from links1.partition.experiment import measure_overhead
-    from links1.partition.runtime import RendererSpec
+    from links1_app.partition.costmodel import measure_overhead
+    from links1_app.partition.runtime import RendererSpec
     rows = []
     for kind, scene, res in cases:
         spec = RendererSpec.make(kind, str(ROOT / "scenes" / f"{scene}.xml"), params={"res": str(res)})

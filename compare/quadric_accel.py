@@ -94,7 +94,7 @@ def run_frames(n, res, repeats):
     """Frame rows for N spheres: links1_whitted on quadrics and on Mitsuba spheres (both
     BSDF variants), Mitsuba ``direct`` on the Mitsuba spheres."""
     import drjit as dr
-    from links1.frontends.renderers import make_renderer
+    from links1_app.renderers import make_renderer
     from .scaling import quadric_scene
     rows = []
     with tempfile.TemporaryDirectory() as d:

@@ -44,7 +44,7 @@ def main(argv=None) -> int:
     ap.add_argument("--frames", type=int, default=9)
     args = ap.parse_args(argv)
     from compare.scaling import quadric_scene
-    from links1.frontends.renderers import make_renderer
+    from links1_app.renderers import make_renderer
     with tempfile.TemporaryDirectory() as d:
         cal_path = os.path.join(d, "calibration.xml")
         with open(cal_path, "w") as f:

@@ -63,7 +63,7 @@ def _args(renderer, scene, res, strategy, nodes, spp):
 
 def one_thread(renderer):
     """This process renders with one thread (the one-node runs are in-process)."""
-    from links1.partition.runtime import set_threads
+    from links1_app.partition.runtime import set_threads
     if renderer == "mitsuba":
         import drjit
         import mitsuba  # noqa: F401
@@ -75,7 +75,7 @@ def capacity(pool, spec, alone_s):
     """What this machine gives N one-thread processes at once, measured: every node renders the
     whole frame at the same time; N x (the frame alone on node 0) / (the slowest of them). N on a
     machine with N free cores; less where other work takes cores (this shared VM)."""
-    from links1.partition.experiment import frame_seconds
+    from links1_app.partition.costmodel import frame_seconds
     futs = [pool.pools[k].submit(frame_seconds, spec) for k in range(pool.n)]
     together = [f.result(timeout=600) for f in futs]
     return pool.n * alone_s / max(together)
@@ -85,9 +85,12 @@ def run_point(renderer, scene, res, nodes, strategies, repeat, ref_repeat, spp):
     """Every strategy ``repeat`` times on ``nodes`` one-thread nodes -> raw rows."""
     from functools import partial
 
-    from links1.partition import cli as pcli
-    from links1.partition.executors import LocalPool, render_plan
-    from links1.partition.experiment import build_report, frame_seconds
+    from links1_app.partition import cli as pcli
+    from links1_app.partition.executors import render_plan
+    from links1_app.partition.local_pool import LocalPool
+    from links1_app.partition.costmodel import frame_seconds
+    from links1_app.partition.report import build_report
+    from links1_app.partition.schedule import single_node_reference
     from links1.tracing.aovs import aov_channel
     rows, ref, cap = [], None, {}
     for k in range(repeat):
@@ -98,7 +101,7 @@ def run_point(renderer, scene, res, nodes, strategies, repeat, ref_repeat, spp):
                 backend.threads = 1   # one thread per node, whatever the cores
             res_ = render_plan(plan, spec, backend, progress=False)
             if ref is None:  # the cost model's units launched alone, once per point
-                ref = pcli._reference(backend, spec, ref_repeat)
+                ref = single_node_reference(backend, spec, ref_repeat)
             frame = backend.call(partial(frame_seconds, repeat=1), spec)   # node 0, right after the run
             if isinstance(backend, LocalPool) and cap.get(k) is None:
                 cap[k] = capacity(backend, spec, frame)
@@ -120,7 +123,7 @@ def run_point(renderer, scene, res, nodes, strategies, repeat, ref_repeat, spp):
             print(f"{renderer:8s} {scene:6s} {res:5d} n={nodes:2d} #{k} {strategy:17s} makespan {m * 1e3:8.1f} ms "
                   f"frame {frame * 1e3:8.1f} ms  true eff {row['true_efficiency']:.3f}  "
                   + " ".join(f"{p} {ts['shares'][p]:.2f}" for p in PARTS), file=sys.stderr, flush=True)
-    pcli._close_backends()
+    pcli.close_backends()
     return rows
 
 
@@ -180,8 +183,8 @@ def summarise(raw):
 
 
 def plot(table, path):
-    from links1.partition.experiment import _pyplot, _save
-    plt = _pyplot()
+    from links1_app.partition.plots import pyplot, save_figure
+    plt = pyplot()
     groups = sorted({(r["renderer"], r["scene"], r["res"]) for r in table})
     fig, axes = plt.subplots(2, len(groups), figsize=(4.2 * len(groups), 7.5), squeeze=False)
     colours = {s: f"C{i}" for i, s in enumerate(STRATEGIES)}
@@ -229,7 +232,7 @@ def plot(table, path):
         if j == 0:
             ax.legend(fontsize=6)
     fig.tight_layout()
-    _save(fig, str(path))
+    save_figure(fig, str(path))
     plt.close(fig)
 
 

@@ -53,9 +53,11 @@ def _args(renderer, res, strategy, nodes):
 
 def one_repeat(renderer, res, nodes, ref_repeat):
     """Every strategy once on ``nodes`` nodes; the reference once -> {strategy: report + work map}."""
-    from links1.partition import cli as pcli
-    from links1.partition.executors import render_plan
-    from links1.partition.experiment import build_report, check_simulator, work_map
+    from links1_app.partition import cli as pcli
+    from links1_app.partition.executors import render_plan
+    from links1_app.partition.report import build_report
+    from links1_app.partition.schedule import single_node_reference
+    from links1_app.partition.simulator import check_simulator, work_map
     from links1.tracing.aovs import aov_channel
     out, ref = {}, None
     for strategy in STRATEGIES:
@@ -63,7 +65,7 @@ def one_repeat(renderer, res, nodes, ref_repeat):
         spec, model, channels, plan, backend = pcli.prepare(args, nodes=nodes)
         res_ = render_plan(plan, spec, backend, progress=False)
         if ref is None:  # one reference per repeat (strategy-independent: units launched alone)
-            ref = pcli._reference(backend, spec, ref_repeat)
+            ref = single_node_reference(backend, spec, ref_repeat)
         cc = aov_channel(channels, "cost")
         rep = build_report(res_, plan, model, cost_channel=cc, reference=ref,
                            meta={"spp": spec.kwargs.get("spp")}, chunk_factor=backend.chunk_factor,
@@ -76,7 +78,7 @@ def one_repeat(renderer, res, nodes, ref_repeat):
 
 def cross(results, nodes, source="dynamic/tile"):
     """The costs fitted on ``source``'s run predicting every strategy at ``nodes``."""
-    from links1.partition.experiment import simulate
+    from links1_app.partition.simulator import simulate
     src = results[source]
     rows = simulate(src["work"], src["model"], [nodes], strategies=STRATEGIES, overheads=src["report"]["overheads"],
                     full_frame_s=src["report"]["full_frame_s"])
@@ -140,10 +142,8 @@ def main(argv=None):
                     print(f"{renderer:8s} {res:4d} n={n} #{k} {s:17s} measured {m * 1e3:8.1f} ms  self "
                           f"{sc['simulated_s'] * 1e3:8.1f} ({(sc['simulated_s'] / m - 1) * 100:+6.1f} %)  cross "
                           f"{cr[s] * 1e3:8.1f} ({(cr[s] / m - 1) * 100:+6.1f} %)", file=sys.stderr, flush=True)
-                from links1.partition import cli as pcli
-                for be in list(pcli._BACKENDS.values()):
-                    be.close()
-                pcli._BACKENDS.clear()
+                from links1_app.partition import cli as pcli
+                pcli.close_backends()
             for s in STRATEGIES:
                 m = float(np.median(per[s]["measured"]))
                 errs_self = [x / y - 1 for x, y in zip(per[s]["self"], per[s]["measured"])]

@@ -50,7 +50,7 @@ def _core(job):
 
 
 def _links1(job, variant):
-    from links1.frontends.renderers import make_renderer
+    from links1_app.renderers import make_renderer
     kw = {} if job.get("min_weight") is None else {"min_weight": float(job["min_weight"])}
     r = make_renderer("mitsuba", job["scene"], params=job.get("params"), spp=1,
                       seed=job.get("seed", 0), max_depth=job.get("max_depth"),

@@ -7,32 +7,19 @@ The standalone core renders Mitsuba 3 XML scenes in float64 numpy::
     image = links1.render(scene)            # (H, W, 3) linear radiance, float64
     links1.write_image("fig11.exr", image)
 
-The Mitsuba 3 plugin suite is the package :mod:`links1_mitsuba`; ``make_renderer("core" |
-"mitsuba", path)`` gives either renderer (:mod:`links1.frontends.renderers`, the one module that names
-the plugin; docs/architecture.md, "Dependencies").
+The Mitsuba 3 plugin suite is the package :mod:`links1_mitsuba`; the front ends (the
+``links1`` command, the pytest plugin, the partitioning runtime, and ``make_renderer("core" |
+"mitsuba", path)``, which gives either renderer) are the package :mod:`links1_app`, above both
+(docs/architecture.md, "Dependencies").
 """
 from __future__ import annotations
 
 __version__ = "0.1.0"
 
 from .errors import Links1Error, SceneError, UsageError  # noqa: E402
-
-
-def load_scene(path, **params):
-    """Load a Mitsuba 3 XML scene with the core's reader; ``params`` fill ``$name`` references."""
-    from .scene.loader import load_scene as _load
-    return _load(path, **params)
-
-
-# The function (the module is links1.tracing.render); imported eagerly, as before the subpackages.
+from .imaging.image import write_image  # noqa: E402
+from .scene.loader import load_scene  # noqa: E402
+# The function (the module is links1.tracing.render).
 from .tracing.render import render  # noqa: E402
-from .frontends.renderers import Renderer, make_renderer  # noqa: E402  (imports no plugin until asked)
 
-
-def write_image(path, image, channels=None):
-    """Write an (H, W, C) image as EXR (linear float32) or PNG (8-bit sRGB), atomically."""
-    from .imaging.image import write_image as _write
-    return _write(path, image, channels) if channels is not None else _write(path, image)
-
-
-__all__ = ["load_scene", "render", "make_renderer", "Renderer", "write_image", "SceneError", "UsageError", "Links1Error"]
+__all__ = ["load_scene", "render", "write_image", "SceneError", "UsageError", "Links1Error"]

@@ -62,5 +62,5 @@ def format_warning(message, category, filename, lineno, line=None) -> str:
 
 def one_line_warnings() -> None:
     """Print warnings as :func:`format_warning` does, in this process (the CLI, its workers);
-    Mitsuba's own log warnings join them through :func:`links1.frontends.renderers.renderer_warnings`."""
+    Mitsuba's own log warnings join them through :func:`links1_app.renderers.renderer_warnings`."""
     warnings.formatwarning = format_warning

@@ -21,7 +21,7 @@ import time
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 #: the console script's two lines, with a byte written to fd ``argv[1]`` once links1 is imported
-_MAIN = ("import os, sys\nfrom links1.frontends.cli import main\n"
+_MAIN = ("import os, sys\nfrom links1_app.cli import main\n"
          "os.write(int(sys.argv[1]), b'r')\nos.close(int(sys.argv[1]))\nsys.exit(main(sys.argv[2:]))")
 
 

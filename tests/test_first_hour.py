@@ -20,7 +20,7 @@ from tests.core.test_pytest_plugin import PLUGIN_ARGS   # the plugin by its entr
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 #: the console script the README runs (``.venv/bin/links1``), else the same entry point
 _SCRIPT = os.path.join(os.path.dirname(sys.executable), "links1")
-LINKS1 = [_SCRIPT] if os.path.exists(_SCRIPT) else [sys.executable, "-m", "links1.frontends.cli"]
+LINKS1 = [_SCRIPT] if os.path.exists(_SCRIPT) else [sys.executable, "-m", "links1_app.cli"]
 
 
 @pytest.fixture

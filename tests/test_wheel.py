@@ -1,14 +1,14 @@
 """The wheel as a user gets it: built, installed into a fresh venv, run elsewhere.
 
 ``make setup`` installs the checkout in editable mode, which imports every module straight from
-the source tree and so hides a wheel that leaves modules out (``links1.partition`` once was:
-``links1 render --workers 2`` then said "unrecognized arguments", ``links1 schedule``
+the source tree and so hides a wheel that leaves modules out (the partitioning package once
+was: ``links1 render --workers 2`` then said "unrecognized arguments", ``links1 schedule``
 "invalid choice"). Here:
 
 * the wheel is built from a copy of the packaged sources (``pip wheel --no-deps``, with build
   isolation: setuptools comes from the index as ``build-system.requires`` asks, and nothing
   left in the checkout's ``build/`` can slip into it), and must hold exactly the files of
-  ``links1/`` and ``plugins/links1_mitsuba/``, ``.py`` files and data alike;
+  ``links1/``, ``links1_app/`` and ``plugins/links1_mitsuba/``, ``.py`` files and data alike;
 * it is installed into a fresh virtual environment with its dependencies resolved from the
   package index (``links1[mitsuba,dask]`` plus pytest, for the pytest plugin): no
   ``--system-site-packages``, nothing from the project's ``.venv``, so an undeclared
@@ -41,7 +41,7 @@ pytestmark = [pytest.mark.slow, pytest.mark.wheel, pytest.mark.timeout(PIP_TIMEO
 
 ROOT = Path(__file__).resolve().parent.parent
 # top-level package in the wheel -> its source directory (pyproject.toml's packages.find)
-PACKAGES = {"links1": "links1", "links1_mitsuba": "plugins/links1_mitsuba"}
+PACKAGES = {"links1": "links1", "links1_app": "links1_app", "links1_mitsuba": "plugins/links1_mitsuba"}
 BUILD_FILES = ("pyproject.toml", "README.md")
 RES = ("--width", "32", "--height", "24")
 
@@ -99,7 +99,8 @@ def test_wheel_holds_every_module_and_data_file(wheel, sources):
     expected = set()
     for top, d in PACKAGES.items():
         expected |= {top + f[len(d):] for f in sources if f.startswith(d + "/")}
-    assert "links1/partition/cli.py" in expected and "links1/data/cie1931_d65.csv" in expected
+    assert {"links1/partition/strategies.py", "links1_app/partition/cli.py", "links1_app/cli.py",
+            "links1/data/cie1931_d65.csv"} <= expected
     with zipfile.ZipFile(wheel) as z:
         names = z.namelist()
         info = next(n.split("/")[0] for n in names if n.endswith(".dist-info/METADATA"))
@@ -108,8 +109,8 @@ def test_wheel_holds_every_module_and_data_file(wheel, sources):
     assert sorted(expected - packaged) == [], "left out of the wheel (pyproject.toml: packages.find / package-data)"
     assert sorted(packaged - expected) == [], "in the wheel but not in the source tree"
     lines = [ln.replace(" ", "") for ln in entry_points.splitlines()]
-    assert lines[lines.index("[console_scripts]") + 1:].count("links1=links1.frontends.cli:main") == 1
-    assert "links1=links1.frontends.pytest_plugin" in lines[lines.index("[pytest11]"):]
+    assert lines[lines.index("[console_scripts]") + 1:].count("links1=links1_app.cli:main") == 1
+    assert "links1=links1_app.pytest_plugin" in lines[lines.index("[pytest11]"):]
 
 
 # ------------------------------------------------------------------ installed in a fresh venv
@@ -145,7 +146,7 @@ def _links1(venv, work, *args, check=True):
 
 def _checkout_render(path, *args):
     """The same render by the checkout's code (the suite's own interpreter)."""
-    _run([sys.executable, "-c", "import sys; from links1.frontends.cli import main; sys.exit(main())",
+    _run([sys.executable, "-c", "import sys; from links1_app.cli import main; sys.exit(main())",
           "render", *args, "--no-progress", "-o", path], cwd=ROOT)
     return read_exr(path)[0]
 
@@ -154,26 +155,26 @@ def test_every_module_imports_from_the_venv(venv, work):
     bindir, env = venv
     script = r"""
 import importlib, json, pkgutil, sys
-import links1, links1_mitsuba
+import links1, links1_app, links1_mitsuba
 failed, names = {}, []
-for pkg in (links1, links1_mitsuba):
+for pkg in (links1, links1_app, links1_mitsuba):
     for m in pkgutil.walk_packages(pkg.__path__, pkg.__name__ + "."):
         names.append(m.name)
         try:
             importlib.import_module(m.name)
         except Exception as e:
             failed[m.name] = repr(e)
-print(json.dumps({"links1": links1.__file__, "links1_mitsuba": links1_mitsuba.__file__,
+print(json.dumps({"links1": links1.__file__, "links1_app": links1_app.__file__, "links1_mitsuba": links1_mitsuba.__file__,
                   "names": names, "failed": failed}))
 """
     out = json.loads(_run([bindir / "python", "-c", script], cwd=work, env=env).stdout)
     purelib = Path(_run([bindir / "python", "-c", "import sysconfig; print(sysconfig.get_path('purelib'))"],
                         cwd=work, env=env).stdout.strip()).resolve()
-    for pkg in ("links1", "links1_mitsuba"):
+    for pkg in ("links1", "links1_app", "links1_mitsuba"):
         f = Path(out[pkg]).resolve()
         assert purelib in f.parents, f"{pkg} imported from {f}, not from the venv's {purelib}"
         assert ROOT not in f.parents
-    assert "links1.partition.cli" in out["names"] and "links1_mitsuba.integrator" in out["names"]
+    assert "links1_app.partition.cli" in out["names"] and "links1_mitsuba.integrator" in out["names"]
     assert out["failed"] == {}
 
 
@@ -236,10 +237,10 @@ PLUGIN_TEST = '''
 import sys
 from pathlib import Path
 import numpy as np
-import links1.frontends.pytest_plugin
+import links1_app.pytest_plugin
 
 def test_plugin_is_the_installed_one():
-    assert Path(sys.prefix).resolve() in Path(links1.frontends.pytest_plugin.__file__).resolve().parents
+    assert Path(sys.prefix).resolve() in Path(links1_app.pytest_plugin.__file__).resolve().parents
 
 def test_image(links1_baseline):
     y, x = np.mgrid[0:6, 0:8]
@@ -254,7 +255,7 @@ def test_pytest_plugin_loads_by_its_entry_point(venv, work):
     test = d / "test_images.py"
     pytest_cmd = [bindir / "python", "-m", "pytest", "-q", "-p", "no:cacheprovider", "--rootdir", d, test]
     test.write_text(PLUGIN_TEST.replace("SCALE", "1.0"))
-    # no "-p links1.frontends.pytest_plugin": the fixture must come from the wheel's pytest11 entry point
+    # no "-p links1_app.pytest_plugin": the fixture must come from the wheel's pytest11 entry point
     _run([*pytest_cmd, "--links1-update-baselines"], cwd=d, env=env)
     assert (d / "baselines" / "ramp.exr").is_file()
     _run(pytest_cmd, cwd=d, env=env)

@@ -25,8 +25,10 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ..scene import params
 from ..errors import UsageError
+from ..scene import params
+from ..scene.loader import load_scene
+from .strategies import unit_loads
 
 #: Default per-object load table (relative units: one quadric ~ 1).
 DEFAULT_LOAD_TABLE = {
@@ -105,7 +107,6 @@ def fit_load_table(samples, *, reflective=None, transmissive=None, base=None) ->
     to ``representation["quadric"] = 1`` (when fitted > 0) and returned with ``"fit"``: the
     relative RMS residual and the launch constant in seconds.
     """
-    from .strategies import unit_loads
     base = json.loads(json.dumps(base or DEFAULT_LOAD_TABLE))
     reflective = np.linspace(0.0, 32.0, 65) if reflective is None else reflective
     transmissive = np.linspace(0.0, 32.0, 33) if transmissive is None else transmissive
@@ -359,7 +360,6 @@ def camera_of(renderer, path=None, params=None):
         cam = getattr(scene, "camera", None) if scene is not None else None
     if cam is None and path is not None:
         try:
-            from .. import load_scene
             cam = load_scene(path, **(params or {})).camera
         except Exception:  # noqa: BLE001 - the core cannot read this scene: no projection
             return None

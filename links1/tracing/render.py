@@ -1,8 +1,8 @@
 """Rendering a scene (or windows of its film) with the core, and the core's renderer.
 
 ``render`` is the core's public entry point; :class:`CoreRenderer` is the core's side of the
-Renderer contract (:class:`links1.frontends.renderers.Renderer`: load a scene file once, render any
-window of it), which the front ends get from :func:`links1.frontends.renderers.make_renderer`. Nothing
+Renderer contract (:class:`links1_app.renderers.Renderer`: load a scene file once, render any
+window of it), which the front ends get from :func:`links1_app.renderers.make_renderer`. Nothing
 here names the Mitsuba plugin (docs/architecture.md, "Dependencies").
 """
 from __future__ import annotations

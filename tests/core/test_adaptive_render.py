@@ -10,10 +10,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from links1.frontends.cli import main
+from links1_app.cli import main
 from links1.imaging.image import read_exr
 from links1.tracing.render import render
-from links1.frontends.renderers import make_renderer
+from links1_app.renderers import make_renderer
 
 from . import oracle
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from links1.frontends.cli import main
+from links1_app.cli import main
 
 ROOT = Path(__file__).resolve().parents[2]
 FIG4 = str(ROOT / "scenes" / "fig4.xml")
@@ -93,7 +93,7 @@ def test_missing_scene_and_bad_extension(tmp_path, capsys):
 def test_subprocess_error_has_no_traceback(tmp_path):
     scene = tmp_path / "broken.xml"
     scene.write_text("<scene version='3.0.0'>\n  <shape type='sphere'>\n</scene>\n")
-    res = subprocess.run([sys.executable, "-m", "links1.frontends.cli", "render", str(scene), "--renderer", "core",
+    res = subprocess.run([sys.executable, "-m", "links1_app.cli", "render", str(scene), "--renderer", "core",
                           "-o", str(tmp_path / "o.png")], capture_output=True, text=True, timeout=120)
     assert res.returncode == 2
     assert "Traceback" not in res.stderr
@@ -127,7 +127,7 @@ def test_warnings_are_one_clean_line_each(tmp_path, workers):
     (file.py:N: SceneWarning + the source line), in the root and in worker processes."""
     scene = tmp_path / "warn.xml"
     scene.write_text(WARN_SCENE)
-    res = subprocess.run([sys.executable, "-m", "links1.frontends.cli", "render", str(scene), "--renderer", "core",
+    res = subprocess.run([sys.executable, "-m", "links1_app.cli", "render", str(scene), "--renderer", "core",
                           "--workers", workers, "--no-progress", "-o", str(tmp_path / "o.exr")],
                          capture_output=True, text=True, timeout=120)
     assert res.returncode == 0, res.stderr

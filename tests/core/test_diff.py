@@ -1,4 +1,5 @@
-"""links1.imaging.diff: metrics against hand-computed values, shape checks, heatmap, CLI."""
+"""links1.imaging.diff (metrics against hand-computed values, shape checks, heatmap) and its
+command line, links1_app.diff."""
 from __future__ import annotations
 
 import argparse
@@ -14,6 +15,7 @@ import pytest
 from links1.imaging import diff
 from links1.errors import UsageError
 from links1.imaging.image import write_exr, write_png
+from links1_app import diff as diff_cli
 
 # a = test, b = reference; differences d = a - b = [0.1, -0.2, 0, 0.3]
 A = np.array([[[1.1], [0.3]], [[0.0], [0.8]]])
@@ -99,10 +101,10 @@ def test_heatmap_writes_png(tmp_path):
 
 def _run(argv, capsys):
     parser = argparse.ArgumentParser(prog="links1")
-    diff.add_cli(parser.add_subparsers(dest="command"))
+    diff_cli.add_cli(parser.add_subparsers(dest="command"))
     args = parser.parse_args(["diff", *map(str, argv)])
-    assert args.func is diff.run_cli
-    rc = diff.run_cli(args)
+    assert args.func is diff_cli.run_cli
+    rc = diff_cli.run_cli(args)
     out, err = capsys.readouterr()
     return rc, out, err
 
@@ -162,7 +164,7 @@ def test_cli_json_infinite_psnr_is_a_string(tmp_path, capsys):
 
 
 def test_cli_subprocess(pair):
-    cmd = [sys.executable, "-m", "links1.imaging.diff", *map(str, pair), "--threshold", "1e-9",
+    cmd = [sys.executable, "-m", "links1_app.diff", *map(str, pair), "--threshold", "1e-9",
            "--no-flip"]
     root = Path(__file__).resolve().parents[2]
     proc = subprocess.run(cmd, capture_output=True, text=True, cwd=root, timeout=60)

@@ -1,7 +1,7 @@
 """Golden images: every scene in scenes/ rendered by the core, against a stored baseline.
 
 Uses the project's own regression tool (the ``links1_baseline`` fixture of
-links1.frontends.pytest_plugin). Regenerate with ``pytest tests/core/test_golden.py --links1-update-baselines``
+links1_app.pytest_plugin). Regenerate with ``pytest tests/core/test_golden.py --links1-update-baselines``
 after an intended change, and look at the new images before committing them.
 
 A baseline only says the core has not changed, so each one (the stored file, or the one
@@ -111,7 +111,7 @@ def test_oracle_sees_lit_shadowed_and_tinted_pixels():
 def test_oracle_rejects_a_slightly_wrong_image(scene, change):
     """The check can fail: the core's image of a slightly different view, or one 0.1 % too
     bright, is rejected; the right one passes."""
-    from links1.frontends.renderers import make_renderer
+    from links1_app.renderers import make_renderer
     path = str(ROOT / "scenes" / scene)
     right = make_renderer("core", path, spp=1, params={"res": RES}).render()
     check_against_oracle(scene, right, 1)

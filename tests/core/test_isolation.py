@@ -23,12 +23,12 @@ sys.meta_path.insert(0, _Block())
 def test_core_renders_without_mitsuba_drjit_or_dask(tmp_path):
     out = tmp_path / "iso.exr"
     code = BLOCKER + textwrap.dedent(f"""
-        import links1, links1.frontends.cli
+        import links1, links1_app.cli
         from links1.imaging.image import read_exr
         scene = links1.load_scene({str(ROOT / 'scenes' / 'fig4.xml')!r}, res=16)
         img = links1.render(scene)
         assert img.shape == (16, 16, 3) and img.max() > 0
-        rc = links1.frontends.cli.main(["render", {str(ROOT / 'scenes' / 'fig11.xml')!r}, "--renderer", "core",
+        rc = links1_app.cli.main(["render", {str(ROOT / 'scenes' / 'fig11.xml')!r}, "--renderer", "core",
                               "--width", "12", "--height", "8", "-o", {str(out)!r}, "--no-progress"])
         assert rc == 0, rc
         data, names = read_exr({str(out)!r})

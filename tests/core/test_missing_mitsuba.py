@@ -26,7 +26,7 @@ def no_mitsuba_env(tmp_path):
 
 
 def _cli(env, *args):
-    return subprocess.run([sys.executable, "-m", "links1.frontends.cli", *args], capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", "links1_app.cli", *args], capture_output=True, text=True,
                           env=env, cwd=str(ROOT), timeout=240)
 
 

@@ -1,4 +1,4 @@
-"""The Renderer contract in code and the factory (links1/frontends/renderers.py), and
+"""The Renderer contract in code and the factory (links1_app/renderers.py), and
 the one AOV table and checker (links1/tracing/aovs.py)."""
 from __future__ import annotations
 
@@ -12,7 +12,8 @@ import pytest
 import links1
 from links1.tracing.aovs import AOVS, aov_channel, channel_names, check_aovs
 from links1.errors import UsageError
-from links1.frontends.renderers import Renderer, make_renderer
+import links1_app
+from links1_app.renderers import Renderer, make_renderer
 
 ROOT = Path(__file__).resolve().parents[2]
 FIG11 = str(ROOT / "scenes" / "fig11.xml")

@@ -10,7 +10,7 @@ import sys
 
 import pytest
 
-from links1.partition.checkpoint import atomic_write_json
+from links1_app.partition.checkpoint import atomic_write_json
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 FIG4 = os.path.join(HERE, "..", "..", "scenes", "fig4.xml")
@@ -56,9 +56,9 @@ WARN_SCENE = """<scene version="3.0.0">
 
 
 def links1(*args, umask=None):
-    """Run ``python -m links1.frontends.cli ARGS`` -> (exit status, stderr lines)."""
+    """Run ``python -m links1_app.cli ARGS`` -> (exit status, stderr lines)."""
     env = dict(os.environ)
-    p = subprocess.run([sys.executable, "-m", "links1.frontends.cli", *map(str, args)], capture_output=True, text=True,
+    p = subprocess.run([sys.executable, "-m", "links1_app.cli", *map(str, args)], capture_output=True, text=True,
                        timeout=300, env=env, preexec_fn=(lambda: os.umask(umask)) if umask is not None else None)
     return p.returncode, p.stderr.strip().splitlines()
 

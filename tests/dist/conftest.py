@@ -5,7 +5,7 @@ import os
 
 import pytest
 
-from links1.partition.runtime import RendererSpec
+from links1_app.partition.runtime import RendererSpec
 
 from .fake_renderer import FAKE, FakeRenderer, pixel_values
 
@@ -32,5 +32,5 @@ def core_spec():
 
 @pytest.fixture(scope="session")
 def core_ref(core_spec):
-    from links1.frontends.renderers import make_renderer
+    from links1_app.renderers import make_renderer
     return make_renderer("core", MANY, params={"res": "32"}, aovs=("id", "cost")).render()

@@ -37,7 +37,7 @@ def _die():
 
 class DyingRenderer:
     def __init__(self, path, *, inner, die, marker, die_window=None, always=False, **options):
-        from links1.partition.runtime import RendererSpec
+        from links1_app.partition.runtime import RendererSpec
         self._inner = RendererSpec.make(inner, path, **options).build()
         self._die, self._marker, self._always = die, marker, bool(always)
         self._window = tuple(die_window) if die_window else None

@@ -28,7 +28,7 @@ def test_names_follow_mitsubas_aov_integrator():
 @pytest.mark.parametrize("backend", list(BACKENDS))
 @pytest.mark.parametrize("renderer", ["core", "mitsuba"])
 def test_exr_channel_names(tmp_path, renderer, backend):
-    from links1.frontends.cli import main
+    from links1_app.cli import main
     from links1.imaging.image import read_exr
     if renderer == "mitsuba":
         pytest.importorskip("mitsuba")

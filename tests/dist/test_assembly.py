@@ -4,9 +4,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from links1.partition.executors import InProcess, LocalPool, render_plan
+from links1_app.partition.executors import InProcess, render_plan
+from links1_app.partition.local_pool import LocalPool
 from links1.partition.loadmodel import scene_model
-from links1.partition.runtime import get_renderer
+from links1_app.partition.runtime import get_renderer
 from links1.partition.strategies import STRATEGIES, make_plan
 
 CASES = [(s, u) for s in STRATEGIES for u in (("scanline", "tile") if s == "dynamic" else ("tile",))]
@@ -56,9 +57,9 @@ SPHERE = ('<shape type="links1_quadric"><string name="kind" value="sphere"/><tra
 
 def test_core_renderer_cull_keeps_the_image(tmp_path):
     """--cull: nodes get only the objects their units need (4-4); the image is unchanged."""
-    from links1.partition.cli import _cull_map
-    from links1.partition.runtime import RendererSpec
-    from links1.frontends.renderers import make_renderer
+    from links1_app.partition.cli import cull_map
+    from links1_app.partition.runtime import RendererSpec
+    from links1_app.renderers import make_renderer
     path = tmp_path / "cull.xml"
     path.write_text(CULL_SCENE % "".join(SPHERE % (x, y) for x in (-4, -1.5, 1.5, 4) for y in (-1.5, 1.5)))
     spec = RendererSpec.make("core", str(path), aovs=("id",))
@@ -66,7 +67,7 @@ def test_core_renderer_cull_keeps_the_image(tmp_path):
     assert len(np.unique(ref[..., 3])) == 9  # eight spheres and the background
     model, plans = _plans(spec, 2)
     for plan in plans:
-        cull = _cull_map(plan, model, spec)
+        cull = cull_map(plan, model, spec)
         if plan.strategy != "scanline":  # interleaved lines span the screen: nothing to cull there
             assert min(len(v) for v in cull.values()) < len(model.shapes), plan
         res = render_plan(plan, spec, InProcess(), progress=False, cull=cull)
@@ -76,8 +77,8 @@ def test_core_renderer_cull_keeps_the_image(tmp_path):
 @pytest.mark.dask
 def test_dask_local_every_strategy(fake_spec, fake_ref, core_spec, core_ref):
     pytest.importorskip("distributed")
-    from links1.partition.dask_backend import DaskBackend
-    from links1.partition.runtime import limit_blas
+    from links1_app.partition.dask_backend import DaskBackend
+    from links1_app.partition.runtime import limit_blas
     _, plans = _plans(fake_spec, 2)
     blas = limit_blas(2)    # None where numpy has no OpenBLAS
     for static in (True, False):

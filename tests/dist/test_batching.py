@@ -9,7 +9,9 @@ from collections import deque
 import numpy as np
 import pytest
 
-from links1.partition.executors import InProcess, LocalPool, chunk_size, render_plan, take_batch
+from links1_app.partition.executors import InProcess, render_plan
+from links1_app.partition.handout import chunk_size, take_batch
+from links1_app.partition.local_pool import LocalPool
 from links1.partition.strategies import make_plan
 
 from .conftest import MANY, ROOT
@@ -45,7 +47,7 @@ def test_a_task_stays_within_its_pixel_budget():
 
 @pytest.mark.parametrize("scene", ["many", "fig11", "fig6a"])
 def test_core_batch_equals_each_window_alone(scene):
-    from links1.frontends.renderers import make_renderer
+    from links1_app.renderers import make_renderer
     r = make_renderer("core", os.path.join(SCENES, f"{scene}.xml"), params={"res": "40"}, spp=4,
                       aovs=("depth", "normal", "id", "cost"))
     full = r.render()
@@ -120,7 +122,7 @@ def test_in_process_dynamic_chunks_one_node(k, core_spec, core_ref):
 def test_guided_chunks_of_two_nodes_shrink():
     from collections import deque
 
-    from links1.partition.executors import guided_batch
+    from links1_app.partition.handout import guided_batch
     plan = make_plan("dynamic", 32, 32, 2, tiles_per_node=8, unit="tile")
     q, got, cover = deque(plan.order), [], np.zeros((32, 32), int)
     while q:
@@ -158,7 +160,7 @@ def test_nodes_send_float32_only_when_it_is_exact(tmp_path):
     """A node sends a unit's pixels as float32 when every value is a float32 (the plugin
     renderer's), half the bytes through the pipe, and as float64 otherwise (the core's): the
     root's float64 frame gets the same bits either way."""
-    from links1.partition.runtime import RendererSpec, render_units, wire_pixels
+    from links1_app.partition.runtime import RendererSpec, render_units, wire_pixels
     exact = np.float32([[[0.1, 2.5, np.inf]], [[np.nan, -0.0, 3e-38]]]).astype(np.float64)
     assert wire_pixels(exact).dtype == np.float32
     np.testing.assert_array_equal(wire_pixels(exact).astype(np.float64), exact)
@@ -177,7 +179,7 @@ def test_in_process_node_is_warm_before_its_first_unit():
     """``--workers 0`` (InProcess) warms its renderer at start as a local worker does
     (runtime.warm_up): the frozen launch is recorded before the first unit, so the first
     unit's time is work (schedule --nodes 1: 106 ms for a launch that takes 23 ms warm)."""
-    from links1.partition.runtime import RendererSpec, get_renderer
+    from links1_app.partition.runtime import RendererSpec, get_renderer
     from tests.plugins.conftest import variant_problem
     why = variant_problem("llvm_ad_rgb")
     if why:
@@ -195,7 +197,7 @@ def test_guided_chunks_by_load_weigh_the_units():
     """--chunk-by load: a chunk holds predicted load up to remaining / (k x nodes) (at least one
     unit), so with the heaviest units first it holds fewer of them than --chunk-by units does;
     without predictions it is the unit count."""
-    from links1.partition.executors import guided_batch
+    from links1_app.partition.handout import guided_batch
     plan = make_plan("dynamic", 64, 64, 2, tiles_per_node=16, unit="tile")
     rng = np.random.default_rng(2)
     plan.predicted = rng.pareto(1.5, len(plan.units)) + 0.1

@@ -10,8 +10,9 @@ import time
 import numpy as np
 import pytest
 
-from links1.partition.executors import LocalPool, render_plan
-from links1.partition.runtime import limit_blas, set_threads
+from links1_app.partition.executors import render_plan
+from links1_app.partition.local_pool import LocalPool
+from links1_app.partition.runtime import limit_blas, set_threads
 from links1.partition.strategies import make_plan
 
 pytestmark = pytest.mark.skipif(limit_blas(0) is None, reason="no OpenBLAS loaded by numpy here")

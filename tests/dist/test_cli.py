@@ -8,7 +8,7 @@ from .conftest import MANY
 
 
 def test_render_workers_2_matches_in_process(tmp_path, core_ref):
-    from links1.frontends.cli import main
+    from links1_app.cli import main
     from links1.imaging.image import read_image
     a, b = tmp_path / "a.exr", tmp_path / "b.exr"
     base = ["render", MANY, "--renderer", "core", "-D", "res=32", "--aov", "id,cost", "--no-progress"]

@@ -16,7 +16,7 @@ import time
 import numpy as np
 import pytest
 
-from links1.partition.runtime import RendererSpec
+from links1_app.partition.runtime import RendererSpec
 from links1.partition.strategies import STRATEGIES, make_plan
 
 from .conftest import MANY, ROOT
@@ -82,7 +82,7 @@ def cli_cluster(tmp_path):
 
 DRIVER = """
 import json, sys
-from links1.frontends.cli import main
+from links1_app.cli import main
 codes = [main(a) for a in json.loads(sys.argv[1])]
 print(json.dumps(codes))
 """
@@ -91,7 +91,7 @@ print(json.dumps(codes))
 def test_cli_renders_on_a_cluster_it_did_not_start(cli_cluster, tmp_path):
     addr, _ = cli_cluster
     from links1.imaging.image import read_image
-    from links1.frontends.renderers import make_renderer
+    from links1_app.renderers import make_renderer
     runs, expect = [], []
     for kind in ("core", "mitsuba"):
         if kind == "mitsuba":
@@ -116,8 +116,8 @@ def test_cli_renders_on_a_cluster_it_did_not_start(cli_cluster, tmp_path):
 def test_a_worker_killed_mid_render_on_that_cluster(cli_cluster, tmp_path, capsys):
     from distributed import Event
 
-    from links1.partition.dask_backend import DaskBackend
-    from links1.partition.executors import render_plan
+    from links1_app.partition.dask_backend import DaskBackend
+    from links1_app.partition.executors import render_plan
     addr, workers = cli_cluster
     marker = tmp_path / "holding"
     event = f"links1-cli-cluster-{os.getpid()}"

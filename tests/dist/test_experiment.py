@@ -7,7 +7,8 @@ import sys
 import numpy as np
 import pytest
 
-from links1.partition.experiment import simulate, spearman
+from links1_app.partition.costmodel import spearman
+from links1_app.partition.simulator import simulate
 from links1.partition.loadmodel import scene_model
 
 from .conftest import MANY
@@ -15,7 +16,7 @@ from .fake_renderer import FakeRenderer
 
 
 def test_schedule_report_keys_and_sanity(tmp_path):
-    from links1.frontends.cli import main
+    from links1_app.cli import main
     out, png = tmp_path / "r.json", tmp_path / "r.png"
     rc = main(["schedule", MANY, "--renderer", "core", "-D", "res=32", "--nodes", "2", "--partition", "subscreen",
                "--tiles-per-node", "4", "--report", str(out), "--plot", str(png), "--simulate", "1,4,16",
@@ -40,7 +41,7 @@ def test_schedule_report_keys_and_sanity(tmp_path):
 @pytest.mark.parametrize("opt", ["--plot", "--sim-plot"])
 def test_plot_without_matplotlib_is_a_usage_error_before_rendering(tmp_path, capsys, monkeypatch, opt):
     """matplotlib is the [plot] extra: without it, one line and exit 2, and no report written."""
-    from links1.frontends.cli import main
+    from links1_app.cli import main
     monkeypatch.setitem(sys.modules, "matplotlib", None)  # import matplotlib -> ImportError
     out = tmp_path / "r.json"
     rc = main(["schedule", MANY, "--renderer", "core", "-D", "res=8", "--nodes", "1", "--report", str(out),

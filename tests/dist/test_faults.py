@@ -11,9 +11,10 @@ import time
 import numpy as np
 import pytest
 
-from links1.partition.checkpoint import Checkpoint, atomic_write_json
-from links1.partition.executors import InProcess, LocalPool, render_plan
-from links1.partition.runtime import RendererSpec
+from links1_app.partition.checkpoint import Checkpoint, atomic_write_json
+from links1_app.partition.executors import InProcess, render_plan
+from links1_app.partition.local_pool import LocalPool
+from links1_app.partition.runtime import RendererSpec
 from links1.partition.strategies import make_plan
 
 from .conftest import ROOT
@@ -65,7 +66,7 @@ def test_dask_worker_killed_while_holding_a_unit(strategy, tmp_path, capsys):
     pytest.importorskip("distributed")
     from distributed import Event
 
-    from links1.partition.dask_backend import DaskBackend
+    from links1_app.partition.dask_backend import DaskBackend
     marker = tmp_path / "holding"
     event = f"links1-test-{strategy}-{os.getpid()}"
     spec = RendererSpec.make(FAKE, "fake", hold_window=(0, 20, 48, 1), marker=str(marker), event=event)
@@ -94,9 +95,9 @@ def test_dask_worker_killed_while_holding_a_unit(strategy, tmp_path, capsys):
 ROOT_SCRIPT = """
 import sys
 sys.path.insert(0, {root!r})
-from links1.partition.checkpoint import Checkpoint
-from links1.partition.executors import InProcess, render_plan
-from links1.partition.runtime import RendererSpec
+from links1_app.partition.checkpoint import Checkpoint
+from links1_app.partition.executors import InProcess, render_plan
+from links1_app.partition.runtime import RendererSpec
 from links1.partition.strategies import make_plan
 spec = RendererSpec.make({fake!r}, "fake", kill_window={kill!r}, marker={marker!r}, count_file={count!r})
 plan = make_plan("scanline", 48, 32, 1)
@@ -153,7 +154,7 @@ def test_dask_worker_joining_mid_render_gets_units(tmp_path):
     pytest.importorskip("distributed")
     from distributed import Event
 
-    from links1.partition.dask_backend import DaskBackend
+    from links1_app.partition.dask_backend import DaskBackend
     plan = make_plan("dynamic", 48, 32, 1, unit="scanline", order="walk")
     marker, event = tmp_path / "holding", f"links1-join-{os.getpid()}"
     spec = RendererSpec.make(FAKE, "fake", hold_window=plan.units[plan.order[0]].window, marker=str(marker),
@@ -218,8 +219,9 @@ def test_local_workers_end_when_their_root_is_killed(tmp_path):
     script.write_text(f"""
 import os, signal, sys
 sys.path.insert(0, {str(ROOT)!r})
-from links1.partition.executors import LocalPool, render_plan
-from links1.partition.runtime import RendererSpec
+from links1_app.partition.executors import render_plan
+from links1_app.partition.local_pool import LocalPool
+from links1_app.partition.runtime import RendererSpec
 from links1.partition.strategies import make_plan
 from tests.dist.fake_renderer import FAKE
 if __name__ == "__main__":

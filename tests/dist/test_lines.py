@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from links1.errors import UsageError
-from links1.partition.executors import LocalPool, render_plan
+from links1_app.partition.executors import render_plan
+from links1_app.partition.local_pool import LocalPool
 from links1.partition.strategies import make_plan
 
 

@@ -11,10 +11,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from links1.partition.experiment import spearman
+from links1_app.partition.costmodel import spearman
 from links1.partition.loadmodel import scene_model
 from links1.tracing.aovs import aov_channel
-from links1.frontends.renderers import make_renderer
+from links1_app.renderers import make_renderer
 
 STRIPS, STRIP_W, H = 6, 16, 32
 COUNTS = [1 + 3 * c for c in range(STRIPS)]

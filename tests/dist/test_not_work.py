@@ -9,9 +9,9 @@ import time
 import numpy as np
 import pytest
 
-from links1.partition import runtime
-from links1.partition.executors import InProcess, render_plan
-from links1.partition.runtime import RendererSpec, get_renderer, render_units, warm_samples, warm_up
+from links1_app.partition import runtime
+from links1_app.partition.executors import InProcess, render_plan
+from links1_app.partition.runtime import RendererSpec, get_renderer, render_units, warm_samples, warm_up
 from links1.partition.strategies import make_plan
 
 from .conftest import MANY, ROOT

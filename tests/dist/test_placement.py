@@ -10,7 +10,8 @@ import time
 import numpy as np
 import pytest
 
-from links1.partition.executors import LocalPool, node_cpus, render_plan
+from links1_app.partition.executors import render_plan
+from links1_app.partition.local_pool import LocalPool, node_cpus
 from links1.partition.strategies import make_plan
 
 linux = pytest.mark.skipif(not (hasattr(os, "sched_getaffinity") and os.path.isdir("/proc/self/task")),
@@ -86,7 +87,7 @@ def test_plugin_nodes_and_root_use_no_cpu_while_they_wait():
     """Plugin nodes with one Dr.Jit thread: every thread of a node bound to its CPU (Dr.Jit's
     pool threads inherit it), no thread of a node spins between tasks (nanothread's workers
     sleep), and the root sleeps while its nodes render (it does not poll the lines)."""
-    from links1.partition.runtime import RendererSpec
+    from links1_app.partition.runtime import RendererSpec
     from tests.plugins.conftest import variant_problem
 
     from .conftest import ROOT
@@ -142,7 +143,7 @@ def test_dask_local_workers_are_bound_like_local_nodes(core_spec, core_ref, pin)
     to CPUs of its own, as LocalPool does (``pin=False``: left to the kernel); its frame is
     the same."""
     pytest.importorskip("distributed")
-    from links1.partition.dask_backend import DaskBackend
+    from links1_app.partition.dask_backend import DaskBackend
     cpus = os.sched_getaffinity(0)
     plan = make_plan("grid", 32, 32, 2, tiles_per_node=2)
     with DaskBackend(n_local=2, static=True, pin=pin) as be:

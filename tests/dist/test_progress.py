@@ -6,7 +6,7 @@ import io
 
 import pytest
 
-from links1.partition.executors import InProcess, render_plan
+from links1_app.partition.executors import InProcess, render_plan
 from links1.partition.strategies import make_plan
 
 from .conftest import MANY
@@ -18,7 +18,7 @@ class _Terminal(io.StringIO):
 
 
 def _plan(spec):
-    from links1.partition.runtime import get_renderer
+    from links1_app.partition.runtime import get_renderer
     w, h = get_renderer(spec).film_size
     return make_plan("scanline", w, h, 2, tiles_per_node=4)
 
@@ -45,7 +45,7 @@ def test_core_render_bar(monkeypatch, progress, terminal, shown):
 
 @pytest.mark.parametrize("flag, shown", [([], False), (["--progress"], True), (["--no-progress"], False)])
 def test_cli_distributed_render_into_redirected_stderr(tmp_path, capsys, flag, shown):
-    from links1.frontends.cli import main
+    from links1_app.cli import main
     assert main(["render", MANY, "--renderer", "core", "-D", "res=16", "--workers", "1",
                  "--partition", "scanline", "-o", str(tmp_path / "a.exr")] + flag) == 0
     err = capsys.readouterr().err
@@ -54,7 +54,7 @@ def test_cli_distributed_render_into_redirected_stderr(tmp_path, capsys, flag, s
 
 @pytest.mark.parametrize("flag, progress", [([], None), (["--progress"], True), (["--no-progress"], False)])
 def test_cli_render_asks_the_core_for(tmp_path, monkeypatch, flag, progress):
-    from links1.frontends.cli import main
+    from links1_app.cli import main
     from links1.tracing.render import CoreRenderer
     asked = []
     plain = CoreRenderer.render
@@ -66,7 +66,7 @@ def test_cli_render_asks_the_core_for(tmp_path, monkeypatch, flag, progress):
 
 
 def test_cli_progress_flags_exclude_each_other(tmp_path, capsys):
-    from links1.frontends.cli import main
+    from links1_app.cli import main
     with pytest.raises(SystemExit) as info:
         main(["render", MANY, "-o", str(tmp_path / "a.exr"), "--progress", "--no-progress"])
     assert info.value.code == 2

@@ -6,8 +6,8 @@ import json
 
 import pytest
 
-from links1.partition.executors import RenderResult
-from links1.partition.experiment import build_report
+from links1_app.partition.executors import RenderResult
+from links1_app.partition.report import build_report
 from links1.partition.strategies import make_plan
 
 from .conftest import MANY
@@ -26,7 +26,7 @@ def test_true_efficiency_is_full_frame_over_nodes_times_makespan():
 
 
 def test_schedule_reports_the_reference_measured_in_the_same_run(tmp_path, capsys):
-    from links1.frontends.cli import main
+    from links1_app.cli import main
     out = tmp_path / "r.json"
     rc = main(["schedule", MANY, "--renderer", "core", "-D", "res=32", "--nodes", "2", "--partition", "subscreen",
                "--tiles-per-node", "4", "--report", str(out), "--no-progress", "--simulate", "1,4",
@@ -62,8 +62,8 @@ def _one_node_report(full_trials):
 
 
 def test_a_true_efficiency_above_one_is_reported_as_noise():
-    from links1.partition.cli import summary_line
-    from links1.partition.experiment import efficiency_text
+    from links1_app.partition.schedule import summary_line
+    from links1_app.partition.report import efficiency_text
     rep = _one_node_report([0.57, 0.66, 0.69])        # one node faster than the one-process frame
     assert rep["true_efficiency"] == pytest.approx(1.1)
     assert rep["true_efficiency_spread"] == pytest.approx([0.95, 1.15])
@@ -77,7 +77,7 @@ def test_a_true_efficiency_above_one_is_reported_as_noise():
 
 
 def test_a_negative_share_is_reported_as_noise():
-    from links1.partition.experiment import share_text
+    from links1_app.partition.report import share_text
     assert share_text("slowdown", 0.12) == "slowdown 12 %"
     said = share_text("slowdown", -0.14)
     assert said.startswith("slowdown 0 % (the launches took 14 % less than the work and overhead")

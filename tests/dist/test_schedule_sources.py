@@ -8,8 +8,10 @@ import json
 import numpy as np
 import pytest
 
-from links1.partition.executors import RenderResult
-from links1.partition.experiment import build_report, fit_cost_model, fit_overheads, replay, simulate
+from links1_app.partition.executors import RenderResult
+from links1_app.partition.costmodel import fit_cost_model, fit_overheads
+from links1_app.partition.report import build_report
+from links1_app.partition.simulator import replay, simulate
 from links1.partition.strategies import make_plan, tile_units
 
 from .conftest import MANY
@@ -171,7 +173,7 @@ def test_simulate_uses_the_fitted_overheads():
 
 # ---------------------------------------------------------------- the CLI, for real
 def test_units_launched_alone_are_measured_and_batched_ones_derived(tmp_path):
-    from links1.frontends.cli import main
+    from links1_app.cli import main
     out = tmp_path / "alone.json"
     assert main(["schedule", MANY, "--renderer", "core", "-D", "res=16", "--nodes", "1", "--partition", "dynamic",
                  "--tiles-per-node", "4", "--chunk-factor", "0", "--report", str(out), "--no-progress",
@@ -193,7 +195,7 @@ def test_units_launched_alone_are_measured_and_batched_ones_derived(tmp_path):
 
 
 def test_sweep_writes_a_tidy_table_and_plot(tmp_path):
-    from links1.frontends.cli import main
+    from links1_app.cli import main
     out, png = tmp_path / "sw.json", tmp_path / "sw.png"
     assert main(["schedule", MANY, "--renderer", "core", "-D", "res=16", "--sweep", "--sweep-strategies",
                  "subscreen,dynamic/tile", "--sweep-nodes", "1", "--sweep-tiles", "2,4", "--sweep-simulate", "1,2,4",
@@ -213,7 +215,7 @@ def test_sweep_writes_a_tidy_table_and_plot(tmp_path):
 
 
 def test_sweep_rejects_an_unknown_strategy(tmp_path, capsys):
-    from links1.frontends.cli import main
+    from links1_app.cli import main
     out = tmp_path / "sw.json"
     rc = main(["schedule", MANY, "--renderer", "core", "-D", "res=8", "--sweep", "--sweep-strategies",
                "subscreen,dynamic/blob", "--report", str(out), "--no-progress"])
@@ -222,6 +224,6 @@ def test_sweep_rejects_an_unknown_strategy(tmp_path, capsys):
 
 
 def test_schedule_needs_nodes_or_sweep(tmp_path, capsys):
-    from links1.frontends.cli import main
+    from links1_app.cli import main
     rc = main(["schedule", MANY, "--renderer", "core", "-D", "res=8", "--report", str(tmp_path / "r.json")])
     assert rc == 2 and "schedule needs --nodes N (or --sweep)" in capsys.readouterr().err

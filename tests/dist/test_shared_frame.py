@@ -9,8 +9,9 @@ import os
 import numpy as np
 import pytest
 
-from links1.partition import runtime
-from links1.partition.executors import LocalPool, render_plan
+from links1_app.partition import runtime
+from links1_app.partition.executors import render_plan
+from links1_app.partition.local_pool import LocalPool
 from links1.partition.strategies import make_plan
 
 
@@ -83,7 +84,7 @@ def test_plugin_results_through_the_frame_are_the_pipes_bits():
     """The plugin's float32-exact results written as float64 into the frame: the same bits as
     through the pipe (float32 on the wire, placed in the root's float64 frame). Both in worker
     processes: this test process keeps no plugin renderer (the plugin tests count recordings)."""
-    from links1.partition.runtime import RendererSpec
+    from links1_app.partition.runtime import RendererSpec
     from tests.plugins.conftest import variant_problem
 
     from .conftest import ROOT
@@ -107,11 +108,11 @@ def test_no_room_for_the_frame_falls_back_to_the_pipe(monkeypatch, core_spec, co
     """A full /dev/shm: SharedFrame raises ENOSPC (posix_fallocate) and the run goes by the pipe."""
     import errno
 
-    from links1.partition import executors
+    from links1_app.partition import local_pool
 
     def full(*a, **kw):
         raise OSError(errno.ENOSPC, "No space left on device")
-    monkeypatch.setattr(executors, "SharedFrame", full)
+    monkeypatch.setattr(local_pool, "SharedFrame", full)
     plan = make_plan("subscreen", 32, 32, 2, tiles_per_node=4, unit="tile")
     with _Watched(2) as pool:
         res = render_plan(plan, core_spec, pool, progress=False)
@@ -125,7 +126,7 @@ def test_a_killed_roots_frame_is_removed_by_the_next_frame(tmp_path):
     import signal
     import subprocess
     import sys
-    code = ("import os, sys; from links1.partition import runtime; "
+    code = ("import os, sys; from links1_app.partition import runtime; "
             "f = runtime.SharedFrame(4, 4, 3, directory=sys.argv[1]); print(f.path, flush=True); "
             "os.kill(os.getpid(), 9)")
     proc = subprocess.run([sys.executable, "-c", code, str(tmp_path)], capture_output=True, text=True)

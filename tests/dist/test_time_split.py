@@ -8,8 +8,8 @@ import json
 import numpy as np
 import pytest
 
-from links1.partition.executors import RenderResult
-from links1.partition.experiment import NODE_PARTS, ROOT_PARTS, build_report, time_split
+from links1_app.partition.executors import RenderResult
+from links1_app.partition.report import NODE_PARTS, ROOT_PARTS, build_report, time_split
 from links1.partition.strategies import make_plan
 
 from .conftest import MANY
@@ -102,7 +102,7 @@ def _check_adds_up(rep, in_process):
 
 @pytest.mark.parametrize("nodes,partition", [(2, "dynamic"), (2, "subscreen"), (1, "dynamic")])
 def test_schedule_time_split_adds_up_to_the_makespan(tmp_path, capsys, nodes, partition):
-    from links1.frontends.cli import main
+    from links1_app.cli import main
     out = tmp_path / "r.json"
     rc = main(["schedule", MANY, "--renderer", "core", "-D", "res=32", "--nodes", str(nodes), "--partition",
                partition, "--tiles-per-node", "4", "--report", str(out), "--no-progress",

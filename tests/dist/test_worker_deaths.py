@@ -15,8 +15,9 @@ import numpy as np
 import pytest
 
 from links1.errors import RenderAborted
-from links1.partition.executors import LocalPool, render_plan
-from links1.partition.runtime import RendererSpec
+from links1_app.partition.executors import render_plan
+from links1_app.partition.local_pool import LocalPool
+from links1_app.partition.runtime import RendererSpec
 from links1.partition.strategies import make_plan
 
 from .conftest import MANY, ROOT
@@ -42,7 +43,7 @@ _REFS = {}
 def _reference(kind):
     """The single-process full frame of ``kind`` (rendered in this process)."""
     if kind not in _REFS:
-        from links1.frontends.renderers import make_renderer
+        from links1_app.renderers import make_renderer
         _REFS[kind] = np.asarray(make_renderer(kind, MANY, **OPTS[kind]).render(), dtype=np.float64)
     return _REFS[kind]
 
@@ -99,7 +100,7 @@ def test_a_worker_killed_while_starting_is_replaced_before_the_render(tmp_path, 
 
 
 def test_workers_that_always_die_give_up_after_the_documented_limit(tmp_path):
-    from links1.partition.executors import DEATHS_PER_WORKER
+    from links1_app.partition.local_pool import DEATHS_PER_WORKER
     spec = RendererSpec.make(DYING, "fake", inner=FAKE, die="start", always=True, marker=str(tmp_path / "m"))
     pool = LocalPool(2, log=lambda msg: None)
     with pytest.raises(RenderAborted, match=r"7 worker processes died \(the limit is 6 for 2 workers"):
@@ -128,7 +129,7 @@ def test_cli_gives_up_in_one_line_with_exit_1_and_writes_nothing(tmp_path):
     (tmp_path / "site" / "sitecustomize.py").write_text(SITE)
     out = tmp_path / "out.exr"
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tmp_path / "site"), ROOT]))
-    p = subprocess.run([sys.executable, "-m", "links1.frontends.cli", "render", MANY, "--width", "32", "--height", "32",
+    p = subprocess.run([sys.executable, "-m", "links1_app.cli", "render", MANY, "--width", "32", "--height", "32",
                         "--workers", "2", "--no-progress", "-o", str(out)],
                        capture_output=True, text=True, timeout=120, env=env)
     assert p.returncode == 1, p.stderr

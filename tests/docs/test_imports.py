@@ -1,21 +1,19 @@
 """One direction of dependency, no circles.
 
-Every module of ``links1/``, ``plugins/links1_mitsuba/`` and ``compare/`` is parsed with
-:mod:`ast` (imports inside functions count: a lazy import couples two modules all the same).
-An import of ``a.b.c`` is an edge to the module ``a.b.c``, or to ``a.b`` when ``c`` is a name
-in it (``from a.b import c``); a package's ``__init__`` is a module with its own edges, and
-importing ``a.b`` is no edge to ``a`` (Python runs ``a/__init__`` first, but the package
-re-exports are not what a module depends on). Only edges between the project's own modules
-count; an import by name at run time (``importlib.import_module``: ``links1.frontends.cli.EXTENSIONS``,
-a partitioning ``module:callable`` renderer) is not an edge.
+Every module of ``links1/``, ``links1_app/``, ``plugins/links1_mitsuba/`` and ``compare/`` is
+parsed with :mod:`ast` (imports inside functions count: a lazy import couples two modules all
+the same). An import of ``a.b.c`` is an edge to the module ``a.b.c``, or to ``a.b`` when ``c``
+is a name in it (``from a.b import c``); a package's ``__init__`` is a module with its own
+edges, and importing ``a.b`` is no edge to ``a`` (Python runs ``a/__init__`` first, but the
+package re-exports are not what a module depends on). Only edges between the project's own
+modules count; an import by name at run time (a partitioning ``module:callable`` renderer,
+``importlib.import_module``) is not an edge.
 
 The tests: no strongly connected component of more than one module (a circle, named in the
-failure); the dependencies run one way, core <- plugin <- front ends: no core module (``links1``
-less its front ends: the CLI, ``partition``, the pytest plugin, the renderer factory
-``links1.frontends.renderers``; and less the package's ``__init__``, the public API that re-exports
-``make_renderer``) names the plugin package ``links1_mitsuba`` or a front end, and the plugin
-imports no front end; inside the core, each package imports only the packages below it
-(``LAYERS``: geometry never imports scene loading, shading or tracing).
+failure); three layers by package, each importing only itself and the layers below it
+(``PACKAGE_LAYERS``): the core ``links1`` <- the plugin ``links1_mitsuba`` <- the front ends
+``links1_app``; inside the core, each package imports only the packages below it (``LAYERS``:
+geometry never imports scene loading, shading or tracing).
 """
 from __future__ import annotations
 
@@ -27,15 +25,24 @@ ROOT = Path(__file__).resolve().parents[2]
 
 #: Where each top-level package lives (the plugin suite is installed from plugins/).
 PACKAGES = {"links1": ROOT / "links1", "links1_mitsuba": ROOT / "plugins" / "links1_mitsuba",
-            "compare": ROOT / "compare"}
+            "links1_app": ROOT / "links1_app", "compare": ROOT / "compare"}
 
-#: The front ends of links1: they may name the plugin (they choose and drive a renderer).
-FRONT_ENDS = ("links1.frontends", "links1.partition")
+#: The layers by top-level package, bottom up, each with the packages it may import: the core,
+#: the Mitsuba plugin (built on the core), the front ends (CLI, pytest plugin, renderer factory,
+#: partitioning runtime: above both renderers). ``compare`` (benchmarks) stands above them all.
+PACKAGE_LAYERS = {
+    "links1": {"links1"},
+    "links1_mitsuba": {"links1", "links1_mitsuba"},
+    "links1_app": {"links1", "links1_mitsuba", "links1_app"},
+    "compare": {"links1", "links1_mitsuba", "links1_app", "compare"},
+}
 
 #: The core's packages, bottom up, each with the core packages it may import: one way, so no
 #: circle between packages (docs/architecture.md, "Packages"). ``links1.errors`` (the error
 #: classes every layer raises) and ``links1.interrupts`` (Ctrl-C held and raised at safe points,
-#: for the front ends and the plugin) are the modules outside them.
+#: for the front ends and the plugin) are the modules outside them; ``links1`` itself (its
+#: ``__init__``, the public API) is the top, and a module belongs to the longest name here that
+#: contains it.
 LAYERS = {
     "links1.errors": set(),
     "links1.interrupts": set(),
@@ -48,17 +55,17 @@ LAYERS = {
                      "links1.sensor", "links1.shading"},
     "links1.tracing": {"links1.errors", "links1.maths", "links1.imaging", "links1.geometry",
                        "links1.sensor", "links1.shading", "links1.scene"},
+    # the paper's partitioning maths: strategies and the eq. 4.1 load model (scene files read
+    # for their shapes and camera); running a plan is the front ends' (links1_app.partition)
+    "links1.partition": {"links1.errors", "links1.maths", "links1.geometry", "links1.sensor",
+                         "links1.scene"},
+    "links1": {"links1.errors", "links1.interrupts", "links1.maths", "links1.imaging", "links1.geometry",
+               "links1.sensor", "links1.shading", "links1.scene", "links1.tracing", "links1.partition"},
 }
 
 
-def _front_end(module: str) -> bool:
-    """A front end of links1, or the package ``links1`` itself (the public API, which
-    re-exports the front end ``make_renderer``)."""
-    return module == "links1" or any(module == f or module.startswith(f + ".") for f in FRONT_ENDS)
-
-
-def _core(module: str) -> bool:
-    return module.split(".")[0] == "links1" and not _front_end(module)
+def _package(module: str) -> str:
+    return module.split(".")[0]
 
 
 def modules() -> dict[str, Path]:
@@ -179,9 +186,8 @@ def test_graph_sees_lazy_and_relative_imports():
     submodule``, an import inside a function, a package ``__init__``'s own edges."""
     g = graph()
     assert "links1.errors" in g["links1"]                       # links1/__init__: from .errors import ...
-    assert "links1.partition.runtime" in g["links1.partition.cli"]  # from .runtime import ...
-    assert "links1.scene.loader" in g["links1.tracing.render"]    # inside CoreRenderer.__init__
-    assert "links1_mitsuba" in g["links1.frontends.renderers"]     # the factory's lazy import
+    assert "links1_app.partition.runtime" in g["links1_app.partition.cli"]  # from .runtime import ...
+    assert "links1_mitsuba" in g["links1_app.renderers"]        # the factory's lazy import
     assert "links1.tracing.aovs" in g["links1_mitsuba.renderer"]   # a plugin -> core edge
     assert "links1" not in g["links1.tracing.render"]              # no edge to a parent package
     assert "links1.scene.params" in g["links1.scene.scene"]        # from . import params (a submodule)
@@ -194,19 +200,19 @@ def test_no_import_circles():
         f"  {' -> '.join(_cycle(g, c))}   [{', '.join(c)}]" for c in circles)
 
 
-def test_core_never_names_the_plugin_or_a_front_end():
-    """The core (links1 less its front ends) never imports ``links1_mitsuba`` or a front end,
-    lazily or not."""
+def test_packages_import_down_only():
+    """core (``links1``) <- plugin (``links1_mitsuba``) <- front ends (``links1_app``): no
+    module imports, lazily or not, a package above its own (the core never names the plugin
+    or a front end; the plugin never names a front end)."""
     g = graph()
-    core = [m for m in g if _core(m)]
-    assert {"links1.tracing.render", "links1.errors", "links1.tracing.aovs", "links1.tracing.adaptive"} <= set(core)
-    bad = sorted(f"{m} -> {d}" for m in core for d in g[m]
-                 if d.split(".")[0] == "links1_mitsuba" or _front_end(d))
-    assert not bad, f"core modules that import the plugin or a front end: {bad}"
+    assert set(PACKAGE_LAYERS) == set(PACKAGES)
+    assert {"links1.tracing.render", "links1.errors", "links1", "links1_app.cli", "links1_mitsuba"} <= set(g)
+    bad = sorted(f"{m} -> {d}" for m in g for d in g[m] if _package(d) not in PACKAGE_LAYERS[_package(m)])
+    assert not bad, f"modules importing a package above their own: {bad}"
 
 
 def _layer(module: str) -> str | None:
-    return next((k for k in LAYERS if module == k or module.startswith(k + ".")), None)
+    return max((k for k in LAYERS if module == k or module.startswith(k + ".")), key=len, default=None)
 
 
 def test_core_packages_depend_one_way():
@@ -215,20 +221,12 @@ def test_core_packages_depend_one_way():
     names = list(LAYERS)
     assert all(dep in names[:i] for i, k in enumerate(names) for dep in LAYERS[k])  # bottom up
     g = graph()
-    core = [m for m in g if _core(m) and m != "links1"]
+    core = [m for m in g if _package(m) == "links1"]
+    assert {"links1", "links1.partition.loadmodel", "links1.tracing.render"} <= set(core)
     assert not [m for m in core if _layer(m) is None], "core modules outside the LAYERS packages"
-    bad = sorted(f"{m} -> {d}" for m in core for d in g[m] if _core(d) and d != "links1"
+    bad = sorted(f"{m} -> {d}" for m in core for d in g[m] if _package(d) == "links1"
                  and _layer(d) != _layer(m) and _layer(d) not in LAYERS[_layer(m)])
     assert not bad, f"core modules importing a package above their own: {bad}"
-
-
-def test_plugin_never_imports_the_front_ends():
-    """The plugin builds on the core only: it never imports links1's front ends (nor the
-    package ``links1``, whose ``__init__`` re-exports one)."""
-    g = graph()
-    bad = sorted(f"{m} -> {d}" for m in g if m.split(".")[0] == "links1_mitsuba" for d in g[m]
-                 if _front_end(d))
-    assert not bad, f"plugin modules that import a links1 front end: {bad}"
 
 
 if __name__ == "__main__":  # python tests/docs/test_imports.py: print the circles

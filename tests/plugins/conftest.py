@@ -126,7 +126,7 @@ def mitsuba_direct(path, spp: int, seed: int, **options):
     import mitsuba as mi
     import numpy as np
 
-    from links1.frontends.renderers import make_renderer
+    from links1_app.renderers import make_renderer
     r = make_renderer("mitsuba", path, integrator="scene", spp=spp, **options)
     # the whole film of the chosen sensor (``options["sensor"]``), as the renderers' render()
     W, H = r.film_size
@@ -145,7 +145,7 @@ def assert_matches_mitsuba_direct(kind, path, spp: int = 16, ref_factor: int = 1
     import numpy as np
 
     from links1.imaging.diff import relmse
-    from links1.frontends.renderers import make_renderer
+    from links1_app.renderers import make_renderer
     ref = mitsuba_direct(path, spp * ref_factor, seed=1, **options)
     theirs = relmse(mitsuba_direct(path, spp, seed=2, **options), ref)
     ours = np.asarray(make_renderer(kind, path, spp=spp, max_depth=1, **options).render(), dtype=np.float64)[..., :3]

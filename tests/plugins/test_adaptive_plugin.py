@@ -19,7 +19,7 @@ def rel_mse(a, b):
 
 @pytest.mark.parametrize("scene", ["lights.xml", "fig4.xml", "shadows.xml", "many.xml"])
 def test_plugin_refines_as_the_core_does(variant, scene):
-    from links1.frontends.renderers import make_renderer
+    from links1_app.renderers import make_renderer
     path = os.path.join(SCENES, scene)
     core = make_renderer("core", path, **KW).render()
     plug = make_renderer("mitsuba", path, **KW).render()
@@ -34,7 +34,7 @@ def test_plugin_refines_as_the_core_does(variant, scene):
 
 
 def test_plugin_windows_and_batches_equal_the_full_frame(variant):
-    from links1.frontends.renderers import make_renderer
+    from links1_app.renderers import make_renderer
     r = make_renderer("mitsuba", os.path.join(SCENES, "lights.xml"), **KW)
     full = r.render()
     wins = [(0, 0, 13, 9), (13, 0, 19, 9), (0, 9, 32, 23), (7, 4, 3, 17)]
@@ -44,7 +44,7 @@ def test_plugin_windows_and_batches_equal_the_full_frame(variant):
 
 
 def test_scene_integrator_refuses_adaptive(variant):
-    from links1.frontends.renderers import make_renderer
+    from links1_app.renderers import make_renderer
     with pytest.raises(Exception, match="links1_whitted"):
         make_renderer("mitsuba", os.path.join(SCENES, "mitsuba_direct.xml"), integrator="scene", adaptive=0.1)
 
@@ -54,7 +54,7 @@ def test_integrator_parameters_adaptive_in_mi_render(variant, tmp_path):
     same image as MitsubaRenderer(adaptive=...)."""
     import mitsuba as mi
 
-    from links1.frontends.renderers import make_renderer
+    from links1_app.renderers import make_renderer
     from links1_mitsuba import load_file
     src = open(os.path.join(SCENES, "lights.xml")).read().replace(
         '<integer name="max_depth" value="1"/>',
@@ -76,7 +76,7 @@ def test_integrator_parameters_adaptive_in_mi_render(variant, tmp_path):
 def test_plugin_applies_the_films_filter_as_the_core(variant, tmp_path):
     """A Gaussian film: the plugin reconstructs the filtered image as the core does (the same
     decisions, values to float32), tiles equal the full frame, and the filter changes the image."""
-    from links1.frontends.renderers import make_renderer
+    from links1_app.renderers import make_renderer
     inc = open(os.path.join(SCENES, "include", "camera.xml")).read()
     assert '<rfilter type="box"/>' in inc
     (tmp_path / "include").mkdir()
@@ -98,7 +98,7 @@ def test_plugin_applies_the_films_filter_as_the_core(variant, tmp_path):
 def test_points_launch_records_once_whatever_the_inputs_alignment(variant):
     """trace_points replays one recording for any point count and any alignment of the numpy
     inputs (a mapped input whose alignment changes makes drjit.freeze record again)."""
-    from links1.frontends.renderers import make_renderer
+    from links1_app.renderers import make_renderer
     r = make_renderer("mitsuba", os.path.join(SCENES, "shadows.xml"), params={"res": 32}, adaptive=0.03)
     rng = np.random.default_rng(1)
 
@@ -124,7 +124,7 @@ def test_table_rebuild_drops_the_points_recording(variant):
     ``id(P)``, which a new ``P`` may share with a dead one, so a kept points recording could be
     replayed with the old tables' Python-side values (the window launch's was already dropped).
     The adaptive image after the rebuild equals the one before (the same scene)."""
-    from links1.frontends.renderers import make_renderer
+    from links1_app.renderers import make_renderer
     from links1_mitsuba.tuning import tuned
     r = make_renderer("mitsuba", os.path.join(SCENES, "shadows.xml"), params={"res": 24}, adaptive=0.03)
     integ = r.integrator

@@ -140,7 +140,7 @@ def test_core_vs_mitsuba_direct(kind, llvm, scenes, references):
 def test_plugin_vs_mitsuba_direct_and_core(kind, variant, scenes, references):
     """The plugin samples the same light points as the core (float32 rounding apart) and so
     meets the same bound against Mitsuba's ``direct``."""
-    from links1.frontends.renderers import make_renderer
+    from links1_app.renderers import make_renderer
     ref, m64 = references(variant)[kind]
     plug = make_renderer("mitsuba", scenes[kind], spp=64, variant=variant).render()[..., :3]
     assert rel_mse(plug, ref) <= 2.0 * rel_mse(m64, ref)
@@ -153,7 +153,7 @@ def test_plugin_vs_mitsuba_direct_and_core(kind, variant, scenes, references):
 
 
 def test_plugin_windows_equal_full_frame(variant, scenes):
-    from links1.frontends.renderers import make_renderer
+    from links1_app.renderers import make_renderer
     r = make_renderer("mitsuba", scenes["envmap"], spp=4, light_samples=2, seed=5, variant=variant)
     full = r.render()
     assert np.array_equal(r.render((3, 5, 9, 7)), full[5:12, 3:12])

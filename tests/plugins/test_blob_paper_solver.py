@@ -61,7 +61,7 @@ def test_paper_solver_matches_core_rays(centers, threshold, samples, to_world, v
 
 @pytest.mark.parametrize("name", ["fig6a.xml", "fig6b.xml"])
 def test_paper_solver_primary_hits_match_core(name, variant):
-    from links1.frontends.renderers import make_renderer
+    from links1_app.renderers import make_renderer
     path = os.path.join(SCENES, name)
     if not os.path.exists(path):
         pytest.skip(f"no {name}")

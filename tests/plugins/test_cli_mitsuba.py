@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from links1.frontends.cli import main
+from links1_app.cli import main
 
 from .conftest import cli_variant
 
@@ -74,7 +74,7 @@ def test_integrator_scene_without_integrator_uses_path(tmp_path):
     for integ in ("", "<integrator type='path'/>\n"):
         scene = _no_integrator_scene(tmp_path, integ)
         out = tmp_path / f"o{len(integ)}.exr"
-        res = subprocess.run([sys.executable, "-m", "links1.frontends.cli", "render", str(scene), "--renderer", "mitsuba",
+        res = subprocess.run([sys.executable, "-m", "links1_app.cli", "render", str(scene), "--renderer", "mitsuba",
                               "--integrator", "scene", "--workers", "0", "--no-progress", "-o", str(out),
                               *cli_variant("mitsuba")],
                              capture_output=True, text=True, timeout=300)
@@ -107,7 +107,7 @@ def _render_both(tmp_path, body):
     imgs, errs = {}, {}
     for r in ("core", "mitsuba"):
         out = tmp_path / f"{r}.exr"
-        res = subprocess.run([sys.executable, "-m", "links1.frontends.cli", "render", str(scene), "--renderer", r,
+        res = subprocess.run([sys.executable, "-m", "links1_app.cli", "render", str(scene), "--renderer", r,
                               "--workers", "0", "--no-progress", "-o", str(out), *cli_variant(r)],
                              capture_output=True, text=True, timeout=300)
         assert res.returncode == 0, res.stderr

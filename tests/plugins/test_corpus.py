@@ -23,7 +23,7 @@ import warnings
 import numpy as np
 import pytest
 
-from links1.frontends.renderers import make_renderer
+from links1_app.renderers import make_renderer
 from tests.corpus.manifest import SCENES
 
 from .conftest import VARIANTS, assert_matches_mitsuba_direct, use_variant, variant_marks

@@ -69,7 +69,7 @@ def test_weights_radius_border_are_mitsubas(variant):
 
 @pytest.mark.parametrize("name", list(RFILTERS))
 def test_per_filter_within_2x_of_direct(variant, tmp_path, name):
-    from links1.frontends.renderers import make_renderer
+    from links1_app.renderers import make_renderer
     rf = RFILTERS[name]
     ref = direct(rf, 1024, seed=1)
     theirs = relmse(direct(rf, SPP, seed=2), ref)
@@ -90,7 +90,7 @@ def test_windows_and_batches_equal_full_frame(tmp_path, name, renderer_kind):
     """One window, or a batch of windows in one launch (render_batch), equals the same pixels of
     the full frame bit for bit: each window gathers its own border samples."""
     kind = renderer_kind
-    from links1.frontends.renderers import make_renderer
+    from links1_app.renderers import make_renderer
     r = make_renderer(kind, write_scene(tmp_path, RFILTERS[name]), spp=4, aovs=("depth", "cost"))
     full = r.render()
     wins = [(0, 0, 8, 8), (8, 0, 8, 8), (12, 20, 20, 12), (1, 3, 30, 5)]
@@ -104,7 +104,7 @@ def test_cli_workers_2_equal_one_process_with_lanczos(tmp_path, renderer_kind):
     """Units of a partitioned render gather the samples of their borders: two worker processes
     assemble the one-process image bit for bit."""
     kind = renderer_kind
-    from links1.frontends.cli import main
+    from links1_app.cli import main
     from links1.imaging.image import read_image
     path = write_scene(tmp_path, RFILTERS["lanczos"])
     a, b = tmp_path / "a.exr", tmp_path / "b.exr"

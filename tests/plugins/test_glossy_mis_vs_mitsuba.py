@@ -82,7 +82,7 @@ def direct_reference(references, variant, path):
 @pytest.mark.parametrize("renderer", ["mitsuba", "core"])
 @pytest.mark.parametrize("bsdf,light", CASES)
 def test_converges_as_fast_as_mitsuba_direct(bsdf, light, renderer, variant, scene_dir, references):
-    from links1.frontends.renderers import make_renderer
+    from links1_app.renderers import make_renderer
     path = write_scene(scene_dir, bsdf, light)
     ref, err_m = direct_reference(references, variant, path)
     opts = {"variant": variant} if renderer == "mitsuba" else {}
@@ -106,7 +106,7 @@ _NO_DPDU = not hasattr(__import__("links1.geometry.shapes", fromlist=["Shape"]).
 def test_core_equals_plugin(bsdf, light, variant, scene_dir):
     """The core draws the same BSDF and light samples as the plugin (in float64): equal images
     at equal spp, to float32 rounding and a rare sample that rounding moves across an edge."""
-    from links1.frontends.renderers import make_renderer
+    from links1_app.renderers import make_renderer
     path = write_scene(scene_dir, bsdf, light)
     core = make_renderer("core", path, spp=SPP, seed=5).render()[..., :3]
     plug = make_renderer("mitsuba", path, spp=SPP, seed=5, variant=variant).render()[..., :3]
@@ -123,7 +123,7 @@ def test_bsdf_samples_only_where_a_glossy_bsdf_meets_a_sampled_light(bsdf, light
     """Diffuse and glossy BSDFs under a sampled light take BSDF samples (as Mitsuba's direct);
     under delta lights alone no BSDF sample is traced: the kernels are those of light
     sampling alone."""
-    from links1.frontends.renderers import make_renderer
+    from links1_app.renderers import make_renderer
     r = make_renderer("mitsuba", write_scene(scene_dir, bsdf, light), spp=1, variant=variant)
     r.render()
     assert r.integrator._prep.any_mis is expected
@@ -136,7 +136,7 @@ def test_mask_matches_whitted_reference(light, variant, scene_dir):
     Mitsuba's own sampling restricted to Whitted's light paths (tests/corpus/whitted_reference)
     at 64x the spp: within 1.5x the reference's own relMSE at equal spp (seen through twice,
     the light was 30 % too bright: 3x the bound)."""
-    from links1.frontends.renderers import make_renderer
+    from links1_app.renderers import make_renderer
     from tests.corpus.whitted_reference import render_reference
     path = write_scene(scene_dir, "mask_diffuse", light)
     ref = render_reference(path, SPP * 64, seed=1, max_depth=6)

@@ -55,9 +55,9 @@ def vector_unit() -> str:
 
 def render(scene: str, kind: str) -> dict:
     """The images of one scene by one renderer, by name (see the module docstring)."""
-    import links1
-    r = links1.make_renderer(kind, str(ROOT / "scenes" / scene), spp=SPP, width=SIZE[0], height=SIZE[1],
-                             aovs=AOVS)
+    from links1_app import make_renderer
+    r = make_renderer(kind, str(ROOT / "scenes" / scene), spp=SPP, width=SIZE[0], height=SIZE[1],
+                      aovs=AOVS)
     name = Path(scene).stem
     out = {f"{name}/{kind}": r.render()}
     if kind == "mitsuba":

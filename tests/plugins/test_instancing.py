@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from links1.errors import SceneError
-from links1.frontends.renderers import make_renderer
+from links1_app.renderers import make_renderer
 
 from .conftest import assert_matches_mitsuba_direct
 

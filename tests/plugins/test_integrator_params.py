@@ -10,9 +10,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from links1.frontends.cli import main
+from links1_app.cli import main
 from links1.imaging.image import read_exr
-from links1.frontends.renderers import make_renderer
+from links1_app.renderers import make_renderer
 
 SCENE = """<scene version="3.0.0">
   <integrator type="links1_whitted"><integer name="max_depth" value="3"/>{params}</integrator>

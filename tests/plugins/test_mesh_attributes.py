@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from links1.geometry import meshes
-from links1.frontends.renderers import make_renderer
+from links1_app.renderers import make_renderer
 
 from .conftest import assert_matches_mitsuba_direct
 

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from links1.imaging.diff import relmse
-from links1.frontends.renderers import make_renderer
+from links1_app.renderers import make_renderer
 
 from .conftest import assert_matches_mitsuba_direct, cli_variant, mitsuba_direct
 
@@ -152,7 +152,7 @@ def test_cli_sensor(path, tmp_path, kind_with_mitsuba, capsys):
     """``links1 render --sensor 1`` writes sensor 1's film; ``--sensor 5`` is one line naming
     the scene file and its two sensors, exit status 2, no output file."""
     kind = kind_with_mitsuba
-    from links1.frontends.cli import main
+    from links1_app.cli import main
     from links1.imaging.image import read_image
     out = tmp_path / "s1.exr"
     assert main(["render", path, "-o", str(out), "--renderer", kind, "--sensor", "1", "--spp", str(SPP),
@@ -204,7 +204,7 @@ def test_workers_render_the_chosen_sensor(path, tmp_path, kind_with_mitsuba):
     """``--sensor 1 --workers 2``: the worker processes render sensor 1 too (the same bits as
     in-process)."""
     kind = kind_with_mitsuba
-    from links1.frontends.cli import main
+    from links1_app.cli import main
     from links1.imaging.image import read_image
     imgs = []
     for w in ("0", "2"):

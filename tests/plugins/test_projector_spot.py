@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from links1.frontends.renderers import make_renderer
+from links1_app.renderers import make_renderer
 
 from .conftest import assert_matches_mitsuba_direct
 

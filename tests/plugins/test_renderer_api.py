@@ -83,8 +83,8 @@ def test_shapes_info_and_register_idempotent(variant):
                           "transmissive", "nbytes"}
         assert np.all(d["bounds_lo"] <= d["bounds_hi"])
     assert any(d["reflective"] for d in info) and any(d["transmissive"] for d in info)
-    from links1.frontends.renderers import Renderer
-    assert isinstance(r, Renderer)   # the contract in code (links1/frontends/renderers.py)
+    from links1_app.renderers import Renderer
+    assert isinstance(r, Renderer)   # the contract in code (links1_app/renderers.py)
     assert isinstance(r.render_batch([(0, 0, 2, 2)]), list) and r.kind == "mitsuba"
 
 
@@ -103,7 +103,7 @@ def test_integrator_checks_aovs_with_the_core_table(variant):
 
 @pytest.mark.skipif(not os.path.exists(FIG11), reason="scenes/fig11.xml missing")
 def test_width_height_override_matches_core(variant):
-    from links1.frontends.renderers import make_renderer
+    from links1_app.renderers import make_renderer
     plug = make_renderer("mitsuba", FIG11, width=24, height=18, spp=1)
     core = make_renderer("core", FIG11, width=24, height=18, spp=1)
     assert plug.film_size == core.film_size == (24, 18)
@@ -117,7 +117,7 @@ def test_width_height_override_matches_core(variant):
 @pytest.mark.skipif(not os.path.exists(FIG11), reason="scenes/fig11.xml missing")
 @pytest.mark.parametrize("min_weight", [0.0, 0.05])
 def test_min_weight_matches_core(variant, min_weight):
-    from links1.frontends.renderers import make_renderer
+    from links1_app.renderers import make_renderer
     kw = dict(params={"res": 64}, spp=1, min_weight=min_weight)
     a = make_renderer("mitsuba", FIG11, **kw).render()
     b = make_renderer("core", FIG11, **kw).render()

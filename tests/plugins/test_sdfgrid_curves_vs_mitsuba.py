@@ -17,7 +17,7 @@ import warnings
 import numpy as np
 import pytest
 
-from links1.frontends.renderers import make_renderer
+from links1_app.renderers import make_renderer
 from links1.geometry.curves import RoundBSplineCurves, RoundLinearCurves, read_curves
 from links1.geometry.sdfgrid import SDFGrid, read_vol
 

@@ -194,7 +194,7 @@ def test_split_image_matches_the_walk_and_the_core(llvm):
     LLVM only: the split exists on LLVM only (tables.shadow_split: OptiX traces a kernel's rays
     through one pipeline, so CUDA walks the crossings, which
     test_split_transmittance_is_the_product_over_the_shapes_met checks there)."""
-    from links1.frontends.renderers import make_renderer
+    from links1_app.renderers import make_renderer
     from links1_mitsuba import tuning
     import tempfile
     import os

@@ -21,7 +21,7 @@ import warnings
 import numpy as np
 import pytest
 
-from links1.frontends.renderers import make_renderer
+from links1_app.renderers import make_renderer
 
 from .conftest import assert_both_match_mitsuba_direct
 

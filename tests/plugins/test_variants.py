@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from links1.frontends.cli import main
+from links1_app.cli import main
 
 from .conftest import SCENES, variant_problem
 

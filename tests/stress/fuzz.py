@@ -5,7 +5,7 @@ Edits (:data:`EDIT_KINDS`): a number made NaN/inf/huge/negative/zero/garbage or 
 in range, an element or an attribute deleted, an element duplicated or moved elsewhere, a
 plugin type, a property's tag or an object's tag swapped, a reference pointed at another
 id, a parameter of any known name, tag and value inserted, characters inserted, the file
-cut short. Each case is rendered at 24x24, spp 1 by ``links1 render`` (``links1.frontends.cli.main``
+cut short. Each case is rendered at 24x24, spp 1 by ``links1 render`` (``links1_app.cli.main``
 in a long-lived worker process, :func:`worker_main`: importing Mitsuba and compiling kernels
 costs seconds, a fresh process per case would cost them every time). The contract
 (:func:`check`): exit 0 with a finite image, or exit 2 with exactly one ``links1: error:``
@@ -233,7 +233,7 @@ def worker_main() -> None:
     """Render cases read as JSON lines from stdin; answer one JSON line each on stdout."""
     import numpy as np
 
-    from links1.frontends.cli import main
+    from links1_app.cli import main
     from links1.imaging.image import read_image
     out = sys.stdout
     sys.stdout = sys.stderr          # anything printed by a case stays off the answer channel

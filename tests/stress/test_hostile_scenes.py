@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from links1.scene import params
-from links1.frontends.cli import main
+from links1_app.cli import main
 from links1.imaging.image import read_image
 
 from .fuzz import ROOT, SCENES
@@ -216,7 +216,7 @@ def test_partition_workers_print_one_error_line(renderer, tmp_path):
                              '<float name="radius" value="0.8"/><float name="nosuch" value="1"/>'))
     env = dict(os.environ, PYTHONPATH=ROOT)
     for path in cases:
-        p = subprocess.run([sys.executable, "-m", "links1.frontends.cli", "render", path, "-o", str(tmp_path / "o.exr"),
+        p = subprocess.run([sys.executable, "-m", "links1_app.cli", "render", path, "-o", str(tmp_path / "o.exr"),
                             "--renderer", renderer, "--workers", "2", *RES], capture_output=True, text=True,
                            env=env, cwd=ROOT, timeout=240)
         errors = [ln for ln in p.stderr.splitlines() if ln.startswith("links1: error:")]

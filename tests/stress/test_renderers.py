@@ -1,6 +1,6 @@
 """Numerical stress cases (docs/numerics.md) through both renderers.
 
-Each test renders a small generated scene with ``links1.frontends.renderers.make_renderer(kind, ...)``
+Each test renders a small generated scene with ``links1_app.renderers.make_renderer(kind, ...)``
 for ``kind`` = ``core`` and ``mitsuba`` (the links1_whitted Dr.Jit integrator; skipped with
 the reason when it cannot run here) and checks: no NaN/Inf in any channel; hit/miss per
 pixel equal to a float64 analytic reference on the same pixel-centre rays outside a
@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 from links1.scene.loader import load_scene
-from links1.frontends.renderers import make_renderer
+from links1_app.renderers import make_renderer
 
 KINDS = ["core", "mitsuba"]
 RES = 24

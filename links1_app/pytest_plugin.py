@@ -33,11 +33,18 @@ from __future__ import annotations
 
 import math
 import re
+import warnings
 from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
 import pytest
+
+from links1.errors import UsageError
+from links1.imaging.diff import METRICS, HIGHER_IS_BETTER, check_compatible, compare, exceeds, heatmap
+from links1.imaging.image import read_exr, write_exr
+from links1.scene.loader import load_scene
+from links1.tracing.render import render
 
 __all__ = ["Baseline", "welch_t_test", "student_t_sf2", "sidak_alpha"]
 
@@ -304,8 +311,6 @@ class Baseline:
     # -- reporting -----------------------------------------------------------------------
 
     def _write_report(self, name: str, image, baseline=None, names=None, pvalue=None) -> list[Path]:
-        from ..imaging.diff import heatmap  # noqa: PLC0415
-        from ..imaging.image import write_exr  # noqa: PLC0415
 
         out = self.report_dir / name
         out.parent.mkdir(parents=True, exist_ok=True)
@@ -342,7 +347,6 @@ class Baseline:
     def _updated(self, path: Path) -> None:
         updated = self._config.stash[_UPDATED]
         if path in updated:
-            import warnings  # noqa: PLC0415
             warnings.warn(f"links1 baseline {path} written twice in this session; the last "
                           "check wins (give the checks different names)", stacklevel=3)
         updated.append(path)
@@ -372,9 +376,6 @@ class Baseline:
         float
             The metric's value (NaN in update mode).
         """
-        from ..imaging.diff import METRICS, HIGHER_IS_BETTER, check_compatible, compare, exceeds  # noqa: PLC0415
-        from ..errors import UsageError  # noqa: PLC0415
-        from ..imaging.image import read_exr, write_exr  # noqa: PLC0415
 
         name, image = self._split(name_or_array, image, "an image")
         name = self._name(name)
@@ -428,7 +429,6 @@ class Baseline:
         float
             The smallest p-value (NaN in update mode).
         """
-        from ..imaging.image import read_exr, write_exr  # noqa: PLC0415
 
         if isinstance(name_or_samples, str) or name_or_samples is None:
             name = name_or_samples
@@ -532,8 +532,6 @@ class Baseline:
                                     f"file and in {self._config.rootpath})")
         if renderer == "core":
             def render_once(s):
-                from .. import load_scene  # noqa: PLC0415 - other engineers' modules, lazily
-                from ..tracing.render import render  # noqa: PLC0415
                 return render(load_scene(str(path), **(params or {})), spp=spp, seed=s,
                               **render_kwargs)
         elif callable(renderer):

@@ -1,16 +1,18 @@
-"""The options of ``links1 render`` and ``links1 schedule`` (:mod:`links1.frontends.cli`,
-:mod:`links1.partition.cli`) and the renderer options they give.
+"""The options of ``links1 render`` and ``links1 schedule`` (:mod:`links1_app.cli`,
+:mod:`links1_app.partition.cli`) and the renderer options they give.
 
 Both command modules import this one and it imports neither, so the main parser and the
-partitioning commands it wires in (``links1.frontends.cli.EXTENSIONS``) depend on one shared base
+partitioning commands it wires in depend on one shared base
 instead of on each other (docs/architecture.md, "Dependencies").
 """
 from __future__ import annotations
 
 import argparse
 
-from ..scene import params
-from ..errors import UsageError
+from links1.errors import UsageError
+from links1.scene import params
+from links1.tracing.adaptive import DEFAULT_ADAPTIVE_DEPTH, check_options
+from links1.tracing.aovs import check_aovs
 
 
 def int_option(name, minimum: int = 1, maximum: int | None = None):
@@ -45,7 +47,6 @@ def _define(text):
 
 
 def _aov_list(text):
-    from ..tracing.aovs import check_aovs
     try:
         return check_aovs(text)
     except UsageError as e:
@@ -116,7 +117,6 @@ def adaptive_options(args) -> dict:
         if getattr(args, "adaptive_depth", None) is not None:
             raise UsageError("--adaptive-depth needs --adaptive THRESHOLD")
         return {}
-    from ..tracing.adaptive import DEFAULT_ADAPTIVE_DEPTH, check_options
     if args.spp is not None:
         raise UsageError("--adaptive replaces --spp: give one of them")
     if args.renderer == "mitsuba" and getattr(args, "integrator", "links1") == "scene":

@@ -1,294 +1,35 @@
-"""The root's driver and the embedded backends.
+"""The local-pool backend: ``--workers N`` spawned worker processes on this machine.
 
-:func:`render_plan` runs a :class:`~.strategies.Plan` on a backend: it skips units kept in
-a checkpoint, hands the rest to the backend, assembles the film (every unit written once,
-in place: the image equals the single-process render bit for bit), saves each finished
-unit to the checkpoint, shows a progress bar over units (tqdm, stderr, with an ETA) and
-reports on stderr when a node dies and its units are redone elsewhere.
-
-Backends (same interface: ``start(spec)``, ``n_nodes``, ``run(...)``, ``close()``):
-
-InProcess   ``--workers 0``: the root renders every unit itself.
-LocalPool   ``--workers N``: N spawned worker processes, one
-            :class:`concurrent.futures.ProcessPoolExecutor` (``max_workers=1``) per node, so a
-            static strategy's units stay on their node; each worker loads the scene once
-            (its first task). A worker that dies (starting, idle or mid-unit) breaks only its
-            own pool (``BrokenProcessPool``): its unfinished units go to the other nodes and
-            a replacement process starts, up to a documented number of deaths. During a run
-            each node serves a direct line (``runtime.serve``, opened before the clock): the
-            root's thread writes tasks into it and reads results from it, no pool helper
-            threads. Nodes write their pixels into a frame the root maps
-            (``runtime.SharedFrame``, made before the clock), which is the root's image
-            (``image_buffer``), and send back only the units' records; ``shared_frame=False``:
-            the pixels come through the line.
-The Dask backend is in :mod:`.dask_backend`.
+One :class:`concurrent.futures.ProcessPoolExecutor` (``max_workers=1``) per node, so a static
+strategy's units stay on their node; each worker loads the scene once (its first task). A
+worker that dies (starting, idle or mid-unit) breaks only its own pool
+(``BrokenProcessPool``): its unfinished units go to the other nodes and a replacement process
+starts, up to a documented number of deaths. During a run each node serves a direct line
+(``runtime.serve``, opened before the clock): the root's thread writes tasks into it and reads
+results from it, no pool helper threads. Nodes write their pixels into a frame the root maps
+(``runtime.SharedFrame``, made before the clock), which is the root's image
+(``image_buffer``), and send back only the units' records; ``shared_frame=False``: the pixels
+come through the line. Where nodes x threads fit the CPUs, each node is bound to CPUs of its
+own (:func:`node_cpus`).
 """
 from __future__ import annotations
 
+import multiprocessing as mp
 import os
 import pickle
-import sys
 import time
 from collections import deque
-from dataclasses import dataclass, field
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+from multiprocessing.connection import wait as wait_connections
 
-import numpy as np
+from links1.errors import RenderAborted
+from links1.interrupts import children_ignore_interrupts
 
-from ..errors import RenderAborted
-from ..interrupts import children_ignore_interrupts
-from .runtime import (THREAD_ENV, RendererSpec, SharedFrame, can_batch, get_renderer, limit_blas, release_frame, render_units,
-                      serve, start_worker, warm_samples, warm_up)
+from .executors import default_log
+from .handout import ALLOWED_FAILURES, CHUNK_FACTOR, TASK_PIXELS, guided_batch, take_batch
+from .runtime import THREAD_ENV, RendererSpec, SharedFrame, limit_blas, release_frame, serve, start_worker
 
-#: A unit that has killed this many workers is reported as an error (Dask's allowed-failures).
-ALLOWED_FAILURES = 3
-#: ``dynamic``: a node that asks for work gets ``ceil(remaining / (CHUNK_FACTOR x nodes))``
-#: units (guided self-scheduling); ``--chunk-factor 0``: one unit at a time (the paper's 4-3).
-CHUNK_FACTOR = 2
-#: Pixels one task (a batch of units sent to a node in one message) may hold; the node renders
-#: it in as few launches as its memory budget allows (``runtime.LAUNCH_SAMPLES``).
-TASK_PIXELS = 1 << 18
-
-
-def take_batch(plan, queue, max_units=None, max_pixels=TASK_PIXELS):
-    """Pop the next units of ``queue`` (a deque of unit indices) for one task: at most
-    ``max_units`` units and ``max_pixels`` pixels, at least one unit."""
-    out, px = [], 0
-    while queue and (max_units is None or len(out) < max_units):
-        u = plan.units[queue[0]]
-        if out and px + u.w * u.h > max_pixels:
-            break
-        out.append(queue.popleft())
-        px += u.w * u.h
-    return out
-
-
-def chunk_size(remaining, n_nodes, chunk_factor):
-    """Guided self-scheduling: units in the next dynamic chunk (1 when ``chunk_factor`` is 0)."""
-    if chunk_factor <= 0 or remaining <= 0:
-        return 1
-    return max(1, -(-remaining // (chunk_factor * max(1, n_nodes))))
-
-
-def guided_batch(plan, queue, n_nodes, chunk_factor, max_pixels=TASK_PIXELS, by_load=False):
-    """The next dynamic chunk: :func:`chunk_size` units (one node: every unit the pixel budget
-    allows), or with ``by_load`` (and a plan that
-    predicts each unit's load) units up to ``remaining load / (k nodes)`` of predicted load
-    (at least one): guided self-scheduling that weighs units, so a chunk of the heaviest
-    units (LPT order) is not k x nodes times the work it should be."""
-    if n_nodes <= 1 and chunk_factor > 0:
-        # one node has nobody to balance with: smaller chunks would only add launches, each
-        # paying the renderer's per-launch cost; it takes what the task budget allows
-        return take_batch(plan, queue, None, max_pixels)
-    pred = getattr(plan, "predicted", None)
-    if not by_load or pred is None or chunk_factor <= 0:
-        return take_batch(plan, queue, chunk_size(len(queue), n_nodes, chunk_factor), max_pixels)
-    target = sum(float(pred[i]) for i in queue) / (chunk_factor * max(1, n_nodes))
-    out, load, px = [], 0.0, 0
-    while queue:
-        u = plan.units[queue[0]]
-        p = float(pred[queue[0]])
-        if out and (load + p > target or px + u.w * u.h > max_pixels):
-            break
-        out.append(queue.popleft())
-        load += p
-        px += u.w * u.h
-    return out
-
-
-class NodeLost(Exception):
-    """Raised inside a backend when the node rendering a unit went away."""
-
-
-@dataclass
-class RenderResult:
-    """An assembled frame and what happened while rendering it."""
-
-    image: np.ndarray                  # (H, W, C) float64
-    plan: object
-    records: dict = field(default_factory=dict)   # unit index -> {node, seconds, start, stop, pid, ...}
-    faults: list = field(default_factory=list)    # messages about lost nodes
-    rendered: int = 0                  # units rendered in this run
-    resumed: int = 0                   # units taken from the checkpoint
-    makespan_s: float = 0.0            # first dispatch to last result (root clock)
-    t0_wall: float | None = None       # time.time() at the first dispatch (for dispatch latency)
-    backend: str = ""
-    n_nodes: int = 0
-    #: the root's own time inside the makespan, measured (wall clock): [kind, start, stop] with
-    #: kind "dispatch" (handing a task to a node) or "assembly" (placing a unit's pixels)
-    root_events: list = field(default_factory=list)
-    #: node -> seconds its start took (process start, scene load, warm-up: before the clock),
-    #: measured by the backend when the node started (maybe in an earlier run of the same pool)
-    startup_s: dict = field(default_factory=dict)
-
-
-def default_log(msg: str) -> None:
-    """Write a line to stderr without breaking a tqdm bar."""
-    try:
-        from tqdm import tqdm
-        tqdm.write(msg, file=sys.stderr)
-    except ImportError:  # pragma: no cover
-        sys.stderr.write(msg + "\n")
-    sys.stderr.flush()
-
-
-def render_plan(plan, spec: RendererSpec, backend, *, checkpoint=None, progress: bool | None = None,
-                cull: dict | None = None, log=default_log) -> RenderResult:
-    """Render every unit of ``plan`` on ``backend`` and assemble the frame.
-
-    Parameters
-    ----------
-    plan : Plan
-    spec : RendererSpec        what nodes load (the scene path and renderer options)
-    backend : InProcess | LocalPool | DaskBackend   started on first use
-    checkpoint : Checkpoint, optional   finished units are read from / written to it
-    progress : bool or None    tqdm bar over units on stderr: True always, None (default) only
-                               when stderr is a terminal (tqdm's ``disable=None``), False never
-    cull : dict, optional      unit index -> object ids the unit's node receives (4-4)
-    log : callable(str)        where fault messages go (stderr)
-    """
-    image = None
-    res = RenderResult(None, plan, backend=getattr(backend, "name", type(backend).__name__))
-
-    def place(i, pixels):
-        nonlocal image
-        u = plan.units[i]
-        if image is None:
-            image = np.zeros((plan.height, plan.width, pixels.shape[2]), dtype=np.float64)
-        at = image[u.y0:u.y0 + u.h, u.x0:u.x0 + u.w]
-        if _same_place(at, pixels):   # a node wrote them into the image itself (image_buffer)
-            return
-        at[...] = pixels
-
-    todo = []
-    for i in plan.order:
-        px = checkpoint.load(plan.units[i]) if checkpoint is not None else None
-        if px is not None:
-            place(i, px)
-            res.resumed += 1
-        else:
-            todo.append(i)
-
-    bar = None
-    if progress is not False:
-        from tqdm import tqdm
-        bar = tqdm(total=len(plan.units), initial=res.resumed, unit="unit", desc="links1", file=sys.stderr,
-                   dynamic_ncols=True, leave=False, smoothing=0.1,
-                   disable=None if progress is None else False)
-
-    def on_done(i, pixels, info):
-        t = time.perf_counter()
-        w0 = time.time()
-        info.setdefault("received", w0)  # root clock (wall): the result is here
-        u = plan.units[i]
-        if pixels.shape[:2] != (u.h, u.w):
-            raise RuntimeError(f"unit {u.window}: node returned {pixels.shape[:2]}, expected {(u.h, u.w)}")
-        place(i, pixels)
-        res.records[i] = info
-        res.rendered += 1
-        if checkpoint is not None:
-            checkpoint.save(u, pixels)
-        if bar is not None:
-            bar.update(1)
-        info["root_s"] = time.perf_counter() - t  # the root's own time for this unit (assembly)
-        res.root_events.append(["assembly", w0, w0 + info["root_s"]])
-
-    def on_fault(msg):
-        res.faults.append(msg)
-        log(f"links1: {msg}")
-
-    try:
-        if todo:
-            backend.start(spec)
-            res.n_nodes = backend.n_nodes
-            res.startup_s = dict(getattr(backend, "startup_s", None) or {})
-            backend.root_events = res.root_events   # a backend may log its dispatches here
-            before = getattr(backend, "before_run", None)   # a backend's set-up for this plan
-            if before is not None:
-                before(plan)
-            buf = getattr(backend, "image_buffer", None)   # where its nodes write pixels themselves
-            if buf is not None and buf.shape[:2] == (plan.height, plan.width):
-                if image is not None:   # units from the checkpoint
-                    buf[...] = image
-                image = buf
-            res.t0_wall = time.time()   # the nodes' records use wall clocks (same machine)
-            t0 = time.perf_counter()
-            backend.run(plan, todo, spec, cull or {}, on_done, on_fault)
-            res.makespan_s = time.perf_counter() - t0
-            after = getattr(backend, "after_run", None)   # a backend's checks past the last result
-            if after is not None:
-                after(on_fault)
-        else:
-            res.n_nodes = getattr(backend, "n_nodes", 0)
-    finally:
-        if bar is not None:
-            bar.close()
-    if image is None:
-        raise RuntimeError("nothing rendered: the plan has no units")
-    res.image = image
-    return res
-
-
-def _same_place(a, b) -> bool:
-    """Whether arrays ``a`` and ``b`` are the same memory (address, shape, strides, dtype)."""
-    return (a.shape == b.shape and a.strides == b.strides and a.dtype == b.dtype
-            and a.__array_interface__["data"][0] == b.__array_interface__["data"][0])
-
-
-def _owners(plan, todo):
-    """Initial node of each unit to render (static plans)."""
-    return {i: plan.owner[i] for i in todo}
-
-
-# ---------------------------------------------------------------------- in-process
-class InProcess:
-    """``--workers 0``: the root renders every unit itself (one renderer, loaded once)."""
-
-    name = "inprocess"
-    n_nodes = 1
-    root_events = None
-
-    def __init__(self, chunk_factor: int = CHUNK_FACTOR, task_pixels: int = TASK_PIXELS, chunk_by: str = "units"):
-        self.chunk_factor, self.task_pixels = int(chunk_factor), int(task_pixels)
-        self.chunk_by = chunk_by
-
-    def start(self, spec):
-        # as a local worker's start (start_worker): recordings and caches before the first
-        # unit, so a unit's time is work, not the frozen launch's recording (schedule --nodes 1:
-        # its first launch took 106 ms against 23 ms warm); its time is the node's start-up
-        t = time.perf_counter()
-        r = get_renderer(spec)
-        warm_up(r, warm_samples(spec, r))
-        self.startup_s = {0: time.perf_counter() - t}
-
-    def call(self, fn, *args):
-        """Run ``fn(*args)`` on a node (here: this process)."""
-        return fn(*args)
-
-    def run(self, plan, todo, spec, cull, on_done, on_fault):
-        batches = can_batch(get_renderer(spec))
-        queue = deque(todo)
-        while queue:  # static: the pixel budget per task; dynamic: guided chunks
-            if plan.static or not batches:
-                batch = take_batch(plan, queue, None if batches else 1, self.task_pixels)
-            else:
-                batch = guided_batch(plan, queue, 1, self.chunk_factor, self.task_pixels,
-                                     by_load=self.chunk_by == "load")
-            for i, (px, info) in zip(batch, render_units(spec, [plan.units[i].window for i in batch],
-                                                         [cull.get(i) for i in batch], wire=False)):
-                info["node"] = plan.owner[i] if plan.static else 0
-                on_done(i, px, info)
-
-    def close(self):
-        pass
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.close()
-
-
-# ---------------------------------------------------------------------- local pool
 def default_workers(kind: str = "core") -> int:
     """Worker processes worth starting here: the usable cores (0 = in-process when only one)."""
     try:
@@ -430,8 +171,6 @@ class LocalPool:
 
     def _spawn(self, k):
         """Start node k's worker process: a one-process pool whose first task loads the scene."""
-        import multiprocessing as mp
-        from concurrent.futures import ProcessPoolExecutor
         threads = str(self._spec.threads)
         saved = {v: os.environ.get(v) for v in THREAD_ENV}
         os.environ.update({v: threads for v in THREAD_ENV})  # inherited by the spawned worker
@@ -495,8 +234,6 @@ class LocalPool:
 
     def _await_hello(self, timeout):
         """Wait for starting nodes; a ready one records its pid, a dead one gets a replacement."""
-        from concurrent.futures import FIRST_COMPLETED, wait
-        from concurrent.futures.process import BrokenProcessPool
         by_future = {f: k for k, f in self.hello.items()}
         done, _ = wait(list(by_future), timeout=POLL_S if timeout is None else timeout,
                        return_when=FIRST_COMPLETED)
@@ -540,8 +277,6 @@ class LocalPool:
         """Open node k's direct line for this run (:func:`.runtime.serve`): a pipe whose other end
         goes to the node as its pool task; wait for its ``ready`` (the node has mapped the frame)
         -> whether it is open. False: the node is gone (its pool broken) or never answered."""
-        import multiprocessing as mp
-        from concurrent.futures.process import BrokenProcessPool
         if k in self.lines:
             return True
         ours, theirs = mp.Pipe(duplex=True)
@@ -595,7 +330,6 @@ class LocalPool:
             self._close_lines()
 
     def _run(self, plan, todo, spec, cull, on_done, on_fault, frame):
-        from multiprocessing.connection import wait
         failures = {}
         if plan.static:
             queues = {k: deque() for k in range(self.n)}
@@ -693,7 +427,7 @@ class LocalPool:
                 lines = {self.lines[k][0]: k for k in busy}
                 ends = {p.sentinel: k for k in busy
                         for p in list((getattr(self.pools.get(k), "_processes", None) or {}).values())}
-                ready = wait(list(lines) + list(ends), timeout=0.05 if self.hello else POLL_S)
+                ready = wait_connections(list(lines) + list(ends), timeout=0.05 if self.hello else POLL_S)
                 if self.hello:
                     self._await_hello(timeout=0)
             else:  # only starting nodes are left to render the remaining units
@@ -730,8 +464,6 @@ class LocalPool:
         :func:`render_plan` calls it after the clock stops: the makespan runs from the first
         dispatch to the last result, and this round trip to every node (2-4 ms at 2 nodes)
         is neither."""
-        from concurrent.futures import wait
-        from concurrent.futures.process import BrokenProcessPool
         self._close_lines()   # the serve loops end; each worker then answers its ping
         pings = {}
         for k in [k for k in range(self.n) if k not in self.hello]:

@@ -9,32 +9,39 @@ here for a static plan has stealing switched off too). When a node's worker leav
 root cancels that node's remaining tasks and resubmits them on the surviving nodes.
 Dynamic plans submit about one unit per worker at a time (plus one queued); a worker
 that joins mid-render is counted at the next completion and gets units; the scheduler
-itself reruns a lost worker's task elsewhere. dask/distributed are imported lazily.
+itself reruns a lost worker's task elsewhere. This module imports dask and distributed (an
+optional dependency, about a second to import): the front ends import it only when a Dask
+backend is asked for (:mod:`.cli`).
 """
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import logging
 import os
 import signal
+import threading
 import uuid
 from collections import deque
 
-from ..errors import RenderAborted
-from ..interrupts import children_ignore_interrupts
-from .executors import ALLOWED_FAILURES, CHUNK_FACTOR, TASK_PIXELS, guided_batch, take_batch
-from .runtime import THREAD_ENV, get_renderer, limit_blas, pin_cpus, render_units, spec_batches, warm_samples, warm_up
+import dask
+from distributed import Client, LocalCluster, wait
+from distributed.deploy.spec import SpecCluster
+from distributed.diagnostics.plugin import WorkerPlugin
 
-try:  # the plugin base class only when distributed is there (lazy for everything else)
-    from distributed.diagnostics.plugin import WorkerPlugin as _WorkerPluginBase
-except ImportError:  # pragma: no cover
-    _WorkerPluginBase = object
+from links1.errors import RenderAborted
+from links1.interrupts import children_ignore_interrupts
+
+from .handout import ALLOWED_FAILURES, CHUNK_FACTOR, TASK_PIXELS, guided_batch, take_batch
+from .local_pool import node_cpus, threads_per_worker
+from .runtime import (THREAD_ENV, RendererSpec, get_renderer, limit_blas, pin_cpus, render_units, spec_batches,
+                      warm_samples, warm_up)
 
 
-class ScenePreload(_WorkerPluginBase):
+class ScenePreload(WorkerPlugin):
     """Loads the scene on each worker once, on the thread that runs its tasks; first, on a
     LocalCluster started here, binds the worker's process to its node's CPUs (``cpus``: one
-    tuple per worker name ``0 .. n-1``, :func:`.executors.node_cpus`; a worker the nanny
+    tuple per worker name ``0 .. n-1``, :func:`.local_pool.node_cpus`; a worker the nanny
     restarts is bound again, as this runs on every worker that starts)."""
 
     def __init__(self, spec, cpus=None):
@@ -86,13 +93,10 @@ class DaskBackend:
 
     # ---------------------------------------------------------------- lifecycle
     def start(self, spec):
-        from distributed import Client
         if self.client is None:
             if self.scheduler:
                 self.client = Client(self.scheduler)
             else:
-                import dask
-                from .executors import threads_per_worker
                 t = self.threads or threads_per_worker(self.n_local)
                 cfg = {"distributed.scheduler.work-stealing": not self.static}
                 # its nannies and workers never see Ctrl-C (SIGINT): the root alone stops, and
@@ -103,14 +107,12 @@ class DaskBackend:
                         dashboard_address="127.0.0.1:0", env={k: str(t) for k in THREAD_ENV})
                 self.client = Client(self.cluster)
                 self.threads = t
-                from .executors import node_cpus
                 self.cpus = node_cpus(int(self.n_local), t) if self.pin else None
                 # the nodes share this machine's cores: the root (it renders nothing) keeps
                 # one BLAS thread until close, as LocalPool's does (runtime.limit_blas)
                 self._root_blas = limit_blas(1) or 0
         if self._plugin != spec.key:
             if spec.threads is None and self.threads:
-                from .runtime import RendererSpec
                 spec = RendererSpec(spec.kind, spec.path, spec.options, self.threads)
             self.client.register_plugin(ScenePreload(spec, self.cpus), name=f"links1-preload-{spec.key}")
             self._plugin = spec.key
@@ -121,9 +123,6 @@ class DaskBackend:
         threads, nannies and workers never see Ctrl-C (they inherit the blocked signal); this
         thread waits for it and stays interruptible. Interrupted, :attr:`cluster` is the cluster
         being made, for :meth:`terminate`."""
-        import threading
-
-        from distributed import LocalCluster
         known, made = set(_clusters()), []
 
         def make():
@@ -178,7 +177,6 @@ class DaskBackend:
         is only left. distributed's and asyncio's logs are silenced for the rest of this process:
         a nanny's warnings about the workers it lost, errors of workers still starting and of
         closed connections would follow the CLI's one line as the cluster's threads wind down."""
-        import logging
         for name in ("distributed", "asyncio"):   # asyncio: "Future exception was never retrieved"
             logging.getLogger(name).setLevel(logging.CRITICAL + 1)
         for nanny in list(getattr(self.cluster, "workers", {}).values()):
@@ -204,7 +202,6 @@ class DaskBackend:
 
     # ---------------------------------------------------------------- running
     def run(self, plan, todo, spec, cull, on_done, on_fault):
-        from distributed import wait
         client, spec = self.client, self._spec
         batches = spec_batches(spec)
         attempts = {}
@@ -315,13 +312,18 @@ class DaskBackend:
 
 def _clusters() -> list:
     """The clusters this process has made (distributed keeps them in ``SpecCluster._instances``)."""
-    from distributed.deploy.spec import SpecCluster
     return list(getattr(SpecCluster, "_instances", ()))
 
 
 def _node_of(info, workers):
     """Node label of a dynamic unit: the rendering worker's pid (stable within a run)."""
     return f"pid{info.get('pid')}"
+
+
+def cluster_workers(scheduler) -> int:
+    """How many workers the Dask cluster at ``scheduler`` (tcp://HOST:PORT) has now."""
+    with Client(scheduler) as c:
+        return len(c.scheduler_info(n_workers=-1)["workers"])
 
 
 def local_address(backend) -> str | None:
@@ -331,4 +333,4 @@ def local_address(backend) -> str | None:
     return backend.client.scheduler.address
 
 
-__all__ = ["DaskBackend", "ScenePreload", "local_address"]
+__all__ = ["DaskBackend", "ScenePreload", "cluster_workers", "local_address"]

@@ -8,12 +8,13 @@ whole units, and a re-run renders only what is missing.
 """
 from __future__ import annotations
 
+import io
 import json
 import os
 
 import numpy as np
 
-from ..imaging.image import atomic_write
+from links1.imaging.image import atomic_write
 
 
 def atomic_write_bytes(path, data: bytes) -> None:
@@ -67,7 +68,6 @@ class Checkpoint:
         return a if a.shape[:2] == (unit.h, unit.w) else None
 
     def save(self, unit, pixels) -> None:
-        import io
         buf = io.BytesIO()
         np.save(buf, np.asarray(pixels, dtype=np.float64), allow_pickle=False)
         atomic_write_bytes(self._path(unit), buf.getvalue())

@@ -6,14 +6,24 @@ exits with status 2 and leaves no output file behind (``--debug`` shows the trac
 from __future__ import annotations
 
 import argparse
-import importlib
+import inspect
 import statistics
 import sys
 import time
 
+import numpy as np
+
+from links1 import __version__
+from links1.errors import Links1Error, RenderAborted, UsageError, one_line_warnings
+from links1.imaging.image import write_image
+from links1.interrupts import held_interrupts, ignore_interrupts, restore_interrupts, stop_resource_sharer
+
+from . import diff
 from .cli_options import (nonneg_int, adaptive_options, add_progress_arguments, add_render_arguments,
                           progress_choice, renderer_options)
-from ..errors import Links1Error, RenderAborted, UsageError, one_line_warnings
+from .partition import cli as partition_cli
+from .partition import schedule
+from .renderers import make_renderer, renderer_warnings, require_mitsuba
 
 RENDER_EXAMPLES = """examples:
   links1 render scenes/fig11.xml -o fig11.png
@@ -33,10 +43,6 @@ examples:
   links1 schedule scenes/many.xml --nodes 4 --partition subscreen --report r.json --plot r.png
 """
 
-# Subcommands contributed by other modules: module path -> function adding the parser.
-EXTENSIONS = ("links1.imaging.diff", "links1.partition.cli")
-
-
 class _Parser(argparse.ArgumentParser):
     """argparse with exit status 2 and a one-line message (argparse's default is close)."""
 
@@ -49,7 +55,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="links1", description="LINKS-1 ray tracing: render Mitsuba 3 XML scenes, "
                      "compare images, run screen-partitioning experiments.",
                      epilog=MAIN_EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--version", action="version", version=f"links1 {_version()}")
+    parser.add_argument("--version", action="version", version=f"links1 {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
 
     p = sub.add_parser("render", help="render a scene to EXR or PNG", epilog=RENDER_EXAMPLES,
@@ -65,37 +71,11 @@ def build_parser() -> argparse.ArgumentParser:
     add_progress_arguments(p)
     p.add_argument("--debug", action="store_true", help="show tracebacks")
     p.set_defaults(func=cmd_render)
-    _distributed_options(p)
+    partition_cli.add_render_options(p)
 
-    for name in EXTENSIONS:
-        try:
-            mod = importlib.import_module(name)
-        except ImportError:
-            continue
-        add = getattr(mod, "add_cli", None)
-        if add is None:
-            continue
-        before = set(sub.choices)
-        add(sub)
-        for cmd in set(sub.choices) - before:  # wire the module's runner if it did not
-            if sub.choices[cmd].get_default("func") is None and hasattr(mod, "run_cli"):
-                sub.choices[cmd].set_defaults(func=mod.run_cli)
+    diff.add_cli(sub)             # links1 diff
+    schedule.add_cli(sub)         # links1 schedule
     return parser
-
-
-def _distributed_options(p):
-    try:
-        from ..partition import cli as pcli
-    except ImportError:
-        return
-    add = getattr(pcli, "add_render_options", None)
-    if add is not None:
-        add(p)
-
-
-def _version() -> str:
-    from .. import __version__
-    return __version__
 
 
 def _output_kind(path: str) -> str:
@@ -108,7 +88,6 @@ def _output_kind(path: str) -> str:
 
 
 def make_cli_renderer(args):
-    from .renderers import make_renderer
     opts = renderer_options(args)
     if getattr(args, "min_weight", None) is not None:
         opts["min_weight"] = args.min_weight
@@ -125,8 +104,6 @@ def make_cli_renderer(args):
 
 
 def cmd_render(args) -> int:
-    from ..interrupts import held_interrupts
-    from .renderers import renderer_warnings, require_mitsuba
     with held_interrupts():   # Mitsuba's native imports: Ctrl-C is raised once they are done
         if args.renderer == "mitsuba":
             require_mitsuba(args.variant)
@@ -140,8 +117,7 @@ def cmd_render(args) -> int:
         or getattr(args, "scheduler", None)
     t0 = time.perf_counter()
     if distributed:
-        from ..partition.cli import render_distributed
-        image, channels = render_distributed(args)
+        image, channels = partition_cli.render_distributed(args)
         first = time.perf_counter() - t0
         renderer = None
     else:
@@ -155,15 +131,13 @@ def cmd_render(args) -> int:
         for _ in range(args.repeat):
             t = time.perf_counter()
             if renderer is None:
-                render_distributed(args)
+                partition_cli.render_distributed(args)
             else:
                 renderer.render()
             times.append(time.perf_counter() - t)
         print(f"timing: first={first * 1e3:.1f} ms median={statistics.median(times) * 1e3:.1f} ms "
               f"min={min(times) * 1e3:.1f} ms max={max(times) * 1e3:.1f} ms", file=sys.stderr)
     _check_finite_image(image, args.renderer)
-    from ..imaging.image import write_image
-    from ..interrupts import ignore_interrupts
     ignore_interrupts()   # the frame is complete: Ctrl-C from here on no longer stops its writing
     if kind == "png":
         write_image(args.output, image[..., :3])
@@ -176,7 +150,6 @@ def cmd_render(args) -> int:
 def _check_finite_image(image, renderer) -> None:
     """Never a silent NaN: scene values are checked where they enter
     (links1.scene.params), so a non-finite pixel is a bug; stop with one line and write nothing."""
-    import numpy as np
     bad = ~np.isfinite(image)
     if bad.any():
         y, x = (int(v[0]) for v in np.nonzero(bad.any(axis=-1)))
@@ -185,7 +158,6 @@ def _check_finite_image(image, renderer) -> None:
 
 
 def _takes_progress(renderer) -> bool:
-    import inspect
     try:
         return "progress" in inspect.signature(renderer.render).parameters
     except (TypeError, ValueError):
@@ -197,7 +169,6 @@ def main(argv=None) -> int:
     interrupted``, status 130, no output file (it is written atomically, and once a finished
     frame is being written the interrupt is ignored: the file is then complete), no process left
     (the partitioning back ends stop their workers and clusters, :mod:`links1.interrupts`)."""
-    from ..interrupts import ignore_interrupts, restore_interrupts, stop_resource_sharer
     handler = ignore_interrupts(False)
     try:
         return _main(argv)

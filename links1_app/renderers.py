@@ -1,14 +1,15 @@
 """Choosing a renderer: the Renderer contract, the factory, Mitsuba's errors in one line.
 
-This is the one module of ``links1`` that knows both renderers, the core's
+This is the one module that knows both renderers, the core's
 (:class:`links1.tracing.render.CoreRenderer`) and the Mitsuba plugin's
 (:class:`links1_mitsuba.renderer.MitsubaRenderer`). It is a *front end*: the CLI, the
-partitioning layer and users (``links1.make_renderer``) import it; the core never does, and
-neither does the plugin, so the dependencies run one way, core <- plugin <- front ends
-(docs/architecture.md, "Dependencies"). It lives here rather than in the plugin because
-``make_renderer("core", ...)`` and the message that says how to install Mitsuba must work
-where Mitsuba is not installed; the plugin is imported only when a Mitsuba renderer is asked
-for.
+partitioning runtime and users (``from links1_app import make_renderer``) import it; the core
+never does, and neither does the plugin, so the dependencies run one way, core <- plugin <-
+front ends (docs/architecture.md, "Dependencies"). It lives here rather than in the plugin
+because ``make_renderer("core", ...)`` and the message that says how to install Mitsuba must
+work where Mitsuba is not installed: ``links1_mitsuba`` imports Mitsuba and Dr.Jit (an
+optional dependency, and seconds of start-up), so it is imported only when a Mitsuba renderer
+is asked for.
 """
 from __future__ import annotations
 
@@ -19,9 +20,10 @@ from typing import Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
-from ..errors import Links1Error, SceneError, UsageError, one_line_warnings
-from ..interrupts import held_interrupts
-from ..tracing.render import CoreRenderer
+from links1.errors import Links1Error, SceneError, UsageError, one_line_warnings
+from links1.interrupts import held_interrupts
+from links1.scene.loader import load_scene
+from links1.tracing.render import CoreRenderer
 
 
 @runtime_checkable
@@ -82,7 +84,7 @@ def make_renderer(kind: str, path, **options) -> Renderer:
 def _make_mitsuba_renderer(path, options):
     require_mitsuba()
     try:
-        from links1_mitsuba import MitsubaRenderer
+        from links1_mitsuba import MitsubaRenderer   # lazy: Mitsuba is optional (module docstring)
     except ImportError as e:
         raise UsageError(f"the mitsuba renderer is unavailable: {e}") from None
     _validate_for_mitsuba(path, options.get("params") or {})
@@ -103,13 +105,13 @@ def require_mitsuba(variant: str | None = None) -> None:
     when ``variant`` is one the links1 plugins cannot run on (before any worker starts)."""
     with held_interrupts():   # Ctrl-C raised after the imports, not inside a native one
         try:
-            import drjit  # noqa: F401
+            import drjit  # noqa: F401  (lazy: whether the optional Mitsuba is there is the question)
             import mitsuba  # noqa: F401
         except ImportError as e:
             raise UsageError(f"the mitsuba renderer needs Mitsuba 3 and Dr.Jit ({e}): install them with "
                              "pip install 'links1[mitsuba]', or render with --renderer core") from None
         if variant is not None:
-            from links1_mitsuba import unsupported_variant
+            from links1_mitsuba import unsupported_variant   # lazy: Mitsuba is optional
             why = unsupported_variant(variant)
             if why:
                 raise UsageError(why)
@@ -129,7 +131,6 @@ def _validate_for_mitsuba(path, params) -> None:
     """Check a scene with the core's reader before Mitsuba sees it: the reader names file,
     line and element for bad values (NaN, negative sizes, bad links1 parameters) that
     Mitsuba would accept or crash on. Plugins the core lacks are left to Mitsuba."""
-    from ..scene.loader import load_scene
     if not os.path.exists(path):
         raise SceneError("scene file not found", file=str(path))
     try:

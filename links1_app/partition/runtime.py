@@ -7,17 +7,29 @@ is kept in :data:`_RENDERERS` for every later unit.
 from __future__ import annotations
 
 import copy
+import ctypes
+import glob
 import hashlib
 import importlib
 import itertools
 import json
+import mmap
 import os
+import re
+import tempfile
+import threading
 import time
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 
 import numpy as np
+
+from links1.scene.xmlparse import SceneWarning
+from links1.tracing.aovs import aov_channel
+from links1.tracing.render import render
+
+from ..renderers import make_renderer, renderer_warnings
 
 #: Per-process cache: spec key -> renderer (a node loads its scene once).
 _RENDERERS: dict = {}
@@ -34,7 +46,7 @@ THREAD_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUM
 class RendererSpec:
     """How a node builds its renderer.
 
-    kind : "core" | "mitsuba" (``links1.frontends.renderers.make_renderer``) or "module:callable"
+    kind : "core" | "mitsuba" (``links1_app.renderers.make_renderer``) or "module:callable"
            (any factory ``f(path, **options)`` following the Renderer contract)
     path : scene file
     options : keyword options of the factory (params, spp, max_depth, seed, aovs, ...)
@@ -71,7 +83,6 @@ class RendererSpec:
         if ":" in self.kind:
             mod, _, name = self.kind.partition(":")
             return getattr(importlib.import_module(mod), name)(self.path, **self.kwargs)
-        from ..frontends.renderers import make_renderer
         return make_renderer(self.kind, self.path, **self.kwargs)
 
 
@@ -102,7 +113,7 @@ def set_threads(threads, kind="core"):
     limit_blas(int(threads))
     if kind == "mitsuba":
         try:
-            import drjit
+            import drjit   # lazy: Mitsuba is optional, and only its renderer needs this
             drjit.set_thread_count(int(threads))
         except Exception:  # noqa: BLE001 - the renderer reports a missing drjit itself
             pass
@@ -120,7 +131,6 @@ def _blas():
     """The loaded OpenBLAS's thread setter and getter (found among the libraries this process
     has mapped, ``/proc/self/maps``), or ``(None, None)`` (no OpenBLAS, not Linux)."""
     if not _BLAS:
-        import ctypes
         found = [None, None, None]
         try:
             with open("/proc/self/maps") as f:
@@ -152,7 +162,6 @@ def limit_blas(threads: int):
     plugin render it took 28 ms of CPU inside a 40 ms makespan on this 2-core machine, and
     each node's half-frame launch (17 ms of CPU) took 33 ms of wall time. One thread stops
     the spinning thread at once; numpy's environment variables act only before its import."""
-    import numpy  # noqa: F401 - the BLAS to limit is the one numpy loads
     setter, getter = _blas()
     if setter is None:
         return None
@@ -180,8 +189,6 @@ def watch_root(root: int) -> None:
     crashes or is killed by a signal closes no pool, and its workers, orphaned, would wait for
     tasks forever (seen: 18 idle workers left by test runs whose process segfaulted). A
     daemon thread compares the parent pid every :data:`ROOT_WATCH_S` seconds."""
-    import threading
-
     def watch():
         while True:
             time.sleep(ROOT_WATCH_S)
@@ -194,7 +201,7 @@ def pin_cpus(cpus) -> tuple | None:
     """Bind every thread of this process to the CPUs ``cpus`` (threads it starts later inherit
     the binding) -> the CPUs its main thread is bound to, or None where nothing was bound
     (``cpus`` empty or None, no ``sched_setaffinity``: not Linux). A local node's
-    process is bound to CPUs of its own (:func:`.executors.node_cpus`), because the kernel put
+    process is bound to CPUs of its own (:func:`.local_pool.node_cpus`), because the kernel put
     both one-thread nodes of a two-node plugin run on one core of this 2-core machine, each node's
     half-frame launch waiting in the run queue as long as it ran (docs/partitioning.md)."""
     if not cpus or not hasattr(os, "sched_setaffinity"):
@@ -223,8 +230,6 @@ def start_worker(spec: RendererSpec, cpus=None, root: int | None = None) -> tupl
     and only a dead process breaks the pool. Warnings print as one line; the scene's own
     (:class:`~links1.scene.xmlparse.SceneWarning`) are left to the root, which read the scene too.
     """
-    from ..frontends.renderers import renderer_warnings
-    from ..scene.xmlparse import SceneWarning
     pin_cpus(cpus)   # before the renderer starts its threads (Dr.Jit's pool): they inherit it
     if root is not None:
         watch_root(root)
@@ -325,7 +330,6 @@ class SharedFrame:
     and the next frame made in that directory removes it (:func:`remove_stale_frames`)."""
 
     def __init__(self, height, width, channels, directory=None):
-        import tempfile
         d = directory or ("/dev/shm" if os.path.isdir("/dev/shm") and os.access("/dev/shm", os.W_OK) else None)
         remove_stale_frames(d or tempfile.gettempdir())
         fd, self.path = tempfile.mkstemp(prefix=f"links1-frame-{os.getpid()}-", suffix=".f64", dir=d)
@@ -361,8 +365,6 @@ def remove_stale_frames(directory) -> list:
     name: ``links1-frame-<pid>-*.f64``; a root killed with SIGKILL leaves its file, which would
     hold memory in ``/dev/shm`` until reboot). A frame of a live process (any user's: its pid
     exists) is kept. Returns the paths removed."""
-    import glob
-    import re
     gone = []
     for path in glob.glob(os.path.join(directory, "links1-frame-*-*.f64")):
         m = re.fullmatch(r"links1-frame-(\d+)-.*\.f64", os.path.basename(path))
@@ -386,7 +388,6 @@ def remove_stale_frames(directory) -> list:
 def _map(path, shape):
     """The file as a float64 array, its pages mapped at once (``MAP_POPULATE``: one call instead of
     a page fault per 4 KiB on first touch, which cost as much as the pipe it replaces)."""
-    import mmap
     with open(path, "r+b") as f:
         flags = mmap.MAP_SHARED | getattr(mmap, "MAP_POPULATE", 0)
         mm = mmap.mmap(f.fileno(), 8 * int(np.prod(shape)), flags=flags)
@@ -468,7 +469,7 @@ def render_units(spec: RendererSpec, windows, culls=None, frame=None, wire=True)
     pixel count, not a measurement (``launch_seconds`` and ``launch_units`` say which launch it
     shared; ``launch_cpu_s``: the CPU time this process spent in that launch, all its threads:
     below ``launch_seconds`` when the node was off its core; the schedule report measures or derives unit times itself, see
-    :mod:`.experiment`); ``task`` names the task (this call), ``task_in`` is when it reached this
+    :mod:`.report`); ``task`` names the task (this call), ``task_in`` is when it reached this
     node (wall clock). Units
     with a cull list, or renderers without ``render_batch``, are rendered one by one.
     """
@@ -576,9 +577,6 @@ def _render_culled(spec, renderer, window, ids):
     scene = getattr(renderer, "scene", None)
     if scene is None or not hasattr(scene, "shapes"):
         return renderer.render(window=tuple(window))  # cannot cull: render everything
-    from dataclasses import replace
-    from ..tracing.aovs import aov_channel
-    from ..tracing.render import render
     key = (spec.key, ids)
     sub = _CULLED.get(key)
     if sub is None:
