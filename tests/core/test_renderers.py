@@ -32,14 +32,18 @@ def test_core_renderer_is_a_renderer():
 
 
 def test_public_api_is_the_factory():
-    assert links1.make_renderer is make_renderer and links1.Renderer is Renderer
+    """The front ends' package exports the factory; the core's does not (the core's root is no
+    front end)."""
+    assert links1_app.make_renderer is make_renderer and links1_app.Renderer is Renderer
+    assert not hasattr(links1, "make_renderer") and not hasattr(links1, "Renderer")
     with pytest.raises(UsageError, match="unknown renderer 'povray'; choose 'mitsuba' or 'core'"):
         make_renderer("povray", FIG11)
 
 
 def test_core_render_imports_no_plugin():
     """The core and the factory's core branch never import links1_mitsuba (or Mitsuba)."""
-    code = ("import sys, links1; links1.make_renderer('core', sys.argv[1], width=4, height=4, spp=1).render();"
+    code = ("import sys, links1, links1_app;"
+            "links1_app.make_renderer('core', sys.argv[1], width=4, height=4, spp=1).render();"
             "links1.render(links1.load_scene(sys.argv[1]), width=4, height=4);"
             "bad = [m for m in sys.modules if m.split('.')[0] in ('links1_mitsuba', 'mitsuba', 'drjit')];"
             "print(bad)")
