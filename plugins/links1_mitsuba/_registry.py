@@ -97,7 +97,7 @@ def register(variant: str | None = None) -> str:
         from .bsdfs import define_phong
         from .emitters import define_emitters
         from .integrator import define_integrator
-        from .shapes import define_bicubic
+        from .bicubic import define_bicubic
         classes = {"links1_phong": define_phong()}
         classes.update(define_emitters())
         classes["links1_whitted"] = define_integrator()

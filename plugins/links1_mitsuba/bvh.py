@@ -206,7 +206,7 @@ class QuadricBVH:
     def object_point(self, q, o, d, t, act):
         """The hit ``o + t d`` in quadric ``q``'s object space and its ``qz`` (1: sphere, 0:
         cylinder), with gathered parameters: what ``shapes.quadric_uv`` takes (QuadricSpec.uv;
-        the caller applies it, so that this module does not import shapes, which imports it)."""
+        the caller applies it)."""
         a, qz = self._rows(q, act)
         u = mi.Vector3f(*[a[i][0] * o.x + a[i][1] * o.y + a[i][2] * o.z + a[i][3] for i in range(3)])
         v = mi.Vector3f(*[a[i][0] * d.x + a[i][1] * d.y + a[i][2] * d.z for i in range(3)])

@@ -1,7 +1,7 @@
 """The geometry of the links1 shapes in ``mi.traverse`` and its derivatives.
 
 ``links1_quadric`` and ``links1_blob`` are not Mitsuba shapes: ``links1_whitted`` holds them
-(:class:`~links1_mitsuba.shapes.QuadricSpec`, :class:`~links1_mitsuba.shapes.BlobSpec`). Their
+(:class:`~links1_mitsuba.shapes.QuadricSpec`, :class:`~links1_mitsuba.blob.BlobSpec`). Their
 parameters are listed under the integrator, as their BSDFs are
 (``links1_whitted.<shape id>.<parameter>``), as Dr.Jit values (:func:`hold`):
 

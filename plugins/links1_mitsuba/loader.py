@@ -16,7 +16,8 @@ import numpy as np
 from ._registry import register
 from .util import LOADING, place_of
 from .util import read_rgb as _rgb
-from .shapes import BlobSpec, QuadricSpec
+from .blob import BlobSpec
+from .shapes import QuadricSpec
 
 CUSTOM = ("links1_quadric", "links1_blob")
 #: What ``links1_integrator="scene"`` renders a file without ``<integrator>`` with: Mitsuba 3 has no

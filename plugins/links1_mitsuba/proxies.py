@@ -25,7 +25,8 @@ def define_proxies() -> dict:
     """The proxy classes of the active variant: plugin name -> class."""
     import mitsuba as mi
 
-    from .shapes import BlobSpec, QuadricSpec
+    from .blob import BlobSpec
+    from .shapes import QuadricSpec
     from .util import Hidden, hidden_attr
 
     def make(plugin, spec_cls):

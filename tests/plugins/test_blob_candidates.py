@@ -42,9 +42,9 @@ def _rays(c, n, seed):
 def _plugin(spec, o, d, lists):
     import drjit as dr
     import mitsuba as mi
-    from links1_mitsuba import shapes
-    old = shapes.LIST_MIN_CENTRES
-    shapes.LIST_MIN_CENTRES = 1 if lists else 10 ** 9
+    from links1_mitsuba import blob_candidates
+    old = blob_candidates.LIST_MIN_CENTRES
+    blob_candidates.LIST_MIN_CENTRES = 1 if lists else 10 ** 9
     try:
         n = len(o)
         cost = dr.zeros(mi.UInt32, n)
@@ -55,13 +55,14 @@ def _plugin(spec, o, d, lists):
         return (np.array(t, dtype=np.float64), np.array(ng, dtype=np.float64).reshape(3, -1).T,
                 np.array(cost), np.array(tsh, dtype=np.float64))
     finally:
-        shapes.LIST_MIN_CENTRES = old
+        blob_candidates.LIST_MIN_CENTRES = old
 
 
 @pytest.mark.parametrize("centres", ["cloud300", "row80"])
 def test_candidate_lists_match_core_and_all_centres(centres, variant):
     from links1.geometry.blob import Blob
-    from links1_mitsuba.shapes import LIST_CAP, SLOTS, BlobSpec
+    from links1_mitsuba.blob import BlobSpec
+    from links1_mitsuba.blob_candidates import LIST_CAP, SLOTS
     c = _cloud(300, 3) if centres == "cloud300" else _row(80)
     o, d = _rays(c, 4000, 5)
     if centres == "row80":   # along the row: all 80 centres (more than the list holds)
@@ -102,7 +103,7 @@ def test_normal_reuses_hit_search_candidates(centres, variant):
     hit point: the same non-zero terms in the same (leaf) order, so the same bits."""
     import drjit as dr
     import mitsuba as mi
-    from links1_mitsuba.shapes import BlobSpec
+    from links1_mitsuba.blob import BlobSpec
     c = _cloud(300, 3) if centres == "cloud300" else _row(80)
     o, d = _rays(c, 4000, 5)
     if centres == "row80":   # along the row: more candidates than the list holds
@@ -131,7 +132,7 @@ def test_many_centre_blob_scene_matches_core(tmp_path, variant):
     from links1.scene.loader import load_scene
     from links1.tracing.render import render
     from links1_mitsuba import MitsubaRenderer
-    from links1_mitsuba.shapes import LIST_MIN_CENTRES
+    from links1_mitsuba.blob_candidates import LIST_MIN_CENTRES
     c = _cloud(120, 7)
     assert len(c) >= LIST_MIN_CENTRES
     centres = " ".join(f"{v:.6g}" for v in c.ravel())

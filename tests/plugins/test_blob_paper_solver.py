@@ -36,7 +36,7 @@ def test_paper_solver_matches_core_rays(centers, threshold, samples, to_world, v
     import drjit as dr
     import mitsuba as mi
     from links1.geometry.blob import Blob
-    from links1_mitsuba.shapes import BlobSpec
+    from links1_mitsuba.blob import BlobSpec
 
     c = np.array(centers, dtype=np.float64)
     n = 3000

@@ -1,0 +1,229 @@
+"""The candidate centres of a ray's line for :class:`~links1_mitsuba.blob.BlobSpec` (many
+centres): from :data:`LIST_MIN_CENTRES` centres on, the ``exact`` solver sums each field
+evaluation over the centres whose 3S sphere the ray's line crosses, found once per ray with
+a hierarchy of boxes (bvh.py's build, walked stackless in Dr.Jit), as the core does
+(links1/geometry/blob.py). A mixin of :class:`~links1_mitsuba.blob.BlobSpec`: its methods
+read the spec's tables, constants and field terms.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .shapes import INF
+
+#: From this many centres on, the ``exact`` solver sums each field evaluation over the ray's
+#: candidate centres only (found once per ray with a hierarchy of boxes over the 3S spheres).
+LIST_MIN_CENTRES = 24
+#: Candidate centres per ray held in registers (the field sum is unrolled over them); a ray
+#: crossing more sums over its list in local memory (a loop), beyond :data:`LIST_CAP` over all.
+SLOTS = 32
+#: Slots summed together; a packet skips a group no lane of it fills.
+SLOT_GROUP = 8
+#: Candidate centres per ray held in local memory.
+LIST_CAP = 64
+#: Centres per leaf of the candidate search's hierarchy (at most 15).
+LEAF_CENTRES = 4
+#: :meth:`BlobSpec._consts` columns in the packets of a centre's row in the candidate
+#: search's table: ``(x, y, z, 9S²)``, ``(w, S, 3S, 1/(3S²))``, ``(2|w|/(3S), 2|w|/(3S²),
+#: 1/(6S²), −2/(3S²))``.
+_ROW_PACKETS = [0, 1, 2, 5, 3, 4, 7, 6, 10, 11, 8, 9]
+
+
+def _depth_first(lo, hi, first, count):
+    """Packed node table of :meth:`BlobSpec._collect`: the nodes of a bvh.py ``build``
+    (children of node k at first[k], first[k] + 1) renumbered depth-first, left child first,
+    8 floats each (see :meth:`BlobSpec.tables`)."""
+    pre, work = [], [0]
+    while work:
+        k = work.pop()
+        pre.append(k)
+        if count[k] == 0:
+            work += [int(first[k]) + 1, int(first[k])]
+    size = {}
+    for k in reversed(pre):
+        size[k] = 1 if count[k] > 0 else 1 + size[int(first[k])] + size[int(first[k]) + 1]
+    out = np.zeros((len(pre), 8))
+    for at, k in enumerate(pre):
+        skip = at + size[k]
+        out[at] = [first[k], 0, 0, skip, 0, 0, 0, count[k]] if count[k] > 0 else [*lo[k], skip, *hi[k], 0]
+    return out
+
+
+
+class CandidateLists:
+    """The candidate-list methods of :class:`~links1_mitsuba.blob.BlobSpec`."""
+
+    def uses_lists(self) -> bool:
+        """Whether the ``exact`` solver sums over per-ray candidate lists (many centres)."""
+        return self.solver == "exact" and len(self.centers) >= LIST_MIN_CENTRES
+
+    def _candidate_tables(self):
+        """The candidate search's tables (see :meth:`BlobSpec.tables`): ``rows``, the
+        :meth:`_consts` rows in the hierarchy's leaf order, and ``nodes``, the hierarchy."""
+        import mitsuba as mi
+
+        from .bvh import build
+        from .util import table
+        k = self._consts()
+        c, R = k[:, :3], k[:, 7]
+        # padded so that a sphere the float32 line test finds crossed is never culled
+        pad = (1e-3 * R + 1e-5 * np.abs(c).max(1))[:, None]
+        order, nlo, nhi, first, count = build(c - R[:, None] - pad, c + R[:, None] + pad,
+                                              leaf=LEAF_CENTRES)
+        return dict(rows=table(mi.Float, k[order][:, _ROW_PACKETS]),
+                    nodes=table(mi.Float, _depth_first(nlo, nhi, first, count)))
+
+    def _row(self, idx, act):
+        """Row ``idx`` of the leaf-ordered constants, in :meth:`_consts`'s column order
+        (three packet gathers; a packet no caller reads is never loaded)."""
+        import drjit as dr
+        import mitsuba as mi
+        tab = self.tables()["rows"]
+        vals = [None] * 12
+        for j in range(3):
+            pk = dr.gather(mi.Array4f, tab, 3 * idx + j, act)
+            for col, v in zip(_ROW_PACKETS[4 * j:4 * j + 4], (pk.x, pk.y, pk.z, pk.w)):
+                vals[col] = v
+        return vals
+
+    def _collect(self, hit_box, hit_centre, active):
+        """Each lane's candidate centres (rows of the leaf-ordered table, increasing) in local
+        memory (up to :data:`LIST_CAP`), their number, and whether there were more (the lane
+        then sums over all centres).
+        ``hit_box(lo, hi, act)`` culls subtrees, ``hit_centre(row, act)`` decides a leaf's
+        centres. Stackless: the nodes are in depth-first order, so a crossed inner node goes
+        on to the next node (its left child) and anything else to the node after its
+        subtree; the walk ends past the last node."""
+        import drjit as dr
+        import mitsuba as mi
+        tab = self.tables()["nodes"]
+        end = dr.width(tab) // 8
+        n = dr.width(active)
+        lst = dr.alloc_local(mi.UInt32, LIST_CAP + 1, mi.UInt32(0))
+        k = dr.select(active, mi.UInt32(0), mi.UInt32(end))
+        cnt = dr.zeros(mi.UInt32, n)
+        ovf = dr.zeros(mi.Bool, n)
+
+        def cond(k, lst, cnt, ovf):
+            return k < end
+
+        def body(k, lst, cnt, ovf):
+            act = k < end
+            lo = dr.gather(mi.Array4f, tab, 2 * k, act)
+            hi = dr.gather(mi.Array4f, tab, 2 * k + 1, act)
+            num = mi.UInt32(hi.w)
+            leaf = act & (num > 0)
+            fst = mi.UInt32(dr.select(leaf, lo.x, 0.0))
+            for i in range(LEAF_CENTRES):
+                take = leaf & (i < num)
+                take &= hit_centre(fst + i, take)
+                add = take & (cnt < LIST_CAP)
+                ovf = ovf | (take & ~add)
+                # unmasked (a masked write costs a branch per lane): the entry at cnt is kept
+                # only where cnt moves on, and a full list writes to its spare last entry
+                lst.write(fst + i, dr.minimum(cnt, LIST_CAP))
+                cnt = dr.select(add, cnt + 1, cnt)
+            down = hit_box([lo.x, lo.y, lo.z], [hi.x, hi.y, hi.z], act & ~leaf)
+            k = dr.select(down, k + 1, mi.UInt32(lo.w))
+            return k, lst, cnt, ovf
+
+        _, lst, cnt, ovf = dr.while_loop((k, lst, cnt, ovf), cond, body, label="links1_blob_collect")
+        return lst, cnt, ovf
+
+    def _each(self, lst, cnt, ovf, state, fn):
+        """Loop ``state = fn(row, state)`` over the lane's candidates in increasing row
+        (over all centres where the list overflowed)."""
+        import drjit as dr
+        import mitsuba as mi
+        total = dr.select(ovf, mi.UInt32(len(self.centers)), cnt)
+
+        def cond(j, lst, *st):
+            return j < total
+
+        def body(j, lst, *st):
+            act = j < total
+            idx = dr.select(ovf, j, lst.read(j, act & ~ovf))
+            return (j + 1, lst, *fn(self._row(idx, act), *st))
+
+        out = dr.while_loop((dr.zeros(mi.UInt32, dr.width(cnt)), lst, *state), cond, body, label="links1_blob_sum")
+        return out[2:]
+
+    def _line_candidates(self, u, v, active):
+        """:meth:`_collect` for the line ``u + s v``: the centres whose 3S sphere it crosses,
+        the only ones whose term ``w_i P(r_i)`` of ``W`` (eq. 3.6/3.7) can be non-zero on the
+        line (``P = 0`` from ``r = 3S`` on, eq. 3.9); the root of ``W = T`` (eq. 3.8) is
+        sought over their span."""
+        import drjit as dr
+        import mitsuba as mi
+        from .bvh import slab
+        inv_v = mi.Vector3f(1.0 / v.x, 1.0 / v.y, 1.0 / v.z)
+
+        def hit_box(lo, hi, act):
+            return slab(lo, hi, u, inv_v, mi.Float(-INF), mi.Float(INF), act)[0]
+
+        def hit_centre(idx, act):
+            row = self._row(idx, act)
+            rel = mi.Vector3f(*row[:3]) - u
+            return dr.squared_norm(dr.cross(rel, v)) < row[5]
+
+        return self._collect(hit_box, hit_centre, active)
+
+    def _setup_lists(self, u, v, active):
+        """The candidate lists of the rays' lines, the first :data:`SLOTS` of them in
+        registers, and the span and the bounds over them: the sums of :meth:`_setup`, over
+        the centres that add non-zero terms, in the hierarchy's leaf order (so the same to
+        float32 rounding, not bit for bit)."""
+        import drjit as dr
+        import mitsuba as mi
+        n = dr.width(active)
+        lst, cnt, ovf = self._line_candidates(u, v, active)
+        many = ovf | (cnt > SLOTS)
+        st = (dr.full(mi.Float, INF, n), dr.full(mi.Float, -INF, n), dr.zeros(mi.Float, n), dr.zeros(mi.Float, n))
+        slots = []
+        for g in range(0, SLOTS, SLOT_GROUP):
+            def group(*st, g=g):
+                out = []
+                for j in range(g, g + SLOT_GROUP):
+                    # an empty slot reads zeros: no crossing, and w = 0 adds exactly zero
+                    row = self._row(lst.read(j), (j < cnt) & ~many)
+                    tau, h2, *st = self._chord(u, v, row, *st)
+                    out += [tau, h2, *row[3:5], *row[6:10]]
+                return (*st, *out)
+
+            def empty(*st):   # slots no lane of the packet fills: zeros, as an empty slot
+                return (*st, *[dr.zeros(mi.Float, n) for _ in range(8 * SLOT_GROUP)])
+            # the next slots only in packets where some lane has that many candidates
+            res = group(*st) if g == 0 else dr.if_stmt(st, (cnt > g) & ~many, group, empty)
+            st = res[:4]
+            slots += [tuple(res[4 + 8 * j:12 + 8 * j]) for j in range(SLOT_GROUP)]
+
+        def span(row, enter, leave, Lb, Gb):
+            return self._chord(u, v, row, enter, leave, Lb, Gb)[2:]
+
+        def by_list(*st):
+            return self._each(lst, cnt, ovf, st, span)
+
+        st = dr.if_stmt(tuple(st), many, by_list, lambda *st: st)
+        return (lst, cnt, ovf, many, slots), *st
+
+    def _field_lists(self, u, v, cands, s):
+        """:meth:`_field` over the lane's candidate centres (the same terms, in leaf order)."""
+        import drjit as dr
+        import mitsuba as mi
+        lst, cnt, ovf, many, slots = cands
+        W, dW = self._field(slots[:SLOT_GROUP], s)
+        for g in range(SLOT_GROUP, len(slots), SLOT_GROUP):
+            # the next slots only in packets where some lane has that many candidates
+            def more(W, dW, g=g):
+                return self._field(slots[g:g + SLOT_GROUP], s, W, dW)
+            W, dW = dr.if_stmt((W, dW), (cnt > g) & ~many, more, lambda W, dW: (W, dW))
+
+        def term(row, W, dW):
+            tau, h2 = self._chord(u, v, row, 0.0, 0.0, 0.0, 0.0)[:2]
+            Wk, dWk = self._term(s, tau, h2, *row[3:5], *row[6:10])
+            return W + Wk, dW + dWk
+
+        def by_list(W, dW):
+            return self._each(lst, cnt, ovf, (dr.zeros(mi.Float, dr.width(s)), dr.zeros(mi.Float, dr.width(s))), term)
+
+        return dr.if_stmt((W, dW), many, by_list, lambda W, dW: (W, dW))
