@@ -306,8 +306,12 @@ class RoundBSplineCurves(PrimitiveSet):
         for _ in range(_REFINE_ROUNDS):
             wide = TH - TL > 1e-12 * (1.0 + np.abs(TH))
             entry = (FL > 0) & (FH <= 0) & IL & IH
-            suspect = wide & (((FL > 0) & (FH > 0) & (FL + FH < _LIPSCHITZ * (TH - TL)))
-                              | ((FL > 0) != (FH > 0)) & ~(IL & IH))
+            # a root hides between two ends of one sign (outside: an entry and an exit; inside:
+            # an exit and a re-entry, a ray grazing the wall from within) only where the
+            # distance can go to 0 and back between them
+            same = (FL > 0) == (FH > 0)
+            suspect = wide & ((same & (np.abs(FL) + np.abs(FH) < _LIPSCHITZ * (TH - TL)))
+                              | ~same & ~(IL & IH))
             brackets.append((P[entry], TL[entry], TH[entry]))
             if not suspect.any():
                 break
