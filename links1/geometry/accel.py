@@ -26,7 +26,9 @@ from __future__ import annotations
 import numpy as np
 
 from .bvh import BVH
-from .shapes import Quadric, _finite_or_zero, clip_interval, quadric_first_hit, quadric_roots
+from .base import _finite_or_zero
+from .quadrics import clip_interval, quadric_first_hit, quadric_roots
+from .shapes import Quadric
 from ..maths.vec import normalize
 
 #: Traversals of :class:`Accel` (they give the same bits and costs; only speed differs).
@@ -148,7 +150,7 @@ class Accel:
 
     Parameters
     ----------
-    shapes : sequence of links1.geometry.shapes.Shape
+    shapes : sequence of links1.geometry.base.Shape
         ``shape_idx`` in the results is the position in this sequence.
     max_leaf : int
         Shapes per leaf of the hierarchy.

@@ -58,7 +58,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .shapes import Shape, _finite_or_zero, check_to_world
+from .base import Shape, _finite_or_zero, check_to_world
 from ..maths.vec import cross, dot, matvec, normalize
 
 #: Largest number of marching evaluations of the exact solver per ray.

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from .bvh import BVH, nearest_hits
-from .shapes import HierarchyTraced
+from .base import HierarchyTraced
 
 
 class PrimitiveSet(HierarchyTraced):

@@ -22,7 +22,7 @@ import numpy as np
 
 from ..maths.vec import dot, matvec, normalize
 from .primset import PrimitiveSet
-from .shapes import _finite_or_zero, check_to_world
+from .base import _finite_or_zero, check_to_world
 
 #: Bisection steps of the root refinement: the bracket shrinks below float64 spacing.
 _BISECTIONS = 64

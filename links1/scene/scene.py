@@ -19,7 +19,7 @@ class Scene:
     camera : Camera      the camera rendered (the file's first sensor unless :meth:`use_sensor`)
     sensors : list       ``(camera, spp)`` of every sensor in file order (a ``SceneError`` for one
                          the core cannot render); ``[]``: only ``camera``
-    shapes : list of links1.geometry.shapes.Shape (``shape.index`` is its position here: the ``id`` AOV)
+    shapes : list of links1.geometry.base.Shape (``shape.index`` is its position here: the ``id`` AOV)
     lights : list of links1.shading.lights.Light
     spp : int            sample count from the scene's sampler (default 1)
     max_depth : int      surface interactions along one branch of the ray tree (default 5)

@@ -18,7 +18,7 @@ Both turn the hit's shading frame and hand the nested BSDF the turned one:
 * a light direction on the other side of the turned normal than of the unturned one gives 0.
 
 They need the hit's ``dp_du``, ``dp_dv`` and geometric normal: the integrator hands them to
-``at`` in ``given`` (keys ``dp_du``, ``dp_dv``, ``ng``; :meth:`links1.geometry.shapes.Shape.tangents`).
+``at`` in ``given`` (keys ``dp_du``, ``dp_dv``, ``ng``; :meth:`links1.geometry.base.Shape.tangents`).
 The nested BSDF's delta lobes (mirror and refraction rays) keep the unturned normal (the loader
 warns). Inside ``twosided`` the frame is mirrored from behind, as Mitsuba mirrors the local
 directions.

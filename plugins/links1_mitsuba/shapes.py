@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from links1.geometry.shapes import quadric_bounds
+from links1.geometry.quadrics import quadric_bounds
 from links1.scene.params import clip_plane, default, read, transform_problem
 
 from .registered import check_properties
@@ -117,7 +117,7 @@ class QuadricSpec:
         return cls(slot, props.id(), kind, np.eye(4) if m is None else m, clips, capped)
 
     def bounds(self):
-        """World AABB: the core's rule (:func:`links1.geometry.shapes.quadric_bounds`);
+        """World AABB: the core's rule (:func:`links1.geometry.quadrics.quadric_bounds`);
         infinite for a cylinder no clip plane bounds along its axis."""
         return quadric_bounds(self.kind, self.to_world, self.clips)
 

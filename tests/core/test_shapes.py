@@ -450,7 +450,7 @@ def test_quadric_bounds_hold_the_surface_and_are_the_tighter_rule():
     cylinder lies in ``quadric_bounds``; an unclipped rotated ellipsoid gets its exact box
     (``m ± |L rows|``), a sphere cut at z <= 0.25 the object box's top at 0.25 (the rule the
     plugin had), an obliquely clipped cylinder a finite box."""
-    from links1.geometry.shapes import quadric_bounds
+    from links1.geometry.quadrics import quadric_bounds
     rng = np.random.default_rng(7)
     for trial in range(40):
         kind = "sphere" if trial % 2 == 0 else "cylinder"
