@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from tests import scenes
+
 AMBIENT, KD, E, T = 0.1, 0.7, 0.9, 0.7
 WI = np.array([0.3, 1.0, 0.2]) / np.linalg.norm([0.3, 1.0, 0.2])  # toward the directional light
 RES = 24
@@ -21,17 +23,9 @@ RES = 24
 def scene(shell: str, bsdf: str, light: str | None = None, max_depth: int = 3) -> str:
     light = light or (f'<emitter type="directional"><vector name="direction" x="{-WI[0]}" '
                       f'y="{-WI[1]}" z="{-WI[2]}"/><rgb name="irradiance" value="{E}"/></emitter>')
-    return f"""<scene version="3.0.0">
-  <sensor type="perspective"><float name="fov" value="70"/>
-    <transform name="to_world"><lookat origin="0, 0, 0" target="0.3, -0.8, 1" up="0, 1, 0"/></transform>
-    <sampler type="independent"><integer name="sample_count" value="1"/></sampler>
-    <film type="hdrfilm"><integer name="width" value="{RES}"/><integer name="height" value="{RES}"/>
-      <rfilter type="box"/></film></sensor>
-  <integrator type="links1_whitted"><integer name="max_depth" value="{max_depth}"/></integrator>
-  <bsdf {bsdf}
-  {shell.replace("BSDF", '<ref id="m"/>')}
-  {light}
-</scene>"""
+    return scenes.scene(scenes.perspective("0, 0, 0", "0.3, -0.8, 1", fov=70, width=RES),
+                        scenes.whitted(max_depth), f"<bsdf {bsdf}",
+                        shell.replace("BSDF", '<ref id="m"/>'), light)
 
 
 OPAQUE = f'type="links1_phong" id="m"><rgb name="ambient" value="{AMBIENT}"/><rgb name="diffuse" value="{KD}"/></bsdf>'

@@ -15,18 +15,14 @@ from links1.imaging.image import read_exr
 from links1.tracing.render import render
 from links1_app.renderers import make_renderer
 
+from tests.scenes import perspective, scene
+
 from . import oracle
 
 W, H = 40, 30
-SCENE = """<scene version="3.0.0">
-  <sensor type="perspective"><float name="fov" value="40"/>
-    <transform name="to_world"><lookat origin="0.3, 0.2, 5" target="0, 0, 0" up="0, 1, 0"/></transform>
-    <film type="hdrfilm"><integer name="width" value="{w}"/><integer name="height" value="{h}"/>
-      <rfilter type="box"/></film>
-  </sensor>
+SCENE = scene(perspective("0.3, 0.2, 5", "0, 0, 0", fov=40, width="{w}", height="{h}", spp=None), """
   <shape type="sphere"><float name="radius" value="{r}"/>
-    <bsdf type="links1_phong"><rgb name="ambient" value="0.6, 0.4, 0.2"/><rgb name="diffuse" value="0"/></bsdf></shape>
-</scene>"""
+    <bsdf type="links1_phong"><rgb name="ambient" value="0.6, 0.4, 0.2"/><rgb name="diffuse" value="0"/></bsdf></shape>""")
 
 
 @pytest.fixture

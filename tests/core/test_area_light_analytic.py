@@ -16,23 +16,18 @@ import pytest
 from links1 import load_scene
 from links1.tracing.render import render
 
+from tests.scenes import integrator, perspective, scene
+
 from . import oracle
 
 QUAD = np.array([[-0.5, 3, -0.5], [0.5, 3, -0.5], [0.5, 3, 0.5], [-0.5, 3, 0.5]])  # normal -y
 L, RHO, RES = 5.0, 0.5, 24
 
-SCENE = """<scene version="3.0.0">
-  <integrator type="direct"/>
-  <sensor type="perspective"><float name="fov" value="50"/>
-    <transform name="to_world"><lookat origin="0, 2, 9" target="0, 0, -1" up="0, 1, 0"/></transform>
-    <film type="hdrfilm"><integer name="width" value="{res}"/><integer name="height" value="{res}"/>
-      <rfilter type="box"/></film>
-  </sensor>
+SCENE = scene(integrator("direct"), perspective("0, 2, 9", "0, 0, -1", fov=50, width="{res}", spp=None), """
   <shape type="rectangle"><transform name="to_world"><scale value="10"/><rotate x="1" angle="-90"/></transform>
     <bsdf type="diffuse"><rgb name="reflectance" value="{rho}"/></bsdf></shape>
   <shape type="obj"><string name="filename" value="lum.obj"/>
-    <emitter type="area"><rgb name="radiance" value="{L}"/></emitter></shape>
-</scene>"""
+    <emitter type="area"><rgb name="radiance" value="{L}"/></emitter></shape>""")
 
 
 def lambert_irradiance(p, n, poly):

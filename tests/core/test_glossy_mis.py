@@ -96,8 +96,9 @@ def test_rough_mirror_under_a_constant_sky_converges_to_its_reflectance(tmp_path
              '<float name="alpha" value="0.3"/></bsdf>')
     L = np.array([0.8, 0.9, 1.1])
     scene = _scene(tmp_path, LIGHTS["constant"], floor)
+    # a glossy material under a sampled light: the hits take BSDF samples as well
+    assert scene.shapes[0].material.glossy and scene.lights[0].sampled
     integ = WhittedIntegrator(scene, max_depth=1)
-    assert integ._glossy is not None
     n = 8192
     wo = np.array([0.0, 1.0, 0.0])
     o = np.tile(wo * 0.5, (n, 1))

@@ -20,6 +20,8 @@ from links1.shading.lights import (ENV_LIGHT_ID, ConeSpotLight, ConstantEnvironm
                            ParallelLight, PointLight)
 from links1.scene.xmlparse import SceneWarning, parse_string
 
+from tests.scenes import scene
+
 DATA = os.path.join(os.path.dirname(__file__), "data")
 
 # scenes without a sensor warn; tests that check a warning use pytest.warns, which sees it anyway
@@ -39,14 +41,10 @@ def stub_shapes(monkeypatch):
     monkeypatch.setattr(loader, "_shape_class", lambda name: STUBS[name])
 
 
-def scene_xml(body: str, version: str = "3.0.0") -> str:
-    return f'<scene version="{version}">\n{body}\n</scene>\n'
-
-
 def load(body: str, **params):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SceneWarning)
-        return loader.load_string(scene_xml(body), base_dir=DATA, **params)
+        return loader.load_string(scene(body), base_dir=DATA, **params)
 
 
 def one_shape(body: str, **params):
@@ -56,8 +54,8 @@ def one_shape(body: str, **params):
 
 
 def to_world_of(op: str) -> np.ndarray:
-    root = parse_string(scene_xml(f'<shape type="sphere"><transform name="to_world">{op}'
-                                  '</transform></shape>'))
+    root = parse_string(scene(f'<shape type="sphere"><transform name="to_world">{op}'
+                              '</transform></shape>'))
     return root.objects("shape")[0].props["to_world"].value
 
 
@@ -80,7 +78,7 @@ def test_parameter_inside_a_longer_value_and_in_type():
 
 def test_undefined_parameter_is_an_error_naming_the_line(tmp_path):
     p = tmp_path / "params.xml"
-    p.write_text(scene_xml('<shape type="sphere">\n<float name="radius" value="$nope"/></shape>'))
+    p.write_text(scene('<shape type="sphere">\n<float name="radius" value="$nope"/></shape>'))
     with pytest.raises(SceneError) as e:
         loader.load_scene(str(p))
     assert "params.xml:3" in str(e.value) and "$nope" in str(e.value)
@@ -124,12 +122,12 @@ def test_version_before_2_upgrades_camel_case_names():
             '<film type="hdrfilm"><integer name="width" value="40"/><integer name="height" value="30"/>'
             '<integer name="cropOffsetX" value="8"/><integer name="cropWidth" value="16"/></film></sensor>')
     with pytest.warns(SceneWarning, match=r"scene version 0\.6\.0 is older than 2\.0"):
-        c = loader.load_string(scene_xml(body, version="0.6.0"), base_dir=DATA)
+        c = loader.load_string(scene(body, version="0.6.0"), base_dir=DATA)
     assert (c.camera.near_clip, c.camera.far_clip, c.spp) == (0.5, 50.0, 9)
     assert c.camera.crop_offset[0] == 8 and c.camera.crop_size[0] == 16
     # the same names in a 3.0 scene are Mitsuba's error: the upgrade is what made them valid
     with pytest.raises(SceneError):
-        loader.load_string(scene_xml(body), base_dir=DATA)
+        loader.load_string(scene(body), base_dir=DATA)
 
 
 def test_forward_ref_and_named_ref():
@@ -246,8 +244,8 @@ def test_defaults_without_sensor_follow_mitsuba():
 
 def test_rfilter_types_parameters_and_mitsuba_default():
     def rf(inner):
-        return loader.load_string(scene_xml('<sensor type="perspective"><film type="hdrfilm">'
-                                            f'{inner}</film></sensor>')).camera.rfilter
+        return loader.load_string(scene('<sensor type="perspective"><film type="hdrfilm">'
+                                        f'{inner}</film></sensor>')).camera.rfilter
     # Mitsuba 3.9.1: no rfilter -> gaussian, stddev 0.5, radius 4 stddev
     assert (rf("").name, rf("").radius) == ("gaussian", 2.0)
     assert load("").camera.rfilter.name == "gaussian"
@@ -356,8 +354,8 @@ def test_links1_bicubic_file_and_inline():
 
 
 def test_area_emitter_sets_emission():
-    s = loader.load_string(scene_xml('<shape type="disk"><emitter type="area">'
-                                     '<rgb name="radiance" value="1, 2, 3"/></emitter></shape>'))
+    s = loader.load_string(scene('<shape type="disk"><emitter type="area">'
+                                 '<rgb name="radiance" value="1, 2, 3"/></emitter></shape>'))
     np.testing.assert_array_equal(s.shapes[0].emission, [1, 2, 3])  # (the light: test_area_lights)
 
 
@@ -396,10 +394,10 @@ def test_bsdf_mapping():
 
 def test_unsupported_bsdf_and_texture_warn_with_location():
     with pytest.warns(SceneWarning, match=r"<string>:3: <bsdf type='hair'>.*approximated"):
-        loader.load_string(scene_xml('<shape type="sphere">\n<bsdf type="hair"/></shape>'))
+        loader.load_string(scene('<shape type="sphere">\n<bsdf type="hair"/></shape>'))
     with pytest.warns(SceneWarning, match="0.5 grey"):
-        s = loader.load_string(scene_xml('<shape type="sphere"><bsdf type="diffuse">'
-                                         '<texture type="volume" name="reflectance"/></bsdf></shape>'))
+        s = loader.load_string(scene('<shape type="sphere"><bsdf type="diffuse">'
+                                     '<texture type="volume" name="reflectance"/></bsdf></shape>'))
     np.testing.assert_allclose(s.shapes[0].material.reflectance, [0.5] * 3)
 
 
@@ -437,7 +435,7 @@ def test_emitters():
 
 def test_envmap_missing_file_is_a_scene_error():
     with pytest.raises(SceneError, match="envmap: cannot read 'x.exr'"):
-        loader.load_string(scene_xml('<emitter type="envmap"><string name="filename" value="x.exr"/></emitter>'))
+        loader.load_string(scene('<emitter type="envmap"><string name="filename" value="x.exr"/></emitter>'))
 
 
 # -- errors: every one names file, line and element -------------------------------------------
@@ -527,7 +525,7 @@ def test_missing_scene_file_and_version(tmp_path):
 def test_error_inside_included_file_names_that_file(tmp_path):
     (tmp_path / "inner.xml").write_text('<scene version="3.0.0">\n<shape type="sphere">\n'
                                         '<float name="radius" value="0"/></shape></scene>')
-    (tmp_path / "outer.xml").write_text(scene_xml('<include filename="inner.xml"/>'))
+    (tmp_path / "outer.xml").write_text(scene('<include filename="inner.xml"/>'))
     with pytest.raises(SceneError, match=r"inner.xml:3: .*radius.*> 0"):
         loader.load_scene(str(tmp_path / "outer.xml"))
 
@@ -539,8 +537,8 @@ def test_shape_constructor_value_error_becomes_scene_error(monkeypatch):
         return ctor
     monkeypatch.setattr(loader, "_shape_class", failing)
     with pytest.raises(SceneError, match=r"<string>:2: <shape type='links1_blob'>: bad blob"):
-        loader.load_string(scene_xml('<shape type="links1_blob"><string name="centers" value="0 0 0 1 1"/>'
-                                     '<float name="threshold" value="0.5"/></shape>'))
+        loader.load_string(scene('<shape type="links1_blob"><string name="centers" value="0 0 0 1 1"/>'
+                                 '<float name="threshold" value="0.5"/></shape>'))
 
 
 def test_unknown_parameter_is_refused_as_mitsuba_refuses_it():
@@ -548,14 +546,14 @@ def test_unknown_parameter_is_refused_as_mitsuba_refuses_it():
     unreferenced property"), naming file, line and element."""
     with pytest.raises(SceneError, match=r"<string>:2: <shape type='sphere'> <float name='colour'>: "
                                          r"unknown parameter 'colour'"):
-        loader.load_string(scene_xml('<shape type="sphere"><float name="colour" value="1"/></shape>'))
+        loader.load_string(scene('<shape type="sphere"><float name="colour" value="1"/></shape>'))
 
 
 def test_mitsuba_parameter_the_core_ignores_warns():
     """A real Mitsuba parameter the core does not read is a warning, not an error."""
     with pytest.warns(SceneWarning, match="'silhouette_sampling_weight' is not used"):
-        loader.load_string(scene_xml('<shape type="sphere"><float name="silhouette_sampling_weight" '
-                                     'value="1"/></shape>'))
+        loader.load_string(scene('<shape type="sphere"><float name="silhouette_sampling_weight" '
+                                 'value="1"/></shape>'))
 
 
 # -- the real shape classes (when links1.geometry.shapes / links1.geometry.blob exist) ---------------------------
@@ -573,7 +571,7 @@ def test_real_shape_classes(monkeypatch):
                  '<float name="threshold" value="0.5"/></shape>')
     except ImportError:
         pass
-    s = loader.load_string(scene_xml(body), base_dir=DATA)
+    s = loader.load_string(scene(body), base_dir=DATA)
     assert len(s.shapes) == body.count("<shape ")
     for i, sh in enumerate(s.shapes):
         assert sh.index == i and sh.material is not None

@@ -10,6 +10,8 @@ from links1.partition.loadmodel import scene_model
 from links1_app.partition.runtime import get_renderer
 from links1.partition.strategies import STRATEGIES, make_plan
 
+from tests.scenes import perspective, scene, whitted
+
 CASES = [(s, u) for s in STRATEGIES for u in (("scanline", "tile") if s == "dynamic" else ("tile",))]
 
 
@@ -41,15 +43,9 @@ def test_core_renderer_every_strategy_workers_0_and_2(core_spec, core_ref):
             assert nodes == {0, 1}
 
 
-CULL_SCENE = """<scene version="3.0.0">
-  <sensor type="perspective"><float name="fov" value="50"/>
-    <transform name="to_world"><lookat origin="0, 0, 10" target="0, 0, 0" up="0, 1, 0"/></transform>
-    <film type="hdrfilm"><integer name="width" value="40"/><integer name="height" value="24"/>
-      <rfilter type="box"/></film></sensor>
-  <integrator type="links1_whitted"><integer name="max_depth" value="1"/></integrator>
+CULL_SCENE = scene(perspective("0, 0, 10", "0, 0, 0", fov=50, width=40, height=24, spp=None), whitted(1), """
   <emitter type="links1_point"><point name="position" x="0" y="0" z="12"/><rgb name="L1" value="50"/></emitter>
-  %s
-</scene>"""
+  %s""")
 SPHERE = ('<shape type="links1_quadric"><string name="kind" value="sphere"/><transform name="to_world">'
           '<scale value="0.8"/><translate x="%g" y="%g" z="0"/></transform>'
           '<bsdf type="links1_phong"><rgb name="diffuse" value="0.7"/></bsdf></shape>')

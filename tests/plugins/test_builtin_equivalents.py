@@ -6,15 +6,12 @@ import math
 import numpy as np
 import pytest
 
+from tests.scenes import perspective, scene, whitted
+
 pytestmark = pytest.mark.mitsuba
 
-HEAD = """<scene version="3.0.0">
-  <sensor type="perspective"><float name="fov" value="35"/>
-    <transform name="to_world"><lookat origin="0.3, 2.2, 6" target="0, 0.8, 0" up="0, 1, 0"/></transform>
-    <sampler type="independent"><integer name="sample_count" value="1"/></sampler>
-    <film type="hdrfilm"><integer name="width" value="48"/><integer name="height" value="48"/>
-      <rfilter type="box"/></film></sensor>
-  <integrator type="links1_whitted"><integer name="max_depth" value="2"/></integrator>
+#: the camera, integrator, material "m", floor and lights every scene here shares
+HEAD = perspective("0.3, 2.2, 6", "0, 0.8, 0", fov=35, width=48) + whitted(2) + """
   <bsdf type="links1_phong" id="m"><rgb name="ambient" value="0.05"/><rgb name="diffuse" value="0.7, 0.3, 0.2"/>
     <rgb name="specular" value="0.4"/><float name="exponent" value="30"/><rgb name="reflectance" value="0.3"/></bsdf>
   <shape type="rectangle"><transform name="to_world"><scale value="5"/><rotate x="1" angle="-90"/></transform>
@@ -26,8 +23,8 @@ HEAD = """<scene version="3.0.0">
 
 def render(xml, variant):
     from links1_mitsuba import load_string
-    scene = load_string(HEAD + xml + "</scene>", variant=variant)
-    return scene.integrator().render_window(scene, None, spp=1, aovs=("id",))
+    sc = load_string(scene(HEAD, xml), variant=variant)
+    return sc.integrator().render_window(sc, None, spp=1, aovs=("id",))
 
 
 def off_silhouettes(a, b):

@@ -4,6 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from tests.scenes import perspective, scene, whitted
+
 pytestmark = pytest.mark.mitsuba
 
 
@@ -26,18 +28,13 @@ def _scene(n):
                       f'<bsdf type="links1_phong"><rgb name="diffuse" value="0.6"/>'
                       f'<rgb name="reflectance" value="{0.3 if i % 5 == 0 else 0}"/>'
                       f'<rgb name="transmittance" value="{0.5 if i % 7 == 0 else 0}"/></bsdf></shape>')
-    return f"""<scene version="3.0.0">
-  <integrator type="links1_whitted"><integer name="max_depth" value="3"/></integrator>
-  <sensor type="perspective"><float name="fov" value="50"/>
-    <transform name="to_world"><lookat origin="0,5,9" target="0,0,0" up="0,1,0"/></transform>
-    <film type="hdrfilm"><integer name="width" value="48"/><integer name="height" value="40"/></film>
-  </sensor>
+    camera = perspective("0,5,9", "0,0,0", fov=50, width=48, height=40, spp=None, rfilter=None)
+    return scene(whitted(3), camera, f"""
   <emitter type="point"><point name="position" value="3,8,4"/><rgb name="intensity" value="80"/></emitter>
   <emitter type="directional"><vector name="direction" value="-1,-2,-1"/><rgb name="irradiance" value="0.5"/></emitter>
   <shape type="rectangle"><transform name="to_world"><rotate x="1" angle="-90"/><scale value="8"/></transform>
     <bsdf type="diffuse"/></shape>
-  {''.join(shapes)}
-</scene>"""
+  {''.join(shapes)}""")
 
 
 def test_bvh_matches_every_quadric(variant):

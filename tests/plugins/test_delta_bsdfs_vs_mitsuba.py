@@ -18,6 +18,8 @@ import warnings
 import numpy as np
 import pytest
 
+from tests.scenes import integrator, perspective, scene, whitted
+
 pytestmark = pytest.mark.mitsuba
 
 RES = 24
@@ -67,23 +69,12 @@ CASES = {
 }
 
 
-def scene_xml(body, integrator, spp):
-    return f"""<scene version="3.0.0">
-  <sensor type="perspective"><float name="fov" value="45"/>
-    <transform name="to_world"><lookat origin="0.4, 1.2, 5" target="0, 0.7, 0" up="0, 1, 0"/></transform>
-    <sampler type="independent"><integer name="sample_count" value="{spp}"/></sampler>
-    <film type="hdrfilm"><integer name="width" value="{RES}"/><integer name="height" value="{RES}"/>
-      <rfilter type="box"/></film></sensor>
-  {integrator}
-  {BACKDROP}
-  {body}
-</scene>"""
+def scene_xml(body, method, spp):
+    return scene(perspective("0.4, 1.2, 5", "0, 0.7, 0", fov=45, width=RES, spp=spp), method, BACKDROP, body)
 
 
-WHITTED = (f'<integrator type="links1_whitted"><integer name="max_depth" value="{DEPTH}"/>'
-           f'<float name="min_weight" value="0"/><integer name="light_samples" value="4"/></integrator>')
-PATH = (f'<integrator type="path"><integer name="max_depth" value="{DEPTH}"/>'
-        f'<integer name="rr_depth" value="{DEPTH + 5}"/></integrator>')
+WHITTED = whitted(DEPTH, min_weight=0.0, light_samples=4)
+PATH = integrator("path", max_depth=DEPTH, rr_depth=DEPTH + 5)
 
 
 def rel_mse(a, b):

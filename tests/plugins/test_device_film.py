@@ -17,15 +17,15 @@ import pytest
 
 from links1.sensor.filters import filter_samples
 
+from tests.scenes import perspective, scene, whitted
+
+from .test_filters_vs_mitsuba import RFILTERS
 from .test_vs_mitsuba_integrators import DIFFUSE
 
 pytestmark = pytest.mark.mitsuba
 
 W, H = 24, 18
 EXACT = ("box", "tent", "mitchell", "catmullrom")
-RFILTERS = {"box": '<rfilter type="box"/>', "tent": '<rfilter type="tent"/>', "gaussian": "",
-            "mitchell": '<rfilter type="mitchell"/>', "catmullrom": '<rfilter type="catmullrom"/>',
-            "lanczos": '<rfilter type="lanczos"/>'}
 AOVS = "depth,normal,id,cost,samples"
 MIRROR = """<shape type="sphere"><point name="center" x="0.9" y="0.5" z="-0.8"/><float name="radius" value="0.5"/>
     <bsdf type="conductor"/></shape>"""
@@ -35,13 +35,8 @@ def load(tmp_path, rfilter):
     import links1_mitsuba as lm
     import mitsuba as mi
     path = tmp_path / "film.xml"
-    path.write_text(f"""<scene version="3.0.0">
-  <integrator type="links1_whitted"><integer name="max_depth" value="3"/></integrator>
-  <sensor type="perspective"><float name="fov" value="40"/>
-    <transform name="to_world"><lookat origin="0, 2.5, 6" target="0, 0.7, 0" up="0, 1, 0"/></transform>
-    <film type="hdrfilm"><integer name="width" value="{W}"/><integer name="height" value="{H}"/>
-      {RFILTERS[rfilter]}</film></sensor>
-  {DIFFUSE}{MIRROR}</scene>""")
+    camera = perspective("0, 2.5, 6", "0, 0.7, 0", fov=40, width=W, height=H, spp=None, rfilter=RFILTERS[rfilter])
+    path.write_text(scene(whitted(3), camera, DIFFUSE, MIRROR))
     return lm.load_file(str(path), variant=mi.variant())
 
 

@@ -9,6 +9,8 @@ import pytest
 from links1.imaging.diff import relmse
 from links1.sensor.filters import FILTERS, Filter
 
+from tests.scenes import integrator, perspective, scene, whitted
+
 from .conftest import cli_variant
 from .test_vs_mitsuba_integrators import DIFFUSE
 
@@ -25,26 +27,20 @@ RFILTERS = {"box": '<rfilter type="box"/>', "tent": '<rfilter type="tent"/>', "g
             "lanczos": '<rfilter type="lanczos"/>'}
 
 
-def scene_xml(rfilter: str, integrator: str) -> str:
-    return f"""<scene version="3.0.0">
-  <sensor type="perspective"><float name="fov" value="40"/>
-    <transform name="to_world"><lookat origin="0, 2.5, 6" target="0, 0.7, 0" up="0, 1, 0"/></transform>
-    <film type="hdrfilm"><integer name="width" value="{RES}"/><integer name="height" value="{RES}"/>
-      {rfilter}</film></sensor>
-  {integrator}{POINT_LIT}</scene>"""
+def scene_xml(rfilter: str, method: str) -> str:
+    return scene(perspective("0, 2.5, 6", "0, 0.7, 0", fov=40, width=RES, spp=None, rfilter=rfilter),
+                 method, POINT_LIT)
 
 
 def direct(rfilter, spp, seed):
     import mitsuba as mi
-    sc = mi.load_string(scene_xml(rfilter, '<integrator type="direct"><integer name="bsdf_samples" '
-                                           'value="0"/></integrator>'))
+    sc = mi.load_string(scene_xml(rfilter, integrator("direct", bsdf_samples=0)))
     return np.array(mi.render(sc, spp=spp, seed=seed), dtype=np.float64)[..., :3]
 
 
 def write_scene(tmp_path, rfilter):
     path = tmp_path / "filtered.xml"
-    path.write_text(scene_xml(rfilter, '<integrator type="links1_whitted"><integer name="max_depth" '
-                                       'value="1"/></integrator>'))
+    path.write_text(scene_xml(rfilter, whitted(1)))
     return str(path)
 
 

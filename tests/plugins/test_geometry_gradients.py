@@ -21,13 +21,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from tests.scenes import perspective, scene, whitted
+
 pytestmark = pytest.mark.mitsuba
 
-CAMERA = """<integrator type="links1_whitted"><integer name="max_depth" value="{depth}"/></integrator>
-  <sensor type="perspective"><float name="fov" value="40"/>
-    <transform name="to_world"><lookat origin="0, 3, 6" target="0, 0.8, 0" up="0, 1, 0"/></transform>
-    <film type="hdrfilm"><integer name="width" value="24"/><integer name="height" value="18"/><rfilter type="box"/></film>
-    <sampler type="independent"><integer name="sample_count" value="1"/></sampler></sensor>"""
+CAMERA = perspective("0, 3, 6", "0, 0.8, 0", fov=40, width=24, height=18)
 
 FLOOR = """<shape type="rectangle" id="floor"><transform name="to_world"><scale value="5"/><rotate x="1" angle="-90"/></transform>
     <bsdf type="links1_phong"><rgb name="diffuse" value="0.6, 0.5, 0.4"/><rgb name="reflectance" value="0.2"/></bsdf></shape>"""
@@ -60,7 +58,7 @@ CYLINDER = f"""{FLOOR}
 def load(tmp_path, body, depth=3, camera=None):
     import links1_mitsuba as lm
     path = tmp_path / "scene.xml"
-    path.write_text(f'<scene version="3.0.0">{camera or CAMERA.format(depth=depth)}{body}</scene>')
+    path.write_text(scene(camera or whitted(depth) + CAMERA, body))
     return lm.load_file(str(path))
 
 

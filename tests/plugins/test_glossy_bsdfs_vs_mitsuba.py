@@ -12,6 +12,8 @@ import warnings
 import numpy as np
 import pytest
 
+from tests.scenes import integrator, perspective, scene
+
 pytestmark = pytest.mark.mitsuba
 
 N = 1500
@@ -201,21 +203,14 @@ def test_conductor_presets_are_mitsubas(scalar_rgb):
         assert np.allclose(k, np.array(params["k.value"]), rtol=1e-6), name
 
 
-SCENE = """<scene version="3.0.0">
-  <sensor type="perspective"><float name="fov" value="40"/>
-    <transform name="to_world"><lookat origin="0, 2.5, 6" target="0, 0.5, 0" up="0, 1, 0"/></transform>
-    <sampler type="independent"><integer name="sample_count" value="4"/></sampler>
-    <film type="hdrfilm"><integer name="width" value="40"/><integer name="height" value="32"/>
-      <rfilter type="box"/></film></sensor>
-  {integrator}
+SCENE = scene(perspective("0, 2.5, 6", "0, 0.5, 0", fov=40, width=40, height=32, spp=4), "{integrator}", """
   <emitter type="point"><point name="position" x="1.5" y="4" z="3"/><rgb name="intensity" value="30, 28, 25"/></emitter>
   <shape type="rectangle"><transform name="to_world"><scale value="4"/><rotate x="1" angle="-90"/></transform>
     {floor}</shape>
   <shape type="sphere"><point name="center" x="-1.2" y="0.8" z="0"/><float name="radius" value="0.8"/>
     {left}</shape>
   <shape type="sphere"><point name="center" x="0.9" y="0.8" z="0"/><float name="radius" value="0.8"/>
-    {right}</shape>
-</scene>"""
+    {right}</shape>""")
 
 
 def test_point_light_render_matches_direct(variant):
@@ -244,7 +239,7 @@ def check_point_light_render(variant, **bsdfs):
         warnings.simplefilter("always")
         core = links1.render(load_string(SCENE.format(integrator="", **bsdfs)), spp=64, max_depth=1)
     assert not [w for w in caught if "<bsdf" in str(w.message)]
-    direct = '<integrator type="direct"><integer name="bsdf_samples" value="0"/></integrator>'
+    direct = integrator("direct", bsdf_samples=0)
     sc = mi_load(SCENE.format(integrator=direct, **bsdfs), links1_integrator="scene", variant=variant)
     ref = np.array(mi.render(sc, spp=256), dtype=np.float64)[..., :3]
     err = float(np.sum((core - ref) ** 2) / np.sum(ref ** 2))

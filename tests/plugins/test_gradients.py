@@ -27,13 +27,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from tests import scenes
+
 pytestmark = pytest.mark.mitsuba
 
-CAMERA = """<integrator type="links1_whitted"><integer name="max_depth" value="{depth}"/></integrator>
-  <sensor type="perspective"><float name="fov" value="40"/>
-    <transform name="to_world"><lookat origin="0, 3, 6" target="0, 0.5, 0" up="0, 1, 0"/></transform>
-    <film type="hdrfilm"><integer name="width" value="24"/><integer name="height" value="18"/>{rfilter}</film>
-    <sampler type="independent"><integer name="sample_count" value="1"/></sampler></sensor>"""
+def camera(depth, rfilter="box"):
+    """links1_whitted to ``depth`` and a 24 x 18 camera, spp 1 (``rfilter`` "": gaussian)."""
+    return scenes.whitted(depth) + scenes.perspective("0, 3, 6", "0, 0.5, 0", fov=40, width=24, height=18,
+                                                      rfilter=rfilter)
 
 # colours: a Phong sphere (all coefficients), a Mitsuba diffuse floor, both kinds of point light
 # and a links1 spot; a mirror-and-glass Phong sphere sends rays down the tree (depth 4)
@@ -73,9 +74,9 @@ SHADING_KEYS = ["ball.bsdf.diffuse.value", "ball.bsdf.specular.value", "ball.bsd
 MOVE_KEYS = ["lp.position", "mp.position"]
 
 
-def load(body, depth=4, rfilter='<rfilter type="box"/>'):
+def load(body, depth=4, rfilter="box"):
     import mitsuba as mi
-    return mi.load_string(f'<scene version="3.0.0">{CAMERA.format(depth=depth, rfilter=rfilter)}{body}</scene>')
+    return mi.load_string(scenes.scene(camera(depth, rfilter), body))
 
 
 def frame(scene, **kw):
@@ -177,12 +178,7 @@ def test_forward_equals_reverse(variant):
     assert abs(lhs - rhs) <= 1e-4 * abs(lhs), (lhs, rhs)
 
 
-PLANE = """
-  <integrator type="links1_whitted"><integer name="max_depth" value="1"/></integrator>
-  <sensor type="perspective"><float name="fov" value="30"/>
-    <transform name="to_world"><lookat origin="0, 4, 0" target="0, 0, 0" up="0, 0, -1"/></transform>
-    <film type="hdrfilm"><integer name="width" value="9"/><integer name="height" value="9"/><rfilter type="box"/></film>
-    <sampler type="independent"><integer name="sample_count" value="1"/></sampler></sensor>
+PLANE = scenes.whitted(1) + scenes.perspective("0, 4, 0", "0, 0, 0", fov=30, width=9, up="0, 0, -1") + """
   <shape type="rectangle" id="plane"><transform name="to_world"><scale value="10"/><rotate x="1" angle="-90"/></transform>
     <bsdf type="diffuse"><rgb name="reflectance" value="0.6, 0.5, 0.4"/></bsdf></shape>
   <emitter type="point" id="light"><point name="position" x="1" y="3" z="0.5"/><rgb name="intensity" value="7"/></emitter>
@@ -195,7 +191,7 @@ def test_closed_form_diffuse_plane_point_light(variant):
     dL/dI = ρ y/(π r³) and dL/dp = ρ I/π · (e_y/r³ − 3 y p/r⁵)."""
     import drjit as dr
     import mitsuba as mi
-    scene = mi.load_string(f'<scene version="3.0.0">{PLANE}</scene>')
+    scene = mi.load_string(scenes.scene(PLANE))
     rho, intensity = 0.6, 7.0
     p = np.array([1.0, 3.0, 0.5])
     r = np.linalg.norm(p)
@@ -319,8 +315,7 @@ def test_links1_quadric_materials_and_transparent_shadow(variant, tmp_path, key)
     shape, so mi.traverse names its BSDF under the integrator: ``links1_whitted.<id>.bsdf.*``."""
     import links1_mitsuba as lm
     path = tmp_path / "q.xml"
-    camera = CAMERA.format(depth=4, rfilter='<rfilter type="box"/>')
-    path.write_text(f'<scene version="3.0.0">{camera}{QUADRIC}</scene>')
+    path.write_text(scenes.scene(camera(4), QUADRIC))
     scene = lm.load_file(str(path))
     g = reverse_grad(scene, key)
     for c in range(3):

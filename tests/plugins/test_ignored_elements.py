@@ -11,21 +11,16 @@ import pytest
 
 from links1_app.renderers import make_renderer
 
+from tests.scenes import perspective, scene
+
 pytestmark = pytest.mark.mitsuba
 
-BASE = """<scene version="3.0.0">
-<sensor type="perspective"><float name="fov" value="40"/>
-  <transform name="to_world"><lookat origin="0, 1, 5" target="0, 0, 0" up="0, 1, 0"/></transform>
-  <sampler type="independent"><integer name="sample_count" value="1"/></sampler>
-  <film type="hdrfilm"><integer name="width" value="24"/><integer name="height" value="16"/>
-    <rfilter type="box"/></film></sensor>
+BASE = scene(perspective("0, 1, 5", "0, 0, 0", fov=40, width=24, height=16), """
 <emitter type="directional"><vector name="direction" x="-0.3" y="-1" z="-0.4"/><rgb name="irradiance" value="2"/></emitter>
 <shape type="sphere"><bsdf type="diffuse"><rgb name="reflectance" value="0.6, 0.4, 0.2"/></bsdf>{interior}</shape>
 <shape type="rectangle"><transform name="to_world"><scale value="4"/><rotate x="1" angle="-90"/>
   <translate y="-1"/></transform></shape>
-{extra}
-</scene>
-"""
+{extra}""")
 
 MEDIUM = ('<medium type="homogeneous" name="interior"><rgb name="albedo" value="0.5"/>'
           '<float name="sigma_t" value="1"/></medium>')

@@ -14,19 +14,16 @@ from links1_app.cli import main
 from links1.imaging.image import read_exr
 from links1_app.renderers import make_renderer
 
-SCENE = """<scene version="3.0.0">
-  <integrator type="links1_whitted"><integer name="max_depth" value="3"/>{params}</integrator>
-  <sensor type="perspective"><float name="fov" value="50"/>
-    <transform name="to_world"><lookat origin="0, 2, 5" target="0, 0.5, 0" up="0, 1, 0"/></transform>
-    <film type="hdrfilm"><integer name="width" value="32"/><integer name="height" value="24"/>
-      <rfilter type="box"/></film></sensor>
+from tests.scenes import perspective, scene
+
+SCENE = scene('<integrator type="links1_whitted"><integer name="max_depth" value="3"/>{params}</integrator>',
+              perspective("0, 2, 5", "0, 0.5, 0", fov=50, width=32, height=24, spp=None), """
   <shape type="rectangle"><transform name="to_world"><scale value="0.6"/><rotate x="1" angle="90"/>
       <translate y="3"/></transform><emitter type="area"><rgb name="radiance" value="8"/></emitter></shape>
   <shape type="rectangle"><transform name="to_world"><scale value="5"/><rotate x="1" angle="-90"/></transform>
     <bsdf type="diffuse"><rgb name="reflectance" value="0.6"/></bsdf></shape>
   <shape type="sphere"><transform name="to_world"><translate y="0.8"/></transform>
-    <bsdf type="links1_phong"><rgb name="diffuse" value="0.5"/><rgb name="reflectance" value="0.003"/></bsdf></shape>
-</scene>"""
+    <bsdf type="links1_phong"><rgb name="diffuse" value="0.5"/><rgb name="reflectance" value="0.003"/></bsdf></shape>""")
 PARAMS = '<integer name="light_samples" value="8"/><float name="min_weight" value="0"/>'
 
 

@@ -9,6 +9,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from tests.scenes import perspective, scene, whitted
+
 pytestmark = pytest.mark.mitsuba
 
 LIGHT = (0.7, 2.2, 0.4)
@@ -38,13 +40,7 @@ def _scene(n, transparent=False, seed=11):
                       f'<bsdf type="links1_phong"><rgb name="diffuse" value="0.6, 0.5, 0.4"/>'
                       f'<rgb name="reflectance" value="{0.3 if i % 4 == 0 else 0}"/>'
                       f'<rgb name="transmittance" value="{t}"/><float name="ior" value="1"/></bsdf></shape>')
-    return f"""<scene version="3.0.0">
-  <integrator type="links1_whitted"><integer name="max_depth" value="2"/></integrator>
-  <sensor type="perspective"><float name="fov" value="55"/>
-    <transform name="to_world"><lookat origin="0,7,10" target="0,0.5,0" up="0,1,0"/></transform>
-    <film type="hdrfilm"><integer name="width" value="64"/><integer name="height" value="48"/>
-    <rfilter type="box"/></film>
-  </sensor>
+    return scene(whitted(2), perspective("0,7,10", "0,0.5,0", fov=55, width=64, height=48, spp=None), f"""
   <emitter type="point"><point name="position" value="{LIGHT[0]},{LIGHT[1]},{LIGHT[2]}"/>
     <rgb name="intensity" value="20"/></emitter>
   <emitter type="point"><point name="position" value="-3,6,5"/><rgb name="intensity" value="60"/></emitter>
@@ -53,8 +49,7 @@ def _scene(n, transparent=False, seed=11):
   <emitter type="directional"><vector name="direction" value="-1,-2,-0.7"/><rgb name="irradiance" value="0.5"/></emitter>
   <shape type="rectangle"><transform name="to_world"><rotate x="1" angle="-90"/><scale value="8"/></transform>
     <bsdf type="links1_phong"><rgb name="diffuse" value="0.5"/></bsdf></shape>
-  {''.join(shapes)}
-</scene>"""
+  {''.join(shapes)}""")
 
 
 def _prepared(xml):

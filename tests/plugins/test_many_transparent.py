@@ -10,6 +10,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from tests.scenes import perspective, scene, whitted
+
 KD, E, T_SPHERE = 0.8, 1.0, 0.5
 PANES = [0.99 - 0.002 * (k % 7) for k in range(70)]
 EXPECTED = KD * E * np.sqrt(0.5) * T_SPHERE * np.prod(PANES)
@@ -24,17 +26,12 @@ def _scene():
     panes = "".join(f'<shape type="rectangle"><transform name="to_world"><scale x="0.5" y="2" z="1"/>'
                     f'<translate x="{1 + 0.5 * k}" y="0" z="{1 + 0.5 * k}"/></transform>{_phong(t)}</shape>'
                     for k, t in enumerate(PANES))
-    return f"""<scene version="3.0.0">
-  <sensor type="perspective"><float name="fov" value="0.4"/>
-    <transform name="to_world"><lookat origin="0, 0, 100" target="0, 0, 0" up="0, 1, 0"/></transform>
-    <film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="8"/><rfilter type="box"/></film></sensor>
-  <integrator type="links1_whitted"><integer name="max_depth" value="1"/></integrator>
+    return scene(perspective("0, 0, 100", "0, 0, 0", fov=0.4, width=8, spp=None), whitted(1), f"""
   <shape type="rectangle"><transform name="to_world"><scale value="2"/></transform>
     <bsdf type="links1_phong"><rgb name="ambient" value="0"/><rgb name="diffuse" value="{KD}"/></bsdf></shape>
   {panes}
   <shape type="sphere"><point name="center" x="45" y="0" z="45"/><float name="radius" value="0.8"/>{_phong(T_SPHERE)}</shape>
-  <emitter type="directional"><vector name="direction" x="-1" y="0" z="-1"/><rgb name="irradiance" value="{E}"/></emitter>
-</scene>"""
+  <emitter type="directional"><vector name="direction" x="-1" y="0" z="-1"/><rgb name="irradiance" value="{E}"/></emitter>""")
 
 
 def test_core():

@@ -13,6 +13,8 @@ import pytest
 from links1.geometry import meshes
 from links1_app.renderers import make_renderer
 
+from tests import scenes
+
 from .conftest import assert_matches_mitsuba_direct
 
 PLY = """ply
@@ -37,16 +39,11 @@ end_header
 3 0 1 2 0.8 0.4 0.1
 3 0 2 3 0.1 0.4 0.8
 """
-SCENE = """<scene version="3.0.0">
-  <sensor type="perspective"><float name="fov" value="45"/>
-    <transform name="to_world"><lookat origin="0, 0, 4" target="0, 0, 0" up="0, 1, 0"/></transform>
-    <film type="hdrfilm"><integer name="width" value="40"/><integer name="height" value="40"/>
-      <rfilter type="box"/></film></sensor>
+SCENE = scenes.scene(scenes.perspective("0, 0, 4", "0, 0, 0", fov=45, width=40, spp=None), """
   <emitter type="directional"><vector name="direction" value="0, 0, -1"/><rgb name="irradiance" value="3"/></emitter>
   <shape type="ply"><string name="filename" value="quad.ply"/>
     <bsdf type="diffuse"><texture name="reflectance" type="mesh_attribute">
-      <string name="name" value="{attr}"/></texture></bsdf></shape>
-</scene>"""
+      <string name="name" value="{attr}"/></texture></bsdf></shape>""")
 
 
 @pytest.fixture(params=["vertex_color", "face_color"])

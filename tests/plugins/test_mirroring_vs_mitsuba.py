@@ -13,19 +13,15 @@ import pytest
 
 from tests.plugins.test_textured_emitters_vs_mitsuba import assert_core_converges_to_direct
 
+from tests.scenes import integrator, perspective, scene
+
 pytestmark = pytest.mark.mitsuba
 
-SCENE = """<scene version="3.0.0">
-  <integrator type="direct"/>
-  <sensor type="perspective"><float name="fov" value="45"/>
-    <transform name="to_world"><lookat origin="0, 4, 4.5" target="0, 0.3, 0" up="0, 1, 0"/></transform>
-    <sampler type="independent"><integer name="sample_count" value="4"/></sampler>
-    <film type="hdrfilm"><integer name="width" value="32"/><integer name="height" value="32"/><rfilter type="box"/></film></sensor>
+SCENE = scene(integrator("direct"), perspective("0, 4, 4.5", "0, 0.3, 0", fov=45, width=32, spp=4), """
   <shape type="sphere"><point name="center" value="0.6, 0.5, 0.4"/><float name="radius" value="0.5"/>
     <bsdf type="diffuse"><rgb name="reflectance" value="0.3, 0.5, 0.8"/></bsdf></shape>
   {floor}
-  {light}
-</scene>"""
+  {light}""")
 
 FLOOR = ('<shape type="rectangle"><transform name="to_world"><scale value="3"/><rotate x="1" angle="-90"/></transform>'
          '<bsdf type="diffuse"><rgb name="reflectance" value="0.7, 0.6, 0.5"/></bsdf></shape>')

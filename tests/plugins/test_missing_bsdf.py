@@ -16,6 +16,8 @@ import warnings
 import numpy as np
 import pytest
 
+from tests.scenes import perspective, scene, whitted
+
 pytestmark = pytest.mark.mitsuba
 
 RES = 48
@@ -41,15 +43,9 @@ def _scene(n_quadrics: int, explicit_default: bool) -> str:
     parts.append(f'<shape type="rectangle"><transform name="to_world"><scale value="6"/><rotate x="1" angle="-90"/>'
                  f'</transform>{none}</shape>')
     parts.append(f'<shape type="sphere"><point name="center" x="0.8" y="1.6" z="0"/><float name="radius" value="0.4"/>{PHONG}</shape>')
-    return f"""<scene version="3.0.0">
-  <integrator type="links1_whitted"><integer name="max_depth" value="3"/></integrator>
-  <sensor type="perspective"><float name="fov" value="60"/>
-    <transform name="to_world"><lookat origin="0, 4, 7" target="0, 0.5, -1" up="0, 1, 0"/></transform>
-    <film type="hdrfilm"><integer name="width" value="{RES}"/><integer name="height" value="{RES}"/>
-      <rfilter type="box"/></film></sensor>
+    return scene(whitted(3), perspective("0, 4, 7", "0, 0.5, -1", fov=60, width=RES, spp=None), f"""
   <emitter type="links1_point"><point name="position" x="2" y="6" z="4"/><rgb name="L1" value="1"/></emitter>
-  {''.join(parts)}
-</scene>"""
+  {''.join(parts)}""")
 
 
 def _render_both(path):

@@ -16,6 +16,8 @@ import pytest
 
 from links1_app.renderers import make_renderer
 
+from tests.scenes import perspective, scene
+
 from .conftest import assert_both_match_mitsuba_direct
 from .test_glossy_bsdfs_vs_mitsuba import check_against_mitsuba
 
@@ -155,17 +157,12 @@ def test_pplastic_matches_mitsubas_rgb_eval(case, variant):
     check_against_mitsuba(PPLASTIC[case], lambda viewer, light: (viewer[:, 2] > 0) & (light[:, 2] > 0))
 
 
-SCENE = """<scene version="3.0.0">
-  <sensor type="perspective"><float name="fov" value="40"/>
-    <transform name="to_world"><lookat origin="0, 2.5, 6" target="0, 0.5, 0" up="0, 1, 0"/></transform>
-    <film type="hdrfilm"><integer name="width" value="48"/><integer name="height" value="36"/>
-      <rfilter type="box"/></film></sensor>
+SCENE = scene(perspective("0, 2.5, 6", "0, 0.5, 0", fov=40, width=48, height=36, spp=None), """
   <emitter type="point"><point name="position" x="1.5" y="4" z="3"/><rgb name="intensity" value="30, 28, 25"/></emitter>
   <shape type="rectangle"><transform name="to_world"><scale value="3"/><rotate x="1" angle="-90"/></transform>
     {floor}</shape>
   <shape type="sphere"><point name="center" x="-1.1" y="0.8" z="0"/><float name="radius" value="0.8"/>{left}</shape>
-  <shape type="sphere"><point name="center" x="1.0" y="0.8" z="0"/><float name="radius" value="0.8"/>{right}</shape>
-</scene>"""
+  <shape type="sphere"><point name="center" x="1.0" y="0.8" z="0"/><float name="radius" value="0.8"/>{right}</shape>""")
 
 
 def _render(kind, path, spp):

@@ -20,6 +20,8 @@ import re
 import numpy as np
 import pytest
 
+from tests.scenes import perspective, whitted
+
 pytestmark = pytest.mark.mitsuba
 
 CENTRES = np.array([[-0.625, 1.375, 0, 1, 0.75], [0.5, 1.5, 0.2, 1, 0.6], [0, 2.0, -0.2, 0.8, 0.6],
@@ -28,12 +30,8 @@ CENTRES = np.array([[-0.625, 1.375, 0, 1, 0.75], [0.5, 1.5, 0.2, 1, 0.6], [0, 2.
 
 def head(max_depth, origin, target, w, h):
     """The scenes' start: the integrator, a camera (spp 1, box filter) and a floor."""
-    return f"""<scene version="3.0.0">
-  <integrator type="links1_whitted"><integer name="max_depth" value="{max_depth}"/></integrator>
-  <sensor type="perspective"><float name="fov" value="40"/>
-    <transform name="to_world"><lookat origin="{origin}" target="{target}" up="0, 1, 0"/></transform>
-    <film type="hdrfilm"><integer name="width" value="{w}"/><integer name="height" value="{h}"/><rfilter type="box"/></film>
-    <sampler type="independent"><integer name="sample_count" value="1"/></sampler></sensor>
+    camera = perspective(origin, target, fov=40, width=w, height=h)
+    return '<scene version="3.0.0">' + whitted(max_depth) + camera + """
   <shape type="rectangle" id="floor"><transform name="to_world"><scale value="5"/><rotate x="1" angle="-90"/></transform>
     <bsdf type="links1_phong"><rgb name="diffuse" value="0.6, 0.5, 0.4"/></bsdf></shape>"""
 

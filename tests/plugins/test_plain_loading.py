@@ -18,6 +18,8 @@ import pytest
 
 from tests.plugins.conftest import SCENES, use_variant
 
+from tests.scenes import perspective, scene, whitted
+
 pytestmark = pytest.mark.mitsuba
 
 SPP = 1
@@ -60,12 +62,7 @@ def test_mi_load_file_equals_the_loader(name):
 #: a Cornell-box-like room without a single id: red and green walls, a grey floor, two spheres
 #: of different colours, a point light. With ids missing, matching BSDFs by id gave every shape
 #: one material.
-NO_IDS = """<scene version="3.0.0">
-  <sensor type="perspective"><float name="fov" value="45"/>
-    <transform name="to_world"><lookat origin="0, 1, 3.6" target="0, 1, 0" up="0, 1, 0"/></transform>
-    <sampler type="independent"><integer name="sample_count" value="1"/></sampler>
-    <film type="hdrfilm"><integer name="width" value="40"/><integer name="height" value="40"/>
-      <rfilter type="box"/></film></sensor>
+NO_IDS = scene(perspective("0, 1, 3.6", "0, 1, 0", fov=45, width=40), """
   <shape type="rectangle"><transform name="to_world"><rotate x="1" angle="-90"/></transform>
     <bsdf type="diffuse"><rgb name="reflectance" value="0.7, 0.7, 0.7"/></bsdf></shape>
   <shape type="rectangle"><transform name="to_world"><rotate y="1" angle="90"/><translate x="-1" y="1"/></transform>
@@ -78,8 +75,7 @@ NO_IDS = """<scene version="3.0.0">
     <bsdf type="diffuse"><rgb name="reflectance" value="0.9, 0.6, 0.1"/></bsdf></shape>
   <shape type="sphere"><point name="center" x="0.45" y="0.3" z="0.2"/><float name="radius" value="0.3"/>
     <bsdf type="diffuse"><rgb name="reflectance" value="0.1, 0.3, 0.9"/></bsdf></shape>
-  <emitter type="point"><point name="position" x="0" y="1.8" z="0.5"/><rgb name="intensity" value="3"/></emitter>
-</scene>"""
+  <emitter type="point"><point name="position" x="0" y="1.8" z="0.5"/><rgb name="intensity" value="3"/></emitter>""")
 
 
 def _rel_mse(a, b):
@@ -108,13 +104,7 @@ def test_shapes_without_ids_keep_their_own_materials():
     assert left[0] > 4 * left[1] and right[1] > 4 * right[0], (left, right)
 
 
-QUADRIC_XML = """<scene version="3.0.0">
-  <sensor type="perspective"><float name="fov" value="40"/>
-    <transform name="to_world"><lookat origin="0, 1, 5" target="0, 0.5, 0" up="0, 1, 0"/></transform>
-    <sampler type="independent"><integer name="sample_count" value="1"/></sampler>
-    <film type="hdrfilm"><integer name="width" value="32"/><integer name="height" value="24"/>
-      <rfilter type="box"/></film></sensor>
-  <integrator type="links1_whitted"><integer name="max_depth" value="2"/></integrator>
+QUADRIC_XML = scene(perspective("0, 1, 5", "0, 0.5, 0", fov=40, width=32, height=24), whitted(2), """
   <shape type="rectangle"><transform name="to_world"><scale value="4"/><rotate x="1" angle="-90"/></transform>
     <bsdf type="diffuse"><rgb name="reflectance" value="0.6, 0.6, 0.6"/></bsdf></shape>
   <shape type="links1_quadric"><string name="kind" value="sphere"/>
@@ -123,8 +113,7 @@ QUADRIC_XML = """<scene version="3.0.0">
   <shape type="links1_blob"><string name="centers" value="0.6 0.5 0 1 0.5, 1.1 0.5 0 1 0.5"/>
     <float name="threshold" value="0.5"/>
     <bsdf type="diffuse"><rgb name="reflectance" value="0.1, 0.4, 0.9"/></bsdf></shape>
-  <emitter type="links1_point"><point name="position" x="1" y="3" z="2"/><rgb name="L1" value="6"/></emitter>
-</scene>"""
+  <emitter type="links1_point"><point name="position" x="1" y="3" z="2"/><rgb name="L1" value="6"/></emitter>""")
 
 
 def test_links1_shapes_from_mi_load_string_and_load_dict():
@@ -189,12 +178,7 @@ def test_an_emitter_inside_a_proxy_is_refused_in_one_line():
         mi.load_string(xml)
 
 
-INSTANCES = """<scene version="3.0.0">
-  <sensor type="perspective"><float name="fov" value="45"/>
-    <transform name="to_world"><lookat origin="0, 2.2, 4.5" target="0, 0.4, 0" up="0, 1, 0"/></transform>
-    <sampler type="independent"><integer name="sample_count" value="1"/></sampler>
-    <film type="hdrfilm"><integer name="width" value="40"/><integer name="height" value="30"/>
-      <rfilter type="box"/></film></sensor>
+INSTANCES = scene(perspective("0, 2.2, 4.5", "0, 0.4, 0", fov=45, width=40, height=30), """
   <shape type="rectangle"><transform name="to_world"><scale value="4"/><rotate x="1" angle="-90"/></transform>
     <bsdf type="diffuse"><rgb name="reflectance" value="0.6, 0.6, 0.6"/></bsdf></shape>
   <shape type="shapegroup" id="pair">
@@ -205,8 +189,7 @@ INSTANCES = """<scene version="3.0.0">
   </shape>
   <shape type="instance"><ref id="pair"/><transform name="to_world"><translate x="-1.2"/></transform></shape>
   <shape type="instance"><ref id="pair"/><transform name="to_world"><rotate y="1" angle="40"/><translate x="0.5" z="-0.5"/></transform></shape>
-  <emitter type="point"><point name="position" x="1" y="3" z="2"/><rgb name="intensity" value="10"/></emitter>
-</scene>"""
+  <emitter type="point"><point name="position" x="1" y="3" z="2"/><rgb name="intensity" value="10"/></emitter>""")
 
 
 def test_instances_from_mi_load_string():

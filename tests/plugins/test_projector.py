@@ -19,6 +19,8 @@ import pytest
 
 from links1_app.renderers import make_renderer
 
+from tests import scenes
+
 from .conftest import assert_both_match_mitsuba_direct, mitsuba_direct
 
 pytestmark = pytest.mark.mitsuba
@@ -27,19 +29,15 @@ W = H = 40
 CELLS = np.array([[[1.0, 0.2, 0.1], [0.3, 0.9, 0.2], [0.1, 0.2, 1.0], [0.8, 0.8, 0.1], [0.4, 0.1, 0.6]],
                   [[0.2, 0.5, 0.9], [0.9, 0.9, 0.9], [0.6, 0.3, 0.2], [0.1, 0.7, 0.7], [1.0, 0.5, 0.0]],
                   [[0.5, 0.5, 0.5], [0.0, 0.3, 0.6], [0.7, 0.1, 0.3], [0.2, 0.2, 0.9], [0.6, 0.9, 0.3]]])
-SCENE = """<scene version="3.0.0">
-  <integrator type="direct"><integer name="bsdf_samples" value="0"/></integrator>
-  <sensor type="perspective"><float name="fov" value="50"/>
-    <transform name="to_world"><lookat origin="0, 4, 0.01" target="0, 0, 0" up="0, 0, -1"/></transform>
-    <film type="hdrfilm"><integer name="width" value="{W}"/><integer name="height" value="{H}"/>
-      <rfilter type="box"/></film></sensor>
+SCENE = scenes.scene(scenes.integrator("direct", bsdf_samples=0),
+                     scenes.perspective("0, 4, 0.01", "0, 0, 0", up="0, 0, -1", fov=50, width=W, height=H,
+                                        spp=None), """
   <emitter type="projector"><float name="fov" value="50"/><float name="scale" value="2"/>
     <texture name="irradiance" type="bitmap"><string name="filename" value="{image}"/>
       <string name="filter_type" value="nearest"/></texture>
     <transform name="to_world"><lookat origin="0, 3, 0" target="0, 0, 0" up="0, 0, 1"/></transform></emitter>
   <shape type="rectangle"><transform name="to_world"><scale value="5"/><rotate x="1" angle="-90"/></transform>
-    <bsdf type="diffuse"><rgb name="reflectance" value="0.8"/></bsdf></shape>
-</scene>"""
+    <bsdf type="diffuse"><rgb name="reflectance" value="0.8"/></bsdf></shape>""")
 
 
 @pytest.fixture

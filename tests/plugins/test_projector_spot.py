@@ -12,23 +12,20 @@ import pytest
 
 from links1_app.renderers import make_renderer
 
+from tests.scenes import perspective, scene
+
 from .conftest import assert_matches_mitsuba_direct
 
 pytestmark = pytest.mark.mitsuba
 
 W = H = 40
-SCENE = """<scene version="3.0.0">
-  <sensor type="perspective"><float name="fov" value="50"/>
-    <transform name="to_world"><lookat origin="0, 4, 0.01" target="0, 0, 0" up="0, 0, -1"/></transform>
-    <film type="hdrfilm"><integer name="width" value="{W}"/><integer name="height" value="{H}"/>
-      <rfilter type="box"/></film></sensor>
+SCENE = scene(perspective("0, 4, 0.01", "0, 0, 0", up="0, 0, -1", fov=50, width=W, height=H, spp=None), """
   <emitter type="spot"><rgb name="intensity" value="20"/><float name="cutoff_angle" value="30"/>
     <float name="beam_width" value="29"/>
     {texture}
     <transform name="to_world"><lookat origin="0, 3, 0" target="0, 0, 0" up="0, 0, 1"/></transform></emitter>
   <shape type="rectangle"><transform name="to_world"><scale value="5"/><rotate x="1" angle="-90"/></transform>
-    <bsdf type="diffuse"><rgb name="reflectance" value="0.8"/></bsdf></shape>
-</scene>"""
+    <bsdf type="diffuse"><rgb name="reflectance" value="0.8"/></bsdf></shape>""")
 CHECKER = """<texture name="texture" type="checkerboard"><rgb name="color0" value="1"/>
       <rgb name="color1" value="0.1"/><transform name="to_uv"><scale value="4"/></transform></texture>"""
 

@@ -6,6 +6,8 @@ import os
 import numpy as np
 import pytest
 
+from tests.scenes import perspective, scene, whitted
+
 from .conftest import ROOT, SCENES
 
 pytestmark = pytest.mark.mitsuba
@@ -130,15 +132,9 @@ def test_min_weight_default_matches_core():
     assert CORE == PLUG == 1.0 / 255.0
 
 
-ONE_SPHERE = """<scene version="3.0.0">
-  <integrator type="links1_whitted"><integer name="max_depth" value="3"/></integrator>
-  <sensor type="perspective"><float name="fov" value="40"/>
-    <transform name="to_world"><lookat origin="0,0,5" target="0,0,0" up="0,1,0"/></transform>
-    <film type="hdrfilm"><integer name="width" value="16"/><integer name="height" value="16"/></film>
-  </sensor>
+ONE_SPHERE = scene(whitted(3), perspective("0,0,5", "0,0,0", fov=40, width=16, spp=None, rfilter=None), """
   <emitter type="point"><point name="position" value="2,2,4"/><rgb name="intensity" value="10"/></emitter>
-  <shape type="sphere"><bsdf type="diffuse"/></shape>
-</scene>"""
+  <shape type="sphere"><bsdf type="diffuse"/></shape>""")
 
 
 def test_ray_counters_and_skips(variant):

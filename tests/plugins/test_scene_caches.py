@@ -6,20 +6,17 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from tests.scenes import perspective, scene
+
 pytestmark = pytest.mark.mitsuba
 
-XML = """<scene version="3.0.0">
- <sensor type="perspective"><float name="fov" value="45"/>
-  <transform name="to_world"><lookat origin="0, 3, 6" target="0, 0.5, 0" up="0, 1, 0"/></transform>
-  <film type="hdrfilm"><integer name="width" value="24"/><integer name="height" value="24"/><rfilter type="box"/></film>
- </sensor>
+XML = scene(perspective("0, 3, 6", "0, 0.5, 0", fov=45, width=24, spp=None), """
  <integrator type="links1_whitted"/>
  <shape type="rectangle" id="floor"><transform name="to_world"><scale value="4"/><rotate x="1" angle="-90"/></transform>
   <bsdf type="diffuse"/></shape>
  <shape type="sphere" id="ball"><point name="center" x="BX" y="1" z="0"/><float name="radius" value="0.6"/>
   <bsdf type="links1_phong"><rgb name="ambient" value="0.05"/><rgb name="diffuse" value="0.6"/></bsdf></shape>
- <emitter type="point" id="lamp"><point name="position" x="LX" y="5" z="1"/><rgb name="intensity" value="20"/></emitter>
-</scene>"""
+ <emitter type="point" id="lamp"><point name="position" x="LX" y="5" z="1"/><rgb name="intensity" value="20"/></emitter>""")
 
 
 def _scene(variant, lx=0.0, bx=0.0):

@@ -21,6 +21,8 @@ from links1_app.renderers import make_renderer
 from links1.geometry.curves import RoundBSplineCurves, RoundLinearCurves, read_curves
 from links1.geometry.sdfgrid import SDFGrid, read_vol
 
+from tests.scenes import integrator, perspective, scene
+
 from .conftest import assert_both_match_mitsuba_direct
 
 pytestmark = pytest.mark.mitsuba
@@ -140,12 +142,8 @@ def test_curve_hits_match_mitsuba(files, llvm, plugin):
         assert np.any((uv[:, 1] == 0.0) | (uv[:, 1] == 2 / 5))
 
 
-SCENE = """<scene version="3.0.0">
-  <integrator type="direct"><integer name="bsdf_samples" value="0"/></integrator>
-  <sensor type="perspective"><float name="fov" value="45"/>
-    <transform name="to_world"><lookat origin="0.4, 2.5, 4.5" target="0.3, 0.3, 0" up="0, 1, 0"/></transform>
-    <film type="hdrfilm"><integer name="width" value="48"/><integer name="height" value="40"/>
-      <rfilter type="box"/></film></sensor>
+SCENE = scene(integrator("direct", bsdf_samples=0),
+              perspective("0.4, 2.5, 4.5", "0.3, 0.3, 0", fov=45, width=48, height=40, spp=None), """
   <emitter type="point"><point name="position" x="2" y="4" z="3"/><rgb name="intensity" value="30"/></emitter>
   <shape type="rectangle"><transform name="to_world"><scale value="4"/><rotate x="1" angle="-90"/>
     <translate y="-1.2"/></transform>
@@ -158,8 +156,7 @@ SCENE = """<scene version="3.0.0">
     <bsdf type="diffuse"><rgb name="reflectance" value="0.2, 0.5, 0.8"/></bsdf></shape>
   <shape type="bsplinecurve"><string name="filename" value="{bsplines}"/>
     <transform name="to_world"><scale value="0.6"/><translate x="1.2" y="0.9" z="-0.4"/></transform>
-    <bsdf type="diffuse"><rgb name="reflectance" value="0.8, 0.7, 0.2"/></bsdf></shape>
-</scene>"""
+    <bsdf type="diffuse"><rgb name="reflectance" value="0.8, 0.7, 0.2"/></bsdf></shape>""")
 
 
 def _render(kind, path, spp):

@@ -8,6 +8,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from tests.scenes import perspective, scene, whitted
+
 from .conftest import use_variant, variant_marks
 
 pytestmark = pytest.mark.mitsuba
@@ -27,13 +29,7 @@ def _xml(cube=True):
     box = ('<shape type="cube"><transform name="to_world"><scale value="0.5"/><rotate y="1" angle="30"/>'
            '<translate x="0.5" y="0.5" z="-2.5"/></transform>'
            '<bsdf type="links1_phong"><rgb name="diffuse" value="0.5"/></bsdf></shape>') if cube else ""
-    return f"""<scene version="3.0.0">
-  <integrator type="links1_whitted"><integer name="max_depth" value="3"/></integrator>
-  <sensor type="perspective"><float name="fov" value="50"/>
-    <transform name="to_world"><lookat origin="0,4,9" target="0,0.8,0" up="0,1,0"/></transform>
-    <film type="hdrfilm"><integer name="width" value="48"/><integer name="height" value="36"/>
-    <rfilter type="box"/></film>
-  </sensor>
+    return scene(whitted(3), perspective("0,4,9", "0,0.8,0", fov=50, width=48, height=36, spp=None), f"""
   <emitter type="point"><point name="position" value="-2,5,3"/><rgb name="intensity" value="40"/></emitter>
   <emitter type="directional"><vector name="direction" value="0.5,-1,-0.3"/><rgb name="irradiance" value="0.6"/></emitter>
   <emitter type="constant"><rgb name="radiance" value="0.2"/></emitter>
@@ -41,8 +37,7 @@ def _xml(cube=True):
     <bsdf type="links1_phong"><rgb name="diffuse" value="0.6"/></bsdf></shape>
   <shape type="rectangle"><transform name="to_world"><rotate y="1" angle="-90"/><scale value="6"/>
     <translate x="{WALL_X}"/></transform><bsdf type="links1_phong"><rgb name="diffuse" value="0.4"/></bsdf></shape>
-  {box}{glass}
-</scene>"""
+  {box}{glass}""")
 
 
 def _prepared(xml):

@@ -13,18 +13,14 @@ import pytest
 
 from links1.imaging.image import write_exr
 
+from tests.scenes import integrator, perspective, scene
+
 pytestmark = pytest.mark.mitsuba
 
-SCENE = """<scene version="3.0.0">
-  <integrator type="direct"/>
-  <sensor type="perspective"><float name="fov" value="50"/>
-    <transform name="to_world"><lookat origin="0, 2.5, 5" target="0, 1.0, 0" up="0, 1, 0"/></transform>
-    <sampler type="independent"><integer name="sample_count" value="4"/></sampler>
-    <film type="hdrfilm"><integer name="width" value="32"/><integer name="height" value="32"/><rfilter type="box"/></film></sensor>
+SCENE = scene(integrator("direct"), perspective("0, 2.5, 5", "0, 1.0, 0", fov=50, width=32, spp=4), """
   <shape type="rectangle"><transform name="to_world"><scale value="4"/><rotate x="1" angle="-90"/></transform>
     <bsdf type="diffuse"><rgb name="reflectance" value="0.7, 0.6, 0.5"/></bsdf></shape>
-  {shape}<emitter type="area">{texture}</emitter></shape>
-</scene>"""
+  {shape}<emitter type="area">{texture}</emitter></shape>""")
 
 BITMAP = '<texture type="bitmap" name="radiance"><string name="filename" value="em.exr"/></texture>'
 CHECKER = ('<texture type="checkerboard" name="radiance"><rgb name="color0" value="1, 0.3, 0.2"/>'

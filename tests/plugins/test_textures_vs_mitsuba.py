@@ -17,6 +17,8 @@ from links1.geometry import meshes
 from links1.shading import textures
 from links1.imaging.image import write_exr
 
+from tests.scenes import integrator, perspective, scene, whitted
+
 pytestmark = pytest.mark.mitsuba
 
 RES = 48
@@ -60,18 +62,13 @@ def make_files(d):
     return d
 
 
-def scene_xml(body, integrator="", spp=1):
-    return f"""<scene version="3.0.0">
-  <sensor type="perspective"><float name="fov" value="45"/>
-    <transform name="to_world"><lookat origin="0, 3.5, 7" target="0, 0.6, 0" up="0, 1, 0"/></transform>
-    <sampler type="independent"><integer name="sample_count" value="{spp}"/></sampler>
-    <film type="hdrfilm"><integer name="width" value="{RES}"/><integer name="height" value="{RES}"/>
-      <rfilter type="box"/></film></sensor>
-  {integrator}
-  <emitter type="point"><point name="position" x="1" y="5" z="4"/><rgb name="intensity" value="40"/></emitter>
-  <emitter type="directional"><vector name="direction" x="0.3" y="-1" z="-0.4"/><rgb name="irradiance" value="0.7"/></emitter>
-  {body}
-</scene>"""
+def scene_xml(body):
+    """The scene around ``body`` without an integrator: :func:`plugin` and :func:`mitsuba` put one in."""
+    return scene(perspective("0, 3.5, 7", "0, 0.6, 0", fov=45, width=RES),
+                 '<emitter type="point"><point name="position" x="1" y="5" z="4"/>'
+                 '<rgb name="intensity" value="40"/></emitter>',
+                 '<emitter type="directional"><vector name="direction" x="0.3" y="-1" z="-0.4"/>'
+                 '<rgb name="irradiance" value="0.7"/></emitter>', body)
 
 
 def checker(name, c0="0.8, 0.2, 0.1", c1="0.1, 0.3, 0.9", scale="4, 3"):
@@ -138,16 +135,14 @@ def core(xml, spp, max_depth):
 
 def plugin(xml, variant, spp, max_depth):
     from links1_mitsuba import load_string
-    sc = load_string(xml.replace("<emitter", f'<integrator type="links1_whitted"><integer '
-                                 f'name="max_depth" value="{max_depth}"/></integrator><emitter', 1),
-                     variant=variant)
+    sc = load_string(xml.replace("<emitter", whitted(max_depth) + "<emitter", 1), variant=variant)
     return sc.integrator().render_window(sc, None, spp=spp)
 
 
-def mitsuba(xml, variant, integrator, spp):
+def mitsuba(xml, variant, method, spp):
     import mitsuba as mi
     from links1_mitsuba import load_string
-    sc = load_string(xml.replace("<emitter", f"{integrator}<emitter", 1), links1_integrator="scene",
+    sc = load_string(xml.replace("<emitter", f"{method}<emitter", 1), links1_integrator="scene",
                      variant=variant)
     return np.array(mi.render(sc, spp=spp), dtype=np.float64)[..., :3]
 
@@ -189,10 +184,10 @@ def test_textured_diffuse_scene_vs_direct(files, variant):
     xml = scene_xml(body_diffuse(files))
     spp = 64
     a = core(xml, spp=spp, max_depth=1)
-    ref = mitsuba(xml, variant, '<integrator type="direct"/>', spp=2048)
+    ref = mitsuba(xml, variant, integrator("direct"), spp=2048)
     own = mitsuba(xml.replace('<sampler type="independent">',
                               '<sampler type="independent"><integer name="seed" value="5"/>'),
-                  variant, '<integrator type="direct"/>', spp=spp)
+                  variant, integrator("direct"), spp=spp)
     err = rel_mse(a, ref)
     assert err < 1e-3 and err < 2.0 * rel_mse(own, ref), (err, rel_mse(own, ref))
     assert abs(a.mean() - ref.mean()) / ref.mean() < 5e-3
@@ -208,8 +203,7 @@ def test_textured_bsdf_parameters_vs_path(files, variant):
     a = core(xml, spp=16, max_depth=3)
     c = plugin(xml, variant, spp=16, max_depth=3)
     assert rel_mse(a, c) < 1e-5  # same samples (measured 6e-7)
-    b = mitsuba(xml, variant, '<integrator type="path"><integer name="max_depth" value="4"/>'
-                                    '</integrator>', spp=1024)
+    b = mitsuba(xml, variant, integrator("path", max_depth=4), spp=1024)
     # path adds the diffuse inter-reflections Whitted leaves out (measured 1.9e-3)
     assert rel_mse(a, b) < 5e-3
 

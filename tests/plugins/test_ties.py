@@ -7,6 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from tests.scenes import perspective, scene, whitted
+
 RED, GREEN = "1, 0, 0", "0, 1, 0"
 
 
@@ -19,13 +21,8 @@ def _scene(first, second, copies):
                            f'<transform name="to_world"><scale value="0.2"/><translate x="{x}" y="0" z="0"/></transform>'
                            f'<bsdf type="links1_phong"><rgb name="ambient" value="{colour}"/>'
                            f'<rgb name="diffuse" value="0"/></bsdf></shape>')
-    return f"""<scene version="3.0.0">
-  <sensor type="perspective"><float name="fov" value="60"/>
-    <transform name="to_world"><lookat origin="0, 0, 6" target="0, 0, 0" up="0, 1, 0"/></transform>
-    <film type="hdrfilm"><integer name="width" value="64"/><integer name="height" value="16"/><rfilter type="box"/></film></sensor>
-  <integrator type="links1_whitted"><integer name="max_depth" value="1"/></integrator>
-  {''.join(spheres)}
-</scene>"""
+    return scene(perspective("0, 0, 6", "0, 0, 0", fov=60, width=64, height=16, spp=None), whitted(1), f"""
+  {''.join(spheres)}""")
 
 
 def _check(img, first):

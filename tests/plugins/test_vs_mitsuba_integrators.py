@@ -15,36 +15,28 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from tests.scenes import integrator, perspective, scene, whitted as whitted_integrator
+
 pytestmark = pytest.mark.mitsuba
 
 RES = 32
 
 
-def scene_xml(body, integrator, spp=1, fov=40, eye="0, 2.5, 6", target="0, 0.7, 0"):
-    return f"""<scene version="3.0.0">
-  <sensor type="perspective"><float name="fov" value="{fov}"/>
-    <transform name="to_world"><lookat origin="{eye}" target="{target}" up="0, 1, 0"/></transform>
-    <sampler type="independent"><integer name="sample_count" value="{spp}"/></sampler>
-    <film type="hdrfilm"><integer name="width" value="{RES}"/><integer name="height" value="{RES}"/>
-      <rfilter type="box"/></film></sensor>
-  {integrator}
-  {body}
-</scene>"""
+def scene_xml(body, method, spp=1):
+    return scene(perspective("0, 2.5, 6", "0, 0.7, 0", fov=40, width=RES, spp=spp), method, body)
 
 
 def whitted(body, variant, max_depth, spp=1):
     from links1_mitsuba import load_string
-    sc = load_string(scene_xml(body, f'<integrator type="links1_whitted"><integer name="max_depth" '
-                                     f'value="{max_depth}"/></integrator>'), variant=variant)
+    sc = load_string(scene_xml(body, whitted_integrator(max_depth)), variant=variant)
     return sc.integrator().render_window(sc, None, spp=spp)
 
 
-def mitsuba(body, variant, integrator, max_depth, spp):
+def mitsuba(body, variant, kind, max_depth, spp):
     from links1_mitsuba import load_string
     import mitsuba as mi
-    sc = load_string(scene_xml(body, f'<integrator type="{integrator}"><integer name="max_depth" '
-                                     f'value="{max_depth}"/></integrator>' if integrator == "path" else
-                               f'<integrator type="{integrator}"/>', spp=spp),
+    sc = load_string(scene_xml(body, integrator(kind, max_depth=max_depth) if kind == "path" else
+                               integrator(kind), spp=spp),
                      links1_integrator="scene", variant=variant)
     return np.array(mi.render(sc, spp=spp), dtype=np.float64)[..., :3]
 

@@ -22,6 +22,8 @@ import pytest
 from links1.scene.loader import load_scene
 from links1_app.renderers import make_renderer
 
+from tests.scenes import perspective, scene, whitted
+
 KINDS = ["core", "mitsuba"]
 RES = 24
 
@@ -52,19 +54,8 @@ def renderer(kind, path, **kw):
 
 
 def scene_xml(body, eye, target, fov, up=(0, 1, 0), near=1e-2, far=1e4, res=RES, max_depth=5):
-    f = lambda v: ", ".join(repr(float(x)) for x in v)  # noqa: E731
-    return f"""<scene version="3.0.0">
-    <integrator type="links1_whitted"><integer name="max_depth" value="{max_depth}"/></integrator>
-    <sensor type="perspective">
-        <float name="fov" value="{fov!r}"/>
-        <float name="near_clip" value="{near!r}"/><float name="far_clip" value="{far!r}"/>
-        <transform name="to_world"><lookat origin="{f(eye)}" target="{f(target)}" up="{f(up)}"/></transform>
-        <sampler type="independent"><integer name="sample_count" value="1"/></sampler>
-        <film type="hdrfilm"><integer name="width" value="{res}"/><integer name="height" value="{res}"/>
-            <rfilter type="box"/></film>
-    </sensor>
-    {body}
-</scene>"""
+    camera = perspective(eye, target, fov=fov, up=up, near=near, far=far, width=res)
+    return scene(whitted(max_depth), camera, body)
 
 
 PHONG = """<bsdf type="links1_phong"><rgb name="ambient" value="0.1"/><rgb name="diffuse" value="0.6"/>
