@@ -20,7 +20,7 @@ from links1.shading.lights import (ENV_LIGHT_ID, ConeSpotLight, ConstantEnvironm
                            ParallelLight, PointLight)
 from links1.scene.xmlparse import SceneWarning, parse_string
 
-from tests.scenes import scene
+from tests.scenes import perspective, scene, whitted
 
 DATA = os.path.join(os.path.dirname(__file__), "data")
 
@@ -233,6 +233,21 @@ def test_camera_fields_crop_sampler_integrator():
     assert tuple(c.crop_offset) == (8, 4) and tuple(c.crop_size) == (16, 10)
     np.testing.assert_array_equal(c.origin, [1, 0, 0])
     assert (s.spp, s.max_depth, s.integrator) == (9, 7, "path")
+
+
+def test_the_tests_scene_helper_writes_what_it_is_given():
+    """tests/scenes.py, which most tests write their scenes with: each argument reaches the
+    loaded scene, and ``None`` leaves Mitsuba's default (4 spp, the gaussian filter)."""
+    s = load(whitted(3, min_weight=0.0) + perspective([1, 2, 3], "1, 2, 0", fov=30, width=20, height=10, spp=7,
+                                                      rfilter="tent", near=0.5, far=50))
+    c = s.camera
+    assert (c.width, c.height, c.near_clip, c.far_clip, c.rfilter.name) == (20, 10, 0.5, 50.0, "tent")
+    assert c.fov_x == pytest.approx(30.0, rel=1e-14)
+    np.testing.assert_array_equal(c.origin, [1, 2, 3])
+    np.testing.assert_allclose(c.to_world[:3, 2], [0, 0, -1], atol=1e-15)  # toward the target
+    assert (s.spp, s.max_depth, s.integrator) == (7, 3, "links1_whitted")
+    d = load(perspective("0, 0, 5", "0, 0, 0", spp=None, rfilter=None))
+    assert (d.spp, d.camera.rfilter.name, d.camera.width, d.camera.height) == (4, "gaussian", 24, 24)
 
 
 def test_defaults_without_sensor_follow_mitsuba():
