@@ -1,6 +1,6 @@
 """Every corpus scene in both renderers against Mitsuba's sampling restricted to Whitted's paths.
 
-    python -m compare.corpus [--width 128] [--spp 4] [--ref-factor 16] [--only ID ...]
+    python -m compare.corpus [--width 128] [--spp 4] [--seeds 16] [--ref-factor 16] [--only ID ...]
                              [--timeout 300] [--variant llvm_ad_rgb] [--stem corpus] [--update]
 
 Scenes: every entry of ``tests/corpus/manifest.py`` whose files are here (the ones that cannot
@@ -14,16 +14,21 @@ by plain ``mi.load_file``, at links1's ``max_depth`` for the file (its integrato
 plus one (Mitsuba counts the emitter's vertex). Per scene, in a process of its own (a crash or a hang costs one row):
 
 * ``ref``: the reference at ``spp x ref-factor`` (seed 1): the image everything is judged by;
-* ``mitsuba``: the reference at ``spp`` (seed 2): Mitsuba's own error at equal spp;
-* ``plugin``: ``links1_whitted`` (``links1_mitsuba``'s loader) at ``spp`` and its default depth;
-* ``core``: the float64 core at ``spp``, in another process.
+* ``mitsuba``: the reference at ``spp`` (seeds 2, 3, ...): Mitsuba's own error at equal spp;
+* ``plugin``: ``links1_whitted`` (``links1_mitsuba``'s loader) at ``spp`` and its default depth
+  (seeds 0, 1, ...);
+* ``core``: the float64 core at ``spp`` (seed 0), in another process.
 
-Reported per scene: relMSE (``links1.imaging.diff.relmse``) of the plugin and of the core
-against ``ref``, the ratio plugin / Mitsuba at equal spp (the issue's target: <= 1.5 where
-Whitted covers the scene's light paths), relMSE(core, plugin) (target <= 1e-4), each renderer's
+Mitsuba and the plugin render ``--seeds`` times: one seed's relMSE at a few spp is itself noisy
+(a luminaire's edge or a firefly hit once more or less moves it by 2x), so their errors are
+means over the seeds, the ratio given with its standard error. Reported per scene: relMSE
+(``links1.imaging.diff.relmse``) of the plugin and of the core against ``ref``, the ratio
+plugin / Mitsuba at equal spp (target: <= 1.5 where Whitted covers the scene's light paths),
+relMSE(core, plugin) at seed 0 (target <= 1e-4: the core's verdict), each renderer's
 frame time at ``spp`` (the second frame for the Dr.Jit ones, whose first compiles; the core's first),
-the one-line warnings each renderer gave, and a verdict per renderer: ``ok`` (ratio <= 1.5),
-``differs`` (larger), ``fails`` (an error, a timeout or a non-finite image). Writes
+the one-line warnings each renderer gave, and a verdict per renderer: ``ok`` (plugin: ratio <= 1.5;
+core: relMSE(core, plugin) <= 1e-4), ``differs`` (larger), ``fails`` (an error, a timeout or a
+non-finite image). Writes
 ``compare/results/<stem>.{json,md}``.
 """
 from __future__ import annotations
@@ -54,6 +59,12 @@ def _timed(render):
     return img, time.perf_counter() - t0
 
 
+def _seeded(renderer, seed):
+    """The renderer's image (RGB, float64) at another seed."""
+    renderer.seed = seed
+    return np.asarray(renderer.render(), dtype=np.float64)[..., :3]
+
+
 def _job(job: dict) -> dict:
     """One scene, ``job["kind"]`` = ``mitsuba`` (reference, Mitsuba at equal spp, plugin) or
     ``core``; images into ``job["out"]`` (npz)."""
@@ -80,10 +91,13 @@ def _job(job: dict) -> dict:
             res["height"] = int(out["ref"].shape[0])
             out["mitsuba"], res["mitsuba_s"] = _timed(
                 lambda: render_reference(sc.local_path, spp, seed=2, **kw))
+            out["mitsuba"] = np.stack([out["mitsuba"]] + [render_reference(sc.local_path, spp, seed=2 + k, **kw)
+                                                          for k in range(1, job["seeds"])])
             try:
                 r = make_renderer("mitsuba", sc.local_path, params=dict(sc.params), width=w,
                                   height=res["height"], spp=spp, variant=job["variant"])
                 out["plugin"], res["plugin_s"] = _timed(lambda: np.asarray(r.render(), dtype=np.float64)[..., :3])
+                out["plugin"] = np.stack([out["plugin"]] + [_seeded(r, k) for k in range(1, job["seeds"])])
             except Exception as e:  # the row records it; the reference still stands
                 res["plugin_error"] = f"{type(e).__name__}: {str(e).splitlines()[0][:240] if str(e) else ''}"
         else:
@@ -118,12 +132,27 @@ def _run(job: dict, timeout: float) -> tuple[dict, dict]:
 
 
 # ----------------------------------------------------------------------------- table
-def _verdict(err, mitsuba_err, error) -> str:
+def _verdict(err, bound, error) -> str:
     if error:
         return "fails"
     if err is None or not np.isfinite(err):
         return "fails"
-    return "ok" if err <= TARGET_RATIO * mitsuba_err else "differs"
+    return "ok" if err <= bound else "differs"
+
+
+def _ratio_se(errs, mitsuba_errs) -> tuple[float, float]:
+    """mean(errs) / mean(mitsuba_errs) and its standard error (delta method, independent seeds)."""
+    a, b = np.asarray(errs, dtype=np.float64), np.asarray(mitsuba_errs, dtype=np.float64)
+    r = a.mean() / b.mean()
+    n = len(a)
+    rel = (a.std(ddof=1) / a.mean()) ** 2 / n + (b.std(ddof=1) / b.mean()) ** 2 / n if n > 1 else np.nan
+    return float(r), float(r * np.sqrt(rel))
+
+
+def _relmses(images, ref) -> list[float]:
+    """relMSE against ``ref`` of each seed's image (K, H, W, 3)."""
+    from links1.imaging.diff import relmse
+    return [float(relmse(img, ref)) for img in images]
 
 
 def _scene_row(sc, args) -> dict:
@@ -132,7 +161,8 @@ def _scene_row(sc, args) -> dict:
     if not os.path.exists(sc.local_path):
         row["skipped"] = "not fetched: run tools/fetch_corpus.py"
         return row
-    base = dict(id=sc.id, width=args.width, spp=args.spp, ref_factor=args.ref_factor, variant=args.variant)
+    base = dict(id=sc.id, width=args.width, spp=args.spp, ref_factor=args.ref_factor, variant=args.variant,
+                seeds=args.seeds)
     mres, mimg = _run(dict(base, kind="mitsuba"), args.timeout)
     if not mres.get("ok"):
         row["skipped"] = f"reference: {mres['error']}"
@@ -140,36 +170,43 @@ def _scene_row(sc, args) -> dict:
     cres, cimg = _run(dict(base, kind="core", height=mres["height"]), args.timeout)
     ref = mimg["ref"]
     row.update(height=mres["height"], ref_s=mres["ref_s"], mitsuba_s=mres["mitsuba_s"],
-               mitsuba_err=relmse(mimg["mitsuba"], ref), warnings_plugin=mres["warnings"],
+               mitsuba_errs=_relmses(mimg["mitsuba"], ref), warnings_plugin=mres["warnings"],
                warnings_core=cres.get("warnings", []))
+    row["mitsuba_err"] = float(np.mean(row["mitsuba_errs"]))
     for kind, img, res, err_key in (("plugin", mimg.get("plugin"), mres, "plugin_error"),
                                     ("core", cimg.get("core"), cres, "error")):
         error = res.get(err_key) if kind == "plugin" else (None if res.get("ok") else res.get("error"))
         if img is not None and not np.all(np.isfinite(img)):
             error = f"{int(np.sum(~np.isfinite(img)))} non-finite values"
-        err = relmse(img, ref) if img is not None and not error else None
-        row[f"{kind}_err"] = err
+        row[f"{kind}_err"] = None
+        if img is not None and not error:
+            errs = _relmses(img if kind == "plugin" else img[None], ref)
+            row[f"{kind}_err"] = float(np.mean(errs))
+            if kind == "plugin":
+                row["plugin_errs"] = errs
+                row["ratio"], row["ratio_se"] = _ratio_se(errs, row["mitsuba_errs"])
         row[f"{kind}_s"] = res.get(f"{kind}_s")
         row[f"{kind}_error"] = error
-        row[f"{kind}_verdict"] = _verdict(err, row["mitsuba_err"], error)
     if row["plugin_err"] is not None and row["core_err"] is not None:
-        row["core_vs_plugin"] = relmse(cimg["core"], mimg["plugin"])
+        row["core_vs_plugin"] = relmse(cimg["core"], mimg["plugin"][0])
+    row["plugin_verdict"] = _verdict(row.get("ratio"), TARGET_RATIO, row["plugin_error"])
+    row["core_verdict"] = _verdict(row.get("core_vs_plugin"), TARGET_CORE, row["core_error"] or
+                                   (None if row["plugin_err"] is not None else "no plugin image to compare"))
     return row
 
 
 def _markdown(rows, args, info) -> str:
     from .common import fmt, machine_markdown, md_table
-    head = ["scene", "plugin relMSE", "Mitsuba relMSE", "plugin / Mitsuba", "plugin", "core relMSE",
-            "core / Mitsuba", "core", "core vs plugin", "plugin s", "Mitsuba s", "core s"]
+    head = ["scene", "plugin relMSE", "Mitsuba relMSE", "plugin / Mitsuba (± SE)", "plugin", "core relMSE",
+            "core vs plugin", "core", "plugin s", "Mitsuba s", "core s"]
     table, notes = [], []
     for r in rows:
         if "skipped" in r:
             notes.append(f"- `{r['id']}`: skipped ({r['skipped']})")
             continue
-        m = r["mitsuba_err"]
-        ratio = lambda e: None if e is None or m == 0 else e / m  # noqa: E731
-        table.append([f"`{r['id']}`", r["plugin_err"], m, ratio(r["plugin_err"]), r["plugin_verdict"],
-                      r["core_err"], ratio(r["core_err"]), r["core_verdict"], r.get("core_vs_plugin"),
+        ratio = None if r.get("ratio") is None else f"{fmt(r['ratio'])} ± {fmt(r['ratio_se'])}"
+        table.append([f"`{r['id']}`", r["plugin_err"], r["mitsuba_err"], ratio, r["plugin_verdict"],
+                      r["core_err"], r.get("core_vs_plugin"), r["core_verdict"],
                       r["plugin_s"], r["mitsuba_s"], r["core_s"]])
         for kind in ("plugin", "core"):
             if r[f"{kind}_error"]:
@@ -183,7 +220,9 @@ def _markdown(rows, args, info) -> str:
             f"{machine_markdown(info, args.command)}\n"
             f"{args.width} px wide, spp {args.spp}; reference `whitted_reference` at spp "
             f"{args.spp * args.ref_factor}; \"Mitsuba\" = the reference at spp {args.spp} (Mitsuba's own error at "
-            f"equal spp); verdict ok: relMSE <= {TARGET_RATIO}x Mitsuba's. Times: one frame at spp "
+            f"equal spp); plugin and Mitsuba relMSE: means over {args.seeds} seeds, the core's at seed 0. "
+            f"Verdicts: the plugin ok where its relMSE <= {TARGET_RATIO}x Mitsuba's, the core ok where "
+            f"relMSE(core, plugin) <= {TARGET_CORE:g}. Times: one frame at spp "
             f"{args.spp}, compilation excluded.\n\n{summary}\n\n"
             + md_table(head, table) + ("\n" + "\n".join(notes) + "\n" if notes else ""))
 
@@ -193,6 +232,8 @@ def main(argv=None) -> int:
     p.add_argument("--job", help=argparse.SUPPRESS)
     p.add_argument("--width", type=int, default=128)
     p.add_argument("--spp", type=int, default=4)
+    p.add_argument("--seeds", type=int, default=16,
+                   help="renders of Mitsuba and the plugin at equal spp (their errors are means)")
     p.add_argument("--ref-factor", type=int, default=16)
     p.add_argument("--only", nargs="*", default=None, metavar="ID")
     p.add_argument("--timeout", type=float, default=300)
