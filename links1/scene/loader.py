@@ -94,8 +94,7 @@ DEFAULT_MAX_DEPTH = params.default("links1_whitted", "max_depth")
 DEFAULT_SPP = 4  # Mitsuba's independent sampler
 
 # Known Mitsuba 3 plugins the core does not support (for a clearer message than "unknown").
-_MITSUBA_SHAPES = {"shapegroup", "instance",
-                   "ellipsoids", "ellipsoidsmesh", "merge"}
+_MITSUBA_SHAPES = {"shapegroup", "instance", "merge"}
 _APPROX_BSDFS = {"hair", "measured", "pplastic", "polarizer",
                  "retarder", "circular", "measured_polarized", "bumpmap",
                  "normalmap"}
@@ -860,6 +859,10 @@ class _Builder:
             shape = self._sdfgrid(node, props, m, name)
         elif t in ("linearcurve", "bsplinecurve"):
             shape = self._curves(node, props, m, name)
+        elif t in ("ellipsoids", "ellipsoidsmesh"):
+            if outer is not None:
+                raise node.error(f"{t} in an instance is not supported by the core")
+            shape = self._ellipsoids(node, props, m, name)
         elif t in _MITSUBA_SHAPES:
             raise node.error(f"shape type '{t}' is not supported by the core")
         else:
@@ -889,6 +892,8 @@ class _Builder:
                 emitter_node = child
             elif child.tag in ("medium",):
                 child.warn("media are not supported by the core and are ignored")
+            elif child.tag == "shape" and cname == "shell" and t in ("ellipsoids", "ellipsoidsmesh"):
+                continue   # an ellipsoidsmesh's shell template (read by _ellipsoids)
             else:
                 raise child.error(f"<{child.tag}> is not allowed inside a shape")
         if material is None:
@@ -935,6 +940,53 @@ class _Builder:
         placed = [np.concatenate([c[:, :3] @ m[:3, :3].T + m[:3, 3], c[:, 3:]], axis=1) for c in cs]
         return _construct(node, curves.RoundLinearCurves if linear else curves.RoundBSplineCurves,
                           placed, name=name)
+
+    def _ellipsoids(self, node, props, m, name):
+        """Mitsuba's ``ellipsoids`` / ``ellipsoidsmesh`` from a PLY file (a scene file cannot
+        hold their tensors), placed by ``to_world`` as Mitsuba places them."""
+        from ..geometry import ellipsoids as ell
+        for key in ("data", "centers", "scales", "quaternions"):
+            if props.has(key):
+                raise props.error(key, f"'{key}' is a tensor, which a scene file cannot give; "
+                                       "give 'filename' (a PLY file)")
+        if node.objects("emitter"):
+            raise node.error(f"an area emitter on {node.type} cannot be sampled (Mitsuba 3.9.1 "
+                             "has no sampling for it)")
+        path = node.resolve(props.string("filename"))
+        scale_factor = props.float("scale_factor", 1.0, positive=True)
+        extent = props.float("extent", ell.DEFAULT_EXTENT, positive=True)
+        adaptive = props.bool("extent_adaptive_clamping", False)
+        props.ignore("silhouette_sampling_weight")
+        _check_invertible(node, m)
+        try:
+            centers, rotations, scales, opacities = ell.read_ellipsoids(path, m, scale_factor)
+        except (OSError, ValueError) as exc:
+            raise props.error("filename", str(exc)) from None
+        if adaptive and opacities is None:
+            node.warn("extent_adaptive_clamping needs an 'opacities' attribute; ignored (as Mitsuba)")
+        try:
+            ext = ell.extents(len(centers), extent, opacities if adaptive else None)
+        except ValueError as exc:
+            raise props.error("extent_adaptive_clamping", f"{path}: {exc}") from None
+        scales = scales * ext[:, None]
+        nested = [child for cname, child in node.children if child.tag == "shape" and cname == "shell"]
+        if node.type == "ellipsoids":
+            props.ignore("shell")   # Mitsuba skips it there
+            return _construct(node, ell.Ellipsoids, centers, rotations, scales, name=name)
+        props.ignore("face_normals")   # no vertex normals: always face normals
+        if nested:
+            mesh = self.shape(nested[0])
+            if not hasattr(mesh, "faces"):
+                raise nested[0].error("an ellipsoidsmesh shell must be a triangle mesh")
+            template = (mesh.vertices, mesh.faces)
+        else:
+            template = props.string("shell", "ico_sphere")
+        try:
+            template = ell.shell(template)
+        except ValueError as exc:
+            raise (props.error("shell", str(exc)) if not nested else nested[0].error(str(exc))) from None
+        return _construct(node, ell.EllipsoidsMesh, centers, rotations, scales, template,
+                          flip=props.bool("flip_normals", False), name=name)
 
     def _no_flip(self, props: _Props) -> None:
         if props.bool("flip_normals", False):
