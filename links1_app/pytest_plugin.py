@@ -344,6 +344,20 @@ class Baseline:
         self._fail(f"no baseline {path} for '{name}'; run pytest with "
                    f"--links1-update-baselines to create it", files)
 
+    def _stored(self, name, path: Path, array, names, shown, shown_names):
+        """The baseline at ``path`` as ``(float64 array, channel names)``; with
+        ``--links1-update-baselines``, ``array`` (channels ``names``) is written there instead and
+        None returned. A missing baseline fails the test (:meth:`_missing`, showing ``shown``)."""
+        if self.update:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            write_exr(path, array, names)
+            self._updated(path)
+            return None
+        if not path.exists():
+            self._missing(name, path, shown, shown_names)
+        data, stored = read_exr(path)
+        return data.astype(np.float64), stored
+
     def _updated(self, path: Path) -> None:
         updated = self._config.stash[_UPDATED]
         if path in updated:
@@ -388,15 +402,10 @@ class Baseline:
         names = list(channel_names) if channel_names else _default_names(img.shape[2])
         path = self.path(name)
 
-        if self.update:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            write_exr(path, img, names)
-            self._updated(path)
+        stored = self._stored(name, path, img, names, img, names)
+        if stored is None:
             return math.nan
-        if not path.exists():
-            self._missing(name, path, img, names)
-        base, base_names = read_exr(path)
-        base = base.astype(np.float64)
+        base, base_names = stored
         try:
             check_compatible(img, base, ("image", str(path)))
         except UsageError as e:
@@ -467,15 +476,10 @@ class Baseline:
         path = self.path(name)
         all_names = names + [VARIANCE_PREFIX + x for x in names] + [SAMPLES_CHANNEL]
 
-        if self.update:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            write_exr(path, np.concatenate([m, v, n], axis=2), all_names)
-            self._updated(path)
+        got = self._stored(name, path, np.concatenate([m, v, n], axis=2), all_names, m, names)
+        if got is None:
             return math.nan
-        if not path.exists():
-            self._missing(name, path, m, names)
-        data, stored = read_exr(path)
-        data = data.astype(np.float64)
+        data, stored = got
         if SAMPLES_CHANNEL not in stored or (len(stored) - 1) % 2:
             files = self._write_report(name, m, names=names)
             self._fail(f"baseline {path} has no mean/variance/samples channels "
