@@ -48,7 +48,7 @@ pixels are the full frame's and the loss ``Σ g_p I_p`` splits exactly by blocks
 bounded by one block's tree (~0.75 KiB a sample for scenes/fig11.xml at max_depth 5), not the
 frame's (docs/benchmarks.md, inverse rendering). A 256² frame at spp 1 is one block.
 
-:class:`Gradients` is a mixin whose methods ``Links1Whitted`` takes (integrator.py); they name
+:class:`Gradients` is a base class of the ``Engine`` (engine.py); its methods name
 ``mi.Float``, ``mi.Ray3f``, ... when called, so the class serves every Mitsuba variant.
 """
 from __future__ import annotations
@@ -131,9 +131,10 @@ def _spawns(P, slot):
 
 def _render_op_caller():
     """Mitsuba's ``_RenderOp`` (``mi.render(scene, params)``) when it is the caller of the
-    integrator's ``render()`` (``render`` -> ``_render_keeping_graph`` -> here), else None."""
+    integrator's ``render()`` (``Links1Whitted.render`` -> ``Engine.render`` -> ``_render_keeping_graph`` -> here),
+    else None."""
     import sys
-    f = sys._getframe(3)
+    f = sys._getframe(4)
     op = f.f_locals.get("self") if f.f_code.co_name == "eval" else None
     return op if type(op).__name__ == "_RenderOp" and hasattr(op, "spp") else None
 
@@ -150,6 +151,8 @@ def _mitsuba_attached(scene, P, watched):
 class Gradients:
     """``render_forward``/``render_backward`` and the differentiable render behind them."""
 
+    __slots__ = ()
+
     # -------------------------------------------------------------- Mitsuba entry points
     def render_forward(self, scene, params, sensor=0, seed=0, spp=0):
         """The image's derivative along the gradients set on the scene's parameters
@@ -162,7 +165,7 @@ class Gradients:
         with two scenes alive); one traversal with the default flags, as before the blocks."""
         # a graph the primal kept (for reverse mode) is dropped first: forward propagation
         # from the parameters would enter it, outside this pass's isolation scope
-        self._hidden.kept_graph = None
+        self.kept_graph = None
         with dr.resume_grad():
             img = self._render_ad(scene, sensor, seed, spp)
             dr.forward_to(img)
@@ -218,7 +221,7 @@ class Gradients:
         as the blocks bound it), with some parameter attached, and when the caller is
         ``mi.render``'s differentiable operation given parameters (its ``spp_grad`` equal to
         ``spp``): ``mi.render(scene)`` while values have gradients enabled renders the primal."""
-        self._hidden.kept_graph = None
+        self.kept_graph = None
         op = _render_op_caller()
         if (op is None or op.params is None or not tuning.current().keep_graph or spp != 1
                 or op.spp[1] not in (0, op.spp[0])):
@@ -234,13 +237,13 @@ class Gradients:
             img = self.render_windows_device(scene, [win], spp=spp, seed=seed, sensor=sensor,
                                              dtype=mi.Float, tables=Q)[0]
             dr.eval(img)
-        self._hidden.kept_graph = (img, sensor, win, P)
+        self.kept_graph = (img, sensor, win, P)
         return dr.detach(img)
 
     def _take_kept(self, scene, sensor, seed, spp):
         """The frame :meth:`_render_keeping_graph` kept for this request (once), or None."""
-        kept = getattr(self._hidden, "kept_graph", None)
-        self._hidden.kept_graph = None
+        kept = self.kept_graph
+        self.kept_graph = None
         if kept is None:
             return None
         img, sensor_k, win_k, P = kept

@@ -5,7 +5,7 @@ shapes (``_shadow_custom``) and Mitsuba's (``_shadow_mitsuba``), each shape coun
 uv of hits on textured links1 quadrics (``_custom_uv``). Many links1 quadrics go under a BVH
 (:mod:`links1_mitsuba.bvh`).
 
-:class:`Intersect` is a mixin whose methods ``Links1Whitted`` takes (integrator.py); they name
+:class:`Intersect` is a base class of the ``Engine`` (engine.py); its methods name
 ``mi.Float``, ``mi.Ray3f``, ... when called, so the class serves every Mitsuba variant.
 """
 from __future__ import annotations
@@ -23,6 +23,8 @@ from .util import INF, c3, gather3, next_up
 
 class Intersect:
     """Nearest hits, shadow transmittance, uv of custom hits."""
+
+    __slots__ = ()
 
     # -------------------------------------------------------------- geometry
     def _nearest(self, P, scene, o, d, tmin, tmax, active, cost, camera=False, coherent=False):

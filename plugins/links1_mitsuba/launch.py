@@ -3,7 +3,7 @@ the :func:`drjit.freeze` launch replayed for any window, batch size or spp, and 
 on the device from its samples (:mod:`.film`); numpy only where a caller asks for it
 (:meth:`render_windows`' float64 arrays, :meth:`trace_points` of adaptive anti-aliasing).
 
-:class:`Launches` is a mixin whose methods ``Links1Whitted`` takes (integrator.py); they name
+:class:`Launches` is a base class of the ``Engine`` (engine.py); its methods name
 ``mi.Float``, ``mi.Ray3f``, ... when called, so the class serves every Mitsuba variant.
 """
 from __future__ import annotations
@@ -160,7 +160,9 @@ def _frozen_scene():
 
 class Launches:
     """Ray generation and launches; the ray tree (``_trace_tree``) and tables (``prepare``)
-    come from the integrator."""
+    come from the engine (engine.py)."""
+
+    __slots__ = ()
 
     # -------------------------------------------------------------- camera
     def _camera_rays(self, P, sid, spp, seed):
@@ -196,8 +198,7 @@ class Launches:
     def _take_cam_sample(self):
         """The camera sample ``(pixel key, i, spp)`` of the rays last made by :meth:`_camera_rays`,
         handed once to the primary level of the ray tree (``RayTree._trace_tree``,
-        ``Gradients``): kept in the integrator's :class:`~links1_mitsuba.util.Hidden` holder,
-        out of freeze's walk."""
+        ``Gradients``): kept by the engine, which freeze does not walk (engine.py)."""
         sample, self._cam_sample = self._cam_sample, None
         return sample
 
@@ -263,20 +264,20 @@ class Launches:
         render's launches (a list of :meth:`_launch_counts`) summed, and per camera ray; or
         the dict ``counts`` itself."""
         pending = isinstance(counts, list)
-        self._hidden.stats = None if pending else counts
-        self._hidden.stats_pending = counts if pending else None
+        self.stats_now = None if pending else counts
+        self.stats_pending = counts if pending else None
 
     def _read_stats(self):
-        pending = getattr(self._hidden, "stats_pending", None)
+        pending = self.stats_pending
         if pending:
             counts = [c if not isinstance(c, tuple) else
                       {k: int(v if isinstance(v, int) else v[0]) for k, v in c[1].items()} if c[0] == "device"
                       else self._counts(c[0], **c[1]) for c in pending]
             c = {k: sum(x[k] for x in counts) for k in counts[0]}
             c["per_camera_ray"] = {k: c[k] / max(c["camera"], 1) for k in ("shadow", "reflect", "refract")}
-            self._hidden.stats = c
-            self._hidden.stats_pending = None
-        return getattr(self._hidden, "stats", None)
+            self.stats_now = c
+            self.stats_pending = None
+        return self.stats_now
 
     def _call_frozen(self, fn, P, scene, *args):
         """Call a frozen launch of this integrator (:func:`_frozen_caller` names it inside)
@@ -378,7 +379,7 @@ class Launches:
     def _frozen_points_fn(self):
         """:meth:`trace_points` as a :func:`drjit.freeze` function (film positions and keys
         are run-time inputs): recorded once per configuration, replayed for any point count."""
-        if getattr(self, "_freeze_points", None) is None:
+        if self._freeze_points is None:
             def launch_points(xf, yf, key, n_op, cfg, tables, scene_input):
                 self = _frozen_caller()
                 P = self._prep
@@ -556,10 +557,7 @@ class Launches:
         # each window traces the samples of its filter border too (clipped to the film)
         box = P.rfilter.border == 0
         swins = wins if box else [sample_window(P.rfilter, win, (W, H)) for win in wins]
-        cache = getattr(self._hidden, "batches", None)
-        if cache is None:
-            cache = self._hidden.batches = {}
-        batch = cached_batch(cache, wins, swins, spp)
+        batch = cached_batch(self.batches, wins, swins, spp)
         n = batch.lanes
         sid = sample_ids(W, spp, batch)
         spp_ = (dr.opaque(mi.UInt32, spp), dr.opaque(mi.UInt32, strata(spp)))

@@ -5,7 +5,7 @@ area emitters and environment maps as the core's :mod:`links1.shading.lights` ta
 at the core's light-sample points (``_light_uv``), and the RGB of Mitsuba emitters
 (``_emitted_rgb``, read by ``prepare``).
 
-:class:`Lights` is a mixin whose methods ``Links1Whitted`` takes (integrator.py); they name
+:class:`Lights` is a base class of the ``Engine`` (engine.py); its methods name
 ``mi.Float``, ``mi.Ray3f``, ... when called, so the class serves every Mitsuba variant.
 """
 from __future__ import annotations
@@ -44,6 +44,8 @@ def _emitted_rgb(prm, key: str, kind: str, where: str = "links1_whitted") -> np.
 
 class Lights:
     """Analytic lights at a hit; area and environment lights: tables and samples."""
+
+    __slots__ = ()
 
     # -------------------------------------------------------------- lights
     @staticmethod

@@ -20,7 +20,7 @@ never interact, so a window renders the same bits as the same pixels of the full
 every run-time input (window offset and width, seed) is an opaque value: the kernels compile
 once per scene and are reused for every window and frame.
 
-:class:`RayTree` is a mixin whose methods ``Links1Whitted`` takes (integrator.py); they name
+:class:`RayTree` is a base class of the ``Engine`` (engine.py); its methods name
 ``mi.Float``, ``mi.Ray3f``, ... when called, so the class serves every Mitsuba variant.
 """
 from __future__ import annotations
@@ -46,6 +46,8 @@ def _power_heuristic(pdf_a, pdf_b):
 
 class RayTree:
     """One level, the children of a hit, the ray trees of a launch."""
+
+    __slots__ = ()
 
     # -------------------------------------------------------------- one level
     def _level(self, P, scene, o, d, tmin, tmax, key, depth, spawn, active=None, symbolic=True,

@@ -10,7 +10,7 @@ at all without either, no custom-shape code without custom shapes, no blob solve
 blobs, no shadow ray toward a light from a hit that no shape can shadow (``_occluders``: a
 lone convex shape, a floor below every other shape and the light, ...).
 
-:class:`Tables` is a mixin whose methods ``Links1Whitted`` takes (integrator.py); they name
+:class:`Tables` is a base class of the ``Engine`` (engine.py); its methods name
 ``mi.Float``, ``mi.Ray3f``, ... when called, so the class serves every Mitsuba variant.
 """
 from __future__ import annotations
@@ -704,6 +704,8 @@ SHAPE_FIELDS = ("custom", "custom_unrolled", "bvh_slots", "bvh", "blob_tables")
 
 class Tables:
     """``prepare``: the per-scene tables; ``_occluders``: which shadow rays they need."""
+
+    __slots__ = ()
 
     def prepare(self, scene, sensor=None):
         """The tables of ``scene`` seen from ``sensor`` (a sensor object, an index into
