@@ -102,8 +102,8 @@ def read_ellipsoids(path, to_world=None, scale_factor: float = 1.0):
                          f"ellipsoids), got {' '.join(names)}")
     bad = [p for p, t in props if t != "f4"]
     if bad:
-        raise ValueError(f"{path}:{line}: property '{bad[0]}' is not a float: Mitsuba reads every "
-                         "property of an ellipsoid as a float32")
+        raise ValueError(f"{path}:{line}: property '{bad[0]}' of element '{name}' is not a float: "
+                         "Mitsuba reads every property of an ellipsoid as a float32")
     if fmt == "binary_big_endian":
         raise ValueError(f"{path}: binary_big_endian ellipsoids: Mitsuba reads them as "
                          "little-endian floats")

@@ -1,6 +1,7 @@
-"""Mitsuba shapes the core cannot intersect (ellipsoids) are refused at load time in one line
+"""Mitsuba shapes the core does not build (``merge``) are refused at load time in one line
 naming the file, the line and the element; so are bad ``sdfgrid``, ``linearcurve`` and
-``bsplinecurve`` files, at the file's own line where it has lines."""
+``bsplinecurve`` files, at the file's own line where it has lines (bad ``ellipsoids`` files:
+tests/core/test_ellipsoids.py)."""
 from __future__ import annotations
 
 import pytest
@@ -9,7 +10,7 @@ from links1 import load_scene
 from links1.errors import SceneError
 
 
-@pytest.mark.parametrize("plugin", ["ellipsoids"])
+@pytest.mark.parametrize("plugin", ["merge"])
 def test_refused_with_file_and_line(tmp_path, plugin):
     p = tmp_path / "s.xml"
     p.write_text(f'<scene version="3.0.0">\n\n<shape type="{plugin}"/>\n</scene>\n')
