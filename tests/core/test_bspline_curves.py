@@ -35,8 +35,8 @@ BASIS = np.array([[1, -3, 3, -1], [4, 0, -6, 3], [1, 3, 3, -3], [0, 0, 0, 1]], d
 ZIGZAG = np.array([[-1.2, 0, -0.9, 0.1], [-0.7, 0, 0.9, 0.1], [-0.4, 0, -0.9, 0.1], [-0.1, 0, 0.9, 0.1],
                    [0.2, 0, -0.9, 0.1], [0.6, 0, 0.9, 0.1], [1.2, 0, -0.9, 0.1]])
 ZIGZAG_TO_WORLD = np.array([[2.0, 2.0, 0, 0], [-0.7, 0.7, 0, 0], [0, 0, 1, 1], [0, 0, 0, 1]])
-TWISTED = np.array([[-1.0, 0.1, 0.1, 0.12], [-0.3, 1.2, 1.0, 0.18], [0.3, 0.3, 1.1, 0.15], [1.0, 1.4, 1.2, 0.12],
-                    [1.5, 0.4, 0.2, 0.18], [0.9, -0.6, -0.8, 0.09]])
+TWISTED = np.array([[-1.0, 0.1, 0.1, 0.12], [-0.3, 1.2, 1.0, 0.18], [0.3, 0.3, 1.1, 0.15],
+                    [1.0, 1.4, 1.2, 0.12], [1.5, 0.4, 0.2, 0.18], [0.9, -0.6, -0.8, 0.09]])
 
 
 def _placed(points, to_world):
@@ -107,7 +107,8 @@ def _cone_roots(o, d, start, axis, length, r0, r1):
     return best, normal, s_best, margin
 
 
-@pytest.mark.parametrize("r0, r1", [(0.2, 0.2), (0.2, 0.35), (0.3, 0.2)], ids=["cylinder", "cone", "narrowing"])
+@pytest.mark.parametrize("r0, r1", [(0.2, 0.2), (0.2, 0.35), (0.3, 0.2)],
+                         ids=["cylinder", "cone", "narrowing"])
 def test_straight_segment_is_an_open_cylinder_or_frustum(r0, r1):
     """Hit distance, normal and ``v`` against the closed form, to float64 rounding; rays that
     enter through an open end and would meet the inside of the wall miss (no caps, no back
@@ -361,6 +362,7 @@ def test_hits_match_mitsuba(tmp_path, mi, which, start):
     v = curves.uv(o, d, t, prim)[:, 1] * curves.segments.size - prim
     ctrl = placed[prim[:, None] + np.arange(4)]
     dc, ddc = _spline(ctrl, v, 1)[:, :3], _spline(ctrl, v, 2)[:, :3]
-    bent = np.linalg.norm(np.cross(dc, ddc), axis=1) > 0.1 * np.linalg.norm(dc, axis=1) * np.linalg.norm(ddc, axis=1)
+    norm = lambda x: np.linalg.norm(x, axis=1)  # noqa: E731
+    bent = norm(np.cross(dc, ddc)) > 0.1 * norm(dc) * norm(ddc)
     assert bent.mean() > 0.5
     np.testing.assert_allclose(dv[bent], as_np(si.dp_dv)[bent], atol=2e-5 * np.abs(dv).max())
