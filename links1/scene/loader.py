@@ -52,7 +52,7 @@ links1 plugins::
         <vector name="clip_0" .../> <float name="clip_0_offset" value="h"/> ...  (keep n·y ≤ h)
     <shape type="links1_blob">     centers = "x y z w S  x y z w S ...", threshold (> 0),
         solver = exact | paper, samples (8), to_world (optional)
-    <shape type="links1_bicubic">  filename (a .patch file, see links1.geometry.meshes) or
+    <shape type="links1_bicubic">  filename (a .patch file, see links1.geometry.bezier) or
         control_points (string, 48 numbers per patch), subdivisions (8), to_world, flip_normals
     <emitter type="links1_point">  position, direction (0 0 1), L1 (1), L2 (0), falloff = none | inverse_square
     <emitter type="links1_spot">   origin, direction, radius, intensity (1)
@@ -75,7 +75,7 @@ from ..shading import glossy, principled
 from ..shading import materials as mat
 from ..shading import normalmaps
 from . import params
-from ..geometry import meshes
+from ..geometry import bezier, mesh_files, meshes
 from ..shading import textures
 from ..shading import spectra
 from ..maths import transform as tf
@@ -833,11 +833,11 @@ class _Builder:
             index = props.int("shape_index", 0, minimum=0) if t == "serialized" else 0
             try:
                 if t == "obj":
-                    (v, f, n, uv), attrs = meshes.read_obj(path, uv=True), {}
+                    (v, f, n, uv), attrs = mesh_files.read_obj(path, uv=True), {}
                 elif t == "ply":
-                    v, f, n, uv, attrs = meshes.read_ply(path, uv=True, attributes=True)
+                    v, f, n, uv, attrs = mesh_files.read_ply(path, uv=True, attributes=True)
                 else:
-                    (v, f, n, uv), attrs = meshes.read_serialized(path, index), {}
+                    (v, f, n, uv), attrs = mesh_files.read_serialized(path, index), {}
             except ValueError as exc:
                 raise props.error("filename", str(exc)) from None
             if props.bool("face_normals", False):
@@ -1054,14 +1054,14 @@ class _Builder:
             raise node.error("links1_bicubic needs exactly one of 'filename' and 'control_points'")
         try:
             if has_file:
-                patches = meshes.read_patches(node.resolve(props.string("filename")))
+                patches = bezier.read_patches(node.resolve(props.string("filename")))
             else:
                 p = props.required("control_points", ("string",))
-                patches = meshes.parse_patches(p.value, f"{p.file}:{p.line}", with_count=False)
+                patches = bezier.parse_patches(p.value, f"{p.file}:{p.line}", with_count=False)
         except ValueError as exc:
             raise props.error("filename" if has_file else "control_points", str(exc)) from None
         sub = props.links1("links1_bicubic", "subdivisions")
-        v, f, n = meshes.tessellate_patches(patches, sub)
+        v, f, n = bezier.tessellate_patches(patches, sub)
         if props.bool("face_normals", False):
             n = None
         return self._mesh(node, props, v, f, n, m, closed=None)

@@ -1,5 +1,5 @@
 """``links1_bicubic`` for Mitsuba: bicubic Bézier patches tessellated (with
-``links1.geometry.meshes``, eq. 3.3) into a real :class:`mitsuba.Mesh`.
+``links1.geometry.bezier``, eq. 3.3) into a real :class:`mitsuba.Mesh`.
 """
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import os
 
 import numpy as np
 
-from links1.geometry import meshes
+from links1.geometry import bezier, meshes
 from links1.scene.params import read, transform_problem
 
 from .registered import check_properties
@@ -15,7 +15,7 @@ from .shapes import _matrix
 
 
 def tessellate_bicubic(props, base_dir=None):
-    """Vertices, faces and normals of a ``links1_bicubic`` node, with ``links1.geometry.meshes``."""
+    """Vertices, faces and normals of a ``links1_bicubic`` node, with ``links1.geometry.bezier``."""
     check_properties("shape", "links1_bicubic", props)
     has_file = ("filename" in props)
     has_inline = ("control_points" in props)
@@ -29,11 +29,11 @@ def tessellate_bicubic(props, base_dir=None):
             # mi.load_file / load_string: Mitsuba's file resolver holds the scene's folder
             import mitsuba as mi
             fn = str(mi.file_resolver().resolve(fn))
-        patches = meshes.read_patches(fn)
+        patches = bezier.read_patches(fn)
     else:
-        patches = meshes.parse_patches(str(props["control_points"]), "<control_points>", with_count=False)
+        patches = bezier.parse_patches(str(props["control_points"]), "<control_points>", with_count=False)
     sub = read("links1_bicubic", "subdivisions", int(props["subdivisions"]) if ("subdivisions" in props) else None)
-    v, f, n = meshes.tessellate_patches(patches, sub)
+    v, f, n = bezier.tessellate_patches(patches, sub)
     if ("flip_normals" in props) and bool(props["flip_normals"]):
         f, n = meshes.flip(f, n)
     m = _matrix(props)
@@ -57,7 +57,7 @@ def define_bicubic():
         ==============  =======  ==========================================  =========
         Parameter       Type     Meaning                                     Default
         ==============  =======  ==========================================  =========
-        filename        string   a ``.patch`` file (see ``links1.geometry.meshes``)   —
+        filename        string   a ``.patch`` file (see ``links1.geometry.bezier``)   —
         control_points  string   inline: 48 numbers per patch                —
         subdivisions    integer  grid cells per patch side                   8
         to_world        trafo    object → world                              identity

@@ -6,7 +6,7 @@ import os
 import numpy as np
 import pytest
 
-from links1.geometry import meshes
+from links1.geometry import bezier, mesh_files, meshes
 
 DATA = os.path.join(os.path.dirname(__file__), "data")
 
@@ -45,14 +45,14 @@ def test_cube_is_mitsubas_flat_outward():
 # -- OBJ --------------------------------------------------------------------------------------
 
 def test_obj_quad_with_normals_is_fanned():
-    v, f, n = meshes.read_obj(os.path.join(DATA, "quad_poly.obj"))
+    v, f, n = mesh_files.read_obj(os.path.join(DATA, "quad_poly.obj"))
     np.testing.assert_array_equal(v, [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]])
     np.testing.assert_array_equal(f, [[0, 1, 2], [0, 2, 3]])
     np.testing.assert_array_equal(n, [[0, 0, 1]] * 4)
 
 
 def test_obj_negative_indices_polygon_no_normals():
-    v, f, n = meshes.read_obj(os.path.join(DATA, "pentagon.obj"))
+    v, f, n = mesh_files.read_obj(os.path.join(DATA, "pentagon.obj"))
     assert n is None
     assert v.shape == (5, 3) and np.all(v[:, 2] == 2)
     np.testing.assert_array_equal(f, [[0, 1, 2], [0, 2, 3], [0, 3, 4]])
@@ -61,8 +61,8 @@ def test_obj_negative_indices_polygon_no_normals():
 def test_obj_round_trip(tmp_path):
     v, f, n = meshes.cube_mesh()
     p = str(tmp_path / "cube.obj")
-    meshes.write_obj(p, v, f, n)
-    v2, f2, n2 = meshes.read_obj(p)
+    mesh_files.write_obj(p, v, f, n)
+    v2, f2, n2 = mesh_files.read_obj(p)
     np.testing.assert_array_equal(v2[f2], v[f])
     np.testing.assert_array_equal(n2[f2], n[f])
 
@@ -74,15 +74,15 @@ def test_obj_errors_name_file_and_line(tmp_path, text, where):
     p = tmp_path / "bad.obj"
     p.write_text(text)
     with pytest.raises(ValueError) as e:
-        meshes.read_obj(str(p))
+        mesh_files.read_obj(str(p))
     assert "bad.obj" in str(e.value) and where in str(e.value)
 
 
 # -- PLY --------------------------------------------------------------------------------------
 
 def test_ply_ascii_and_binary_agree():
-    a = meshes.read_ply(os.path.join(DATA, "quad_ascii.ply"))
-    b = meshes.read_ply(os.path.join(DATA, "quad_binary.ply"))
+    a = mesh_files.read_ply(os.path.join(DATA, "quad_ascii.ply"))
+    b = mesh_files.read_ply(os.path.join(DATA, "quad_binary.ply"))
     for x, y in zip(a, b):
         np.testing.assert_array_equal(x, y)
     np.testing.assert_array_equal(a[1], [[0, 1, 2], [0, 2, 3]])
@@ -93,8 +93,8 @@ def test_ply_ascii_and_binary_agree():
 def test_ply_round_trip(tmp_path, binary):
     v, f, n = meshes.cube_mesh()
     p = str(tmp_path / "cube.ply")
-    meshes.write_ply(p, v, f, n, binary=binary)
-    v2, f2, n2 = meshes.read_ply(p)
+    mesh_files.write_ply(p, v, f, n, binary=binary)
+    v2, f2, n2 = mesh_files.read_ply(p)
     np.testing.assert_array_equal(v2, v)
     np.testing.assert_array_equal(f2, f)
     np.testing.assert_array_equal(n2, n)
@@ -112,7 +112,7 @@ def test_ply_big_endian_mixed_polygons_and_extra_element(tmp_path):
     body += bytes([2]) + np.array([1.5, 2.5], ">f4").tobytes()
     p = tmp_path / "be.ply"
     p.write_bytes(head.encode() + body)
-    v2, f2, n2 = meshes.read_ply(str(p))
+    v2, f2, n2 = mesh_files.read_ply(str(p))
     np.testing.assert_array_equal(v2, v.astype(np.float64))
     np.testing.assert_array_equal(f2, [[0, 1, 2], [0, 2, 3], [1, 4, 2]])
     assert n2 is None
@@ -123,7 +123,7 @@ def test_ply_truncated(tmp_path):
     p = tmp_path / "trunc.ply"
     p.write_bytes(data[:-5])
     with pytest.raises(ValueError, match="trunc.ply.*truncated"):
-        meshes.read_ply(str(p))
+        mesh_files.read_ply(str(p))
 
 
 # -- normals, transforms ---------------------------------------------------------------------
@@ -158,9 +158,9 @@ def test_flip_reverses_winding_and_normals():
 # -- bicubic Bézier patches (eq. 3.3) ---------------------------------------------------------
 
 def test_flat_patch_reproduces_plane_and_normals():
-    patches = meshes.read_patches(os.path.join(DATA, "flat.patch"))
+    patches = bezier.read_patches(os.path.join(DATA, "flat.patch"))
     assert patches.shape == (1, 4, 4, 3)
-    v, f, n = meshes.tessellate_patches(patches, subdivisions=4)
+    v, f, n = bezier.tessellate_patches(patches, subdivisions=4)
     assert v.shape == (25, 3) and f.shape == (32, 3)
     t = np.linspace(0, 1, 5)
     uu, vv = np.meshgrid(t, t, indexing="ij")
@@ -174,7 +174,7 @@ def test_patch_on_hyperbolic_paraboloid():
     # z = x y over [0,1]^2 is bilinear, so its cubic Bezier control points are
     # P[i][j] = (i/3, j/3, (i/3)(j/3)) (degree elevation)
     ctrl = np.array([[[i / 3, j / 3, (i / 3) * (j / 3)] for j in range(4)] for i in range(4)])
-    v, f, n = meshes.tessellate_patches(ctrl[None], subdivisions=6)
+    v, f, n = bezier.tessellate_patches(ctrl[None], subdivisions=6)
     np.testing.assert_allclose(v[:, 2], v[:, 0] * v[:, 1], atol=1e-15)
     expect = np.stack([-v[:, 1], -v[:, 0], np.ones(len(v))], 1)
     expect /= np.linalg.norm(expect, axis=1, keepdims=True)
@@ -187,11 +187,11 @@ def test_bezier_eval_derivatives_match_finite_differences():
     rng = np.random.default_rng(3)
     ctrl = rng.normal(size=(4, 4, 3))
     u, v, h = np.array([0.3]), np.array([0.7]), 1e-6
-    p, pu, pv = meshes.bezier_eval(ctrl, u, v)
-    np.testing.assert_allclose(pu, (meshes.bezier_eval(ctrl, u + h, v)[0]
-                                    - meshes.bezier_eval(ctrl, u - h, v)[0]) / (2 * h), atol=1e-7)
-    np.testing.assert_allclose(pv, (meshes.bezier_eval(ctrl, u, v + h)[0]
-                                    - meshes.bezier_eval(ctrl, u, v - h)[0]) / (2 * h), atol=1e-7)
+    p, pu, pv = bezier.bezier_eval(ctrl, u, v)
+    np.testing.assert_allclose(pu, (bezier.bezier_eval(ctrl, u + h, v)[0]
+                                    - bezier.bezier_eval(ctrl, u - h, v)[0]) / (2 * h), atol=1e-7)
+    np.testing.assert_allclose(pv, (bezier.bezier_eval(ctrl, u, v + h)[0]
+                                    - bezier.bezier_eval(ctrl, u, v - h)[0]) / (2 * h), atol=1e-7)
 
 
 def test_collapsed_patch_edge_gets_a_finite_normal():
@@ -200,7 +200,7 @@ def test_collapsed_patch_edge_gets_a_finite_normal():
     z = [1.0, 1.0, 0.5, 0.0]
     ctrl = np.array([[[i / 3 * np.cos(j * np.pi / 6), i / 3 * np.sin(j * np.pi / 6), z[i]]
                       for j in range(4)] for i in range(4)])
-    v, f, n = meshes.tessellate_patches(ctrl[None], subdivisions=4)
+    v, f, n = bezier.tessellate_patches(ctrl[None], subdivisions=4)
     assert np.all(np.isfinite(n))
     np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0)
     assert np.all(n[:5, 2] > 0.99)  # at the apex the dome's normal is +z
@@ -208,12 +208,12 @@ def test_collapsed_patch_edge_gets_a_finite_normal():
 
 def test_inline_control_points_and_errors():
     text = " ".join(["0 0 0"] * 16)
-    assert meshes.parse_patches(text, with_count=False).shape == (1, 4, 4, 3)
+    assert bezier.parse_patches(text, with_count=False).shape == (1, 4, 4, 3)
     with pytest.raises(ValueError, match="48 numbers"):
-        meshes.parse_patches("1 2 3", "inline", with_count=False)
+        bezier.parse_patches("1 2 3", "inline", with_count=False)
     with pytest.raises(ValueError, match="2 patch"):
-        meshes.parse_patches("2 " + text, "file.patch")
+        bezier.parse_patches("2 " + text, "file.patch")
     with pytest.raises(ValueError, match="file.patch:1"):
-        meshes.parse_patches("1 x", "file.patch")
+        bezier.parse_patches("1 x", "file.patch")
     with pytest.raises(ValueError, match="subdivisions"):
-        meshes.tessellate_patches(np.zeros((1, 4, 4, 3)), 0)
+        bezier.tessellate_patches(np.zeros((1, 4, 4, 3)), 0)

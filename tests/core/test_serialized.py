@@ -1,4 +1,4 @@
-"""Mitsuba ``serialized`` meshes in the core: the reader (links1.geometry.meshes.read_serialized)
+"""Mitsuba ``serialized`` meshes in the core: the reader (links1.geometry.mesh_files.read_serialized)
 on files written by :func:`write_serialized` below (the format as Mitsuba's
 ``src/shapes/serialized.cpp`` documents and reads it), and the loader's ``serialized`` shape.
 What Mitsuba itself loads from the same files: tests/plugins/test_serialized_vs_mitsuba.py."""
@@ -12,7 +12,7 @@ import pytest
 
 from links1 import load_scene
 from links1.errors import SceneError
-from links1.geometry import meshes
+from links1.geometry import mesh_files
 
 
 def write_serialized(path, shapes, version=4) -> None:
@@ -55,12 +55,12 @@ QUAD = dict(v=[[-1, -1, 2], [1, -1, 2], [1, 1, 2], [-1, 1, 2]], f=[[0, 1, 2], [2
 def test_every_mesh_of_a_file_reads_back(tmp_path, version, double):
     p = str(tmp_path / "m.serialized")
     write_serialized(p, [dict(TET, double=double), dict(QUAD, double=double)], version)
-    v, f, n, uv = meshes.read_serialized(p, 0)
+    v, f, n, uv = mesh_files.read_serialized(p, 0)
     np.testing.assert_array_equal(v, np.asarray(TET["v"], dtype="f8" if double else "f4"))
     np.testing.assert_array_equal(f, TET["f"])
     np.testing.assert_allclose(n, TET["n"], rtol=1e-7)  # unit already, up to float32
     np.testing.assert_array_equal(uv, TET["uv"])
-    v, f, n, uv = meshes.read_serialized(p, 1)
+    v, f, n, uv = mesh_files.read_serialized(p, 1)
     np.testing.assert_array_equal(v, QUAD["v"])
     np.testing.assert_array_equal(f, QUAD["f"])
     assert n is None and uv is None
@@ -77,7 +77,7 @@ def test_bad_files_are_named(tmp_path, damage, message):
     write_serialized(str(p), [TET])
     p.write_bytes(damage(p.read_bytes()))
     with pytest.raises(ValueError, match="bad.serialized") as e:
-        meshes.read_serialized(str(p))
+        mesh_files.read_serialized(str(p))
     assert message in str(e.value)
 
 
@@ -85,10 +85,10 @@ def test_out_of_range_index_and_face(tmp_path):
     p = str(tmp_path / "m.serialized")
     write_serialized(p, [TET, QUAD])
     with pytest.raises(ValueError, match=r"shape_index 2 is out of range \(the file holds 2 meshes: 0..1\)"):
-        meshes.read_serialized(p, 2)
+        mesh_files.read_serialized(p, 2)
     write_serialized(p, [dict(QUAD, f=[[0, 1, 4]])])
     with pytest.raises(ValueError, match=r"indexes vertex 4, out of range \(0..3\)"):
-        meshes.read_serialized(p, 0)
+        mesh_files.read_serialized(p, 0)
 
 
 SCENE = """<scene version="3.0.0">
@@ -124,4 +124,4 @@ def test_a_file_without_a_table_is_refused_for_a_later_mesh(tmp_path):
     write_serialized(str(p), [QUAD])
     p.write_bytes(p.read_bytes()[:-12] + struct.pack("<I", 1000))   # table gone, count 1000
     with pytest.raises(ValueError, match="end-of-file table of 1000 meshes does not fit"):
-        meshes.read_serialized(str(p), 5)
+        mesh_files.read_serialized(str(p), 5)

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import links1
-from links1.geometry import meshes
+from links1.geometry import mesh_files, meshes
 from links1.shading import textures
 from links1.errors import SceneError
 from links1.imaging.image import srgb_to_linear
@@ -137,7 +137,7 @@ def test_shape_uv_at_known_points():
 def test_obj_and_ply_texcoords(tmp_path):
     (tmp_path / "m.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0.25\nvt 0 1\n"
                                     "f 1/1 2/2 3/3\n")
-    v, f, n, uv = meshes.read_obj(tmp_path / "m.obj", uv=True)
+    v, f, n, uv = mesh_files.read_obj(tmp_path / "m.obj", uv=True)
     np.testing.assert_allclose(uv, [[0, 0], [1, 0.25], [0, 1]])
     with pytest.warns(SceneWarning, match="no sensor"):
         scene = load_string(f"""<scene version="3.0.0"><shape type="obj"><string name="filename"

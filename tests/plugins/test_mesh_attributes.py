@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from links1.geometry import meshes
+from links1.geometry import mesh_files
 from links1_app.renderers import make_renderer
 
 from tests import scenes
@@ -56,7 +56,7 @@ def scene(request, tmp_path):
 
 def test_ply_attributes_are_read_per_vertex_and_per_face(tmp_path):
     (tmp_path / "quad.ply").write_text(PLY)
-    v, f, n, uv, attrs = meshes.read_ply(str(tmp_path / "quad.ply"), uv=True, attributes=True)
+    v, f, n, uv, attrs = mesh_files.read_ply(str(tmp_path / "quad.ply"), uv=True, attributes=True)
     np.testing.assert_array_equal(attrs["vertex_color"][3], [0.9, 0.9, 0.1])
     np.testing.assert_array_equal(attrs["face_color"], [[0.8, 0.4, 0.1], [0.1, 0.4, 0.8]])
 
