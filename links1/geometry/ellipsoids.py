@@ -47,7 +47,7 @@ import numpy as np
 
 from ..maths.vec import cross, dot, normalize
 from .base import _finite_or_zero
-from .meshes import _ply_header, _read_binary_element
+from .mesh_files import _ply_header, _read_binary_element
 from .primset import PrimitiveSet
 from .quadrics import quadric_roots
 from .shapes import TriangleMesh
