@@ -18,7 +18,7 @@ from links1.errors import Links1Error, RenderAborted, UsageError, one_line_warni
 from links1.imaging.image import write_image
 from links1.interrupts import held_interrupts, ignore_interrupts, restore_interrupts, stop_resource_sharer
 
-from . import diff
+from . import animate, diff
 from .cli_options import (nonneg_int, adaptive_options, add_progress_arguments, add_render_arguments,
                           progress_choice, renderer_options)
 from .partition import cli as partition_cli
@@ -36,6 +36,7 @@ MAIN_EXAMPLES = """commands:
   render     render a Mitsuba 3 XML scene with the LINKS-1 method
   diff       compare two images (EXR/PNG) under a metric and threshold
   schedule   run a root/node screen-partitioning experiment
+  animate    render a sequence of frames (per-frame $name values) over the nodes
 
 examples:
   links1 render scenes/fig11.xml -o fig11.png
@@ -75,6 +76,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     diff.add_cli(sub)             # links1 diff
     schedule.add_cli(sub)         # links1 schedule
+    animate.add_cli(sub)          # links1 animate
     return parser
 
 

@@ -1,0 +1,300 @@
+"""``links1 animate``: a sequence of frames from one scene file, over the nodes.
+
+Per-frame ``$name`` values are expressions of the frame number ``f`` and time ``t``
+(:mod:`links1_app.expressions`), or, from Python, a function that updates the loaded scene
+(:func:`animate`'s ``update``). Each node loads the scene once and updates it per frame
+(:class:`links1_app.partition.sequence.SequenceRenderer`). Units (``--units``): whole frames,
+screen partitions of each frame in turn, or both; a split frame is planned from eq. 4.1's object
+loads or from the previous frame's measured cost (the ``cost`` AOV, ray tests per pixel).
+Every frame equals the single-process render of that frame bit for bit.
+"""
+from __future__ import annotations
+
+import os
+import sys
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from tqdm import tqdm
+
+from links1.errors import UsageError
+from links1.imaging.image import write_image
+from links1.partition.loadmodel import load_table, scene_model
+from links1.partition.strategies import STRATEGIES, make_plan
+from links1.tracing.aovs import aov_channel, check_aovs, channel_names
+from links1.tracing.render import CoreRenderer
+
+from .expressions import frame_values, parse_frames
+from .partition.executors import InProcess, default_log, render_plan
+from .partition.local_pool import LocalPool
+from .partition.sequence import (PLAN_FROM, UNIT_CHOICES, frame_units_plan, imbalance, node_loads, rank_correlation,
+                                 sequence_spec, shifted)
+
+ANIMATE_EXAMPLES = """examples:
+  links1 animate scenes/orbit.xml -o out/orbit_%04d.png --frames 0:48 -D angle='7.5*f' --workers 2
+  links1 animate scenes/many.xml -o out/f.exr --frames 48 --fps 24 \\
+      -D eye='14*sin(radians(7.5*f)), 9, 14*cos(radians(7.5*f))' --units frames --workers 2
+  links1 animate scenes/blobs_moving.xml -o out/b_%03d.png --frames 0:24 --report r.json --plot r.png
+"""
+
+
+def output_path(pattern: str, frame: int) -> str:
+    """The file of ``frame``: ``pattern`` with a printf field (``out/f_%04d.exr``), else
+    ``_NNNN`` before the extension."""
+    if "%" in pattern:
+        try:
+            return pattern % frame
+        except (TypeError, ValueError):
+            raise UsageError(f"output {pattern!r}: expected one integer field such as %04d") from None
+    root, ext = os.path.splitext(pattern)
+    return f"{root}_{frame:04d}{ext}"
+
+
+@dataclass
+class SequenceResult:
+    """What a sequence run did: the frames written and, per frame, how it was split."""
+
+    written: list = field(default_factory=list)     # paths written in this run
+    skipped: list = field(default_factory=list)     # frames already on disk (--checkpoint)
+    frames: list = field(default_factory=list)      # per frame rendered: a dict of figures
+    makespan_s: float = 0.0                          # the sequence's wall time (root clock)
+    units: str = ""
+    n_nodes: int = 0
+    faults: list = field(default_factory=list)
+    images: dict = field(default_factory=dict)       # frame -> image, when asked to keep them
+
+
+class _Frames:
+    """Collects units of the tall film into frames; a frame is handed on once every pixel is in
+    (render_plan's ``checkpoint``: nothing to resume at unit level, every unit saved here)."""
+
+    def __init__(self, width, height, ks, on_frame):
+        self.w, self.h = width, height
+        self.left = {k: width * height for k in ks}
+        self.buf: dict = {}
+        self.on_frame = on_frame
+
+    def load(self, unit):
+        return None
+
+    def save(self, unit, pixels):
+        k = unit.y0 // self.h
+        a = self.buf.get(k)
+        if a is None:
+            a = self.buf[k] = np.zeros((self.h, self.w, pixels.shape[2]), dtype=np.float64)
+        y = unit.y0 - k * self.h
+        a[y:y + unit.h, unit.x0:unit.x0 + unit.w] = pixels
+        self.left[k] -= unit.w * unit.h
+        if self.left[k] == 0:
+            self.on_frame(k, self.buf.pop(k))
+
+
+def make_backend(*, workers=0, dask_local=None, scheduler=None, static=False, chunk_factor=0):
+    """The nodes of a sequence: in-process, the local pool, or Dask (results through the pipe:
+    a tall film has no shared frame)."""
+    if scheduler and dask_local:
+        raise UsageError("--scheduler and --dask-local are exclusive")
+    if scheduler or dask_local:
+        from .partition.cli import _dask_backend
+        return _dask_backend().DaskBackend(scheduler=scheduler, n_local=dask_local, static=static,
+                                           chunk_factor=chunk_factor)
+    if not workers:
+        return InProcess(chunk_factor=chunk_factor)
+    return LocalPool(int(workers), chunk_factor=chunk_factor, shared_frame=False)
+
+
+def animate(scene, output=None, *, frames, defines=(), fps=24.0, renderer="core", update=None, backend=None,
+            units="partition", partition="subscreen", plan_from="previous", tiles_per_node=16, resume=False,
+            progress=None, keep_images=False, aovs=(), log=default_log, **options) -> SequenceResult:
+    """Render ``frames`` (frame numbers) of ``scene`` to ``output`` (a pattern, :func:`output_path`;
+    None: nothing written, ``keep_images`` keeps them in the result).
+
+    ``defines``: ``[(name, text)]`` per-frame values (:func:`links1_app.expressions.frame_values`);
+    ``update``: a module-level function ``update(params, f, t)`` that changes the loaded scene
+    (Mitsuba: ``mi.traverse(scene)``, the core: its Scene); ``backend``: the nodes
+    (:func:`make_backend`; default in-process), kept open for the caller; ``units``:
+    :data:`~links1_app.partition.sequence.UNIT_CHOICES`; ``partition`` / ``plan_from``: how a split
+    frame is planned; ``resume``: frames whose file exists are not rendered again.
+    ``options``: the renderer's (spp, width, height, max_depth, seed, params, ...)."""
+    if units not in UNIT_CHOICES:
+        raise UsageError(f"unknown --units {units!r}; choose from {', '.join(UNIT_CHOICES)}")
+    if plan_from not in PLAN_FROM:
+        raise UsageError(f"unknown --plan-from {plan_from!r}; choose from {', '.join(PLAN_FROM)}")
+    if partition not in STRATEGIES:
+        raise UsageError(f"unknown --partition {partition!r}; choose from {', '.join(STRATEGIES)}")
+    frames = list(frames)
+    values = frame_values(list(defines), frames, float(fps))
+    user_aovs = check_aovs(aovs)
+    all_aovs = user_aovs + (() if "cost" in user_aovs else ("cost",))   # the next frame's plan reads it
+    res = SequenceResult(units=units)
+    paths = {f: output_path(output, f) for f in frames} if output else {}
+    for p in paths.values():
+        if not p.lower().endswith((".exr", ".png")):
+            raise UsageError(f"output {p!r}: unknown image type (use .exr or .png)")
+        if p.lower().endswith(".png") and user_aovs:
+            raise UsageError("AOVs need an EXR output (-o something_%04d.exr)")
+    todo = [k for k, f in enumerate(frames) if not (resume and paths and os.path.exists(paths[f]))]
+    res.skipped = [frames[k] for k in range(len(frames)) if k not in set(todo)]
+    backend = backend or InProcess(chunk_factor=0)
+    spec = sequence_spec(renderer, scene, values, numbers=frames, times=[f / fps for f in frames],
+                         update=update, aovs=all_aovs, **options)
+    if not todo:
+        return res
+    # the root reads the scene with the core (shapes, camera: eq. 4.1) for the film size and loads
+    core_opts = {k: v for k, v in options.items() if k in ("spp", "max_depth", "seed", "width", "height", "sensor")}
+    base = dict(options.get("params") or {})
+    probe = CoreRenderer(scene, params={**base, **values[0]}, **core_opts)
+    W, H = probe.film_size
+    channels = channel_names(all_aovs)
+    c_cost = aov_channel(channels, "cost")
+    keep = [i for i, c in enumerate(channels) if not c.startswith("cost.") or "cost" in user_aovs]
+    bar = tqdm(total=len(frames), initial=len(res.skipped), unit="frame", desc="links1 animate", file=sys.stderr,
+               dynamic_ncols=True, leave=False, disable=None if progress is None else not progress)
+    costs: dict = {}
+
+    def on_frame(k, img):
+        costs[k] = img[..., c_cost]
+        out = img[..., keep]
+        f = frames[k]
+        if f in paths:
+            p = paths[f]
+            os.makedirs(os.path.dirname(os.path.abspath(p)), exist_ok=True)
+            if p.lower().endswith(".png"):
+                write_image(p, out[..., :3])
+            else:
+                write_image(p, out, [channels[i] for i in keep])
+            res.written.append(p)
+        if keep_images:
+            res.images[f] = out
+        bar.update(1)
+
+    table = load_table(None, renderer=renderer)
+
+    def eq41_map(k):
+        r = probe if k == 0 else CoreRenderer(scene, params={**base, **values[k]}, **core_opts)
+        return scene_model(r, path=scene, params={**base, **values[k]}, table=table).load_map()
+
+    t0 = time.perf_counter()
+    try:
+        backend.start(spec)
+        n = max(1, int(backend.n_nodes))
+        res.n_nodes = n
+        if units == "partition":
+            for k in todo:
+                _split_frame(k, frames, todo, W, H, n, backend, spec, res, on_frame, costs, eq41_map,
+                             partition, plan_from, tiles_per_node, log)
+        else:
+            split = min(n, len(todo)) if units == "both" and n > 1 else 0
+            plan = frame_units_plan(W, H, todo, n, len(frames), split_last=split, tiles_per_node=tiles_per_node)
+            sink = _Frames(W, H, todo, on_frame)
+            r = render_plan(plan, spec, backend, checkpoint=sink, progress=False, log=log)
+            res.faults += r.faults
+            per = {}
+            for i, info in r.records.items():
+                k = plan.units[i].y0 // H
+                per.setdefault(k, []).append(info)
+            for k in todo:
+                infos = per.get(k, [])
+                launches = {tuple(i["launch"]): i["launch_seconds"] for i in infos if i.get("launch")}
+                res.frames.append({"frame": frames[k], "units": len(infos),
+                                   "render_s": float(sum(launches.values())),
+                                   "ray_tests": float(costs[k].sum()) if k in costs else None})
+            res.frames_makespan_s = r.makespan_s
+    finally:
+        bar.close()
+    res.makespan_s = time.perf_counter() - t0
+    return res
+
+
+def _split_frame(k, frames, todo, W, H, n, backend, spec, res, on_frame, costs, eq41_map, partition, plan_from,
+                 tiles_per_node, log):
+    """Frame ``k`` split over the nodes, planned from eq. 4.1 or the previous frame's cost."""
+    prev = costs.get(k - 1)
+    source = "previous" if plan_from == "previous" and prev is not None else "eq41"
+    t = time.perf_counter()
+    load = prev + 1.0 if source == "previous" else eq41_map(k)   # + the camera ray itself
+    plan = make_plan(partition, W, H, n, tiles_per_node=tiles_per_node, unit="tile", load_map=load)
+    planning_s = time.perf_counter() - t
+    tall = shifted(plan, k, H, len(frames))
+    sink = _Frames(W, H, [k], on_frame)
+    r = render_plan(tall, spec, backend, checkpoint=sink, progress=False, log=log)
+    res.faults += r.faults
+    cost = costs.get(k)
+    busy, tests = node_loads(tall, r.records, cost, H, n)
+    unit_tests = [float(cost[u.y0:u.y0 + u.h, u.x0:u.x0 + u.w].sum()) for u in plan.units] if cost is not None else []
+    res.frames.append({
+        "frame": frames[k], "plan_from": source, "partition": partition, "units": len(plan.units),
+        "makespan_s": r.makespan_s, "planning_s": planning_s, "busy_s": busy.tolist(), "ray_tests": tests.tolist(),
+        "imbalance": imbalance(busy), "imbalance_ray_tests": imbalance(tests),
+        "predicted_vs_ray_tests": rank_correlation(plan.predicted, unit_tests) if plan.predicted is not None else None,
+    })
+
+
+# ---------------------------------------------------------------------- command line
+def add_cli(sub) -> None:
+    """``links1 animate`` (its ``func`` is :func:`run_cli`)."""
+    import argparse
+    from .cli_options import add_progress_arguments, add_render_arguments, int_option
+    p = sub.add_parser("animate", help="render a sequence of frames (per-frame $name values) over the nodes",
+                       epilog=ANIMATE_EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter,
+                       description="Render frames of one scene file, its $name parameters given per frame as "
+                       "expressions of the frame number f and time t (-D angle='7.5*f'); each node loads the "
+                       "scene once and updates it per frame.")
+    add_render_arguments(p)
+    p.add_argument("-o", "--output", required=True,
+                   help="frame files: a pattern with one integer field (out/f_%%04d.exr), else _NNNN is added")
+    p.add_argument("--frames", required=True, help="START:STOP[:STEP] or COUNT (frame numbers, as Python's range)")
+    p.add_argument("--fps", type=float, default=24.0, help="frames per second: t = f / fps (default 24)")
+    p.add_argument("--units", choices=UNIT_CHOICES, default="partition",
+                   help="what a node is given: whole frames, screen partitions of each frame in turn "
+                        "(default), or both (whole frames, the last frames split)")
+    p.add_argument("--partition", choices=STRATEGIES, default="subscreen", help="how a split frame is cut (default subscreen)")
+    p.add_argument("--plan-from", choices=PLAN_FROM, default="previous",
+                   help="a split frame's loads: eq. 4.1's object counts, or the previous frame's measured cost "
+                        "(default; the first frame uses eq. 4.1)")
+    p.add_argument("--tiles-per-node", type=int_option("--tiles-per-node", 1), default=16)
+    p.add_argument("--workers", type=int_option("--workers", 0), default=0, help="local worker processes (0: in-process)")
+    p.add_argument("--dask-local", type=int_option("--dask-local", 1), default=None, metavar="N")
+    p.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT")
+    p.add_argument("--checkpoint", action="store_true",
+                   help="frames already on disk are not rendered again (every written frame is whole)")
+    add_progress_arguments(p)
+    p.add_argument("--debug", action="store_true", help="show tracebacks")
+    p.set_defaults(func=run_cli)
+
+
+def run_cli(args) -> int:
+    from .cli_options import adaptive_options, progress_choice
+    frames = parse_frames(args.frames)
+    frame_values(args.defines, frames[:1], args.fps)    # a bad -D: one line before anything starts
+    opts = dict(spp=args.spp, width=args.width, height=args.height, max_depth=args.max_depth, seed=args.seed)
+    if args.sensor is not None:
+        opts["sensor"] = args.sensor
+    if args.light_samples is not None:
+        opts["light_samples"] = args.light_samples
+    opts.update(adaptive_options(args))
+    opts = {k: v for k, v in opts.items() if v is not None}
+    if args.renderer == "mitsuba":
+        from .renderers import require_mitsuba
+        require_mitsuba(args.variant)
+        if args.variant:
+            opts["variant"] = args.variant
+    static = args.units == "partition" and args.partition != "dynamic"
+    backend = make_backend(workers=args.workers, dask_local=args.dask_local, scheduler=args.scheduler,
+                           static=static)
+    try:
+        res = animate(args.scene, args.output, frames=frames, defines=args.defines, fps=args.fps,
+                      renderer=args.renderer, backend=backend, units=args.units, partition=args.partition,
+                      plan_from=args.plan_from, tiles_per_node=args.tiles_per_node, resume=args.checkpoint,
+                      progress=progress_choice(args), aovs=args.aov, **opts)
+    except KeyboardInterrupt:
+        getattr(backend, "terminate", backend.close)()
+        raise
+    finally:
+        backend.close()
+    if res.skipped:
+        print(f"links1: {len(res.skipped)} of {len(frames)} frames were on disk already", file=sys.stderr)
+    print(f"links1: wrote {len(res.written)} frames ({args.output}, {res.units} units, {res.n_nodes} node(s), "
+          f"{res.makespan_s:.2f} s)", file=sys.stderr)
+    return 0

@@ -1,0 +1,147 @@
+"""``links1 animate``: sequences over the nodes, per-frame values, resume, frame-coherent plans."""
+from __future__ import annotations
+
+import math
+import os
+
+import numpy as np
+import pytest
+
+from links1.errors import UsageError
+from links1.imaging.image import read_image
+from links1_app.animate import animate, make_backend, output_path
+from links1_app.cli import main
+from links1_app.expressions import Expression, frame_values, parse_frames
+from links1_app.renderers import make_renderer
+
+from .conftest import MANY
+
+ORBIT = ("eye", "14*sin(radians(30*f)), 9, 14*cos(radians(30*f))")
+OPTS = dict(width=32, height=32, spp=1)
+
+
+def single(frame, aovs=("cost",)):
+    """The single-process render of one orbit frame, loaded from scratch with that frame's values."""
+    v = frame_values([ORBIT], [frame], 24.0)[0]
+    return make_renderer("core", MANY, params=v, aovs=aovs, **OPTS).render()
+
+
+@pytest.fixture(scope="module")
+def refs():
+    return {f: single(f) for f in range(3)}
+
+
+# ---------------------------------------------------------------------- expressions
+def test_expression_values_are_the_arithmetic():
+    e = Expression("eye", "14*sin(radians(30*f)), 9, 2**3 - t")
+    assert e.varies
+    assert e.value(1, 0.5) == f"{14 * math.sin(math.radians(30)) !r}, 9, 7.5"
+    assert Expression("res", "32").value(7, 1.0) == "32"
+    assert Expression("kind", "sphere").value(3, 0.1) == "sphere"     # a word: the scene's string
+    assert frame_values([("a", "f*0.5")], [0, 1, 2], 2.0) == [{"a": "0"}, {"a": "0.5"}, {"a": "1"}]
+
+
+@pytest.mark.parametrize("text", ["__import__('os').system('true')", "f.real", "open(f)", "sin(f, f)",
+                                  "[f][0]", "2**(100000+f)", "(lambda: 1)()", "log(f)"])
+def test_expression_refuses_what_is_not_arithmetic(text):
+    with pytest.raises(UsageError, match="-D x="):
+        frame_values([("x", text)], [0, 1], 24.0)
+
+
+def test_frames_option():
+    assert parse_frames("0:4") == [0, 1, 2, 3]
+    assert parse_frames("3") == [0, 1, 2]
+    assert parse_frames("2:9:3") == [2, 5, 8]
+    for bad in ("a:b", "4:2", "0:4:0", "-2:1"):
+        with pytest.raises(UsageError, match="--frames"):
+            parse_frames(bad)
+    assert output_path("o/f_%03d.exr", 7) == "o/f_007.exr" and output_path("o/f.png", 7) == "o/f_0007.png"
+
+
+def test_bad_expression_is_one_line_and_exit_2(tmp_path, capsys):
+    out = tmp_path / "f_%02d.png"
+    code = main(["animate", MANY, "-o", str(out), "--frames", "2", "--renderer", "core",
+                 "-D", "eye=exec('x'), 9, 14", "--no-progress"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2
+    assert len(err) == 1 and err[0].startswith("links1: error: -D eye=") and "exec" in err[0]
+    assert not list(tmp_path.iterdir())
+
+
+# ---------------------------------------------------------------------- bits over the nodes
+def check_frames(res, refs, frames=(0, 1, 2)):
+    assert sorted(res.images) == list(frames)
+    for f in frames:
+        assert np.array_equal(res.images[f], refs[f]), f"frame {f} differs from its single-process render"
+
+
+def test_in_process_frames_equal_single_renders(refs):
+    for units in ("frames", "partition"):
+        res = animate(MANY, frames=[0, 1, 2], defines=[ORBIT], units=units, keep_images=True, aovs=("cost",),
+                      progress=False, **OPTS)
+        check_frames(res, refs)
+
+
+def test_pool_of_two_every_unit_choice_is_bit_identical(refs):
+    be = make_backend(workers=2)
+    try:
+        for units, plan_from in (("frames", "eq41"), ("both", "eq41"), ("partition", "eq41"),
+                                 ("partition", "previous")):
+            res = animate(MANY, frames=[0, 1, 2], defines=[ORBIT], units=units, plan_from=plan_from, backend=be,
+                          keep_images=True, aovs=("cost",), progress=False, tiles_per_node=4, **OPTS)
+            assert res.n_nodes == 2
+            check_frames(res, refs)
+    finally:
+        be.close()
+
+
+def test_dask_local_cluster_is_bit_identical(refs):
+    pytest.importorskip("distributed")
+    be = make_backend(dask_local=2)
+    try:
+        for units in ("frames", "partition"):
+            res = animate(MANY, frames=[0, 1, 2], defines=[ORBIT], units=units, backend=be, keep_images=True,
+                          aovs=("cost",), progress=False, tiles_per_node=4, **OPTS)
+            check_frames(res, refs)
+    finally:
+        be.close()
+
+
+# ---------------------------------------------------------------------- files and resume
+def test_cli_writes_frames_and_resumes_at_the_missing_ones(tmp_path, capsys, refs):
+    pattern = str(tmp_path / "f_%02d.exr")
+    args = ["animate", MANY, "-o", pattern, "--frames", "3", "--renderer", "core", "--width", "32",
+            "--height", "32", "--spp", "1", "-D", f"{ORBIT[0]}={ORBIT[1]}", "--no-progress", "--checkpoint"]
+    assert main(args) == 0
+    paths = [tmp_path / f"f_{f:02d}.exr" for f in range(3)]
+    for f, p in enumerate(paths):
+        img = read_image(str(p))
+        assert np.array_equal(img[..., :3], refs[f][..., :3].astype(np.float32))
+    os.remove(paths[1])
+    stamp = {p: os.stat(p).st_mtime_ns for p in (paths[0], paths[2])}
+    capsys.readouterr()
+    assert main(args) == 0
+    err = capsys.readouterr().err
+    assert "2 of 3 frames were on disk already" in err and "wrote 1 frames" in err
+    assert paths[1].exists() and all(os.stat(p).st_mtime_ns == t for p, t in stamp.items())
+
+
+# ---------------------------------------------------------------------- frame-coherent plans
+def test_previous_frame_plan_is_no_worse_than_eq41_where_the_load_moves():
+    """An orbit around many.xml moves the load across the screen: the previous frame's measured
+    ray tests predict the next frame's split at least as well as eq. 4.1's object rectangles
+    (imbalance counted in exact ray tests, the cost AOV: no timing)."""
+    frames = list(range(6))
+    orbit = [("eye", "14*sin(radians(6*f)), 9, 14*cos(radians(6*f))")]
+    got = {}
+    be = make_backend(workers=2)
+    try:
+        for plan_from in ("eq41", "previous"):
+            res = animate(MANY, frames=frames, defines=orbit, units="partition", plan_from=plan_from, backend=be,
+                          progress=False, tiles_per_node=8, width=48, height=48, spp=1)
+            got[plan_from] = [fr["imbalance_ray_tests"] for fr in res.frames[1:]]
+            if plan_from == "previous":
+                assert [fr["plan_from"] for fr in res.frames] == ["eq41"] + ["previous"] * 5
+    finally:
+        be.close()
+    assert np.mean(got["previous"]) <= np.mean(got["eq41"])
