@@ -19,5 +19,6 @@ costmodel    the cost model fitted on units launched alone, the run's overheads,
 report       the schedule report of one run and where its makespan went
 simulator    replaying plans with fitted costs for node counts this machine cannot run
 plots        the report's and the simulation's figures (matplotlib)
-cli          ``links1 schedule`` and the distributed options of ``links1 render``
+cli          the distributed options of ``links1 render`` and the set-up ``links1 schedule`` shares
+schedule     ``links1 schedule``: a real run (or a sweep), its report, simulation and plots
 """
