@@ -7,6 +7,7 @@ shapes       TriangleMesh (eq. 3.1-3.3), Quadric (3.4-3.5, clip planes), Disk
 blob         weight-function surface (3.6-3.9): 'exact' and 'paper' solvers
 sdfgrid      Mitsuba's sdfgrid: trilinear distance grid, the voxel cubic's first root
 curves       Mitsuba's linearcurve: round linear segments (Embree's)
+ellipsoids   Mitsuba's ellipsoids (entered from outside only) and ellipsoidsmesh (a shell per ellipsoid)
 primset      the per-shape hierarchy walk shared by sdfgrid and curves
 meshes       obj / ply readers, rectangle / cube meshes, bicubic Bezier tessellation (eq. 3.3)
 accel        the scene's accelerator (3-2-4): a BVH over the shapes; nearest hit, any-hit, shadow products
