@@ -65,6 +65,12 @@ KEY_REFLECT = 0x63D83595
 KEY_REFRACT = 0xA511E9B3
 
 
+#: Salts of the keys below (one home: the plugin imports them): the pixel key's
+#: (:func:`pixel_keys`) and the adaptive lattice point's (:func:`lattice_keys`).
+KEY_PIXEL = 0x5BD1E995
+KEY_LATTICE = 0x68E31DA4
+
+
 def key_seed(seed: int) -> int:
     """The seed of the per-ray keys (a second stream, independent of the pixel pattern's)."""
     return (int(seed) * 0x27D4EB2F + 0x165667B1) & 0xFFFFFFFF
@@ -90,14 +96,14 @@ def lattice_keys(keys, seed: int) -> np.ndarray:
     k = np.asarray(keys, dtype=np.int64).astype(np.uint64)
     lo = (k & np.uint64(0xFFFFFFFF)).astype(np.uint32)
     hi = (k >> np.uint64(32)).astype(np.uint32)
-    return mix32(mix32(mix32(np.uint32(key_seed(seed) ^ 0x68E31DA4)) ^ lo) ^ hi)
+    return mix32(mix32(mix32(np.uint32(key_seed(seed) ^ KEY_LATTICE)) ^ lo) ^ hi)
 
 
 def pixel_keys(px, py, seed: int, film_width: int) -> np.ndarray:
     """Key shared by all samples of pixel ``(px, py)``:
     ``mix(mix(key_seed(seed) ^ 0x5BD1E995) ^ (py * film_width + px))``."""
     pix = np.asarray(py, dtype=np.uint32) * np.uint32(film_width) + np.asarray(px, dtype=np.uint32)
-    return mix32(mix32(np.uint32(key_seed(seed) ^ 0x5BD1E995)) ^ pix)
+    return mix32(mix32(np.uint32(key_seed(seed) ^ KEY_PIXEL)) ^ pix)
 
 
 def child_keys(keys: np.ndarray, tag: int) -> np.ndarray:

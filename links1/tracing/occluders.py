@@ -23,9 +23,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..maths.halfspace import box_side, point_side
 from ..shading.lights import AreaLight, ConeSpotLight, CylinderSpotLight, ParallelLight, PointLight, ProjectorLight
 
-#: Relative tolerance of the side-of-plane tests (scene scale units).
+#: Relative tolerance of the side-of-plane tests (scene scale units); the rule itself is
+#: :mod:`links1.maths.halfspace`'s, shared with the plugin (which has its own tolerance).
 SIDE_TOL = 1e-9
 
 
@@ -83,8 +85,7 @@ def _is_disk(shape) -> bool:
 def _light_side(light, n, p0):
     """+1 / -1: the side of the plane (n, p0) the light is on; 0 when it straddles it."""
     if isinstance(light, ParallelLight):
-        s = -float(light.direction @ n)
-        return int(np.sign(s)) if abs(s) > SIDE_TOL else 0
+        return point_side(-float(light.direction @ n), SIDE_TOL)
     if isinstance(light, PointLight):
         pos, reach = light.position, 0.0
     elif isinstance(light, CylinderSpotLight):
@@ -95,22 +96,13 @@ def _light_side(light, n, p0):
         return _box_side(*light.bounds(), n, p0)
     else:  # environments light from every direction
         return 0
-    s = float((pos - p0) @ n)
-    return int(np.sign(s)) if abs(s) > reach + SIDE_TOL * (1.0 + np.max(np.abs(pos))) else 0
+    return point_side(float((pos - p0) @ n), reach + SIDE_TOL * (1.0 + np.max(np.abs(pos))))
 
 
 def _box_side(lo, hi, n, p0):
-    """+1 / -1 when the whole box is on one side of the plane (touching allowed), else 0."""
-    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-    if not np.all(np.isfinite(corners)):
-        return 0
-    s = (corners - p0) @ n
-    tol = SIDE_TOL * (1.0 + np.max(np.abs(corners)))
-    if np.all(s >= -tol):
-        return 1
-    if np.all(s <= tol):
-        return -1
-    return 0
+    """+1 / -1 when the whole box is on one side of the plane (touching allowed), else 0
+    (:func:`links1.maths.halfspace.box_side` with the core's plane form and tolerance)."""
+    return box_side(lo, hi, lambda c: (c - p0) @ n, lambda c: SIDE_TOL * (1.0 + np.max(np.abs(c))))
 
 
 def shadow_plan(shapes, lights):

@@ -58,6 +58,8 @@ import copy
 import drjit as dr
 import mitsuba as mi
 
+from links1.maths.sampling import KEY_REFLECT, KEY_REFRACT
+
 from . import geometry, tuning
 from .tables import PHONG_TABLES
 from .registered import plugin_class
@@ -388,8 +390,8 @@ class Gradients:
         cr, ct, w_r, w_t = self._children(res, res["hit"], mi.Color3f(1.0), mi.UInt32(1))
         depth = 2
         while True:
-            key_r = mix32(key ^ mi.UInt32(0x63D83595))
-            key_t = mix32(key ^ mi.UInt32(0xA511E9B3))
+            key_r = mix32(key ^ mi.UInt32(KEY_REFLECT))
+            key_t = mix32(key ^ mi.UInt32(KEY_REFRACT))
             ir, it = dr.compress(cr), dr.compress(ct)
             nr, nt = dr.width(ir), dr.width(it)
             if nr + nt == 0:

@@ -18,7 +18,7 @@ import numpy as np
 
 from links1.interrupts import check_interrupt, interruptible
 from links1.tracing.aovs import check_aovs as parse_aovs  # the one AOV table and checker (links1/tracing/aovs.py)
-from links1.maths.sampling import KEY_LENS_U, KEY_LENS_V, strata
+from links1.maths.sampling import KEY_LENS_U, KEY_LENS_V, KEY_PIXEL, key_seed, strata
 
 from . import tuning
 from .film import Batch, cached_batch, concat, reconstruct, sample_ids, sample_window, widen
@@ -191,7 +191,7 @@ class Launches:
         yf = (mi.Float(py) + offy) / H
         key = mix32(mix32(seed[1]) ^ sid)
         # light samples of a primary hit: one set over the pixel (links1.maths.sampling.pixel_keys)
-        self._cam_sample = (mix32(mix32(seed[1] ^ 0x5BD1E995) ^ pix), i, n_s)
+        self._cam_sample = (mix32(mix32(seed[1] ^ KEY_PIXEL) ^ pix), i, n_s)
         o, d, tmin, tmax = self._rays_at(P, xf, yf, key)
         return o, d, tmin, tmax, key, i
 
@@ -493,7 +493,7 @@ class Launches:
         sid = sample_ids(W, int(spp), Batch([win], [swin], spp))
         part, _ = self._launch(P, scene, sid, (dr.opaque(mi.UInt32, spp), dr.opaque(mi.UInt32, strata(spp))),
                                (dr.opaque(mi.UInt32, seed & 0xFFFFFFFF),
-                                dr.opaque(mi.UInt32, (seed * 0x27D4EB2F + 0x165667B1) & 0xFFFFFFFF)), want)
+                                dr.opaque(mi.UInt32, key_seed(seed))), want)
         shape = (swin[3], swin[2], int(spp))
         out = {k: (np.stack([np.asarray(v[c]) for c in range(3)], axis=-1) if dr.size_v(v) == 3
                    else np.asarray(v)).reshape(shape + ((3,) if dr.size_v(v) == 3 else ()))
@@ -562,7 +562,7 @@ class Launches:
         sid = sample_ids(W, spp, batch)
         spp_ = (dr.opaque(mi.UInt32, spp), dr.opaque(mi.UInt32, strata(spp)))
         seeds = (dr.opaque(mi.UInt32, seed & 0xFFFFFFFF),
-                 dr.opaque(mi.UInt32, (seed * 0x27D4EB2F + 0x165667B1) & 0xFFFFFFFF))
+                 dr.opaque(mi.UInt32, key_seed(seed)))
         # launches of at most LAUNCH_LANES samples (lanes are independent: the same bits as
         # one launch); one launch of W*H*spp lanes needs ~90 bytes each (512², 1024 spp: 24 GB)
         if n <= LAUNCH_LANES:

@@ -28,6 +28,8 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
+from links1.maths.sampling import KEY_REFLECT, KEY_REFRACT
+
 from . import tuning
 from .util import INF, gather3, mix32
 
@@ -455,8 +457,8 @@ class RayTree:
             return rgb, res["cost"], res["t"], res["slot"], res["ns"], dict(nsh1=res["n_shadow"])
         act = res["hit"]
         cr, ct, w_r, w_t = self._children(res, act, mi.Color3f(1.0), mi.UInt32(1))
-        key_r = mix32(key ^ mi.UInt32(0x63D83595))
-        key_t = mix32(key ^ mi.UInt32(0xA511E9B3))
+        key_r = mix32(key ^ mi.UInt32(KEY_REFLECT))
+        key_t = mix32(key ^ mi.UInt32(KEY_REFRACT))
         has_t = P.any_phong_t or P.any_mitsuba_dt or P.any_mitsuba_null
         if has_t:
             kids = (res["o_r"], res["dir_r"], w_r, key_r, res["o_t"], res["dir_t"], w_t, key_t)
@@ -510,8 +512,8 @@ class RayTree:
             L = v["L"] + wgt * res["L"]
             cost = v["cost"] + res["cost"]
             cr, ct, w_r, w_t = self._children(res, act, wgt, v["depth"])
-            key_r = mix32(v["key"] ^ mi.UInt32(0x63D83595))
-            key_t = mix32(v["key"] ^ mi.UInt32(0xA511E9B3))
+            key_r = mix32(v["key"] ^ mi.UInt32(KEY_REFLECT))
+            key_t = mix32(v["key"] ^ mi.UInt32(KEY_REFRACT))
             sp = v["sp"]
             push = cr & ct
             if has_t:

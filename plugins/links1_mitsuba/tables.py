@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from links1.maths.halfspace import box_side, point_side
 from links1.scene.params import MAX_EXTENT
 from links1.sensor.filters import Filter
 from links1.shading.lights import ENV_LIGHT_ID, number_area_lights
@@ -673,16 +674,9 @@ def scene_identity(scene):
 
 def _side_of_box(nrm, c, a, b, tol):
     """-1 / +1 if the box ``a``-``b`` is in the closed half-space below / above the plane
-    ``x · nrm = c`` (within ``tol``), else 0 (an unbounded box: 0)."""
-    if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
-        return 0
-    corners = np.array([[x, y, z] for x in (a[0], b[0]) for y in (a[1], b[1]) for z in (a[2], b[2])])
-    dist = corners @ nrm - c
-    if np.all(dist >= -tol):
-        return 1
-    if np.all(dist <= tol):
-        return -1
-    return 0
+    ``x · nrm = c`` (within ``tol``), else 0 (an unbounded box: 0): the core's rule
+    (:func:`links1.maths.halfspace.box_side`) with the plugin's plane form and tolerance."""
+    return box_side(a, b, lambda corners: corners @ nrm - c, tol)
 
 
 #: The ``links1_phong`` coefficients as the tables hold them: table field -> (the BSDF's parameter
@@ -1282,11 +1276,9 @@ class Tables:
                     lside = _side_of_box(nrm, c, np.array([bb.min[0], bb.min[1], bb.min[2]]),
                                          np.array([bb.max[0], bb.max[1], bb.max[2]]), tol)
                 elif light[0] == "dir":
-                    v = float(light[1] @ nrm)
-                    lside = 1 if v > 0 else (-1 if v < 0 else 0)
+                    lside = point_side(float(light[1] @ nrm), 0.0)
                 else:
-                    v = float(light[1] @ nrm - c)
-                    lside = 1 if v > tol else (-1 if v < -tol else 0)
+                    lside = point_side(float(light[1] @ nrm - c), tol)
                 if lside != 0 and G["others"][sl] in (lside, None):   # None: no other shape
                     occ[sl] = False
             if light[0] == "area":      # a convex emitter never hides its own sampled points
