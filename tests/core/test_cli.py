@@ -19,17 +19,18 @@ def run_cli(*args):
 
 
 def test_every_command_is_wired_to_its_front_end_module():
-    """render, diff and schedule, each run by its own module's runner: the commands come from
-    plain imports (links1_app.cli imports diff and partition.schedule), so a module that fails to
-    import fails the command line instead of leaving its command out."""
-    from links1_app import cli, diff
+    """render, diff, schedule and animate, each run by its own module's runner: the commands come
+    from plain imports (links1_app.cli imports diff, partition.schedule and animate), so a module
+    that fails to import fails the command line instead of leaving its command out."""
+    from links1_app import animate, cli, diff
     from links1_app.partition import schedule
     parser = cli.build_parser()
     sub = next(a for a in parser._actions if a.dest == "command")
-    assert sorted(sub.choices) == ["diff", "render", "schedule"]
+    assert sorted(sub.choices) == ["animate", "diff", "render", "schedule"]
     assert sub.choices["render"].get_default("func") is cli.cmd_render
     assert sub.choices["diff"].get_default("func") is diff.run_cli
     assert sub.choices["schedule"].get_default("func") is schedule.run_cli
+    assert sub.choices["animate"].get_default("func") is animate.run_cli
 
 
 def test_render_png_and_exr_with_aovs(tmp_path, capsys):
