@@ -47,7 +47,7 @@ import numpy as np
 
 from ..maths.vec import cross, dot, normalize
 from .base import _finite_or_zero
-from .mesh_files import _ply_header, _read_binary_element
+from .mesh_files import _read_binary_element, ply_file
 from .primset import PrimitiveSet
 from .quadrics import quadric_roots
 from .shapes import TriangleMesh
@@ -85,12 +85,7 @@ def read_ellipsoids(path, to_world=None, scale_factor: float = 1.0):
     """The ellipsoids of Mitsuba's PLY format (see the module docstring) placed by
     ``to_world``: ``(centers (N, 3), rotations (N, 3, 3), scales (N, 3), opacities (N,) or
     None)``. ValueError naming the file (and the header line) on what Mitsuba cannot read."""
-    try:
-        with open(path, "rb") as fh:
-            raw = fh.read()
-    except OSError as exc:
-        raise ValueError(f"{path}: cannot read: {exc.strerror}") from None
-    fmt, elements, off = _ply_header(raw, path)
+    raw, fmt, elements, off = ply_file(path)
     if not elements:
         raise ValueError(f"{path}: PLY file has no element")
     name, count, props, line = elements[0]

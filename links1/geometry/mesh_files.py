@@ -203,6 +203,18 @@ def _ply_header(data: bytes, path: str):
     return fmt, elements, body_start
 
 
+def ply_file(path: str):
+    """The bytes of the PLY file ``path`` and its header: ``(data, format, elements, offset of
+    the body)`` (:func:`read_ply`, Mitsuba's ellipsoids); ValueError naming the file when it
+    cannot be read or its header is bad."""
+    try:
+        with open(path, "rb") as fh:
+            data = fh.read()
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot read: {exc.strerror}") from None
+    return (data,) + _ply_header(data, path)
+
+
 def _read_binary_element(buf: bytes, off: int, count: int, props, endian: str, path: str, name: str):
     """Read ``count`` records → (dict prop -> array or list of arrays, new offset)."""
     has_list = any(isinstance(t, tuple) for _, t in props)
@@ -283,12 +295,7 @@ def read_ply(path: str, uv: bool = False, attributes: bool = False):
     ``texcoords (V, 2) or None`` with ``uv=True``, then with ``attributes=True`` Mitsuba's mesh
     attributes ``{"vertex_<name>": (V, k), "face_<name>": (F, k)}`` (face rows per triangle
     after polygons are fanned)."""
-    try:
-        with open(path, "rb") as fh:
-            data = fh.read()
-    except OSError as exc:
-        raise ValueError(f"{path}: cannot read: {exc.strerror}") from None
-    fmt, elements, off = _ply_header(data, path)
+    data, fmt, elements, off = ply_file(path)
     values: dict = {}
     if fmt == "ascii":
         toks = data[off:].split()

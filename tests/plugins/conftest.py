@@ -155,9 +155,23 @@ def assert_matches_mitsuba_direct(kind, path, spp: int = 16, ref_factor: int = 1
     return ours, ref
 
 
-def assert_both_match_mitsuba_direct(path, spp: int, render, ref_factor: int = 16, factor: float = 1.5):
+def render_direct(kind, path, spp: int):
+    """``kind``'s render (max_depth 1: direct light) of ``path`` at ``spp`` -> (h, w, 3) float64,
+    the core's warnings silenced (the default ``render`` of :func:`assert_both_match_mitsuba_direct`)."""
+    import warnings
+
+    import numpy as np
+
+    from links1_app.renderers import make_renderer
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return np.asarray(make_renderer(kind, path, spp=spp, max_depth=1).render(), dtype=np.float64)[..., :3]
+
+
+def assert_both_match_mitsuba_direct(path, spp: int, render=render_direct, ref_factor: int = 16,
+                                     factor: float = 1.5):
     """The core's and the plugin's renders of ``path`` at ``spp`` (``render(kind, path, spp)``
-    -> (h, w, 3)) are each within ``factor`` times the relMSE of Mitsuba's ``direct`` at the same
+    -> (h, w, 3), :func:`render_direct` by default) are each within ``factor`` times the relMSE of Mitsuba's ``direct`` at the same
     spp, all against Mitsuba's ``direct`` at ``ref_factor`` times the spp; and the core equals the
     plugin (relMSE <= 1e-4: the same samples)."""
     from links1.imaging.diff import relmse

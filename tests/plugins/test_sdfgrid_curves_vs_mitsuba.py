@@ -12,12 +12,9 @@ within float32 rounding of a silhouette), at distances within float32 rounding o
 same geometric and shading normals (both ``normals`` modes), segment index and ``uv``."""
 from __future__ import annotations
 
-import warnings
-
 import numpy as np
 import pytest
 
-from links1_app.renderers import make_renderer
 from links1.geometry.curves import RoundBSplineCurves, RoundLinearCurves, read_curves
 from links1.geometry.sdfgrid import SDFGrid, read_vol
 
@@ -159,12 +156,6 @@ SCENE = scene(integrator("direct", bsdf_samples=0),
     <bsdf type="diffuse"><rgb name="reflectance" value="0.8, 0.7, 0.2"/></bsdf></shape>""")
 
 
-def _render(kind, path, spp):
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        return np.asarray(make_renderer(kind, path, spp=spp, max_depth=1).render(), dtype=np.float64)[..., :3]
-
-
 @pytest.mark.parametrize("normals", ["smooth", "analytic"])
 def test_render_matches_mitsuba_direct_and_plugin(files, llvm, normals):
     """A point-lit floor under the SDF grid and the curves (shadows of all on the floor, of
@@ -175,4 +166,4 @@ def test_render_matches_mitsuba_direct_and_plugin(files, llvm, normals):
     path = files / "scene.xml"
     path.write_text(SCENE.format(vol=files / "sdf.vol", curves=files / "curves.txt",
                                 bsplines=files / "bsplines.txt", normals=normals))
-    assert_both_match_mitsuba_direct(str(path), 4, _render)
+    assert_both_match_mitsuba_direct(str(path), 4)
