@@ -60,3 +60,12 @@ def scene(*parts: str, version: str = "3.0.0") -> str:
     """A whole scene file holding ``parts`` in order."""
     body = "\n  ".join(p for p in parts if p)
     return f'<scene version="{version}">\n  {body}\n</scene>\n'
+
+
+def lit_floor(y: float, light=(2.0, 4.0, 3.0), intensity: float = 30.0, reflectance: float = 0.6) -> str:
+    """A point light at ``light`` over a diffuse 8 x 8 floor (a ``rectangle``) at height ``y``."""
+    return (f'<emitter type="point"><point name="position" value="{vec(light)}"/>'
+            f'<rgb name="intensity" value="{intensity!r}"/></emitter>\n'
+            f'  <shape type="rectangle"><transform name="to_world"><scale value="4"/><rotate x="1" angle="-90"/>'
+            f'<translate y="{y!r}"/></transform>\n'
+            f'    <bsdf type="diffuse"><rgb name="reflectance" value="{reflectance!r}"/></bsdf></shape>')

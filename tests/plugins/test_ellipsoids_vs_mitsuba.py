@@ -15,7 +15,7 @@ import pytest
 
 from links1.geometry import ellipsoids as ell
 
-from tests.scenes import integrator, perspective, scene
+from tests.scenes import integrator, lit_floor, perspective, scene
 
 from .conftest import assert_both_match_mitsuba_direct
 
@@ -85,11 +85,7 @@ def test_hits_match_mitsuba(ply, llvm, plugin, shell):
 
 
 SCENE = scene(integrator("direct", bsdf_samples=0),
-              perspective("0.4, 2.0, 4.5", "0, 0, 0", fov=40, width=48, height=40, spp=None), """
-  <emitter type="point"><point name="position" x="2" y="4" z="3"/><rgb name="intensity" value="30"/></emitter>
-  <shape type="rectangle"><transform name="to_world"><scale value="4"/><rotate x="1" angle="-90"/>
-    <translate y="-0.8"/></transform>
-    <bsdf type="diffuse"><rgb name="reflectance" value="0.6"/></bsdf></shape>
+              perspective("0.4, 2.0, 4.5", "0, 0, 0", fov=40, width=48, height=40, spp=None), lit_floor(-0.8), """
   <shape type="ellipsoids"><string name="filename" value="{ply}"/><float name="extent" value="1.2"/>
     <transform name="to_world"><rotate y="1" angle="30"/><scale x="1.2" y="1" z="0.9"/><translate y="0.2"/></transform>
     <bsdf type="diffuse"><rgb name="reflectance" value="0.7, 0.3, 0.2"/></bsdf></shape>

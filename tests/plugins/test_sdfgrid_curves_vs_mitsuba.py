@@ -18,7 +18,7 @@ import pytest
 from links1.geometry.curves import RoundBSplineCurves, RoundLinearCurves, read_curves
 from links1.geometry.sdfgrid import SDFGrid, read_vol
 
-from tests.scenes import integrator, perspective, scene
+from tests.scenes import integrator, lit_floor, perspective, scene
 
 from .conftest import assert_both_match_mitsuba_direct
 
@@ -140,11 +140,7 @@ def test_curve_hits_match_mitsuba(files, llvm, plugin):
 
 
 SCENE = scene(integrator("direct", bsdf_samples=0),
-              perspective("0.4, 2.5, 4.5", "0.3, 0.3, 0", fov=45, width=48, height=40, spp=None), """
-  <emitter type="point"><point name="position" x="2" y="4" z="3"/><rgb name="intensity" value="30"/></emitter>
-  <shape type="rectangle"><transform name="to_world"><scale value="4"/><rotate x="1" angle="-90"/>
-    <translate y="-1.2"/></transform>
-    <bsdf type="diffuse"><rgb name="reflectance" value="0.6"/></bsdf></shape>
+              perspective("0.4, 2.5, 4.5", "0.3, 0.3, 0", fov=45, width=48, height=40, spp=None), lit_floor(-1.2), """
   <shape type="sdfgrid"><string name="filename" value="{vol}"/><string name="normals" value="{normals}"/>
     <transform name="to_world"><scale value="1.8"/><translate x="0.4" y="-1.5" z="-0.6"/></transform>
     <bsdf type="diffuse"><rgb name="reflectance" value="0.7, 0.4, 0.2"/></bsdf></shape>
