@@ -28,6 +28,7 @@ from links1.tracing.render import CoreRenderer
 from .expressions import frame_values, parse_frames
 from .partition.executors import InProcess, default_log, render_plan
 from .partition.local_pool import LocalPool
+from .partition.runtime import get_renderer
 from .partition.sequence import (PLAN_FROM, UNIT_CHOICES, frame_units_plan, imbalance, node_loads, rank_correlation,
                                  sequence_spec, shifted)
 
@@ -58,11 +59,15 @@ class SequenceResult:
     written: list = field(default_factory=list)     # paths written in this run
     skipped: list = field(default_factory=list)     # frames already on disk (--checkpoint)
     frames: list = field(default_factory=list)      # per frame rendered: a dict of figures
-    makespan_s: float = 0.0                          # the sequence's wall time (root clock)
+    makespan_s: float = 0.0                          # the sequence's wall time (root clock, nodes started)
     units: str = ""
     n_nodes: int = 0
     faults: list = field(default_factory=list)
     images: dict = field(default_factory=dict)       # frame -> image, when asked to keep them
+    costs: dict = field(default_factory=dict)        # frame -> its ray tests per pixel (the cost AOV)
+    setup_s: list = field(default_factory=list)      # in-process: each frame change's set-up on the node
+    startup_s: float = 0.0                           # the nodes' start (scene loaded), before the clock
+    planning_s: float = 0.0                          # the root's eq. 4.1 loads, before the clock
 
 
 class _Frames:
@@ -106,7 +111,7 @@ def make_backend(*, workers=0, dask_local=None, scheduler=None, static=False, ch
 
 def animate(scene, output=None, *, frames, defines=(), fps=24.0, renderer="core", update=None, backend=None,
             units="partition", partition="subscreen", plan_from="previous", tiles_per_node=16, resume=False,
-            progress=None, keep_images=False, aovs=(), log=default_log, **options) -> SequenceResult:
+            progress=None, keep_images=False, aovs=(), log=default_log, eq41_maps=None, **options) -> SequenceResult:
     """Render ``frames`` (frame numbers) of ``scene`` to ``output`` (a pattern, :func:`output_path`;
     None: nothing written, ``keep_images`` keeps them in the result).
 
@@ -115,7 +120,8 @@ def animate(scene, output=None, *, frames, defines=(), fps=24.0, renderer="core"
     (Mitsuba: ``mi.traverse(scene)``, the core: its Scene); ``backend``: the nodes
     (:func:`make_backend`; default in-process), kept open for the caller; ``units``:
     :data:`~links1_app.partition.sequence.UNIT_CHOICES`; ``partition`` / ``plan_from``: how a split
-    frame is planned; ``resume``: frames whose file exists are not rendered again.
+    frame is planned; ``resume``: frames whose file exists are not rendered again; ``eq41_maps``:
+    a dict (frame -> eq. 4.1 load map) kept across calls, so experiments read each frame once.
     ``options``: the renderer's (spp, width, height, max_depth, seed, params, ...)."""
     if units not in UNIT_CHOICES:
         raise UsageError(f"unknown --units {units!r}; choose from {', '.join(UNIT_CHOICES)}")
@@ -155,6 +161,7 @@ def animate(scene, output=None, *, frames, defines=(), fps=24.0, renderer="core"
 
     def on_frame(k, img):
         costs[k] = img[..., c_cost]
+        res.costs[frames[k]] = costs[k]
         out = img[..., keep]
         f = frames[k]
         if f in paths:
@@ -171,13 +178,25 @@ def animate(scene, output=None, *, frames, defines=(), fps=24.0, renderer="core"
 
     table = load_table(None, renderer=renderer)
 
-    def eq41_map(k):
-        r = probe if k == 0 else CoreRenderer(scene, params={**base, **values[k]}, **core_opts)
-        return scene_model(r, path=scene, params={**base, **values[k]}, table=table).load_map()
+    maps = {} if eq41_maps is None else eq41_maps
 
-    t0 = time.perf_counter()
+    def eq41_map(k):
+        if frames[k] not in maps:
+            r = probe if k == 0 else CoreRenderer(scene, params={**base, **values[k]}, **core_opts)
+            maps[frames[k]] = scene_model(r, path=scene, params={**base, **values[k]}, table=table).load_map()
+        return maps[frames[k]]
+
+    if units == "partition":   # the root's eq. 4.1 loads, read before the clock (planning)
+        t = time.perf_counter()
+        for k in todo:
+            if plan_from == "eq41" or (k - 1) not in set(todo):
+                eq41_map(k)
+        res.planning_s = time.perf_counter() - t
     try:
-        backend.start(spec)
+        t = time.perf_counter()
+        backend.start(spec)      # nodes started, the scene loaded on each: before the clock
+        res.startup_s = time.perf_counter() - t
+        t0 = time.perf_counter()
         n = max(1, int(backend.n_nodes))
         res.n_nodes = n
         if units == "partition":
@@ -200,10 +219,11 @@ def animate(scene, output=None, *, frames, defines=(), fps=24.0, renderer="core"
                 res.frames.append({"frame": frames[k], "units": len(infos),
                                    "render_s": float(sum(launches.values())),
                                    "ray_tests": float(costs[k].sum()) if k in costs else None})
-            res.frames_makespan_s = r.makespan_s
     finally:
         bar.close()
     res.makespan_s = time.perf_counter() - t0
+    if isinstance(backend, InProcess):   # the root's own node: its set-up per frame change
+        res.setup_s = list(getattr(get_renderer(spec), "setup_s", []))
     return res
 
 
@@ -259,6 +279,18 @@ def add_cli(sub) -> None:
     p.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT")
     p.add_argument("--checkpoint", action="store_true",
                    help="frames already on disk are not rendered again (every written frame is whole)")
+    g = p.add_argument_group("sequence experiment")
+    g.add_argument("--report", default=None, metavar="JSON",
+                   help="run the experiment: one process rendering the frames in turn (it writes the frames), then "
+                        "each of --ways on the nodes; per frame and for the sequence: makespan, imbalance, true "
+                        "efficiency, predicted vs measured correlation, throughput")
+    g.add_argument("--ways", default="eq41,previous,dynamic,frames", metavar="LIST",
+                   help="--report's ways: eq41, previous (subscreen from eq. 4.1 / the previous frame's cost), "
+                        "dynamic (guided tiles), frames (whole frames); default all four")
+    g.add_argument("--plot", default=None, metavar="PNG", help="--report's plot: imbalance and makespan per frame by way")
+    g.add_argument("--simulate", default=None, metavar="N,...",
+                   help="--report: replay the measured sequence at these node counts, latency (one frame split "
+                        "over N) and throughput (frames over N)")
     add_progress_arguments(p)
     p.add_argument("--debug", action="store_true", help="show tracebacks")
     p.set_defaults(func=run_cli)
@@ -280,6 +312,10 @@ def run_cli(args) -> int:
         require_mitsuba(args.variant)
         if args.variant:
             opts["variant"] = args.variant
+    if args.report:
+        return _experiment(args, frames, opts)
+    if args.plot or args.simulate:
+        raise UsageError("--plot and --simulate need --report JSON")
     static = args.units == "partition" and args.partition != "dynamic"
     backend = make_backend(workers=args.workers, dask_local=args.dask_local, scheduler=args.scheduler,
                            static=static)
@@ -298,3 +334,64 @@ def run_cli(args) -> int:
     print(f"links1: wrote {len(res.written)} frames ({args.output}, {res.units} units, {res.n_nodes} node(s), "
           f"{res.makespan_s:.2f} s)", file=sys.stderr)
     return 0
+
+
+def _experiment(args, frames, opts) -> int:
+    """``animate --report``: the one-process reference, then each way on the nodes (sequence_report)."""
+    from .partition import sequence_report as sr
+    from .partition.checkpoint import atomic_write_json
+    from .partition.handout import CHUNK_FACTOR
+    ways = [w.strip() for w in args.ways.split(",") if w.strip()]
+    bad = [w for w in ways if w not in sr.WAYS]
+    if bad:
+        raise UsageError(f"--ways: unknown {', '.join(bad)}; choose from {', '.join(sr.WAYS)}")
+    sims = [int(v) for v in args.simulate.split(",")] if args.simulate else []
+    if any(v < 1 for v in sims):
+        raise UsageError(f"--simulate {args.simulate!r}: node counts must be >= 1")
+    common = dict(frames=frames, defines=args.defines, fps=args.fps, renderer=args.renderer, progress=progress_of(args),
+                  tiles_per_node=args.tiles_per_node, aovs=args.aov, **opts)
+    maps: dict = {}
+    one = animate(args.scene, args.output, backend=InProcess(chunk_factor=0), units="frames", eq41_maps=maps,
+                  **common)
+    print(f"links1: one process: {len(frames)} frames in {one.makespan_s:.2f} s", file=sys.stderr)
+    be = make_backend(workers=args.workers or 2 if not (args.dask_local or args.scheduler) else 0,
+                      dask_local=args.dask_local, scheduler=args.scheduler, static=False)
+    summaries = []
+    try:
+        for way in ways:
+            units, partition, plan_from = sr.WAYS[way]
+            be.chunk_factor = CHUNK_FACTOR if way == "dynamic" else 0
+            res = animate(args.scene, None, backend=be, units=units, partition=partition, plan_from=plan_from,
+                          eq41_maps=maps, **common)
+            summaries.append(sr.summarise(way, res, one, res.n_nodes))
+            print(f"links1: {way}: {res.makespan_s:.2f} s", file=sys.stderr)
+    except KeyboardInterrupt:
+        getattr(be, "terminate", be.close)()
+        raise
+    finally:
+        be.close()
+    n = summaries[0]["nodes"] if summaries else 1
+    report = {"scene": args.scene, "renderer": args.renderer, "frames": frames, "nodes": n,
+              "defines": [list(d) for d in args.defines], "options": opts,
+              "one_process": {"frames": one.frames, "makespan_s": one.makespan_s, "setup_s": one.setup_s},
+              "ways": summaries,
+              "throughput": {s["way"]: s["throughput_vs_one_process"] for s in summaries}}
+    if sims:
+        overhead = sr.split_overhead(summaries)
+        rows = sr.simulate_sequence(one, one.costs, maps, sims, tiles_per_node=args.tiles_per_node,
+                                    overhead_s=overhead)
+        report["simulation"] = {"overhead_s": overhead, "rows": rows, "best": sr.best_choices(rows)}
+    atomic_write_json(args.report, report)
+    if args.plot:
+        sr.plot(report, args.plot)
+    print(sr.format_summary(report), file=sys.stderr)
+    for k, b in (report.get("simulation") or {}).get("best", {}).items():
+        print(f"links1: simulated {k} nodes: latency-optimal {b['latency']['way']} (efficiency "
+              f"{b['latency']['efficiency']:.2f}), throughput-optimal {b['throughput']['way']} (efficiency "
+              f"{b['throughput']['efficiency']:.2f})", file=sys.stderr)
+    return 0
+
+
+def progress_of(args):
+    from .cli_options import progress_choice
+    return progress_choice(args)

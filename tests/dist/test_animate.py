@@ -145,3 +145,43 @@ def test_previous_frame_plan_is_no_worse_than_eq41_where_the_load_moves():
     finally:
         be.close()
     assert np.mean(got["previous"]) <= np.mean(got["eq41"])
+
+
+# ---------------------------------------------------------------------- experiment and simulation
+def test_simulated_throughput_of_whole_frames_is_list_scheduling():
+    """Equal frames of T seconds over N nodes, one at a time, no overheads: ceil(F / N) x T."""
+    from types import SimpleNamespace
+    from links1_app.partition.sequence_report import best_choices, simulate_sequence
+    T, F = 0.5, 10
+    one = SimpleNamespace(frames=[{"frame": f, "render_s": T} for f in range(F)], setup_s=[])
+    costs = {f: np.ones((8, 8)) for f in range(F)}
+    rows = simulate_sequence(one, costs, {}, [1, 4, 16], tiles_per_node=2)
+    thr = {r["nodes"]: r for r in rows if r["way"] == "frames"}
+    for n in (1, 4, 16):
+        assert thr[n]["makespan_s"] == pytest.approx(math.ceil(F / n) * T)
+        assert thr[n]["efficiency"] == pytest.approx(F * T / (n * math.ceil(F / n) * T))
+    lat = {r["nodes"]: r for r in rows if r["way"] == "previous"}
+    assert lat[4]["makespan_s"] == pytest.approx(T / 4)     # uniform cost, 8 tiles in 4 equal groups
+    best = best_choices(rows)
+    # without overheads, splitting every frame over 16 nodes beats 10 whole frames on 10 of them
+    assert best[16]["throughput"]["way"] in ("previous", "both")
+    assert best[16]["throughput"]["frames_per_s"] == pytest.approx(F / (F * T / 16))
+    assert best[1]["throughput"]["efficiency"] == pytest.approx(1.0)
+
+
+def test_report_and_plot(tmp_path, capsys):
+    pytest.importorskip("matplotlib")
+    import json
+    rep, png = tmp_path / "r.json", tmp_path / "r.png"
+    code = main(["animate", MANY, "-o", str(tmp_path / "f_%02d.png"), "--frames", "3", "--renderer", "core",
+                 "--width", "32", "--height", "32", "--spp", "1", "-D", f"{ORBIT[0]}={ORBIT[1]}", "--no-progress",
+                 "--workers", "2", "--tiles-per-node", "4", "--ways", "previous,frames", "--report", str(rep),
+                 "--plot", str(png), "--simulate", "4,64"])
+    assert code == 0
+    r = json.loads(rep.read_text())
+    assert [s["way"] for s in r["ways"]] == ["previous", "frames"] and r["nodes"] == 2
+    prev = r["ways"][0]
+    assert [fr["plan_from"] for fr in prev["frames"]] == ["eq41", "previous", "previous"]
+    assert all(fr["imbalance_ray_tests"] >= 1.0 for fr in prev["frames"])
+    assert sorted(r["simulation"]["best"]) == ["4", "64"]
+    assert png.stat().st_size > 0 and len(list(tmp_path.glob("f_*.png"))) == 3
