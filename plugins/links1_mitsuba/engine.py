@@ -16,6 +16,9 @@ from __future__ import annotations
 
 import dataclasses
 
+import mitsuba as mi
+import numpy as np
+
 from links1.scene.params import default as l1_default
 from links1.scene.params import read as l1_read
 from links1.tracing.adaptive import DEFAULT_ADAPTIVE_DEPTH
@@ -183,8 +186,6 @@ class Engine(Tables, Lights, Intersect, RayTree, Launches, Gradients):
     # -------------------------------------------------------------- the frame
     def render(self, scene, sensor=0, seed=0, spp=0):
         """``Links1Whitted.render``: the frame of ``sensor``'s crop window as a ``mi.TensorXf``."""
-        import mitsuba as mi
-        import numpy as np
         sensor, win, spp, seed = self._render_request(scene, sensor, seed, spp)
         if self.adaptive is not None:   # refined on the host (links1.tracing.adaptive)
             img = self.render_adaptive(scene, win, seed=seed, sensor=sensor)
@@ -200,7 +201,6 @@ class Engine(Tables, Lights, Intersect, RayTree, Launches, Gradients):
         """What a ``render``-style call (``mi.render``, ``render_forward``/``_backward``) asks for:
         ``(sensor object, its crop window, spp (the sampler's when 0 or None), the pattern's seed
         = the integrator's seed + the call's)``."""
-        import numpy as np
         sensor = self._sensor_of(scene, sensor)
         film = sensor.film()
         off, size = film.crop_offset(), film.crop_size()

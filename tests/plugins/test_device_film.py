@@ -216,14 +216,14 @@ def test_batch_film_work_does_not_grow_with_windows(variant, tmp_path, rfilter):
 def test_mi_render_never_visits_numpy(variant, tmp_path, monkeypatch):
     """``mi.render`` assembles the frame without numpy in the launch, film and integrator code."""
     import mitsuba as mi
-    from links1_mitsuba import integrator, launch
+    from links1_mitsuba import engine, launch
     scene = load(tmp_path, "gaussian")
     ref = np.asarray(mi.render(scene, spp=4))
 
     class NoNumpy:
         def __getattr__(self, name):
             raise AssertionError(f"numpy.{name} used while rendering")
-    for mod in (launch, integrator):
+    for mod in (launch, engine):
         monkeypatch.setattr(mod, "np", NoNumpy())
     t = mi.render(scene, spp=4)
     monkeypatch.undo()
@@ -256,14 +256,14 @@ def test_frames_of_the_same_windows_reuse_the_batch(variant, tmp_path, monkeypat
     pixels = sum(w * h for *_, w, h in wins)
     C = 3 + 1 + 3 + 1 + 1 + 1
     monkeypatch.setattr(film, "KEEP_LANES", 0)
-    integ._hidden.batches = {}
+    integ.engine.batches = {}
     none, k3 = frame()
     for a, b, c in zip(first, again, none):
         assert np.array_equal(a, b) and np.array_equal(a, c)
     # kept: the lanes' windows (a scatter of marks), the sample ids, and for gaussian the
     # weight tables (a kernel over lanes x 5 neighbour offsets); the launch and the pixels'
     # kernels run again
-    lanes = [b.lanes for b in integ._hidden.batches.values()][-1]
+    lanes = [b.lanes for b in integ.engine.batches.values()][-1]
     sizes1, sizes2 = [k["size"] for k in k1], [k["size"] for k in k2]
     assert len(k2) < len(k1) and sizes2.count(lanes) == sizes1.count(lanes) - 1, (sizes1, sizes2)
     assert 5 * lanes not in sizes2 and (5 * lanes in sizes1) == (rfilter == "gaussian")

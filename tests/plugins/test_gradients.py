@@ -229,8 +229,8 @@ def test_primal_unchanged_with_gradients_enabled(variant, keep_graph):
         dr.enable_grad(params[k])
     with tuning.tuned(keep_graph=keep_graph):
         with_grad = np.array(mi.render(scene, params), dtype=np.float64)
-    kept = scene.integrator()._hidden.kept_graph is not None
-    scene.integrator()._hidden.kept_graph = None
+    kept = scene.integrator().info()["kept_graph"]
+    scene.integrator().engine.kept_graph = None
     for k in SHADING_KEYS + MOVE_KEYS:
         dr.disable_grad(params[k])
     assert kept == keep_graph

@@ -141,9 +141,11 @@ def test_two_frames_then_one_backward(variant, render_count):
     sensor is checked) and the gradient is the sum of the two frames' own gradients."""
     import drjit as dr
     import mitsuba as mi
-    from .test_gradients import CAMERA
-    second = CAMERA.split("</integrator>")[1].replace('origin="0, 3, 6"', 'origin="2, 2.5, 5"')
-    scene = mi.load_string(f'<scene version="3.0.0">{CAMERA.format(depth=4, rfilter="")}{second}{SHADING}</scene>')
+    from tests import scenes
+
+    from .test_gradients import camera
+    second = scenes.perspective("2, 2.5, 5", "0, 0.5, 0", fov=40, width=24, height=18, rfilter="")
+    scene = mi.load_string(scenes.scene(camera(4, rfilter=""), second, SHADING))
     assert len(scene.sensors()) == 2
     keys = ["ball.bsdf.diffuse.value", "lp.position"]
     params = mi.traverse(scene)
