@@ -12,9 +12,9 @@ share; ``src/shapes/ellipsoids.cpp``; ``src/shapes/ellipsoidsmesh.cpp``;
   ``scale_0 scale_1 scale_2 rot_0 rot_1 rot_2 rot_3``; Mitsuba reads every property of a
   record as a float32 (binary little-endian or ASCII). Per ellipsoid: ``centre = to_world ·
   (x, y, z)``; ``scale = max(exp(scale_k), 1e-6) · scale_factor · mean(diag S)`` with ``S``
-  the stretch of ``to_world``'s polar decomposition ``Q S`` (``Q`` a rotation: a mirroring
-  map turns ``S`` negative); quaternion ``normalize(Q · (rot_1, rot_2, rot_3, rot_0))``
-  (``rot_0`` is the real part). The properties between (``nx ... ``) are attributes for
+  the stretch of ``to_world``'s polar decomposition ``Q S``; quaternion ``normalize(Q ·
+  (rot_1, rot_2, rot_3, rot_0))`` (``rot_0`` is the real part). A mirroring map has its own
+  twist (:func:`world_rotation`): negative semi-axes and another rotation. The properties between (``nx ... ``) are attributes for
   volumetric integrators; of them only ``opacities`` matters here (below): a property
   ``opacities``, or, in a 3D Gaussian splatting file (``f_dc_0`` seventh, ``opacity``
   eighth from last), ``clip(sigmoid(opacity), 1e-8, 1 - 1e-8)``.
@@ -71,14 +71,43 @@ def quat_matrix(q) -> np.ndarray:
         np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], axis=1)], axis=1)
 
 
-def polar_rotation(lin) -> tuple[np.ndarray, float]:
-    """Dr.Jit's ``transform_decompose`` of a linear map ``lin`` (3, 3) = ``Q S``: the rotation
-    ``Q`` and ``mean(diag S)`` (``Q`` turned proper and ``S`` negated for a mirroring map)."""
-    u, _, vt = np.linalg.svd(np.asarray(lin, dtype=np.float64))
+def matrix_quat(m) -> np.ndarray:
+    """Dr.Jit's ``matrix_to_quat`` of a 3x3 matrix (Mike Day's branches), ``x y z w``: a unit
+    quaternion for a rotation; for another matrix whatever the chosen branch gives (NaN where
+    its ``t`` is negative)."""
+    m = np.asarray(m, dtype=np.float64)
+    t0, t1 = 1 + m[0, 0] - m[1, 1] - m[2, 2], 1 - m[0, 0] + m[1, 1] - m[2, 2]
+    t2, t3 = 1 - m[0, 0] - m[1, 1] + m[2, 2], 1 + m[0, 0] + m[1, 1] + m[2, 2]
+    q0 = (t0, m[1, 0] + m[0, 1], m[0, 2] + m[2, 0], m[2, 1] - m[1, 2])
+    q1 = (m[1, 0] + m[0, 1], t1, m[2, 1] + m[1, 2], m[0, 2] - m[2, 0])
+    q2 = (m[0, 2] + m[2, 0], m[2, 1] + m[1, 2], t2, m[1, 0] - m[0, 1])
+    q3 = (m[2, 1] - m[1, 2], m[0, 2] - m[2, 0], m[1, 0] - m[0, 1], t3)
+    t, q = ((t0, q0) if m[0, 0] > m[1, 1] else (t1, q1)) if m[2, 2] < 0 else \
+        ((t2, q2) if m[0, 0] < -m[1, 1] else (t3, q3))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.array(q) * (0.5 / np.sqrt(t))
+
+
+def world_rotation(lin) -> tuple[np.ndarray, float]:
+    """What Mitsuba's ``EllipsoidsData`` takes from ``to_world``'s linear part ``lin`` (3, 3):
+    the rotation its ellipsoids turn by and the factor their semi-axes scale by, ``mean(diag
+    S)`` of the polar decomposition ``lin = Q S`` (Dr.Jit's ``transform_decompose``). For a
+    mirroring map Dr.Jit's ``mulsign(Q, det Q)`` negates the *diagonals* of ``Q`` and ``S``
+    only (a scalar broadcast to a matrix is a multiple of the identity): the scale factor is
+    then ``-mean(diag S)`` and the rotation that of ``matrix_to_quat`` of that matrix,
+    normalised. ValueError where that quaternion is undefined."""
+    lin = np.asarray(lin, dtype=np.float64)
+    u, _, vt = np.linalg.svd(lin)
     q = u @ vt
+    scale = float(np.mean(np.diag(q.T @ lin)))
     if np.linalg.det(q) < 0:
-        q = -q
-    return q, float(np.mean(np.diag(q.T @ lin)))
+        q[np.diag_indices(3)] *= -1.0
+        scale = -scale
+    quat = matrix_quat(q)
+    norm = float(np.linalg.norm(quat))
+    if not (np.all(np.isfinite(quat)) and norm > 0):
+        raise ValueError("to_world: Mitsuba's rotation of this mirroring map is undefined (NaN)")
+    return quat_matrix(quat / norm)[0], scale
 
 
 def read_ellipsoids(path, to_world=None, scale_factor: float = 1.0):
@@ -120,7 +149,7 @@ def read_ellipsoids(path, to_world=None, scale_factor: float = 1.0):
     if not np.all(np.isfinite(rec[:, list(range(3)) + list(range(k - 7, k))])):
         raise ValueError(f"{path}: an ellipsoid's position, scale or rotation is not finite")
     m = np.eye(4) if to_world is None else np.asarray(to_world, dtype=np.float64)
-    q_world, world_scale = polar_rotation(m[:3, :3])
+    q_world, world_scale = world_rotation(m[:3, :3])
     centers = rec[:, :3] @ m[:3, :3].T + m[:3, 3]
     scales = np.maximum(np.exp(rec[:, k - 7:k - 4]), 1e-6) * scale_factor * world_scale
     quats = rec[:, [k - 3, k - 2, k - 1, k - 4]]          # (rot_1, rot_2, rot_3, rot_0): x y z w

@@ -141,6 +141,19 @@ def test_ply_placement_rule(tmp_path):
         assert opac is None
 
 
+def test_mirroring_to_world_as_mitsuba_takes_it():
+    """Dr.Jit's ``transform_decompose`` negates only the diagonals of Q and S when ``det Q <
+    0``: a mirror x -> -x (Q = diag(-1, 1, 1)) turns the ellipsoids half a turn about x and
+    negates their semi-axes; a mirror after a quarter turn about z turns them by the half turn
+    about (-1, 1, 0) that its negated diagonal makes; a proper map keeps its rotation."""
+    rot, scale = ell.world_rotation(np.diag([-2.0, 2.0, 2.0]))
+    assert np.allclose(rot, np.diag([1.0, -1.0, -1.0])) and scale == pytest.approx(-2.0)
+    rot, scale = ell.world_rotation(np.array([[0.0, -1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]))
+    assert np.allclose(rot, [[0.0, -1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, -1.0]]) and scale == pytest.approx(-1.0)
+    rot, scale = ell.world_rotation(3.0 * ell.quat_matrix([[0.0, 0.0, math.sqrt(0.5), math.sqrt(0.5)]])[0])
+    assert np.allclose(rot, [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]) and scale == pytest.approx(3.0)
+
+
 def test_opacities_and_adaptive_extent(tmp_path):
     """An ``opacities`` property is the adaptive clamping's input: opacity 0.01 e^4.5 gives
     extent · sqrt(2 · 4.5) / 3 = extent; a 3DGS file's ``opacity`` goes through the sigmoid."""

@@ -40,13 +40,17 @@ def _rays(n=3000, radius=5.0, seed=1):
     return o, d / np.linalg.norm(d, axis=1)[:, None]
 
 
-@pytest.mark.parametrize("plugin, shell", [("ellipsoids", None), ("ellipsoidsmesh", "ico_sphere"),
-                                           ("ellipsoidsmesh", "uv_sphere"), ("ellipsoidsmesh", "box")])
-def test_hits_match_mitsuba(ply, llvm, plugin, shell):
+@pytest.mark.parametrize("plugin, shell, mirror", [
+    ("ellipsoids", None, False), ("ellipsoidsmesh", "ico_sphere", False), ("ellipsoidsmesh", "uv_sphere", False),
+    ("ellipsoidsmesh", "box", False), ("ellipsoids", None, True), ("ellipsoidsmesh", "ico_sphere", True)])
+def test_hits_match_mitsuba(ply, llvm, plugin, shell, mirror):
     """The core's hits, distances, normals, ellipsoid index and uv against Mitsuba's
-    ``ray_intersect``. LLVM only: a test of the core against a reference Mitsuba computes once."""
+    ``ray_intersect``. A mirroring ``to_world`` makes Mitsuba's semi-axes negative: the same
+    ellipsoids, but the mesh's shells turned inside out (seen from inside, culled from outside).
+    LLVM only: a test of the core against a reference Mitsuba computes once."""
     import mitsuba as mi
-    to_world = mi.ScalarTransform4f().translate([0.1, 0.2, -0.1]).rotate([1, 2, 3], 25).scale([1.3, 1.1, 0.9])
+    to_world = mi.ScalarTransform4f().translate([0.1, 0.2, -0.1]).rotate([1, 2, 3], 25).scale(
+        [-1.3 if mirror else 1.3, 1.1, 0.9])
     extent = 1.5
     spec = {"type": plugin, "filename": str(ply), "to_world": to_world, "extent": extent}
     if shell is not None:
@@ -68,7 +72,10 @@ def test_hits_match_mitsuba(ply, llvm, plugin, shell):
     hit = np.isfinite(t)
     assert 600 < hit[:3000].sum() < 2400                  # both hits and misses from outside
     assert np.array_equal(hit, np.isfinite(tm))
-    assert hit[3000:].sum() < 100                         # most rays from inside see nothing
+    if mirror and plugin == "ellipsoidsmesh":
+        assert hit[3000:].all()                           # an inside-out shell is seen from inside
+    else:
+        assert hit[3000:].sum() < 100                     # most rays from inside see nothing
     _, ng, ns = core.surface(o[hit], d[hit], t[hit], prim[hit])
     uv = core.uv(o[hit], d[hit], t[hit], prim[hit])
     which = prim[hit] if plugin == "ellipsoids" else prim[hit] // core.faces_per_ellipsoid
