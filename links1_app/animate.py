@@ -30,7 +30,7 @@ from .partition.executors import InProcess, default_log, render_plan
 from .partition.local_pool import LocalPool
 from .partition.runtime import get_renderer
 from .partition.sequence import (PLAN_FROM, UNIT_CHOICES, frame_units_plan, imbalance, node_loads, rank_correlation,
-                                 sequence_spec, shifted)
+                                 reproject, sequence_spec, shifted)
 
 ANIMATE_EXAMPLES = """examples:
   links1 animate scenes/orbit.xml -o out/orbit_%04d.png --frames 0:48 -D angle='7.5*f' --workers 2
@@ -65,6 +65,7 @@ class SequenceResult:
     faults: list = field(default_factory=list)
     images: dict = field(default_factory=dict)       # frame -> image, when asked to keep them
     costs: dict = field(default_factory=dict)        # frame -> its ray tests per pixel (the cost AOV)
+    depths: dict = field(default_factory=dict)       # frame -> its depth AOV
     setup_s: list = field(default_factory=list)      # in-process: each frame change's set-up on the node
     startup_s: float = 0.0                           # the nodes' start (scene loaded), before the clock
     planning_s: float = 0.0                          # the root's eq. 4.1 loads, before the clock
@@ -111,7 +112,7 @@ def make_backend(*, workers=0, dask_local=None, scheduler=None, static=False, ch
 
 def animate(scene, output=None, *, frames, defines=(), fps=24.0, renderer="core", update=None, backend=None,
             units="partition", partition="subscreen", plan_from="previous", tiles_per_node=16, resume=False,
-            progress=None, keep_images=False, aovs=(), log=default_log, eq41_maps=None, **options) -> SequenceResult:
+            progress=None, keep_images=False, aovs=(), log=default_log, cache=None, **options) -> SequenceResult:
     """Render ``frames`` (frame numbers) of ``scene`` to ``output`` (a pattern, :func:`output_path`;
     None: nothing written, ``keep_images`` keeps them in the result).
 
@@ -120,8 +121,9 @@ def animate(scene, output=None, *, frames, defines=(), fps=24.0, renderer="core"
     (Mitsuba: ``mi.traverse(scene)``, the core: its Scene); ``backend``: the nodes
     (:func:`make_backend`; default in-process), kept open for the caller; ``units``:
     :data:`~links1_app.partition.sequence.UNIT_CHOICES`; ``partition`` / ``plan_from``: how a split
-    frame is planned; ``resume``: frames whose file exists are not rendered again; ``eq41_maps``:
-    a dict (frame -> eq. 4.1 load map) kept across calls, so experiments read each frame once.
+    frame is planned; ``resume``: frames whose file exists are not rendered again; ``cache``: a
+    dict kept across calls (``"eq41"``: frame -> eq. 4.1 load map, ``"camera"``: frame -> the core's
+    camera), so experiments read each frame once.
     ``options``: the renderer's (spp, width, height, max_depth, seed, params, ...)."""
     if units not in UNIT_CHOICES:
         raise UsageError(f"unknown --units {units!r}; choose from {', '.join(UNIT_CHOICES)}")
@@ -132,7 +134,8 @@ def animate(scene, output=None, *, frames, defines=(), fps=24.0, renderer="core"
     frames = list(frames)
     values = frame_values(list(defines), frames, float(fps))
     user_aovs = check_aovs(aovs)
-    all_aovs = user_aovs + (() if "cost" in user_aovs else ("cost",))   # the next frame's plan reads it
+    # the next frame's plan reads the cost (and, to follow the camera, the depth) of this one
+    all_aovs = user_aovs + tuple(a for a in ("cost", "depth") if a not in user_aovs)
     res = SequenceResult(units=units)
     paths = {f: output_path(output, f) for f in frames} if output else {}
     for p in paths.values():
@@ -153,15 +156,18 @@ def animate(scene, output=None, *, frames, defines=(), fps=24.0, renderer="core"
     probe = CoreRenderer(scene, params={**base, **values[0]}, **core_opts)
     W, H = probe.film_size
     channels = channel_names(all_aovs)
-    c_cost = aov_channel(channels, "cost")
-    keep = [i for i, c in enumerate(channels) if not c.startswith("cost.") or "cost" in user_aovs]
+    c_cost, c_depth = aov_channel(channels, "cost"), aov_channel(channels, "depth")
+    keep = [i for i, c in enumerate(channels) if "." not in c or c.split(".")[0] in user_aovs]
     bar = tqdm(total=len(frames), initial=len(res.skipped), unit="frame", desc="links1 animate", file=sys.stderr,
                dynamic_ncols=True, leave=False, disable=None if progress is None else not progress)
     costs: dict = {}
+    depths: dict = {}
 
     def on_frame(k, img):
         costs[k] = img[..., c_cost]
+        depths[k] = img[..., c_depth]
         res.costs[frames[k]] = costs[k]
+        res.depths[frames[k]] = depths[k]
         out = img[..., keep]
         f = frames[k]
         if f in paths:
@@ -178,19 +184,31 @@ def animate(scene, output=None, *, frames, defines=(), fps=24.0, renderer="core"
 
     table = load_table(None, renderer=renderer)
 
-    maps = {} if eq41_maps is None else eq41_maps
+    cache = {} if cache is None else cache
+    maps, cams = cache.setdefault("eq41", {}), cache.setdefault("camera", {})
+    cams[frames[0]] = probe.scene.camera
+
+    def read(k):
+        r = probe if k == 0 else CoreRenderer(scene, params={**base, **values[k]}, **core_opts)
+        cams[frames[k]] = r.scene.camera
+        return r
 
     def eq41_map(k):
         if frames[k] not in maps:
-            r = probe if k == 0 else CoreRenderer(scene, params={**base, **values[k]}, **core_opts)
-            maps[frames[k]] = scene_model(r, path=scene, params={**base, **values[k]}, table=table).load_map()
+            maps[frames[k]] = scene_model(read(k), path=scene, params={**base, **values[k]}, table=table).load_map()
         return maps[frames[k]]
+
+    def previous_map(k):
+        """Frame k-1's measured cost, moved through the camera's motion (sequence.reproject)."""
+        return reproject(costs[k - 1], depths[k - 1], cams[frames[k - 1]], cams[frames[k]])
 
     if units == "partition":   # the root's eq. 4.1 loads, read before the clock (planning)
         t = time.perf_counter()
         for k in todo:
             if plan_from == "eq41" or (k - 1) not in set(todo):
                 eq41_map(k)
+            elif frames[k] not in cams:
+                read(k)      # its camera: the previous frame's cost is moved through the motion
         res.planning_s = time.perf_counter() - t
     try:
         t = time.perf_counter()
@@ -201,7 +219,7 @@ def animate(scene, output=None, *, frames, defines=(), fps=24.0, renderer="core"
         res.n_nodes = n
         if units == "partition":
             for k in todo:
-                _split_frame(k, frames, todo, W, H, n, backend, spec, res, on_frame, costs, eq41_map,
+                _split_frame(k, frames, W, H, n, backend, spec, res, on_frame, costs, eq41_map, previous_map,
                              partition, plan_from, tiles_per_node, log)
         else:
             split = min(n, len(todo)) if units == "both" and n > 1 else 0
@@ -227,13 +245,12 @@ def animate(scene, output=None, *, frames, defines=(), fps=24.0, renderer="core"
     return res
 
 
-def _split_frame(k, frames, todo, W, H, n, backend, spec, res, on_frame, costs, eq41_map, partition, plan_from,
-                 tiles_per_node, log):
+def _split_frame(k, frames, W, H, n, backend, spec, res, on_frame, costs, eq41_map, previous_map, partition,
+                 plan_from, tiles_per_node, log):
     """Frame ``k`` split over the nodes, planned from eq. 4.1 or the previous frame's cost."""
-    prev = costs.get(k - 1)
-    source = "previous" if plan_from == "previous" and prev is not None else "eq41"
+    source = "previous" if plan_from == "previous" and (k - 1) in costs else "eq41"
     t = time.perf_counter()
-    load = prev + 1.0 if source == "previous" else eq41_map(k)   # + the camera ray itself
+    load = previous_map(k) + 1.0 if source == "previous" else eq41_map(k)   # + the camera ray itself
     plan = make_plan(partition, W, H, n, tiles_per_node=tiles_per_node, unit="tile", load_map=load)
     planning_s = time.perf_counter() - t
     tall = shifted(plan, k, H, len(frames))
@@ -350,8 +367,8 @@ def _experiment(args, frames, opts) -> int:
         raise UsageError(f"--simulate {args.simulate!r}: node counts must be >= 1")
     common = dict(frames=frames, defines=args.defines, fps=args.fps, renderer=args.renderer, progress=progress_of(args),
                   tiles_per_node=args.tiles_per_node, aovs=args.aov, **opts)
-    maps: dict = {}
-    one = animate(args.scene, args.output, backend=InProcess(chunk_factor=0), units="frames", eq41_maps=maps,
+    cache: dict = {}
+    one = animate(args.scene, args.output, backend=InProcess(chunk_factor=0), units="frames", cache=cache,
                   **common)
     print(f"links1: one process: {len(frames)} frames in {one.makespan_s:.2f} s", file=sys.stderr)
     be = make_backend(workers=args.workers or 2 if not (args.dask_local or args.scheduler) else 0,
@@ -362,7 +379,7 @@ def _experiment(args, frames, opts) -> int:
             units, partition, plan_from = sr.WAYS[way]
             be.chunk_factor = CHUNK_FACTOR if way == "dynamic" else 0
             res = animate(args.scene, None, backend=be, units=units, partition=partition, plan_from=plan_from,
-                          eq41_maps=maps, **common)
+                          cache=cache, **common)
             summaries.append(sr.summarise(way, res, one, res.n_nodes))
             print(f"links1: {way}: {res.makespan_s:.2f} s", file=sys.stderr)
     except KeyboardInterrupt:
@@ -378,8 +395,9 @@ def _experiment(args, frames, opts) -> int:
               "throughput": {s["way"]: s["throughput_vs_one_process"] for s in summaries}}
     if sims:
         overhead = sr.split_overhead(summaries)
-        rows = sr.simulate_sequence(one, one.costs, maps, sims, tiles_per_node=args.tiles_per_node,
-                                    overhead_s=overhead)
+        prev = sr.previous_maps(one, cache.get("camera", {}))
+        rows = sr.simulate_sequence(one, one.costs, cache.get("eq41", {}), sims, tiles_per_node=args.tiles_per_node,
+                                    overhead_s=overhead, previous=prev)
         report["simulation"] = {"overhead_s": overhead, "rows": rows, "best": sr.best_choices(rows)}
     atomic_write_json(args.report, report)
     if args.plot:

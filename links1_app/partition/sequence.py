@@ -277,3 +277,37 @@ def node_loads(plan, records, cost, frame_height, n_nodes):
 def imbalance(loads) -> float | None:
     loads = np.asarray(loads, dtype=np.float64)
     return float(loads.max() / loads.mean()) if loads.size and loads.mean() > 0 else None
+
+
+def reproject(cost, depth, cam0, cam1):
+    """Frame ``f-1``'s per-pixel cost (``cost``, ``depth``: its ``cost`` and ``depth`` AOVs, seen by
+    camera ``cam0``) moved to where camera ``cam1`` of frame ``f`` sees the same points: each hit
+    pixel's cost lands on the pixel its surface point projects to (the total is kept, less what
+    leaves the film); a pixel whose ray missed keeps its cost where it is (the background costs
+    the same whatever the view); pixels nothing lands on (surfaces coming into view) get the mean
+    cost. A still camera, or a projection other than perspective, gives ``cost`` unchanged."""
+    if (cam0.projection != "perspective" or cam1.projection != "perspective"
+            or (np.array_equal(cam0.to_world, cam1.to_world) and cam0.fov_x == cam1.fov_x)):
+        return cost
+    h, w = cost.shape
+    ys, xs = np.mgrid[0:h, 0:w]
+    o, d, _, _ = cam0.generate_rays(((xs + 0.5) / w).ravel(), ((ys + 0.5) / h).ravel())
+    c, z = cost.ravel().astype(np.float64), depth.ravel()
+    hit = np.isfinite(z) & (z > 0)
+    out = np.zeros(h * w)
+    got = np.zeros(h * w, dtype=bool)
+    out[~hit] += c[~hit]
+    got[~hit] = True
+    p = o[hit] + z[hit, None] * d[hit]
+    inv = np.linalg.inv(np.asarray(cam1.to_world, dtype=np.float64))
+    pc = p @ inv[:3, :3].T + inv[:3, 3]
+    front = pc[:, 2] > max(float(cam1.near_clip), 1e-9)
+    zt = np.where(front, pc[:, 2], 1.0) * np.tan(np.radians(cam1.fov_x) / 2.0)
+    fx = np.floor((1.0 - pc[:, 0] / zt) * 0.5 * w)
+    fy = np.floor((1.0 - pc[:, 1] * (w / h) / zt) * 0.5 * h)
+    ok = front & (fx >= 0) & (fx < w) & (fy >= 0) & (fy < h)
+    at = (fy[ok] * w + fx[ok]).astype(np.int64)
+    np.add.at(out, at, c[hit][ok])
+    got[at] = True
+    out[~got] = float(c.mean())
+    return out.reshape(h, w)

@@ -16,7 +16,7 @@ import numpy as np
 
 from links1.partition.strategies import make_plan
 
-from .sequence import frame_units_plan, imbalance
+from .sequence import frame_units_plan, imbalance, reproject
 from .simulator import replay
 
 #: name -> (units, partition, plan_from)
@@ -56,7 +56,21 @@ def summarise(name, res, one, n_nodes) -> dict:
             "faults": list(res.faults)}
 
 
-def simulate_sequence(one, costs, eq41_maps, nodes_list, *, tiles_per_node=16, overhead_s=0.0) -> list[dict]:
+def previous_maps(one, cameras) -> dict:
+    """Frame -> the previous frame's measured cost moved through the camera's motion
+    (:func:`.sequence.reproject`; unmoved where a frame's camera is not known)."""
+    order = [fr["frame"] for fr in one.frames]
+    out = {}
+    for a, b in zip(order, order[1:]):
+        if a in cameras and b in cameras and a in one.depths:
+            out[b] = reproject(one.costs[a], one.depths[a], cameras[a], cameras[b])
+        else:
+            out[b] = one.costs[a]
+    return out
+
+
+def simulate_sequence(one, costs, eq41_maps, nodes_list, *, tiles_per_node=16, overhead_s=0.0,
+                      previous=None) -> list[dict]:
     """Replay the measured sequence at ``nodes_list`` (:func:`.simulator.replay`).
 
     ``one``: the one-process run (each frame's seconds, set-up included; the set-up per frame
@@ -66,7 +80,8 @@ def simulate_sequence(one, costs, eq41_maps, nodes_list, *, tiles_per_node=16, o
     launch paying the set-up (a node sets its scene to the frame) and each task ``overhead_s``
     (measured: a split frame's makespan less its busiest node, median); throughput (frames over
     N nodes): whole frames one at a time (``frames``), and ``both`` (whole frames, the last N
-    frames split by ``previous``). Rows: nodes, way, kind (latency | throughput), makespan_s
+    frames split by ``previous``); ``previous``: frame -> its plan's load from the frame before
+    (:func:`previous_maps`; default: that frame's cost unmoved). Rows: nodes, way, kind (latency | throughput), makespan_s
     (per frame, median, for latency; the sequence for throughput), efficiency (the
     one-process seconds / (N x makespan)), frames_per_s."""
     setup = statistics.median(one.setup_s) if one.setup_s else 0.0
@@ -81,7 +96,7 @@ def simulate_sequence(one, costs, eq41_maps, nodes_list, *, tiles_per_node=16, o
                 cost = costs[f]
                 h, w = cost.shape
                 if way == "previous" and j > 0:
-                    load = costs[order[j - 1]] + 1.0
+                    load = (previous or {}).get(f, costs[order[j - 1]]) + 1.0
                 else:
                     load = eq41_maps.get(f)
                     if load is None:

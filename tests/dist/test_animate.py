@@ -185,3 +185,20 @@ def test_report_and_plot(tmp_path, capsys):
     assert all(fr["imbalance_ray_tests"] >= 1.0 for fr in prev["frames"])
     assert sorted(r["simulation"]["best"]) == ["4", "64"]
     assert png.stat().st_size > 0 and len(list(tmp_path.glob("f_*.png"))) == 3
+
+
+def test_reproject_follows_the_camera():
+    """A point at the centre of one view lands at the centre of a view that turned to look at it
+    from the side; misses stay in place; a still camera changes nothing; the total is kept."""
+    from links1.maths.transform import look_at
+    from links1.sensor.camera import Camera
+    from links1_app.partition.sequence import reproject
+    w = h = 9
+    cam0 = Camera(to_world=look_at([0, 0, 5], [0, 0, 0], [0, 1, 0]), fov_x=40, width=w, height=h)
+    cam1 = Camera(to_world=look_at([5, 0, 0], [0, 0, 0], [0, 1, 0]), fov_x=40, width=w, height=h)
+    cost, depth = np.zeros((h, w)), np.full((h, w), np.inf)
+    cost[4, 4], depth[4, 4] = 100.0, 5.0      # the origin, seen through the centre pixel
+    cost[0, 0] = 3.0                           # a miss (background)
+    assert reproject(cost, depth, cam0, cam0) is cost
+    got = reproject(cost, depth, cam0, cam1)
+    assert got[4, 4] == 100.0 and got[0, 0] == 3.0 and got.sum() == pytest.approx(103.0)
