@@ -296,6 +296,8 @@ def add_cli(sub) -> None:
     p.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT")
     p.add_argument("--checkpoint", action="store_true",
                    help="frames already on disk are not rendered again (every written frame is whole)")
+    p.add_argument("--video", default=None, metavar="MP4",
+                   help="also encode the frames (sRGB, 8 bit) as a video at --fps (needs links1[video]: imageio-ffmpeg)")
     g = p.add_argument_group("sequence experiment")
     g.add_argument("--report", default=None, metavar="JSON",
                    help="run the experiment: one process rendering the frames in turn (it writes the frames), then "
@@ -317,6 +319,8 @@ def run_cli(args) -> int:
     from .cli_options import adaptive_options, progress_choice
     frames = parse_frames(args.frames)
     frame_values(args.defines, frames[:1], args.fps)    # a bad -D: one line before anything starts
+    if args.video:
+        _video_writer()                                  # a missing encoder: one line before rendering
     opts = dict(spp=args.spp, width=args.width, height=args.height, max_depth=args.max_depth, seed=args.seed)
     if args.sensor is not None:
         opts["sensor"] = args.sensor
@@ -350,7 +354,39 @@ def run_cli(args) -> int:
         print(f"links1: {len(res.skipped)} of {len(frames)} frames were on disk already", file=sys.stderr)
     print(f"links1: wrote {len(res.written)} frames ({args.output}, {res.units} units, {res.n_nodes} node(s), "
           f"{res.makespan_s:.2f} s)", file=sys.stderr)
+    if args.video:
+        write_video(args.video, [output_path(args.output, f) for f in frames], args.fps)
+        print(f"links1: wrote {args.video} ({len(frames)} frames at {args.fps:g} fps)", file=sys.stderr)
     return 0
+
+
+def _video_writer():
+    """imageio-ffmpeg's frame writer (it ships its own ffmpeg), or a one-line error naming the extra."""
+    try:
+        import imageio_ffmpeg   # lazy: an optional extra
+    except ImportError:
+        raise UsageError("--video needs imageio-ffmpeg (it ships its own encoder): pip install 'links1[video]'") from None
+    return imageio_ffmpeg.write_frames
+
+
+def write_video(path, frame_paths, fps) -> None:
+    """Encode the frame files (EXR: linear, to sRGB; PNG: as stored) as a video, written atomically."""
+    from links1.imaging.image import atomic_write, linear_to_srgb, read_image
+    write_frames = _video_writer()
+
+    def encode(tmp):
+        gen = None
+        for p in frame_paths:
+            img = np.clip(linear_to_srgb(read_image(p)[..., :3]), 0.0, 1.0)
+            px = np.ascontiguousarray((img * 255.0 + 0.5).astype(np.uint8))
+            if gen is None:
+                h, w = px.shape[:2]
+                gen = write_frames(tmp, (w, h), fps=fps, macro_block_size=1)
+                gen.send(None)
+            gen.send(px)
+        if gen is not None:
+            gen.close()
+    atomic_write(path, encode)
 
 
 def _experiment(args, frames, opts) -> int:

@@ -202,3 +202,103 @@ def test_reproject_follows_the_camera():
     assert reproject(cost, depth, cam0, cam0) is cost
     got = reproject(cost, depth, cam0, cam1)
     assert got[4, 4] == 100.0 and got[0, 0] == 3.0 and got.sum() == pytest.approx(103.0)
+
+
+# ---------------------------------------------------------------------- the Python API, faults, Ctrl-C
+def orbit_camera(scene, f, t):
+    """A per-frame update of the core's loaded scene (what ``animate(update=...)`` calls on every
+    node): the camera circles the origin; with LINKS1_TEST_DIE_AT set, the first node to reach
+    frame 2 dies (os._exit), once."""
+    import dataclasses
+    from links1.maths.transform import look_at
+    marker = os.environ.get("LINKS1_TEST_DIE_AT")
+    if marker and f == 2 and not os.path.exists(marker):
+        open(marker, "w").close()
+        os._exit(3)
+    a = math.radians(30 * f)
+    scene.camera = dataclasses.replace(scene.camera, to_world=look_at([14 * math.sin(a), 9, 14 * math.cos(a)],
+                                                                      [0, 0, 0], [0, 1, 0]))
+
+
+def test_update_function_and_a_worker_killed_mid_sequence(tmp_path, monkeypatch):
+    """The Python API's update function moves the loaded scene per frame (no re-read); a node that
+    dies at frame 2 costs only its units: they are redone, and every frame equals the in-process one."""
+    ref = animate(MANY, frames=[0, 1, 2, 3], update=orbit_camera, units="frames", keep_images=True,
+                  progress=False, **OPTS)
+    assert not np.array_equal(ref.images[0], ref.images[1])     # the update moved the camera
+    marker = tmp_path / "died"
+    monkeypatch.setenv("LINKS1_TEST_DIE_AT", str(marker))
+    be = make_backend(workers=2)
+    logged = []
+    try:
+        for units in ("frames", "partition"):
+            if marker.exists():
+                marker.unlink()
+            res = animate(MANY, frames=[0, 1, 2, 3], update=orbit_camera, units=units, backend=be, keep_images=True,
+                          progress=False, tiles_per_node=4, log=logged.append, **OPTS)
+            assert marker.exists() and len(res.faults) == 1, units
+            for f in range(4):
+                assert np.array_equal(res.images[f], ref.images[f]), (units, f)
+    finally:
+        be.close()
+    assert any("died" in m for m in logged)
+
+
+def test_ctrl_c_leaves_every_finished_frame_whole(tmp_path):
+    import signal
+    import subprocess
+    import sys
+    import time
+    from tests.interrupts import _MAIN, ROOT, _kill_session, session_processes
+    r, w = os.pipe()
+    args = ["animate", MANY, "-o", str(tmp_path / "f_%02d.exr"), "--frames", "40", "--renderer", "core",
+            "--width", "32", "--height", "32", "--spp", "1", "-D", f"{ORBIT[0]}={ORBIT[1]}", "--no-progress",
+            "--workers", "2", "--units", "frames", "--aov", "cost"]
+    p = subprocess.Popen([sys.executable, "-c", _MAIN, str(w), *args], cwd=ROOT, pass_fds=(w,),
+                         start_new_session=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    os.close(w)
+    os.close(r)
+    try:
+        deadline = time.monotonic() + 120
+        while len(list(tmp_path.glob("f_*.exr"))) < 2 and p.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert p.poll() is None, "the sequence ended before the interrupt; make it longer"
+        os.killpg(p.pid, signal.SIGINT)
+        _, err = p.communicate(timeout=60)
+        assert p.returncode == 130 and err.decode().strip().splitlines()[-1] == "links1: interrupted"
+        time.sleep(0.5)
+        assert not session_processes(p.pid)
+    finally:
+        if p.poll() is None:
+            p.kill()
+        _kill_session(p.pid)
+    names = sorted(x.name for x in tmp_path.iterdir())
+    assert 2 <= len(names) < 40 and all(n.startswith("f_") and n.endswith(".exr") and len(n) == 8 for n in names)
+    for n in names:       # whole: each reads back as its frame's single-process render
+        f = int(n[2:4])
+        assert np.array_equal(read_image(str(tmp_path / n)), single(f).astype(np.float32)), n
+
+
+def test_mitsuba_frames_updated_in_place_equal_fresh_loads():
+    """The plugin's loaded scene updated per frame (mi.traverse / params.update(): its kernels
+    kept) renders each frame as a fresh load of the file with that frame's values does."""
+    pytest.importorskip("mitsuba")
+    frames = [0, 1]
+    res = animate(MANY, frames=frames, defines=[ORBIT], renderer="mitsuba", units="frames", keep_images=True,
+                  progress=False, aovs=("cost",), **OPTS)
+    for f in frames:
+        v = frame_values([ORBIT], [f], 24.0)[0]
+        ref = make_renderer("mitsuba", MANY, params=v, aovs=("cost",), **OPTS).render()
+        assert np.array_equal(res.images[f], ref), f
+
+
+def test_video_needs_its_extra(tmp_path, capsys):
+    try:
+        import imageio_ffmpeg  # noqa: F401
+        pytest.skip("imageio-ffmpeg is installed: the missing-extra message cannot be seen")
+    except ImportError:
+        pass
+    code = main(["animate", MANY, "-o", str(tmp_path / "f.png"), "--frames", "2", "--renderer", "core",
+                 "--video", str(tmp_path / "v.mp4"), "--no-progress"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "links1[video]" in err[0] and not list(tmp_path.iterdir())
