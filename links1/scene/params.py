@@ -234,7 +234,7 @@ def check(plugin: str, name: str, value):
 def read(plugin: str, name: str, value):
     """A links1 plugin's parameter as read from a scene (``value`` None: not given): its
     default, or ``value`` checked; ValueError ``"<plugin>: ..."`` (the Mitsuba plugins'
-    constructors; the core's reader is ``links1.scene.loader._Props.links1``)."""
+    constructors; the core's reader is ``links1.scene.properties._Props.links1``)."""
     prm = param(plugin, name)
     if value is None:
         if prm.default is REQUIRED:

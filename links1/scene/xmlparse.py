@@ -1,5 +1,10 @@
 """Mitsuba 3 XML → generic nodes, with every element's file and line.
 
+One job, one file (over 600 lines on purpose): the parser's passes (defaults and ``$params``,
+includes and paths, references, values, transforms) share one state (``_Parser``), and the
+records they make (:class:`Prop`, :class:`Spectrum`, :class:`Node`, :class:`SceneWarning`)
+are what its callers import with it.
+
 This is the format layer only: it knows Mitsuba's XML *syntax and semantics* but no plugin.
 :mod:`links1.scene.loader` turns the nodes into a :class:`links1.scene.scene.Scene`.
 

@@ -359,7 +359,7 @@ def _judge_parameters(state, integrator: str, text: str | None) -> None:
     ``links1_whitted`` replaces by Mitsuba's table (Mitsuba never sees it). Mitsuba judges its
     other plugins itself when it instantiates them."""
     from links1.errors import SceneError
-    from links1.scene.loader import refused_parameter
+    from links1.scene.properties import refused_parameter
     from links1.scene.params import is_links1
     names, data = None, {}
     for i, node in enumerate(state.nodes):

@@ -1,6 +1,6 @@
 """The core's Mitsuba XML reader: parameters, includes, references, transforms, plugins, errors.
 
-Shapes are built through ``links1.scene.loader._shape_class``; the tests replace it by recording stubs
+Shapes are built through ``links1.scene.load_shapes._shape_class``; the tests replace it by recording stubs
 so that they check the loader's contract (the constructor arguments) on their own.
 """
 from __future__ import annotations
@@ -12,7 +12,7 @@ import warnings
 import numpy as np
 import pytest
 
-from links1.scene import loader
+from links1.scene import load_shapes, loader
 from links1.shading import materials
 from links1.maths import transform as tf
 from links1.errors import SceneError
@@ -38,7 +38,7 @@ STUBS = {n: type(n, (_Stub,), {}) for n in ("TriangleMesh", "Quadric", "Disk", "
 
 @pytest.fixture(autouse=True)
 def stub_shapes(monkeypatch):
-    monkeypatch.setattr(loader, "_shape_class", lambda name: STUBS[name])
+    monkeypatch.setattr(load_shapes, "_shape_class", lambda name: STUBS[name])
 
 
 def load(body: str, **params):
@@ -550,7 +550,7 @@ def test_shape_constructor_value_error_becomes_scene_error(monkeypatch):
         def ctor(*a, **k):
             raise ValueError("bad blob")
         return ctor
-    monkeypatch.setattr(loader, "_shape_class", failing)
+    monkeypatch.setattr(load_shapes, "_shape_class", failing)
     with pytest.raises(SceneError, match=r"<string>:2: <shape type='links1_blob'>: bad blob"):
         loader.load_string(scene('<shape type="links1_blob"><string name="centers" value="0 0 0 1 1"/>'
                                  '<float name="threshold" value="0.5"/></shape>'))

@@ -9,7 +9,7 @@ import warnings
 import numpy as np
 import pytest
 
-from links1.scene import loader
+from links1.scene import load_shapes, loader
 from links1.scene.xmlparse import SceneWarning
 
 mi = pytest.importorskip("mitsuba")
@@ -25,7 +25,7 @@ class _Stub:
 
 @pytest.fixture(autouse=True)
 def stub_shapes(monkeypatch):
-    monkeypatch.setattr(loader, "_shape_class", lambda name: type(name, (_Stub,), {}))
+    monkeypatch.setattr(load_shapes, "_shape_class", lambda name: type(name, (_Stub,), {}))
 
 
 def ours(xml: str, **params):
