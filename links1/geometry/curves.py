@@ -22,7 +22,8 @@ its segments as ``RTC_GEOMETRY_TYPE_ROUND_BSPLINE_CURVE``; its Embree 3.13 fork 
   segments share their end circle (the spline is C2); a curve's first and last ends are
   open (Mitsuba's documentation: "hollow cylindrical tubes [...] open-ended"). Premise,
   Embree's and the core's: ``r κ < 1`` (``κ`` the centre line's curvature), the sweep does
-  not fold onto itself.
+  not fold onto itself; where it does, Embree misses entries at the folded turns (measured:
+  a zigzag with ``r κ = 4`` lit from below, 0.8 % of the core's hits, all at its turns).
 * Which hits. Embree cuts a segment into pieces, each bounded by a cylinder and by the
   planes normal to ``c'`` at its ends; with back-face culling, Newton starts only where the
   ray enters a piece's outer bounding cylinder outside its inner one, and the root it
