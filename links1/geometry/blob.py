@@ -59,6 +59,7 @@ from __future__ import annotations
 import numpy as np
 
 from .base import Shape, _finite_or_zero, check_to_world
+from .bvh import BVH
 from ..maths.vec import cross, dot, matvec, normalize
 
 #: Largest number of marching evaluations of the exact solver per ray.
@@ -165,7 +166,6 @@ class Blob(Shape):
         # that a crossed sphere's box is never missed; the exact test h^2 < 9 S^2 follows.
         self._centre_bvh = None
         if c.shape[0] >= BVH_MIN_CENTRES:
-            from .bvh import BVH
             R = 3.0 * S_ * (1.0 + 1e-9)
             self._centre_bvh = BVH(self._p - R[:, None], self._p + R[:, None], max_leaf=4)
 

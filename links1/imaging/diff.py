@@ -112,7 +112,7 @@ def flip(a, b, ldr: bool = False) -> float:
     they are linear (``inputsRGB=False``); HDR-FLIP clamps negatives to 0.
     """
     try:
-        import flip_evaluator  # noqa: PLC0415 - optional, imported lazily
+        import flip_evaluator  # noqa: PLC0415 - optional (links1[diff]), imported lazily
     except ImportError:
         raise UsageError("metric 'flip' needs the flip-evaluator package "
                          "(pip install 'links1[diff]')") from None
@@ -267,6 +267,7 @@ def heatmap(a, b, out_png: str | os.PathLike, *, error: str = "abs", vmax: float
             vmax = float(finite.max()) if finite.size and finite.max() > 0 else 1.0
     shown = np.where(np.isfinite(e), e, vmax)
     try:
+        # optional (links1[plot]) and slow to import: only a heatmap needs it
         from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: PLC0415
         from matplotlib.figure import Figure  # noqa: PLC0415
     except ImportError:

@@ -162,7 +162,8 @@ def _sniff(path: Path) -> str:
 
 def _openexr():
     try:
-        import OpenEXR  # noqa: PLC0415 - imported lazily on purpose
+        # a compiled library only EXR files need: imported at the first one (module doc)
+        import OpenEXR  # noqa: PLC0415
     except ImportError as e:  # pragma: no cover - openexr is a hard dependency
         raise UsageError("reading/writing EXR files needs the 'openexr' package "
                          "(pip install openexr)") from e
@@ -361,7 +362,7 @@ def _decode_png_builtin(path: Path) -> np.ndarray:
 
 
 def _decode_png_pillow(path: Path) -> np.ndarray:
-    from PIL import Image  # noqa: PLC0415 - optional, imported lazily
+    from PIL import Image  # noqa: PLC0415 - optional here (module doc: a built-in decoder otherwise)
 
     with Image.open(path) as im:
         im.load()

@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import Links1Error
+from ..imaging.image import read_image
 from ..maths import transform as tf
 from ..shading import textures
 from ..shading.lights import (ConeSpotLight, ConstantEnvironment, CylinderSpotLight, EnvironmentMap,
@@ -87,8 +89,6 @@ class EmitterLoader:
             light = ConstantEnvironment(props.color("radiance", 1.0, emitter=True), name=name)
         elif t == "envmap":
             fn = props.string("filename")
-            from ..errors import Links1Error
-            from ..imaging.image import read_image
             try:
                 data = read_image(node.resolve(fn))
             except (Links1Error, OSError, ValueError) as exc:

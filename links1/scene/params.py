@@ -16,10 +16,13 @@ from __future__ import annotations
 
 import difflib
 import math
+import os
 import re
 from dataclasses import dataclass
 
 import numpy as np
+
+from ..errors import UsageError
 
 #: Largest magnitude of a coordinate, a scale factor or a translation in a scene, and the
 #: smallest scale factor: the float32 renderer squares them (ray-quadric tests, inverses),
@@ -363,7 +366,6 @@ def check_samples(width: int, height: int, spp: int, *, light_samples: int = 1,
 def check_resources(width, height, spp, light_samples=1) -> None:
     """:func:`check_samples` for a renderer about to allocate its film (both renderers): the
     same check, its message as one-line :class:`links1.errors.UsageError`."""
-    from ..errors import UsageError
     try:
         check_samples(width, height, spp, light_samples=light_samples)
     except ValueError as exc:
@@ -372,7 +374,6 @@ def check_resources(width, height, spp, light_samples=1) -> None:
 
 def _memory_bytes() -> int | None:
     try:
-        import os
         return int(os.sysconf("SC_PAGE_SIZE")) * int(os.sysconf("SC_PHYS_PAGES"))
     except (ValueError, OSError, AttributeError):   # pragma: no cover - not POSIX
         return None

@@ -8,6 +8,7 @@ spectra (:mod:`links1.shading.spectra`), textures (:mod:`links1.shading.textures
 from __future__ import annotations
 
 import os
+import json
 import warnings
 
 import numpy as np
@@ -206,7 +207,6 @@ def mitsuba_parameters(tag: str, plugin: str | None):
     Mitsuba's sources), or None for a plugin not listed (links1's own, unknown ones)."""
     global _MITSUBA_PARAMETERS
     if _MITSUBA_PARAMETERS is None:
-        import json
         path = os.path.join(os.path.dirname(os.path.dirname(__file__)), "data", "mitsuba_properties.json")
         with open(path, encoding="utf-8") as f:
             _MITSUBA_PARAMETERS = json.load(f)["plugins"]

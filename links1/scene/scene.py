@@ -7,6 +7,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import params
+from ..errors import SceneError, UsageError
+from ..geometry.accel import Accel
 from ..sensor.camera import Camera
 
 
@@ -64,7 +66,6 @@ class Scene:
         crop window, filter) and sample count become ``camera`` and ``spp``. Raises
         ``SceneError`` naming the file and the number of sensors for a ``k`` out of range, and
         the sensor's own error for one the core cannot render."""
-        from ..errors import SceneError
         sensors = self.sensors or [(self.camera, self.spp)]
         if not 0 <= k < len(sensors):
             raise SceneError(sensor_range_message(k, len(sensors)), file=self.path)
@@ -109,7 +110,6 @@ class Scene:
     def accel(self):
         """The hierarchical bounding boxes over all shapes (paper 3-2-4), built on first use
         and again whenever the shapes change."""
-        from ..geometry.accel import Accel
         return self.cached("accel", lambda: Accel(self.shapes))
 
     def __repr__(self) -> str:
@@ -174,7 +174,6 @@ def sensor_range_message(k: int, count: int) -> str:
 def check_sensor_index(path, sensor, count: int) -> int:
     """``sensor`` (None: 0) as an index into a scene's ``count`` sensors, or a one-line error
     naming the scene file and how many sensors it has (both renderers)."""
-    from ..errors import SceneError, UsageError
     k = 0 if sensor is None else sensor
     if isinstance(k, bool) or not isinstance(k, (int, np.integer)):
         raise UsageError(f"sensor must be an integer index, got {sensor!r}")

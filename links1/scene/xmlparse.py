@@ -61,6 +61,7 @@ import numpy as np
 from ..maths import transform as tf
 from ..errors import SceneError
 from .params import MAX_EXTENT, MAX_NESTING, MAX_VALUE
+from ..shading.spectra import parse as parse_spectrum
 
 #: Elements that are objects (plugins) in Mitsuba's XML.
 OBJECT_TAGS = ("scene", "shape", "bsdf", "emitter", "sensor", "film", "sampler", "rfilter",
@@ -539,7 +540,6 @@ class _Parser:
             v = _floats(text, c, "value", (1, 3))
             return Prop(name, tag, np.broadcast_to(v, (3,)).copy(), c.file, c.line)
         if tag == "spectrum":
-            from ..shading.spectra import parse as parse_spectrum
             try:
                 wavelengths, values = parse_spectrum(text)
             except ValueError as exc:

@@ -36,6 +36,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..maths.sampling import sample_offsets
+
 #: Mitsuba's ``math::RayEpsilon<float>`` (1500 float32 machine epsilons): the slack in its border size.
 _RAY_EPS32 = 1500 * 2.0 ** -24
 
@@ -214,7 +216,6 @@ def filter_samples(filt: Filter, window, film_size, values: np.ndarray, origin, 
     ``seed``) of the pixels of a block whose top-left pixel is ``origin = (tx0, ty0)`` (it may
     start off the film) and which covers the window's :attr:`FilterGather.sample_window`.
     """
-    from ..maths.sampling import sample_offsets
     gather = FilterGather(filt, window, film_size)
     sx0, sy0, sw, sh = gather.sample_window
     r0, c0 = sy0 - int(origin[1]), sx0 - int(origin[0])

@@ -29,6 +29,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..maths.vec import coordinate_system, cross, dot, length, matvec
+from .textures import is_texture
+from ..geometry.shapes import Disk, Quadric, TriangleMesh
 
 FALLOFFS = ("none", "inverse_square")
 
@@ -326,8 +328,6 @@ class AreaLight(SampledLight):
     """
 
     def __init__(self, shape, radiance, name: str = ""):
-        from ..geometry.shapes import Disk, Quadric, TriangleMesh
-        from .textures import is_texture
         self.shape = shape
         #: a ``bitmap`` / ``checkerboard`` radiance, evaluated at the sampled point's uv (the
         #: shape's own parameterisation, as where a ray hits it); ``radiance`` is then None

@@ -24,6 +24,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .textures import LUMINANCE as _LUMINANCE, Texture, upper_bound
+from .microfacet import square_to_cosine_hemisphere
+from ..maths.vec import coordinate_system, cross, dot as _dot
 
 # Mitsuba's named indices of refraction (src/core/... ior.h), used by dielectric/plastic.
 IOR_TABLE = {
@@ -47,9 +49,6 @@ def _const(v, what: str) -> np.ndarray:
     if isinstance(v, Texture):
         raise ValueError(f"'{what}' cannot be a texture here")
     return _rgb(v)
-
-
-from ..maths.vec import dot as _dot
 
 
 def fresnel_dielectric(cos_i: np.ndarray, eta: float | np.ndarray) -> np.ndarray:
@@ -121,8 +120,6 @@ class Material:
         about ``n`` (Mitsuba's ``diffuse``); the glossy BSDFs (:mod:`links1.shading.glossy`)
         draw from their microfacet lobes. ``tangent`` (N, 3): the shading frame's ``s``
         (Mitsuba's, from ``dp_du``), else ``coordinate_system(n)``'s."""
-        from .microfacet import square_to_cosine_hemisphere
-        from ..maths.vec import coordinate_system, cross
         nn = self._sampling_normal(n, n_raw)
         local = square_to_cosine_hemisphere(uv[:, 0], uv[:, 1])
         if tangent is None:

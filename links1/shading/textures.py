@@ -34,6 +34,9 @@ import os
 
 import numpy as np
 
+from ..errors import UsageError
+from ..imaging.image import read_exr, srgb_to_linear
+
 __all__ = ["Texture", "Checkerboard", "Bitmap", "read_bitmap", "is_texture", "upper_bound",
            "uv_transform", "FILTER_TYPES", "WRAP_MODES"]
 
@@ -286,8 +289,6 @@ def read_bitmap(path, raw: bool = False) -> np.ndarray:
 
 
 def _read_exr(path: str) -> np.ndarray:
-    from ..errors import UsageError
-    from ..imaging.image import read_exr
     try:
         a, names = read_exr(path)
     except UsageError as exc:
@@ -302,9 +303,9 @@ def _read_exr(path: str) -> np.ndarray:
 
 
 def _read_pillow(path: str, raw: bool) -> np.ndarray:
-    from PIL import Image, UnidentifiedImageError  # noqa: PLC0415 - imported when first needed
-
-    from ..imaging.image import srgb_to_linear
+    # Pillow when first needed, as links1.imaging.image: importing links1 loads numpy and the
+    # standard library only
+    from PIL import Image, UnidentifiedImageError  # noqa: PLC0415
     try:
         with Image.open(path) as im:
             im.load()

@@ -33,6 +33,7 @@ from ..maths.sampling import (KEY_REFLECT, KEY_REFRACT, bsdf_samples_uv, child_k
 from ..shading.textures import MeshAttribute, is_texture
 from ..shading.normalmaps import FRAME_KEYS, needs_frame
 from ..maths.vec import coordinate_system, dot, max_abs
+from . import occluders
 
 #: Relative size of the ray-origin offset (float64: about 1e6 ulps of |p|, far above the
 #: intersection error of every primitive here, far below any feature size a scene has).
@@ -96,7 +97,6 @@ def scene_plan(scene, key: bytes | None = None) -> ScenePlan:
 
 
 def _build_plan(scene) -> ScenePlan:
-    from .occluders import closed_convex, shadow_plan
     shapes = scene.shapes
     index = {}
     materials = []
@@ -105,7 +105,7 @@ def _build_plan(scene) -> ScenePlan:
             index[id(s.material)] = len(materials)
             materials.append(s.material)
     shadow_t = np.array([s.material.shadow_t for s in shapes]).reshape(-1, 3)
-    occluder, need = shadow_plan(shapes, scene.lights)
+    occluder, need = occluders.shadow_plan(shapes, scene.lights)
     plan = ScenePlan(
         materials=materials,
         material_of=np.array([index[id(s.material)] for s in shapes], dtype=np.int64),
@@ -116,7 +116,7 @@ def _build_plan(scene) -> ScenePlan:
         shadow_need=need,
         # closed convex occluders skipped above: their own points with the light on the inner
         # side of the surface still need a shadow ray (links1.tracing.occluders)
-        shadow_inner=[occ & closed_convex(shapes) & ~nd for occ, nd in zip(occluder, need)],
+        shadow_inner=[occ & occluders.closed_convex(shapes) & ~nd for occ, nd in zip(occluder, need)],
         shadow_t_light=[np.where(occ[:, None], shadow_t, 1.0) for occ in occluder],
     )
     return plan

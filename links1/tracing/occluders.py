@@ -24,6 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..maths.halfspace import box_side, point_side
+from ..geometry.shapes import Disk, Quadric, TriangleMesh
 from ..shading.lights import AreaLight, ConeSpotLight, CylinderSpotLight, ParallelLight, PointLight, ProjectorLight
 
 #: Relative tolerance of the side-of-plane tests (scene scale units); the rule itself is
@@ -33,7 +34,6 @@ SIDE_TOL = 1e-9
 
 def _plane_of(shape):
     """(normal, point) of a planar shape, or None."""
-    from ..geometry.shapes import Disk, TriangleMesh
     if isinstance(shape, Disk):
         m = shape.to_world if hasattr(shape, "to_world") else None
         if m is None:
@@ -54,7 +54,6 @@ def _plane_of(shape):
 
 
 def _convex(shape) -> bool:
-    from ..geometry.shapes import Disk, Quadric, TriangleMesh
     if isinstance(shape, Disk):
         return True
     if isinstance(shape, Quadric):
@@ -78,7 +77,6 @@ def closed_convex(shapes) -> np.ndarray:
 
 
 def _is_disk(shape) -> bool:
-    from ..geometry.shapes import Disk
     return isinstance(shape, Disk)
 
 

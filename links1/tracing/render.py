@@ -7,6 +7,8 @@ here names the Mitsuba plugin (docs/architecture.md, "Dependencies").
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from .adaptive import DEFAULT_ADAPTIVE_DEPTH, check_options, render_adaptive_window
@@ -15,6 +17,7 @@ from ..errors import UsageError
 from ..sensor.filters import FilterGather
 from .integrator import DEFAULT_MIN_WEIGHT, WhittedIntegrator
 from ..scene.params import check_resources
+from ..scene.loader import load_scene
 from ..maths.sampling import pixel_keys, ray_keys, sample_offsets
 from ..scene.scene import check_sensor_index
 
@@ -235,7 +238,6 @@ def _render_adaptive(scene, cam, win, *, threshold, depth, max_depth, seed, aovs
 
 
 def _resized(cam, width, height):
-    from dataclasses import replace
     w = cam.width if width is None else int(width)
     h = cam.height if height is None else int(height)
     if w <= 0 or h <= 0:
@@ -249,7 +251,9 @@ def _progress(total, enabled):
     if enabled is False:
         return None
     try:
-        from tqdm import tqdm
+        # here, not at the top: tqdm takes about a quarter of `import links1`'s own time to
+        # import, and only a render that may show a bar needs it
+        from tqdm import tqdm  # noqa: PLC0415
     except ImportError:  # pragma: no cover - tqdm is a declared dependency
         return None
     # delay: the bar appears only for renders that last more than a second
@@ -266,7 +270,6 @@ class CoreRenderer:
     def __init__(self, path, *, params=None, spp=None, max_depth=None, seed=0, aovs=(),
                  min_weight=None, width=None, height=None, variant=None, light_samples=None,
                  adaptive=None, adaptive_depth=DEFAULT_ADAPTIVE_DEPTH, sensor=None):
-        from ..scene.loader import load_scene
         self.path = str(path)
         self.scene = load_scene(self.path, **(params or {}))
         self.sensor_index = check_sensor_index(self.path, sensor, self.scene.sensor_count())
