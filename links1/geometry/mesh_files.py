@@ -1,9 +1,6 @@
-"""Triangle-mesh files: OBJ, PLY and Mitsuba ``serialized``, read (and OBJ / PLY written).
-
-Every function returns plain arrays ``(vertices (V, 3) float64, faces (F, 3) int64,
-normals (V, 3) float64 or None)``; :mod:`links1.scene.loader` hands them to
-``links1.geometry.shapes.TriangleMesh``. Bad input raises ``ValueError`` whose message names the
-file and line (the loader re-raises it as a ``SceneError`` naming the XML element too).
+"""Triangle-mesh files: OBJ, PLY and Mitsuba ``serialized``, read (and OBJ / PLY written) as
+the arrays of :mod:`links1.geometry.meshes` (its module doc); a bad file is a ``ValueError``
+naming the file and line.
 
 Mitsuba semantics kept here
 ---------------------------
