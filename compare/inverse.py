@@ -120,6 +120,10 @@ SCENES = {
 
 def load(case, width):
     import links1_mitsuba as lm
+    from links1_mitsuba import tuning
+    # mi.render(scene, params) of these spp-1, analytic-light frames keeps the derivative
+    # pass's graph for dr.backward (one render an iteration): an explicit choice
+    tuning.set_tuning(keep_graph=True)
     s = SCENES[case]
     cams = "".join(CAMERA.format(w=width, **c) for c in [s["camera"], *s.get("views", [])])
     xml = f'<scene version="3.0.0">{INTEGRATOR}{cams}{s["body"]}</scene>'

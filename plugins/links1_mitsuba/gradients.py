@@ -4,12 +4,13 @@ Mitsuba's ``ADIntegrator`` has them, so ``mi.render(scene, params)`` followed by
 
 How. The primal frame (``mi.render`` evaluates it under ``dr.suspend_grad``) is the usual frozen
 launch, bit for bit the image of a render without gradients. The derivative pass renders the
-frame again with automatic differentiation (:meth:`Gradients._render_ad`). Where the frame
-does not depend on the seed (spp 1 at the pixel centres, analytic lights only: the primal's
-``seed`` and the pass's ``seed_grad`` give the same rays) and is one block, ``mi.render(scene,
-params)`` renders the derivative pass's frame instead of the primal, returns its values and
-keeps its graph, which ``render_backward`` then propagates (:meth:`Gradients._render_keeping_graph`,
-``Tuning.keep_graph``): one render an iteration instead of two. That frame equals the primal to
+frame again with automatic differentiation (:meth:`Gradients._render_ad`). Where the caller
+chooses it (``Tuning.keep_graph``, off by default), the frame does not depend on the seed
+(spp 1 at the pixel centres, analytic lights only: the primal's ``seed`` and the pass's
+``seed_grad`` give the same rays), some parameter has gradients enabled and the frame is one
+block, ``render()`` renders the derivative pass's frame instead of the primal, returns its
+values and keeps its graph, which ``render_backward`` then propagates
+(:meth:`Gradients._render_keeping_graph`): one render an iteration instead of two. That frame equals the primal to
 float32 rounding (its tree is summed level by level, the megakernel's depth first: 1-2 ulp
 in some pixels of a glass scene, ``tests/plugins/test_gradients.py``).
 
@@ -58,12 +59,11 @@ import copy
 import drjit as dr
 import mitsuba as mi
 
-from links1.maths.sampling import KEY_REFLECT, KEY_REFRACT
-
 from . import geometry, tuning
+from .raytree import child_keys
 from .tables import PHONG_TABLES
 from .registered import plugin_class
-from .util import INF, kind_of, mix32
+from .util import INF, kind_of
 
 
 #: (parameter, index in the light's ``P.lights`` entry) of the links1 lights' differentiable values:
@@ -131,16 +131,6 @@ def _spawns(P, slot):
     return bool(P.phong_np["refl"][slot].max() > 0 or max(P.shadow_t_np[slot]) > 0)
 
 
-def _render_op_caller():
-    """Mitsuba's ``_RenderOp`` (``mi.render(scene, params)``) when it is the caller of the
-    integrator's ``render()`` (``Links1Whitted.render`` -> ``Engine.render`` -> ``_render_keeping_graph`` -> here),
-    else None."""
-    import sys
-    f = sys._getframe(4)
-    op = f.f_locals.get("self") if f.f_code.co_name == "eval" else None
-    return op if type(op).__name__ == "_RenderOp" and hasattr(op, "spp") else None
-
-
 def _mitsuba_attached(scene, P, watched):
     """Whether a parameter of the scene (of Mitsuba's own objects among them) has gradients
     enabled: ``watched`` (the tables ``P`` were just checked against the scene's parameters,
@@ -169,7 +159,7 @@ class Gradients:
         # from the parameters would enter it, outside this pass's isolation scope
         self.kept_graph = None
         with dr.resume_grad():
-            img = self._render_ad(scene, sensor, seed, spp)
+            img = self._render_ad(scene, sensor, seed, spp, mode=dr.ADMode.Forward)
             dr.forward_to(img)
             return dr.grad(img)
 
@@ -185,7 +175,8 @@ class Gradients:
         with dr.resume_grad():
             for block in blocks:
                 # one block's graph at a time: built, its rows of grad_in propagated, dropped
-                img = kept if block is None else self._render_ad(scene, sensor, seed, spp, window=block)
+                img = kept if block is None else self._render_ad(scene, sensor, seed, spp, window=block,
+                                                                 mode=dr.ADMode.Backward)
                 kept = None
                 h = img.shape[0]
                 g = grad_in if h == grad_in.shape[0] else grad_in[y:y + h]
@@ -210,23 +201,23 @@ class Gradients:
 
     # -------------------------------------------------------------- the kept graph
     def _render_keeping_graph(self, scene, sensor, win, spp, seed):
-        """The frame of ``mi.render(scene, params)``, made by the derivative pass with its
-        AD graph kept for :meth:`render_backward`, or None where the usual primal applies.
+        """The frame of ``render()``, made by the derivative pass with its AD graph kept for
+        :meth:`render_backward`, or None where the usual primal applies.
 
         ``mi.render`` with parameters calls ``render()`` (Mitsuba's ``_RenderOp.eval``) and,
         at ``dr.backward``, ``render_backward`` with another seed (``seed_grad``), which renders
         the frame again with AD. Where the frame does not depend on the seed (one sample a
         pixel, at the pixel's centre, and only analytic lights: no light is sampled) both
-        renders are the same function of the parameters, so the derivative pass's frame is made
-        once, here, and its graph propagated later: one render an iteration instead of two.
-        Only for a frame of one block (:func:`row_blocks`: the graph's memory is bounded
-        as the blocks bound it), with some parameter attached, and when the caller is
-        ``mi.render``'s differentiable operation given parameters (its ``spp_grad`` equal to
-        ``spp``): ``mi.render(scene)`` while values have gradients enabled renders the primal."""
+        renders are the same function of the parameters, so the derivative pass's frame may be
+        made once, here, and its graph propagated later: one render an iteration instead of
+        two. ``render()`` cannot see whether ``mi.render`` was given parameters, so this is the
+        caller's explicit choice (``Tuning.keep_graph``; off: the primal, bit for bit), and then
+        only for a frame of one block (:func:`row_blocks`: the graph's memory is bounded as the
+        blocks bound it) with some parameter attached. A ``render_backward`` for another
+        sensor, window or spp renders its pass again (:meth:`_take_kept`); the next frame or a
+        ``render_forward`` drops the graph."""
         self.kept_graph = None
-        op = _render_op_caller()
-        if (op is None or op.params is None or not tuning.current().keep_graph or spp != 1
-                or op.spp[1] not in (0, op.spp[0])):
+        if not tuning.current().keep_graph or spp != 1:
             return None
         with dr.suspend_grad():
             P = self.prepare(scene, sensor)
@@ -237,7 +228,7 @@ class Gradients:
             if not Q.attached_any:
                 return None
             img = self.render_windows_device(scene, [win], spp=spp, seed=seed, sensor=sensor,
-                                             dtype=mi.Float, tables=Q)[0]
+                                             dtype=mi.Float, tables=Q, mode=dr.ADMode.Backward)[0]
             dr.eval(img)
         self.kept_graph = (img, sensor, win, P)
         return dr.detach(img)
@@ -258,9 +249,10 @@ class Gradients:
         return img
 
     # -------------------------------------------------------------- the differentiable frame
-    def _render_ad(self, scene, sensor=0, seed=0, spp=0, window=None):
+    def _render_ad(self, scene, sensor=0, seed=0, spp=0, window=None, mode=None):
         """The frame ``render()`` makes (or its ``window``), with Dr.Jit's AD graph from the
-        scene's gradient-enabled parameters (see the module's docstring)."""
+        scene's gradient-enabled parameters (see the module's docstring); ``mode``: the
+        ``dr.ADMode`` the graph is made for (Forward or Backward: the same frame)."""
         if self.adaptive is not None:
             raise NotImplementedError("links1_whitted: gradients of adaptive anti-aliasing are not "
                                       "implemented (render with spp instead of adaptive)")
@@ -270,14 +262,13 @@ class Gradients:
             P = self.prepare(scene, sensor)
         Q = self._ad_tables(P, scene)
         return self.render_windows_device(scene, [win], spp=spp, seed=seed, sensor=sensor,
-                                          dtype=mi.Float, tables=Q)[0]
+                                          dtype=mi.Float, tables=Q, mode=mode or dr.ADMode.Backward)[0]
 
     def _ad_tables(self, P, scene):
         """A shallow copy of the tables ``P`` with the attached values of the parameters
-        that have gradients enabled put in (``Q.ad``: the launches then trace
-        :meth:`_trace_tree_ad`, the film differentiably)."""
+        that have gradients enabled put in (rendered in a derivative ``mode``: the launches
+        then trace :meth:`_trace_tree_ad`, the film differentiably)."""
         Q = copy.copy(P)
-        Q.ad = True
         Q.frozen_inputs = None
         Phong = plugin_class("links1_phong")
         bsdfs = P.keep_alive[3]       # the BSDF of each slot (tables.prepare)
@@ -380,7 +371,7 @@ class Gradients:
         n = dr.width(o)
         spawn = self.max_depth > 1 and P.any_specular
         later = []    # a level's shadow tests, evaluated with what its children take (below)
-        res = self._level(P, scene, o, d, tmin, tmax, key, 1, spawn, symbolic=False,
+        res = self._level(P, scene, o, d, tmin, tmax, key, 1, spawn, symbolic=False, ad=True,
                           sample=self._take_cam_sample(), later=later)
         total = mi.Color3f(res["L"])
         if not spawn:
@@ -390,8 +381,7 @@ class Gradients:
         cr, ct, w_r, w_t = self._children(res, res["hit"], mi.Color3f(1.0), mi.UInt32(1))
         depth = 2
         while True:
-            key_r = mix32(key ^ mi.UInt32(KEY_REFLECT))
-            key_t = mix32(key ^ mi.UInt32(KEY_REFRACT))
+            key_r, key_t = child_keys(key)
             ir, it = dr.compress(cr), dr.compress(ct)
             nr, nt = dr.width(ir), dr.width(it)
             if nr + nt == 0:
@@ -418,7 +408,7 @@ class Gradients:
             wgt, key = pick(w_r, w_t), pick(key_r, key_t)
             m = nr + nt
             res = self._level(P, scene, o, d, dr.zeros(mi.Float, m), dr.full(mi.Float, INF, m), key, 0,
-                              True, symbolic=False, later=later)
+                              True, symbolic=False, ad=True, later=later)
             acc = dr.zeros(mi.Color3f, n)
             dr.scatter_add(acc, wgt * res["L"], own)
             total = total + acc

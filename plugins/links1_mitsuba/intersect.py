@@ -27,9 +27,10 @@ class Intersect:
     __slots__ = ()
 
     # -------------------------------------------------------------- geometry
-    def _nearest(self, P, scene, o, d, tmin, tmax, active, cost, camera=False, coherent=False):
+    def _nearest(self, P, scene, o, d, tmin, tmax, active, cost, camera=False, coherent=False, ad=False):
         """Nearest hit over Mitsuba shapes and custom shapes: (t, slot, si, prim, custom_won).
         ``camera``: the rays start at a pinhole camera's eye (its buffer replaces the BVH).
+        ``ad``: a derivative pass's rays (the links1 shapes' hits found on primal values).
         ``coherent``: the camera's rays, neighbours in the lanes (Embree's coherent mode, as
         Mitsuba's own integrators trace their camera rays: ~1.2-2x faster for spp 16 eye rays;
         a ray that meets an edge shared by two triangles at the same distance may get the other
@@ -47,7 +48,7 @@ class Intersect:
             t = dr.full(mi.Float, INF, dr.width(o))
             slot = dr.full(mi.Int32, -1, dr.width(o))
         prim = dr.zeros(mi.UInt32, dr.width(o))
-        if getattr(P, "ad", False):
+        if ad:
             # a derivative pass: the links1 shapes' hits on primal values (re-attached by
             # gradients._surface_ad: implicit differentiation, not through the solvers)
             with dr.suspend_grad():

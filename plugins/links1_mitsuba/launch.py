@@ -421,12 +421,13 @@ class Launches:
             self._set_stats(counts)
         return np.concatenate(L), np.concatenate(cost)
 
-    def _launch(self, P, scene, sid, spp_, seeds, want):
+    def _launch(self, P, scene, sid, spp_, seeds, want, mode=dr.ADMode.Primal):
         """One launch over the sample ids ``sid`` (a ``UInt32`` array) -> (its device outputs
         ``total``, ``cost`` and with ``want`` ``t0``, ``s0``, ``n0``, each with one lane per
-        sample; its ray counters)."""
+        sample; its ray counters). ``mode``: ``dr.ADMode.Primal`` (the frozen launch) or a
+        derivative pass's (gradients.py)."""
         n = dr.width(sid)
-        if getattr(P, "ad", False):   # a derivative pass (gradients.py): unfrozen, no AOVs
+        if mode != dr.ADMode.Primal:   # a derivative pass (gradients.py): unfrozen, no AOVs
             o, d, tmin, tmax, key, _ = self._camera_rays(P, sid, spp_, seeds)
             # (the samples' RGB evaluated in one kernel: the film's gather would evaluate each
             # channel alone, recomputing the shading of the ray tree three times)
@@ -506,14 +507,15 @@ class Launches:
         3 + aov channels)`` per window, each exactly what :meth:`render_window` returns for it
         (pixels are independent lanes). The frame is made on the device
         (:meth:`render_windows_device`) and copied to numpy once, at the end."""
-        flat, C, batch = self._render_flat(scene, windows, spp, seed, aovs, sensor, mi.Float64, None)
+        flat, C, batch = self._render_flat(scene, windows, spp, seed, aovs, sensor, mi.Float64, None,
+                                           dr.ADMode.Primal)
         a = flat.numpy()
         return [a[p * C:(p + w * h) * C].reshape(h, w, C)
                 for p, (_, _, w, h) in zip(batch.pixel_start, batch.wins)]
 
     @interruptible
     def render_windows_device(self, scene, windows, spp=1, seed=None, aovs=None, sensor=None,
-                              dtype=None, tables=None):
+                              dtype=None, tables=None, mode=dr.ADMode.Primal):
         """:meth:`render_windows` on the device: one tensor ``(h, w, C)`` per window, of
         ``dtype`` (``mi.Float``: ``mi.TensorXf``; ``mi.Float64``: ``mi.TensorXf64``), never
         visiting numpy (:mod:`links1_mitsuba.film`: sample ids, the reconstruction filter, spp
@@ -523,10 +525,12 @@ class Launches:
         device from the windows' tables (:class:`~links1_mitsuba.film.Batch`), so no window offset, window size, batch size or
         sample count enters the recorded kernels: one recording per configuration, then
         replays (:meth:`_frozen_fn`); the film's kernels are cached likewise. ``tables``: the
-        prepared tables to use instead of :meth:`prepare`'s (a derivative pass's, gradients.py).
+        prepared tables to use instead of :meth:`prepare`'s (a derivative pass's, gradients.py),
+        ``mode``: ``dr.ADMode.Primal``, or the derivative pass's mode (gradients.py: the ray
+        tree traced level by level, the film's loops evaluated, no AOVs).
         """
         flat, C, batch = self._render_flat(scene, windows, spp, seed, aovs, sensor,
-                                           mi.Float if dtype is None else dtype, tables)
+                                           mi.Float if dtype is None else dtype, tables, mode)
         Tensor = mi.TensorXf64 if type(flat) is mi.Float64 else mi.TensorXf
         if len(batch.wins) == 1:
             _, _, w, h = batch.wins[0]
@@ -534,7 +538,7 @@ class Launches:
         return [Tensor(dr.gather(type(flat), flat, dr.arange(mi.UInt32, w * h * C) + dr.opaque(mi.UInt32, p * C)),
                        shape=(h, w, C)) for p, (_, _, w, h) in zip(batch.pixel_start, batch.wins)]
 
-    def _render_flat(self, scene, windows, spp, seed, aovs, sensor, dtype, tables):
+    def _render_flat(self, scene, windows, spp, seed, aovs, sensor, dtype, tables, mode):
         """The windows' pixels as one flat ``dtype`` array, window after window, with their
         channel count and :class:`~links1_mitsuba.film.Batch` (for the callers above)."""
         P = self.prepare(scene, sensor) if tables is None else tables
@@ -550,7 +554,7 @@ class Launches:
             raise ValueError(f"{W}x{H} pixels x {spp} samples exceed the 32-bit sample ids")
         seed = self.seed if seed is None else int(seed)
         aovs = self.aovs if aovs is None else parse_aovs(aovs)
-        ad = getattr(P, "ad", False)
+        ad = mode != dr.ADMode.Primal
         if ad:
             aovs = []   # a derivative pass differentiates the RGB channels
         want = bool(aovs)
@@ -566,14 +570,14 @@ class Launches:
         # launches of at most LAUNCH_LANES samples (lanes are independent: the same bits as
         # one launch); one launch of W*H*spp lanes needs ~90 bytes each (512², 1024 spp: 24 GB)
         if n <= LAUNCH_LANES:
-            parts, counts = self._launch(P, scene, sid, spp_, seeds, want)
+            parts, counts = self._launch(P, scene, sid, spp_, seeds, want, mode)
             counts = [counts]
         else:
             dr.eval(sid)
             lanes = lambda a: dr.arange(mi.UInt32, min(LAUNCH_LANES, n - a)) + dr.opaque(mi.UInt32, a)  # noqa: E731
             chunks = []
             for a in range(0, n, LAUNCH_LANES):
-                chunks.append(self._launch(P, scene, dr.gather(mi.UInt32, sid, lanes(a)), spp_, seeds, want))
+                chunks.append(self._launch(P, scene, dr.gather(mi.UInt32, sid, lanes(a)), spp_, seeds, want, mode))
                 _between_launches()
             counts = [c for _, c in chunks]
             parts = {}

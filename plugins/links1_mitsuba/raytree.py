@@ -38,6 +38,13 @@ from .util import INF, gather3, mix32
 # skips it instead of computing it masked
 
 
+def child_keys(key):
+    """The keys of a hit's mirror and refraction children, ``mix(key ^ KEY_REFLECT)`` and
+    ``mix(key ^ KEY_REFRACT)`` (links1.maths.sampling.child_keys): one rule for the megakernel
+    and the derivative pass's levels."""
+    return mix32(key ^ mi.UInt32(KEY_REFLECT)), mix32(key ^ mi.UInt32(KEY_REFRACT))
+
+
 def _power_heuristic(pdf_a, pdf_b):
     """Veach's power heuristic (β = 2) of strategy a against b, each pdf times its sample
     count; 0 where it is not finite (Mitsuba's ``direct``: ``mis_weight``)."""
@@ -53,15 +60,15 @@ class RayTree:
 
     # -------------------------------------------------------------- one level
     def _level(self, P, scene, o, d, tmin, tmax, key, depth, spawn, active=None, symbolic=True,
-               sample=None, later=None):
+               sample=None, later=None, ad=False):
         """Trace and shade one ray per lane (inside the megakernel's loop when ``symbolic``).
         ``sample``: the camera sample of a primary hit (see :meth:`_light_uv`). ``later``
         (a derivative pass): a list that takes the shadow tests' results the pass keeps in
         memory, for the caller to evaluate (``Gradients._trace_tree_ad``: after it has read
-        which rays the level spawns, so that reading waits for the hits' kernel only).
-        Returns a dict of Dr.Jit arrays."""
+        which rays the level spawns, so that reading waits for the hits' kernel only). ``ad``:
+        a derivative pass's level (gradients.py: attached tables, no symbolic branches, visibility
+        on primal values). Returns a dict of Dr.Jit arrays."""
         n = dr.width(o)
-        ad = getattr(P, "ad", False)   # a derivative pass (gradients.py)
         if active is None:
             active = dr.full(mi.Bool, True, n)
         cost = dr.zeros(mi.UInt32, n)
@@ -70,7 +77,7 @@ class RayTree:
             dr.eval(o, d, tmin, tmax)
         # level 1 is the camera's rays (from its eye when it is a pinhole)
         t, slot, si, prim = self._nearest(P, scene, o, d, tmin, tmax, active, cost,
-                                          camera=depth == 1 and P.perspective, coherent=depth == 1)
+                                          camera=depth == 1 and P.perspective, coherent=depth == 1, ad=ad)
         if ad and not symbolic and P.custom and not P.any_mitsuba_shapes:
             # a derivative pass through links1 shapes: the search's results (detached) kept in
             # memory, so that each kernel of the AD traversal reads them instead of marching
@@ -457,8 +464,7 @@ class RayTree:
             return rgb, res["cost"], res["t"], res["slot"], res["ns"], dict(nsh1=res["n_shadow"])
         act = res["hit"]
         cr, ct, w_r, w_t = self._children(res, act, mi.Color3f(1.0), mi.UInt32(1))
-        key_r = mix32(key ^ mi.UInt32(KEY_REFLECT))
-        key_t = mix32(key ^ mi.UInt32(KEY_REFRACT))
+        key_r, key_t = child_keys(key)
         has_t = P.any_phong_t or P.any_mitsuba_dt or P.any_mitsuba_null
         if has_t:
             kids = (res["o_r"], res["dir_r"], w_r, key_r, res["o_t"], res["dir_t"], w_t, key_t)
@@ -512,8 +518,7 @@ class RayTree:
             L = v["L"] + wgt * res["L"]
             cost = v["cost"] + res["cost"]
             cr, ct, w_r, w_t = self._children(res, act, wgt, v["depth"])
-            key_r = mix32(v["key"] ^ mi.UInt32(KEY_REFLECT))
-            key_t = mix32(v["key"] ^ mi.UInt32(KEY_REFRACT))
+            key_r, key_t = child_keys(v["key"])
             sp = v["sp"]
             push = cr & ct
             if has_t:

@@ -602,8 +602,6 @@ class Prepared:
     eye_buf: object = _default(None)
 
     # -- a derivative pass (gradients.py: a copy with attached values)
-    #: the launches trace ``_trace_tree_ad`` and the film differentiably
-    ad: bool = _default(False)
     #: the attached geometry of the links1 shapes, or None
     geo_ad: object = _default(None)
     #: whether no moving surface (``geo_ad``) can spawn a mirror or refraction ray: the

@@ -43,10 +43,12 @@ class Tuning:
     #: light buffers (``lightbuffer.plan``, ``plan_eye``) built with the tables (False: none;
     #: shadow and camera rays walk the BVH)
     light_buffer: bool = True
-    #: ``mi.render(scene, params)`` of a frame that does not depend on the seed keeps the
-    #: derivative pass's graph for ``dr.backward`` instead of rendering the frame twice
-    #: (``gradients.Gradients._render_keeping_graph``; False: the primal, then the pass again)
-    keep_graph: bool = True
+    #: an explicit choice: a frame rendered while parameters have gradients enabled that does
+    #: not depend on the seed (spp 1, no sampled light) and is one block is the derivative
+    #: pass's, its graph kept for ``dr.backward`` instead of rendering the frame twice
+    #: (``gradients.Gradients._render_keeping_graph``); its values are the primal's to float32
+    #: rounding. False (default): the primal frame, bit for bit, then the pass again
+    keep_graph: bool = False
     #: custom quadrics with finite bounds go under a BVH (bvh.py) from this many on
     bvh_min: int = 8
 

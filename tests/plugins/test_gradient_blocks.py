@@ -47,13 +47,14 @@ def _grads(scene, keys, weights, monkeypatch, budget):
     from links1_mitsuba import gradients
     monkeypatch.setattr(gradients, "AD_BLOCK_LANES", budget)
     widths = []
-    cls = type(scene.integrator())
+    from links1_mitsuba.engine import Engine
+    cls = Engine
     real = cls._launch
 
-    def counted(self, P, scene_, sid, *a, **k):
-        if getattr(P, "ad", False):
+    def counted(self, P, scene_, sid, spp_, seeds, want, mode=dr.ADMode.Primal):
+        if mode != dr.ADMode.Primal:     # a derivative pass's launch
             widths.append(dr.width(sid))
-        return real(self, P, scene_, sid, *a, **k)
+        return real(self, P, scene_, sid, spp_, seeds, want, mode)
     monkeypatch.setattr(cls, "_launch", counted)
     params = mi.traverse(scene)
     for k in keys:
@@ -68,6 +69,7 @@ def _grads(scene, keys, weights, monkeypatch, budget):
     return out, widths
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case", ["shading", "quadric"])
 def test_blocks_give_the_gradients_of_one_block(variant, tmp_path, monkeypatch, case):
     if case == "shading":
@@ -90,6 +92,7 @@ def test_blocks_give_the_gradients_of_one_block(variant, tmp_path, monkeypatch, 
         assert np.allclose(many[k], one[k], rtol=1e-5, atol=1e-5 * np.abs(one[k]).max()), (k, one[k], many[k])
 
 
+@pytest.mark.slow
 def test_reverse_blocks_with_a_parameter_made_from_another(variant, tmp_path, monkeypatch):
     """A links1_quadric's translation ``th`` made into its ``to_world`` before ``mi.render``:
     the edge ``th`` → ``to_world`` serves every block, not only the first (a traversal that

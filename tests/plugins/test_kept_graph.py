@@ -1,9 +1,9 @@
 """The kept derivative graph of ``mi.render(scene, params)`` (gradients.py,
 ``Gradients._render_keeping_graph``; ``Tuning.keep_graph``).
 
-Where the frame does not depend on the seed (spp 1: pixel centres; analytic lights only) and
-is one block, ``mi.render`` with parameters renders the derivative pass's frame once and keeps
-its graph, and ``dr.backward`` propagates through it instead of rendering the frame again with
+With the graph kept (an explicit choice, ``Tuning.keep_graph``; off by default), where the
+frame does not depend on the seed (spp 1: pixel centres; analytic lights only) and is one
+block, ``mi.render`` with parameters renders the derivative pass's frame once and keeps its graph, and ``dr.backward`` propagates through it instead of rendering the frame again with
 ``seed_grad``. The gradients must be those of the second render (the same function of the
 parameters, so equal up to float32 rounding of the operations' order: the kernels are the
 same, the tolerance below is 1e-5 relative), the frame must not be rendered again, and where
@@ -67,6 +67,7 @@ def _blob(tmp_path):
     return geo_load(tmp_path, BLOB, camera=GEO_CAMERA.format(depth=3))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case", ["shading", "lights", "blob"])
 def test_kept_graph_gives_the_gradients_of_a_second_render(variant, render_count, tmp_path, case):
     """Every parameter family (Phong and Mitsuba colours, the lights' values and positions,
@@ -89,6 +90,7 @@ def test_kept_graph_gives_the_gradients_of_a_second_render(variant, render_count
         np.testing.assert_allclose(b, a, rtol=1e-5, atol=1e-6 * np.abs(a).max(), err_msg=k)
 
 
+@pytest.mark.slow
 def test_no_graph_kept_where_the_seed_matters_or_over_blocks(variant, render_count, monkeypatch):
     """spp 2 (the samples' places depend on the seed, and seed_grad is another seed), an area
     light (sampled), and a frame of several blocks render the derivative pass again in
@@ -108,23 +110,34 @@ def test_no_graph_kept_where_the_seed_matters_or_over_blocks(variant, render_cou
     assert kept is False and n > 1 and np.all(g[0] > 0)
 
 
+@pytest.mark.slow
 def test_a_kept_graph_is_dropped_by_the_next_frame_and_by_forward_mode(variant):
     """A graph nobody propagated is dropped by the next render (no graph outlives its frame),
     and forward mode after a kept frame differentiates as usual (its tangents would otherwise
     enter the kept graph, outside the pass's dr.isolate_grad scope)."""
     import drjit as dr
     import mitsuba as mi
+
+    from links1_mitsuba import tuning
     scene = load(SHADING)
     integ = scene.integrator()
     params = mi.traverse(scene)
     key = "ball.bsdf.diffuse.value"
     dr.enable_grad(params[key])
-    mi.render(scene, params)
-    assert integ.info()["kept_graph"]
-    mi.render(scene)                                    # a frame without parameters
+    with tuning.tuned(keep_graph=True):
+        mi.render(scene, params)
+        assert integ.info()["kept_graph"]
+        dr.disable_grad(params[key])
+        mi.render(scene)                                # a frame with nothing attached
+        assert not integ.info()["kept_graph"]
+        dr.enable_grad(params[key])
+        img = mi.render(scene, params)
+        assert integ.info()["kept_graph"]
+    mi.render(scene, params)                            # keeping it is a choice: off by default
     assert not integ.info()["kept_graph"]
-    img = mi.render(scene, params)
-    assert integ.info()["kept_graph"]
+    img = None
+    with tuning.tuned(keep_graph=True):
+        img = mi.render(scene, params)
     dr.set_grad(params[key], mi.Color3f(1.0, 0.0, 0.0))
     dr.forward_to(img)
     tangent = np.array(dr.grad(img), dtype=np.float64)
@@ -135,6 +148,7 @@ def test_a_kept_graph_is_dropped_by_the_next_frame_and_by_forward_mode(variant):
     np.testing.assert_allclose(tangent.sum(), g[0][0], rtol=1e-4)
 
 
+@pytest.mark.slow
 def test_two_frames_then_one_backward(variant, render_count):
     """Two sensors' frames rendered before one dr.backward of their losses' sum: the second
     render drops the first's kept graph, so the first frame's pass is rendered again (the
@@ -159,9 +173,11 @@ def test_two_frames_then_one_backward(variant, render_count):
         for k in keys:
             dr.disable_grad(params[k])
         return g
-    a, b = grads([0]), grads([1])
-    n = len(render_count)
-    both = grads([0, 1])
+    from links1_mitsuba import tuning
+    with tuning.tuned(keep_graph=True):
+        a, b = grads([0]), grads([1])
+        n = len(render_count)
+        both = grads([0, 1])
     assert len(render_count) - n == 1      # the first frame's pass rendered again, the second kept
     for k, ga, gb, g in zip(keys, a, b, both):
         assert np.any(ga != 0) and np.any(gb != 0), k

@@ -57,5 +57,6 @@ def test_the_sample_key_salts_are_named_not_retyped():
                     found.append(f"{name}: {lit}")
     assert not found, found
     from links1_mitsuba import gradients, launch, raytree
-    assert raytree.KEY_REFLECT == gradients.KEY_REFLECT == sampling.KEY_REFLECT
+    assert raytree.KEY_REFLECT == sampling.KEY_REFLECT and raytree.KEY_REFRACT == sampling.KEY_REFRACT
+    assert gradients.child_keys is raytree.child_keys   # the derivative pass's levels: the same rule
     assert launch.KEY_PIXEL == sampling.KEY_PIXEL and launch.key_seed is sampling.key_seed
