@@ -26,7 +26,7 @@ import numpy as np
 
 from ..scene import params
 from ..geometry.accel import Accel
-from ..shading.glossy import _call_sample
+from ..shading.glossy import _call, _call_sample
 from ..shading.lights import AreaLight, ConstantEnvironment, EnvironmentMap
 from ..maths.sampling import (KEY_REFLECT, KEY_REFRACT, bsdf_samples_uv, child_keys, light_samples_uv,
                               power_heuristic)
@@ -241,6 +241,10 @@ class WhittedIntegrator:
         groups = [(k, np.nonzero(mat_idx == k)[0]) for k in np.unique(mat_idx)]
         # each group's material, its textures evaluated at the hits' uv (links1.shading.textures)
         mats = {k: self._bound(self._materials[k], o[g], d[g], hits, g) for k, g in groups}
+        # Mitsuba's shading frame (its tangent from the shape's dp_du) where the material turns
+        # with it: glossy lobes (anisotropic roughness) and BSDF samples (their directions)
+        tangent = {k: self._shading_tangents(o[g], d[g], hits, g, rec.ns[g]) for k, g in groups
+                   if getattr(mats[k], "glossy", False) or (self._glossy is not None and self._glossy[k])}
 
         out = np.zeros((n, 3))
         for k, g in groups:
@@ -276,16 +280,16 @@ class WhittedIntegrator:
             for wi, dist, L, pdf_l in rays:
                 f = np.zeros((n, 3))
                 for k, g in groups:
-                    f[g] = mats[k].eval(wo[g], wi[g], nf[g], rec.ns[g])
+                    f[g] = _call(mats[k].eval, wo[g], wi[g], nf[g], rec.ns[g], tangent.get(k))
                 contrib = f * L if inv_m is None else f * L * inv_m
                 if pdf_l is not None:
                     for k, g in glossy:
-                        pdf_b = mats[k].pdf(wo[g], wi[g], nf[g], rec.ns[g])
+                        pdf_b = _call(mats[k].pdf, wo[g], wi[g], nf[g], rec.ns[g], tangent[k])
                         contrib[g] *= power_heuristic(m * pdf_l[g], pdf_b)[:, None]
                 self._shadowed(out, contrib, wi, dist, j, hits, rec, eps, cost, idx,
                                aim=isinstance(light, AreaLight))
         if gl is not None:
-            self._bsdf_sampled(out, glossy, mats, o, d, hits, nf, rec, eps, cost, idx, keys, sample)
+            self._bsdf_sampled(out, glossy, mats, tangent, d, nf, rec, eps, cost, idx, keys, sample)
 
         if depth >= self.max_depth or not (self.any_reflection or self.any_transmission):
             return out
@@ -332,11 +336,12 @@ class WhittedIntegrator:
         return out
 
 
-    def _bsdf_sampled(self, out, glossy, mats, o, d, hits, nf, rec, eps, cost, idx, keys, sample):
+    def _bsdf_sampled(self, out, glossy, mats, tangent, d, nf, rec, eps, cost, idx, keys, sample):
         """Add the BSDF-sampled part of the direct light at the glossy hits (``glossy``: groups
         ``(material, hits)``): one direction drawn by each hit's material at its BSDF sample
         (:func:`links1.maths.sampling.bsdf_samples_uv`, keyed as one light sample per hit) in
-        Mitsuba's shading frame (:meth:`_shading_tangents`), traced to the nearest surface.
+        Mitsuba's shading frame (``tangent`` by material: :meth:`_shading_tangents`), traced to
+        the nearest surface.
         Where it meets a sampled area light's front, that light's radiance (a texture at the
         point's uv); where it escapes, each environment's; times ``eval / pdf``, weighted by the
         power heuristic against the light's ``light_samples`` samples (``light.pdf``)."""
@@ -353,8 +358,7 @@ class WhittedIntegrator:
         at = 0
         for k, g in glossy:
             wi[at:at + g.size], weight[at:at + g.size], pdf_b[at:at + g.size] = \
-                _call_sample(mats[k], wo[g], nf[g], rec.ns[g], u1[g], uv[g],
-                             self._shading_tangents(o[g], d[g], hits, g, rec.ns[g]))
+                _call_sample(mats[k], wo[g], nf[g], rec.ns[g], u1[g], uv[g], tangent[k])
             at += g.size
         ok = (pdf_b > 0) & np.any(weight > 0, axis=1)
         sel, wi, weight, pdf_b = gl[ok], wi[ok], weight[ok], pdf_b[ok]
