@@ -197,9 +197,6 @@ class BsdfLoader:
             props.ignore(*[nm for nm, c in node.children if c is tex[0] and nm])
             m = _construct(node, normalmaps.BumpMap, texture=_texture(tex[0]),
                            scale=props.float("scale", 1.0), **common)
-        if nested.has_reflection or nested.has_transmission:
-            node.warn(f"{t}: the mirror and refraction rays of the nested bsdf leave about the "
-                      "unperturbed normal in the core")
         return m
 
     def _pplastic(self, node: Node, props: _Props, name: str):

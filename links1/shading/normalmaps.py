@@ -19,9 +19,9 @@ Both turn the hit's shading frame and hand the nested BSDF the turned one:
 
 They need the hit's ``dp_du``, ``dp_dv`` and geometric normal: the integrator hands them to
 ``at`` in ``given`` (keys ``dp_du``, ``dp_dv``, ``ng``; :meth:`links1.geometry.base.Shape.tangents`).
-The nested BSDF's delta lobes (mirror and refraction rays) keep the unturned normal (the loader
-warns). Inside ``twosided`` the frame is mirrored from behind, as Mitsuba mirrors the local
-directions.
+The nested BSDF's delta lobes (mirror and refraction rays) leave about the turned normal, as
+Mitsuba's ``sample`` draws them (:meth:`_Perturbed.delta_frame`). Inside ``twosided`` the frame
+is mirrored from behind, as Mitsuba mirrors the local directions.
 """
 from __future__ import annotations
 
@@ -203,16 +203,41 @@ class _Perturbed(Material):
         wi, weight, pdf = _with_tangent(self.nested.sample, self._reflect(wo, mirror), nf, nr, u, uv,
                                         tangent=ps_w)
         wi = self._reflect(wi, mirror)
+        weight, active = self._kept(wi, weight, z, wi_z, pn, pn_w)
+        return wi, weight, np.where(active, pdf, 0.0)
+
+    def _kept(self, wi, weight, z, wi_z, pn, pn_w):
+        """A sampled direction's weight as Mitsuba's ``sample`` returns it, and where it is kept:
+        0 where the nested BSDF gave none or ``wi`` leaves on one side of the turned normal
+        ``pn_w`` and the other of the unturned ``z`` (not folded back); times the shadowing term."""
         cos_o = dot(wi, z)
         active = np.any(weight != 0, axis=1) & (dot(wi, pn_w) * cos_o > 0)
         if self.two_sided:
             active &= wi_z != 0
         if self.use_shadowing_function:
             weight = weight * shadow_terminator(pn[:, 2], cos_o)[:, None]
-        return wi, np.where(active[:, None], weight, 0.0), np.where(active, pdf, 0.0)
+        return np.where(active[:, None], weight, 0.0), active
 
     def specular(self, wo, n, entering):
         return self.nested.specular(wo, n, entering)
+
+    def delta_frame(self, wo, n_raw):
+        """Where the nested BSDF's delta lobes leave, as Mitsuba's ``sample`` draws them in the
+        turned frame: ``(n, entering, keep)``. ``n`` is the turned normal facing the viewer ``wo``
+        (the mirror and refraction rays, eq. 3.12-3.15, are taken about it, their weights from
+        ``specular(wo, n, entering)``), ``entering`` whether the viewer is on the turned normal's
+        side (the nested BSDF's ``cos θ_i > 0``). ``keep(direction, weight)`` is a lobe's weight as
+        Mitsuba returns it (:meth:`_kept`): a reflection turned below the surface is dropped."""
+        (s, t, z), wi_z, pn, pn_w, ps_w, mirror = self._frames(wo, n_raw)
+        # the twosided mirror fixes the turned normal: rays reflected or refracted about it are
+        # the mirror images of the mirrored ones, so no mirroring is needed here
+        cos_i = dot(wo, pn_w)
+        n = np.where((cos_i < 0)[:, None], -pn_w, pn_w)
+
+        def keep(direction, weight):
+            return self._kept(direction, weight, z, wi_z, pn, pn_w)[0]
+
+        return n, cos_i > 0, keep
 
 
 @dataclass

@@ -300,19 +300,30 @@ class WhittedIntegrator:
         t = np.zeros((n, 3))
         eta = np.ones(n)
         scale = np.zeros(n, dtype=bool)
+        nd = nf   # the normal the rays leave about: a normal or bump map's turned one where there is one
+        kept = []
         for k, g in groups:
             mat = mats[k]
             if not (mat.has_reflection or mat.has_transmission):
                 continue
-            r[g], t[g], eta[g] = mat.specular(wo[g], nf[g], front[g])
+            turned = getattr(mat, "delta_frame", None)
+            if turned is None:
+                r[g], t[g], eta[g] = mat.specular(wo[g], nf[g], front[g])
+            else:   # links1.shading.normalmaps: Mitsuba samples the nested delta lobes turned
+                nd = nd.copy() if nd is nf else nd
+                nd[g], entering, keep = turned(wo[g], rec.ns[g])
+                r[g], t[g], eta[g] = mat.specular(wo[g], nd[g], entering)
+                kept.append((g, keep))
             scale[g] = mat.scale_radiance
-        cos_i = -dot(d, nf)  # >= 0: nf faces the viewer
-        dt, tir = refract(d, nf, eta)
-        has_t = np.any(t > 0.0, axis=1)
-        tir &= has_t  # total internal reflection: no transmitted ray, its weight goes to the mirror ray
+        cos_i = -dot(d, nd)  # >= 0: nd faces the viewer
+        dt, tir = refract(d, nd, eta)
+        tir &= np.any(t > 0.0, axis=1)  # total internal reflection: no transmitted ray, its weight goes to the mirror ray
         r = np.where(tir[:, None], r + t, r)
         t = np.where(tir[:, None], 0.0, t)
-        has_t &= ~tir
+        dr_ = d + 2.0 * cos_i[:, None] * nd  # eq. (3.12)
+        for g, keep in kept:   # rays the turned normal sends across the surface: dropped, as Mitsuba's
+            r[g], t[g] = keep(dr_[g], r[g]), keep(dt[g], t[g])
+        has_t = np.any(t > 0.0, axis=1)
         t = np.where(scale[:, None], t * (eta * eta)[:, None], t)
 
         wgt = np.ones((n, 3)) if weight is None else weight
@@ -320,7 +331,7 @@ class WhittedIntegrator:
         branches = []
         refl = np.nonzero(np.max(r * wgt, axis=1) > threshold if threshold > 0 else np.any(r > 0.0, axis=1))[0]
         if refl.size:
-            branches.append(("reflect", refl, d[refl] + 2.0 * cos_i[refl, None] * nf[refl], r, keys_r))  # eq. (3.12)
+            branches.append(("reflect", refl, dr_[refl], r, keys_r))
         trn = np.nonzero(has_t & (np.max(t * wgt, axis=1) > threshold) if threshold > 0 else has_t)[0]
         if trn.size:
             branches.append(("refract", trn, dt[trn], t, keys_t))  # eq. (3.14)-(3.15)
