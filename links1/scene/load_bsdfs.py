@@ -55,6 +55,14 @@ def _ior(props: _Props, name: str, default: str) -> float:
     return v
 
 
+def _warn_turned_delta(node, t: str, *nested) -> None:
+    """Warn where a ``normalmap``/``bumpmap`` with mirror or refraction rays sits inside ``t``
+    (a blend or a mask): the integrator turns the delta rays of a map it meets at the top only."""
+    if any(getattr(m, "delta_frame", None) and (m.has_reflection or m.has_transmission) for m in nested):
+        node.warn(f"{t}: the mirror and refraction rays of a normalmap or bumpmap nested in it leave "
+                  "about the unturned normal in the core")
+
+
 class BsdfLoader:
     """BSDFs (methods of the loader's builder)."""
 
@@ -104,6 +112,7 @@ class BsdfLoader:
                                  "node has one refracted ray (not supported by the core)")
             m = _construct(node, glossy.Blend, bsdf_0=a, bsdf_1=b,
                            weight=props.texture("weight", unbounded=True), name=name)
+            _warn_turned_delta(node, t, a, b)
         elif t in ("dielectric", "thindielectric"):
             int_ior = _ior(props, "int_ior", "bk7")
             ext_ior = _ior(props, "ext_ior", "air")
@@ -132,6 +141,7 @@ class BsdfLoader:
             nested = self.bsdf(inner[0])
             m = _construct(node, mat.Mask, nested=nested, opacity=props.texture("opacity", 0.5),
                            name=name)
+            _warn_turned_delta(node, t, nested)
             if m.refracts:
                 node.warn("mask around a refracting bsdf: its straight-through part (1 - opacity) "
                           "is dropped (a Whitted node has one transmitted ray)")

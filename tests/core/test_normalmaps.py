@@ -211,3 +211,18 @@ def test_pplastic_is_not_approximated():
     with pytest.raises(SceneError, match="eta"):
         load_string(_scene('<bsdf type="pplastic"><float name="eta" value="1.5"/>'
                            '<float name="int_ior" value="1.5"/></bsdf>'))
+
+
+def test_delta_lobes_of_a_map_inside_a_blend_or_mask_are_warned():
+    """A normal map's mirror rays are turned where the map is the hit's BSDF (also inside
+    ``twosided``): no warning; inside a ``blendbsdf`` or a ``mask`` the integrator does not see the
+    map, and the loader says so."""
+    mirror = ('<bsdf type="normalmap"><rgb name="normalmap" value="0.6, 0.5, 0.9"/>'
+              '<bsdf type="conductor"/></bsdf>')
+    blend = f'<bsdf type="blendbsdf"><float name="weight" value="0.3"/>{mirror}<bsdf type="diffuse"/></bsdf>'
+    for xml, warned in ((mirror, False), (f'<bsdf type="twosided">{mirror}</bsdf>', False),
+                        (blend, True), (f'<bsdf type="mask">{mirror}</bsdf>', True)):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            load_string(_scene(xml))
+        assert any("unturned normal" in str(w.message) for w in caught) == warned, xml
