@@ -296,36 +296,7 @@ class WhittedIntegrator:
         keys_r, keys_t = child_keys(keys, KEY_REFLECT), child_keys(keys, KEY_REFRACT)
 
         # --- secondary rays, eq. (3.12)-(3.16)
-        r = np.zeros((n, 3))
-        t = np.zeros((n, 3))
-        eta = np.ones(n)
-        scale = np.zeros(n, dtype=bool)
-        nd = nf   # the normal the rays leave about: a normal or bump map's turned one where there is one
-        kept = []
-        for k, g in groups:
-            mat = mats[k]
-            if not (mat.has_reflection or mat.has_transmission):
-                continue
-            turned = getattr(mat, "delta_frame", None)
-            if turned is None:
-                r[g], t[g], eta[g] = mat.specular(wo[g], nf[g], front[g])
-            else:   # links1.shading.normalmaps: Mitsuba samples the nested delta lobes turned
-                nd = nd.copy() if nd is nf else nd
-                nd[g], entering, keep = turned(wo[g], rec.ns[g])
-                r[g], t[g], eta[g] = mat.specular(wo[g], nd[g], entering)
-                kept.append((g, keep))
-            scale[g] = mat.scale_radiance
-        cos_i = -dot(d, nd)  # >= 0: nd faces the viewer
-        dt, tir = refract(d, nd, eta)
-        tir &= np.any(t > 0.0, axis=1)  # total internal reflection: no transmitted ray, its weight goes to the mirror ray
-        r = np.where(tir[:, None], r + t, r)
-        t = np.where(tir[:, None], 0.0, t)
-        dr_ = d + 2.0 * cos_i[:, None] * nd  # eq. (3.12)
-        for g, keep in kept:   # rays the turned normal sends across the surface: dropped, as Mitsuba's
-            r[g], t[g] = keep(dr_[g], r[g]), keep(dt[g], t[g])
-        has_t = np.any(t > 0.0, axis=1)
-        t = np.where(scale[:, None], t * (eta * eta)[:, None], t)
-
+        r, dr_, t, dt, has_t = self.delta_rays(mats, groups, wo, nf, front, rec.ns)
         wgt = np.ones((n, 3)) if weight is None else weight
         threshold = self.min_weight
         branches = []
@@ -346,6 +317,46 @@ class WhittedIntegrator:
             out[sel] += factor[sel] * Li  # eq. (3.13) / (3.16)
         return out
 
+    @staticmethod
+    def delta_rays(mats, groups, wo, nf, front, ns):
+        """The mirror and refraction rays of hits seen from ``wo`` (eq. 3.12-3.15), by material
+        (``groups``: ``(material index, hits)``, ``mats``: the materials bound to them):
+        ``(r, mirror direction, t, refracted direction, has_t)``, weights (N, 3) as Mitsuba's
+        delta lobes weigh them (``t`` with its radiance scaling). ``nf`` the shading normal facing
+        the viewer, ``front`` the viewer on the geometric normal's side, ``ns`` the shading normal;
+        a normal or bump map turns the normal the rays leave about
+        (:meth:`links1.shading.normalmaps._Perturbed.delta_frame`)."""
+        n, d = wo.shape[0], -wo
+        r = np.zeros((n, 3))
+        t = np.zeros((n, 3))
+        eta = np.ones(n)
+        scale = np.zeros(n, dtype=bool)
+        nd = nf   # the normal the rays leave about: a normal or bump map's turned one where there is one
+        kept = []
+        for k, g in groups:
+            mat = mats[k]
+            if not (mat.has_reflection or mat.has_transmission):
+                continue
+            turned = getattr(mat, "delta_frame", None)
+            if turned is None:
+                r[g], t[g], eta[g] = mat.specular(wo[g], nf[g], front[g])
+            else:   # links1.shading.normalmaps: Mitsuba samples the nested delta lobes turned
+                nd = nd.copy() if nd is nf else nd
+                nd[g], entering, keep = turned(wo[g], ns[g])
+                r[g], t[g], eta[g] = mat.specular(wo[g], nd[g], entering)
+                kept.append((g, keep))
+            scale[g] = mat.scale_radiance
+        cos_i = -dot(d, nd)  # >= 0: nd faces the viewer
+        dt, tir = refract(d, nd, eta)
+        tir &= np.any(t > 0.0, axis=1)  # total internal reflection: no transmitted ray, its weight goes to the mirror ray
+        r = np.where(tir[:, None], r + t, r)
+        t = np.where(tir[:, None], 0.0, t)
+        dr_ = d + 2.0 * cos_i[:, None] * nd  # eq. (3.12)
+        for g, keep in kept:   # rays the turned normal sends across the surface: dropped, as Mitsuba's
+            r[g], t[g] = keep(dr_[g], r[g]), keep(dt[g], t[g])
+        has_t = np.any(t > 0.0, axis=1)
+        t = np.where(scale[:, None], t * (eta * eta)[:, None], t)
+        return r, dr_, t, dt, has_t
 
     def _bsdf_sampled(self, out, glossy, mats, tangent, d, nf, rec, eps, cost, idx, keys, sample):
         """Add the BSDF-sampled part of the direct light at the glossy hits (``glossy``: groups
