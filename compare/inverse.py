@@ -40,7 +40,7 @@ Dr.Jit's caches) and their code generation + LLVM time are reported (``kernels_c
 
 Every iteration renders with ``seed=0`` (with spp 1 the sample is the pixel centre whatever the
 seed). New values of a blob's or a quadric's parameters replay the same kernels (the shapes
-gather them from Dr.Jit tables: ``plugins/links1_mitsuba/shapes.py``, ``tables()``); before,
+gather them from Dr.Jit tables: ``tables()`` in ``plugins/links1_mitsuba/shapes.py`` and ``blob.py``); before,
 they were literals and each blob iteration compiled ~100 kernels (~23 s).
 """
 from __future__ import annotations
