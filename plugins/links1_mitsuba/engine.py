@@ -106,7 +106,7 @@ class Engine(Tables, Lights, Intersect, RayTree, Launches, Gradients):
         "shape_names",     # (slot, name, ...) of every shape, set by the loader
         "places",          # object id -> "FILE:LINE: <element>", set by the loader
         # -- made from the scene
-        "_prep",           # the last prepared tables (a camera view: tables.Prepared)
+        "_prep",           # the last prepared tables (a camera view: prepared.Prepared)
         "_freeze",         # the frozen window launch (Launches._frozen_fn)
         "_freeze_points",  # the frozen point launch (Launches._frozen_points_fn)
         "_cam_sample",     # the camera sample of the last camera rays (Launches._take_cam_sample)
@@ -257,7 +257,7 @@ class Engine(Tables, Lights, Intersect, RayTree, Launches, Gradients):
         ``camera_views``, ``value_updates`` (tables built, camera views, in-place updates:
         tables.py), ``recordings`` (of the frozen window launch; 0 before the first),
         ``point_recordings`` (of the frozen point launch), ``tables`` (the last prepared
-        camera view, a :class:`~links1_mitsuba.tables.Prepared`), ``kept_graph`` (whether a
+        camera view, a :class:`~links1_mitsuba.prepared.Prepared`), ``kept_graph`` (whether a
         derivative pass's frame waits for ``render_backward``), ``stats`` (the ray counters)."""
         return {"scene_builds": self.n_scene_builds, "camera_views": self.n_camera_views,
                 "value_updates": self.n_value_updates,

@@ -134,7 +134,7 @@ def _spawns(P, slot):
 def _mitsuba_attached(scene, P, watched):
     """Whether a parameter of the scene (of Mitsuba's own objects among them) has gradients
     enabled: ``watched`` (the tables ``P`` were just checked against the scene's parameters,
-    ``tables.ParamWatch``), as the watch read them; else by a traversal."""
+    ``paramwatch.ParamWatch``), as the watch read them; else by a traversal."""
     if watched:
         return (P.base if P.base is not None else P).watch.attached()
     return any(dr.grad_enabled(v) for _, v in mi.traverse(scene).items())

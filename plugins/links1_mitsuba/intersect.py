@@ -112,11 +112,11 @@ class Intersect:
     @staticmethod
     def _meets_boxes(o, d, smax, boxes, own):
         """Lanes whose segment ``o + t d``, 0 <= t <= smax, can meet one of ``boxes``
-        (``tables.occluder_boxes``): a slab test made conservative in float32 (Ize 2013: the
+        (``shadow_plan.occluder_boxes``): a slab test made conservative in float32 (Ize 2013: the
         far distance widened by 1 + 2 gamma_3; the segment's end by 2^-16); a zero
         direction component is replaced by 1e-30 (no 0 * inf). A convex shape's box is skipped where the ray leaves that shape
         on its outer side (``own``: the hit's slot there, else -1; the rule of
-        ``Tables._occluders``)."""
+        ``shadow_plan.plan_occluders``)."""
         widen = 1.0 + 2.0 * (3.0 * 2.0 ** -24) / (1.0 - 3.0 * 2.0 ** -24)
         inv = [1.0 / dr.select(d[k] == 0, 1e-30, d[k]) for k in range(3)]
         far_max = smax * (1.0 + 2.0 ** -16)   # Mitsuba's t at a segment's end: its own rounding
@@ -161,7 +161,7 @@ class Intersect:
     def _shadow_groups(self, P, scene, o, d, smax, occ):
         """``[(slots, query)]``: the Mitsuba shapes a shadow segment is tested against, by
         group (``slots`` None: all of them), ``query(T, tests, lanes) -> (T, tests)``. With
-        ``P.shadow_split`` (``tables.shadow_split``) an any-hit query on the opaque shapes'
+        ``P.shadow_split`` (``shadow_plan.shadow_split``) an any-hit query on the opaque shapes'
         sub-scene (T = 0) and one on each transparent shape's (T times its transmittance),
         skipping groups that cannot occlude (``occ``: the light's occluder slots); else the
         scene with :meth:`_shadow_embree`."""

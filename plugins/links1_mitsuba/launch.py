@@ -132,7 +132,7 @@ def _unread_bsdfs(P) -> list:
 
 def _extra_scenes(P) -> tuple:
     """The Mitsuba scenes besides the scene itself that the launches trace rays in (the
-    shadow rays' sub-scenes, ``tables.shadow_split``): frozen inputs too."""
+    shadow rays' sub-scenes, ``shadow_plan.shadow_split``): frozen inputs too."""
     split = getattr(P, "shadow_split", None)
     if split is None:
         return ()
@@ -321,7 +321,7 @@ class Launches:
     def _frozen_inputs(self, P):
         """Every Dr.Jit array the trace reads from the per-scene tables (the frozen
         function must receive them as inputs), gathered once per ``P``: the fields of ``P``
-        (a slotted dataclass, :class:`~links1_mitsuba.tables.Prepared`) and what they hold
+        (a slotted dataclass, :class:`~links1_mitsuba.prepared.Prepared`) and what they hold
         through dicts, lists, tuples and objects' ``__dict__``. An object with its own traversal
         callbacks is not walked, as freeze walks it through them: a
         :class:`~links1_mitsuba.util.Hidden` (``ParamWatch``: nothing) or :class:`SceneInputs`
@@ -348,7 +348,7 @@ class Launches:
                     for v in vars(x).values():
                         walk(v, depth + 1)
                 elif dataclasses.is_dataclass(x) and not isinstance(x, type):
-                    # a dataclass with slots (tables.Prepared): its fields that are set
+                    # a dataclass with slots (prepared.Prepared): its fields that are set
                     for f in dataclasses.fields(x):
                         walk(getattr(x, f.name, None), depth + 1)
             walk(P)

@@ -48,6 +48,54 @@ class Lights:
     __slots__ = ()
 
     # -------------------------------------------------------------- lights
+    # -------------------------------------------------------------- the tables' entries
+    @staticmethod
+    def _params_of(P, obj):
+        """``mi.traverse(obj)`` of a native Mitsuba object, made once for the tables ``P`` (their
+        base's): it reads each parameter when asked (``mi.get_property``), so it gives the
+        current values after ``params.update()``, and a traversal costs ~0.15 ms a call."""
+        B = P.base if P.base is not None else P
+        prm = B.obj_params.get(id(obj))
+        if prm is None:
+            prm = B.obj_params[id(obj)] = mi.traverse(obj)
+        return prm
+
+    def _analytic_light(self, e, kind, Pt, Sp, P):
+        """The ``P.lights`` entry of the emitter ``e`` (its ``kind``: :func:`~.util.kind_of`) when
+        it is an analytic light: a ``links1_point`` (``Pt``) or ``links1_spot`` (``Sp``), a
+        Mitsuba point, spot, projector (these two with an image: ``memitter``) or directional
+        emitter; else None.
+        ``P``: the tables it is for (:meth:`_params_of`)."""
+        if isinstance(e, Pt):
+            p = e.params
+            return ("point", p["position"], p["direction"], p["L1"], p["L2"],
+                    p["falloff"] == "inverse_square")
+        if isinstance(e, Sp):
+            p = e.params
+            return ("cspot", p["origin"], p["direction"], p["radius"], p["intensity"])
+        if kind not in ("PointLight", "SpotLight", "DirectionalEmitter", "Projector"):
+            return None
+        prm = self._params_of(P, e)
+        if kind == "PointLight":
+            pos = np.array(prm["position"], dtype=np.float64).ravel()
+            I = _emitted_rgb(prm, "intensity", kind, self.place(e))
+            return ("point", pos, np.array([0, 0, 1.0]), I, np.zeros(3), True)
+        m = np.array(prm["to_world"].matrix, dtype=np.float64).reshape(4, 4)
+        if kind == "Projector":   # a delta light projecting an image: Mitsuba's own evaluation
+            return ("memitter", m[:3, 3], e)
+        if kind == "DirectionalEmitter":
+            E = _emitted_rgb(prm, "irradiance", kind, self.place(e))
+            return ("dir", m[:3, 2] / np.linalg.norm(m[:3, 2]), E)
+        if any(k.startswith("texture.") and k != "texture.value" for k in prm.keys()):
+            # a projector (its texture varies): Mitsuba's own evaluation of the emitter
+            return ("memitter", m[:3, 3], e)
+        I = _emitted_rgb(prm, "intensity", kind, self.place(e))
+        if "texture.value" in prm.keys():   # a constant texture scales the intensity
+            I = I * _emitted_rgb(prm, "texture", kind, self.place(e))
+        cutoff = float(np.array(prm["cutoff_angle"]).ravel()[0])
+        beam = float(np.array(prm["beam_width"]).ravel()[0])
+        return ("mspot", m[:3, 3].copy(), m[:3, 2] / np.linalg.norm(m[:3, 2]), I, cutoff, beam)
+
     @staticmethod
     def _toward(pos, axis, p):
         """Unit direction from ``p`` to the point light at ``pos``, the distance, and the

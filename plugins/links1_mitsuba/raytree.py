@@ -206,7 +206,7 @@ class RayTree:
             pending = []
 
             def need_of(j, lit, wi):
-                """Lanes that need a shadow ray toward light j (P.shadow_need, _occluders)."""
+                """Lanes that need a shadow ray toward light j (P.shadow_need: shadow_plan.plan_occluders)."""
                 if not P.any_shadow[j]:
                     return dr.zeros(mi.Bool, n)
                 if P.shadow_need[j] is None:

@@ -1,13 +1,15 @@
 """The per-scene tables of ``links1_whitted`` (their one home): ``prepare`` turns a Mitsuba scene
 into what the kernels read (slots in file order, ray offsets, materials, shadow transmittance,
 emission, lights, camera, custom shapes, their BVH and light buffers), rebuilt only when the scene changes
-(:class:`ParamWatch`: by the Dr.Jit variables of its parameters, nothing read back);
-``_occluders`` decides which shadow rays a scene needs.
+(:class:`~links1_mitsuba.paramwatch.ParamWatch`: by the Dr.Jit variables of its parameters,
+nothing read back). Its neighbours by job: the tables' schema (prepared.py), the parameter watch
+(paramwatch.py), the camera views (views.py, a base class of :class:`Tables`), which shadow rays
+a scene needs (shadow_plan.py), the analytic lights' entries (lights.py).
 
 What a scene doesn't need is not traced (decided once per scene in ``prepare``): no
 refraction code without transmissive surfaces, no reflection without reflective ones, no loop
 at all without either, no custom-shape code without custom shapes, no blob solver without
-blobs, no shadow ray toward a light from a hit that no shape can shadow (``_occluders``: a
+blobs, no shadow ray toward a light from a hit that no shape can shadow (``shadow_plan``: a
 lone convex shape, a floor below every other shape and the light, ...).
 
 :class:`Tables` is a base class of the ``Engine`` (engine.py); its methods name
@@ -15,15 +17,10 @@ lone convex shape, a floor below every other shape and the light, ...).
 """
 from __future__ import annotations
 
-import copy
 import warnings
-from dataclasses import dataclass, field
 
 import numpy as np
 
-from links1.maths.halfspace import box_side, point_side
-from links1.scene.params import MAX_EXTENT
-from links1.sensor.filters import Filter
 from links1.shading.lights import ENV_LIGHT_ID, number_area_lights
 
 import drjit as dr
@@ -31,9 +28,12 @@ import mitsuba as mi
 
 from . import lightbuffer, proxies, tuning
 from .bvh import QuadricBVH
+from .paramwatch import ParamWatch
+from .prepared import LIGHT_FIELDS, PHONG_TABLES, SHAPE_FIELDS, Prepared
 from .registered import plugin_class
-from .lights import _emitted_rgb
-from .util import Hidden, checked_index, kind_of
+from .shadow_plan import plan_occluders, shadow_split
+from .util import checked_index, kind_of
+from .views import CameraViews
 
 #: Relative ray-origin offset on shapes whose float32 hits are accurate to a few ulps
 #: (meshes, rectangles, disks, links1 quadrics): a small offset keeps shadow rays that graze
@@ -42,575 +42,10 @@ from .util import Hidden, checked_index, kind_of
 OFFSET_EPS = 2.0 ** -19
 _PRECISE_MITSUBA = ("Mesh", "OBJMesh", "PLYMesh", "Rectangle", "Disk", "Links1Bicubic", "SerializedMesh")
 
-#: Shadow rays toward a light that at most this many Mitsuba shapes can occlude first test the
-#: segment against those shapes' bounding boxes and call Embree only where one is met
-#: (``Intersect._shadow_mitsuba``); above it Embree's own BVH culls better
-BOX_CULL_MAX = 8
-
-#: Scenes with at most this many transparent Mitsuba shapes test shadow rays with one any-hit
-#: query per transparent shape and one over the opaque ones (``shadow_split``) instead of
-#: walking the crossings nearest first
-SPLIT_MAX = 8
-
-
-def shadow_split(mi, shapes, slot_list, trans):
-    """Shadow rays through few transparent Mitsuba shapes (3-3-3: T = 0 behind an opaque shape,
-    else the product of the shadow transmittances of the shapes met, each once, in any order):
-    a Mitsuba scene of the opaque shapes (None if there are none) for one any-hit query, and
-    one scene per transparent shape, ``{"opaque", "opaque_slots", "trans": [(scene, slot,
-    transmittance)]}``. The scenes share the shapes (no copy). None above SPLIT_MAX, on the
-    CUDA variants (untried there: OptiX traces a kernel's rays through one pipeline), or if
-    Mitsuba refuses a sub-scene (then the crossings are walked)."""
-    if not mi.variant().startswith("llvm"):
-        # OptiX: one kernel traces through one pipeline, so no second scene in the launch
-        return None
-    tr = [(s, sl) for s, sl in zip(shapes, slot_list) if trans[sl].max() > 0]
-    op = [(s, sl) for s, sl in zip(shapes, slot_list) if not trans[sl].max() > 0]
-    if not tr or len(tr) > SPLIT_MAX:
-        return None
-
-    def scene_of(group):
-        # load_dict names each object after its key: keyed by slot, the shapes' own ids
-        # (empty for a plain mi.load_file without ids) given back afterwards
-        ids = [s.id() for s, _ in group]
-        try:
-            return mi.load_dict({"type": "scene", **{f"_links1_slot_{sl}": s for s, sl in group}})
-        finally:
-            for (s, _), i in zip(group, ids):
-                s.set_id(i)
-
-    try:
-        return {"opaque": scene_of(op) if op else None, "opaque_slots": frozenset(sl for _, sl in op),
-                "trans": [(scene_of([(s, sl)]), sl, trans[sl].copy()) for s, sl in tr]}
-    except Exception as exc:    # noqa: BLE001 - any refusal: the general path
-        warnings.warn(f"links1_whitted: transparent shadows walk their crossings ({exc})", stacklevel=2)
-        return None
-
-
-def occluder_boxes(occ, lo, hi, convex):
-    """The bounding boxes of the Mitsuba shapes ``occ`` (per slot) for the shadow rays' cull:
-    ``[(lo, hi, slot, convex)]`` as Python floats, or None when there are more than
-    BOX_CULL_MAX or one is unbounded. Each axis is widened by 2^-20 of the box's extent plus
-    its largest coordinate there (Mitsuba's and Embree's own float32 tests accept hits a few
-    ulps outside a shape: a rectangle's corner), and rounded outward to float32; a box flat
-    along an axis (a floor) stays flat there, so rays leaving it are culled."""
-    slots = np.flatnonzero(occ)
-    if slots.size > BOX_CULL_MAX:
-        return None
-    boxes = []
-    for sl in slots:
-        a, b = np.asarray(lo[sl], dtype=np.float64), np.asarray(hi[sl], dtype=np.float64)
-        if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
-            return None
-        m = 2.0 ** -20 * ((b - a) + np.maximum(np.abs(a), np.abs(b)))
-        a, b = a - m, b + m
-        a32, b32 = np.float32(a), np.float32(b)   # outward rounding to float32
-        a32 = np.where(a32 > a, np.nextafter(a32, np.float32(-np.inf)), a32)
-        b32 = np.where(b32 < b, np.nextafter(b32, np.float32(np.inf)), b32)
-        boxes.append(([float(v) for v in a32], [float(v) for v in b32], int(sl), bool(convex[sl])))
-    return boxes
-
-
 def _textured(bsdf) -> bool:
     """Whether a Mitsuba BSDF has a texture (bitmap and checkerboard expose ``to_uv``)."""
     import mitsuba as mi
     return bsdf is not None and any(k.endswith("to_uv") for k in mi.traverse(bsdf).keys())
-
-
-def _token(value):
-    """A value that ``mi.traverse`` hands out without Dr.Jit variables (a Python number, a
-    scalar vector or transform: the film's size, a clip distance), as something ``==`` compares
-    by value (a NaN equals itself)."""
-    t = type(value)
-    if t is float:
-        return value if value == value else "nan"
-    if t in (bool, int, str) or value is None:
-        return value
-    try:                                    # a scalar Dr.Jit vector: its numbers
-        tup = tuple(value)
-        if all(type(e) in (int, float, bool) for e in tup):
-            return tuple(_token(e) for e in tup)
-    except Exception:  # noqa: BLE001 - not iterable: as numpy reads it
-        pass
-    try:
-        a = np.asarray(value.matrix if hasattr(value, "matrix") else value)
-    except Exception:  # noqa: BLE001 - a value numpy cannot read: its text
-        return ("repr", repr(value))
-    return (a.dtype.str, a.shape, np.ascontiguousarray(a).tobytes())
-
-
-#: :class:`ParamWatch`'s stand-in for the watched scene's integrator (not held: its tables hold the watch)
-_INTEGRATOR = object()
-
-
-class _Entries:
-    """Some parameters' entries as ``mi.traverse`` holds them (``properties``: key -> (value,
-    cpptype, node, flags); ``get_property``): what :meth:`ParamWatch.changed` found changed
-    without a whole traversal, for :meth:`ParamWatch.renewed` to read again."""
-
-    __slots__ = ("properties", "get_property")
-
-    def __init__(self, mi, entries):
-        self.properties = {k: (v, ct, node, None) for k, (v, ct, node) in entries}
-        self.get_property = mi.get_property
-
-
-class ParamWatch(Hidden):
-    """Whether a Mitsuba object's parameters (every one ``mi.traverse(obj)`` exposes: a
-    scene's shapes, BSDFs, textures, emitters, sensors, ...) changed since the watch was made,
-    without reading them back.
-
-    A Dr.Jit value is compared by its variables' indices (``dr.detail.collect_indices``, the
-    JIT and AD indices that ``mi.SceneParameters.update`` itself compares): Dr.Jit variables
-    are immutable, and an assignment (``params[k] = v``), an in-place operation or a
-    ``dr.scatter`` gives the value another variable. The watch keeps a reference to each
-    variable it saw (``_pins``), so that no freed index is handed to a new value and a
-    ``dr.scatter`` into a variable (in place only while nothing else holds it) must copy it
-    (the values replaced stay in memory until the tables are built again, at the next frame).
-    A value without variables (a Python number, the film's scalar size) is compared by value:
-    they are tiny.
-
-    The traversal is made once: Mitsuba's C++ objects hand ``mi.traverse`` the addresses of
-    their fields, which show what ``params.update()`` writes there later. ``obj``'s own fields
-    are traversed again at each check (one level, not its children): the watch does not keep
-    ``obj``, so a scene's tables, which its integrator keeps, do not keep the scene alive. A
-    value that a Python plugin hands out as an object (``parameters_changed`` may replace the
-    object), or the scene's integrator's, is read again by traversing its node (one level,
-    :meth:`_own_values`); another ``obj`` (a scene with the same shapes, emitters and
-    sensors) makes the check a whole ``mi.traverse`` (~0.15 ms), as a node whose values
-    cannot be matched to their keys does.
-
-    A :class:`~links1_mitsuba.util.Hidden`: neither ``dr.freeze`` nor the walk that gathers
-    the frozen launch's inputs from the tables (``Launches._frozen_inputs``) takes the pins
-    (old values) for inputs."""
-
-    class _Shallow:
-        """A ``TraversalCallback`` that keeps the values put (not the objects): the class is
-        made once per Mitsuba variant."""
-        classes: dict = {}
-
-        @classmethod
-        def make(cls, mi):
-            c = cls.classes.get(mi.variant())
-            if c is None:
-                class Shallow(mi.TraversalCallback):
-                    def put(self, name, value, flags, cpptype=None):
-                        if not isinstance(value, mi.Object):
-                            self.out.append((name, value, cpptype))
-                c = cls.classes[mi.variant()] = Shallow
-            return c()
-
-    def __init__(self, obj, params=None, renew=None, keys=()):
-        import drjit as dr
-        import mitsuba as mi
-        self._mi, self._collect = mi, dr.detail.collect_indices
-        params = mi.traverse(obj) if params is None else params   # (changed()'s, just read)
-        self._obj_id = id(obj)
-        self.traversed = self.changed_keys = None
-        if renew is not None:
-            # the watch ``renew`` with the ``keys`` its :meth:`changed` found read again (the
-            # others' variables are the ones it pinned, and the traversal's structure its own),
-            # unless a value changed kind (variables or not): then a whole new watch
-            state, pins = self._read_all(params, pin=True, keys=keys)
-            if any(state[k][0] != renew.state[k][0] for k in keys):
-                renew = None
-                if isinstance(params, _Entries):     # (only the changed ones: all of them now)
-                    params = mi.traverse(obj)
-        if renew is not None:
-            self.state, self._pins = dict(renew.state), dict(renew._pins)
-            self.state.update(state)
-            for k in keys:
-                self._pins.pop(k, None)
-            self._pins.update(pins)
-            for name in ("_own", "_retraverse", "_jit", "_jit_keys", "_scalar", "_scalar_keys", "_root_keys"):
-                setattr(self, name, getattr(renew, name, None))
-        else:
-            self.state, self._pins = self._read_all(params, pin=True)
-            # values a Python plugin (or the scene's integrator) hands out as objects: their
-            # nodes traversed again at each check, one level each (:meth:`_own_values`)
-            self._own = self._own_values(obj, params)
-            self._retraverse = self._own is None
-            if not self._retraverse:
-                kids = [(k, v, ct, node) for k, (v, ct, node, _) in params.properties.items()
-                        if node is not obj and ct is not None and not isinstance(node, mi.Integrator)]
-                self._jit = [(v, ct, node) for k, v, ct, node in kids if self.state[k][0] == "ids"]
-                self._jit_keys = [k for k, *_ in kids if self.state[k][0] == "ids"]
-                self._scalar = [(v, ct, node) for k, v, ct, node in kids if self.state[k][0] == "value"]
-                self._scalar_keys = [k for k, *_ in kids if self.state[k][0] == "value"]
-                self._root_keys = sorted(k for k, (_, _, node, _) in params.properties.items() if node is obj)
-        if not self._retraverse:
-            self._jit_ids = [i for k in self._jit_keys for i in self.state[k][1]]
-            self._scalar_tokens = [self.state[k][1] for k in self._scalar_keys]
-
-    def renewed(self, obj):
-        """A watch of ``obj``'s parameters now, made from this one after :meth:`changed` found
-        which differ (only those read again: a rebuild's watch of the blob scene's 90
-        parameters took ~0.5 ms); a whole new watch where the keys changed."""
-        keys, params = self.changed_keys, self.traversed
-        # the traversal let go: it holds the scene, and this watch lives in the scene's tables
-        # (and in their camera views): kept, it would keep every scene alive (a cycle through
-        # C++ objects), whose registered objects then break freeze's recordings of others
-        self.changed_keys = self.traversed = None
-        if keys is None or params is None or id(obj) != self._obj_id:
-            return ParamWatch(obj)
-        return ParamWatch(obj, params, renew=self, keys=keys)
-
-    def _own_values(self, obj, params):
-        """``[(node, keys)]``: each node whose values ``mi.traverse`` took as they were (a
-        Python plugin's: ``cpptype`` None; the scene's integrator's, held as
-        :data:`_INTEGRATOR` and asked of the scene at each check, since the watch lives in
-        its tables), with the keys of its values in the order its ``traverse`` puts them.
-        None where that order cannot be matched to the keys (then every check traverses
-        ``obj`` whole)."""
-        mi = self._mi
-        groups = {}
-        for k, (v, ct, node, _) in params.properties.items():
-            if node is not obj and (ct is None or isinstance(node, mi.Integrator)):
-                groups.setdefault(id(node), (node, []))[1].append(k)
-        out = []
-        for node, keys in groups.values():
-            ref = node
-            if isinstance(node, mi.Integrator):
-                if not (isinstance(obj, mi.Scene) and obj.integrator() is node):
-                    return None
-                ref = _INTEGRATOR
-            names = [n for n, _, _ in self._shallow(node)]
-            if len(names) != len(keys) or not all(k == n or k.endswith("." + n) for k, n in zip(keys, names)):
-                return None
-            out.append((ref, keys))
-        return out
-
-    def _shallow(self, node):
-        """``(name, value, cpptype)`` of the values ``node`` itself puts (one level)."""
-        cb = self._Shallow.make(self._mi)
-        cb.out = []
-        node.traverse(cb)
-        return cb.out
-
-    def _read_all(self, params, pin=False, keys=None):
-        """``{key: ("ids", indices) or ("value", token)}`` of every parameter (or of ``keys``),
-        and with ``pin`` the pins (``{key: pin}``)."""
-        collect = self._collect
-        state, pins = {}, {}
-        props = params.properties
-        for k in (props.keys() if keys is None else keys):
-            v, ct, node, _ = props[k]
-            value = v if ct is None else params.get_property(v, ct, node)
-            ids = tuple(collect(value))
-            if ids and pin:
-                try:
-                    p = type(value)(value)      # another reference to the same variables
-                except Exception:  # noqa: BLE001 - a type that cannot be copied so
-                    p = None
-                if p is not None and tuple(collect(p)) == ids:
-                    pins[k] = p
-                    state[k] = ("ids", ids)
-                    continue
-                if p is not None and any(i >> 32 for i in ids):
-                    # an attached value (an optimiser's, ``params.update(opt)``: an AD index in
-                    # the upper 32 bits): its copy (under ``suspend_grad``, as ``prepare`` runs)
-                    # has none, so the value itself is pinned (it holds its JIT and
-                    # AD variables; a later assignment puts another object there). Compared
-                    # by value instead, each check read it back to the host (a device sync)
-                    pins[k] = value
-                    state[k] = ("ids", ids)
-                    continue
-            elif ids:
-                state[k] = ("ids", ids)
-                continue
-            state[k] = ("value", _token(value))
-        return state, pins
-
-    def unchanged(self, obj) -> bool:
-        """Whether ``obj`` (the object watched, or one with the same children: the same
-        shapes, emitters and sensors) has the parameters the watch saw."""
-        mi = self._mi
-        if self._retraverse or id(obj) != self._obj_id:
-            params = mi.traverse(obj)
-            if params.properties.keys() != self.state.keys():
-                return False
-            return all(self._read_one(v if ct is None else params.get_property(v, ct, node), self.state[k][0])
-                       == self.state[k] for k, (v, ct, node, _) in params.properties.items())
-        get = mi.get_property
-        # the Dr.Jit values, one list of indices (their types, so their index counts, are fixed)
-        if self._collect([get(*e) for e in self._jit]) != self._jit_ids:
-            return False
-        if [_token(get(*e)) for e in self._scalar] != self._scalar_tokens:
-            return False
-        entries = self._node_entries(obj)
-        return entries is not None and not any(self._differs(k, e) for k, e in entries)
-
-    def _node_entries(self, obj):
-        """``[(key, (value, cpptype, node))]`` of ``obj``'s own values and those the Python
-        plugins (and the scene's integrator) hand out, their nodes traversed one level, in the
-        watch's keys; None where they are not the watched ones (keys added or gone)."""
-        own = self._shallow(obj)
-        if sorted(name for name, _, _ in own) != self._root_keys:
-            return None
-        out = [(name, (v, ct, obj)) for name, v, ct in own]
-        for ref, keys in self._own:
-            node = obj.integrator() if ref is _INTEGRATOR else ref
-            vals = self._shallow(node)
-            if len(vals) != len(keys) or not all(k == n or k.endswith("." + n) for (n, _, _), k in zip(vals, keys)):
-                return None
-            out += [(k, (v, ct, node)) for (_, v, ct), k in zip(vals, keys)]
-        return out
-
-    def _differs(self, k, entry):
-        """Whether parameter ``k`` (its ``entry``: value, cpptype, node) is not what the watch saw."""
-        v, ct, node = entry
-        s = self.state[k]
-        return self._read_one(v if ct is None else self._mi.get_property(v, ct, node), s[0]) != s
-
-    def changed(self, obj):
-        """The parameters of ``obj`` that differ from the watch's, as ``(name, object)``: the
-        parameter's last name (``diffuse.value``'s ``diffuse``; ``exponent``) and the Mitsuba
-        object that holds it; None when the parameters are other ones (keys added or gone).
-        Read the way :meth:`unchanged` reads them where it can (:meth:`_changed_entries`: no
-        whole ``mi.traverse``, ~0.1 ms an update), else from a traversal."""
-        self.changed_keys = None
-        entries = None if self._retraverse or id(obj) != self._obj_id else self._changed_entries(obj)
-        if entries is not None:
-            params = self.traversed = _Entries(self._mi, entries)   # (for the next watch: renewed())
-            found = [(k, node) for k, (_, _, node) in entries]
-        else:
-            params = self.traversed = self._mi.traverse(obj)
-            if params.properties.keys() != self.state.keys():
-                return None
-            found = [(k, node) for k, (v, ct, node, _) in params.properties.items()
-                     if self._read_one(v if ct is None else params.get_property(v, ct, node),
-                                       self.state[k][0]) != self.state[k]]
-        out = []
-        for k, node in found:
-            parts = k.split(".")
-            out.append((parts[-2] if parts[-1] == "value" and len(parts) > 1 else parts[-1], node))
-        self.changed_keys = [k for k, _ in found]
-        return out
-
-    def _changed_entries(self, obj):
-        """``[(key, (value, cpptype, node))]`` of the parameters that differ, read as
-        :meth:`unchanged` reads them (the C++ objects' fields by address, ``obj``'s own and the
-        Python plugins' values by traversing their nodes one level); None where the structure
-        is not the watched one (keys added or gone: the caller traverses)."""
-        entries = self._node_entries(obj)
-        if entries is None:
-            return None
-        return [(k, e) for k, e in [*zip(self._jit_keys, self._jit), *zip(self._scalar_keys, self._scalar), *entries]
-                if self._differs(k, e)]
-
-    def attached(self) -> bool:
-        """Whether a parameter had gradients enabled when the watch read it (an AD index in
-        the upper 32 bits of one of its variables): with :meth:`unchanged`, whether one has now,
-        without reading the parameters again."""
-        return any(how == "ids" and any(i >> 32 for i in v) for how, v in self.state.values())
-
-    def _read_one(self, value, how):
-        """One value as the state has it (``how``: "ids" or "value")."""
-        return (how, tuple(self._collect(value)) if how == "ids" else _token(value))
-
-
-def _set_later():
-    """A field :meth:`Tables._prepare_scene` (or the camera view, :meth:`Tables._set_camera`)
-    always sets: no default, so reading it before it is set is an AttributeError."""
-    return field(init=False, repr=False)
-
-
-def _default(value=None):
-    """A field the code reads before (or without) setting it: ``value`` until set."""
-    return field(init=False, repr=False, default=value)
-
-
-@dataclass(slots=True, eq=False)
-class Prepared:
-    """The per-scene tables the kernels read (:meth:`Tables.prepare`): slots (the shapes in
-    file order: Mitsuba's first, then the links1 shapes), materials, shadow rays, emission,
-    lights, and in a camera view (a shallow copy per sensor) the camera and film.
-
-    Every field is declared here (``slots``: assigning an undeclared name is an
-    AttributeError). The Dr.Jit arrays among them reach the frozen launches as their
-    ``tables`` input (``Launches._frozen_inputs`` walks the fields). Per-slot tables have
-    ``nslots`` rows; the RGB ones are flat Floats of 3 values per slot. ``eq=False``: tables are
-    compared (and hashed) by identity."""
-
-    # -- scene identity and bookkeeping
-    #: the scene's shapes, emitters and sensors as object ids (:func:`scene_identity`)
-    ident: tuple = _set_later()
-    #: the tuning the tables were built with (``tuning.Tuning.tables_key``)
-    tuning: tuning.Tuning = _set_later()
-    #: the scene's parameters as last seen (:class:`ParamWatch`)
-    watch: ParamWatch = _set_later()
-    #: (shapes, emitters, sensors, BSDF per slot): the objects whose ids ``ident`` and the
-    #: BSDF pointer tables hold, kept alive with the tables
-    keep_alive: tuple = _set_later()
-    #: Mitsuba's shapes (top-level, then shapegroup members), their slots, the members' slots
-    shape_list: list = _set_later()
-    slot_list: list = _set_later()
-    member_slots: frozenset = _set_later()
-    #: the camera views of these tables, by ``id(sensor)`` (:meth:`Tables._camera_view`)
-    views: dict = _set_later()
-    #: ``mi.traverse`` of objects the tables read again on updates (:meth:`Tables._params_of`)
-    obj_params: dict = _set_later()
-    #: number of slots (Mitsuba shapes and links1 shapes)
-    nslots: int = _set_later()
-    #: the links1 shapes (``QuadricSpec`` / ``BlobSpec``), the integrator's list
-    custom: list = _set_later()
-    #: the tables of the links1 shapes traced in their own code (``QuadricSpec.tables`` /
-    #: ``BlobSpec.tables``: the constants an update may change, a blob's candidate search)
-    blob_tables: list = _set_later()
-    #: the links1 quadrics under a BVH (``bvh.QuadricBVH``), or None (fewer than ``bvh_min``)
-    bvh: object = _set_later()
-    #: the links1 shapes intersected one code block each (those not under the BVH)
-    custom_unrolled: list = _set_later()
-    #: the slots of the quadrics under the BVH
-    bvh_slots: frozenset = _default(frozenset())
-    #: Mitsuba's shape registry id -> slot (-1: none), Int32
-    reg_to_slot: object = _set_later()
-    #: whether the scene has Mitsuba shapes (else no ``scene.ray_intersect``)
-    any_mitsuba_shapes: bool = _set_later()
-    #: relative ray-origin offset per slot (``OFFSET_EPS`` or Mitsuba's RayEpsilon), Float
-    eps_table: object = _set_later()
-
-    # -- materials (links1_phong: eq. 3.11; other Mitsuba BSDFs through bsdf.eval / sample)
-    #: per slot: a links1_phong surface (numpy bool)
-    is_phong_np: object = _set_later()
-    #: the material tables' values as numpy ({"amb": (nslots, 3), ..., "ior": (nslots,)}):
-    #: what a value update (:meth:`Tables._update_values`) compares with
-    phong_np: object = _set_later()
-    #: every slot / some slot is links1_phong
-    all_phong: bool = _set_later()
-    any_phong: bool = _set_later()
-    #: ``is_phong_np`` as a Bool table
-    is_phong: object = _set_later()
-    #: eq. 3.11's dic, drc, src (ambient, diffuse, specular) and eq. 3.16's r, t per slot (RGB)
-    amb: object = _set_later()
-    dif: object = _set_later()
-    spe: object = _set_later()
-    refl: object = _set_later()
-    trans: object = _set_later()
-    #: the highlight exponent n and the index of refraction per slot, Float
-    expo: object = _set_later()
-    ior: object = _set_later()
-    #: some slot has an ambient term
-    any_ambient: bool = _set_later()
-    #: per slot: the Mitsuba BSDF has a delta reflection / delta transmission / Null lobe, Bool
-    has_dr: object = _set_later()
-    has_dt: object = _set_later()
-    has_null: object = _set_later()
-    #: some Mitsuba BSDF has a delta reflection / transmission / Null lobe / any delta lobe
-    any_mitsuba_dr: bool = _set_later()
-    any_mitsuba_dt: bool = _set_later()
-    any_mitsuba_null: bool = _set_later()
-    any_mitsuba_delta: bool = _set_later()
-    #: per delta lobe ("r", "t"): the components of the slots' samplers that have it, with the
-    #: slots whose sampler has it there: [(component, Bool per slot)]
-    delta_components: dict = _set_later()
-    #: some slot's BSDF is a ``mask``; then the BSDFs masks wrap, per slot (BSDFPtr), else None
-    any_mask: bool = _set_later()
-    inner_ptr: object = _set_later()
-    #: some links1_phong slot reflects / transmits; some slot spawns a mirror or refraction ray
-    any_phong_r: bool = _set_later()
-    any_phong_t: bool = _set_later()
-    any_specular: bool = _set_later()
-    #: per slot: the Mitsuba BSDF has a diffuse or glossy lobe (Bool); direct light from the
-    #: sampled lights at such hits adds a BSDF sample, combined by multiple importance sampling
-    #: (``any_mis``: some such slot and some area or environment light); links1_phong keeps
-    #: the paper's light samples alone
-    glossy: object = _set_later()
-    any_mis: bool = _set_later()
-    #: the links1 quadric slots whose Mitsuba BSDF has a texture (they get the core's uv)
-    uv_slots: set = _set_later()
-    #: the BSDF of each slot (BSDFPtr), None when every slot is links1_phong
-    bsdf_ptr: object = _set_later()
-
-    # -- shadow rays (3-3-3)
-    #: shadow transmittance per slot ((nslots, 3) numpy; a derivative pass: a list of rows)
-    shadow_t_np: object = _set_later()
-    #: the same as a flat Float
-    shadow_t: object = _set_later()
-    #: a transparent Mitsuba shape's bit and word in a lane's "seen" set, per slot (UInt32)
-    trans_bits: object = _set_later()
-    trans_words: object = _set_later()
-    #: words of that set
-    trans_nwords: int = _set_later()
-    #: most crossings of transparent Mitsuba shapes one shadow segment can make
-    max_crossings: int = _set_later()
-    any_transparent_mitsuba: bool = _set_later()
-    #: the sub-scenes of :func:`shadow_split`, or None (the crossings are walked)
-    shadow_split: object = _default(None)
-
-    # -- emission
-    #: the links1 shapes' emission per slot (RGB); some slot emits
-    custom_emission: object = _set_later()
-    any_custom_emission: bool = _set_later()
-    #: per slot: a Mitsuba shape with an area emitter (Bool); some slot has one
-    any_mitsuba_emission: bool = _set_later()
-    mitsuba_emits: object = _set_later()
-
-    # -- lights (docs/method.md §4.1; lights.py)
-    #: the analytic lights: ("point", pos, axis, L1, L2, inverse_square), ("cspot", origin,
-    #: direction, radius, I), ("mspot", pos, axis, I, cutoff, beam), ("dir", direction, E),
-    #: ("memitter", pos, emitter)
-    lights: list = _set_later()
-    #: the sampled area emitters and their tables (``Lights._area_table``)
-    area: list = _set_later()
-    area_tab: list = _set_later()
-    #: the environment emitter seen by escaping rays, or None
-    env: object = _set_later()
-    #: the environment lights: ("const", rgb, light id) or ("envmap", table, light id)
-    consts: list = _set_later()
-    #: per light (analytic, then area, then environment; :meth:`Tables._occluders`): the slots
-    #: whose hits need a shadow ray (Bool, None: all), the closed shapes that shadow their own
-    #: points from the inside (Bool or None), whether any shadow ray is traced, the links1
-    #: shapes / whether any Mitsuba shape can occlude it, the Mitsuba occluders' boxes
-    #: (:func:`occluder_boxes`) and slots
-    shadow_need: list = _set_later()
-    shadow_inner: list = _set_later()
-    any_shadow: list = _set_later()
-    occ_custom: list = _set_later()
-    occ_mitsuba: list = _set_later()
-    occ_boxes: list = _set_later()
-    occ_mslots: list = _set_later()
-    #: what the shapes alone decide of those (``Tables._occluder_shapes``)
-    occ_shapes: dict = _set_later()
-    #: per analytic light: its light buffer (lightbuffer.plan) or None
-    lbuf: list = _set_later()
-
-    # -- the camera view (:meth:`Tables._camera_view`; None / unset on the scene's tables)
-    #: the scene's tables this view copies
-    base: Prepared | None = _default(None)
-    #: a sensor that is not the scene's, watched (:class:`ParamWatch`) while verify_scene
-    sensor_watch: ParamWatch | None = _default(None)
-    #: the Dr.Jit arrays of these tables (``Launches._frozen_inputs``), once gathered
-    frozen_inputs: list | None = _default(None)
-    #: the scene as the frozen launches' input (``launch.SceneInputs`` or "whole scene")
-    scene_input: object = _default(None)
-    sensor: object = _set_later()
-    #: the film's full size (W, H) and reconstruction filter (links1.sensor.filters.Filter)
-    film_size: tuple = _set_later()
-    rfilter: Filter = _set_later()
-    #: "perspective" or "orthographic"; perspective; its horizontal field of view (degrees)
-    projection: str = _set_later()
-    perspective: bool = _default(False)
-    x_fov: float | None = _default(None)
-    #: a thin lens's (aperture radius, focus distance), or None: a pinhole
-    lens: tuple | None = _default(None)
-    #: the camera-to-world matrix (4x4 float64) and the clip distances
-    cam: object = _set_later()
-    near: float = _set_later()
-    far: float = _set_later()
-    #: the light buffer around a pinhole camera's eye (lightbuffer.plan_eye), or None
-    eye_buf: object = _default(None)
-
-    # -- a derivative pass (gradients.py: a copy with attached values)
-    #: the attached geometry of the links1 shapes, or None
-    geo_ad: object = _default(None)
-    #: whether no moving surface (``geo_ad``) can spawn a mirror or refraction ray: the
-    #: children's rays then carry no derivative (``_trace_tree_ad`` detaches them)
-    fixed_children: bool = _default(True)
-    #: what one derivative pass makes once for all its levels (``geometry.surface_ad``'s memo)
-    ad_memo: object = _default(None)
-    #: whether any parameter the pass reads has gradients enabled
-    attached_any: bool = _default(False)
 
 
 def _unmask(mi, b):
@@ -645,20 +80,6 @@ def group_members(scene) -> list:
     return members
 
 
-def own_param(obj, name):
-    """``mi.traverse(obj)[name]`` for a parameter of ``obj`` itself (not of a child object),
-    read through one ``obj.traverse`` with :class:`ParamWatch`'s callback class: Mitsuba's
-    ``mi.traverse`` defines its callback class anew at every call (~0.2 ms, most of a rebuild's
-    five calls on a small scene). KeyError as ``mi.traverse`` when ``obj`` has no such one."""
-    cb = ParamWatch._Shallow.make(mi)
-    cb.out = []
-    obj.traverse(cb)
-    for n, v, ct in cb.out:
-        if n == name:
-            return v if ct is None else mi.get_property(v, ct, obj)
-    raise KeyError(name)
-
-
 def scene_identity(scene):
     """The scene's shapes, emitters and sensors as object identities (cheap: no parameters).
     Prepared tables keep those objects alive, so another scene's objects cannot take the
@@ -670,32 +91,8 @@ def scene_identity(scene):
     return tuple(ids)
 
 
-def _side_of_box(nrm, c, a, b, tol):
-    """-1 / +1 if the box ``a``-``b`` is in the closed half-space below / above the plane
-    ``x · nrm = c`` (within ``tol``), else 0 (an unbounded box: 0): the core's rule
-    (:func:`links1.maths.halfspace.box_side`) with the plugin's plane form and tolerance."""
-    return box_side(a, b, lambda corners: corners @ nrm - c, tol)
-
-
-#: The ``links1_phong`` coefficients as the tables hold them: table field -> (the BSDF's parameter
-#: name, values a slot). ``trans`` is also the shadow transmittance (``shadow_t_np``); the
-#: derivative pass differentiates all but ``ior`` (``Gradients._ad_tables``: the refracted
-#: direction is held fixed).
-PHONG_TABLES = {"amb": ("ambient", 3), "dif": ("diffuse", 3), "spe": ("specular", 3),
-                "refl": ("reflectance", 3), "trans": ("transmittance", 3), "expo": ("exponent", 1),
-                "ior": ("ior", 1)}
-
-#: The fields of the tables planned from the analytic lights' places (``Tables._shadow_tables``),
-#: with the lights themselves: what a light's update (``Tables._update_values``) makes anew.
-LIGHT_FIELDS = ("lights", "shadow_need", "occ_custom", "occ_mitsuba", "any_shadow", "shadow_inner",
-                "occ_boxes", "occ_mslots", "occ_shapes", "lbuf")
-#: The fields of the tables made from the links1 shapes' geometry (``Tables._shape_tables``): with
-#: the light tables (planned from the shapes' bounds too), what a geometry update makes anew.
-SHAPE_FIELDS = ("custom", "custom_unrolled", "bvh_slots", "bvh", "blob_tables")
-
-
-class Tables:
-    """``prepare``: the per-scene tables; ``_occluders``: which shadow rays they need."""
+class Tables(CameraViews):
+    """``prepare``: the per-scene tables, brought up to changes in place where it can."""
 
     __slots__ = ()
 
@@ -712,7 +109,7 @@ class Tables:
         by its Dr.Jit variables (:class:`ParamWatch`: a ``params.update()`` after a render
         is seen, and nothing is read back from the device). ``n_scene_builds`` and
         ``n_camera_views`` count the tables built. Each sensor gets its own
-        view of them (:meth:`_camera_view`: camera, film, filter, eye buffer) as a distinct
+        view of them (``views.CameraViews._camera_view``: camera, film, filter, eye buffer) as a distinct
         object, so a frozen launch recorded for one sensor's camera (``cfg`` holds the
         view's id) is never replayed for another."""
         self.adopt(scene)
@@ -822,72 +219,6 @@ class Tables:
         B.watch = B.watch.renewed(scene)
         self.n_value_updates += 1
         return True
-
-    def _sensor_of(self, scene, sensor):
-        """``sensor`` as a sensor object: an index into ``scene.sensors()`` (None: 0) or the
-        object itself (a sensor of the scene or one made apart, ``mi.load_dict``)."""
-        if sensor is None or isinstance(sensor, (int, np.integer)):
-            sensors = scene.sensors()
-            k = 0 if sensor is None else int(sensor)
-            if not 0 <= k < len(sensors):
-                raise IndexError(f"links1_whitted: sensor {k} does not exist: the scene has "
-                                 f"{len(sensors)} sensor{'s' if len(sensors) != 1 else ''}")
-            return sensors[k]
-        if not isinstance(sensor, mi.Sensor):
-            raise TypeError(f"links1_whitted: sensor must be an index or a mitsuba Sensor, got "
-                            f"{type(sensor).__name__}")
-        return sensor
-
-    def _camera_view(self, B, scene, sensor):
-        """The tables ``B`` with ``sensor``'s camera, film and filter (a shallow copy of
-        ``B``: the Dr.Jit tables are shared), one per sensor and kept with ``B``. A sensor
-        that is not one of the scene's is watched (:class:`ParamWatch`) while
-        ``verify_scene``, as the scene is."""
-        own = any(sensor is s for s in B.keep_alive[2])
-        check = self.verify_scene and not own
-        V = B.views.get(id(sensor))
-        if (V is not None and V.sensor is sensor and (V.sensor_watch is not None) == check
-                and (not check or V.sensor_watch.unchanged(sensor))):
-            return V
-        V = copy.copy(B)
-        V.base = B
-        V.sensor_watch = ParamWatch(sensor) if check else None
-        V.frozen_inputs = None
-        V.scene_input = None
-        self.n_camera_views += 1
-        self._set_camera(V, sensor)
-        # light buffer around a pinhole camera's eye for the camera rays' nearest quadric
-        V.eye_buf = lightbuffer.plan_eye(V, scene) if B.tuning.light_buffer else None
-        B.views[id(sensor)] = V     # V keeps the sensor alive: its id is not reused
-        return V
-
-    def _set_camera(self, P, sensor):
-        """The camera of ``P``: ``sensor``'s film size, filter, projection and matrix."""
-        film = sensor.film()
-        P.sensor = sensor
-        P.film_size = (int(film.size()[0]), int(film.size()[1]))
-        P.rfilter = Filter.from_mitsuba(film.rfilter())
-        # perspective and orthographic rays are made analytically (launch.py: _rays_at) from
-        # the sensor's matrix, clip distances and field of view: the same rays as Mitsuba's
-        kind = kind_of(sensor)
-        P.lens = None
-        if kind == "ThinLensCamera":   # depth of field (launch.py: _rays_at)
-            P.lens = tuple(float(np.array(own_param(sensor, k)).ravel()[0])
-                           for k in ("aperture_radius", "focus_distance"))
-            if not (abs(P.lens[0]) <= MAX_EXTENT and 0 < P.lens[1] <= MAX_EXTENT):
-                raise ValueError(f"{self.place(sensor)}: thinlens: 'aperture_radius' must be finite, "
-                                 f"'focus_distance' > 0, both <= {MAX_EXTENT:g} in magnitude, got {P.lens}")
-        P.projection = {"PerspectiveCamera": "perspective", "ThinLensCamera": "perspective",
-                        "OrthographicCamera": "orthographic"}.get(kind)
-        P.perspective = P.projection == "perspective"
-        if P.projection is not None:
-            if P.perspective:
-                P.x_fov = float(np.array(own_param(sensor, "x_fov")).ravel()[0])
-            P.cam = np.array(sensor.world_transform().matrix, dtype=np.float64).reshape(4, 4)
-            P.near, P.far = float(sensor.near_clip()), float(sensor.far_clip())
-        else:
-            raise ValueError(f"links1_whitted renders perspective, thinlens and orthographic sensors, "
-                             f"not {kind}")
 
     def _prepare_scene(self, scene, ident, watch=None):
         """The tables of ``scene`` that do not depend on the sensor (:meth:`prepare`); ``watch``:
@@ -1143,9 +474,9 @@ class Tables:
 
     def _shadow_tables(self, P, scene, shapes, slot_list, reuse=False):
         """The tables planned from the analytic lights' places (:data:`LIGHT_FIELDS`): what
-        each light's shadow rays test (:meth:`_occluders`, ``reuse``: of the shapes' part
+        each light's shadow rays test (:func:`~links1_mitsuba.shadow_plan.plan_occluders`, ``reuse``: of the shapes' part
         made before) and the light buffers."""
-        self._occluders(P, shapes, slot_list, reuse)
+        plan_occluders(P, self.custom, shapes, slot_list, reuse)
         # light buffers for the quadric shadow rays toward analytic lights (where they pay)
         P.lbuf = lightbuffer.plan(P, scene) if P.tuning.light_buffer else [None] * len(P.lights)
 
@@ -1181,176 +512,3 @@ class Tables:
                 slot_list.append(slot_of_id[s.id()])
             nslots = len(slot_of_id) + len(self.custom)
         return slot_list, nslots
-
-    @staticmethod
-    def _params_of(P, obj):
-        """``mi.traverse(obj)`` of a native Mitsuba object, made once for the tables ``P`` (their
-        base's): it reads each parameter when asked (``mi.get_property``), so it gives the
-        current values after ``params.update()``, and a traversal costs ~0.15 ms a call."""
-        B = P.base if P.base is not None else P
-        prm = B.obj_params.get(id(obj))
-        if prm is None:
-            prm = B.obj_params[id(obj)] = mi.traverse(obj)
-        return prm
-
-    def _analytic_light(self, e, kind, Pt, Sp, P):
-        """The ``P.lights`` entry of the emitter ``e`` (its ``kind``: :func:`~.util.kind_of`) when
-        it is an analytic light: a ``links1_point`` (``Pt``) or ``links1_spot`` (``Sp``), a
-        Mitsuba point, spot, projector (these two with an image: ``memitter``) or directional
-        emitter; else None.
-        ``P``: the tables it is for (:meth:`_params_of`)."""
-        if isinstance(e, Pt):
-            p = e.params
-            return ("point", p["position"], p["direction"], p["L1"], p["L2"],
-                    p["falloff"] == "inverse_square")
-        if isinstance(e, Sp):
-            p = e.params
-            return ("cspot", p["origin"], p["direction"], p["radius"], p["intensity"])
-        if kind not in ("PointLight", "SpotLight", "DirectionalEmitter", "Projector"):
-            return None
-        prm = self._params_of(P, e)
-        if kind == "PointLight":
-            pos = np.array(prm["position"], dtype=np.float64).ravel()
-            I = _emitted_rgb(prm, "intensity", kind, self.place(e))
-            return ("point", pos, np.array([0, 0, 1.0]), I, np.zeros(3), True)
-        m = np.array(prm["to_world"].matrix, dtype=np.float64).reshape(4, 4)
-        if kind == "Projector":   # a delta light projecting an image: Mitsuba's own evaluation
-            return ("memitter", m[:3, 3], e)
-        if kind == "DirectionalEmitter":
-            E = _emitted_rgb(prm, "irradiance", kind, self.place(e))
-            return ("dir", m[:3, 2] / np.linalg.norm(m[:3, 2]), E)
-        if any(k.startswith("texture.") and k != "texture.value" for k in prm.keys()):
-            # a projector (its texture varies): Mitsuba's own evaluation of the emitter
-            return ("memitter", m[:3, 3], e)
-        I = _emitted_rgb(prm, "intensity", kind, self.place(e))
-        if "texture.value" in prm.keys():   # a constant texture scales the intensity
-            I = I * _emitted_rgb(prm, "texture", kind, self.place(e))
-        cutoff = float(np.array(prm["cutoff_angle"]).ravel()[0])
-        beam = float(np.array(prm["beam_width"]).ravel()[0])
-        return ("mspot", m[:3, 3].copy(), m[:3, 2] / np.linalg.norm(m[:3, 2]), I, cutoff, beam)
-
-    def _occluders(self, P, shapes, slot_list, reuse=False):
-        """Which shapes can lie between a lit point and each light (skip what can't).
-
-        A convex shape (sphere, capped quadric, rectangle, disk) never shadows its own
-        points toward a light on the outer side of the surface there; a closed one (sphere,
-        capped quadric) does where the light is on the inner side (``P.shadow_inner``, same
-        rule as links1.tracing.occluders). A planar shape shadows nothing when the light and every
-        other shape lie on the same side of its plane. ``P.shadow_need[j]``: per slot,
-        whether hits on that slot need a shadow ray toward light ``j``; ``P.occ_custom[j]``
-        / ``P.occ_mitsuba[j]``: the links1 shapes / whether any Mitsuba shape can occlude
-        it. Conservative. What the shapes alone decide (``P.occ_shapes``:
-        :meth:`_occluder_shapes`) is made once per build, and a light's update reuses it (``reuse``)."""
-        if not reuse:
-            # (a geometry update: the Mitsuba shapes' part of the last planning kept)
-            P.occ_shapes = self._occluder_shapes(P, shapes, slot_list, getattr(P, "occ_shapes", None))
-        G = P.occ_shapes
-        nslots, convex, plane, tol = P.nslots, G["convex"], G["plane"], G["tol"]
-        lights = []   # (position or None, direction toward the light or None, emitter slot or None)
-        for L in P.lights:
-            if L[0] == "dir":
-                lights.append(("dir", -np.asarray(L[1], dtype=np.float64)))
-            elif L[0] == "cspot":
-                lights.append(("dir", -np.asarray(L[2], dtype=np.float64)))
-            else:
-                lights.append(("pos", np.asarray(L[1], dtype=np.float64)))
-        for e in P.area:
-            lights.append(("area", e))
-        for _ in P.consts:
-            lights.append(("env", None))
-        P.shadow_need, P.occ_custom, P.occ_mitsuba, P.any_shadow = [], [], [], []
-        P.shadow_inner, P.occ_boxes, P.occ_mslots = [], [], []
-        for light in lights:
-            occ = np.ones(nslots, dtype=bool)
-            for sl in range(nslots):
-                if plane[sl] is None or light[0] == "env":   # environments: every direction
-                    continue
-                nrm, c = plane[sl]
-                if light[0] == "area":
-                    sh = light[1].get_shape()
-                    bb = sh.bbox() if sh is not None else None
-                    if bb is None:
-                        continue
-                    lside = _side_of_box(nrm, c, np.array([bb.min[0], bb.min[1], bb.min[2]]),
-                                         np.array([bb.max[0], bb.max[1], bb.max[2]]), tol)
-                elif light[0] == "dir":
-                    lside = point_side(float(light[1] @ nrm), 0.0)
-                else:
-                    lside = point_side(float(light[1] @ nrm - c), tol)
-                if lside != 0 and G["others"][sl] in (lside, None):   # None: no other shape
-                    occ[sl] = False
-            if light[0] == "area":      # a convex emitter never hides its own sampled points
-                own = P.area_tab[P.area.index(light[1])]["slot"]
-                if own is not None and convex[own]:
-                    occ[own] = False
-            # a hit needs a shadow ray if any shape but itself (when convex) can occlude
-            need = np.count_nonzero(occ) - (occ & convex) > 0
-            inner = occ & G["closed"] & ~need
-            P.shadow_need.append(None if need.all() else mi.Bool(need))
-            P.shadow_inner.append(mi.Bool(inner) if inner.any() else None)
-            P.any_shadow.append(bool(need.any() or inner.any()))
-            P.occ_custom.append([spec for spec in self.custom if occ[spec.slot]])
-            msl = occ & G["mitsuba_slot"]
-            P.occ_mitsuba.append(bool(np.any(msl)))
-            P.occ_boxes.append(occluder_boxes(msl, G["lo"], G["hi"], convex))
-            P.occ_mslots.append(frozenset(int(v) for v in np.flatnonzero(msl)))
-
-    def _occluder_shapes(self, P, shapes, slot_list, last=None):
-        """What :meth:`_occluders` needs of the shapes, whatever the lights: per slot its box
-        (``lo``, ``hi``), whether it is ``convex`` / ``closed`` / a Mitsuba shape, a planar
-        shape's ``plane`` (unit normal, offset) and the side of that plane every other
-        shape's box lies on (``others``: +1, -1, 0 for neither, None for no other shape),
-        and the tolerance ``tol`` of those tests. ``last``: the planning of the same tables
-        before a change of the links1 shapes' geometry only, whose Mitsuba shapes' part (their
-        boxes, kinds, planes: ~0.1 ms of device reads an update) is taken as it is."""
-        nslots = P.nslots
-        if last is not None and len(last["plane"]) == nslots:
-            m = last["mitsuba_slot"]
-            lo, hi = np.where(m[:, None], last["lo"], -np.inf), np.where(m[:, None], last["hi"], np.inf)
-            convex, closed = last["convex"] & m, last["closed"] & m
-            plane, mitsuba_slot = list(last["plane"]), m.copy()
-            shapes = ()                          # (their part is the last one)
-        else:
-            lo = np.full((nslots, 3), -np.inf)
-            hi = np.full((nslots, 3), np.inf)
-            convex = np.zeros(nslots, dtype=bool)
-            closed = np.zeros(nslots, dtype=bool)   # convex and enclosing a volume
-            plane = [None] * nslots
-            mitsuba_slot = np.zeros(nslots, dtype=bool)
-        for s_, sl in zip(shapes, slot_list):
-            mitsuba_slot[sl] = True
-            if sl in P.member_slots:     # its box is the group's, not the world's: unbounded
-                continue
-            b = s_.bbox()
-            lo[sl] = [b.min[0], b.min[1], b.min[2]]
-            hi[sl] = [b.max[0], b.max[1], b.max[2]]
-            kind = kind_of(s_)
-            if kind in ("Sphere", "Rectangle", "Disk"):
-                convex[sl] = True
-                closed[sl] = kind == "Sphere"
-            if kind in ("Rectangle", "Disk"):
-                try:
-                    m = np.array(own_param(s_, "to_world").matrix, dtype=np.float64).reshape(4, 4)
-                    nrm = np.cross(m[:3, 0], m[:3, 1])
-                    if np.linalg.norm(nrm) > 0:
-                        nrm = nrm / np.linalg.norm(nrm)
-                        plane[sl] = (nrm, float(nrm @ m[:3, 3]))
-                except Exception:
-                    pass
-        for spec in self.custom:
-            a, b = spec.bounds()
-            lo[spec.slot], hi[spec.slot] = a, b
-            if spec.__class__.__name__ == "QuadricSpec":
-                convex[spec.slot] = (spec.kind == "sphere" and (not spec.clips or spec.capped)) or \
-                    (spec.kind == "cylinder" and spec.capped and len(spec.clips) >= 2)
-                closed[spec.slot] = convex[spec.slot]
-        scale = 1.0 + float(np.max(np.abs(np.where(np.isfinite(lo), lo, 0.0)))) + \
-            float(np.max(np.abs(np.where(np.isfinite(hi), hi, 0.0))))
-        tol = 1e-6 * scale
-        others = [None] * nslots
-        for sl in range(nslots):
-            if plane[sl] is not None:
-                sides = {_side_of_box(*plane[sl], lo[o], hi[o], tol) for o in range(nslots) if o != sl}
-                others[sl] = None if not sides else (sides.pop() if len(sides) == 1 else 0)
-        return dict(lo=lo, hi=hi, convex=convex, closed=closed, plane=plane,
-                    mitsuba_slot=mitsuba_slot, others=others, tol=tol)

@@ -29,13 +29,13 @@ class Tuning:
     #: crossing's origin) only at transparent hits (False: ``scene.ray_intersect``)
     preliminary: bool = True
     #: shadow rays first tested against the boxes of the few Mitsuba shapes that can occlude
-    #: their light (``tables.occluder_boxes``); Embree only where one is met
+    #: their light (``shadow_plan.occluder_boxes``); Embree only where one is met
     box_cull: bool = True
     #: camera rays of a pinhole camera find their nearest BVH quadric through the eye's buffer
     #: (``lightbuffer.plan_eye``) where there is one (False: the BVH walk)
     eye_buffer: bool = True
     #: transparent shadows through few transparent Mitsuba shapes as any-hit queries on
-    #: sub-scenes (``tables.shadow_split``) instead of the walk over the crossings
+    #: sub-scenes (``shadow_plan.shadow_split``) instead of the walk over the crossings
     split: bool = True
     #: direct light under a symbolic ``dr.if_stmt`` on the hit: a packet of escaped rays skips
     #: it instead of computing it masked (False: the straight-line code)

@@ -177,7 +177,7 @@ class Hidden:
     - a Python plugin's read parameters (``links1_phong``, ``links1_point``, ``links1_spot``:
       ``_held``; their values reach the launches through the tables; 3,000 Mitsuba spheres
       sharing one ``links1_phong``: 365 -> 100 ms a frame);
-    - :class:`~links1_mitsuba.tables.ParamWatch` (a subclass): the old values it pins.
+    - :class:`~links1_mitsuba.paramwatch.ParamWatch` (a subclass): the old values it pins.
 
     (The frozen functions reach their integrator and scene through a call,
     ``launch._frozen_caller``, rather than a closure or a global they name: that is how they

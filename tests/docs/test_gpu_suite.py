@@ -15,7 +15,7 @@ PLUGINS = ROOT / "tests" / "plugins"
 COMMAND = "python -m pytest tests/plugins -k cuda_ad_rgb"
 #: llvm_ad_rgb cases without a cuda_ad_rgb twin, each an LLVM-only path its test's docstring names
 LLVM_ONLY_CASES = {
-    # the shadow sub-scenes (tables.shadow_split); the crossing walk runs on both variants
+    # the shadow sub-scenes (shadow_plan.shadow_split); the crossing walk runs on both variants
     "tests/plugins/test_shadow_split.py::"
     "test_split_transmittance_is_the_product_over_the_shapes_met[llvm_ad_rgb-split]",
 }

@@ -364,7 +364,7 @@ def light_scene_xml(pos, spot_to_world, intensity):
 def test_light_update_replans_only_the_shadow_tables(variant):
     """``params.update()`` of an analytic light's own values updates the
     prepared tables in place (``Tables._update_values``): the light's entry and the tables
-    planned from the lights' places (``tables.LIGHT_FIELDS``: which shapes each light's shadow
+    planned from the lights' places (``prepared.LIGHT_FIELDS``: which shapes each light's shadow
     rays test, the light buffers) are made anew, every other table (BVH, materials) is kept,
     no scene build. The scene: 120 quadrics under a BVH with light buffers
     (test_lightbuffer.py), a Mitsuba point light moved from inside three nested transparent
@@ -374,7 +374,7 @@ def test_light_update_replans_only_the_shadow_tables(variant):
     the file's frame too."""
     import mitsuba as mi
     import links1_mitsuba as lm
-    from links1_mitsuba.tables import LIGHT_FIELDS
+    from links1_mitsuba.prepared import LIGHT_FIELDS
 
     moved_to = np.array(SPOT_TO)
     moved_to[:3, 3] = [3.5, 4.5, -2.5]
@@ -431,7 +431,7 @@ def test_shape_update_remakes_only_the_shapes_tables(variant):
     is then the frame of a fresh scene given the same transform, bit for bit."""
     import mitsuba as mi
     import links1_mitsuba as lm
-    from links1_mitsuba.tables import SHAPE_FIELDS
+    from links1_mitsuba.prepared import SHAPE_FIELDS
 
     xml = light_scene_xml((0.7, 2.2, 0.4), SPOT_TO, 20).replace(
         '<shape type="links1_quadric">', '<shape type="links1_quadric" id="q0">', 1)

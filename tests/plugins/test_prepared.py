@@ -1,4 +1,4 @@
-"""The per-scene tables of links1_whitted (``tables.Prepared``) have a declared shape: every field named and typed in one dataclass, an undeclared name refused, and every
+"""The per-scene tables of links1_whitted (``prepared.Prepared``) have a declared shape: every field named and typed in one dataclass, an undeclared name refused, and every
 field a prepared scene's camera view needs actually set."""
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ pytestmark = pytest.mark.mitsuba
 
 
 def test_prepared_refuses_an_undeclared_attribute():
-    from links1_mitsuba.tables import Prepared
+    from links1_mitsuba.prepared import Prepared
     P = Prepared()
     P.nslots = 3                      # a declared field
     assert P.nslots == 3
@@ -25,17 +25,17 @@ def test_prepared_refuses_an_undeclared_attribute():
     # a field without a default is unset until the tables set it; defaults where code reads it
     with pytest.raises(AttributeError):
         P.lights                      # noqa: B018
-    assert P.ad is False and P.base is None and P.shadow_split is None
+    assert P.geo_ad is None and P.base is None and P.shadow_split is None
 
 
 @pytest.mark.parametrize("name", ["fig11", "mitsuba_glass", "lights"])
 def test_a_prepared_view_sets_every_field(variant, name):
     from links1_mitsuba import MitsubaRenderer
-    from links1_mitsuba.tables import Prepared
+    from links1_mitsuba.prepared import Prepared
     path = os.path.join(SCENES, f"{name}.xml")
     r = MitsubaRenderer(path, width=8, height=6, spp=1)
     r.render()
-    V = r.integrator._prep
+    V = r.integrator.info()["tables"]
     assert isinstance(V, Prepared) and isinstance(V.base, Prepared) and V.base is not V
     unset = [f.name for f in dataclasses.fields(Prepared) if not hasattr(V, f.name)]
     assert unset == []

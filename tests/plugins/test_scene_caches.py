@@ -208,7 +208,7 @@ def test_param_watch_values_of_python_plugins_and_scalars(variant):
     assignment, and a new watch agrees with the new values."""
     import mitsuba as mi
 
-    from links1_mitsuba.tables import ParamWatch
+    from links1_mitsuba.paramwatch import ParamWatch
 
     class Tinted(mi.BSDF):
         def __init__(self, props):
@@ -247,13 +247,13 @@ def test_param_watch_values_of_python_plugins_and_scalars(variant):
 
 
 def test_own_param_reads_what_mi_traverse_reads(variant):
-    """``tables.own_param`` (one ``obj.traverse`` with a callback class made once, instead of
+    """``paramwatch.own_param`` (one ``obj.traverse`` with a callback class made once, instead of
     ``mi.traverse``, which makes its class at every call) gives ``mi.traverse(obj)[name]``: a
     rectangle's ``to_world`` after a ``params.update()`` and a sensor's ``x_fov``; a name the
     object does not hold, or one of a child object, is a KeyError."""
     import mitsuba as mi
 
-    from links1_mitsuba.tables import own_param
+    from links1_mitsuba.paramwatch import own_param
     scene = _scene(variant)
     floor = next(s for s in scene.shapes() if s.id() == "floor")
     params = mi.traverse(scene)
@@ -281,7 +281,7 @@ def test_changed_reads_what_a_traversal_reads(variant):
     import mitsuba as mi
 
     from links1_mitsuba import load_string
-    from links1_mitsuba.tables import ParamWatch
+    from links1_mitsuba.paramwatch import ParamWatch
     xml = XML.replace("LX", "0.0").replace("BX", "0.0").replace(
         "</scene>", """ <shape type="links1_quadric" id="q"><string name="kind" value="sphere"/>
   <transform name="to_world"><scale value="0.3"/><translate x="1" y="0.5" z="0"/></transform></shape>
@@ -323,7 +323,7 @@ def test_a_renewed_watch_is_a_new_watch(variant):
     import mitsuba as mi
 
     from links1_mitsuba import load_string
-    from links1_mitsuba.tables import ParamWatch
+    from links1_mitsuba.paramwatch import ParamWatch
     scene = load_string(XML.replace("LX", "0.0").replace("BX", "0.0"), variant=variant)
     params = mi.traverse(scene)
     w = ParamWatch(scene)

@@ -1,7 +1,7 @@
 """Shadow rays through Mitsuba's shapes: the occluders' box cull never drops a ray
 that Embree finds blocked (grazing rays, rays along box faces and axes, origins on faces), and
 the split transmittance (one any-hit query over the opaque shapes, one per transparent shape:
-``tables.shadow_split``) is 3-3-3's product over the shapes a segment meets, checked against
+``shadow_plan.shadow_split``) is 3-3-3's product over the shapes a segment meets, checked against
 float64 geometry (spheres, a plane) and against the nearest-first crossing walk it replaces."""
 from __future__ import annotations
 
@@ -89,7 +89,7 @@ def test_box_cull_keeps_every_blocked_ray(variant):
     meets the shape's cull box; and the cull does drop the clear rays it should."""
     import drjit as dr
     import mitsuba as mi
-    from links1_mitsuba.tables import occluder_boxes
+    from links1_mitsuba.shadow_plan import occluder_boxes
     scene, integ, P = _prepared(_xml())
     shapes = scene.shapes()
     lo = np.array([np.array(s.bbox().min, dtype=np.float64) for s in shapes])
@@ -133,11 +133,11 @@ def test_split_transmittance_is_the_product_over_the_shapes_met(variant_name, sp
     """T of straight segments = 0 behind the wall, else the product of the transmittances of
     the glass spheres met (each once, nested ones too), from float64 geometry; the same with
     the crossing walk (split=False), which the split replaces. The split is LLVM only
-    (tables.shadow_split: OptiX traces a kernel's rays through one pipeline, so cuda_ad_rgb
+    (shadow_plan.shadow_split: OptiX traces a kernel's rays through one pipeline, so cuda_ad_rgb
     makes no sub-scenes and walks the crossings): the walk runs on both variants."""
     import drjit as dr
     import mitsuba as mi
-    from links1_mitsuba import tables, tuning
+    from links1_mitsuba import shadow_plan, tuning
     use_variant(variant_name)
     scene, integ, P = _prepared(_xml(cube=False))
     if variant_name.startswith("llvm"):
@@ -179,14 +179,14 @@ def test_split_transmittance_is_the_product_over_the_shapes_met(variant_name, sp
     assert sure.mean() > 0.95 and 0.1 < opaque[sure].mean() < 0.9
     assert (want[sure, 0] < 1).mean() > 0.3          # plenty of rays cross glass
     np.testing.assert_allclose(T[sure], want[sure], rtol=1e-6, atol=0)
-    assert tables.SPLIT_MAX >= len(SPHERES)
+    assert shadow_plan.SPLIT_MAX >= len(SPHERES)
 
 
 def test_split_image_matches_the_walk_and_the_core(llvm):
     """The images with and without the split agree but for a few pixels, where the split is
     the one nearer the core's float64 render.
 
-    LLVM only: the split exists on LLVM only (tables.shadow_split: OptiX traces a kernel's rays
+    LLVM only: the split exists on LLVM only (shadow_plan.shadow_split: OptiX traces a kernel's rays
     through one pipeline, so CUDA walks the crossings, which
     test_split_transmittance_is_the_product_over_the_shapes_met checks there)."""
     from links1_app.renderers import make_renderer

@@ -1,7 +1,7 @@
 """Rules the two renderers share have one home, which both use:
 
 * the side-of-plane rule of shadow-ray planning (links1.maths.halfspace): the core's
-  links1.tracing.occluders and the plugin's tables take it from there, each with its own
+  links1.tracing.occluders and the plugin's shadow planning (shadow_plan.py) take it from there, each with its own
   tolerance (kept from before the rule had one home, so the images stay the same bits);
 * the sample keys' salts (links1.maths.sampling): the plugin's sources name them and never
   write their values again.
@@ -24,19 +24,19 @@ def test_the_occluder_side_rule_is_one(monkeypatch):
     pytest.importorskip("mitsuba")
     from links1.maths import halfspace
     from links1.tracing import occluders
-    from links1_mitsuba import tables
-    assert tables.box_side is halfspace.box_side is occluders.box_side
-    assert tables.point_side is halfspace.point_side is occluders.point_side
+    from links1_mitsuba import shadow_plan
+    assert shadow_plan.box_side is halfspace.box_side is occluders.box_side
+    assert shadow_plan.point_side is halfspace.point_side is occluders.point_side
     # each renderer's own helper goes through it (a counting stand-in sees both calls)
     calls = []
 
     def counted(*a, **kw):
         calls.append(1)
         return halfspace.box_side(*a, **kw)
-    monkeypatch.setattr(tables, "box_side", counted)
+    monkeypatch.setattr(shadow_plan, "box_side", counted)
     monkeypatch.setattr(occluders, "box_side", counted)
     n = np.array([0.0, 0.0, 1.0])
-    assert tables._side_of_box(n, 1.0, np.array([0.0, 0, 2]), np.array([1.0, 1, 3]), 1e-6) == 1
+    assert shadow_plan._side_of_box(n, 1.0, np.array([0.0, 0, 2]), np.array([1.0, 1, 3]), 1e-6) == 1
     assert occluders._box_side([0, 0, -3], [1, 1, 0], n, np.array([0.0, 0.0, 1.0])) == -1
     assert len(calls) == 2
 

@@ -39,7 +39,7 @@ def test_a_switch_changed_after_a_frame_is_used_by_the_next_frame(variant, field
     import links1_mitsuba
     from links1_mitsuba import tuning
     if field == "split" and not variant.startswith("llvm"):
-        pytest.skip("the shadow split exists on LLVM only (tables.shadow_split): nothing to switch")
+        pytest.skip("the shadow split exists on LLVM only (shadow_plan.shadow_split): nothing to switch")
     xml = _xml(scene_name)
     scene = links1_mitsuba.load_string(xml)
     first = _frame(scene)
