@@ -1,11 +1,12 @@
 # links1: the two commands are `make demo` and `make test`; both run `make setup` first.
+# `make test-fast` is the quick loop while working: the tests not marked slow (pyproject.toml).
 PY ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.links1-installed
 LLVM19 := /usr/lib/x86_64-linux-gnu/libLLVM.so.19.1
 
-.PHONY: setup demo test bench clean llvm
+.PHONY: setup demo test test-fast bench clean llvm
 
 setup: $(STAMP) llvm
 
@@ -31,6 +32,9 @@ demo: setup
 
 test: setup
 	$(BIN)/python -m pytest -q -p no:cacheprovider tests
+
+test-fast: setup
+	$(BIN)/python -m pytest -q -p no:cacheprovider -m "not slow" tests
 
 bench: setup
 	$(BIN)/python -m compare.bench --quick

@@ -6,3 +6,27 @@
 # once in 20 runs of tests/dist alone, after every test had passed. Imported here, it is
 # parsed before any test starts a thread.
 import hypothesis.internal.observability  # noqa: F401
+
+import os
+
+import pytest
+
+#: what ``make test-fast`` (``-m "not slow"`` over tests/) must keep at least one test of: the
+#: core, the Mitsuba plugin, partitioning, the docs checks, the stress tests (the CLI's own tests
+#: are in core/ and dist/)
+FAST_LOOP_DIRS = ("core", "plugins", "dist", "docs", "stress")
+
+
+@pytest.hookimpl(trylast=True)  # after -m has deselected
+def pytest_collection_modifyitems(config, items):
+    """``make test-fast`` stops at collection when marking tests slow left a directory of
+    FAST_LOOP_DIRS without a test."""
+    here = os.path.dirname(os.path.abspath(__file__))
+    whole = [os.path.abspath(a) for a in config.args] == [here]
+    if not whole or config.option.markexpr != "not slow" or config.option.keyword:
+        return
+    seen = {os.path.relpath(str(item.path), here).split(os.sep)[0] for item in items}
+    empty = [d for d in FAST_LOOP_DIRS if d not in seen]
+    if empty:
+        raise pytest.UsageError(f"-m 'not slow' selects no test in tests/{', tests/'.join(empty)}: "
+                                "the fast loop must keep at least one test of each")

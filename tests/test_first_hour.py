@@ -43,6 +43,7 @@ def _mitsuba_runs() -> bool:
     return variant_problem("llvm_ad_rgb") is None
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("renderer", ["core", pytest.param("mitsuba", marks=pytest.mark.mitsuba)])
 def test_render_a_scene_then_compare_the_renderers(scenes, renderer):
     if renderer == "mitsuba" and not _mitsuba_runs():
@@ -60,6 +61,7 @@ def test_render_a_scene_then_compare_the_renderers(scenes, renderer):
         assert rc == 0 and "ok: flip" in out, (err, out)
 
 
+@pytest.mark.slow
 def test_interrupt_a_render_then_resume_it_from_the_checkpoint(scenes):
     """Ctrl-C (SIGINT) once the first unit is on disk: exit 130, one line, no image; the same
     command again resumes the units done and writes the image."""
@@ -98,6 +100,7 @@ def test_fig4_statistical(links1_baseline):
 '''
 
 
+@pytest.mark.slow
 def test_baselines_written_then_an_unchanged_rerun_passes_and_a_change_fails(scenes):
     """The pytest plugin (README: ``--links1-update-baselines``) in a user's project."""
     work = scenes.parent
@@ -121,6 +124,7 @@ def test_baselines_written_then_an_unchanged_rerun_passes_and_a_change_fails(sce
     assert rc == 1 and "1 failed" in out, out
 
 
+@pytest.mark.slow
 def test_a_misspelt_parameter_is_one_line_naming_file_line_and_element(scenes):
     work = scenes.parent
     fig4 = scenes / "fig4.xml"

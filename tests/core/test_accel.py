@@ -75,6 +75,7 @@ def test_scene_accel_equals_brute_force():
     assert cost.sum() > 0
 
 
+@pytest.mark.slow
 def test_mesh_bvh_equals_single_leaf_brute_force():
     rng = np.random.default_rng(1)
     k = 1500
@@ -283,6 +284,7 @@ def test_quadric_pairs_equal_each_quadric_bitwise():
     assert np.isfinite(t).sum() > 1000 and (p > 0).sum() > 50  # quadric and cap hits
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_lockstep_and_packet_traversals_same_bits(seed):
     """Both traversals (and "auto", which picks by rays per leaf) give the same nearest
@@ -342,6 +344,7 @@ def test_surface_batched_equals_each_shape_bitwise():
     assert np.all(P[s < 0] == 0) and np.all(NG[s < 0] == 0)
 
 
+@pytest.mark.slow
 @pytest.mark.filterwarnings("ignore:overflow encountered")
 @pytest.mark.parametrize("mode", ["packet", "lockstep"])
 def test_scalar_walk_same_bits_as_numpy_walk(monkeypatch, mode):

@@ -69,6 +69,7 @@ def test_a_flat_image_is_not_refined(tmp_path):
     np.testing.assert_array_equal(img[..., :3], np.broadcast_to([0.6, 0.4, 0.2], img[..., :3].shape))
 
 
+@pytest.mark.slow
 def test_windows_batches_and_workers_assemble_the_same_image(disk, tmp_path):
     r = make_renderer("core", disk, adaptive=0.02, adaptive_depth=3, aovs=("samples", "cost", "depth"))
     full = r.render()
@@ -104,6 +105,7 @@ def test_bad_adaptive_options_are_one_line_errors(disk, tmp_path, capsys, args, 
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_the_films_filter_is_applied(tmp_path):
     """With a Gaussian film the adaptive image is the filtered one: close to a 256-spp render
     through the same filter, and much closer to it than to the box-filtered adaptive image;

@@ -102,6 +102,7 @@ def test_eye_inside_gives_exit_hit_backfacing():
     assert np.all((ng * d).sum(1) > 0)  # outward normal along the ray: back-facing
 
 
+@pytest.mark.slow
 def test_exact_solver_matches_dense_reference_and_is_cheap():
     b = Blob(EIGHT, 0.5)
     o, d = grid_rays(48)

@@ -107,6 +107,7 @@ def _cone_roots(o, d, start, axis, length, r0, r1):
     return best, normal, s_best, margin
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("r0, r1", [(0.2, 0.2), (0.2, 0.35), (0.3, 0.2)],
                          ids=["cylinder", "cone", "narrowing"])
 def test_straight_segment_is_an_open_cylinder_or_frustum(r0, r1):
@@ -167,6 +168,7 @@ def test_ray_leaving_a_waist_from_within_hits_where_it_comes_back(gap):
     assert np.all((n * d).sum(1) < 0)
 
 
+@pytest.mark.slow
 def test_straight_segment_tangents_are_mitsubas_partials():
     """A straight tube (no curvature: Mitsuba's degenerate Frenet frame): ``dp_du = 2π r (T ×
     ρ)`` around the tube, ``dp_dv = segments × c'`` along it."""
@@ -186,6 +188,7 @@ def test_straight_segment_tangents_are_mitsubas_partials():
     np.testing.assert_allclose(dv, np.broadcast_to(2 * length * axis, dv.shape), atol=1e-9)
 
 
+@pytest.mark.slow
 def test_ray_from_inside_sees_no_wall_and_goes_on():
     """Rays from inside a tube (on its axis to 0.98 of its radius) never hit its wall, and
     ``any_hit`` finds nothing up to the wall either; the rays that point at a second,
@@ -234,6 +237,7 @@ def _frenet_point(ctrl, v, theta):
     return c[:, :3] + c[:, 3:] * (np.cos(theta)[:, None] * N + np.sin(theta)[:, None] * B), N, B
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("which", ["zigzag", "twisted"])
 def test_curved_hits_lie_on_the_sweep_with_its_normal_and_partials(which):
     """Every hit on a curved curve: ``(p - c(v))·c'(v) = 0`` and ``|p - c(v)| = r(v)`` with ``v``
@@ -298,6 +302,7 @@ def _near_silhouette(curves, o, d, t, delta):
     return near
 
 
+@pytest.mark.slow
 @pytest.mark.mitsuba
 @pytest.mark.parametrize("which", ["zigzag", "twisted"])
 @pytest.mark.parametrize("start", ["outside", "inside"])

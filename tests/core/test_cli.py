@@ -105,6 +105,7 @@ def test_missing_scene_and_bad_extension(tmp_path, capsys):
     assert ".jpg" in capsys.readouterr().err or "x.jpg" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_subprocess_error_has_no_traceback(tmp_path):
     scene = tmp_path / "broken.xml"
     scene.write_text("<scene version='3.0.0'>\n  <shape type='sphere'>\n</scene>\n")
@@ -136,6 +137,7 @@ WARN_SCENE = """<scene version="3.0.0">
 """
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("workers", ["0", "2"])
 def test_warnings_are_one_clean_line_each(tmp_path, workers):
     """Scene warnings: `links1: warning: FILE:LINE: ...`, once each, never Python's format

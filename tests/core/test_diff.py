@@ -57,6 +57,7 @@ def test_nan_fails_every_threshold():
     assert diff.exceeds("psnr", 20.0, 30.0) and not diff.exceeds("psnr", 40.0, 30.0)
 
 
+@pytest.mark.slow
 def test_flip_zero_for_equal_and_positive_for_different():
     pytest.importorskip("flip_evaluator")
     rng = np.random.default_rng(0)
@@ -88,6 +89,7 @@ def test_png_inputs_use_ldr_peak(tmp_path):
     assert v == pytest.approx(diff.psnr(a, b, peak=1.0))
 
 
+@pytest.mark.slow
 def test_heatmap_writes_png(tmp_path):
     rng = np.random.default_rng(1)
     a, b = rng.random((20, 30, 3)), rng.random((20, 30, 3))

@@ -31,6 +31,7 @@ def _uniform_sphere(rng, m):
     return v / np.linalg.norm(v, axis=1)[:, None]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", list(_bsdfs()))
 def test_pdf_integrates_to_one_and_samples_follow_it(name):
     """∫ pdf dω = 1 (uniform sphere estimate), and E[weight] over samples = ∫ eval dω, per
@@ -82,6 +83,7 @@ def _material(body):
     return sc.shapes[0].material
 
 
+@pytest.mark.slow
 def test_loader_reads_mitsubas_parameters():
     m = _material('<bsdf type="twosided"><bsdf type="roughconductor"><string name="material" value="Cu"/>'
                   '<float name="alpha_u" value="0.1"/><float name="alpha_v" value="0.3"/>'

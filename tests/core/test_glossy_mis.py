@@ -75,6 +75,7 @@ def test_light_pdf_is_the_density_its_sample_draws_with(kind, tmp_path):
         np.testing.assert_allclose(Lw[ok], L * (1.0 / pdf[ok])[:, None], rtol=1e-9)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", ["constant", "envmap"])
 def test_environment_pdf_integrates_to_one(kind, tmp_path):
     light = _sampled(_scene(tmp_path, LIGHTS[kind]))

@@ -77,6 +77,7 @@ def check_against_oracle(scene: str, image: np.ndarray, spp: int):
     return known
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("scene", SCENES)
 def test_scene_matches_baseline(links1_baseline, scene):
     spp = _spp(scene)

@@ -6,6 +6,8 @@ import sys
 import textwrap
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[2]
 
 BLOCKER = """
@@ -20,6 +22,7 @@ sys.meta_path.insert(0, _Block())
 """
 
 
+@pytest.mark.slow
 def test_core_renders_without_mitsuba_drjit_or_dask(tmp_path):
     out = tmp_path / "iso.exr"
     code = BLOCKER + textwrap.dedent(f"""

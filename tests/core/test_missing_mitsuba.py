@@ -30,6 +30,7 @@ def _cli(env, *args):
                           env=env, cwd=str(ROOT), timeout=240)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("command", ["render", "schedule"])
 def test_missing_mitsuba_names_the_extra(tmp_path, no_mitsuba_env, command):
     out = tmp_path / "out.png"

@@ -71,6 +71,7 @@ def _uniform_sphere(rng, m):
     return v / np.linalg.norm(v, axis=1)[:, None]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", list(_bsdfs()))
 def test_pdf_integrates_and_samples_follow_it(name):
     """∫ pdf dω = the fraction of samples drawn (uniform sphere estimate), and E[weight] over

@@ -68,6 +68,7 @@ def test_missing_baseline_tells_how_to_create_it(pytester):
     res.stdout.fnmatch_lines(["*no baseline*gradient.exr*--links1-update-baselines*"])
 
 
+@pytest.mark.slow
 def test_failure_writes_and_names_four_report_files(pytester):
     _write(pytester)
     _run(pytester, "--links1-update-baselines", "-k", "same").assert_outcomes(passed=1)
@@ -108,6 +109,7 @@ def test_statistical_passes_for_independent_noise_with_same_mean(pytester):
     _run(pytester, "-k", "noise").assert_outcomes(passed=1)
 
 
+@pytest.mark.slow
 def test_statistical_fails_for_shifted_mean_and_writes_pvalues(pytester):
     _write(pytester, seed=1)
     _run(pytester, "-k", "noise", "--links1-update-baselines").assert_outcomes(passed=1)
@@ -195,6 +197,7 @@ def test_unchanged_rerun_of_constants_passes(pytester, dtype):
     _run(pytester).assert_outcomes(passed=8)
 
 
+@pytest.mark.slow
 def test_a_changed_constant_still_fails(pytester):
     pytester.makepyfile(test_const='''
 import numpy as np
@@ -232,6 +235,7 @@ def test_big(links1_baseline):
     assert not (pytester.path / "baselines" / "big.exr").exists()
 
 
+@pytest.mark.slow
 def test_unchanged_statistical_scene_rerun_passes(pytester):
     fig4 = Path(__file__).resolve().parents[2] / "scenes" / "fig4.xml"
     pytester.makepyfile(test_scene=f'''

@@ -73,6 +73,7 @@ def render(path, out, *extra, renderer="core"):
     return links1("render", path, "--renderer", renderer, "--workers", "0", "--no-progress", "-o", out, *extra)
 
 
+@pytest.mark.slow
 def test_unused_define_is_refused_naming_file_and_parameter(tmp_path):
     """Mitsuba refuses an unused ``-D`` ("Found unused parameters"): the core too, now."""
     path, out = scene(tmp_path), tmp_path / "o.exr"
@@ -123,6 +124,7 @@ def test_core_warnings_once_per_element_with_place(tmp_path):
     assert not [ln for ln in warns if "thinlens" in ln]   # its depth of field is rendered
 
 
+@pytest.mark.slow
 def test_unknown_command_has_one_prefix():
     rc, err = links1("bogus")
     assert rc == 2
@@ -132,6 +134,7 @@ def test_unknown_command_has_one_prefix():
     assert rc == 2 and err[-1].startswith("links1: error: render: the following arguments are required")
 
 
+@pytest.mark.slow
 def test_repeat_timing_has_units(tmp_path):
     rc, err = render(FIG4, tmp_path / "t.exr", "-D", "res=8", "--repeat", "1")
     assert rc == 0, err
@@ -140,6 +143,7 @@ def test_repeat_timing_has_units(tmp_path):
     assert re.fullmatch(r"timing: first=[\d.]+ ms median=[\d.]+ ms min=[\d.]+ ms max=[\d.]+ ms", line[0]), line
 
 
+@pytest.mark.slow
 def test_checkpoint_resume_says_so(tmp_path):
     ck, out = tmp_path / "ck", tmp_path / "o.exr"
     args = ("render", FIG4, "--renderer", "core", "-D", "res=16", "--no-progress", "-o", out, "--checkpoint", ck)
@@ -166,6 +170,7 @@ def test_atomic_writes_follow_the_umask(tmp_path, umask, mode):
     assert os.stat(tmp_path / "r.json").st_mode & 0o777 == mode
 
 
+@pytest.mark.slow
 def test_schedule_report_is_world_readable(tmp_path):
     report, plot = tmp_path / "r.json", tmp_path / "r.png"
     rc, err = links1("schedule", FIG4, "--renderer", "core", "-D", "res=16", "--nodes", "1", "--partition",

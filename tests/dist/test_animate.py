@@ -75,6 +75,7 @@ def check_frames(res, refs, frames=(0, 1, 2)):
         assert np.array_equal(res.images[f], refs[f]), f"frame {f} differs from its single-process render"
 
 
+@pytest.mark.slow
 def test_in_process_frames_equal_single_renders(refs):
     for units in ("frames", "partition"):
         res = animate(MANY, frames=[0, 1, 2], defines=[ORBIT], units=units, keep_images=True, aovs=("cost",),
@@ -82,6 +83,7 @@ def test_in_process_frames_equal_single_renders(refs):
         check_frames(res, refs)
 
 
+@pytest.mark.slow
 def test_pool_of_two_every_unit_choice_is_bit_identical(refs):
     be = make_backend(workers=2)
     try:
@@ -95,6 +97,7 @@ def test_pool_of_two_every_unit_choice_is_bit_identical(refs):
         be.close()
 
 
+@pytest.mark.slow
 def test_dask_local_cluster_is_bit_identical(refs):
     pytest.importorskip("distributed")
     be = make_backend(dask_local=2)
@@ -108,6 +111,7 @@ def test_dask_local_cluster_is_bit_identical(refs):
 
 
 # ---------------------------------------------------------------------- files and resume
+@pytest.mark.slow
 def test_cli_writes_frames_and_resumes_at_the_missing_ones(tmp_path, capsys, refs):
     pattern = str(tmp_path / "f_%02d.exr")
     args = ["animate", MANY, "-o", pattern, "--frames", "3", "--renderer", "core", "--width", "32",
@@ -127,6 +131,7 @@ def test_cli_writes_frames_and_resumes_at_the_missing_ones(tmp_path, capsys, ref
 
 
 # ---------------------------------------------------------------------- frame-coherent plans
+@pytest.mark.slow
 def test_previous_frame_plan_is_no_worse_than_eq41_where_the_load_moves():
     """An orbit around many.xml moves the load across the screen: the previous frame's measured
     ray tests predict the next frame's split at least as well as eq. 4.1's object rectangles
@@ -169,6 +174,7 @@ def test_simulated_throughput_of_whole_frames_is_list_scheduling():
     assert best[1]["throughput"]["efficiency"] == pytest.approx(1.0)
 
 
+@pytest.mark.slow
 def test_report_and_plot(tmp_path, capsys):
     pytest.importorskip("matplotlib")
     import json
@@ -220,6 +226,7 @@ def orbit_camera(scene, f, t):
                                                                       [0, 0, 0], [0, 1, 0]))
 
 
+@pytest.mark.slow
 def test_update_function_and_a_worker_killed_mid_sequence(tmp_path, monkeypatch):
     """The Python API's update function moves the loaded scene per frame (no re-read); a node that
     dies at frame 2 costs only its units: they are redone, and every frame equals the in-process one."""
@@ -279,6 +286,7 @@ def test_ctrl_c_leaves_every_finished_frame_whole(tmp_path):
         assert np.array_equal(read_image(str(tmp_path / n)), single(f).astype(np.float32)), n
 
 
+@pytest.mark.slow
 def test_mitsuba_frames_updated_in_place_equal_fresh_loads():
     """The plugin's loaded scene updated per frame (mi.traverse / params.update(): its kernels
     kept) renders each frame as a fresh load of the file with that frame's values does."""

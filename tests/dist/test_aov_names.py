@@ -25,6 +25,7 @@ def test_names_follow_mitsubas_aov_integrator():
     assert aov.aov_names() == [c for a in ("depth", "normal", "id") for c in AOVS[a]]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("backend", list(BACKENDS))
 @pytest.mark.parametrize("renderer", ["core", "mitsuba"])
 def test_exr_channel_names(tmp_path, renderer, backend):

@@ -30,6 +30,7 @@ def test_inprocess_fake_every_strategy(fake_spec, fake_ref):
         assert np.array_equal(res.image, fake_ref), plan
 
 
+@pytest.mark.slow
 def test_core_renderer_every_strategy_workers_0_and_2(core_spec, core_ref):
     model, plans = _plans(core_spec, 2)
     for plan in plans:
@@ -51,6 +52,7 @@ SPHERE = ('<shape type="links1_quadric"><string name="kind" value="sphere"/><tra
           '<bsdf type="links1_phong"><rgb name="diffuse" value="0.7"/></bsdf></shape>')
 
 
+@pytest.mark.slow
 def test_core_renderer_cull_keeps_the_image(tmp_path):
     """--cull: nodes get only the objects their units need (4-4); the image is unchanged."""
     from links1_app.partition.cli import cull_map
@@ -70,6 +72,7 @@ def test_core_renderer_cull_keeps_the_image(tmp_path):
         assert np.array_equal(res.image, ref), plan
 
 
+@pytest.mark.slow
 @pytest.mark.dask
 def test_dask_local_every_strategy(fake_spec, fake_ref, core_spec, core_ref):
     pytest.importorskip("distributed")

@@ -45,6 +45,7 @@ def test_a_task_stays_within_its_pixel_budget():
     assert take_batch(plan, q, None, 10) == [5]  # at least one unit, even over the budget
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("scene", ["many", "fig11", "fig6a"])
 def test_core_batch_equals_each_window_alone(scene):
     from links1_app.renderers import make_renderer
@@ -55,6 +56,7 @@ def test_core_batch_equals_each_window_alone(scene):
         assert np.array_equal(img, _crop(full, w)), w
 
 
+@pytest.mark.slow
 @pytest.mark.mitsuba
 @pytest.mark.parametrize("scene", ["fig11", "many", "fig6a"])  # plain, quadric BVH, blobs
 def test_mitsuba_batch_equals_each_window_and_new_shapes_replay_without_recording(scene):
@@ -106,6 +108,7 @@ def _launches(res):
     return list(sizes.values())
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("k", [0, 1, 2])
 def test_in_process_dynamic_chunks_one_node(k, core_spec, core_ref):
     # one node: every unit in one launch (within the task's pixel budget), nobody to balance
@@ -140,6 +143,7 @@ def test_guided_chunks_of_two_nodes_shrink():
     assert (cover == 1).all()                           # every pixel in exactly one chunk
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("strategy, k", [("subscreen", 2), ("dynamic", 2), ("dynamic", 0), ("scanline", 2),
                                          ("subscreen-balanced", 2)])
 def test_local_pool_batches_give_the_same_bits(strategy, k, core_spec, core_ref):
@@ -156,6 +160,7 @@ def test_local_pool_batches_give_the_same_bits(strategy, k, core_spec, core_ref)
         assert max(sizes) == chunk_size(len(plan.units), 2, k)
 
 
+@pytest.mark.slow
 def test_nodes_send_float32_only_when_it_is_exact(tmp_path):
     """A node sends a unit's pixels as float32 when every value is a float32 (the plugin
     renderer's), half the bytes through the pipe, and as float64 otherwise (the core's): the
@@ -221,6 +226,7 @@ def test_guided_chunks_by_load_weigh_the_units():
     assert len(guided_batch(plan, q, 2, 2, by_load=True)) == chunk_size(len(order), 2, 2)
 
 
+@pytest.mark.slow
 def test_chunks_by_load_give_the_same_bits(core_spec, core_ref):
     plan = make_plan("dynamic", 32, 32, 2, tiles_per_node=8, unit="tile")
     plan.predicted = np.linspace(3.0, 0.5, len(plan.units))

@@ -69,6 +69,7 @@ def test_no_blas_thread_spins_under_the_limit():
         limit_blas(old)
 
 
+@pytest.mark.slow
 def test_the_root_keeps_one_blas_thread_while_nodes_render(core_spec, core_ref):
     old = limit_blas(2)
     try:

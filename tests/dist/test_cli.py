@@ -7,6 +7,7 @@ import pytest
 from .conftest import MANY
 
 
+@pytest.mark.slow
 def test_render_workers_2_matches_in_process(tmp_path, core_ref):
     from links1_app.cli import main
     from links1.imaging.image import read_image

@@ -15,6 +15,7 @@ from .conftest import MANY
 from .fake_renderer import FakeRenderer
 
 
+@pytest.mark.slow
 def test_schedule_report_keys_and_sanity(tmp_path):
     from links1_app.cli import main
     out, png = tmp_path / "r.json", tmp_path / "r.png"

@@ -23,6 +23,7 @@ from .fake_renderer import FAKE, pixel_values
 REF = pixel_values(0, 0, 48, 32, 4)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("strategy", ["scanline", "dynamic"])
 def test_local_worker_sigkilled_mid_render(strategy, tmp_path, capsys):
     # the first process to render line 20 SIGKILLs itself; earlier lines are already done
@@ -52,6 +53,7 @@ class _KillAfter:
             os.kill(self.pool.pids[1], signal.SIGKILL)
 
 
+@pytest.mark.slow
 def test_core_worker_sigkilled_from_outside(core_spec, core_ref, capsys):
     plan = make_plan("subscreen", 32, 32, 2, tiles_per_node=8)
     with LocalPool(2) as pool:
@@ -60,6 +62,7 @@ def test_core_worker_sigkilled_from_outside(core_spec, core_ref, capsys):
     assert res.faults and "node 1" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 @pytest.mark.dask
 @pytest.mark.parametrize("strategy", ["scanline", "dynamic"])
 def test_dask_worker_killed_while_holding_a_unit(strategy, tmp_path, capsys):
@@ -145,6 +148,7 @@ def test_checkpoint_ignores_other_configurations(tmp_path):
     assert res.resumed == 0 and res.image.shape[2] == 3
 
 
+@pytest.mark.slow
 @pytest.mark.dask
 def test_dask_worker_joining_mid_render_gets_units(tmp_path):
     """A worker that joins mid-render gets units. Deterministic: the first worker
@@ -211,6 +215,7 @@ def test_local_worker_killed_while_sending_its_result(tmp_path, delay):
     assert time.perf_counter() - t < 120
 
 
+@pytest.mark.slow
 def test_local_workers_end_when_their_root_is_killed(tmp_path):
     """A root killed by a signal (or crashed) closes no pool: its local workers notice that
     their parent is gone (``runtime.watch_root``) and end within a second or two, instead of

@@ -14,6 +14,7 @@ from tests.interrupts import interrupt_tries
 CORE = ["scenes/fig11.xml", "--renderer", "core", "--width", "128", "--height", "128", "--spp", "16"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("backend, seed", [(["--workers", "0"], 1), (["--workers", "2"], 2)],
                          ids=["single-process", "workers-2"])
 def test_ctrl_c_stops_a_core_render(backend, seed, tmp_path):
@@ -21,6 +22,7 @@ def test_ctrl_c_stops_a_core_render(backend, seed, tmp_path):
     assert not bad, "\n".join(bad)
 
 
+@pytest.mark.slow
 def test_ctrl_c_stops_a_dask_local_render(tmp_path):
     pytest.importorskip("distributed")
     bad = interrupt_tries(CORE + ["--dask-local", "2"], tmp_path, seed=3)

@@ -21,6 +21,7 @@ class _Captured(LocalPool):
         self.offered = self.image_buffer
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("strategy", ["subscreen", "dynamic"])
 def test_results_land_in_the_frame_and_only_records_cross_the_lines(strategy, core_spec, core_ref):
     plan = make_plan(strategy, 32, 32, 2, tiles_per_node=4, unit="tile")
@@ -43,6 +44,7 @@ def test_results_land_in_the_frame_and_only_records_cross_the_lines(strategy, co
     assert piped_bytes - framed_bytes >= pixel_bytes
 
 
+@pytest.mark.slow
 def test_lines_close_for_pool_tasks_between_runs(core_spec, core_ref):
     """A run's serve loops end after its clock: the workers then take pool tasks (a call), and a
     second run opens new lines."""
@@ -58,6 +60,7 @@ def test_lines_close_for_pool_tasks_between_runs(core_spec, core_ref):
     assert np.array_equal(first.image, core_ref) and np.array_equal(second.image, core_ref)
 
 
+@pytest.mark.slow
 def test_a_node_error_reaches_the_root_through_its_line(core_spec):
     """A unit the renderer refuses (a window outside the film) raises that error in the root, as a
     pool task's error did, and the pool stays usable."""
@@ -72,6 +75,7 @@ def test_a_node_error_reaches_the_root_through_its_line(core_spec):
     assert res.image.shape[:2] == (32, 32)
 
 
+@pytest.mark.slow
 def test_a_node_holds_one_guided_chunk_at_a_time(core_spec, core_ref):
     """Dynamic with a batching renderer: a node's next guided chunk leaves the root only once its
     last chunk's results are in (the root sends it after that chunk's launch ended), so a chunk

@@ -45,6 +45,7 @@ def test_node_cpus_deals_disjoint_sets_in_order():
     assert node_cpus(0, 1, [0, 1]) is None
 
 
+@pytest.mark.slow
 @linux
 @two_cpus
 def test_each_node_is_bound_to_cpus_of_its_own(core_spec, core_ref):
@@ -67,6 +68,7 @@ def test_each_node_is_bound_to_cpus_of_its_own(core_spec, core_ref):
         assert all(os.sched_getaffinity(pool.pids[k]) == cpus for k in range(2))
 
 
+@pytest.mark.slow
 @linux
 @two_cpus
 def test_more_nodes_than_cpus_are_left_to_the_kernel(core_spec, core_ref):
@@ -80,6 +82,7 @@ def test_more_nodes_than_cpus_are_left_to_the_kernel(core_spec, core_ref):
     assert np.array_equal(res.image, core_ref)
 
 
+@pytest.mark.slow
 @linux
 @two_cpus
 @pytest.mark.mitsuba
@@ -135,6 +138,7 @@ def _affinities():
     return out
 
 
+@pytest.mark.slow
 @linux
 @two_cpus
 @pytest.mark.parametrize("pin", [True, False])

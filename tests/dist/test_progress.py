@@ -43,6 +43,7 @@ def test_core_render_bar(monkeypatch, progress, terminal, shown):
         bar.close()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("flag, shown", [([], False), (["--progress"], True), (["--no-progress"], False)])
 def test_cli_distributed_render_into_redirected_stderr(tmp_path, capsys, flag, shown):
     from links1_app.cli import main

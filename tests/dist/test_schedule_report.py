@@ -25,6 +25,7 @@ def test_true_efficiency_is_full_frame_over_nodes_times_makespan():
     assert rep["launches"] == 2 and [n["launches"] for n in rep["nodes_busy"]] == [1, 1]
 
 
+@pytest.mark.slow
 def test_schedule_reports_the_reference_measured_in_the_same_run(tmp_path, capsys):
     from links1_app.cli import main
     out = tmp_path / "r.json"

@@ -172,6 +172,7 @@ def test_simulate_uses_the_fitted_overheads():
 
 
 # ---------------------------------------------------------------- the CLI, for real
+@pytest.mark.slow
 def test_units_launched_alone_are_measured_and_batched_ones_derived(tmp_path):
     from links1_app.cli import main
     out = tmp_path / "alone.json"
@@ -194,6 +195,7 @@ def test_units_launched_alone_are_measured_and_batched_ones_derived(tmp_path):
     assert chk["measured_s"] == r["makespan_s"] and chk["strategy"] == "subscreen" and chk["nodes"] == 1
 
 
+@pytest.mark.slow
 def test_sweep_writes_a_tidy_table_and_plot(tmp_path):
     from links1_app.cli import main
     out, png = tmp_path / "sw.json", tmp_path / "sw.png"

@@ -22,6 +22,7 @@ def _frames():
     return set(glob.glob(os.path.join("/dev/shm", pat))) | set(glob.glob(os.path.join("/tmp", pat)))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("strategy", ["subscreen", "dynamic"])
 def test_shared_frame_gives_the_same_bits_as_the_pipe(strategy, core_spec, core_ref):
     before = _frames()
@@ -67,6 +68,7 @@ class _Watched(LocalPool):
         return super()._run(plan, todo, spec, cull, done, on_fault, frame)
 
 
+@pytest.mark.slow
 def test_local_pool_writes_into_the_frame_by_default_and_leaves_none_behind(core_spec, core_ref):
     before = _frames()
     plan = make_plan("scanline", 32, 32, 2)
@@ -79,6 +81,7 @@ def test_local_pool_writes_into_the_frame_by_default_and_leaves_none_behind(core
     assert _frames() == before
 
 
+@pytest.mark.slow
 @pytest.mark.mitsuba
 def test_plugin_results_through_the_frame_are_the_pipes_bits():
     """The plugin's float32-exact results written as float64 into the frame: the same bits as
@@ -104,6 +107,7 @@ def test_plugin_results_through_the_frame_are_the_pipes_bits():
     assert _frames() == before
 
 
+@pytest.mark.slow
 def test_no_room_for_the_frame_falls_back_to_the_pipe(monkeypatch, core_spec, core_ref):
     """A full /dev/shm: SharedFrame raises ENOSPC (posix_fallocate) and the run goes by the pipe."""
     import errno

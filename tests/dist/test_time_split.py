@@ -100,6 +100,7 @@ def _check_adds_up(rep, in_process):
     assert ts["totals"]["work_s"] == pytest.approx(frame_work, rel=1e-6)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("nodes,partition", [(2, "dynamic"), (2, "subscreen"), (1, "dynamic")])
 def test_schedule_time_split_adds_up_to_the_makespan(tmp_path, capsys, nodes, partition):
     from links1_app.cli import main

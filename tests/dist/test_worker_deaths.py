@@ -59,6 +59,7 @@ def _wait_gone(pid, timeout=30.0):
     raise AssertionError(f"pid {pid} still alive after {timeout} s")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", ["core", pytest.param("mitsuba", marks=pytest.mark.mitsuba)])
 @pytest.mark.parametrize("moment, strategy", [("start", "subscreen"), ("idle", "dynamic"), ("unit", "subscreen"),
                                               ("unit", "dynamic")])
@@ -88,6 +89,7 @@ def test_a_worker_killed_at_any_moment_is_replaced_and_the_image_is_identical(ki
     assert np.array_equal(res.image, ref)
 
 
+@pytest.mark.slow
 def test_a_worker_killed_while_starting_is_replaced_before_the_render(tmp_path, capsys):
     spec = RendererSpec.make(DYING, "fake", inner=FAKE, die="start", marker=str(tmp_path / "m"))
     plan = make_plan("scanline", 48, 32, 2)
@@ -99,6 +101,7 @@ def test_a_worker_killed_while_starting_is_replaced_before_the_render(tmp_path, 
     assert "died while starting" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_workers_that_always_die_give_up_after_the_documented_limit(tmp_path):
     from links1_app.partition.local_pool import DEATHS_PER_WORKER
     spec = RendererSpec.make(DYING, "fake", inner=FAKE, die="start", always=True, marker=str(tmp_path / "m"))
@@ -108,6 +111,7 @@ def test_workers_that_always_die_give_up_after_the_documented_limit(tmp_path):
     assert DEATHS_PER_WORKER * 2 == 6 and not pool.pools  # every process stopped
 
 
+@pytest.mark.slow
 def test_a_unit_that_kills_every_worker_gives_up(tmp_path):
     spec = RendererSpec.make(DYING, "fake", inner=FAKE, die="unit", always=True, die_window=(0, 20, 48, 1),
                              marker=str(tmp_path / "m"))
@@ -124,6 +128,7 @@ if "--multiprocessing-fork" in sys.argv:  # every spawned worker dies at once
 """
 
 
+@pytest.mark.slow
 def test_cli_gives_up_in_one_line_with_exit_1_and_writes_nothing(tmp_path):
     (tmp_path / "site").mkdir()
     (tmp_path / "site" / "sitecustomize.py").write_text(SITE)

@@ -10,6 +10,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[2]
 PLUGINS = ROOT / "tests" / "plugins"
 COMMAND = "python -m pytest tests/plugins -k cuda_ad_rgb"
@@ -28,6 +30,7 @@ def collected(*args) -> set[str]:
     return {ln.strip() for ln in res.stdout.splitlines() if "::" in ln}
 
 
+@pytest.mark.slow
 def test_readme_command_selects_exactly_the_gpu_cases():
     assert COMMAND in (ROOT / "docs" / "guide.md").read_text()
     by_k, by_marker, every = collected("-k", "cuda_ad_rgb"), collected("-m", "gpu"), collected()

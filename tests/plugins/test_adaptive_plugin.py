@@ -17,6 +17,7 @@ def rel_mse(a, b):
     return float(np.sum((a - b) ** 2) / max(np.sum(b ** 2), 1e-30))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("scene", ["lights.xml", "fig4.xml", "shadows.xml", "many.xml"])
 def test_plugin_refines_as_the_core_does(variant, scene):
     from links1_app.renderers import make_renderer

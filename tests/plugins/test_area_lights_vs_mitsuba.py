@@ -124,6 +124,7 @@ def references(scenes):
     return on
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", KINDS)
 def test_core_vs_mitsuba_direct(kind, llvm, scenes, references):
     """LLVM only: a test of the core, which no variant changes (its references are Mitsuba's
@@ -136,6 +137,7 @@ def test_core_vs_mitsuba_direct(kind, llvm, scenes, references):
     assert rel_mse(core, ref) <= 2.0 * rel_mse(m64, ref)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", KINDS)
 def test_plugin_vs_mitsuba_direct_and_core(kind, variant, scenes, references):
     """The plugin samples the same light points as the core (float32 rounding apart) and so
@@ -152,6 +154,7 @@ def test_plugin_vs_mitsuba_direct_and_core(kind, variant, scenes, references):
     assert rel_mse(plug, core) < (1e-5 if kind == "obj_mirrored" else 1e-8)
 
 
+@pytest.mark.slow
 def test_plugin_windows_equal_full_frame(variant, scenes):
     from links1_app.renderers import make_renderer
     r = make_renderer("mitsuba", scenes["envmap"], spp=4, light_samples=2, seed=5, variant=variant)

@@ -58,6 +58,7 @@ def _plugin(spec, o, d, lists):
         blob_candidates.LIST_MIN_CENTRES = old
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("centres", ["cloud300", "row80"])
 def test_candidate_lists_match_core_and_all_centres(centres, variant):
     from links1.geometry.blob import Blob
@@ -125,6 +126,7 @@ def test_normal_reuses_hit_search_candidates(centres, variant):
     assert np.array_equal(n_reuse.view(np.uint32), n_walk.view(np.uint32))
 
 
+@pytest.mark.slow
 def test_many_centre_blob_scene_matches_core(tmp_path, variant):
     """A 120-centre blob lit by a point light over a mirror floor, through the renderer
     (frozen launch, shadow rays, reflections, normals): plugin against the core."""

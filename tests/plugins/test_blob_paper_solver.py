@@ -59,6 +59,7 @@ def test_paper_solver_matches_core_rays(centers, threshold, samples, to_world, v
     assert cost_c.max() <= samples * int(np.sum(c[:, 3] > 0))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["fig6a.xml", "fig6b.xml"])
 def test_paper_solver_primary_hits_match_core(name, variant):
     from links1_app.renderers import make_renderer

@@ -38,6 +38,7 @@ def _render(kind, path, spp):
         return np.asarray(make_renderer(kind, path, spp=spp, max_depth=1).render(), dtype=np.float64)[..., :3]
 
 
+@pytest.mark.slow
 def test_curve_under_an_environment_matches_mitsuba_direct_and_plugin(tmp_path, llvm):
     """LLVM only: the curve is Mitsuba's own shape (Embree on LLVM, OptiX on CUDA), the test is
     of the core's shading frame against it."""

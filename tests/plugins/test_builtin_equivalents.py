@@ -51,6 +51,7 @@ def check(a, b):
     assert err <= 1e-4, f"max abs difference {err:.3g} off silhouettes"
 
 
+@pytest.mark.slow
 def test_quadric_sphere_vs_mitsuba_sphere(variant):
     a = render("""<shape type="links1_quadric"><string name="kind" value="sphere"/>
         <transform name="to_world"><scale value="0.9"/><translate x="0.2" y="1" z="0.1"/></transform>
@@ -60,6 +61,7 @@ def test_quadric_sphere_vs_mitsuba_sphere(variant):
     check(a, b)
 
 
+@pytest.mark.slow
 def test_clipped_cylinder_vs_mitsuba_cylinder(variant):
     a = render("""<shape type="links1_quadric"><string name="kind" value="cylinder"/>
         <vector name="clip_0" x="0" y="0" z="1"/><float name="clip_0_offset" value="1"/>
@@ -72,6 +74,7 @@ def test_clipped_cylinder_vs_mitsuba_cylinder(variant):
     check(a, b)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("ratio", [0.5, 0.9])
 def test_single_centre_blob_vs_sphere(variant, ratio):
     w, S = 1.0, 0.6

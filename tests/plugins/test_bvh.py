@@ -37,6 +37,7 @@ def _scene(n):
   {''.join(shapes)}""")
 
 
+@pytest.mark.slow
 def test_bvh_matches_every_quadric(variant):
     import links1_mitsuba
     from links1_mitsuba import tuning
@@ -54,6 +55,7 @@ def test_bvh_matches_every_quadric(variant):
 
 
 
+@pytest.mark.slow
 def test_bvh_tables_are_aligned_node_lines(llvm):
     """The walk's tables sit in 64-byte aligned memory (numpy-mapped tables made the same walk
     35-62 ms at random, compare/quadric_accel.py), and a node's line holds its children's boxes

@@ -62,6 +62,7 @@ def _no_integrator_scene(tmp_path, integrator=""):
     return scene
 
 
+@pytest.mark.slow
 def test_integrator_scene_without_integrator_uses_path(tmp_path):
     """--integrator scene on a file without <integrator>: Mitsuba 3.9.1's mi.render refuses
     ('No integrator specified!'); links1 renders it with Mitsuba's 'path' (Mitsuba 2's
@@ -115,6 +116,7 @@ def _render_both(tmp_path, body):
     return imgs, errs
 
 
+@pytest.mark.slow
 def test_blackbody_emitter_same_colour_in_both_renderers(tmp_path):
     """Mitsuba's RGB variants cannot evaluate a blackbody; both renderers use the colour its
     spectral variants integrate to (links1.shading.spectra), each saying so in one warning line."""
@@ -130,6 +132,7 @@ def test_blackbody_emitter_same_colour_in_both_renderers(tmp_path):
     np.testing.assert_allclose(imgs["mitsuba"], imgs["core"], rtol=1e-4, atol=1e-6)
 
 
+@pytest.mark.slow
 def test_spectra_on_links1_plugins_same_in_both_renderers(tmp_path):
     """links1_point, links1_spot and links1_phong read <spectrum> as Mitsuba's RGB variants
     (emitters unweighted, the Phong colours as reflectances) in the plugin as in the core."""
@@ -144,6 +147,7 @@ def test_spectra_on_links1_plugins_same_in_both_renderers(tmp_path):
     np.testing.assert_allclose(imgs["mitsuba"], imgs["core"], rtol=1e-4, atol=1e-6)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("integ", ["links1", "scene"])
 def test_scene_parameter_named_integrator(tmp_path, integ):
     """Mitsuba's own scenes declare <default name="integrator">; -D integrator=... fills it

@@ -105,6 +105,7 @@ def core_image(body, spp):
         return np.asarray(render(sc, spp=spp, seed=3), dtype=np.float64)[..., :3]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case", sorted(CASES))
 def test_delta_bsdf_vs_path(variant, case):
     body = CASES[case]
@@ -121,6 +122,7 @@ def test_delta_bsdf_vs_path(variant, case):
     assert abs(core.mean() - ref.mean()) <= 0.02 * ref.mean(), msg
 
 
+@pytest.mark.slow
 def test_thin_sheet_keeps_its_transmission(variant):
     """A thin sheet under ``constant`` only transmits T' = 1 - R' of the
     background straight through (R' = 2R/(1+R), Mitsuba's thindielectric); with the
@@ -141,6 +143,7 @@ def test_thin_sheet_keeps_its_transmission(variant):
     assert np.allclose(core[c, c], 0.529, rtol=1e-9), core[c, c]
 
 
+@pytest.mark.slow
 def test_mask_around_dielectric_warns_in_both_renderers(variant):
     """A Whitted node has one transmitted ray: a mask around a refracting dielectric keeps the
     refraction and drops the straight-through part, and both renderers say so."""

@@ -68,6 +68,7 @@ def numpy_film(integ, scene, window, spp, seed, aovs):
     return np.concatenate([rgb.reshape(h, w, 3), aov], axis=2)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("aovs", ["", AOVS])
 @pytest.mark.parametrize("spp", [1, 4])
 @pytest.mark.parametrize("rfilter", list(RFILTERS))
@@ -97,6 +98,7 @@ def test_device_film_equals_numpy_film(variant, tmp_path, rfilter, spp, aovs):
                                                              aovs=aovs).astype(np.float32))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("rfilter", ["box", "gaussian", "lanczos"])
 def test_windows_and_batches_equal_full_frame_on_device(variant, tmp_path, rfilter):
     """A window, or a batch of windows (one launch), equals the same pixels of the full frame
@@ -116,6 +118,7 @@ def test_windows_and_batches_equal_full_frame_on_device(variant, tmp_path, rfilt
         assert b.dtype == np.float64 and np.array_equal(b, full[y0:y0 + h, x0:x0 + w])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("rfilter", [f for f in RFILTERS if f != "box"])
 def test_filter_strips_at_film_edges_and_row_ends(variant, tmp_path, monkeypatch, rfilter):
     """The non-box gather computes film.STRIP pixels of a row a lane (film._filter_gather):
@@ -165,6 +168,7 @@ def test_split_launches_weight_tables_and_device_counters(variant, tmp_path, mon
     assert integ.stats == host_stats
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("rfilter", ["box", "gaussian"])
 def test_new_window_and_batch_sizes_compile_nothing(variant, tmp_path, rfilter):
     """Every kernel of a frame with new window sizes, origins, batch sizes and spp is one that

@@ -63,6 +63,7 @@ def test_weights_radius_border_are_mitsubas(variant):
             np.testing.assert_allclose(ours.eval(x), np.array(mf.eval(mi.Float(x))), rtol=0, atol=tol)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", list(RFILTERS))
 def test_per_filter_within_2x_of_direct(variant, tmp_path, name):
     from links1_app.renderers import make_renderer
@@ -81,6 +82,7 @@ def test_per_filter_within_2x_of_direct(variant, tmp_path, name):
         assert relmse(box, ref) > 2 * theirs
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["gaussian", "lanczos"])
 def test_windows_and_batches_equal_full_frame(tmp_path, name, renderer_kind):
     """One window, or a batch of windows in one launch (render_batch), equals the same pixels of

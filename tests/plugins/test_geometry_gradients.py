@@ -140,6 +140,7 @@ def param_fd(scene, key, make, th0, weights, h=1e-2):
     return (sums[0] - sums[1]) / (2 * h)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", [0, 1, 2, "scale"])
 def test_quadric_transform_reverse_equals_finite_difference(variant, tmp_path, kind):
     """A sphere's translation along each axis and its uniform scale: the reverse-mode gradient
@@ -191,6 +192,7 @@ def test_moving_mirror_reverse_equals_finite_difference(variant, tmp_path, kind)
     assert abs(fd) > 0.3, fd
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("key", ["clip_0_offset", "to_world"])
 def test_capped_cylinder_reverse_equals_finite_difference(variant, tmp_path, key):
     """A capped cylinder cut by two planes: moving its top cap (``clip_0_offset``, the cap's
@@ -255,6 +257,7 @@ def test_closed_form_sphere_radius_head_on(variant, tmp_path):
     assert np.max(expect[inside]) > 1.0
 
 
+@pytest.mark.slow
 def test_forward_equals_reverse_geometry(variant, tmp_path):
     """Dot-product test ``u·(J v) = (Jᵀ u)·v`` over a quadric's translation, a clip offset, a
     light's position and a colour at once, through the whole ray tree (depth 3)."""
@@ -361,6 +364,7 @@ def flat_fd(scene, key, comp, weights, h):
     return (sums[0] - sums[1]) / (2 * h)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("key", ["centers", "weights", "radii", "threshold"])
 def test_blob_reverse_equals_finite_difference(variant, tmp_path, key):
     """A 6-centre blob's centres, weights, ranges S and threshold T: the hit moves by

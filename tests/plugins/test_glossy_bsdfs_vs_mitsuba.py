@@ -112,6 +112,7 @@ def _float32_sensitivity(fn, viewer, light, floor=1e-3):
     return out
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case", list(CASES))
 def test_eval_pdf_sample_match_mitsuba(case, variant):
     """f·cos, the density and BSDF samples (same sample values) equal Mitsuba's to float32
@@ -213,6 +214,7 @@ SCENE = scene(perspective("0, 2.5, 6", "0, 0.5, 0", fov=40, width=40, height=32,
     {right}</shape>""")
 
 
+@pytest.mark.slow
 def test_point_light_render_matches_direct(variant):
     """Under a point light the glossy BSDFs are evaluated exactly: the core at max_depth 1 equals
     Mitsuba's ``direct`` with ``bsdf_samples`` 0 (the same light paths) to the noise of pixel

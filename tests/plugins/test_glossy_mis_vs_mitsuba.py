@@ -79,6 +79,7 @@ def direct_reference(references, variant, path):
     return references[(variant, path)]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("renderer", ["mitsuba", "core"])
 @pytest.mark.parametrize("bsdf,light", CASES)
 def test_converges_as_fast_as_mitsuba_direct(bsdf, light, renderer, variant, scene_dir, references):
@@ -99,6 +100,7 @@ def test_converges_as_fast_as_mitsuba_direct(bsdf, light, renderer, variant, sce
 _NO_DPDU = not hasattr(__import__("links1.geometry.shapes", fromlist=["Shape"]).Shape, "tangents")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("bsdf,light", [
     pytest.param(b, k, marks=[pytest.mark.xfail(_NO_DPDU and b == "roughplastic",
                                                 reason="the core's shapes give no dp/du")])
@@ -129,6 +131,7 @@ def test_bsdf_samples_only_where_a_glossy_bsdf_meets_a_sampled_light(bsdf, light
     assert r.integrator._prep.any_mis is expected
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("light", ["constant", "envmap"])
 def test_mask_matches_whitted_reference(light, variant, scene_dir):
     """A mask around a diffuse BSDF under an environment: its nested lobe takes BSDF samples

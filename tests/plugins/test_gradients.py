@@ -120,6 +120,7 @@ def central_difference(scene, key, comp, h):
     return fd
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("key", SHADING_KEYS)
 def test_reverse_equals_finite_difference_shading(variant, key):
     scene = load(SHADING)
@@ -131,6 +132,7 @@ def test_reverse_equals_finite_difference_shading(variant, key):
     assert np.any(np.abs(g) > 0.05), f"{key}: no gradient at all ({g})"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("key", MOVE_KEYS)
 def test_reverse_equals_finite_difference_light_position(variant, key):
     scene = load(LIGHTS_MOVE, depth=1)
@@ -141,6 +143,7 @@ def test_reverse_equals_finite_difference_light_position(variant, key):
     assert np.max(np.abs(g)) > 1.0
 
 
+@pytest.mark.slow
 def test_forward_equals_reverse(variant):
     """Dot-product test over several families at once, with a Gaussian film (the film's
     neighbour loop differentiated too): u·(J v) from render_forward equals (Jᵀ u)·v from
@@ -185,6 +188,7 @@ PLANE = scenes.whitted(1) + scenes.perspective("0, 4, 0", "0, 0, 0", fov=30, wid
 """
 
 
+@pytest.mark.slow
 def test_closed_form_diffuse_plane_point_light(variant):
     """The centre pixel of an odd film looks straight down at the origin of the plane y = 0:
     ``L = ρ/π · I y / r³`` (r = |p|, p the light's position), so dL/dρ = I y/(π r³),
@@ -211,6 +215,7 @@ def test_closed_form_diffuse_plane_point_light(variant):
     assert dr.grad_enabled(mi.traverse(scene)["light.position"]) is False
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("keep_graph", [False, True])
 def test_primal_unchanged_with_gradients_enabled(variant, keep_graph):
     """The frame mi.render returns while parameters have gradients enabled is the frame without
@@ -241,6 +246,7 @@ def test_primal_unchanged_with_gradients_enabled(variant, keep_graph):
         assert np.array_equal(plain, with_grad)
 
 
+@pytest.mark.slow
 def test_params_update_shows_in_next_frame(variant):
     """Changing links1_phong, links1_point and links1_spot parameters through mi.traverse gives
     the frame of the scene loaded with those values, bit for bit."""
@@ -279,6 +285,7 @@ def test_out_of_range_update_is_refused(variant):
         params.update()
 
 
+@pytest.mark.slow
 def test_update_of_one_colour_channel_is_seen(variant):
     """A change of the green channel alone of Mitsuba's diffuse reflectance after a frame makes
     the next frame anew (the scene digest read colours through ``.matrix``, a Dr.Jit swizzle
@@ -305,6 +312,7 @@ QUADRIC = """
 """
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("key", ["links1_whitted.bubble.bsdf.transmittance.value",
                                  "links1_whitted.bubble.bsdf.reflectance.value",
                                  "links1_whitted.bubble.bsdf.diffuse.value", "floor.bsdf.diffuse.value"])

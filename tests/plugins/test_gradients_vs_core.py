@@ -100,6 +100,7 @@ def test_quadric_translation_matches_the_cores_finite_difference(variant, scene_
     assert_same_vector(g, ref)
 
 
+@pytest.mark.slow
 def test_light_position_matches_the_cores_finite_difference(variant, scene_file):
     """d(loss)/d(position) of a ``links1_point`` light (eq. 3.10 with inverse-square falloff):
     the plugin's reverse mode against the core's frames with the file's light moved."""
@@ -132,6 +133,7 @@ BLOB_SCENE = _defaults(BLOB_DEFAULTS) + CAMERA.format(depth=3) + _with(
     ('<float name="threshold" value="0.5"/>', '<float name="threshold" value="$T"/>'))
 
 
+@pytest.mark.slow
 def test_blob_centre_and_threshold_match_the_cores_finite_difference(variant, tmp_path):
     """d(loss)/d(first centre, threshold) of a ``links1_blob``: the plugin's implicit
     differentiation of W(x) = T against the core's frames (its own field and root finder) with

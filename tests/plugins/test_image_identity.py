@@ -79,6 +79,7 @@ def test_digests_cover_every_scene():
     assert not missing, f"no digest for {missing}: write them with python -m tests.plugins.test_image_identity"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("scene", SCENES)
 def test_core_images_unchanged(scene):
     stored = _stored()["images"]
@@ -86,6 +87,7 @@ def test_core_images_unchanged(scene):
         assert digest(img) == stored[name], f"{name} differs from the image rendered at {_stored()['commit']}"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("scene", SCENES)
 def test_plugin_images_unchanged(scene, llvm):
     """LLVM only: the digests were made by the LLVM backend (a CUDA image differs by float32

@@ -53,6 +53,7 @@ def scenes(tmp_path):
     return str(a), str(b)
 
 
+@pytest.mark.slow
 def test_instances_are_the_shapes_written_out(scenes, renderer_kind):
     kind = renderer_kind
     inst, flat = scenes
@@ -66,6 +67,7 @@ def test_instances_are_the_shapes_written_out(scenes, renderer_kind):
         assert red[:, half].sum() > 10 and blue[:, half].sum() > 5
 
 
+@pytest.mark.slow
 @pytest.mark.mitsuba
 def test_instancing_matches_mitsuba_direct(scenes, kind_with_mitsuba):
     kind = kind_with_mitsuba

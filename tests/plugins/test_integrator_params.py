@@ -35,6 +35,7 @@ def files(tmp_path):
     return str(a), str(b)
 
 
+@pytest.mark.slow
 def test_the_files_parameters_are_the_defaults(files, renderer_kind):
     kind = renderer_kind
     with_, without = files
@@ -49,6 +50,7 @@ def test_the_files_parameters_are_the_defaults(files, renderer_kind):
     assert np.array_equal(make_renderer(kind, with_, spp=2, light_samples=1, min_weight=1 / 255).render(), default)
 
 
+@pytest.mark.slow
 @pytest.mark.mitsuba
 def test_mi_render_uses_them_too(variant, files):
     import mitsuba as mi
@@ -60,6 +62,7 @@ def test_mi_render_uses_them_too(variant, files):
     np.testing.assert_allclose(img, ref[..., :3], rtol=1e-6, atol=1e-7)
 
 
+@pytest.mark.slow
 def test_min_weight_zero_reaches_worker_processes(files, tmp_path):
     _, without = files
     one, two = tmp_path / "one.exr", tmp_path / "two.exr"

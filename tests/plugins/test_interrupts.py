@@ -14,6 +14,7 @@ from .conftest import SCENES
 pytestmark = pytest.mark.mitsuba
 
 
+@pytest.mark.slow
 def test_ctrl_c_stops_a_plugin_render(tmp_path, llvm):
     """20 seeded Ctrl-Cs at random moments of ``links1 render`` with the plugin: one line, status
     130, no file, no process left. LLVM only: the stop between launches is the same code on
@@ -46,6 +47,7 @@ def _caused_by_interrupt(e) -> bool:
     return False
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("integrator", ["links1_whitted", "direct"])
 def test_mi_render_raises_keyboard_interrupt(integrator, llvm):
     """SIGINT in the middle of ``mi.render``: a KeyboardInterrupt, with ``links1_whitted`` as

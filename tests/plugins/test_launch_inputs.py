@@ -22,6 +22,7 @@ def _variables(obj):
     return out
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not os.path.exists(GLASS), reason="scenes/mitsuba_glass.xml missing")
 def test_launches_take_the_scene_once_each_and_without_its_sensors(variant):
     from links1_mitsuba import MitsubaRenderer

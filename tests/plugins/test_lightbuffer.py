@@ -135,6 +135,7 @@ def _query(P, lb, p, d, smax):
     return np.asarray(a), np.asarray(b)          # (3, n) each
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("transparent", [False, True])
 def test_light_buffer_query_matches_bvh(variant, transparent):
     from links1_mitsuba import lightbuffer
@@ -166,6 +167,7 @@ def test_light_buffer_query_matches_bvh(variant, transparent):
         assert np.array_equal(a, b)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("transparent", [False, True])
 def test_light_buffer_images_match(variant, transparent):
     from links1_mitsuba import tuning
@@ -262,6 +264,7 @@ def test_bounding_spheres_hold_the_quadrics(variant):
         assert np.all(np.linalg.norm(pts - c[k], axis=1) <= r[k] * (1 + 1e-9)), k
 
 
+@pytest.mark.slow
 def test_eye_buffer_nearest_matches_bvh(variant):
     """The camera's eye buffer (lightbuffer.plan_eye) finds the BVH walk's nearest quadric hit
     bit for bit (t, row, part, found): rays from the eye in random directions, toward every
@@ -314,6 +317,7 @@ def test_eye_buffer_nearest_matches_bvh(variant):
         assert np.array_equal(integ2.render_window(scene2, spp=1), img)
 
 
+@pytest.mark.slow
 def test_sampled_mean_list_estimates_the_built_buffer(variant):
     """The pre-build estimate that skips hopeless buffers (plan, plan_eye) is within 15 % of
     the mean list length of the buffer built for the same point."""

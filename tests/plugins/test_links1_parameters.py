@@ -21,6 +21,7 @@ pytestmark = [pytest.mark.mitsuba, pytest.mark.usefixtures("llvm")]
 BY_TYPO = {t[3]: t for t in TYPOS}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("typo", ["difuse", "solvr", "max_dpeth"])
 def test_both_renderers_print_the_same_line(tmp_path, typo):
     element, tag, good, _, line, hint = BY_TYPO[typo]

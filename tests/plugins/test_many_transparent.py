@@ -41,6 +41,7 @@ def test_core():
     np.testing.assert_allclose(img, EXPECTED, rtol=1e-9)
 
 
+@pytest.mark.slow
 @pytest.mark.mitsuba
 def test_plugin(variant):
     from links1_mitsuba import load_string

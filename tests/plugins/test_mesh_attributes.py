@@ -84,6 +84,7 @@ def test_core_mesh_attribute_values(scene):
         np.testing.assert_allclose(rgb[py, px], expected_albedo(px, py, attr), atol=1e-9, err_msg=str((px, py)))
 
 
+@pytest.mark.slow
 @pytest.mark.mitsuba
 def test_mesh_attribute_matches_mitsuba_direct(scene, kind_with_mitsuba):
     kind = kind_with_mitsuba

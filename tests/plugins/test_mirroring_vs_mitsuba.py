@@ -44,6 +44,7 @@ CASES = {
 }
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case", CASES)
 def test_core_vs_mitsuba_direct(case, tmp_path, llvm):
     """LLVM only: a test of the core, whose reference is Mitsuba's ``direct``."""

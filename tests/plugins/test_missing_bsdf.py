@@ -65,6 +65,7 @@ def _rel_mse(a, b):
     return float(np.sum((a - b) ** 2) / max(np.sum(b ** 2), 1e-30))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("n_quadrics", [3, 12], ids=["unrolled", "bvh"])
 def test_shapes_without_bsdf_render_as_default_diffuse(variant, tmp_path, n_quadrics):
     from links1_mitsuba import tuning

@@ -75,6 +75,7 @@ def _check_against_direct(scene, sensor, ours, what):
     assert err <= 2 * theirs, f"{what}: relMSE {err:.3g} vs Mitsuba direct's own {theirs:.3g}"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("how", ["index", "object"])
 @pytest.mark.parametrize("k", [0, 1])
 def test_mi_render_renders_the_chosen_sensor(variant, path, k, how):
@@ -90,6 +91,7 @@ def test_mi_render_renders_the_chosen_sensor(variant, path, k, how):
     _check_against_direct(scene, k, ours, f"sensor {k} by {how}")
 
 
+@pytest.mark.slow
 def test_sensor_order_does_not_matter(variant, path):
     """Sensor 1 after sensor 0 on one scene gives the image sensor 1 gives first on a fresh
     scene: the first sensor's recorded camera is never replayed for the second."""
@@ -105,6 +107,7 @@ def test_sensor_order_does_not_matter(variant, path):
     assert np.array_equal(first0, again0)
 
 
+@pytest.mark.slow
 def test_sensor_made_apart(variant, path):
     """A sensor from ``mi.load_dict`` passed to ``mi.render``: its film (36x20, tent) and camera;
     moved afterwards (``params.update()``), the next render follows it."""
@@ -125,6 +128,7 @@ def test_sensor_made_apart(variant, path):
     _check_against_direct(scene, sensor, moved, "sensor made apart, moved")
 
 
+@pytest.mark.slow
 def test_renderers_take_a_sensor_index(path, kind_with_mitsuba):
     """``make_renderer(kind, path, sensor=1)`` (``links1 render --sensor 1``): sensor 1's whole
     40x40 film, its Gaussian filter and camera, against Mitsuba's ``direct`` on that sensor."""
@@ -133,6 +137,7 @@ def test_renderers_take_a_sensor_index(path, kind_with_mitsuba):
     assert ours.shape == (40, 40, 3)
 
 
+@pytest.mark.slow
 def test_core_render_takes_a_sensor(llvm, path):
     """The core's ``links1.render(scene, sensor=1)``: the film's crop window (30x24) from
     sensor 1, as ``mi.render`` gives it; sensor 1's sample count (16) when none is given.
@@ -148,6 +153,7 @@ def test_core_render_takes_a_sensor(llvm, path):
     _check_against_direct(links1_mitsuba.load_file(path), 1, ours, "core sensor 1")
 
 
+@pytest.mark.slow
 def test_cli_sensor(path, tmp_path, kind_with_mitsuba, capsys):
     """``links1 render --sensor 1`` writes sensor 1's film; ``--sensor 5`` is one line naming
     the scene file and its two sensors, exit status 2, no output file."""
@@ -184,6 +190,7 @@ def test_core_sensor_equals_a_file_with_that_sensor_alone(tmp_path, path):
     assert r.film_size == (40, 40) and r.spp == 2
 
 
+@pytest.mark.slow
 def test_moving_a_scene_sensor_is_seen(variant, path):
     """``params['top.to_world'] = ...; params.update()`` after a render of sensor 1: the next
     render is from the moved camera (the tables' digest covers every sensor of the scene)."""
@@ -200,6 +207,7 @@ def test_moving_a_scene_sensor_is_seen(variant, path):
     _check_against_direct(scene, 1, after, "sensor 1 moved")
 
 
+@pytest.mark.slow
 def test_workers_render_the_chosen_sensor(path, tmp_path, kind_with_mitsuba):
     """``--sensor 1 --workers 2``: the worker processes render sensor 1 too (the same bits as
     in-process)."""

@@ -78,6 +78,7 @@ def _rel(a, b, floor=1e-3):
     return err.max(axis=1) if err.ndim > 1 else err
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("shape,wrap,nested", CASES)
 def test_eval_pdf_sample_at_mitsubas_hits(maps, shape, wrap, nested, variant):
     """At the hits of the same rays: f·cos and the density equal Mitsuba's to float32 rounding
@@ -173,6 +174,7 @@ def _render(kind, path, spp):
     return img
 
 
+@pytest.mark.slow
 def test_point_light_render_matches_direct_and_the_plugin(maps, tmp_path, variant):
     """A floor under a normal map around roughplastic, a bump-mapped diffuse sphere and a
     pplastic sphere under a point light (delta light: evaluated exactly): each renderer within

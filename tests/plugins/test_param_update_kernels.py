@@ -108,6 +108,7 @@ def derivative_pass(scene, params, keys):
     return g
 
 
+@pytest.mark.slow
 def test_new_blob_and_quadric_values_replay_the_same_kernels(variant):
     import drjit as dr
     import mitsuba as mi
@@ -215,6 +216,7 @@ def test_ray_tree_counts_changing_with_geometry_replay_the_same_kernels(variant,
     assert now <= seen, f"{len(now - seen)} derivative-pass kernels with new code after the counts changed"
 
 
+@pytest.mark.slow
 def test_blob_reverse_pass_kernels_do_not_grow_with_its_parameters(variant):
     """Reverse mode through the blob (geometry.py ``_blob_terms``): its centres and weights are
     gathered at every lane, so their derivatives are scatter-adds that share the pass's
@@ -254,6 +256,7 @@ def test_blob_reverse_pass_kernels_do_not_grow_with_its_parameters(variant):
     assert n_cw - n_w < 24, (n_w, n_cw)
 
 
+@pytest.mark.slow
 def test_phong_value_update_rebuilds_only_the_material_rows(variant):
     """``params.update()`` of ``links1_phong`` coefficients updates the
     material rows of the prepared tables in place: no scene build (``n_scene_builds``), one
@@ -361,6 +364,7 @@ def light_scene_xml(pos, spot_to_world, intensity):
     return xml.replace(cam, cam + cam.replace('origin="0,7,10"', 'origin="6,5,6"'))
 
 
+@pytest.mark.slow
 def test_light_update_replans_only_the_shadow_tables(variant):
     """``params.update()`` of an analytic light's own values updates the
     prepared tables in place (``Tables._update_values``): the light's entry and the tables
@@ -422,6 +426,7 @@ def test_light_update_replans_only_the_shadow_tables(variant):
 
 
 
+@pytest.mark.slow
 def test_shape_update_remakes_only_the_shapes_tables(variant):
     """``params.update()`` of a links1 shape's geometry updates the prepared tables in place: the BVH is built again over the same
     quadrics, the shapes' own tables, the light tables (their occluders' bounds) and each

@@ -36,6 +36,7 @@ def _params(path):
     return {"res": 48} if "$res" in open(path).read() else {}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", sorted(os.path.basename(p) for p in glob.glob(os.path.join(SCENES, "*.xml"))))
 def test_mi_load_file_equals_the_loader(name):
     """Every committed scene: ``mi.load_file`` + ``links1_whitted`` (the file's own when it names
@@ -82,6 +83,7 @@ def _rel_mse(a, b):
     return float(np.sum((a - b) ** 2) / np.sum(b ** 2))
 
 
+@pytest.mark.slow
 def test_shapes_without_ids_keep_their_own_materials():
     """The room without ids: ``mi.load_string`` + ``links1_whitted`` equals the loader's image bit
     for bit and Mitsuba's ``direct`` (bsdf_samples 0, 256 spp) to its noise; the red wall is
@@ -116,6 +118,7 @@ QUADRIC_XML = scene(perspective("0, 1, 5", "0, 0.5, 0", fov=40, width=32, height
   <emitter type="links1_point"><point name="position" x="1" y="3" z="2"/><rgb name="L1" value="6"/></emitter>""")
 
 
+@pytest.mark.slow
 def test_links1_shapes_from_mi_load_string_and_load_dict():
     """``links1_quadric`` and ``links1_blob`` in a file Mitsuba parses alone (proxies), and the same
     scene as a dict: both equal the loader's image bit for bit, and the shapes are there (the
@@ -154,6 +157,7 @@ def test_links1_shapes_from_mi_load_string_and_load_dict():
     assert np.array_equal(seen, floor)
 
 
+@pytest.mark.slow
 def test_one_integrator_for_several_plain_scenes():
     """One ``links1_whitted`` object rendering two plain scenes in turn gives each its own image
     (its links1 shapes and slots are the scene's, made again for another scene)."""
@@ -192,6 +196,7 @@ INSTANCES = scene(perspective("0, 2.2, 4.5", "0, 0.4, 0", fov=45, width=40, heig
   <emitter type="point"><point name="position" x="1" y="3" z="2"/><rgb name="intensity" value="10"/></emitter>""")
 
 
+@pytest.mark.slow
 def test_instances_from_mi_load_string():
     """Mitsuba's instances in a plain load: a hit names the shapegroup's member, which has a
     slot (and BSDF) of its own. The image equals the loader's (which flattens the instances
@@ -211,6 +216,7 @@ def test_instances_from_mi_load_string():
     assert got.max() > 0.05
 
 
+@pytest.mark.slow
 def test_sdfgrid_in_a_rotating_instance(tmp_path):
     """An ``sdfgrid`` cannot take a rotating ``to_world`` (Mitsuba: "use instancing"): the loader
     keeps its instance (where it flattens other groups) and the plugin shades the member's
@@ -243,6 +249,7 @@ def test_sdfgrid_in_a_rotating_instance(tmp_path):
         assert np.abs(img[green] - ref[green]).mean() < 0.02
 
 
+@pytest.mark.slow
 def test_ellipsoids_from_mi_load_dict():
     """Mitsuba's ``ellipsoids`` shape (its own intersection) in a dict scene: links1_whitted at
     max_depth 1 equals Mitsuba's ``direct`` (bsdf_samples 0) to its noise at 256 spp, and the

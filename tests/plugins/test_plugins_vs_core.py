@@ -25,6 +25,7 @@ def _core():
     return load_scene, render
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not SCENE_FILES, reason="no scenes/*.xml")
 @pytest.mark.parametrize("path", SCENE_FILES, ids=[os.path.basename(p) for p in SCENE_FILES])
 def test_plugin_matches_core(variant, path):

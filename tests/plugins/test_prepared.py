@@ -28,6 +28,7 @@ def test_prepared_refuses_an_undeclared_attribute():
     assert P.geo_ad is None and P.base is None and P.shadow_split is None
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["fig11", "mitsuba_glass", "lights"])
 def test_a_prepared_view_sets_every_field(variant, name):
     from links1_mitsuba import MitsubaRenderer

@@ -57,6 +57,7 @@ def test_eval_pdf_sample_match_mitsuba(case, variant):
     check_against_mitsuba(CASES[case], seed=3)
 
 
+@pytest.mark.slow
 def test_point_light_render_matches_direct(variant):
     """Under a point light the principled BSDF is evaluated exactly: the core at max_depth 1
     equals Mitsuba's ``direct`` with ``bsdf_samples`` 0 (the same light paths) to the noise of
@@ -65,6 +66,7 @@ def test_point_light_render_matches_direct(variant):
     check_point_light_render(variant, floor=CASES["textured"], right=CASES["glass"], left=CASES["every_lobe"])
 
 
+@pytest.mark.slow
 def test_thin_point_light_render_matches_direct(variant):
     """``principledthin`` likewise: a floor lit from above, spheres seen by the light through their
     diffuse and glossy transmission (thin sheets alike from both sides)."""

@@ -56,6 +56,7 @@ def _render(kind, path, spp):
         return np.asarray(make_renderer(kind, path, spp=spp, max_depth=1).render(), dtype=np.float64)[..., :3]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", ["core", "mitsuba"])
 def test_projector_lights_its_frustum_with_its_image(scene, kind):
     """At the pixel centres (spp 1): the lit patch is the frustum's, and on a floor facing the
@@ -97,6 +98,7 @@ def _cells_clear_of_edges(margin=0.1):
     return clear(c, half_w * 3.0 / 5.0, 3)[:, None] & clear(c, half_w, 5)[None, :]
 
 
+@pytest.mark.slow
 def test_projector_matches_mitsuba_direct_and_the_core(scene):
     """Against Mitsuba's ``direct`` (bsdf_samples 0): exact where a pixel sees one cell of the
     image (a delta light on a flat floor: no noise there); over the whole image (the pixels

@@ -38,6 +38,7 @@ def scenes(tmp_path):
     return str(a), str(b)
 
 
+@pytest.mark.slow
 def test_projector_matches_mitsuba_direct(scenes, kind_with_mitsuba):
     kind = kind_with_mitsuba
     projector, plain = scenes

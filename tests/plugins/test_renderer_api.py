@@ -61,6 +61,7 @@ def _check_windows_without_recompiling(variant="llvm_ad_rgb"):
     assert again <= built and r.integrator._freeze.n_recordings == recordings
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not os.path.exists(FIG11), reason="scenes/fig11.xml missing")
 def test_windows_equal_full_frame_without_recompiling(variant):
     """New crop windows reuse the kernels already built in a process (checked in a fresh
@@ -73,6 +74,7 @@ def test_windows_equal_full_frame_without_recompiling(variant):
     assert "windows ok" in proc.stdout
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not os.path.exists(FIG11), reason="scenes/fig11.xml missing")
 def test_shapes_info_and_register_idempotent(variant):
     import links1_mitsuba
@@ -103,6 +105,7 @@ def test_integrator_checks_aovs_with_the_core_table(variant):
             '<integer name="max_depth" value="3"/>', '<string name="aovs" value="depth,albedo"/>'))
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not os.path.exists(FIG11), reason="scenes/fig11.xml missing")
 def test_width_height_override_matches_core(variant):
     from links1_app.renderers import make_renderer
@@ -116,6 +119,7 @@ def test_width_height_override_matches_core(variant):
     assert np.array_equal(plug.render((3, 4, 10, 9)), a[4:13, 3:13])
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not os.path.exists(FIG11), reason="scenes/fig11.xml missing")
 @pytest.mark.parametrize("min_weight", [0.0, 0.05])
 def test_min_weight_matches_core(variant, min_weight):
@@ -137,6 +141,7 @@ ONE_SPHERE = scene(whitted(3), perspective("0,0,5", "0,0,0", fov=40, width=16, s
   <shape type="sphere"><bsdf type="diffuse"/></shape>""")
 
 
+@pytest.mark.slow
 def test_ray_counters_and_skips(variant):
     """Rays by kind are counted; a lone convex shape casts no shadow rays, a scene without
     mirrors or glass spawns no secondary rays."""
@@ -161,6 +166,7 @@ if __name__ == "__main__":
     print("windows ok")
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not os.path.exists(FIG11), reason="scenes/fig11.xml missing")
 def test_launches_split_by_lanes_give_the_same_bits(variant, monkeypatch):
     """A render of more than LAUNCH_LANES samples is split into launches (one launch of

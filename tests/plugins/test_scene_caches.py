@@ -36,6 +36,7 @@ def _move_ball(mi, params):
     params["ball.to_world"] = mi.ScalarTransform4f().translate([1.0, 1.0, 0.0]).scale(0.6)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("change, fresh", [(_move_lamp, {"lx": 2.0}), (_move_ball, {"bx": 1.0})],
                          ids=["light moved", "occluder moved"])
 def test_params_update_after_a_render(variant, change, fresh):
@@ -51,6 +52,7 @@ def test_params_update_after_a_render(variant, change, fresh):
     np.testing.assert_allclose(after, expected, rtol=1e-5, atol=1e-6)
 
 
+@pytest.mark.slow
 def test_another_scene_through_the_same_integrator(variant):
     a, b = _scene(variant), _scene(variant, lx=-2.0)
     integ = a.integrator()
@@ -124,6 +126,7 @@ def _fresh_render(scene, sensor=0):
                               spp=1))
 
 
+@pytest.mark.slow
 def test_unchanged_scene_prepares_nothing(variant):
     """Frames of an unchanged scene (``mi.render``, ``render_window``, reading ``mi.traverse``'s
     values, an ``update()`` that changes nothing) build the tables once; each frame records
@@ -148,6 +151,7 @@ def test_unchanged_scene_prepares_nothing(variant):
     assert integ._freeze.n_recordings <= 2
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("change", CHANGES, ids=[c.__name__.strip("_") for c in CHANGES])
 def test_each_params_update_prepares_again(variant, change):
     """After a render, one ``params.update()`` of each kind (camera, BSDF, light, a mesh's
@@ -177,6 +181,7 @@ def test_each_params_update_prepares_again(variant, change):
     assert integ._freeze.n_recordings <= 2
 
 
+@pytest.mark.slow
 def test_sensor_made_apart_is_watched(variant):
     """A sensor from ``mi.load_dict`` gets one camera view while unchanged, and a new one after
     its ``params.update()`` (the scene's tables are kept)."""
@@ -373,6 +378,7 @@ PHONG_BALL = """<scene version="3.0.0">
 </scene>"""
 
 
+@pytest.mark.slow
 def test_a_scene_dropped_after_gradients_is_freed_and_another_records(variant):
     """An inverse-rendering loop on one scene (its parameters changed and updated each
     iteration: the tables' watch sees which, ``ParamWatch.renewed``), then the scene dropped

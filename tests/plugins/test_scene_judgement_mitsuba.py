@@ -17,6 +17,7 @@ from .conftest import cli_variant
 pytestmark = [pytest.mark.mitsuba, pytest.mark.usefixtures("variant")]
 
 
+@pytest.mark.slow
 def test_unused_define_same_line_in_both_renderers(tmp_path):
     path = scene(tmp_path)
     lines = {}
@@ -39,6 +40,7 @@ def test_plugin_api_names_the_file_for_unused_parameters(tmp_path):
     assert links1_mitsuba.load_file(str(path), spp=2) is not None   # a parameter it takes: fine
 
 
+@pytest.mark.slow
 def test_misspelt_parameter_same_decision_in_both_renderers(tmp_path):
     path = scene(tmp_path, reflectance="reflectnce")
     lines = {}
@@ -54,6 +56,7 @@ def test_misspelt_parameter_same_decision_in_both_renderers(tmp_path):
         links1_mitsuba.load_file(str(path))
 
 
+@pytest.mark.slow
 def test_integrator_links1_replaces_is_not_instantiated(tmp_path):
     """``<integrator type="mat">`` (a Bitterli scene): links1_whitted replaces it; with
     ``--integrator scene`` Mitsuba needs it, and refuses it in one line."""
@@ -65,6 +68,7 @@ def test_integrator_links1_replaces_is_not_instantiated(tmp_path):
     assert not (tmp_path / "s.exr").exists()
 
 
+@pytest.mark.slow
 def test_plugin_warnings_name_place_once_per_element(tmp_path):
     path = scene(tmp_path, text=WARN_SCENE)
     rc, err = render(path, tmp_path / "o.exr", *cli_variant("mitsuba"), renderer="mitsuba")

@@ -88,6 +88,7 @@ def _mitsuba_hits(shape_dict, o, d):
             np.array(si.prim_index, dtype=np.int64))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("normals", ["smooth", "analytic"])
 def test_sdfgrid_hits_match_mitsuba(files, llvm, normals):
     """The core's sdfgrid hits, distances and normals against Mitsuba's ``ray_intersect``.
@@ -110,6 +111,7 @@ def test_sdfgrid_hits_match_mitsuba(files, llvm, normals):
         assert np.max(np.abs(ns - ng)) > 1e-2
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("plugin", ["linearcurve", "bsplinecurve"])
 def test_curve_hits_match_mitsuba(files, llvm, plugin):
     """The core's curve hits, distances, normals, uv and segments against Mitsuba's
@@ -152,6 +154,7 @@ SCENE = scene(integrator("direct", bsdf_samples=0),
     <bsdf type="diffuse"><rgb name="reflectance" value="0.8, 0.7, 0.2"/></bsdf></shape>""")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("normals", ["smooth", "analytic"])
 def test_render_matches_mitsuba_direct_and_plugin(files, llvm, normals):
     """A point-lit floor under the SDF grid and the curves (shadows of all on the floor, of

@@ -44,6 +44,7 @@ def scene(request, tmp_path):
     return str(p), request.param
 
 
+@pytest.mark.slow
 def test_orthographic_scene_matches_mitsuba_direct(scene, kind_with_mitsuba):
     kind = kind_with_mitsuba
     path, cx = scene

@@ -182,6 +182,7 @@ def test_split_transmittance_is_the_product_over_the_shapes_met(variant_name, sp
     assert shadow_plan.SPLIT_MAX >= len(SPHERES)
 
 
+@pytest.mark.slow
 def test_split_image_matches_the_walk_and_the_core(llvm):
     """The images with and without the split agree but for a few pixels, where the split is
     the one nearer the core's float64 render.

@@ -56,6 +56,7 @@ def assert_core_converges_to_direct(path: str) -> None:
     assert rel_mse(core, ref) <= 2.0 * rel_mse(m64, ref), (rel_mse(core, ref), rel_mse(m64, ref))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case", CASES)
 def test_core_vs_mitsuba_direct(case, tmp_path, llvm):
     """LLVM only: a test of the core, whose reference is Mitsuba's ``direct``."""

@@ -147,6 +147,7 @@ def mitsuba(xml, variant, method, spp):
     return np.array(mi.render(sc, spp=spp), dtype=np.float64)[..., :3]
 
 
+@pytest.mark.slow
 def test_texture_values_match_mitsuba(files, variant):
     """Bitmap (each filter, wrap mode, raw flag; PNG, JPEG, 8/16-bit grey PNG, EXR) and
     checkerboard values at random uv, through ``to_uv``, against Mitsuba's texture plugins."""
@@ -263,6 +264,7 @@ def test_shape_uv_matches_mitsuba(files, variant, kind):
     assert np.max(diff) < 1e-4, kind
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("count", [1, 12])
 def test_textured_links1_quadrics_plugin_matches_core(files, variant, count):
     """links1_quadric spheres and cylinders with textured Mitsuba BSDFs: the plugin gives them

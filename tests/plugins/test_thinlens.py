@@ -63,6 +63,7 @@ def _render(kind, path, spp, seed=0):
                           dtype=np.float64)[..., :3]
 
 
+@pytest.mark.slow
 def test_the_focus_plane_is_sharp(renderer_kind, tmp_path):
     """Focused on the plane, every lens ray of a film point meets the plane where the pinhole
     ray does: the image is the pinhole camera's, whatever the lens samples."""
@@ -92,6 +93,7 @@ def test_an_edge_out_of_focus_spreads_over_the_circle_of_confusion(renderer_kind
     assert step > 5 * rms   # the blur is resolved: a pinhole's step is far off
 
 
+@pytest.mark.slow
 def test_matches_mitsuba_direct_and_each_other(variant, tmp_path):
     """Both renderers against Mitsuba's ``direct`` through the same thin lens (out of focus,
     and a sphere nearer than the focus plane), and the core against the plugin at equal spp."""
@@ -103,6 +105,7 @@ def test_matches_mitsuba_direct_and_each_other(variant, tmp_path):
     assert_both_match_mitsuba_direct(path, 16, _render)
 
 
+@pytest.mark.slow
 def test_a_zero_aperture_is_the_pinhole(renderer_kind, tmp_path):
     """``aperture_radius`` 0 is float32's epsilon, as in Mitsuba: the pinhole camera's image."""
     kind = renderer_kind

@@ -34,6 +34,7 @@ def _frame(scene):
     return scene.integrator().render_window(scene, aovs=("cost",))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("field,value,scene_name", MEASURABLE, ids=[m[0] for m in MEASURABLE])
 def test_a_switch_changed_after_a_frame_is_used_by_the_next_frame(variant, field, value, scene_name):
     import links1_mitsuba
@@ -56,6 +57,7 @@ def test_a_switch_changed_after_a_frame_is_used_by_the_next_frame(variant, field
     assert np.array_equal(_frame(scene), first)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("field", FIELDS)
 def test_every_switch_is_part_of_the_launch_key_or_the_tables_identity(variant, field):
     """A switch read while tracing records the launches again (window and adaptive points)

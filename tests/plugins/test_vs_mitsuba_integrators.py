@@ -59,6 +59,7 @@ DIFFUSE = """
 """
 
 
+@pytest.mark.slow
 def test_delta_lights_diffuse_vs_direct(variant):
     """Direct light only: whitted (max_depth 1) vs Mitsuba direct, noise-free with delta lights."""
     a = whitted(DIFFUSE, variant, 1, spp=64)
@@ -68,6 +69,7 @@ def test_delta_lights_diffuse_vs_direct(variant):
     assert abs(a.mean() - b.mean()) / b.mean() < 5e-3
 
 
+@pytest.mark.slow
 def test_delta_lights_diffuse_vs_path_depth2(variant):
     a = whitted(DIFFUSE, variant, 1, spp=64)
     b = mitsuba(DIFFUSE, variant, "path", 2, spp=512)
@@ -87,6 +89,7 @@ MIRROR_GLASS = """
 """
 
 
+@pytest.mark.slow
 def test_mirror_glass_over_plane_vs_path(variant):
     """Whitted depth 3 vs path depth 4: the same eye-specular-diffuse-light paths. Path also
     carries plane -> glass reflection -> plane paths (a few % of the glass's Fresnel
@@ -97,6 +100,7 @@ def test_mirror_glass_over_plane_vs_path(variant):
     assert abs(a.mean() - b.mean()) / b.mean() < 3e-2
 
 
+@pytest.mark.slow
 def test_mirror_only_vs_path_exact_paths(variant):
     """Mirror sphere over a plane: whitted depth 2 vs path depth 3 (no other light paths)."""
     body = MIRROR_GLASS.replace('<bsdf type="dielectric"/>', '<bsdf type="conductor"/>')
@@ -119,6 +123,7 @@ PHONG = """
 """
 
 
+@pytest.mark.slow
 def test_path_with_links1_plugins_vs_whitted(variant):
     """Mitsuba's path uses links1_point and links1_phong as real plugins (validation d)."""
     a = whitted(PHONG, variant, 3, spp=64)

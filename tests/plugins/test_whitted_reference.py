@@ -65,6 +65,7 @@ def _agrees(mi, scene, theirs: dict, ours: dict):
     assert e_ours <= 1.5 * e_theirs, f"relMSE {e_ours:.3g} vs {theirs['type']}'s own {e_theirs:.3g}"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("light", ["point", "area", "constant"])
 def test_equals_direct_without_delta_lobes(mi, light):
     """Diffuse walls and a rough conductor and rough plastic (glossy: MIS matters) under a
@@ -84,6 +85,7 @@ def test_equals_direct_without_delta_lobes(mi, light):
     _agrees(mi, scene, {"type": "direct"}, {"type": "whitted_reference"})
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("light", ["point", "area", "constant"])
 def test_equals_path_through_a_mirror(mi, light):
     """The camera sees a mirror sphere and the black beyond it; diffuse walls behind the
@@ -102,6 +104,7 @@ def test_equals_path_through_a_mirror(mi, light):
             {"type": "whitted_reference", "max_depth": 3})
 
 
+@pytest.mark.slow
 def test_equals_path_through_glass(mi):
     """A glass sphere hides a small diffuse sphere from the camera, which sees it refracted
     (camera, glass in, glass out, diffuse, point light: ``max_depth`` 4); the diffuse sphere is
@@ -116,6 +119,7 @@ def test_equals_path_through_glass(mi):
             {"type": "whitted_reference", "max_depth": 4})
 
 
+@pytest.mark.slow
 def test_max_depth_one_sees_emitters_only(mi):
     """``max_depth`` 1 counts as Mitsuba's: emission seen directly, no lighting of surfaces."""
     objects = {"floor": {"type": "rectangle", "bsdf": {"type": "diffuse"}},

@@ -42,6 +42,7 @@ def _mitsuba_problem():
         return f"cannot probe the LLVM backend: {e}"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("renderer", ["core", pytest.param("mitsuba", marks=pytest.mark.mitsuba)])
 def test_fuzzed_scenes_keep_the_contract(renderer, tmp_path):
     if renderer == "mitsuba" and (why := _mitsuba_problem()):
@@ -91,6 +92,7 @@ def test_contract_check(rc, stderr, image_ok, broken):
     assert (why is None) if broken is None else (broken in why)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("command, expect", [
     ("import os, signal; os.kill(os.getpid(), signal.SIGSEGV)", "signal"),
     ("import time; time.sleep(60)", "hang"),

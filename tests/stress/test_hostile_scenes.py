@@ -70,6 +70,7 @@ def _one_error(rc, err, path, line, pattern):
     assert re.search(pattern, errors[0]), errors[0]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("renderer", _kinds(), indirect=True)
 def test_quadric_without_bsdf_beside_ones_with_one(renderer, tmp_path, capsys):
     """fig4.xml with the first quadric's <ref id="shell"/> removed (exit 139 before): it
@@ -205,6 +206,7 @@ def test_nesting_at_the_limit_is_read(tmp_path):
     np.testing.assert_allclose(scene.shapes[0].material.reflectance, 0.3)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("renderer", _kinds(), indirect=True)
 def test_partition_workers_print_one_error_line(renderer, tmp_path):
     """``--workers 2`` on bad scenes: one error line, not one per worker (subprocess: the

@@ -136,6 +136,7 @@ def _shifted_scene(shift, s):
     return scene_xml(body, eye, c, 40.0, near=1e-3 * s, far=1e5 * s)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", KINDS)
 @pytest.mark.parametrize("shift,s", [(1e5, 1.0), (0.0, 1e-4), (0.0, 1e4)])
 def test_translated_and_scaled_scene(tmp_path, kind, shift, s):
