@@ -117,7 +117,8 @@ def test_render_matches_mitsuba_direct_and_plugin(ply, llvm):
 def test_nested_shell_matches_mitsuba(ply, llvm):
     """An ``ellipsoidsmesh`` whose shell is a nested, turned and stretched ``cube`` (Mitsuba
     takes the nested mesh's placed vertices): the scene file loaded by the core and by Mitsuba
-    gives the same hits, at distances within float32 rounding. LLVM only, as above."""
+    gives the same hits, at distances within float32 rounding. LLVM only: a test of the core
+    against a reference Mitsuba computes once."""
     import mitsuba as mi
 
     from links1 import load_scene
