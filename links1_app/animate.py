@@ -32,6 +32,9 @@ from .partition.runtime import get_renderer
 from .partition.sequence import (PLAN_FROM, UNIT_CHOICES, frame_units_plan, imbalance, node_loads, rank_correlation,
                                  reproject, sequence_spec, shifted)
 
+#: whole-frame units: frames per run (a block) at most this many pixels, at least two per node
+BLOCK_PIXELS = 1 << 22
+
 ANIMATE_EXAMPLES = """examples:
   links1 animate scenes/orbit.xml -o out/orbit_%04d.png --frames 0:48 -D angle='7.5*f' --workers 2
   links1 animate scenes/many.xml -o out/f.exr --frames 48 --fps 24 \\
@@ -222,15 +225,19 @@ def animate(scene, output=None, *, frames, defines=(), fps=24.0, renderer="core"
                 _split_frame(k, frames, W, H, n, backend, spec, res, on_frame, costs, eq41_map, previous_map,
                              partition, plan_from, tiles_per_node, log)
         else:
-            split = min(n, len(todo)) if units == "both" and n > 1 else 0
-            plan = frame_units_plan(W, H, todo, n, len(frames), split_last=split, tiles_per_node=tiles_per_node)
-            sink = _Frames(W, H, todo, on_frame)
-            r = render_plan(plan, spec, backend, checkpoint=sink, progress=False, log=log)
-            res.faults += r.faults
+            # blocks of frames, each one run: the root's frame buffer holds a block, not the sequence
+            size = max(2 * n, BLOCK_PIXELS // (W * H))
             per = {}
-            for i, info in r.records.items():
-                k = plan.units[i].y0 // H
-                per.setdefault(k, []).append(info)
+            for b in range(0, len(todo), size):
+                block = todo[b:b + size]
+                last = b + size >= len(todo)
+                split = min(n, len(block)) if units == "both" and n > 1 and last else 0
+                plan = frame_units_plan(W, H, block, n, len(frames), split_last=split, tiles_per_node=tiles_per_node)
+                r = render_plan(plan, spec, backend, checkpoint=_Frames(W, H, block, on_frame), progress=False,
+                                log=log)
+                res.faults += r.faults
+                for i, info in r.records.items():
+                    per.setdefault(plan.units[i].y0 // H, []).append(info)
             for k in todo:
                 infos = per.get(k, [])
                 launches = {tuple(i["launch"]): i["launch_seconds"] for i in infos if i.get("launch")}

@@ -11,6 +11,7 @@ that frame, whatever the units (whole frames, screen partitions of frames, or bo
 from __future__ import annotations
 
 import importlib
+import os
 import re
 import time
 
@@ -19,6 +20,7 @@ import numpy as np
 from links1.tracing.render import CoreRenderer
 
 from ..renderers import make_renderer
+from .runtime import RendererSpec, set_threads
 
 #: the kind of a sequence's RendererSpec (a ``module:callable`` factory)
 KIND = "links1_app.partition.sequence:SequenceRenderer"
@@ -73,6 +75,8 @@ class SequenceRenderer:
         self.current = None
         #: seconds each frame change took on this node (set-up: the scene updated to the frame)
         self.setup_s: list = []
+        if renderer == "mitsuba":   # a node's Dr.Jit threads, as RendererSpec.build sets them for "mitsuba"
+            set_threads(os.environ.get("OMP_NUM_THREADS"), "mitsuba")
         self.inner = make_renderer(renderer, self.path, params=self._params(0), **self.options)
         self._set(0, first=True)
         w, h = self.inner.film_size
@@ -214,7 +218,6 @@ PLAN_FROM = ("eq41", "previous")
 
 def sequence_spec(kind, path, values, *, numbers, times, update=None, threads=None, **options):
     """The :class:`~.runtime.RendererSpec` of a sequence (what every node loads once)."""
-    from .runtime import RendererSpec
     return RendererSpec.make(KIND, path, threads=threads, renderer=kind, frames=tuple(values),
                              numbers=tuple(numbers), times=tuple(float(t) for t in times),
                              update=update_name(update), **options)

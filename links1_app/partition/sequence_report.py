@@ -203,3 +203,15 @@ def format_summary(report) -> str:
                      f"{g('imbalance_ray_tests_mean'):>10} {g('true_efficiency_mean'):>8} "
                      f"{g('predicted_vs_ray_tests_mean', '{:.2f}'):>6}")
     return "\n".join(lines)
+
+
+def plan_imbalance(cost, load, n_nodes, *, strategy="subscreen", tiles_per_node=16) -> float:
+    """The imbalance in exact ray tests (max / mean over the nodes) of the static plan that
+    ``load`` (a per-pixel predicted load) gives for a frame whose measured cost is ``cost``:
+    what a plan rule achieves, free of timing noise."""
+    h, w = cost.shape
+    plan = make_plan(strategy, w, h, n_nodes, tiles_per_node=tiles_per_node, unit="tile", load_map=load)
+    tests = np.zeros(n_nodes)
+    for u, k in zip(plan.units, plan.owner):
+        tests[k] += float(cost[u.y0:u.y0 + u.h, u.x0:u.x0 + u.w].sum())
+    return imbalance(tests)
