@@ -8,16 +8,13 @@ equals the plugin; with ``coordinate_system(n)``'s tangent instead it would not.
 """
 from __future__ import annotations
 
-import warnings
-
 import numpy as np
 import pytest
-
-from links1_app.renderers import make_renderer
 
 from tests.scenes import perspective, scene
 
 from .conftest import assert_both_match_mitsuba_direct
+from .test_normalmaps_vs_mitsuba import _render
 
 pytestmark = pytest.mark.mitsuba
 
@@ -63,14 +60,6 @@ def write_grids(d, n: int = 10) -> None:
     for name, head, fmt in (("grid_uv.obj", v + vt, "{0}/{0}"), ("grid.obj", v, "{0}")):
         faces = "".join("f " + " ".join(fmt.format(x) for x in t) + "\n" for t in tris)
         (d / name).write_text(head + faces)
-
-
-def _render(kind, path, spp):
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        img = np.asarray(make_renderer(kind, path, spp=spp, max_depth=1).render(), dtype=np.float64)[..., :3]
-    assert not [w for w in caught if "not supported" in str(w.message)], kind   # nothing approximated
-    return img
 
 
 @pytest.mark.parametrize("light", list(LIGHTS))

@@ -78,6 +78,23 @@ def _rel(a, b, floor=1e-3):
     return err.max(axis=1) if err.ndim > 1 else err
 
 
+def _core_at_hits(xml, o, d, si):
+    """The core's hits of rays ``o, d`` in scene ``xml``, the same as Mitsuba's ``si``: their
+    indices ``g`` (more than half the rays), surface records and the material bound to them."""
+    from links1.scene.loader import load_string
+    from links1.tracing.integrator import Hits, WhittedIntegrator
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        core = load_string(xml)
+    it = WhittedIntegrator(core, max_depth=1)
+    hits = it.intersect(o, d, np.zeros(N), np.full(N, np.inf), np.zeros(N, dtype=np.int64))
+    assert np.array_equal(hits.valid, np.array(si.is_valid()))
+    g = np.nonzero(hits.valid)[0]
+    assert g.size > N // 2
+    sub = Hits(hits.t[g], hits.shape[g], hits.prim[g])
+    return g, it.surface(o[g], d[g], sub), it._bound(it._materials[0], o[g], d[g], sub, np.arange(g.size))
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("shape,wrap,nested", CASES)
 def test_eval_pdf_sample_at_mitsubas_hits(maps, shape, wrap, nested, variant):
@@ -86,8 +103,6 @@ def test_eval_pdf_sample_at_mitsubas_hits(maps, shape, wrap, nested, variant):
     edges, where float32 uv may fall on the other side), and BSDF samples drawn with the same
     sample values are the same directions with the same weights and densities."""
     import mitsuba as mi
-    from links1.scene.loader import load_string
-    from links1.tracing.integrator import Hits, WhittedIntegrator
     rng = np.random.default_rng(3)
     xml = f'<scene version="3.0.0">{SHAPES[shape].format(bsdf=_bsdf_xml(maps, wrap, nested))}</scene>'
     o = np.tile([0.3, 4.0, 2.5], (N, 1))
@@ -110,17 +125,7 @@ def test_eval_pdf_sample_at_mitsubas_hits(maps, shape, wrap, nested, variant):
     SW, SP = np.array(bw, dtype=np.float64).T, np.array(bs.pdf, dtype=np.float64)
     SWO = np.array(si.to_world(bs.wo), dtype=np.float64).T
 
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        core = load_string(xml)
-    it = WhittedIntegrator(core, max_depth=1)
-    hits = it.intersect(o, d, np.zeros(N), np.full(N, np.inf), np.zeros(N, dtype=np.int64))
-    assert np.array_equal(hits.valid, np.array(si.is_valid()))
-    g = np.nonzero(hits.valid)[0]
-    assert g.size > N // 2
-    sub = Hits(hits.t[g], hits.shape[g], hits.prim[g])
-    rec = it.surface(o[g], d[g], sub)
-    mat = it._bound(it._materials[0], o[g], d[g], sub, np.arange(g.size))
+    g, rec, mat = _core_at_hits(xml, o, d, si)
     wo = -d[g]
     nf = np.where((np.sum(rec.ng * wo, axis=1) > 0)[:, None], rec.ns, -rec.ns)
 
@@ -237,8 +242,7 @@ def test_delta_rays_are_mitsubas_delta_samples(maps, shape, wrap, nested, both_s
     the nested delta lobes (asked for one lobe at a time, as the plugin asks): the same rays kept
     (to float32 rounding at the edges), directions within 1e-4, weights within 1e-3 (99%)."""
     import mitsuba as mi
-    from links1.scene.loader import load_string
-    from links1.tracing.integrator import Hits, WhittedIntegrator
+    from links1.tracing.integrator import WhittedIntegrator
     rng = np.random.default_rng(5)
     bsdf = _bsdf_xml(maps, wrap.replace("noflip_", ""), "diffuse").replace(NESTED["diffuse"], DELTA_NESTED[nested])
     if wrap.startswith("noflip_"):
@@ -261,16 +265,7 @@ def test_delta_rays_are_mitsubas_delta_samples(maps, shape, wrap, nested, both_s
         ok = (np.array(bs.pdf) > 0) & np.any(W > 0, axis=1) & ((np.array(bs.sampled_type) & int(flag)) != 0)
         theirs[flag] = np.where(ok[:, None], W, 0.0), np.array(si.to_world(bs.wo), dtype=np.float64).T
 
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        core = load_string(xml)
-    it = WhittedIntegrator(core, max_depth=2)
-    hits = it.intersect(o, d, np.zeros(N), np.full(N, np.inf), np.zeros(N, dtype=np.int64))
-    assert np.array_equal(hits.valid, np.array(si.is_valid()))
-    g = np.nonzero(hits.valid)[0]
-    sub = Hits(hits.t[g], hits.shape[g], hits.prim[g])
-    rec = it.surface(o[g], d[g], sub)
-    mat = it._bound(it._materials[0], o[g], d[g], sub, np.arange(g.size))
+    g, rec, mat = _core_at_hits(xml, o, d, si)
     wo = -d[g]
     front = np.sum(rec.ng * wo, axis=1) > 0
     nf = np.where(front[:, None], rec.ns, -rec.ns)
