@@ -165,6 +165,7 @@ def check_against_mitsuba(bsdf_xml, lit=None, seed=1):
     assert ok, ("sample pdf", err)
 
 
+@pytest.mark.slow
 def test_blend_delta_lobe_is_a_weighted_mirror_ray(variant):
     """A ``blendbsdf`` holding a smooth ``conductor``: the mirror ray's weight is (1 − w) times
     the conductor's Fresnel (Mitsuba's own conductor sample), its glossy part w times the

@@ -204,6 +204,7 @@ DELTA_SCENE = scene(perspective("0, 2.5, 6", "0, 0.6, 0", fov=40, width=48, heig
   <shape type="sphere"><point name="center" x="1.0" y="0.8" z="0.3"/><float name="radius" value="0.8"/>{right}</shape>""")
 
 
+@pytest.mark.slow
 def test_delta_lobes_turn_with_the_map_as_the_plugin(maps, tmp_path, variant):
     """A mirror (``conductor``) and a glass (``dielectric``) sphere under a normal map and a
     mirror rectangle under a bump map: the core's mirror and refraction rays leave about the
@@ -235,6 +236,7 @@ DELTA_CASES = [("sphere", "normalmap", "conductor", False), ("sphere", "bumpmap"
                ("rectangle", "twosided_normalmap", "conductor", True), ("disk", "noflip_normalmap", "conductor", False)]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("shape,wrap,nested,both_sides", DELTA_CASES)
 def test_delta_rays_are_mitsubas_delta_samples(maps, shape, wrap, nested, both_sides, variant):
     """At the hits of the same rays, the core's mirror and refraction rays
