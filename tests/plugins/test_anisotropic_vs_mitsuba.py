@@ -62,6 +62,7 @@ def write_grids(d, n: int = 10) -> None:
         (d / name).write_text(head + faces)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("light", list(LIGHTS))
 def test_anisotropic_lobes_turn_with_dp_du(light, tmp_path, variant, monkeypatch):
     """Each renderer within 1.5x the relMSE of Mitsuba's ``direct`` at 16 spp against a 16x
