@@ -237,7 +237,6 @@ DELTA_CASES = [("sphere", "normalmap", "conductor", False), ("sphere", "bumpmap"
 
 
 @pytest.mark.slow
-@pytest.mark.slow
 @pytest.mark.parametrize("shape,wrap,nested,both_sides", DELTA_CASES)
 def test_delta_rays_are_mitsubas_delta_samples(maps, shape, wrap, nested, both_sides, variant):
     """At the hits of the same rays, the core's mirror and refraction rays
