@@ -177,8 +177,8 @@ class InProcess:
 
     def start(self, spec):
         # as a local worker's start (start_worker): recordings and caches before the first
-        # unit, so a unit's time is work, not the frozen launch's recording (schedule --nodes 1:
-        # its first launch took 106 ms against 23 ms warm); its time is the node's start-up
+        # unit, so a unit's time is work, not the frozen launch's recording (a first launch
+        # costs several warm ones); its time is the node's start-up
         t = time.perf_counter()
         r = get_renderer(spec)
         warm_up(r, warm_samples(spec, r))

@@ -220,7 +220,7 @@ class LocalPool:
         self._spec_key = spec.key
         self.cpus = node_cpus(self.n, threads) if self.pin else None
         # computed here, the key travels with every pickled task: a node does not re-read and
-        # re-hash the scene file per task (0.2-4 ms each on many.xml, growing with the file)
+        # re-hash the scene file per task (a cost that grows with the file)
         self._spec.key  # noqa: B018
         self.deaths = 0
         try:
@@ -342,8 +342,8 @@ class LocalPool:
         # queued behind the running one to hide the round trip (result back, next task out),
         # and so few that a line's buffer never fills. Guided chunks: one per node at a time.
         # A second chunk queued at once was handed out when chunks are largest and waited
-        # behind the first, while through the lines the round
-        # trip it hid is 0.1-0.3 ms (it was 10-70 ms per chunk through the pool's threads)
+        # behind the first, while through the lines the round trip it hid is small (it was
+        # far larger per chunk through the pool's threads)
         prefetch = self.prefetch
 
         def queue_of(k):

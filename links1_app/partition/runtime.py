@@ -501,8 +501,8 @@ def render_units(spec: RendererSpec, windows, culls=None, frame=None, wire=True)
         dt = time.perf_counter() - t0
         cpu = time.process_time() - c0
         total = sum(a[2] * a[3] for a in launch)
-        # the launch's units readied together (into the frame: one loop of copies: a
-        # 256-scanline task took ~1.2 ms of per-unit calls and timers after its launch), each
+        # the launch's units readied together (into the frame: one loop of copies, not
+        # per-unit calls and timers after the launch), each
         # unit's ``wire_s`` its share of that time by pixel count, as ``seconds`` is of the launch
         tw = time.perf_counter()
         pxs = _ready_all(imgs, frame, launch, wire)

@@ -83,7 +83,7 @@ def define_phong():
             # Plain Python values behind one attribute: dr.freeze traverses a Python BSDF's
             # attributes (dicts and lists item by item) on every call of a frozen launch, once
             # per shape that uses it; one opaque holder keeps that out of every launch
-            # (3,000 Mitsuba spheres: 365 -> 100 ms a frame). The primal launches of
+            # (with thousands of Mitsuba spheres that walk cost more than the frame). The primal launches of
             # links1_whitted read their own tables (made from ``params``); its gradient launches
             # read these Dr.Jit values (links1_mitsuba.gradients), which ``mi.traverse`` hands out.
             h = self._held
