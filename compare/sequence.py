@@ -67,11 +67,14 @@ def table(name, rep) -> list[str]:
              f"One process, frames in turn: {one['makespan_s']:.2f} s "
              f"({len(one['frames']) / one['makespan_s']:.2f} frames/s); set-up per frame change (the node "
              f"updating its scene) median {_median(one['setup_s']):.3f} s.", "",
-             "| way | makespan s | frames/s | x one process | imbalance (busy s) mean / max | imbalance (ray tests) "
-             "mean / max | true efficiency | rank corr. predicted vs ray tests |", "|---|---|---|---|---|---|---|---|"]
+             "| way | makespan s | frames/s | x one process | x one process in CPU s | imbalance (busy s) mean / max | "
+             "imbalance (CPU s) mean / max | imbalance (ray tests) mean / max | true efficiency | rank corr. predicted "
+             "vs ray tests |", "|---|---|---|---|---|---|---|---|---|---|"]
     for s in rep["ways"]:
         lines.append(f"| {s['way']} | {s['makespan_s']:.2f} | {_f(s['frames_per_s'])} | "
-                     f"{_f(s['throughput_vs_one_process'])} | {_f(s['imbalance_mean'], 3)} / {_f(s['imbalance_max'], 3)} | "
+                     f"{_f(s['throughput_vs_one_process'])} | {_f(s.get('throughput_cpu_vs_one_process'))} | "
+                     f"{_f(s['imbalance_mean'], 3)} / {_f(s['imbalance_max'], 3)} | "
+                     f"{_f(s.get('imbalance_cpu_mean'), 3)} / {_f(s.get('imbalance_cpu_max'), 3)} | "
                      f"{_f(s['imbalance_ray_tests_mean'], 3)} / {_f(s['imbalance_ray_tests_max'], 3)} | "
                      f"{_f(s['true_efficiency_mean'])} | {_f(s['predicted_vs_ray_tests_mean'])} |")
     sim = rep.get("simulation")

@@ -240,9 +240,12 @@ def animate(scene, output=None, *, frames, defines=(), fps=24.0, renderer="core"
                     per.setdefault(plan.units[i].y0 // H, []).append(info)
             for k in todo:
                 infos = per.get(k, [])
-                launches = {tuple(i["launch"]): i["launch_seconds"] for i in infos if i.get("launch")}
+                launches = {tuple(i["launch"]): (i["launch_seconds"], i.get("launch_cpu_s", 0.0), i.get("node", 0))
+                            for i in infos if i.get("launch")}
                 res.frames.append({"frame": frames[k], "units": len(infos),
-                                   "render_s": float(sum(launches.values())),
+                                   "render_s": float(sum(v[0] for v in launches.values())),
+                                   "cpu_s": float(sum(v[1] for v in launches.values())),
+                                   "nodes": sorted({int(v[2]) for v in launches.values()}),
                                    "ray_tests": float(costs[k].sum()) if k in costs else None})
     finally:
         bar.close()
@@ -265,12 +268,13 @@ def _split_frame(k, frames, W, H, n, backend, spec, res, on_frame, costs, eq41_m
     r = render_plan(tall, spec, backend, checkpoint=sink, progress=False, log=log)
     res.faults += r.faults
     cost = costs.get(k)
-    busy, tests = node_loads(tall, r.records, cost, H, n)
+    busy, cpu, tests = node_loads(tall, r.records, cost, H, n)
     unit_tests = [float(cost[u.y0:u.y0 + u.h, u.x0:u.x0 + u.w].sum()) for u in plan.units] if cost is not None else []
     res.frames.append({
         "frame": frames[k], "plan_from": source, "partition": partition, "units": len(plan.units),
-        "makespan_s": r.makespan_s, "planning_s": planning_s, "busy_s": busy.tolist(), "ray_tests": tests.tolist(),
-        "imbalance": imbalance(busy), "imbalance_ray_tests": imbalance(tests),
+        "makespan_s": r.makespan_s, "planning_s": planning_s, "busy_s": busy.tolist(), "cpu_s": cpu.tolist(),
+        "ray_tests": tests.tolist(), "imbalance": imbalance(busy), "imbalance_cpu": imbalance(cpu),
+        "imbalance_ray_tests": imbalance(tests),
         "predicted_vs_ray_tests": rank_correlation(plan.predicted, unit_tests) if plan.predicted is not None else None,
     })
 
@@ -307,7 +311,8 @@ def add_cli(sub) -> None:
                    help="also encode the frames (sRGB, 8 bit) as a video at --fps (needs links1[video]: imageio-ffmpeg)")
     g = p.add_argument_group("sequence experiment")
     g.add_argument("--report", default=None, metavar="JSON",
-                   help="run the experiment: one process rendering the frames in turn (it writes the frames), then "
+                   help="run the experiment: one process rendering the frames in turn (with a node's threads; it "
+                        "writes the frames), then "
                         "each of --ways on the nodes; per frame and for the sequence: makespan, imbalance, true "
                         "efficiency, predicted vs measured correlation, throughput")
     g.add_argument("--ways", default="eq41,previous,dynamic,frames", metavar="LIST",
@@ -401,6 +406,8 @@ def _experiment(args, frames, opts) -> int:
     from .partition import sequence_report as sr
     from .partition.checkpoint import atomic_write_json
     from .partition.handout import CHUNK_FACTOR
+    from .partition.local_pool import threads_per_worker
+    from .partition.runtime import limit_blas, set_threads
     ways = [w.strip() for w in args.ways.split(",") if w.strip()]
     bad = [w for w in ways if w not in sr.WAYS]
     if bad:
@@ -411,10 +418,19 @@ def _experiment(args, frames, opts) -> int:
     common = dict(frames=frames, defines=args.defines, fps=args.fps, renderer=args.renderer, progress=progress_of(args),
                   tiles_per_node=args.tiles_per_node, aovs=args.aov, **opts)
     cache: dict = {}
-    one = animate(args.scene, args.output, backend=InProcess(chunk_factor=0), units="frames", cache=cache,
-                  **common)
+    nodes = args.dask_local or args.workers or 2
+    # the reference is one node as the nodes are: the renderer threads each of them gets
+    # (cores / nodes; the core's BLAS would otherwise use every core for the one process alone)
+    threads = threads_per_worker(nodes)
+    set_threads(threads, args.renderer)
+    old = limit_blas(threads)
+    try:
+        one = animate(args.scene, args.output, backend=InProcess(chunk_factor=0), units="frames", cache=cache,
+                      **common)
+    finally:
+        limit_blas(old or 0)
     print(f"links1: one process: {len(frames)} frames in {one.makespan_s:.2f} s", file=sys.stderr)
-    be = make_backend(workers=args.workers or 2 if not (args.dask_local or args.scheduler) else 0,
+    be = make_backend(workers=nodes if not (args.dask_local or args.scheduler) else 0,
                       dask_local=args.dask_local, scheduler=args.scheduler, static=False)
     summaries = []
     try:
@@ -431,7 +447,7 @@ def _experiment(args, frames, opts) -> int:
     finally:
         be.close()
     n = summaries[0]["nodes"] if summaries else 1
-    report = {"scene": args.scene, "renderer": args.renderer, "frames": frames, "nodes": n,
+    report = {"scene": args.scene, "renderer": args.renderer, "frames": frames, "nodes": n, "threads_per_node": threads,
               "defines": [list(d) for d in args.defines], "options": opts,
               "one_process": {"frames": one.frames, "makespan_s": one.makespan_s, "setup_s": one.setup_s},
               "ways": summaries,

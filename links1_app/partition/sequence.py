@@ -258,9 +258,10 @@ def rank_correlation(a, b) -> float | None:
 
 
 def node_loads(plan, records, cost, frame_height, n_nodes):
-    """Per node: busy seconds (its distinct launches, measured) and ray tests (exact, the cost
-    AOV over its units) of a finished plan's units (``records``: :class:`.executors.RenderResult`'s)."""
-    busy, tests = np.zeros(n_nodes), np.zeros(n_nodes)
+    """Per node: busy seconds (its distinct launches, measured), their CPU seconds (measured in the
+    node: what it took of a core, whatever else ran there) and ray tests (exact, the cost AOV over
+    its units) of a finished plan's units (``records``: :class:`.executors.RenderResult`'s)."""
+    busy, cpu, tests = np.zeros(n_nodes), np.zeros(n_nodes), np.zeros(n_nodes)
     seen = set()
     for i, info in records.items():
         k = int(info.get("node", 0)) % n_nodes
@@ -268,13 +269,15 @@ def node_loads(plan, records, cost, frame_height, n_nodes):
         if lid is not None and tuple(lid) not in seen:
             seen.add(tuple(lid))
             busy[k] += float(info.get("launch_seconds", info.get("seconds", 0.0)))
+            cpu[k] += float(info.get("launch_cpu_s", 0.0))
         elif lid is None:
             busy[k] += float(info.get("seconds", 0.0))
+            cpu[k] += float(info.get("launch_cpu_s", 0.0))
         if cost is not None:
             u = plan.units[i]
             y = u.y0 % frame_height
             tests[k] += float(cost[y:y + u.h, u.x0:u.x0 + u.w].sum())
-    return busy, tests
+    return busy, cpu, tests
 
 
 def imbalance(loads) -> float | None:

@@ -41,10 +41,25 @@ def summarise(name, res, one, n_nodes) -> dict:
         if "makespan_s" in fr and per_one.get(fr["frame"]):
             row["true_efficiency"] = per_one[fr["frame"]] / (n_nodes * span)
         frames.append(row)
+    # CPU seconds (measured in the nodes): the makespan had every node had its core to itself,
+    # derived: per split frame its busiest node's, summed; whole frames: the busiest node's frames
+    if all("cpu_s" in fr and isinstance(fr["cpu_s"], list) for fr in res.frames):
+        cpu_span = sum(max(fr["cpu_s"]) for fr in res.frames)
+    else:
+        per_node = {}
+        for fr in res.frames:
+            k = (fr.get("nodes") or [0])[0]
+            per_node[k] = per_node.get(k, 0.0) + fr.get("cpu_s", 0.0)
+        cpu_span = max(per_node.values(), default=0.0)
+    cpu_one = sum(fr.get("cpu_s", 0.0) for fr in one.frames)
     fps = len(res.frames) / res.makespan_s if res.makespan_s > 0 else None
     fps_one = len(one.frames) / one.makespan_s if one.makespan_s > 0 else None
     return {"way": name, "nodes": n_nodes, "frames": frames, "makespan_s": res.makespan_s, "frames_per_s": fps,
-            "startup_s": res.startup_s, "planning_s": res.planning_s,
+            "startup_s": res.startup_s, "planning_s": res.planning_s, "cpu_makespan_s": cpu_span,
+            "one_process_cpu_s": cpu_one,
+            "throughput_cpu_vs_one_process": cpu_one / cpu_span if cpu_span > 0 else None,
+            "imbalance_cpu_mean": _mean(f.get("imbalance_cpu") for f in frames),
+            "imbalance_cpu_max": max((f["imbalance_cpu"] for f in frames if f.get("imbalance_cpu")), default=None),
             "throughput_vs_one_process": fps / fps_one if fps and fps_one else None,
             "imbalance_mean": _mean(f.get("imbalance") for f in frames),
             "imbalance_max": max((f["imbalance"] for f in frames if f.get("imbalance")), default=None),
@@ -192,14 +207,15 @@ def _fmt(v):
 
 
 def format_summary(report) -> str:
-    lines = [f"{'way':<10} {'makespan':>9} {'frames/s':>9} {'vs one':>7} {'imb(s)':>7} {'imb(tests)':>10} "
-             f"{'true eff':>8} {'corr':>6}"]
+    lines = [f"{'way':<10} {'makespan':>9} {'frames/s':>9} {'vs one':>7} {'cpu vs':>7} {'imb(s)':>7} {'imb(cpu)':>8} "
+             f"{'imb(tests)':>10} {'true eff':>8} {'corr':>6}"]
     for s in report["ways"]:
         def g(k, f="{:.3f}"):
             v = s.get(k)
             return "-" if v is None else f.format(v)
         lines.append(f"{s['way']:<10} {g('makespan_s', '{:.2f}'):>9} {g('frames_per_s', '{:.2f}'):>9} "
-                     f"{g('throughput_vs_one_process', '{:.2f}'):>7} {g('imbalance_mean'):>7} "
+                     f"{g('throughput_vs_one_process', '{:.2f}'):>7} {g('throughput_cpu_vs_one_process', '{:.2f}'):>7} "
+                     f"{g('imbalance_mean'):>7} {g('imbalance_cpu_mean'):>8} "
                      f"{g('imbalance_ray_tests_mean'):>10} {g('true_efficiency_mean'):>8} "
                      f"{g('predicted_vs_ray_tests_mean', '{:.2f}'):>6}")
     return "\n".join(lines)
