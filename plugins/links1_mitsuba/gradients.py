@@ -373,12 +373,12 @@ class Gradients:
         later = []    # a level's shadow tests, evaluated with what its children take (below)
         res = self._level(P, scene, o, d, tmin, tmax, key, 1, spawn, symbolic=False, ad=True,
                           sample=self._take_cam_sample(), later=later)
-        total = mi.Color3f(res["L"])
+        total = mi.Color3f(res.L)
         if not spawn:
             dr.eval(total, *later)
             return total
         own = dr.arange(mi.UInt32, n)
-        cr, ct, w_r, w_t = self._children(res, res["hit"], mi.Color3f(1.0), mi.UInt32(1))
+        cr, ct, w_r, w_t = self._children(res, res.hit, mi.Color3f(1.0), mi.UInt32(1))
         depth = 2
         while True:
             key_r, key_t = child_keys(key)
@@ -390,8 +390,8 @@ class Gradients:
             # what the children take of this level, made in one kernel (a gather evaluates its
             # source alone: a kernel per component, each recomputing the shared terms), with the
             # level's shadow tests: it runs while the next level is traced
-            dr.eval(*([res["o_r"], res["dir_r"], w_r, key_r] if nr else []),
-                    *([res["o_t"], res["dir_t"], w_t, key_t] if nt else []), *later)
+            dr.eval(*([res.o_r, res.dir_r, w_r, key_r] if nr else []),
+                    *([res.o_t, res.dir_t, w_t, key_t] if nt else []), *later)
             later.clear()
 
             def pick(x_r, x_t):
@@ -399,7 +399,7 @@ class Gradients:
                 b = dr.gather(type(x_t), x_t, it) if nt else None
                 return cat(a, b, nr, nt)
             own = pick(own, own)
-            o, d = pick(res["o_r"], res["o_t"]), pick(res["dir_r"], res["dir_t"])
+            o, d = pick(res.o_r, res.o_t), pick(res.dir_r, res.dir_t)
             if P.fixed_children:
                 # spawned by surfaces that do not move, from rays that carry no derivative
                 # (the camera's; by induction the children's): the AD graph skips their
@@ -410,7 +410,7 @@ class Gradients:
             res = self._level(P, scene, o, d, dr.zeros(mi.Float, m), dr.full(mi.Float, INF, m), key, 0,
                               True, symbolic=False, ad=True, later=later)
             acc = dr.zeros(mi.Color3f, n)
-            dr.scatter_add(acc, wgt * res["L"], own)
+            dr.scatter_add(acc, wgt * res.L, own)
             total = total + acc
             cr, ct, w_r, w_t = self._children(res, dr.full(mi.Bool, True, m), wgt, mi.UInt32(depth))
             depth += 1

@@ -25,6 +25,8 @@ once per scene and are reused for every window and frame.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import drjit as dr
 import mitsuba as mi
 
@@ -53,6 +55,99 @@ def _power_heuristic(pdf_a, pdf_b):
     return dr.select(dr.isfinite(w), w, 0.0)
 
 
+@dataclass(eq=False)
+class Hit:
+    """The surface record of one level's rays (:meth:`RayTree._surface`): the winner of the
+    nearest-hit search and what shading reads of it (Mitsuba's interaction record and BSDF,
+    the Phong coefficients: None where the scene has none), with the BSDF factor of eq. (3.11)
+    (:meth:`f_eval`) and the ray offset (:meth:`offset`)."""
+
+    P: object                       # the tables (prepared.Prepared)
+    ad: bool                        # a derivative pass's level
+    n: int                          # lanes
+    o: mi.Point3f
+    d: mi.Vector3f
+    t: mi.Float
+    slot: mi.Int32                  # -1: a miss
+    uslot: mi.UInt32
+    hit: mi.Bool
+    prim: mi.UInt32
+    si: mi.SurfaceInteraction3f     # Embree's record (Mitsuba's shapes)
+    p: mi.Point3f
+    ng: mi.Vector3f                 # geometric normal
+    ns: mi.Vector3f                 # shading normal
+    wo: mi.Vector3f
+    front: mi.Bool
+    nf: mi.Vector3f                 # shading normal on the ray's side
+    mits: mi.Bool                   # a Mitsuba shape won
+    eps: mi.Float | None = None     # ray offset (tables.OFFSET_EPS)
+    sif: mi.SurfaceInteraction3f | None = None   # the record for BSDF calls, links1 winners filled in
+    bsdf: mi.BSDFPtr | None = None
+    is_ph: mi.Bool | None = None
+    mb: mi.Bool | None = None       # a Mitsuba BSDF's hit
+    ctx: mi.BSDFContext | None = None
+    ph: mi.Bool | None = None       # a links1_phong hit, and its coefficients (eq. 3.11)
+    dif: mi.Color3f | None = None
+    spe: mi.Color3f | None = None
+    expo: mi.Float | None = None
+    #: glossy hits and the BSDF-sample context of multiple importance sampling, or None
+    glossy: mi.Bool | None = None
+    ctx_s: mi.BSDFContext | None = None
+
+    def f_eval(self, wi):
+        """Factor multiplying L_s for light direction wi (eq. 3.11 / Mitsuba BSDF)."""
+        P, ad, n, nf, wo, ph, mb = self.P, self.ad, self.n, self.nf, self.wo, self.ph, self.mb
+        dif, spe, expo, bsdf, ctx, sif = self.dif, self.spe, self.expo, self.bsdf, self.ctx, self.sif
+        f = dr.zeros(mi.Color3f, n)
+        if P.any_phong:
+            cos_theta = dr.dot(nf, wi)
+            mirror = nf * (2.0 * cos_theta) - wi
+            cos_phi = dr.maximum(dr.dot(mirror, wo), 0.0)
+            if ad:   # d/dn cos^n = cos^n ln cos: no 0 * ln 0 (NaN) where cos_phi = 0
+                cp_ = dr.select(cos_phi > 0, cos_phi, 1.0)
+                sp = dr.select(expo > 0, dr.select(cos_phi > 0, dr.power(cp_, expo), 0.0), 1.0)
+            else:
+                sp = dr.select(expo > 0, dr.power(cos_phi, expo), 1.0)
+            fp = dif * dr.maximum(cos_theta, 0.0) + spe * sp
+            f = dr.select(ph & (cos_theta > 0), fp, f)
+        if not P.all_phong:
+            fm = bsdf.eval(ctx, sif, sif.to_local(wi), mb)
+            f = dr.select(mb, fm, f)
+        return f
+
+    def offset(self, direction):
+        """The origin of a ray from the hit toward ``direction``: off the surface on that side by
+        ``eps`` (relative to 1 + max|p|, per shape: tables.OFFSET_EPS)."""
+        p, ng, eps = self.p, self.ng, self.eps
+        side = dr.select(dr.dot(ng, direction) >= 0, 1.0, -1.0)
+        return p + ng * (side * eps)
+
+
+@dataclass(eq=False)
+class Level:
+    """What one level of rays gives (:meth:`RayTree._level`): its radiance ``L`` (eq. 3.11),
+    ray-primitive tests ``cost``, shadow rays ``n_shadow``, the hit (``t``, ``slot``, ``ns``,
+    ``hit``) and, when it spawns, the children of eq. (3.12)-(3.16): mirror and refraction
+    weights ``r``, ``tw``, whether each exists (``has_r``, ``has_t``), directions and origins."""
+
+    L: mi.Color3f                   # eq. (3.11): I_o of each lane
+    cost: mi.UInt32                 # ray-primitive tests
+    t: mi.Float
+    slot: mi.Int32
+    ns: mi.Vector3f
+    hit: mi.Bool
+    n_shadow: mi.UInt32             # shadow rays traced
+    # -- the children (when the level spawns them): eq. (3.12)-(3.15)
+    r: mi.Color3f | None = None     # mirror weight
+    tw: mi.Color3f | None = None    # refraction weight
+    has_r: mi.Bool | None = None
+    has_t: mi.Bool | None = None
+    dir_r: mi.Vector3f | None = None
+    dir_t: mi.Vector3f | None = None
+    o_r: mi.Point3f | None = None
+    o_t: mi.Point3f | None = None
+
+
 class RayTree:
     """One level, the children of a hit, the ray trees of a launch."""
 
@@ -67,12 +162,40 @@ class RayTree:
         memory, for the caller to evaluate (``Gradients._trace_tree_ad``: after it has read
         which rays the level spawns, so that reading waits for the hits' kernel only). ``ad``:
         a derivative pass's level (gradients.py: attached tables, no symbolic branches, visibility
-        on primal values). Returns a dict of Dr.Jit arrays."""
+        on primal values). Returns a :class:`Level`: :meth:`_surface`, :meth:`_emitted`,
+        :meth:`_direct` under every light, :meth:`_secondary` when it ``spawn``\ s."""
         n = dr.width(o)
         if active is None:
             active = dr.full(mi.Bool, True, n)
         cost = dr.zeros(mi.UInt32, n)
         n_shadow = dr.zeros(mi.UInt32, n)
+        h = self._surface(P, scene, o, d, tmin, tmax, active, cost, depth, symbolic, ad)
+        out = self._emitted(P, scene, h)
+        # ---- direct light with shadows (eq. 3.11, 3-3-3). Shadow rays of all lights are
+        # built and evaluated together, then handed to Mitsuba's ray tests (each test
+        # evaluates its inputs: building them first avoids recomputing shared work).
+        skip = tuning.current().skip_misses and not ad  # under a symbolic if on the hit (no dr.eval inside it)
+
+        def direct(out, cost, n_shadow):
+            return self._direct(P, scene, h, key, sample, symbolic, skip, later, out, cost, n_shadow)
+
+        if skip:
+            out, cost, n_shadow = dr.if_stmt((out, cost, n_shadow), h.hit, direct,
+                                             lambda out, cost, n_shadow: (out, cost, n_shadow),
+                                             mode="symbolic", label="links1_direct")
+        else:
+            out, cost, n_shadow = direct(out, cost, n_shadow)
+        res = Level(L=out, cost=cost, t=h.t, slot=h.slot, ns=h.ns, hit=h.hit, n_shadow=n_shadow)
+        if spawn:
+            self._secondary(P, h, res)
+        return res
+
+    def _surface(self, P, scene, o, d, tmin, tmax, active, cost, depth, symbolic, ad) -> Hit:
+        """The nearest hit of each ray (Mitsuba's and the links1 shapes', ``cost`` counting the
+        tests) and its surface record: position, geometric and shading normals, Mitsuba's
+        interaction record and BSDF where the scene has Mitsuba BSDFs or emitters, the Phong
+        coefficients where it has ``links1_phong``, the ray offset's scale."""
+        n = dr.width(o)
         if P.any_mitsuba_shapes and not symbolic:
             dr.eval(o, d, tmin, tmax)
         # level 1 is the camera's rays (from its eye when it is a pinhole)
@@ -123,18 +246,6 @@ class RayTree:
             # in one kernel with the shadow tests instead, a 256² iteration of the inverse
             # benchmark's light case was 0.1-0.3 ms slower: that overlap lost)
             dr.eval(t, slot, prim, p, ng, ns, nf, cost, *(([mits, si] if need_si else [mits]) if ad else []))
-        out = dr.zeros(mi.Color3f, n)
-        # ---- escaping rays: background (Mitsuba constant / envmap)
-        if P.env is not None:
-            sim = dr.zeros(mi.SurfaceInteraction3f, n)
-            sim.wi = wo
-            sim.t = mi.Float(INF)
-            out = dr.select(hit, out, P.env.eval(sim, ~hit))
-        # ---- ambient (eq. 3.11, dic) and emission
-        if P.any_ambient:
-            out += dr.select(hit, gather3(P.amb, uslot, hit), 0.0)
-        if P.any_custom_emission:
-            out += dr.select(hit & front & ~mits, gather3(P.custom_emission, uslot, hit), 0.0)
         # Mitsuba-side interaction record for BSDF calls (custom winners filled in)
         if need_si:
             sif = mi.SurfaceInteraction3f(si)
@@ -148,10 +259,6 @@ class RayTree:
             sif.t = dr.select(hit, t, INF)
             sif.uv = dr.select(cw, self._custom_uv(P, o, d, t, prim, slot, uslot, hit), si.uv)
             sif.wi = sif.to_local(wo)
-            if P.any_mitsuba_emission:
-                emits = mits & dr.gather(mi.Bool, P.mitsuba_emits, uslot, mits)
-                em = si.emitter(scene, emits)
-                out += dr.select(emits, em.eval(sif, emits), 0.0)
             bsdf = dr.gather(mi.BSDFPtr, P.bsdf_ptr, uslot, hit)
             is_ph = dr.gather(mi.Bool, P.is_phong, uslot, hit)
             mb = hit & ~is_ph
@@ -162,151 +269,154 @@ class RayTree:
             dif = gather3(P.dif, uslot, ph)
             spe = gather3(P.spe, uslot, ph)
             expo = dr.gather(mi.Float, P.expo, uslot, ph)
-
-        def f_eval(wi):
-            """Factor multiplying L_s for light direction wi (eq. 3.11 / Mitsuba BSDF)."""
-            f = dr.zeros(mi.Color3f, n)
-            if P.any_phong:
-                cos_theta = dr.dot(nf, wi)
-                mirror = nf * (2.0 * cos_theta) - wi
-                cos_phi = dr.maximum(dr.dot(mirror, wo), 0.0)
-                if ad:   # d/dn cos^n = cos^n ln cos: no 0 * ln 0 (NaN) where cos_phi = 0
-                    cp_ = dr.select(cos_phi > 0, cos_phi, 1.0)
-                    sp = dr.select(expo > 0, dr.select(cos_phi > 0, dr.power(cp_, expo), 0.0), 1.0)
-                else:
-                    sp = dr.select(expo > 0, dr.power(cos_phi, expo), 1.0)
-                fp = dif * dr.maximum(cos_theta, 0.0) + spe * sp
-                f = dr.select(ph & (cos_theta > 0), fp, f)
-            if not P.all_phong:
-                fm = bsdf.eval(ctx, sif, sif.to_local(wi), mb)
-                f = dr.select(mb, fm, f)
-            return f
-
+        h = Hit(P, ad, n, o, d, t, slot, uslot, hit, prim, si, p, ng, ns, wo, front, nf, mits)
+        if need_si:
+            h.sif, h.bsdf, h.is_ph, h.mb, h.ctx = sif, bsdf, is_ph, mb, ctx
+        if P.any_phong:
+            h.ph, h.dif, h.spe, h.expo = ph, dif, spe, expo
         # ray offsets (relative to 1 + max|p|), per shape: see OFFSET_EPS (tables.py)
         eps_scale = dr.gather(mi.Float, P.eps_table, uslot, hit)
-        eps = (1.0 + dr.max(dr.abs(p))) * eps_scale
-
-        def offset(direction):
-            side = dr.select(dr.dot(ng, direction) >= 0, 1.0, -1.0)
-            return p + ng * (side * eps)
-
-        # ---- direct light with shadows (eq. 3.11, 3-3-3). Shadow rays of all lights are
-        # built and evaluated together, then handed to Mitsuba's ray tests (each test
-        # evaluates its inputs: building them first avoids recomputing shared work).
-        skip = tuning.current().skip_misses and not ad  # under a symbolic if on the hit (no dr.eval inside it)
+        h.eps = (1.0 + dr.max(dr.abs(p))) * eps_scale
         # glossy Mitsuba BSDFs under area and environment lights: light samples and one BSDF
         # sample combined by multiple importance sampling (power heuristic, Mitsuba's ``direct``)
-        mis = P.any_mis and not ad
-        if mis:
-            glossy = mb & dr.gather(mi.Bool, P.glossy, uslot, mb)
-            ctx_s = mi.BSDFContext()
-            ctx_s.type_mask = +mi.BSDFFlags.Smooth   # the delta lobes are the ray tree's
+        if P.any_mis and not ad:
+            h.glossy = h.mb & dr.gather(mi.Bool, P.glossy, uslot, h.mb)
+            h.ctx_s = mi.BSDFContext()
+            h.ctx_s.type_mask = +mi.BSDFFlags.Smooth   # the delta lobes are the ray tree's
+        return h
 
-        def direct(out, cost, n_shadow):
-            pending = []
+    def _emitted(self, P, scene, h):
+        """What a level's rays see besides direct light: the background of escaping rays
+        (Mitsuba's constant / envmap), ambient light (eq. 3.11), the links1 shapes' and
+        Mitsuba's emission."""
+        n, hit, uslot, mits, wo, front = h.n, h.hit, h.uslot, h.mits, h.wo, h.front
+        si, sif = h.si, h.sif
+        out = dr.zeros(mi.Color3f, n)
+        # ---- escaping rays: background (Mitsuba constant / envmap)
+        if P.env is not None:
+            sim = dr.zeros(mi.SurfaceInteraction3f, n)
+            sim.wi = wo
+            sim.t = mi.Float(INF)
+            out = dr.select(hit, out, P.env.eval(sim, ~hit))
+        # ---- ambient (eq. 3.11, dic) and emission
+        if P.any_ambient:
+            out += dr.select(hit, gather3(P.amb, uslot, hit), 0.0)
+        if P.any_custom_emission:
+            out += dr.select(hit & front & ~mits, gather3(P.custom_emission, uslot, hit), 0.0)
+        if P.any_mitsuba_emission:
+            emits = mits & dr.gather(mi.Bool, P.mitsuba_emits, uslot, mits)
+            em = si.emitter(scene, emits)
+            out += dr.select(emits, em.eval(sif, emits), 0.0)
+        return out
 
-            def need_of(j, lit, wi):
-                """Lanes that need a shadow ray toward light j (P.shadow_need: shadow_plan.plan_occluders)."""
-                if not P.any_shadow[j]:
-                    return dr.zeros(mi.Bool, n)
-                if P.shadow_need[j] is None:
-                    return lit
-                need = dr.gather(mi.Bool, P.shadow_need[j], uslot, lit)
-                if P.shadow_inner[j] is not None:  # light on the inner side of a closed convex shape
-                    need |= dr.gather(mi.Bool, P.shadow_inner[j], uslot, lit) & (dr.dot(ng, wi) <= 0)
-                return lit & need
+    def _direct(self, P, scene, h, key, sample, symbolic, skip, later, out, cost, n_shadow):
+        """Direct light with shadows (eq. 3.11, 3-3-3) added to ``out``: every analytic light,
+        ``light_samples`` samples of each area and environment light (with a BSDF sample and
+        multiple importance sampling at glossy hits), their shadow rays built together and
+        handed to the ray tests. Returns ``(out, cost, n_shadow)``."""
+        n, hit, slot, uslot, p, ng, nf, eps, ad = h.n, h.hit, h.slot, h.uslot, h.p, h.ng, h.nf, h.eps, h.ad
+        bsdf, sif, glossy, ctx_s = h.bsdf, h.sif, h.glossy, h.ctx_s
+        f_eval, offset = h.f_eval, h.offset
+        mis = glossy is not None
+        pending = []
 
-            def shadow(j, so, wi, smax, lit, contrib):
-                nonlocal n_shadow
-                if not P.any_shadow[j]:
-                    return None, lit, None
-                need = need_of(j, lit, wi)
-                n_shadow = n_shadow + dr.select(need, mi.UInt32(1), 0)
-                T = self._shadow_custom(P, so, wi, smax, need, cost, P.occ_custom[j], light=j)
-                return T, need, P.occ_mitsuba[j]
+        def need_of(j, lit, wi):
+            """Lanes that need a shadow ray toward light j (P.shadow_need: shadow_plan.plan_occluders)."""
+            if not P.any_shadow[j]:
+                return dr.zeros(mi.Bool, n)
+            if P.shadow_need[j] is None:
+                return lit
+            need = dr.gather(mi.Bool, P.shadow_need[j], uslot, lit)
+            if P.shadow_inner[j] is not None:  # light on the inner side of a closed convex shape
+                need |= dr.gather(mi.Bool, P.shadow_inner[j], uslot, lit) & (dr.dot(ng, wi) <= 0)
+            return lit & need
 
-            def own_outer(wi):
-                """The hit's slot where the shadow ray leaves it on the outer side, else -1."""
-                return dr.select(hit & (dr.dot(ng, wi) > 0), slot, -1)
+        def shadow(j, so, wi, smax, lit, contrib):
+            nonlocal n_shadow
+            if not P.any_shadow[j]:
+                return None, lit, None
+            need = need_of(j, lit, wi)
+            n_shadow = n_shadow + dr.select(need, mi.UInt32(1), 0)
+            T = self._shadow_custom(P, so, wi, smax, need, cost, P.occ_custom[j], light=j)
+            return T, need, P.occ_mitsuba[j]
 
-            for jl, L in enumerate(P.lights):
-                wi, dist, Ls = self._light(L, p)
-                contrib = f_eval(wi) * Ls
+        def own_outer(wi):
+            """The hit's slot where the shadow ray leaves it on the outer side, else -1."""
+            return dr.select(hit & (dr.dot(ng, wi) > 0), slot, -1)
+
+        for jl, L in enumerate(P.lights):
+            wi, dist, Ls = self._light(L, p)
+            contrib = f_eval(wi) * Ls
+            lit = hit & (dr.max(contrib) > 0)
+            so, smax = offset(wi), dist - 2.0 * eps
+            if ad:   # visibility on primal values (the shadow ray's place is attached)
+                so, wi, smax = dr.detach(so), dr.detach(wi), dr.detach(smax)
+            T, need, occ_m = shadow(jl, so, wi, smax, lit, contrib)
+            pending.append((contrib, so, wi, smax, lit, need, T, occ_m, jl))
+        m_inv = 1.0 / self.light_samples
+        sampled = [(len(P.lights) + j, tab, tab["id"]) for j, tab in enumerate(P.area_tab)]
+        sampled += [(len(P.lights) + len(P.area) + k, env, lid) for k, env in enumerate(P.consts)
+                    for lid in [env[2]]]
+        for jsh, tab, lid in sampled:          # area lights and environments (links1.shading.lights)
+            for js in range(self.light_samples):
+                u, v = self._light_uv(key, sample, lid, js)
+                if isinstance(tab, dict):
+                    wi, dist, Lw, pdf_l = self._sample_area(tab, p, u, v)
+                    # Mitsuba's ray tests include the emitter: stop short of it as Mitsuba does
+                    smax = dist * (1.0 - mi.math.ShadowEpsilon) - 2.0 * eps
+                else:
+                    wi, Lw, pdf_l = self._sample_env(tab, nf, u, v)
+                    smax = dr.full(mi.Float, INF, n)
+                contrib = f_eval(wi) * Lw * m_inv
+                if mis:
+                    pdf_b = bsdf.pdf(ctx_s, sif, sif.to_local(wi), glossy)
+                    contrib *= dr.select(glossy, _power_heuristic(self.light_samples * pdf_l, pdf_b), 1.0)
                 lit = hit & (dr.max(contrib) > 0)
-                so, smax = offset(wi), dist - 2.0 * eps
-                if ad:   # visibility on primal values (the shadow ray's place is attached)
+                so = offset(wi)
+                if ad:
                     so, wi, smax = dr.detach(so), dr.detach(wi), dr.detach(smax)
-                T, need, occ_m = shadow(jl, so, wi, smax, lit, contrib)
-                pending.append((contrib, so, wi, smax, lit, need, T, occ_m, jl))
-            m_inv = 1.0 / self.light_samples
-            sampled = [(len(P.lights) + j, tab, tab["id"]) for j, tab in enumerate(P.area_tab)]
-            sampled += [(len(P.lights) + len(P.area) + k, env, lid) for k, env in enumerate(P.consts)
-                        for lid in [env[2]]]
-            for jsh, tab, lid in sampled:          # area lights and environments (links1.shading.lights)
-                for js in range(self.light_samples):
-                    u, v = self._light_uv(key, sample, lid, js)
-                    if isinstance(tab, dict):
-                        wi, dist, Lw, pdf_l = self._sample_area(tab, p, u, v)
-                        # Mitsuba's ray tests include the emitter: stop short of it as Mitsuba does
-                        smax = dist * (1.0 - mi.math.ShadowEpsilon) - 2.0 * eps
-                    else:
-                        wi, Lw, pdf_l = self._sample_env(tab, nf, u, v)
-                        smax = dr.full(mi.Float, INF, n)
-                    contrib = f_eval(wi) * Lw * m_inv
-                    if mis:
-                        pdf_b = bsdf.pdf(ctx_s, sif, sif.to_local(wi), glossy)
-                        contrib *= dr.select(glossy, _power_heuristic(self.light_samples * pdf_l, pdf_b), 1.0)
-                    lit = hit & (dr.max(contrib) > 0)
-                    so = offset(wi)
-                    if ad:
-                        so, wi, smax = dr.detach(so), dr.detach(wi), dr.detach(smax)
-                    T, need, occ_m = shadow(jsh, so, wi, smax, lit, contrib)
-                    pending.append((contrib, so, wi, smax, lit, need, T, occ_m, jsh))
-            if mis:
-                sampler_b, opacity_b = self._unmasked(P, bsdf, sif, uslot, glossy)
-                L_b, n_b = self._bsdf_sample_light(P, scene, key, sample, sampler_b, ctx_s, sif, glossy,
-                                                   p, nf, offset, cost, opacity_b)
-                out += L_b
-                n_shadow = n_shadow + n_b
-            if not symbolic:
-                # in one kernel: a derivative pass's shadow tests through links1 shapes (kept, as
-                # the hits above), and the inputs of Mitsuba's ray tests where one follows; with
-                # no such test, the tests go to ``later`` (the caller evaluates them)
-                ev = [tup[6] for tup in pending if tup[6] is not None] if ad and P.custom else []
-                if P.any_mitsuba_shapes and not skip and any(tup[7] for tup in pending):
-                    ev += [out, cost, *[x for tup in pending for x in tup[:6]]]
-                elif later is not None:
-                    later.extend(ev)
-                    ev = []
-                if ev:
-                    dr.eval(*ev)
-            tested = []                     # Mitsuba's ray tests, light by light
-            for k, (contrib, so, wi, smax, lit, need, T, occ_m, j) in enumerate(pending):
-                if T is not None and P.any_mitsuba_shapes and occ_m:
-                    T = self._shadow_mitsuba(P, scene, so, wi, smax, need, T, cost, light=j,
-                                             own=own_outer(wi))
-                    pending[k] = (contrib, so, wi, smax, lit, need, T, occ_m, j)
-                    tested.append(T)
-            if ad and not symbolic and tested:   # the ray tests kept (as the hits above), in one kernel
-                dr.eval(*tested)
-            for contrib, so, wi, smax, lit, need, T, occ_m, j in pending:
-                if T is None:               # nothing can shadow this light
-                    out += dr.select(lit, contrib, 0.0)
-                    continue
-                out += dr.select(lit, contrib * dr.select(need, T, 1.0), 0.0)
-            return out, cost, n_shadow
+                T, need, occ_m = shadow(jsh, so, wi, smax, lit, contrib)
+                pending.append((contrib, so, wi, smax, lit, need, T, occ_m, jsh))
+        if mis:
+            sampler_b, opacity_b = self._unmasked(P, bsdf, sif, uslot, glossy)
+            L_b, n_b = self._bsdf_sample_light(P, scene, key, sample, sampler_b, ctx_s, sif, glossy,
+                                               p, nf, offset, cost, opacity_b)
+            out += L_b
+            n_shadow = n_shadow + n_b
+        if not symbolic:
+            # in one kernel: a derivative pass's shadow tests through links1 shapes (kept, as
+            # the hits above), and the inputs of Mitsuba's ray tests where one follows; with
+            # no such test, the tests go to ``later`` (the caller evaluates them)
+            ev = [tup[6] for tup in pending if tup[6] is not None] if ad and P.custom else []
+            if P.any_mitsuba_shapes and not skip and any(tup[7] for tup in pending):
+                ev += [out, cost, *[x for tup in pending for x in tup[:6]]]
+            elif later is not None:
+                later.extend(ev)
+                ev = []
+            if ev:
+                dr.eval(*ev)
+        tested = []                     # Mitsuba's ray tests, light by light
+        for k, (contrib, so, wi, smax, lit, need, T, occ_m, j) in enumerate(pending):
+            if T is not None and P.any_mitsuba_shapes and occ_m:
+                T = self._shadow_mitsuba(P, scene, so, wi, smax, need, T, cost, light=j,
+                                         own=own_outer(wi))
+                pending[k] = (contrib, so, wi, smax, lit, need, T, occ_m, j)
+                tested.append(T)
+        if ad and not symbolic and tested:   # the ray tests kept (as the hits above), in one kernel
+            dr.eval(*tested)
+        for contrib, so, wi, smax, lit, need, T, occ_m, j in pending:
+            if T is None:               # nothing can shadow this light
+                out += dr.select(lit, contrib, 0.0)
+                continue
+            out += dr.select(lit, contrib * dr.select(need, T, 1.0), 0.0)
+        return out, cost, n_shadow
 
-        if skip:
-            out, cost, n_shadow = dr.if_stmt((out, cost, n_shadow), hit, direct,
-                                             lambda out, cost, n_shadow: (out, cost, n_shadow),
-                                             mode="symbolic", label="links1_direct")
-        else:
-            out, cost, n_shadow = direct(out, cost, n_shadow)
-        res = {"L": out, "cost": cost, "t": t, "slot": slot, "ns": ns, "hit": hit}
-        res["n_shadow"] = n_shadow
-        if not spawn:
-            return res
-        # ---- secondary rays, eq. (3.12)-(3.16)
+    def _secondary(self, P, h, res):
+        """The children of each hit, eq. (3.12)-(3.16): Phong mirror and refraction weights and
+        directions, and Mitsuba BSDFs' delta lobes (mirror, glass, the straight-through
+        ``Null`` lobe), set on ``res`` with their origins."""
+        n, d, nf, front, hit, uslot, offset = h.n, h.d, h.nf, h.front, h.hit, h.uslot, h.offset
+        ph, mb, bsdf, sif = h.ph, h.mb, h.bsdf, h.sif
         r = dr.zeros(mi.Color3f, n)
         tw = dr.zeros(mi.Color3f, n)
         dir_r = dr.zeros(mi.Vector3f, n)
@@ -365,9 +475,8 @@ class RayTree:
         has_tt = hit & (dr.max(tw) > 0)
         dir_r = dr.normalize(dir_r)
         dir_t = dr.normalize(dir_t)
-        res.update(r=r, tw=tw, has_r=has_r, has_t=has_tt, dir_r=dir_r, dir_t=dir_t,
-                   o_r=offset(dir_r), o_t=offset(dir_t))
-        return res
+        res.r, res.tw, res.has_r, res.has_t = r, tw, has_r, has_tt
+        res.dir_r, res.dir_t, res.o_r, res.o_t = dir_r, dir_t, offset(dir_r), offset(dir_t)
 
     @staticmethod
     def _unmasked(P, bsdf, sif, uslot, active):
@@ -422,9 +531,9 @@ class RayTree:
         the core) and their weights in the pixel."""
         md, mw = self.max_depth, float(self.min_weight)
         deeper = act & (depth < md)
-        w_r, w_t = wgt * res["r"], wgt * res["tw"]
-        cr = deeper & res["has_r"]
-        ct = deeper & res["has_t"]
+        w_r, w_t = wgt * res.r, wgt * res.tw
+        cr = deeper & res.has_r
+        ct = deeper & res.has_t
         if mw > 0:
             cr &= dr.max(w_r) > mw
             ct &= dr.max(w_t) > mw
@@ -457,20 +566,20 @@ class RayTree:
         spawn = md > 1 and P.any_specular
         one = mi.UInt32(1)
         res = self._level(P, scene, o, d, tmin, tmax, key, 1, spawn, sample=self._take_cam_sample())
-        aov = (res["t"], res["slot"], res["ns"]) if want_aovs else ()
+        aov = (res.t, res.slot, res.ns) if want_aovs else ()
         if not spawn:
-            rgb = mi.Color3f(res["L"])
-            dr.eval(rgb, res["cost"], res["n_shadow"], *aov)
-            return rgb, res["cost"], res["t"], res["slot"], res["ns"], dict(nsh1=res["n_shadow"])
-        act = res["hit"]
+            rgb = mi.Color3f(res.L)
+            dr.eval(rgb, res.cost, res.n_shadow, *aov)
+            return rgb, res.cost, res.t, res.slot, res.ns, dict(nsh1=res.n_shadow)
+        act = res.hit
         cr, ct, w_r, w_t = self._children(res, act, mi.Color3f(1.0), mi.UInt32(1))
         key_r, key_t = child_keys(key)
         has_t = P.any_phong_t or P.any_mitsuba_dt or P.any_mitsuba_null
         if has_t:
-            kids = (res["o_r"], res["dir_r"], w_r, key_r, res["o_t"], res["dir_t"], w_t, key_t)
+            kids = (res.o_r, res.dir_r, w_r, key_r, res.o_t, res.dir_t, w_t, key_t)
         else:       # no refraction anywhere: no refraction children to store
-            kids = (res["o_r"], res["dir_r"], w_r, key_r)
-        L1, cost1, nsh1 = res["L"], res["cost"], res["n_shadow"]
+            kids = (res.o_r, res.dir_r, w_r, key_r)
+        L1, cost1, nsh1 = res.L, res.cost, res.n_shadow
         dr.eval(L1, cost1, nsh1, cr, ct, *aov, *kids)                  # kernel 1: level 1
         if frozen is not None:  # the last two samples always: a width of 1 would record as a scalar
             ar = dr.arange(mi.UInt32, n)
@@ -480,7 +589,7 @@ class RayTree:
         m = dr.width(idx)
         counters = dict(nsh1=nsh1, cr=cr, ct=ct)
         if m == 0:
-            return L1, cost1, res["t"], res["slot"], res["ns"], counters
+            return L1, cost1, res.t, res.slot, res.ns, counters
         g = lambda x: dr.gather(type(x), x, idx)  # noqa: E731
         if has_t:
             o_r, d_r, wr, kr, o_t, d_t, wt, kt = (g(x) for x in kids)
@@ -515,15 +624,15 @@ class RayTree:
             res = self._level(P, scene, v["o"], v["d"], dr.zeros(mi.Float, mm), dr.full(mi.Float, INF, mm),
                               v["key"], 0, True, active=act)
             wgt = v["wgt"]
-            L = v["L"] + wgt * res["L"]
-            cost = v["cost"] + res["cost"]
+            L = v["L"] + wgt * res.L
+            cost = v["cost"] + res.cost
             cr, ct, w_r, w_t = self._children(res, act, wgt, v["depth"])
             key_r, key_t = child_keys(v["key"])
             sp = v["sp"]
             push = cr & ct
             if has_t:
                 base = sp * 9
-                o_t, d_t = res["o_t"], res["dir_t"]
+                o_t, d_t = res.o_t, res.dir_t
                 for k, val in enumerate((o_t.x, o_t.y, o_t.z, d_t.x, d_t.y, d_t.z, w_t.x, w_t.y, w_t.z)):
                     stk_f.write(val, base + k, push)
                 stk_u.write(v["depth"] + 1, sp * 2, push)
@@ -533,14 +642,14 @@ class RayTree:
             fp = [stk_f.read(top * 9 + k, pop) for k in range(9)]
             dp = stk_u.read(top * 2, pop)
             kp = stk_u.read(top * 2 + 1, pop)
-            o_n = dr.select(cr, res["o_r"], dr.select(ct, res["o_t"], mi.Point3f(fp[0], fp[1], fp[2])))
-            d_n = dr.select(cr, res["dir_r"], dr.select(ct, res["dir_t"], mi.Vector3f(fp[3], fp[4], fp[5])))
+            o_n = dr.select(cr, res.o_r, dr.select(ct, res.o_t, mi.Point3f(fp[0], fp[1], fp[2])))
+            d_n = dr.select(cr, res.dir_r, dr.select(ct, res.dir_t, mi.Vector3f(fp[3], fp[4], fp[5])))
             w_n = dr.select(cr, w_r, dr.select(ct, w_t, mi.Color3f(fp[6], fp[7], fp[8])))
             depth_n = dr.select(cr | ct, v["depth"] + 1, dp)
             key_n = dr.select(cr, key_r, dr.select(ct, key_t, kp))
             sp = dr.select(push, sp + 1, dr.select(pop, sp - 1, sp))
             out = dict(o=mi.Point3f(o_n), d=mi.Vector3f(d_n), wgt=mi.Color3f(w_n), depth=depth_n, key=key_n, L=L, cost=cost, sp=sp,
-                       active=cr | ct | pop, nsh=v["nsh"] + res["n_shadow"],
+                       active=cr | ct | pop, nsh=v["nsh"] + res.n_shadow,
                        nr=v["nr"] + dr.select(cr, one, 0), nt=v["nt"] + dr.select(ct, one, 0))
             return (stk_f, stk_u, *[out[k] for k in names])
 
@@ -559,4 +668,4 @@ class RayTree:
         dr.scatter(cost, g(cost1) + v["cost"], idx)
         dr.eval(total, cost)
         counters.update(nr=v["nr"], nt=v["nt"], nsh2=v["nsh"])
-        return total, cost, res["t"], res["slot"], res["ns"], counters
+        return total, cost, res.t, res.slot, res.ns, counters
