@@ -25,7 +25,7 @@ from links1.tracing.adaptive import DEFAULT_ADAPTIVE_DEPTH
 from links1.tracing.aovs import channel_names
 from links1.tracing.aovs import check_aovs as parse_aovs  # the one AOV table and checker (links1/tracing/aovs.py)
 
-from . import geometry, proxies
+from . import geometry, proxies, tuning
 from .gradients import Gradients
 from .intersect import Intersect
 from .launch import Launches
@@ -116,6 +116,8 @@ class Engine(Tables, Lights, Intersect, RayTree, Launches, Gradients):
         "stats_pending",   # ... or the launches' counters, summed when first read
         # -- counters (tests and benchmarks read them through info())
         "n_scene_builds", "n_camera_views", "n_value_updates",
+        # -- this engine's switches (tuning.Tuning), or None: the module-wide ones
+        "own_tuning",
     )
 
     max_depth = _config_field("max_depth")
@@ -141,6 +143,12 @@ class Engine(Tables, Lights, Intersect, RayTree, Launches, Gradients):
         self.batches = {}
         self.stats_now = self.stats_pending = None
         self.n_scene_builds = self.n_camera_views = self.n_value_updates = 0
+        self.own_tuning = None
+
+    def current_tuning(self) -> tuning.Tuning:
+        """The switches this engine renders with: its own (``Links1Whitted.tuning = ...``) or,
+        without, the module-wide ones (:func:`links1_mitsuba.tuning.current`)."""
+        return self.own_tuning if self.own_tuning is not None else tuning.current()
 
     # -------------------------------------------------------------- the scene's links1 shapes
     def attach(self, custom, slot_of_id, shape_names=None, places=None):

@@ -59,7 +59,7 @@ import copy
 import drjit as dr
 import mitsuba as mi
 
-from . import geometry, tuning
+from . import geometry
 from .raytree import child_keys
 from .tables import PHONG_TABLES
 from .registered import plugin_class
@@ -217,7 +217,7 @@ class Gradients:
         sensor, window or spp renders its pass again (:meth:`_take_kept`); the next frame or a
         ``render_forward`` drops the graph."""
         self.kept_graph = None
-        if not tuning.current().keep_graph or spp != 1:
+        if not self.current_tuning().keep_graph or spp != 1:
             return None
         with dr.suspend_grad():
             P = self.prepare(scene, sensor)

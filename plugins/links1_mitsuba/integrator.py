@@ -167,6 +167,22 @@ def define_integrator():
 
         # -------------------------------------------------------------- the engine's API
         @property
+        def tuning(self):
+            """The switches of the accelerations this integrator renders with
+            (:class:`links1_mitsuba.tuning.Tuning`): its own where one was set, else the
+            module-wide ones. Setting a ``Tuning`` makes it this integrator's alone (None: back
+            to the module-wide ones); it takes effect at the next frame."""
+            return self._hidden.engine.current_tuning()
+
+        @tuning.setter
+        def tuning(self, value):
+            from .tuning import Tuning
+            if value is not None and not isinstance(value, Tuning):
+                raise TypeError(f"links1_whitted: tuning must be a links1_mitsuba.tuning.Tuning or None, "
+                                f"got {type(value).__name__}")
+            self._hidden.engine.own_tuning = value
+
+        @property
         def stats(self):
             """Ray counters of the last render (camera, shadow, reflect, refract rays)."""
             return self._hidden.engine.stats

@@ -13,7 +13,6 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from . import tuning
 from .shapes import quadric_uv
 from .util import INF, c3, gather3, next_up
 
@@ -74,7 +73,7 @@ class Intersect:
             slot = dr.select(better, spec.slot, slot)
             prim = dr.select(better, pc, prim)
         if P.bvh is not None:
-            eye = P.eye_buf if camera and tuning.current().eye_buffer else None
+            eye = P.eye_buf if camera and self.current_tuning().eye_buffer else None
             tq, q, part, found = (eye or P.bvh).nearest(o, d, tmin, next_up(dr.minimum(t, tmax)), active, cost)
             sq = mi.Int32(dr.gather(mi.UInt32, P.bvh.slot, q, found))
             better = found & ((tq < t) | ((tq == t) & ((slot < 0) | (sq < slot))))
@@ -141,7 +140,7 @@ class Intersect:
         ``own``: see :meth:`_meets_boxes`)."""
         if not P.any_mitsuba_shapes:
             return T
-        boxes = P.occ_boxes[light] if tuning.current().box_cull and light is not None else None
+        boxes = P.occ_boxes[light] if self.current_tuning().box_cull and light is not None else None
         occ = P.occ_mslots[light] if light is not None else None
         inc = dr.zeros(mi.UInt32, dr.width(o))
         for slots, query in self._shadow_groups(P, scene, o, d, smax, occ):
@@ -165,7 +164,7 @@ class Intersect:
         sub-scene (T = 0) and one on each transparent shape's (T times its transmittance),
         skipping groups that cannot occlude (``occ``: the light's occluder slots); else the
         scene with :meth:`_shadow_embree`."""
-        split = P.shadow_split if tuning.current().split else None
+        split = P.shadow_split if self.current_tuning().split else None
         if split is None:
             return [(None, lambda T, inc, run: self._shadow_embree(P, scene, o, d, smax, run, T, inc))]
         ray = mi.Ray3f(o, d, smax, 0.0, mi.Color0f())
@@ -190,7 +189,7 @@ class Intersect:
             return dr.select(occluded, 0.0, T), inc + dr.select(act, mi.UInt32(1), 0)
         reg_to_slot, bits_t, words_t, sh_t = P.reg_to_slot, P.trans_bits, P.trans_words, P.shadow_t
         nwords, max_crossings = P.trans_nwords, P.max_crossings
-        preliminary = tuning.current().preliminary
+        preliminary = self.current_tuning().preliminary
 
         def cond(o, tleft, T, seen, run, it, cost):
             return run

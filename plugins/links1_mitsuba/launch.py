@@ -20,7 +20,6 @@ from links1.interrupts import check_interrupt, interruptible
 from links1.tracing.aovs import check_aovs as parse_aovs  # the one AOV table and checker (links1/tracing/aovs.py)
 from links1.maths.sampling import KEY_LENS_U, KEY_LENS_V, KEY_PIXEL, key_seed, strata
 
-from . import tuning
 from .film import Batch, cached_batch, concat, reconstruct, sample_ids, sample_window, widen
 from .util import aligned, mix32, u24, udiv
 
@@ -406,7 +405,7 @@ class Launches:
             y = mi.Float(aligned(yf[a:b], np.float32))
             key = mi.UInt32(aligned(keys[a:b], np.uint32))
             if self.use_freeze:
-                cfg = (id(P), id(scene), int(self.max_depth), float(self.min_weight), tuning.current().key())
+                cfg = (id(P), id(scene), int(self.max_depth), float(self.min_weight), self.current_tuning().key())
                 total, c, counters = self._call_frozen(self._frozen_points_fn(), P, scene, x, y, key,
                                                        dr.opaque(mi.UInt32, b - a), cfg,
                                                        self._frozen_inputs(P))
@@ -435,7 +434,7 @@ class Launches:
             return {"total": total, "cost": dr.zeros(mi.UInt32, n)}, (n, dict(nsh1=None))
         if self.use_freeze:
             cfg = (id(P), id(scene), want, int(self.max_depth), float(self.min_weight),
-                   tuning.current().key())
+                   self.current_tuning().key())
             out = self._call_frozen(self._frozen_fn(), P, scene, sid, dr.opaque(mi.UInt32, n), spp_, seeds,
                                     cfg, self._frozen_inputs(P))
             total, cost, counters = out[0], out[1], out[-1]

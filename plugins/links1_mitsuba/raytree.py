@@ -32,7 +32,6 @@ import mitsuba as mi
 
 from links1.maths.sampling import KEY_REFLECT, KEY_REFRACT
 
-from . import tuning
 from .util import INF, gather3, mix32
 
 # tuning.Tuning.skip_misses: direct light (every light's sample, shading and shadow rays) under a
@@ -174,7 +173,7 @@ class RayTree:
         # ---- direct light with shadows (eq. 3.11, 3-3-3). Shadow rays of all lights are
         # built and evaluated together, then handed to Mitsuba's ray tests (each test
         # evaluates its inputs: building them first avoids recomputing shared work).
-        skip = tuning.current().skip_misses and not ad  # under a symbolic if on the hit (no dr.eval inside it)
+        skip = self.current_tuning().skip_misses and not ad  # under a symbolic if on the hit (no dr.eval inside it)
 
         def direct(out, cost, n_shadow):
             return self._direct(P, scene, h, key, sample, symbolic, skip, later, out, cost, n_shadow)

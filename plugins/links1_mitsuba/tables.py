@@ -26,7 +26,7 @@ from links1.shading.lights import ENV_LIGHT_ID, number_area_lights
 import drjit as dr
 import mitsuba as mi
 
-from . import lightbuffer, proxies, tuning
+from . import lightbuffer, proxies
 from .bvh import QuadricBVH
 from .paramwatch import ParamWatch
 from .prepared import LIGHT_FIELDS, PHONG_TABLES, SHAPE_FIELDS, Prepared
@@ -116,7 +116,7 @@ class Tables(CameraViews):
         ident = scene_identity(scene)
         V = self._prep
         B = getattr(V, "base", None)
-        same = B is not None and B.ident == ident and B.tuning.tables_key() == tuning.current().tables_key()
+        same = B is not None and B.ident == ident and B.tuning.tables_key() == self.current_tuning().tables_key()
         if same and (not self.verify_scene or B.watch.unchanged(scene)):
             pass
         elif not (same and self._update_values(B, scene)):
@@ -225,7 +225,7 @@ class Tables(CameraViews):
         the last tables' (:meth:`ParamWatch.renewed`), or None."""
         P = Prepared()
         P.ident = ident
-        P.tuning = tuning.current()     # what the tables are built with (tables_key)
+        P.tuning = self.current_tuning()     # what the tables are built with (tables_key)
         # before the tables read the parameters
         P.watch = ParamWatch(scene) if watch is None else watch.renewed(scene)
         self.n_scene_builds += 1

@@ -3,12 +3,14 @@ part reads, part of the frozen launches' key and of the prepared tables' identit
 
 Each switch turns one acceleration on or off (for before/after runs and for tests
 that compare it with the plain code); none changes what is rendered beyond float32 rounding
-(the tests of each acceleration say how much). The current value is module-wide::
+(the tests of each acceleration say how much). The current value is module-wide, and an
+integrator may have its own instead (``Engine.current_tuning``)::
 
     from links1_mitsuba import tuning
     with tuning.tuned(split=False):          # for a block
         img = mi.render(scene)
     tuning.set_tuning(light_buffer=False)    # from now on (returns the previous value)
+    scene.integrator().tuning = tuning.Tuning(split=False)   # that integrator's alone
 
 A change takes effect at the next frame of every integrator: the launches recorded by
 :func:`drjit.freeze` are keyed on the whole value (``Launches._launch``, ``trace_points``), and
