@@ -20,6 +20,11 @@ never interact, so a window renders the same bits as the same pixels of the full
 every run-time input (window offset and width, seed) is an opaque value: the kernels compile
 once per scene and are reused for every window and frame.
 
+Why one file of this size: a level's steps (``_surface``, ``_emitted``, ``_direct``,
+``_secondary``), the records they hand each other (:class:`Hit`, :class:`Level`) and the
+megakernel that calls them inside its symbolic loop are read together; split, each would
+import the others' private records.
+
 :class:`RayTree` is a base class of the ``Engine`` (engine.py); its methods name
 ``mi.Float``, ``mi.Ray3f``, ... when called, so the class serves every Mitsuba variant.
 """
