@@ -66,10 +66,11 @@ from .registered import plugin_class
 from .util import INF, kind_of
 
 
-#: (parameter, index in the light's ``P.lights`` entry) of the links1 lights' differentiable values:
-#: ("point", position, direction, L1, L2, ...) and ("cspot", origin, direction, radius, intensity)
-LINKS1_POINT_SLOTS = (("position", 1), ("direction", 2), ("L1", 3), ("L2", 4))
-LINKS1_SPOT_SLOTS = (("origin", 1), ("intensity", 4))
+#: (parameter, field of the light's ``P.lights`` record) of the links1 lights' differentiable
+#: values: a ``links1_point``'s :class:`~.lights.PointRecord`, a ``links1_spot``'s
+#: :class:`~.lights.CylinderSpotRecord`
+LINKS1_POINT_FIELDS = (("position", "position"), ("direction", "axis"), ("L1", "L1"), ("L2", "L2"))
+LINKS1_SPOT_FIELDS = (("origin", "origin"), ("intensity", "intensity"))
 
 
 #: Most sample lanes (pixels of a block and of its filter border, times spp) the derivative
@@ -292,30 +293,30 @@ class Gradients:
             if P.shadow_split is not None:
                 Q.shadow_split = dict(P.shadow_split, trans=[(sub, sl, tr.get(sl, st))
                                                              for sub, sl, st in P.shadow_split["trans"]])
-        # analytic lights: P.lights holds one entry per such emitter, in the scene's order
+        # analytic lights: P.lights holds one record per such emitter, in the scene's order
         Pt, Sp = plugin_class("links1_point"), plugin_class("links1_spot")
         lights, j, any_light = list(P.lights), 0, False
         for e in scene.emitters():
             kind = kind_of(e)
             if isinstance(e, (Pt, Sp)):
-                # the attached values at their places in the light's P.lights entry (tables.py)
-                L = list(lights[j])
-                for name, at in (LINKS1_POINT_SLOTS if isinstance(e, Pt) else LINKS1_SPOT_SLOTS):
+                # the attached values in their fields of the light's P.lights record (tables.py)
+                new = {}
+                for name, field in (LINKS1_POINT_FIELDS if isinstance(e, Pt) else LINKS1_SPOT_FIELDS):
                     v = e.values[name]
                     if attached(v):
-                        L[at] = dr.normalize(v) if name == "direction" else v
+                        new[field] = dr.normalize(v) if name == "direction" else v
                         any_light = True
-                lights[j] = tuple(L)
+                lights[j] = lights[j]._replace(**new)
             elif kind == "PointLight":
                 prm = self._params_of(P, e)
-                L = list(lights[j])
+                new = {}
                 if attached(prm["position"]):
-                    L[1] = mi.Point3f(prm["position"])
+                    new["position"] = mi.Point3f(prm["position"])
                     any_light = True
                 if "intensity.value" in prm and attached(prm["intensity.value"]):
-                    L[3] = mi.Color3f(prm["intensity.value"])
+                    new["L1"] = mi.Color3f(prm["intensity.value"])
                     any_light = True
-                lights[j] = tuple(L)
+                lights[j] = lights[j]._replace(**new)
             elif kind not in ("SpotLight", "DirectionalEmitter"):
                 continue
             j += 1

@@ -28,6 +28,8 @@ import math
 
 import numpy as np
 
+from .lights import DIRECTED, POSITIONED
+
 #: relative distance margin (times 1 + the scene's extent) added to every bound: covers the
 #: float32 error of a shadow ray's line (origin offset by the ray epsilon 2^-19, direction
 #: rounded) by two orders of magnitude
@@ -245,8 +247,9 @@ def grid_size(n, kind="point"):
     return int(np.clip(round(math.sqrt(GRID_FACTOR * n)), 8, cap))
 
 
-def scene_extent(P, scene, lights):
-    """The largest |coordinate| a hit point or light can have (None: unbounded scene)."""
+def scene_extent(P, scene, points):
+    """The largest |coordinate| a hit point or one of the light positions ``points`` can have
+    (None: unbounded scene)."""
     ext = 0.0
     for spec in P.custom:
         a, b = spec.bounds()
@@ -260,9 +263,8 @@ def scene_extent(P, scene, lights):
         if not np.all(np.isfinite(ab)):
             return None
         ext = max(ext, float(np.max(np.abs(ab))))
-    for L in lights:
-        if L[0] in ("point", "mspot", "memitter"):
-            ext = max(ext, float(np.max(np.abs(np.asarray(L[1], dtype=np.float64)))))
+    for pos in points:
+        ext = max(ext, float(np.max(np.abs(np.asarray(pos, dtype=np.float64)))))
     return ext
 
 
@@ -276,15 +278,15 @@ def plan(P, scene):
     out = [None] * len(P.lights)
     if P.bvh is None:
         return out
-    ext = scene_extent(P, scene, P.lights)
+    ext = scene_extent(P, scene, [L.position for L in P.lights if isinstance(L, POSITIONED)])
     if ext is None:
         return out
     margin = MARGIN_REL * (1.0 + ext)
     for j, L in enumerate(P.lights):
-        if L[0] in ("point", "mspot", "memitter"):
-            geom = ("point", np.asarray(L[1], dtype=np.float64))
-        elif L[0] in ("dir", "cspot"):
-            w = -np.asarray(L[1] if L[0] == "dir" else L[2], dtype=np.float64)
+        if isinstance(L, POSITIONED):
+            geom = ("point", np.asarray(L.position, dtype=np.float64))
+        elif isinstance(L, DIRECTED):
+            w = -np.asarray(L.direction, dtype=np.float64)
             geom = ("dir", w / np.linalg.norm(w))
         else:
             continue
@@ -300,7 +302,7 @@ def plan_eye(P, scene):
     if P.bvh is None or not getattr(P, "perspective", False) or P.lens is not None:
         return None
     eye = np.asarray(P.cam, dtype=np.float64)[:3, 3]
-    ext = scene_extent(P, scene, [("point", eye)])
+    ext = scene_extent(P, scene, [eye])
     if ext is None:
         return None
     # the finest grid: most camera rays see no quadric, and a fine cell tells them so without

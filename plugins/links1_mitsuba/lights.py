@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from typing import NamedTuple
 
 import numpy as np
 
@@ -42,6 +43,70 @@ def _emitted_rgb(prm, key: str, kind: str, where: str = "links1_whitted") -> np.
                      "(textured emitters are not supported)")
 
 
+# -------------------------------------------------------------- the light records
+# One record per kind of light in the tables (``Prepared.lights``, ``Prepared.consts``): named
+# tuples, so that the walk gathering the frozen launch's inputs (launch.py: ``_frozen_inputs``)
+# meets their arrays as it met the tuples' before. Each field holds a numpy value or, in a
+# derivative pass, an attached Dr.Jit value (gradients.py: ``_replace``).
+
+class PointRecord(NamedTuple):
+    """A point light: a ``links1_point`` (eq. 3.10: ``L1 + L2 max(cos, 0)`` about ``axis``) or a
+    Mitsuba ``point`` (``L2`` zero, inverse-square falloff)."""
+    position: object
+    axis: object
+    L1: object
+    L2: object
+    inverse_square: bool
+
+
+class CylinderSpotRecord(NamedTuple):
+    """A ``links1_spot``: a parallel beam of ``radius`` about the axis from ``origin`` along
+    ``direction``."""
+    origin: object
+    direction: object
+    radius: object
+    intensity: object
+
+
+class MitsubaSpotRecord(NamedTuple):
+    """A Mitsuba ``spot`` (untextured): cutoff and beam angles in degrees."""
+    position: object
+    axis: object
+    intensity: object
+    cutoff: float
+    beam: float
+
+
+class DirectionalRecord(NamedTuple):
+    """A Mitsuba ``directional`` emitter: light travels along ``direction``."""
+    direction: object
+    irradiance: object
+
+
+class MitsubaEmitterRecord(NamedTuple):
+    """A Mitsuba delta emitter evaluated by Mitsuba itself (textured spot, projector)."""
+    position: object
+    emitter: object
+
+
+class ConstantEnvRecord(NamedTuple):
+    """A ``constant`` environment: its radiance (RGB) and light id (sampling)."""
+    radiance: object
+    light_id: int
+
+
+class EnvMapRecord(NamedTuple):
+    """An ``envmap``: its table (``Lights._envmap_table``) and light id (sampling)."""
+    table: object
+    light_id: int
+
+
+#: the records of lights at a position (light buffers, shadow planning)
+POSITIONED = (PointRecord, MitsubaSpotRecord, MitsubaEmitterRecord)
+#: the records of lights along one direction (``direction``: the way light travels)
+DIRECTED = (DirectionalRecord, CylinderSpotRecord)
+
+
 class Lights:
     """Analytic lights at a hit; area and environment lights: tables and samples."""
 
@@ -61,40 +126,40 @@ class Lights:
         return prm
 
     def _analytic_light(self, e, kind, Pt, Sp, P):
-        """The ``P.lights`` entry of the emitter ``e`` (its ``kind``: :func:`~.util.kind_of`) when
+        """The ``P.lights`` record (:class:`PointRecord`, ...) of the emitter ``e`` (its ``kind``: :func:`~.util.kind_of`) when
         it is an analytic light: a ``links1_point`` (``Pt``) or ``links1_spot`` (``Sp``), a
         Mitsuba point, spot, projector (these two with an image: ``memitter``) or directional
         emitter; else None.
         ``P``: the tables it is for (:meth:`_params_of`)."""
         if isinstance(e, Pt):
             p = e.params
-            return ("point", p["position"], p["direction"], p["L1"], p["L2"],
-                    p["falloff"] == "inverse_square")
+            return PointRecord(p["position"], p["direction"], p["L1"], p["L2"],
+                               p["falloff"] == "inverse_square")
         if isinstance(e, Sp):
             p = e.params
-            return ("cspot", p["origin"], p["direction"], p["radius"], p["intensity"])
+            return CylinderSpotRecord(p["origin"], p["direction"], p["radius"], p["intensity"])
         if kind not in ("PointLight", "SpotLight", "DirectionalEmitter", "Projector"):
             return None
         prm = self._params_of(P, e)
         if kind == "PointLight":
             pos = np.array(prm["position"], dtype=np.float64).ravel()
             I = _emitted_rgb(prm, "intensity", kind, self.place(e))
-            return ("point", pos, np.array([0, 0, 1.0]), I, np.zeros(3), True)
+            return PointRecord(pos, np.array([0, 0, 1.0]), I, np.zeros(3), True)
         m = np.array(prm["to_world"].matrix, dtype=np.float64).reshape(4, 4)
         if kind == "Projector":   # a delta light projecting an image: Mitsuba's own evaluation
-            return ("memitter", m[:3, 3], e)
+            return MitsubaEmitterRecord(m[:3, 3], e)
         if kind == "DirectionalEmitter":
             E = _emitted_rgb(prm, "irradiance", kind, self.place(e))
-            return ("dir", m[:3, 2] / np.linalg.norm(m[:3, 2]), E)
+            return DirectionalRecord(m[:3, 2] / np.linalg.norm(m[:3, 2]), E)
         if any(k.startswith("texture.") and k != "texture.value" for k in prm.keys()):
             # a projector (its texture varies): Mitsuba's own evaluation of the emitter
-            return ("memitter", m[:3, 3], e)
+            return MitsubaEmitterRecord(m[:3, 3], e)
         I = _emitted_rgb(prm, "intensity", kind, self.place(e))
         if "texture.value" in prm.keys():   # a constant texture scales the intensity
             I = I * _emitted_rgb(prm, "texture", kind, self.place(e))
         cutoff = float(np.array(prm["cutoff_angle"]).ravel()[0])
         beam = float(np.array(prm["beam_width"]).ravel()[0])
-        return ("mspot", m[:3, 3].copy(), m[:3, 2] / np.linalg.norm(m[:3, 2]), I, cutoff, beam)
+        return MitsubaSpotRecord(m[:3, 3].copy(), m[:3, 2] / np.linalg.norm(m[:3, 2]), I, cutoff, beam)
 
     @staticmethod
     def _toward(pos, axis, p):
@@ -107,45 +172,40 @@ class Lights:
 
     def _light(self, L, p):
         """(wi, dist, L_s) of one analytic light at points p (docs/method.md §4.1)."""
-        L = tuple(spread(x, dr.width(p)) for x in L)   # attached values at the lanes (util.spread)
-        kind = L[0]
-        if kind == "point":
-            _, pos, direction, L1, L2, inv_sq = L
-            wi, dist, cos_theta = self._toward(pos, direction, p)
-            Ls = c3(L1)
-            if dr.is_array_v(L2) or np.any(L2 != 0):   # an attached L2 (gradients.py)
-                Ls = Ls + c3(L2) * dr.maximum(cos_theta, 0.0)  # eq. (3.10)
-            if inv_sq:
+        L = L._make(spread(x, dr.width(p)) for x in L)   # attached values at the lanes (util.spread)
+        if isinstance(L, PointRecord):
+            wi, dist, cos_theta = self._toward(L.position, L.axis, p)
+            Ls = c3(L.L1)
+            if dr.is_array_v(L.L2) or np.any(L.L2 != 0):   # an attached L2 (gradients.py)
+                Ls = Ls + c3(L.L2) * dr.maximum(cos_theta, 0.0)  # eq. (3.10)
+            if L.inverse_square:
                 Ls = Ls / dr.square(dist)
             return wi, dist, dr.select(dist > 0, Ls, 0.0)
-        if kind == "dir":
-            _, direction, E = L
+        if isinstance(L, DirectionalRecord):
             n = dr.width(p)
-            wi = dr.zeros(mi.Vector3f, n) - v3(direction)
-            return wi, dr.full(mi.Float, INF, n), dr.zeros(mi.Color3f, n) + c3(E)
-        if kind == "cspot":
-            _, origin, direction, radius, I = L
-            axis = v3(direction)
-            rel = p - v3(origin)
+            wi = dr.zeros(mi.Vector3f, n) - v3(L.direction)
+            return wi, dr.full(mi.Float, INF, n), dr.zeros(mi.Color3f, n) + c3(L.irradiance)
+        if isinstance(L, CylinderSpotRecord):
+            axis = v3(L.direction)
+            rel = p - v3(L.origin)
             s = dr.dot(rel, axis)
             radial = rel - axis * s
-            inside = (s > 0) & (dr.squared_norm(radial) <= radius * radius)
+            inside = (s > 0) & (dr.squared_norm(radial) <= L.radius * L.radius)
             return -axis + mi.Vector3f(dr.zeros(mi.Float, dr.width(p))), dr.select(inside, s, 0.0), \
-                dr.select(inside, c3(I), 0.0)
-        if kind == "mspot":
-            _, pos, axis, I, cutoff, beam = L
-            wi, dist, cos_theta = self._toward(pos, axis, p)
-            co, cb = math.radians(cutoff), math.radians(beam)
+                dr.select(inside, c3(L.intensity), 0.0)
+        if isinstance(L, MitsubaSpotRecord):
+            wi, dist, cos_theta = self._toward(L.position, L.axis, p)
+            co, cb = math.radians(L.cutoff), math.radians(L.beam)
             ramp = dr.select(cos_theta >= math.cos(cb), 1.0,
                              (co - dr.acos(dr.clip(cos_theta, -1.0, 1.0))) / max(co - cb, 1e-30))
             ramp = dr.select(cos_theta > math.cos(co), ramp, 0.0)
-            return wi, dist, c3(I) * (ramp / dr.maximum(dr.square(dist), 1e-30))
-        if kind == "memitter":   # a Mitsuba delta emitter evaluated by Mitsuba (textured spot, projector)
+            return wi, dist, c3(L.intensity) * (ramp / dr.maximum(dr.square(dist), 1e-30))
+        if isinstance(L, MitsubaEmitterRecord):   # evaluated by Mitsuba (textured spot, projector)
             it = dr.zeros(mi.Interaction3f, dr.width(p))
             it.p = p
-            ds, spec = L[2].sample_direction(it, mi.Point2f(0.5, 0.5), True)
+            ds, spec = L.emitter.sample_direction(it, mi.Point2f(0.5, 0.5), True)
             return ds.d, ds.dist, mi.Color3f(spec)
-        raise AssertionError(kind)
+        raise AssertionError(type(L).__name__)
 
     # -------------------------------------------------------------- area lights, environments
     def _area_table(self, e, shapes, slot_list):
@@ -326,14 +386,14 @@ class Lights:
     def _sample_env(self, env, nf, u, v):
         """``ConstantEnvironment.sample`` / ``EnvironmentMap.sample`` of the core in float32:
         (wi, L / pdf, pdf)."""
-        if env[0] == "const":
+        if isinstance(env, ConstantEnvRecord):
             fr = mi.Frame3f(nf)
             r_ = dr.sqrt(u)
             z = dr.sqrt(dr.maximum(0.0, 1.0 - u))
             sp_, cp_ = dr.sincos(2.0 * math.pi * v)
             wi = fr.s * (r_ * cp_) + fr.t * (r_ * sp_) + fr.n * z
-            return wi, c3(env[1]) * dr.select(z > 0, math.pi / z, 0.0), z * (1.0 / math.pi)
-        T = env[1]
+            return wi, c3(env.radiance) * dr.select(z > 0, math.pi / z, 0.0), z * (1.0 / math.pi)
+        T = env.table
         E, H, W = T["E"], T["E"].H, T["E"].W
         if E.dark:
             return mi.Vector3f(nf), dr.zeros(mi.Color3f, dr.width(u)), dr.zeros(mi.Float, dr.width(u))
@@ -385,9 +445,9 @@ class Lights:
         :meth:`_sample_env` draws ``wi`` (constant: ``cos θ / π`` about ``nf``; envmap: its
         cell's, ``EnvironmentMap.eval``'s mapping)."""
         n = dr.width(wi)
-        if env[0] == "const":
-            return dr.zeros(mi.Color3f, n) + c3(env[1]), dr.maximum(dr.dot(nf, wi), 0.0) * (1.0 / math.pi)
-        T = env[1]
+        if isinstance(env, ConstantEnvRecord):
+            return dr.zeros(mi.Color3f, n) + c3(env.radiance), dr.maximum(dr.dot(nf, wi), 0.0) * (1.0 / math.pi)
+        T = env.table
         E = T["E"]
         if E.dark:
             return dr.zeros(mi.Color3f, n), dr.zeros(mi.Float, n)

@@ -155,16 +155,16 @@ class Prepared:
     mitsuba_emits: object = _set_later()
 
     # -- lights (docs/method.md §4.1; lights.py)
-    #: the analytic lights: ("point", pos, axis, L1, L2, inverse_square), ("cspot", origin,
-    #: direction, radius, I), ("mspot", pos, axis, I, cutoff, beam), ("dir", direction, E),
-    #: ("memitter", pos, emitter)
+    #: the analytic lights, one record each (lights.py): ``PointRecord`` (links1 and Mitsuba point
+    #: lights), ``CylinderSpotRecord`` (links1_spot), ``MitsubaSpotRecord``, ``DirectionalRecord``,
+    #: ``MitsubaEmitterRecord`` (a textured spot, a projector)
     lights: list = _set_later()
     #: the sampled area emitters and their tables (``Lights._area_table``)
     area: list = _set_later()
     area_tab: list = _set_later()
     #: the environment emitter seen by escaping rays, or None
     env: object = _set_later()
-    #: the environment lights: ("const", rgb, light id) or ("envmap", table, light id)
+    #: the environment lights: ``ConstantEnvRecord`` or ``EnvMapRecord`` (lights.py)
     consts: list = _set_later()
     #: per light (analytic, then area, then environment; :func:`shadow_plan.plan_occluders`): the slots
     #: whose hits need a shadow ray (Bool, None: all), the closed shapes that shadow their own

@@ -360,7 +360,7 @@ class RayTree:
         m_inv = 1.0 / self.light_samples
         sampled = [(len(P.lights) + j, tab, tab["id"]) for j, tab in enumerate(P.area_tab)]
         sampled += [(len(P.lights) + len(P.area) + k, env, lid) for k, env in enumerate(P.consts)
-                    for lid in [env[2]]]
+                    for lid in [env.light_id]]
         for jsh, tab, lid in sampled:          # area lights and environments (links1.shading.lights)
             for js in range(self.light_samples):
                 u, v = self._light_uv(key, sample, lid, js)

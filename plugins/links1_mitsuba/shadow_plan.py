@@ -13,6 +13,7 @@ import numpy as np
 
 from links1.maths.halfspace import box_side, point_side
 
+from .lights import DirectionalRecord, CylinderSpotRecord
 from .paramwatch import own_param
 from .util import kind_of
 
@@ -113,12 +114,10 @@ def plan_occluders(P, custom, shapes, slot_list, reuse=False):
     nslots, convex, plane, tol = P.nslots, G["convex"], G["plane"], G["tol"]
     lights = []   # (position or None, direction toward the light or None, emitter slot or None)
     for L in P.lights:
-        if L[0] == "dir":
-            lights.append(("dir", -np.asarray(L[1], dtype=np.float64)))
-        elif L[0] == "cspot":
-            lights.append(("dir", -np.asarray(L[2], dtype=np.float64)))
+        if isinstance(L, (DirectionalRecord, CylinderSpotRecord)):
+            lights.append(("dir", -np.asarray(L.direction, dtype=np.float64)))
         else:
-            lights.append(("pos", np.asarray(L[1], dtype=np.float64)))
+            lights.append(("pos", np.asarray(L.position, dtype=np.float64)))
     for e in P.area:
         lights.append(("area", e))
     for _ in P.consts:

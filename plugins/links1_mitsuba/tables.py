@@ -28,6 +28,7 @@ import mitsuba as mi
 
 from . import lightbuffer, proxies
 from .bvh import QuadricBVH
+from .lights import ConstantEnvRecord, EnvMapRecord
 from .paramwatch import ParamWatch
 from .prepared import LIGHT_FIELDS, PHONG_TABLES, SHAPE_FIELDS, Prepared
 from .registered import plugin_class
@@ -416,11 +417,11 @@ class Tables(CameraViews):
                 P.lights.append(L)
             elif kind == "ConstantBackgroundEmitter":
                 rad = np.array(mi.traverse(e)["radiance.value"], dtype=np.float64).ravel()
-                P.consts.append(("const", np.broadcast_to(rad, (3,)).copy(), ENV_LIGHT_ID + n_env))
+                P.consts.append(ConstantEnvRecord(np.broadcast_to(rad, (3,)).copy(), ENV_LIGHT_ID + n_env))
                 n_env += 1
                 P.env = e
             elif kind == "EnvironmentMapEmitter":
-                P.consts.append(("envmap", self._envmap_table(e), ENV_LIGHT_ID + n_env))
+                P.consts.append(EnvMapRecord(self._envmap_table(e), ENV_LIGHT_ID + n_env))
                 n_env += 1
                 P.env = e
             elif e.is_environment() or (int(e.flags()) & int(mi.EmitterFlags.Infinite)):
