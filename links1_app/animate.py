@@ -245,7 +245,7 @@ def animate(scene, output=None, *, frames, defines=(), fps=24.0, renderer="core"
                 res.frames.append({"frame": frames[k], "units": len(infos),
                                    "render_s": float(sum(v[0] for v in launches.values())),
                                    "cpu_s": float(sum(v[1] for v in launches.values())),
-                                   "nodes": sorted({int(v[2]) for v in launches.values()}),
+                                   "nodes": sorted({str(v[2]) for v in launches.values()}),
                                    "ray_tests": float(costs[k].sum()) if k in costs else None})
     finally:
         bar.close()

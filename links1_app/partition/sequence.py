@@ -262,9 +262,10 @@ def node_loads(plan, records, cost, frame_height, n_nodes):
     node: what it took of a core, whatever else ran there) and ray tests (exact, the cost AOV over
     its units) of a finished plan's units (``records``: :class:`.executors.RenderResult`'s)."""
     busy, cpu, tests = np.zeros(n_nodes), np.zeros(n_nodes), np.zeros(n_nodes)
-    seen = set()
+    seen, index = set(), {}
     for i, info in records.items():
-        k = int(info.get("node", 0)) % n_nodes
+        # a node's index (the local pool's), or its name (a Dask worker's) numbered as met
+        k = index.setdefault(info.get("node", 0), len(index)) % n_nodes
         lid = info.get("launch")
         if lid is not None and tuple(lid) not in seen:
             seen.add(tuple(lid))

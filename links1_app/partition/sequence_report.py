@@ -10,6 +10,7 @@ one process rendering the frames in turn (``one_process``), measured in the same
 """
 from __future__ import annotations
 
+import os
 import statistics
 
 import numpy as np
@@ -195,7 +196,7 @@ def plot(report, path) -> None:
         ax.set_xlabel("frame")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
-    fig.suptitle(f"{report['scene']}: frames over {report['nodes']} nodes; whole frames: "
+    fig.suptitle(f"{os.path.basename(report['scene'])}: frames over {report['nodes']} nodes; whole frames: "
                  f"{_fmt(report['throughput'].get('frames'))} x one process's frames per second")
     fig.tight_layout()
     fig.savefig(path, dpi=90)

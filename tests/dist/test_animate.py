@@ -102,9 +102,10 @@ def test_dask_local_cluster_is_bit_identical(refs):
     pytest.importorskip("distributed")
     be = make_backend(dask_local=2)
     try:
-        for units in ("frames", "partition"):
-            res = animate(MANY, frames=[0, 1, 2], defines=[ORBIT], units=units, backend=be, keep_images=True,
-                          aovs=("cost",), progress=False, tiles_per_node=4, **OPTS)
+        for units, partition in (("frames", "subscreen"), ("partition", "subscreen"), ("partition", "dynamic")):
+            res = animate(MANY, frames=[0, 1, 2], defines=[ORBIT], units=units, partition=partition, backend=be,
+                          keep_images=True, aovs=("cost",), progress=False, tiles_per_node=4, **OPTS)
+            assert all(fr.get("imbalance_ray_tests", 1.0) >= 1.0 for fr in res.frames)
             check_frames(res, refs)
     finally:
         be.close()
