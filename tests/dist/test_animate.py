@@ -318,3 +318,21 @@ def test_video_needs_its_extra(tmp_path, capsys):
                  "--video", str(tmp_path / "v.mp4"), "--no-progress"])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and "links1[video]" in err[0] and not list(tmp_path.iterdir())
+
+
+def test_sequence_plans_cover_their_frames_once():
+    """Whole frames, whole frames then split ones, and a frame's plan moved to its rows each cover
+    exactly their frames' rows of the tall film, once."""
+    from links1.partition.strategies import make_plan
+    from links1_app.partition.sequence import frame_units_plan, shifted
+    W, H, F = 20, 12, 5
+    for split in (0, 2):
+        plan = frame_units_plan(W, H, [1, 2, 4], 2, F, split_last=split, tiles_per_node=3)
+        cover = plan.coverage()
+        want = np.zeros((H * F, W), dtype=np.int64)
+        for k in (1, 2, 4):
+            want[k * H:(k + 1) * H] = 1
+        assert np.array_equal(cover, want)
+        assert len(plan.units) == 3 - split + split * len(make_plan("grid", W, H, 2, tiles_per_node=3).units)
+    tall = shifted(make_plan("subscreen", W, H, 2, tiles_per_node=4), 3, H, F)
+    assert tall.height == H * F and tall.coverage()[3 * H:4 * H].min() == 1 and tall.coverage().sum() == W * H
