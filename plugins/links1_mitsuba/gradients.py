@@ -61,6 +61,7 @@ import mitsuba as mi
 
 from . import geometry
 from .raytree import child_keys
+from .prepared import CameraView
 from .tables import PHONG_TABLES
 from .registered import plugin_class
 from .util import INF, kind_of
@@ -269,7 +270,7 @@ class Gradients:
         """A shallow copy of the tables ``P`` with the attached values of the parameters
         that have gradients enabled put in (rendered in a derivative ``mode``: the launches
         then trace :meth:`_trace_tree_ad`, the film differentiably)."""
-        Q = copy.copy(P)
+        Q = P.tables() if isinstance(P, CameraView) else copy.copy(P)
         Q.frozen_inputs = None
         Phong = plugin_class("links1_phong")
         bsdfs = P.keep_alive[3]       # the BSDF of each slot (tables.prepare)

@@ -1,12 +1,14 @@
 """The schema of ``links1_whitted``'s per-scene tables: :class:`Prepared`, one slotted dataclass
-(every field named, typed and commented; an undeclared name is an AttributeError), and the
-groups of its fields that an in-place update makes anew (:data:`LIGHT_FIELDS`,
+(every field named, typed and commented; an undeclared name is an AttributeError), a sensor's
+:class:`CameraView` of it (its own :class:`ViewFields`, the rest read through the scene's
+tables), and the groups of its fields that an in-place update makes anew (:data:`LIGHT_FIELDS`,
 :data:`SHAPE_FIELDS`) or that hold the ``links1_phong`` coefficients (:data:`PHONG_TABLES`).
 Made by ``tables.Tables.prepare``.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import copy
+from dataclasses import dataclass, field, fields
 from typing import TYPE_CHECKING
 
 from . import tuning
@@ -29,10 +31,43 @@ def _default(value=None):
 
 
 @dataclass(slots=True, eq=False)
-class Prepared:
+class ViewFields:
+    """The fields of a sensor's view of the tables (:meth:`views.CameraViews._camera_view`): those
+    of a :class:`CameraView` and of :class:`Prepared` (None / unset on the scene's tables)."""
+
+    #: the scene's tables (None: these are the scene's tables)
+    base: Prepared | None = _default(None)
+    #: a sensor that is not the scene's, watched (:class:`ParamWatch`) while verify_scene
+    sensor_watch: ParamWatch | None = _default(None)
+    #: the Dr.Jit arrays of these tables (``Launches._frozen_inputs``), once gathered
+    frozen_inputs: list | None = _default(None)
+    #: the scene as the frozen launches' input (``launch.SceneInputs`` or "whole scene")
+    scene_input: object = _default(None)
+    sensor: object = _set_later()
+    #: the film's full size (W, H) and reconstruction filter (links1.sensor.filters.Filter)
+    film_size: tuple = _set_later()
+    rfilter: Filter = _set_later()
+    #: "perspective" or "orthographic"; perspective; its horizontal field of view (degrees)
+    projection: str = _set_later()
+    perspective: bool = _default(False)
+    x_fov: float | None = _default(None)
+    #: a thin lens's (aperture radius, focus distance), or None: a pinhole
+    lens: tuple | None = _default(None)
+    #: the camera-to-world matrix (4x4 float64) and the clip distances
+    cam: object = _set_later()
+    near: float = _set_later()
+    far: float = _set_later()
+    #: the light buffer around a pinhole camera's eye (lightbuffer.plan_eye), or None
+    eye_buf: object = _default(None)
+
+
+@dataclass(slots=True, eq=False)
+class Prepared(ViewFields):
     """The per-scene tables the kernels read (:meth:`Tables.prepare`): slots (the shapes in
     file order: Mitsuba's first, then the links1 shapes), materials, shadow rays, emission,
-    lights, and in a camera view (a shallow copy per sensor) the camera and film.
+    lights, and in a derivative pass's copy of a camera view (:meth:`CameraView.tables`) the
+    camera and film (a view itself is a :class:`CameraView`: its own fields, the rest read
+    through the scene's tables).
 
     Every field is declared here (``slots``: assigning an undeclared name is an
     AttributeError). The Dr.Jit arrays among them reach the frozen launches as their
@@ -183,32 +218,6 @@ class Prepared:
     #: per analytic light: its light buffer (lightbuffer.plan) or None
     lbuf: list = _set_later()
 
-    # -- the camera view (:meth:`views.CameraViews._camera_view`; None / unset on the scene's tables)
-    #: the scene's tables this view copies
-    base: Prepared | None = _default(None)
-    #: a sensor that is not the scene's, watched (:class:`ParamWatch`) while verify_scene
-    sensor_watch: ParamWatch | None = _default(None)
-    #: the Dr.Jit arrays of these tables (``Launches._frozen_inputs``), once gathered
-    frozen_inputs: list | None = _default(None)
-    #: the scene as the frozen launches' input (``launch.SceneInputs`` or "whole scene")
-    scene_input: object = _default(None)
-    sensor: object = _set_later()
-    #: the film's full size (W, H) and reconstruction filter (links1.sensor.filters.Filter)
-    film_size: tuple = _set_later()
-    rfilter: Filter = _set_later()
-    #: "perspective" or "orthographic"; perspective; its horizontal field of view (degrees)
-    projection: str = _set_later()
-    perspective: bool = _default(False)
-    x_fov: float | None = _default(None)
-    #: a thin lens's (aperture radius, focus distance), or None: a pinhole
-    lens: tuple | None = _default(None)
-    #: the camera-to-world matrix (4x4 float64) and the clip distances
-    cam: object = _set_later()
-    near: float = _set_later()
-    far: float = _set_later()
-    #: the light buffer around a pinhole camera's eye (lightbuffer.plan_eye), or None
-    eye_buf: object = _default(None)
-
     # -- a derivative pass (gradients.py: a copy with attached values)
     #: the attached geometry of the links1 shapes, or None
     geo_ad: object = _default(None)
@@ -221,6 +230,34 @@ class Prepared:
     attached_any: bool = _default(False)
 
 
+
+
+@dataclass(slots=True, eq=False)
+class CameraView(ViewFields):
+    """A sensor's view of the scene's tables ``base`` (:meth:`views.CameraViews._camera_view`):
+    it holds only its own fields, the sensor's camera, film, filter and eye buffer and the
+    launches' inputs gathered for it, and reads every other field of :class:`Prepared` through
+    ``base``, so an in-place update of the scene's tables (``Tables._update_values``) is what
+    each view sees. ``Launches._frozen_inputs`` walks its fields, ``base`` among them."""
+
+    def __getattr__(self, name):
+        # (called only for a name that is not one of the view's set fields)
+        if name in _VIEW_FIELDS or name.startswith("__"):
+            raise AttributeError(name)
+        return getattr(self.base, name)
+
+    def tables(self) -> Prepared:
+        """A :class:`Prepared` holding the base's fields and this view's (a shallow copy: the
+        tables' values are shared), ``base`` the scene's tables: what a derivative pass puts
+        its attached values in (``Gradients._ad_tables``)."""
+        Q = copy.copy(self.base)
+        for f in _VIEW_FIELDS:
+            if hasattr(self, f):
+                setattr(Q, f, getattr(self, f))
+        return Q
+
+
+_VIEW_FIELDS = frozenset(f.name for f in fields(ViewFields))
 
 
 #: The ``links1_phong`` coefficients as the tables hold them: table field -> (the BSDF's parameter

@@ -30,7 +30,7 @@ from . import lightbuffer, proxies
 from .bvh import QuadricBVH
 from .lights import ConstantEnvRecord, EnvMapRecord
 from .paramwatch import ParamWatch
-from .prepared import LIGHT_FIELDS, PHONG_TABLES, SHAPE_FIELDS, Prepared
+from .prepared import PHONG_TABLES, Prepared
 from .registered import plugin_class
 from .shadow_plan import plan_occluders, shadow_split
 from .util import checked_index, kind_of
@@ -203,16 +203,15 @@ class Tables(CameraViews):
         if light or geo:
             self._shadow_tables(B, scene, B.shape_list, B.slot_list, reuse=not geo)
             self._freeze = self._freeze_points = None
+        for k, v in new.items():
+            setattr(B, k, v)
+        if now is not None:
+            B.phong_np = now
+        # the camera views read the new tables through B; of their own fields, the eye's
+        # buffer follows the geometry and the launch's inputs are gathered again
         for P in (B, *B.views.values()):
-            for k, v in new.items():
-                setattr(P, k, v)
-            if now is not None:
-                P.phong_np = now
-            if (light or geo) and P is not B:
-                for f in LIGHT_FIELDS + (SHAPE_FIELDS if geo else ()):
-                    setattr(P, f, getattr(B, f))
-                if geo:   # the camera rays' buffer around the eye (_camera_view)
-                    P.eye_buf = lightbuffer.plan_eye(P, scene) if B.tuning.light_buffer else None
+            if geo and P is not B:   # the camera rays' buffer around the eye (_camera_view)
+                P.eye_buf = lightbuffer.plan_eye(P, scene) if B.tuning.light_buffer else None
             P.frozen_inputs = None       # gathered again: the new arrays are the launch's inputs
             if light or geo or not B.all_phong or B.any_mitsuba_emission:
                 P.scene_input = None     # the scene's variables (the BSDFs' new values) too

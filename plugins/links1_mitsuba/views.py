@@ -1,11 +1,10 @@
 """Camera views of the per-scene tables: a sensor as an object (:meth:`CameraViews._sensor_of`),
-its view of the scene's tables (:meth:`CameraViews._camera_view`: camera, film, filter, the
-eye's light buffer; one per sensor, kept with the scene's tables) and its camera
+its view of the scene's tables (:meth:`CameraViews._camera_view`: a ``prepared.CameraView``
+holding camera, film, filter, the eye's light buffer and reading the rest through the scene's
+tables; one per sensor, kept with them) and its camera
 (:meth:`CameraViews._set_camera`). A base class of ``tables.Tables``.
 """
 from __future__ import annotations
-
-import copy
 
 import mitsuba as mi
 import numpy as np
@@ -15,6 +14,7 @@ from links1.sensor.filters import Filter
 
 from . import lightbuffer
 from .paramwatch import ParamWatch, own_param
+from .prepared import CameraView
 from .util import kind_of
 
 
@@ -39,8 +39,8 @@ class CameraViews:
         return sensor
 
     def _camera_view(self, B, scene, sensor):
-        """The tables ``B`` with ``sensor``'s camera, film and filter (a shallow copy of
-        ``B``: the Dr.Jit tables are shared), one per sensor and kept with ``B``. A sensor
+        """The tables ``B`` with ``sensor``'s camera, film and filter (a :class:`CameraView`:
+        it reads every other field through ``B``), one per sensor and kept with ``B``. A sensor
         that is not one of the scene's is watched (:class:`ParamWatch`) while
         ``verify_scene``, as the scene is."""
         own = any(sensor is s for s in B.keep_alive[2])
@@ -49,11 +49,9 @@ class CameraViews:
         if (V is not None and V.sensor is sensor and (V.sensor_watch is not None) == check
                 and (not check or V.sensor_watch.unchanged(sensor))):
             return V
-        V = copy.copy(B)
+        V = CameraView()
         V.base = B
         V.sensor_watch = ParamWatch(sensor) if check else None
-        V.frozen_inputs = None
-        V.scene_input = None
         self.n_camera_views += 1
         self._set_camera(V, sensor)
         # light buffer around a pinhole camera's eye for the camera rays' nearest quadric

@@ -32,14 +32,17 @@ def test_prepared_refuses_an_undeclared_attribute():
 @pytest.mark.parametrize("name", ["fig11", "mitsuba_glass", "lights"])
 def test_a_prepared_view_sets_every_field(variant, name):
     from links1_mitsuba import MitsubaRenderer
-    from links1_mitsuba.prepared import Prepared
+    from links1_mitsuba.prepared import CameraView, Prepared
     path = os.path.join(SCENES, f"{name}.xml")
     r = MitsubaRenderer(path, width=8, height=6, spp=1)
     r.render()
     V = r.integrator.info()["tables"]
-    assert isinstance(V, Prepared) and isinstance(V.base, Prepared) and V.base is not V
+    assert isinstance(V, CameraView) and isinstance(V.base, Prepared)
     unset = [f.name for f in dataclasses.fields(Prepared) if not hasattr(V, f.name)]
     assert unset == []
+    # the view holds only its own fields and reads the others through the scene's tables
+    assert V.lights is V.base.lights and V.dif is V.base.dif and not hasattr(V, "__dict__")
+    assert V.tables().lights is V.base.lights and V.tables().cam is V.cam
     # the scene's own tables (no camera): the camera fields are the only ones unset
     camera = {"sensor", "film_size", "rfilter", "projection", "cam", "near", "far"}
     assert {f.name for f in dataclasses.fields(Prepared) if not hasattr(V.base, f.name)} == camera
