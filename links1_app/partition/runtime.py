@@ -114,7 +114,9 @@ def set_threads(threads, kind="core"):
     if kind == "mitsuba":
         try:
             import drjit   # lazy: Mitsuba is optional, and only its renderer needs this
-            drjit.set_thread_count(int(threads))
+            # never below 2: Mitsuba 3.9.1 reads EXR files (a texture, an envmap) with tasks on
+            # Dr.Jit's pool, and with a pool of one thread that read waits forever
+            drjit.set_thread_count(max(2, int(threads)))
         except Exception:  # noqa: BLE001 - the renderer reports a missing drjit itself
             pass
 
