@@ -19,6 +19,7 @@ Usage::
     .venv/bin/python -m compare.sequence [--frames 48] [--res 256] [--nodes 2] [--renderer core]
         [--sequences orbit,blobs] [--simulate 2,4,8,16,64] [--tiles-per-node 64] [--out sequence]
     .venv/bin/python -m compare.sequence --plans [--frames 48] [--res 256] [--nodes 2]   # plan rules, exact
+    .venv/bin/python -m compare.sequence --rounds 3                                      # throughput
     .venv/bin/python -m compare.sequence --picture docs/images/sequences.png             # a few frames
 
 Writes ``compare/results/OUT_<sequence>.{json,png}`` and ``compare/results/OUT.md`` (``--plans``:
@@ -171,6 +172,44 @@ def plans(args) -> int:
     return 0
 
 
+def throughput(args) -> int:
+    """Whole frames on the nodes against one process rendering them in turn (a node's threads),
+    alternating, so that both see the machine's load of the same minutes."""
+    import statistics
+    from links1_app.animate import animate, make_backend
+    from links1_app.partition.executors import InProcess
+    from links1_app.partition.local_pool import threads_per_worker
+    from links1_app.partition.runtime import limit_blas, set_threads
+    set_threads(threads_per_worker(args.nodes))
+    limit_blas(threads_per_worker(args.nodes))
+    info = machine_info()
+    md = [f"# Whole frames against one process (`python -m compare.sequence {' '.join(sys.argv[1:])}`)", "",
+          f"{args.frames} frames at {args.res}x{args.res}, core, spp 1, {args.nodes} nodes of "
+          f"{threads_per_worker(args.nodes)} thread(s), the one process with as many; {info.get('cpu')}, "
+          f"{info.get('cores')} cores, load average at start {info.get('load_average_at_start')}, git "
+          f"{info.get('git_commit')}.", ""]
+    for name in args.sequences.split(","):
+        scene, defines = SEQUENCES[name]
+        kw = dict(frames=list(range(args.frames)), defines=defines, units="frames", width=args.res, height=args.res,
+                  spp=1, progress=False)
+        be = make_backend(workers=args.nodes)
+        rows = []
+        try:
+            for _ in range(args.rounds):
+                one = animate(str(ROOT / scene), backend=InProcess(chunk_factor=0), **kw).makespan_s
+                nodes = animate(str(ROOT / scene), backend=be, **kw).makespan_s
+                rows.append((one, nodes, one / nodes))
+        finally:
+            be.close()
+        md += [f"## {name}", "", "| round | one process s | whole frames on the nodes s | ratio |", "|---|---|---|---|"]
+        md += [f"| {i} | {a:.2f} | {b:.2f} | {c:.2f} |" for i, (a, b, c) in enumerate(rows)]
+        md += [f"| median | {statistics.median(r[0] for r in rows):.2f} | {statistics.median(r[1] for r in rows):.2f} | "
+               f"**{statistics.median(r[2] for r in rows):.2f}** |", ""]
+    (RESULTS / f"{args.out}_throughput.md").write_text("\n".join(md))
+    print("\n".join(md))
+    return 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=48)
@@ -186,6 +225,9 @@ def main(argv=None) -> int:
     ap.add_argument("--plans", action="store_true",
                     help="instead: render each sequence once in-process and give, per plan rule, the imbalance in "
                          "exact ray tests its plans would have at --nodes (no timing: OUT_plans.md)")
+    ap.add_argument("--rounds", type=int, default=0, metavar="R",
+                    help="instead: throughput only, R alternating rounds of one process and whole frames on the "
+                         "nodes (the same frames, the pool kept), ratios per round and their median (OUT_throughput.md)")
     ap.add_argument("--picture", default=None, metavar="PNG",
                     help="instead: frames 0, 12, 24, 36 of each sequence at 128^2 side by side (the README's picture)")
     args = ap.parse_args(argv)
@@ -193,6 +235,8 @@ def main(argv=None) -> int:
         return picture(args.picture, args.sequences.split(","))
     if args.plans:
         return plans(args)
+    if args.rounds:
+        return throughput(args)
     import tempfile
     RESULTS.mkdir(parents=True, exist_ok=True)
     info = machine_info()
