@@ -39,6 +39,8 @@ REFERENCES = {
     "fig4.xml": ("the floor where no ray nears the clipped ellipsoid's bounding ball", 0.35),
     "fig6a.xml": ("the floor where no ray nears a blob centre's 3S ball", 0.12),
     "fig6b.xml": ("the floor where no ray nears a blob centre's 3S ball", 0.12),
+    "blobs_moving.xml": ("the floor where no ray nears a blob centre's 3S ball (the moving blob "
+                         "of the sequence example at its default frame)", 0.12),
     "bicubic.xml": ("the floor where no ray nears the patches' control-point box", 0.1),
     "delta_bsdfs.xml": ("the striped wall and the floor seen directly: Mitsuba diffuse under a "
                         "directional and a point light, every delta-BSDF object blocking shadow rays "

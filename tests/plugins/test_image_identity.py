@@ -5,7 +5,8 @@ before the plugin's parts became module classes, before the core's one
 dependency direction and its subpackages and before the film of a batch
 became one kernel: every ``scenes/*.xml`` at 48x40, spp 2, with the ``depth``,
 ``normal`` and ``cost`` AOVs, by the core and by the Mitsuba plugin (and by the plugin as a
-batch of two windows, which must equal the full frame). A digest is the SHA-256 of the image
+batch of two windows, which must equal the full frame); a scene added since has the digests of
+the commit that added it. A digest is the SHA-256 of the image
 rounded to float32 (the precision of a written EXR), so a float64 difference of an ulp in the
 core passes only where it cannot change a stored pixel.
 
