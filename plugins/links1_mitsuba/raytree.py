@@ -167,7 +167,7 @@ class RayTree:
         which rays the level spawns, so that reading waits for the hits' kernel only). ``ad``:
         a derivative pass's level (gradients.py: attached tables, no symbolic branches, visibility
         on primal values). Returns a :class:`Level`: :meth:`_surface`, :meth:`_emitted`,
-        :meth:`_direct` under every light, :meth:`_secondary` when it ``spawn``\ s."""
+        :meth:`_direct` under every light, :meth:`_secondary` when it spawns (``spawn``)."""
         n = dr.width(o)
         if active is None:
             active = dr.full(mi.Bool, True, n)
