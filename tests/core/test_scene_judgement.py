@@ -129,7 +129,7 @@ def test_unknown_command_has_one_prefix():
     rc, err = links1("bogus")
     assert rc == 2
     assert err == ["links1: error: argument COMMAND: invalid choice: 'bogus' (choose from 'render', 'diff', "
-                   "'schedule')"]
+                   "'schedule', 'animate')"]
     rc, err = links1("render")
     assert rc == 2 and err[-1].startswith("links1: error: render: the following arguments are required")
 
