@@ -37,6 +37,10 @@ from .local_pool import node_cpus, threads_per_worker
 from .runtime import (THREAD_ENV, RendererSpec, get_renderer, limit_blas, pin_cpus, render_units, spec_batches,
                       warm_samples, warm_up)
 
+#: seconds a LocalCluster interrupted while it starts may take to finish starting before it is
+#: stopped (its workers then stop cleanly; a start takes a few seconds)
+START_GRACE = 30.0
+
 
 class ScenePreload(WorkerPlugin):
     """Loads the scene on each worker once, on the thread that runs its tasks; first, on a
@@ -121,8 +125,10 @@ class DaskBackend:
     def _local_cluster(self, **kwargs):
         """``LocalCluster(**kwargs)`` made by a thread that blocks SIGINT, so that the cluster's
         threads, nannies and workers never see Ctrl-C (they inherit the blocked signal); this
-        thread waits for it and stays interruptible. Interrupted, :attr:`cluster` is the cluster
-        being made, for :meth:`terminate`."""
+        thread waits for it and stays interruptible. Interrupted, it lets the start finish first
+        (a worker process killed while it unpickles its start-up data prints a traceback), for at
+        most ``START_GRACE`` seconds; :attr:`cluster` is then the cluster made, or being made, for
+        :meth:`terminate`."""
         known, made = set(_clusters()), []
 
         def make():
@@ -137,7 +143,9 @@ class DaskBackend:
             while maker.is_alive():
                 maker.join(0.05)
         except KeyboardInterrupt:
-            self.cluster = next((c for c in _clusters() if c not in known), None)
+            maker.join(START_GRACE)
+            done = made and not isinstance(made[0], BaseException)
+            self.cluster = made[0] if done else next((c for c in _clusters() if c not in known), None)
             raise
         if isinstance(made[0], BaseException):
             raise made[0]
