@@ -163,7 +163,11 @@ class Gradients:
         with dr.resume_grad():
             img = self._render_ad(scene, sensor, seed, spp, mode=dr.ADMode.Forward)
             dr.forward_to(img)
-            return dr.grad(img)
+            grad = dr.grad(img)
+        extra = len(self.channels()) - grad.shape[-1]
+        if extra > 0:   # the AOV channels carry no derivative (they are detached): zeros
+            grad = dr.concat([grad, dr.zeros(mi.TensorXf, (*grad.shape[:-1], extra))], axis=-1)
+        return grad
 
     def render_backward(self, scene, params, grad_in, sensor=0, seed=0, spp=0):
         """Propagate the image gradient ``grad_in`` to the scene's parameters that have
@@ -183,6 +187,8 @@ class Gradients:
                 h = img.shape[0]
                 g = grad_in if h == grad_in.shape[0] else grad_in[y:y + h]
                 y += h
+                if g.shape[-1] != img.shape[-1]:   # the AOV channels' gradients go nowhere (detached)
+                    g = g[..., :img.shape[-1]]
                 dr.set_grad(img, g)
                 dr.enqueue(dr.ADMode.Backward, img)
                 dr.traverse(dr.ADMode.Backward)
