@@ -7,8 +7,10 @@ from __future__ import annotations
 
 import argparse
 import inspect
+import signal
 import statistics
 import sys
+import threading
 import time
 
 import numpy as np
@@ -172,6 +174,11 @@ def main(argv=None) -> int:
     frame is being written the interrupt is ignored: the file is then complete), no process left
     (the partitioning back ends stop their workers and clusters, :mod:`links1.interrupts`)."""
     handler = ignore_interrupts(False)
+    if handler is signal.default_int_handler:   # Python's own (main thread): noted, then raised
+        signal.signal(signal.SIGINT, _on_interrupt)
+    hooks = threading.excepthook, sys.excepthook
+    threading.excepthook, sys.excepthook = _quiet_once_interrupted, _quiet_sys_once_interrupted
+    _INTERRUPTED.clear()
     try:
         return _main(argv)
     except KeyboardInterrupt:
@@ -181,6 +188,33 @@ def main(argv=None) -> int:
         return 130
     finally:
         restore_interrupts(handler)   # main() called from Python: as it was
+        if not _INTERRUPTED.is_set():
+            threading.excepthook, sys.excepthook = hooks
+
+
+#: set when Ctrl-C reaches the command: the process is then ending
+_INTERRUPTED = threading.Event()
+
+
+def _on_interrupt(signum, frame):
+    _INTERRUPTED.set()
+    signal.default_int_handler(signum, frame)
+
+
+def _quiet_once_interrupted(args) -> None:
+    """``threading.excepthook`` of the command: Python's, except that once Ctrl-C has reached the
+    command an exception in a helper thread (the standard library's process pool marking a pool
+    whose workers were stopped as broken) belongs to the teardown and is not printed around
+    ``links1: interrupted``."""
+    if not _INTERRUPTED.is_set():
+        threading.__excepthook__(args)
+
+
+def _quiet_sys_once_interrupted(exc_type, exc_value, exc_traceback) -> None:
+    """``sys.excepthook`` likewise: multiprocessing's resource-sharer thread reports through it
+    (a worker stopped while it was taking a connection resets the sharer's handshake)."""
+    if not _INTERRUPTED.is_set():
+        sys.__excepthook__(exc_type, exc_value, exc_traceback)
 
 
 def _main(argv) -> int:

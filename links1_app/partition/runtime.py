@@ -536,9 +536,8 @@ def serve(spec: RendererSpec, line, frame=None):
     process's pool task, so the process pool still starts, watches and replaces the node. Through
     the line a task is one pickled message written by the root's own thread and read by this
     loop, instead of passing a pool's two helper threads in the root each way (its queue
-    manager and queue feeder: on this 2-core machine, with both cores rendering, the root's
-    first submit of a two-node plugin run took 2-8 ms, the second node's task arriving that
-    late)."""
+    manager and queue feeder: with every core rendering, a task waited for them to be
+    scheduled)."""
     if frame is not None:
         _frame_array(frame)
     line.send(("ready", os.getpid()))
