@@ -139,6 +139,10 @@ class Tables(CameraViews):
           directional emitter's own parameters): its ``P.lights`` entry and the tables planned
           from the lights' places (:meth:`_shadow_tables`: shadow rays, light buffers); the
           frozen launches start anew (the lights are constants in their kernels);
+        - a sensor's values (its ``to_world``, its film's size and crop): its camera view only
+          (:meth:`_refresh_cameras`: camera, film, eye buffer, the launch's gathered inputs);
+          the frozen launches start anew where the camera changed (a constant of their
+          kernels), not for a crop window alone;
         - the links1 shapes' geometry (the integrator's parameters: a quadric's ``to_world``
           or clip offsets, a blob's centres, weights, radii, threshold; their specs already
           made anew by ``parameters_changed``): the shapes' tables (:meth:`_shape_tables`: the
@@ -148,7 +152,7 @@ class Tables(CameraViews):
 
         Every other table (Mitsuba shapes, materials, emission, area and environment lights)
         is kept. False (the caller rebuilds all) for another scene or tuning, or any other
-        change: a Mitsuba shape's or other object's (a light's texture too), a quadric that
+        change: a Mitsuba shape's or other object's (a sensor's sampler or filter too) (a light's texture too), a quadric that
         leaves or joins the BVH (its bounds become infinite or finite), or a Phong change that
         alters what the other tables are built from (the transmittance: shadow rays; which
         slots reflect or have ambient light: the kernels traced). ``n_value_updates`` counts
@@ -161,11 +165,17 @@ class Tables(CameraViews):
             return False
         phong = any(isinstance(node, Phong) for _, node in changed)
         light = geo = False
+        cams = []      # the scene's sensors whose own or film's values changed
         for _, node in changed:
             if isinstance(node, Phong):
                 continue
             if node is scene.integrator():    # the links1 shapes' geometry (integrator.traverse)
                 geo = True
+                continue
+            owner = self._sensor_owning(B, node)
+            if owner is not None:
+                if not any(owner is c for c in cams):
+                    cams.append(owner)
                 continue
             if not (isinstance(node, (Pt, Sp)) or isinstance(node, mi.Emitter)
                     and kind_of(node) in ("PointLight", "SpotLight", "DirectionalEmitter")):
@@ -207,9 +217,11 @@ class Tables(CameraViews):
             setattr(B, k, v)
         if now is not None:
             B.phong_np = now
+        if cams and self._refresh_cameras(B, scene, cams, geo):
+            self._freeze = self._freeze_points = None   # (the camera is a constant of their kernels)
         # the camera views read the new tables through B; of their own fields, the eye's
         # buffer follows the geometry and the launch's inputs are gathered again
-        for P in (B, *B.views.values()):
+        for P in (B, *B.views.values()) if phong or light or geo else ():
             if geo and P is not B:   # the camera rays' buffer around the eye (_camera_view)
                 P.eye_buf = lightbuffer.plan_eye(P, scene) if B.tuning.light_buffer else None
             P.frozen_inputs = None       # gathered again: the new arrays are the launch's inputs

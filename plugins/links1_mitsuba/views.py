@@ -59,6 +59,38 @@ class CameraViews:
         B.views[id(sensor)] = V     # V keeps the sensor alive: its id is not reused
         return V
 
+    @staticmethod
+    def _sensor_owning(B, node):
+        """The sensor of the scene's tables ``B`` that ``node`` (a changed parameter's object,
+        ``ParamWatch.changed``) is or whose film it is; None for any other object."""
+        for s in B.keep_alive[2]:
+            if node is s or (isinstance(node, mi.Film) and node is s.film()):
+                return s
+        return None
+
+    def _refresh_cameras(self, B, scene, sensors, geo) -> bool:
+        """The camera views of ``sensors`` (the scene's, :meth:`_sensor_owning`) brought up to
+        their sensors' values in place (``Tables._update_values``): camera, film and filter read
+        again (:meth:`_set_camera`), the eye buffer planned again where the eye moved (unless
+        ``geo``: the caller plans every view's), the launch's inputs gathered again. The
+        scene's tables are kept. Whether a view's camera changed (the frozen launches' kernels
+        hold it as constants); a crop window alone changes none."""
+        moved = False
+        for s in sensors:
+            V = B.views.get(id(s))
+            if V is None or V.sensor is not s:
+                continue          # no view yet: made at prepare
+            old = _camera_of(V)
+            self._set_camera(V, s)
+            now = _camera_of(V)
+            if now == old:
+                continue
+            moved = True
+            if not geo and now[-1] != old[-1]:
+                V.eye_buf = lightbuffer.plan_eye(V, scene) if B.tuning.light_buffer else None
+            V.frozen_inputs = None
+        return moved
+
     def _set_camera(self, P, sensor):
         """The camera of ``P``: ``sensor``'s film size, filter, projection and matrix."""
         film = sensor.film()
@@ -86,3 +118,11 @@ class CameraViews:
         else:
             raise ValueError(f"links1_whitted renders perspective, thinlens and orthographic sensors, "
                              f"not {kind}")
+
+
+def _camera_of(V):
+    """What the kernels and the eye buffer read of a view's camera, comparable with ``==``
+    (the eye's place, what :func:`lightbuffer.plan_eye` depends on, last)."""
+    cam = np.asarray(V.cam, dtype=np.float64)
+    return (V.film_size, V.rfilter, V.projection, V.x_fov, V.near, V.far, cam.tobytes(),
+            (V.perspective, V.lens, cam[:3, 3].tobytes()))

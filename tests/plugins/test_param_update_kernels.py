@@ -481,3 +481,117 @@ def test_shape_update_remakes_only_the_shapes_tables(variant):
     assert G["others"] == F["others"] and G["tol"] == F["tol"]
     assert [None if p is None else (tuple(p[0]), p[1]) for p in G["plane"]] == \
         [None if p is None else (tuple(p[0]), p[1]) for p in F["plane"]]
+
+
+#: :func:`scene_xml`'s blob, quadric and delta lights with a Mitsuba area light over them
+AREA_BLOB_XML = scene_xml(CENTRES).replace("</scene>", """
+  <shape type="rectangle" id="lamp"><transform name="to_world"><scale value="0.5"/><rotate x="1" angle="90"/>
+    <translate y="4"/></transform><emitter type="area"><rgb name="radiance" value="8"/></emitter></shape>
+</scene>""")
+
+
+def sensor_key(params, scene, name):
+    """The key of the first sensor's (or its film's: ``film.size``) parameter ``name`` in
+    ``params`` (``mi.traverse(scene)``): a sensor without an id has a key made from its address."""
+    s = scene.sensors()[0]
+    return next(k for k, (_, _, node, _) in params.properties.items()
+                if (node is s or node is s.film()) and k.endswith("." + name))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("source", ["many.xml", "area_blob"])
+def test_camera_move_refreshes_only_its_camera_view(variant, source):
+    """``params.update()`` of a sensor's ``to_world`` refreshes that sensor's camera view in
+    place (``CameraViews._refresh_cameras``: camera, eye buffer, the launch's inputs): no
+    scene build, one value update, the scene's tables (BVH, lights, materials, shadow plans,
+    blob tables) the same objects. The frame is then the frame of a second load of the file
+    given the same camera before its first frame (a whole build), bit for bit. scenes/many.xml
+    (quadrics under a BVH with an eye buffer) and a blob, a quadric and a Mitsuba area light."""
+    import os
+
+    import mitsuba as mi
+    import links1_mitsuba as lm
+    from tests.plugins.conftest import SCENES
+
+    def load():
+        if source == "many.xml":
+            return lm.load_file(os.path.join(SCENES, source))
+        return lm.load_string(AREA_BLOB_XML)
+
+    collect_earlier_scenes()
+    scene = load()
+    integ = scene.integrator()
+    before = np.array(mi.render(scene, seed=0))
+    V = integ._prep
+    P = V.base
+    names = ("bvh", "lights", "area_tab", "dif", "eps_table", "reg_to_slot", "blob_tables", "lbuf",
+             "occ_shapes", "shadow_need", "bsdf_ptr")
+    kept = {f: getattr(P, f) for f in names}
+    old_cam, old_eye = V.cam.copy(), V.eye_buf
+    assert (old_eye is not None) == (source == "many.xml")
+    assert (len(P.area_tab) == 1 and any(type(sp).__name__ == "BlobSpec" for sp in P.custom)) == \
+        (source == "area_blob")
+    builds, updates = integ.n_scene_builds, integ.n_value_updates
+    params = mi.traverse(scene)
+    k = sensor_key(params, scene, "to_world")
+    params[k] = mi.Transform4f().translate(mi.Vector3f(0.3, 0.2, -0.25)) @ \
+        mi.Transform4f().rotate(mi.Vector3f(0, 1, 0), 4.0) @ mi.Transform4f(params[k])
+    params.update()
+    after = np.array(mi.render(scene, seed=0))
+    assert integ.n_scene_builds == builds and integ.n_value_updates == updates + 1
+    assert integ._prep is V and V.base is P
+    assert all(getattr(P, f) is v for f, v in kept.items())
+    m = np.array(mi.Transform4f(params[k]).matrix, dtype=np.float64).reshape(4, 4)
+    assert np.array_equal(V.cam, m) and not np.array_equal(V.cam, old_cam)
+    assert old_eye is None or V.eye_buf is not old_eye     # planned around the new eye
+    fresh = load()
+    fp = mi.traverse(fresh)
+    fk = sensor_key(fp, fresh, "to_world")
+    fp[fk] = mi.Transform4f(m.tolist())
+    fp.update()
+    expected = np.array(mi.render(fresh, seed=0))
+    assert fresh.integrator().n_value_updates == 0
+    assert not np.array_equal(before, after)
+    assert np.array_equal(after, expected)
+
+
+@pytest.mark.slow
+def test_film_update_refreshes_only_its_camera_view(variant):
+    """``params.update()`` of a sensor's film size (with its crop) refreshes the camera view
+    as a camera move does (no scene build), the frame that of a second load given the same
+    size; a crop window alone changes no camera: the frozen launch is kept, and the crop's
+    pixels are the full frame's."""
+    import mitsuba as mi
+    import links1_mitsuba as lm
+
+    collect_earlier_scenes()
+    scene = lm.load_string(AREA_BLOB_XML)
+    integ = scene.integrator()
+    mi.render(scene, seed=0)
+    P = integ._prep.base
+    builds, updates = integ.n_scene_builds, integ.n_value_updates
+
+    def resize(sc, w, h):
+        prm = mi.traverse(sc)
+        for name in ("film.size", "film.crop_size"):
+            prm[sensor_key(prm, sc, name)] = [w, h]
+        prm.update()
+
+    resize(scene, 30, 16)
+    after = np.array(mi.render(scene, seed=0))
+    assert after.shape[:2] == (16, 30) and integ._prep.film_size == (30, 16)
+    assert integ.n_scene_builds == builds and integ.n_value_updates == updates + 1
+    assert integ._prep.base is P
+    fresh = lm.load_string(AREA_BLOB_XML)
+    resize(fresh, 30, 16)
+    assert np.array_equal(after, np.array(mi.render(fresh, seed=0)))
+    # a crop window: the same camera, the recording kept
+    frozen = integ._freeze
+    prm = mi.traverse(scene)
+    prm[sensor_key(prm, scene, "film.crop_offset")] = [4, 2]
+    prm[sensor_key(prm, scene, "film.crop_size")] = [10, 8]
+    prm.update()
+    crop = np.array(mi.render(scene, seed=0))
+    assert integ.n_scene_builds == builds and integ.n_value_updates == updates + 2
+    assert integ._freeze is frozen and frozen is not None
+    assert np.array_equal(crop, after[2:10, 4:14])
