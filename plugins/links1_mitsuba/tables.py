@@ -152,7 +152,7 @@ class Tables(CameraViews):
 
         Every other table (Mitsuba shapes, materials, emission, area and environment lights)
         is kept. False (the caller rebuilds all) for another scene or tuning, or any other
-        change: a Mitsuba shape's or other object's (a sensor's sampler or filter too) (a light's texture too), a quadric that
+        change: a Mitsuba shape's or other object's (a light's texture, a sensor's sampler or filter too), a quadric that
         leaves or joins the BVH (its bounds become infinite or finite), or a Phong change that
         alters what the other tables are built from (the transmittance: shadow rays; which
         slots reflect or have ambient light: the kernels traced). ``n_value_updates`` counts
