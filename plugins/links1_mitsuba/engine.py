@@ -27,9 +27,7 @@ from links1.tracing.aovs import check_aovs as parse_aovs  # the one AOV table an
 
 from . import geometry, proxies, tuning
 from .gradients import Gradients
-from .intersect import Intersect
 from .launch import Launches
-from .lights import Lights
 from .raytree import RayTree
 from .tables import Tables
 from .util import place_of
@@ -88,7 +86,7 @@ def _config_field(name):
                     lambda self, v: setattr(self.config, name, v))
 
 
-class Engine(Tables, Lights, Intersect, RayTree, Launches, Gradients):
+class Engine(Tables, RayTree, Launches, Gradients):
     """What ``links1_whitted`` renders with: its :class:`Config`, the scene it was given (the
     links1 shapes) and what it made from it (tables, recordings, counters)."""
 

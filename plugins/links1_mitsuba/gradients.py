@@ -36,7 +36,7 @@ gradient with respect to a light's position is then the derivative of the shadin
 visibility: right away from shadow edges, biased where a pixel straddles one). Not
 differentiated (zero gradient): the geometry of Mitsuba's shapes, area and environment lights
 and the cameras. The links1 shapes' geometry is differentiated (:mod:`links1_mitsuba.geometry`,
-:meth:`Gradients._surface_ad`): the hit moves with the surface by implicit differentiation of
+:func:`.intersect.moving_hits`): the hit moves with the surface by implicit differentiation of
 its equation, silhouettes and shadow edges still held fixed.
 
 Cost: the derivative pass keeps a ray tree on Dr.Jit's AD tape (no path replay as Mitsuba's
@@ -60,6 +60,7 @@ import drjit as dr
 import mitsuba as mi
 
 from . import geometry
+from .lights import params_of
 from .raytree import child_keys
 from .prepared import CameraView
 from .tables import PHONG_TABLES
@@ -315,7 +316,7 @@ class Gradients:
                         any_light = True
                 lights[j] = lights[j]._replace(**new)
             elif kind == "PointLight":
-                prm = self._params_of(P, e)
+                prm = params_of(P, e)
                 new = {}
                 if attached(prm["position"]):
                     new["position"] = mi.Point3f(prm["position"])
@@ -332,7 +333,7 @@ class Gradients:
         Q.lights = lights
         # geometry (geometry.py): the links1 shapes whose parameters have gradients; with any,
         # every links1 shape is intersected in the pass's own code (no BVH, no light or eye
-        # buffer: their tables hold primal values) and its hits re-attached (_surface_ad)
+        # buffer: their tables hold primal values) and its hits re-attached (intersect.moving_hits)
         Q.geo_ad = geometry.attached_specs(dr, P.custom, self.geo) or None
         if Q.geo_ad is not None and P.bvh is not None:
             Q.bvh, Q.eye_buf, Q.custom_unrolled = None, None, list(P.custom)
@@ -341,34 +342,6 @@ class Gradients:
         Q.attached_any = (any(rows.values()) or Q.geo_ad is not None or any_light
                           or (not P.all_phong and _mitsuba_attached(scene, P, self.verify_scene)))
         return Q
-
-    def _surface_ad(self, P, o, d, t, slot, prim, p, ng, ns):
-        """The hits on links1 shapes moving with their parameters and with the ray (``o``,
-        ``d`` are attached below a moving surface): ``(t, p, ng, ns)`` with the interior
-        derivative (:func:`geometry.surface_ad`: implicit differentiation of the surface
-        equation at the primal hit)."""
-        moving_ray = dr.grad_enabled(o) or dr.grad_enabled(d)
-        custom = False
-        for sp in P.custom_unrolled:
-            held = P.geo_ad.get(sp.slot)
-            if held is None and not moving_ray:
-                continue
-            m = slot == sp.slot
-            tn, nn = geometry.surface_ad(mi, dr, sp, held[1] if held else {}, o, d, t, prim, m, P.ad_memo)
-            t = dr.select(m, tn, t)
-            ng = dr.select(m, nn, ng)
-            ns = dr.select(m, nn, ns)
-            custom = True
-        if custom:
-            p = dr.select(self._custom_slot(P, slot), o + d * t, p)
-        return t, p, ng, ns
-
-    @staticmethod
-    def _custom_slot(P, slot):
-        m = dr.zeros(mi.Bool, dr.width(slot))
-        for sp in P.custom_unrolled:
-            m |= slot == sp.slot
-        return m
 
     def _trace_tree_ad(self, P, scene, o, d, tmin, tmax, key):
         """The ray trees of :meth:`_trace_tree` (the same levels, children, weights, keys and

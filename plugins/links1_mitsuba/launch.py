@@ -21,7 +21,7 @@ from links1.tracing.aovs import check_aovs as parse_aovs  # the one AOV table an
 from links1.maths.sampling import KEY_LENS_U, KEY_LENS_V, KEY_PIXEL, key_seed, strata
 
 from .film import Batch, cached_batch, concat, reconstruct, sample_ids, sample_window, widen
-from .util import aligned, mix32, u24, udiv
+from .util import aligned, mix32, udiv, unit_float
 
 #: Most samples (lanes) per launch of the window function; more are split into launches.
 LAUNCH_LANES = 1 << 22
@@ -181,8 +181,8 @@ class Launches:
         sx = mi.Float(i - row * k_s)
         sy = mi.Float(row)
         base = mix32(mix32(seed[0]) ^ pix)
-        ux = u24(mix32(base ^ (2 * i)))
-        uy = u24(mix32(base ^ (2 * i + 1)))
+        ux = unit_float(mix32(base ^ (2 * i)))
+        uy = unit_float(mix32(base ^ (2 * i + 1)))
         centre = n_s == 1   # one sample: the pixel centre (links1.maths.sampling)
         offx = dr.select(centre, mi.Float(0.5), (sx + ux) / kf)
         offy = dr.select(centre, mi.Float(0.5), (sy + uy) / kf)
@@ -215,7 +215,7 @@ class Launches:
             if P.lens is not None:   # a thin lens (links1.sensor.camera): from the aperture point
                 radius, focus = P.lens
                 disk = mi.warp.square_to_uniform_disk_concentric(
-                    mi.Point2f(u24(mix32(key ^ KEY_LENS_U)), u24(mix32(key ^ KEY_LENS_V))))
+                    mi.Point2f(unit_float(mix32(key ^ KEY_LENS_U)), unit_float(mix32(key ^ KEY_LENS_V))))
                 a = mi.Vector3f(radius * disk.x, radius * disk.y, 0.0)
                 dc = dr.normalize(dc * focus - a)
                 o = mi.Point3f(*[m[r][0] * a.x + m[r][1] * a.y + m[r][3] for r in range(3)])

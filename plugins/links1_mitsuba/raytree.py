@@ -37,6 +37,7 @@ import mitsuba as mi
 
 from links1.maths.sampling import KEY_REFLECT, KEY_REFRACT
 
+from . import intersect, lights
 from .util import INF, gather3, mix32
 
 # tuning.Tuning.skip_misses: direct light (every light's sample, shading and shadow rays) under a
@@ -203,8 +204,9 @@ class RayTree:
         if P.any_mitsuba_shapes and not symbolic:
             dr.eval(o, d, tmin, tmax)
         # level 1 is the camera's rays (from its eye when it is a pinhole)
-        t, slot, si, prim = self._nearest(P, scene, o, d, tmin, tmax, active, cost,
-                                          camera=depth == 1 and P.perspective, coherent=depth == 1, ad=ad)
+        eye = depth == 1 and P.perspective and self.current_tuning().eye_buffer
+        t, slot, si, prim = intersect.nearest(P, scene, o, d, tmin, tmax, active, cost,
+                                              eye=eye, coherent=depth == 1, ad=ad)
         if ad and not symbolic and P.custom and not P.any_mitsuba_shapes:
             # a derivative pass through links1 shapes: the search's results (detached) kept in
             # memory, so that each kernel of the AD traversal reads them instead of marching
@@ -236,7 +238,7 @@ class RayTree:
             ns = dr.select(m, nc, ns)
         if ad and getattr(P, "geo_ad", None) is not None:
             # a derivative pass with geometry: the hits move with the surfaces (gradients.py)
-            t, p, ng, ns = self._surface_ad(P, o, d, t, slot, prim, p, ng, ns)
+            t, p, ng, ns = intersect.moving_hits(P, o, d, t, slot, prim, p, ng, ns)
         wo = -d
         front = dr.dot(ng, wo) > 0
         nf = dr.select(front, ns, -ns)
@@ -261,7 +263,7 @@ class RayTree:
                                       dr.select(cw, frame_c.t, si.sh_frame.t),
                                       dr.select(cw, frame_c.n, si.sh_frame.n))
             sif.t = dr.select(hit, t, INF)
-            sif.uv = dr.select(cw, self._custom_uv(P, o, d, t, prim, slot, uslot, hit), si.uv)
+            sif.uv = dr.select(cw, intersect.custom_uv(P, o, d, t, prim, slot, uslot, hit), si.uv)
             sif.wi = sif.to_local(wo)
             bsdf = dr.gather(mi.BSDFPtr, P.bsdf_ptr, uslot, hit)
             is_ph = dr.gather(mi.Bool, P.is_phong, uslot, hit)
@@ -323,6 +325,7 @@ class RayTree:
         f_eval, offset = h.f_eval, h.offset
         mis = glossy is not None
         pending = []
+        tuning = self.current_tuning()
 
         def need_of(j, lit, wi):
             """Lanes that need a shadow ray toward light j (P.shadow_need: shadow_plan.plan_occluders)."""
@@ -341,7 +344,7 @@ class RayTree:
                 return None, lit, None
             need = need_of(j, lit, wi)
             n_shadow = n_shadow + dr.select(need, mi.UInt32(1), 0)
-            T = self._shadow_custom(P, so, wi, smax, need, cost, P.occ_custom[j], light=j)
+            T = intersect.shadow_custom(P, so, wi, smax, need, cost, P.occ_custom[j], light=j)
             return T, need, P.occ_mitsuba[j]
 
         def own_outer(wi):
@@ -349,7 +352,7 @@ class RayTree:
             return dr.select(hit & (dr.dot(ng, wi) > 0), slot, -1)
 
         for jl, L in enumerate(P.lights):
-            wi, dist, Ls = self._light(L, p)
+            wi, dist, Ls = lights.light_at(L, p)
             contrib = f_eval(wi) * Ls
             lit = hit & (dr.max(contrib) > 0)
             so, smax = offset(wi), dist - 2.0 * eps
@@ -363,13 +366,13 @@ class RayTree:
                     for lid in [env.light_id]]
         for jsh, tab, lid in sampled:          # area lights and environments (links1.shading.lights)
             for js in range(self.light_samples):
-                u, v = self._light_uv(key, sample, lid, js)
+                u, v = lights.light_uv(key, sample, lid, js, self.light_samples)
                 if isinstance(tab, dict):
-                    wi, dist, Lw, pdf_l = self._sample_area(tab, p, u, v)
+                    wi, dist, Lw, pdf_l = lights.sample_area(tab, p, u, v)
                     # Mitsuba's ray tests include the emitter: stop short of it as Mitsuba does
                     smax = dist * (1.0 - mi.math.ShadowEpsilon) - 2.0 * eps
                 else:
-                    wi, Lw, pdf_l = self._sample_env(tab, nf, u, v)
+                    wi, Lw, pdf_l = lights.sample_env(tab, nf, u, v)
                     smax = dr.full(mi.Float, INF, n)
                 contrib = f_eval(wi) * Lw * m_inv
                 if mis:
@@ -402,8 +405,8 @@ class RayTree:
         tested = []                     # Mitsuba's ray tests, light by light
         for k, (contrib, so, wi, smax, lit, need, T, occ_m, j) in enumerate(pending):
             if T is not None and P.any_mitsuba_shapes and occ_m:
-                T = self._shadow_mitsuba(P, scene, so, wi, smax, need, T, cost, light=j,
-                                         own=own_outer(wi))
+                T = intersect.shadow_mitsuba(P, scene, so, wi, smax, need, T, cost, tuning, light=j,
+                                             own=own_outer(wi))
                 pending[k] = (contrib, so, wi, smax, lit, need, T, occ_m, j)
                 tested.append(T)
         if ad and not symbolic and tested:   # the ray tests kept (as the hits above), in one kernel
@@ -505,27 +508,27 @@ class RayTree:
         power heuristic against that light's ``light_samples`` samples (their pdf:
         :meth:`_area_pdf`, :meth:`_env_eval_pdf`). Returns (radiance, rays traced)."""
         n = dr.width(p)
-        u1, u, v = self._bsdf_uv(key, sample)
+        u1, u, v = lights.bsdf_uv(key, sample)
         bs, weight = bsdf.sample(ctx, sif, u1, mi.Point2f(u, v), active)
         if opacity is not None:    # a mask's nested lobes (its pdf is the nested one's: mask.pdf)
             weight = weight * opacity
         wi = sif.to_world(bs.wo)
         ok = active & (bs.pdf > 0) & (dr.max(weight) > 0)
-        t, slot, si, _ = self._nearest(P, scene, offset(wi), wi, dr.zeros(mi.Float, n),
-                                       dr.full(mi.Float, INF, n), ok, cost)
+        t, slot, si, _ = intersect.nearest(P, scene, offset(wi), wi, dr.zeros(mi.Float, n),
+                                           dr.full(mi.Float, INF, n), ok, cost)
         m = self.light_samples
         out = dr.zeros(mi.Color3f, n)
         for tab in P.area_tab:
             if tab["slot"] is None:
                 continue
             on = ok & (slot == tab["slot"]) & (dr.dot(si.n, wi) < 0)   # the light's front side
-            pdf_l = self._area_pdf(tab, p, wi, dr.norm(si.p - p), si.n)
+            pdf_l = lights.area_pdf(tab, p, wi, dr.norm(si.p - p), si.n)
             Le = si.emitter(scene, on).eval(si, on)   # Mitsuba's own radiance there (a texture too)
             out += dr.select(on, weight * Le * _power_heuristic(bs.pdf, m * pdf_l), 0.0)
         if P.consts:
             on = ok & (slot < 0)
             for env in P.consts:
-                Le, pdf_l = self._env_eval_pdf(env, nf, wi)
+                Le, pdf_l = lights.env_eval_pdf(env, nf, wi)
                 out += dr.select(on, weight * Le * _power_heuristic(bs.pdf, m * pdf_l), 0.0)
         return out, dr.select(ok, mi.UInt32(1), 0)
 

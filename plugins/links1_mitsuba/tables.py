@@ -28,7 +28,7 @@ import mitsuba as mi
 
 from . import lightbuffer, proxies
 from .bvh import QuadricBVH
-from .lights import ConstantEnvRecord, EnvMapRecord
+from .lights import ConstantEnvRecord, EnvMapRecord, analytic_light, area_table, envmap_table
 from .paramwatch import ParamWatch
 from .prepared import PHONG_TABLES, Prepared
 from .registered import plugin_class
@@ -204,7 +204,7 @@ class Tables(CameraViews):
             new = {k: mi.Float(v.ravel()) for k, v in now.items() if not np.array_equal(v, B.phong_np[k])}
         if light:
             lights = [L for e in scene.emitters()
-                      for L in [self._analytic_light(e, kind_of(e), Pt, Sp, B)] if L is not None]
+                      for L in [analytic_light(e, kind_of(e), Pt, Sp, B, self.place)] if L is not None]
             if len(lights) != len(B.lights):
                 return False
             B.lights = lights
@@ -423,7 +423,7 @@ class Tables(CameraViews):
         Pt, Sp = plugin_class("links1_point"), plugin_class("links1_spot")
         for e in scene.emitters():
             kind = kind_of(e)
-            L = self._analytic_light(e, kind, Pt, Sp, P)
+            L = analytic_light(e, kind, Pt, Sp, P, self.place)
             if L is not None:
                 P.lights.append(L)
             elif kind == "ConstantBackgroundEmitter":
@@ -432,7 +432,7 @@ class Tables(CameraViews):
                 n_env += 1
                 P.env = e
             elif kind == "EnvironmentMapEmitter":
-                P.consts.append(EnvMapRecord(self._envmap_table(e), ENV_LIGHT_ID + n_env))
+                P.consts.append(EnvMapRecord(envmap_table(e), ENV_LIGHT_ID + n_env))
                 n_env += 1
                 P.env = e
             elif e.is_environment() or (int(e.flags()) & int(mi.EmitterFlags.Infinite)):
@@ -441,7 +441,7 @@ class Tables(CameraViews):
                 n_env += 1
                 P.env = e
             elif kind == "AreaLight":   # a directionalarea (also Surface) is ignored, as in the core
-                tab = self._area_table(e, shapes, slot_list)
+                tab = area_table(e, shapes, slot_list, self.place)
                 if tab is not None:
                     P.area.append(e)
                     P.area_tab.append(tab)

@@ -1,5 +1,5 @@
 """Dr.Jit helpers shared by the parts of ``links1_whitted``: the sample pattern's hash
-(``mix32``, ``u24``), colour / vector literals, gathers, the next float up; aligned numpy
+(``mix32``, ``unit_float``), colour / vector literals, gathers, the next float up; aligned numpy
 tables and checked index tables.
 
 The Dr.Jit helpers name ``mi.Float``, ``mi.Color3f``, ... when called, so they serve whichever
@@ -131,17 +131,20 @@ def mix32(x):
     return x
 
 
-def u24(x):
+def unit_float(x):
+    """A float in [0, 1) from the top 24 bits of a ``UInt32`` (links1.maths.sampling)."""
     return mi.Float(x >> 8) * (2.0 ** -24)
 
 
-def c3(v):
+def color3(v):
+    """``mi.Color3f`` of an RGB value: three Python floats (literals) or a Dr.Jit value."""
     if dr.is_array_v(v):   # a Dr.Jit value (attached, in a derivative pass: gradients.py)
         return mi.Color3f(v)
     return mi.Color3f(float(v[0]), float(v[1]), float(v[2]))
 
 
-def v3(v):
+def vector3(v):
+    """``mi.Vector3f`` of a 3-vector, as :func:`color3`."""
     if dr.is_array_v(v):
         return mi.Vector3f(v)
     return mi.Vector3f(float(v[0]), float(v[1]), float(v[2]))

@@ -89,6 +89,7 @@ def test_box_cull_keeps_every_blocked_ray(variant):
     meets the shape's cull box; and the cull does drop the clear rays it should."""
     import drjit as dr
     import mitsuba as mi
+    from links1_mitsuba import intersect
     from links1_mitsuba.shadow_plan import occluder_boxes
     scene, integ, P = _prepared(_xml())
     shapes = scene.shapes()
@@ -103,7 +104,7 @@ def test_box_cull_keeps_every_blocked_ray(variant):
     for k, s in enumerate(shapes):
         sub = mi.load_dict({"type": "scene", s.id(): s})
         blocked = np.asarray(sub.ray_test(mi.Ray3f(O, D, S, 0.0, mi.Color0f())))
-        meets = np.asarray(integ._meets_boxes(O, D, S, [boxes[k]], dr.full(mi.Int32, -1, len(o))))
+        meets = np.asarray(intersect.meets_boxes(O, D, S, [boxes[k]], dr.full(mi.Int32, -1, len(o))))
         assert blocked.sum() > 50, f"shape {k}: too few blocked rays to test"
         missed = blocked & ~meets
         assert not missed.any(), f"shape {k} ({s}): {missed.sum()} blocked rays culled"
@@ -137,7 +138,7 @@ def test_split_transmittance_is_the_product_over_the_shapes_met(variant_name, sp
     makes no sub-scenes and walks the crossings): the walk runs on both variants."""
     import drjit as dr
     import mitsuba as mi
-    from links1_mitsuba import shadow_plan, tuning
+    from links1_mitsuba import intersect, shadow_plan, tuning
     use_variant(variant_name)
     scene, integ, P = _prepared(_xml(cube=False))
     if variant_name.startswith("llvm"):
@@ -155,8 +156,8 @@ def test_split_transmittance_is_the_product_over_the_shapes_met(variant_name, sp
     o, d, smax = o.astype(np.float32), d.astype(np.float32), smax.astype(np.float32)
     O, D, S = _arrays(o, d, smax)
     cost = dr.zeros(mi.UInt32, n)
-    with tuning.tuned(split=split):
-        T = integ._shadow_mitsuba(P, scene, O, D, S, dr.full(mi.Bool, True, n), mi.Color3f(1.0), cost)
+    T = intersect.shadow_mitsuba(P, scene, O, D, S, dr.full(mi.Bool, True, n), mi.Color3f(1.0), cost,
+                                 tuning.Tuning(split=split))
     T = np.asarray(T).T                               # (n, 3)
     o64, d64, s64 = o.astype(np.float64), d.astype(np.float64), smax.astype(np.float64)
     want = np.ones((n, 3))
