@@ -191,10 +191,10 @@ def animate(scene, output=None, *, frames, defines=(), fps=24.0, renderer="core"
     maps, cams = cache.setdefault("eq41", {}), cache.setdefault("camera", {})
     cams[frames[0]] = probe.scene.camera
 
-    def read(k):
-        r = probe if k == 0 else CoreRenderer(scene, params={**base, **values[k]}, **core_opts)
-        cams[frames[k]] = r.scene.camera
-        return r
+    def read(k):      # the root's scene with frame k's values (updated in place: one load)
+        probe.set_params({**base, **values[k]})
+        cams[frames[k]] = probe.scene.camera
+        return probe
 
     def eq41_map(k):
         if frames[k] not in maps:

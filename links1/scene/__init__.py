@@ -11,6 +11,7 @@ load_shapes   the loader's shapes (instances flattened)
 load_bsdfs    the loader's BSDFs
 load_emitters the loader's emitters
 scene         the Scene: shapes, lights, camera, film, content-keyed caches
+scenefile     a scene file read and built once, given other $name values in place (sequences)
 
 Imports the packages below it (maths, imaging, geometry, shading, sensor), never tracing or a
 front end (docs/architecture.md, "Packages").

@@ -107,12 +107,16 @@ def load_string(xml: str, /, base_dir=None, **params) -> Scene:
     return build_scene(root, None)
 
 
-def build_scene(root: Node, path: str | None = None) -> Scene:
+def build_scene(root: Node, path: str | None = None, kept: dict | None = None) -> Scene:
     """Turn the parsed ``<scene>`` node into a :class:`Scene`; each warning once (an element
-    referenced twice, a BSDF shared by shapes, is read twice but named once)."""
+    referenced twice, a BSDF shared by shapes, is read twice but named once).
+
+    ``kept``: top-level element index -> what that element made in an earlier build, taken
+    instead of building it again (:class:`links1.scene.scenefile.SceneFile`: elements whose
+    parameters did not change); the dict is then filled with what this build made."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        scene = _Builder().scene(root, path)
+        scene = _Builder(kept).scene(root, path)
     seen = set()
     for w in caught:
         key = (str(w.message), w.category)
@@ -128,7 +132,27 @@ def build_scene(root: Node, path: str | None = None) -> Scene:
 # --------------------------------------------------------------------------------------------
 
 class _Builder(SensorLoader, ShapeLoader, BsdfLoader, EmitterLoader):
-    """The scene and its integrator; each kind of element is read by a mixin above."""
+    """The scene and its integrator; each kind of element is read by a mixin above.
+
+    ``kept`` (:func:`build_scene`): what top-level elements made before, by index."""
+
+    def __init__(self, kept: dict | None = None):
+        self.kept = {} if kept is None else kept
+        self.made: dict = {}
+
+    def once(self, i: int, build):
+        """What top-level element ``i`` makes: the kept one, else ``build()``."""
+        value = self.kept[i] if i in self.kept else build()
+        self.made[i] = value
+        return value
+
+    def _other_sensor(self, node: Node):
+        # another view of the scene (mi.render(scene, sensor=k), links1 render --sensor k):
+        # one the core cannot render is an error only when chosen
+        try:
+            return self.sensor(node)
+        except SceneError as exc:
+            return exc
 
     def scene(self, root: Node, path: str | None) -> Scene:
         props = _Props(root)
@@ -138,29 +162,24 @@ class _Builder(SensorLoader, ShapeLoader, BsdfLoader, EmitterLoader):
         shapes, lights, environments = [], [], []
         background = np.zeros(3)
         integrator, max_depth, integrator_params = None, DEFAULT_MAX_DEPTH, {}
-        for name, node in root.children:
+        for i, (name, node) in enumerate(root.children):
             if node.tag == "sensor":
                 if sensors:
-                    # another view of the scene (mi.render(scene, sensor=k), links1 render
-                    # --sensor k): one the core cannot render is an error only when chosen
-                    try:
-                        sensors.append(self.sensor(node))
-                    except SceneError as exc:
-                        sensors.append(exc)
+                    sensors.append(self.once(i, lambda: self._other_sensor(node)))
                     continue
-                camera, spp = self.sensor(node)
+                camera, spp = self.once(i, lambda: self.sensor(node))
                 sensors.append((camera, spp))
             elif node.tag == "shape":
                 if node.type == "shapegroup":
                     self._shapegroup(node)   # drawn only through its instances
                 elif node.type == "instance":
-                    shapes.extend(self._instance(node))
+                    shapes.extend(self.once(i, lambda: self._instance(node)))
                 else:
-                    shapes.append(self.shape(node))
+                    shapes.append(self.once(i, lambda: self.shape(node)))
             elif node.tag == "emitter":
                 if node.type == "area" and node.id is not None:
                     continue  # a declaration, used where a shape references it (as Mitsuba)
-                light = self.emitter(node)
+                light = self.once(i, lambda: self.emitter(node))
                 if isinstance(light, (ConstantEnvironment, EnvironmentMap)):
                     light.light_id = ENV_LIGHT_ID + len(environments)
                     environments.append(light)
@@ -175,7 +194,7 @@ class _Builder(SensorLoader, ShapeLoader, BsdfLoader, EmitterLoader):
                 integrator, max_depth, integrator_params = self.integrator(node)
             elif node.tag in ("bsdf", "texture", "medium", "phase", "volume"):
                 if node.tag == "bsdf":
-                    self.bsdf(node)  # validate declarations that are only referenced
+                    self.once(i, lambda: self.bsdf(node))  # validate declarations that are only referenced
             else:
                 raise node.error(f"<{node.tag}> is not allowed at the top level of a scene")
         if camera is None:
@@ -202,6 +221,8 @@ class _Builder(SensorLoader, ShapeLoader, BsdfLoader, EmitterLoader):
         if integrator is not None:
             kwargs["integrator"] = integrator
         kwargs.update(integrator_params)
+        self.kept.clear()
+        self.kept.update(self.made)
         return Scene(**kwargs)
 
     def integrator(self, node: Node):

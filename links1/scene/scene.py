@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 import hashlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
@@ -92,6 +92,20 @@ class Scene:
 
     def unpin_content(self) -> None:
         self._pinned_key = None
+
+    def take(self, other: "Scene") -> None:
+        """Become ``other`` in place (its camera, sensors, shapes, lights, settings), keeping the
+        caches: what was built for content ``other`` shares (a camera move: the BVH, the
+        integrator's plan) is found again by its key, the rest is built on first use. A pinned
+        scene is pinned to its new content."""
+        pinned = self._pinned_key is not None
+        for f in fields(self):
+            if f.init:
+                setattr(self, f.name, getattr(other, f.name))
+        self._index_shapes()
+        self._pinned_key = None
+        if pinned:
+            self.pin_content()
 
     def cached(self, name: str, build, key: bytes | None = None):
         """``build()`` once per content of the scene: the value kept under ``name`` while the

@@ -129,6 +129,11 @@ class Node:
     children: list = field(default_factory=list)  # [(name | None, Node)]
     #: directories searched for files this element names (``<path>`` entries, then its file's dir)
     search_dirs: tuple = ()
+    #: a top-level element's ``$name`` parameters: those its element, its nested elements and the
+    #: objects it references took (with the parameters their ``<default>`` values took), so other
+    #: values of other parameters build the same object (links1.scene.scenefile); the root's: those
+    #: taken outside its elements (its attributes, ``<include>`` filenames, ``<path>`` values)
+    uses: frozenset = frozenset()
 
     # -- description / errors ------------------------------------------------------------
     def element(self) -> str:
@@ -293,10 +298,37 @@ def _coordinate_system_s(n: np.ndarray) -> np.ndarray:
 # the parser
 # --------------------------------------------------------------------------------------------
 
+class Sources:
+    """The files a parse read (the scene file, its includes), kept in memory for the next parse
+    of the same scene with other values (:class:`links1.scene.scenefile.SceneFile`: a sequence's
+    frames do not read the disk again). ``reads`` counts the files read from the disk."""
+
+    def __init__(self):
+        self.data: dict = {}     # path -> bytes
+        self.found: dict = {}    # (filename, search dirs) -> path
+        self.reads = 0
+
+    def read(self, path: str) -> bytes:
+        if path not in self.data:
+            with open(path, "rb") as f:
+                self.data[path] = f.read()
+            self.reads += 1
+        return self.data[path]
+
+
 class _Parser:
-    def __init__(self, params: dict | None):
+    def __init__(self, params: dict | None, sources: Sources | None = None):
         self.params = {k: _param_str(v) for k, v in (params or {}).items()}
+        self.sources = sources or Sources()
         self.used_params: set = set()  # the params some ``$name`` took (Mitsuba refuses the others)
+        # the parameters taken while reading: per top-level element (its set while it is read),
+        # outside them (root_uses: the root, <include> filenames, <path>s), per <default> and per id
+        self.root_uses: set = set()
+        self.uses: set = self.root_uses
+        self.default_uses: dict[str, set] = {}
+        self.id_uses: dict[str, set] = {}
+        self.ref_uses: list[tuple[set, str]] = []
+        self.root: Node | None = None
         self.defaults: dict[str, str] = {}
         self.ids: dict[str, Any] = {}
         self.refs: list[tuple[Node, int, _Ref]] = []
@@ -309,9 +341,11 @@ class _Parser:
 
     # -- parameters ------------------------------------------------------------------------
     def lookup(self, name: str) -> str | None:
+        self.uses.add(name)
         if name in self.params:
             self.used_params.add(name)
             return self.params[name]
+        self.uses.update(self.default_uses.get(name, ()))
         return self.defaults.get(name)
 
     def subst(self, elem: _Elem) -> None:
@@ -332,11 +366,17 @@ class _Parser:
     def collect_defaults(self, root: _Elem) -> None:
         for c in root.children:
             if c.tag == "default":
-                self.subst(c)
+                outer, taken = self.uses, set()
+                self.uses = taken
+                try:
+                    self.subst(c)
+                finally:
+                    self.uses = outer
                 name, value = c.attrs.get("name"), c.attrs.get("value")
                 if not name or value is None:
                     raise c.error("<default> needs 'name' and 'value' attributes")
                 self.defaults.setdefault(name, value)
+                self.default_uses.setdefault(name, taken)
 
     # -- files -----------------------------------------------------------------------------
     def file_dir(self, file: str) -> str:
@@ -366,7 +406,24 @@ class _Parser:
         node = self.object(raw)
         self.resolve_refs()
         self.check_unused_params(raw)
+        self.close_uses(node)
         return node
+
+    def close_uses(self, root: Node) -> None:
+        """Each top-level element's ``uses`` with those of the objects it references (through
+        references of references too), frozen."""
+        changed = True
+        while changed:
+            changed = False
+            for taken, ident in self.ref_uses:
+                more = self.id_uses.get(ident, set()) - taken
+                if more:
+                    taken |= more
+                    changed = True
+        for _, child in root.children:
+            if isinstance(child, Node):
+                child.uses = frozenset(child.uses)
+        root.uses = frozenset(self.root_uses)
 
     def check_unused_params(self, raw: _Elem) -> None:
         """Refuse a ``-D name=value`` that no ``$name`` of the scene (or its includes) takes,
@@ -400,6 +457,8 @@ class _Parser:
             name = _snake(name)
         node = Node(elem.tag, a.get("type"), a.get("id"), name, elem.file, elem.line,
                     search_dirs=self.dirs_for(elem.file))
+        if self.root is None:
+            self.root = node
         if elem.tag != "scene" and node.type is None:
             raise elem.error(f"<{elem.tag}> needs a 'type' attribute")
         if node.id is not None:
@@ -414,71 +473,90 @@ class _Parser:
             self.depth -= 1
         return node
 
-    def register(self, ident: str, obj, elem: _Elem) -> None:
+    def register(self, ident: str, obj, elem: _Elem, uses: set | None = None) -> None:
         if ident in self.ids:
             prev = self.ids[ident]
             raise elem.error(f"duplicate id '{ident}' (first defined at {prev.file}:{prev.line})")
         self.ids[ident] = obj
+        # what building it takes: the parameters of the top-level element it is read in
+        self.id_uses[ident] = self.uses if uses is None else uses
 
     def body(self, elem: _Elem, node: Node) -> None:
+        top = node is self.root     # the scene's own elements (those of its includes too)
         for c in elem.children:
             if c.tag == "default":
                 if elem.tag != "scene":
                     raise c.error("<default> is only allowed directly inside <scene>")
                 continue  # collected up front
-            self.subst(c)
-            if c.tag in OBJECT_TAGS or (c.tag == "spectrum" and "type" in c.attrs):
-                if c.tag == "scene":
-                    raise c.error("<scene> cannot be nested")
-                child = self.object(c)
-                node.children.append((child.name, child))
-            elif c.tag in VALUE_TAGS:
-                prop = self.value(c)
-                if prop.name in node.props:
-                    prev = node.props[prop.name]
-                    raise c.error(f"property '{prop.name}' given twice (also at {prev.file}:{prev.line})")
-                node.props[prop.name] = prop
-            elif c.tag == "ref":
-                ident = c.attrs.get("id")
-                if not ident:
-                    raise c.error("<ref> needs an 'id' attribute")
-                name = c.attrs.get("name")
-                node.children.append((name, None))
-                self.refs.append((node, len(node.children) - 1, _Ref(ident, name, c)))
-            elif c.tag == "include":
-                self.include(c, node)
-            elif c.tag == "path":
-                value = c.attrs.get("value")
-                if value is None:
-                    raise c.error("<path> needs a 'value' attribute")
-                d = value if os.path.isabs(value) else os.path.join(self.file_dir(c.file), value)
-                if not os.path.isdir(d):
-                    raise c.error(f"directory not found: '{value}'")
-                self.search_dirs.insert(0, os.path.normpath(d))
-            elif c.tag == "alias":
-                src, dst = c.attrs.get("id"), c.attrs.get("as")
-                if not src or not dst:
-                    raise c.error("<alias> needs 'id' and 'as' attributes")
-                if src not in self.ids:
-                    raise c.error(f"<alias>: unknown id '{src}'")
-                self.register(dst, self.ids[src], c)
-            elif c.tag in TRANSFORM_OPS:
-                raise c.error(f"<{c.tag}> is only allowed inside <transform>")
-            else:
-                raise c.error(f"unknown element <{c.tag}>")
+            if top:
+                taken = self.uses = set()
+            child = self.element(c, node)
+            if top:
+                if child is not None:
+                    child.uses = taken
+                else:           # <include>, <path>, <alias>, ...: what the whole scene takes
+                    self.root_uses |= taken
+                self.uses = self.root_uses
+
+    def element(self, c: _Elem, node: Node) -> Node | None:
+        """Read one child ``c`` of ``node``'s element; the object it is, if it is one."""
+        self.subst(c)
+        if c.tag in OBJECT_TAGS or (c.tag == "spectrum" and "type" in c.attrs):
+            if c.tag == "scene":
+                raise c.error("<scene> cannot be nested")
+            child = self.object(c)
+            node.children.append((child.name, child))
+            return child
+        elif c.tag in VALUE_TAGS:
+            prop = self.value(c)
+            if prop.name in node.props:
+                prev = node.props[prop.name]
+                raise c.error(f"property '{prop.name}' given twice (also at {prev.file}:{prev.line})")
+            node.props[prop.name] = prop
+        elif c.tag == "ref":
+            ident = c.attrs.get("id")
+            if not ident:
+                raise c.error("<ref> needs an 'id' attribute")
+            name = c.attrs.get("name")
+            node.children.append((name, None))
+            self.refs.append((node, len(node.children) - 1, _Ref(ident, name, c)))
+            self.ref_uses.append((self.uses, ident))
+        elif c.tag == "include":
+            self.include(c, node)
+        elif c.tag == "path":
+            value = c.attrs.get("value")
+            if value is None:
+                raise c.error("<path> needs a 'value' attribute")
+            d = value if os.path.isabs(value) else os.path.join(self.file_dir(c.file), value)
+            if not os.path.isdir(d):
+                raise c.error(f"directory not found: '{value}'")
+            self.search_dirs.insert(0, os.path.normpath(d))
+        elif c.tag == "alias":
+            src, dst = c.attrs.get("id"), c.attrs.get("as")
+            if not src or not dst:
+                raise c.error("<alias> needs 'id' and 'as' attributes")
+            if src not in self.ids:
+                raise c.error(f"<alias>: unknown id '{src}'")
+            self.register(dst, self.ids[src], c, uses=self.id_uses.get(src))
+        elif c.tag in TRANSFORM_OPS:
+            raise c.error(f"<{c.tag}> is only allowed inside <transform>")
+        else:
+            raise c.error(f"unknown element <{c.tag}>")
+        return None
 
     def include(self, c: _Elem, node: Node) -> None:
         fn = c.attrs.get("filename")
         if not fn:
             raise c.error("<include> needs a 'filename' attribute")
-        path = _find_file(fn, self.dirs_for(c.file))
+        where = (fn, self.dirs_for(c.file))
+        path = self.sources.found.get(where) or _find_file(*where)
         if path is None:
             raise c.error(f"file not found: '{fn}'")
+        self.sources.found[where] = path
         if path in self.include_stack or len(self.include_stack) >= _MAX_INCLUDE_DEPTH:
             raise c.error(f"recursive <include> of '{fn}'")
         try:
-            with open(path, "rb") as f:
-                data = f.read()
+            data = self.sources.read(path)
         except OSError as exc:
             raise c.error(f"cannot read '{fn}': {exc.strerror}") from None
         raw = _read_xml(data, path)
@@ -628,18 +706,19 @@ def _param_str(v) -> str:
 # public entry points
 # --------------------------------------------------------------------------------------------
 
-def parse_file(path, params: dict | None = None) -> Node:
+def parse_file(path, params: dict | None = None, sources: Sources | None = None) -> Node:
     """Parse a Mitsuba 3 XML scene file into its root ``<scene>`` :class:`Node`.
 
-    ``params`` are the ``-D name=value`` overrides (values are turned into strings).
+    ``params`` are the ``-D name=value`` overrides (values are turned into strings);
+    ``sources``: the files an earlier parse of this scene read (:class:`Sources`), not read again.
     """
     path = os.fspath(path)
+    sources = sources or Sources()
     try:
-        with open(path, "rb") as f:
-            data = f.read()
+        data = sources.read(path)
     except OSError as exc:
         raise SceneError(f"cannot read scene file: {exc.strerror}", path, None, "<scene>") from None
-    return _Parser(params).parse_root(data, path, None)
+    return _Parser(params, sources).parse_root(data, path, None)
 
 
 def parse_string(text: str, base_dir=None, params: dict | None = None,

@@ -17,7 +17,7 @@ from ..errors import UsageError
 from ..sensor.filters import FilterGather
 from .integrator import DEFAULT_MIN_WEIGHT, WhittedIntegrator
 from ..scene.params import check_resources
-from ..scene.loader import load_scene
+from ..scene.scenefile import SceneFile
 from ..maths.sampling import pixel_keys, ray_keys, sample_offsets
 from ..scene.scene import check_sensor_index
 
@@ -271,25 +271,44 @@ class CoreRenderer:
                  min_weight=None, width=None, height=None, variant=None, light_samples=None,
                  adaptive=None, adaptive_depth=DEFAULT_ADAPTIVE_DEPTH, sensor=None):
         self.path = str(path)
-        self.scene = load_scene(self.path, **(params or {}))
+        self.source = SceneFile(self.path, **(params or {}))
+        self.scene = self.source.scene
         self.sensor_index = check_sensor_index(self.path, sensor, self.scene.sensor_count())
-        self.scene.use_sensor(self.sensor_index)
-        if width is not None or height is not None:
-            self.scene.camera = _resized(self.scene.camera, width, height)
-        # this renderer owns its scene and never changes it: hash it once, not per window
-        self.scene.pin_content()
-        self.spp = self.scene.spp if spp is None else int(spp)
+        self.given = dict(spp=spp, width=width, height=height, min_weight=min_weight, light_samples=light_samples)
         self.max_depth = max_depth
         self.seed = int(seed)
         self.aovs = check_aovs(aovs)
-        # the scene's own (links1_whitted) values unless given
-        self.min_weight, self.light_samples = ray_tree_options(self.scene, min_weight, light_samples)
-        if self.spp < 1:
-            raise UsageError(f"spp must be >= 1, got {self.spp}")
-        check_resources(*self.film_size, self.spp, self.light_samples)
+        self._adopt()
         self.adaptive, self.adaptive_depth = adaptive, adaptive_depth
         if adaptive is not None:
             self.adaptive, self.adaptive_depth = check_options(adaptive, adaptive_depth)
+
+    def _adopt(self):
+        """The loaded scene's sensor, film size, sample count and ray-tree values, as given."""
+        g = self.given
+        self.scene.use_sensor(self.sensor_index)
+        if g["width"] is not None or g["height"] is not None:
+            self.scene.camera = _resized(self.scene.camera, g["width"], g["height"])
+        # this renderer owns its scene and changes it only in set_params: hash it once, not per window
+        self.scene.pin_content()
+        self.spp = self.scene.spp if g["spp"] is None else int(g["spp"])
+        # the scene's own (links1_whitted) values unless given
+        self.min_weight, self.light_samples = ray_tree_options(self.scene, g["min_weight"], g["light_samples"])
+        if self.spp < 1:
+            raise UsageError(f"spp must be >= 1, got {self.spp}")
+        check_resources(*self.film_size, self.spp, self.light_samples)
+
+    def set_params(self, params) -> set:
+        """Give the loaded scene other ``$name`` values (all of them, as ``params=`` at load) in
+        place, without reading its file again: only the elements whose parameters changed are
+        built again, and the BVH and the integrator's plan are kept when the shapes and lights
+        did not change (:class:`links1.scene.scenefile.SceneFile`). Renders then equal those of
+        a renderer loaded with ``params``, bit for bit. Returns the names that changed."""
+        self.scene.unpin_content()      # _adopt pins the new content
+        changed = self.source.update(**(params or {}))
+        if changed:
+            self._adopt()
+        return changed
 
     @property
     def film_size(self) -> tuple[int, int]:

@@ -17,8 +17,6 @@ import time
 
 import numpy as np
 
-from links1.tracing.render import CoreRenderer
-
 from ..renderers import make_renderer
 from .runtime import RendererSpec, set_threads
 
@@ -160,12 +158,14 @@ class SequenceRenderer:
             self.inner.scene.pin_content()
 
     def _apply_values(self, k):
-        """Frame ``k``'s ``$name`` values: the core reads the file with them (its scene is plain
-        data, no kernels to keep); Mitsuba's loaded scene is kept and updated through
-        ``mi.traverse`` / ``params.update()`` with the values that differ in the file read
-        with the frame's values (its kernels, recordings and memory stay)."""
+        """Frame ``k``'s ``$name`` values: the core's loaded scene takes them in place (its file
+        parsed again from memory, only the elements whose parameters changed built again, the
+        BVH and the integrator's plan kept where the shapes and lights did not change:
+        :meth:`links1.tracing.render.CoreRenderer.set_params`); Mitsuba's loaded scene is kept
+        and updated through ``mi.traverse`` / ``params.update()`` with the values that differ in
+        the file read with the frame's values (its kernels, recordings and memory stay)."""
         if self.inner_kind != "mitsuba":
-            self.inner = CoreRenderer(self.path, params=self._params(k), **self.options)
+            self.inner.set_params(self._params(k))
             return
         import mitsuba as mi   # lazy: Mitsuba is optional
         from links1_mitsuba import load_file

@@ -336,3 +336,17 @@ def test_sequence_plans_cover_their_frames_once():
         assert len(plan.units) == 3 - split + split * len(make_plan("grid", W, H, 2, tiles_per_node=3).units)
     tall = shifted(make_plan("subscreen", W, H, 2, tiles_per_node=4), 3, H, F)
     assert tall.height == H * F and tall.coverage()[3 * H:4 * H].min() == 1 and tall.coverage().sum() == W * H
+
+
+def test_a_node_loads_the_scene_once_and_updates_it():
+    """A node's sequence renderer keeps its one loaded core scene over the frames: the file is
+    read once, each frame's values are set in place, and each frame's window equals a fresh load."""
+    from links1_app.partition.sequence import SequenceRenderer
+    values = frame_values([ORBIT], [0, 1, 2], 24.0)
+    r = SequenceRenderer(MANY, frames=values, aovs=("cost",), **OPTS)
+    inner, scene = r.inner, r.inner.scene
+    got = r.render_batch([(0, 32 * k, 32, 32) for k in (2, 0, 1)])
+    assert r.inner is inner and inner.scene is scene and inner.source.sources.reads == 2   # many.xml, camera.xml
+    assert len(r.setup_s) == 3
+    for k, img in zip((2, 0, 1), got):
+        assert np.array_equal(img, single(k)), k
