@@ -141,3 +141,30 @@ def test_a_worker_killed_mid_render_on_that_cluster(cli_cluster, tmp_path, capsy
     assert sum(w.poll() is not None for w in workers) == 1  # that worker is gone, the other rendered the rest
     assert np.array_equal(res.image, pixel_values(0, 0, 48, 32, 4))
     assert res.faults and "left the cluster" in capsys.readouterr().err
+
+
+def test_animate_on_that_cluster(cli_cluster, tmp_path):
+    """``links1 animate --scheduler``: a sequence on a cluster links1 did not start, in whole frames,
+    in split frames (planned from eq. 4.1 then from the previous frame) and in both: every frame
+    written equals the single-process render of that frame, loaded with its values, bit for bit."""
+    from links1.imaging.image import read_image
+    from links1_app.expressions import frame_values
+    from links1_app.renderers import make_renderer
+    addr, _ = cli_cluster
+    orbit = ("eye", "14*sin(radians(30*f)), 9, 14*cos(radians(30*f))")
+    frames = [0, 1, 2]
+    refs = [make_renderer("core", MANY, params=v, width=32, height=32, spp=1, aovs=("cost",)).render()
+            for v in frame_values([orbit], frames, 24.0)]
+    runs = [["animate", MANY, "--renderer", "core", "-D", "=".join(orbit), "--frames", "3", "--width", "32",
+             "--height", "32", "--spp", "1", "--aov", "cost", "--units", units, "--scheduler", addr,
+             "--tiles-per-node", "4", "--no-progress", "-o", str(tmp_path / units / "f_%02d.exr")]
+            for units in ("frames", "partition", "both")]
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([ROOT, os.environ.get("PYTHONPATH", "")]))
+    p = subprocess.run([sys.executable, "-c", DRIVER, json.dumps(runs)], capture_output=True, text=True,
+                       timeout=240, env=env)
+    assert p.returncode == 0 and json.loads(p.stdout.strip().splitlines()[-1]) == [0] * len(runs), p.stderr[-2000:]
+    assert p.stderr.count("2 node(s)") == len(runs), p.stderr[-2000:]      # both workers of that cluster
+    for units in ("frames", "partition", "both"):
+        for f in frames:
+            img = read_image(str(tmp_path / units / f"f_{f:02d}.exr"))
+            assert np.array_equal(img, refs[f].astype(np.float32)), (units, f)
