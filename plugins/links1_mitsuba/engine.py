@@ -28,7 +28,6 @@ from links1.tracing.aovs import check_aovs as parse_aovs  # the one AOV table an
 from . import geometry, proxies, tuning
 from .gradients import Gradients
 from .launch import Launches
-from .raytree import RayTree
 from .tables import Tables
 from .util import place_of
 
@@ -86,7 +85,7 @@ def _config_field(name):
                     lambda self, v: setattr(self.config, name, v))
 
 
-class Engine(Tables, RayTree, Launches, Gradients):
+class Engine(Tables, Launches, Gradients):
     """What ``links1_whitted`` renders with: its :class:`Config`, the scene it was given (the
     links1 shapes) and what it made from it (tables, recordings, counters)."""
 
@@ -107,7 +106,6 @@ class Engine(Tables, RayTree, Launches, Gradients):
         "_prep",           # the last prepared tables (a camera view: prepared.Prepared)
         "_freeze",         # the frozen window launch (Launches._frozen_fn)
         "_freeze_points",  # the frozen point launch (Launches._frozen_points_fn)
-        "_cam_sample",     # the camera sample of the last camera rays (Launches._take_cam_sample)
         "kept_graph",      # the derivative pass's frame kept for render_backward (gradients.py)
         "batches",         # the film's batch tables by windows (film.cached_batch)
         "stats_now",       # ray counters of the last render, summed
@@ -136,7 +134,7 @@ class Engine(Tables, RayTree, Launches, Gradients):
         self.shared_bsdfs = set(shared_bsdfs)
         self.adopted = self.proxy_slots = None
         self.slot_of_id = self.shape_names = self.places = None
-        self._prep = self._freeze = self._freeze_points = self._cam_sample = None
+        self._prep = self._freeze = self._freeze_points = None
         self.kept_graph = None
         self.batches = {}
         self.stats_now = self.stats_pending = None

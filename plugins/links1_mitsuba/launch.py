@@ -21,6 +21,8 @@ from links1.tracing.aovs import check_aovs as parse_aovs  # the one AOV table an
 from links1.maths.sampling import KEY_LENS_U, KEY_LENS_V, KEY_PIXEL, key_seed, strata
 
 from .film import Batch, cached_batch, concat, reconstruct, sample_ids, sample_window, widen
+from .gradients import trace_tree_ad
+from .raytree import Tracer
 from .util import aligned, mix32, udiv, unit_float
 
 #: Most samples (lanes) per launch of the window function; more are split into launches.
@@ -158,8 +160,8 @@ def _frozen_scene():
 
 
 class Launches:
-    """Ray generation and launches; the ray tree (``_trace_tree``) and tables (``prepare``)
-    come from the engine (engine.py)."""
+    """Ray generation and launches; the ray tree is a :class:`~.raytree.Tracer` made per frame
+    (:meth:`_tracer`), the tables (``prepare``) come from the engine (engine.py)."""
 
     __slots__ = ()
 
@@ -190,16 +192,13 @@ class Launches:
         yf = (mi.Float(py) + offy) / H
         key = mix32(mix32(seed[1]) ^ sid)
         # light samples of a primary hit: one set over the pixel (links1.maths.sampling.pixel_keys)
-        self._cam_sample = (mix32(mix32(seed[1] ^ KEY_PIXEL) ^ pix), i, n_s)
+        sample = (mix32(mix32(seed[1] ^ KEY_PIXEL) ^ pix), i, n_s)
         o, d, tmin, tmax = self._rays_at(P, xf, yf, key)
-        return o, d, tmin, tmax, key, i
+        return o, d, tmin, tmax, key, sample
 
-    def _take_cam_sample(self):
-        """The camera sample ``(pixel key, i, spp)`` of the rays last made by :meth:`_camera_rays`,
-        handed once to the primary level of the ray tree (``RayTree._trace_tree``,
-        ``Gradients``): kept by the engine, which freeze does not walk (engine.py)."""
-        sample, self._cam_sample = self._cam_sample, None
-        return sample
+    def _tracer(self):
+        """The ray tree of a frame: the integrator's parameters and this frame's switches."""
+        return Tracer(self.config, self.current_tuning())
 
     def _rays_at(self, P, xf, yf, key):
         """Camera rays through film positions ``(xf, yf)`` (fractions of the film's width and
@@ -368,9 +367,9 @@ class Launches:
                 self = _frozen_caller()
                 P = self._prep
                 want = cfg[2]
-                o, d, tmin, tmax, key, _ = self._camera_rays(P, sid, spp, seeds)
-                total, cost, t0, s0, n0, counters = self._trace_tree(P, _frozen_scene(), o, d, tmin,
-                                                                     tmax, key, want, frozen=n_op)
+                o, d, tmin, tmax, key, sample = self._camera_rays(P, sid, spp, seeds)
+                total, cost, t0, s0, n0, counters = self._tracer().trace_tree(
+                    P, _frozen_scene(), o, d, tmin, tmax, key, want, sample, frozen=n_op)
                 return (total, cost, t0, s0, n0, counters) if want else (total, cost, counters)
             self._freeze = dr.freeze(launch_kernels, warn_after=1000)
         return self._freeze
@@ -383,8 +382,8 @@ class Launches:
                 self = _frozen_caller()
                 P = self._prep
                 o, d, tmin, tmax = self._rays_at(P, xf, yf, key)
-                total, cost, _, _, _, counters = self._trace_tree(P, _frozen_scene(), o, d, tmin, tmax,
-                                                                  key, False, frozen=n_op)
+                total, cost, _, _, _, counters = self._tracer().trace_tree(
+                    P, _frozen_scene(), o, d, tmin, tmax, key, False, None, frozen=n_op)
                 return total, cost, counters
             self._freeze_points = dr.freeze(launch_points, warn_after=1000)
         return self._freeze_points
@@ -411,7 +410,8 @@ class Launches:
                                                        self._frozen_inputs(P))
             else:
                 o, d, tmin, tmax = self._rays_at(P, x, y, key)
-                total, c, _, _, _, counters = self._trace_tree(P, scene, o, d, tmin, tmax, key, False)
+                total, c, _, _, _, counters = self._tracer().trace_tree(P, scene, o, d, tmin, tmax, key,
+                                                                        False, None)
             L.append(_columns(total, b - a).astype(np.float64))
             cost.append(_lanes(c, b - a).astype(np.float64))
             counts.append(self._launch_counts(b - a, counters))
@@ -427,10 +427,10 @@ class Launches:
         derivative pass's (gradients.py)."""
         n = dr.width(sid)
         if mode != dr.ADMode.Primal:   # a derivative pass (gradients.py): unfrozen, no AOVs
-            o, d, tmin, tmax, key, _ = self._camera_rays(P, sid, spp_, seeds)
+            o, d, tmin, tmax, key, sample = self._camera_rays(P, sid, spp_, seeds)
             # (the samples' RGB evaluated in one kernel: the film's gather would evaluate each
             # channel alone, recomputing the shading of the ray tree three times)
-            total = self._trace_tree_ad(P, scene, o, d, tmin, tmax, key)
+            total = trace_tree_ad(self._tracer(), P, scene, o, d, tmin, tmax, key, sample)
             return {"total": total, "cost": dr.zeros(mi.UInt32, n)}, (n, dict(nsh1=None))
         if self.use_freeze:
             cfg = (id(P), id(scene), want, int(self.max_depth), float(self.min_weight),
@@ -440,8 +440,9 @@ class Launches:
             total, cost, counters = out[0], out[1], out[-1]
             t0, s0, n0 = out[2:5] if want else (None, None, None)
         else:
-            o, d, tmin, tmax, key, _ = self._camera_rays(P, sid, spp_, seeds)
-            total, cost, t0, s0, n0, counters = self._trace_tree(P, scene, o, d, tmin, tmax, key, want)
+            o, d, tmin, tmax, key, sample = self._camera_rays(P, sid, spp_, seeds)
+            total, cost, t0, s0, n0, counters = self._tracer().trace_tree(P, scene, o, d, tmin, tmax, key,
+                                                                          want, sample)
         part = {"total": widen(total, n), "cost": widen(cost, n)}
         if want:
             part.update(t0=widen(t0, n), s0=widen(s0, n), n0=widen(n0, n))

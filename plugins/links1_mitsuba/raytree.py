@@ -1,8 +1,8 @@
 """The ray tree of ``links1_whitted`` (its one home): one level of rays traced and shaded
-(``_level``: eq. 3.11 under every light, shadow rays, the children of eq. 3.12-3.15), which
-children a hit spawns (``_children``), and every tree of a launch (``_trace_tree``).
+(``level``: eq. 3.11 under every light, shadow rays, the children of eq. 3.12-3.15), which
+children a hit spawns (``children``), and every tree of a launch (``trace_tree``): :class:`Tracer`.
 
-Recursion design (``_trace_tree``): two kernels per frame, whatever the depth.
+Recursion design (``trace_tree``): two kernels per frame, whatever the depth.
 
 1. The camera level: every sample's ray is intersected (Mitsuba shapes through
    ``scene.ray_intersect``, links1 quadrics and blobs in Dr.Jit, nearest wins) and shaded
@@ -25,8 +25,9 @@ Why one file of this size: a level's steps (``_surface``, ``_emitted``, ``_direc
 megakernel that calls them inside its symbolic loop are read together; split, each would
 import the others' private records.
 
-:class:`RayTree` is a base class of the ``Engine`` (engine.py); its methods name
-``mi.Float``, ``mi.Ray3f``, ... when called, so the class serves every Mitsuba variant.
+:class:`Tracer` holds only what it is given (the integrator's parameters, the frame's
+switches); the tables and the scene are arguments of each call. Its methods name ``mi.Float``,
+``mi.Ray3f``, ... when called, so the class serves every Mitsuba variant.
 """
 from __future__ import annotations
 
@@ -62,12 +63,12 @@ def _power_heuristic(pdf_a, pdf_b):
 
 @dataclass(eq=False)
 class Hit:
-    """The surface record of one level's rays (:meth:`RayTree._surface`): the winner of the
+    """The surface record of one level's rays (:meth:`Tracer._surface`): the winner of the
     nearest-hit search and what shading reads of it (Mitsuba's interaction record and BSDF,
     the Phong coefficients: None where the scene has none), with the BSDF factor of eq. (3.11)
     (:meth:`f_eval`) and the ray offset (:meth:`offset`)."""
 
-    P: object                       # the tables (prepared.Prepared)
+    tables: object                  # the tables (prepared.Prepared)
     ad: bool                        # a derivative pass's level
     n: int                          # lanes
     o: mi.Point3f
@@ -85,7 +86,7 @@ class Hit:
     front: mi.Bool
     nf: mi.Vector3f                 # shading normal on the ray's side
     mits: mi.Bool                   # a Mitsuba shape won
-    eps: mi.Float | None = None     # ray offset (tables.OFFSET_EPS)
+    eps: mi.Float | None = None     # ray offset (tables.py's OFFSET_EPS)
     sif: mi.SurfaceInteraction3f | None = None   # the record for BSDF calls, links1 winners filled in
     bsdf: mi.BSDFPtr | None = None
     is_ph: mi.Bool | None = None
@@ -101,10 +102,10 @@ class Hit:
 
     def f_eval(self, wi):
         """Factor multiplying L_s for light direction wi (eq. 3.11 / Mitsuba BSDF)."""
-        P, ad, n, nf, wo, ph, mb = self.P, self.ad, self.n, self.nf, self.wo, self.ph, self.mb
+        tables, ad, n, nf, wo, ph, mb = self.tables, self.ad, self.n, self.nf, self.wo, self.ph, self.mb
         dif, spe, expo, bsdf, ctx, sif = self.dif, self.spe, self.expo, self.bsdf, self.ctx, self.sif
         f = dr.zeros(mi.Color3f, n)
-        if P.any_phong:
+        if tables.any_phong:
             cos_theta = dr.dot(nf, wi)
             mirror = nf * (2.0 * cos_theta) - wi
             cos_phi = dr.maximum(dr.dot(mirror, wo), 0.0)
@@ -115,14 +116,14 @@ class Hit:
                 sp = dr.select(expo > 0, dr.power(cos_phi, expo), 1.0)
             fp = dif * dr.maximum(cos_theta, 0.0) + spe * sp
             f = dr.select(ph & (cos_theta > 0), fp, f)
-        if not P.all_phong:
+        if not tables.all_phong:
             fm = bsdf.eval(ctx, sif, sif.to_local(wi), mb)
             f = dr.select(mb, fm, f)
         return f
 
     def offset(self, direction):
         """The origin of a ray from the hit toward ``direction``: off the surface on that side by
-        ``eps`` (relative to 1 + max|p|, per shape: tables.OFFSET_EPS)."""
+        ``eps`` (relative to 1 + max|p|, per shape: tables.py's OFFSET_EPS)."""
         p, ng, eps = self.p, self.ng, self.eps
         side = dr.select(dr.dot(ng, direction) >= 0, 1.0, -1.0)
         return p + ng * (side * eps)
@@ -130,7 +131,7 @@ class Hit:
 
 @dataclass(eq=False)
 class Level:
-    """What one level of rays gives (:meth:`RayTree._level`): its radiance ``L`` (eq. 3.11),
+    """What one level of rays gives (:meth:`Tracer.level`): its radiance ``L`` (eq. 3.11),
     ray-primitive tests ``cost``, shadow rays ``n_shadow``, the hit (``t``, ``slot``, ``ns``,
     ``hit``) and, when it spawns, the children of eq. (3.12)-(3.16): mirror and refraction
     weights ``r``, ``tw``, whether each exists (``has_r``, ``has_t``), directions and origins."""
@@ -153,18 +154,26 @@ class Level:
     o_t: mi.Point3f | None = None
 
 
-class RayTree:
-    """One level, the children of a hit, the ray trees of a launch."""
+class Tracer:
+    """One level, the children of a hit, the ray trees of a launch, with the integrator's
+    parameters ``config`` (``engine.Config``: ``max_depth``, ``min_weight``, ``light_samples``,
+    read when tracing) and the switches ``tuning`` (:class:`~.tuning.Tuning`) of the frame it
+    traces (made per frame by the engine: ``Engine.tracer``). The lights and intersections it
+    calls are plain functions (lights.py, intersect.py)."""
 
-    __slots__ = ()
+    __slots__ = ("config", "tuning")
+
+    def __init__(self, config, tuning):
+        self.config = config
+        self.tuning = tuning
 
     # -------------------------------------------------------------- one level
-    def _level(self, P, scene, o, d, tmin, tmax, key, depth, spawn, active=None, symbolic=True,
+    def level(self, tables, scene, o, d, tmin, tmax, key, depth, spawn, active=None, symbolic=True,
                sample=None, later=None, ad=False):
         """Trace and shade one ray per lane (inside the megakernel's loop when ``symbolic``).
-        ``sample``: the camera sample of a primary hit (see :meth:`_light_uv`). ``later``
+        ``sample``: the camera sample of a primary hit (see :func:`.lights.light_uv`). ``later``
         (a derivative pass): a list that takes the shadow tests' results the pass keeps in
-        memory, for the caller to evaluate (``Gradients._trace_tree_ad``: after it has read
+        memory, for the caller to evaluate (``gradients.trace_tree_ad``: after it has read
         which rays the level spawns, so that reading waits for the hits' kernel only). ``ad``:
         a derivative pass's level (gradients.py: attached tables, no symbolic branches, visibility
         on primal values). Returns a :class:`Level`: :meth:`_surface`, :meth:`_emitted`,
@@ -174,15 +183,15 @@ class RayTree:
             active = dr.full(mi.Bool, True, n)
         cost = dr.zeros(mi.UInt32, n)
         n_shadow = dr.zeros(mi.UInt32, n)
-        h = self._surface(P, scene, o, d, tmin, tmax, active, cost, depth, symbolic, ad)
-        out = self._emitted(P, scene, h)
+        h = self._surface(tables, scene, o, d, tmin, tmax, active, cost, depth, symbolic, ad)
+        out = self._emitted(tables, scene, h)
         # ---- direct light with shadows (eq. 3.11, 3-3-3). Shadow rays of all lights are
         # built and evaluated together, then handed to Mitsuba's ray tests (each test
         # evaluates its inputs: building them first avoids recomputing shared work).
-        skip = self.current_tuning().skip_misses and not ad  # under a symbolic if on the hit (no dr.eval inside it)
+        skip = self.tuning.skip_misses and not ad  # under a symbolic if on the hit (no dr.eval inside it)
 
         def direct(out, cost, n_shadow):
-            return self._direct(P, scene, h, key, sample, symbolic, skip, later, out, cost, n_shadow)
+            return self._direct(tables, scene, h, key, sample, symbolic, skip, later, out, cost, n_shadow)
 
         if skip:
             out, cost, n_shadow = dr.if_stmt((out, cost, n_shadow), h.hit, direct,
@@ -192,22 +201,22 @@ class RayTree:
             out, cost, n_shadow = direct(out, cost, n_shadow)
         res = Level(L=out, cost=cost, t=h.t, slot=h.slot, ns=h.ns, hit=h.hit, n_shadow=n_shadow)
         if spawn:
-            self._secondary(P, h, res)
+            self._secondary(tables, h, res)
         return res
 
-    def _surface(self, P, scene, o, d, tmin, tmax, active, cost, depth, symbolic, ad) -> Hit:
+    def _surface(self, tables, scene, o, d, tmin, tmax, active, cost, depth, symbolic, ad) -> Hit:
         """The nearest hit of each ray (Mitsuba's and the links1 shapes', ``cost`` counting the
         tests) and its surface record: position, geometric and shading normals, Mitsuba's
         interaction record and BSDF where the scene has Mitsuba BSDFs or emitters, the Phong
         coefficients where it has ``links1_phong``, the ray offset's scale."""
         n = dr.width(o)
-        if P.any_mitsuba_shapes and not symbolic:
+        if tables.any_mitsuba_shapes and not symbolic:
             dr.eval(o, d, tmin, tmax)
         # level 1 is the camera's rays (from its eye when it is a pinhole)
-        eye = depth == 1 and P.perspective and self.current_tuning().eye_buffer
-        t, slot, si, prim = intersect.nearest(P, scene, o, d, tmin, tmax, active, cost,
+        eye = depth == 1 and tables.perspective and self.tuning.eye_buffer
+        t, slot, si, prim = intersect.nearest(tables, scene, o, d, tmin, tmax, active, cost,
                                               eye=eye, coherent=depth == 1, ad=ad)
-        if ad and not symbolic and P.custom and not P.any_mitsuba_shapes:
+        if ad and not symbolic and tables.custom and not tables.any_mitsuba_shapes:
             # a derivative pass through links1 shapes: the search's results (detached) kept in
             # memory, so that each kernel of the AD traversal reads them instead of marching
             # again (with Mitsuba's shapes they are evaluated below)
@@ -216,7 +225,7 @@ class RayTree:
         uslot = mi.UInt32(dr.maximum(slot, 0))
         # ---- surface record of the winner
         p = o + d * t
-        if P.any_mitsuba_shapes:
+        if tables.any_mitsuba_shapes:
             ng, ns = mi.Vector3f(si.n), mi.Vector3f(si.sh_frame.n)
             mits = hit & si.is_valid() & (dr.abs(si.t + tmin - t) <= 0.0)
             p = dr.select(mits, si.p, p)
@@ -224,27 +233,27 @@ class RayTree:
             ng = dr.zeros(mi.Vector3f, n)
             ns = dr.zeros(mi.Vector3f, n)
             mits = dr.full(mi.Bool, False, n)
-        for spec in P.custom_unrolled:
+        for spec in tables.custom_unrolled:
             m = slot == spec.slot
             # in the kernel of _nearest's search: a shape may reuse what it found (a blob its candidates)
             nc = spec.normal(o, d, t, prim, reuse=True)
             ng = dr.select(m, nc, ng)
             ns = dr.select(m, nc, ns)
-        if P.bvh is not None:
-            qi = dr.gather(mi.Int32, P.bvh.slot_to_q, uslot, hit)
+        if tables.bvh is not None:
+            qi = dr.gather(mi.Int32, tables.bvh.slot_to_q, uslot, hit)
             m = hit & (qi >= 0)
-            nc = P.bvh.normal(mi.UInt32(dr.maximum(qi, 0)), o, d, t, prim, m)
+            nc = tables.bvh.normal(mi.UInt32(dr.maximum(qi, 0)), o, d, t, prim, m)
             ng = dr.select(m, nc, ng)
             ns = dr.select(m, nc, ns)
-        if ad and getattr(P, "geo_ad", None) is not None:
+        if ad and getattr(tables, "geo_ad", None) is not None:
             # a derivative pass with geometry: the hits move with the surfaces (gradients.py)
-            t, p, ng, ns = intersect.moving_hits(P, o, d, t, slot, prim, p, ng, ns)
+            t, p, ng, ns = intersect.moving_hits(tables, o, d, t, slot, prim, p, ng, ns)
         wo = -d
         front = dr.dot(ng, wo) > 0
         nf = dr.select(front, ns, -ns)
         # a BSDF call or Mitsuba emitter reads Mitsuba's whole surface record (need_si below)
-        need_si = not P.all_phong or P.any_mitsuba_emission
-        if P.any_mitsuba_shapes and not symbolic:
+        need_si = not tables.all_phong or tables.any_mitsuba_emission
+        if tables.any_mitsuba_shapes and not symbolic:
             # a derivative pass keeps the hits in memory, and what reads Embree's record later,
             # ``mits`` or the record itself for the BSDF calls and their derivatives (~40 floats
             # a lane, only then): unevaluated, each kernel of the AD traversal would trace
@@ -263,35 +272,35 @@ class RayTree:
                                       dr.select(cw, frame_c.t, si.sh_frame.t),
                                       dr.select(cw, frame_c.n, si.sh_frame.n))
             sif.t = dr.select(hit, t, INF)
-            sif.uv = dr.select(cw, intersect.custom_uv(P, o, d, t, prim, slot, uslot, hit), si.uv)
+            sif.uv = dr.select(cw, intersect.custom_uv(tables, o, d, t, prim, slot, uslot, hit), si.uv)
             sif.wi = sif.to_local(wo)
-            bsdf = dr.gather(mi.BSDFPtr, P.bsdf_ptr, uslot, hit)
-            is_ph = dr.gather(mi.Bool, P.is_phong, uslot, hit)
+            bsdf = dr.gather(mi.BSDFPtr, tables.bsdf_ptr, uslot, hit)
+            is_ph = dr.gather(mi.Bool, tables.is_phong, uslot, hit)
             mb = hit & ~is_ph
             ctx = mi.BSDFContext()
         # Phong parameters
-        if P.any_phong:
-            ph = hit if P.all_phong else hit & is_ph
-            dif = gather3(P.dif, uslot, ph)
-            spe = gather3(P.spe, uslot, ph)
-            expo = dr.gather(mi.Float, P.expo, uslot, ph)
-        h = Hit(P, ad, n, o, d, t, slot, uslot, hit, prim, si, p, ng, ns, wo, front, nf, mits)
+        if tables.any_phong:
+            ph = hit if tables.all_phong else hit & is_ph
+            dif = gather3(tables.dif, uslot, ph)
+            spe = gather3(tables.spe, uslot, ph)
+            expo = dr.gather(mi.Float, tables.expo, uslot, ph)
+        h = Hit(tables, ad, n, o, d, t, slot, uslot, hit, prim, si, p, ng, ns, wo, front, nf, mits)
         if need_si:
             h.sif, h.bsdf, h.is_ph, h.mb, h.ctx = sif, bsdf, is_ph, mb, ctx
-        if P.any_phong:
+        if tables.any_phong:
             h.ph, h.dif, h.spe, h.expo = ph, dif, spe, expo
         # ray offsets (relative to 1 + max|p|), per shape: see OFFSET_EPS (tables.py)
-        eps_scale = dr.gather(mi.Float, P.eps_table, uslot, hit)
+        eps_scale = dr.gather(mi.Float, tables.eps_table, uslot, hit)
         h.eps = (1.0 + dr.max(dr.abs(p))) * eps_scale
         # glossy Mitsuba BSDFs under area and environment lights: light samples and one BSDF
         # sample combined by multiple importance sampling (power heuristic, Mitsuba's ``direct``)
-        if P.any_mis and not ad:
-            h.glossy = h.mb & dr.gather(mi.Bool, P.glossy, uslot, h.mb)
+        if tables.any_mis and not ad:
+            h.glossy = h.mb & dr.gather(mi.Bool, tables.glossy, uslot, h.mb)
             h.ctx_s = mi.BSDFContext()
             h.ctx_s.type_mask = +mi.BSDFFlags.Smooth   # the delta lobes are the ray tree's
         return h
 
-    def _emitted(self, P, scene, h):
+    def _emitted(self, tables, scene, h):
         """What a level's rays see besides direct light: the background of escaping rays
         (Mitsuba's constant / envmap), ambient light (eq. 3.11), the links1 shapes' and
         Mitsuba's emission."""
@@ -299,23 +308,23 @@ class RayTree:
         si, sif = h.si, h.sif
         out = dr.zeros(mi.Color3f, n)
         # ---- escaping rays: background (Mitsuba constant / envmap)
-        if P.env is not None:
+        if tables.env is not None:
             sim = dr.zeros(mi.SurfaceInteraction3f, n)
             sim.wi = wo
             sim.t = mi.Float(INF)
-            out = dr.select(hit, out, P.env.eval(sim, ~hit))
+            out = dr.select(hit, out, tables.env.eval(sim, ~hit))
         # ---- ambient (eq. 3.11, dic) and emission
-        if P.any_ambient:
-            out += dr.select(hit, gather3(P.amb, uslot, hit), 0.0)
-        if P.any_custom_emission:
-            out += dr.select(hit & front & ~mits, gather3(P.custom_emission, uslot, hit), 0.0)
-        if P.any_mitsuba_emission:
-            emits = mits & dr.gather(mi.Bool, P.mitsuba_emits, uslot, mits)
+        if tables.any_ambient:
+            out += dr.select(hit, gather3(tables.amb, uslot, hit), 0.0)
+        if tables.any_custom_emission:
+            out += dr.select(hit & front & ~mits, gather3(tables.custom_emission, uslot, hit), 0.0)
+        if tables.any_mitsuba_emission:
+            emits = mits & dr.gather(mi.Bool, tables.mitsuba_emits, uslot, mits)
             em = si.emitter(scene, emits)
             out += dr.select(emits, em.eval(sif, emits), 0.0)
         return out
 
-    def _direct(self, P, scene, h, key, sample, symbolic, skip, later, out, cost, n_shadow):
+    def _direct(self, tables, scene, h, key, sample, symbolic, skip, later, out, cost, n_shadow):
         """Direct light with shadows (eq. 3.11, 3-3-3) added to ``out``: every analytic light,
         ``light_samples`` samples of each area and environment light (with a BSDF sample and
         multiple importance sampling at glossy hits), their shadow rays built together and
@@ -325,33 +334,32 @@ class RayTree:
         f_eval, offset = h.f_eval, h.offset
         mis = glossy is not None
         pending = []
-        tuning = self.current_tuning()
 
         def need_of(j, lit, wi):
-            """Lanes that need a shadow ray toward light j (P.shadow_need: shadow_plan.plan_occluders)."""
-            if not P.any_shadow[j]:
+            """Lanes that need a shadow ray toward light j (tables.shadow_need: shadow_plan.plan_occluders)."""
+            if not tables.any_shadow[j]:
                 return dr.zeros(mi.Bool, n)
-            if P.shadow_need[j] is None:
+            if tables.shadow_need[j] is None:
                 return lit
-            need = dr.gather(mi.Bool, P.shadow_need[j], uslot, lit)
-            if P.shadow_inner[j] is not None:  # light on the inner side of a closed convex shape
-                need |= dr.gather(mi.Bool, P.shadow_inner[j], uslot, lit) & (dr.dot(ng, wi) <= 0)
+            need = dr.gather(mi.Bool, tables.shadow_need[j], uslot, lit)
+            if tables.shadow_inner[j] is not None:  # light on the inner side of a closed convex shape
+                need |= dr.gather(mi.Bool, tables.shadow_inner[j], uslot, lit) & (dr.dot(ng, wi) <= 0)
             return lit & need
 
         def shadow(j, so, wi, smax, lit, contrib):
             nonlocal n_shadow
-            if not P.any_shadow[j]:
+            if not tables.any_shadow[j]:
                 return None, lit, None
             need = need_of(j, lit, wi)
             n_shadow = n_shadow + dr.select(need, mi.UInt32(1), 0)
-            T = intersect.shadow_custom(P, so, wi, smax, need, cost, P.occ_custom[j], light=j)
-            return T, need, P.occ_mitsuba[j]
+            T = intersect.shadow_custom(tables, so, wi, smax, need, cost, tables.occ_custom[j], light=j)
+            return T, need, tables.occ_mitsuba[j]
 
         def own_outer(wi):
             """The hit's slot where the shadow ray leaves it on the outer side, else -1."""
             return dr.select(hit & (dr.dot(ng, wi) > 0), slot, -1)
 
-        for jl, L in enumerate(P.lights):
+        for jl, L in enumerate(tables.lights):
             wi, dist, Ls = lights.light_at(L, p)
             contrib = f_eval(wi) * Ls
             lit = hit & (dr.max(contrib) > 0)
@@ -360,13 +368,13 @@ class RayTree:
                 so, wi, smax = dr.detach(so), dr.detach(wi), dr.detach(smax)
             T, need, occ_m = shadow(jl, so, wi, smax, lit, contrib)
             pending.append((contrib, so, wi, smax, lit, need, T, occ_m, jl))
-        m_inv = 1.0 / self.light_samples
-        sampled = [(len(P.lights) + j, tab, tab["id"]) for j, tab in enumerate(P.area_tab)]
-        sampled += [(len(P.lights) + len(P.area) + k, env, lid) for k, env in enumerate(P.consts)
+        m_inv = 1.0 / self.config.light_samples
+        sampled = [(len(tables.lights) + j, tab, tab["id"]) for j, tab in enumerate(tables.area_tab)]
+        sampled += [(len(tables.lights) + len(tables.area) + k, env, lid) for k, env in enumerate(tables.consts)
                     for lid in [env.light_id]]
         for jsh, tab, lid in sampled:          # area lights and environments (links1.shading.lights)
-            for js in range(self.light_samples):
-                u, v = lights.light_uv(key, sample, lid, js, self.light_samples)
+            for js in range(self.config.light_samples):
+                u, v = lights.light_uv(key, sample, lid, js, self.config.light_samples)
                 if isinstance(tab, dict):
                     wi, dist, Lw, pdf_l = lights.sample_area(tab, p, u, v)
                     # Mitsuba's ray tests include the emitter: stop short of it as Mitsuba does
@@ -377,7 +385,7 @@ class RayTree:
                 contrib = f_eval(wi) * Lw * m_inv
                 if mis:
                     pdf_b = bsdf.pdf(ctx_s, sif, sif.to_local(wi), glossy)
-                    contrib *= dr.select(glossy, _power_heuristic(self.light_samples * pdf_l, pdf_b), 1.0)
+                    contrib *= dr.select(glossy, _power_heuristic(self.config.light_samples * pdf_l, pdf_b), 1.0)
                 lit = hit & (dr.max(contrib) > 0)
                 so = offset(wi)
                 if ad:
@@ -385,8 +393,8 @@ class RayTree:
                 T, need, occ_m = shadow(jsh, so, wi, smax, lit, contrib)
                 pending.append((contrib, so, wi, smax, lit, need, T, occ_m, jsh))
         if mis:
-            sampler_b, opacity_b = self._unmasked(P, bsdf, sif, uslot, glossy)
-            L_b, n_b = self._bsdf_sample_light(P, scene, key, sample, sampler_b, ctx_s, sif, glossy,
+            sampler_b, opacity_b = self._unmasked(tables, bsdf, sif, uslot, glossy)
+            L_b, n_b = self._bsdf_sample_light(tables, scene, key, sample, sampler_b, ctx_s, sif, glossy,
                                                p, nf, offset, cost, opacity_b)
             out += L_b
             n_shadow = n_shadow + n_b
@@ -394,8 +402,8 @@ class RayTree:
             # in one kernel: a derivative pass's shadow tests through links1 shapes (kept, as
             # the hits above), and the inputs of Mitsuba's ray tests where one follows; with
             # no such test, the tests go to ``later`` (the caller evaluates them)
-            ev = [tup[6] for tup in pending if tup[6] is not None] if ad and P.custom else []
-            if P.any_mitsuba_shapes and not skip and any(tup[7] for tup in pending):
+            ev = [tup[6] for tup in pending if tup[6] is not None] if ad and tables.custom else []
+            if tables.any_mitsuba_shapes and not skip and any(tup[7] for tup in pending):
                 ev += [out, cost, *[x for tup in pending for x in tup[:6]]]
             elif later is not None:
                 later.extend(ev)
@@ -404,8 +412,8 @@ class RayTree:
                 dr.eval(*ev)
         tested = []                     # Mitsuba's ray tests, light by light
         for k, (contrib, so, wi, smax, lit, need, T, occ_m, j) in enumerate(pending):
-            if T is not None and P.any_mitsuba_shapes and occ_m:
-                T = intersect.shadow_mitsuba(P, scene, so, wi, smax, need, T, cost, tuning, light=j,
+            if T is not None and tables.any_mitsuba_shapes and occ_m:
+                T = intersect.shadow_mitsuba(tables, scene, so, wi, smax, need, T, cost, self.tuning, light=j,
                                              own=own_outer(wi))
                 pending[k] = (contrib, so, wi, smax, lit, need, T, occ_m, j)
                 tested.append(T)
@@ -418,7 +426,7 @@ class RayTree:
             out += dr.select(lit, contrib * dr.select(need, T, 1.0), 0.0)
         return out, cost, n_shadow
 
-    def _secondary(self, P, h, res):
+    def _secondary(self, tables, h, res):
         """The children of each hit, eq. (3.12)-(3.16): Phong mirror and refraction weights and
         directions, and Mitsuba BSDFs' delta lobes (mirror, glass, the straight-through
         ``Null`` lobe), set on ``res`` with their origins."""
@@ -428,13 +436,13 @@ class RayTree:
         tw = dr.zeros(mi.Color3f, n)
         dir_r = dr.zeros(mi.Vector3f, n)
         dir_t = dr.zeros(mi.Vector3f, n)
-        if P.any_phong_r or P.any_phong_t:
+        if tables.any_phong_r or tables.any_phong_t:
             cos_i = -dr.dot(d, nf)
             dir_r = d + nf * (2.0 * cos_i)                                  # eq. (3.12)
-            r = dr.select(ph, gather3(P.refl, uslot, ph), r)
-            if P.any_phong_t:
-                tt = gather3(P.trans, uslot, ph)
-                ior = dr.gather(mi.Float, P.ior, uslot, ph)
+            r = dr.select(ph, gather3(tables.refl, uslot, ph), r)
+            if tables.any_phong_t:
+                tt = gather3(tables.trans, uslot, ph)
+                ior = dr.gather(mi.Float, tables.ior, uslot, ph)
                 eta = dr.select(front, 1.0 / ior, ior)                        # η = η_i/η_t
                 S = (d + nf * cos_i) * eta                                     # eq. (3.14)
                 s2 = dr.squared_norm(S)
@@ -443,15 +451,15 @@ class RayTree:
                 r = dr.select(tir, r + tt, r)
                 tw = dr.select(has_t & ~tir, tt, 0.0)
                 dir_t = S - nf * dr.safe_sqrt(1.0 - s2)                       # eq. (3.15)
-        if P.any_mitsuba_delta:
-            lobes = [(mi.BSDFFlags.DeltaReflection, "r")] if P.any_mitsuba_dr else []
-            if P.any_mitsuba_dt:
+        if tables.any_mitsuba_delta:
+            lobes = [(mi.BSDFFlags.DeltaReflection, "r")] if tables.any_mitsuba_dr else []
+            if tables.any_mitsuba_dt:
                 lobes.append((mi.BSDFFlags.DeltaTransmission, "t"))
             sampler, opacity = bsdf, None
-            if P.any_mitsuba_dr or P.any_mitsuba_dt:
-                sampler, opacity = self._unmasked(P, bsdf, sif, uslot, mb)
+            if tables.any_mitsuba_dr or tables.any_mitsuba_dt:
+                sampler, opacity = self._unmasked(tables, bsdf, sif, uslot, mb)
             for flag, which in lobes:   # only the delta lobes some BSDF of the scene has
-                for c, table in P.delta_components[which]:
+                for c, table in tables.delta_components[which]:
                     # one component at a time (a blendbsdf's nested ones, weighted by its weight)
                     act = mb & dr.gather(mi.Bool, table, uslot, mb)
                     cx = mi.BSDFContext()
@@ -469,11 +477,11 @@ class RayTree:
                     else:
                         tw = dr.select(ok, tw + w, tw)
                         dir_t = dr.select(ok, dw, dir_t)
-            if P.any_mitsuba_null:
+            if tables.any_mitsuba_null:
                 # the straight-through delta lobe (Mitsuba's BSDFFlags::Null: thindielectric's
                 # transmission T' = 1 - R', R' = 2R/(1+R); a mask's 1 - opacity; null): weight
                 # eval_null_transmission, direction unchanged, as Mitsuba's path follows it
-                act = mb & dr.gather(mi.Bool, P.has_null, uslot, mb)
+                act = mb & dr.gather(mi.Bool, tables.has_null, uslot, mb)
                 wn = bsdf.eval_null_transmission(sif, act)
                 ok = act & (dr.max(wn) > 0)
                 tw = dr.select(ok, wn, tw)
@@ -486,20 +494,20 @@ class RayTree:
         res.dir_r, res.dir_t, res.o_r, res.o_t = dir_r, dir_t, offset(dir_r), offset(dir_t)
 
     @staticmethod
-    def _unmasked(P, bsdf, sif, uslot, active):
+    def _unmasked(tables, bsdf, sif, uslot, active):
         """``(sampler, opacity)``: where a slot's BSDF is a ``mask``, its nested BSDF and the
         opacity, ``(1 - null(mask)) / (1 - null(nested))`` (Mitsuba's mask: null = 1 - a (1 -
         null')); its lobes are the nested one's times the opacity. Mitsuba's ``mask.sample``
         cannot sample the nested lobes alone (asked for them only, it returns its null lobe).
         ``(bsdf, None)`` in a scene without masks."""
-        if not P.any_mask:
+        if not tables.any_mask:
             return bsdf, None
-        sampler = dr.gather(mi.BSDFPtr, P.inner_ptr, uslot, active)
+        sampler = dr.gather(mi.BSDFPtr, tables.inner_ptr, uslot, active)
         om = dr.sum(1.0 - bsdf.eval_null_transmission(sif, active))
         on = dr.sum(1.0 - sampler.eval_null_transmission(sif, active))
         return sampler, dr.select(on > 0, om / dr.maximum(on, 1e-30), 0.0)
 
-    def _bsdf_sample_light(self, P, scene, key, sample, bsdf, ctx, sif, active, p, nf, offset, cost,
+    def _bsdf_sample_light(self, tables, scene, key, sample, bsdf, ctx, sif, active, p, nf, offset, cost,
                            opacity=None):
         """The BSDF-sampled part of the direct light at glossy hits ``active``: one direction
         drawn by the BSDF's smooth lobes at the hit's BSDF sample (:meth:`_bsdf_uv`), traced
@@ -514,29 +522,29 @@ class RayTree:
             weight = weight * opacity
         wi = sif.to_world(bs.wo)
         ok = active & (bs.pdf > 0) & (dr.max(weight) > 0)
-        t, slot, si, _ = intersect.nearest(P, scene, offset(wi), wi, dr.zeros(mi.Float, n),
+        t, slot, si, _ = intersect.nearest(tables, scene, offset(wi), wi, dr.zeros(mi.Float, n),
                                            dr.full(mi.Float, INF, n), ok, cost)
-        m = self.light_samples
+        m = self.config.light_samples
         out = dr.zeros(mi.Color3f, n)
-        for tab in P.area_tab:
+        for tab in tables.area_tab:
             if tab["slot"] is None:
                 continue
             on = ok & (slot == tab["slot"]) & (dr.dot(si.n, wi) < 0)   # the light's front side
             pdf_l = lights.area_pdf(tab, p, wi, dr.norm(si.p - p), si.n)
             Le = si.emitter(scene, on).eval(si, on)   # Mitsuba's own radiance there (a texture too)
             out += dr.select(on, weight * Le * _power_heuristic(bs.pdf, m * pdf_l), 0.0)
-        if P.consts:
+        if tables.consts:
             on = ok & (slot < 0)
-            for env in P.consts:
+            for env in tables.consts:
                 Le, pdf_l = lights.env_eval_pdf(env, nf, wi)
                 out += dr.select(on, weight * Le * _power_heuristic(bs.pdf, m * pdf_l), 0.0)
         return out, dr.select(ok, mi.UInt32(1), 0)
 
     # -------------------------------------------------------------- the tree
-    def _children(self, res, act, wgt, depth):
+    def children(self, res, act, wgt, depth):
         """Which children a hit spawns (eq. 3.12-3.16, ``max_depth``, weight threshold as
         the core) and their weights in the pixel."""
-        md, mw = self.max_depth, float(self.min_weight)
+        md, mw = self.config.max_depth, float(self.config.min_weight)
         deeper = act & (depth < md)
         w_r, w_t = wgt * res.r, wgt * res.tw
         cr = deeper & res.has_r
@@ -546,7 +554,7 @@ class RayTree:
             ct &= dr.max(w_t) > mw
         return cr, ct, w_r, w_t
 
-    def _trace_tree(self, P, scene, o, d, tmin, tmax, key, want_aovs, frozen=None):
+    def trace_tree(self, tables, scene, o, d, tmin, tmax, key, want_aovs, sample, frozen=None):
         """All ray trees: the camera level in one kernel, the rest in a "megakernel".
 
         Level 1 (every sample) is straight-line code. The samples whose hit spawns a
@@ -559,29 +567,31 @@ class RayTree:
         core's sum in another order). Lanes never interact and the compaction keeps the
         order of samples, so a window renders the same bits as the full frame; the window
         is a run-time value (no recompilation). Returns ``(RGB, cost, t0, slot0, ns0,
-        counters)`` with ``counters`` the arrays :meth:`_counts` sums (no read-back here).
+        counters)`` with ``counters`` the arrays ``launch.counts`` sums (no read-back here).
+        ``sample``: the camera sample of the rays (``launch.camera_rays``; None: the rays' keys
+        alone, as ``trace_points``).
 
         ``frozen``: the sample count as an opaque ``UInt32`` when traced inside
-        :func:`drjit.freeze` (:meth:`_frozen_fn`), so no Python decision may depend on data:
+        :func:`drjit.freeze` (``Launches``' frozen launches), so no Python decision may depend on data:
         the compaction always keeps the last two samples too (a lane without children starts
         inactive and adds exact zeros, the same bits as no lane), so the loop exists whatever
         the recorded pixels held (two lanes: a recording with one would treat the loop's
         arrays as scalars and replay wrongly).
         """
         n = dr.width(o)
-        md = self.max_depth
-        spawn = md > 1 and P.any_specular
+        md = self.config.max_depth
+        spawn = md > 1 and tables.any_specular
         one = mi.UInt32(1)
-        res = self._level(P, scene, o, d, tmin, tmax, key, 1, spawn, sample=self._take_cam_sample())
+        res = self.level(tables, scene, o, d, tmin, tmax, key, 1, spawn, sample=sample)
         aov = (res.t, res.slot, res.ns) if want_aovs else ()
         if not spawn:
             rgb = mi.Color3f(res.L)
             dr.eval(rgb, res.cost, res.n_shadow, *aov)
             return rgb, res.cost, res.t, res.slot, res.ns, dict(nsh1=res.n_shadow)
         act = res.hit
-        cr, ct, w_r, w_t = self._children(res, act, mi.Color3f(1.0), mi.UInt32(1))
+        cr, ct, w_r, w_t = self.children(res, act, mi.Color3f(1.0), mi.UInt32(1))
         key_r, key_t = child_keys(key)
-        has_t = P.any_phong_t or P.any_mitsuba_dt or P.any_mitsuba_null
+        has_t = tables.any_phong_t or tables.any_mitsuba_dt or tables.any_mitsuba_null
         if has_t:
             kids = (res.o_r, res.dir_r, w_r, key_r, res.o_t, res.dir_t, w_t, key_t)
         else:       # no refraction anywhere: no refraction children to store
@@ -628,12 +638,12 @@ class RayTree:
             v = dict(zip(names, vals))
             act = v["active"]
             mm = dr.width(v["o"])
-            res = self._level(P, scene, v["o"], v["d"], dr.zeros(mi.Float, mm), dr.full(mi.Float, INF, mm),
+            res = self.level(tables, scene, v["o"], v["d"], dr.zeros(mi.Float, mm), dr.full(mi.Float, INF, mm),
                               v["key"], 0, True, active=act)
             wgt = v["wgt"]
             L = v["L"] + wgt * res.L
             cost = v["cost"] + res.cost
-            cr, ct, w_r, w_t = self._children(res, act, wgt, v["depth"])
+            cr, ct, w_r, w_t = self.children(res, act, wgt, v["depth"])
             key_r, key_t = child_keys(v["key"])
             sp = v["sp"]
             push = cr & ct
