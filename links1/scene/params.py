@@ -110,6 +110,7 @@ PLUGINS: dict = {
         "seed": Param("int", 0, lo=0, hi=2 ** 32 - 1),
         "min_weight": Param("float", 1.0 / 255.0, **_UNIT),  # POV-Ray's adc_bailout
         "light_samples": Param("int", 1, lo=1, hi=MAX_LIGHT_SAMPLES),
+        "projective": Param("bool", False),   # derivatives: the visibility term (plugin only)
     },
     ("bsdf", "links1_phong"): {   # eq. 3.11 / 3.16; colours are reflectances (Mitsuba: [0, 1])
         "ambient": Param("rgb", 0.0, **_UNIT),

@@ -54,6 +54,8 @@ class Config:
     verify_scene: bool = True
     #: render windows through a frozen function (Launches._frozen_fn): no re-tracing
     use_freeze: bool = True
+    #: add the visibility (boundary) term to the derivatives (boundary.py)
+    projective: bool = False
 
     @classmethod
     def from_props(cls, props) -> "Config":
@@ -67,7 +69,8 @@ class Config:
         if md < 1:
             raise ValueError(f"links1_whitted: max_depth must be >= 1 (or -1), got {md}")
         cfg = cls(max_depth=md, seed=param("seed", int), min_weight=param("min_weight", float),
-                  light_samples=param("light_samples", int), aovs=parse_aovs(props.get("aovs", "")))
+                  light_samples=param("light_samples", int), aovs=parse_aovs(props.get("aovs", "")),
+                  projective=param("projective", bool))
         if "adaptive" in props:
             from links1.tracing.adaptive import check_options
             try:

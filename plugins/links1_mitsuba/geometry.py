@@ -294,6 +294,26 @@ def _blob_ad(mi, dr, spec, held, o, d, t, m, memo=None):
     return t_new, dr.select(ln > 1e-20, nw / dr.maximum(ln, 1e-30), -d)
 
 
+def implicit(mi, dr, spec, held, x, memo=None):
+    """The surface of ``spec`` as ``G(x; θ) = 0`` at world points ``x``, attached to its
+    parameters: ``(G, ∇G)`` with ``∇G`` in world space pointing outward (a quadric's side
+    ``|u|² − 1``, eq. 3.4; a blob's ``T − W``, eq. 3.6–3.9). Its normal velocity,
+    ``−(G − detach G) / |∇G|``, is what a silhouette moves with (:mod:`.boundary`)."""
+    n = dr.width(x)
+    if spec.__class__.__name__ == "QuadricSpec":
+        from .util import spread     # (as _quadric_ad: util needs a Mitsuba variant set)
+        A = spread(_inverse_of(mi, dr, spec, spec._inv(), held, memo), n)
+        u = _affine(mi, A, x)
+        zz = 1.0 if spec.kind == "sphere" else 0.0
+        G = dr.square(u.x) + dr.square(u.y) + zz * dr.square(u.z) - 1.0
+        return G, 2.0 * _transposed(mi, A, mi.Vector3f(u.x, u.y, u.z * zz))
+    A = _inverse_of(mi, dr, spec, spec._mats()[0], held, memo)
+    T = held.get("threshold", spec.threshold)
+    T = T if dr.grad_enabled(T) else spec._threshold()
+    W, g = blob_field(mi, dr, _blob_terms(mi, dr, spec, held, n), _affine(mi, A, x))
+    return T - W, -_transposed(mi, A, g)
+
+
 def attached_specs(dr, custom, geo) -> dict:
     """``{slot: (spec, held)}`` of the specs whose parameters have gradients enabled."""
     out = {}

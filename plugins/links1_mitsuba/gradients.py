@@ -59,7 +59,7 @@ import copy
 import drjit as dr
 import mitsuba as mi
 
-from . import geometry
+from . import boundary, geometry
 from .lights import params_of
 from .raytree import child_keys
 from .prepared import CameraView
@@ -226,7 +226,7 @@ class Gradients:
         sensor, window or spp renders its pass again (:meth:`_take_kept`); the next frame or a
         ``render_forward`` drops the graph."""
         self.kept_graph = None
-        if not self.current_tuning().keep_graph or spp != 1:
+        if not self.current_tuning().keep_graph or spp != 1 or self.config.projective:
             return None
         with dr.suspend_grad():
             P = self.prepare(scene, sensor)
@@ -270,8 +270,11 @@ class Gradients:
         with dr.suspend_grad():
             P = self.prepare(scene, sensor)
         Q = self._ad_tables(P, scene)
-        return self.render_windows_device(scene, [win], spp=spp, seed=seed, sensor=sensor,
-                                          dtype=mi.Float, tables=Q, mode=mode or dr.ADMode.Backward)[0]
+        # projective: the visibility term (boundary.py), traced before the interior pass
+        edge = boundary.boundary_image(self, scene, P, Q, sensor, win, spp, seed) if self.config.projective else None
+        img = self.render_windows_device(scene, [win], spp=spp, seed=seed, sensor=sensor,
+                                         dtype=mi.Float, tables=Q, mode=mode or dr.ADMode.Backward)[0]
+        return img if edge is None else img + edge
 
     def _ad_tables(self, P, scene):
         """A shallow copy of the tables ``P`` with the attached values of the parameters

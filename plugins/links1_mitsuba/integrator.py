@@ -23,7 +23,7 @@ DEFAULT_MIN_WEIGHT = l1_default("links1_whitted", "min_weight")
 
 #: the integrator's parameters, read and set through it (engine.Config)
 CONFIG_FIELDS = ("max_depth", "seed", "min_weight", "light_samples", "aovs", "adaptive",
-                 "adaptive_depth", "verify_scene", "use_freeze")
+                 "adaptive_depth", "verify_scene", "use_freeze", "projective")
 
 
 def _delegate(name):
@@ -61,6 +61,8 @@ def define_integrator():
         adaptive    float    adaptive anti-aliasing threshold (links1.tracing.adaptive) instead  none
                              of the sampler's count; ``mi.render`` and render_window
         adaptive_depth int   most refinement levels of ``adaptive``                     2
+        projective  boolean  derivatives add the visibility term: outlines moving under   false
+                             the camera rays (boundary.py; box filter)
         ==========  =======  ==========================================================  =======
 
         Shading: ``links1_phong`` surfaces use eq. (3.11) (ambient + diffuse + highlight),

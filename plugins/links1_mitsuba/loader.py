@@ -189,7 +189,8 @@ def _prepare_state(state, config, integrator: str, base_dir: str | None):
         integ_node = _add_integrator(state, "links1_whitted")
     else:
         old = integ_node.props.plugin_name()
-        keep = {"max_depth", "seed", "aovs", "min_weight", "light_samples", "adaptive", "adaptive_depth"}
+        keep = {"max_depth", "seed", "aovs", "min_weight", "light_samples", "adaptive", "adaptive_depth",
+                "projective"}
         if old != "links1_whitted":
             keep = {"max_depth"}
             if "max_depth" not in integ_node.props:

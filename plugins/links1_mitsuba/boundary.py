@@ -1,0 +1,259 @@
+"""The visibility ("boundary") term of ``links1_whitted``'s derivatives (``projective``):
+what the camera rays see changes where an outline moves.
+
+With a box filter a pixel is the integral of the radiance ``f`` over its square (pixel units),
+and its derivative is the interior term (gradients.py: every sample's hit moving with its
+surface) plus the integral along the outlines inside the square of the jump of ``f`` times the
+outline's normal speed. By the coarea formula the outline's integral is an integral over rows
+of a sum over the row's crossings, and also one over columns; for a row at height ``y``
+
+    d/dθ ∫ f(x, y) dx = Σ_c (f(x_c⁻) − f(x_c⁺)) dx_c/dθ,
+
+``x_c`` the crossings and ``f(x_c∓)`` the radiance just left and right of each. Per sample of
+a pixel: a random row and a random column of its square (:func:`boundary_image`), each
+queried at :data:`POINTS` points for what it sees (the nearest hit's slot), every interval
+whose ends see different slots bisected (:data:`BISECT_STEPS`) to its crossing, ``f`` on both
+sides traced by the primal ray tree (``trace_points``, detached). A crossing on a row counts
+with weight ``ν_x²``, on a column ``ν_y²`` (``ν`` the outline's unit normal on the screen):
+the weights sum to 1 (unbiased), and the weighted terms stay bounded where an outline runs
+along a row (``dx_c/dθ`` unbounded there).
+
+The crossing's speed. The ray through the crossing grazes the silhouette shape (the side with
+the nearer hit) at ``q = O(x) + s D(x)``; ``m`` is the surface's outward unit normal at ``q``
+(``⊥ D``). At first order the ray at ``x`` still grazes the moved surface where
+``m·∂q/∂x (x − x_c) = V_n``, so ``dx_c/dθ = V_n / a_x`` with ``a = (m·∂q/∂x, m·∂q/∂y)`` (at
+fixed ``s``; ``ν = a/|a|``) and ``V_n`` the surface's normal velocity at ``q``:
+``−(∂G/∂θ)/|∇G|`` for the links1 shapes' implicit surfaces ``G = 0``
+(:func:`links1_mitsuba.geometry.implicit`), ``m·∂p/∂θ`` for a Mitsuba sphere (``p`` its point
+``q`` moving with it: ``mi.RayFlags.FollowShape``, as Mitsuba's projective integrators). The
+row's weighted term is then ``(f⁻ − f⁺) V_n a_x / |a|²`` (a column's: ``a_y``): the detached
+``(f⁻ − f⁺) a_x / |a|²`` times the attached ``V_n``, whose value is 0, so the term adds to the
+derivative pass's frame its derivative alone.
+
+Left out (biased there, as docs/method.md says): crossings that do not change the slot (a
+blob's lobe in front of its own other lobe), crossings whose graze is not smooth (a clipped
+quadric's rim, a mesh's silhouette edge, the curve where two surfaces cut: ``|m·D|`` above
+:data:`GRAZE`), shadow edges, outlines seen in mirrors or through glass, and pairs of crossings
+closer than ``1/(POINTS − 1)`` pixel on one row. Box filter only.
+"""
+from __future__ import annotations
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from . import geometry, intersect
+from .util import INF, kind_of, mix32
+
+#: points a row (a column) of a pixel is queried at, its ends included
+POINTS = 8
+#: bisection steps from an interval of 1/(POINTS − 1) pixel to its crossing (float32 film
+#: coordinates stop refining long before)
+BISECT_STEPS = 28
+#: how far (pixels) from a crossing its two sides' radiance is traced: the primal ray tree's
+#: intersection rounds otherwise than the bisection's queries on the last few ulps
+SIDE_STEP = 1e-3
+#: largest |m·D| at a crossing's grazing point taken as a smooth silhouette
+GRAZE = 0.05
+#: the step (pixels) of the central differences of q(x, y) at fixed s
+DQ_STEP = 0.25
+#: salts of the boundary pass's random numbers (rows, columns, light-sample keys)
+_SALT_ROW, _SALT_COL, _SALT_KEY = 0x6A09E667, 0xBB67AE85, 0x3C6EF372
+
+
+def check_filter(P):
+    """Refuse a reconstruction filter other than the box (the term integrates over squares)."""
+    rf = P.rfilter
+    if not (getattr(rf, "is_box", False) and rf.border == 0):
+        raise NotImplementedError("links1_whitted: projective=true needs the film's box reconstruction "
+                                  "filter (<rfilter type=\"box\"/>)")
+
+
+# ---------------------------------------------------------------- the engine's entry points
+def _rays(engine, P, x, y, key):
+    """Camera rays through film pixel coordinates ``(x, y)`` (floats, row 0 at the top)."""
+    W, H = P.film_size
+    return engine._rays_at(P, x / W, y / H, key)
+
+
+def _seen(engine, P, scene, x, y, key):
+    """``(o, d, t, slot, prim)`` of the camera rays through ``(x, y)``: the nearest hit
+    (primal; ``prim``: a links1 quadric's part, 0 its side)."""
+    o, d, tmin, tmax = _rays(engine, P, x, y, key)
+    act = dr.full(mi.Bool, True, dr.width(x))
+    cost = dr.zeros(mi.UInt32, dr.width(x))
+    near = getattr(intersect, "nearest", None)
+    if near is not None:
+        t, slot, _, prim = near(P, scene, o, d, tmin, tmax, act, cost)
+    else:
+        t, slot, _, prim = engine._nearest(P, scene, o, d, tmin, tmax, act, cost)
+    return o, d, t, slot, prim
+
+
+def _unit(x):
+    return mi.Float(x >> 8) * (2.0 ** -24)
+
+
+# ---------------------------------------------------------------- the term
+def boundary_image(engine, scene, P, Q, sensor, win, spp, seed):
+    """The boundary term of the window ``win = (x0, y0, w, h)``: a ``TensorXf (h, w, 3)`` of
+    value 0 whose derivative is the term (see the module's docstring); ``P``: the primal
+    tables, ``Q``: the derivative pass's (``Q.geo_ad``: the attached links1 shapes)."""
+    check_filter(P)
+    x0, y0, w, h = win
+    with dr.suspend_grad():
+        cr = _crossings(engine, scene, P, sensor, win, spp, seed)
+    out = dr.zeros(mi.Float, w * h * 3)
+    if cr is not None:
+        with dr.resume_grad():
+            vn = _normal_speed(scene, P, Q, cr)
+            if vn is not None:
+                val = cr["weight"] * vn
+                for c in range(3):
+                    dr.scatter_add(out, val[c], cr["pixel"] * 3 + c)
+    return mi.TensorXf(out / float(spp), shape=(h, w, 3))
+
+
+def _crossings(engine, scene, P, sensor, win, spp, seed):
+    """The crossings of the window's sample rows and columns, bisected, with the detached
+    part of their terms, or None where there are none: ``{pixel, weight (Color3f), q, m,
+    slot, o, d}`` (``q``: the grazing point on the nearer side, ``m`` its outward normal)."""
+    x0, y0, w, h = win
+    n = w * h * spp
+    lane = np.arange(n, dtype=np.uint64)
+    pix = (lane // spp).astype(np.int64)
+    px, py = x0 + pix % w, y0 + pix // w
+    s0 = int(seed) & 0xFFFFFFFF
+    sid = mi.UInt32(lane.astype(np.uint32))
+    u_row = _unit(mix32(mix32(mi.UInt32(s0 ^ _SALT_ROW)) ^ sid)).numpy()
+    u_col = _unit(mix32(mix32(mi.UInt32(s0 ^ _SALT_COL)) ^ sid)).numpy()
+    keys = mix32(mix32(mi.UInt32(s0 ^ _SALT_KEY)) ^ sid).numpy()
+    # lanes 0..n-1: rows (x varies), n..2n-1: columns (y varies); POINTS points each
+    k = np.arange(POINTS) / (POINTS - 1)
+    along = np.concatenate([px, py]).astype(np.float64)[:, None] + k[None, :]
+    fixed = np.concatenate([py + u_row, px + u_col])
+    is_col = np.repeat(np.array([False, True]), n)
+    lane_key = np.concatenate([keys, keys])
+
+    def coords(a, is_col_, fixed_):
+        x = np.where(is_col_, fixed_, a)
+        y = np.where(is_col_, a, fixed_)
+        return mi.Float(x.astype(np.float32)), mi.Float(y.astype(np.float32))
+
+    rep = lambda v: np.repeat(v, POINTS)   # noqa: E731
+    x, y = coords(along.ravel(), rep(is_col), rep(fixed))
+    slot = _seen(engine, P, scene, x, y, mi.UInt32(rep(lane_key)))[3]
+    slot = slot.numpy().reshape(2 * n, POINTS)
+    li, ki = np.nonzero(slot[:, :-1] != slot[:, 1:])
+    if li.size == 0:
+        return None
+    # bisection: lo keeps the slot of the interval's first point
+    lo, hi = along[li, ki], along[li, ki + 1]
+    s_lo = mi.Int32(slot[li, ki].astype(np.int32))
+    cl, fx, key = is_col[li], fixed[li], mi.UInt32(lane_key[li])
+    lo_d, hi_d = mi.Float(lo.astype(np.float32)), mi.Float(hi.astype(np.float32))
+    colm = mi.Bool(cl)
+    fxd = mi.Float(fx.astype(np.float32))
+    for _ in range(BISECT_STEPS):
+        mid = 0.5 * (lo_d + hi_d)
+        sm = _seen(engine, P, scene, dr.select(colm, fxd, mid), dr.select(colm, mid, fxd), key)[3]
+        same = sm == s_lo
+        lo_d, hi_d = dr.select(same, mid, lo_d), dr.select(same, hi_d, mid)
+        dr.eval(lo_d, hi_d)
+    ends = []
+    for a in (lo_d, hi_d):
+        xa, ya = dr.select(colm, fxd, a), dr.select(colm, a, fxd)
+        ends.append((xa, ya) + _seen(engine, P, scene, xa, ya, key))
+    (xl, yl, ol, dl, tl, sl, pl), (xh, yh, oh, dh, th, sh, ph) = ends
+    near_lo = tl <= th
+    o = dr.select(near_lo, ol, oh)
+    d = dr.select(near_lo, dl, dh)
+    t = dr.select(near_lo, tl, th)
+    s = dr.select(near_lo, sl, sh)
+    side = dr.select(near_lo, pl, ph) == 0   # not a links1 quadric's cap
+    xn, yn = dr.select(near_lo, xl, xh), dr.select(near_lo, yl, yh)
+    ok = dr.isfinite(t) & (sl != sh)
+    q = o + d * dr.select(ok, t, 0.0)
+    # f on both sides, SIDE_STEP pixels out: the primal ray tree (one launch for both ends)
+    m_ = dr.width(q)
+    xs = np.concatenate([xl.numpy() - SIDE_STEP * ~cl, xh.numpy() + SIDE_STEP * ~cl])
+    ys = np.concatenate([yl.numpy() - SIDE_STEP * cl, yh.numpy() + SIDE_STEP * cl])
+    f = engine.trace_points(scene, xs / P.film_size[0], ys / P.film_size[1],
+                            np.concatenate([key.numpy(), key.numpy()]).astype(np.uint32), sensor=sensor)[0]
+    jump = f[:m_] - f[m_:]
+    # the screen-space gradient a of m·q at fixed s: central differences of the rays
+    m = _outward_normal(scene, P, q, s, ok)
+    a = []
+    for dx, dy in ((DQ_STEP, 0.0), (0.0, DQ_STEP)):
+        op, dp, _, _ = _rays(engine, P, xn + dx, yn + dy, key)
+        om, dm, _, _ = _rays(engine, P, xn - dx, yn - dy, key)
+        a.append(dr.dot(m, (op + dp * t) - (om + dm * t)) / (2.0 * DQ_STEP))
+    ax, ay = a
+    a2 = ax * ax + ay * ay
+    smooth = ok & side & (dr.abs(dr.dot(m, d)) < GRAZE) & (a2 > 0)
+    coef = dr.select(smooth, dr.select(colm, ay, ax) / dr.select(smooth, a2, 1.0), 0.0)
+    jump_c = mi.Color3f(*[mi.Float(jump[:, c].astype(np.float32)) for c in range(3)])
+    weight = jump_c * coef
+    pixel = mi.UInt32(pix[li % n].astype(np.uint32))
+    dr.eval(weight, q, m, s, o, d, pixel)
+    return {"pixel": pixel, "weight": weight, "q": q, "m": m, "slot": s, "smooth": smooth}
+
+
+def _mitsuba_spheres(P):
+    """The slots of Mitsuba's spheres (their silhouettes are smooth: velocity by FollowShape)."""
+    return sorted(sl for s_, sl in zip(P.shape_list, P.slot_list) if kind_of(s_) == "Sphere")
+
+
+def _outward_normal(scene, P, q, slot, ok):
+    """The outward unit normal at the grazing points ``q`` (detached): a links1 shape's
+    ``∇G/|∇G|``, a Mitsuba sphere's from the hit of a ray aimed at ``q`` (0 elsewhere)."""
+    m = dr.zeros(mi.Vector3f, dr.width(q))
+    for sp in P.custom:
+        on = ok & (slot == sp.slot)
+        if not dr.any(on):
+            continue
+        _, g = geometry.implicit(mi, dr, sp, {}, q)
+        m = dr.select(on, dr.normalize(g), m)
+    for sl in _mitsuba_spheres(P):
+        on = ok & (slot == sl)
+        if not dr.any(on):
+            continue
+        si = _sphere_hit(scene, P, q, sl, on)
+        m = dr.select(on & si.is_valid(), si.n, m)
+    return m
+
+
+def _sphere_hit(scene, P, q, sl, on, flags=mi.RayFlags.All):
+    """The hit on the Mitsuba sphere of slot ``sl`` of a ray aimed at its point ``q`` from
+    outside along the radius (a head-on hit, robust where the camera ray grazes): ``q`` itself
+    (with ``FollowShape`` in ``flags``: ``q`` moving with the sphere)."""
+    shape = P.shape_list[P.slot_list.index(sl)]
+    with dr.suspend_grad():
+        bb = shape.bbox()
+        c = mi.Point3f(bb.center())
+        r = 2.0 * dr.norm(mi.Vector3f(bb.extents()))
+    qd = dr.detach(q)
+    out = dr.normalize(qd - c)
+    ray = mi.Ray3f(qd + out * r, -out)
+    return scene.ray_intersect(ray, flags, False, on)
+
+
+def _normal_speed(scene, P, Q, cr):
+    """The attached normal velocity ``V_n`` (value 0) at each crossing's grazing point, or
+    None where no silhouette shape has attached parameters."""
+    q, m, slot, smooth = cr["q"], cr["m"], cr["slot"], cr["smooth"]
+    vn = dr.zeros(mi.Float, dr.width(q))
+    any_ = False
+    for sl, (sp, held) in (Q.geo_ad or {}).items():
+        on = smooth & (slot == sl)
+        G, g = geometry.implicit(mi, dr, sp, held, q)
+        vn = dr.select(on, -(G - dr.detach(G)) / dr.detach(dr.norm(g)), vn)
+        any_ = True
+    for sl in _mitsuba_spheres(P):
+        on = smooth & (slot == sl)
+        si = _sphere_hit(scene, P, q, sl, on, mi.RayFlags.All | mi.RayFlags.FollowShape)
+        if not dr.grad_enabled(si.p):
+            continue
+        vn = dr.select(on & si.is_valid(), dr.dot(m, si.p - dr.detach(si.p)), vn)
+        any_ = True
+    return vn if any_ else None
