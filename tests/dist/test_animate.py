@@ -84,14 +84,17 @@ def test_in_process_frames_equal_single_renders(refs):
 
 
 @pytest.mark.slow
-def test_pool_of_two_every_unit_choice_is_bit_identical(refs):
-    be = make_backend(workers=2)
+@pytest.mark.parametrize("nodes, choices", [
+    (2, (("frames", "eq41"), ("both", "eq41"), ("partition", "eq41"), ("partition", "previous"))),
+    (3, (("frames", "eq41"), ("both", "previous"), ("partition", "previous"))),
+])
+def test_pool_every_unit_choice_is_bit_identical(refs, nodes, choices):
+    be = make_backend(workers=nodes)
     try:
-        for units, plan_from in (("frames", "eq41"), ("both", "eq41"), ("partition", "eq41"),
-                                 ("partition", "previous")):
+        for units, plan_from in choices:
             res = animate(MANY, frames=[0, 1, 2], defines=[ORBIT], units=units, plan_from=plan_from, backend=be,
                           keep_images=True, aovs=("cost",), progress=False, tiles_per_node=4, **OPTS)
-            assert res.n_nodes == 2
+            assert res.n_nodes == nodes
             check_frames(res, refs)
     finally:
         be.close()
@@ -102,7 +105,8 @@ def test_dask_local_cluster_is_bit_identical(refs):
     pytest.importorskip("distributed")
     be = make_backend(dask_local=2)
     try:
-        for units, partition in (("frames", "subscreen"), ("partition", "subscreen"), ("partition", "dynamic")):
+        for units, partition in (("frames", "subscreen"), ("both", "subscreen"), ("partition", "subscreen"),
+                                 ("partition", "dynamic")):
             res = animate(MANY, frames=[0, 1, 2], defines=[ORBIT], units=units, partition=partition, backend=be,
                           keep_images=True, aovs=("cost",), progress=False, tiles_per_node=4, **OPTS)
             assert all(fr.get("imbalance_ray_tests", 1.0) >= 1.0 for fr in res.frames)
@@ -226,6 +230,9 @@ def orbit_camera(scene, f, t):
             pass
         else:
             os._exit(3)
+    if os.environ.get("LINKS1_TEST_SET_LOG"):      # the frames a node set its scene to, one line each
+        with open(os.environ["LINKS1_TEST_SET_LOG"], "a") as log:
+            log.write(f"{f}\n")
     a = math.radians(30 * f)
     scene.camera = dataclasses.replace(scene.camera, to_world=look_at([14 * math.sin(a), 9, 14 * math.cos(a)],
                                                                       [0, 0, 0], [0, 1, 0]))
@@ -234,7 +241,9 @@ def orbit_camera(scene, f, t):
 @pytest.mark.slow
 def test_update_function_and_a_worker_killed_mid_sequence(tmp_path, monkeypatch):
     """The Python API's update function moves the loaded scene per frame (no re-read); a node that
-    dies at frame 2 costs only its units: they are redone, and every frame equals the in-process one."""
+    dies at frame 2 costs only its units: they are redone, and every frame equals the in-process one.
+    In whole frames, the surviving nodes set up frames 1, 2 and 3 once each: no finished frame was
+    rendered again."""
     ref = animate(MANY, frames=[0, 1, 2, 3], update=orbit_camera, units="frames", keep_images=True,
                   progress=False, **OPTS)
     assert not np.array_equal(ref.images[0], ref.images[1])     # the update moved the camera
@@ -246,9 +255,13 @@ def test_update_function_and_a_worker_killed_mid_sequence(tmp_path, monkeypatch)
         for units in ("frames", "partition"):
             if marker.exists():
                 marker.unlink()
+            set_log = tmp_path / f"set-{units}.txt"
+            monkeypatch.setenv("LINKS1_TEST_SET_LOG", str(set_log))
             res = animate(MANY, frames=[0, 1, 2, 3], update=orbit_camera, units=units, backend=be, keep_images=True,
                           progress=False, tiles_per_node=4, log=logged.append, **OPTS)
             assert marker.exists() and len(res.faults) == 1, units
+            if units == "frames":     # frame 0: every node's scene is loaded at it
+                assert sorted(int(v) for v in set_log.read_text().split() if v != "0") == [1, 2, 3]
             for f in range(4):
                 assert np.array_equal(res.images[f], ref.images[f]), (units, f)
     finally:
