@@ -101,7 +101,7 @@ def main(argv=None):
         row["plugin_kernel_ms"], row["plugin_kernels"] = kernel_ms(r.render)
         st = r.integrator.stats
         row["rays_per_pixel"] = {"camera": 1.0, **st["per_camera_ray"]}
-        row["custom_shapes"] = len(r.integrator.custom)
+        row["custom_shapes"] = len(r.integrator.info()["custom_shapes"])
         row["max_depth"] = r.integrator.max_depth
         r1 = lm.MitsubaRenderer(path, params={"res": args.res}, spp=1, max_depth=1)
         row["plugin_depth1_ms"] = timed(r1.render, args.frames)

@@ -66,7 +66,7 @@ def _specs(n):
         p = Path(d) / "q.xml"
         p.write_text(quadric_scene(n))
         r = lm.MitsubaRenderer(str(p), params={"res": 8}, spp=1)
-    return [s for s in r.integrator.custom]
+    return list(r.integrator.info()["custom_shapes"])
 
 
 def _timed(fn, repeats, cpu=None):

@@ -260,14 +260,43 @@ class Engine(Tables, Launches, Gradients):
         self._set_stats(v)
 
     def info(self) -> dict:
-        """What the engine made so far, for tests and benchmarks: ``scene_builds``,
-        ``camera_views``, ``value_updates`` (tables built, camera views, in-place updates:
-        tables.py), ``recordings`` (of the frozen window launch; 0 before the first),
-        ``point_recordings`` (of the frozen point launch), ``tables`` (the last prepared
-        camera view, a :class:`~links1_mitsuba.prepared.Prepared`), ``kept_graph`` (whether a
-        derivative pass's frame waits for ``render_backward``), ``stats`` (the ray counters)."""
+        """What the engine was given and made so far, for tests, tools and benchmarks (its
+        inspection API; the engine's other names are its own):
+
+        - ``scene_builds``, ``camera_views``, ``value_updates``: tables built, camera views
+          made, in-place updates of the tables (tables.py, views.py);
+        - ``tables``: the last prepared camera view (a :class:`~links1_mitsuba.prepared.CameraView`,
+          its scene's tables as ``base``; None before the first frame or after :meth:`forget`),
+          whose fields :mod:`links1_mitsuba.prepared` documents;
+        - ``launch``, ``point_launch``: the frozen window launch and the frozen point launch
+          (:func:`drjit.freeze` functions; None until the first, and again after a change
+          that starts them anew), ``recordings`` and ``point_recordings`` their recordings
+          (0 while None);
+        - ``custom_shapes``: the links1 shapes (``QuadricSpec``, ``BlobSpec``), in file order;
+        - ``kept_graph``: whether a derivative pass's frame waits for ``render_backward``.
+
+        It reads nothing back from the device (so a test may call it between kernels it
+        counts); the ray counters are :attr:`stats`.
+
+        White-box tests may also read ``Engine.batches`` (the film's batch tables by windows,
+        :func:`links1_mitsuba.film.cached_batch`)."""
         return {"scene_builds": self.n_scene_builds, "camera_views": self.n_camera_views,
                 "value_updates": self.n_value_updates,
+                "launch": self._freeze, "point_launch": self._freeze_points,
                 "recordings": 0 if self._freeze is None else self._freeze.n_recordings,
                 "point_recordings": 0 if self._freeze_points is None else self._freeze_points.n_recordings,
-                "tables": self._prep, "kept_graph": self.kept_graph is not None, "stats": self.stats}
+                "custom_shapes": tuple(self.custom),
+                "tables": self._prep, "kept_graph": self.kept_graph is not None}
+
+    def forget(self):
+        """Drop what the engine keeps between frames: its prepared tables (the next frame
+        prepares them again, as after a change of the parameters they are made from:
+        ``MitsubaRenderer``) and a derivative pass's kept frame (gradients.py)."""
+        self._prep = None
+        self.kept_graph = None
+
+    def shape_slots(self, shapes):
+        """``(slot_list, nslots)``: the slot of each of the Mitsuba ``shapes`` (file order, or
+        the loader's ``slot_of_id``) and the number of slots, links1 shapes included
+        (``Tables._slots``)."""
+        return self._slots(shapes)

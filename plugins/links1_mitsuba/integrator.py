@@ -99,20 +99,9 @@ def define_integrator():
 
         @property
         def engine(self) -> Engine:
-            """The engine that renders (engine.py)."""
+            """The engine that renders (engine.py); what it made is read through :meth:`info`
+            (:meth:`links1_mitsuba.engine.Engine.info`)."""
             return self._hidden.engine
-
-        # the engine's transitional names: its state, read or set as the integrator's (tests)
-        def __getattr__(self, name):
-            if name.startswith("__") or name == "_hidden":
-                raise AttributeError(name)
-            return getattr(self._hidden.engine, name)
-
-        def __setattr__(self, name, value):
-            if name != "_hidden" and name in _ENGINE_NAMES:
-                setattr(self._hidden.engine, name, value)
-            else:
-                super().__setattr__(name, value)
 
         # -------------------------------------------------------------- Mitsuba entry points
         def render(self, scene, sensor=0, seed=0, spp=0, develop=True, evaluate=True):
@@ -204,5 +193,4 @@ def define_integrator():
 
     for name in CONFIG_FIELDS:
         setattr(Links1Whitted, name, _config(name))
-    _ENGINE_NAMES = frozenset(Engine.__slots__) | frozenset(CONFIG_FIELDS)
     return Links1Whitted

@@ -123,7 +123,7 @@ class MitsubaRenderer:
             self.light_samples = int(self.integrator.light_samples)
             from links1.scene.params import check_resources   # before any film-sized allocation
             check_resources(*self._film, self.spp, self.light_samples)
-            self.integrator._prep = None
+            self.integrator.engine.forget()
             # the renderer's scene is its own (loaded here, changed by no one): launches skip the
             # parameter digest (mi.traverse) that mi.render() and render_window() check
             self.integrator.verify_scene = False
@@ -189,7 +189,7 @@ class MitsubaRenderer:
                     for i, s in enumerate(self.scene.shapes())]
         P = self.integrator.prepare(self.scene, self.sensor)
         Phong = plugin_class("links1_phong")
-        slot_list, _ = self.integrator._slots(list(self.scene.shapes()))
+        slot_list, _ = self.integrator.engine.shape_slots(list(self.scene.shapes()))
         for s, sl in zip(self.scene.shapes(), slot_list):
             b = s.bbox()
             bsdf = s.bsdf()

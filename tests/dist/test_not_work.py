@@ -67,9 +67,9 @@ def test_warm_samples_the_plugins_film_capped():
     # after the in-process start, a task of every scanline replays: nothing left to record
     InProcess().start(spec)
     r = get_renderer(spec)
-    n = r.integrator._freeze.n_recordings
+    n = r.integrator.info()["recordings"]
     r.render_batch([(0, y, 24, 1) for y in range(24)])
-    assert r.integrator._freeze.n_recordings == n
+    assert r.integrator.info()["recordings"] == n
 
 
 def test_in_process_pixels_are_the_renderers_values_unconverted(core_spec):

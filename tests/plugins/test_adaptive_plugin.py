@@ -117,7 +117,7 @@ def test_points_launch_records_once_whatever_the_inputs_alignment(variant):
     # one recording for the five calls (three alignments), or one more: Dr.Jit's freeze also
     # records again, rarely and at random, when an input's memory moved (tests/plugins/
     # test_tuning.py; seen here once in a run of this file after others)
-    assert r.integrator._freeze_points.n_recordings <= 2
+    assert r.integrator.info()["point_recordings"] <= 2
 
 
 def test_table_rebuild_drops_the_points_recording(variant):
@@ -130,10 +130,10 @@ def test_table_rebuild_drops_the_points_recording(variant):
     r = make_renderer("mitsuba", os.path.join(SCENES, "shadows.xml"), params={"res": 24}, adaptive=0.03)
     integ = r.integrator
     before = integ.render_adaptive(r.scene, threshold=0.03, depth=2)
-    assert integ._freeze_points is not None
-    builds = integ.n_scene_builds
+    assert integ.info()["point_launch"] is not None
+    builds = integ.info()["scene_builds"]
     with tuned(bvh_min=integ.prepare(r.scene).tuning.bvh_min + 1):
         integ.prepare(r.scene)
-        assert integ.n_scene_builds == builds + 1
-        assert integ._freeze is None and integ._freeze_points is None
+        assert integ.info()["scene_builds"] == builds + 1
+        assert integ.info()["launch"] is None and integ.info()["point_launch"] is None
         assert np.array_equal(integ.render_adaptive(r.scene, threshold=0.03, depth=2), before)

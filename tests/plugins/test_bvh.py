@@ -44,11 +44,11 @@ def test_bvh_matches_every_quadric(variant):
     xml = _scene(40)
     scene = links1_mitsuba.load_string(xml)
     a = scene.integrator().render_window(scene, aovs=("id",))
-    assert scene.integrator()._prep.bvh is not None
+    assert scene.integrator().info()["tables"].bvh is not None
     scene2 = links1_mitsuba.load_string(xml)
     with tuning.tuned(bvh_min=10 ** 9):
         b = scene2.integrator().render_window(scene2, aovs=("id",))
-    assert scene2.integrator()._prep.bvh is None
+    assert scene2.integrator().info()["tables"].bvh is None
     assert np.mean(a[..., 3] != b[..., 3]) <= 2e-3
     rel = float(np.sum((a[..., :3] - b[..., :3]) ** 2) / np.sum(b[..., :3] ** 2))
     assert rel <= 1e-5
@@ -72,7 +72,7 @@ def test_bvh_tables_are_aligned_node_lines(llvm):
     scene = links1_mitsuba.load_string(_scene(40))
     integ = scene.integrator()
     integ.render_window(scene, (0, 0, 8, 8))
-    bvh = integ._prep.bvh
+    bvh = integ.info()["tables"].bvh
     for name in ("inv", "nm", "clips", "slot", "st", "line"):
         assert np.asarray(getattr(bvh, name)).__array_interface__["data"][0] % 64 == 0, name
     rng = np.random.default_rng(5)

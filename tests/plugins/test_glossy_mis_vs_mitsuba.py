@@ -128,7 +128,7 @@ def test_bsdf_samples_only_where_a_glossy_bsdf_meets_a_sampled_light(bsdf, light
     from links1_app.renderers import make_renderer
     r = make_renderer("mitsuba", write_scene(scene_dir, bsdf, light), spp=1, variant=variant)
     r.render()
-    assert r.integrator._prep.any_mis is expected
+    assert r.integrator.info()["tables"].any_mis is expected
 
 
 @pytest.mark.slow

@@ -235,7 +235,7 @@ def test_primal_unchanged_with_gradients_enabled(variant, keep_graph):
     with tuning.tuned(keep_graph=keep_graph):
         with_grad = np.array(mi.render(scene, params), dtype=np.float64)
     kept = scene.integrator().info()["kept_graph"]
-    scene.integrator().engine.kept_graph = None
+    scene.integrator().engine.forget()
     for k in SHADING_KEYS + MOVE_KEYS:
         dr.disable_grad(params[k])
     assert kept == keep_graph

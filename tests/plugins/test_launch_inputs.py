@@ -30,7 +30,7 @@ def test_launches_take_the_scene_once_each_and_without_its_sensors(variant):
     r = MitsubaRenderer(GLASS, params={"res": 16})
     r.render((3, 4, 5, 6))
     scene = r.scene
-    held = r.integrator._prep.scene_input
+    held = r.integrator.info()["tables"].scene_input
     assert isinstance(held, SceneInputs)
     indices = [i for i, _, _ in held.items]
     assert len(indices) == len(set(indices))
@@ -60,14 +60,14 @@ def test_a_recording_that_needs_more_of_the_scene_is_made_with_all_of_it(variant
     monkeypatch.setattr(launch.SceneInputs, "__init__", holding_nothing)
     r = MitsubaRenderer(FIG11, params={"res": 16}, spp=2, aovs=("depth", "id"))
     assert np.array_equal(r.render(win), ref)
-    assert r.integrator._prep.scene_input == launch._WHOLE_SCENE
-    recordings = r.integrator._freeze.n_recordings
+    assert r.integrator.info()["tables"].scene_input == launch._WHOLE_SCENE
+    recordings = r.integrator.info()["recordings"]
     assert np.array_equal(r.render_batch([win, (0, 0, 16, 16)])[0], ref)
     # a new batch shape replays; in the full suite's order (only there, with the session's other
     # renderers alive) one more recording was seen: a configuration records at most twice
-    assert r.integrator._freeze.n_recordings <= recordings + 1
+    assert r.integrator.info()["recordings"] <= recordings + 1
     assert np.array_equal(r.render_batch([(0, 0, 16, 16), win])[1], ref)
-    assert r.integrator._freeze.n_recordings <= recordings + 1
+    assert r.integrator.info()["recordings"] <= recordings + 1
 
 
 def _live_jit_variables():

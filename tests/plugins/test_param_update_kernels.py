@@ -142,7 +142,7 @@ def test_new_blob_and_quadric_values_replay_the_same_kernels(variant):
     # a first update: the kernels of an update (the tables' build) and of the frame after it
     update()
     before, seen = launched(primal)
-    recordings = integ._freeze.n_recordings
+    recordings = integ.info()["recordings"]
     g0, seen_d = launched(derivative)
     assert np.any(np.asarray(g0) != 0)               # the pass differentiates the blob
 
@@ -150,7 +150,7 @@ def test_new_blob_and_quadric_values_replay_the_same_kernels(variant):
     after, now = launched(primal)
     assert not np.array_equal(after, before)         # the frame shows the new values
     assert now <= seen, f"{len(now - seen)} kernels with new code after params.update()"
-    assert integ._freeze.n_recordings == recordings  # the frozen launch replays
+    assert integ.info()["recordings"] == recordings  # the frozen launch replays
     _, now_d = launched(derivative)
     assert now_d <= seen_d, f"{len(now_d - seen_d)} derivative-pass kernels with new code"
 
@@ -259,8 +259,8 @@ def test_blob_reverse_pass_kernels_do_not_grow_with_its_parameters(variant):
 @pytest.mark.slow
 def test_phong_value_update_rebuilds_only_the_material_rows(variant):
     """``params.update()`` of ``links1_phong`` coefficients updates the
-    material rows of the prepared tables in place: no scene build (``n_scene_builds``), one
-    value update (``n_value_updates``), the other tables the same arrays, the frozen launch
+    material rows of the prepared tables in place: no scene build (``info()["scene_builds"]``), one
+    value update (``info()["value_updates"]``), the other tables the same arrays, the frozen launch
     replayed (no kernel but the launch's own), and the frame the one of the file with those
     values, bit for bit. A change of the transmittance (shadow rays, BVH, light buffers are
     built from it) rebuilds all; a light's is an update in place (the next test); both
@@ -300,19 +300,19 @@ def test_phong_value_update_rebuilds_only_the_material_rows(variant):
     assert np.array_equal(after, fresh)
     # nothing changed: neither a build nor an update
     mi.render(scene, seed=0)
-    assert integ.n_scene_builds == builds and integ.n_value_updates == 1
+    assert integ.info()["scene_builds"] == builds and integ.info()["value_updates"] == 1
     # a transmittance, then a light: whole rebuilds, the file's frames
     params["floor.bsdf.transmittance.value"] = mi.Color3f(0.5, 0.5, 0.5)
     params.update()
     t_img = np.array(mi.render(scene, seed=0))
-    assert integ.n_scene_builds == builds + 1 and integ.n_value_updates == 1
+    assert integ.info()["scene_builds"] == builds + 1 and integ.info()["value_updates"] == 1
     xml_t = xml.replace('<rgb name="diffuse" value="0.25, 0.5, 0.75"/>',
                         '<rgb name="diffuse" value="0.25, 0.5, 0.75"/><rgb name="transmittance" value="0.5"/>')
     assert np.array_equal(t_img, np.array(mi.render(lm.load_string(xml_t), seed=0)))
     params["lp.position"] = mi.Point3f(2.5, 4, 3)
     params.update()
     l_img = np.array(mi.render(scene, seed=0))
-    assert integ.n_scene_builds == builds + 1 and integ.n_value_updates == 2
+    assert integ.info()["scene_builds"] == builds + 1 and integ.info()["value_updates"] == 2
     xml_l = xml_t.replace('<point name="position" x="2" y="4" z="3"/>', '<point name="position" x="2.5" y="4" z="3"/>')
     assert np.array_equal(l_img, np.array(mi.render(lm.load_string(xml_l), seed=0)))
     dr.sync_thread()
@@ -390,9 +390,9 @@ def test_light_update_replans_only_the_shadow_tables(variant):
     integ = scene.integrator()
     frames = lambda sc: [np.array(mi.render(sc, sensor=k, seed=0)) for k in (0, 1)]  # noqa: E731
     before = frames(scene)
-    P = integ._prep.base
+    P = integ.info()["tables"].base
     assert P.bvh is not None and any(lb is not None for lb in P.lbuf)
-    builds, updates = integ.n_scene_builds, integ.n_value_updates
+    builds, updates = integ.info()["scene_builds"], integ.info()["value_updates"]
     kept = (P.bvh, P.dif, P.eps_table, P.reg_to_slot)
     old = {f: getattr(P, f) for f in LIGHT_FIELDS}
     params = mi.traverse(scene)
@@ -400,8 +400,8 @@ def test_light_update_replans_only_the_shadow_tables(variant):
     params["sp.to_world"] = mi.Transform4f(moved_to.tolist())
     params.update()
     after = frames(scene)
-    assert integ.n_scene_builds == builds and integ.n_value_updates == updates + 1
-    Q = integ._prep.base
+    assert integ.info()["scene_builds"] == builds and integ.info()["value_updates"] == updates + 1
+    Q = integ.info()["tables"].base
     assert Q is P and all(a is b for a, b in zip(kept, (Q.bvh, Q.dif, Q.eps_table, Q.reg_to_slot)))
     # the light tables new, the shapes' part of the occluder planning reused
     assert all(getattr(Q, f) is not old[f] for f in LIGHT_FIELDS if f != "occ_shapes")
@@ -419,7 +419,7 @@ def test_light_update_replans_only_the_shadow_tables(variant):
     params["pl.intensity.value"] = mi.Color3f(30.0)
     params.update()
     t_frames = frames(scene)
-    assert integ.n_scene_builds == builds + 1 and integ.n_value_updates == updates + 1
+    assert integ.info()["scene_builds"] == builds + 1 and integ.info()["value_updates"] == updates + 1
     fresh = frames(lm.load_string(xml(pos=(-1.5, 4.25, 2.75), to=moved_to, intensity=30)))
     for b, c in zip(t_frames, fresh):
         assert np.array_equal(b, c)
@@ -445,9 +445,9 @@ def test_shape_update_remakes_only_the_shapes_tables(variant):
     integ = scene.integrator()
     frames = lambda sc: [np.array(mi.render(sc, sensor=k, seed=0)) for k in (0, 1)]  # noqa: E731
     before = frames(scene)
-    P = integ._prep.base
+    P = integ.info()["tables"].base
     assert P.bvh is not None and len(P.bvh_slots) == 120    # q0 among them
-    builds, updates = integ.n_scene_builds, integ.n_value_updates
+    builds, updates = integ.info()["scene_builds"], integ.info()["value_updates"]
     kept = (P.dif, P.eps_table, P.reg_to_slot, P.lights, P.bsdf_ptr)
     old = {f: getattr(P, f) for f in ("bvh", "blob_tables", "lbuf", "occ_shapes")}
     old_eye = {k: V.eye_buf for k, V in P.views.items()}
@@ -455,8 +455,8 @@ def test_shape_update_remakes_only_the_shapes_tables(variant):
     params[key] = mi.Transform4f().translate(mi.Vector3f(0.5, 0.25, -0.5)) @ mi.Transform4f(params[key])
     params.update()
     after = frames(scene)
-    assert integ.n_scene_builds == builds and integ.n_value_updates == updates + 1
-    Q = integ._prep.base
+    assert integ.info()["scene_builds"] == builds and integ.info()["value_updates"] == updates + 1
+    Q = integ.info()["tables"].base
     assert Q is P and all(a is b for a, b in zip(kept, (Q.dif, Q.eps_table, Q.reg_to_slot, Q.lights, Q.bsdf_ptr)))
     assert all(getattr(Q, f) is not v for f, v in old.items())
     for k, V in Q.views.items():     # each sensor's view: the new shape tables, its own new eye buffer
@@ -468,13 +468,13 @@ def test_shape_update_remakes_only_the_shapes_tables(variant):
     fp[key] = mi.Transform4f(m.tolist())       # the same float32 matrix, before any frame: a whole build
     fp.update()
     expected = frames(fresh)
-    assert fresh.integrator().n_value_updates == 0
+    assert fresh.integrator().info()["value_updates"] == 0
     for a, b, c in zip(before, after, expected):
         assert not np.array_equal(a, b)
         assert np.array_equal(b, c)
     # the occluder planning's shapes part (the Mitsuba floor's box and plane taken from the last
     # planning, the quadrics' boxes made anew) is the fresh build's
-    G, F = Q.occ_shapes, fresh.integrator()._prep.base.occ_shapes
+    G, F = Q.occ_shapes, fresh.integrator().info()["tables"].base.occ_shapes
     assert G["mitsuba_slot"].any() and any(p is not None for p in G["plane"])
     for k in ("lo", "hi", "convex", "closed", "mitsuba_slot"):
         assert np.array_equal(G[k], F[k]), k
@@ -522,7 +522,7 @@ def test_camera_move_refreshes_only_its_camera_view(variant, source):
     scene = load()
     integ = scene.integrator()
     before = np.array(mi.render(scene, seed=0))
-    V = integ._prep
+    V = integ.info()["tables"]
     P = V.base
     names = ("bvh", "lights", "area_tab", "dif", "eps_table", "reg_to_slot", "blob_tables", "lbuf",
              "occ_shapes", "shadow_need", "bsdf_ptr")
@@ -531,15 +531,15 @@ def test_camera_move_refreshes_only_its_camera_view(variant, source):
     assert (old_eye is not None) == (source == "many.xml")
     assert (len(P.area_tab) == 1 and any(type(sp).__name__ == "BlobSpec" for sp in P.custom)) == \
         (source == "area_blob")
-    builds, updates = integ.n_scene_builds, integ.n_value_updates
+    builds, updates = integ.info()["scene_builds"], integ.info()["value_updates"]
     params = mi.traverse(scene)
     k = sensor_key(params, scene, "to_world")
     params[k] = mi.Transform4f().translate(mi.Vector3f(0.3, 0.2, -0.25)) @ \
         mi.Transform4f().rotate(mi.Vector3f(0, 1, 0), 4.0) @ mi.Transform4f(params[k])
     params.update()
     after = np.array(mi.render(scene, seed=0))
-    assert integ.n_scene_builds == builds and integ.n_value_updates == updates + 1
-    assert integ._prep is V and V.base is P
+    assert integ.info()["scene_builds"] == builds and integ.info()["value_updates"] == updates + 1
+    assert integ.info()["tables"] is V and V.base is P
     assert all(getattr(P, f) is v for f, v in kept.items())
     m = np.array(mi.Transform4f(params[k]).matrix, dtype=np.float64).reshape(4, 4)
     assert np.array_equal(V.cam, m) and not np.array_equal(V.cam, old_cam)
@@ -550,7 +550,7 @@ def test_camera_move_refreshes_only_its_camera_view(variant, source):
     fp[fk] = mi.Transform4f(m.tolist())
     fp.update()
     expected = np.array(mi.render(fresh, seed=0))
-    assert fresh.integrator().n_value_updates == 0
+    assert fresh.integrator().info()["value_updates"] == 0
     assert not np.array_equal(before, after)
     assert np.array_equal(after, expected)
 
@@ -568,8 +568,8 @@ def test_film_update_refreshes_only_its_camera_view(variant):
     scene = lm.load_string(AREA_BLOB_XML)
     integ = scene.integrator()
     mi.render(scene, seed=0)
-    P = integ._prep.base
-    builds, updates = integ.n_scene_builds, integ.n_value_updates
+    P = integ.info()["tables"].base
+    builds, updates = integ.info()["scene_builds"], integ.info()["value_updates"]
 
     def resize(sc, w, h):
         prm = mi.traverse(sc)
@@ -579,19 +579,19 @@ def test_film_update_refreshes_only_its_camera_view(variant):
 
     resize(scene, 30, 16)
     after = np.array(mi.render(scene, seed=0))
-    assert after.shape[:2] == (16, 30) and integ._prep.film_size == (30, 16)
-    assert integ.n_scene_builds == builds and integ.n_value_updates == updates + 1
-    assert integ._prep.base is P
+    assert after.shape[:2] == (16, 30) and integ.info()["tables"].film_size == (30, 16)
+    assert integ.info()["scene_builds"] == builds and integ.info()["value_updates"] == updates + 1
+    assert integ.info()["tables"].base is P
     fresh = lm.load_string(AREA_BLOB_XML)
     resize(fresh, 30, 16)
     assert np.array_equal(after, np.array(mi.render(fresh, seed=0)))
     # a crop window: the same camera, the recording kept
-    frozen = integ._freeze
+    frozen = integ.info()["launch"]
     prm = mi.traverse(scene)
     prm[sensor_key(prm, scene, "film.crop_offset")] = [4, 2]
     prm[sensor_key(prm, scene, "film.crop_size")] = [10, 8]
     prm.update()
     crop = np.array(mi.render(scene, seed=0))
-    assert integ.n_scene_builds == builds and integ.n_value_updates == updates + 2
-    assert integ._freeze is frozen and frozen is not None
+    assert integ.info()["scene_builds"] == builds and integ.info()["value_updates"] == updates + 2
+    assert integ.info()["launch"] is frozen and frozen is not None
     assert np.array_equal(crop, after[2:10, 4:14])

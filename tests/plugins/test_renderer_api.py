@@ -53,12 +53,12 @@ def _check_windows_without_recompiling(variant="llvm_ad_rgb"):
     assert not new, (f"{len(new)} kernels built for {len(new_windows)} new windows "
                      f"(sizes {[k.get('size') for k in new]}, ops {[k.get('operation_count') for k in new]})")
     # and rendering them again records nothing new
-    recordings = r.integrator._freeze.n_recordings
+    recordings = r.integrator.info()["recordings"]
     for win in new_windows:
         r.render(win)
     again = {k["hash"] for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT}
     dr.set_flag(dr.JitFlag.KernelHistory, False)
-    assert again <= built and r.integrator._freeze.n_recordings == recordings
+    assert again <= built and r.integrator.info()["recordings"] == recordings
 
 
 @pytest.mark.slow

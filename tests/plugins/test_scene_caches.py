@@ -137,7 +137,7 @@ def test_unchanged_scene_prepares_nothing(variant):
     scene = load_string(MESH_XML, variant=variant)
     integ = scene.integrator()
     first = np.array(mi.render(scene, spp=1))
-    assert integ.n_scene_builds == 1 and integ.n_camera_views == 1
+    assert integ.info()["scene_builds"] == 1 and integ.info()["camera_views"] == 1
     for seed in range(4):
         img = np.array(mi.render(scene, spp=1, seed=seed % 2))
         if seed % 2 == 0:
@@ -147,8 +147,8 @@ def test_unchanged_scene_prepares_nothing(variant):
     _ = [params[k] for k in params.keys()]
     params.update()
     np.testing.assert_array_equal(np.array(mi.render(scene, spp=1)), first)
-    assert integ.n_scene_builds == 1 and integ.n_camera_views == 1
-    assert integ._freeze.n_recordings <= 2
+    assert integ.info()["scene_builds"] == 1 and integ.info()["camera_views"] == 1
+    assert integ.info()["recordings"] <= 2
 
 
 @pytest.mark.slow
@@ -167,19 +167,19 @@ def test_each_params_update_prepares_again(variant, change):
     integ = scene.integrator()
     before = np.array(mi.render(scene, spp=1))
     mi.render(scene, spp=1)
-    assert integ.n_scene_builds == 1
+    assert integ.info()["scene_builds"] == 1
     params = mi.traverse(scene)
     change(mi, params, scene)
     params.update()
     after = np.array(mi.render(scene, spp=1))
     in_place = change in (_light_moved, _moved_sensor, _fov, _film_size)
-    assert (integ.n_scene_builds, integ.n_value_updates) == ((1, 1) if in_place else (2, 0))
+    assert (integ.info()["scene_builds"], integ.info()["value_updates"]) == ((1, 1) if in_place else (2, 0))
     expected = _fresh_render(scene)
     assert before.shape != expected.shape or not np.array_equal(before, expected)   # the change shows
     np.testing.assert_array_equal(after, expected)
     np.testing.assert_array_equal(np.array(mi.render(scene, spp=1)), after)
-    assert (integ.n_scene_builds, integ.n_value_updates) == ((1, 1) if in_place else (2, 0))
-    assert integ._freeze.n_recordings <= 2
+    assert (integ.info()["scene_builds"], integ.info()["value_updates"]) == ((1, 1) if in_place else (2, 0))
+    assert integ.info()["recordings"] <= 2
 
 
 @pytest.mark.slow
@@ -196,12 +196,12 @@ def test_sensor_made_apart_is_watched(variant):
         "film": {"type": "hdrfilm", "width": 16, "height": 12, "rfilter": {"type": "box"}}})
     a = np.array(mi.render(scene, sensor=sensor, spp=1))
     np.testing.assert_array_equal(np.array(mi.render(scene, sensor=sensor, spp=1)), a)
-    assert (integ.n_scene_builds, integ.n_camera_views) == (1, 1)
+    assert (integ.info()["scene_builds"], integ.info()["camera_views"]) == (1, 1)
     prm = mi.traverse(sensor)
     prm["to_world"] = mi.ScalarTransform4f().look_at(origin=[3, 2, 4], target=[0, 0.5, 0], up=[0, 1, 0])
     prm.update()
     b = np.array(mi.render(scene, sensor=sensor, spp=1))
-    assert (integ.n_scene_builds, integ.n_camera_views) == (1, 2)
+    assert (integ.info()["scene_builds"], integ.info()["camera_views"]) == (1, 2)
     assert not np.array_equal(a, b)
     np.testing.assert_array_equal(b, _fresh_render(scene, sensor))
 

@@ -77,7 +77,7 @@ def test_every_switch_is_part_of_the_launch_key_or_the_tables_identity(variant, 
     def frame():
         integ.render_window(scene, (0, 0, 8, 8))
         integ.trace_points(scene, xf, yf, keys)
-        return (integ.n_scene_builds, integ._freeze.n_recordings, integ._freeze_points.n_recordings)
+        return (integ.info()["scene_builds"], integ.info()["recordings"], integ.info()["point_recordings"])
 
     # a configuration records its launch at most twice: Dr.Jit's freeze may record
     # again once the launch's scene input turns out stale and it takes the whole scene
