@@ -23,7 +23,7 @@ from links1.maths.sampling import KEY_LENS_U, KEY_LENS_V, KEY_PIXEL, key_seed, s
 from .film import Batch, cached_batch, concat, reconstruct, sample_ids, sample_window, widen
 from .gradients import trace_tree_ad
 from .raytree import Tracer
-from .util import aligned, mix32, udiv, unit_float
+from .util import Hidden, aligned, mix32, udiv, unit_float
 
 #: Most samples (lanes) per launch of the window function; more are split into launches.
 LAUNCH_LANES = 1 << 22
@@ -31,10 +31,6 @@ LAUNCH_LANES = 1 << 22
 #: Launches of at most this many lanes keep their ray counters until ``stats`` is read
 #: (``Launches._launch_counts``); bigger ones sum them at once on the device (memory).
 LAZY_COUNT_LANES = 1 << 16
-
-#: The integrator whose frozen window function runs and its scene (read inside it, not
-#: traversed by freeze: the function's scene input is there for freeze's walk only).
-_FROZEN_CALLER = {"integrator": None, "scene": None}
 
 
 def _columns(v, n=None):
@@ -147,16 +143,6 @@ def _between_launches():
     ``LAUNCH_LANES`` samples, ~1.3 s each here), not at its end."""
     dr.sync_thread()
     check_interrupt()
-
-
-def _frozen_caller():
-    # a function: freeze hashes the globals a frozen function names and traverses their
-    # Dr.Jit contents; through a call the integrator (and its scene) stay out of that
-    return _FROZEN_CALLER["integrator"]
-
-
-def _frozen_scene():
-    return _FROZEN_CALLER["scene"]
 
 
 class Launches:
@@ -278,17 +264,20 @@ class Launches:
         return self.stats_now
 
     def _call_frozen(self, fn, P, scene, *args):
-        """Call a frozen launch of this integrator (:func:`_frozen_caller` names it inside)
-        with ``args`` and, last, the scene as :class:`SceneInputs`; a recording that reads
-        more of the scene than those hold is made again with the whole scene, which the
-        launches of ``P`` then keep passing."""
+        """Call a frozen launch of this engine with ``args``, the scene as :class:`SceneInputs`
+        and, last, its caller: a :class:`~links1_mitsuba.util.Hidden` holding this engine, the
+        tables ``P`` and the scene, which a recording's body reads (freeze walks nothing of a
+        ``Hidden`` and keys it on its type alone: a new one each call replays the recording;
+        the Dr.Jit arrays the body reads reach freeze as the ``tables`` and scene inputs). A
+        recording that reads more of the scene than :class:`SceneInputs` holds is made again
+        with the whole scene, which the launches of ``P`` then keep passing."""
         scene_input = getattr(P, "scene_input", None)
         extra = _extra_scenes(P)
         if scene_input is None:
             scene_input = P.scene_input = SceneInputs(scene, extra, _unread_bsdfs(P))
         elif scene_input is not _WHOLE_SCENE and scene_input.stale:
             scene_input = P.scene_input = _WHOLE_SCENE   # freeze would update the scene's own
-        _FROZEN_CALLER.update(integrator=self, scene=scene)
+        caller = Hidden(engine=self, tables=P, scene=scene)
         # no cyclic garbage collection while recording: freeing another renderer's Dr.Jit
         # state (its own recordings) in the middle of one aborts the process
         gc_on = gc.isenabled()
@@ -296,13 +285,13 @@ class Launches:
         try:
             whole = (scene, *extra) if extra else scene
             if scene_input is _WHOLE_SCENE:
-                return fn(*args, whole)
+                return fn(*args, whole, caller)
             try:
-                return fn(*args, scene_input)
+                return fn(*args, scene_input, caller)
             except Exception:
                 P.scene_input = _WHOLE_SCENE
                 try:
-                    return fn(*args, whole)
+                    return fn(*args, whole, caller)
                 except Exception:
                     # a call through a pointer array reaches every registered instance of
                     # its class, also those of scenes that are garbage not yet collected
@@ -310,9 +299,8 @@ class Launches:
                     # to record ("... no such object instance was found in the function's
                     # inputs"). Those scenes freed, the same recording succeeds.
                     gc.collect()
-                    return fn(*args, whole)
+                    return fn(*args, whole, caller)
         finally:
-            _FROZEN_CALLER.update(integrator=None, scene=None)
             if gc_on:
                 gc.enable()
 
@@ -362,14 +350,14 @@ class Launches:
         re-tracing for any pixel set, window or batch size and spp (freeze replays recorded
         kernels at the widths of the new inputs)."""
         if self._freeze is None:
-            def launch_kernels(sid, n_op, spp, seeds, cfg, tables, scene_input):
-                # no closure: freeze would traverse it (the integrator, the scene ...)
-                self = _frozen_caller()
-                P = self._prep
+            def launch_kernels(sid, n_op, spp, seeds, cfg, tables, scene_input, caller):
+                # no closure: freeze would traverse it (the engine, the scene ...); they come
+                # in the caller (_call_frozen)
+                self, P = caller.engine, caller.tables
                 want = cfg[2]
                 o, d, tmin, tmax, key, sample = self._camera_rays(P, sid, spp, seeds)
                 total, cost, t0, s0, n0, counters = self._tracer().trace_tree(
-                    P, _frozen_scene(), o, d, tmin, tmax, key, want, sample, frozen=n_op)
+                    P, caller.scene, o, d, tmin, tmax, key, want, sample, frozen=n_op)
                 return (total, cost, t0, s0, n0, counters) if want else (total, cost, counters)
             self._freeze = dr.freeze(launch_kernels, warn_after=1000)
         return self._freeze
@@ -378,12 +366,11 @@ class Launches:
         """:meth:`trace_points` as a :func:`drjit.freeze` function (film positions and keys
         are run-time inputs): recorded once per configuration, replayed for any point count."""
         if self._freeze_points is None:
-            def launch_points(xf, yf, key, n_op, cfg, tables, scene_input):
-                self = _frozen_caller()
-                P = self._prep
+            def launch_points(xf, yf, key, n_op, cfg, tables, scene_input, caller):
+                self, P = caller.engine, caller.tables
                 o, d, tmin, tmax = self._rays_at(P, xf, yf, key)
                 total, cost, _, _, _, counters = self._tracer().trace_tree(
-                    P, _frozen_scene(), o, d, tmin, tmax, key, False, None, frozen=n_op)
+                    P, caller.scene, o, d, tmin, tmax, key, False, None, frozen=n_op)
                 return total, cost, counters
             self._freeze_points = dr.freeze(launch_points, warn_after=1000)
         return self._freeze_points
