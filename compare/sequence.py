@@ -4,8 +4,8 @@ A benchmark, not a test.
 Two sequences, each run by ``links1 animate --report`` (the one-process reference, then every
 way on the nodes, the same frames; links1_app.partition.sequence_report):
 
-* ``orbit``: the camera circles ``scenes/many.xml`` (7.5 degrees a frame): the load moves across
-  the screen;
+* ``orbit``: ``scenes/sequences/orbit.xml``, the camera circling ``scenes/many.xml`` (7.5 degrees
+  a frame): the load moves across the screen;
 * ``blobs``: ``scenes/blobs_moving.xml``, Fig. 6(b)'s blob with five moving centres: the load
   changes in place.
 
@@ -40,7 +40,7 @@ ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "compare" / "results"
 
 SEQUENCES = {
-    "orbit": ("scenes/many.xml", [("eye", "14*sin(radians(7.5*f)), 9, 14*cos(radians(7.5*f))")]),
+    "orbit": ("scenes/sequences/orbit.xml", [("angle", "7.5*f")]),
     "blobs": ("scenes/blobs_moving.xml", [("x0", "-1.0 - 0.35*sin(t*pi)"), ("y1", "1.0 + 0.4*sin(2*t*pi)"),
                                           ("x2", "1.0 + 0.35*sin(t*pi)"), ("z3", "0.8 + 0.3*cos(t*pi)"),
                                           ("y4", "1.8 - 0.5*abs(sin(t*pi))")]),

@@ -36,7 +36,7 @@ from .partition.sequence import (PLAN_FROM, UNIT_CHOICES, frame_units_plan, imba
 BLOCK_PIXELS = 1 << 22
 
 ANIMATE_EXAMPLES = """examples:
-  links1 animate scenes/orbit.xml -o out/orbit_%04d.png --frames 0:48 -D angle='7.5*f' --workers 2
+  links1 animate scenes/sequences/orbit.xml -o out/orbit_%04d.png --frames 0:48 -D angle='7.5*f' --workers 2
   links1 animate scenes/many.xml -o out/f.exr --frames 48 --fps 24 \\
       -D eye='14*sin(radians(7.5*f)), 9, 14*cos(radians(7.5*f))' --units frames --workers 2
   links1 animate scenes/blobs_moving.xml -o out/b_%03d.png --frames 0:24 --report r.json --plot r.png

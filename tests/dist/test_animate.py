@@ -363,3 +363,18 @@ def test_a_node_loads_the_scene_once_and_updates_it():
     assert len(r.setup_s) == 3
     for k, img in zip((2, 0, 1), got):
         assert np.array_equal(img, single(k)), k
+
+
+def test_orbit_example_scene_is_the_eye_orbit(refs):
+    """scenes/sequences/orbit.xml at -D angle='30*f' is many.xml seen from eye (14 sin a, 9, 14 cos a),
+    a = 30 f degrees: the same camera (to rounding) and the same frames."""
+    orbit = os.path.join(os.path.dirname(MANY), "sequences", "orbit.xml")
+    res = animate(orbit, frames=[0, 1, 2], defines=[("angle", "30*f")], units="frames", keep_images=True,
+                  aovs=("cost",), progress=False, **OPTS)
+    for f in range(3):
+        a = math.radians(30 * f)
+        cam = make_renderer("core", orbit, params={"angle": str(30 * f)}, **OPTS).scene.camera
+        want = make_renderer("core", MANY, params=frame_values([ORBIT], [f], 24.0)[0], **OPTS).scene.camera
+        assert np.allclose(cam.to_world, want.to_world, rtol=0, atol=1e-12) and cam.fov_x == want.fov_x
+        assert np.allclose(cam.to_world[:3, 3], [14 * math.sin(a), 9, 14 * math.cos(a)], rtol=0, atol=1e-12)
+        assert np.allclose(res.images[f], refs[f], rtol=0, atol=1e-9), f
