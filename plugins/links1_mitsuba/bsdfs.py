@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from .registered import check_properties
-from .util import Hidden, place_of, read_rgb
+from .util import Hidden, place_in, read_rgb
 
 
 def _rgb(props, name, default):
@@ -74,7 +74,7 @@ def define_phong():
         def __init__(self, props):
             super().__init__(props)
             self._held = Hidden()
-            self._held.where = place_of(props.id())   # FILE:LINE: <bsdf ...> while a file loads
+            self._held.where = place_in(props)   # FILE:LINE: <bsdf ...> from the loader
             self._set_params(phong_params(props))
 
         def _set_params(self, p):

@@ -14,7 +14,7 @@ import warnings
 import numpy as np
 
 from ._registry import register
-from .util import LOADING, place_of
+from .util import PLACE_PROPERTY, PLACED_PLUGINS, place_of
 from .util import read_rgb as _rgb
 from .blob import BlobSpec
 from .shapes import QuadricSpec
@@ -419,10 +419,9 @@ def _load(parse, source, integrator, base_dir, variant, params, filename=None):
         integ, specs, slot_of_id, names = _prepare_state(state, config, integrator, base_dir)
         places = _places(state, None if filename else source)
         mi.parser.transform_all(config, state)
-        LOADING["places"] = places
+        _hand_places(state, places)
         scene = mi.parser.instantiate(config, state)
     finally:
-        LOADING["places"] = None
         fr.clear()
         for i in range(len(saved)):
             fr.append(saved[i])
@@ -431,6 +430,16 @@ def _load(parse, source, integrator, base_dir, variant, params, filename=None):
         whitted = scene.integrator()
         whitted.attach(specs, slot_of_id, names, places)
     return scene
+
+
+def _hand_places(state, places: dict) -> None:
+    """Give each object of a links1 plugin that names its place in its own messages
+    (``util.PLACED_PLUGINS``) that place, ``FILE:LINE: <element>``, as a property
+    (``util.PLACE_PROPERTY``) that its constructor reads (``util.place_in``)."""
+    for node in state.nodes:
+        where = places.get(node.props.id())
+        if where and node.props.plugin_name() in PLACED_PLUGINS:
+            node.props[PLACE_PROPERTY] = where
 
 
 def _integrator_choice(links1_integrator: str) -> str:

@@ -182,9 +182,8 @@ class Hidden:
       sharing one ``links1_phong``: 365 -> 100 ms a frame);
     - :class:`~links1_mitsuba.paramwatch.ParamWatch` (a subclass): the old values it pins.
 
-    (The frozen functions reach their integrator and scene through a call,
-    ``launch._frozen_caller``, rather than a closure or a global they name: that is how they
-    are passed around freeze, not state hidden from it.)"""
+    A ``Hidden`` is also how a frozen launch gets its engine, tables and scene as an argument
+    (``Launches._call_frozen``): freeze keys it on its type alone and walks nothing of it."""
 
     def __init__(self, **kw):
         self.__dict__.update(kw)
@@ -203,16 +202,26 @@ def hidden_attr(name, holder="_hidden"):
                     lambda self, v: setattr(getattr(self, holder), name, v))
 
 
-#: ``{"places": id -> "FILE:LINE: <element>"}`` of the scene being instantiated
-#: (``loader._load`` sets it for the plugins' own constructors, e.g. links1_point's colour
-#: warnings); None outside a load
-LOADING = {"places": None}
+#: The property in which the loader hands a links1 plugin its place in the file,
+#: ``FILE:LINE: <element>`` (``loader._load``, for the plugins of :data:`PLACED_PLUGINS`),
+#: read by :func:`place_in` for the plugin's own messages (links1_point's colour warnings,
+#: links1_phong's update errors).
+PLACE_PROPERTY = "_links1_place"
+
+#: The plugins whose constructors read :data:`PLACE_PROPERTY` (Mitsuba refuses a property
+#: that its plugin does not read)
+PLACED_PLUGINS = ("links1_phong", "links1_point", "links1_spot")
 
 
-def place_of(obj, places=None) -> str | None:
-    """``FILE:LINE: <element>`` of a loaded Mitsuba object (from its id, in ``places``, else
-    the scene being loaded: :data:`LOADING`), or None."""
-    places = LOADING["places"] if places is None else places
+def place_in(props) -> str | None:
+    """The place the loader gave the object of ``props`` (:data:`PLACE_PROPERTY`), or None
+    (an object made otherwise: ``mi.load_dict``, ``mi.load_file``)."""
+    return str(props[PLACE_PROPERTY]) if PLACE_PROPERTY in props else None
+
+
+def place_of(obj, places) -> str | None:
+    """``FILE:LINE: <element>`` of a loaded Mitsuba object (from its id, in ``places``: the
+    loader's table), or None."""
     if not places:
         return None
     try:
@@ -226,14 +235,14 @@ def read_rgb(props, name, default, *, emitter=True):
     (:func:`links1.shading.spectra.to_rgb`; ``emitter=False`` for reflectance-like parameters), as a
     numpy RGB (``default``: a number, or None). The one reader of colours and spectra of the
     links1 plugins (``links1_point``/``links1_spot``, ``links1_phong``, the loader's emitting
-    links1 shapes)."""
+    links1 shapes). A warning names the object's place (:func:`place_in`)."""
+    where = place_in(props)   # (read whatever the colour: Mitsuba checks that it was read)
     if (name in props):
         v = props[name]
         if hasattr(v, "wavelengths") and hasattr(v, "values"):  # a <spectrum>
             from links1.shading.spectra import to_rgb
             rgb, raw = to_rgb(list(v.wavelengths), list(v.values), emitter=emitter)
             if raw is not None:
-                where = place_of(props.id())
                 where = f"{where} <spectrum name='{name}'>" if where else f"'{name}'"
                 warnings.warn(f"{where}: clamping out-of-gamut colour {np.round(raw, 6).tolist()} "
                               f"to {np.round(rgb, 6).tolist()} (as Mitsuba)", stacklevel=3)

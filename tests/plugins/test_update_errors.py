@@ -72,6 +72,27 @@ def test_phong_update_error_of_a_loaded_file_gives_its_line(variant, tmp_path):
         params.update()
 
 
+def test_a_links1_light_warns_at_its_line_in_the_file(variant):
+    """A links1 plugin's own warning names its place that the loader handed it (a property of
+    its object, ``util.PLACE_PROPERTY``): an out-of-gamut spectrum on a ``links1_point``
+    through ``links1_mitsuba.load_string`` names ``<string>:LINE: <emitter ...>``; the same
+    XML through ``mi.load_string`` (no loader, no place) names the parameter alone."""
+    import warnings
+    import mitsuba as mi
+    import links1_mitsuba
+    xml = SCENE.replace('<point name="position" x="0" y="3" z="3"/>',
+                        '<spectrum name="L1" value="500:0, 540:1, 545:0"/>').replace("QUADRIC", "").replace("BLOB", "")
+    said = []
+    for load in (links1_mitsuba.load_string, mi.load_string):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            load(xml)
+        said.append([str(w.message) for w in caught if "out-of-gamut" in str(w.message)])
+    assert [len(s) for s in said] == [1, 1], said
+    assert said[0][0].startswith("<string>:7: <emitter type='links1_point'> <spectrum name='L1'>: clamping ")
+    assert said[1][0].startswith("'L1': clamping ")
+
+
 @pytest.mark.parametrize("plugin, line", [("links1_quadric", QUADRIC_LINE), ("links1_blob", BLOB_LINE)])
 def test_shape_without_id_is_named_by_file_and_line(variant, tmp_path, plugin, line):
     import mitsuba as mi
