@@ -278,8 +278,8 @@ class Engine(Tables, Launches, Gradients):
         It reads nothing back from the device (so a test may call it between kernels it
         counts); the ray counters are :attr:`stats`.
 
-        White-box tests may also read ``Engine.batches`` (the film's batch tables by windows,
-        :func:`links1_mitsuba.film.cached_batch`)."""
+        White-box tests may also read (and empty) ``Engine.batches``, the film's batch tables by
+        windows (:func:`links1_mitsuba.film.cached_batch`): part of this inspection API."""
         return {"scene_builds": self.n_scene_builds, "camera_views": self.n_camera_views,
                 "value_updates": self.n_value_updates,
                 "launch": self._freeze, "point_launch": self._freeze_points,

@@ -6,7 +6,10 @@ variant, written by :func:`links1_mitsuba.register` (``_registry``) and read by 
 so that those parts need not import the registry, which imports them."""
 from __future__ import annotations
 
-#: variant -> {plugin name: class}
+#: variant -> {plugin name: class}. A registry, the plugin's one process-wide table besides the
+#: module-wide tuning (``tuning.current``): like Mitsuba's own plugin registry, which it
+#: mirrors, it is written once per variant (``links1_mitsuba.register``) and never per call;
+#: per-call state (a load's places, a frozen launch's engine) is passed as arguments.
 REGISTERED: dict[str, dict] = {}
 
 
