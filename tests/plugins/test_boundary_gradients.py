@@ -1,0 +1,244 @@
+"""The visibility term of ``links1_whitted``'s derivatives (``projective=true``, boundary.py)
+against references it did not make: central differences of high-spp frames and Mitsuba's own
+``direct_projective``.
+
+The shapes carry an ambient-only ``links1_phong`` (a constant colour) before a black
+background, so a parameter that moves them changes the frame only through their outlines:
+without the term every derivative is 0. Both sides are estimates with noise: the derivative
+over 12 seeds (``seed_grad``), the finite differences over 12 seeds too (the two frames of a
+difference share their samples, so only the samples the outline sweeps differ; the step moves
+the outline by about 0.1 pixel). Each check is ``|AD − FD| ≤ 5 σ`` with ``σ`` the two standard
+errors combined (each estimated from its 12 values: Student's t with about 20 degrees of
+freedom, beyond 5 in fewer than 1 in 10⁴ checks), and asserts first that the reference is
+sharp (``|FD| ≥ 10`` of its standard errors), so that a term of 0, a wrong sign or a factor of
+two fails. (With 4 seeds the errors' own estimates were too rough: a pixel's differences are
+a sum of few swept samples, heavy-tailed.)
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tests.scenes import perspective, scene, whitted
+
+pytestmark = pytest.mark.mitsuba
+
+W, H = 32, 24
+CAMERA = perspective("0, 0, 6", "0, 0, 0", fov=30, width=W, height=H, spp=4)
+AMBIENT = (0.8, 0.5, 0.2)
+PHONG = (f'<bsdf type="links1_phong"><rgb name="ambient" value="{", ".join(map(str, AMBIENT))}"/>'
+         '<rgb name="diffuse" value="0"/></bsdf>')
+LIGHT = '<emitter type="links1_point" id="lp"><point name="position" x="2" y="4" z="3"/><rgb name="L1" value="6"/></emitter>'
+
+SHAPES = {
+    "quadric": ("links1_whitted.obj.to_world", f"""<shape type="links1_quadric" id="obj"><string name="kind" value="sphere"/>
+        <transform name="to_world"><scale x="1.1" y="0.9" z="1"/><translate x="0.2" y="0.1"/></transform>{PHONG}</shape>"""),
+    "mitsuba_sphere": ("obj.to_world", f"""<shape type="sphere" id="obj"><point name="center" x="0.2" y="0.1" z="0"/>
+        <float name="radius" value="1"/>{PHONG}</shape>"""),
+    "blob": ("links1_whitted.obj.centers", f"""<shape type="links1_blob" id="obj">
+        <string name="centers" value="-0.45 0 0 1 0.9,  0.45 0.1 0 1 0.9"/><float name="threshold" value="0.5"/>{PHONG}</shape>"""),
+}
+
+AD_SEEDS, AD_SPP = range(12), 32
+FD_SEEDS, FD_SPP, FD_STEP = range(12), 1024, 1e-2
+
+
+def load(tmp_path, body, projective=True, rfilter="box"):
+    import links1_mitsuba as lm
+    cam = CAMERA if rfilter == "box" else perspective("0, 0, 6", "0, 0, 0", fov=30, width=W, height=H,
+                                                      spp=4, rfilter=rfilter)
+    path = tmp_path / "scene.xml"
+    path.write_text(scene(whitted(1, projective=projective) + cam, body, LIGHT))
+    return lm.load_file(str(path))
+
+
+def mover(mi, dr, params, key):
+    """``make(θ)``: the shape moved by ``θ`` along x (a transform's translation, a blob's
+    first centre)."""
+    base = params[key]
+    if key.endswith("centers"):
+        arr = np.array(base, dtype=np.float64).reshape(3, -1)
+        first = dr.arange(mi.UInt32, arr.shape[1]) == 0
+        return lambda th: mi.Point3f(mi.Float(arr[0]) + dr.select(first, th, 0.0), mi.Float(arr[1]), mi.Float(arr[2]))
+    base = mi.Transform4f(base)
+    return lambda th: mi.Transform4f().translate(mi.Vector3f(th, 0.0, 0.0)) @ base
+
+
+def forward(sc, key, seed, spp=AD_SPP, integrator=None):
+    """d frame / dθ (forward mode, every pixel) at θ = 0 with ``seed_grad = seed``."""
+    import drjit as dr
+    import mitsuba as mi
+    params = mi.traverse(sc)
+    make = mover(mi, dr, params, key)
+    th = mi.Float(0.0)
+    dr.enable_grad(th)
+    params[key] = make(th)
+    params.update()
+    img = mi.render(sc, params, integrator=integrator, seed=seed + 100, seed_grad=seed, spp=spp)
+    dr.set_grad(th, 1.0)
+    dr.forward_to(img)
+    out = np.array(dr.grad(img), dtype=np.float64)
+    params[key] = make(mi.Float(0.0))
+    params.update()
+    return out
+
+
+def reverse(sc, key, weight, seed, spp=AD_SPP, integrator=None):
+    """d Σ weight · frame / dθ (reverse mode) at θ = 0 with ``seed_grad = seed``."""
+    import drjit as dr
+    import mitsuba as mi
+    params = mi.traverse(sc)
+    make = mover(mi, dr, params, key)
+    th = mi.Float(0.0)
+    dr.enable_grad(th)
+    params[key] = make(th)
+    params.update()
+    img = mi.render(sc, params, integrator=integrator, seed=seed + 100, seed_grad=seed, spp=spp)
+    dr.backward(dr.sum(img * mi.TensorXf(weight.astype(np.float32)), axis=None))
+    g = float(np.array(dr.grad(th)).ravel()[0])
+    params[key] = make(mi.Float(0.0))
+    params.update()
+    return g
+
+
+def finite_differences(sc, key, seed):
+    """(frame(+h) − frame(−h)) / 2h, both frames of the same seed (shared samples)."""
+    import drjit as dr
+    import mitsuba as mi
+    params = mi.traverse(sc)
+    make = mover(mi, dr, params, key)
+    pair = []
+    for s in (FD_STEP, -FD_STEP):
+        params[key] = make(mi.Float(s))
+        params.update()
+        pair.append(np.array(mi.render(sc, seed=seed, spp=FD_SPP), dtype=np.float64))
+    params[key] = make(mi.Float(0.0))
+    params.update()
+    return (pair[0] - pair[1]) / (2 * FD_STEP)
+
+
+def mean_se(samples):
+    a = np.asarray(samples, dtype=np.float64)
+    return a.mean(axis=0), a.std(axis=0, ddof=1) / np.sqrt(len(a))
+
+
+def assert_agree(what, ad, ad_se, fd, fd_se):
+    sigma = np.hypot(ad_se, fd_se)
+    assert abs(fd) >= 10 * fd_se, f"{what}: the reference {fd:.4g} ± {fd_se:.2g} is not sharp"
+    assert abs(ad - fd) <= 5 * sigma, f"{what}: AD {ad:.4g} ± {ad_se:.2g}, FD {fd:.4g} ± {fd_se:.2g}"
+
+
+def outline_pixels(frame, count=4):
+    """Pixels the outline crosses (partly covered: red between 15 % and 85 % of the shape's)."""
+    frac = frame[..., 0] / AMBIENT[0]
+    ys, xs = np.nonzero((frac > 0.15) & (frac < 0.85))
+    pick = np.linspace(0, len(ys) - 1, count).astype(int)
+    return [(int(ys[i]), int(xs[i])) for i in pick]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("family", sorted(SHAPES))
+def test_outline_translation_against_finite_differences(variant, tmp_path, family):
+    """d (right half's red sum) / d x-translation, and d pixel / dθ on pixels the outline
+    crosses, against central differences of 1024-spp frames: a links1 quadric (an ellipsoid),
+    a Mitsuba sphere, a two-centre blob (its first centre)."""
+    import mitsuba as mi
+    key, body = SHAPES[family]
+    sc = load(tmp_path, body)
+    ads = [forward(sc, key, s) for s in AD_SEEDS]
+    fds = [finite_differences(sc, key, s) for s in FD_SEEDS]
+    ad, ad_se = mean_se([a[:, W // 2:, 0].sum() for a in ads])
+    fd, fd_se = mean_se([f[:, W // 2:, 0].sum() for f in fds])
+    assert_agree(f"{family}: right half", ad, ad_se, fd, fd_se)
+    frame = np.array(mi.render(sc, seed=7, spp=256), dtype=np.float64)
+    for y, x in outline_pixels(frame):
+        ad, ad_se = mean_se([a[y, x, 0] for a in ads])
+        fd, fd_se = mean_se([f[y, x, 0] for f in fds])
+        if abs(fd) < 10 * fd_se:   # a pixel the outline grazes: its reference is all noise
+            continue
+        assert_agree(f"{family}: pixel ({x}, {y})", ad, ad_se, fd, fd_se)
+
+
+def _mitsuba_scene(mi, emitter):
+    """A Mitsuba sphere before a black background: an area emitter (the frame changes at its
+    outline alone) or a diffuse sphere under a point light (its shading changes too)."""
+    t = mi.ScalarTransform4f()
+    sph = {"type": "sphere", "to_world": t.translate([0.2, 0.1, 0.0]),
+           "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.5, 0.5, 0.5]}}}
+    d = {"type": "scene", "obj": sph,
+         "sensor": {"type": "perspective", "fov": 30, "to_world": t.look_at(origin=[0, 0, 6], target=[0, 0, 0], up=[0, 1, 0]),
+                    "film": {"type": "hdrfilm", "width": W, "height": H, "rfilter": {"type": "box"}}}}
+    if emitter:
+        sph["emitter"] = {"type": "area", "radiance": {"type": "rgb", "value": list(AMBIENT)}}
+    else:
+        d["light"] = {"type": "point", "position": [2, 4, 3], "intensity": {"type": "rgb", "value": [30, 30, 30]}}
+    return mi.load_dict(d)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("emitter", [True, False], ids=["area_emitter", "diffuse_point_light"])
+def test_mitsuba_sphere_against_direct_projective(variant, emitter):
+    """d (right half's red sum) / d x-translation of a Mitsuba sphere: links1_whitted with
+    ``projective`` against Mitsuba's ``direct_projective`` on the same scene."""
+    import mitsuba as mi
+    if not variant.startswith(("llvm_ad", "cuda_ad")):
+        pytest.skip("direct_projective needs an AD variant")
+    sc = _mitsuba_scene(mi, emitter)
+    weight = np.zeros((H, W, 3))
+    weight[:, W // 2:, 0] = 1.0
+    ours = mi.load_dict({"type": "links1_whitted", "projective": True, "max_depth": 1})
+    theirs = mi.load_dict({"type": "direct_projective", "sppi": 0})
+    a, a_se = mean_se([reverse(sc, "obj.to_world", weight, s, integrator=ours) for s in AD_SEEDS])
+    b, b_se = mean_se([reverse(sc, "obj.to_world", weight, s, integrator=theirs) for s in AD_SEEDS])
+    assert_agree("links1 vs direct_projective", a, a_se, b, b_se)
+
+
+def test_forward_equals_reverse(variant, tmp_path):
+    """The term is attached through the velocity's graph: forward and reverse mode give the
+    same d (weighted sum) / dθ at the same samples (to float32 rounding)."""
+    key, body = SHAPES["quadric"]
+    sc = load(tmp_path, body)
+    rng = np.random.default_rng(3)
+    weight = rng.uniform(-1, 1, (H, W, 3))
+    fwd = float((forward(sc, key, 5, spp=4) * weight).sum())
+    rev = reverse(sc, key, weight, 5, spp=4)
+    assert abs(fwd) > 1.0
+    assert rev == pytest.approx(fwd, rel=1e-4, abs=1e-4)
+
+
+def test_nothing_added_where_no_outline_moves(variant, tmp_path):
+    """With no shape's geometry attached (a light's position), ``projective`` changes neither
+    the frame nor the derivative, bit for bit; without the option a moving outline's term is
+    absent (the derivative of this constant-colour sphere is 0 everywhere)."""
+    import drjit as dr
+    import mitsuba as mi
+    key, body = SHAPES["quadric"]
+    out = {}
+    for proj in (False, True):
+        sc = load(tmp_path, body, projective=proj)
+        params = mi.traverse(sc)
+        dr.enable_grad(params["lp.position"])
+        params.update()
+        dr.set_grad(params["lp.position"], mi.Point3f(1.0, 0.0, 0.0))
+        img = mi.render(sc, params, seed=1, seed_grad=2, spp=4)
+        dr.forward_to(img)
+        out[proj] = (np.array(img), np.array(dr.grad(img)))
+        if not proj:
+            out["geometry"] = forward(load(tmp_path, body, projective=False), key, 2, spp=4)
+    np.testing.assert_array_equal(out[True][0], out[False][0])
+    np.testing.assert_array_equal(out[True][1], out[False][1])
+    assert not np.any(out["geometry"])
+
+
+def test_other_filters_refused(variant, tmp_path):
+    """The term integrates over pixel squares: a gaussian filter is refused, naming the fix."""
+    import drjit as dr
+    import mitsuba as mi
+    key, body = SHAPES["quadric"]
+    sc = load(tmp_path, body, rfilter="gaussian")
+    params = mi.traverse(sc)
+    dr.enable_grad(params[key])
+    params.update()
+    img = mi.render(sc, params, seed=1, spp=1)
+    with pytest.raises(NotImplementedError, match="box reconstruction filter"):
+        dr.backward(dr.sum(img, axis=None))
