@@ -213,10 +213,11 @@ class QuadricBVH:
         return u + v * t, qz
 
     # ------------------------------------------------------------ traversal
-    def _walk(self, o, d, tmin, tmax, active, cost, shadow):
+    def _walk(self, o, d, tmin, tmax, active, cost, shadow, steps=None):
         """One node per iteration, held in a register (no stack round trip on the way
         down): a leaf tests its quadric, then the walk pops; an inner node tests both
-        children's boxes and goes on to the nearer one crossed, pushing the other."""
+        children's boxes and goes on to the nearer one crossed, pushing the other.
+        ``steps`` (a UInt32, benchmarks only: None traces no counter): += the iterations."""
         inv_d = mi.Vector3f(1.0 / d.x, 1.0 / d.y, 1.0 / d.z)
         n = dr.width(o)
         stack = dr.alloc_local(mi.UInt32, STACK, mi.UInt32(0))
@@ -225,7 +226,7 @@ class QuadricBVH:
         node = dr.zeros(mi.UInt32, n)
         live = mi.Bool(root_hit)
         sp = dr.zeros(mi.UInt32, n)
-        c = dr.zeros(mi.UInt32, n)
+        c = dr.zeros(mi.UInt32, n) if steps is None else (dr.zeros(mi.UInt32, n), dr.zeros(mi.UInt32, n))
         if shadow:
             res = (dr.select(active, mi.Color3f(1.0), mi.Color3f(0.0)),)
         else:
@@ -245,7 +246,7 @@ class QuadricBVH:
             # Symbolic conditionals: a packet whose lanes are all inner nodes (or all
             # leaves) skips the other block entirely (the LLVM backend branches per packet).
             def leaf_fn(fst, c, res):
-                c = c + 1
+                c = c + 1 if steps is None else (c[0] + 1, c[1])
                 if shadow:
                     (T,) = res
                     tq, _ = self.intersect(fst, o, d, tmin, tmax, True)
@@ -280,19 +281,24 @@ class QuadricBVH:
             pop = act & ~down & (sp > 0)
             sp = dr.select(pop, sp - 1, sp)
             node = dr.select(down, near, stack.read(sp, pop))
+            if steps is not None:
+                c = (c[0], c[1] + 1)
             return stack, node, down | pop, sp, c, res
 
         st = dr.while_loop((stack, node, live, sp, c, res), cond, body, label="links1_bvh")
         c, res = st[4], st[5]
+        if steps is not None:
+            steps += c[1]
+            c = c[0]
         if cost is not None:
             cost += c
         if shadow:
             return None, None, None, None, res[0]
         return res + (None,)
 
-    def nearest(self, o, d, tmin, tmax, active, cost):
-        """(t (inf on a miss), row q, part, found)."""
-        t, q, part, found, _ = self._walk(o, d, tmin, tmax, active, cost, shadow=False)
+    def nearest(self, o, d, tmin, tmax, active, cost, steps=None):
+        """(t (inf on a miss), row q, part, found); ``steps``: see :meth:`_walk`."""
+        t, q, part, found, _ = self._walk(o, d, tmin, tmax, active, cost, shadow=False, steps=steps)
         return dr.select(found, t, INF), q, part, found
 
     def transmittance(self, o, d, smax, active, cost):
