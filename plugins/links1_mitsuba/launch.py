@@ -28,9 +28,12 @@ from .util import Hidden, aligned, mix32, udiv, unit_float
 #: Most samples (lanes) per launch of the window function; more are split into launches.
 LAUNCH_LANES = 1 << 22
 
-#: Launches of at most this many lanes keep their ray counters until ``stats`` is read
-#: (``Launches._launch_counts``); bigger ones sum them at once on the device (memory).
-LAZY_COUNT_LANES = 1 << 16
+#: A render keeps the per-lane ray counters its tracing kernels wrote (no reduction kernel)
+#: for this many lanes in all, and sums them only when ``stats`` is read
+#: (``Launches._launch_counts``); the launches past it have theirs summed on the device at the
+#: render's end (``Launches._set_stats``; memory: up to 6 bytes a lane are kept after the
+#: frame). One launch of a frame fits (``LAUNCH_LANES``).
+LAZY_COUNT_LANES = LAUNCH_LANES
 
 
 def _columns(v, n=None):
@@ -227,14 +230,13 @@ class Launches:
                 "secondary_lanes": int(np.count_nonzero(_lanes(cr, n) | _lanes(ct, n))) if cr is not None else 0}
 
     def _launch_counts(self, n, counters):
-        """A launch's ray counters for :meth:`_set_stats`: kept as the launch's arrays when it
-        is small (up to ``LAZY_COUNT_LANES`` lanes) and summed only when ``stats`` is read (six
-        read-backs and sums, ~0.05 ms, are a tenth of a small window's launch, and nothing in
-        a render reads them); a big launch's are summed at once on the device (``dr.sum``, no
-        read-back: ``stats`` reads the sums)."""
-        if n <= LAZY_COUNT_LANES:
-            return (n, counters)
+        """A launch's ray counters for :meth:`_set_stats`: the launch's arrays (outputs of its
+        tracing kernels), summed only when ``stats`` is read: no reduction kernel a frame."""
+        return (n, counters)
 
+    def _device_counts(self, n, counters):
+        """A launch's counters summed on the device at once (``dr.sum``, no read-back: ``stats``
+        reads the sums)."""
         def tot(a):
             return 0 if a is None else dr.sum(mi.UInt64(dr.select(a, 1, 0)) if dr.is_mask_v(a) else mi.UInt64(a))
         c = {k: counters.get(k) for k in ("nsh1", "cr", "ct", "nr", "nt", "nsh2")}
@@ -246,8 +248,16 @@ class Launches:
     def _set_stats(self, counts):
         """``self.stats`` (read through :meth:`_read_stats`): the counters of the last
         render's launches (a list of :meth:`_launch_counts`) summed, and per camera ray; or
-        the dict ``counts`` itself."""
+        the dict ``counts`` itself. The launches' arrays past ``LAZY_COUNT_LANES`` lanes of
+        the render are summed on the device now (the memory kept after the frame)."""
         pending = isinstance(counts, list)
+        if pending:
+            lanes = 0
+            for q, c in enumerate(counts):
+                if isinstance(c, tuple) and c[0] != "device":
+                    lanes += c[0]
+                    if lanes > LAZY_COUNT_LANES:
+                        counts[q] = self._device_counts(*c)
         self.stats_now = None if pending else counts
         self.stats_pending = counts if pending else None
 

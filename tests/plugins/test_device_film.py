@@ -154,18 +154,29 @@ def test_filter_strips_at_film_edges_and_row_ends(variant, tmp_path, monkeypatch
 def test_split_launches_weight_tables_and_device_counters(variant, tmp_path, monkeypatch):
     """Launches split at LAUNCH_LANES give the same bits as one launch, weights evaluated in the
     gather (windows over FILM_TABLE_BYTES) the same as from per-sample tables, and the ray
-    counters summed on the device (launches over LAZY_COUNT_LANES) equal those summed on the host."""
+    counters summed on the device (all launches, or those past LAZY_COUNT_LANES lanes) equal
+    those summed on the host. A frame of one launch runs no reduction kernel for its counters."""
+    import drjit as dr
     from links1_mitsuba import film, launch
     scene = load(tmp_path, "gaussian")
     integ = scene.integrator()
+    integ.render_window(scene, None, spp=256)       # 110592 lanes: one launch
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    dr.kernel_history()
+    integ.render_window(scene, None, spp=256)
+    kinds = {str(k["type"]) for k in dr.kernel_history()}
+    dr.set_flag(dr.JitFlag.KernelHistory, False)
+    assert not [k for k in kinds if k.endswith((".Reduce", ".BlockReduce"))], kinds   # (compress: a prefix sum)
+    assert integ.stats["camera"] == W * H * 256
     one = integ.render_window(scene, None, spp=4, seed=1, aovs=AOVS)
     host_stats = dict(integ.stats)
     assert host_stats["reflect"] > 0 and host_stats["shadow"] > 0
     monkeypatch.setattr(launch, "LAUNCH_LANES", 1000)
-    monkeypatch.setattr(launch, "LAZY_COUNT_LANES", 0)
     monkeypatch.setattr(film, "FILM_TABLE_BYTES", 0)
-    assert np.array_equal(integ.render_window(scene, None, spp=4, seed=1, aovs=AOVS), one)
-    assert integ.stats == host_stats
+    for lazy in (0, 2500):
+        monkeypatch.setattr(launch, "LAZY_COUNT_LANES", lazy)
+        assert np.array_equal(integ.render_window(scene, None, spp=4, seed=1, aovs=AOVS), one)
+        assert integ.stats == host_stats
 
 
 @pytest.mark.slow
@@ -255,8 +266,13 @@ def test_frames_of_the_same_windows_reuse_the_batch(variant, tmp_path, monkeypat
         return out, hist
 
     integ.render_windows(scene, [(0, 0, 5, 5)], spp=4, seed=3, aovs=AOVS)   # the scene's tables
+    made = []
+    tables = film._weight_tables
+    monkeypatch.setattr(film, "_weight_tables", lambda *a: made.append(1) or tables(*a))
     first, k1 = frame()
+    made1 = len(made)
     again, k2 = frame()
+    made2 = len(made) - made1
     pixels = sum(w * h for *_, w, h in wins)
     C = 3 + 1 + 3 + 1 + 1 + 1
     monkeypatch.setattr(film, "KEEP_LANES", 0)
@@ -265,12 +281,11 @@ def test_frames_of_the_same_windows_reuse_the_batch(variant, tmp_path, monkeypat
     for a, b, c in zip(first, again, none):
         assert np.array_equal(a, b) and np.array_equal(a, c)
     # kept: the lanes' windows (a scatter of marks), the sample ids, and for gaussian the
-    # weight tables (a kernel over lanes x 5 neighbour offsets); the launch and the pixels'
-    # kernels run again
+    # weight tables (made in the first frame only); the launch and the pixels' kernels run again
     lanes = [b.lanes for b in integ.engine.batches.values()][-1]
     sizes1, sizes2 = [k["size"] for k in k1], [k["size"] for k in k2]
     assert len(k2) < len(k1) and sizes2.count(lanes) == sizes1.count(lanes) - 1, (sizes1, sizes2)
-    assert 5 * lanes not in sizes2 and (5 * lanes in sizes1) == (rfilter == "gaussian")
+    assert (made1, made2) == ((1 if rfilter == "gaussian" else 0), 0)
     assert len(k3) == len(k1)
     assert not [k for k in k1 if k["size"] == pixels * C]
 
