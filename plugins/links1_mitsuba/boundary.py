@@ -30,11 +30,17 @@ row's weighted term is then ``(f⁻ − f⁺) V_n a_x / |a|²`` (a column's: ``a
 ``(f⁻ − f⁺) a_x / |a|²`` times the attached ``V_n``, whose value is 0, so the term adds to the
 derivative pass's frame its derivative alone.
 
-Left out (biased there, as docs/method.md says): crossings that do not change the slot (a
-blob's lobe in front of its own other lobe), crossings whose graze is not smooth (a clipped
-quadric's rim, a mesh's silhouette edge, the curve where two surfaces cut: ``|m·D|`` above
-:data:`GRAZE`), shadow edges, outlines seen in mirrors or through glass, and pairs of crossings
-closer than ``1/(POINTS − 1)`` pixel on one row. Box filter only.
+Edges: where the grazing point lies on a links1 quadric's rim (its side ``G₁ = 0`` cut by a
+clip plane ``G₂ = 0``) or on a Mitsuba mesh triangle's edge (within :data:`RIM` of it), ``m``
+is ``τ × D`` normalised (``τ`` the edge's tangent) and ``V_n`` the edge's velocity along it
+(:func:`_normal_speed`). The sign of ``m`` cancels in ``V_n / a_x``.
+
+Left out (biased there, as docs/method.md §6 says): crossings that do not change the slot (a
+blob's lobe in front of its own other lobe, a mesh in front of itself), grazes that are
+neither a smooth silhouette (``|m·D|`` below :data:`GRAZE`) nor an edge above (the curve where
+two surfaces cut), Mitsuba shapes other than spheres and meshes, shadow edges, outlines seen
+in mirrors or through glass, and pairs of crossings closer than ``1/(POINTS − 1)`` pixel on
+one row. Box filter only.
 """
 from __future__ import annotations
 
@@ -55,6 +61,9 @@ BISECT_STEPS = 28
 SIDE_STEP = 1e-3
 #: largest |m·D| at a crossing's grazing point taken as a smooth silhouette
 GRAZE = 0.05
+#: a grazing point within RIM·t of a links1 quadric's rim or of a mesh triangle's edge (t its
+#: distance from the camera) is on that edge
+RIM = 1e-4
 #: the step (pixels) of the central differences of q(x, y) at fixed s
 DQ_STEP = 0.25
 #: salts of the boundary pass's random numbers (rows, columns, light-sample keys)
@@ -77,17 +86,14 @@ def _rays(engine, P, x, y, key):
 
 
 def _seen(engine, P, scene, x, y, key):
-    """``(o, d, t, slot, prim)`` of the camera rays through ``(x, y)``: the nearest hit
-    (primal; ``prim``: a links1 quadric's part, 0 its side)."""
+    """``(o, d, t, slot, prim, (shape, triangle))`` of the camera rays through ``(x, y)``: the
+    nearest hit (primal; ``prim``: a links1 quadric's part, 0 its side; ``shape`` and
+    ``triangle``: Mitsuba's hit shape and primitive)."""
     o, d, tmin, tmax = _rays(engine, P, x, y, key)
     act = dr.full(mi.Bool, True, dr.width(x))
     cost = dr.zeros(mi.UInt32, dr.width(x))
-    near = getattr(intersect, "nearest", None)
-    if near is not None:
-        t, slot, _, prim = near(P, scene, o, d, tmin, tmax, act, cost)
-    else:
-        t, slot, _, prim = engine._nearest(P, scene, o, d, tmin, tmax, act, cost)
-    return o, d, t, slot, prim
+    t, slot, si, prim = intersect.nearest(P, scene, o, d, tmin, tmax, act, cost)
+    return o, d, t, slot, prim, (si.shape, si.prim_index)
 
 
 def _unit(x):
@@ -164,13 +170,14 @@ def _crossings(engine, scene, P, sensor, win, spp, seed):
     for a in (lo_d, hi_d):
         xa, ya = dr.select(colm, fxd, a), dr.select(colm, a, fxd)
         ends.append((xa, ya) + _seen(engine, P, scene, xa, ya, key))
-    (xl, yl, ol, dl, tl, sl, pl), (xh, yh, oh, dh, th, sh, ph) = ends
+    (xl, yl, ol, dl, tl, sl, pl, il), (xh, yh, oh, dh, th, sh, ph, ih) = ends
     near_lo = tl <= th
     o = dr.select(near_lo, ol, oh)
     d = dr.select(near_lo, dl, dh)
     t = dr.select(near_lo, tl, th)
     s = dr.select(near_lo, sl, sh)
-    side = dr.select(near_lo, pl, ph) == 0   # not a links1 quadric's cap
+    prim = dr.select(near_lo, pl, ph)
+    hit = (dr.select(near_lo, il[0], ih[0]), dr.select(near_lo, il[1], ih[1]))   # Mitsuba's shape, triangle
     xn, yn = dr.select(near_lo, xl, xh), dr.select(near_lo, yl, yh)
     ok = dr.isfinite(t) & (sl != sh)
     q = o + d * dr.select(ok, t, 0.0)
@@ -181,8 +188,9 @@ def _crossings(engine, scene, P, sensor, win, spp, seed):
     f = engine.trace_points(scene, xs / P.film_size[0], ys / P.film_size[1],
                             np.concatenate([key.numpy(), key.numpy()]).astype(np.uint32), sensor=sensor)[0]
     jump = f[:m_] - f[m_:]
-    # the screen-space gradient a of m·q at fixed s: central differences of the rays
-    m = _outward_normal(scene, P, q, s, ok)
+    # the outline's normal m at q, and the screen-space gradient a of m·q at fixed s
+    edge = _outline(scene, P, q, d, t, s, prim, hit, ok)
+    m = edge["m"]
     a = []
     for dx, dy in ((DQ_STEP, 0.0), (0.0, DQ_STEP)):
         op, dp, _, _ = _rays(engine, P, xn + dx, yn + dy, key)
@@ -190,37 +198,100 @@ def _crossings(engine, scene, P, sensor, win, spp, seed):
         a.append(dr.dot(m, (op + dp * t) - (om + dm * t)) / (2.0 * DQ_STEP))
     ax, ay = a
     a2 = ax * ax + ay * ay
-    smooth = ok & side & (dr.abs(dr.dot(m, d)) < GRAZE) & (a2 > 0)
-    coef = dr.select(smooth, dr.select(colm, ay, ax) / dr.select(smooth, a2, 1.0), 0.0)
+    edge["valid"] &= a2 > 0
+    coef = dr.select(edge["valid"], dr.select(colm, ay, ax) / dr.select(edge["valid"], a2, 1.0), 0.0)
     jump_c = mi.Color3f(*[mi.Float(jump[:, c].astype(np.float32)) for c in range(3)])
-    weight = jump_c * coef
-    pixel = mi.UInt32(pix[li % n].astype(np.uint32))
-    dr.eval(weight, q, m, s, o, d, pixel)
-    return {"pixel": pixel, "weight": weight, "q": q, "m": m, "slot": s, "smooth": smooth}
+    edge.update(pixel=mi.UInt32(pix[li % n].astype(np.uint32)), weight=jump_c * coef, q=q, slot=s)
+    dr.eval(edge["pixel"], edge["weight"], q, m, s, edge["valid"], edge["part"])
+    return edge
 
 
-def _mitsuba_spheres(P):
-    """The slots of Mitsuba's spheres (their silhouettes are smooth: velocity by FollowShape)."""
-    return sorted(sl for s_, sl in zip(P.shape_list, P.slot_list) if kind_of(s_) == "Sphere")
+def _slots_of(P, test):
+    """The slots of Mitsuba's shapes for which ``test(shape)`` holds."""
+    return sorted(sl for s_, sl in zip(P.shape_list, P.slot_list) if test(s_))
 
 
-def _outward_normal(scene, P, q, slot, ok):
-    """The outward unit normal at the grazing points ``q`` (detached): a links1 shape's
-    ``∇G/|∇G|``, a Mitsuba sphere's from the hit of a ray aimed at ``q`` (0 elsewhere)."""
-    m = dr.zeros(mi.Vector3f, dr.width(q))
+def _is_sphere(s_):
+    return kind_of(s_) == "Sphere"
+
+
+def _is_mesh(s_):
+    return s_.is_mesh()
+
+
+def _outline(scene, P, q, d, t, slot, prim, hit, ok):
+    """What the outline is at each crossing's grazing point ``q`` (detached): ``{m, valid,
+    part, tri}`` with ``m`` its unit normal ``⊥ D`` (an edge's ``τ × D``), ``valid`` where it
+    is a silhouette this module follows, ``part`` ``j + 1`` on a links1 quadric's rim with
+    clip plane ``j`` (0: a smooth silhouette), ``tri`` a Mitsuba mesh edge's ``(shape, end
+    vertices a and b, λ)`` with ``q = (1 − λ) a + λ b``."""
+    n = dr.width(q)
+    m = dr.zeros(mi.Vector3f, n)
+    valid = dr.zeros(mi.Bool, n)
+    part = dr.zeros(mi.UInt32, n)
+    tol = RIM * t
     for sp in P.custom:
         on = ok & (slot == sp.slot)
         if not dr.any(on):
             continue
-        _, g = geometry.implicit(mi, dr, sp, {}, q)
-        m = dr.select(on, dr.normalize(g), m)
-    for sl in _mitsuba_spheres(P):
+        G1, g1 = geometry.implicit(mi, dr, sp, {}, q)
+        m1 = dr.normalize(g1)
+        smooth = on & (prim == 0) & (dr.abs(dr.dot(m1, d)) < GRAZE)
+        m = dr.select(smooth, m1, m)
+        valid |= smooth
+        on_side = on & (dr.abs(G1) < tol * dr.norm(g1))
+        for j in range(len(getattr(sp, "clips", []))):
+            G2, g2 = geometry.implicit(mi, dr, sp, {}, q, part=j + 1)
+            rim = on_side & (dr.abs(G2) < tol * dr.norm(g2))
+            m2 = dr.cross(dr.cross(g1, g2), d)
+            rim &= dr.squared_norm(m2) > 0
+            m = dr.select(rim, dr.normalize(m2), m)
+            part = dr.select(rim, j + 1, part)
+            valid |= rim
+    for sl in _slots_of(P, _is_sphere):
         on = ok & (slot == sl)
         if not dr.any(on):
             continue
         si = _sphere_hit(scene, P, q, sl, on)
-        m = dr.select(on & si.is_valid(), si.n, m)
-    return m
+        smooth = on & si.is_valid() & (dr.abs(dr.dot(si.n, d)) < GRAZE)
+        m = dr.select(smooth, si.n, m)
+        valid |= smooth
+    tri = None
+    meshes = _slots_of(P, _is_mesh)
+    if meshes:
+        on = dr.zeros(mi.Bool, n)
+        for sl in meshes:
+            on |= ok & (slot == sl)
+        if dr.any(on):
+            tri, tau, near = _mesh_edge(q, hit, on, tol)
+            m_e = dr.cross(tau, d)
+            near &= dr.squared_norm(m_e) > 0
+            m = dr.select(near, dr.normalize(m_e), m)
+            valid |= near
+    return {"m": m, "valid": valid, "part": part, "tri": tri}
+
+
+def _mesh_edge(q, hit, on, tol):
+    """The edge of the hit triangle nearest to ``q`` on lanes ``on``: ``((shape, a, b, λ), τ,
+    near)`` with ``a``, ``b`` its end vertices' indices, ``τ = b − a``, ``near`` where ``q``
+    lies within ``tol`` of it."""
+    shape, prim = hit
+    mesh = mi.MeshPtr(shape)
+    fi = mesh.face_indices(prim, on)
+    v = [mesh.vertex_position(fi[k], on) for k in range(3)]
+    best = dr.full(mi.Float, INF, dr.width(q))
+    a_i, b_i, lam, tau = dr.zeros(mi.UInt32, dr.width(q)), dr.zeros(mi.UInt32, dr.width(q)), mi.Float(0.0), mi.Vector3f(0.0)
+    for ka, kb in ((0, 1), (1, 2), (2, 0)):
+        e = v[kb] - v[ka]
+        e2 = dr.maximum(dr.squared_norm(e), 1e-30)
+        l_ = dr.clip(dr.dot(q - v[ka], e) / e2, 0.0, 1.0)
+        dist = dr.norm(q - (v[ka] + e * l_))
+        better = dist < best
+        best = dr.select(better, dist, best)
+        a_i, b_i = dr.select(better, fi[ka], a_i), dr.select(better, fi[kb], b_i)
+        lam = dr.select(better, l_, lam)
+        tau = dr.select(better, e, tau)
+    return (shape, a_i, b_i, lam), tau, on & (best < tol)
 
 
 def _sphere_hit(scene, P, q, sl, on, flags=mi.RayFlags.All):
@@ -239,21 +310,50 @@ def _sphere_hit(scene, P, q, sl, on, flags=mi.RayFlags.All):
 
 
 def _normal_speed(scene, P, Q, cr):
-    """The attached normal velocity ``V_n`` (value 0) at each crossing's grazing point, or
-    None where no silhouette shape has attached parameters."""
-    q, m, slot, smooth = cr["q"], cr["m"], cr["slot"], cr["smooth"]
+    """The attached normal velocity ``V_n = m·v`` (value 0) of the outline at each crossing's
+    grazing point, or None where no silhouette shape has attached parameters. A smooth
+    silhouette of an implicit surface: ``v·∇G = −δG``, so ``V_n = −δG/|∇G|``; a quadric's rim
+    (side ``G₁``, clip plane ``G₂``): ``m = α∇G₁ + β∇G₂`` (``m ⊥ τ``), so ``V_n = −α δG₁ − β δG₂``;
+    a Mitsuba sphere's point moving with it (``FollowShape``), a mesh edge's point moving with
+    its two vertices."""
+    q, m, slot, valid, part = cr["q"], cr["m"], cr["slot"], cr["valid"], cr["part"]
     vn = dr.zeros(mi.Float, dr.width(q))
     any_ = False
     for sl, (sp, held) in (Q.geo_ad or {}).items():
-        on = smooth & (slot == sl)
-        G, g = geometry.implicit(mi, dr, sp, held, q)
-        vn = dr.select(on, -(G - dr.detach(G)) / dr.detach(dr.norm(g)), vn)
+        on = valid & (slot == sl)
+        G1, g1 = geometry.implicit(mi, dr, sp, held, q)
+        d1, g1 = G1 - dr.detach(G1), dr.detach(g1)
+        vn = dr.select(on & (part == 0), -d1 / dr.norm(g1), vn)
+        for j in range(len(getattr(sp, "clips", []))):
+            G2, g2 = geometry.implicit(mi, dr, sp, held, q, part=j + 1)
+            d2, g2 = G2 - dr.detach(G2), dr.detach(g2)
+            a11, a12, a22 = dr.dot(g1, g1), dr.dot(g1, g2), dr.dot(g2, g2)
+            b1, b2 = dr.dot(m, g1), dr.dot(m, g2)
+            det = a11 * a22 - a12 * a12
+            rim = on & (part == j + 1) & (det > 0)
+            det = dr.select(rim, det, 1.0)
+            vn = dr.select(rim, -((b1 * a22 - b2 * a12) * d1 + (a11 * b2 - a12 * b1) * d2) / det, vn)
         any_ = True
-    for sl in _mitsuba_spheres(P):
-        on = smooth & (slot == sl)
+    for sl in _slots_of(P, _is_sphere):
+        on = valid & (slot == sl)
         si = _sphere_hit(scene, P, q, sl, on, mi.RayFlags.All | mi.RayFlags.FollowShape)
         if not dr.grad_enabled(si.p):
             continue
         vn = dr.select(on & si.is_valid(), dr.dot(m, si.p - dr.detach(si.p)), vn)
         any_ = True
+    if cr["tri"] is not None:
+        shape, a_i, b_i, lam = cr["tri"]
+        mesh = mi.MeshPtr(shape)
+        on = valid & _mesh_lanes(P, slot)
+        p = mesh.vertex_position(a_i, on) * (1.0 - lam) + mesh.vertex_position(b_i, on) * lam
+        if dr.grad_enabled(p):
+            vn = dr.select(on, dr.dot(m, p - dr.detach(p)), vn)
+            any_ = True
     return vn if any_ else None
+
+
+def _mesh_lanes(P, slot):
+    on = dr.zeros(mi.Bool, dr.width(slot))
+    for sl in _slots_of(P, _is_mesh):
+        on |= slot == sl
+    return on

@@ -294,16 +294,23 @@ def _blob_ad(mi, dr, spec, held, o, d, t, m, memo=None):
     return t_new, dr.select(ln > 1e-20, nw / dr.maximum(ln, 1e-30), -d)
 
 
-def implicit(mi, dr, spec, held, x, memo=None):
+def implicit(mi, dr, spec, held, x, memo=None, part=0):
     """The surface of ``spec`` as ``G(x; θ) = 0`` at world points ``x``, attached to its
     parameters: ``(G, ∇G)`` with ``∇G`` in world space pointing outward (a quadric's side
-    ``|u|² − 1``, eq. 3.4; a blob's ``T − W``, eq. 3.6–3.9). Its normal velocity,
-    ``−(G − detach G) / |∇G|``, is what a silhouette moves with (:mod:`.boundary`)."""
+    ``|u|² − 1``, eq. 3.4; a blob's ``T − W``, eq. 3.6–3.9; ``part`` ``j + 1``: a quadric's
+    clip plane ``j``, ``n·u − h``). Its normal velocity, ``−(G − detach G) / |∇G|``, is what
+    a silhouette moves with (:mod:`.boundary`)."""
     n = dr.width(x)
     if spec.__class__.__name__ == "QuadricSpec":
         from .util import spread     # (as _quadric_ad: util needs a Mitsuba variant set)
         A = spread(_inverse_of(mi, dr, spec, spec._inv(), held, memo), n)
         u = _affine(mi, A, x)
+        if part:
+            nc = spec.clips[part - 1][0]
+            hh = held.get(f"clip_{part - 1}_offset")
+            hh = spread(hh, n) if hh is not None and dr.grad_enabled(hh) else spec._offset(part - 1)
+            G = nc[0] * u.x + nc[1] * u.y + nc[2] * u.z - hh
+            return G, _transposed(mi, A, mi.Vector3f(*[float(c) for c in nc]))
         zz = 1.0 if spec.kind == "sphere" else 0.0
         G = dr.square(u.x) + dr.square(u.y) + zz * dr.square(u.z) - 1.0
         return G, 2.0 * _transposed(mi, A, mi.Vector3f(u.x, u.y, u.z * zz))
