@@ -105,6 +105,23 @@ def test_integrator_checks_aovs_with_the_core_table(variant):
             '<integer name="max_depth" value="3"/>', '<string name="aovs" value="depth,albedo"/>'))
 
 
+def test_the_integrator_shows_only_its_public_names(variant):
+    """``links1_whitted`` hands its entry points, parameters and ``info()`` to its engine, and
+    nothing else: an engine-private name read on the integrator is an AttributeError, and one
+    set on it does not reach the engine."""
+    import links1_mitsuba
+    scene = links1_mitsuba.load_string(ONE_SPHERE)
+    integ = scene.integrator()
+    tables = integ.prepare(scene)
+    for name in ("_prep", "_freeze", "kept_graph", "n_scene_builds", "custom", "batches", "config"):
+        with pytest.raises(AttributeError):
+            getattr(integ, name)
+    integ._prep = None
+    assert integ.info()["tables"] is tables and integ.info()["scene_builds"] == 1
+    integ.max_depth = 2                      # a parameter: set on the engine's configuration
+    assert integ.engine.max_depth == 2 and integ.max_depth == 2
+
+
 @pytest.mark.slow
 @pytest.mark.skipif(not os.path.exists(FIG11), reason="scenes/fig11.xml missing")
 def test_width_height_override_matches_core(variant):
