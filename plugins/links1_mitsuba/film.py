@@ -50,17 +50,20 @@ import numpy as np
 
 from .util import mix32, table, udiv
 
-#: Largest tables of 1-D filter weights of a batch (bytes: 8 per sample and weight, ``2b+1`` row
-#: weights and ``2b+1`` column weights padded to a power of two: 104 a sample for a gaussian);
-#: bigger windows evaluate the weights in the gather itself (more evaluations, the same values).
+#: Largest table of 1-D filter column weights of a batch (bytes: a record of ``2b+1`` float64
+#: weights and the sample's offset ``oy`` padded to a power of two: 64 a sample for a
+#: gaussian); bigger windows evaluate the weights in the gather itself (more evaluations, the
+#: same values).
 FILM_TABLE_BYTES = 1 << 30
 
 #: A batch of at most this many sample lanes keeps what depends only on its windows (sample
 #: ids, the filter's weight tables) evaluated between frames (:func:`cached_batch`): 4 bytes a
 #: lane for the ids (at most 32 MiB) ...
 KEEP_LANES = 1 << 23
-#: ... and its weight tables when they take at most this many bytes (512², spp 12, a gaussian:
-#: 327 MB; spp 16 makes them every frame)
+#: ... and its weight tables when they take at most this many bytes: the column weights' and
+#: the row weights' (``2b+1`` float64 a sample) where both fit (512², spp 8, a gaussian:
+#: 218 MB), else the column weights' alone, the row weights then made in the gather from the
+#: records' ``oy`` (512², spp 16, a gaussian or a lanczos: 268 MB)
 KEEP_TABLE_BYTES = 3 << 27
 
 #: Batches kept by :func:`cached_batch` (per integrator: the last few window sets).
@@ -449,11 +452,15 @@ def _filter_gather(rfilter, film_size, spp, seed, batch, data, L, mode):
     packed = dr.zeros(type(total[0]), 4 * ns)
     dr.scatter(packed, Vec4(total[0], total[1], total[2], 0.0), _planes(batch, n_s))
     pad = _wx_pad(nb)
-    tables = ns * (nb + pad) * 8 <= FILM_TABLE_BYTES
+    tables = ns * pad * 8 <= FILM_TABLE_BYTES
     if tables:
-        make = lambda: _weight_tables(rfilter, W, n_s, k, sd, batch, nb, pad)  # noqa: E731
-        wx_t, wy_t = (batch.kept(("weights", rfilter, W, int(spp), int(seed)), make)
-                      if ns * (nb + pad) * 8 <= KEEP_TABLE_BYTES else make())
+        # the row weights too where both tables are kept; else the row weights are made in
+        # the gather from the sample's oy (kept in its column weights' record), so that the
+        # column weights alone stay kept with the batch (512², spp 16)
+        rows = ns * (pad + nb) * 8 <= KEEP_TABLE_BYTES
+        make = lambda: _weight_tables(rfilter, W, n_s, k, sd, batch, nb, pad, rows)  # noqa: E731
+        wx_t, wy_t = (batch.kept(("weights", rfilter, W, int(spp), int(seed), rows), make)
+                      if ns * pad * 8 <= KEEP_TABLE_BYTES else make())
         ArrayX = getattr(sys.modules[F64.__module__], "ArrayXf64")
 
     def body(j, *acc):
@@ -473,15 +480,25 @@ def _filter_gather(rfilter, film_size, spp, seed, batch, data, L, mode):
             lane = dr.select(on, lane0 + c if c else lane0, 0)
             v = dr.gather(Vec4, packed, lane, on)
             if tables:
-                wy = dr.gather(F64, wy_t, lane * nb + dyi, on)
-                # the sample's nb column weights as one packet (padded to pad float64s)
+                # the sample's nb column weights and its offset oy as one packet (pad float64s)
                 wx = dr.gather(ArrayX, wx_t, lane, on, shape=(pad, dr.width(lane)))
+                wy = (dr.gather(F64, wy_t, lane * nb + dyi, on) if rows else
+                      filter_eval(rfilter, (0.5 - F64(dy)) - wx[nb]))
             else:
                 ox, oy = offsets(yu * op_u(W) + U32(cx) + L.sx0, i, n_s, k, sd)
                 wy = filter_eval(rfilter, (0.5 - F64(dy)) - oy)
             for p in range(max(0, c - 2 * b), min(P, c + 1)):
                 dxi = c - p
-                wgt = wy * (wx[dxi] if tables else filter_eval(rfilter, (0.5 - float(dxi - b)) - ox))
+                if tables:
+                    # off the film the masked gathers read 0: wgt and the term are zeros and a
+                    # sum plus a zero is the sum (never -0: it starts at +0), the same bits
+                    # without a select
+                    wgt = wy * wx[dxi]
+                    r[p], g[p], bl[p] = (r[p] + wgt * F64(v[0]), g[p] + wgt * F64(v[1]),
+                                         bl[p] + wgt * F64(v[2]))
+                    den[p] = den[p] + wgt
+                    continue
+                wgt = wy * filter_eval(rfilter, (0.5 - float(dxi - b)) - ox)
                 r[p] = dr.select(on, r[p] + wgt * F64(v[0]), r[p])
                 g[p] = dr.select(on, g[p] + wgt * F64(v[1]), g[p])
                 bl[p] = dr.select(on, bl[p] + wgt * F64(v[2]), bl[p])
@@ -512,18 +529,20 @@ def _planes(batch, n_s):
 
 
 def _wx_pad(nb):
-    """Float64s a sample's column weights take in their table: ``nb`` padded to a power of two
-    (>= 2), the size of a packet gather."""
-    return max(2, 1 << (nb - 1).bit_length())
+    """Float64s a sample's record of column weights takes in its table: ``nb`` and the
+    sample's ``oy``, padded to a power of two, the size of a packet gather."""
+    return 1 << nb.bit_length()
 
 
-def _weight_tables(rfilter, W, n_s, k, sd, batch, nb, pad):
+def _weight_tables(rfilter, W, n_s, k, sd, batch, nb, pad, rows):
     """The 1-D filter weights of every sample of ``batch`` towards its ``nb`` neighbour
-    columns and rows (``(wx, wy)``, float64: ``pad`` per sample for ``wx``, the last
-    ``pad - nb`` unused, and ``nb`` for ``wy``), once per sample (the gather would evaluate
-    each ``nb`` times), from the sample's offsets made once (hashes and integer divisions,
-    which the LLVM backend does lane by lane, not once per weight): the same values."""
-    U32, I32, F64 = mi.UInt32, mi.Int32, mi.Float64
+    columns (``wx``: a record of ``pad`` float64 a sample, the weights then the sample's
+    offset ``oy``, the rest unused) and, with ``rows``, rows (``wy``: ``nb`` a sample; else
+    None), in one kernel over the samples: each weight once (the gather would evaluate each
+    ``nb`` times), from the sample's offsets made once (hashes and integer divisions, which
+    the LLVM backend does lane by lane, not once per weight): the values the gather would
+    make, bit for bit."""
+    U32, F64 = mi.UInt32, mi.Float64
     ns = batch.lanes
     sl = dr.arange(U32, ns)
     kl = batch.lane_window
@@ -535,17 +554,14 @@ def _weight_tables(rfilter, W, n_s, k, sd, batch, nb, pad):
     py = udiv(pl, swl)
     ox, oy = offsets((py + dr.gather(U32, batch.sy0, kl)) * op_u(W) + pl - py * swl
                      + dr.gather(U32, batch.sx0, kl), i, n_s, k, sd)
-    dr.eval(ox, oy)
-
-    t = dr.arange(U32, ns * nb)
-    sl = t // nb
-    dn = t - sl * nb
-    d = I32(dn) - rfilter.border
-    ox, oy = dr.gather(F64, ox, sl), dr.gather(F64, oy, sl)
-    wy = filter_eval(rfilter, (0.5 - F64(d)) - oy)
-    # wx in records of pad (the padding never read: left unset)
+    ArrayX = getattr(sys.modules[F64.__module__], "ArrayXf64")
+    w = lambda o: [filter_eval(rfilter, (0.5 - float(d - rfilter.border)) - o) for d in range(nb)]  # noqa: E731
     wx = dr.empty(F64, ns * pad)
-    dr.scatter(wx, filter_eval(rfilter, (0.5 - F64(d)) - ox), sl * pad + dn)
+    dr.scatter(wx, ArrayX(*w(ox), oy, *[dr.zeros(F64, ns)] * (pad - nb - 1)), sl)
+    wy = None
+    if rows:
+        wy = dr.empty(F64, ns * nb)
+        dr.scatter(wy, ArrayX(*w(oy)), sl)
     dr.eval(wx, wy)
     return wx, wy
 

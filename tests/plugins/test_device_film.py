@@ -123,9 +123,10 @@ def test_windows_and_batches_equal_full_frame_on_device(variant, tmp_path, rfilt
 def test_filter_strips_at_film_edges_and_row_ends(variant, tmp_path, monkeypatch, rfilter):
     """The non-box gather computes film.STRIP pixels of a row a lane (film._filter_gather):
     windows whose width is not a multiple of STRIP (narrower than a strip too), at each film
-    edge, alone and in one batch, with the weight tables and without them (weights evaluated
-    in the gather, FILM_TABLE_BYTES = 0), give the numpy film's pixels (bit for bit for the
-    filters without exp/sin) and the full frame's bits."""
+    edge, alone and in one batch, with both weight tables, with the column weights' alone (the
+    row weights made in the gather from the records' oy: KEEP_TABLE_BYTES = 0) and without
+    tables (weights evaluated in the gather, FILM_TABLE_BYTES = 0), give the numpy film's
+    pixels (bit for bit for the filters without exp/sin) and the full frame's bits."""
     import mitsuba as mi
     from links1_mitsuba import film
     assert film.STRIP > 1 and W % film.STRIP == 0    # the full frame's rows are whole strips
@@ -133,7 +134,9 @@ def test_filter_strips_at_film_edges_and_row_ends(variant, tmp_path, monkeypatch
     integ = scene.integrator()
     wins = [(W - 13, 0, 13, 5), (0, H - 3, 5, 3), (W - 3, H - 7, 3, 7), (10, 4, 1, 9), (1, 1, W - 1, 2)]
     full = np.asarray(integ.render_windows_device(scene, [None], spp=4, seed=5, aovs=AOVS, dtype=mi.Float64)[0])
-    for tables in (True, False):
+    for tables in ("rows", "columns", None):
+        if tables == "columns":
+            monkeypatch.setattr(film, "KEEP_TABLE_BYTES", 0)
         if not tables:
             monkeypatch.setattr(film, "FILM_TABLE_BYTES", 0)
         batch = integ.render_windows_device(scene, wins, spp=4, seed=5, aovs=AOVS, dtype=mi.Float64)
