@@ -17,8 +17,8 @@ Everything here is a per-output-pixel *gather* in one fixed order, never a scatt
 * AOVs: ``depth``/``normal``/``id`` of the pixel's sample 0, ``cost`` summed over its samples,
   ``samples`` = spp.
 
-What depends only on the windows (the :class:`Batch` tables, the sample ids, the filter's
-weight tables) is kept with the batch while the same windows are rendered again
+What depends only on the windows (the :class:`Batch` tables, the sample ids, the filter
+gather's sample-major places and weight tables) is kept with the batch while the same windows are rendered again
 (:func:`cached_batch`), and the divisions by run-time values go through
 :func:`links1_mitsuba.util.udiv` (exact). The gather of the non-box filters computes a strip of
 :data:`STRIP` pixels of a window row a lane, reading each neighbour sample once for the strip
@@ -57,8 +57,9 @@ from .util import mix32, table, udiv
 FILM_TABLE_BYTES = 1 << 30
 
 #: A batch of at most this many sample lanes keeps what depends only on its windows (sample
-#: ids, the filter's weight tables) evaluated between frames (:func:`cached_batch`): 4 bytes a
-#: lane for the ids (at most 32 MiB) ...
+#: ids, the filter gather's sample-major places, the filter's weight tables) evaluated between
+#: frames (:func:`cached_batch`): 4 bytes a lane for the ids and 4 for the places (at most
+#: 64 MiB) ...
 KEEP_LANES = 1 << 23
 #: ... and its weight tables when they take at most this many bytes: the column weights' and
 #: the row weights' (``2b+1`` float64 a sample) where both fit (512², spp 8, a gaussian:
@@ -450,7 +451,8 @@ def _filter_gather(rfilter, film_size, spp, seed, batch, data, L, mode):
     # LLVM); the same values
     Vec4 = mi.Vector4f
     packed = dr.zeros(type(total[0]), 4 * ns)
-    dr.scatter(packed, Vec4(total[0], total[1], total[2], 0.0), _planes(batch, n_s))
+    planes = batch.kept(("planes", int(spp)), lambda: (_planes(batch, n_s),))[0]
+    dr.scatter(packed, Vec4(total[0], total[1], total[2], 0.0), planes)
     pad = _wx_pad(nb)
     tables = ns * pad * 8 <= FILM_TABLE_BYTES
     if tables:
