@@ -49,6 +49,7 @@ import mitsuba as mi
 import numpy as np
 
 from . import geometry, intersect
+from .camera import rays_at
 from .util import INF, kind_of, mix32
 
 #: points a row (a column) of a pixel is queried at, its ends included
@@ -79,17 +80,17 @@ def check_filter(P):
 
 
 # ---------------------------------------------------------------- the engine's entry points
-def _rays(engine, P, x, y, key):
+def _rays(P, x, y, key):
     """Camera rays through film pixel coordinates ``(x, y)`` (floats, row 0 at the top)."""
     W, H = P.film_size
-    return engine._rays_at(P, x / W, y / H, key)
+    return rays_at(P, x / W, y / H, key)
 
 
-def _seen(engine, P, scene, x, y, key):
+def _seen(P, scene, x, y, key):
     """``(o, d, t, slot, prim, (shape, triangle))`` of the camera rays through ``(x, y)``: the
     nearest hit (primal; ``prim``: a links1 quadric's part, 0 its side; ``shape`` and
     ``triangle``: Mitsuba's hit shape and primitive)."""
-    o, d, tmin, tmax = _rays(engine, P, x, y, key)
+    o, d, tmin, tmax = _rays(P, x, y, key)
     act = dr.full(mi.Bool, True, dr.width(x))
     cost = dr.zeros(mi.UInt32, dr.width(x))
     t, slot, si, prim = intersect.nearest(P, scene, o, d, tmin, tmax, act, cost)
@@ -101,14 +102,16 @@ def _unit(x):
 
 
 # ---------------------------------------------------------------- the term
-def boundary_image(engine, scene, P, Q, sensor, win, spp, seed):
+def boundary_image(trace_points, scene, P, Q, sensor, win, spp, seed):
     """The boundary term of the window ``win = (x0, y0, w, h)``: a ``TensorXf (h, w, 3)`` of
     value 0 whose derivative is the term (see the module's docstring); ``P``: the primal
-    tables, ``Q``: the derivative pass's (``Q.geo_ad``: the attached links1 shapes)."""
+    tables, ``Q``: the derivative pass's (``Q.geo_ad``: the attached links1 shapes);
+    ``trace_points(xf, yf, keys)``: the primal ray tree through film positions of ``P``
+    (``Launches.trace_points``)."""
     check_filter(P)
     x0, y0, w, h = win
     with dr.suspend_grad():
-        cr = _crossings(engine, scene, P, sensor, win, spp, seed)
+        cr = _crossings(trace_points, scene, P, sensor, win, spp, seed)
     out = dr.zeros(mi.Float, w * h * 3)
     if cr is not None:
         with dr.resume_grad():
@@ -120,7 +123,7 @@ def boundary_image(engine, scene, P, Q, sensor, win, spp, seed):
     return mi.TensorXf(out / float(spp), shape=(h, w, 3))
 
 
-def _crossings(engine, scene, P, sensor, win, spp, seed):
+def _crossings(trace_points, scene, P, sensor, win, spp, seed):
     """The crossings of the window's sample rows and columns, bisected, with the detached
     part of their terms, or None where there are none: ``{pixel, weight (Color3f), q, m,
     slot, o, d}`` (``q``: the grazing point on the nearer side, ``m`` its outward normal)."""
@@ -148,7 +151,7 @@ def _crossings(engine, scene, P, sensor, win, spp, seed):
 
     rep = lambda v: np.repeat(v, POINTS)   # noqa: E731
     x, y = coords(along.ravel(), rep(is_col), rep(fixed))
-    slot = _seen(engine, P, scene, x, y, mi.UInt32(rep(lane_key)))[3]
+    slot = _seen(P, scene, x, y, mi.UInt32(rep(lane_key)))[3]
     slot = slot.numpy().reshape(2 * n, POINTS)
     li, ki = np.nonzero(slot[:, :-1] != slot[:, 1:])
     if li.size == 0:
@@ -162,14 +165,14 @@ def _crossings(engine, scene, P, sensor, win, spp, seed):
     fxd = mi.Float(fx.astype(np.float32))
     for _ in range(BISECT_STEPS):
         mid = 0.5 * (lo_d + hi_d)
-        sm = _seen(engine, P, scene, dr.select(colm, fxd, mid), dr.select(colm, mid, fxd), key)[3]
+        sm = _seen(P, scene, dr.select(colm, fxd, mid), dr.select(colm, mid, fxd), key)[3]
         same = sm == s_lo
         lo_d, hi_d = dr.select(same, mid, lo_d), dr.select(same, hi_d, mid)
         dr.eval(lo_d, hi_d)
     ends = []
     for a in (lo_d, hi_d):
         xa, ya = dr.select(colm, fxd, a), dr.select(colm, a, fxd)
-        ends.append((xa, ya) + _seen(engine, P, scene, xa, ya, key))
+        ends.append((xa, ya) + _seen(P, scene, xa, ya, key))
     (xl, yl, ol, dl, tl, sl, pl, il), (xh, yh, oh, dh, th, sh, ph, ih) = ends
     near_lo = tl <= th
     o = dr.select(near_lo, ol, oh)
@@ -185,16 +188,16 @@ def _crossings(engine, scene, P, sensor, win, spp, seed):
     m_ = dr.width(q)
     xs = np.concatenate([xl.numpy() - SIDE_STEP * ~cl, xh.numpy() + SIDE_STEP * ~cl])
     ys = np.concatenate([yl.numpy() - SIDE_STEP * cl, yh.numpy() + SIDE_STEP * cl])
-    f = engine.trace_points(scene, xs / P.film_size[0], ys / P.film_size[1],
-                            np.concatenate([key.numpy(), key.numpy()]).astype(np.uint32), sensor=sensor)[0]
+    f = trace_points(xs / P.film_size[0], ys / P.film_size[1],
+                     np.concatenate([key.numpy(), key.numpy()]).astype(np.uint32))[0]
     jump = f[:m_] - f[m_:]
     # the outline's normal m at q, and the screen-space gradient a of m·q at fixed s
     edge = _outline(scene, P, q, d, t, s, prim, hit, ok)
     m = edge["m"]
     a = []
     for dx, dy in ((DQ_STEP, 0.0), (0.0, DQ_STEP)):
-        op, dp, _, _ = _rays(engine, P, xn + dx, yn + dy, key)
-        om, dm, _, _ = _rays(engine, P, xn - dx, yn - dy, key)
+        op, dp, _, _ = _rays(P, xn + dx, yn + dy, key)
+        om, dm, _, _ = _rays(P, xn - dx, yn - dy, key)
         a.append(dr.dot(m, (op + dp * t) - (om + dm * t)) / (2.0 * DQ_STEP))
     ax, ay = a
     a2 = ax * ax + ay * ay

@@ -1,16 +1,24 @@
-"""The engine of ``links1_whitted``: its configuration (:class:`Config`), its state (the
-:class:`Engine`'s declared slots) and the parts that render with them.
+"""The engine of ``links1_whitted``: its configuration (:class:`Config`) and the parts it is
+composed of, each an object with its own declared state.
 
 ``Links1Whitted`` (integrator.py) is a thin Mitsuba integrator: it reads its properties into a
 :class:`Config`, holds one :class:`Engine` out of :func:`drjit.freeze`'s walk
 (:class:`~links1_mitsuba.util.Hidden`) and hands every entry point to it (``render``,
 ``render_forward``, ``render_backward``, ``traverse``, ``parameters_changed``, the window
-API). The engine is a plain Python class (not a variant's Mitsuba class), so it inherits its
-parts as Python classes do: :class:`~links1_mitsuba.tables.Tables` (the per-scene tables),
-:class:`~links1_mitsuba.lights.Lights`, :class:`~links1_mitsuba.intersect.Intersect`,
-:class:`~links1_mitsuba.raytree.RayTree`, :class:`~links1_mitsuba.launch.Launches`,
-:class:`~links1_mitsuba.gradients.Gradients`. Its state is declared once, in ``__slots__``
-(a misspelt name is an AttributeError), and read through :meth:`Engine.info`.
+API). The engine composes (docs/architecture.md, "How links1_whitted is composed"):
+
+- ``shapes``: :class:`~.sceneshapes.SceneShapes`, the links1 shapes of its scene;
+- ``launches``: :class:`~.launch.Launches`, the frozen launches' recordings, the film's batch
+  tables, the ray counters;
+- ``tables``: :class:`~.tables.Tables`, the per-scene tables and their camera views (given
+  ``shapes``, and ``launches`` to start their recordings anew);
+- ``gradients``: :class:`~.gradients.Gradients`, the derivative pass and a kept frame (given
+  ``shapes``, ``tables``, ``launches``);
+
+and per frame a :class:`~.raytree.Tracer` (the ray tree: ``Config`` and the frame's
+:class:`~.tuning.Tuning`), which calls the plain functions of lights.py and intersect.py. An
+entry point is a straight script: the switches, the tables, the tracer, the launch. Its state
+is read through :meth:`Engine.info`.
 """
 from __future__ import annotations
 
@@ -19,17 +27,20 @@ import dataclasses
 import mitsuba as mi
 import numpy as np
 
+from links1.interrupts import interruptible
 from links1.scene.params import default as l1_default
 from links1.scene.params import read as l1_read
-from links1.tracing.adaptive import DEFAULT_ADAPTIVE_DEPTH
+from links1.tracing.adaptive import DEFAULT_ADAPTIVE_DEPTH, render_adaptive_window
 from links1.tracing.aovs import channel_names
 from links1.tracing.aovs import check_aovs as parse_aovs  # the one AOV table and checker (links1/tracing/aovs.py)
 
-from . import geometry, proxies, tuning
+from . import tuning
 from .gradients import Gradients
 from .launch import Launches
+from .raytree import Tracer
+from .sceneshapes import SceneShapes
 from .tables import Tables
-from .util import place_of
+from .views import render_request
 
 
 @dataclasses.dataclass
@@ -52,7 +63,7 @@ class Config:
     #: check the scene's parameters (mi.traverse) before reusing the prepared tables;
     #: MitsubaRenderer, whose scene is its own, turns it off for its launches
     verify_scene: bool = True
-    #: render windows through a frozen function (Launches._frozen_fn): no re-tracing
+    #: render windows through a frozen function (launch.Launches._frozen_fn): no re-tracing
     use_freeze: bool = True
     #: add the visibility (boundary) term to the derivatives (boundary.py)
     projective: bool = False
@@ -88,37 +99,22 @@ def _config_field(name):
                     lambda self, v: setattr(self.config, name, v))
 
 
-class Engine(Tables, Launches, Gradients):
-    """What ``links1_whitted`` renders with: its :class:`Config`, the scene it was given (the
-    links1 shapes) and what it made from it (tables, recordings, counters)."""
+class Engine:
+    """What ``links1_whitted`` renders with: its :class:`Config` and its parts, each holding
+    its own state (see the module's docstring). Its entry points are straight scripts: the
+    frame's switches (:meth:`current_tuning`), the tables (``tables.prepare``), the frame's ray
+    tree (a :class:`~.raytree.Tracer`), the launches (or the derivative pass)."""
 
     __slots__ = (
-        "config",
-        # -- the links1 shapes (loader: attach; plain loading: adopt)
-        "custom",          # QuadricSpec / BlobSpec, by file order
-        "geo",             # the Dr.Jit values of their geometry, by slot (geometry.hold)
-        "geo_seen",        # the variables of those values seen last (geometry.seen)
-        "custom_bsdfs",    # slot -> the BSDF of a links1 shape
-        "shared_bsdfs",    # slots whose BSDF is a top-level object of the file (traverse leaves it out)
-        "adopted",         # the ids of the shapes of the scene adopt() made custom of
-        "proxy_slots",     # the slots of the proxies among them
-        "slot_of_id",      # Mitsuba shape id -> slot (file order), set by the loader
-        "shape_names",     # (slot, name, ...) of every shape, set by the loader
-        "places",          # object id -> "FILE:LINE: <element>", set by the loader
-        # -- made from the scene
-        "_prep",           # the last prepared tables (a camera view: prepared.Prepared)
-        "_freeze",         # the frozen window launch (Launches._frozen_fn)
-        "_freeze_points",  # the frozen point launch (Launches._frozen_points_fn)
-        "kept_graph",      # the derivative pass's frame kept for render_backward (gradients.py)
-        "batches",         # the film's batch tables by windows (film.cached_batch)
-        "stats_now",       # ray counters of the last render, summed
-        "stats_pending",   # ... or the launches' counters, summed when first read
-        # -- counters (tests and benchmarks read them through info())
-        "n_scene_builds", "n_camera_views", "n_value_updates",
-        # -- this engine's switches (tuning.Tuning), or None: the module-wide ones
-        "own_tuning",
+        "config",       # the integrator's parameters (Config)
+        "shapes",       # the links1 shapes of the scene (sceneshapes.SceneShapes)
+        "launches",     # the frozen launches, the film's batch tables, the ray counters (launch.Launches)
+        "tables",       # the per-scene tables and their camera views (tables.Tables)
+        "gradients",    # render_forward / render_backward and a kept derivative frame (gradients.Gradients)
+        "own_tuning",   # this engine's switches (tuning.Tuning), or None: the module-wide ones
     )
 
+    # the integrator's parameters, read and set as the engine's too
     max_depth = _config_field("max_depth")
     seed = _config_field("seed")
     min_weight = _config_field("min_weight")
@@ -131,17 +127,10 @@ class Engine(Tables, Launches, Gradients):
 
     def __init__(self, config: Config, custom_bsdfs=None, shared_bsdfs=()):
         self.config = config
-        self.custom = []
-        self.geo = self.geo_seen = None
-        self.custom_bsdfs = dict(custom_bsdfs or {})
-        self.shared_bsdfs = set(shared_bsdfs)
-        self.adopted = self.proxy_slots = None
-        self.slot_of_id = self.shape_names = self.places = None
-        self._prep = self._freeze = self._freeze_points = None
-        self.kept_graph = None
-        self.batches = {}
-        self.stats_now = self.stats_pending = None
-        self.n_scene_builds = self.n_camera_views = self.n_value_updates = 0
+        self.shapes = SceneShapes(custom_bsdfs, shared_bsdfs)
+        self.launches = Launches(config)
+        self.tables = Tables(config, self.shapes, self.launches)
+        self.gradients = Gradients(config, self.shapes, self.tables, self.launches)
         self.own_tuning = None
 
     def current_tuning(self) -> tuning.Tuning:
@@ -149,115 +138,149 @@ class Engine(Tables, Launches, Gradients):
         without, the module-wide ones (:func:`links1_mitsuba.tuning.current`)."""
         return self.own_tuning if self.own_tuning is not None else tuning.current()
 
+    def _tracer(self) -> Tracer:
+        """The ray tree of a frame: the integrator's parameters and this frame's switches."""
+        return Tracer(self.config, self.current_tuning())
+
     # -------------------------------------------------------------- the scene's links1 shapes
     def attach(self, custom, slot_of_id, shape_names=None, places=None):
         """Called by the loader: the custom shapes, the file order of all shapes and where
-        each object is in the file (for warnings)."""
-        self.custom = list(custom)
-        self.geo = {sp.slot: geometry.hold(sp) for sp in self.custom}
-        self.geo_seen = {sl: geometry.seen(h) for sl, h in self.geo.items()}
-        self.slot_of_id = dict(slot_of_id)
-        self.shape_names = shape_names
-        self.places = places
-        self._prep = None
+        each object is in the file (for warnings); the tables are made anew."""
+        self.shapes.attach(custom, slot_of_id, shape_names, places)
+        self.tables.forget()
 
     def adopt(self, scene):
-        """A scene the loader did not attach (``mi.load_file``, ``mi.load_string``,
-        ``mi.load_dict``): its links1 shapes are the proxies among its shapes
-        (:mod:`links1_mitsuba.proxies`), each shape's slot its place in ``scene.shapes()``,
-        and each proxy's BSDF its own (matched by object, never by id). Made again only
-        for another scene (or other shapes)."""
-        if self.slot_of_id is not None:      # the loader's scene: attach() said it all
-            return
-        shapes = list(scene.shapes())
-        key = tuple(id(s) for s in shapes)
-        if self.adopted == key:
-            return
-        found = proxies.specs_of(shapes)
-        self.custom = [sp for _, sp in found]
-        self.geo = {sp.slot: geometry.hold(sp) for sp in self.custom}
-        self.geo_seen = {sl: geometry.seen(h) for sl, h in self.geo.items()}
-        self.custom_bsdfs = {sl: shapes[sl].bsdf() for sl, _ in found}
-        self.shared_bsdfs = set(self.custom_bsdfs)    # each proxy's BSDF is named under its shape
-        self.proxy_slots = frozenset(sl for sl, _ in found)
-        self.adopted = key
-        self._prep = None
+        """A scene the loader did not attach: see :meth:`.sceneshapes.SceneShapes.adopt`."""
+        if self.shapes.adopt(scene):
+            self.tables.forget()
 
     def place(self, obj, what: str = "links1_whitted") -> str:
         """``FILE:LINE: <element>`` of a scene object for a warning, else ``what``."""
-        return place_of(obj, self.places or {}) or what
+        return self.shapes.place(obj, what)
 
     def channels(self):
-        return channel_names(self.aovs)
+        return channel_names(self.config.aovs)
+
+    def prepare(self, scene, sensor=None):
+        """The tables of ``scene`` seen from ``sensor`` (:meth:`.tables.Tables.prepare`) with this
+        frame's switches: a :class:`~.prepared.CameraView`."""
+        return self.tables.prepare(scene, sensor, self.current_tuning())
 
     # -------------------------------------------------------------- the frame
     def render(self, scene, sensor=0, seed=0, spp=0):
         """``Links1Whitted.render``: the frame of ``sensor``'s crop window as a ``mi.TensorXf``."""
-        sensor, win, spp, seed = self._render_request(scene, sensor, seed, spp)
-        if self.adaptive is not None:   # refined on the host (links1.tracing.adaptive)
+        sensor, win, spp, seed = render_request(scene, sensor, seed, spp, self.config.seed)
+        if self.config.adaptive is not None:   # refined on the host (links1.tracing.adaptive)
             img = self.render_adaptive(scene, win, seed=seed, sensor=sensor)
             return mi.TensorXf(img.astype(np.float32))
-        kept = self._render_keeping_graph(scene, sensor, win, spp, seed)
+        tuned = self.current_tuning()
+        kept = self.gradients.render_keeping_graph(scene, sensor, win, spp, seed, tuned)
         if kept is not None:   # mi.render(scene, params): the derivative pass's frame (gradients.py)
             return kept
         # the frame made on the device and returned as it is (links1_mitsuba.film)
-        return self.render_windows_device(scene, [win], spp=spp, seed=seed, sensor=sensor,
-                                          dtype=mi.Float)[0]
+        tables = self.tables.prepare(scene, sensor, tuned)
+        return self.launches.render_windows_device(tables, scene, Tracer(self.config, tuned), [win], spp=spp,
+                                                   seed=seed, dtype=mi.Float)[0]
 
-    def _render_request(self, scene, sensor, seed, spp):
-        """What a ``render``-style call (``mi.render``, ``render_forward``/``_backward``) asks for:
-        ``(sensor object, its crop window, spp (the sampler's when 0 or None), the pattern's seed
-        = the integrator's seed + the call's)``."""
-        sensor = self._sensor_of(scene, sensor)
-        film = sensor.film()
-        off, size = film.crop_offset(), film.crop_size()
-        if spp == 0 or spp is None:
-            spp = sensor.sampler().sample_count()
-        s = int(seed) if not hasattr(seed, "__len__") else int(np.array(seed).ravel()[0])
-        win = (int(off[0]), int(off[1]), int(size[0]), int(size[1]))
-        return sensor, win, int(spp), self.seed + s
+    def render_forward(self, scene, params, sensor=0, seed=0, spp=0):
+        """See :meth:`links1_mitsuba.gradients.Gradients.render_forward`."""
+        return self.gradients.render_forward(scene, params, sensor, seed, spp, self.current_tuning())
+
+    def render_backward(self, scene, params, grad_in, sensor=0, seed=0, spp=0):
+        """See :meth:`links1_mitsuba.gradients.Gradients.render_backward`."""
+        self.gradients.render_backward(scene, params, grad_in, sensor, seed, spp, self.current_tuning())
+
+    # -------------------------------------------------------------- windows, points
+    def render_window(self, scene, window=None, spp=1, seed=None, aovs=None, sensor=None):
+        """Render ``window = (x0, y0, w, h)`` of the full film (row 0 at the top).
+
+        Returns a float64 ndarray ``(h, w, 3 + aov channels)``: the pixel's ``spp`` samples
+        at the positions of :mod:`links1.maths.sampling` and those of its neighbours within the
+        film's reconstruction filter, weighted by it (:mod:`links1.sensor.filters`; box: the mean).
+        ``sensor``: an index into ``scene.sensors()`` or a sensor object (None: the first):
+        its camera, film size and filter (:meth:`prepare`).
+        """
+        return self.render_windows(scene, [window], spp=spp, seed=seed, aovs=aovs, sensor=sensor)[0]
+
+    @interruptible
+    def render_windows(self, scene, windows, spp=1, seed=None, aovs=None, sensor=None):
+        """See :meth:`links1_mitsuba.launch.Launches.render_windows`."""
+        tracer = self._tracer()
+        tables = self.tables.prepare(scene, sensor, tracer.tuning)
+        return self.launches.render_windows(tables, scene, tracer, windows, spp, seed, aovs)
+
+    @interruptible
+    def render_windows_device(self, scene, windows, spp=1, seed=None, aovs=None, sensor=None, dtype=None):
+        """See :meth:`links1_mitsuba.launch.Launches.render_windows_device`."""
+        tracer = self._tracer()
+        tables = self.tables.prepare(scene, sensor, tracer.tuning)
+        return self.launches.render_windows_device(tables, scene, tracer, windows, spp, seed, aovs, dtype)
+
+    def window_samples(self, scene, window=None, spp=1, seed=None, aovs=None, sensor=None):
+        """See :meth:`links1_mitsuba.launch.Launches.window_samples`."""
+        tracer = self._tracer()
+        tables = self.tables.prepare(scene, sensor, tracer.tuning)
+        return self.launches.window_samples(tables, scene, tracer, window, spp, seed, aovs)
+
+    @interruptible
+    def trace_points(self, scene, xf, yf, keys, sensor=None):
+        """See :meth:`links1_mitsuba.launch.Launches.trace_points` (``sensor``: see
+        :meth:`prepare`; None: the scene's first)."""
+        tracer = self._tracer()
+        tables = self.tables.prepare(scene, sensor, tracer.tuning)
+        return self.launches.trace_points(tables, scene, tracer, xf, yf, keys)
+
+    def render_adaptive(self, scene, window=None, seed=None, aovs=None, threshold=None, depth=None,
+                        sensor=None):
+        """Adaptive anti-aliasing of ``window`` (:func:`links1.tracing.adaptive.render_adaptive_window`,
+        as the core): one :meth:`trace_points` launch per refinement level; AOVs depth,
+        normal, id at the pixel centres (an spp-1 :meth:`render_window`)."""
+        tables = self.prepare(scene, sensor)
+        sensor = tables.sensor
+        W, H = tables.film_size
+        win = (0, 0, W, H) if window is None else tuple(int(v) for v in window)
+        seed = self.config.seed if seed is None else int(seed)
+        aovs = self.config.aovs if aovs is None else parse_aovs(aovs)
+        threshold = self.config.adaptive if threshold is None else threshold
+        depth = self.config.adaptive_depth if depth is None else depth
+        if threshold is None:
+            raise ValueError("links1_whitted: no adaptive threshold (give adaptive=...)")
+        return render_adaptive_window(
+            lambda xf, yf, keys: self.trace_points(scene, xf, yf, keys, sensor=sensor),
+            lambda w, names: self.render_window(scene, w, spp=1, seed=seed, aovs=list(names),
+                                                sensor=sensor)[..., 3:],
+            win, (W, H), threshold, depth, seed, aovs, rfilter=tables.rfilter)
 
     # -------------------------------------------------------------- parameters
     def traverse(self, callback, flags):
         """The links1 shapes' parameters (``Links1Whitted.traverse``); ``flags``: Mitsuba's
         ``(differentiable, differentiable | discontinuous)``."""
-        names = self._shape_name_of()
-        for sl, b in sorted(self.custom_bsdfs.items()):
-            if sl in self.shared_bsdfs:   # named by its own id (a top-level BSDF of the file)
-                continue
-            callback.put(f"{names(sl)}.bsdf", b, flags[0])
-        for sp in self.custom:
-            held = (self.geo or {}).get(sp.slot)
-            for k in geometry.param_names(sp) if held is not None else []:
-                callback.put(f"{names(sp.slot)}.{k}", held[k], flags[1])
-
-    def _shape_name_of(self):
-        names = {sl: name for sl, name, _ in (self.shape_names or [])}
-        return lambda sl: names.get(sl, f"_links1_slot_{sl}")
+        self.shapes.traverse(callback, flags)
 
     def parameters_changed(self, keys):
         """See ``Links1Whitted.parameters_changed``."""
-        changed = False
-        for i, sp in enumerate(self.custom):
-            held = (self.geo or {}).get(sp.slot)
-            mine = geometry.changed(held, self.geo_seen[sp.slot]) if held is not None else []
-            if mine:
-                self.custom[i] = geometry.updated(sp, held, mine)
-                self.geo_seen[sp.slot] = geometry.seen(held)
-                changed = True
-        if changed and not self.verify_scene:
-            self._prep = None    # (while verify_scene, the next frame's prepare sees the change
-            #                       and makes the shapes' tables again: Tables._update_values)
+        if self.shapes.parameters_changed() and not self.config.verify_scene:
+            self.tables.forget()    # (while verify_scene, the next frame's prepare sees the change
+            #                          and makes the shapes' tables again: Tables._update_values)
 
     # -------------------------------------------------------------- what it made
     @property
     def stats(self):
-        """Ray counters of the last render (``Launches._read_stats``: summed when first read)."""
-        return self._read_stats()
+        """Ray counters of the last render (``Launches.stats``: summed when first read)."""
+        return self.launches.stats
 
     @stats.setter
     def stats(self, v):
-        self._set_stats(v)
+        self.launches.stats = v
+
+    @property
+    def batches(self) -> dict:
+        """The film's batch tables by windows (``Launches.batches``, :func:`.film.cached_batch`)."""
+        return self.launches.batches
+
+    @batches.setter
+    def batches(self, value):
+        self.launches.batches = value
 
     def info(self) -> dict:
         """What the engine was given and made so far, for tests, tools and benchmarks (its
@@ -280,23 +303,24 @@ class Engine(Tables, Launches, Gradients):
 
         White-box tests may also read (and empty) ``Engine.batches``, the film's batch tables by
         windows (:func:`links1_mitsuba.film.cached_batch`): part of this inspection API."""
-        return {"scene_builds": self.n_scene_builds, "camera_views": self.n_camera_views,
-                "value_updates": self.n_value_updates,
-                "launch": self._freeze, "point_launch": self._freeze_points,
-                "recordings": 0 if self._freeze is None else self._freeze.n_recordings,
-                "point_recordings": 0 if self._freeze_points is None else self._freeze_points.n_recordings,
-                "custom_shapes": tuple(self.custom),
-                "tables": self._prep, "kept_graph": self.kept_graph is not None}
+        tables, launches = self.tables, self.launches
+        recordings, point_recordings = launches.recordings()
+        return {"scene_builds": tables.n_scene_builds, "camera_views": tables.n_camera_views,
+                "value_updates": tables.n_value_updates,
+                "launch": launches.window_launch, "point_launch": launches.point_launch,
+                "recordings": recordings, "point_recordings": point_recordings,
+                "custom_shapes": tuple(self.shapes.custom),
+                "tables": tables.last, "kept_graph": self.gradients.kept_graph is not None}
 
     def forget(self):
         """Drop what the engine keeps between frames: its prepared tables (the next frame
         prepares them again, as after a change of the parameters they are made from:
         ``MitsubaRenderer``) and a derivative pass's kept frame (gradients.py)."""
-        self._prep = None
-        self.kept_graph = None
+        self.tables.forget()
+        self.gradients.kept_graph = None
 
     def shape_slots(self, shapes):
         """``(slot_list, nslots)``: the slot of each of the Mitsuba ``shapes`` (file order, or
         the loader's ``slot_of_id``) and the number of slots, links1 shapes included
-        (``Tables._slots``)."""
-        return self._slots(shapes)
+        (:meth:`.sceneshapes.SceneShapes.slots`)."""
+        return self.shapes.slots(shapes)

@@ -10,9 +10,9 @@ chooses it (``Tuning.keep_graph``, off by default), the frame does not depend on
 ``seed_grad`` give the same rays), some parameter has gradients enabled and the frame is one
 block, ``render()`` renders the derivative pass's frame instead of the primal, returns its
 values and keeps its graph, which ``render_backward`` then propagates
-(:meth:`Gradients._render_keeping_graph`): one render an iteration instead of two. That frame equals the primal to
-float32 rounding (its tree is summed level by level, the megakernel's depth first: 1-2 ulp
-in some pixels of a glass scene, ``tests/plugins/test_gradients.py``).
+(:meth:`Gradients.render_keeping_graph`): one render an iteration instead of two. That frame
+equals the primal to float32 rounding (its tree is summed level by level, the megakernel's
+depth first: 1-2 ulp in some pixels of a glass scene, ``tests/plugins/test_gradients.py``).
 
 * the tables are the primal ones (``prepare``) with the *attached* Dr.Jit values of the
   parameters that have gradients enabled put in (:meth:`Gradients._ad_tables`): every
@@ -49,26 +49,31 @@ pixels are the full frame's and the loss ``Σ g_p I_p`` splits exactly by blocks
 bounded by one block's tree (~0.75 KiB a sample for scenes/fig11.xml at max_depth 5), not the
 frame's (docs/benchmarks.md, inverse rendering). A 256² frame at spp 1 is one block.
 
-:class:`Gradients` is a base class of the ``Engine`` (engine.py); its methods name
-``mi.Float``, ``mi.Ray3f``, ... when called, so the class serves every Mitsuba variant.
+:class:`Gradients` is one part of the ``Engine`` (engine.py), over its tables and launches;
+its methods name ``mi.Float``, ``mi.Ray3f``, ... when called, so the class serves every
+Mitsuba variant.
 """
 from __future__ import annotations
 
 import copy
+import functools
 
 import drjit as dr
 import mitsuba as mi
 
+from links1.tracing.aovs import channel_names
+
 from . import boundary, geometry
 from .lights import params_of
-from .raytree import child_keys
+from .raytree import Tracer, child_keys
 from .prepared import CameraView
 from .tables import PHONG_TABLES
 from .registered import plugin_class
 from .util import INF, kind_of
+from .views import render_request
 
 
-#: (parameter, field of the light's ``P.lights`` record) of the links1 lights' differentiable
+#: (parameter, field of the light's ``primal.lights`` record) of the links1 lights' differentiable
 #: values: a ``links1_point``'s :class:`~.lights.PointRecord`, a ``links1_spot``'s
 #: :class:`~.lights.CylinderSpotRecord`
 LINKS1_POINT_FIELDS = (("position", "position"), ("direction", "axis"), ("L1", "L1"), ("L2", "L2"))
@@ -125,31 +130,46 @@ def put_rows(table, rows, width):
     return out
 
 
-def _spawns(P, slot):
+def _spawns(primal, slot):
     """Whether a hit on ``slot`` may spawn a mirror or refraction ray (eq. 3.12-3.16): a
     ``links1_phong`` with some reflectance or transmittance, any other BSDF where the scene
     has delta lobes."""
-    if not P.is_phong_np[slot]:
-        return P.any_mitsuba_delta
-    return bool(P.phong_np["refl"][slot].max() > 0 or max(P.shadow_t_np[slot]) > 0)
+    if not primal.is_phong_np[slot]:
+        return primal.any_mitsuba_delta
+    return bool(primal.phong_np["refl"][slot].max() > 0 or max(primal.shadow_t_np[slot]) > 0)
 
 
-def _mitsuba_attached(scene, P, watched):
+def _mitsuba_attached(scene, primal, watched):
     """Whether a parameter of the scene (of Mitsuba's own objects among them) has gradients
-    enabled: ``watched`` (the tables ``P`` were just checked against the scene's parameters,
+    enabled: ``watched`` (the tables ``primal`` were just checked against the scene's parameters,
     ``paramwatch.ParamWatch``), as the watch read them; else by a traversal."""
     if watched:
-        return (P.base if P.base is not None else P).watch.attached()
+        return (primal.base if primal.base is not None else primal).watch.attached()
     return any(dr.grad_enabled(v) for _, v in mi.traverse(scene).items())
 
 
 class Gradients:
-    """``render_forward``/``render_backward`` and the differentiable render behind them."""
+    """``render_forward``/``render_backward`` and the differentiable render behind them, with
+    the integrator's parameters ``config``, its links1 shapes ``shapes`` (their attached
+    geometry), its tables (``prepare``: the primal tables the pass starts from) and launches
+    (the pass's unfrozen launch); each entry point is given the frame's switches ``tuning``
+    (:class:`~.tuning.Tuning`). It owns the frame a primal render kept for ``render_backward``
+    (``kept_graph``)."""
 
-    __slots__ = ()
+    __slots__ = (
+        "config", "shapes", "tables", "launches",
+        "kept_graph",      # (image, sensor, window, tables) of render_keeping_graph, or None
+    )
+
+    def __init__(self, config, shapes, tables, launches):
+        self.config = config
+        self.shapes = shapes
+        self.tables = tables
+        self.launches = launches
+        self.kept_graph = None
 
     # -------------------------------------------------------------- Mitsuba entry points
-    def render_forward(self, scene, params, sensor=0, seed=0, spp=0):
+    def render_forward(self, scene, params, sensor, seed, spp, tuning):
         """The image's derivative along the gradients set on the scene's parameters
         (``dr.set_grad``): Mitsuba's ``Integrator.render_forward``. In one block (the whole
         frame's graph at once, unlike :meth:`render_backward`): inside ``mi.render``'s custom
@@ -162,27 +182,27 @@ class Gradients:
         # from the parameters would enter it, outside this pass's isolation scope
         self.kept_graph = None
         with dr.resume_grad():
-            img = self._render_ad(scene, sensor, seed, spp, mode=dr.ADMode.Forward)
+            img = self._render_ad(scene, sensor, seed, spp, tuning, mode=dr.ADMode.Forward)
             dr.forward_to(img)
             grad = dr.grad(img)
-        extra = len(self.channels()) - grad.shape[-1]
+        extra = len(channel_names(self.config.aovs)) - grad.shape[-1]
         if extra > 0:   # the AOV channels carry no derivative (they are detached): zeros
             grad = dr.concat([grad, dr.zeros(mi.TensorXf, (*grad.shape[:-1], extra))], axis=-1)
         return grad
 
-    def render_backward(self, scene, params, grad_in, sensor=0, seed=0, spp=0):
+    def render_backward(self, scene, params, grad_in, sensor, seed, spp, tuning):
         """Propagate the image gradient ``grad_in`` to the scene's parameters that have
         gradients enabled: Mitsuba's ``Integrator.render_backward``. Block by block
         (:func:`row_blocks`): each block's rows of ``grad_in`` propagated, its graph freed.
-        A frame whose graph the primal kept (:meth:`_render_keeping_graph`) is propagated
+        A frame whose graph the primal kept (:meth:`render_keeping_graph`) is propagated
         through that graph instead of being rendered again."""
-        kept = self._take_kept(scene, sensor, seed, spp)   # the whole frame as one block
-        blocks = [None] if kept is not None else self._ad_blocks(scene, sensor, seed, spp)
+        kept = self._take_kept(scene, sensor, seed, spp, tuning)   # the whole frame as one block
+        blocks = [None] if kept is not None else self._ad_blocks(scene, sensor, seed, spp, tuning)
         y = 0
         with dr.resume_grad():
             for block in blocks:
                 # one block's graph at a time: built, its rows of grad_in propagated, dropped
-                img = kept if block is None else self._render_ad(scene, sensor, seed, spp, window=block,
+                img = kept if block is None else self._render_ad(scene, sensor, seed, spp, tuning, window=block,
                                                                  mode=dr.ADMode.Backward)
                 kept = None
                 h = img.shape[0]
@@ -196,20 +216,20 @@ class Gradients:
                 del img
         dr.eval()
 
-    def _ad_blocks(self, scene, sensor, seed, spp):
+    def _ad_blocks(self, scene, sensor, seed, spp, tuning):
         """The blocks (:func:`row_blocks`) of the frame a derivative pass renders; with more
         than one, Dr.Jit's allocation cache is flushed first (the primal frame's buffers wait
         there, in sizes the blocks do not reuse: the peak would be the primal's plus a block's)."""
-        sensor_, win, spp_, _ = self._render_request(scene, sensor, seed, spp)
+        sensor_, win, spp_, _ = render_request(scene, sensor, seed, spp, self.config.seed)
         with dr.suspend_grad():
-            P = self.prepare(scene, sensor_)
-        blocks = row_blocks(win, P.film_size, P.rfilter.border, spp_)
+            primal = self.tables.prepare(scene, sensor_, tuning)
+        blocks = row_blocks(win, primal.film_size, primal.rfilter.border, spp_)
         if len(blocks) > 1:
             dr.flush_malloc_cache()
         return blocks
 
     # -------------------------------------------------------------- the kept graph
-    def _render_keeping_graph(self, scene, sensor, win, spp, seed):
+    def render_keeping_graph(self, scene, sensor, win, spp, seed, tuning):
         """The frame of ``render()``, made by the derivative pass with its AD graph kept for
         :meth:`render_backward`, or None where the usual primal applies.
 
@@ -226,65 +246,71 @@ class Gradients:
         sensor, window or spp renders its pass again (:meth:`_take_kept`); the next frame or a
         ``render_forward`` drops the graph."""
         self.kept_graph = None
-        if not self.current_tuning().keep_graph or spp != 1 or self.config.projective:
+        if not tuning.keep_graph or spp != 1 or self.config.projective:
             return None
         with dr.suspend_grad():
-            P = self.prepare(scene, sensor)
-        if P.area_tab or P.consts or len(row_blocks(win, P.film_size, P.rfilter.border, spp)) != 1:
+            primal = self.tables.prepare(scene, sensor, tuning)
+        if (primal.area_tab or primal.consts
+                or len(row_blocks(win, primal.film_size, primal.rfilter.border, spp)) != 1):
             return None
         with dr.resume_grad():
-            Q = self._ad_tables(P, scene)
-            if not Q.attached_any:
+            ad_tables = self._ad_tables(primal, scene)
+            if not ad_tables.attached_any:
                 return None
-            img = self.render_windows_device(scene, [win], spp=spp, seed=seed, sensor=sensor,
-                                             dtype=mi.Float, tables=Q, mode=dr.ADMode.Backward)[0]
+            img = self.launches.render_windows_device(ad_tables, scene, Tracer(self.config, tuning), [win], spp=spp,
+                                                      seed=seed, dtype=mi.Float, mode=dr.ADMode.Backward)[0]
             dr.eval(img)
-        self.kept_graph = (img, sensor, win, P)
+        self.kept_graph = (img, sensor, win, primal)
         return dr.detach(img)
 
-    def _take_kept(self, scene, sensor, seed, spp):
-        """The frame :meth:`_render_keeping_graph` kept for this request (once), or None."""
+    def _take_kept(self, scene, sensor, seed, spp, tuning):
+        """The frame :meth:`render_keeping_graph` kept for this request (once), or None."""
         kept = self.kept_graph
         self.kept_graph = None
         if kept is None:
             return None
-        img, sensor_k, win_k, P = kept
-        sensor_, win, spp_, _ = self._render_request(scene, sensor, seed, spp)
+        img, sensor_k, win_k, primal = kept
+        sensor_, win, spp_, _ = render_request(scene, sensor, seed, spp, self.config.seed)
         if sensor_ is not sensor_k or win != win_k or spp_ != 1:
             return None
         with dr.suspend_grad():
-            if self.prepare(scene, sensor_) is not P:   # the scene changed since
+            if self.tables.prepare(scene, sensor_, tuning) is not primal:   # the scene changed since
                 return None
         return img
 
     # -------------------------------------------------------------- the differentiable frame
-    def _render_ad(self, scene, sensor=0, seed=0, spp=0, window=None, mode=None):
+    def _render_ad(self, scene, sensor, seed, spp, tuning, window=None, mode=None):
         """The frame ``render()`` makes (or its ``window``), with Dr.Jit's AD graph from the
         scene's gradient-enabled parameters (see the module's docstring); ``mode``: the
         ``dr.ADMode`` the graph is made for (Forward or Backward: the same frame)."""
-        if self.adaptive is not None:
+        if self.config.adaptive is not None:
             raise NotImplementedError("links1_whitted: gradients of adaptive anti-aliasing are not "
                                       "implemented (render with spp instead of adaptive)")
-        sensor, win, spp, seed = self._render_request(scene, sensor, seed, spp)
+        sensor, win, spp, seed = render_request(scene, sensor, seed, spp, self.config.seed)
         win = win if window is None else window
         with dr.suspend_grad():
-            P = self.prepare(scene, sensor)
-        Q = self._ad_tables(P, scene)
-        # projective: the visibility term (boundary.py), traced before the interior pass
-        edge = boundary.boundary_image(self, scene, P, Q, sensor, win, spp, seed) if self.config.projective else None
-        img = self.render_windows_device(scene, [win], spp=spp, seed=seed, sensor=sensor,
-                                         dtype=mi.Float, tables=Q, mode=mode or dr.ADMode.Backward)[0]
+            primal = self.tables.prepare(scene, sensor, tuning)
+        ad_tables = self._ad_tables(primal, scene)
+        tracer = Tracer(self.config, tuning)
+        # projective: the visibility term (boundary.py), traced before the interior pass, its
+        # sides' radiance by the primal tree (the point launch of the primal tables)
+        edge = None
+        if self.config.projective:
+            points = functools.partial(self.launches.trace_points, primal, scene, tracer)
+            edge = boundary.boundary_image(points, scene, primal, ad_tables, sensor, win, spp, seed)
+        img = self.launches.render_windows_device(ad_tables, scene, tracer, [win], spp=spp, seed=seed, dtype=mi.Float,
+                                                  mode=mode or dr.ADMode.Backward)[0]
         return img if edge is None else img + edge
 
-    def _ad_tables(self, P, scene):
-        """A shallow copy of the tables ``P`` with the attached values of the parameters
+    def _ad_tables(self, primal, scene):
+        """A shallow copy of the tables ``primal`` with the attached values of the parameters
         that have gradients enabled put in (rendered in a derivative ``mode``: the launches
         then trace :func:`trace_tree_ad`, the film differentiably)."""
-        Q = P.tables() if isinstance(P, CameraView) else copy.copy(P)
-        Q.frozen_inputs = None
+        ad_tables = primal.tables() if isinstance(primal, CameraView) else copy.copy(primal)
+        ad_tables.frozen_inputs = None
         Phong = plugin_class("links1_phong")
-        bsdfs = P.keep_alive[3]       # the BSDF of each slot (tables.prepare)
-        if len(bsdfs) != P.nslots:
+        bsdfs = primal.keep_alive[3]       # the BSDF of each slot (tables.prepare)
+        if len(bsdfs) != primal.nslots:
             raise RuntimeError("links1_whitted: the BSDF table has another size (an internal inconsistency)")
         tabs = {attr: nw for attr, nw in PHONG_TABLES.items() if attr != "ior"}   # (ior: held fixed)
         rows = {name: {} for name, _ in tabs.values()}
@@ -296,21 +322,21 @@ class Gradients:
                         r[sl] = v
         for attr, (name, width) in tabs.items():
             if rows[name]:
-                setattr(Q, attr, put_rows(getattr(P, attr), rows[name], width))
-        Q.any_ambient = P.any_ambient or bool(rows["ambient"])
+                setattr(ad_tables, attr, put_rows(getattr(primal, attr), rows[name], width))
+        ad_tables.any_ambient = primal.any_ambient or bool(rows["ambient"])
         tr = rows["transmittance"]
         if tr:   # shadow transmittance (3-3-3): links1 shapes outside the BVH, split Mitsuba shapes
-            Q.shadow_t_np = [tr.get(sl, row) for sl, row in enumerate(P.shadow_t_np)]
-            if P.shadow_split is not None:
-                Q.shadow_split = dict(P.shadow_split, trans=[(sub, sl, tr.get(sl, st))
-                                                             for sub, sl, st in P.shadow_split["trans"]])
-        # analytic lights: P.lights holds one record per such emitter, in the scene's order
+            ad_tables.shadow_t_np = [tr.get(sl, row) for sl, row in enumerate(primal.shadow_t_np)]
+            if primal.shadow_split is not None:
+                ad_tables.shadow_split = dict(primal.shadow_split, trans=[
+                    (sub, sl, tr.get(sl, st)) for sub, sl, st in primal.shadow_split["trans"]])
+        # analytic lights: primal.lights holds one record per such emitter, in the scene's order
         Pt, Sp = plugin_class("links1_point"), plugin_class("links1_spot")
-        lights, j, any_light = list(P.lights), 0, False
+        lights, j, any_light = list(primal.lights), 0, False
         for e in scene.emitters():
             kind = kind_of(e)
             if isinstance(e, (Pt, Sp)):
-                # the attached values in their fields of the light's P.lights record (tables.py)
+                # the attached values in their fields of the light's primal.lights record (tables.py)
                 new = {}
                 for name, field in (LINKS1_POINT_FIELDS if isinstance(e, Pt) else LINKS1_SPOT_FIELDS):
                     v = e.values[name]
@@ -319,7 +345,7 @@ class Gradients:
                         any_light = True
                 lights[j] = lights[j]._replace(**new)
             elif kind == "PointLight":
-                prm = params_of(P, e)
+                prm = params_of(primal, e)
                 new = {}
                 if attached(prm["position"]):
                     new["position"] = mi.Point3f(prm["position"])
@@ -331,20 +357,22 @@ class Gradients:
             elif kind not in ("SpotLight", "DirectionalEmitter"):
                 continue
             j += 1
-        if j != len(P.lights):
+        if j != len(primal.lights):
             raise RuntimeError("links1_whitted: the light table has another size (an internal inconsistency)")
-        Q.lights = lights
+        ad_tables.lights = lights
         # geometry (geometry.py): the links1 shapes whose parameters have gradients; with any,
         # every links1 shape is intersected in the pass's own code (no BVH, no light or eye
         # buffer: their tables hold primal values) and its hits re-attached (intersect.moving_hits)
-        Q.geo_ad = geometry.attached_specs(dr, P.custom, self.geo) or None
-        if Q.geo_ad is not None and P.bvh is not None:
-            Q.bvh, Q.eye_buf, Q.custom_unrolled = None, None, list(P.custom)
-        Q.ad_memo = {}
-        Q.fixed_children = Q.geo_ad is None or not any(_spawns(P, sl) for sl in Q.geo_ad)
-        Q.attached_any = (any(rows.values()) or Q.geo_ad is not None or any_light
-                          or (not P.all_phong and _mitsuba_attached(scene, P, self.verify_scene)))
-        return Q
+        ad_tables.geo_ad = geometry.attached_specs(dr, primal.custom, self.shapes.geo) or None
+        if ad_tables.geo_ad is not None and primal.bvh is not None:
+            ad_tables.bvh, ad_tables.eye_buf, ad_tables.custom_unrolled = None, None, list(primal.custom)
+        ad_tables.ad_memo = {}
+        ad_tables.fixed_children = (ad_tables.geo_ad is None
+                                    or not any(_spawns(primal, sl) for sl in ad_tables.geo_ad))
+        ad_tables.attached_any = (any(rows.values()) or ad_tables.geo_ad is not None or any_light
+                                  or (not primal.all_phong
+                                      and _mitsuba_attached(scene, primal, self.config.verify_scene)))
+        return ad_tables
 
 
 def trace_tree_ad(tracer, tables, scene, o, d, tmin, tmax, key, sample):

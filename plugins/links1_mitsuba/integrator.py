@@ -153,8 +153,9 @@ def define_integrator():
 
         def to_string(self):
             e = self._hidden.engine
-            return (f"Links1Whitted[max_depth={e.max_depth}, seed={e.seed}, aovs={e.aovs}, "
-                    f"custom_shapes={len(e.custom)}]")
+            c = e.config
+            return (f"Links1Whitted[max_depth={c.max_depth}, seed={c.seed}, aovs={c.aovs}, "
+                    f"custom_shapes={len(e.shapes.custom)}]")
 
         # -------------------------------------------------------------- the engine's API
         @property

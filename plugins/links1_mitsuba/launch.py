@@ -1,16 +1,19 @@
 """The launch machinery of ``links1_whitted`` (its one home): camera rays of any pixel set,
 the :func:`drjit.freeze` launch replayed for any window, batch size or spp, and the frame made
 on the device from its samples (:mod:`.film`); numpy only where a caller asks for it
-(:meth:`render_windows`' float64 arrays, :meth:`trace_points` of adaptive anti-aliasing).
+(:meth:`Launches.render_windows`' float64 arrays, :meth:`Launches.trace_points` of adaptive
+anti-aliasing).
 
-:class:`Launches` is a base class of the ``Engine`` (engine.py); its methods name
-``mi.Float``, ``mi.Ray3f``, ... when called, so the class serves every Mitsuba variant.
+:class:`Launches` owns what the launches keep between frames (the frozen launches' recordings,
+the film's batch tables, the ray counters); the engine (engine.py) hands each call the tables
+to render (``Tables.prepare``), the scene and the frame's ray tree (:class:`~.raytree.Tracer`).
+The camera rays are :mod:`.camera`'s. Its methods name ``mi.Float``, ``mi.Ray3f``, ... when
+called, so the class serves every Mitsuba variant.
 """
 from __future__ import annotations
 
 import dataclasses
 import gc
-import math
 
 import drjit as dr
 import mitsuba as mi
@@ -18,12 +21,13 @@ import numpy as np
 
 from links1.interrupts import check_interrupt, interruptible
 from links1.tracing.aovs import check_aovs as parse_aovs  # the one AOV table and checker (links1/tracing/aovs.py)
-from links1.maths.sampling import KEY_LENS_U, KEY_LENS_V, KEY_PIXEL, key_seed, strata
+from links1.maths.sampling import key_seed, strata
 
+from .camera import camera_rays, rays_at
 from .film import Batch, cached_batch, concat, reconstruct, sample_ids, sample_window, widen
 from .gradients import trace_tree_ad
 from .raytree import Tracer
-from .util import Hidden, aligned, mix32, udiv, unit_float
+from .util import Hidden, aligned
 
 #: Most samples (lanes) per launch of the window function; more are split into launches.
 LAUNCH_LANES = 1 << 22
@@ -148,80 +152,78 @@ def _between_launches():
     check_interrupt()
 
 
+def frozen_inputs(tables):
+    """Every Dr.Jit array the trace reads from the per-scene tables (the frozen
+    function must receive them as inputs), gathered once per ``tables``: the fields of ``tables``
+    (a slotted dataclass, :class:`~links1_mitsuba.prepared.Prepared`) and what they hold
+    through dicts, lists, tuples and objects' ``__dict__``. An object with its own traversal
+    callbacks is not walked, as freeze walks it through them: a
+    :class:`~links1_mitsuba.util.Hidden` (``ParamWatch``: nothing) or :class:`SceneInputs`
+    (the launch's scene input)."""
+    if getattr(tables, "frozen_inputs", None) is None:
+        found, seen = [], set()
+
+        def walk(x, depth=0):
+            if depth > 12 or id(x) in seen:
+                return
+            seen.add(id(x))
+            if dr.is_array_v(x):
+                found.append(x)
+            elif isinstance(x, dict):
+                for v in x.values():
+                    walk(v, depth + 1)
+            elif isinstance(x, (list, tuple)):
+                for v in x:
+                    walk(v, depth + 1)
+            elif hasattr(x, "_traverse_1_cb_ro"):
+                pass   # an object that hands freeze its own variables (Hidden: none)
+            elif hasattr(x, "__dict__") and not isinstance(x, (mi.Object, type)) \
+                    and not callable(x):
+                for v in vars(x).values():
+                    walk(v, depth + 1)
+            elif dataclasses.is_dataclass(x) and not isinstance(x, type):
+                # a dataclass with slots (prepared.Prepared): its fields that are set
+                for f in dataclasses.fields(x):
+                    walk(getattr(x, f.name, None), depth + 1)
+        walk(tables)
+        tables.frozen_inputs = found
+    return tables.frozen_inputs
+
+
 class Launches:
-    """Ray generation and launches; the ray tree is a :class:`~.raytree.Tracer` made per frame
-    (:meth:`_tracer`), the tables (``prepare``) come from the engine (engine.py)."""
+    """The launches of one engine: the frozen window and point launches (their recordings),
+    the film's batch tables and the ray counters of the last render. Each call is given the
+    camera view of the tables to render (``tables``, from ``Tables.prepare``), the scene and the
+    frame's :class:`~.raytree.Tracer`; ``config`` (``engine.Config``) gives the defaults
+    (seed, AOVs) and whether to freeze."""
 
-    __slots__ = ()
+    __slots__ = (
+        "config",
+        "window_launch",   # the frozen window launch (:meth:`_frozen_fn`), or None
+        "point_launch",    # the frozen point launch (:meth:`_frozen_points_fn`), or None
+        "batches",         # the film's batch tables by windows (film.cached_batch)
+        "stats_now",       # ray counters of the last render, summed
+        "stats_pending",   # ... or the launches' counters, summed when first read
+    )
 
-    # -------------------------------------------------------------- camera
-    def _camera_rays(self, P, sid, spp, seed):
-        """Camera rays of the samples ``sid = pixel * spp + i`` (``pixel = py * W + px``, ``i``
-        the sample's index in its pixel): any set of pixels (one window or a batch of them)
-        in one launch. ``sid``, ``spp = (spp, strata k)`` and ``seed = (pattern seed, key
-        seed)`` are run-time values (``UInt32``), so neither the pixel set nor the sample count
-        enters the kernels (see :meth:`render_windows`)."""
-        W, H = P.film_size
-        n_s, k_s = spp
-        pix = udiv(sid, n_s)          # run-time divisors: util.udiv (exact, vectorised)
-        i = sid - pix * n_s
-        py = pix // W
-        px = pix - py * W
-        kf = mi.Float(k_s)
-        row = udiv(i, k_s)
-        sx = mi.Float(i - row * k_s)
-        sy = mi.Float(row)
-        base = mix32(mix32(seed[0]) ^ pix)
-        ux = unit_float(mix32(base ^ (2 * i)))
-        uy = unit_float(mix32(base ^ (2 * i + 1)))
-        centre = n_s == 1   # one sample: the pixel centre (links1.maths.sampling)
-        offx = dr.select(centre, mi.Float(0.5), (sx + ux) / kf)
-        offy = dr.select(centre, mi.Float(0.5), (sy + uy) / kf)
-        xf = (mi.Float(px) + offx) / W
-        yf = (mi.Float(py) + offy) / H
-        key = mix32(mix32(seed[1]) ^ sid)
-        # light samples of a primary hit: one set over the pixel (links1.maths.sampling.pixel_keys)
-        sample = (mix32(mix32(seed[1] ^ KEY_PIXEL) ^ pix), i, n_s)
-        o, d, tmin, tmax = self._rays_at(P, xf, yf, key)
-        return o, d, tmin, tmax, key, sample
+    def __init__(self, config):
+        self.config = config
+        self.window_launch = self.point_launch = None
+        self.batches = {}
+        self.stats_now = self.stats_pending = None
 
-    def _tracer(self):
-        """The ray tree of a frame: the integrator's parameters and this frame's switches."""
-        return Tracer(self.config, self.current_tuning())
+    def forget(self):
+        """Start both frozen launches anew: called by the tables (tables.py) when the ones
+        recorded read tables that were replaced (their key names the tables by ``id``, and a
+        new one may get a dead one's) or constants of their kernels changed (lights, camera,
+        the links1 shapes' geometry)."""
+        self.window_launch = self.point_launch = None
 
-    def _rays_at(self, P, xf, yf, key):
-        """Camera rays through film positions ``(xf, yf)`` (fractions of the film's width and
-        height, row 0 at the top) with keys ``key`` (a thin lens's aperture samples,
-        links1.maths.sampling.lens_samples) -> ``o, d, tmin, tmax``."""
-        n = dr.width(xf)
-        W, H = P.film_size
-        if P.perspective:
-            tn = math.tan(math.radians(P.x_fov) / 2.0)
-            aspect = W / H
-            dc = mi.Vector3f((1.0 - 2.0 * xf) * tn, (1.0 - 2.0 * yf) * (tn / aspect), 1.0)
-            m = P.cam.tolist()
-            if P.lens is not None:   # a thin lens (links1.sensor.camera): from the aperture point
-                radius, focus = P.lens
-                disk = mi.warp.square_to_uniform_disk_concentric(
-                    mi.Point2f(unit_float(mix32(key ^ KEY_LENS_U)), unit_float(mix32(key ^ KEY_LENS_V))))
-                a = mi.Vector3f(radius * disk.x, radius * disk.y, 0.0)
-                dc = dr.normalize(dc * focus - a)
-                o = mi.Point3f(*[m[r][0] * a.x + m[r][1] * a.y + m[r][3] for r in range(3)])
-            else:
-                dc = dr.normalize(dc)
-                o = mi.Point3f(m[0][3], m[1][3], m[2][3]) + mi.Vector3f(dr.zeros(mi.Float, n))
-            inv_z = 1.0 / dc.z
-            d = dr.normalize(mi.Vector3f(*[m[r][0] * dc.x + m[r][1] * dc.y + m[r][2] * dc.z
-                                           for r in range(3)]))
-            return o, d, P.near * inv_z, P.far * inv_z
-        # orthographic (links1.sensor.camera): the film on the near plane, rays along the view axis
-        m = P.cam.tolist()
-        pc = (1.0 - 2.0 * xf, (1.0 - 2.0 * yf) * (H / W), P.near)
-        o = mi.Point3f(*[m[r][0] * pc[0] + m[r][1] * pc[1] + m[r][2] * pc[2] + m[r][3] for r in range(3)])
-        d = dr.normalize(mi.Vector3f(m[0][2], m[1][2], m[2][2])) + mi.Vector3f(dr.zeros(mi.Float, n))
-        return o, d, dr.zeros(mi.Float, n), mi.Float(P.far - P.near) + dr.zeros(mi.Float, n)
+    def recordings(self) -> tuple:
+        """``(window, point)``: the recordings of the frozen launches (0 while there is none)."""
+        return tuple(0 if f is None else f.n_recordings for f in (self.window_launch, self.point_launch))
 
-    # -------------------------------------------------------------- launches
+    # -------------------------------------------------------------- ray counters
     def _counts(self, n, nsh1, cr=None, ct=None, nr=None, nt=None, nsh2=None):
         """Ray counters of one launch of ``n`` camera rays (rays by kind)."""
         tot = lambda a: 0 if a is None else int(np.sum(_lanes(a, dr.width(a)), dtype=np.int64))  # noqa: E731
@@ -273,21 +275,31 @@ class Launches:
             self.stats_pending = None
         return self.stats_now
 
-    def _call_frozen(self, fn, P, scene, *args):
-        """Call a frozen launch of this engine with ``args``, the scene as :class:`SceneInputs`
-        and, last, its caller: a :class:`~links1_mitsuba.util.Hidden` holding this engine, the
-        tables ``P`` and the scene, which a recording's body reads (freeze walks nothing of a
+    @property
+    def stats(self):
+        """Ray counters of the last render (:meth:`_read_stats`); set: :meth:`_set_stats`."""
+        return self._read_stats()
+
+    @stats.setter
+    def stats(self, counts):
+        self._set_stats(counts)
+
+    # -------------------------------------------------------------- the frozen launches
+    def _call_frozen(self, fn, tables, scene, tracer, *args):
+        """Call a frozen launch with ``args``, the scene as :class:`SceneInputs` and, last, its
+        caller: a :class:`~links1_mitsuba.util.Hidden` holding the frame's ``tracer``, the
+        ``tables`` and the scene, which a recording's body reads (freeze walks nothing of a
         ``Hidden`` and keys it on its type alone: a new one each call replays the recording;
-        the Dr.Jit arrays the body reads reach freeze as the ``tables`` and scene inputs). A
+        the Dr.Jit arrays the body reads reach freeze as the table inputs and scene inputs). A
         recording that reads more of the scene than :class:`SceneInputs` holds is made again
-        with the whole scene, which the launches of ``P`` then keep passing."""
-        scene_input = getattr(P, "scene_input", None)
-        extra = _extra_scenes(P)
+        with the whole scene, which the launches of ``tables`` then keep passing."""
+        scene_input = getattr(tables, "scene_input", None)
+        extra = _extra_scenes(tables)
         if scene_input is None:
-            scene_input = P.scene_input = SceneInputs(scene, extra, _unread_bsdfs(P))
+            scene_input = tables.scene_input = SceneInputs(scene, extra, _unread_bsdfs(tables))
         elif scene_input is not _WHOLE_SCENE and scene_input.stale:
-            scene_input = P.scene_input = _WHOLE_SCENE   # freeze would update the scene's own
-        caller = Hidden(engine=self, tables=P, scene=scene)
+            scene_input = tables.scene_input = _WHOLE_SCENE   # freeze would update the scene's own
+        caller = Hidden(tracer=tracer, tables=tables, scene=scene)
         # no cyclic garbage collection while recording: freeing another renderer's Dr.Jit
         # state (its own recordings) in the middle of one aborts the process
         gc_on = gc.isenabled()
@@ -299,7 +311,7 @@ class Launches:
             try:
                 return fn(*args, scene_input, caller)
             except Exception:
-                P.scene_input = _WHOLE_SCENE
+                tables.scene_input = _WHOLE_SCENE
                 try:
                     return fn(*args, whole, caller)
                 except Exception:
@@ -314,43 +326,6 @@ class Launches:
             if gc_on:
                 gc.enable()
 
-    def _frozen_inputs(self, P):
-        """Every Dr.Jit array the trace reads from the per-scene tables (the frozen
-        function must receive them as inputs), gathered once per ``P``: the fields of ``P``
-        (a slotted dataclass, :class:`~links1_mitsuba.prepared.Prepared`) and what they hold
-        through dicts, lists, tuples and objects' ``__dict__``. An object with its own traversal
-        callbacks is not walked, as freeze walks it through them: a
-        :class:`~links1_mitsuba.util.Hidden` (``ParamWatch``: nothing) or :class:`SceneInputs`
-        (the launch's scene input)."""
-        if getattr(P, "frozen_inputs", None) is None:
-            found, seen = [], set()
-
-            def walk(x, depth=0):
-                if depth > 12 or id(x) in seen:
-                    return
-                seen.add(id(x))
-                if dr.is_array_v(x):
-                    found.append(x)
-                elif isinstance(x, dict):
-                    for v in x.values():
-                        walk(v, depth + 1)
-                elif isinstance(x, (list, tuple)):
-                    for v in x:
-                        walk(v, depth + 1)
-                elif hasattr(x, "_traverse_1_cb_ro"):
-                    pass   # an object that hands freeze its own variables (Hidden: none)
-                elif hasattr(x, "__dict__") and not isinstance(x, (mi.Object, type)) \
-                        and not callable(x):
-                    for v in vars(x).values():
-                        walk(v, depth + 1)
-                elif dataclasses.is_dataclass(x) and not isinstance(x, type):
-                    # a dataclass with slots (prepared.Prepared): its fields that are set
-                    for f in dataclasses.fields(x):
-                        walk(getattr(x, f.name, None), depth + 1)
-            walk(P)
-            P.frozen_inputs = found
-        return P.frozen_inputs
-
     def _frozen_fn(self):
         """The launch as a :func:`drjit.freeze` function of run-time inputs (sample ids,
         sample count, seeds: ``UInt32``; the per-scene tables): recorded once per
@@ -359,56 +334,62 @@ class Launches:
         values; a switch changed after a recording makes another one) and replayed without
         re-tracing for any pixel set, window or batch size and spp (freeze replays recorded
         kernels at the widths of the new inputs)."""
-        if self._freeze is None:
-            def launch_kernels(sid, n_op, spp, seeds, cfg, tables, scene_input, caller):
-                # no closure: freeze would traverse it (the engine, the scene ...); they come
+        if self.window_launch is None:
+            def launch_kernels(sid, n_op, spp, seeds, cfg, table_inputs, scene_input, caller):
+                # no closure: freeze would traverse it (the tracer, the scene ...); they come
                 # in the caller (_call_frozen)
-                self, P = caller.engine, caller.tables
+                tables = caller.tables
                 want = cfg[2]
-                o, d, tmin, tmax, key, sample = self._camera_rays(P, sid, spp, seeds)
-                total, cost, t0, s0, n0, counters = self._tracer().trace_tree(
-                    P, caller.scene, o, d, tmin, tmax, key, want, sample, frozen=n_op)
+                o, d, tmin, tmax, key, sample = camera_rays(tables, sid, spp, seeds)
+                total, cost, t0, s0, n0, counters = caller.tracer.trace_tree(
+                    tables, caller.scene, o, d, tmin, tmax, key, want, sample, frozen=n_op)
                 return (total, cost, t0, s0, n0, counters) if want else (total, cost, counters)
-            self._freeze = dr.freeze(launch_kernels, warn_after=1000)
-        return self._freeze
+            self.window_launch = dr.freeze(launch_kernels, warn_after=1000)
+        return self.window_launch
 
     def _frozen_points_fn(self):
         """:meth:`trace_points` as a :func:`drjit.freeze` function (film positions and keys
         are run-time inputs): recorded once per configuration, replayed for any point count."""
-        if self._freeze_points is None:
-            def launch_points(xf, yf, key, n_op, cfg, tables, scene_input, caller):
-                self, P = caller.engine, caller.tables
-                o, d, tmin, tmax = self._rays_at(P, xf, yf, key)
-                total, cost, _, _, _, counters = self._tracer().trace_tree(
-                    P, caller.scene, o, d, tmin, tmax, key, False, None, frozen=n_op)
+        if self.point_launch is None:
+            def launch_points(xf, yf, key, n_op, cfg, table_inputs, scene_input, caller):
+                tables = caller.tables
+                o, d, tmin, tmax = rays_at(tables, xf, yf, key)
+                total, cost, _, _, _, counters = caller.tracer.trace_tree(
+                    tables, caller.scene, o, d, tmin, tmax, key, False, None, frozen=n_op)
                 return total, cost, counters
-            self._freeze_points = dr.freeze(launch_points, warn_after=1000)
-        return self._freeze_points
+            self.point_launch = dr.freeze(launch_points, warn_after=1000)
+        return self.point_launch
 
+    def _key(self, tables, scene, tracer, *more) -> tuple:
+        """A frozen launch's configuration (hashed by freeze): the tables and scene by id,
+        ``more``, the depth and weight threshold, the frame's switches as one number."""
+        return (id(tables), id(scene), *more, int(self.config.max_depth), float(self.config.min_weight),
+                tracer.tuning.key())
+
+    # -------------------------------------------------------------- launches
     @interruptible
-    def trace_points(self, scene, xf, yf, keys, sensor=None):
+    def trace_points(self, tables, scene, tracer, xf, yf, keys):
         """Radiance and cost of the camera rays through film positions ``(xf, yf)`` (numpy,
         fractions of the film, row 0 at the top), ray-tree keys ``keys`` (uint32): the
         lattice points of adaptive anti-aliasing (:mod:`links1.tracing.adaptive`). Light samples at
         the primary hit follow the key alone, as in the core's ``trace(keys=...)``.
         Returns ``(L (n, 3) float64, cost (n,) float64)``; launches of at most
-        ``LAUNCH_LANES`` points. ``sensor``: see :meth:`prepare` (None: the scene's first)."""
-        P = self.prepare(scene, sensor)
+        ``LAUNCH_LANES`` points."""
         L, cost, counts = [np.zeros((0, 3))], [np.zeros(0)], []
         for a in range(0, len(xf), LAUNCH_LANES):
             b = min(a + LAUNCH_LANES, len(xf))
             x = mi.Float(aligned(xf[a:b], np.float32))
             y = mi.Float(aligned(yf[a:b], np.float32))
             key = mi.UInt32(aligned(keys[a:b], np.uint32))
-            if self.use_freeze:
-                cfg = (id(P), id(scene), int(self.max_depth), float(self.min_weight), self.current_tuning().key())
-                total, c, counters = self._call_frozen(self._frozen_points_fn(), P, scene, x, y, key,
+            if self.config.use_freeze:
+                cfg = self._key(tables, scene, tracer)
+                total, c, counters = self._call_frozen(self._frozen_points_fn(), tables, scene, tracer, x, y, key,
                                                        dr.opaque(mi.UInt32, b - a), cfg,
-                                                       self._frozen_inputs(P))
+                                                       frozen_inputs(tables))
             else:
-                o, d, tmin, tmax = self._rays_at(P, x, y, key)
-                total, c, _, _, _, counters = self._tracer().trace_tree(P, scene, o, d, tmin, tmax, key,
-                                                                        False, None)
+                o, d, tmin, tmax = rays_at(tables, x, y, key)
+                total, c, _, _, _, counters = tracer.trace_tree(tables, scene, o, d, tmin, tmax, key,
+                                                                False, None)
             L.append(_columns(total, b - a).astype(np.float64))
             cost.append(_lanes(c, b - a).astype(np.float64))
             counts.append(self._launch_counts(b - a, counters))
@@ -417,79 +398,45 @@ class Launches:
             self._set_stats(counts)
         return np.concatenate(L), np.concatenate(cost)
 
-    def _launch(self, P, scene, sid, spp_, seeds, want, mode=dr.ADMode.Primal):
+    def _launch(self, tables, scene, tracer, sid, spp_, seeds, want, mode=dr.ADMode.Primal):
         """One launch over the sample ids ``sid`` (a ``UInt32`` array) -> (its device outputs
         ``total``, ``cost`` and with ``want`` ``t0``, ``s0``, ``n0``, each with one lane per
         sample; its ray counters). ``mode``: ``dr.ADMode.Primal`` (the frozen launch) or a
         derivative pass's (gradients.py)."""
         n = dr.width(sid)
         if mode != dr.ADMode.Primal:   # a derivative pass (gradients.py): unfrozen, no AOVs
-            o, d, tmin, tmax, key, sample = self._camera_rays(P, sid, spp_, seeds)
+            o, d, tmin, tmax, key, sample = camera_rays(tables, sid, spp_, seeds)
             # (the samples' RGB evaluated in one kernel: the film's gather would evaluate each
             # channel alone, recomputing the shading of the ray tree three times)
-            total = trace_tree_ad(self._tracer(), P, scene, o, d, tmin, tmax, key, sample)
+            total = trace_tree_ad(tracer, tables, scene, o, d, tmin, tmax, key, sample)
             return {"total": total, "cost": dr.zeros(mi.UInt32, n)}, (n, dict(nsh1=None))
-        if self.use_freeze:
-            cfg = (id(P), id(scene), want, int(self.max_depth), float(self.min_weight),
-                   self.current_tuning().key())
-            out = self._call_frozen(self._frozen_fn(), P, scene, sid, dr.opaque(mi.UInt32, n), spp_, seeds,
-                                    cfg, self._frozen_inputs(P))
+        if self.config.use_freeze:
+            cfg = self._key(tables, scene, tracer, want)
+            out = self._call_frozen(self._frozen_fn(), tables, scene, tracer, sid, dr.opaque(mi.UInt32, n),
+                                    spp_, seeds, cfg, frozen_inputs(tables))
             total, cost, counters = out[0], out[1], out[-1]
             t0, s0, n0 = out[2:5] if want else (None, None, None)
         else:
-            o, d, tmin, tmax, key, sample = self._camera_rays(P, sid, spp_, seeds)
-            total, cost, t0, s0, n0, counters = self._tracer().trace_tree(P, scene, o, d, tmin, tmax, key,
-                                                                          want, sample)
+            o, d, tmin, tmax, key, sample = camera_rays(tables, sid, spp_, seeds)
+            total, cost, t0, s0, n0, counters = tracer.trace_tree(tables, scene, o, d, tmin, tmax, key,
+                                                                  want, sample)
         part = {"total": widen(total, n), "cost": widen(cost, n)}
         if want:
             part.update(t0=widen(t0, n), s0=widen(s0, n), n0=widen(n0, n))
         return part, self._launch_counts(n, counters)
 
-    def render_adaptive(self, scene, window=None, seed=None, aovs=None, threshold=None, depth=None,
-                        sensor=None):
-        """Adaptive anti-aliasing of ``window`` (:func:`links1.tracing.adaptive.render_adaptive_window`,
-        as the core): one :meth:`trace_points` launch per refinement level; AOVs depth,
-        normal, id at the pixel centres (an spp-1 :meth:`render_window`)."""
-        from links1.tracing.adaptive import render_adaptive_window
-        P = self.prepare(scene, sensor)
-        sensor = P.sensor
-        W, H = P.film_size
-        win = (0, 0, W, H) if window is None else tuple(int(v) for v in window)
-        seed = self.seed if seed is None else int(seed)
-        aovs = self.aovs if aovs is None else parse_aovs(aovs)
-        threshold = self.adaptive if threshold is None else threshold
-        depth = self.adaptive_depth if depth is None else depth
-        if threshold is None:
-            raise ValueError("links1_whitted: no adaptive threshold (give adaptive=...)")
-        return render_adaptive_window(
-            lambda xf, yf, keys: self.trace_points(scene, xf, yf, keys, sensor=sensor),
-            lambda w, names: self.render_window(scene, w, spp=1, seed=seed, aovs=list(names),
-                                                sensor=sensor)[..., 3:],
-            win, (W, H), threshold, depth, seed, aovs, rfilter=P.rfilter)
-
-    def render_window(self, scene, window=None, spp=1, seed=None, aovs=None, sensor=None):
-        """Render ``window = (x0, y0, w, h)`` of the full film (row 0 at the top).
-
-        Returns a float64 ndarray ``(h, w, 3 + aov channels)``: the pixel's ``spp`` samples
-        at the positions of :mod:`links1.maths.sampling` and those of its neighbours within the
-        film's reconstruction filter, weighted by it (:mod:`links1.sensor.filters`; box: the mean).
-        ``sensor``: an index into ``scene.sensors()`` or a sensor object (None: the first):
-        its camera, film size and filter (:meth:`prepare`).
-        """
-        return self.render_windows(scene, [window], spp=spp, seed=seed, aovs=aovs, sensor=sensor)[0]
-
-    def window_samples(self, scene, window=None, spp=1, seed=None, aovs=None, sensor=None):
+    def window_samples(self, tables, scene, tracer, window=None, spp=1, seed=None, aovs=None):
         """The samples a window's pixels are made of, as numpy (for checks and debugging):
         ``(sample_window, {"total": (sh, sw, spp, 3), "cost": (sh, sw, spp)`` and with AOVs
         ``"t0", "s0", "n0"``: the launch's per-sample outputs, float32 / int32``})``."""
-        P = self.prepare(scene, sensor)
-        W, H = P.film_size
+        W, H = tables.film_size
         win = (0, 0, W, H) if window is None else tuple(int(v) for v in window)
-        swin = win if P.rfilter.border == 0 else sample_window(P.rfilter, win, (W, H))
-        seed = self.seed if seed is None else int(seed)
-        want = bool(self.aovs if aovs is None else parse_aovs(aovs))
+        swin = win if tables.rfilter.border == 0 else sample_window(tables.rfilter, win, (W, H))
+        seed = self.config.seed if seed is None else int(seed)
+        want = bool(self.config.aovs if aovs is None else parse_aovs(aovs))
         sid = sample_ids(W, int(spp), Batch([win], [swin], spp))
-        part, _ = self._launch(P, scene, sid, (dr.opaque(mi.UInt32, spp), dr.opaque(mi.UInt32, strata(spp))),
+        part, _ = self._launch(tables, scene, tracer, sid,
+                               (dr.opaque(mi.UInt32, spp), dr.opaque(mi.UInt32, strata(spp))),
                                (dr.opaque(mi.UInt32, seed & 0xFFFFFFFF),
                                 dr.opaque(mi.UInt32, key_seed(seed))), want)
         shape = (swin[3], swin[2], int(spp))
@@ -499,20 +446,20 @@ class Launches:
         return swin, out
 
     @interruptible
-    def render_windows(self, scene, windows, spp=1, seed=None, aovs=None, sensor=None):
+    def render_windows(self, tables, scene, tracer, windows, spp=1, seed=None, aovs=None):
         """Render several windows of the film in one launch -> one float64 ndarray ``(h, w,
-        3 + aov channels)`` per window, each exactly what :meth:`render_window` returns for it
-        (pixels are independent lanes). The frame is made on the device
+        3 + aov channels)`` per window, each exactly what ``Engine.render_window`` returns for
+        it (pixels are independent lanes). The frame is made on the device
         (:meth:`render_windows_device`) and copied to numpy once, at the end."""
-        flat, C, batch = self._render_flat(scene, windows, spp, seed, aovs, sensor, mi.Float64, None,
+        flat, C, batch = self._render_flat(tables, scene, tracer, windows, spp, seed, aovs, mi.Float64,
                                            dr.ADMode.Primal)
         a = flat.numpy()
         return [a[p * C:(p + w * h) * C].reshape(h, w, C)
                 for p, (_, _, w, h) in zip(batch.pixel_start, batch.wins)]
 
     @interruptible
-    def render_windows_device(self, scene, windows, spp=1, seed=None, aovs=None, sensor=None,
-                              dtype=None, tables=None, mode=dr.ADMode.Primal):
+    def render_windows_device(self, tables, scene, tracer, windows, spp=1, seed=None, aovs=None,
+                              dtype=None, mode=dr.ADMode.Primal):
         """:meth:`render_windows` on the device: one tensor ``(h, w, C)`` per window, of
         ``dtype`` (``mi.Float``: ``mi.TensorXf``; ``mi.Float64``: ``mi.TensorXf64``), never
         visiting numpy (:mod:`links1_mitsuba.film`: sample ids, the reconstruction filter, spp
@@ -522,12 +469,12 @@ class Launches:
         device from the windows' tables (:class:`~links1_mitsuba.film.Batch`), so no window offset, window size, batch size or
         sample count enters the recorded kernels: one recording per configuration, then
         replays (:meth:`_frozen_fn`); the film's kernels are cached likewise. ``tables``: the
-        prepared tables to use instead of :meth:`prepare`'s (a derivative pass's, gradients.py),
+        camera view to render (``Tables.prepare``'s, or a derivative pass's, gradients.py);
         ``mode``: ``dr.ADMode.Primal``, or the derivative pass's mode (gradients.py: the ray
         tree traced level by level, the film's loops evaluated, no AOVs).
         """
-        flat, C, batch = self._render_flat(scene, windows, spp, seed, aovs, sensor,
-                                           mi.Float if dtype is None else dtype, tables, mode)
+        flat, C, batch = self._render_flat(tables, scene, tracer, windows, spp, seed, aovs,
+                                           mi.Float if dtype is None else dtype, mode)
         Tensor = mi.TensorXf64 if type(flat) is mi.Float64 else mi.TensorXf
         if len(batch.wins) == 1:
             _, _, w, h = batch.wins[0]
@@ -535,11 +482,10 @@ class Launches:
         return [Tensor(dr.gather(type(flat), flat, dr.arange(mi.UInt32, w * h * C) + dr.opaque(mi.UInt32, p * C)),
                        shape=(h, w, C)) for p, (_, _, w, h) in zip(batch.pixel_start, batch.wins)]
 
-    def _render_flat(self, scene, windows, spp, seed, aovs, sensor, dtype, tables, mode):
+    def _render_flat(self, tables, scene, tracer, windows, spp, seed, aovs, dtype, mode):
         """The windows' pixels as one flat ``dtype`` array, window after window, with their
         channel count and :class:`~links1_mitsuba.film.Batch` (for the callers above)."""
-        P = self.prepare(scene, sensor) if tables is None else tables
-        W, H = P.film_size
+        W, H = tables.film_size
         wins = []
         for window in windows:
             x0, y0, w, h = (0, 0, W, H) if window is None else (int(v) for v in window)
@@ -549,15 +495,15 @@ class Launches:
         spp = int(spp)
         if W * H * spp >= 2 ** 32:
             raise ValueError(f"{W}x{H} pixels x {spp} samples exceed the 32-bit sample ids")
-        seed = self.seed if seed is None else int(seed)
-        aovs = self.aovs if aovs is None else parse_aovs(aovs)
+        seed = self.config.seed if seed is None else int(seed)
+        aovs = self.config.aovs if aovs is None else parse_aovs(aovs)
         ad = mode != dr.ADMode.Primal
         if ad:
             aovs = []   # a derivative pass differentiates the RGB channels
         want = bool(aovs)
         # each window traces the samples of its filter border too (clipped to the film)
-        box = P.rfilter.border == 0
-        swins = wins if box else [sample_window(P.rfilter, win, (W, H)) for win in wins]
+        box = tables.rfilter.border == 0
+        swins = wins if box else [sample_window(tables.rfilter, win, (W, H)) for win in wins]
         batch = cached_batch(self.batches, wins, swins, spp)
         n = batch.lanes
         sid = sample_ids(W, spp, batch)
@@ -567,14 +513,15 @@ class Launches:
         # launches of at most LAUNCH_LANES samples (lanes are independent: the same bits as
         # one launch); one launch of W*H*spp lanes needs ~90 bytes each (512², 1024 spp: 24 GB)
         if n <= LAUNCH_LANES:
-            parts, counts = self._launch(P, scene, sid, spp_, seeds, want, mode)
+            parts, counts = self._launch(tables, scene, tracer, sid, spp_, seeds, want, mode)
             counts = [counts]
         else:
             dr.eval(sid)
             lanes = lambda a: dr.arange(mi.UInt32, min(LAUNCH_LANES, n - a)) + dr.opaque(mi.UInt32, a)  # noqa: E731
             chunks = []
             for a in range(0, n, LAUNCH_LANES):
-                chunks.append(self._launch(P, scene, dr.gather(mi.UInt32, sid, lanes(a)), spp_, seeds, want, mode))
+                chunks.append(self._launch(tables, scene, tracer, dr.gather(mi.UInt32, sid, lanes(a)), spp_, seeds,
+                                           want, mode))
                 _between_launches()
             counts = [c for _, c in chunks]
             parts = {}
@@ -586,6 +533,6 @@ class Launches:
                 else:
                     parts[key] = concat(vals, n, type(vals[0]))
         self._set_stats(counts)
-        flat, C = reconstruct(P.rfilter, (W, H), spp, seed, batch, parts, aovs, dtype,
+        flat, C = reconstruct(tables.rfilter, (W, H), spp, seed, batch, parts, aovs, dtype,
                               mode="evaluated" if ad else None)
         return flat, C, batch

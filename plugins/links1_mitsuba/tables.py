@@ -3,8 +3,8 @@ into what the kernels read (slots in file order, ray offsets, materials, shadow 
 emission, lights, camera, custom shapes, their BVH and light buffers), rebuilt only when the scene changes
 (:class:`~links1_mitsuba.paramwatch.ParamWatch`: by the Dr.Jit variables of its parameters,
 nothing read back). Its neighbours by job: the tables' schema (prepared.py), the parameter watch
-(paramwatch.py), the camera views (views.py, a base class of :class:`Tables`), which shadow rays
-a scene needs (shadow_plan.py), the analytic lights' entries (lights.py).
+(paramwatch.py), the camera views (views.py), which shadow rays a scene needs (shadow_plan.py),
+the analytic lights' entries (lights.py), the links1 shapes (sceneshapes.py).
 
 What a scene doesn't need is not traced (decided once per scene in ``prepare``): no
 refraction code without transmissive surfaces, no reflection without reflective ones, no loop
@@ -12,8 +12,9 @@ at all without either, no custom-shape code without custom shapes, no blob solve
 blobs, no shadow ray toward a light from a hit that no shape can shadow (``shadow_plan``: a
 lone convex shape, a floor below every other shape and the light, ...).
 
-:class:`Tables` is a base class of the ``Engine`` (engine.py); its methods name
-``mi.Float``, ``mi.Ray3f``, ... when called, so the class serves every Mitsuba variant.
+:class:`Tables` is one part of the ``Engine`` (engine.py), which hands each ``prepare`` the
+frame's switches; its methods name ``mi.Float``, ``mi.Ray3f``, ... when called, so the class
+serves every Mitsuba variant.
 """
 from __future__ import annotations
 
@@ -26,7 +27,7 @@ from links1.shading.lights import ENV_LIGHT_ID, number_area_lights
 import drjit as dr
 import mitsuba as mi
 
-from . import lightbuffer, proxies
+from . import lightbuffer, proxies, views
 from .bvh import QuadricBVH
 from .lights import ConstantEnvRecord, EnvMapRecord, analytic_light, area_table, envmap_table
 from .paramwatch import ParamWatch
@@ -34,7 +35,6 @@ from .prepared import PHONG_TABLES, Prepared
 from .registered import plugin_class
 from .shadow_plan import plan_occluders, shadow_split
 from .util import checked_index, kind_of
-from .views import CameraViews
 
 #: Relative ray-origin offset on shapes whose float32 hits are accurate to a few ulps
 #: (meshes, rectangles, disks, links1 quadrics): a small offset keeps shadow rays that graze
@@ -92,51 +92,73 @@ def scene_identity(scene):
     return tuple(ids)
 
 
-class Tables(CameraViews):
-    """``prepare``: the per-scene tables, brought up to changes in place where it can."""
+class Tables:
+    """``prepare``: the per-scene tables, brought up to changes in place where it can, and
+    their camera views. Given the integrator's parameters ``config`` (``verify_scene``), its
+    links1 shapes ``shapes`` (:class:`~.sceneshapes.SceneShapes`) and its launches
+    (:class:`~.launch.Launches`: their recordings start anew when the tables they read are
+    replaced or a constant of their kernels changes)."""
 
-    __slots__ = ()
+    __slots__ = (
+        "config", "shapes", "launches",
+        "last",            # the last prepared camera view (prepared.CameraView), or None
+        # -- counters (tests and benchmarks read them through Engine.info())
+        "n_scene_builds", "n_camera_views", "n_value_updates",
+    )
 
-    def prepare(self, scene, sensor=None):
+    def __init__(self, config, shapes, launches):
+        self.config = config
+        self.shapes = shapes
+        self.launches = launches
+        self.last = None
+        self.n_scene_builds = self.n_camera_views = self.n_value_updates = 0
+
+    def forget(self):
+        """The next :meth:`prepare` checks nothing against the last tables: it builds them."""
+        self.last = None
+
+    def prepare(self, scene, sensor, tuning):
         """The tables of ``scene`` seen from ``sensor`` (a sensor object, an index into
         ``scene.sensors()``, or None: the scene's first sensor), rebuilt when the scene is
-        another one or was changed.
+        another one or was changed; ``tuning``: the frame's switches (:class:`~.tuning.Tuning`).
 
         The scene's tables (shapes, materials, lights, shadow rays) are keyed on what they
         are built from, never on ``id(scene)``: the registry ids of the scene's shapes,
-        emitters and sensors (P keeps those objects alive, so no other scene can reuse the
+        emitters and sensors (the tables keep those objects alive, so no other scene can reuse the
         ids), the part of the tuning they are built from (``tuning.Tuning.tables_key``: light
         buffers, BVH), and, while ``verify_scene``, every parameter ``mi.traverse`` exposes, watched
         by its Dr.Jit variables (:class:`ParamWatch`: a ``params.update()`` after a render
         is seen, and nothing is read back from the device). ``n_scene_builds`` and
         ``n_camera_views`` count the tables built. Each sensor gets its own
-        view of them (``views.CameraViews._camera_view``: camera, film, filter, eye buffer) as a distinct
+        view of them (``views.camera_view``: camera, film, filter, eye buffer) as a distinct
         object, so a frozen launch recorded for one sensor's camera (``cfg`` holds the
         view's id) is never replayed for another."""
-        self.adopt(scene)
+        if self.shapes.adopt(scene):     # another plainly loaded scene: its links1 shapes
+            self.last = None
         ident = scene_identity(scene)
-        V = self._prep
-        B = getattr(V, "base", None)
-        same = B is not None and B.ident == ident and B.tuning.tables_key() == self.current_tuning().tables_key()
-        if same and (not self.verify_scene or B.watch.unchanged(scene)):
+        base = getattr(self.last, "base", None)
+        same = base is not None and base.ident == ident and base.tuning.tables_key() == tuning.tables_key()
+        if same and (not self.config.verify_scene or base.watch.unchanged(scene)):
             pass
-        elif not (same and self._update_values(B, scene)):
-            # (after _update_values, B's watch knows which parameters changed: the new watch
-            # reads only those again)
-            B = self._prepare_scene(scene, ident, B.watch if same else None)
-        V = self._camera_view(B, scene, self._sensor_of(scene, sensor))
-        self._prep = V
-        return V
+        elif not (same and self._update_values(base, scene)):
+            # (after _update_values, the base's watch knows which parameters changed: the new
+            # watch reads only those again)
+            base = self._prepare_scene(scene, ident, tuning, base.watch if same else None)
+        view, made = views.camera_view(base, scene, views.sensor_of(scene, sensor), self.config.verify_scene,
+                                       self.shapes.place)
+        self.n_camera_views += made
+        self.last = view
+        return view
 
-    def _update_values(self, B, scene) -> bool:
-        """The tables ``B`` brought up to a change of ``links1_phong`` coefficients, analytic
+    def _update_values(self, base, scene) -> bool:
+        """The tables ``base`` brought up to a change of ``links1_phong`` coefficients, analytic
         lights or links1 shapes' geometry only (``params.update()``
         re-prepares what the change touches), in place:
 
         - coefficients: the material rows re-read from the BSDFs; the frozen launch is kept
           (the rows are its inputs);
         - a light's values (a ``links1_point``'s or ``links1_spot``'s, a Mitsuba point, spot or
-          directional emitter's own parameters): its ``P.lights`` entry and the tables planned
+          directional emitter's own parameters): its ``base.lights`` entry and the tables planned
           from the lights' places (:meth:`_shadow_tables`: shadow rays, light buffers); the
           frozen launches start anew (the lights are constants in their kernels);
         - a sensor's values (its ``to_world``, its film's size and crop): its camera view only
@@ -158,9 +180,9 @@ class Tables(CameraViews):
         slots reflect or have ambient light: the kernels traced). ``n_value_updates`` counts
         the updates. Called by :meth:`prepare` only for tables of this scene and
         tuning, while ``verify_scene``, whose watch saw a change."""
-        changed = B.watch.changed(scene)
+        changed = base.watch.changed(scene)
         Phong = plugin_class("links1_phong")
-        Pt, Sp = plugin_class("links1_point"), plugin_class("links1_spot")
+        point_class, spot_class = plugin_class("links1_point"), plugin_class("links1_spot")
         if not changed:
             return False
         phong = any(isinstance(node, Phong) for _, node in changed)
@@ -172,106 +194,107 @@ class Tables(CameraViews):
             if node is scene.integrator():    # the links1 shapes' geometry (integrator.traverse)
                 geo = True
                 continue
-            owner = self._sensor_owning(B, node)
+            owner = views.sensor_owning(base, node)
             if owner is not None:
                 if not any(owner is c for c in cams):
                     cams.append(owner)
                 continue
-            if not (isinstance(node, (Pt, Sp)) or isinstance(node, mi.Emitter)
+            if not (isinstance(node, (point_class, spot_class)) or isinstance(node, mi.Emitter)
                     and kind_of(node) in ("PointLight", "SpotLight", "DirectionalEmitter")):
                 return False
             light = True
         quad = None
         if geo:
-            quad = self._bvh_quadrics(B)
-            if frozenset(sp.slot for sp in quad) != B.bvh_slots:
+            quad = self._bvh_quadrics(base)
+            if frozenset(sp.slot for sp in quad) != base.bvh_slots:
                 return False      # another split of the quadrics (one became unbounded)
         new, now = {}, None
         if phong:
-            names = {k: PHONG_TABLES[k][0] for k in B.phong_np}   # (the transmittance: below)
-            now = {k: np.zeros_like(v) for k, v in B.phong_np.items()}
-            trans = np.zeros((B.nslots, 3))
-            for sl, b in enumerate(B.keep_alive[3]):
+            names = {k: PHONG_TABLES[k][0] for k in base.phong_np}   # (the transmittance: below)
+            now = {k: np.zeros_like(v) for k, v in base.phong_np.items()}
+            trans = np.zeros((base.nslots, 3))
+            for sl, b in enumerate(base.keep_alive[3]):
                 if isinstance(b, Phong):
                     p = b.params
                     for k, name in names.items():
                         now[k][sl] = p[name]
                     trans[sl] = p["transmittance"]
-            if not (np.array_equal(trans, B.shadow_t_np) and bool(np.any(now["amb"] > 0)) == B.any_ambient
-                    and bool(np.any(now["refl"].max(1) > 0)) == B.any_phong_r):
+            if not (np.array_equal(trans, base.shadow_t_np) and bool(np.any(now["amb"] > 0)) == base.any_ambient
+                    and bool(np.any(now["refl"].max(1) > 0)) == base.any_phong_r):
                 return False
             # the tables whose values changed, made as _prepare_scene makes them (the same bits)
-            new = {k: mi.Float(v.ravel()) for k, v in now.items() if not np.array_equal(v, B.phong_np[k])}
+            new = {k: mi.Float(v.ravel()) for k, v in now.items() if not np.array_equal(v, base.phong_np[k])}
         if light:
             lights = [L for e in scene.emitters()
-                      for L in [analytic_light(e, kind_of(e), Pt, Sp, B, self.place)] if L is not None]
-            if len(lights) != len(B.lights):
+                      for L in [analytic_light(e, kind_of(e), point_class, spot_class, base, self.shapes.place)]
+                      if L is not None]
+            if len(lights) != len(base.lights):
                 return False
-            B.lights = lights
+            base.lights = lights
         if geo:
-            self._shape_tables(B, quad)
+            self._shape_tables(base, quad)
         if light or geo:
-            self._shadow_tables(B, scene, B.shape_list, B.slot_list, reuse=not geo)
-            self._freeze = self._freeze_points = None
+            self._shadow_tables(base, scene, base.shape_list, base.slot_list, reuse=not geo)
+            self.launches.forget()
         for k, v in new.items():
-            setattr(B, k, v)
+            setattr(base, k, v)
         if now is not None:
-            B.phong_np = now
-        if cams and self._refresh_cameras(B, scene, cams, geo):
-            self._freeze = self._freeze_points = None   # (the camera is a constant of their kernels)
-        # the camera views read the new tables through B; of their own fields, the eye's
+            base.phong_np = now
+        if cams and views.refresh_cameras(base, scene, cams, geo, self.shapes.place):
+            self.launches.forget()   # (the camera is a constant of their kernels)
+        # the camera views read the new tables through base; of their own fields, the eye's
         # buffer follows the geometry and the launch's inputs are gathered again
-        for P in (B, *B.views.values()) if phong or light or geo else ():
-            if geo and P is not B:   # the camera rays' buffer around the eye (_camera_view)
-                P.eye_buf = lightbuffer.plan_eye(P, scene) if B.tuning.light_buffer else None
-            P.frozen_inputs = None       # gathered again: the new arrays are the launch's inputs
-            if light or geo or not B.all_phong or B.any_mitsuba_emission:
-                P.scene_input = None     # the scene's variables (the BSDFs' new values) too
+        for view in (base, *base.views.values()) if phong or light or geo else ():
+            if geo and view is not base:   # the camera rays' buffer around the eye (views.camera_view)
+                view.eye_buf = lightbuffer.plan_eye(view, scene) if base.tuning.light_buffer else None
+            view.frozen_inputs = None       # gathered again: the new arrays are the launch's inputs
+            if light or geo or not base.all_phong or base.any_mitsuba_emission:
+                view.scene_input = None     # the scene's variables (the BSDFs' new values) too
             # (all links1_phong: the launch's scene input leaves them out, launch._unread_bsdfs)
-        B.watch = B.watch.renewed(scene)
+        base.watch = base.watch.renewed(scene)
         self.n_value_updates += 1
         return True
 
-    def _prepare_scene(self, scene, ident, watch=None):
-        """The tables of ``scene`` that do not depend on the sensor (:meth:`prepare`); ``watch``:
-        the last tables' (:meth:`ParamWatch.renewed`), or None."""
-        P = Prepared()
-        P.ident = ident
-        P.tuning = self.current_tuning()     # what the tables are built with (tables_key)
+    def _prepare_scene(self, scene, ident, tuning, watch=None):
+        """The tables of ``scene`` that do not depend on the sensor (:meth:`prepare`), built with
+        ``tuning``; ``watch``: the last tables' (:meth:`ParamWatch.renewed`), or None."""
+        base = Prepared()
+        base.ident = ident
+        base.tuning = tuning     # what the tables are built with (tables_key)
         # before the tables read the parameters
-        P.watch = ParamWatch(scene) if watch is None else watch.renewed(scene)
+        base.watch = ParamWatch(scene) if watch is None else watch.renewed(scene)
         self.n_scene_builds += 1
-        P.keep_alive = (list(scene.shapes()), list(scene.emitters()), list(scene.sensors()))  # see scene_identity
-        P.views, P.obj_params = {}, {}
-        # recordings hold the previous tables, and their key names the tables by id(P): a new
-        # P may get a dead one's id, so both frozen launches start anew
-        self._freeze = self._freeze_points = None
-        shapes, slot_list, nslots, P.member_slots = self._mitsuba_shapes(scene)
-        P.shape_list, P.slot_list = shapes, slot_list
-        P.nslots = nslots
-        P.custom = self.custom
+        base.keep_alive = (list(scene.shapes()), list(scene.emitters()), list(scene.sensors()))  # see scene_identity
+        base.views, base.obj_params = {}, {}
+        # recordings hold the previous tables, and their key names the tables by id(base): a new
+        # base may get a dead one's id, so both frozen launches start anew
+        self.launches.forget()
+        shapes, slot_list, nslots, base.member_slots = self._mitsuba_shapes(scene)
+        base.shape_list, base.slot_list = shapes, slot_list
+        base.nslots = nslots
+        base.custom = self.shapes.custom
         # registry id -> slot
         reg = [int(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(s))[0]) for s in shapes]
         table = np.full(max(reg + [0]) + 1, -1, dtype=np.int32)
         for r, sl in zip(reg, slot_list):
             table[r] = sl
-        P.reg_to_slot = mi.Int32(checked_index(table, nslots, "reg_to_slot", sentinel=-1))
-        P.any_mitsuba_shapes = len(shapes) > 0
+        base.reg_to_slot = mi.Int32(checked_index(table, nslots, "reg_to_slot", sentinel=-1))
+        base.any_mitsuba_shapes = len(shapes) > 0
         eps_np = np.full(max(nslots, 1), float(mi.math.RayEpsilon), dtype=np.float32)
         for s_, sl in zip(shapes, slot_list):
             if s_.is_mesh() or kind_of(s_) in _PRECISE_MITSUBA:
                 eps_np[sl] = OFFSET_EPS
-        for spec in self.custom:
+        for spec in self.shapes.custom:
             if spec.__class__.__name__ == "QuadricSpec":
                 eps_np[spec.slot] = OFFSET_EPS
-        P.eps_table = mi.Float(eps_np)
+        base.eps_table = mi.Float(eps_np)
         # materials
         default_bsdf = None
         bsdfs = [None] * nslots
         for s, sl in zip(shapes, slot_list):
             bsdfs[sl] = s.bsdf()
-        for spec in self.custom:
-            b = self.custom_bsdfs.get(spec.slot)
+        for spec in self.shapes.custom:
+            b = self.shapes.custom_bsdfs.get(spec.slot)
             if b is None:
                 if default_bsdf is None:
                     default_bsdf = mi.load_dict({"type": "diffuse"})
@@ -318,25 +341,25 @@ class Tables(CameraViews):
                 if fl & int(mi.BSDFFlags.Glossy):
                     glossy[sl] = True
                     name = kind_of(b)
-                    where = self.place(b)
+                    where = self.shapes.place(b)
                     if (where, name) not in warned:     # once per element
                         warned.add((where, name))
                         warnings.warn(f"{where}: BSDF {name} has glossy lobes; it gets direct "
                                       "light only (its glossy interreflections are not Whitted's light paths)",
                                       stacklevel=2)
-        P.is_phong_np = is_phong
-        P.all_phong = bool(is_phong.all())
-        P.any_phong = bool(is_phong.any())
-        P.is_phong = mi.Bool(is_phong)
-        P.amb, P.dif, P.spe = (mi.Float(a.ravel()) for a in (amb, dif, spe))
-        P.refl, P.trans = mi.Float(refl.ravel()), mi.Float(trans.ravel())
-        P.expo, P.ior = mi.Float(expo), mi.Float(ior)
-        P.phong_np = dict(amb=amb, dif=dif, spe=spe, refl=refl, expo=expo, ior=ior)
-        P.any_ambient = bool(np.any(amb > 0))
-        P.has_dr, P.has_dt, P.has_null = mi.Bool(has_dr), mi.Bool(has_dt), mi.Bool(has_null)
-        P.any_mitsuba_dr, P.any_mitsuba_dt = bool(has_dr.any()), bool(has_dt.any())
-        P.any_mitsuba_null = bool(has_null.any())
-        P.any_mitsuba_delta = bool(np.any(has_dr | has_dt | has_null))
+        base.is_phong_np = is_phong
+        base.all_phong = bool(is_phong.all())
+        base.any_phong = bool(is_phong.any())
+        base.is_phong = mi.Bool(is_phong)
+        base.amb, base.dif, base.spe = (mi.Float(a.ravel()) for a in (amb, dif, spe))
+        base.refl, base.trans = mi.Float(refl.ravel()), mi.Float(trans.ravel())
+        base.expo, base.ior = mi.Float(expo), mi.Float(ior)
+        base.phong_np = dict(amb=amb, dif=dif, spe=spe, refl=refl, expo=expo, ior=ior)
+        base.any_ambient = bool(np.any(amb > 0))
+        base.has_dr, base.has_dt, base.has_null = mi.Bool(has_dr), mi.Bool(has_dt), mi.Bool(has_null)
+        base.any_mitsuba_dr, base.any_mitsuba_dt = bool(has_dr.any()), bool(has_dt.any())
+        base.any_mitsuba_null = bool(has_null.any())
+        base.any_mitsuba_delta = bool(np.any(has_dr | has_dt | has_null))
         # masks: their delta lobes are sampled on the nested BSDF and scaled by the opacity
         # (Mitsuba's mask.sample cannot sample one lobe alone: it returns its null lobe)
         # the delta lobes by component: each component of a slot's sampler (a mask's nested BSDF)
@@ -354,17 +377,17 @@ class Tables(CameraViews):
                 for which, flag in (("r", mi.BSDFFlags.DeltaReflection), ("t", mi.BSDFFlags.DeltaTransmission)):
                     if fc & int(flag):
                         comp[which].setdefault(c, np.zeros(nslots, dtype=bool))[sl] = True
-        P.delta_components = {k: [(c, mi.Bool(v)) for c, v in sorted(d.items())] for k, d in comp.items()}
+        base.delta_components = {k: [(c, mi.Bool(v)) for c, v in sorted(d.items())] for k, d in comp.items()}
         is_mask = np.array([b is not None and i is not b for b, i in zip(bsdfs, inner)], dtype=bool)
-        P.any_mask = bool(is_mask.any())
-        P.inner_ptr = mi.BSDFPtr([i if i is not None else default_bsdf for i in inner]) \
-            if P.any_mask else None
-        P.any_phong_r = bool(np.any(refl.max(1) > 0))
-        P.any_phong_t = bool(np.any(trans.max(1) > 0))
-        P.any_specular = P.any_mitsuba_delta or P.any_phong_r or P.any_phong_t
-        P.glossy = mi.Bool(glossy)
+        base.any_mask = bool(is_mask.any())
+        base.inner_ptr = mi.BSDFPtr([i if i is not None else default_bsdf for i in inner]) \
+            if base.any_mask else None
+        base.any_phong_r = bool(np.any(refl.max(1) > 0))
+        base.any_phong_t = bool(np.any(trans.max(1) > 0))
+        base.any_specular = base.any_mitsuba_delta or base.any_phong_r or base.any_phong_t
+        base.glossy = mi.Bool(glossy)
         # links1_quadric shapes whose Mitsuba BSDF has a texture get the core's uv
-        P.uv_slots = {sp.slot for sp in self.custom if sp.__class__.__name__ == "QuadricSpec"
+        base.uv_slots = {sp.slot for sp in self.shapes.custom if sp.__class__.__name__ == "QuadricSpec"
                       and not is_phong[sp.slot] and _textured(bsdfs[sp.slot])}
         if default_bsdf is None and any(b is None for b in bsdfs):
             default_bsdf = mi.load_dict({"type": "diffuse"})
@@ -372,16 +395,16 @@ class Tables(CameraViews):
         # a BSDFPtr array holds registry ids, not references: the BSDF objects (the default
         # made here above all) must live as long as the tables, or a vcall through a freed
         # id crashes the process
-        P.keep_alive = P.keep_alive + (bsdfs,)
+        base.keep_alive = base.keep_alive + (bsdfs,)
         if len(bsdfs) != nslots or any(b is None for b in bsdfs):
             raise RuntimeError("links1_whitted: the BSDF table has a hole (an internal inconsistency)")
-        for spec in self.custom:
+        for spec in self.shapes.custom:
             checked_index([spec.slot], nslots, "custom shape slot")
-        P.bsdf_ptr = mi.BSDFPtr(bsdfs) if not P.all_phong else None
+        base.bsdf_ptr = mi.BSDFPtr(bsdfs) if not base.all_phong else None
         # shadow transmittance (3-3-3): Phong t; Mitsuba BSDFs are opaque
-        P.shadow_t_np = trans.copy()
-        self._shape_tables(P, self._bvh_quadrics(P))
-        P.shadow_t = mi.Float(trans.ravel())
+        base.shadow_t_np = trans.copy()
+        self._shape_tables(base, self._bvh_quadrics(base))
+        base.shadow_t = mi.Float(trans.ravel())
         # transparent Mitsuba shapes, each counted once per shadow segment (3-3-3): shape j
         # owns bit j % 32 of word j // 32 of a per-lane "seen" set (as many words as needed)
         transparent_mitsuba = [(s, sl) for s, sl in zip(shapes, slot_list) if trans[sl].max() > 0]
@@ -389,138 +412,116 @@ class Tables(CameraViews):
         words = np.zeros(nslots, dtype=np.uint32)
         for j, (_, sl) in enumerate(transparent_mitsuba):
             bits[sl], words[sl] = np.uint32(1 << (j % 32)), np.uint32(j // 32)
-        P.trans_bits, P.trans_words = mi.UInt32(bits), mi.UInt32(words)
-        P.trans_nwords = max(1, -(-len(transparent_mitsuba) // 32))
+        base.trans_bits, base.trans_words = mi.UInt32(bits), mi.UInt32(words)
+        base.trans_nwords = max(1, -(-len(transparent_mitsuba) // 32))
         # a segment crosses each triangle at most once and an analytic shape at most twice,
         # and stops at the first opaque one: no arbitrary cap on crossings
-        P.max_crossings = 1 + sum(int(s.face_count()) if s.is_mesh() else 2 for s, _ in transparent_mitsuba)
-        P.any_transparent_mitsuba = bool(transparent_mitsuba)
+        base.max_crossings = 1 + sum(int(s.face_count()) if s.is_mesh() else 2 for s, _ in transparent_mitsuba)
+        base.any_transparent_mitsuba = bool(transparent_mitsuba)
         # (sub-scenes hold top-level shapes: a transparent shape inside an instance walks its crossings)
-        P.shadow_split = shadow_split(mi, shapes, slot_list, trans) \
-            if transparent_mitsuba and not any(sl in P.member_slots for _, sl in transparent_mitsuba) else None
+        base.shadow_split = shadow_split(mi, shapes, slot_list, trans) \
+            if transparent_mitsuba and not any(sl in base.member_slots for _, sl in transparent_mitsuba) else None
         # emission
         emis = np.zeros((nslots, 3))
-        for spec in self.custom:
+        for spec in self.shapes.custom:
             if spec.emission is not None:
                 emis[spec.slot] = spec.emission
-        P.custom_emission = mi.Float(emis.ravel())
-        P.any_custom_emission = bool(np.any(emis > 0))
+        base.custom_emission = mi.Float(emis.ravel())
+        base.any_custom_emission = bool(np.any(emis > 0))
         # Mitsuba shapes that emit: area emitters only (a directionalarea is ignored, as the
         # emitter loop below says, so its shape shows no emission either)
         emits = np.zeros(max(nslots, 1), dtype=bool)
         for s, sl in zip(shapes, slot_list):
             if s.emitter() is not None and kind_of(s.emitter()) == "AreaLight":
                 emits[sl] = True
-        P.any_mitsuba_emission = bool(emits.any())
-        P.mitsuba_emits = mi.Bool(emits)
+        base.any_mitsuba_emission = bool(emits.any())
+        base.mitsuba_emits = mi.Bool(emits)
         for s in shapes:
             if s.interior_medium() is not None or s.exterior_medium() is not None:
-                warnings.warn(f"{self.place(s)}: its medium is not supported by links1_whitted and "
+                warnings.warn(f"{self.shapes.place(s)}: its medium is not supported by links1_whitted and "
                               "is ignored", stacklevel=2)
         # lights
-        P.lights, P.area, P.env, P.consts, P.area_tab = [], [], None, [], []
+        base.lights, base.area, base.env, base.consts, base.area_tab = [], [], None, [], []
         n_env = 0
-        Pt, Sp = plugin_class("links1_point"), plugin_class("links1_spot")
+        point_class, spot_class = plugin_class("links1_point"), plugin_class("links1_spot")
         for e in scene.emitters():
             kind = kind_of(e)
-            L = analytic_light(e, kind, Pt, Sp, P, self.place)
+            L = analytic_light(e, kind, point_class, spot_class, base, self.shapes.place)
             if L is not None:
-                P.lights.append(L)
+                base.lights.append(L)
             elif kind == "ConstantBackgroundEmitter":
                 rad = np.array(mi.traverse(e)["radiance.value"], dtype=np.float64).ravel()
-                P.consts.append(ConstantEnvRecord(np.broadcast_to(rad, (3,)).copy(), ENV_LIGHT_ID + n_env))
+                base.consts.append(ConstantEnvRecord(np.broadcast_to(rad, (3,)).copy(), ENV_LIGHT_ID + n_env))
                 n_env += 1
-                P.env = e
+                base.env = e
             elif kind == "EnvironmentMapEmitter":
-                P.consts.append(EnvMapRecord(envmap_table(e), ENV_LIGHT_ID + n_env))
+                base.consts.append(EnvMapRecord(envmap_table(e), ENV_LIGHT_ID + n_env))
                 n_env += 1
-                P.env = e
+                base.env = e
             elif e.is_environment() or (int(e.flags()) & int(mi.EmitterFlags.Infinite)):
-                warnings.warn(f"{self.place(e)}: emitter {kind} is seen as the background but "
+                warnings.warn(f"{self.shapes.place(e)}: emitter {kind} is seen as the background but "
                               "lights nothing", stacklevel=2)
                 n_env += 1
-                P.env = e
+                base.env = e
             elif kind == "AreaLight":   # a directionalarea (also Surface) is ignored, as in the core
-                tab = area_table(e, shapes, slot_list, self.place)
+                tab = area_table(e, shapes, slot_list, self.shapes.place)
                 if tab is not None:
-                    P.area.append(e)
-                    P.area_tab.append(tab)
+                    base.area.append(e)
+                    base.area_tab.append(tab)
             else:
-                warnings.warn(f"{self.place(e)}: emitter {kind} is not supported and is ignored",
+                warnings.warn(f"{self.shapes.place(e)}: emitter {kind} is not supported and is ignored",
                               stacklevel=2)
         # sample streams by place (as the core numbers them, whichever order Mitsuba gives the
         # shapes), and the area lights in that order
-        order = number_area_lights([tab["light"] for tab in P.area_tab])
-        P.area, P.area_tab = [P.area[i] for i in order], [P.area_tab[i] for i in order]
-        for tab in P.area_tab:
+        order = number_area_lights([tab["light"] for tab in base.area_tab])
+        base.area, base.area_tab = [base.area[i] for i in order], [base.area_tab[i] for i in order]
+        for tab in base.area_tab:
             tab["id"] = tab["light"].light_id
-        P.any_mis = bool(np.any(glossy)) and bool(P.area_tab or P.consts)
-        self._shadow_tables(P, scene, shapes, slot_list)
-        return P
+        base.any_mis = bool(np.any(glossy)) and bool(base.area_tab or base.consts)
+        self._shadow_tables(base, scene, shapes, slot_list)
+        return base
 
-    def _bvh_quadrics(self, P):
+    def _bvh_quadrics(self, base):
         """The links1 quadrics to put under a BVH (bvh.py) instead of one code block each:
         the bounded ones, when there are ``bvh_min`` of them; else none."""
-        quad = [sp for sp in self.custom if sp.__class__.__name__ == "QuadricSpec"
+        quad = [sp for sp in self.shapes.custom if sp.__class__.__name__ == "QuadricSpec"
                 and np.all(np.isfinite(np.concatenate(sp.bounds())))]
-        return quad if len(quad) >= P.tuning.bvh_min else []
+        return quad if len(quad) >= base.tuning.bvh_min else []
 
-    def _shape_tables(self, P, quad):
+    def _shape_tables(self, base, quad):
         """The tables made from the links1 shapes' geometry (what a ``params.update()`` of it
         redoes, :meth:`_update_values`): the quadrics ``quad`` under a BVH (its slots, the
         tree, each slot's place in it), the others traced in their own code
         (``custom_unrolled``) with their tables (shapes.py ``tables()``: their constants, a
         blob's candidate search), built before any trace (frozen inputs)."""
         in_bvh = {id(sp) for sp in quad}
-        P.custom = self.custom
-        P.custom_unrolled = [sp for sp in self.custom if id(sp) not in in_bvh]
-        P.bvh_slots = frozenset(sp.slot for sp in quad)
-        P.bvh = None
+        base.custom = self.shapes.custom
+        base.custom_unrolled = [sp for sp in self.shapes.custom if id(sp) not in in_bvh]
+        base.bvh_slots = frozenset(sp.slot for sp in quad)
+        base.bvh = None
         if quad:
-            P.bvh = QuadricBVH(quad, P.shadow_t_np)
-            s2q = np.full(max(P.nslots, 1), -1, dtype=np.int32)
-            for i, sp in enumerate(P.bvh.specs):
+            base.bvh = QuadricBVH(quad, base.shadow_t_np)
+            s2q = np.full(max(base.nslots, 1), -1, dtype=np.int32)
+            for i, sp in enumerate(base.bvh.specs):
                 s2q[sp.slot] = i
-            P.bvh.slot_to_q = mi.Int32(checked_index(s2q, P.bvh.n, "slot_to_q", sentinel=-1))
-        P.blob_tables = [sp.tables() for sp in P.custom_unrolled]
+            base.bvh.slot_to_q = mi.Int32(checked_index(s2q, base.bvh.n, "slot_to_q", sentinel=-1))
+        base.blob_tables = [sp.tables() for sp in base.custom_unrolled]
 
-    def _shadow_tables(self, P, scene, shapes, slot_list, reuse=False):
+    def _shadow_tables(self, base, scene, shapes, slot_list, reuse=False):
         """The tables planned from the analytic lights' places (:data:`LIGHT_FIELDS`): what
         each light's shadow rays test (:func:`~links1_mitsuba.shadow_plan.plan_occluders`, ``reuse``: of the shapes' part
         made before) and the light buffers."""
-        plan_occluders(P, self.custom, shapes, slot_list, reuse)
+        plan_occluders(base, self.shapes.custom, shapes, slot_list, reuse)
         # light buffers for the quadric shadow rays toward analytic lights (where they pay)
-        P.lbuf = lightbuffer.plan(P, scene) if P.tuning.light_buffer else [None] * len(P.lights)
+        base.lbuf = lightbuffer.plan(base, scene) if base.tuning.light_buffer else [None] * len(base.lights)
 
     def _mitsuba_shapes(self, scene):
         """``(shapes, slot_list, nslots, member_slots)``: Mitsuba's own shapes of ``scene``
-        (links1 proxies left out) with their slots (:meth:`_slots`), then the shapes inside its
+        (links1 proxies left out) with their slots (``SceneShapes.slots``), then the shapes inside its
         shapegroups (:func:`group_members`), each a slot of its own after all others: a hit
         on an instance names the member, whose BSDF it takes (shared by every instance)."""
         shapes = [s for s in scene.shapes() if not proxies.is_proxy(s)]
-        slot_list, nslots = self._slots(shapes)
+        slot_list, nslots = self.shapes.slots(shapes)
         members = group_members(scene) if any(s.class_name() == "Instance" for s in shapes) else []
         member_slots = frozenset(range(nslots, nslots + len(members)))
         return shapes + members, slot_list + sorted(member_slots), nslots + len(members), member_slots
-
-    def _slots(self, shapes):
-        """``(slot_list, nslots)``: the slot of each of the Mitsuba ``shapes`` (file order, or the
-        loader's ``slot_of_id``) and the number of slots (links1 shapes included)."""
-        slot_of_id = self.slot_of_id
-        if slot_of_id is None:
-            # a scene the loader did not see (mi.load_file / load_string / load_dict): each
-            # shape's slot is its place in the scene's shapes (links1 proxies included:
-            # Integrator.adopt), whatever its id (none, or shared)
-            order = self.adopted
-            if order is None:
-                return list(range(len(shapes))), len(shapes)
-            pos = {k: i for i, k in enumerate(order)}
-            return [pos[id(s)] for s in shapes], len(order)
-        else:
-            slot_list = []
-            for s in shapes:
-                if s.id() not in slot_of_id:
-                    raise RuntimeError(f"links1_whitted: shape '{s.id()}' is unknown to the loader")
-                slot_list.append(slot_of_id[s.id()])
-            nslots = len(slot_of_id) + len(self.custom)
-        return slot_list, nslots

@@ -47,14 +47,14 @@ def _grads(scene, keys, weights, monkeypatch, budget):
     from links1_mitsuba import gradients
     monkeypatch.setattr(gradients, "AD_BLOCK_LANES", budget)
     widths = []
-    from links1_mitsuba.engine import Engine
-    cls = Engine
+    from links1_mitsuba.launch import Launches
+    cls = Launches
     real = cls._launch
 
-    def counted(self, P, scene_, sid, spp_, seeds, want, mode=dr.ADMode.Primal):
+    def counted(self, tables, scene_, tracer, sid, spp_, seeds, want, mode=dr.ADMode.Primal):
         if mode != dr.ADMode.Primal:     # a derivative pass's launch
             widths.append(dr.width(sid))
-        return real(self, P, scene_, sid, spp_, seeds, want, mode)
+        return real(self, tables, scene_, tracer, sid, spp_, seeds, want, mode)
     monkeypatch.setattr(cls, "_launch", counted)
     params = mi.traverse(scene)
     for k in keys:

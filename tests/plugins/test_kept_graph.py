@@ -48,10 +48,10 @@ def gradients(scene, keys, weights, keep_graph, spp=0, count=None):
 
 @pytest.fixture
 def render_count(monkeypatch):
-    """Counts the derivative pass's renders of every ``links1_whitted`` (its engine's
+    """Counts the derivative pass's renders of every ``links1_whitted`` (its gradients'
     ``_render_ad``)."""
-    from links1_mitsuba.engine import Engine
-    cls = Engine
+    from links1_mitsuba.gradients import Gradients
+    cls = Gradients
     calls = []
     orig = cls._render_ad
 
