@@ -21,9 +21,10 @@ Usage::
     .venv/bin/python -m compare.sequence --plans [--frames 48] [--res 256] [--nodes 2]   # plan rules, exact
     .venv/bin/python -m compare.sequence --rounds 3                                      # throughput
     .venv/bin/python -m compare.sequence --picture docs/images/sequences.png             # a few frames
+    .venv/bin/python -m compare.sequence --setup                                         # set-up per frame
 
 Writes ``compare/results/OUT_<sequence>.{json,png}`` and ``compare/results/OUT.md`` (``--plans``:
-``OUT_plans.md``).
+``OUT_plans.md``, ``--setup``: ``OUT_setup.md``).
 """
 from __future__ import annotations
 
@@ -210,6 +211,55 @@ def throughput(args) -> int:
     return 0
 
 
+def setup(args) -> int:
+    """A node's set-up per frame change on the core: the loaded scene given the frame's values in
+    place (``CoreRenderer.set_params``) against a fresh load of the file with them, each followed
+    by what the first ray needs (the BVH, the integrator's plan); the two alternate frame by
+    frame (which goes first alternates too), so both see the machine's load of the same seconds."""
+    import statistics
+    import time
+    from links1.tracing.integrator import scene_plan
+    from links1.tracing.render import CoreRenderer
+    from links1_app.expressions import frame_values
+    info = machine_info()
+    md = [f"# Set-up per frame change (`python -m compare.sequence {' '.join(sys.argv[1:])}`)", "",
+          f"{args.frames} frames at {args.res}x{args.res}, core; {info.get('cpu')}, {info.get('cores')} cores, load "
+          f"average at start {info.get('load_average_at_start')}, git {info.get('git_commit')}. Each: the scene "
+          "at the frame's values, then its BVH and integrator plan (the first ray's needs).", "",
+          "| sequence | fresh load s (median) | in place s (median) | ratio of medians | per-frame ratio median |",
+          "|---|---|---|---|---|"]
+    opts = dict(width=args.res, height=args.res, spp=1)
+    for name in args.sequences.split(","):
+        scene, defines = SEQUENCES[name]
+        path = str(ROOT / scene)
+        values = frame_values(defines, list(range(args.frames)), 24.0)
+        live = CoreRenderer(path, params=values[0], **opts)
+        scene_plan(live.scene)
+
+        def fresh(v):
+            r = CoreRenderer(path, params=v, **opts)
+            return r.scene.accel, scene_plan(r.scene)
+
+        def in_place(v):
+            live.set_params(v)
+            return live.scene.accel, scene_plan(live.scene)
+
+        rows = []
+        for k in range(1, args.frames):
+            got = {}
+            for way in ((fresh, in_place) if k % 2 else (in_place, fresh)):
+                t = time.perf_counter()
+                way(values[k])
+                got[way] = time.perf_counter() - t
+            rows.append((got[fresh], got[in_place]))
+        a, b = statistics.median(r[0] for r in rows), statistics.median(r[1] for r in rows)
+        md.append(f"| {name} | {a:.4f} | {b:.4f} | **{a / b:.1f}** | {statistics.median(r[0] / r[1] for r in rows):.1f} |")
+    md.append("")
+    (RESULTS / f"{args.out}_setup.md").write_text("\n".join(md))
+    print("\n".join(md))
+    return 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=48)
@@ -230,7 +280,12 @@ def main(argv=None) -> int:
                          "nodes (the same frames, the pool kept), ratios per round and their median (OUT_throughput.md)")
     ap.add_argument("--picture", default=None, metavar="PNG",
                     help="instead: frames 0, 12, 24, 36 of each sequence at 128^2 side by side (the README's picture)")
+    ap.add_argument("--setup", action="store_true",
+                    help="instead: a node's set-up per frame change on the core, in place against a fresh load of "
+                         "the file, alternating (OUT_setup.md)")
     args = ap.parse_args(argv)
+    if args.setup:
+        return setup(args)
     if args.picture:
         return picture(args.picture, args.sequences.split(","))
     if args.plans:
