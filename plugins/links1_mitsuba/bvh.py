@@ -142,7 +142,7 @@ class QuadricBVH:
     def offer(self, q, o, d, tmin, res, active=None):
         """The nearest-hit state ``res = (t, row, part, found)`` after testing row ``q``
         (lanes ``active``, all when None): a tie with the best so far is let through and
-        the lower slot wins (file order, as ``Intersect._nearest``). One rule for the
+        the lower slot wins (file order, as ``intersect.nearest``). One rule for the
         walk's leaves and the eye buffer's lists."""
         best_t, best_q, best_part, found = res
         lim = dr.select(found, dr.reinterpret_array(mi.Float, dr.reinterpret_array(mi.UInt32, best_t) + 1),

@@ -14,6 +14,7 @@ from links1.scene.params import default as l1_default
 
 from .engine import Config, Engine
 from .registered import check_properties, unsupported_variant
+from .tuning import Tuning
 from .util import Hidden
 
 #: Default weight below which a branch of the ray tree is not traced (POV-Ray's adc_bailout;
@@ -168,7 +169,6 @@ def define_integrator():
 
         @tuning.setter
         def tuning(self, value):
-            from .tuning import Tuning
             if value is not None and not isinstance(value, Tuning):
                 raise TypeError(f"links1_whitted: tuning must be a links1_mitsuba.tuning.Tuning or None, "
                                 f"got {type(value).__name__}")

@@ -75,9 +75,9 @@ class SceneInputs:
 
     The scene's variables are collected once (through its ``_traverse_1_cb_ro``, the walk
     freeze itself makes); they stay valid while the scene is not changed, i.e. for one set of
-    prepared tables (``P.scene_input``: rebuilt with them). A recording that reads a variable
+    prepared tables (``tables.scene_input``: rebuilt with them). A recording that reads a variable
     outside this set fails in Dr.Jit ("... was not specified as an input variable"); the
-    launch then records with the whole scene instead (``Launches._call_frozen``). It holds
+    launch then records with the whole scene instead (:meth:`Launches._call_frozen`). It holds
     variable indices, not the scene: the scene owns the integrator, which holds the tables
     (a reference cycle through C++ objects would keep every scene and its registered
     objects alive).
@@ -124,20 +124,22 @@ class SceneInputs:
                 self.stale = True
 
 
-#: ``P.scene_input`` when a recording needed more than :class:`SceneInputs` holds
+#: ``tables.scene_input`` when a recording needed more than :class:`SceneInputs` holds
 _WHOLE_SCENE = "whole scene"
 
 
-def _unread_bsdfs(P) -> list:
-    """The BSDFs whose values no launch of ``P`` reads: every one when all are ``links1_phong``
-    (the kernels read the material tables and never call a BSDF), else none."""
-    return [b for b in P.keep_alive[3] if b is not None] if P.all_phong and not P.any_mitsuba_emission else []
+def _unread_bsdfs(tables) -> list:
+    """The BSDFs whose values no launch of ``tables`` reads: every one when all are
+    ``links1_phong`` (the kernels read the material tables and never call a BSDF), else none."""
+    if not tables.all_phong or tables.any_mitsuba_emission:
+        return []
+    return [b for b in tables.keep_alive[3] if b is not None]
 
 
-def _extra_scenes(P) -> tuple:
+def _extra_scenes(tables) -> tuple:
     """The Mitsuba scenes besides the scene itself that the launches trace rays in (the
     shadow rays' sub-scenes, ``shadow_plan.shadow_split``): frozen inputs too."""
-    split = getattr(P, "shadow_split", None)
+    split = getattr(tables, "shadow_split", None)
     if split is None:
         return ()
     return tuple(x for x in [split["opaque"], *[t[0] for t in split["trans"]]] if x is not None)

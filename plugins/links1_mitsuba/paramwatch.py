@@ -75,7 +75,7 @@ class ParamWatch(Hidden):
     cannot be matched to their keys does.
 
     A :class:`~links1_mitsuba.util.Hidden`: neither ``dr.freeze`` nor the walk that gathers
-    the frozen launch's inputs from the tables (``Launches._frozen_inputs``) takes the pins
+    the frozen launch's inputs from the tables (``launch.frozen_inputs``) takes the pins
     (old values) for inputs."""
 
     class _Shallow:

@@ -20,7 +20,7 @@ if TYPE_CHECKING:   # the fields' types (annotations only)
 
 
 def _set_later():
-    """A field :meth:`Tables._prepare_scene` (or the camera view, :meth:`views.CameraViews._set_camera`)
+    """A field :meth:`Tables._prepare_scene` (or the camera view, :func:`views.set_camera`)
     always sets: no default, so reading it before it is set is an AttributeError."""
     return field(init=False, repr=False)
 
@@ -32,14 +32,14 @@ def _default(value=None):
 
 @dataclass(slots=True, eq=False)
 class ViewFields:
-    """The fields of a sensor's view of the tables (:meth:`views.CameraViews._camera_view`): those
+    """The fields of a sensor's view of the tables (:func:`views.camera_view`): those
     of a :class:`CameraView` and of :class:`Prepared` (None / unset on the scene's tables)."""
 
     #: the scene's tables (None: these are the scene's tables)
     base: Prepared | None = _default(None)
     #: a sensor that is not the scene's, watched (:class:`ParamWatch`) while verify_scene
     sensor_watch: ParamWatch | None = _default(None)
-    #: the Dr.Jit arrays of these tables (``Launches._frozen_inputs``), once gathered
+    #: the Dr.Jit arrays of these tables (``launch.frozen_inputs``), once gathered
     frozen_inputs: list | None = _default(None)
     #: the scene as the frozen launches' input (``launch.SceneInputs`` or "whole scene")
     scene_input: object = _default(None)
@@ -71,7 +71,7 @@ class Prepared(ViewFields):
 
     Every field is declared here (``slots``: assigning an undeclared name is an
     AttributeError). The Dr.Jit arrays among them reach the frozen launches as their
-    ``tables`` input (``Launches._frozen_inputs`` walks the fields). Per-slot tables have
+    ``tables`` input (``launch.frozen_inputs`` walks the fields). Per-slot tables have
     ``nslots`` rows; the RGB ones are flat Floats of 3 values per slot. ``eq=False``: tables are
     compared (and hashed) by identity."""
 
@@ -89,9 +89,9 @@ class Prepared(ViewFields):
     shape_list: list = _set_later()
     slot_list: list = _set_later()
     member_slots: frozenset = _set_later()
-    #: the camera views of these tables, by ``id(sensor)`` (:meth:`views.CameraViews._camera_view`)
+    #: the camera views of these tables, by ``id(sensor)`` (:func:`views.camera_view`)
     views: dict = _set_later()
-    #: ``mi.traverse`` of objects the tables read again on updates (:meth:`lights.Lights._params_of`)
+    #: ``mi.traverse`` of objects the tables read again on updates (:func:`lights.params_of`)
     obj_params: dict = _set_later()
     #: number of slots (Mitsuba shapes and links1 shapes)
     nslots: int = _set_later()
@@ -194,7 +194,7 @@ class Prepared(ViewFields):
     #: lights), ``CylinderSpotRecord`` (links1_spot), ``MitsubaSpotRecord``, ``DirectionalRecord``,
     #: ``MitsubaEmitterRecord`` (a textured spot, a projector)
     lights: list = _set_later()
-    #: the sampled area emitters and their tables (``Lights._area_table``)
+    #: the sampled area emitters and their tables (``lights.area_table``)
     area: list = _set_later()
     area_tab: list = _set_later()
     #: the environment emitter seen by escaping rays, or None
@@ -234,11 +234,11 @@ class Prepared(ViewFields):
 
 @dataclass(slots=True, eq=False)
 class CameraView(ViewFields):
-    """A sensor's view of the scene's tables ``base`` (:meth:`views.CameraViews._camera_view`):
+    """A sensor's view of the scene's tables ``base`` (:func:`views.camera_view`):
     it holds only its own fields, the sensor's camera, film, filter and eye buffer and the
     launches' inputs gathered for it, and reads every other field of :class:`Prepared` through
     ``base``, so an in-place update of the scene's tables (``Tables._update_values``) is what
-    each view sees. ``Launches._frozen_inputs`` walks its fields, ``base`` among them."""
+    each view sees. ``launch.frozen_inputs`` walks its fields, ``base`` among them."""
 
     def __getattr__(self, name):
         # (called only for a name that is not one of the view's set fields)

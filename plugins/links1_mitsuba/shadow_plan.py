@@ -19,7 +19,7 @@ from .util import kind_of
 
 #: Shadow rays toward a light that at most this many Mitsuba shapes can occlude first test the
 #: segment against those shapes' bounding boxes and call Embree only where one is met
-#: (``Intersect._shadow_mitsuba``); above it Embree's own BVH culls better
+#: (``intersect.shadow_mitsuba``); above it Embree's own BVH culls better
 BOX_CULL_MAX = 8
 
 #: Scenes with at most this many transparent Mitsuba shapes test shadow rays with one any-hit

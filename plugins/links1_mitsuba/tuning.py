@@ -1,19 +1,24 @@
-"""The switches of ``links1_whitted`` (its one home): one frozen :class:`Tuning` value that every
-part reads, part of the frozen launches' key and of the prepared tables' identity.
+"""The switches of ``links1_whitted`` (its one home): one frozen :class:`Tuning` value, part of
+the frozen launches' key and of the prepared tables' identity.
 
 Each switch turns one acceleration on or off (for before/after runs and for tests
 that compare it with the plain code); none changes what is rendered beyond float32 rounding
-(the tests of each acceleration say how much). The current value is module-wide, and an
-integrator may have its own instead (``Engine.current_tuning``)::
+(the tests of each acceleration say how much).
+
+The switches belong to each integrator: its engine takes them once per frame
+(``Engine.current_tuning``: its own ``Tuning``, set with ``integrator.tuning = ...``, or
+without one this module's default) and hands that value to its parts (``Tables.prepare``,
+the frame's ``raytree.Tracer``, the gradients), which read no global. This module holds the
+default, for every integrator without its own, whenever made::
 
     from links1_mitsuba import tuning
-    with tuning.tuned(split=False):          # for a block
+    with tuning.tuned(split=False):          # the default for a block
         img = mi.render(scene)
-    tuning.set_tuning(light_buffer=False)    # from now on (returns the previous value)
+    tuning.set_tuning(light_buffer=False)    # the default from now on (returns the previous one)
     scene.integrator().tuning = tuning.Tuning(split=False)   # that integrator's alone
 
-A change takes effect at the next frame of every integrator: the launches recorded by
-:func:`drjit.freeze` are keyed on the whole value (``Launches._launch``, ``trace_points``), and
+A change takes effect at the next frame: the launches recorded by
+:func:`drjit.freeze` are keyed on the whole value (``launch.Launches._key``), and
 the tables that depend on it (:meth:`Tuning.tables_key`: the light buffers, the BVH) are
 rebuilt by ``prepare`` when their part differs from the one they were built with.
 """
@@ -48,7 +53,7 @@ class Tuning:
     #: an explicit choice: a frame rendered while parameters have gradients enabled that does
     #: not depend on the seed (spp 1, no sampled light) and is one block is the derivative
     #: pass's, its graph kept for ``dr.backward`` instead of rendering the frame twice
-    #: (``gradients.Gradients._render_keeping_graph``); its values are the primal's to float32
+    #: (``gradients.Gradients.render_keeping_graph``); its values are the primal's to float32
     #: rounding. False (default): the primal frame, bit for bit, then the pass again
     keep_graph: bool = False
     #: custom quadrics with finite bounds go under a BVH (bvh.py) from this many on
@@ -85,7 +90,7 @@ _current = Tuning()
 
 
 def current() -> Tuning:
-    """The tuning every ``links1_whitted`` renders with now."""
+    """The default tuning: what every ``links1_whitted`` without its own renders with now."""
     return _current
 
 

@@ -168,7 +168,7 @@ class Hidden:
     Freeze walks every input of a frozen launch on every call, and through the scene each
     Python plugin's ``__dict__`` (``links1_whitted``, ``links1_phong``, ``links1_point``,
     ``links1_spot``); an object that has traversal callbacks is walked through them, and these
-    walk nothing. ``Launches._frozen_inputs``, which gathers the per-scene tables' Dr.Jit arrays
+    walk nothing. ``launch.frozen_inputs``, which gathers the per-scene tables' Dr.Jit arrays
     as the launch's ``tables`` input, follows the same rule. So whatever a frozen launch must
     not take as an input, or need not walk on every call, lives in a ``Hidden``:
 

@@ -1,5 +1,5 @@
 """The kept derivative graph of ``mi.render(scene, params)`` (gradients.py,
-``Gradients._render_keeping_graph``; ``Tuning.keep_graph``).
+``Gradients.render_keeping_graph``; ``Tuning.keep_graph``).
 
 With the graph kept (an explicit choice, ``Tuning.keep_graph``; off by default), where the
 frame does not depend on the seed (spp 1: pixel centres; analytic lights only) and is one

@@ -502,7 +502,7 @@ def sensor_key(params, scene, name):
 @pytest.mark.parametrize("source", ["many.xml", "area_blob"])
 def test_camera_move_refreshes_only_its_camera_view(variant, source):
     """``params.update()`` of a sensor's ``to_world`` refreshes that sensor's camera view in
-    place (``CameraViews._refresh_cameras``: camera, eye buffer, the launch's inputs): no
+    place (``views.refresh_cameras``: camera, eye buffer, the launch's inputs): no
     scene build, one value update, the scene's tables (BVH, lights, materials, shadow plans,
     blob tables) the same objects. The frame is then the frame of a second load of the file
     given the same camera before its first frame (a whole build), bit for bit. scenes/many.xml
