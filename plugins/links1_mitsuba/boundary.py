@@ -35,12 +35,22 @@ clip plane ``G₂ = 0``) or on a Mitsuba mesh triangle's edge (within :data:`RIM
 is ``τ × D`` normalised (``τ`` the edge's tangent) and ``V_n`` the edge's velocity along it
 (:func:`_normal_speed`). The sign of ``m`` cancels in ``V_n / a_x``.
 
-Left out (biased there, as docs/method.md §6 says): crossings that do not change the slot (a
-blob's lobe in front of its own other lobe, a mesh in front of itself), grazes that are
-neither a smooth silhouette (``|m·D|`` below :data:`GRAZE`) nor an edge above (the curve where
-two surfaces cut), Mitsuba shapes other than spheres and meshes, shadow edges, outlines seen
-in mirrors or through glass, and pairs of crossings closer than ``1/(POINTS − 1)`` pixel on
-one row. Box filter only.
+Shadow edges of delta lights (point, spot, directional, ``links1_point``, ``links1_spot``): each
+query point also records, per light, the nearest occluder of the shadow segment from its hit
+(:func:`_status`); where that changes along a line and the slot seen does not, the crossing
+is a shadow edge: the shadow ray of the side with the nearer occluder grazes it at
+``q = p + s L`` (``p`` the receiver's point, ``L`` the unit direction to the light), ``m`` and
+``V_n`` as above at ``q``, and ``a = m·∂q/∂(x, y)`` at fixed ``s`` through ``p``'s and ``L``'s
+change with the pixel. A light that moves swings the shadow ray about ``p``: ``V_n`` loses
+``m·∂q/∂θ`` of that swing.
+
+Left out (biased there, as docs/method.md §6 says): crossings that do not change what is seen
+(a blob's lobe in front of its own other lobe, a mesh in front of itself, an occluder's edge
+behind another occluder of the same shadow ray), grazes that are neither a smooth silhouette
+(``|m·D|`` below :data:`GRAZE`) nor an edge above (the curve where two surfaces cut), Mitsuba
+shapes other than spheres and meshes, a receiver's own motion under a shadow edge, outlines
+and shadows seen in mirrors or through glass, and pairs of crossings closer than
+``1/(POINTS − 1)`` pixel on one line. Box filter only.
 """
 from __future__ import annotations
 
@@ -50,6 +60,7 @@ import numpy as np
 
 from . import geometry, intersect
 from .camera import rays_at
+from .lights import DIRECTED, POSITIONED
 from .util import INF, kind_of, mix32
 
 #: points a row (a column) of a pixel is queried at, its ends included
@@ -65,8 +76,13 @@ GRAZE = 0.05
 #: a grazing point within RIM·t of a links1 quadric's rim or of a mesh triangle's edge (t its
 #: distance from the camera) is on that edge
 RIM = 1e-4
-#: the step (pixels) of the central differences of q(x, y) at fixed s
+#: the step (pixels) of the central differences of q(x, y) at fixed s: a camera ray's, and a
+#: shadow ray's (its receiver's point at the shifted pixel, which must see the same surface)
 DQ_STEP = 0.25
+DQ_SHADOW = 0.01
+#: a shadow segment starts SHADOW_EPS·t from its receiver's point (t: the camera ray's
+#: distance) and stops SHADOW_EPS of its length short of a light
+SHADOW_EPS = 1e-4
 #: salts of the boundary pass's random numbers (rows, columns, light-sample keys)
 _SALT_ROW, _SALT_COL, _SALT_KEY = 0x6A09E667, 0xBB67AE85, 0x3C6EF372
 
@@ -126,7 +142,9 @@ def boundary_image(trace_points, scene, P, Q, sensor, win, spp, seed):
 def _crossings(trace_points, scene, P, sensor, win, spp, seed):
     """The crossings of the window's sample rows and columns, bisected, with the detached
     part of their terms, or None where there are none: ``{pixel, weight (Color3f), q, m,
-    slot, o, d}`` (``q``: the grazing point on the nearer side, ``m`` its outward normal)."""
+    slot, valid, part, tri, light, p, ts}`` (``q``: the grazing point, on the silhouette shape
+    or, for a shadow edge of light ``light`` (-1: none), on its occluder, ``ts`` from the
+    receiver's point ``p``; the rest: :func:`_outline`)."""
     x0, y0, w, h = win
     n = w * h * spp
     lane = np.arange(n, dtype=np.uint64)
@@ -143,70 +161,171 @@ def _crossings(trace_points, scene, P, sensor, win, spp, seed):
     fixed = np.concatenate([py + u_row, px + u_col])
     is_col = np.repeat(np.array([False, True]), n)
     lane_key = np.concatenate([keys, keys])
+    lts = _lights(P)
 
-    def coords(a, is_col_, fixed_):
-        x = np.where(is_col_, fixed_, a)
-        y = np.where(is_col_, a, fixed_)
-        return mi.Float(x.astype(np.float32)), mi.Float(y.astype(np.float32))
+    def at(a, colm, fxd):
+        return dr.select(colm, fxd, a), dr.select(colm, a, fxd)
 
     rep = lambda v: np.repeat(v, POINTS)   # noqa: E731
-    x, y = coords(along.ravel(), rep(is_col), rep(fixed))
-    slot = _seen(P, scene, x, y, mi.UInt32(rep(lane_key)))[3]
-    slot = slot.numpy().reshape(2 * n, POINTS)
-    li, ki = np.nonzero(slot[:, :-1] != slot[:, 1:])
+    x, y = at(mi.Float(along.ravel().astype(np.float32)), mi.Bool(rep(is_col)),
+              mi.Float(rep(fixed).astype(np.float32)))
+    cam, shadows = _status(P, scene, x, y, mi.UInt32(rep(lane_key)), lts)
+    # what each point sees: the camera ray's slot, then each light's occluder: an interval
+    # whose ends differ is a crossing of the first that differs (the camera's first)
+    sig = [v.numpy().reshape(2 * n, POINTS) for v in [cam[3]] + [s_[2] for s_ in shadows]]
+    kind = np.full((2 * n, POINTS - 1), -1)
+    for j in reversed(range(len(sig))):
+        kind = np.where(sig[j][:, :-1] != sig[j][:, 1:], j, kind)
+    li, ki = np.nonzero(kind >= 0)
     if li.size == 0:
         return None
-    # bisection: lo keeps the slot of the interval's first point
-    lo, hi = along[li, ki], along[li, ki + 1]
-    s_lo = mi.Int32(slot[li, ki].astype(np.int32))
-    cl, fx, key = is_col[li], fixed[li], mi.UInt32(lane_key[li])
-    lo_d, hi_d = mi.Float(lo.astype(np.float32)), mi.Float(hi.astype(np.float32))
-    colm = mi.Bool(cl)
-    fxd = mi.Float(fx.astype(np.float32))
+    kd = mi.Int32(kind[li, ki].astype(np.int32))
+    cl, key = is_col[li], mi.UInt32(lane_key[li])
+    colm, fxd = mi.Bool(cl), mi.Float(fixed[li].astype(np.float32))
+    lo_d, hi_d = mi.Float(along[li, ki].astype(np.float32)), mi.Float(along[li, ki + 1].astype(np.float32))
+    c_lo = mi.Int32(sig[0][li, ki].astype(np.int32))
+    o_lo = mi.Int32(np.choose(np.maximum(kind[li, ki], 0), [g[li, ki] for g in sig]).astype(np.int32))
+    # bisection: lo keeps what the interval's first point sees
     for _ in range(BISECT_STEPS):
         mid = 0.5 * (lo_d + hi_d)
-        sm = _seen(P, scene, dr.select(colm, fxd, mid), dr.select(colm, mid, fxd), key)[3]
-        same = sm == s_lo
+        cm, sm = _status(P, scene, *at(mid, colm, fxd), key, lts, kd > 0)
+        same = (cm[3] == c_lo) & ((kd == 0) | (_pick(kd, [cm[3]] + [s_[2] for s_ in sm]) == o_lo))
         lo_d, hi_d = dr.select(same, mid, lo_d), dr.select(same, hi_d, mid)
         dr.eval(lo_d, hi_d)
-    ends = []
-    for a in (lo_d, hi_d):
-        xa, ya = dr.select(colm, fxd, a), dr.select(colm, a, fxd)
-        ends.append((xa, ya) + _seen(P, scene, xa, ya, key))
-    (xl, yl, ol, dl, tl, sl, pl, il), (xh, yh, oh, dh, th, sh, ph, ih) = ends
-    near_lo = tl <= th
-    o = dr.select(near_lo, ol, oh)
-    d = dr.select(near_lo, dl, dh)
-    t = dr.select(near_lo, tl, th)
-    s = dr.select(near_lo, sl, sh)
-    prim = dr.select(near_lo, pl, ph)
-    hit = (dr.select(near_lo, il[0], ih[0]), dr.select(near_lo, il[1], ih[1]))   # Mitsuba's shape, triangle
-    xn, yn = dr.select(near_lo, xl, xh), dr.select(near_lo, yl, yh)
-    ok = dr.isfinite(t) & (sl != sh)
-    q = o + d * dr.select(ok, t, 0.0)
+    (xl, yl), (xh, yh) = at(lo_d, colm, fxd), at(hi_d, colm, fxd)
+    ends = [_status(P, scene, xa, ya, key, lts) for xa, ya in ((xl, yl), (xh, yh))]
+    g = _grazes(ends, kd, (xl, yl), (xh, yh), lts)
     # f on both sides, SIDE_STEP pixels out: the primal ray tree (one launch for both ends)
-    m_ = dr.width(q)
+    m_ = dr.width(g["q"])
     xs = np.concatenate([xl.numpy() - SIDE_STEP * ~cl, xh.numpy() + SIDE_STEP * ~cl])
     ys = np.concatenate([yl.numpy() - SIDE_STEP * cl, yh.numpy() + SIDE_STEP * cl])
     f = trace_points(xs / P.film_size[0], ys / P.film_size[1],
                      np.concatenate([key.numpy(), key.numpy()]).astype(np.uint32))[0]
     jump = f[:m_] - f[m_:]
-    # the outline's normal m at q, and the screen-space gradient a of m·q at fixed s
-    edge = _outline(scene, P, q, d, t, s, prim, hit, ok)
-    m = edge["m"]
-    a = []
-    for dx, dy in ((DQ_STEP, 0.0), (0.0, DQ_STEP)):
-        op, dp, _, _ = _rays(P, xn + dx, yn + dy, key)
-        om, dm, _, _ = _rays(P, xn - dx, yn - dy, key)
-        a.append(dr.dot(m, (op + dp * t) - (om + dm * t)) / (2.0 * DQ_STEP))
-    ax, ay = a
+    # the outline's normal m at q, and the screen-space gradient a of m·q at fixed distances
+    edge = _outline(scene, P, g["q"], g["d"], g["t"], g["slot"], g["prim"], g["hit"], g["ok"])
+    ax, ay = _screen_gradient(P, scene, edge["m"], g, key, lts)
     a2 = ax * ax + ay * ay
     edge["valid"] &= a2 > 0
     coef = dr.select(edge["valid"], dr.select(colm, ay, ax) / dr.select(edge["valid"], a2, 1.0), 0.0)
     jump_c = mi.Color3f(*[mi.Float(jump[:, c].astype(np.float32)) for c in range(3)])
-    edge.update(pixel=mi.UInt32(pix[li % n].astype(np.uint32)), weight=jump_c * coef, q=q, slot=s)
-    dr.eval(edge["pixel"], edge["weight"], q, m, s, edge["valid"], edge["part"])
+    edge.update(pixel=mi.UInt32(pix[li % n].astype(np.uint32)), weight=jump_c * coef, q=g["q"], slot=g["slot"],
+                light=g["light"], p=g["p"], ts=g["t"], lights=lts)
+    dr.eval(edge["pixel"], edge["weight"], edge["q"], edge["m"], edge["slot"], edge["valid"], edge["part"],
+            edge["light"], edge["p"])
     return edge
+
+
+def _pick(kd, values):
+    """``values[kd]`` lane by lane."""
+    out = values[0]
+    for j in range(1, len(values)):
+        out = dr.select(kd == j, values[j], out)
+    return out
+
+
+def _grazes(ends, kd, lo_xy, hi_xy, lts):
+    """Where each bisected crossing's ray grazes: ``{q, d, t, slot, prim, hit, ok, light, p,
+    x, y}``. A camera crossing (the ends see different slots): the camera ray of the side with
+    the nearer hit, at that hit. A shadow edge of light ``kd − 1`` (the same slot, another
+    occluder): the shadow ray of the side whose occluder is nearer, at that occluder."""
+    (cl, sl), (ch, sh) = ends
+    near_lo = cl[2] <= ch[2]
+    sel = lambda m_, a, b: type(a)(dr.select(m_, a, b)) if not isinstance(a, tuple) else \
+        tuple(dr.select(m_, u, v) for u, v in zip(a, b))   # noqa: E731
+    cam = [sel(near_lo, a, b) for a, b in zip(cl, ch)]
+    o, d, t, slot, prim, hit = cam
+    cam_ok = dr.isfinite(t) & (cl[3] != ch[3])
+    g = {"q": o + d * dr.select(cam_ok, t, 0.0), "d": d, "t": t, "slot": slot, "prim": prim, "hit": hit,
+         "ok": cam_ok, "light": dr.full(mi.Int32, -1, dr.width(t)), "p": o + d * dr.select(cam_ok, t, 0.0),
+         "x": dr.select(near_lo, lo_xy[0], hi_xy[0]), "y": dr.select(near_lo, lo_xy[1], hi_xy[1])}
+    for j in range(len(lts)):
+        (sd_l, ts_l, ss_l, pr_l, hit_l), (sd_h, ts_h, ss_h, pr_h, hit_h) = sl[j], sh[j]
+        lo_side = (ss_l >= 0) & ((ss_h < 0) | (ts_l <= ts_h))
+        on = (kd == j + 1) & (cl[3] == ch[3]) & (ss_l != ss_h) & dr.isfinite(cl[2]) & dr.isfinite(ch[2])
+        p = dr.select(lo_side, cl[0] + cl[1] * cl[2], ch[0] + ch[1] * ch[2])
+        sd, ts = dr.select(lo_side, sd_l, sd_h), dr.select(lo_side, ts_l, ts_h)
+        on &= dr.isfinite(ts)
+        vals = {"q": p + sd * dr.select(on, ts, 0.0), "d": sd, "t": ts, "slot": dr.select(lo_side, ss_l, ss_h),
+                "prim": dr.select(lo_side, pr_l, pr_h), "hit": sel(lo_side, hit_l, hit_h), "ok": on,
+                "light": mi.Int32(j), "p": p, "x": dr.select(lo_side, lo_xy[0], hi_xy[0]),
+                "y": dr.select(lo_side, lo_xy[1], hi_xy[1])}
+        for k_, v in vals.items():
+            g[k_] = sel(on, v, g[k_])
+        g["ok"] = g["ok"] | on
+    return g
+
+
+def _screen_gradient(P, scene, m, g, key, lts):
+    """``a = (m·∂q/∂x, m·∂q/∂y)`` at the grazes ``g``: a camera ray's ``q = O + s D`` at fixed
+    ``s`` (central differences of the camera rays, :data:`DQ_STEP` pixels); a shadow ray's
+    ``q = p + s L`` at fixed ``s``, ``p`` the receiver's point seen at the shifted pixel and
+    ``L`` its direction to the light (central differences of :data:`DQ_SHADOW` pixels)."""
+    a = []
+    shadow = g["light"] >= 0
+    for dx, dy in ((1.0, 0.0), (0.0, 1.0)):
+        qs = []
+        for sgn in (1.0, -1.0):
+            o, d, _, _ = _rays(P, g["x"] + sgn * dx * DQ_STEP, g["y"] + sgn * dy * DQ_STEP, key)
+            q_cam = o + d * g["t"]
+            o2, d2, t2, _, _, _ = _seen(P, scene, g["x"] + sgn * dx * DQ_SHADOW, g["y"] + sgn * dy * DQ_SHADOW, key)
+            p2 = o2 + d2 * dr.select(dr.isfinite(t2), t2, 0.0)
+            q_sh = p2 + _toward_all(lts, g["light"], p2) * g["t"]
+            qs.append((q_cam, q_sh))
+        da_cam = dr.dot(m, qs[0][0] - qs[1][0]) / (2.0 * DQ_STEP)
+        da_sh = dr.dot(m, qs[0][1] - qs[1][1]) / (2.0 * DQ_SHADOW)
+        a.append(dr.select(shadow, da_sh, da_cam))
+    return a
+
+
+def _lights(P):
+    """``[(k, at, record)]``: the delta lights whose shadow edges are followed, ``k`` their
+    place in ``P.lights``: at a position (``at``: a point light, a spot) or along a direction
+    (directional, ``links1_spot``: light travels along ``direction``)."""
+    return [(k, isinstance(rec, POSITIONED), rec) for k, rec in enumerate(P.lights)
+            if isinstance(rec, POSITIONED + DIRECTED)]
+
+
+def _vec(v):
+    return mi.Vector3f(v) if dr.is_array_v(v) else mi.Vector3f(*[float(c) for c in np.ravel(v)])
+
+
+def _toward(lt, p, record=None):
+    """The unit direction from ``p`` to light ``lt`` and the shadow segment's length."""
+    _, at_, rec = lt
+    rec = rec if record is None else record
+    if at_:
+        v = _vec(rec.position) - p
+        dist = dr.norm(v)
+        return v / dr.maximum(dist, 1e-30), dist * (1.0 - SHADOW_EPS)
+    return -dr.normalize(_vec(rec.direction)), dr.full(mi.Float, INF, dr.width(p))
+
+
+def _toward_all(lts, light, p):
+    out = mi.Vector3f(0.0)
+    for j, lt in enumerate(lts):
+        out = dr.select(light == j, _toward(lt, p)[0], out)
+    return out
+
+
+def _status(P, scene, x, y, key, lts, shadows=True):
+    """What the camera rays through ``(x, y)`` see (:func:`_seen`) and, per light of ``lts``
+    (on lanes ``shadows``), the nearest occluder of the shadow segment from the hit:
+    ``(dir, s, slot (-1: none, -2: no hit), prim, (shape, triangle))``."""
+    cam = _seen(P, scene, x, y, key)
+    o, d, t = cam[0], cam[1], cam[2]
+    hit = dr.isfinite(t)
+    p = o + d * dr.select(hit, t, 0.0)
+    out = []
+    for lt in lts:
+        sd, smax = _toward(lt, p)
+        act = hit & shadows
+        cost = dr.zeros(mi.UInt32, dr.width(p))
+        ts, ss, si, pr = intersect.nearest(P, scene, p, sd, dr.select(act, SHADOW_EPS * t, 0.0),
+                                           dr.select(act, smax, 0.0), act, cost)
+        out.append((sd, dr.select(act, ts, INF), dr.select(hit, dr.select(act, ss, -1), -2), pr,
+                    (si.shape, si.prim_index)))
+    return cam, out
 
 
 def _slots_of(P, test):
@@ -309,7 +428,7 @@ def _sphere_hit(scene, P, q, sl, on, flags=mi.RayFlags.All):
     qd = dr.detach(q)
     out = dr.normalize(qd - c)
     ray = mi.Ray3f(qd + out * r, -out)
-    return scene.ray_intersect(ray, flags, False, on)
+    return shape.ray_intersect(ray, flags, on)   # (the shape alone: another may be in the way)
 
 
 def _normal_speed(scene, P, Q, cr):
@@ -352,6 +471,15 @@ def _normal_speed(scene, P, Q, cr):
         if dr.grad_enabled(p):
             vn = dr.select(on, dr.dot(m, p - dr.detach(p)), vn)
             any_ = True
+    # a shadow edge also moves with its light: the shadow ray from p swings about p
+    for j, (k, at_, _) in enumerate(cr["lights"]):
+        rec = Q.lights[k]
+        if not (at_ and dr.is_array_v(rec.position) and dr.grad_enabled(rec.position)):
+            continue
+        on = valid & (cr["light"] == j)
+        q_ray = cr["p"] + _toward((k, at_, rec), cr["p"])[0] * cr["ts"]
+        vn = dr.select(on, vn - dr.dot(m, q_ray - dr.detach(q_ray)), vn)
+        any_ = True
     return vn if any_ else None
 
 

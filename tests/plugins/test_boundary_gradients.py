@@ -88,12 +88,13 @@ def mover(mi, dr, params, key):
     return lambda th: mi.Transform4f().translate(mi.Vector3f(th, 0.0, 0.0)) @ base
 
 
-def forward(sc, key, seed, spp=AD_SPP, integrator=None):
-    """d frame / dθ (forward mode, every pixel) at θ = 0 with ``seed_grad = seed``."""
+def forward(sc, key, seed, spp=AD_SPP, integrator=None, make=None):
+    """d frame / dθ (forward mode, every pixel) at θ = 0 with ``seed_grad = seed``;
+    ``params[key] = make(θ)`` (default: :func:`mover`)."""
     import drjit as dr
     import mitsuba as mi
     params = mi.traverse(sc)
-    make = mover(mi, dr, params, key)
+    make = make or mover(mi, dr, params, key)
     th = mi.Float(0.0)
     dr.enable_grad(th)
     params[key] = make(th)
@@ -125,12 +126,12 @@ def reverse(sc, key, weight, seed, spp=AD_SPP, integrator=None):
     return g
 
 
-def finite_differences(sc, key, seed):
+def finite_differences(sc, key, seed, make=None):
     """(frame(+h) − frame(−h)) / 2h, both frames of the same seed (shared samples)."""
     import drjit as dr
     import mitsuba as mi
     params = mi.traverse(sc)
-    make = mover(mi, dr, params, key)
+    make = make or mover(mi, dr, params, key)
     pair = []
     for s in (FD_STEP, -FD_STEP):
         params[key] = make(mi.Float(s))
@@ -195,6 +196,48 @@ def cube_ply(path):
             f"element face {len(tris)}\nproperty list uchar int vertex_indices\nend_header\n")
     path.write_text(head + "".join(f"{x} {y} {z}\n" for x, y, z in v) + "".join(f"3 {a} {b} {c}\n" for a, b, c in tris))
     return str(path)
+
+
+SHADOW_CAMERA = perspective("0, 5, 5", "0, 0, 0", fov=35, width=W, height=H, spp=4)
+FLOOR = ('<shape type="rectangle" id="floor"><transform name="to_world"><scale value="4"/><rotate x="1" angle="-90"/>'
+         '</transform><bsdf type="diffuse"><rgb name="reflectance" value="0.5"/></bsdf></shape>')
+SHADOW_LIGHT = ('<emitter type="links1_point" id="lp"><point name="position" x="0.5" y="4" z="0.5"/><rgb name="L1" value="12"/>'
+                '<string name="falloff" value="inverse_square"/></emitter>')
+OCCLUDERS = {
+    "quadric": ("links1_whitted.obj.to_world", f"""<shape type="links1_quadric" id="obj"><string name="kind" value="sphere"/>
+        <transform name="to_world"><scale value="0.5"/><translate x="0.3" y="1" z="-0.5"/></transform>{PHONG}</shape>"""),
+    "mitsuba_sphere": ("obj.to_world", f"""<shape type="sphere" id="obj"><point name="center" x="0.3" y="1" z="-0.5"/>
+        <float name="radius" value="0.5"/>{PHONG}</shape>"""),
+}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("case", ["quadric", "mitsuba_sphere", "light"])
+def test_shadow_edges_against_finite_differences(variant, tmp_path, case):
+    """A sphere (constant colour) over a diffuse floor under a ``links1_point`` light: d Σ ramp ·
+    frame / dθ (the ramp ``(x − W/2)/(W/2)`` on red: a sideways move changes it) for the
+    occluder's x-translation (its outline and its shadow's edge move) and for the light's x
+    (its shadow's edge moves, and the floor's shading: the interior term), against central
+    differences of 1024-spp frames. Without the term the first two are 0 and the light's is
+    8 % short (measured: 6.29 against 6.84)."""
+    import drjit as dr
+    import mitsuba as mi
+    key, body = OCCLUDERS["quadric" if case == "light" else case]
+    path = tmp_path / "scene.xml"
+    path.write_text(scene(whitted(1, projective=True) + SHADOW_CAMERA, FLOOR, body, SHADOW_LIGHT))
+    import links1_mitsuba as lm
+    sc = lm.load_file(str(path))
+    if case == "light":
+        key = "lp.position"
+        x0, y0, z0 = np.array(mi.traverse(sc)[key], dtype=np.float64).ravel()
+        make = lambda th: mi.Point3f(th + float(x0), float(y0), float(z0))   # noqa: E731
+    else:
+        make = mover(mi, dr, mi.traverse(sc), key)
+    ramp = np.zeros((H, W, 3))
+    ramp[..., 0] = (np.arange(W) - W / 2) / (W / 2)
+    ads = [float((forward(sc, key, s, make=make) * ramp).sum()) for s in AD_SEEDS]
+    fds = [float((finite_differences(sc, key, s, make=make) * ramp).sum()) for s in FD_SEEDS]
+    assert_agree(f"{case}: ramp", *mean_se(ads), *mean_se(fds))
 
 
 def _mitsuba_scene(mi, shape, emitter, tmp_path=None):
