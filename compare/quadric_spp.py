@@ -173,6 +173,7 @@ def run_queries(n, res, spps, repeats):
         ext = float(max(np.max(np.abs([s.bounds() for s in specs])), np.max(np.abs(o_np[0]))))
         margin = lightbuffer.MARGIN_REL * (1.0 + ext)
         cube = lightbuffer.build(bvh, ("point", o_np[0]), margin, N=lightbuffer.GRID_MAX)
+        eye = lightbuffer.plan_eye(SimpleNamespace(bvh=bvh, custom=specs, any_mitsuba_shapes=False, **fields), None)
         sun = lightbuffer.build(bvh, ("dir", w), margin)
         o, d = mi.Point3f(o_np.T), mi.Vector3f(d_np.T)
         on = dr.ones(mi.Bool, m)
@@ -200,7 +201,7 @@ def run_queries(n, res, spps, repeats):
             return t, None, None
 
         res_rows = {}
-        cases = (("eye cube map", ours(cube, False)), ("BVH walk", ours(bvh, False)),
+        cases = (("eye grid", ours(eye, False)), ("eye cube map", ours(cube, False)), ("BVH walk", ours(bvh, False)),
                  ("Embree", embree))
         for name, fn in cases:
             sec, (t, cost, _) = _timed(fn, repeats)
@@ -244,7 +245,7 @@ def run_queries(n, res, spps, repeats):
             sec, (T, cost) = _timed(fn, repeats)
             rows.append({"size": n, "spp": spp, "rays": "shadow", "method": name, "ns_per_ray": 1e9 * sec / k,
                          "tests": None if cost is None else float(np.mean(np.array(cost))), "nodes": None})
-        for r in rows[-6:]:
+        for r in rows[-7:]:
             print(f"  N={n} spp={spp} {r['rays']} {r['method']}: {r['ns_per_ray']:.1f} ns/ray, tests {r['tests']}, "
                   f"nodes {r['nodes']}", file=sys.stderr, flush=True)
     return rows

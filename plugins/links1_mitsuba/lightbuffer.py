@@ -28,6 +28,7 @@ import math
 
 import numpy as np
 
+from . import eyegrid
 from .lights import DIRECTED, POSITIONED
 
 #: relative distance margin (times 1 + the scene's extent) added to every bound: covers the
@@ -296,18 +297,24 @@ def plan(P, scene):
 
 def plan_eye(P, scene):
     """The light buffer of a perspective camera's eye (Weghorst, Hooper and Greenberg's first-hit
-    speed-up in Haines and Greenberg's form): camera rays all start there, so a cube map around
-    it lists the quadrics each ray can meet, nearest first (``LightBuffer.nearest``). None
-    where there is no BVH, the camera is not a pinhole or it does not pay (as :func:`plan`)."""
+    speed-up in Haines and Greenberg's form) as a grid over its film (:mod:`.eyegrid`): camera
+    rays all start there, so per cell of a few pixels the quadrics each ray can meet, nearest
+    first (``LightBuffer.nearest``). None where there is no BVH, the camera is not a pinhole or
+    the scene is unbounded."""
     if P.bvh is None or not getattr(P, "perspective", False) or P.lens is not None:
         return None
     eye = np.asarray(P.cam, dtype=np.float64)[:3, 3]
     ext = scene_extent(P, scene, [eye])
     if ext is None:
         return None
-    # the finest grid: most camera rays see no quadric, and a fine cell tells them so without
-    # an exact test (the BVH rejects them with one box test)
-    return build_if_it_pays(P.bvh, ("point", eye), MARGIN_REL * (1.0 + ext), N=GRID_MAX)
+    margin = MARGIN_REL * (1.0 + ext)
+    R = eyegrid.camera_frame(P.cam)
+    window = eyegrid.film_window(P.cam, P.x_fov, P.film_size, R)
+    c, r = quadric_spheres(P.bvh.specs, margin)
+    off, ob, ke, frame = eyegrid.lists(eye, R, window, P.film_size, c, r, ANGLE_MARGIN)
+    lens = np.diff(off)
+    mean = float(lens[lens > 0].mean()) if np.any(lens > 0) else 0.0
+    return LightBuffer(P.bvh, ("eye", eye, frame), frame[5], off, ob, ke, margin, mean)
 
 
 def build_if_it_pays(bvh, geom, margin, N=None):
@@ -354,6 +361,11 @@ class LightBuffer:
         self.entries = int(len(ob))
         if self.kind == "point":
             self.pos = [float(x) for x in geom[1]]
+        elif self.kind == "eye":                 # eyegrid.build: a grid over the camera's film
+            self.pos = [float(x) for x in geom[1]]
+            R, u0, v0, su, sv, self.nu, self.nv, self.kappa = geom[2]
+            self.frame = [[float(x) for x in row] for row in R]
+            self.u0, self.v0, self.su, self.sv = float(u0), float(v0), float(su), float(sv)
         else:
             w, (e1, e2, u0, v0, inv) = geom[1], geom[2]
             self.w, self.e1, self.e2 = ([float(x) for x in v] for v in (w, e1, e2))
@@ -394,6 +406,15 @@ class LightBuffer:
             cell = (face * N + mi.UInt32(iv)) * N + mi.UInt32(iu)
             p = mi.Vector3f(*self.pos)
             lim = dr.norm(o - p) + self.margin
+        elif self.kind == "eye":
+            v = -d
+            x, y, z = (row[0] * v.x + row[1] * v.y + row[2] * v.z for row in self.frame)
+            front = z > self.kappa * dr.norm(v)
+            zs = dr.select(front, z, 1.0)
+            iu = dr.clip(dr.floor((x / zs - self.u0) * self.su), 0.0, self.nu - 1.0)
+            iv = dr.clip(dr.floor((y / zs - self.v0) * self.sv), 0.0, self.nv - 1.0)
+            cell = dr.select(front, mi.UInt32(iv) * self.nu + mi.UInt32(iu), self.nu * self.nv)
+            ok, lim = act, None
         else:
             e1, e2, w = (mi.Vector3f(*x) for x in (self.e1, self.e2, self.w))
             iu = dr.clip(dr.floor((dr.dot(o, e1) - self.u0) * self.inv), 0.0, N - 1.0)

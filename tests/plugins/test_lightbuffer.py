@@ -265,59 +265,6 @@ def test_bounding_spheres_hold_the_quadrics(variant):
 
 
 @pytest.mark.slow
-def test_eye_buffer_nearest_matches_bvh(variant):
-    """The camera's eye buffer (lightbuffer.plan_eye) finds the BVH walk's nearest quadric hit
-    bit for bit (t, row, part, found): rays from the eye in random directions, toward every
-    quadric's bound silhouette (grazing) and along cube-map cell borders; and renders the same
-    image as the BVH walk."""
-    import drjit as dr
-    import mitsuba as mi
-    from links1_mitsuba import tuning
-    xml = _scene(120)
-    scene, integ, P = _prepared(xml)
-    eb = P.eye_buf
-    assert eb is not None and eb.kind == "point"
-    eye = np.array(eb.pos)
-    rng = np.random.default_rng(4)
-    specs = P.bvh.specs
-    lo = np.array([s.bounds()[0] for s in specs])
-    hi = np.array([s.bounds()[1] for s in specs])
-    c, r = 0.5 * (lo + hi), 0.5 * np.linalg.norm(hi - lo, axis=1)
-    dirs = [rng.normal(size=(20000, 3)) + np.array([0.0, -0.6, -1.0]) * 2]
-    for k in range(len(specs)):                       # grazing the bounds, both sides
-        to = c[k] - eye
-        side = np.cross(to, rng.normal(size=(40, 3)))
-        side /= np.linalg.norm(side, axis=1)[:, None]
-        dirs.append(to + side * (r[k] * rng.uniform(0.3, 1.05, 40))[:, None])
-    N = eb.N
-    for face in range(6):                             # cell borders
-        ax, sgn = face // 2, (-1.0 if face % 2 else 1.0)
-        dv = np.zeros((300, 3))
-        dv[:, ax] = sgn
-        b = -1.0 + 2.0 * rng.integers(0, N + 1, 300) / N
-        dv[:, (ax + 1) % 3], dv[:, (ax + 2) % 3] = b, rng.uniform(-1, 1, 300)
-        dirs.append(dv)
-    d = np.concatenate(dirs)
-    d = (d / np.linalg.norm(d, axis=1)[:, None]).astype(np.float32)
-    n = len(d)
-    o = mi.Point3f(*[mi.Float(np.full(n, np.float32(v))) for v in eye])
-    dd = mi.Vector3f(*[mi.Float(np.ascontiguousarray(d[:, i])) for i in range(3)])
-    tmin, tmax, act = mi.Float(np.full(n, 1e-3, np.float32)), mi.Float(np.full(n, np.inf, np.float32)), \
-        dr.full(mi.Bool, True, n)
-    a = [np.asarray(x) for x in eb.nearest(o, dd, tmin, tmax, act, None)]
-    b = [np.asarray(x) for x in P.bvh.nearest(o, dd, tmin, tmax, act, None)]
-    assert 0.1 < b[3].mean() < 0.9                   # hits and misses
-    for x, y, name in zip(a, b, ("t", "row", "part", "found")):
-        if name in ("row", "part"):
-            x, y = x[b[3]], y[b[3]]
-        assert np.array_equal(x, y), f"{name}: {np.sum(x != y)} rays differ"
-    img = integ.render_window(scene, spp=1)
-    with tuning.tuned(eye_buffer=False):
-        scene2, integ2, _ = _prepared(xml)
-        assert np.array_equal(integ2.render_window(scene2, spp=1), img)
-
-
-@pytest.mark.slow
 def test_sampled_mean_list_estimates_the_built_buffer(variant):
     """The pre-build estimate that skips hopeless buffers (plan, plan_eye) is within 15 % of
     the mean list length of the buffer built for the same point."""
