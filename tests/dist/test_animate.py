@@ -378,3 +378,29 @@ def test_orbit_example_scene_is_the_eye_orbit(refs):
         assert np.allclose(cam.to_world, want.to_world, rtol=0, atol=1e-12) and cam.fov_x == want.fov_x
         assert np.allclose(cam.to_world[:3, 3], [14 * math.sin(a), 9, 14 * math.cos(a)], rtol=0, atol=1e-12)
         assert np.allclose(res.images[f], refs[f], rtol=0, atol=1e-9), f
+
+
+def mitsuba_orbit(params, f, t):
+    """A per-frame update of the plugin's loaded scene (``params``: its ``mi.traverse``): the
+    sensor's ``to_world`` at the orbit's eye for frame ``f`` (the key found by the sensor's x_fov)."""
+    import mitsuba as mi
+    sensor = next(k for k in params.keys() if k.endswith(".x_fov"))[:-len("x_fov")]
+    a = math.radians(30 * f)
+    # in double, then float32, as Mitsuba's XML reader makes a <lookat>
+    m = mi.ScalarTransform4d().look_at(origin=[14 * math.sin(a), 9, 14 * math.cos(a)], target=[0, 0, 0], up=[0, 1, 0])
+    params[sensor + "to_world"] = mi.ScalarTransform4f(np.asarray(m.matrix, dtype=np.float32))
+
+
+@pytest.mark.slow
+def test_mitsuba_update_function_moves_the_loaded_scene():
+    """animate(update=...) with the plugin: the function changes mi.traverse(scene), animate calls
+    params.update() and the integrator re-prepares; each frame equals a fresh load of the file at
+    that frame's eye."""
+    pytest.importorskip("mitsuba")
+    frames = [0, 1]
+    res = animate(MANY, frames=frames, update=mitsuba_orbit, renderer="mitsuba", units="frames", keep_images=True,
+                  progress=False, **OPTS)
+    for f in frames:
+        v = frame_values([ORBIT], [f], 24.0)[0]
+        ref = make_renderer("mitsuba", MANY, params=v, **OPTS).render()
+        assert np.array_equal(res.images[f], ref), f
