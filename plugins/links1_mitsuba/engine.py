@@ -1,5 +1,5 @@
-"""The engine of ``links1_whitted``: its configuration (:class:`Config`) and the parts it is
-composed of, each an object with its own declared state.
+"""The engine of ``links1_whitted``: its configuration (:class:`~.config.Config`) and the parts
+it is composed of, each an object with its own declared state.
 
 ``Links1Whitted`` (integrator.py) is a thin Mitsuba integrator: it reads its properties into a
 :class:`Config`, holds one :class:`Engine` out of :func:`drjit.freeze`'s walk
@@ -22,76 +22,22 @@ is read through :meth:`Engine.info`.
 """
 from __future__ import annotations
 
-import dataclasses
-
 import mitsuba as mi
 import numpy as np
 
 from links1.interrupts import interruptible
-from links1.scene.params import default as l1_default
-from links1.scene.params import read as l1_read
-from links1.tracing.adaptive import DEFAULT_ADAPTIVE_DEPTH, render_adaptive_window
+from links1.tracing.adaptive import render_adaptive_window
 from links1.tracing.aovs import channel_names
 from links1.tracing.aovs import check_aovs as parse_aovs  # the one AOV table and checker (links1/tracing/aovs.py)
 
 from . import tuning
+from .config import Config
 from .gradients import Gradients
 from .launch import Launches
 from .raytree import Tracer
 from .sceneshapes import SceneShapes
 from .tables import Tables
 from .views import render_request
-
-
-@dataclasses.dataclass
-class Config:
-    """The integrator's parameters (``links1_whitted``'s properties, docs/guide.md)."""
-
-    #: surface interactions along one branch of the ray tree (primary hit = 1)
-    max_depth: int
-    #: seed of the sample pattern (links1.maths.sampling)
-    seed: int
-    #: a secondary ray is traced only if its weight in the pixel exceeds this
-    min_weight: float
-    #: shadow rays per sampled light per hit
-    light_samples: int
-    #: the extra channels (links1.tracing.aovs)
-    aovs: list
-    #: adaptive anti-aliasing threshold (links1.tracing.adaptive) instead of the sampler's count
-    adaptive: float | None = None
-    adaptive_depth: int = DEFAULT_ADAPTIVE_DEPTH
-    #: check the scene's parameters (mi.traverse) before reusing the prepared tables;
-    #: MitsubaRenderer, whose scene is its own, turns it off for its launches
-    verify_scene: bool = True
-    #: render windows through a frozen function (launch.Launches._frozen_fn): no re-tracing
-    use_freeze: bool = True
-    #: add the visibility (boundary) term to the derivatives (boundary.py)
-    projective: bool = False
-
-    @classmethod
-    def from_props(cls, props) -> "Config":
-        """The parameters of ``props`` checked by the rules the core's reader applies too
-        (links1.scene.params)."""
-        def param(name, conv):
-            return l1_read("links1_whitted", name, conv(props[name]) if name in props else None)
-        md = param("max_depth", int)
-        if md == -1:
-            md = l1_default("links1_whitted", "max_depth")
-        if md < 1:
-            raise ValueError(f"links1_whitted: max_depth must be >= 1 (or -1), got {md}")
-        cfg = cls(max_depth=md, seed=param("seed", int), min_weight=param("min_weight", float),
-                  light_samples=param("light_samples", int), aovs=parse_aovs(props.get("aovs", "")),
-                  projective=param("projective", bool))
-        if "adaptive" in props:
-            from links1.tracing.adaptive import check_options
-            try:
-                cfg.adaptive, cfg.adaptive_depth = check_options(
-                    props.get("adaptive"), props.get("adaptive_depth", DEFAULT_ADAPTIVE_DEPTH))
-            except Exception as e:
-                raise ValueError(f"links1_whitted: {e}") from None
-        elif "adaptive_depth" in props:
-            raise ValueError("links1_whitted: adaptive_depth needs adaptive")
-        return cfg
 
 
 def _config_field(name):

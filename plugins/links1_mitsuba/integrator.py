@@ -1,6 +1,6 @@
 """``links1_whitted``: the LINKS-1 method (docs/method.md §2–4) as a Mitsuba 3 integrator in Dr.Jit.
 
-``Links1Whitted`` is thin: it reads its properties into an :class:`~links1_mitsuba.engine.Config`
+``Links1Whitted`` is thin: it reads its properties into a :class:`~links1_mitsuba.config.Config`
 and hands every entry point to one :class:`~links1_mitsuba.engine.Engine` (engine.py: the
 tables, lights, intersection, ray tree, launches and gradients as its parts; its state declared
 there), held out of :func:`drjit.freeze`'s walk of the scene (:class:`~links1_mitsuba.util.Hidden`).
@@ -12,7 +12,8 @@ from __future__ import annotations
 
 from links1.scene.params import default as l1_default
 
-from .engine import Config, Engine
+from .config import Config
+from .engine import Engine
 from .registered import check_properties, unsupported_variant
 from .tuning import Tuning
 from .util import Hidden
@@ -22,7 +23,7 @@ from .util import Hidden
 DEFAULT_MIN_WEIGHT = l1_default("links1_whitted", "min_weight")
 # Custom quadrics with finite bounds go under a BVH (bvh.py) from tuning.Tuning.bvh_min on.
 
-#: the integrator's parameters, read and set through it (engine.Config)
+#: the integrator's parameters, read and set through it (config.Config)
 CONFIG_FIELDS = ("max_depth", "seed", "min_weight", "light_samples", "aovs", "adaptive",
                  "adaptive_depth", "verify_scene", "use_freeze", "projective")
 

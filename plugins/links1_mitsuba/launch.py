@@ -24,9 +24,10 @@ from links1.tracing.aovs import check_aovs as parse_aovs  # the one AOV table an
 from links1.maths.sampling import key_seed, strata
 
 from .camera import camera_rays, rays_at
+from .config import Config
 from .film import Batch, cached_batch, concat, reconstruct, sample_ids, sample_window, widen
-from .gradients import trace_tree_ad
 from .raytree import Tracer
+from .raytree_ad import trace_tree_ad
 from .util import Hidden, aligned
 
 #: Most samples (lanes) per launch of the window function; more are split into launches.
@@ -196,7 +197,7 @@ class Launches:
     """The launches of one engine: the frozen window and point launches (their recordings),
     the film's batch tables and the ray counters of the last render. Each call is given the
     camera view of the tables to render (``tables``, from ``Tables.prepare``), the scene and the
-    frame's :class:`~.raytree.Tracer`; ``config`` (``engine.Config``) gives the defaults
+    frame's :class:`~.raytree.Tracer`; ``config`` (:class:`~.config.Config`) gives the defaults
     (seed, AOVs) and whether to freeze."""
 
     __slots__ = (
@@ -208,7 +209,7 @@ class Launches:
         "stats_pending",   # ... or the launches' counters, summed when first read
     )
 
-    def __init__(self, config):
+    def __init__(self, config: Config):
         self.config = config
         self.window_launch = self.point_launch = None
         self.batches = {}
@@ -287,7 +288,7 @@ class Launches:
         self._set_stats(counts)
 
     # -------------------------------------------------------------- the frozen launches
-    def _call_frozen(self, fn, tables, scene, tracer, *args):
+    def _call_frozen(self, fn, tables, scene, tracer: Tracer, *args):
         """Call a frozen launch with ``args``, the scene as :class:`SceneInputs` and, last, its
         caller: a :class:`~links1_mitsuba.util.Hidden` holding the frame's ``tracer``, the
         ``tables`` and the scene, which a recording's body reads (freeze walks nothing of a
@@ -362,7 +363,7 @@ class Launches:
             self.point_launch = dr.freeze(launch_points, warn_after=1000)
         return self.point_launch
 
-    def _key(self, tables, scene, tracer, *more) -> tuple:
+    def _key(self, tables, scene, tracer: Tracer, *more) -> tuple:
         """A frozen launch's configuration (hashed by freeze): the tables and scene by id,
         ``more``, the depth and weight threshold, the frame's switches as one number."""
         return (id(tables), id(scene), *more, int(self.config.max_depth), float(self.config.min_weight),
@@ -370,7 +371,7 @@ class Launches:
 
     # -------------------------------------------------------------- launches
     @interruptible
-    def trace_points(self, tables, scene, tracer, xf, yf, keys):
+    def trace_points(self, tables, scene, tracer: Tracer, xf, yf, keys):
         """Radiance and cost of the camera rays through film positions ``(xf, yf)`` (numpy,
         fractions of the film, row 0 at the top), ray-tree keys ``keys`` (uint32): the
         lattice points of adaptive anti-aliasing (:mod:`links1.tracing.adaptive`). Light samples at
@@ -400,7 +401,7 @@ class Launches:
             self._set_stats(counts)
         return np.concatenate(L), np.concatenate(cost)
 
-    def _launch(self, tables, scene, tracer, sid, spp_, seeds, want, mode=dr.ADMode.Primal):
+    def _launch(self, tables, scene, tracer: Tracer, sid, spp_, seeds, want, mode=dr.ADMode.Primal):
         """One launch over the sample ids ``sid`` (a ``UInt32`` array) -> (its device outputs
         ``total``, ``cost`` and with ``want`` ``t0``, ``s0``, ``n0``, each with one lane per
         sample; its ray counters). ``mode``: ``dr.ADMode.Primal`` (the frozen launch) or a
@@ -427,7 +428,7 @@ class Launches:
             part.update(t0=widen(t0, n), s0=widen(s0, n), n0=widen(n0, n))
         return part, self._launch_counts(n, counters)
 
-    def window_samples(self, tables, scene, tracer, window=None, spp=1, seed=None, aovs=None):
+    def window_samples(self, tables, scene, tracer: Tracer, window=None, spp=1, seed=None, aovs=None):
         """The samples a window's pixels are made of, as numpy (for checks and debugging):
         ``(sample_window, {"total": (sh, sw, spp, 3), "cost": (sh, sw, spp)`` and with AOVs
         ``"t0", "s0", "n0"``: the launch's per-sample outputs, float32 / int32``})``."""
@@ -448,7 +449,7 @@ class Launches:
         return swin, out
 
     @interruptible
-    def render_windows(self, tables, scene, tracer, windows, spp=1, seed=None, aovs=None):
+    def render_windows(self, tables, scene, tracer: Tracer, windows, spp=1, seed=None, aovs=None):
         """Render several windows of the film in one launch -> one float64 ndarray ``(h, w,
         3 + aov channels)`` per window, each exactly what ``Engine.render_window`` returns for
         it (pixels are independent lanes). The frame is made on the device
@@ -460,7 +461,7 @@ class Launches:
                 for p, (_, _, w, h) in zip(batch.pixel_start, batch.wins)]
 
     @interruptible
-    def render_windows_device(self, tables, scene, tracer, windows, spp=1, seed=None, aovs=None,
+    def render_windows_device(self, tables, scene, tracer: Tracer, windows, spp=1, seed=None, aovs=None,
                               dtype=None, mode=dr.ADMode.Primal):
         """:meth:`render_windows` on the device: one tensor ``(h, w, C)`` per window, of
         ``dtype`` (``mi.Float``: ``mi.TensorXf``; ``mi.Float64``: ``mi.TensorXf64``), never
@@ -484,7 +485,7 @@ class Launches:
         return [Tensor(dr.gather(type(flat), flat, dr.arange(mi.UInt32, w * h * C) + dr.opaque(mi.UInt32, p * C)),
                        shape=(h, w, C)) for p, (_, _, w, h) in zip(batch.pixel_start, batch.wins)]
 
-    def _render_flat(self, tables, scene, tracer, windows, spp, seed, aovs, dtype, mode):
+    def _render_flat(self, tables, scene, tracer: Tracer, windows, spp, seed, aovs, dtype, mode):
         """The windows' pixels as one flat ``dtype`` array, window after window, with their
         channel count and :class:`~links1_mitsuba.film.Batch` (for the callers above)."""
         W, H = tables.film_size

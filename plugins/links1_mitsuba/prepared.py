@@ -222,7 +222,7 @@ class Prepared(ViewFields):
     #: the attached geometry of the links1 shapes, or None
     geo_ad: object = _default(None)
     #: whether no moving surface (``geo_ad``) can spawn a mirror or refraction ray: the
-    #: children's rays then carry no derivative (``gradients.trace_tree_ad`` detaches them)
+    #: children's rays then carry no derivative (``raytree_ad.trace_tree_ad`` detaches them)
     fixed_children: bool = _default(True)
     #: what one derivative pass makes once for all its levels (``geometry.surface_ad``'s memo)
     ad_memo: object = _default(None)

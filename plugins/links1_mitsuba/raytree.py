@@ -39,6 +39,8 @@ import mitsuba as mi
 from links1.maths.sampling import KEY_REFLECT, KEY_REFRACT
 
 from . import intersect, lights
+from .config import Config
+from .tuning import Tuning
 from .util import INF, gather3, mix32
 
 # tuning.Tuning.skip_misses: direct light (every light's sample, shading and shadow rays) under a
@@ -156,14 +158,14 @@ class Level:
 
 class Tracer:
     """One level, the children of a hit, the ray trees of a launch, with the integrator's
-    parameters ``config`` (``engine.Config``: ``max_depth``, ``min_weight``, ``light_samples``,
+    parameters ``config`` (:class:`~.config.Config`: ``max_depth``, ``min_weight``, ``light_samples``,
     read when tracing) and the switches ``tuning`` (:class:`~.tuning.Tuning`) of the frame it
     traces (made per frame by the engine: ``Engine.tracer``). The lights and intersections it
     calls are plain functions (lights.py, intersect.py)."""
 
     __slots__ = ("config", "tuning")
 
-    def __init__(self, config, tuning):
+    def __init__(self, config: Config, tuning: Tuning):
         self.config = config
         self.tuning = tuning
 
@@ -173,7 +175,7 @@ class Tracer:
         """Trace and shade one ray per lane (inside the megakernel's loop when ``symbolic``).
         ``sample``: the camera sample of a primary hit (see :func:`.lights.light_uv`). ``later``
         (a derivative pass): a list that takes the shadow tests' results the pass keeps in
-        memory, for the caller to evaluate (``gradients.trace_tree_ad``: after it has read
+        memory, for the caller to evaluate (``raytree_ad.trace_tree_ad``: after it has read
         which rays the level spawns, so that reading waits for the hits' kernel only). ``ad``:
         a derivative pass's level (gradients.py: attached tables, no symbolic branches, visibility
         on primal values). Returns a :class:`Level`: :meth:`_surface`, :meth:`_emitted`,

@@ -29,11 +29,15 @@ import mitsuba as mi
 
 from . import lightbuffer, proxies, views
 from .bvh import QuadricBVH
+from .config import Config
+from .launch import Launches
 from .lights import ConstantEnvRecord, EnvMapRecord, analytic_light, area_table, envmap_table
 from .paramwatch import ParamWatch
 from .prepared import PHONG_TABLES, Prepared
 from .registered import plugin_class
+from .sceneshapes import SceneShapes
 from .shadow_plan import plan_occluders, shadow_split
+from .tuning import Tuning
 from .util import checked_index, kind_of
 
 #: Relative ray-origin offset on shapes whose float32 hits are accurate to a few ulps
@@ -106,7 +110,7 @@ class Tables:
         "n_scene_builds", "n_camera_views", "n_value_updates",
     )
 
-    def __init__(self, config, shapes, launches):
+    def __init__(self, config: Config, shapes: SceneShapes, launches: Launches):
         self.config = config
         self.shapes = shapes
         self.launches = launches
@@ -117,7 +121,7 @@ class Tables:
         """The next :meth:`prepare` checks nothing against the last tables: it builds them."""
         self.last = None
 
-    def prepare(self, scene, sensor, tuning):
+    def prepare(self, scene, sensor, tuning: Tuning):
         """The tables of ``scene`` seen from ``sensor`` (a sensor object, an index into
         ``scene.sensors()``, or None: the scene's first sensor), rebuilt when the scene is
         another one or was changed; ``tuning``: the frame's switches (:class:`~.tuning.Tuning`).

@@ -180,20 +180,20 @@ MIRROR_GLASS = head(4, "0, 2.0, 6", "0, 1.0, 0", 32, 24) + """
 
 
 def test_ray_tree_counts_changing_with_geometry_replay_the_same_kernels(variant, monkeypatch):
-    """The derivative pass joins each level's mirror and refraction rays (gradients.py ``cat``)
+    """The derivative pass joins each level's mirror and refraction rays (raytree_ad.py ``cat``)
     with their counts as opaque values: moving a sphere changes the counts, not the kernels."""
     import drjit as dr
     import mitsuba as mi
 
     import links1_mitsuba as lm
-    from links1_mitsuba import gradients
+    from links1_mitsuba import raytree_ad
     counts = []
-    real_cat = gradients.cat
+    real_cat = raytree_ad.cat
 
     def recording_cat(a, b, na, nb):
         counts.append((na, nb))
         return real_cat(a, b, na, nb)
-    monkeypatch.setattr(gradients, "cat", recording_cat)
+    monkeypatch.setattr(raytree_ad, "cat", recording_cat)
     collect_earlier_scenes()
     scene = lm.load_string(MIRROR_GLASS)
     params = mi.traverse(scene)

@@ -1,0 +1,85 @@
+"""The derivative pass's ray tree of ``links1_whitted`` (its one home): the trees of
+:meth:`.raytree.Tracer.trace_tree` (the same levels, children, weights, keys and
+``min_weight`` rule, :meth:`~.raytree.Tracer.level` and :meth:`~.raytree.Tracer.children`)
+traced level by level in Python without local memory, so that Dr.Jit can differentiate them
+(gradients.py: why; the primal's megakernel keeps its pending refraction rays in
+``dr.alloc_local`` memory, which Dr.Jit cannot differentiate). Called by the launches
+(``Launches._launch``) in a derivative mode.
+"""
+from __future__ import annotations
+
+import drjit as dr
+import mitsuba as mi
+
+from .raytree import child_keys
+from .util import INF
+
+
+def cat(a, b, na, nb):
+    """``a`` (``na`` lanes) followed by ``b`` (``nb`` lanes), differentiable (gathers)."""
+    if nb == 0:
+        return a
+    if na == 0:
+        return b
+    # ``na`` enters as an opaque value, not a literal: the counts change with the geometry
+    # (compaction of each level's children), and a literal would make new kernels each time
+    n_a = dr.opaque(mi.UInt32, na)
+    j = dr.arange(mi.UInt32, na + nb)
+    in_a = j < n_a
+    ga = dr.gather(type(a), a, dr.select(in_a, j, 0), in_a)
+    gb = dr.gather(type(b), b, dr.select(in_a, 0, j - n_a), ~in_a)
+    return dr.select(in_a, ga, gb)
+
+
+def trace_tree_ad(tracer, tables, scene, o, d, tmin, tmax, key, sample):
+    """The ray trees of :meth:`.raytree.Tracer.trace_tree` (the same levels, children, weights, keys
+    and ``min_weight`` rule) traced level by level without local memory, so that Dr.Jit
+    can differentiate them: the children of a level (mirror rays first, then
+    refraction rays) are compacted into the next level's rays, and each level's
+    ``weight · I_o`` is added to its sample (eq. 3.16). Returns the samples' RGB, evaluated."""
+    n = dr.width(o)
+    spawn = tracer.config.max_depth > 1 and tables.any_specular
+    later = []    # a level's shadow tests, evaluated with what its children take (below)
+    res = tracer.level(tables, scene, o, d, tmin, tmax, key, 1, spawn, symbolic=False, ad=True,
+                       sample=sample, later=later)
+    total = mi.Color3f(res.L)
+    if not spawn:
+        dr.eval(total, *later)
+        return total
+    own = dr.arange(mi.UInt32, n)
+    cr, ct, w_r, w_t = tracer.children(res, res.hit, mi.Color3f(1.0), mi.UInt32(1))
+    depth = 2
+    while True:
+        key_r, key_t = child_keys(key)
+        ir, it = dr.compress(cr), dr.compress(ct)
+        nr, nt = dr.width(ir), dr.width(it)
+        if nr + nt == 0:
+            dr.eval(total, *later)
+            return total
+        # what the children take of this level, made in one kernel (a gather evaluates its
+        # source alone: a kernel per component, each recomputing the shared terms), with the
+        # level's shadow tests: it runs while the next level is traced
+        dr.eval(*([res.o_r, res.dir_r, w_r, key_r] if nr else []),
+                *([res.o_t, res.dir_t, w_t, key_t] if nt else []), *later)
+        later.clear()
+
+        def pick(x_r, x_t):
+            a = dr.gather(type(x_r), x_r, ir) if nr else None
+            b = dr.gather(type(x_t), x_t, it) if nt else None
+            return cat(a, b, nr, nt)
+        own = pick(own, own)
+        o, d = pick(res.o_r, res.o_t), pick(res.dir_r, res.dir_t)
+        if tables.fixed_children:
+            # spawned by surfaces that do not move, from rays that carry no derivative
+            # (the camera's; by induction the children's): the AD graph skips their
+            # place (zero derivative, computed in every backward kernel otherwise)
+            o, d = dr.detach(o), dr.detach(d)
+        wgt, key = pick(w_r, w_t), pick(key_r, key_t)
+        m = nr + nt
+        res = tracer.level(tables, scene, o, d, dr.zeros(mi.Float, m), dr.full(mi.Float, INF, m), key, 0,
+                           True, symbolic=False, ad=True, later=later)
+        acc = dr.zeros(mi.Color3f, n)
+        dr.scatter_add(acc, wgt * res.L, own)
+        total = total + acc
+        cr, ct, w_r, w_t = tracer.children(res, dr.full(mi.Bool, True, m), wgt, mi.UInt32(depth))
+        depth += 1
