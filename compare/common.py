@@ -216,6 +216,20 @@ def run_job(job: dict, timeout: float) -> dict:
         return out
 
 
+def kernel_history_of(fn):
+    """``fn()`` run with Dr.Jit's kernel history recording: ``(wall seconds, the kernels it
+    launched)`` (``dr.kernel_history()``: a dict a kernel)."""
+    import drjit as dr   # (here only: most benchmarks of this module never load Dr.Jit)
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    dr.kernel_history()
+    try:
+        t0 = time.perf_counter()
+        fn()
+        return time.perf_counter() - t0, dr.kernel_history()
+    finally:
+        dr.set_flag(dr.JitFlag.KernelHistory, False)
+
+
 def check_finite(img, what: str) -> None:
     if not np.all(np.isfinite(img)):
         bad = int(np.sum(~np.isfinite(img)))

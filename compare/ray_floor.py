@@ -19,7 +19,10 @@ times each, interleaved (links1, Mitsuba, floor, links1, ...), after one warm-up
   ``pixel * spp + i``); at every hit whose BSDF has a smooth lobe, a shadow ray to each light
   that lies on the side of the surface the ray came from; at every hit, one child ray per
   delta lobe of its BSDF (``BSDFContext.component``) whose weight along the tree stays above
-  links1's ``min_weight`` (the Whitted tree, eq. 3.12–3.16), up to max_depth levels.
+  links1's ``min_weight`` (the Whitted tree, eq. 3.12–3.16), up to max_depth levels;
+* ``floor, masked``: the same, the shadow rays tested as links1's kernel issues them, at the
+  full width of their level with the lanes that need no test masked off (what compacting them
+  could save: the difference).
 
 Reported per case: the three medians (the best round's, as ``compare/vs_direct.py``), links1 /
 Mitsuba, floor / Mitsuba and links1 / floor; the rays each traces (links1's from its ``stats``;
@@ -38,7 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
-from compare.common import command_line, machine_info, machine_markdown
+from compare.common import command_line, kernel_history_of, machine_info, machine_markdown
 
 RESULTS = Path(__file__).resolve().parent / "results"
 ROOT = Path(__file__).resolve().parent.parent
@@ -135,8 +138,9 @@ def mitsuba_integrator(kind, depth):
 # ----------------------------------------------------------------------------- the floor
 def floor_rays(scene, size, spp, depth, min_weight, seed=0):
     """The rays of a Whitted tree of ``depth`` levels for ``size[0] × size[1] × spp`` samples
-    (module docstring), as ``[(level, rays, coherent, kind), ...]`` with ``kind`` "nearest"
-    or "shadow", each batch densely packed; made untimed."""
+    (module docstring), as ``[(level, rays, coherent, kind, active), ...]`` with ``kind``
+    "nearest" or "shadow" (each batch densely packed) or "shadow_masked" (the shadow rays at
+    the width of their level, ``active`` the lanes that need them); made untimed."""
     import drjit as dr
     import mitsuba as mi
     W, H = size
@@ -156,7 +160,7 @@ def floor_rays(scene, size, spp, depth, min_weight, seed=0):
     for level in range(depth):
         ray = mi.Ray3f(rays)
         dr.eval(ray)
-        batches.append((level, ray, level == 0, "nearest"))
+        batches.append((level, ray, level == 0, "nearest", True))
         si = scene.ray_intersect(ray, mi.RayFlags.All, level == 0)
         hit = si.is_valid()
         bsdf = si.bsdf(ray)
@@ -172,8 +176,10 @@ def floor_rays(scene, size, spp, depth, min_weight, seed=0):
             if dr.width(idx):
                 sh = si.spawn_ray_to(ds.p)
                 sray = dr.gather(mi.Ray3f, sh, idx)
-                dr.eval(sray)
-                batches.append((level, sray, False, "shadow"))
+                dr.eval(sray, sh, need)
+                batches.append((level, sray, False, "shadow", True))
+                # the same tests as full-width masked packets (as one kernel issues them)
+                batches.append((level, mi.Ray3f(sh), False, "shadow_masked", need))
                 counts["shadow"] += dr.width(idx)
         if level == depth - 1:
             break
@@ -201,18 +207,20 @@ def floor_rays(scene, size, spp, depth, min_weight, seed=0):
     return batches, counts
 
 
-def trace_floor(scene, batches):
+def trace_floor(scene, batches, masked=False):
     """Trace the floor's batches once (the timed part): nearest hits as
-    ``ray_intersect_preliminary``, shadow rays as ``ray_test``."""
+    ``ray_intersect_preliminary``, shadow rays as ``ray_test``, densely packed or (``masked``)
+    as full-width packets with the lanes that need no test masked off."""
     import drjit as dr
-    import mitsuba as mi
     outs = []
-    for _, ray, coherent, kind in batches:
+    for _, ray, coherent, kind, active in batches:
         if kind == "nearest":
             pi = scene.ray_intersect_preliminary(ray, coherent)
             outs += [pi.t, pi.prim_index, pi.shape_index]
+        elif kind == ("shadow_masked" if masked else "shadow"):
+            outs.append(scene.ray_test(ray, coherent, active))
         else:
-            outs.append(scene.ray_test(ray, coherent))
+            continue
         dr.eval(outs[-1] if kind != "nearest" else outs[-3:])
     dr.sync_thread()
     return outs
@@ -241,17 +249,11 @@ def _kernel_label(k, ir) -> str:
 def kernel_breakdown(scene, spp, repeats) -> dict:
     """links1's frame by kernel (``dr.kernel_history``): per kernel hash its label, launches,
     lanes and ms a frame; the frame's wall and kernel times (medians)."""
-    import drjit as dr
     _frame(scene, None, spp)
     groups, walls, kern = {}, [], []
     for _ in range(repeats):
-        dr.set_flag(dr.JitFlag.KernelHistory, True)
-        dr.kernel_history()
-        t0 = time.perf_counter()
-        _frame(scene, None, spp)
-        walls.append(time.perf_counter() - t0)
-        hist = dr.kernel_history()
-        dr.set_flag(dr.JitFlag.KernelHistory, False)
+        wall, hist = kernel_history_of(lambda: _frame(scene, None, spp))
+        walls.append(wall)
         ks = 0.0
         for k in hist:
             t = float(k.get("execution_time", 0.0))
@@ -280,7 +282,8 @@ def measure(scene, kind, depth, size, spps, repeats, rounds) -> dict:
     for spp in spps:
         batches, fcounts = floor_rays(scene, size, spp, depth, mw)
         runs = {"links1": lambda: _frame(scene, None, spp), "mitsuba": lambda: _frame(scene, integ, spp),
-                "floor": lambda: trace_floor(scene, batches)}
+                "floor": lambda: trace_floor(scene, batches),
+                "floor_masked": lambda: trace_floor(scene, batches, masked=True)}
         for f in runs.values():
             f()                                   # warm-up: compilation, prepared tables
         stats = scene.integrator().stats
@@ -330,12 +333,12 @@ def markdown(rows, a, info, cmd) -> str:
           f"{a.rounds} rounds × {a.repeats} frames, the best round's median of each (`compare/ray_floor.py`). "
           "Mitsuba: `direct` (bsdf_samples 0) for the diffuse scenes, `path` at max_depth = links1's + 1 for "
           "the mirror/glass ones. floor: links1's rays alone, densely packed (`ray_intersect_preliminary`, "
-          "`ray_test`). Target: links1 / Mitsuba ≤ 0.8 (box), ≤ 0.5 (other filters), ≤ 0.4 (`path`); "
+          "`ray_test`); floor, masked: its shadow rays as full-width masked packets instead. Target: links1 / Mitsuba ≤ 0.8 (box), ≤ 0.5 (other filters), ≤ 0.4 (`path`); "
           "never above 1.0 at spp 1.\n\n",
           "| scene | filter | size | vs | spp | links1 ms | Mitsuba ms | floor ms | links1 / Mitsuba | floor / Mitsuba "
-          "| links1 / floor | links1 rays (camera/shadow/reflect/refract) | floor rays (camera/shadow/secondary) "
-          "| `direct` rays (camera/shadow) |\n",
-          "| " + " | ".join(["---"] * 14) + " |\n"]
+          "| links1 / floor | floor, masked ms | links1 rays (camera/shadow/reflect/refract) "
+          "| floor rays (camera/shadow/secondary) | `direct` rays (camera/shadow) |\n",
+          "| " + " | ".join(["---"] * 15) + " |\n"]
     for r in rows:
         for spp, t in r["timing"].items():
             ms = t["ms"]
@@ -345,7 +348,8 @@ def markdown(rows, a, info, cmd) -> str:
             md.append(f"| `{r['id']}` | {r['rfilter']} | {r['width']}×{r['height']} | {r['kind']} | {spp} | "
                       f"{ms['links1']:.1f} | {ms['mitsuba']:.1f} | {ms['floor']:.1f} | **{rat:.2f}** "
                       f"{'✓' if ok else '✗'} (≤ {tg}) | {ms['floor'] / ms['mitsuba']:.2f} | "
-                      f"{ms['links1'] / ms['floor']:.2f} | {_rays(t['links1_rays'])} | {_rays(t['floor_rays'])} | "
+                      f"{ms['links1'] / ms['floor']:.2f} | {ms['floor_masked']:.1f} | {_rays(t['links1_rays'])} | "
+                      f"{_rays(t['floor_rays'])} | "
                       f"{_rays(t['mitsuba_rays'])} |\n")
     md.append("\n## links1's frame by kernel (`dr.kernel_history`, ms a frame)\n\n"
               "| scene | filter | spp | wall | kernels | host | kernels by hash: label size×launches ms |\n"
@@ -362,13 +366,13 @@ def markdown(rows, a, info, cmd) -> str:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m compare.ray_floor", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--only", nargs="*", default=None, help="case ids (optionally ID:FILTER)")
     ap.add_argument("--width", type=int, default=512)
     ap.add_argument("--spp", type=int, nargs="+", default=[1, 16])
-    ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--rounds", type=int, default=2)
-    ap.add_argument("--variant", default="llvm_ad_rgb")
-    ap.add_argument("--only", nargs="*", default=None, help="case ids (optionally ID:FILTER)")
+    ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--out", default=str(RESULTS / "ray_floor"))
+    ap.add_argument("--variant", default="llvm_ad_rgb")
     a = ap.parse_args(argv)
     import drjit as dr
     info, cmd = machine_info(), command_line()
@@ -384,7 +388,7 @@ def main(argv=None) -> int:
             for s, v in t.items():
                 ms = v["ms"]
                 print(f"{cid:18s} {rf:8s} spp {s:3d}: links1 {ms['links1']:7.1f} {kind} {ms['mitsuba']:7.1f} "
-                      f"floor {ms['floor']:7.1f} ms  l/m {ms['links1'] / ms['mitsuba']:.2f} "
+                      f"floor {ms['floor']:7.1f} masked {ms['floor_masked']:7.1f} ms  l/m {ms['links1'] / ms['mitsuba']:.2f} "
                       f"f/m {ms['floor'] / ms['mitsuba']:.2f}  kernels: " + ", ".join(
                           f"{g['label']} {g['ms']:.1f}" for g in v["kernels"]["kernels"][:5]), flush=True)
             del scene

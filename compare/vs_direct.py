@@ -58,6 +58,8 @@ from pathlib import Path
 
 import numpy as np
 
+from compare.common import kernel_history_of
+
 RESULTS = Path(__file__).resolve().parent / "results"
 ROOT = Path(__file__).resolve().parent.parent
 MAX_DEPTH = 1
@@ -219,7 +221,6 @@ def _ir_features(ir) -> dict:
 
 
 def profile(scene, spp: int, repeats: int) -> dict:
-    import drjit as dr
     import mitsuba as mi
     direct = mi.load_dict({"type": "direct", "emitter_samples": 1, "bsdf_samples": 0})
     res = {}
@@ -228,15 +229,10 @@ def profile(scene, spp: int, repeats: int) -> dict:
         walls, kern, groups = [], [], {}
         pr = cProfile.Profile()
         for _ in range(repeats):
-            dr.set_flag(dr.JitFlag.KernelHistory, True)
-            dr.kernel_history()
             pr.enable()
-            t0 = time.perf_counter()
-            _frame(scene, integ, spp)
-            walls.append(time.perf_counter() - t0)
+            wall, hist = kernel_history_of(lambda: _frame(scene, integ, spp))
             pr.disable()
-            hist = dr.kernel_history()
-            dr.set_flag(dr.JitFlag.KernelHistory, False)
+            walls.append(wall)
             ks = 0.0
             for k in hist:
                 t = float(k.get("execution_time", 0.0))
