@@ -84,6 +84,14 @@ class Engine:
         without, the module-wide ones (:func:`links1_mitsuba.tuning.current`)."""
         return self.own_tuning if self.own_tuning is not None else tuning.current()
 
+    def set_tuning(self, value):
+        """Make ``value`` (a :class:`~.tuning.Tuning`) this engine's switches; None: the
+        module-wide ones again. It takes effect at the next frame."""
+        if value is not None and not isinstance(value, tuning.Tuning):
+            raise TypeError(f"links1_whitted: tuning must be a links1_mitsuba.tuning.Tuning or None, "
+                            f"got {type(value).__name__}")
+        self.own_tuning = value
+
     def _tracer(self) -> Tracer:
         """The ray tree of a frame: the integrator's parameters and this frame's switches."""
         return Tracer(self.config, self.current_tuning())

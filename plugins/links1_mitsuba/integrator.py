@@ -15,7 +15,6 @@ from links1.scene.params import default as l1_default
 from .config import Config
 from .engine import Engine
 from .registered import check_properties, unsupported_variant
-from .tuning import Tuning
 from .util import Hidden
 
 #: Default weight below which a branch of the ray tree is not traced (POV-Ray's adc_bailout;
@@ -170,10 +169,7 @@ def define_integrator():
 
         @tuning.setter
         def tuning(self, value):
-            if value is not None and not isinstance(value, Tuning):
-                raise TypeError(f"links1_whitted: tuning must be a links1_mitsuba.tuning.Tuning or None, "
-                                f"got {type(value).__name__}")
-            self._hidden.engine.own_tuning = value
+            self._hidden.engine.set_tuning(value)
 
         @property
         def stats(self):
