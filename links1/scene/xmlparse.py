@@ -40,11 +40,13 @@ Non-finite numbers (NaN, Inf) are rejected wherever a number is read.
 
 Public API
 ----------
-``parse_file(path, params=None) -> Node`` and
+``parse_file(path, params=None, sources=None) -> Node`` and
 ``parse_string(text, base_dir=None, params=None, filename="<string>") -> Node`` return the
 root ``<scene>`` :class:`Node`. A node has ``tag``, ``type``, ``id``, ``name``, ``file``,
 ``line``, ``props`` (name → :class:`Prop`) and ``children`` (list of ``(name, Node)`` for
-the nested objects, references resolved, in document order).
+the nested objects, references resolved, in document order); a top-level one also ``uses``,
+the ``$name`` parameters it takes. ``sources`` (:class:`Sources`) keeps the files read, so the
+next parse of the scene with other values reads none (:mod:`links1.scene.scenefile`).
 """
 from __future__ import annotations
 
