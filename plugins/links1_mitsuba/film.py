@@ -454,7 +454,10 @@ def _filter_gather(rfilter, film_size, spp, seed, batch, data, L, mode):
     planes = batch.kept(("planes", int(spp)), lambda: (_planes(batch, n_s),))[0]
     dr.scatter(packed, Vec4(total[0], total[1], total[2], 0.0), planes)
     pad = _wx_pad(nb)
-    tables = ns * pad * 8 <= FILM_TABLE_BYTES
+    # one sample a pixel lies at its centre (maths.sampling): its weights towards the
+    # neighbours are the same for every sample, nb numbers made once (centre_weights)
+    centred = _centre_weights(rfilter, nb) if int(spp) == 1 else None
+    tables = centred is None and ns * pad * 8 <= FILM_TABLE_BYTES
     if tables:
         # the row weights too where both tables are kept; else the row weights are made in
         # the gather from the sample's oy (kept in its column weights' record), so that the
@@ -476,12 +479,16 @@ def _filter_gather(rfilter, film_size, spp, seed, batch, data, L, mode):
         yu = U32(dr.select(on_y, yy, 0))
         # the strip's first column's sample i in the launch (c = 0; U32 arithmetic wraps)
         lane0 = L.start + i * L.npix + (yu - L.sy0) * L.sw + U32(cx0)
+        if centred is not None:
+            w_row = dr.gather(F64, centred[1], dyi)   # the step's row weight (one for all lanes)
         for c in range(P + 2 * b):
             cx = cx0 + c
             on = on_y & (U32(cx) < L.sw)
             lane = dr.select(on, lane0 + c if c else lane0, 0)
             v = dr.gather(Vec4, packed, lane, on)
-            if tables:
+            if centred is not None:
+                wy = dr.select(on, w_row, 0.0)   # off the film: zero weights (the tables' zeros)
+            elif tables:
                 # the sample's nb column weights and its offset oy as one packet (pad float64s)
                 wx = dr.gather(ArrayX, wx_t, lane, on, shape=(pad, dr.width(lane)))
                 wy = (dr.gather(F64, wy_t, lane * nb + dyi, on) if rows else
@@ -491,11 +498,11 @@ def _filter_gather(rfilter, film_size, spp, seed, batch, data, L, mode):
                 wy = filter_eval(rfilter, (0.5 - F64(dy)) - oy)
             for p in range(max(0, c - 2 * b), min(P, c + 1)):
                 dxi = c - p
-                if tables:
+                if tables or centred is not None:
                     # off the film the masked gathers read 0: wgt and the term are zeros and a
                     # sum plus a zero is the sum (never -0: it starts at +0), the same bits
                     # without a select
-                    wgt = wy * wx[dxi]
+                    wgt = wy * (centred[0][dxi] if centred is not None else wx[dxi])
                     r[p], g[p], bl[p] = (r[p] + wgt * F64(v[0]), g[p] + wgt * F64(v[1]),
                                          bl[p] + wgt * F64(v[2]))
                     den[p] = den[p] + wgt
@@ -513,6 +520,25 @@ def _filter_gather(rfilter, film_size, spp, seed, batch, data, L, mode):
         den = dr.select(acc[3 * P + p] == 0.0, 1.0, acc[3 * P + p])
         out.append([acc[p] / den, acc[P + p] / den, acc[2 * P + p] / den])
     return out
+
+
+_CENTRE_WEIGHTS = {}
+
+
+def _centre_weights(rfilter, nb):
+    """The 1-D weights of a sample at its pixel's centre (spp 1) towards its ``nb`` neighbour
+    columns or rows: ``(python floats, the same as a Float64 array)``, evaluated as the weight
+    tables evaluate them (:func:`filter_eval` on the device, at ``(0.5 - d) - 0.5``): the same
+    bits. Made once per filter and variant."""
+    key = (rfilter.name, tuple(sorted(rfilter.params.items())), rfilter.radius, nb, mi.variant())
+    hit = _CENTRE_WEIGHTS.get(key)
+    if hit is None:
+        F64 = mi.Float64
+        x = F64([0.5 - float(d - rfilter.border) for d in range(nb)]) - dr.opaque(F64, 0.5)
+        w = filter_eval(rfilter, x)
+        dr.eval(w)
+        hit = _CENTRE_WEIGHTS[key] = ([float(v) for v in np.asarray(w)], w)
+    return hit
 
 
 def _planes(batch, n_s):

@@ -154,6 +154,33 @@ def test_filter_strips_at_film_edges_and_row_ends(variant, tmp_path, monkeypatch
                     assert np.array_equal(got[..., 3:], ref[..., 3:])
 
 
+@pytest.mark.parametrize("rfilter", [f for f in RFILTERS if f != "box"])
+def test_filter_at_spp_1_from_centre_weights(variant, tmp_path, monkeypatch, rfilter):
+    """At spp 1 every sample lies at its pixel's centre and the non-box gather takes its
+    weights from film._centre_weights (2b+1 numbers, no tables): windows at the film's edges
+    give the full frame's bits, the per-sample tables' bits and the numpy film's pixels (bit
+    for bit for the filters without exp/sin)."""
+    import mitsuba as mi
+    from links1_mitsuba import film
+    scene = load(tmp_path, rfilter)
+    integ = scene.integrator()
+    wins = [(W - 13, 0, 13, 5), (0, H - 3, 5, 3), (10, 4, 1, 9)]
+
+    def frame(ws):
+        return [np.asarray(a) for a in integ.render_windows_device(scene, ws, spp=1, seed=5, aovs=AOVS,
+                                                                      dtype=mi.Float64)]
+    full = frame([None])[0]
+    for (x0, y0, w, h), b in zip(wins, frame(wins)):
+        assert np.array_equal(b, full[y0:y0 + h, x0:x0 + w])
+        ref = numpy_film(integ, scene, (x0, y0, w, h), 1, 5, AOVS)
+        if rfilter in EXACT:
+            assert np.array_equal(b, ref)
+        else:
+            np.testing.assert_array_less(np.abs(b - ref), 1e-12 * np.maximum(1.0, np.abs(ref)))
+    monkeypatch.setattr(film, "_centre_weights", lambda *a: None)     # the tables' path
+    assert np.array_equal(frame([None])[0], full)
+
+
 def test_split_launches_weight_tables_and_device_counters(variant, tmp_path, monkeypatch):
     """Launches split at LAUNCH_LANES give the same bits as one launch, weights evaluated in the
     gather (windows over FILM_TABLE_BYTES) the same as from per-sample tables, and the ray
