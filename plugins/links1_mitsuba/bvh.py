@@ -189,6 +189,17 @@ class QuadricBVH:
         return t, part
 
     def normal(self, q, o, d, t, part, act):
+        """The unit world normal of row ``q`` at ``o + t d`` (cap ``part``) on lanes ``act``,
+        computed under a symbolic ``dr.if_stmt`` on ``act``: a packet with no quadric hit skips
+        its 13 gathers and the transform (the same values on ``act``; elsewhere zero). Where the
+        ray carries derivatives (a derivative pass), the straight-line code."""
+        if dr.grad_enabled((o, d, t)):
+            return self._normal(q, o, d, t, part, act)
+        return dr.if_stmt((q, o, d, t, part, act), act, self._normal,
+                          lambda q, o, d, t, part, act: dr.zeros(mi.Vector3f, dr.width(t)),
+                          mode="symbolic", label="links1_bvh_normal")
+
+    def _normal(self, q, o, d, t, part, act):
         a, qz = self._rows(q, act)
         u = mi.Vector3f(*[a[i][0] * o.x + a[i][1] * o.y + a[i][2] * o.z + a[i][3] for i in range(3)])
         v = mi.Vector3f(*[a[i][0] * d.x + a[i][1] * d.y + a[i][2] * d.z for i in range(3)])
