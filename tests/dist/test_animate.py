@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import math
 import os
+import sys
 
 import numpy as np
 import pytest
@@ -321,16 +322,36 @@ def test_mitsuba_frames_updated_in_place_equal_fresh_loads():
         assert np.array_equal(res.images[f], ref), f
 
 
-def test_video_needs_its_extra(tmp_path, capsys):
-    try:
-        import imageio_ffmpeg  # noqa: F401
-        pytest.skip("imageio-ffmpeg is installed: the missing-extra message cannot be seen")
-    except ImportError:
-        pass
+def test_video_needs_its_extra(tmp_path, capsys, monkeypatch):
+    monkeypatch.setitem(sys.modules, "imageio_ffmpeg", None)      # import fails as if not installed
     code = main(["animate", MANY, "-o", str(tmp_path / "f.png"), "--frames", "2", "--renderer", "core",
                  "--video", str(tmp_path / "v.mp4"), "--no-progress"])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and "links1[video]" in err[0] and not list(tmp_path.iterdir())
+
+
+def test_video_holds_the_frames_in_order(tmp_path):
+    """--video encodes the written frames at --fps: decoded, the video has one picture a frame,
+    the film's size, and its k-th picture is far closer to frame k's sRGB image than to any other (the orbit's frames
+    differ, so an order or a count mistake shows)."""
+    ffmpeg = pytest.importorskip("imageio_ffmpeg")
+    from links1.imaging.image import linear_to_srgb
+    video = tmp_path / "orbit.mp4"
+    code = main(["animate", MANY, "-o", str(tmp_path / "f_%02d.exr"), "--frames", "4", "--renderer", "core",
+                 "--width", "32", "--height", "32", "--spp", "1", "-D", f"{ORBIT[0]}=14*sin(radians(60*f)), 9, "
+                 "14*cos(radians(60*f))", "--fps", "12", "--video", str(video), "--no-progress"])
+    assert code == 0 and video.stat().st_size > 0
+    frames = [np.clip(linear_to_srgb(read_image(str(tmp_path / f"f_{f:02d}.exr"))[..., :3]), 0, 1) * 255
+              for f in range(4)]
+    gen = ffmpeg.read_frames(str(video))
+    meta = next(gen)
+    assert tuple(meta["size"]) == (32, 32) and abs(meta["fps"] - 12) < 1e-6
+    pics = [np.frombuffer(b, np.uint8).reshape(32, 32, 3).astype(np.float64) for b in gen]
+    assert len(pics) == 4
+    for k, pic in enumerate(pics):
+        err = [np.mean(np.abs(pic - f)) for f in frames]
+        others = min(e for j, e in enumerate(err) if j != k)
+        assert err[k] < 0.5 * others and err[k] < 20.0, (k, err)     # lossy (4:2:0 chroma at 32²), but its own frame
 
 
 def test_sequence_plans_cover_their_frames_once():
