@@ -450,7 +450,7 @@ def _filter_gather(rfilter, film_size, spp, seed, batch, data, L, mode):
     # 16-byte gather instead of three 4-byte ones (~2.6x cheaper for scattered lanes on
     # LLVM); the same values
     Vec4 = mi.Vector4f
-    packed = dr.zeros(type(total[0]), 4 * ns)
+    packed = dr.empty(type(total[0]), 4 * ns)   # (every record written below: _planes is a permutation)
     planes = batch.kept(("planes", int(spp)), lambda: (_planes(batch, n_s),))[0]
     dr.scatter(packed, Vec4(total[0], total[1], total[2], 0.0), planes)
     pad = _wx_pad(nb)
