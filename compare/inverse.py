@@ -64,7 +64,7 @@ INTEGRATOR = """<integrator type="links1_whitted"><integer name="max_depth" valu
 CAMERA = """<sensor type="perspective"><float name="fov" value="{fov}"/>
     <transform name="to_world"><lookat origin="{origin}" target="{target}" up="0, 1, 0"/></transform>
     <film type="hdrfilm"><integer name="width" value="{w}"/><integer name="height" value="{w}"/><rfilter type="box"/></film>
-    <sampler type="independent"><integer name="sample_count" value="1"/></sampler></sensor>"""
+    <sampler type="independent"><integer name="sample_count" value="{spp}"/></sampler></sensor>"""
 
 FLOOR = """<shape type="rectangle" id="floor"><transform name="to_world"><scale value="5"/><rotate x="1" angle="-90"/></transform>
     <bsdf type="links1_phong"><rgb name="diffuse" value="0.6, 0.5, 0.4"/><rgb name="specular" value="0.4"/>
@@ -125,8 +125,9 @@ def load(case, width):
     # pass's graph for dr.backward (one render an iteration): an explicit choice
     tuning.set_tuning(keep_graph=True)
     s = SCENES[case]
-    cams = "".join(CAMERA.format(w=width, **c) for c in [s["camera"], *s.get("views", [])])
-    xml = f'<scene version="3.0.0">{INTEGRATOR}{cams}{s["body"]}</scene>'
+    # (a scene may name its own integrator and sample count: compare/inverse_outline.py)
+    cams = "".join(CAMERA.format(w=width, spp=s.get("spp", 1), **c) for c in [s["camera"], *s.get("views", [])])
+    xml = f'<scene version="3.0.0">{s.get("integrator", INTEGRATOR)}{cams}{s["body"]}</scene>'
     return lm.load_string(xml)
 
 

@@ -9,8 +9,9 @@ of a sum over the row's crossings, and also one over columns; for a row at heigh
 
     d/dθ ∫ f(x, y) dx = Σ_c (f(x_c⁻) − f(x_c⁺)) dx_c/dθ,
 
-``x_c`` the crossings and ``f(x_c∓)`` the radiance just left and right of each. Per sample of
-a pixel: a random row and a random column of its square (:func:`boundary_image`), each
+``x_c`` the crossings and ``f(x_c∓)`` the radiance just left and right of each. The pixels
+near an outline are found first (:func:`_active`: what their corners see); per sample of
+such a pixel: a random row and a random column of its square (:func:`_crossings`), each
 queried at :data:`POINTS` points for what it sees (the nearest hit's slot), every interval
 whose ends see different slots bisected (:data:`BISECT_STEPS`) to its crossing, ``f`` on both
 sides traced by the primal ray tree (``trace_points``, detached). A crossing on a row counts
@@ -49,8 +50,9 @@ Left out (biased there, as docs/method.md §6 says): crossings that do not chang
 behind another occluder of the same shadow ray), grazes that are neither a smooth silhouette
 (``|m·D|`` below :data:`GRAZE`) nor an edge above (the curve where two surfaces cut), Mitsuba
 shapes other than spheres and meshes, a receiver's own motion under a shadow edge, outlines
-and shadows seen in mirrors or through glass, and pairs of crossings closer than
-``1/(POINTS − 1)`` pixel on one line. Box filter only.
+and shadows seen in mirrors or through glass, pairs of crossings closer than
+``1/(POINTS − 1)`` pixel on one line, and outlines that enter and leave a 3 × 3 block of
+pixels between its corners. Box filter only.
 """
 from __future__ import annotations
 
@@ -65,9 +67,9 @@ from .util import INF, kind_of, mix32
 
 #: points a row (a column) of a pixel is queried at, its ends included
 POINTS = 8
-#: bisection steps from an interval of 1/(POINTS − 1) pixel to its crossing (float32 film
-#: coordinates stop refining long before)
-BISECT_STEPS = 28
+#: bisection steps from an interval of 1/(POINTS − 1) pixel to its crossing: 1/7 · 2⁻²² pixel,
+#: below float32's resolution of the film coordinates of a 2048-pixel film
+BISECT_STEPS = 22
 #: how far (pixels) from a crossing its two sides' radiance is traced: the primal ray tree's
 #: intersection rounds otherwise than the bisection's queries on the last few ulps
 SIDE_STEP = 1e-3
@@ -146,12 +148,17 @@ def _crossings(trace_points, scene, P, sensor, win, spp, seed):
     or, for a shadow edge of light ``light`` (-1: none), on its occluder, ``ts`` from the
     receiver's point ``p``; the rest: :func:`_outline`)."""
     x0, y0, w, h = win
-    n = w * h * spp
-    lane = np.arange(n, dtype=np.uint64)
-    pix = (lane // spp).astype(np.int64)
+    lts = _lights(P)
+    # the pixels whose lines are queried: those near a change of what their corners see
+    pix = np.nonzero(_active(P, scene, win, lts).ravel())[0]
+    n = pix.size * spp
+    if n == 0:
+        return None
+    pix, i = np.repeat(pix, spp), np.tile(np.arange(spp), pix.size)
     px, py = x0 + pix % w, y0 + pix // w
     s0 = int(seed) & 0xFFFFFFFF
-    sid = mi.UInt32(lane.astype(np.uint32))
+    # the film's sample ids: a sample's lines do not depend on the window it is rendered in
+    sid = mi.UInt32(((py * P.film_size[0] + px) * spp + i).astype(np.uint32))
     u_row = _unit(mix32(mix32(mi.UInt32(s0 ^ _SALT_ROW)) ^ sid)).numpy()
     u_col = _unit(mix32(mix32(mi.UInt32(s0 ^ _SALT_COL)) ^ sid)).numpy()
     keys = mix32(mix32(mi.UInt32(s0 ^ _SALT_KEY)) ^ sid).numpy()
@@ -161,7 +168,6 @@ def _crossings(trace_points, scene, P, sensor, win, spp, seed):
     fixed = np.concatenate([py + u_row, px + u_col])
     is_col = np.repeat(np.array([False, True]), n)
     lane_key = np.concatenate([keys, keys])
-    lts = _lights(P)
 
     def at(a, colm, fxd):
         return dr.select(colm, fxd, a), dr.select(colm, a, fxd)
@@ -185,13 +191,16 @@ def _crossings(trace_points, scene, P, sensor, win, spp, seed):
     lo_d, hi_d = mi.Float(along[li, ki].astype(np.float32)), mi.Float(along[li, ki + 1].astype(np.float32))
     c_lo = mi.Int32(sig[0][li, ki].astype(np.int32))
     o_lo = mi.Int32(np.choose(np.maximum(kind[li, ki], 0), [g[li, ki] for g in sig]).astype(np.int32))
-    # bisection: lo keeps what the interval's first point sees
-    for _ in range(BISECT_STEPS):
-        mid = 0.5 * (lo_d + hi_d)
+    # bisection, lo keeping what the interval's first point sees: one symbolic loop (a kernel)
+    def halve(lo_, hi_, i):
+        mid = 0.5 * (lo_ + hi_)
         cm, sm = _status(P, scene, *at(mid, colm, fxd), key, lts, kd > 0)
         same = (cm[3] == c_lo) & ((kd == 0) | (_pick(kd, [cm[3]] + [s_[2] for s_ in sm]) == o_lo))
-        lo_d, hi_d = dr.select(same, mid, lo_d), dr.select(same, hi_d, mid)
-        dr.eval(lo_d, hi_d)
+        return dr.select(same, mid, lo_), dr.select(same, hi_, mid), i + 1
+
+    lo_d, hi_d, _ = dr.while_loop((lo_d, hi_d, dr.zeros(mi.UInt32, dr.width(lo_d))),
+                                  lambda lo_, hi_, i: i < BISECT_STEPS, halve, label="links1_bisect")
+    dr.eval(lo_d, hi_d)
     (xl, yl), (xh, yh) = at(lo_d, colm, fxd), at(hi_d, colm, fxd)
     ends = [_status(P, scene, xa, ya, key, lts) for xa, ya in ((xl, yl), (xh, yh))]
     g = _grazes(ends, kd, (xl, yl), (xh, yh), lts)
@@ -214,6 +223,28 @@ def _crossings(trace_points, scene, P, sensor, win, spp, seed):
     dr.eval(edge["pixel"], edge["weight"], edge["q"], edge["m"], edge["slot"], edge["valid"], edge["part"],
             edge["light"], edge["p"])
     return edge
+
+
+def _active(P, scene, win, lts):
+    """``(h, w)`` bools: the window's pixels within one pixel of a pixel whose four corners do
+    not all see the same (the slot, each light's occluder): the only ones whose lines can
+    cross an outline or a shadow edge, unless it enters and leaves that 3 × 3 block of
+    pixels between the corners (docs/method.md §6)."""
+    x0, y0, w, h = win
+    gx, gy = np.meshgrid(np.arange(x0 - 1, x0 + w + 2, dtype=np.float64),
+                         np.arange(y0 - 1, y0 + h + 2, dtype=np.float64))
+    cam, shadows = _status(P, scene, mi.Float(gx.ravel().astype(np.float32)), mi.Float(gy.ravel().astype(np.float32)),
+                           dr.zeros(mi.UInt32, gx.size), lts)
+    diff = np.zeros((h + 2, w + 2), dtype=bool)
+    for v in [cam[3]] + [s_[2] for s_ in shadows]:
+        g = v.numpy().reshape(gx.shape)
+        c = g[:-1, :-1]
+        diff |= (g[:-1, 1:] != c) | (g[1:, :-1] != c) | (g[1:, 1:] != c)
+    grown = np.zeros((h, w), dtype=bool)
+    for dy in range(3):
+        for dx in range(3):
+            grown |= diff[dy:dy + h, dx:dx + w]
+    return grown
 
 
 def _pick(kd, values):

@@ -295,6 +295,22 @@ def test_forward_equals_reverse(variant, tmp_path):
     assert rev == pytest.approx(fwd, rel=1e-4, abs=1e-4)
 
 
+def test_blocks_do_not_change_the_term(variant, tmp_path, monkeypatch):
+    """Reverse mode renders the frame in blocks of rows: the term's lines are drawn from the
+    film's sample ids and its pixels chosen by their own neighbourhood, so six blocks give the
+    one block's gradient (to the order of the sums)."""
+    import links1_mitsuba.gradients as gradients
+    key, body = SHAPES["quadric"]
+    sc = load(tmp_path, body)
+    weight = np.random.default_rng(5).uniform(0, 1, (H, W, 3))
+    one = reverse(sc, key, weight, 3, spp=4)
+    monkeypatch.setattr(gradients, "AD_BLOCK_LANES", 4 * W * 4)   # four rows a block
+    assert len(gradients.row_blocks((0, 0, W, H), (W, H), 0, 4)) == 6
+    six = reverse(sc, key, weight, 3, spp=4)
+    assert abs(one) > 1.0
+    assert six == pytest.approx(one, rel=1e-5)
+
+
 def test_nothing_added_where_no_outline_moves(variant, tmp_path):
     """With no shape's geometry attached (a light's position), ``projective`` changes neither
     the frame nor the derivative, bit for bit; without the option a moving outline's term is
