@@ -56,12 +56,23 @@ def _scene_file(d, n, mitsuba_shapes):
 
 
 # ---------------------------------------------------------------------------- frames
+def tests_per_sample(path, spp, res):
+    """The integrator's ray-primitive tests per camera sample (its ``cost`` AOV over the frame:
+    exact links1 tests, field evaluations of a blob, one per Embree query) of one frame."""
+    from links1_app.renderers import make_renderer
+    r = make_renderer("mitsuba", str(path), params={"res": res}, spp=spp, aovs=("cost",))
+    img = r.render()
+    return float(np.mean(img[..., list(r.channels).index("cost")])) / spp
+
+
 def frame_job(n, shapes, spp, res, frames):
     """One process's measurement (run by ``--job``): warm frames of one renderer."""
     import drjit as dr
     from links1_app.renderers import make_renderer
     with tempfile.TemporaryDirectory() as d:
-        r = make_renderer("mitsuba", str(_scene_file(d, n, shapes == "sphere")), params={"res": res}, spp=spp)
+        path = _scene_file(d, n, shapes == "sphere")
+        tests = tests_per_sample(path, spp, res)
+        r = make_renderer("mitsuba", str(path), params={"res": res}, spp=spp)
         r.render()
         r.render()
         wall, cpu = [], []
@@ -77,7 +88,8 @@ def frame_job(n, shapes, spp, res, frames):
         dr.set_flag(dr.JitFlag.KernelHistory, False)
     kernels = [{"lanes": int(k.get("size", 0)), "ops": int(k.get("operation_count", 0)),
                 "ms": float(k.get("execution_time", 0.0))} for k in hist if k.get("type") == dr.KernelType.JIT]
-    return {"wall_ms": 1e3 * float(np.median(wall)), "cpu_ms": 1e3 * float(np.median(cpu)), "kernels": kernels}
+    return {"wall_ms": 1e3 * float(np.median(wall)), "cpu_ms": 1e3 * float(np.median(cpu)), "kernels": kernels,
+            "tests": tests}
 
 
 def run_frames(sizes, spps, res, frames, rounds):
@@ -105,6 +117,7 @@ def run_frames(sizes, spps, res, frames, rounds):
                 row[f"{k}_cpu_ms"] = float(np.median([r["cpu_ms"] for r in rs]))
                 row[f"{k}_kernel_ms"] = float(np.median([sum(x["ms"] for x in r["kernels"]) for r in rs]))
                 row[f"{k}_kernels"] = rs[-1]["kernels"]
+                row[f"{k}_tests"] = rs[-1]["tests"]
             # per round ratio, then the median (the rounds' loads differ)
             row["ratio"] = float(np.median([a["wall_ms"] / b["wall_ms"] for a, b in
                                             zip(got[(n, s, "quadric")], got[(n, s, "sphere")])]))
@@ -262,15 +275,18 @@ def markdown(a, info, command, frames, queries):
                   f"{a.rounds} interleaved rounds of {a.frames} warm frames; ms: median over the rounds of "
                   "each process's median; ratio: median of the rounds' ratios. kernels: `dr.kernel_history` "
                   "(the frame is one kernel of res² x spp lanes plus the film's), the rest of a frame is "
-                  "the launch's traversal of its inputs (Mitsuba's scene, shape by shape) and read-back.\n\n")
+                  "the launch's traversal of its inputs (Mitsuba's scene, shape by shape) and read-back. tests / "
+                  "sample: the `cost` AOV of one frame over the camera samples (exact quadric tests and one per "
+                  "Embree query, camera and shadow rays together).\n\n")
         md.append(md_table(["N", "spp", "quadric ms", "sphere ms", "ratio", "target (<= 1.0)", "CPU ratio",
                             "quadric kernels ms", "sphere kernels ms", "kernel ratio", "quadric ms / Mrays",
-                            "sphere ms / Mrays"],
+                            "sphere ms / Mrays", "quadric tests / sample", "sphere tests / sample"],
                            [[r["size"], r["spp"], r["quadric_ms"], r["sphere_ms"], r["ratio"],
                              "met" if r["ratio"] <= 1.0 else "missed", r["cpu_ratio"], r["quadric_kernel_ms"],
                              r["sphere_kernel_ms"], r["kernel_ratio"],
                              r["quadric_kernel_ms"] / (a.res * a.res * r["spp"] / 1e6),
-                             r["sphere_kernel_ms"] / (a.res * a.res * r["spp"] / 1e6)] for r in frames]))
+                             r["sphere_kernel_ms"] / (a.res * a.res * r["spp"] / 1e6), r["quadric_tests"],
+                             r["sphere_tests"]] for r in frames]))
     if queries:
         md.append(f"\n## Queries per ray\n\n{a.res}² x spp jittered camera rays of the scene (spheres only, "
                   "no floor) and the shadow rays of their hits toward the light; ns per ray: median of "
