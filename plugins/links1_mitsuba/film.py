@@ -18,13 +18,14 @@ Everything here is a per-output-pixel *gather* in one fixed order, never a scatt
   ``samples`` = spp.
 
 What depends only on the windows (the :class:`Batch` tables, the sample ids, the filter
-gather's sample-major places and weight tables) is kept with the batch while the same windows are rendered again
-(:func:`cached_batch`), and the divisions by run-time values go through
+gather's sample-major places and weight tables) is kept with the batch while the same windows
+are rendered again (:func:`cached_batch`), and the divisions by run-time values go through
 :func:`links1_mitsuba.util.udiv` (exact). The gather of the non-box filters computes a strip of
 :data:`STRIP` pixels of a window row a lane, reading each neighbour sample once for the strip
-(its RGB as one packet of four floats, its column weights as one packet) from a sample-major
-copy of the samples (:func:`_planes`); every pixel keeps its own sums in the order above
-(:func:`_filter_gather`).
+(its RGB as one packet of four floats, its column weights as one packet; at spp 1, where every
+sample lies at its pixel's centre, the weights are :func:`_centre_weights`' constants) from a
+sample-major copy of the samples (:func:`_planes`); every pixel keeps its own sums in the
+order above (:func:`_filter_gather`).
 
 So a pixel depends only on its own samples and those of its neighbours, never on the window:
 a window or a batch of windows equals the full frame bit for bit. Every size (film width,
@@ -499,9 +500,8 @@ def _filter_gather(rfilter, film_size, spp, seed, batch, data, L, mode):
             for p in range(max(0, c - 2 * b), min(P, c + 1)):
                 dxi = c - p
                 if tables or centred is not None:
-                    # off the film the masked gathers read 0: wgt and the term are zeros and a
-                    # sum plus a zero is the sum (never -0: it starts at +0), the same bits
-                    # without a select
+                    # off the film wgt and the term are zeros (masked reads): a sum plus a zero
+                    # is the sum (never -0: it starts at +0), the same bits without a select
                     wgt = wy * (centred[0][dxi] if centred is not None else wx[dxi])
                     r[p], g[p], bl[p] = (r[p] + wgt * F64(v[0]), g[p] + wgt * F64(v[1]),
                                          bl[p] + wgt * F64(v[2]))
