@@ -1,8 +1,10 @@
 """Inverse rendering with ``links1_whitted``'s gradients: a benchmark.
 
-    python -m compare.inverse [--width 64] [--iters 100] [--big 256] [--rounds 25] [--trials 3]
+    python -m compare.inverse [--width 64] [--iters 100] [--blob-iters 400] [--outline-iters 400]
+                              [--big 256] [--rounds 25] [--outline-rounds 9] [--trials 3]
                               [--variant llvm_ad_rgb]
-                              [--only light phong blob quadric]
+                              [--only light phong blob quadric blob_floor quadric_outline
+                                      blob_floor_off quadric_outline_off]
 
 From a target image rendered with known values, starting from perturbed ones, ``mi.ad.Adam``
 on the L2 image loss (``dr.mean(dr.square(img - target))``) recovers
@@ -19,9 +21,26 @@ on the L2 image loss (``dr.mean(dr.square(img - target))``) recovers
   the loss fell). A first version fitted the test's blob of overlapping centres in one view:
   its centres and weights trade against each other (the loss fell 1000x, the error did not);
 * (d) ``quadric``: a ``links1_quadric`` sphere's translation (``to_world`` =
-  translate(t) · scale, t optimised).
+  translate(t) · scale, t optimised);
 
-Every render is spp 1 with a box filter (the sample at the pixel centre: deterministic),
+and, with ``projective=true`` (the visibility term of the derivatives, docs/method.md §6),
+two cases whose outlines carry the information:
+
+* (e) ``blob_floor``: the centres, weights and threshold ``T`` of a 4-centre blob
+  (:data:`FLOOR_LOBES`) over the Phong floor, in ONE view, on the unmasked loss: its outline
+  against the floor, its shading and its shadows on the floor. ``W(x) = T`` is unchanged when
+  every weight and ``T`` are scaled alike, so the first lobe's weight is held at its value
+  (:class:`BlobGaugeCase`; with it free the fit stalls where that scale is off, 1–5 % of the
+  ranges);
+* (f) ``quadric_outline``: a ``links1_quadric`` sphere of one constant colour (``ambient``
+  only) before black, placed from its outline alone (translation ``t``): without the visibility
+  term its gradient is 0.
+
+These two render at spp 4 (the visibility term is an estimate over random rows and columns of
+each pixel) with ``max_depth`` 2; ``blob_floor_off`` and ``quadric_outline_off`` are the same
+fits without the visibility term, for contrast.
+
+Every other render is spp 1 with a box filter (the sample at the pixel centre: deterministic),
 ``max_depth`` 3, the given ``--width`` square. Parameter error = the worst component's
 ``|x − x*| / range``, with the range of each parameter stated in the results (the interval the
 perturbed start is drawn from, or [0, 1] for colours); issue target: ≤ 1 % of the range.
@@ -39,7 +58,7 @@ Dr.Jit's caches) and their code generation + LLVM time are reported (``kernels_c
 ``docs/images/inverse.png`` (docs/guide.md).
 
 Every iteration renders with ``seed=0`` (with spp 1 the sample is the pixel centre whatever the
-seed). New values of a blob's or a quadric's parameters replay the same kernels (the shapes
+seed; at spp 4 the same samples every iteration, and the derivative pass's own, ``seed_grad``). New values of a blob's or a quadric's parameters replay the same kernels (the shapes
 gather them from Dr.Jit tables: ``tables()`` in ``plugins/links1_mitsuba/shapes.py`` and ``blob.py``); before,
 they were literals and each blob iteration compiled ~100 kernels (~23 s).
 """
@@ -60,6 +79,10 @@ from compare.common import command_line, machine_info, machine_markdown, md_tabl
 DOC_IMAGE = Path(__file__).resolve().parent.parent / "docs" / "images" / "inverse.png"
 
 INTEGRATOR = """<integrator type="links1_whitted"><integer name="max_depth" value="3"/></integrator>"""
+
+#: the outline cases' integrator: the visibility term on (``projective``) or off
+OUTLINE_INTEGRATOR = """<integrator type="links1_whitted"><integer name="max_depth" value="2"/>
+    <boolean name="projective" value="{projective}"/></integrator>"""
 
 CAMERA = """<sensor type="perspective"><float name="fov" value="{fov}"/>
     <transform name="to_world"><lookat origin="{origin}" target="{target}" up="0, 1, 0"/></transform>
@@ -84,6 +107,21 @@ BLOB_CENTRES = [[0.1 + 1.0 * a[0], 1.55 + 1.0 * a[1], 0.05 + 1.0 * a[2], w, S] f
 BLOB_FOV = 36
 BLOB_ORIGINS = ["0.1, 2.0, 5", "5, 2.2, 0", "-4.9, 1.2, 0.5", "0.6, 6.5, 0.6", "0.4, 1.0, -5"]
 
+#: the blob_floor case's centres (x y z w S): four lobes in a cross facing the camera (a lobe in
+#: front of another lobe of the same blob is an outline the visibility term leaves out)
+FLOOR_LOBES = [[0.1 + a[0], 1.55 + a[1], 0.05 + a[2], w, S] for a, w, S in (
+    ((1, 0, 0), 1.0, 0.55), ((-1, 0, 0), 0.9, 0.6), ((0, 1, 0), 0.8, 0.5), ((0, -1, 0), 1.0, 0.55))]
+
+
+def blob_xml(centres):
+    """A ``links1_blob`` ``blob`` of ``centres`` (rows x y z w S), threshold 0.5, Phong."""
+    rows = ", ".join(" ".join(f"{x:g}" for x in r) for r in centres)
+    return f"""
+  <shape type="links1_blob" id="blob"><string name="centers" value="{rows}"/><float name="threshold" value="0.5"/>
+    <bsdf type="links1_phong"><rgb name="diffuse" value="0.5, 0.4, 0.3"/><rgb name="specular" value="0.3"/>
+      <rgb name="reflectance" value="0"/><float name="exponent" value="10"/></bsdf></shape>"""
+
+
 SCENES = {
     # (a) a links1_point over a Phong floor and a diffuse wall, no occluder
     "light": dict(camera=dict(fov=50, origin="0, 3, 6", target="0, 0.5, 0"), body=FLOOR.format(refl=0) + """
@@ -101,12 +139,7 @@ SCENES = {
     # masked loss below), lit from the front and from behind, seen from five sides (sensor 0 pictures it)
     "blob": dict(camera=dict(fov=50, origin="0, 2.6, 5", target="0.1, 1.5, 0"),
                  views=[dict(fov=BLOB_FOV, origin=o, target="0.1, 1.55, 0.05") for o in BLOB_ORIGINS],
-                 masked=True, body="""
-  <shape type="links1_blob" id="blob">
-    <string name="centers" value=\"""" + ", ".join(" ".join(f"{x:g}" for x in r) for r in BLOB_CENTRES) + """\"/>
-    <float name="threshold" value="0.5"/>
-    <bsdf type="links1_phong"><rgb name="diffuse" value="0.5, 0.4, 0.3"/><rgb name="specular" value="0.3"/>
-      <rgb name="reflectance" value="0"/><float name="exponent" value="10"/></bsdf></shape>""" + LIGHTS + """
+                 masked=True, body=blob_xml(BLOB_CENTRES) + LIGHTS + """
   <emitter type="links1_point" id="back"><point name="position" x="-1" y="-2" z="-4"/><rgb name="L1" value="0.5"/>
     <rgb name="L2" value="0.3"/><string name="falloff" value="inverse_square"/></emitter>"""),
     # (d) a links1_quadric sphere (scale 1.2) over a mirror-ish floor
@@ -115,7 +148,25 @@ SCENES = {
     <transform name="to_world"><scale value="1.2"/><translate x="0.2" y="1.4" z="0.3"/></transform>
     <bsdf type="links1_phong"><rgb name="diffuse" value="0.5, 0.4, 0.3"/><rgb name="specular" value="0.3"/>
       <rgb name="reflectance" value="0"/><float name="exponent" value="12"/></bsdf></shape>""" + LIGHTS),
+    # (e) the 4-centre blob over the floor, one view (spp 4: the visibility term's rows and columns)
+    "blob_floor": dict(camera=dict(fov=50, origin="0, 2.6, 5", target="0.1, 1.3, 0"), spp=4, projective=True,
+                       body=FLOOR.format(refl=0) + blob_xml(FLOOR_LOBES) + LIGHTS),
+    # (f) a constant-colour quadric sphere before black: only its outline moves
+    "quadric_outline": dict(camera=dict(fov=40, origin="0, 2.5, 6", target="0, 1, 0"), spp=4, projective=True, body="""
+  <shape type="links1_quadric" id="ball"><string name="kind" value="sphere"/>
+    <transform name="to_world"><scale value="1.2"/><translate x="0.2" y="1.4" z="0.3"/></transform>
+    <bsdf type="links1_phong"><rgb name="ambient" value="0.9, 0.7, 0.5"/><rgb name="diffuse" value="0"/>
+      <rgb name="specular" value="0"/></bsdf></shape>"""),
 }
+
+#: a case run with the visibility term off: its scene is the case's without this suffix
+OFF = "_off"
+
+
+def scene_of(case):
+    """The scene of ``case`` and whether the derivatives add the visibility term (``OFF``)."""
+    base = case.removesuffix(OFF)
+    return SCENES[base], SCENES[base].get("projective", False) and not case.endswith(OFF)
 
 
 def load(case, width):
@@ -124,10 +175,14 @@ def load(case, width):
     # mi.render(scene, params) of these spp-1, analytic-light frames keeps the derivative
     # pass's graph for dr.backward (one render an iteration): an explicit choice
     tuning.set_tuning(keep_graph=True)
-    s = SCENES[case]
+    s, projective = scene_of(case)
     # (a scene may name its own integrator and sample count: compare/inverse_outline.py)
     cams = "".join(CAMERA.format(w=width, spp=s.get("spp", 1), **c) for c in [s["camera"], *s.get("views", [])])
-    xml = f'<scene version="3.0.0">{s.get("integrator", INTEGRATOR)}{cams}{s["body"]}</scene>'
+    if "projective" in s:
+        integrator = OUTLINE_INTEGRATOR.format(projective=str(projective).lower())
+    else:
+        integrator = s.get("integrator", INTEGRATOR)
+    xml = f'<scene version="3.0.0">{integrator}{cams}{s["body"]}</scene>'
     return lm.load_string(xml)
 
 
@@ -186,6 +241,19 @@ class QuadricCase(Case):
         params.update()
 
 
+class BlobGaugeCase(Case):
+    """A blob's centres, weights and threshold with its first weight held at its value: the
+    level set ``Σ w_i P(r_i) = T`` (eq. 3.6–3.8) is the same for every ``(λ w, λ T)``, so one of
+    them fixes the scale (the gauge) and the others are then determined."""
+    KEY = "links1_whitted.blob.weights"
+
+    def apply(self, mi, params, opt):
+        w = np.array(opt[self.KEY], dtype=np.float32)
+        w[0] = self.vars[self.KEY]["truth"][0]
+        opt[self.KEY] = mi.Float(w)
+        params.update(opt)
+
+
 def make_cases(iters):
     rng = np.random.default_rng(23)
     cases = []
@@ -213,7 +281,24 @@ def make_cases(iters):
     cases.append(("quadric", QuadricCase, {
         "t": dict(truth=t0, start=t0 + np.array([0.2, -0.15, 0.2]), range=0.5, lo=None),
     }, {"t": 0.01}))
-    return [(n, cls, v, lr, iters.get(n, iters["default"])) for n, cls, v, lr in cases]
+    # (e) the blob over the floor: centres ±0.1 per axis (range 0.2), weights but the first ±0.15
+    # (range 0.3), threshold 0.5 + 0.03 (range 0.1)
+    c0 = np.array(FLOOR_LOBES)[:, :3].T
+    w0 = np.array(FLOOR_LOBES)[:, 3]
+    rng = np.random.default_rng(31)
+    blob_floor = {
+        "links1_whitted.blob.centers": dict(truth=c0, start=c0 + rng.uniform(-0.1, 0.1, c0.shape), range=0.2, lo=None),
+        "links1_whitted.blob.weights": dict(truth=w0, start=w0 + np.r_[0, rng.uniform(-0.15, 0.15, w0.size - 1)],
+                                            range=0.3, lo=0.05),
+        "links1_whitted.blob.threshold": dict(truth=np.array([0.5]), start=np.array([0.53]), range=0.1, lo=0.05)}
+    blob_lr = {"links1_whitted.blob.centers": 0.01, "links1_whitted.blob.weights": 0.02,
+               "links1_whitted.blob.threshold": 0.008}
+    # (f) the outline: translation within ±0.25 per axis (range 0.5), as (d)
+    outline = {"t": dict(truth=t0, start=t0 + np.array([0.2, -0.15, 0.2]), range=0.5, lo=None)}
+    for suffix in ("", OFF):
+        cases.append(("blob_floor" + suffix, BlobGaugeCase, blob_floor, blob_lr))
+        cases.append(("quadric_outline" + suffix, QuadricCase, outline, {"t": 0.01}))
+    return [(n, cls, v, lr, iters.get(n.removesuffix(OFF), iters["default"])) for n, cls, v, lr in cases]
 
 
 def err_of(case, values):
@@ -248,7 +333,7 @@ def run_case(mi, dr, name, cls, variables, lrs, iters, width, log):
     case.set_values(mi, params, {k: d["truth"] for k, d in variables.items()})
     views = range(len(scene.sensors()))
     fit = [k for k in views if k > 0] or [0]   # sensor 0 only pictures a case with more views
-    masked = SCENES[name].get("masked", False)
+    masked = scene_of(name)[0].get("masked", False)
     targets = [mi.render(scene, sensor=k, seed=0) for k in views]
     sync(targets)
     target_on = [np.asarray(t).sum(-1) > 0 for t in targets]
@@ -305,7 +390,8 @@ def run_case(mi, dr, name, cls, variables, lrs, iters, width, log):
     med_pr = float(np.median(primal))
     first_ok = next((i for i, w in enumerate(worst) if all(x <= 0.01 for x in worst[i:])), None)
     return dict(
-        case=name, width=width, iters=iters, learning_rates=lrs,
+        case=name, width=width, iters=iters, learning_rates=lrs, spp=scene_of(name)[0].get("spp", 1),
+        projective=scene_of(name)[1],
         ranges={k: d["range"] for k, d in variables.items()},
         truth={k: d["truth"] for k, d in variables.items()},
         start={k: d["start"] for k, d in variables.items()},
@@ -395,8 +481,9 @@ def _timed_apart(name, a, log):
     import json
     import subprocess
     import sys
+    rounds = a.outline_rounds if scene_of(name)[1] else a.rounds   # (the visibility term's iterations are long)
     cmd = [sys.executable, "-m", "compare.inverse", "--time-case", name, "--big", str(a.big),
-           "--rounds", str(a.rounds), "--variant", a.variant]
+           "--rounds", str(rounds), "--variant", a.variant]
     out = subprocess.run(cmd, capture_output=True, text=True, cwd=Path(__file__).resolve().parent.parent)
     if out.returncode != 0:
         raise RuntimeError(f"compare.inverse: timing {name} failed:\n{out.stderr[-2000:]}")
@@ -435,25 +522,40 @@ def tonemap(img):
     return np.clip(np.asarray(img)[..., :3], 0, 1) ** (1 / 2.2)
 
 
-def figure(results, blob_images):
+#: the figure's labels of the cases (a case with ``OFF``: its case's, dashed)
+LABELS = {"light": "(a) links1_point position, L1, L2", "phong": "(b) links1_phong diffuse, specular",
+          "blob": "(c) blob centres, weights (5 views, masked)", "quadric": "(d) quadric translation",
+          "blob_floor": "(e) blob centres, weights, T (1 view, floor)",
+          "quadric_outline": "(f) quadric translation from its outline"}
+
+
+def figure(results, images):
+    """The error curves of every case, and the target, start and result frames of the
+    single-view blob (``images``: case -> (target, start, result))."""
     plt = pyplot()
-    fig = plt.figure(figsize=(13, 3.4))
-    gs = fig.add_gridspec(1, 4, width_ratios=[1.6, 1, 1, 1])
+    fig = plt.figure(figsize=(14, 3.6))
+    gs = fig.add_gridspec(1, 4, width_ratios=[1.9, 1, 1, 1])
     ax = fig.add_subplot(gs[0])
-    labels = {"light": "(a) links1_point position, L1, L2", "phong": "(b) links1_phong diffuse, specular",
-              "blob": "(c) blob centres, weights", "quadric": "(d) quadric translation"}
+    colour = {}
     for r in results:
-        ax.semilogy(np.maximum(r["worst_error"], 1e-5), label=labels[r["case"]])
+        base = r["case"].removesuffix(OFF)
+        off = r["case"].endswith(OFF)
+        line, = ax.semilogy(np.maximum(r["worst_error"], 1e-5), color=colour.get(base), ls="--" if off else "-",
+                            lw=1.0 if off else 1.4, label=LABELS[base] + (": projective off" if off else ""))
+        colour.setdefault(base, line.get_color())
     ax.axhline(0.01, color="k", ls=":", lw=0.8)
     ax.set_xlabel("Adam iteration")
     ax.set_ylabel("worst parameter error / range")
-    ax.legend(fontsize=7)
-    ax.set_title(f"links1_whitted inverse rendering ({results[0]['width']}², spp 1)", fontsize=9)
-    if blob_images is not None:
-        for i, (img, title) in enumerate(zip(blob_images, ("(c) target", "(c) start", "(c) result"))):
+    ax.legend(fontsize=6)
+    ax.set_title(f"links1_whitted inverse rendering ({results[0]['width']}²; (e), (f) projective=true, spp 4)",
+                 fontsize=9)
+    shown = next((c for c in ("blob_floor", "blob") if c in images), None)
+    if shown is not None:
+        tag = LABELS[shown][:3]
+        for i, (img, title) in enumerate(zip(images[shown], ("target", "start", "result"))):
             a = fig.add_subplot(gs[i + 1])
             a.imshow(tonemap(img))
-            a.set_title(title, fontsize=9)
+            a.set_title(f"{tag} {title}", fontsize=9)
             a.axis("off")
     fig.tight_layout()
     return fig
@@ -461,17 +563,21 @@ def figure(results, blob_images):
 
 def markdown(results, big, info, cmd):
     out = ["# Inverse rendering with links1_whitted\n", machine_markdown(info, cmd), "",
-           "Adam on the L2 image loss, spp 1 (pixel centres), box filter, `max_depth` 3. Error: the worst "
+           "Adam on the L2 image loss, box filter; spp 1 (pixel centres) and `max_depth` 3, but the outline "
+           "cases (blob_floor, quadric_outline: `projective=true`, the visibility term; `_off`: the same fit "
+           "without it) spp 4 and `max_depth` 2. No loss mask but the five-view blob's. Error: the worst "
            "component's |x − x*| / range (ranges below). Times: wall-clock medians in one process; an iteration is "
            "render with gradients + loss + backward + Adam step + `params.update`; the primal frame is "
            "`mi.render` without gradients.\n"]
     rows = []
     for r in results:
-        rows.append([r["case"], f"{r['width']}²", r["iters"], r["worst_error"][0], r["final_worst_error"],
+        rows.append([r["case"], f"{r['width']}²", r.get("spp", 1), "on" if r.get("projective") else "off",
+                     r["iters"], r["worst_error"][0], r["final_worst_error"],
                      "yes" if r["within_1pct"] else "no", r["iterations_to_1pct"], r["primal_median_ms"],
                      r["iteration_median_ms"], r["compile_median_ms"], r["iteration_less_compile_median_ms"],
                      r["ratio"], r["ratio_less_compile"]])
-    out.append(md_table(["case", "res", "iters", "start err", "final err", "≤ 1 %", "iters to ≤ 1 %",
+    out.append(md_table(["case", "res", "spp", "visibility term", "iters", "start err", "final err", "≤ 1 %",
+                         "iters to ≤ 1 %",
                          "primal ms", "iteration ms", "of which compile ms", "iteration − compile ms",
                          "iter / primal", "(iter − compile) / primal"], rows))
     out.append("\nPer parameter (final error / range; range):\n")
@@ -508,8 +614,10 @@ def main(argv=None):
     ap.add_argument("--width", type=int, default=64)
     ap.add_argument("--iters", type=int, default=100)
     ap.add_argument("--blob-iters", type=int, default=400, help="the blob case's budget")
+    ap.add_argument("--outline-iters", type=int, default=400, help="the blob_floor cases' budget")
     ap.add_argument("--big", type=int, default=256, help="also time every case at this width (0: no)")
     ap.add_argument("--rounds", type=int, default=25, help="timing rounds at --big (interleaved iteration / frame)")
+    ap.add_argument("--outline-rounds", type=int, default=9, help="timing rounds of the cases with the visibility term")
     ap.add_argument("--trials", type=int, default=3, help="processes timing each case at --big (median reported)")
     ap.add_argument("--variant", default="llvm_ad_rgb")
     ap.add_argument("--only", nargs="*", default=None)
@@ -526,9 +634,9 @@ def main(argv=None):
     info["variant"] = a.variant
     cmd = command_line()
     log = (lambda s: print(s, flush=True))
-    results, blob_images, big = [], None, []
+    results, images, big = [], {}, []
     t_all = time.perf_counter()
-    budget = {"default": a.iters, "blob": a.blob_iters}
+    budget = {"default": a.iters, "blob": a.blob_iters, "blob_floor": a.outline_iters}
     cases = [c for c in make_cases(budget) if not a.only or c[0] in a.only]
     # the iteration / primal timings first, each case in a process that has rendered nothing
     # else: after the fits they came out ~10 % slower (phong 3.03-3.24x against 2.72x in a fresh
@@ -547,16 +655,16 @@ def main(argv=None):
         log(f"case {name}")
         r, imgs = run_case(mi, dr, name, cls, variables, lrs, iters, a.width, log)
         results.append(r)
-        if name == "blob":
-            blob_images = imgs
+        if name in ("blob", "blob_floor"):
+            images[name] = imgs
         log("  per parameter: " + ", ".join(f"{k} {v:.4f}" for k, v in r["final_error"].items()))
         log(f"  {name}: final worst error {r['final_worst_error']:.4f}, iteration {r['iteration_median_ms']:.0f} ms"
             f" vs primal {r['primal_median_ms']:.0f} ms (×{r['ratio']:.2f})")
     payload = dict(machine=info, command=cmd, width=a.width, iters=a.iters, results=results, big=big,
                    total_s=time.perf_counter() - t_all)
     if not a.no_write:
-        paths = write_results("inverse", payload, markdown(results, big, info, cmd), figure(results, blob_images))
-        if blob_images is not None:   # the guide's picture of the blob fit converging
+        paths = write_results("inverse", payload, markdown(results, big, info, cmd), figure(results, images))
+        if images:   # the guide's picture of a blob fit converging
             shutil.copyfile(paths[-1], DOC_IMAGE)
             paths.append(DOC_IMAGE)
         log("wrote " + ", ".join(map(str, paths)))
