@@ -62,34 +62,40 @@ def tests_per_sample(path, spp, res):
     from links1_app.renderers import make_renderer
     r = make_renderer("mitsuba", str(path), params={"res": res}, spp=spp, aovs=("cost",))
     img = r.render()
-    return float(np.mean(img[..., list(r.channels).index("cost")])) / spp
+    return float(np.mean(img[..., list(r.channels).index("cost.N")])) / spp
 
 
-def frame_job(n, shapes, spp, res, frames):
-    """One process's measurement (run by ``--job``): warm frames of one renderer."""
+def measure_frames(path, spp, res, frames):
+    """One renderer's frames (a process of its own): the median wall and CPU ms of ``frames``
+    warm frames, each kernel's lanes, operations and ms in one more (``dr.kernel_history``),
+    and the tests per camera sample (:func:`tests_per_sample`)."""
     import drjit as dr
     from links1_app.renderers import make_renderer
-    with tempfile.TemporaryDirectory() as d:
-        path = _scene_file(d, n, shapes == "sphere")
-        tests = tests_per_sample(path, spp, res)
-        r = make_renderer("mitsuba", str(path), params={"res": res}, spp=spp)
+    tests = tests_per_sample(path, spp, res)
+    r = make_renderer("mitsuba", str(path), params={"res": res}, spp=spp)
+    r.render()
+    r.render()
+    wall, cpu = [], []
+    for _ in range(frames):
+        c0, t0 = common.cpu_seconds(), time.perf_counter()
         r.render()
-        r.render()
-        wall, cpu = [], []
-        for _ in range(frames):
-            c0, t0 = common.cpu_seconds(), time.perf_counter()
-            r.render()
-            wall.append(time.perf_counter() - t0)
-            cpu.append(common.cpu_seconds() - c0)
-        dr.set_flag(dr.JitFlag.KernelHistory, True)
-        dr.kernel_history()
-        r.render()
-        hist = dr.kernel_history()
-        dr.set_flag(dr.JitFlag.KernelHistory, False)
+        wall.append(time.perf_counter() - t0)
+        cpu.append(common.cpu_seconds() - c0)
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    dr.kernel_history()
+    r.render()
+    hist = dr.kernel_history()
+    dr.set_flag(dr.JitFlag.KernelHistory, False)
     kernels = [{"lanes": int(k.get("size", 0)), "ops": int(k.get("operation_count", 0)),
                 "ms": float(k.get("execution_time", 0.0))} for k in hist if k.get("type") == dr.KernelType.JIT]
     return {"wall_ms": 1e3 * float(np.median(wall)), "cpu_ms": 1e3 * float(np.median(cpu)), "kernels": kernels,
             "tests": tests}
+
+
+def frame_job(n, shapes, spp, res, frames):
+    """One process's measurement (run by ``--job``): :func:`measure_frames` of one scene."""
+    with tempfile.TemporaryDirectory() as d:
+        return measure_frames(_scene_file(d, n, shapes == "sphere"), spp, res, frames)
 
 
 def run_frames(sizes, spps, res, frames, rounds):
