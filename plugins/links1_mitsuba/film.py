@@ -62,11 +62,16 @@ FILM_TABLE_BYTES = 1 << 30
 #: frames (:func:`cached_batch`): 4 bytes a lane for the ids and 4 for the places (at most
 #: 64 MiB) ...
 KEEP_LANES = 1 << 23
-#: ... and its weight tables when they take at most this many bytes: the column weights' and
-#: the row weights' (``2b+1`` float64 a sample) where both fit (512², spp 8, a gaussian:
-#: 218 MB), else the column weights' alone, the row weights then made in the gather from the
-#: records' ``oy`` (512², spp 16, a gaussian or a lanczos: 268 MB)
+#: ... and its weight tables when they take at most this many bytes: the column weights'
+#: (512², spp 16, a gaussian or a lanczos: 268 MB) and for :data:`ROW_TABLE_FILTERS` the row
+#: weights' too (``2b+1`` float64 a sample) where both fit, else the row weights are made in
+#: the gather from the records' ``oy``
 KEEP_TABLE_BYTES = 3 << 27
+
+#: Filters whose row weights the gather reads from a table (two sines an evaluation cost more
+#: than the read); the others' (a polynomial, an exp) are made in the gather from the sample's
+#: ``oy`` at no more cost than the read, and their tables are smaller
+ROW_TABLE_FILTERS = ("lanczos",)
 
 #: Batches kept by :func:`cached_batch` (per integrator: the last few window sets).
 KEEP_BATCHES = 2
@@ -460,10 +465,9 @@ def _filter_gather(rfilter, film_size, spp, seed, batch, data, L, mode):
     centred = _centre_weights(rfilter, nb) if int(spp) == 1 else None
     tables = centred is None and ns * pad * 8 <= FILM_TABLE_BYTES
     if tables:
-        # the row weights too where both tables are kept; else the row weights are made in
-        # the gather from the sample's oy (kept in its column weights' record), so that the
-        # column weights alone stay kept with the batch (512², spp 16)
-        rows = ns * (pad + nb) * 8 <= KEEP_TABLE_BYTES
+        # the row weights from a table for the filters in ROW_TABLE_FILTERS where both tables
+        # are kept; else made in the gather from the sample's oy (in its column weights' record)
+        rows = rfilter.name in ROW_TABLE_FILTERS and ns * (pad + nb) * 8 <= KEEP_TABLE_BYTES
         make = lambda: _weight_tables(rfilter, W, n_s, k, sd, batch, nb, pad, rows)  # noqa: E731
         wx_t, wy_t = (batch.kept(("weights", rfilter, W, int(spp), int(seed), rows), make)
                       if ns * pad * 8 <= KEEP_TABLE_BYTES else make())
@@ -527,9 +531,8 @@ _CENTRE_WEIGHTS = {}
 
 def _centre_weights(rfilter, nb):
     """The 1-D weights of a sample at its pixel's centre (spp 1) towards its ``nb`` neighbour
-    columns or rows: ``(python floats, the same as a Float64 array)``, evaluated as the weight
-    tables evaluate them (:func:`filter_eval` on the device, at ``(0.5 - d) - 0.5``): the same
-    bits. Made once per filter and variant."""
+    columns or rows, as Python floats and a Float64 array, evaluated as the tables are
+    (:func:`filter_eval` on the device at ``(0.5 - d) - 0.5``): once per filter and variant."""
     key = (rfilter.name, tuple(sorted(rfilter.params.items())), rfilter.radius, nb, mi.variant())
     hit = _CENTRE_WEIGHTS.get(key)
     if hit is None:
@@ -565,11 +568,8 @@ def _wx_pad(nb):
 def _weight_tables(rfilter, W, n_s, k, sd, batch, nb, pad, rows):
     """The 1-D filter weights of every sample of ``batch`` towards its ``nb`` neighbour
     columns (``wx``: a record of ``pad`` float64 a sample, the weights then the sample's
-    offset ``oy``, the rest unused) and, with ``rows``, rows (``wy``: ``nb`` a sample; else
-    None), in one kernel over the samples: each weight once (the gather would evaluate each
-    ``nb`` times), from the sample's offsets made once (hashes and integer divisions, which
-    the LLVM backend does lane by lane, not once per weight): the values the gather would
-    make, bit for bit."""
+    ``oy``) and, with ``rows``, rows (``wy``: ``nb`` a sample; else None), in one kernel over
+    the samples from their offsets made once: the values the gather would make, bit for bit."""
     U32, F64 = mi.UInt32, mi.Float64
     ns = batch.lanes
     sl = dr.arange(U32, ns)
