@@ -176,6 +176,7 @@ def _crossings(trace_points, scene, P, sensor, win, spp, seed):
     x, y = at(mi.Float(along.ravel().astype(np.float32)), mi.Bool(rep(is_col)),
               mi.Float(rep(fixed).astype(np.float32)))
     cam, shadows = _status(P, scene, x, y, mi.UInt32(rep(lane_key)), lts)
+    dr.eval(cam[3], *[s_[2] for s_ in shadows])   # one kernel (each alone would trace the camera rays again)
     # what each point sees: the camera ray's slot, then each light's occluder: an interval
     # whose ends differ is a crossing of the first that differs (the camera's first)
     sig = [v.numpy().reshape(2 * n, POINTS) for v in [cam[3]] + [s_[2] for s_ in shadows]]
@@ -203,6 +204,7 @@ def _crossings(trace_points, scene, P, sensor, win, spp, seed):
     dr.eval(lo_d, hi_d)
     (xl, yl), (xh, yh) = at(lo_d, colm, fxd), at(hi_d, colm, fxd)
     ends = [_status(P, scene, xa, ya, key, lts) for xa, ya in ((xl, yl), (xh, yh))]
+    dr.eval(ends)
     g = _grazes(ends, kd, (xl, yl), (xh, yh), lts)
     # f on both sides, SIDE_STEP pixels out: the primal ray tree (one launch for both ends)
     m_ = dr.width(g["q"])
@@ -235,6 +237,7 @@ def _active(P, scene, win, lts):
                          np.arange(y0 - 1, y0 + h + 2, dtype=np.float64))
     cam, shadows = _status(P, scene, mi.Float(gx.ravel().astype(np.float32)), mi.Float(gy.ravel().astype(np.float32)),
                            dr.zeros(mi.UInt32, gx.size), lts)
+    dr.eval(cam[3], *[s_[2] for s_ in shadows])
     diff = np.zeros((h + 2, w + 2), dtype=bool)
     for v in [cam[3]] + [s_[2] for s_ in shadows]:
         g = v.numpy().reshape(gx.shape)
