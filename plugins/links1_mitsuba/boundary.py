@@ -45,9 +45,12 @@ is a shadow edge: the shadow ray of the side with the nearer occluder grazes it 
 change with the pixel. A light that moves swings the shadow ray about ``p``: ``V_n`` loses
 ``m·∂q/∂θ`` of that swing.
 
+What a query point sees is the slot of its hit, a blob's made distinct per lobe (its dominant
+centre, :func:`_lobe`): one lobe hiding another is a crossing too.
+
 Left out (biased there, as docs/method.md §6 says): crossings that do not change what is seen
-(a blob's lobe in front of its own other lobe, a mesh in front of itself, an occluder's edge
-behind another occluder of the same shadow ray), grazes that are neither a smooth silhouette
+(a mesh in front of itself, a lobe in front of part of itself, an occluder's edge behind
+another occluder of the same shadow ray), grazes that are neither a smooth silhouette
 (``|m·D|`` below :data:`GRAZE`) nor an edge above (the curve where two surfaces cut), Mitsuba
 shapes other than spheres and meshes, a receiver's own motion under a shadow edge, outlines
 and shadows seen in mirrors or through glass, pairs of crossings closer than
@@ -85,6 +88,8 @@ DQ_SHADOW = 0.01
 #: a shadow segment starts SHADOW_EPS·t from its receiver's point (t: the camera ray's
 #: distance) and stops SHADOW_EPS of its length short of a light
 SHADOW_EPS = 1e-4
+#: the slots' stride of a blob's lobes in what a query point sees (:func:`_lobe`)
+LOBES = 1 << 20
 #: salts of the boundary pass's random numbers (rows, columns, light-sample keys)
 _SALT_ROW, _SALT_COL, _SALT_KEY = 0x6A09E667, 0xBB67AE85, 0x3C6EF372
 
@@ -112,7 +117,23 @@ def _seen(P, scene, x, y, key):
     act = dr.full(mi.Bool, True, dr.width(x))
     cost = dr.zeros(mi.UInt32, dr.width(x))
     t, slot, si, prim = intersect.nearest(P, scene, o, d, tmin, tmax, act, cost)
-    return o, d, t, slot, prim, (si.shape, si.prim_index)
+    return o, d, t, _lobe(P, slot, o + d * dr.select(dr.isfinite(t), t, 0.0)), prim, (si.shape, si.prim_index)
+
+
+def _lobe(P, slot, x):
+    """``slot`` made distinct per lobe of a blob (its dominant centre at the hit ``x``,
+    :func:`geometry.dominant_centre`: ``slot + LOBES · (centre + 1)``), so that a lobe hiding
+    another lobe of the same blob is a change of what is seen; :func:`_slot` undoes it."""
+    for sp in P.custom:
+        if sp.__class__.__name__ == "BlobSpec":
+            on = slot == sp.slot
+            slot = dr.select(on, slot + LOBES * mi.Int32(geometry.dominant_centre(mi, dr, sp, x) + 1), slot)
+    return slot
+
+
+def _slot(ident):
+    """The slot of an identity :func:`_lobe` made (-1 stays)."""
+    return dr.select(ident >= 0, ident % LOBES, ident)
 
 
 def _unit(x):
@@ -269,6 +290,7 @@ def _grazes(ends, kd, lo_xy, hi_xy, lts):
         tuple(dr.select(m_, u, v) for u, v in zip(a, b))   # noqa: E731
     cam = [sel(near_lo, a, b) for a, b in zip(cl, ch)]
     o, d, t, slot, prim, hit = cam
+    slot = _slot(slot)   # (a blob's lobe: its slot)
     cam_ok = dr.isfinite(t) & (cl[3] != ch[3])
     g = {"q": o + d * dr.select(cam_ok, t, 0.0), "d": d, "t": t, "slot": slot, "prim": prim, "hit": hit,
          "ok": cam_ok, "light": dr.full(mi.Int32, -1, dr.width(t)), "p": o + d * dr.select(cam_ok, t, 0.0),

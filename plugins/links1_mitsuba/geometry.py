@@ -321,6 +321,24 @@ def implicit(mi, dr, spec, held, x, memo=None, part=0):
     return T - W, -_transposed(mi, A, g)
 
 
+def dominant_centre(mi, dr, spec, x):
+    """The centre whose term ``w_i P(|x − c_i|)`` of a blob's field (eq. 3.6–3.9) is the
+    largest at world points ``x`` (primal): across the curve where one lobe of a blob hides
+    another it changes, where the slot seen does not (:mod:`.boundary`)."""
+    A = _inverse_of(mi, dr, spec, spec._mats()[0], {}, None)
+    u = _affine(mi, A, x)
+    best, idx = dr.full(mi.Float, -INF_TERM, dr.width(x)), dr.zeros(mi.UInt32, dr.width(x))
+    for i, (c, w, S) in enumerate(_blob_terms(mi, dr, spec, {}, dr.width(x))):
+        v, _ = blob_field(mi, dr, [(c, w, S)], u)
+        better = v > best
+        best, idx = dr.select(better, v, best), dr.select(better, i, idx)
+    return idx
+
+
+#: below any term of a blob's field (a negative weight's least)
+INF_TERM = 1e30
+
+
 def attached_specs(dr, custom, geo) -> dict:
     """``{slot: (spec, held)}`` of the specs whose parameters have gradients enabled."""
     out = {}
