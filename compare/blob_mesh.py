@@ -36,7 +36,7 @@ import numpy as np
 
 from . import common
 from .common import md_table
-from .quadric_spp import tests_per_sample
+from .quadric_spp import measure_frames
 from .scaling import CAMERA, blob_centres
 
 THRESHOLD = 0.5
@@ -150,29 +150,6 @@ def scene_xml(k, ply=None):
             '<rgb name="irradiance" value="2"/></emitter>\n</scene>\n')
 
 
-def frame_job(xml_path, spp, res, frames):
-    """One process: median wall and CPU ms of ``frames`` warm frames and the kernels' ms."""
-    import drjit as dr
-    from links1_app.renderers import make_renderer
-    tests = tests_per_sample(xml_path, spp, res)
-    r = make_renderer("mitsuba", xml_path, params={"res": res}, spp=spp)
-    r.render()
-    r.render()
-    wall, cpu = [], []
-    for _ in range(frames):
-        c0, t0 = common.cpu_seconds(), time.perf_counter()
-        r.render()
-        wall.append(time.perf_counter() - t0)
-        cpu.append(common.cpu_seconds() - c0)
-    dr.set_flag(dr.JitFlag.KernelHistory, True)
-    dr.kernel_history()
-    r.render()
-    kern = sum(float(h.get("execution_time", 0.0)) for h in dr.kernel_history())
-    dr.set_flag(dr.JitFlag.KernelHistory, False)
-    return {"wall_ms": 1e3 * float(np.median(wall)), "cpu_ms": 1e3 * float(np.median(cpu)), "kernel_ms": kern,
-            "tests": tests}
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m compare.blob_mesh")
     ap.add_argument("--res", type=int, default=512)
@@ -188,7 +165,7 @@ def main(argv=None) -> int:
     mi.set_variant("llvm_ad_rgb")
     if a.job:
         j = json.loads(a.job)
-        print(json.dumps(frame_job(j["path"], j["spp"], j["res"], j["frames"])))
+        print(json.dumps(measure_frames(j["path"], j["spp"], j["res"], j["frames"])))
         return 0
     info, command = common.machine_info(), common.command_line()
     ks = [int(v) for v in a.centres.split(",") if v]
@@ -222,8 +199,9 @@ def main(argv=None) -> int:
             b, m = got[(k, s, "blob")], got[(k, s, "mesh")]
             row = {"centres": k, "spp": s, "triangles": tris[k]}
             for name, rs in (("blob", b), ("mesh", m)):
-                for f in ("wall_ms", "cpu_ms", "kernel_ms", "tests"):
+                for f in ("wall_ms", "cpu_ms", "tests"):
                     row[f"{name}_{f}"] = float(np.median([r[f] for r in rs]))
+                row[f"{name}_kernel_ms"] = float(np.median([sum(x["ms"] for x in r["kernels"]) for r in rs]))
             row["ratio"] = float(np.median([x["wall_ms"] / y["wall_ms"] for x, y in zip(b, m)]))
             row["cpu_ratio"] = float(np.median([x["cpu_ms"] / y["cpu_ms"] for x, y in zip(b, m)]))
             rows.append(row)
@@ -242,9 +220,10 @@ def main(argv=None) -> int:
                    [[r["centres"], r["spp"], r["triangles"], r["blob_wall_ms"], r["mesh_wall_ms"], r["ratio"],
                      r["cpu_ratio"], r["blob_kernel_ms"], r["mesh_kernel_ms"], r["blob_tests"], r["mesh_tests"],
                      ("met" if r["ratio"] <= 2.0 else "missed") if r["spp"] == 16 else "–"] for r in rows])]
-    paths = common.write_results("blob_mesh", out, "".join(md), None)
-    print("".join(md))
-    print("wrote " + ", ".join(str(p.relative_to(common.ROOT)) for p in paths), file=sys.stderr)
+    text = "".join(md)
+    written = common.write_results("blob_mesh", out, text, None)
+    print(text)
+    print("wrote", *(str(p.relative_to(common.ROOT)) for p in written), file=sys.stderr)
     return 0
 
 
