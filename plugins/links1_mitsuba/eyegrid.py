@@ -100,7 +100,9 @@ def lists(eye, R, window, size, c, rad, angle, cell_px=CELL_PX):
     while nu * nv > MAX_CELLS:
         nu, nv = max(1, nu // 2), max(1, nv // 2)
     u0, u1, v0, v1 = window
-    su, sv = nu / max(u1 - u0, 1e-30), nv / max(v1 - v0, 1e-30)
+    if not (np.all(np.isfinite(window)) and u1 > u0 and v1 > v0):
+        u0, u1, v0, v1 = -1.0, 1.0, -1.0, 1.0     # a degenerate camera: any window is correct
+    su, sv = nu / (u1 - u0), nv / (v1 - v0)
     eye = np.asarray(eye, dtype=np.float64)
     q = (c - eye) @ R.T                                        # centres in the camera frame
     ulo, uhi = _ranges(q[:, 0], q[:, 2], rad, angle)

@@ -133,3 +133,18 @@ def test_eye_grid_lists_fewer_than_the_cube_map(variant):
         buf.nearest(o, dd, mi.Float(0.0), mi.Float(np.inf), dr.full(mi.Bool, True, m), cost)
         counts.append(float(np.mean(np.asarray(cost))))
     assert counts[0] < 0.5 * counts[1], counts
+
+
+def test_degenerate_window_is_the_unit_window():
+    """A camera whose film window cannot be made (non-finite or empty) gets the window
+    [-1, 1]², whose lists are still complete: the same lists as asked for that window."""
+    from links1_mitsuba import eyegrid
+    rng = np.random.default_rng(3)
+    c, rad = rng.uniform(-5, 5, (40, 3)), rng.uniform(0.1, 1.0, 40)
+    R, eye = np.eye(3), np.zeros(3)
+    want = eyegrid.lists(eye, R, (-1.0, 1.0, -1.0, 1.0), (16, 16), c, rad, 1e-4)
+    for bad in ((np.nan, 1.0, -1.0, 1.0), (0.5, 0.5, -1.0, 1.0), (-np.inf, np.inf, -1.0, 1.0)):
+        got = eyegrid.lists(eye, R, bad, (16, 16), c, rad, 1e-4)
+        for x, y in zip(got[:3], want[:3]):
+            assert np.array_equal(x, y)
+        assert got[3][1:5] == want[3][1:5]
