@@ -23,20 +23,16 @@ Writes ``compare/results/blob_mesh.{json,md}``.
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import subprocess
 import sys
 import tempfile
 import time
-import warnings
 from pathlib import Path
 
 import numpy as np
 
 from . import common
 from .common import md_table
-from .quadric_spp import measure_frames
+from .quadric_spp import measure_frames, parse, spawn
 from .scaling import CAMERA, blob_centres
 
 THRESHOLD = 0.5
@@ -158,20 +154,12 @@ def main(argv=None) -> int:
     ap.add_argument("--step", type=float, default=0.05, help="grid step of the marching tetrahedra")
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--frames", type=int, default=5)
-    ap.add_argument("--job", default=None, help=argparse.SUPPRESS)
-    a = ap.parse_args(argv)
-    warnings.simplefilter("ignore")
-    import mitsuba as mi
-    mi.set_variant("llvm_ad_rgb")
-    if a.job:
-        j = json.loads(a.job)
-        print(json.dumps(measure_frames(j["path"], j["spp"], j["res"], j["frames"])))
+    a = parse(ap, argv, measure_frames)
+    if a is None:
         return 0
     info, command = common.machine_info(), common.command_line()
     ks = [int(v) for v in a.centres.split(",") if v]
     spps = [int(v) for v in a.spp.split(",") if v]
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join([str(common.ROOT), str(common.ROOT / "plugins"), env.get("PYTHONPATH", "")])
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as d:
         paths, tris = {}, {}
@@ -184,13 +172,8 @@ def main(argv=None) -> int:
         got = {(k, s, shape): [] for k in ks for s in spps for shape in ("blob", "mesh")}
         for rnd in range(a.rounds):
             for key in got:
-                job = json.dumps({"path": str(paths[(key[0], key[2])]), "spp": key[1], "res": a.res,
-                                  "frames": a.frames})
-                out = subprocess.run([sys.executable, "-m", "compare.blob_mesh", "--job", job], cwd=common.ROOT,
-                                     env=env, capture_output=True, text=True)
-                if out.returncode != 0:
-                    raise RuntimeError(f"blob_mesh job {key} failed: {out.stderr.strip().splitlines()[-1:]}")
-                got[key].append(json.loads(out.stdout.strip().splitlines()[-1]))
+                got[key].append(spawn("compare.blob_mesh", {"path": str(paths[(key[0], key[2])]), "spp": key[1],
+                                                            "res": a.res, "frames": a.frames}))
                 print(f"  round {rnd} k={key[0]} spp={key[1]} {key[2]}: {got[key][-1]['wall_ms']:.1f} ms",
                       file=sys.stderr, flush=True)
     rows = []

@@ -98,19 +98,39 @@ def frame_job(n, shapes, spp, res, frames):
         return measure_frames(_scene_file(d, n, shapes == "sphere"), spp, res, frames)
 
 
-def run_frames(sizes, spps, res, frames, rounds):
+def spawn(module, job):
+    """``python -m module --job JSON`` in a process of its own (the checkout first on its path):
+    the dict it prints last."""
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join([str(common.ROOT), str(common.ROOT / "plugins"), env.get("PYTHONPATH", "")])
+    out = subprocess.run([sys.executable, "-m", module, "--job", json.dumps(job)], cwd=common.ROOT, env=env,
+                         capture_output=True, text=True)
+    if out.returncode != 0:
+        raise RuntimeError(f"{module} job {job} failed: {out.stderr.strip().splitlines()[-1:]}")
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def parse(ap, argv, job):
+    """``ap``'s arguments (``--job`` added) with the variant set; a ``--job`` run prints
+    ``job(**its JSON)`` and gives None."""
+    ap.add_argument("--job", default=None, help=argparse.SUPPRESS)
+    a = ap.parse_args(argv)
+    warnings.simplefilter("ignore")
+    import mitsuba as mi
+    mi.set_variant("llvm_ad_rgb")
+    if a.job:
+        print(json.dumps(job(**json.loads(a.job))))
+        return None
+    return a
+
+
+def run_frames(sizes, spps, res, frames, rounds):
     configs = [(n, s, k) for n in sizes for s in spps for k in ("quadric", "sphere")]
     got = {c: [] for c in configs}
     for rnd in range(rounds):
         for c in configs:
-            job = json.dumps({"n": c[0], "shapes": c[2], "spp": c[1], "res": res, "frames": frames})
-            out = subprocess.run([sys.executable, "-m", "compare.quadric_spp", "--job", job], cwd=common.ROOT,
-                                 env=env, capture_output=True, text=True)
-            if out.returncode != 0:
-                raise RuntimeError(f"quadric_spp job {c} failed: {out.stderr.strip().splitlines()[-1:]}")
-            got[c].append(json.loads(out.stdout.strip().splitlines()[-1]))
+            got[c].append(spawn("compare.quadric_spp", {"n": c[0], "shapes": c[2], "spp": c[1], "res": res,
+                                                        "frames": frames}))
             print(f"  round {rnd} N={c[0]} spp={c[1]} {c[2]}: {got[c][-1]['wall_ms']:.1f} ms", file=sys.stderr,
                   flush=True)
     rows = []
@@ -315,14 +335,8 @@ def main(argv=None) -> int:
     ap.add_argument("--frames", type=int, default=7)
     ap.add_argument("--no-frames", action="store_true")
     ap.add_argument("--no-queries", action="store_true")
-    ap.add_argument("--job", default=None, help=argparse.SUPPRESS)
-    a = ap.parse_args(argv)
-    warnings.simplefilter("ignore")
-    import mitsuba as mi
-    mi.set_variant("llvm_ad_rgb")
-    if a.job:
-        j = json.loads(a.job)
-        print(json.dumps(frame_job(j["n"], j["shapes"], j["spp"], j["res"], j["frames"])))
+    a = parse(ap, argv, frame_job)
+    if a is None:
         return 0
     info, command = common.machine_info(), common.command_line()
     sizes = [int(v) for v in a.sizes.split(",") if v]
