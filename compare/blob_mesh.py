@@ -148,19 +148,12 @@ def scene_xml(k, ply=None):
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m compare.blob_mesh")
-    ap.add_argument("--res", type=int, default=512)
     ap.add_argument("--centres", default="10,100")
-    ap.add_argument("--spp", default="1,4,16")
     ap.add_argument("--step", type=float, default=0.05, help="grid step of the marching tetrahedra")
-    ap.add_argument("--rounds", type=int, default=3)
-    ap.add_argument("--frames", type=int, default=5)
-    a = parse(ap, argv, measure_frames)
+    a = parse(ap, argv, measure_frames, frames=5)
     if a is None:
         return 0
-    info, command = common.machine_info(), common.command_line()
-    ks = [int(v) for v in a.centres.split(",") if v]
-    spps = [int(v) for v in a.spp.split(",") if v]
-    t0 = time.perf_counter()
+    ks, spps = [int(v) for v in a.centres.split(",") if v], a.spps
     with tempfile.TemporaryDirectory() as d:
         paths, tris = {}, {}
         for k in ks:
@@ -188,10 +181,10 @@ def main(argv=None) -> int:
             row["ratio"] = float(np.median([x["wall_ms"] / y["wall_ms"] for x, y in zip(b, m)]))
             row["cpu_ratio"] = float(np.median([x["cpu_ms"] / y["cpu_ms"] for x, y in zip(b, m)]))
             rows.append(row)
-    out = {"machine": info, "command": command, "res": a.res, "step": a.step, "rows": rows,
-           "wall_s": time.perf_counter() - t0}
+    out = {"machine": a.info, "command": a.command, "res": a.res, "step": a.step, "rows": rows,
+           "wall_s": time.perf_counter() - a.t0}
     md = ["# links1_blob against a marching-tetrahedra mesh of its surface in Embree\n\n",
-          common.machine_markdown(info, command),
+          common.machine_markdown(a.info, a.command),
           f"\nThe machine's two cores are shared with other processes: compare ratios within a run.\n\n"
           f"links1_whitted, {a.res}², `compare.blob_mesh.scene_xml(k)`; mesh: grid step {a.step}. Each case "
           f"in its own process, {a.rounds} interleaved rounds of {a.frames} warm frames; ms: medians over the "

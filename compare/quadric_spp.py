@@ -110,11 +110,19 @@ def spawn(module, job):
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-def parse(ap, argv, job):
-    """``ap``'s arguments (``--job`` added) with the variant set; a ``--job`` run prints
-    ``job(**its JSON)`` and gives None."""
+def parse(ap, argv, job, frames):
+    """``ap``'s arguments with those both benchmarks take (``--res``, ``--spp``, ``--rounds``,
+    ``--frames``, ``--job``; ``a.spps``: the sample counts as ints; ``a.info``, ``a.command``,
+    ``a.t0``: the machine, the command line, the start) and the variant set; a ``--job`` run
+    prints ``job(**its JSON)`` and gives None."""
+    ap.add_argument("--res", type=int, default=512)
+    ap.add_argument("--spp", default="1,4,16")
+    ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--frames", type=int, default=frames)
     ap.add_argument("--job", default=None, help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
+    a.spps = [int(v) for v in a.spp.split(",") if v]
+    a.info, a.command, a.t0 = common.machine_info(), common.command_line(), time.perf_counter()
     warnings.simplefilter("ignore")
     import mitsuba as mi
     mi.set_variant("llvm_ad_rgb")
@@ -328,28 +336,21 @@ def markdown(a, info, command, frames, queries):
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m compare.quadric_spp")
-    ap.add_argument("--res", type=int, default=512)
     ap.add_argument("--sizes", default="300,3000")
-    ap.add_argument("--spp", default="1,4,16")
-    ap.add_argument("--rounds", type=int, default=3)
-    ap.add_argument("--frames", type=int, default=7)
     ap.add_argument("--no-frames", action="store_true")
     ap.add_argument("--no-queries", action="store_true")
-    a = parse(ap, argv, frame_job)
+    a = parse(ap, argv, frame_job, frames=7)
     if a is None:
         return 0
-    info, command = common.machine_info(), common.command_line()
-    sizes = [int(v) for v in a.sizes.split(",") if v]
-    spps = [int(v) for v in a.spp.split(",") if v]
-    t0 = time.perf_counter()
+    sizes, spps = [int(v) for v in a.sizes.split(",") if v], a.spps
     frames = [] if a.no_frames else run_frames(sizes, spps, a.res, a.frames, a.rounds)
     queries = []
     if not a.no_queries:
         for n in sizes:
             queries += run_queries(n, a.res, spps, a.frames)
-    out = {"machine": info, "command": command, "res": a.res, "frames": frames, "queries": queries,
-           "wall_s": time.perf_counter() - t0}
-    md = markdown(a, info, command, frames, queries)
+    out = {"machine": a.info, "command": a.command, "res": a.res, "frames": frames, "queries": queries,
+           "wall_s": time.perf_counter() - a.t0}
+    md = markdown(a, a.info, a.command, frames, queries)
     paths = common.write_results("quadric_spp", out, md, None)
     print(md)
     print("wrote " + ", ".join(str(p.relative_to(common.ROOT)) for p in paths), file=sys.stderr)
