@@ -3,8 +3,8 @@ nearest quadric hit equals the BVH walk's bit for bit (t, row, part, found) on c
 random directions all around the eye (behind it, beside the film), rays grazing every bound,
 rays along the grid's cell borders and along the cone ``d·f = KAPPA`` that parts the film's
 cells from the cell behind; from an eye outside the field of spheres and from one among
-them; and the frames equal the BVH walk's. The film ranges of a sphere follow from its tangent
-lines (analytic cases)."""
+them, over spheres and over spheres with capped cylinders; and the frames equal the BVH
+walk's. The film ranges of a sphere follow from its tangent lines (analytic cases)."""
 from __future__ import annotations
 
 import math
@@ -70,13 +70,32 @@ def _rays(eb, P, rng):
     return (d / np.linalg.norm(d, axis=1)[:, None]).astype(np.float32)
 
 
+def _cylinders(xml):
+    """``xml`` with every third sphere a cylinder capped at z = ±0.3 (two clip planes: finite,
+    under the BVH; a box far from a sphere)."""
+    parts = xml.split('<string name="kind" value="sphere"/>')
+    caps = ('<string name="kind" value="cylinder"/><vector name="clip_0" value="0,0,1"/>'
+            '<float name="clip_0_offset" value="0.3"/><vector name="clip_1" value="0,0,-1"/>'
+            '<float name="clip_1_offset" value="0.3"/><boolean name="capped" value="true"/>')
+    out = parts[0]
+    for i, p in enumerate(parts[1:]):
+        if i % 3 == 1 and "clip_0" not in p.split("</shape>")[0]:
+            out += caps + p
+        else:
+            out += '<string name="kind" value="sphere"/>' + p
+    return out
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("camera", CAMERAS, ids=["outside", "inside"])
-def test_eye_grid_nearest_matches_bvh(variant, camera):
+@pytest.mark.parametrize("shapes", ["spheres", "cylinders"])
+def test_eye_grid_nearest_matches_bvh(variant, camera, shapes):
     import drjit as dr
     import mitsuba as mi
     from links1_mitsuba import tuning
     xml = _scene(120).replace('origin="0,7,10" target="0,0.5,0"', f'origin="{camera[0]}" target="{camera[1]}"')
+    if shapes == "cylinders":
+        xml = _cylinders(xml)
     scene, integ, P = _prepared(xml)
     eb = P.eye_buf
     assert eb is not None and eb.kind == "eye"
