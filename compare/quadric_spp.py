@@ -32,6 +32,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import subprocess
 import sys
 import tempfile
@@ -48,10 +49,28 @@ from .common import md_table
 LIGHT_DIR = np.array([-0.4, -1.0, -0.3])   # quadric_scene's directional light (toward the scene)
 
 
-def _scene_file(d, n, mitsuba_shapes):
+#: the spheres of quadric_scene as upright cylinders from the floor to 2r (open, the radius r):
+#: Mitsuba's ``cylinder`` and a ``links1_quadric`` cylinder clipped to |z| <= 1 in object space
+_MITSUBA_SPHERE = re.compile(r'<shape type="sphere"><point name="center" x="([^"]+)" y="([^"]+)" z="([^"]+)"/>')
+_LINKS1_SPHERE = re.compile(r'<string name="kind" value="sphere"/><transform name="to_world"><scale value="([^"]+)"/>')
+
+
+def _as_cylinders(xml):
+    xml = _MITSUBA_SPHERE.sub(lambda m: f'<shape type="cylinder"><point name="p0" x="{m[1]}" y="0" z="{m[3]}"/>'
+                              f'<point name="p1" x="{m[1]}" y="{2 * float(m[2]):.6g}" z="{m[3]}"/>', xml)
+    return _LINKS1_SPHERE.sub(lambda m: '<string name="kind" value="cylinder"/><vector name="clip_0" value="0,0,1"/>'
+                              '<float name="clip_0_offset" value="1"/><vector name="clip_1" value="0,0,-1"/>'
+                              '<float name="clip_1_offset" value="1"/><transform name="to_world">'
+                              f'<scale value="{m[1]}"/><rotate x="1" angle="-90"/>', xml)
+
+
+def _scene_file(d, n, mitsuba_shapes, kind="sphere"):
+    """quadric_scene(n) (diffuse) in a file under ``d``; ``kind`` "cylinder": its spheres as
+    upright open cylinders of the same radius and height 2r."""
     from .scaling import quadric_scene
-    p = Path(d) / f"{'sphere' if mitsuba_shapes else 'quadric'}_{n}.xml"
-    p.write_text(quadric_scene(n, mitsuba_shapes=mitsuba_shapes, bsdf="diffuse"))
+    p = Path(d) / f"{'sphere' if mitsuba_shapes else 'quadric'}_{kind}_{n}.xml"
+    xml = quadric_scene(n, mitsuba_shapes=mitsuba_shapes, bsdf="diffuse")
+    p.write_text(_as_cylinders(xml) if kind == "cylinder" else xml)
     return p
 
 
@@ -92,10 +111,10 @@ def measure_frames(path, spp, res, frames):
             "tests": tests}
 
 
-def frame_job(n, shapes, spp, res, frames):
+def frame_job(n, shapes, spp, res, frames, kind="sphere"):
     """One process's measurement (run by ``--job``): :func:`measure_frames` of one scene."""
     with tempfile.TemporaryDirectory() as d:
-        return measure_frames(_scene_file(d, n, shapes == "sphere"), spp, res, frames)
+        return measure_frames(_scene_file(d, n, shapes == "sphere", kind), spp, res, frames)
 
 
 def spawn(module, job):
@@ -132,13 +151,13 @@ def parse(ap, argv, job, frames):
     return a
 
 
-def run_frames(sizes, spps, res, frames, rounds):
+def run_frames(sizes, spps, res, frames, rounds, kind="sphere"):
     configs = [(n, s, k) for n in sizes for s in spps for k in ("quadric", "sphere")]
     got = {c: [] for c in configs}
     for rnd in range(rounds):
         for c in configs:
             got[c].append(spawn("compare.quadric_spp", {"n": c[0], "shapes": c[2], "spp": c[1], "res": res,
-                                                        "frames": frames}))
+                                                        "frames": frames, "kind": kind}))
             print(f"  round {rnd} N={c[0]} spp={c[1]} {c[2]}: {got[c][-1]['wall_ms']:.1f} ms", file=sys.stderr,
                   flush=True)
     rows = []
@@ -300,21 +319,24 @@ def run_queries(n, res, spps, repeats):
 
 # ---------------------------------------------------------------------------- report
 def markdown(a, info, command, frames, queries):
-    md = ["# links1_quadric spheres against Mitsuba spheres at 1-16 samples per pixel\n\n",
+    md = [f"# links1_quadric {a.kind}s against Mitsuba {a.kind}s at 1-16 samples per pixel\n\n",
           common.machine_markdown(info, command),
           "\nThe machine's two cores are shared with other processes: compare ratios within a run.\n"]
     if frames:
-        md.append(f"\n## Frames (target: quadric <= 1.0x Mitsuba sphere)\n\nlinks1_whitted, {a.res}², "
-                  "`compare.scaling.quadric_scene(N, bsdf=\"diffuse\")`, each case in its own process, "
+        md.append(f"\n## Frames (target: quadric <= 1.0x Mitsuba {a.kind})\n\nlinks1_whitted, {a.res}², "
+                  "`compare.scaling.quadric_scene(N, bsdf=\"diffuse\")`" + (" with its spheres as upright open "
+                  "cylinders of the same radius and height 2r" if a.kind == "cylinder" else "") + ", each case in its "
+                  "own process, "
                   f"{a.rounds} interleaved rounds of {a.frames} warm frames; ms: median over the rounds of "
                   "each process's median; ratio: median of the rounds' ratios. kernels: `dr.kernel_history` "
                   "(the frame is one kernel of res² x spp lanes plus the film's), the rest of a frame is "
                   "the launch's traversal of its inputs (Mitsuba's scene, shape by shape) and read-back. tests / "
                   "sample: the `cost` AOV of one frame over the camera samples (exact quadric tests and one per "
                   "Embree query, camera and shadow rays together).\n\n")
-        md.append(md_table(["N", "spp", "quadric ms", "sphere ms", "ratio", "target (<= 1.0)", "CPU ratio",
-                            "quadric kernels ms", "sphere kernels ms", "kernel ratio", "quadric ms / Mrays",
-                            "sphere ms / Mrays", "quadric tests / sample", "sphere tests / sample"],
+        m = f"Mitsuba {a.kind}"
+        md.append(md_table(["N", "spp", "quadric ms", f"{m} ms", "ratio", "target (<= 1.0)", "CPU ratio",
+                            "quadric kernels ms", f"{m} kernels ms", "kernel ratio", "quadric ms / Mrays",
+                            f"{m} ms / Mrays", "quadric tests / sample", f"{m} tests / sample"],
                            [[r["size"], r["spp"], r["quadric_ms"], r["sphere_ms"], r["ratio"],
                              "met" if r["ratio"] <= 1.0 else "missed", r["cpu_ratio"], r["quadric_kernel_ms"],
                              r["sphere_kernel_ms"], r["kernel_ratio"],
@@ -339,19 +361,21 @@ def main(argv=None) -> int:
     ap.add_argument("--sizes", default="300,3000")
     ap.add_argument("--no-frames", action="store_true")
     ap.add_argument("--no-queries", action="store_true")
+    ap.add_argument("--kind", choices=("sphere", "cylinder"), default="sphere",
+                    help="the objects (cylinder: frames only, written to quadric_spp_cylinder.*)")
     a = parse(ap, argv, frame_job, frames=7)
     if a is None:
         return 0
     sizes, spps = [int(v) for v in a.sizes.split(",") if v], a.spps
-    frames = [] if a.no_frames else run_frames(sizes, spps, a.res, a.frames, a.rounds)
+    frames = [] if a.no_frames else run_frames(sizes, spps, a.res, a.frames, a.rounds, a.kind)
     queries = []
-    if not a.no_queries:
+    if not a.no_queries and a.kind == "sphere":
         for n in sizes:
             queries += run_queries(n, a.res, spps, a.frames)
     out = {"machine": a.info, "command": a.command, "res": a.res, "frames": frames, "queries": queries,
            "wall_s": time.perf_counter() - a.t0}
     md = markdown(a, a.info, a.command, frames, queries)
-    paths = common.write_results("quadric_spp", out, md, None)
+    paths = common.write_results("quadric_spp" if a.kind == "sphere" else f"quadric_spp_{a.kind}", out, md, None)
     print(md)
     print("wrote " + ", ".join(str(p.relative_to(common.ROOT)) for p in paths), file=sys.stderr)
     return 0
