@@ -17,8 +17,9 @@ kernel compilation), then the median of ``repeats`` queries (tracing + kernel, a
 a BVH scene pays) and the median kernel time (``dr.kernel_history``). Methods:
 
 * ``bvh``: :meth:`links1_mitsuba.bvh.QuadricBVH.nearest` (binary SAH BVH, per-lane stack).
-* ``eye``: :meth:`links1_mitsuba.lightbuffer.LightBuffer.nearest` on the eye's cube map
-  (:func:`links1_mitsuba.lightbuffer.plan_eye`: what links1_whitted's camera rays use).
+* ``eye``: :meth:`links1_mitsuba.lightbuffer.LightBuffer.nearest` on a cube map around the eye
+  (links1_whitted's camera rays use the film grid of :mod:`links1_mitsuba.eyegrid`, measured
+  by ``compare.quadric_spp``).
 * ``proxy``: every quadric's world box as 12 triangles of one Mitsuba mesh in a second
   scene; a loop of ``scene.ray_intersect`` walks on along the ray while a proxy face is
   nearer than the best exact hit, testing the quadric behind each face (the exact test of
@@ -147,7 +148,7 @@ def run_size(n, res, repeats):
 
     lo = np.array([s.bounds()[0] for s in bvh.specs])
     hi = np.array([s.bounds()[1] for s in bvh.specs])
-    # eye: the camera's eye buffer (lightbuffer.plan_eye: what links1_whitted's camera rays use)
+    # eye: a cube map around the eye (links1_whitted's camera rays use eyegrid's film grid)
     from links1_mitsuba import lightbuffer
     ext = float(max(np.max(np.abs(lo)), np.max(np.abs(hi)), np.max(np.abs(o_np[0]))))
     t_build = time.perf_counter()
