@@ -1,7 +1,7 @@
 """Light buffers (Haines and Greenberg 1986) for the shadow rays of ``links1_whitted`` toward
 positional lights (point, spot) and, as the same idea in parallel projection, directional lights;
-and the same cube map around a pinhole camera's eye for the camera rays' nearest hit
-(:func:`plan_eye`, :meth:`LightBuffer.nearest`).
+and the same lists around a pinhole camera's eye, as a grid over its film (:mod:`.eyegrid`), for
+the camera rays' nearest hit (:func:`plan_eye`, :meth:`LightBuffer.nearest`).
 
 At scene set-up, per light, a grid of cells over the directions seen from the light (a cube
 map: 6 faces x N x N cells) or, for a directional light, over the plane perpendicular to its
