@@ -30,10 +30,12 @@ import numpy as np
 
 
 #: film pixels per cell side, but at least ``MIN_SIDE`` cells along the film's longer side
-#: (a small film's pixels span wide cones) and at most ``MAX_CELLS`` cells in all
+#: (a small film's pixels span wide cones), at most ``MAX_CELLS`` cells in all
 CELL_PX = 1
 MIN_SIDE = 128
 MAX_CELLS = 1 << 20
+#: list entries over the film's cells at most (else the cells are made coarser, halving the sides)
+MAX_ENTRIES = 1 << 24
 #: directions with ``d·f`` at most this (|d| = 1) look up the ``BEHIND`` cell
 KAPPA = 1e-3
 
@@ -102,16 +104,20 @@ def lists(eye, R, window, size, c, rad, angle, cell_px=CELL_PX):
     u0, u1, v0, v1 = window
     if not (np.all(np.isfinite(window)) and u1 > u0 and v1 > v0):
         u0, u1, v0, v1 = -1.0, 1.0, -1.0, 1.0     # a degenerate camera: any window is correct
-    su, sv = nu / (u1 - u0), nv / (v1 - v0)
     eye = np.asarray(eye, dtype=np.float64)
     q = (c - eye) @ R.T                                        # centres in the camera frame
     ulo, uhi = _ranges(q[:, 0], q[:, 2], rad, angle)
     vlo, vhi = _ranges(q[:, 1], q[:, 2], rad, angle)
     nb = np.nonzero((ulo <= uhi) & (vlo <= vhi))[0]
-    iu0, iu1 = _cells(ulo[nb], uhi[nb], u0, su, nu)
-    iv0, iv1 = _cells(vlo[nb], vhi[nb], v0, sv, nv)
-    cu = iu1 - iu0 + 1
-    per = cu * (iv1 - iv0 + 1)
+    while True:         # coarser cells while the lists would pass MAX_ENTRIES (bounds filling the film)
+        su, sv = nu / (u1 - u0), nv / (v1 - v0)
+        iu0, iu1 = _cells(ulo[nb], uhi[nb], u0, su, nu)
+        iv0, iv1 = _cells(vlo[nb], vhi[nb], v0, sv, nv)
+        cu = iu1 - iu0 + 1
+        per = cu * (iv1 - iv0 + 1)
+        if int(per.sum()) <= MAX_ENTRIES or nu * nv == 1:
+            break
+        nu, nv = max(1, nu // 2), max(1, nv // 2)
     objs = np.repeat(nb, per)
     k = np.arange(objs.size) - np.repeat(np.cumsum(per) - per, per)     # index within its rectangle
     cu_r = np.repeat(cu, per)

@@ -167,3 +167,26 @@ def test_degenerate_window_is_the_unit_window():
         for x, y in zip(got[:3], want[:3]):
             assert np.array_equal(x, y)
         assert got[3][1:5] == want[3][1:5]
+
+
+def test_coarser_cells_past_the_entry_budget(variant, monkeypatch):
+    """Lists that would pass ``MAX_ENTRIES`` (bounds filling the film) are made over coarser
+    cells, within the budget, and still give the BVH walk's hits."""
+    import drjit as dr
+    import mitsuba as mi
+    from links1_mitsuba import eyegrid, lightbuffer
+    scene, integ, P = _prepared(_scene(120))
+    fine = P.eye_buf
+    monkeypatch.setattr(eyegrid, "MAX_ENTRIES", 3000)
+    eb = lightbuffer.plan_eye(P, scene)
+    assert eb.nu < fine.nu and eb.entries < fine.entries
+    assert eb.entries <= 3000 + P.bvh.n          # the film cells within the budget, BEHIND at most all
+    d = _rays(eb, P, np.random.default_rng(6))
+    n = len(d)
+    o = mi.Point3f(*[mi.Float(np.full(n, np.float32(v))) for v in eb.pos])
+    dd = mi.Vector3f(*[mi.Float(np.ascontiguousarray(d[:, i])) for i in range(3)])
+    args = (o, dd, mi.Float(np.full(n, 1e-3, np.float32)), mi.Float(np.full(n, np.inf, np.float32)),
+            dr.full(mi.Bool, True, n), None)
+    a = [np.asarray(x) for x in eb.nearest(*args)]
+    b = [np.asarray(x) for x in P.bvh.nearest(*args)]
+    assert np.array_equal(a[0], b[0]) and np.array_equal(a[1][b[3]], b[1][b[3]])
