@@ -266,7 +266,7 @@ def test_bounding_spheres_hold_the_quadrics(variant):
 
 @pytest.mark.slow
 def test_sampled_mean_list_estimates_the_built_buffer(variant):
-    """The pre-build estimate that skips hopeless buffers (plan, plan_eye) is within 15 % of
+    """The pre-build estimate that skips hopeless buffers (plan) is within 15 % of
     the mean list length of the buffer built for the same point."""
     from links1_mitsuba import lightbuffer
     scene, integ, P = _prepared(_scene(120))
