@@ -6,7 +6,8 @@ dependency direction and its subpackages and before the film of a batch
 became one kernel: every ``scenes/*.xml`` at 48x40, spp 2, with the ``depth``,
 ``normal`` and ``cost`` AOVs, by the core and by the Mitsuba plugin (and by the plugin as a
 batch of two windows, which must equal the full frame); a scene added since has the digests of
-the commit that added it. A digest is the SHA-256 of the image
+the commit that added it, and an image changed on purpose since says by which commit and in which
+channels (``changed_since`` in the file). A digest is the SHA-256 of the image
 rounded to float32 (the precision of a written EXR), so a float64 difference of an ulp in the
 core passes only where it cannot change a stored pixel.
 
