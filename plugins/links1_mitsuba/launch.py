@@ -79,12 +79,12 @@ class SceneInputs:
     prepared tables (``tables.scene_input``: rebuilt with them). A recording that reads a variable
     outside this set fails in Dr.Jit ("... was not specified as an input variable"); the
     launch then records with the whole scene instead (:meth:`Launches._call_frozen`). It holds
-    variable indices, not the scene: the scene owns the integrator, which holds the tables
+    the variables, not the scene: the scene owns the integrator, which holds the tables
     (a reference cycle through C++ objects would keep every scene and its registered
     objects alive).
     """
 
-    __slots__ = ("items", "stale")
+    __slots__ = ("items", "held", "stale")
 
     def __init__(self, scene, extra=(), skip=()):
         import drjit as dr
@@ -111,6 +111,11 @@ class SceneInputs:
             if index not in camera_only and domain != "Sensor":
                 items.setdefault(index, (index, variant, domain))
         self.items = tuple(items.values())
+        #: a reference to each of those variables (one array per index, whatever its type:
+        #: never read), so that none is freed while this input lives: a scene object that
+        #: replaces a buffer (a mesh's ``parameters_changed``) frees the old one, and a freed
+        #: index handed to freeze aborts the process
+        self.held = dr.detail.update_indices([mi.Float() for _ in self.items], [i for i, _, _ in self.items])
         #: freeze handed back another variable for one of them (it would update the scene's
         #: own): the launches of these tables take the whole scene from then on
         self.stale = False

@@ -5,6 +5,7 @@ parameter of an object itself read cheaply (:func:`own_param`). The per-scene ta
 """
 from __future__ import annotations
 
+import drjit as dr
 import mitsuba as mi
 import numpy as np
 
@@ -193,20 +194,19 @@ class ParamWatch(Hidden):
             ids = tuple(collect(value))
             if ids and pin:
                 try:
-                    p = type(value)(value)      # another reference to the same variables
+                    # another reference to the same variables, the AD one too (an attached
+                    # value, ``params.update(opt)``: an AD index in the upper 32 bits; under
+                    # ``suspend_grad``, as ``prepare`` runs, a copy would drop it). Never
+                    # ``value`` itself: a C++ object's parameter is a view of its field, which
+                    # the next ``params.update()`` overwrites; the old variables freed, a new
+                    # value may get their indices and the change go unseen (the frozen
+                    # launch's scene input then hands freeze freed variables: an abort)
+                    with dr.resume_grad():
+                        p = type(value)(value)
                 except Exception:  # noqa: BLE001 - a type that cannot be copied so
                     p = None
                 if p is not None and tuple(collect(p)) == ids:
                     pins[k] = p
-                    state[k] = ("ids", ids)
-                    continue
-                if p is not None and any(i >> 32 for i in ids):
-                    # an attached value (an optimiser's, ``params.update(opt)``: an AD index in
-                    # the upper 32 bits): its copy (under ``suspend_grad``, as ``prepare`` runs)
-                    # has none, so the value itself is pinned (it holds its JIT and
-                    # AD variables; a later assignment puts another object there). Compared
-                    # by value instead, each check read it back to the host (a device sync)
-                    pins[k] = value
                     state[k] = ("ids", ids)
                     continue
             elif ids:
