@@ -64,12 +64,7 @@ def load(tmp_path, body, projective=True, rfilter="box"):
                                                       spp=4, rfilter=rfilter)
     path = tmp_path / "scene.xml"
     path.write_text(scene(whitted(1, projective=projective) + cam, body, LIGHT))
-    sc = lm.load_file(str(path))
-    if "vertex_positions" in body or 'type="cube"' in body:
-        # (new vertex positions each frame: the frozen launch's scene inputs kept a freed
-        # variable, an abort in Dr.Jit; the unfrozen launch renders the same frame)
-        sc.integrator().use_freeze = False
-    return sc
+    return lm.load_file(str(path))
 
 
 def mover(mi, dr, params, key):
@@ -297,7 +292,6 @@ def test_mitsuba_shapes_against_direct_projective(variant, tmp_path, shape, emit
     weight = np.zeros((H, W, 3))
     weight[:, W // 2:, 0] = 1.0
     ours = mi.load_dict({"type": "links1_whitted", "projective": True, "max_depth": 1})
-    ours.use_freeze = shape == "sphere"   # (see load)
     theirs = mi.load_dict({"type": "direct_projective", "sppi": 0})
     a, a_se = mean_se([reverse(sc, key, weight, s, integrator=ours) for s in AD_SEEDS])
     b, b_se = mean_se([reverse(sc, key, weight, s, integrator=theirs) for s in AD_SEEDS])
