@@ -63,10 +63,12 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from links1.maths.sampling import mix32
+
 from . import geometry, intersect
 from .camera import rays_at
 from .lights import DIRECTED, POSITIONED
-from .util import INF, kind_of, mix32
+from .util import INF, aligned, kind_of
 
 #: points a row (a column) of a pixel is queried at, its ends included
 POINTS = 8
@@ -109,12 +111,12 @@ def _rays(P, x, y, key):
     return rays_at(P, x / W, y / H, key)
 
 
-def _seen(P, scene, x, y, key):
+def _seen(P, scene, x, y, key, active=True):
     """``(o, d, t, slot, prim, (shape, triangle))`` of the camera rays through ``(x, y)``: the
     nearest hit (primal; ``prim``: a links1 quadric's part, 0 its side; ``shape`` and
-    ``triangle``: Mitsuba's hit shape and primitive)."""
+    ``triangle``: Mitsuba's hit shape and primitive); on lanes ``active`` (elsewhere no hit)."""
     o, d, tmin, tmax = _rays(P, x, y, key)
-    act = dr.full(mi.Bool, True, dr.width(x))
+    act = dr.full(mi.Bool, True, dr.width(x)) & active
     cost = dr.zeros(mi.UInt32, dr.width(x))
     t, slot, si, prim = intersect.nearest(P, scene, o, d, tmin, tmax, act, cost)
     return o, d, t, _lobe(P, slot, o + d * dr.select(dr.isfinite(t), t, 0.0)), prim, (si.shape, si.prim_index)
@@ -136,8 +138,17 @@ def _slot(ident):
     return dr.select(ident >= 0, ident % LOBES, ident)
 
 
+def _dev(t, a):
+    """The Dr.Jit array of type ``t`` of numpy ``a`` in 64-byte aligned memory
+    (:func:`links1_mitsuba.util.aligned`): a kernel reading an array made from numpy memory is
+    compiled again for each alignment it meets (16-byte aligned or not, at random)."""
+    return t(aligned(a, {dr.VarType.Float32: np.float32, dr.VarType.Int32: np.int32, dr.VarType.UInt32: np.uint32,
+                         dr.VarType.Bool: np.bool_}[dr.type_v(t)]))
+
+
 def _unit(x):
-    return mi.Float(x >> 8) * (2.0 ** -24)
+    """:func:`links1_mitsuba.util.unit_float` of a numpy ``uint32`` array (float32: exact)."""
+    return (x >> np.uint32(8)).astype(np.float32) * np.float32(2.0 ** -24)
 
 
 # ---------------------------------------------------------------- the term
@@ -179,10 +190,10 @@ def _crossings(trace_points, scene, P, sensor, win, spp, seed):
     px, py = x0 + pix % w, y0 + pix // w
     s0 = int(seed) & 0xFFFFFFFF
     # the film's sample ids: a sample's lines do not depend on the window it is rendered in
-    sid = mi.UInt32(((py * P.film_size[0] + px) * spp + i).astype(np.uint32))
-    u_row = _unit(mix32(mix32(mi.UInt32(s0 ^ _SALT_ROW)) ^ sid)).numpy()
-    u_col = _unit(mix32(mix32(mi.UInt32(s0 ^ _SALT_COL)) ^ sid)).numpy()
-    keys = mix32(mix32(mi.UInt32(s0 ^ _SALT_KEY)) ^ sid).numpy()
+    sid = ((py * P.film_size[0] + px) * spp + i).astype(np.uint32)
+    u_row = _unit(mix32(mix32(s0 ^ _SALT_ROW) ^ sid))
+    u_col = _unit(mix32(mix32(s0 ^ _SALT_COL) ^ sid))
+    keys = mix32(mix32(s0 ^ _SALT_KEY) ^ sid)
     # lanes 0..n-1: rows (x varies), n..2n-1: columns (y varies); POINTS points each
     k = np.arange(POINTS) / (POINTS - 1)
     along = np.concatenate([px, py]).astype(np.float64)[:, None] + k[None, :]
@@ -194,9 +205,8 @@ def _crossings(trace_points, scene, P, sensor, win, spp, seed):
         return dr.select(colm, fxd, a), dr.select(colm, a, fxd)
 
     rep = lambda v: np.repeat(v, POINTS)   # noqa: E731
-    x, y = at(mi.Float(along.ravel().astype(np.float32)), mi.Bool(rep(is_col)),
-              mi.Float(rep(fixed).astype(np.float32)))
-    cam, shadows = _status(P, scene, x, y, mi.UInt32(rep(lane_key)), lts)
+    x, y = at(_dev(mi.Float, along.ravel()), _dev(mi.Bool, rep(is_col)), _dev(mi.Float, rep(fixed)))
+    cam, shadows = _status(P, scene, x, y, _dev(mi.UInt32, rep(lane_key)), lts)
     dr.eval(cam[3], *[s_[2] for s_ in shadows])   # one kernel (each alone would trace the camera rays again)
     # what each point sees: the camera ray's slot, then each light's occluder: an interval
     # whose ends differ is a crossing of the first that differs (the camera's first)
@@ -207,16 +217,16 @@ def _crossings(trace_points, scene, P, sensor, win, spp, seed):
     li, ki = np.nonzero(kind >= 0)
     if li.size == 0:
         return None
-    kd = mi.Int32(kind[li, ki].astype(np.int32))
-    cl, key = is_col[li], mi.UInt32(lane_key[li])
-    colm, fxd = mi.Bool(cl), mi.Float(fixed[li].astype(np.float32))
-    lo_d, hi_d = mi.Float(along[li, ki].astype(np.float32)), mi.Float(along[li, ki + 1].astype(np.float32))
-    c_lo = mi.Int32(sig[0][li, ki].astype(np.int32))
-    o_lo = mi.Int32(np.choose(np.maximum(kind[li, ki], 0), [g[li, ki] for g in sig]).astype(np.int32))
+    kd = _dev(mi.Int32, kind[li, ki])
+    cl, key = is_col[li], _dev(mi.UInt32, lane_key[li])
+    colm, fxd = _dev(mi.Bool, cl), _dev(mi.Float, fixed[li])
+    lo_d, hi_d = _dev(mi.Float, along[li, ki]), _dev(mi.Float, along[li, ki + 1])
+    c_lo = _dev(mi.Int32, sig[0][li, ki])
+    o_lo = _dev(mi.Int32, np.choose(np.maximum(kind[li, ki], 0), [g[li, ki] for g in sig]))
     # bisection, lo keeping what the interval's first point sees: one symbolic loop (a kernel)
     def halve(lo_, hi_, i):
         mid = 0.5 * (lo_ + hi_)
-        cm, sm = _status(P, scene, *at(mid, colm, fxd), key, lts, kd > 0)
+        cm, sm = _status(P, scene, *at(mid, colm, fxd), key, lts, only=kd)
         same = (cm[3] == c_lo) & ((kd == 0) | (_pick(kd, [cm[3]] + [s_[2] for s_ in sm]) == o_lo))
         return dr.select(same, mid, lo_), dr.select(same, hi_, mid), i + 1
 
@@ -224,7 +234,7 @@ def _crossings(trace_points, scene, P, sensor, win, spp, seed):
                                   lambda lo_, hi_, i: i < BISECT_STEPS, halve, label="links1_bisect")
     dr.eval(lo_d, hi_d)
     (xl, yl), (xh, yh) = at(lo_d, colm, fxd), at(hi_d, colm, fxd)
-    ends = [_status(P, scene, xa, ya, key, lts) for xa, ya in ((xl, yl), (xh, yh))]
+    ends = [_status(P, scene, xa, ya, key, lts, only=kd) for xa, ya in ((xl, yl), (xh, yh))]
     dr.eval(ends)
     g = _grazes(ends, kd, (xl, yl), (xh, yh), lts)
     # f on both sides, SIDE_STEP pixels out: the primal ray tree (one launch for both ends)
@@ -240,8 +250,8 @@ def _crossings(trace_points, scene, P, sensor, win, spp, seed):
     a2 = ax * ax + ay * ay
     edge["valid"] &= a2 > 0
     coef = dr.select(edge["valid"], dr.select(colm, ay, ax) / dr.select(edge["valid"], a2, 1.0), 0.0)
-    jump_c = mi.Color3f(*[mi.Float(jump[:, c].astype(np.float32)) for c in range(3)])
-    edge.update(pixel=mi.UInt32(pix[li % n].astype(np.uint32)), weight=jump_c * coef, q=g["q"], slot=g["slot"],
+    jump_c = mi.Color3f(*[_dev(mi.Float, jump[:, c]) for c in range(3)])
+    edge.update(pixel=_dev(mi.UInt32, pix[li % n]), weight=jump_c * coef, q=g["q"], slot=g["slot"],
                 light=g["light"], p=g["p"], ts=g["t"], lights=lts)
     dr.eval(edge["pixel"], edge["weight"], edge["q"], edge["m"], edge["slot"], edge["valid"], edge["part"],
             edge["light"], edge["p"])
@@ -256,7 +266,7 @@ def _active(P, scene, win, lts):
     x0, y0, w, h = win
     gx, gy = np.meshgrid(np.arange(x0 - 1, x0 + w + 2, dtype=np.float64),
                          np.arange(y0 - 1, y0 + h + 2, dtype=np.float64))
-    cam, shadows = _status(P, scene, mi.Float(gx.ravel().astype(np.float32)), mi.Float(gy.ravel().astype(np.float32)),
+    cam, shadows = _status(P, scene, _dev(mi.Float, gx.ravel()), _dev(mi.Float, gy.ravel()),
                            dr.zeros(mi.UInt32, gx.size), lts)
     dr.eval(cam[3], *[s_[2] for s_ in shadows])
     diff = np.zeros((h + 2, w + 2), dtype=bool)
@@ -324,7 +334,8 @@ def _screen_gradient(P, scene, m, g, key, lts):
         for sgn in (1.0, -1.0):
             o, d, _, _ = _rays(P, g["x"] + sgn * dx * DQ_STEP, g["y"] + sgn * dy * DQ_STEP, key)
             q_cam = o + d * g["t"]
-            o2, d2, t2, _, _, _ = _seen(P, scene, g["x"] + sgn * dx * DQ_SHADOW, g["y"] + sgn * dy * DQ_SHADOW, key)
+            o2, d2, t2, _, _, _ = _seen(P, scene, g["x"] + sgn * dx * DQ_SHADOW, g["y"] + sgn * dy * DQ_SHADOW, key,
+                                        shadow)
             p2 = o2 + d2 * dr.select(dr.isfinite(t2), t2, 0.0)
             q_sh = p2 + _toward_all(lts, g["light"], p2) * g["t"]
             qs.append((q_cam, q_sh))
@@ -364,18 +375,19 @@ def _toward_all(lts, light, p):
     return out
 
 
-def _status(P, scene, x, y, key, lts, shadows=True):
-    """What the camera rays through ``(x, y)`` see (:func:`_seen`) and, per light of ``lts``
-    (on lanes ``shadows``), the nearest occluder of the shadow segment from the hit:
-    ``(dir, s, slot (-1: none, -2: no hit), prim, (shape, triangle))``."""
+def _status(P, scene, x, y, key, lts, only=None):
+    """What the camera rays through ``(x, y)`` see (:func:`_seen`) and, per light ``j`` of
+    ``lts`` (with ``only``, an ``Int32`` per lane: on the lanes where it is ``j + 1``), the
+    nearest occluder of the shadow segment from the hit: ``(dir, s, slot (-1: none or not
+    traced, -2: no hit), prim, (shape, triangle))``."""
     cam = _seen(P, scene, x, y, key)
     o, d, t = cam[0], cam[1], cam[2]
     hit = dr.isfinite(t)
     p = o + d * dr.select(hit, t, 0.0)
     out = []
-    for lt in lts:
+    for j, lt in enumerate(lts):
         sd, smax = _toward(lt, p)
-        act = hit & shadows
+        act = hit if only is None else hit & (only == j + 1)
         cost = dr.zeros(mi.UInt32, dr.width(p))
         ts, ss, si, pr = intersect.nearest(P, scene, p, sd, dr.select(act, SHADOW_EPS * t, 0.0),
                                            dr.select(act, smax, 0.0), act, cost)
