@@ -48,6 +48,8 @@ class BlobSpec(CandidateLists, RootSolvers):
     _values_cache: object = field(default=None, init=False, repr=False, compare=False)
     # the last nearest-hit search's ray (o, d) and candidate lists, for :meth:`normal`
     _line: tuple | None = field(default=None, init=False, repr=False, compare=False)
+    # the centres in the candidate hierarchy's leaf order (its rows), for :meth:`film_lists`
+    _leaf_order: object = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self):
         m = np.eye(4) if self.to_world is None else self.to_world
@@ -215,15 +217,18 @@ class BlobSpec(CandidateLists, RootSolvers):
             dW += dWk
         return W, dW
 
-    def intersect(self, o, d, tmin, tmax, active, cost=None, any_hit=False):
+    def intersect(self, o, d, tmin, tmax, active, cost=None, any_hit=False, film=None):
         """Nearest root of ``W = threshold`` in (tmin, tmax): ``(t, prim=0)``; ``cost`` += evaluations.
         ``any_hit`` (shadow rays): the first bracketed root is enough, its exact place is not
-        refined (the returned t is then a point past the root, still inside the interval)."""
+        refined (the returned t is then a point past the root, still inside the interval).
+        ``film``: the rays leave a pinhole camera's eye and this :class:`BlobFilm` of it
+        (:meth:`film_lists`) gives their candidate centres (the same lists as the walk's)."""
         import drjit as dr
         import mitsuba as mi
         if self.uses_lists():
             u, v, scale = self._unit_ray(o, d)
-            cands, enter, leave, Lb, Gb = self._setup_lists(u, v, active)
+            found = None if film is None else self._film_candidates(u, v, film, d, active)
+            cands, enter, leave, Lb, Gb = self._setup_lists(u, v, active, found)
             # kept for the normal at this ray's hit (raytree.py calls normal(o, d, ...) next)
             self._line = None if any_hit else (o, d, cands[:3])
             start, end = dr.maximum(tmin * scale, enter), dr.minimum(tmax * scale, leave)

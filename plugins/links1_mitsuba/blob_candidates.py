@@ -70,6 +70,7 @@ class CandidateLists:
         pad = (1e-3 * R + 1e-5 * np.abs(c).max(1))[:, None]
         order, nlo, nhi, first, count = build(c - R[:, None] - pad, c + R[:, None] + pad,
                                               leaf=LEAF_CENTRES)
+        self._leaf_order = np.asarray(order)
         return dict(rows=table(mi.Float, k[order][:, _ROW_PACKETS]),
                     nodes=table(mi.Float, _depth_first(nlo, nhi, first, count)))
 
@@ -117,18 +118,25 @@ class CandidateLists:
             for i in range(LEAF_CENTRES):
                 take = leaf & (i < num)
                 take &= hit_centre(fst + i, take)
-                add = take & (cnt < LIST_CAP)
-                ovf = ovf | (take & ~add)
-                # unmasked (a masked write costs a branch per lane): the entry at cnt is kept
-                # only where cnt moves on, and a full list writes to its spare last entry
-                lst.write(fst + i, dr.minimum(cnt, LIST_CAP))
-                cnt = dr.select(add, cnt + 1, cnt)
+                cnt, ovf = self._keep(lst, cnt, ovf, fst + i, take)
             down = hit_box([lo.x, lo.y, lo.z], [hi.x, hi.y, hi.z], act & ~leaf)
             k = dr.select(down, k + 1, mi.UInt32(lo.w))
             return k, lst, cnt, ovf
 
         _, lst, cnt, ovf = dr.while_loop((k, lst, cnt, ovf), cond, body, label="links1_blob_collect")
         return lst, cnt, ovf
+
+    @staticmethod
+    def _keep(lst, cnt, ovf, idx, take):
+        """Row ``idx`` appended to the lanes' lists where ``take`` (beyond :data:`LIST_CAP`:
+        ``ovf``): the new ``cnt``, ``ovf``."""
+        import drjit as dr
+        add = take & (cnt < LIST_CAP)
+        ovf = ovf | (take & ~add)
+        # unmasked (a masked write costs a branch per lane): the entry at cnt is kept
+        # only where cnt moves on, and a full list writes to its spare last entry
+        lst.write(idx, dr.minimum(cnt, LIST_CAP))
+        return dr.select(add, cnt + 1, cnt), ovf
 
     def _each(self, lst, cnt, ovf, state, fn):
         """Loop ``state = fn(row, state)`` over the lane's candidates in increasing row
@@ -153,7 +161,6 @@ class CandidateLists:
         the only ones whose term ``w_i P(r_i)`` of ``W`` (eq. 3.6/3.7) can be non-zero on the
         line (``P = 0`` from ``r = 3S`` on, eq. 3.9); the root of ``W = T`` (eq. 3.8) is
         sought over their span."""
-        import drjit as dr
         import mitsuba as mi
         from .bvh import slab
         inv_v = mi.Vector3f(1.0 / v.x, 1.0 / v.y, 1.0 / v.z)
@@ -161,22 +168,85 @@ class CandidateLists:
         def hit_box(lo, hi, act):
             return slab(lo, hi, u, inv_v, mi.Float(-INF), mi.Float(INF), act)[0]
 
+        return self._collect(hit_box, self._crosses(u, v), active)
+
+    def _crosses(self, u, v):
+        """``hit_centre(idx, act)`` of :meth:`_collect` for the line ``u + s v``: whether it
+        crosses centre ``idx``'s 3S sphere (float32, the test of :meth:`_chord`)."""
+        import drjit as dr
+        import mitsuba as mi
+
         def hit_centre(idx, act):
             row = self._row(idx, act)
             rel = mi.Vector3f(*row[:3]) - u
             return dr.squared_norm(dr.cross(rel, v)) < row[5]
+        return hit_centre
 
-        return self._collect(hit_box, hit_centre, active)
+    def _film_candidates(self, u, v, film, d, active):
+        """:meth:`_line_candidates` of camera rays (leaving ``film``'s eye along world ``d``):
+        the same test over their film cell's list (:class:`BlobFilm`, a superset of the centres
+        any line through the eye along the cell's directions crosses, in increasing row)
+        instead of the hierarchy's walk, so the same list, count and overflow."""
+        import drjit as dr
+        import mitsuba as mi
+        from .eyegrid import film_cell
+        n = dr.width(active)
+        cell = film_cell(film, d)
+        k = dr.gather(mi.UInt32, film.off, cell, active)
+        end = dr.select(active, dr.gather(mi.UInt32, film.off, cell + 1, active), k)
+        lst = dr.alloc_local(mi.UInt32, LIST_CAP + 1, mi.UInt32(0))
+        cnt = dr.zeros(mi.UInt32, n)
+        ovf = dr.zeros(mi.Bool, n)
+        hit_centre = self._crosses(u, v)
 
-    def _setup_lists(self, u, v, active):
+        def cond(k, lst, cnt, ovf):
+            return k < end
+
+        def body(k, lst, cnt, ovf):
+            act = k < end
+            idx = dr.gather(mi.UInt32, film.rows, k, act)
+            take = act & hit_centre(idx, act)
+            cnt, ovf = self._keep(lst, cnt, ovf, idx, take)
+            return k + 1, lst, cnt, ovf
+
+        _, lst, cnt, ovf = dr.while_loop((k, lst, cnt, ovf), cond, body, label="links1_blob_film")
+        return lst, cnt, ovf
+
+    def film_lists(self, eye, R, window, size, margin, angle):
+        """:class:`BlobFilm` of a pinhole camera at ``eye`` (frame ``R``, film ``window`` of
+        ``size`` pixels, ``eyegrid``): per film cell the rows whose 3S sphere a camera ray's line
+        through the cell can cross, conservative: each sphere in world space around the centre's
+        image with 3S (padded as the hierarchy's boxes, and for the float32 line test, relative
+        to the distances from the eye) times the transform's largest singular value, plus
+        ``margin``; the angular margin ``angle``."""
+        from .eyegrid import line_lists
+        self.tables()
+        k = self._consts()
+        m = np.eye(4) if self.to_world is None else np.asarray(self.to_world, dtype=np.float64)
+        c = k[:, :3]
+        e_obj = np.linalg.inv(m)[:3] @ np.append(np.asarray(eye, dtype=np.float64), 1.0)
+        size_o = np.abs(c).max(1) + np.abs(e_obj).max() + np.linalg.norm(c - e_obj, axis=1)
+        rad = (k[:, 7] * (1.0 + 1e-3) + 1e-5 * size_o) * np.linalg.svd(m[:3, :3], compute_uv=False)[0] + margin
+        off, objs, frame = line_lists(eye, R, window, size, c @ m[:3, :3].T + m[:3, 3], rad, angle)
+        pos = np.empty(len(self.centers), dtype=np.int64)
+        pos[self._leaf_order] = np.arange(len(self.centers))    # a centre's row in leaf order
+        rows = pos[objs]
+        # each cell's rows increasing (the walk's order)
+        cells = np.repeat(np.arange(len(off) - 1), np.diff(off))
+        rows = rows[np.lexsort((rows, cells))]
+        return BlobFilm(off, rows, frame)
+
+
+    def _setup_lists(self, u, v, active, found=None):
         """The candidate lists of the rays' lines, the first :data:`SLOTS` of them in
         registers, and the span and the bounds over them: the sums of :meth:`_setup`, over
         the centres that add non-zero terms, in the hierarchy's leaf order (so the same to
-        float32 rounding, not bit for bit)."""
+        float32 rounding, not bit for bit). ``found``: the lists, when already made
+        (:meth:`_film_candidates`)."""
         import drjit as dr
         import mitsuba as mi
         n = dr.width(active)
-        lst, cnt, ovf = self._line_candidates(u, v, active)
+        lst, cnt, ovf = self._line_candidates(u, v, active) if found is None else found
         many = ovf | (cnt > SLOTS)
         st = (dr.full(mi.Float, INF, n), dr.full(mi.Float, -INF, n), dr.zeros(mi.Float, n), dr.zeros(mi.Float, n))
         slots = []
@@ -227,3 +297,21 @@ class CandidateLists:
             return self._each(lst, cnt, ovf, (dr.zeros(mi.Float, dr.width(s)), dr.zeros(mi.Float, dr.width(s))), term)
 
         return dr.if_stmt((W, dW), many, by_list, lambda W, dW: (W, dW))
+
+
+class BlobFilm:
+    """The candidate rows of a blob per cell of a pinhole camera's film
+    (:meth:`CandidateLists.film_lists`): ``off`` (CSR offsets over the cells, UInt32), ``rows``
+    (UInt32) and the grid's frame (``eyegrid.film_cell`` reads ``frame``, ``u0``, ``v0``,
+    ``su``, ``sv``, ``nu``, ``nv``, ``kappa``)."""
+
+    def __init__(self, off, rows, frame):
+        import mitsuba as mi
+
+        from .util import table
+        R, u0, v0, su, sv, self.nu, self.nv, self.kappa = frame
+        self.frame = [[float(x) for x in row] for row in R]
+        self.u0, self.v0, self.su, self.sv = float(u0), float(v0), float(su), float(sv)
+        self.entries = int(len(rows))
+        self.off = table(mi.UInt32, np.asarray(off, dtype=np.uint32))
+        self.rows = table(mi.UInt32, np.asarray(rows if len(rows) else [0], dtype=np.uint32))

@@ -135,3 +135,35 @@ def lists(eye, R, window, size, c, rad, angle, cell_px=CELL_PX):
     off = np.zeros(nu * nv + 2, dtype=np.int64)
     np.add.at(off, cells + 1, 1)
     return np.cumsum(off), objs, keys[objs], (R, u0, v0, su, sv, nu, nv, KAPPA)
+
+
+def line_lists(eye, R, window, size, c, rad, angle, cell_px=CELL_PX):
+    """:func:`lists` for lines through ``eye``: per film cell the spheres ``(c, rad)`` that the
+    whole line through the eye along a direction of the cell (both ways) can meet, each list in
+    increasing sphere index, ``(offsets, objects, frame)``. The line's part behind the eye meets
+    a sphere where the ray meets its mirror image through the eye (``2 eye - c``), so the lists
+    are :func:`lists` over the spheres and their mirror images, merged."""
+    n = len(c)
+    eye = np.asarray(eye, dtype=np.float64)
+    off, objs, _, frame = lists(eye, R, window, size, np.concatenate([c, 2.0 * eye - c]),
+                                np.concatenate([rad, rad]), angle, cell_px)
+    cells = np.repeat(np.arange(len(off) - 1), np.diff(off))
+    key = np.unique(cells * n + objs % n)        # (cell, sphere) pairs once each, in order
+    cells, objs = key // n, key % n
+    out = np.zeros(len(off), dtype=np.int64)
+    np.add.at(out, cells + 1, 1)
+    return np.cumsum(out), objs, frame
+
+
+def film_cell(g, v):
+    """The cell (UInt32) of directions ``v`` in the grid ``g`` (its ``frame`` rows, ``u0``,
+    ``v0``, ``su``, ``sv``, ``nu``, ``nv`` and ``kappa``, Python floats): :func:`lists`' cell
+    of the film coordinates, ``BEHIND`` where ``v·f <= kappa |v|``."""
+    import drjit as dr
+    import mitsuba as mi
+    x, y, z = (row[0] * v.x + row[1] * v.y + row[2] * v.z for row in g.frame)
+    front = z > g.kappa * dr.norm(v)
+    zs = dr.select(front, z, 1.0)
+    iu = dr.clip(dr.floor((x / zs - g.u0) * g.su), 0.0, g.nu - 1.0)
+    iv = dr.clip(dr.floor((y / zs - g.v0) * g.sv), 0.0, g.nv - 1.0)
+    return dr.select(front, mi.UInt32(iv) * g.nu + mi.UInt32(iu), g.nu * g.nv)

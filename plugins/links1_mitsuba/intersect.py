@@ -61,11 +61,13 @@ def _nearest_custom(tables, o, d, tmin, tmax, active, cost, eye, t, slot, prim):
     """:func:`nearest` over the links1 shapes, from the Mitsuba hit ``(t, slot, prim)``."""
     # ties at the same distance go to the lower slot (file order), as in the core
     # (links1.geometry.accel): a shape after the current best may not tie, one before it may
+    buf = tables.eye_buf if eye else None
+    films = getattr(buf, "blobs", {})     # the blobs' candidates per film cell (lightbuffer.plan_eye)
     for spec in tables.custom_unrolled:
         tt = dr.minimum(t, tmax)
         tt = dr.select(slot > spec.slot, next_up(tt), tt)
         if spec.__class__.__name__ == "BlobSpec":
-            tc, pc = spec.intersect(o, d, tmin, tt, active, cost)
+            tc, pc = spec.intersect(o, d, tmin, tt, active, cost, film=films.get(spec.slot))
         else:
             tc, pc = spec.intersect(o, d, tmin, tt, active)
             cost += dr.select(active, mi.UInt32(1), 0)
@@ -74,7 +76,7 @@ def _nearest_custom(tables, o, d, tmin, tmax, active, cost, eye, t, slot, prim):
         slot = dr.select(better, spec.slot, slot)
         prim = dr.select(better, pc, prim)
     if tables.bvh is not None:
-        buf = tables.eye_buf if eye else None
+        buf = buf if getattr(buf, "bvh", None) is not None else None    # (EyeBlobs: blobs only)
         tq, q, part, found = (buf or tables.bvh).nearest(o, d, tmin, next_up(dr.minimum(t, tmax)), active, cost)
         sq = mi.Int32(dr.gather(mi.UInt32, tables.bvh.slot, q, found))
         better = found & ((tq < t) | ((tq == t) & ((slot < 0) | (sq < slot))))

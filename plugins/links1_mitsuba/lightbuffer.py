@@ -304,22 +304,49 @@ def plan_eye(P, scene):
     """The light buffer of a perspective camera's eye (Weghorst, Hooper and Greenberg's first-hit
     speed-up in Haines and Greenberg's form) as a grid over its film (:mod:`.eyegrid`): camera
     rays all start there, so per cell of a few pixels the quadrics each ray can meet, nearest
-    first (``LightBuffer.nearest``). None where there is no BVH, the camera is not a pinhole or
-    the scene is unbounded."""
-    if P.bvh is None or not getattr(P, "perspective", False) or P.lens is not None:
+    first (``LightBuffer.nearest``), and in its ``blobs`` the film lists of the blobs with
+    candidate lists (:func:`eye_blobs`). None where the camera is not a pinhole, or neither
+    exists: an :class:`EyeBlobs` where there are only the blobs' (no BVH or an unbounded
+    scene)."""
+    if not getattr(P, "perspective", False) or P.lens is not None:
         return None
     eye = np.asarray(P.cam, dtype=np.float64)[:3, 3]
-    ext = scene_extent(P, scene, [eye])
-    if ext is None:
-        return None
-    margin = MARGIN_REL * (1.0 + ext)
     R = eyegrid.camera_frame(P.cam)
     window = eyegrid.film_window(P.cam, P.x_fov, P.film_size, R)
+    blobs = eye_blobs(P, eye, R, window)
+    ext = None if P.bvh is None else scene_extent(P, scene, [eye])
+    if ext is None:
+        return EyeBlobs(blobs) if blobs else None
+    margin = MARGIN_REL * (1.0 + ext)
     c, r = quadric_spheres(P.bvh.specs, margin)
     off, ob, ke, frame = eyegrid.lists(eye, R, window, P.film_size, c, r, ANGLE_MARGIN)
     lens = np.diff(off)
     mean = float(lens[lens > 0].mean()) if np.any(lens > 0) else 0.0
-    return LightBuffer(P.bvh, ("eye", eye, frame), frame[5], off, ob, ke, margin, mean)
+    buf = LightBuffer(P.bvh, ("eye", eye, frame), frame[5], off, ob, ke, margin, mean)
+    buf.blobs = blobs
+    return buf
+
+
+class EyeBlobs:
+    """The eye buffer of a scene without the quadrics' (:func:`plan_eye`): the blobs' film
+    lists only, ``blobs`` (slot -> ``blob_candidates.BlobFilm``)."""
+
+    def __init__(self, blobs):
+        self.blobs = blobs
+
+
+def eye_blobs(P, eye, R, window):
+    """Slot -> ``BlobFilm`` (``BlobSpec.film_lists``) of each blob that sums over candidate lists,
+    for camera rays from ``eye`` (frame ``R``, film ``window``): the margin covers the float32
+    eye (relative ``MARGIN_REL`` of the largest coordinate of the eye and the blob's bounds)."""
+    out = {}
+    for sp in P.custom_unrolled:
+        if type(sp).__name__ != "BlobSpec" or not sp.uses_lists():
+            continue
+        lo, hi = sp.bounds()
+        margin = MARGIN_REL * (1.0 + max(np.abs(eye).max(), np.abs(lo).max(), np.abs(hi).max()))
+        out[sp.slot] = sp.film_lists(eye, R, window, P.film_size, margin, ANGLE_MARGIN)
+    return out
 
 
 def build_if_it_pays(bvh, geom, margin, N=None):
@@ -387,6 +414,7 @@ class LightBuffer:
         checked_index(ob, bvh.n, "light buffer entries")
         self.off = table(mi.UInt32, off.astype(np.uint32))
         self.ent = table(mi.Float, pairs)
+        self.blobs = {}      # the blobs' film lists (plan_eye)
 
     def cell(self, o, d, act):
         """The cell of a shadow ray from ``o`` along ``d`` and the key limit of its entries."""
@@ -412,13 +440,7 @@ class LightBuffer:
             p = mi.Vector3f(*self.pos)
             lim = dr.norm(o - p) + self.margin
         elif self.kind == "eye":
-            v = -d
-            x, y, z = (row[0] * v.x + row[1] * v.y + row[2] * v.z for row in self.frame)
-            front = z > self.kappa * dr.norm(v)
-            zs = dr.select(front, z, 1.0)
-            iu = dr.clip(dr.floor((x / zs - self.u0) * self.su), 0.0, self.nu - 1.0)
-            iv = dr.clip(dr.floor((y / zs - self.v0) * self.sv), 0.0, self.nv - 1.0)
-            cell = dr.select(front, mi.UInt32(iv) * self.nu + mi.UInt32(iu), self.nu * self.nv)
+            cell = eyegrid.film_cell(self, -d)
             ok, lim = act, None
         else:
             e1, e2, w = (mi.Vector3f(*x) for x in (self.e1, self.e2, self.w))
