@@ -1,6 +1,7 @@
 """A Mitsuba mesh's vertices moved through ``params.update()`` between frames, with the frozen
 launch on: each frame is that of a scene loaded afresh with the moved mesh (bit for bit: the
-same kernels over the same vertex bits), also with the vertices attached (reverse mode), and the
+same kernels over the same vertex bits), also with the vertices attached (reverse and forward
+mode), and the
 case that aborted the process (the launch's scene input handed freeze a freed vertex buffer:
 the parameter watch's pin of an attached value was a view of the mesh's field, so the freed
 indices were handed out again and the change went unseen)."""
@@ -66,24 +67,31 @@ def test_moved_vertices_render_as_a_fresh_load(variant, tmp_path):
 
 
 def _reverse(mi, dr, sc, verts, seed, integrator=None):
-    """The frame and d (red sum of the right half) / d vertices at ``verts`` (attached)."""
+    """The frame, d (red sum of the right half) / d vertices at ``verts`` (attached; reverse
+    mode) and d frame / d x of every vertex (forward mode)."""
     params = mi.traverse(sc)
-    v = mi.Float(verts.ravel())
-    dr.enable_grad(v)
-    params[KEY] = v
-    params.update()
-    img = mi.render(sc, params, integrator=integrator, seed=seed + 100, seed_grad=seed, spp=SPP)
-    weight = np.zeros((H, W, 3), dtype=np.float32)
-    weight[:, W // 2:, 0] = 1
-    dr.backward(dr.sum(img * mi.TensorXf(weight), axis=None))
-    return np.array(img), np.array(dr.grad(v))
+    out = []
+    for mode in ("reverse", "forward"):
+        v = mi.Float(verts.ravel())
+        dr.enable_grad(v)
+        params[KEY] = v
+        params.update()
+        img = mi.render(sc, params, integrator=integrator, seed=seed + 100, seed_grad=seed, spp=SPP)
+        if mode == "forward":
+            dr.set_grad(v, mi.Float((np.arange(verts.size) % 3 == 0).astype(np.float32)))
+            dr.forward_to(img)
+            return (*out, np.array(dr.grad(img)))
+        weight = np.zeros((H, W, 3), dtype=np.float32)
+        weight[:, W // 2:, 0] = 1
+        dr.backward(dr.sum(img * mi.TensorXf(weight), axis=None))
+        out = [np.array(img), np.array(dr.grad(v))]
 
 
 @pytest.mark.parametrize("projective", [False, True], ids=["interior", "projective"])
 def test_attached_vertices_moved_each_frame_as_a_fresh_load(variant, tmp_path, projective):
-    """Reverse mode as inverse rendering runs it (the vertices attached, moved each step,
+    """Reverse and forward mode as inverse rendering runs them (the vertices attached, moved each step,
     through the integrator the scene holds and through another one, as the crash was found):
-    each step's frame and gradient equal those of a fresh scene and integrator (the vertices
+    each step's frame and derivatives equal those of a fresh scene and integrator (the vertices
     attached likewise)."""
     import drjit as dr
     import mitsuba as mi
@@ -94,11 +102,12 @@ def test_attached_vertices_moved_each_frame_as_a_fresh_load(variant, tmp_path, p
     other = mi.load_dict(integ)
     for frame in (1, 2, 3):
         for which in (None, other):
-            img, grad = _reverse(mi, dr, sc, _verts(frame), frame, which)
+            img, grad, dimg = _reverse(mi, dr, sc, _verts(frame), frame, which)
             fresh = _scene(mi, tmp_path / f"cube{frame}.ply", _verts(frame), integ)
-            ref_img, ref_grad = _reverse(mi, dr, fresh, _verts(frame), frame,
-                                         None if which is None else mi.load_dict(integ))
+            ref_img, ref_grad, ref_dimg = _reverse(mi, dr, fresh, _verts(frame), frame,
+                                                   None if which is None else mi.load_dict(integ))
             assert np.array_equal(img, ref_img), frame
+            assert np.array_equal(dimg, ref_dimg) and np.any(dimg != 0), frame
             if projective:
                 # (the boundary term's vertex gradients are sums that the threads of a
                 # reverse pass add in any order: equal to float32 rounding, not bit for bit)
