@@ -1,10 +1,9 @@
 """A Mitsuba mesh's vertices moved through ``params.update()`` between frames, with the frozen
 launch on: each frame is that of a scene loaded afresh with the moved mesh (bit for bit: the
 same kernels over the same vertex bits), also with the vertices attached (reverse and forward
-mode), and the
-case that aborted the process (the launch's scene input handed freeze a freed vertex buffer:
-the parameter watch's pin of an attached value was a view of the mesh's field, so the freed
-indices were handed out again and the change went unseen)."""
+mode), and the case that aborted the process (the launch's scene input handed freeze a freed
+vertex buffer: the parameter watch's pin of an attached value was a view of the mesh's field,
+so the freed indices were handed out again and the change went unseen)."""
 from __future__ import annotations
 
 import numpy as np
