@@ -56,7 +56,7 @@ def test_the_sample_key_salts_are_named_not_retyped():
                 if int(lit, 16) in values:
                     found.append(f"{name}: {lit}")
     assert not found, found
-    from links1_mitsuba import gradients, launch, raytree
+    from links1_mitsuba import camera, launch, raytree, raytree_ad
     assert raytree.KEY_REFLECT == sampling.KEY_REFLECT and raytree.KEY_REFRACT == sampling.KEY_REFRACT
-    assert gradients.child_keys is raytree.child_keys   # the derivative pass's levels: the same rule
-    assert launch.KEY_PIXEL == sampling.KEY_PIXEL and launch.key_seed is sampling.key_seed
+    assert raytree_ad.child_keys is raytree.child_keys   # the derivative pass's levels: the same rule
+    assert camera.KEY_PIXEL == sampling.KEY_PIXEL and launch.key_seed is sampling.key_seed
