@@ -72,8 +72,10 @@ from .util import INF, aligned, kind_of
 
 #: points a row (a column) of a pixel is queried at, its ends included
 POINTS = 8
-#: bisection steps from an interval of 1/(POINTS − 1) pixel to its crossing: 1/7 · 2⁻²² pixel,
-#: below float32's resolution of the film coordinates of a 2048-pixel film
+#: most bisection steps from an interval of 1/(POINTS − 1) pixel to its crossing: 1/7 · 2⁻²²
+#: pixel, below float32's resolution of film coordinates from 0.3 pixel on; a crossing stops
+#: earlier where its interval is one float32 step (at film coordinate x, about
+#: log2(x / 7) + 23 steps: 16 at x = 32, 13 at x = 256)
 BISECT_STEPS = 22
 #: how far (pixels) from a crossing its two sides' radiance is traced: the primal ray tree's
 #: intersection rounds otherwise than the bisection's queries on the last few ulps
@@ -92,6 +94,10 @@ DQ_SHADOW = 0.01
 SHADOW_EPS = 1e-4
 #: the slots' stride of a blob's lobes in what a query point sees (:func:`_lobe`)
 LOBES = 1 << 20
+#: most sample lanes (pixels times spp) of a block of rows the term is made for at once in
+#: reverse mode (gradients.py; its graph is a few values a crossing, the derivative pass's a
+#: ray tree a sample: its blocks are smaller)
+BLOCK_LANES = 1 << 21
 #: salts of the boundary pass's random numbers (rows, columns, light-sample keys)
 _SALT_ROW, _SALT_COL, _SALT_KEY = 0x6A09E667, 0xBB67AE85, 0x3C6EF372
 
@@ -223,15 +229,21 @@ def _crossings(trace_points, scene, P, sensor, win, spp, seed):
     lo_d, hi_d = _dev(mi.Float, along[li, ki]), _dev(mi.Float, along[li, ki + 1])
     c_lo = _dev(mi.Int32, sig[0][li, ki])
     o_lo = _dev(mi.Int32, np.choose(np.maximum(kind[li, ki], 0), [g[li, ki] for g in sig]))
-    # bisection, lo keeping what the interval's first point sees: one symbolic loop (a kernel)
+    # bisection, lo keeping what the interval's first point sees: one symbolic loop (a kernel);
+    # a lane stops where its interval's midpoint rounds to an end (float32: the steps after it
+    # would query that end again and change nothing)
     def halve(lo_, hi_, i):
         mid = 0.5 * (lo_ + hi_)
         cm, sm = _status(P, scene, *at(mid, colm, fxd), key, lts, only=kd)
         same = (cm[3] == c_lo) & ((kd == 0) | (_pick(kd, [cm[3]] + [s_[2] for s_ in sm]) == o_lo))
         return dr.select(same, mid, lo_), dr.select(same, hi_, mid), i + 1
 
-    lo_d, hi_d, _ = dr.while_loop((lo_d, hi_d, dr.zeros(mi.UInt32, dr.width(lo_d))),
-                                  lambda lo_, hi_, i: i < BISECT_STEPS, halve, label="links1_bisect")
+    def going(lo_, hi_, i):
+        mid = 0.5 * (lo_ + hi_)
+        return (i < BISECT_STEPS) & (mid != lo_) & (mid != hi_)
+
+    lo_d, hi_d, _ = dr.while_loop((lo_d, hi_d, dr.zeros(mi.UInt32, dr.width(lo_d))), going, halve,
+                                  label="links1_bisect")
     dr.eval(lo_d, hi_d)
     (xl, yl), (xh, yh) = at(lo_d, colm, fxd), at(hi_d, colm, fxd)
     ends = [_status(P, scene, xa, ya, key, lts, only=kd) for xa, ya in ((xl, yl), (xh, yh))]

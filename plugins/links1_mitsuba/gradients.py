@@ -185,12 +185,17 @@ class Gradients:
         through that graph instead of being rendered again."""
         kept = self._take_kept(scene, sensor, seed, spp, tuning)   # the whole frame as one block
         blocks = [None] if kept is not None else self._ad_blocks(scene, sensor, seed, spp, tuning)
+        # projective over several blocks: the visibility term in its own, larger blocks first
+        # (its graph is small; each pass over a window has a cost of its own)
+        apart = self.config.projective and len(blocks) > 1
         y = 0
         with dr.resume_grad():
+            if apart:
+                self._backward_boundary(scene, grad_in, sensor, seed, spp, tuning)
             for block in blocks:
                 # one block's graph at a time: built, its rows of grad_in propagated, dropped
                 img = kept if block is None else self._render_ad(scene, sensor, seed, spp, tuning, window=block,
-                                                                 mode=dr.ADMode.Backward)
+                                                                 mode=dr.ADMode.Backward, edge=not apart)
                 kept = None
                 h = img.shape[0]
                 g = grad_in if h == grad_in.shape[0] else grad_in[y:y + h]
@@ -266,10 +271,11 @@ class Gradients:
         return img
 
     # -------------------------------------------------------------- the differentiable frame
-    def _render_ad(self, scene, sensor, seed, spp, tuning, window=None, mode=None):
+    def _render_ad(self, scene, sensor, seed, spp, tuning, window=None, mode=None, edge=True):
         """The frame ``render()`` makes (or its ``window``), with Dr.Jit's AD graph from the
         scene's gradient-enabled parameters (see the module's docstring); ``mode``: the
-        ``dr.ADMode`` the graph is made for (Forward or Backward: the same frame)."""
+        ``dr.ADMode`` the graph is made for (Forward or Backward: the same frame); ``edge``:
+        with the visibility term where ``projective`` (:meth:`_backward_boundary` otherwise)."""
         if self.config.adaptive is not None:
             raise NotImplementedError("links1_whitted: gradients of adaptive anti-aliasing are not "
                                       "implemented (render with spp instead of adaptive)")
@@ -281,13 +287,35 @@ class Gradients:
         tracer = Tracer(self.config, tuning)
         # projective: the visibility term (boundary.py), traced before the interior pass, its
         # sides' radiance by the primal tree (the point launch of the primal tables)
-        edge = None
-        if self.config.projective:
-            points = functools.partial(self.launches.trace_points, primal, scene, tracer)
-            edge = boundary.boundary_image(points, scene, primal, ad_tables, sensor, win, spp, seed)
+        if edge and self.config.projective:
+            edge = self._boundary(scene, primal, ad_tables, tracer, sensor, win, spp, seed)
+        else:
+            edge = None
         img = self.launches.render_windows_device(ad_tables, scene, tracer, [win], spp=spp, seed=seed, dtype=mi.Float,
                                                   mode=mode or dr.ADMode.Backward)[0]
         return img if edge is None else img + edge
+
+    def _boundary(self, scene, primal, ad_tables, tracer, sensor, win, spp, seed):
+        """The visibility term of window ``win`` (boundary.py), its sides' radiance by the primal
+        tree (the point launch of the primal tables)."""
+        points = functools.partial(self.launches.trace_points, primal, scene, tracer)
+        return boundary.boundary_image(points, scene, primal, ad_tables, sensor, win, spp, seed)
+
+    def _backward_boundary(self, scene, grad_in, sensor, seed, spp, tuning):
+        """Propagate ``grad_in`` through the visibility term alone, in blocks of rows of at most
+        :data:`.boundary.BLOCK_LANES` samples (the term of a block is the frame's rows: its lines
+        are drawn from the film's sample ids, its pixels chosen by their own neighbourhood)."""
+        sensor, win, spp, seed = render_request(scene, sensor, seed, spp, self.config.seed)
+        with dr.suspend_grad():
+            primal = self.tables.prepare(scene, sensor, tuning)
+        ad_tables = self._ad_tables(primal, scene)
+        tracer = Tracer(self.config, tuning)
+        for block in row_blocks(win, primal.film_size, 0, spp, boundary.BLOCK_LANES):
+            edge = self._boundary(scene, primal, ad_tables, tracer, sensor, block, spp, seed)
+            y = block[1] - win[1]
+            dr.set_grad(edge, grad_in[y:y + block[3], :, :3])
+            dr.enqueue(dr.ADMode.Backward, edge)
+            dr.traverse(dr.ADMode.Backward)
 
     def _ad_tables(self, primal, scene):
         """A shallow copy of the tables ``primal`` with the attached values of the parameters

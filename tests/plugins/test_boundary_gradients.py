@@ -314,7 +314,9 @@ def test_forward_equals_reverse(variant, tmp_path):
 def test_blocks_do_not_change_the_term(variant, tmp_path, monkeypatch):
     """Reverse mode renders the frame in blocks of rows: the term's lines are drawn from the
     film's sample ids and its pixels chosen by their own neighbourhood, so six blocks give the
-    one block's gradient (to the order of the sums)."""
+    one block's gradient (to the order of the sums): the derivative pass's six blocks with the
+    term over the frame apart (its own blocks, larger), and with six blocks of the term too."""
+    import links1_mitsuba.boundary as boundary
     import links1_mitsuba.gradients as gradients
     key, body = SHAPES["quadric"]
     sc = load(tmp_path, body)
@@ -323,8 +325,11 @@ def test_blocks_do_not_change_the_term(variant, tmp_path, monkeypatch):
     monkeypatch.setattr(gradients, "AD_BLOCK_LANES", 4 * W * 4)   # four rows a block
     assert len(gradients.row_blocks((0, 0, W, H), (W, H), 0, 4)) == 6
     six = reverse(sc, key, weight, 3, spp=4)
+    monkeypatch.setattr(boundary, "BLOCK_LANES", 4 * W * 4)
+    six_apart = reverse(sc, key, weight, 3, spp=4)
     assert abs(one) > 1.0
     assert six == pytest.approx(one, rel=1e-5)
+    assert six_apart == pytest.approx(one, rel=1e-5)
 
 
 def test_nothing_added_where_no_outline_moves(variant, tmp_path):
