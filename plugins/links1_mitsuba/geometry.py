@@ -86,6 +86,9 @@ def changed(held: dict, before: dict) -> list:
 
 
 def _matrix_of(v) -> np.ndarray:
+    import drjit as dr
+    # evaluated first: numpy would read an unevaluated matrix entry by entry (a kernel each)
+    dr.eval(v.matrix)
     return np.array(v.matrix, dtype=np.float64).reshape(4, 4)
 
 
