@@ -244,10 +244,9 @@ def _crossings(trace_points, scene, P, sensor, win, spp, seed):
 
     lo_d, hi_d, _ = dr.while_loop((lo_d, hi_d, dr.zeros(mi.UInt32, dr.width(lo_d))), going, halve,
                                   label="links1_bisect")
-    dr.eval(lo_d, hi_d)
     (xl, yl), (xh, yh) = at(lo_d, colm, fxd), at(hi_d, colm, fxd)
     ends = [_status(P, scene, xa, ya, key, lts, only=kd) for xa, ya in ((xl, yl), (xh, yh))]
-    dr.eval(ends)
+    dr.eval(lo_d, hi_d, ends)   # (the loop and what its ends see: one kernel)
     g = _grazes(ends, kd, (xl, yl), (xh, yh), lts)
     # f on both sides, SIDE_STEP pixels out: the primal ray tree (one launch for both ends)
     m_ = dr.width(g["q"])
