@@ -221,13 +221,15 @@ class BlobSpec(CandidateLists, RootSolvers):
         """Nearest root of ``W = threshold`` in (tmin, tmax): ``(t, prim=0)``; ``cost`` += evaluations.
         ``any_hit`` (shadow rays): the first bracketed root is enough, its exact place is not
         refined (the returned t is then a point past the root, still inside the interval).
-        ``film``: the rays leave a pinhole camera's eye and this :class:`BlobFilm` of it
-        (:meth:`film_lists`) gives their candidate centres (the same lists as the walk's)."""
+        ``film``: the candidate centres by cell of the rays' lines (the same lists as the
+        walk's): a :class:`BlobFilm` of the pinhole camera whose eye they leave
+        (:meth:`film_lists`), or a :class:`BlobDirGrid` of the directional light they go
+        toward (:meth:`dir_lists`)."""
         import drjit as dr
         import mitsuba as mi
         if self.uses_lists():
             u, v, scale = self._unit_ray(o, d)
-            found = None if film is None else self._film_candidates(u, v, film, d, active)
+            found = None if film is None else self._film_candidates(u, v, film, o, d, active)
             cands, enter, leave, Lb, Gb = self._setup_lists(u, v, active, found)
             # kept for the normal at this ray's hit (raytree.py calls normal(o, d, ...) next)
             self._line = None if any_hit else (o, d, cands[:3])

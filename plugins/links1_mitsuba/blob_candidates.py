@@ -23,6 +23,10 @@ SLOT_GROUP = 8
 LIST_CAP = 64
 #: Centres per leaf of the candidate search's hierarchy (at most 15).
 LEAF_CENTRES = 4
+#: Cells a side at most of a directional light's grid (:meth:`CandidateLists.dir_lists`).
+DIR_SIDE = 256
+#: List entries over a directional light's grid at most (else coarser cells, halving the sides).
+DIR_ENTRIES = 1 << 22
 #: :meth:`BlobSpec._consts` columns in the packets of a centre's row in the candidate
 #: search's table: ``(x, y, z, 9S²)``, ``(w, S, 3S, 1/(3S²))``, ``(2|w|/(3S), 2|w|/(3S²),
 #: 1/(6S²), −2/(3S²))``.
@@ -182,16 +186,16 @@ class CandidateLists:
             return dr.squared_norm(dr.cross(rel, v)) < row[5]
         return hit_centre
 
-    def _film_candidates(self, u, v, film, d, active):
-        """:meth:`_line_candidates` of camera rays (leaving ``film``'s eye along world ``d``):
-        the same test over their film cell's list (:class:`BlobFilm`, a superset of the centres
-        any line through the eye along the cell's directions crosses, in increasing row)
-        instead of the hierarchy's walk, so the same list, count and overflow."""
+    def _film_candidates(self, u, v, film, o, d, active):
+        """:meth:`_line_candidates` of rays ``o + t d`` (world) whose lines ``film`` lists by
+        cell (:class:`BlobFilm`: camera rays from its eye; :class:`BlobDirGrid`: rays along a
+        directional light): the same test over their cell's list (a superset of the centres
+        the lines of the cell cross, in increasing row) instead of the hierarchy's walk, so
+        the same list, count and overflow."""
         import drjit as dr
         import mitsuba as mi
-        from .eyegrid import film_cell
         n = dr.width(active)
-        cell = film_cell(film, d)
+        cell = film.cell(o, d)
         k = dr.gather(mi.UInt32, film.off, cell, active)
         end = dr.select(active, dr.gather(mi.UInt32, film.off, cell + 1, active), k)
         lst = dr.alloc_local(mi.UInt32, LIST_CAP + 1, mi.UInt32(0))
@@ -235,6 +239,55 @@ class CandidateLists:
         cells = np.repeat(np.arange(len(off) - 1), np.diff(off))
         rows = rows[np.lexsort((rows, cells))]
         return BlobFilm(off, rows, frame)
+
+    def dir_lists(self, w, extent, margin):
+        """:class:`BlobDirGrid` of the lines along the unit direction ``w`` (world, a directional
+        light's shadow rays) through points within ``extent`` of the origin in each coordinate:
+        per cell of a grid on the plane across ``w`` (an eighth of the smallest range 3S a side,
+        at most ``DIR_SIDE`` cells a side and about ``DIR_ENTRIES`` entries, one more cell for a
+        non-finite point) the rows whose
+        3S sphere such a line can cross, conservative: the sphere padded as in
+        :meth:`film_lists` (relative to ``extent`` for the float32 line test) plus ``margin``,
+        and one cell more around it."""
+        self.tables()
+        k = self._consts()
+        m = np.eye(4) if self.to_world is None else np.asarray(self.to_world, dtype=np.float64)
+        c = k[:, :3]
+        inv = np.linalg.inv(m)
+        far = np.linalg.svd(inv[:3, :3], compute_uv=False)[0] * extent * np.sqrt(3.0) + np.abs(inv[:3, 3]).max() * 2
+        rad = (k[:, 7] * (1.0 + 1e-3) + 1e-5 * (np.abs(c).max(1) + 3.0 * far)) \
+            * np.linalg.svd(m[:3, :3], compute_uv=False)[0] + margin
+        w = np.asarray(w, dtype=np.float64)
+        w = w / np.linalg.norm(w)
+        e1 = np.cross(w, [1.0, 0.0, 0.0] if abs(w[0]) < 0.9 else [0.0, 1.0, 0.0])
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(w, e1)
+        cw = c @ m[:3, :3].T + m[:3, 3]
+        a, b = cw @ e1, cw @ e2
+        u0, v0 = float((a - rad).min()), float((b - rad).min())
+        span = max(float((a + rad).max()) - u0, float((b + rad).max()) - v0)
+        N = int(min(DIR_SIDE, max(1, np.ceil(span / (rad.min() / 8.0)))))
+        while N > 1 and len(c) * (2.0 * rad.max() * N / span + 3.0) ** 2 > DIR_ENTRIES:
+            N //= 2
+        scale = N / span
+
+        def cells(x, x0):
+            return np.clip(np.floor((x - x0) * scale).astype(np.int64), 0, N - 1)
+        iu0, iu1 = np.maximum(cells(a - rad, u0) - 1, 0), np.minimum(cells(a + rad, u0) + 1, N - 1)
+        iv0, iv1 = np.maximum(cells(b - rad, v0) - 1, 0), np.minimum(cells(b + rad, v0) + 1, N - 1)
+        cu, per = iu1 - iu0 + 1, (iu1 - iu0 + 1) * (iv1 - iv0 + 1)
+        objs = np.repeat(np.arange(len(c)), per)
+        j = np.arange(objs.size) - np.repeat(np.cumsum(per) - per, per)
+        cl = (np.repeat(iv0, per) + j // np.repeat(cu, per)) * N + np.repeat(iu0, per) + j % np.repeat(cu, per)
+        cl = np.concatenate([cl, np.full(len(c), N * N)])        # a non-finite point: every centre
+        objs = np.concatenate([objs, np.arange(len(c))])
+        pos = np.empty(len(self.centers), dtype=np.int64)
+        pos[self._leaf_order] = np.arange(len(self.centers))
+        rows = pos[objs]
+        order = np.lexsort((rows, cl))
+        off = np.zeros(N * N + 2, dtype=np.int64)
+        np.add.at(off, cl + 1, 1)
+        return BlobDirGrid(np.cumsum(off), rows[order], (e1, e2, u0, v0, scale, N))
 
 
     def _setup_lists(self, u, v, active, found=None):
@@ -315,3 +368,37 @@ class BlobFilm:
         self.entries = int(len(rows))
         self.off = table(mi.UInt32, np.asarray(off, dtype=np.uint32))
         self.rows = table(mi.UInt32, np.asarray(rows if len(rows) else [0], dtype=np.uint32))
+
+    def cell(self, o, d):
+        """The film cell of camera rays along world ``d`` (``eyegrid.film_cell``)."""
+        from .eyegrid import film_cell
+        return film_cell(self, d)
+
+
+class BlobDirGrid:
+    """The candidate rows of a blob per cell of a grid across a directional light's direction
+    (:meth:`CandidateLists.dir_lists`): ``off``, ``rows`` as :class:`BlobFilm`'s, the plane's
+    axes ``e1``, ``e2``, its corner ``u0``, ``v0``, cells per unit ``scale`` and per side
+    ``N`` (cell ``N²``: a non-finite point)."""
+
+    def __init__(self, off, rows, grid):
+        import mitsuba as mi
+
+        from .util import table
+        e1, e2, u0, v0, scale, self.N = grid
+        self.e1, self.e2 = [float(x) for x in e1], [float(x) for x in e2]
+        self.u0, self.v0, self.scale = float(u0), float(v0), float(scale)
+        self.entries = int(len(rows))
+        self.off = table(mi.UInt32, np.asarray(off, dtype=np.uint32))
+        self.rows = table(mi.UInt32, np.asarray(rows if len(rows) else [0], dtype=np.uint32))
+
+    def cell(self, o, d):
+        """The cell of lines through world points ``o`` (along the grid's direction)."""
+        import drjit as dr
+        import mitsuba as mi
+        N = self.N
+        iu = dr.floor((dr.dot(o, mi.Vector3f(*self.e1)) - self.u0) * self.scale)
+        iv = dr.floor((dr.dot(o, mi.Vector3f(*self.e2)) - self.v0) * self.scale)
+        ok = dr.isfinite(iu) & dr.isfinite(iv)
+        iu, iv = dr.clip(iu, 0.0, N - 1.0), dr.clip(iv, 0.0, N - 1.0)
+        return dr.select(ok, mi.UInt32(iv) * N + mi.UInt32(iu), N * N)

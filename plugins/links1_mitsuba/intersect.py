@@ -92,10 +92,11 @@ def shadow_custom(tables, o, d, smax, active, cost, specs=None, light=None):
     buffer of analytic light ``light`` where it has one (lightbuffer.py), else the BVH."""
     T = dr.select(active, mi.Color3f(1.0), mi.Color3f(0.0))
     specs = tables.custom if specs is None else specs
+    lb = tables.lbuf[light] if light is not None and light < len(tables.lbuf) else None
+    grids = getattr(lb, "blobs", {})      # the blobs' candidates per cell (lightbuffer.plan)
     if tables.bvh is not None:
         if any(sp.slot in tables.bvh_slots for sp in specs):
-            lb = tables.lbuf[light] if light is not None and light < len(tables.lbuf) else None
-            if lb is not None:
+            if getattr(lb, "bvh", None) is not None:     # (EyeBlobs: blobs only)
                 T = lb.transmittance(o, d, smax, active, cost)
             else:
                 T = tables.bvh.transmittance(o, d, smax, active, cost)
@@ -104,7 +105,7 @@ def shadow_custom(tables, o, d, smax, active, cost, specs=None, light=None):
         st = tables.shadow_t_np[spec.slot]
         act = active & (dr.max(T) > 0)
         if spec.__class__.__name__ == "BlobSpec":
-            tc, _ = spec.intersect(o, d, 0.0, smax, act, cost, any_hit=True)
+            tc, _ = spec.intersect(o, d, 0.0, smax, act, cost, any_hit=True, film=grids.get(spec.slot))
         else:
             tc, _ = spec.intersect(o, d, 0.0, smax, act)
             cost += dr.select(act, mi.UInt32(1), 0)

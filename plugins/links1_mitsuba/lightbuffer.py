@@ -280,9 +280,12 @@ def plan(P, scene):
     Only where the quadric shadow rays would walk the BVH (``P.bvh``) and the scene is bounded
     (the margin follows from its extent); per light only when the mean list length of its
     non-empty cells is below the BVH's depth (log2 of the quadric count, at least
-    ``MAX_MEAN_LIST``)."""
+    ``MAX_MEAN_LIST``). A directional light's buffer holds in its ``blobs`` the grids of the
+    blobs with candidate lists (``BlobSpec.dir_lists``), a :class:`EyeBlobs` where the
+    quadrics have none."""
     out = [None] * len(P.lights)
-    if P.bvh is None:
+    blobs = _list_blobs(P)
+    if P.bvh is None and not blobs:
         return out
     ext = scene_extent(P, scene, [L.position for L in P.lights if isinstance(L, POSITIONED)])
     if ext is None:
@@ -296,8 +299,19 @@ def plan(P, scene):
             geom = ("dir", w / np.linalg.norm(w))
         else:
             continue
-        out[j] = build_if_it_pays(P.bvh, geom, margin)
+        out[j] = None if P.bvh is None else build_if_it_pays(P.bvh, geom, margin)
+        if geom[0] == "dir" and blobs:
+            grids = {sp.slot: sp.dir_lists(geom[1], ext, margin) for sp in blobs}
+            if out[j] is None:
+                out[j] = EyeBlobs(grids)
+            else:
+                out[j].blobs = grids
     return out
+
+
+def _list_blobs(P):
+    """The blobs of ``P`` that sum over candidate lists (``BlobSpec.uses_lists``)."""
+    return [sp for sp in P.custom_unrolled if type(sp).__name__ == "BlobSpec" and sp.uses_lists()]
 
 
 def plan_eye(P, scene):
@@ -328,8 +342,9 @@ def plan_eye(P, scene):
 
 
 class EyeBlobs:
-    """The eye buffer of a scene without the quadrics' (:func:`plan_eye`): the blobs' film
-    lists only, ``blobs`` (slot -> ``blob_candidates.BlobFilm``)."""
+    """The eye's or a light's buffer without the quadrics' (:func:`plan_eye`, :func:`plan`):
+    the blobs' lists only, ``blobs`` (slot -> ``blob_candidates.BlobFilm`` or
+    ``BlobDirGrid``)."""
 
     def __init__(self, blobs):
         self.blobs = blobs
@@ -340,9 +355,7 @@ def eye_blobs(P, eye, R, window):
     for camera rays from ``eye`` (frame ``R``, film ``window``): the margin covers the float32
     eye (relative ``MARGIN_REL`` of the largest coordinate of the eye and the blob's bounds)."""
     out = {}
-    for sp in P.custom_unrolled:
-        if type(sp).__name__ != "BlobSpec" or not sp.uses_lists():
-            continue
+    for sp in _list_blobs(P):
         lo, hi = sp.bounds()
         margin = MARGIN_REL * (1.0 + max(np.abs(eye).max(), np.abs(lo).max(), np.abs(hi).max()))
         out[sp.slot] = sp.film_lists(eye, R, window, P.film_size, margin, ANGLE_MARGIN)

@@ -1,7 +1,8 @@
 """Camera rays of a many-centre blob take their candidate centres from a list per cell of the
-camera's film (``BlobSpec.film_lists``, ``lightbuffer.plan_eye``) instead of the hierarchy's
-walk: the same per-ray test over a conservative superset in the same order, so the same
-lists, hits and images bit for bit."""
+camera's film (``BlobSpec.film_lists``, ``lightbuffer.plan_eye``), shadow rays toward a
+directional light from a grid across it (``BlobSpec.dir_lists``, ``lightbuffer.plan``), instead
+of the hierarchy's walk: the same per-ray test over a conservative superset in the same order,
+so the same lists, hits and images bit for bit."""
 from __future__ import annotations
 
 import numpy as np
@@ -71,26 +72,68 @@ def test_film_lists_give_the_walks_lists(variant, case):
     d /= np.linalg.norm(d, axis=1)[:, None]
     O = mi.Vector3f(np.tile(eye[:, None], k).astype(np.float32))
     D = mi.Vector3f(d.T.astype(np.float32))
-    act = dr.ones(mi.Bool, k)
-    u, v, _ = spec._unit_ray(O, D)
-    walk, grid = spec._line_candidates(u, v, act), spec._film_candidates(u, v, film, D, act)
-    cnt = np.array(walk[1])
-    assert cnt.max() > 0 and np.array_equal(cnt, np.array(grid[1]))
-    assert np.array_equal(np.array(walk[2]), np.array(grid[2]))
+    ovf = _same_lists(spec, O, D, film, k)
     if case[0].startswith("row"):
-        assert np.array(walk[2]).any()           # some lines cross more than the list holds
-    for j in range(int(cnt.max())):
-        a, b = (np.array(dr.select(j < lst[1], lst[0].read(j), 0)) for lst in (walk, grid))
-        assert np.array_equal(a, b), j
+        assert ovf.any()                 # some lines cross more than the list holds
+    act = dr.ones(mi.Bool, k)
     t0, _ = spec.intersect(O, D, 0.0, np.inf, act)
     t1, _ = spec.intersect(O, D, 0.0, np.inf, act, film=film)
     t0, t1 = np.array(t0), np.array(t1)
     assert np.isfinite(t0).any() and np.array_equal(t0.view(np.uint32), t1.view(np.uint32))
 
 
+def _same_lists(spec, O, D, grid, k):
+    """The walk's and ``grid``'s lists of the rays ``O + t D``: equal (count, overflow, entries)."""
+    import drjit as dr
+    import mitsuba as mi
+    act = dr.ones(mi.Bool, k)
+    u, v, _ = spec._unit_ray(O, D)
+    walk, lists = spec._line_candidates(u, v, act), spec._film_candidates(u, v, grid, O, D, act)
+    cnt = np.array(walk[1])
+    assert cnt.max() > 0 and np.array_equal(cnt, np.array(lists[1]))
+    assert np.array_equal(np.array(walk[2]), np.array(lists[2]))
+    for j in range(int(cnt.max())):
+        a, b = (np.array(dr.select(j < x[1], x[0].read(j), 0)) for x in (walk, lists))
+        assert np.array_equal(a, b), j
+    return np.array(walk[2])
+
+
+@pytest.mark.parametrize("case", _cases(), ids=lambda c: c[0])
+def test_light_grid_lists_give_the_walks_lists(variant, case):
+    """A directional light's grid (``dir_lists``): the shadow rays from points all over the scene
+    (and far beyond the grid, and a non-finite one) get the walk's lists, and the same any-hit
+    result bit for bit."""
+    import drjit as dr
+    import mitsuba as mi
+    from links1_mitsuba.blob import BlobSpec
+    _, centres, to_world, _, _ = case
+    spec = BlobSpec(0, "b", centres, 0.5, to_world=to_world)
+    w = np.array([0.4, 1.0, -0.3]) if not case[0].startswith("row") else np.array([1.0, 1e-3, 0.0])
+    w /= np.linalg.norm(w)
+    lo, hi = spec.bounds()
+    ext = float(np.abs(np.r_[lo, hi]).max()) + 2.0
+    grid = spec.dir_lists(w, ext, 1e-4 * (1.0 + ext))
+    rng = np.random.default_rng(5)
+    k = 6000
+    o = rng.uniform(lo - 2.0, hi + 2.0, (k, 3))
+    o[:300] *= 50.0
+    o[300] = np.inf
+    O = mi.Vector3f(o.T.astype(np.float32))
+    D = mi.Vector3f(np.tile(w[:, None], k).astype(np.float32))
+    ovf = _same_lists(spec, O, D, grid, k)
+    if case[0].startswith("row"):
+        assert ovf.any()
+    act = dr.ones(mi.Bool, k)
+    t0, _ = spec.intersect(O, D, 0.0, 100.0, act, any_hit=True)
+    t1, _ = spec.intersect(O, D, 0.0, 100.0, act, any_hit=True, film=grid)
+    t0, t1 = np.array(t0), np.array(t1)
+    assert np.isfinite(t0).any() and np.array_equal(t0.view(np.uint32), t1.view(np.uint32))
+
+
 def test_blob_frame_with_film_lists_is_bit_identical(variant, tmp_path):
-    """A many-centre blob's frame (its camera rays over the film lists) equals the frame whose
-    camera rays walk the hierarchy (``eye_buffer=False``) bit for bit."""
+    """A many-centre blob's frame (its camera rays over the film lists, its shadow rays over the
+    light's grid) equals the frame whose rays walk the hierarchy (``eye_buffer=False``,
+    ``light_buffer=False``) bit for bit."""
     import mitsuba as mi
     import links1_mitsuba
     from links1_mitsuba import tuning
@@ -100,8 +143,9 @@ def test_blob_frame_with_film_lists_is_bit_identical(variant, tmp_path):
     sc = links1_mitsuba.load_file(str(p), res=48)
     P = sc.integrator().prepare(sc)
     assert P.bvh is None and 0 in P.eye_buf.blobs     # a blob alone: the film lists only
+    assert 0 in P.lbuf[0].blobs                       # and the directional light's grid
     a = np.array(mi.render(sc, spp=2))
-    with tuning.tuned(eye_buffer=False):
+    with tuning.tuned(eye_buffer=False, light_buffer=False):
         b = np.array(mi.render(links1_mitsuba.load_file(str(p), res=48), spp=2))
     assert a.mean() > 0 and np.array_equal(a.view(np.uint32), b.view(np.uint32))
 
