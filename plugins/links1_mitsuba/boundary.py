@@ -187,8 +187,10 @@ def _crossings(trace_points, scene, P, sensor, win, spp, seed):
     receiver's point ``p``; the rest: :func:`_outline`)."""
     x0, y0, w, h = win
     lts = _lights(P)
-    # the pixels whose lines are queried: those near a change of what their corners see
-    pix = np.nonzero(_active(P, scene, win, lts).ravel())[0]
+    # the pixels whose lines are queried: those near a change of what their corners see (and
+    # per light, those near a change of its occluder: its shadow rays are traced there alone)
+    near = _active(P, scene, win, lts).reshape(1 + len(lts), -1)
+    pix = np.nonzero(near.any(axis=0))[0]
     n = pix.size * spp
     if n == 0:
         return None
@@ -212,7 +214,8 @@ def _crossings(trace_points, scene, P, sensor, win, spp, seed):
 
     rep = lambda v: np.repeat(v, POINTS)   # noqa: E731
     x, y = at(_dev(mi.Float, along.ravel()), _dev(mi.Bool, rep(is_col)), _dev(mi.Float, rep(fixed)))
-    cam, shadows = _status(P, scene, x, y, _dev(mi.UInt32, rep(lane_key)), lts)
+    on = [_dev(mi.Bool, rep(np.tile(near[1 + j, pix], 2))) for j in range(len(lts))]
+    cam, shadows = _status(P, scene, x, y, _dev(mi.UInt32, rep(lane_key)), lts, on=on)
     dr.eval(cam[3], *[s_[2] for s_ in shadows])   # one kernel (each alone would trace the camera rays again)
     # what each point sees: the camera ray's slot, then each light's occluder: an interval
     # whose ends differ is a crossing of the first that differs (the camera's first)
@@ -270,25 +273,24 @@ def _crossings(trace_points, scene, P, sensor, win, spp, seed):
 
 
 def _active(P, scene, win, lts):
-    """``(h, w)`` bools: the window's pixels within one pixel of a pixel whose four corners do
-    not all see the same (the slot, each light's occluder): the only ones whose lines can
-    cross an outline or a shadow edge, unless it enters and leaves that 3 × 3 block of
-    pixels between the corners (docs/method.md §6)."""
+    """``(1 + len(lts), h, w)`` bools: the window's pixels within one pixel of a pixel whose
+    four corners do not all see the same, per signal (the slot seen; each light's occluder):
+    the only ones whose lines can cross an outline or a shadow edge of that signal, unless it
+    enters and leaves that 3 × 3 block of pixels between the corners (docs/method.md §6)."""
     x0, y0, w, h = win
     gx, gy = np.meshgrid(np.arange(x0 - 1, x0 + w + 2, dtype=np.float64),
                          np.arange(y0 - 1, y0 + h + 2, dtype=np.float64))
     cam, shadows = _status(P, scene, _dev(mi.Float, gx.ravel()), _dev(mi.Float, gy.ravel()),
                            dr.zeros(mi.UInt32, gx.size), lts)
     dr.eval(cam[3], *[s_[2] for s_ in shadows])
-    diff = np.zeros((h + 2, w + 2), dtype=bool)
-    for v in [cam[3]] + [s_[2] for s_ in shadows]:
+    grown = np.zeros((1 + len(lts), h, w), dtype=bool)
+    for j, v in enumerate([cam[3]] + [s_[2] for s_ in shadows]):
         g = v.numpy().reshape(gx.shape)
         c = g[:-1, :-1]
-        diff |= (g[:-1, 1:] != c) | (g[1:, :-1] != c) | (g[1:, 1:] != c)
-    grown = np.zeros((h, w), dtype=bool)
-    for dy in range(3):
-        for dx in range(3):
-            grown |= diff[dy:dy + h, dx:dx + w]
+        diff = (g[:-1, 1:] != c) | (g[1:, :-1] != c) | (g[1:, 1:] != c)
+        for dy in range(3):
+            for dx in range(3):
+                grown[j] |= diff[dy:dy + h, dx:dx + w]
     return grown
 
 
@@ -386,11 +388,12 @@ def _toward_all(lts, light, p):
     return out
 
 
-def _status(P, scene, x, y, key, lts, only=None):
+def _status(P, scene, x, y, key, lts, only=None, on=None):
     """What the camera rays through ``(x, y)`` see (:func:`_seen`) and, per light ``j`` of
-    ``lts`` (with ``only``, an ``Int32`` per lane: on the lanes where it is ``j + 1``), the
-    nearest occluder of the shadow segment from the hit: ``(dir, s, slot (-1: none or not
-    traced, -2: no hit), prim, (shape, triangle))``."""
+    ``lts`` (with ``only``, an ``Int32`` per lane: on the lanes where it is ``j + 1``; with
+    ``on``, a ``Bool`` per light: on its lanes), the nearest occluder of the shadow segment
+    from the hit: ``(dir, s, slot (-1: none or not traced, -2: no hit), prim, (shape,
+    triangle))``."""
     cam = _seen(P, scene, x, y, key)
     o, d, t = cam[0], cam[1], cam[2]
     hit = dr.isfinite(t)
@@ -399,6 +402,7 @@ def _status(P, scene, x, y, key, lts, only=None):
     for j, lt in enumerate(lts):
         sd, smax = _toward(lt, p)
         act = hit if only is None else hit & (only == j + 1)
+        act = act if on is None else act & on[j]
         cost = dr.zeros(mi.UInt32, dr.width(p))
         ts, ss, si, pr = intersect.nearest(P, scene, p, sd, dr.select(act, SHADOW_EPS * t, 0.0),
                                            dr.select(act, smax, 0.0), act, cost)
