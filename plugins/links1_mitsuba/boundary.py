@@ -54,8 +54,9 @@ another occluder of the same shadow ray), grazes that are neither a smooth silho
 (``|m·D|`` below :data:`GRAZE`) nor an edge above (the curve where two surfaces cut), Mitsuba
 shapes other than spheres and meshes, a receiver's own motion under a shadow edge, outlines
 and shadows seen in mirrors or through glass, pairs of crossings closer than
-``1/(POINTS − 1)`` pixel on one line, and outlines that enter and leave a 3 × 3 block of
-pixels between its corners. Box filter only.
+``1/(POINTS − 1)`` pixel on one line, and outlines (shadow edges) that enter and leave a 3 × 3
+block of pixels between its corners (a light's shadow rays are traced on the lines of the
+pixels near a change of its occluder at the corners). Box filter only.
 """
 from __future__ import annotations
 
@@ -75,7 +76,7 @@ POINTS = 8
 #: most bisection steps from an interval of 1/(POINTS − 1) pixel to its crossing: 1/7 · 2⁻²²
 #: pixel, below float32's resolution of film coordinates from 0.3 pixel on; a crossing stops
 #: earlier where its interval is one float32 step (at film coordinate x, about
-#: log2(x / 7) + 23 steps: 16 at x = 32, 13 at x = 256)
+#: 23 − log2(7x) steps: 16 at x = 32, 13 at x = 256)
 BISECT_STEPS = 22
 #: how far (pixels) from a crossing its two sides' radiance is traced: the primal ray tree's
 #: intersection rounds otherwise than the bisection's queries on the last few ulps
