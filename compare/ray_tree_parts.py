@@ -1,0 +1,228 @@
+"""Where ``links1_whitted``'s ray-tree kernel spends its time beyond the rays' floor.
+
+    python -m compare.ray_tree_parts [--only teapot cbox_point] [--spp 16] [--repeats 9]
+
+Per case (``compare.ray_floor``'s scenes with a box filter, 512 px wide), one scene object,
+the level-1 ray tree traced as the frame traces it (``Tracer.trace_tree`` over the camera
+rays of every sample, not frozen, so that parts can be switched off) and variants of it with
+one part switched off or replaced, all interleaved, ``repeats`` rounds after one warm-up:
+the time of the kernels each launches (``dr.kernel_history``), medians, and the ratio to
+the whole kernel of the same round (median over the rounds). The variants:
+
+* ``no box cull``: the shadow rays go to Embree without the occluder boxes' slab test
+  (``Tuning.box_cull`` off);
+* ``no counters``: the level's radiance alone evaluated (no per-lane cost and shadow-ray
+  counts written);
+* ``minimal record``: Embree's hit expanded with ``RayFlags.Minimal | ShadingFrame`` (no uv,
+  no dp/du: the diffuse BSDFs read the shading normal alone);
+* ``camera rays loaded``: the camera rays made beforehand and read (the kernel without
+  making them);
+* ``no shadow rays``: every shadow ray unoccluded (the image differs);
+* ``fixed BSDF``: a Lambert factor in place of the BSDF call (the image differs);
+* ``camera + nearest``: the camera rays and their nearest hit only (``t``, slot).
+
+And the floor's parts (``compare.ray_floor.trace_floor``): the camera rays' preliminary
+hits (rays read), the shadow rays links1 traces (captured from the level) densely packed and
+as full-width masked packets; and a frame of Mitsuba's ``direct`` (emitter_samples 1,
+bsdf_samples 0; kernels, so also its film). ``same`` says whether a variant's radiance equals
+the kernel's bit for bit. Writes ``compare/results/ray_tree_parts.{json,md}``.
+"""
+from __future__ import annotations
+
+import argparse
+import contextlib
+import dataclasses
+
+import numpy as np
+
+from compare.common import command_line, machine_info, machine_markdown, write_results
+
+
+def _kernels_ms(fn) -> float:
+    """Milliseconds of the kernels ``fn()`` launches (``dr.kernel_history``)."""
+    import drjit as dr
+    dr.sync_thread()
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    dr.kernel_history()
+    try:
+        fn()
+        dr.sync_thread()
+        return sum(float(k.get("execution_time", 0.0)) for k in dr.kernel_history())
+    finally:
+        dr.set_flag(dr.JitFlag.KernelHistory, False)
+
+
+@contextlib.contextmanager
+def _patched(*pairs):
+    """``(object, attribute, value)`` set for the block, restored after it."""
+    old = [(o, a, getattr(o, a)) for o, a, _ in pairs]
+    for o, a, v in pairs:
+        setattr(o, a, v)
+    try:
+        yield
+    finally:
+        for o, a, v in old:
+            setattr(o, a, v)
+
+
+def measure_case(cid, spp, repeats, variant):
+    import drjit as dr
+    import mitsuba as mi
+    from links1.maths.sampling import key_seed, strata
+    import links1_mitsuba.intersect as isect
+    import links1_mitsuba.raytree as rt
+    from links1_mitsuba.camera import camera_rays
+    from compare.ray_floor import floor_rays, load_case, mitsuba_integrator, trace_floor
+
+    scene, kind, depth, size = load_case(cid, "box", 512, variant)
+    mi.render(scene, spp=1)
+    eng = scene.integrator().engine
+    tracer = eng._tracer()
+    tables = eng.tables.prepare(scene, None, tracer.tuning)
+    W, H = tables.film_size
+    n = W * H * spp
+    sid = dr.arange(mi.UInt32, n)
+    dr.eval(sid)
+    spp_ = (dr.opaque(mi.UInt32, spp), dr.opaque(mi.UInt32, strata(spp)))
+    seeds = (dr.opaque(mi.UInt32, 0), dr.opaque(mi.UInt32, key_seed(0)))
+    loaded = camera_rays(tables, sid, spp_, seeds)
+    dr.eval(*loaded[:5], *loaded[5])
+
+    def rays(pre=False):
+        return loaded if pre else camera_rays(tables, sid, spp_, seeds)
+
+    def tree(pre=False):
+        o, d, tmin, tmax, key, sample = rays(pre)
+        return tracer.trace_tree(tables, scene, o, d, tmin, tmax, key, False, sample)[0]
+
+    def level_only():
+        o, d, tmin, tmax, key, sample = rays()
+        res = tracer.level(tables, scene, o, d, tmin, tmax, key, 1, False, sample=sample)
+        dr.eval(res.L)
+        return res.L
+
+    def camera_nearest():
+        o, d, tmin, tmax, _, _ = rays()
+        t, slot, _, _ = isect.nearest(tables, scene, o, d, tmin, tmax, dr.full(mi.Bool, True, n),
+                                      dr.zeros(mi.UInt32, n), coherent=True)
+        dr.eval(t, slot)
+
+    def nearest_flags(flags):
+        def nearest(tables, scene, o, d, tmin, tmax, active, cost, eye=False, coherent=False, ad=False):
+            ray = mi.Ray3f(o + d * tmin, d, tmax - tmin)
+            si = scene.ray_intersect(ray, flags, bool(coherent), active)
+            valid = active & si.is_valid()
+            t = dr.select(valid, si.t + tmin, isect.INF)
+            reg = dr.reinterpret_array(mi.UInt32, si.shape)
+            slot = dr.select(valid, dr.gather(mi.Int32, tables.reg_to_slot, reg, valid), -1)
+            cost += dr.select(active, mi.UInt32(1), 0)
+            return t, slot, si, dr.zeros(mi.UInt32, dr.width(o))
+        if tables.custom or not tables.any_mitsuba_shapes:
+            raise RuntimeError(f"{cid}: the minimal record variant is for Mitsuba shapes alone")
+        return nearest
+
+    def unoccluded(tables, scene, o, d, smax, active, T, cost, tuning, light=None, own=None):
+        return T
+
+    def lambert(self, wi):
+        return mi.Color3f(0.5) * dr.maximum(dr.dot(self.nf, wi), 0.0)
+
+    no_cull = dataclasses.replace(tracer.tuning, box_cull=False)
+    base = (tree, ())
+    variants = {
+        "ray-tree kernel": base,
+        "no box cull": (tree, ((tracer, "tuning", no_cull),)),
+        "no counters": (level_only, ()),
+        "minimal record": (tree, ((isect, "nearest", nearest_flags(mi.RayFlags.Minimal | mi.RayFlags.ShadingFrame)),)),
+        "camera rays loaded": (lambda: tree(True), ()),
+        "no shadow rays": (tree, ((isect, "shadow_mitsuba", unoccluded),)),
+        "fixed BSDF": (tree, ((rt.Hit, "f_eval", lambda self, wi: lambert(self, wi)),)),
+        "camera + nearest": (camera_nearest, ()),
+    }
+    images = {}
+    for name, (fn, patch) in variants.items():
+        with _patched(*patch):
+            out = fn()
+            if out is not None:
+                images[name] = np.asarray(out).copy()
+    # links1's own shadow rays (captured from the level traced in steps) and the floor's
+    captured = []
+
+    def capture(tables, scene, o, d, smax, active, T, cost, tuning, light=None, own=None):
+        captured.append((mi.Ray3f(o, d, smax, 0.0, mi.Color0f()), mi.Bool(active)))
+        return T
+    with _patched((isect, "shadow_mitsuba", capture),
+                  (tracer, "tuning", dataclasses.replace(tracer.tuning, skip_misses=False))):
+        o, d, tmin, tmax, key, sample = rays()
+        dr.eval(tracer.level(tables, scene, o, d, tmin, tmax, key, 1, False, sample=sample, symbolic=False).L)
+    dense = []
+    for ray, act in captured:
+        dr.eval(ray, act)
+        dense.append(dr.gather(mi.Ray3f, ray, dr.compress(act)))
+        dr.eval(dense[-1])
+    batches, _ = floor_rays(scene, size, spp, depth, float(scene.integrator().min_weight))
+    cam_batches = [b for b in batches if b[3] == "nearest"]
+    direct = mitsuba_integrator(kind, depth)
+    floors = {
+        "floor: camera rays' preliminary hits": lambda: trace_floor(scene, cam_batches),
+        "floor: links1's shadow rays, dense": lambda: [dr.eval(scene.ray_test(r)) for r in dense],
+        "floor: links1's shadow rays, masked": lambda: [dr.eval(scene.ray_test(r, False, a)) for r, a in captured],
+        "Mitsuba direct frame (its kernels)": lambda: dr.eval(mi.render(scene, integrator=direct, spp=spp, seed=0)),
+    }
+    runs = {**{k: v for k, v in variants.items()}, **{k: (f, ()) for k, f in floors.items()}}
+    for _, (fn, patch) in runs.items():
+        with _patched(*patch):
+            fn()
+    times = {k: [] for k in runs}
+    for _ in range(repeats):
+        for name, (fn, patch) in runs.items():
+            with _patched(*patch):
+                times[name].append(_kernels_ms(fn))
+    ms = {k: float(np.median(v)) for k, v in times.items()}
+    ref = images["ray-tree kernel"]
+    rr = {k: [a / b for a, b in zip(times[k], times["ray-tree kernel"])] for k in runs}
+    rows = [dict(part=k, ms=ms[k], ratio=float(np.median(rr[k])), round_ratios=rr[k],
+                 same=(bool(np.array_equal(images[k], ref)) if k in images else None)) for k in runs]
+    return dict(id=cid, spp=spp, lanes=n, shadow_rays=[int(dr.width(r)) for r in dense], rows=rows)
+
+
+def markdown(cases, a, info, cmd) -> str:
+    md = ["# links1_whitted's ray-tree kernel by part\n\n", machine_markdown(info, cmd),
+          f"\nThe machine was shared with other jobs (2 cores): only ratios measured in the same run mean "
+          f"something. Kernel time (`dr.kernel_history`) of each variant, {a.repeats} rounds interleaved, "
+          "medians; ratio: to the whole ray-tree kernel of the same round (median over the rounds, "
+          "min–max in brackets); same: the "
+          "variant's radiance equals the kernel's bit for bit (`compare/ray_tree_parts.py`).\n"]
+    for c in cases:
+        md.append(f"\n## `{c['id']}`, box filter, spp {c['spp']} ({c['lanes']:,} camera rays; links1's shadow "
+                  f"rays by light: {', '.join(f'{v:,}' for v in c['shadow_rays'])})\n\n"
+                  "| part | kernels ms | / ray-tree kernel | same image |\n| --- | --- | --- | --- |\n")
+        for r in c["rows"]:
+            rr = r["round_ratios"]
+            same = "—" if r["same"] is None else ("yes" if r["same"] else "no")
+            md.append(f"| {r['part']} | {r['ms']:.1f} | {r['ratio']:.3f} ({min(rr):.2f}–{max(rr):.2f}) | {same} |\n")
+    return "".join(md)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m compare.ray_tree_parts", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--only", nargs="*", default=["teapot", "cbox_point"])
+    ap.add_argument("--spp", type=int, default=16)
+    ap.add_argument("--repeats", type=int, default=9)
+    ap.add_argument("--variant", default="llvm_ad_rgb")
+    a = ap.parse_args(argv)
+    info, cmd = machine_info(), command_line()
+    cases = []
+    for cid in a.only:
+        c = measure_case(cid, a.spp, a.repeats, a.variant)
+        cases.append(c)
+        for r in c["rows"]:
+            print(f"{cid:12s} {r['part']:40s} {r['ms']:8.1f} ms  {r['ratio']:.3f}  same={r['same']}", flush=True)
+    paths = write_results("ray_tree_parts", dict(machine=info, command=cmd, args=vars(a), cases=cases),
+                          markdown(cases, a, info, cmd))
+    print("wrote", ", ".join(str(p) for p in paths))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
