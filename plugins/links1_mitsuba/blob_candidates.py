@@ -17,8 +17,10 @@ LIST_MIN_CENTRES = 24
 #: Candidate centres per ray held in registers (the field sum is unrolled over them); a ray
 #: crossing more sums over its list in local memory (a loop), beyond :data:`LIST_CAP` over all.
 SLOTS = 32
-#: Slots summed together; a packet skips a group no lane of it fills.
-SLOT_GROUP = 8
+#: Slots summed together; a packet skips a group no lane of it fills. An empty slot adds
+#: exact zeros (w = 0) to sums that start at +0.0 and so are never -0.0: skipped or added, the
+#: same bits, so the group size is a matter of speed only.
+SLOT_GROUP = 4
 #: Candidate centres per ray held in local memory.
 LIST_CAP = 64
 #: Centres per leaf of the candidate search's hierarchy (at most 15).
