@@ -18,7 +18,8 @@ gradients need the visibility term (docs/method.md §6):
 
 4 samples a pixel (box filter) in both frames and the derivative pass, ``max_depth`` 2, every
 iteration at ``seed`` 0. The times: ``--rounds`` interleaved rounds of an iteration and a
-primal frame at ``--big`` (``compare.inverse.timing_only``), medians. Writes
+primal frame at ``--big`` (``compare.inverse.timing_only``), medians. With ``--stages``,
+where an iteration at ``--big`` goes (:func:`stages`). Writes
 ``compare/results/inverse_outline.{json,md}``.
 """
 from __future__ import annotations
@@ -70,6 +71,81 @@ def make_cases(iters, blob_iters):
     ]
 
 
+def stages(mi, dr, name, cls, variables, lrs, width, n, log):
+    """Where an iteration at ``width``² goes, ``n`` iterations (after 2) with
+    ``dr.JitFlag.KernelHistory``: its wall time, the visibility term's (``boundary_image``
+    wrapped: made, evaluated, synced) and the kernels of each (count, execution time as Dr.Jit
+    reports it, compiled ones), the primal frame's wall time; medians."""
+    from links1_mitsuba import boundary
+    scene = inverse.load(name, width)
+    case = cls(name, scene, variables, lrs, n)
+    params = mi.traverse(scene)
+    case.setup(mi, params)
+    target = mi.render(scene, seed=0)
+    inverse.sync(target)
+    case.set_values(mi, params, {k: d["start"] for k, d in variables.items()})
+    opt = inverse.optimizer(mi, case, params, variables, lrs)
+    term, inner = [], boundary.boundary_image
+
+    def jit(history):
+        return [k for k in history if k.get("type") == dr.KernelType.JIT]
+
+    def timed_term(*args, **kwargs):
+        dr.sync_thread()
+        before = jit(dr.kernel_history())
+        t0 = time.perf_counter()
+        img = inner(*args, **kwargs)
+        dr.eval(img)
+        dr.sync_thread()
+        term.append((time.perf_counter() - t0, jit(dr.kernel_history()), before))
+        return img
+
+    def kernels(ks):
+        return len(ks), sum(k["execution_time"] for k in ks), sum(1 for k in ks if not k["cache_hit"])
+
+    rows = []
+    boundary.boundary_image = timed_term
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    try:
+        for r in range(n + 2):
+            term.clear()
+            dr.kernel_history()
+            t0 = time.perf_counter()
+            img = mi.render(scene, params, seed=0)
+            dr.backward(dr.mean(dr.square(img - target), axis=None))
+            opt.step()
+            case.apply(mi, params, opt)
+            inverse.sync(opt[next(iter(variables))])
+            t_it = time.perf_counter() - t0
+            rest = jit(dr.kernel_history()) + [k for _, _, b in term for k in b]
+            t0 = time.perf_counter()
+            inverse.sync(mi.render(scene, seed=0))
+            t_primal = time.perf_counter() - t0
+            dr.kernel_history()
+            if r >= 2:
+                rows.append([t_it * 1e3, sum(t for t, _, _ in term) * 1e3, len(term),
+                             *kernels([k for _, ks, _ in term for k in ks]), *kernels(rest), t_primal * 1e3])
+    finally:
+        boundary.boundary_image = inner
+        dr.set_flag(dr.JitFlag.KernelHistory, False)
+    med = np.median(np.array(rows), axis=0)
+    out = dict(case=name, width=width, iterations=n, iteration_ms=med[0], term_ms=med[1], term_calls=med[2],
+               term_kernels=med[3], term_kernel_ms=med[4], term_compiled=med[5], other_kernels=med[6],
+               other_kernel_ms=med[7], other_compiled=med[8], primal_ms=med[9])
+    log(f"  {name} at {width}²: iteration {med[0]:.1f} ms, term {med[1]:.1f} ms ({med[3]:.0f} kernels, "
+        f"{med[4]:.1f} ms of them), other kernels {med[6]:.0f} ({med[7]:.1f} ms), primal {med[9]:.1f} ms")
+    return out
+
+
+def stages_markdown(rows):
+    return md_table(["case", "iteration ms", "term ms (calls)", "term kernels: n, ms, compiled",
+                     "other kernels: n, ms, compiled", "primal ms"],
+                    [[r["case"], f"{r['iteration_ms']:.1f}", f"{r['term_ms']:.1f} ({r['term_calls']:.0f})",
+                      f"{r['term_kernels']:.0f}, {r['term_kernel_ms']:.1f}, {r['term_compiled']:.0f}",
+                      f"{r['other_kernels']:.0f}, {r['other_kernel_ms']:.1f}, {r['other_compiled']:.0f}",
+                      f"{r['primal_ms']:.1f}"] for r in rows])
+
+
 def markdown(results, info, cmd):
     rows = [[r["case"], r["iters"], f"{r['final_worst_error'] * 100:.3f} %", r["iterations_to_1pct"],
              ", ".join(f"{k.split('.')[-1]} {v * 100:.3f} %" for k, v in r["final_error"].items()),
@@ -80,7 +156,11 @@ def markdown(results, info, cmd):
                         "primal ms", "iteration ms", "ratio"], rows)
             + "\nIteration: render with gradients (primal frame, derivative pass with the boundary term), "
               "L2 loss, dr.backward, Adam step, params.update; primal: mi.render without gradients. "
-              "Times: medians of interleaved rounds at the --big width.\n")
+              "Times: medians of interleaved rounds at the --big width.\n"
+            + ("" if not any("stages" in r for r in results) else
+               "\nWhere an iteration at the --big width goes (--stages: medians, with Dr.Jit's kernel "
+               "history on; term: the visibility term made, evaluated and synced; kernel ms: execution "
+               "times as Dr.Jit reports them):\n\n" + stages_markdown([r["stages"] for r in results if "stages" in r])))
 
 
 def main(argv=None):
@@ -91,6 +171,8 @@ def main(argv=None):
     ap.add_argument("--rounds", type=int, default=9, help="timing rounds (interleaved iteration / frame)")
     ap.add_argument("--big", type=int, default=256, help="the width the times are taken at")
     ap.add_argument("--no-fit", action="store_true", help="the times alone")
+    ap.add_argument("--stages", type=int, default=0, metavar="N",
+                    help="also where an iteration at --big goes, N iterations with Dr.Jit's kernel history")
     ap.add_argument("--variant", default="llvm_ad_rgb")
     ap.add_argument("--only", nargs="*", default=None)
     ap.add_argument("--no-write", action="store_true")
@@ -112,6 +194,8 @@ def main(argv=None):
         log(f"case {name}")
         r = {"case": name} if a.no_fit else inverse.run_case(mi, dr, name, cls, variables, lrs, iters, a.width, log)[0]
         r["timing"] = inverse.timing_only(mi, dr, name, cls, variables, lrs, a.big, a.rounds, log)
+        if a.stages:
+            r["stages"] = stages(mi, dr, name, cls, variables, lrs, a.big, a.stages, log)
         if a.no_fit:
             continue
         results.append(r)
