@@ -332,6 +332,29 @@ def test_blocks_do_not_change_the_term(variant, tmp_path, monkeypatch):
     assert six_apart == pytest.approx(one, rel=1e-5)
 
 
+def test_kernels_compiled_once(variant, tmp_path):
+    """The term's kernels are compiled in the first frames only: more reverse-mode frames, other
+    seeds, compile none. (Its device arrays made from numpy are 64-byte aligned: a kernel that
+    reads numpy's memory is compiled again for each alignment it meets, and the term's
+    bisection was, in most frames.)"""
+    import drjit as dr
+    key, body = SHAPES["quadric"]
+    sc = load(tmp_path, body)
+    weight = np.random.default_rng(7).uniform(0, 1, (H, W, 3))
+    for s in range(2):
+        reverse(sc, key, weight, s, spp=4)
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    try:
+        dr.kernel_history()
+        for s in range(2, 14):
+            assert reverse(sc, key, weight, s, spp=4) != 0.0
+        kernels = [k for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT]
+    finally:
+        dr.set_flag(dr.JitFlag.KernelHistory, False)
+    assert len(kernels) > 6
+    assert [k["operation_count"] for k in kernels if not k["cache_hit"]] == []
+
+
 def test_nothing_added_where_no_outline_moves(variant, tmp_path):
     """With no shape's geometry attached (a light's position), ``projective`` changes neither
     the frame nor the derivative, bit for bit; without the option a moving outline's term is
