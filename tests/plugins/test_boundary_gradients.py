@@ -107,6 +107,7 @@ def reverse(sc, key, weight, seed, spp=AD_SPP, integrator=None):
     """d Σ weight · frame / dθ (reverse mode) at θ = 0 with ``seed_grad = seed``."""
     import drjit as dr
     import mitsuba as mi
+    from links1_mitsuba.util import aligned
     params = mi.traverse(sc)
     make = mover(mi, dr, params, key)
     th = mi.Float(0.0)
@@ -114,7 +115,8 @@ def reverse(sc, key, weight, seed, spp=AD_SPP, integrator=None):
     params[key] = make(th)
     params.update()
     img = mi.render(sc, params, integrator=integrator, seed=seed + 100, seed_grad=seed, spp=spp)
-    dr.backward(dr.sum(img * mi.TensorXf(weight.astype(np.float32)), axis=None))
+    # (64-byte aligned: a kernel reading numpy's memory is compiled again per alignment)
+    dr.backward(dr.sum(img * mi.TensorXf(aligned(weight, np.float32).reshape(weight.shape)), axis=None))
     g = float(np.array(dr.grad(th)).ravel()[0])
     params[key] = make(mi.Float(0.0))
     params.update()
