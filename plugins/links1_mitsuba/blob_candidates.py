@@ -233,13 +233,10 @@ class CandidateLists:
         e_obj = np.linalg.inv(m)[:3] @ np.append(np.asarray(eye, dtype=np.float64), 1.0)
         size_o = np.abs(c).max(1) + np.abs(e_obj).max() + np.linalg.norm(c - e_obj, axis=1)
         rad = (k[:, 7] * (1.0 + 1e-3) + 1e-5 * size_o) * np.linalg.svd(m[:3, :3], compute_uv=False)[0] + margin
-        off, objs, frame = line_lists(eye, R, window, size, c @ m[:3, :3].T + m[:3, 3], rad, angle)
-        pos = np.empty(len(self.centers), dtype=np.int64)
-        pos[self._leaf_order] = np.arange(len(self.centers))    # a centre's row in leaf order
-        rows = pos[objs]
-        # each cell's rows increasing (the walk's order)
-        cells = np.repeat(np.arange(len(off) - 1), np.diff(off))
-        rows = rows[np.lexsort((rows, cells))]
+        # the spheres in the hierarchy's leaf order: the lists' sphere indices are rows, increasing
+        # in each cell (the walk's order)
+        order = self._leaf_order
+        off, rows, frame = line_lists(eye, R, window, size, (c @ m[:3, :3].T + m[:3, 3])[order], rad[order], angle)
         return BlobFilm(off, rows, frame)
 
     def dir_lists(self, w, extent, margin):

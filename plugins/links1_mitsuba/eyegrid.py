@@ -148,7 +148,8 @@ def line_lists(eye, R, window, size, c, rad, angle, cell_px=CELL_PX):
     off, objs, _, frame = lists(eye, R, window, size, np.concatenate([c, 2.0 * eye - c]),
                                 np.concatenate([rad, rad]), angle, cell_px)
     cells = np.repeat(np.arange(len(off) - 1), np.diff(off))
-    key = np.unique(cells * n + objs % n)        # (cell, sphere) pairs once each, in order
+    key = np.sort(cells * n + objs % n)
+    key = key[np.r_[True, key[1:] != key[:-1]]] if key.size else key   # (cell, sphere) pairs once each
     cells, objs = key // n, key % n
     out = np.zeros(len(off), dtype=np.int64)
     np.add.at(out, cells + 1, 1)
