@@ -146,21 +146,26 @@ class CandidateLists:
 
     def _each(self, lst, cnt, ovf, state, fn):
         """Loop ``state = fn(row, state)`` over the lane's candidates in increasing row
-        (over all centres where the list overflowed)."""
+        (over all centres where the list overflowed). The list is only read: it is not loop
+        state, which would leave the caller's ``lst`` naming this loop's output (Dr.Jit
+        updates a loop's state in place), a variable of whatever symbolic scope (the solver's
+        loops, its ``dr.if_stmt``) this sum runs in, and a later read of it outside that
+        scope (the normal at the hit, in another kernel in a derivative pass) an undefined
+        value in the compiled kernel."""
         import drjit as dr
         import mitsuba as mi
         total = dr.select(ovf, mi.UInt32(len(self.centers)), cnt)
 
-        def cond(j, lst, *st):
+        def cond(j, *st):
             return j < total
 
-        def body(j, lst, *st):
+        def body(j, *st):
             act = j < total
             idx = dr.select(ovf, j, lst.read(j, act & ~ovf))
-            return (j + 1, lst, *fn(self._row(idx, act), *st))
+            return (j + 1, *fn(self._row(idx, act), *st))
 
-        out = dr.while_loop((dr.zeros(mi.UInt32, dr.width(cnt)), lst, *state), cond, body, label="links1_blob_sum")
-        return out[2:]
+        out = dr.while_loop((dr.zeros(mi.UInt32, dr.width(cnt)), *state), cond, body, label="links1_blob_sum")
+        return out[1:]
 
     def _line_candidates(self, u, v, active):
         """:meth:`_collect` for the line ``u + s v``: the centres whose 3S sphere it crosses,

@@ -407,3 +407,69 @@ def test_blob_update_shows_in_next_frame(variant, tmp_path):
     params["links1_whitted.blob.radii"] = mi.Float([0.75, 0.6, -0.6, 0.5, 0.5, 0.4])
     with pytest.raises(ValueError, match="links1_blob 'blob'.*range S"):
         params.update()
+
+
+def many_centres(n=40, seed=7):
+    """A ``links1_blob`` of ``n`` centres (rows x y z w S) scattered in a ball of radius 0.9
+    around (0, 1.2, 0), ``S`` 0.3-0.4, threshold 1, lit from the camera's place (no shadow
+    seen on it): the rays through the middle cross the 3S sphere of every centre."""
+    rng = np.random.default_rng(seed)
+    p = rng.normal(size=(n, 3))
+    p *= 0.9 * rng.uniform(0, 1, n)[:, None] ** (1 / 3) / np.linalg.norm(p, axis=1)[:, None]
+    c = np.c_[p + [0, 1.2, 0], rng.uniform(0.6, 1.0, n), rng.uniform(0.3, 0.4, n)]
+    rows = ", ".join(" ".join(f"{x:.3g}" for x in r) for r in c)
+    return len(c), f"""<shape type="links1_blob" id="blob"><string name="centers" value="{rows}"/>
+    <float name="threshold" value="1"/>
+    <bsdf type="links1_phong"><rgb name="diffuse" value="0.5, 0.4, 0.3"/><rgb name="specular" value="0.3"/>
+      <rgb name="reflectance" value="0"/><float name="exponent" value="10"/></bsdf></shape>
+  <emitter type="links1_point" id="lp"><point name="position" x="0" y="3" z="6"/><rgb name="L1" value="0.8"/></emitter>"""
+
+
+def test_many_centre_blob_forward_and_reverse_equal_finite_difference(variant, tmp_path):
+    """A blob of 40 centres, whose solver sums over each ray's candidate centres (registers for
+    up to SLOTS of them, the list in local memory beyond: both here), differentiated in
+    reverse mode (every centre) and forward mode (one centre's x) through the derivative
+    pass's kernels; the centre's x against the central difference over the interior pixels
+    (h and tolerance as the 6-centre blob's above)."""
+    import drjit as dr
+    import mitsuba as mi
+    from links1_mitsuba.blob_candidates import LIST_MIN_CENTRES
+    n, body = many_centres()
+    assert n >= LIST_MIN_CENTRES
+    scene = load(tmp_path, body, depth=1)
+    w = interior(scene, "blob")
+    key = "links1_whitted.blob.centers"
+    g = flat_grad(scene, key, w)
+    k = int(np.argmax(np.abs(g[:n])))      # the x whose term moves the sum most
+    fd = flat_fd(scene, key, k, w, 1e-3)
+    assert abs(fd) > 1.0, fd
+    assert abs(g[k] - fd) <= 5e-3 * abs(fd) + 5e-3, (k, g[k], fd)
+    params = mi.traverse(scene)
+    c0 = np.array(params[key], dtype=np.float64)          # (3, N)
+    th = mi.Float(0.0)
+    dr.enable_grad(th)
+    params[key] = mi.Point3f(mi.Float(c0[0]) + dr.select(dr.arange(mi.UInt32, n) == k, th, 0.0),
+                             mi.Float(c0[1]), mi.Float(c0[2]))
+    params.update()
+    img = mi.render(scene, params)
+    dr.set_grad(th, 1.0)
+    dr.forward_to(img)
+    fwd = float((np.array(dr.grad(img), dtype=np.float64) * w).sum())
+    params[key] = mi.Point3f(*c0)
+    params.update()
+    assert abs(fwd - fd) <= 5e-3 * abs(fd) + 5e-3, (k, fwd, fd)
+
+
+def test_many_centre_blob_projective_forward_equals_reverse(variant, tmp_path):
+    """The same blob with the visibility term (``projective``, its outline's samples): forward
+    and reverse mode give the same d (weighted sum) / d(first centre's x) at the same samples
+    (to float32 rounding), and neither fails to compile."""
+    from tests.plugins.test_boundary_gradients import forward, reverse
+    _, body = many_centres()
+    scene = load(tmp_path, body, camera=whitted(1, projective=True) + CAMERA)
+    key = "links1_whitted.blob.centers"
+    weight = np.random.default_rng(3).uniform(0.5, 1.5, (18, 24, 3))
+    fwd = float((forward(scene, key, 5, spp=2) * weight).sum())
+    rev = reverse(scene, key, weight, 5, spp=2)
+    assert abs(fwd) > 0.5, (fwd, rev)
+    assert rev == pytest.approx(fwd, rel=1e-4, abs=1e-4)
