@@ -235,10 +235,15 @@ class Tracer:
             ng = dr.zeros(mi.Vector3f, n)
             ns = dr.zeros(mi.Vector3f, n)
             mits = dr.full(mi.Bool, False, n)
+        # a derivative pass with geometry: the links1 shapes' normals on primal values, as their
+        # hits (moving_hits below puts in the attached ones of every shape or ray that moves; a
+        # blob's sum over a ray's candidate list is a loop, which reverse mode cannot take)
+        moving = ad and getattr(tables, "geo_ad", None) is not None
         for spec in tables.custom_unrolled:
             m = slot == spec.slot
             # in the kernel of _nearest's search: a shape may reuse what it found (a blob its candidates)
-            nc = spec.normal(o, d, t, prim, reuse=True)
+            with dr.suspend_grad(when=moving):
+                nc = spec.normal(o, d, t, prim, reuse=True)
             ng = dr.select(m, nc, ng)
             ns = dr.select(m, nc, ns)
         if tables.bvh is not None:

@@ -460,13 +460,18 @@ def test_many_centre_blob_forward_and_reverse_equal_finite_difference(variant, t
     assert abs(fwd - fd) <= 5e-3 * abs(fd) + 5e-3, (k, fwd, fd)
 
 
+@pytest.mark.slow
 def test_many_centre_blob_projective_forward_equals_reverse(variant, tmp_path):
-    """The same blob with the visibility term (``projective``, its outline's samples): forward
-    and reverse mode give the same d (weighted sum) / d(first centre's x) at the same samples
-    (to float32 rounding), and neither fails to compile."""
+    """The same blob, now a mirror too, over the floor, with the visibility term
+    (``projective``, its outline's samples): forward and reverse mode give the same
+    d (weighted sum) / d(first centre's x) at the same samples (to float32 rounding). Its
+    mirror rays start on the moving surface (attached), and those that meet it again are
+    traced through its candidate lists (the normal there on primal values: moving_hits
+    attaches it)."""
     from tests.plugins.test_boundary_gradients import forward, reverse
     _, body = many_centres()
-    scene = load(tmp_path, body, camera=whitted(1, projective=True) + CAMERA)
+    body = FLOOR + body.replace('<rgb name="reflectance" value="0"/>', '<rgb name="reflectance" value="0.3"/>')
+    scene = load(tmp_path, body, camera=whitted(2, projective=True) + CAMERA)
     key = "links1_whitted.blob.centers"
     weight = np.random.default_rng(3).uniform(0.5, 1.5, (18, 24, 3))
     fwd = float((forward(scene, key, 5, spp=2) * weight).sum())
