@@ -164,6 +164,22 @@ class Prepared(ViewFields):
     uv_slots: set = _set_later()
     #: the BSDF of each slot (BSDFPtr), None when every slot is links1_phong
     bsdf_ptr: object = _set_later()
+    # -- Mitsuba ``diffuse`` BSDFs of one reflectance value (``rgb`` or a float, no texture),
+    #    alone or as a ``twosided``'s one BSDF: evaluated in the kernel (raytree.Hit.f_eval) with
+    #    the float operations of Mitsuba's SmoothDiffuse::eval, without a BSDF call
+    #: per slot: such a BSDF (Bool); in a ``twosided`` (Bool); its reflectance (flat Float, RGB)
+    lam: object = _set_later()
+    lam_two: object = _set_later()
+    lam_rgb: object = _set_later()
+    #: the reflectances as numpy ((nslots, 3) float32) and their spectrum objects ({slot:
+    #: object}): what a value update (``Tables._update_values``) reads and compares with
+    #: (a derivative pass calls the BSDFs: Mitsuba differentiates the reflectance)
+    lam_np: object = _set_later()
+    lam_src: dict = _set_later()
+    #: some slot is such a diffuse BSDF / in a twosided; every Mitsuba BSDF's slot is one
+    any_lam: bool = _set_later()
+    any_lam_two: bool = _set_later()
+    all_lam: bool = _set_later()
 
     # -- shadow rays (3-3-3)
     #: shadow transmittance per slot ((nslots, 3) numpy; a derivative pass: a list of rows)

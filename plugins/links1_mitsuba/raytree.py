@@ -101,10 +101,18 @@ class Hit:
     #: glossy hits and the BSDF-sample context of multiple importance sampling, or None
     glossy: mi.Bool | None = None
     ctx_s: mi.BSDFContext | None = None
+    #: the hits whose BSDF is called (``mb`` less ``lam``)
+    mcall: mi.Bool | None = None
+    #: a ``diffuse`` BSDF of one reflectance (tables.lam, evaluated in :meth:`_lambert`): its
+    #: reflectance, cos θ_i > 0 (a twosided's |cos θ_i|), a twosided's back side (wo.z turned)
+    lam: mi.Bool | None = None
+    lam_rgb: mi.Color3f | None = None
+    lam_front: mi.Bool | None = None
+    lam_flip: mi.Bool | None = None
 
     def f_eval(self, wi):
         """Factor multiplying L_s for light direction wi (eq. 3.11 / Mitsuba BSDF)."""
-        tables, ad, n, nf, wo, ph, mb = self.tables, self.ad, self.n, self.nf, self.wo, self.ph, self.mb
+        tables, ad, n, nf, wo, ph = self.tables, self.ad, self.n, self.nf, self.wo, self.ph
         dif, spe, expo, bsdf, ctx, sif = self.dif, self.spe, self.expo, self.bsdf, self.ctx, self.sif
         f = dr.zeros(mi.Color3f, n)
         if tables.any_phong:
@@ -119,9 +127,23 @@ class Hit:
             fp = dif * dr.maximum(cos_theta, 0.0) + spe * sp
             f = dr.select(ph & (cos_theta > 0), fp, f)
         if not tables.all_phong:
-            fm = bsdf.eval(ctx, sif, sif.to_local(wi), mb)
-            f = dr.select(mb, fm, f)
+            wo_l = sif.to_local(wi)
+            if self.lam is not None:
+                f = dr.select(self.lam, self._lambert(wo_l), f)
+            if self.lam is None or not tables.all_lam:   # a packet of such hits calls no BSDF
+                fm = bsdf.eval(ctx, sif, wo_l, self.mcall)
+                f = dr.select(self.mcall, fm, f)
         return f
+
+    def _lambert(self, wo_l):
+        """A ``diffuse`` BSDF of one reflectance at the light direction ``wo_l`` (local), the
+        float operations of Mitsuba 3.9.1's ``SmoothDiffuse::eval`` (diffuse.cpp): cos θ_i =
+        wi.z and cos θ_o = wo.z both > 0, ``reflectance * InvPi * cos θ_o``; in a ``twosided``
+        (twosided.cpp, one BSDF for both sides): wo.z = mulsign(wo.z, wi.z), wi.z = |wi.z|."""
+        co = wo_l.z
+        if self.tables.any_lam_two:
+            co = dr.select(self.lam_flip, -co, co)
+        return dr.select(self.lam_front & (co > 0), self.lam_rgb * dr.inv_pi * co, 0.0)
 
     def offset(self, direction):
         """The origin of a ray from the hit toward ``direction``: off the surface on that side by
@@ -293,7 +315,19 @@ class Tracer:
             expo = dr.gather(mi.Float, tables.expo, uslot, ph)
         h = Hit(tables, ad, n, o, d, t, slot, uslot, hit, prim, si, p, ng, ns, wo, front, nf, mits)
         if need_si:
-            h.sif, h.bsdf, h.is_ph, h.mb, h.ctx = sif, bsdf, is_ph, mb, ctx
+            h.sif, h.bsdf, h.is_ph, h.mb, h.ctx, h.mcall = sif, bsdf, is_ph, mb, ctx, mb
+        # diffuse BSDFs of one reflectance (tables.lam): evaluated in f_eval, not called; a
+        # derivative pass calls them (Mitsuba differentiates the reflectance: its sums' order)
+        if need_si and tables.any_lam and not ad:
+            lam = h.lam = mb & dr.gather(mi.Bool, tables.lam, uslot, mb)
+            h.mcall = mb & ~lam
+            h.lam_rgb = gather3(tables.lam_rgb, uslot, lam)
+            ci = sif.wi.z
+            if tables.any_lam_two:
+                two = dr.gather(mi.Bool, tables.lam_two, uslot, lam)
+                h.lam_flip = two & (ci < 0)
+                ci = dr.select(two, dr.abs(ci), ci)
+            h.lam_front = lam & (ci > 0)
         if tables.any_phong:
             h.ph, h.dif, h.spe, h.expo = ph, dif, spe, expo
         # ray offsets (relative to 1 + max|p|), per shape: see OFFSET_EPS (tables.py)

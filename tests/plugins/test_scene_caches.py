@@ -156,7 +156,8 @@ def test_unchanged_scene_prepares_nothing(variant):
 def test_each_params_update_prepares_again(variant, change):
     """After a render, one ``params.update()`` of each kind (camera, BSDF, light, a mesh's
     vertices assigned or scattered in place, the film) builds the tables once more (a light's
-    own position, the camera, its fov and film: updates them in place,
+    own position, the camera, its fov and film, a ``diffuse`` reflectance of one value: updates
+    them in place,
     ``Tables._update_values``, the camera's view only), and the next frame
     equals a new integrator's render of the changed scene; the frame after it builds nothing;
     each set of tables records its frozen launch at most twice."""
@@ -172,7 +173,7 @@ def test_each_params_update_prepares_again(variant, change):
     change(mi, params, scene)
     params.update()
     after = np.array(mi.render(scene, spp=1))
-    in_place = change in (_light_moved, _moved_sensor, _fov, _film_size)
+    in_place = change in (_light_moved, _moved_sensor, _fov, _film_size, _bsdf_colour)
     assert (integ.info()["scene_builds"], integ.info()["value_updates"]) == ((1, 1) if in_place else (2, 0))
     expected = _fresh_render(scene)
     assert before.shape != expected.shape or not np.array_equal(before, expected)   # the change shows
