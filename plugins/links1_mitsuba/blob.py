@@ -108,6 +108,13 @@ class BlobSpec(CandidateLists, RootSolvers):
         """Entry ``k`` of the ``"values"`` table (:meth:`_values`): :func:`table_value`."""
         return table_value(self, k)
 
+    def literals(self) -> tuple:
+        """The values its kernels take as Python literals (the others, centres, weights,
+        radii, threshold and transform, they gather from :meth:`tables`): the centre count, the
+        solver and its settings. A geometry update that changes none of these (of any shape)
+        nor its tables' sizes replays the frozen launches (``launch.literal_key``)."""
+        return (len(self.centers), self.solver, int(self.samples), int(self.max_steps), self.uses_lists())
+
     def _crow(self, i):
         """Centre ``i``'s :meth:`_consts` row, gathered (12 Floats)."""
         return [self._value(12 * i + c) for c in range(12)]

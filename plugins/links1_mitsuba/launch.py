@@ -198,6 +198,62 @@ def frozen_inputs(tables):
     return tables.frozen_inputs
 
 
+def literal_key(parts) -> tuple:
+    """What the frozen launches' kernels may take as literals from ``parts`` (some of the
+    tables: those made from the links1 shapes' geometry, ``Tables._update_values``), as one
+    hashable value. A recording holds the Python values a trace read as constants of its
+    kernels, and :func:`drjit.freeze` keys only its inputs' layout; so while this key is
+    unchanged a recording replays for new arrays of the same tables, and when it changes
+    the recordings must start anew (``Launches.forget``).
+
+    Walked as :func:`frozen_inputs` walks the tables: Python scalars and numpy arrays by
+    value, Dr.Jit arrays by type and width (a trace that reads ``dr.width`` of a table makes
+    it a literal: the blob hierarchy's node count), containers and objects by their contents,
+    a links1 shape by its own ``literals()`` and the widths of its tables; Mitsuba objects by
+    identity; objects with their own traversal callbacks (``Hidden``) not at all."""
+    memo, open_ = {}, set()
+
+    def walk(x, depth=0):
+        if dr.is_array_v(x):
+            return (type(x).__name__, dr.width(x))
+        if x is None or isinstance(x, (bool, int, float, str)):
+            return x
+        if isinstance(x, np.generic):
+            return x.item()
+        if isinstance(x, np.ndarray):
+            return (x.dtype.str, x.shape, x.tobytes())
+        if isinstance(x, (mi.Object, type)) or callable(x):
+            return ("object", id(x))
+        if hasattr(x, "_traverse_1_cb_ro"):
+            return ("traversed", type(x).__name__)
+        k = id(x)
+        if k in memo:            # (a BVH's specs, in the shadow plan's lists too: met again)
+            return memo[k]
+        if k in open_ or depth > 12:
+            return ("cycle", type(x).__name__)
+        open_.add(k)
+        if isinstance(x, dict):
+            out = ("dict", tuple((walk(a, depth + 1), walk(v, depth + 1)) for a, v in x.items()))
+        elif isinstance(x, (list, tuple)):
+            out = (type(x).__name__, tuple(walk(v, depth + 1) for v in x))
+        elif isinstance(x, (set, frozenset)):
+            out = ("set", tuple(sorted((walk(v, depth + 1) for v in x), key=repr)))
+        elif callable(getattr(x, "literals", None)) and callable(getattr(x, "tables", None)):
+            out = (type(x).__name__, x.literals(), walk(x.tables(), depth + 1))
+        elif dataclasses.is_dataclass(x) and not hasattr(x, "__dict__"):
+            out = (type(x).__name__, tuple((f.name, walk(getattr(x, f.name, None), depth + 1))
+                                           for f in dataclasses.fields(x)))
+        elif hasattr(x, "__dict__"):
+            out = (type(x).__name__, tuple((a, walk(v, depth + 1)) for a, v in vars(x).items()))
+        else:
+            out = ("object", id(x))
+        open_.discard(k)
+        memo[k] = out
+        return out
+
+    return walk(parts)
+
+
 class Launches:
     """The launches of one engine: the frozen window and point launches (their recordings),
     the film's batch tables and the ray counters of the last render. Each call is given the
@@ -223,8 +279,8 @@ class Launches:
     def forget(self):
         """Start both frozen launches anew: called by the tables (tables.py) when the ones
         recorded read tables that were replaced (their key names the tables by ``id``, and a
-        new one may get a dead one's) or constants of their kernels changed (lights, camera,
-        the links1 shapes' geometry)."""
+        new one may get a dead one's) or constants of their kernels changed (lights, camera;
+        of the tables made from the links1 shapes' geometry, what :func:`literal_key` holds)."""
         self.window_launch = self.point_launch = None
 
     def recordings(self) -> tuple:

@@ -140,6 +140,13 @@ class QuadricSpec:
     def _value(self, k):
         return table_value(self, k)
 
+    def literals(self) -> tuple:
+        """The values its kernels take as Python literals (the others they gather from
+        :meth:`tables`): the kind, the caps and the clip planes' normals. A geometry update
+        that changes none of these (of any shape) replays the frozen launches
+        (``launch.literal_key``)."""
+        return (self.kind, bool(self.capped), tuple(tuple(n) for n, _ in self.clips))
+
     def _inv(self):
         return [[self._value(4 * i + j) for j in range(4)] for i in range(3)]
 

@@ -166,6 +166,106 @@ def test_new_blob_and_quadric_values_replay_the_same_kernels(variant):
     assert np.array_equal(np.array(mi.render(fresh, seed=0)), after)
 
 
+def _fresh_frame_and_points(centres, m, xs, ys, keys):
+    """The frame and the point launch's radiance of a fresh load of :func:`scene_xml` with
+    ``centres`` and the can's float32 matrix ``m`` (given before any frame: a whole build)."""
+    import mitsuba as mi
+
+    import links1_mitsuba as lm
+    fresh = lm.load_string(scene_xml(centres))
+    fp = mi.traverse(fresh)
+    fp["links1_whitted.can.to_world"] = mi.Transform4f(m.tolist())
+    fp.update()
+    img = np.array(mi.render(fresh, seed=0))
+    assert fresh.integrator().info()["value_updates"] == 0
+    return img, fresh.integrator().engine.trace_points(fresh, xs, ys, keys)[0]
+
+
+def test_geometry_updates_replay_the_recorded_launches(variant):
+    """An optimisation's loop (new centres, weights and quadric transform, then a frame and a
+    point launch, four times): the frozen window and point launches recorded in the first
+    iterations replay in the later ones (the same functions, no new recording: their kernels
+    take the geometry from the shapes' tables, and nothing they hold as a literal changed,
+    ``launch.literal_key``), and the last frame and points are those of a fresh load of the
+    last geometry, bit for bit."""
+    import mitsuba as mi
+
+    import links1_mitsuba as lm
+    scene = lm.load_string(scene_xml(CENTRES))
+    integ = scene.integrator()
+    params = mi.traverse(scene)
+    C, W, Q = "links1_whitted.blob.centers", "links1_whitted.blob.weights", "links1_whitted.can.to_world"
+    rng = np.random.default_rng(11)
+    xs, ys = rng.uniform(0, 1, 64), rng.uniform(0, 1, 64)
+    keys = np.arange(64, dtype=np.uint32)
+    frames, new = [], CENTRES.copy()
+    for it in range(5):
+        if it == 2:      # recorded by now (the first frames may record again as literals turn opaque)
+            launches = integ.info()["launch"], integ.info()["point_launch"]
+            recorded = integ.info()["recordings"], integ.info()["point_recordings"]
+        new[:, :3] = (CENTRES[:, :3] + rng.uniform(-0.05, 0.05, (6, 3))).astype(np.float32)
+        new[:, 3] = (CENTRES[:, 3] * rng.uniform(0.9, 1.1, 6)).astype(np.float32)
+        params[C] = mi.Point3f(*[mi.Float(new[:, k]) for k in range(3)])
+        params[W] = mi.Float(new[:, 3])
+        params[Q] = mi.Transform4f().translate(mi.Vector3f(*map(float, rng.uniform(-0.05, 0.05, 3)))) \
+            @ mi.Transform4f(params[Q])
+        params.update()
+        frames.append(np.array(mi.render(scene, seed=0)))
+        points = integ.engine.trace_points(scene, xs, ys, keys)[0]
+    assert integ.info()["value_updates"] == 4 and integ.info()["scene_builds"] == 1   # (the first: a build)
+    assert (integ.info()["launch"], integ.info()["point_launch"]) == launches and None not in launches
+    assert (integ.info()["recordings"], integ.info()["point_recordings"]) == recorded
+    assert not np.array_equal(frames[-2], frames[-1])     # the frames show the new geometry
+    m = np.array(mi.Transform4f(params[Q]).matrix, dtype=np.float64).reshape(4, 4)
+    img, pts = _fresh_frame_and_points(new, m, xs, ys, keys)
+    assert np.array_equal(frames[-1], img)
+    assert np.array_equal(points, pts)
+
+
+@pytest.mark.slow
+def test_geometry_update_that_changes_a_literal_records_anew(variant):
+    """A move that changes what the kernels hold as literals records the launches anew: the
+    can under a BVH (``bvh_min`` 1; no light or eye buffers, whose tables' sizes change too)
+    moved sideways, so the BVH's root box (literals of its walk, bvh.py) is another. The
+    frame and points are then those of a fresh load of the moved can, bit for bit (a replay
+    with the old box misses the can where it left the box: not the fresh frame, tried)."""
+    import mitsuba as mi
+
+    import links1_mitsuba as lm
+    from links1_mitsuba.tuning import Tuning
+    xml = scene_xml(CENTRES)
+    xml = xml[:xml.index('  <shape type="links1_blob"')] + xml[xml.index('  <shape type="links1_quadric"'):]
+    scene = lm.load_string(xml)
+    integ = scene.integrator()
+    tuned = Tuning(bvh_min=1, light_buffer=False, eye_buffer=False)
+    integ.tuning = tuned
+    params = mi.traverse(scene)
+    Q = "links1_whitted.can.to_world"
+    xs, ys = np.linspace(0.05, 0.95, 16), np.full(16, 0.45)
+    keys = np.arange(16, dtype=np.uint32)
+
+    def move(dx):
+        params[Q] = mi.Transform4f().translate(mi.Vector3f(dx, 0.0, 0.0)) @ mi.Transform4f(params[Q])
+        params.update()
+        return np.array(mi.render(scene, seed=0)), integ.engine.trace_points(scene, xs, ys, keys)[0]
+
+    move(0.01)
+    old_img, old_pts = move(0.01)
+    assert integ.info()["tables"].base.bvh is not None and integ.info()["tables"].eye_buf is None
+    launches = integ.info()["launch"], integ.info()["point_launch"]
+    img, pts = move(0.3)
+    assert integ.info()["launch"] is not launches[0] and integ.info()["point_launch"] is not launches[1]
+    m = np.array(mi.Transform4f(params[Q]).matrix, dtype=np.float64).reshape(4, 4)
+    fresh = lm.load_string(xml)
+    fresh.integrator().tuning = tuned
+    fp = mi.traverse(fresh)
+    fp[Q] = mi.Transform4f(m.tolist())
+    fp.update()
+    assert np.array_equal(img, np.array(mi.render(fresh, seed=0)))
+    assert np.array_equal(pts, fresh.integrator().engine.trace_points(fresh, xs, ys, keys)[0])
+    assert not np.array_equal(pts, old_pts) and not np.array_equal(img, old_img)
+
+
 MIRROR_GLASS = head(4, "0, 2.0, 6", "0, 1.0, 0", 32, 24) + """
   <shape type="links1_quadric" id="mirror"><string name="kind" value="sphere"/>
     <transform name="to_world"><scale value="0.7"/><translate x="-0.9" y="1" z="0"/></transform>
