@@ -32,7 +32,7 @@ from .bvh import QuadricBVH
 from .config import Config
 from .launch import Launches, literal_key
 from .lights import ConstantEnvRecord, EnvMapRecord, analytic_light, area_table, envmap_table
-from .paramwatch import ParamWatch
+from .paramwatch import ParamWatch, own_param
 from .prepared import LIGHT_FIELDS, PHONG_TABLES, SHAPE_FIELDS, Prepared
 from .registered import plugin_class
 from .sceneshapes import SceneShapes
@@ -51,6 +51,37 @@ def _textured(bsdf) -> bool:
     """Whether a Mitsuba BSDF has a texture (bitmap and checkerboard expose ``to_uv``)."""
     import mitsuba as mi
     return bsdf is not None and any(k.endswith("to_uv") for k in mi.traverse(bsdf).keys())
+
+
+#: Mitsuba's spectra of one value (``rgb``, a float): a ``diffuse`` BSDF's reflectance that
+#: the kernel reads from a table (:func:`_uniform_diffuse`)
+_UNIFORM_SPECTRA = ("SRGBReflectanceSpectrum", "UniformSpectrum")
+
+
+def _uniform_diffuse(b):
+    """``(spectrum, twosided)`` of a Mitsuba ``diffuse`` BSDF whose reflectance is one value
+    (``rgb`` or a float, no texture), alone or as the one BSDF of a ``twosided`` (its front and
+    back, Mitsuba 3.9.1's twosided.cpp: ``m_brdf[0] == m_brdf[1]``); None for any other BSDF."""
+    if b is None or b.class_name() not in ("SmoothDiffuse", "TwoSidedBRDF"):
+        return None
+    two = b.class_name() == "TwoSidedBRDF"
+    params = mi.traverse(b)
+    key = "brdf_0.reflectance.value" if two else "reflectance.value"
+    if list(params.keys()) != [key]:    # (two: brdf_1 is another BSDF)
+        return None
+    node = params.properties[key][2]
+    parent = params.hierarchy[node][0] if node in params.hierarchy else None
+    if node.class_name() not in _UNIFORM_SPECTRA or parent is None or \
+            parent.class_name() != "SmoothDiffuse":
+        return None
+    return node, two
+
+
+def _spectrum_rgb(node):
+    """The value of a spectrum of one value (:data:`_UNIFORM_SPECTRA`) as 3 float32 (a float
+    spread over RGB, as its ``eval``), or None when it holds another number of values."""
+    v = np.array(own_param(node, "value"), dtype=np.float32).ravel()
+    return np.repeat(v, 3) if v.size == 1 else v if v.size == 3 else None
 
 
 def _unmask(mi, b):
@@ -169,7 +200,8 @@ class Tables:
         re-prepares what the change touches), in place:
 
         - coefficients: the material rows re-read from the BSDFs; the frozen launch is kept
-          (the rows are its inputs);
+          (the rows are its inputs); so is a ``diffuse`` reflectance's value that the kernel
+          reads from its table (:meth:`_lambert_tables`);
         - a light's values (a ``links1_point``'s or ``links1_spot``'s, a Mitsuba point, spot or
           directional emitter's own parameters): its ``base.lights`` entry and the tables planned
           from the lights' places (:meth:`_shadow_tables`: shadow rays, light buffers); the
@@ -201,10 +233,14 @@ class Tables:
         if not changed:
             return False
         phong = any(isinstance(node, Phong) for _, node in changed)
-        light = geo = False
+        light = geo = lam = False
+        lam_nodes = {id(v) for v in base.lam_src.values()}
         cams = []      # the scene's sensors whose own or film's values changed
         for _, node in changed:
             if isinstance(node, Phong):
+                continue
+            if id(node) in lam_nodes:         # a diffuse BSDF's reflectance (_lambert_tables)
+                lam = True
                 continue
             if node is scene.integrator():    # the links1 shapes' geometry (integrator.traverse)
                 geo = True
@@ -239,6 +275,16 @@ class Tables:
                 return False
             # the tables whose values changed, made as _prepare_scene makes them (the same bits)
             new = {k: mi.Float(v.ravel()) for k, v in now.items() if not np.array_equal(v, base.phong_np[k])}
+        lam_now = None
+        if lam:
+            lam_now = base.lam_np.copy()
+            for sl, node in base.lam_src.items():
+                v = _spectrum_rgb(node)
+                if v is None:       # no longer one value
+                    return False
+                lam_now[sl] = v
+            if not np.array_equal(lam_now, base.lam_np):
+                new["lam_rgb"] = mi.Float(lam_now.ravel())
         if light:
             lights = [L for e in scene.emitters()
                       for L in [analytic_light(e, kind_of(e), point_class, spot_class, base, self.shapes.place)]
@@ -258,11 +304,13 @@ class Tables:
             setattr(base, k, v)
         if now is not None:
             base.phong_np = now
+        if lam_now is not None:
+            base.lam_np = lam_now
         if cams and views.refresh_cameras(base, scene, cams, geo, self.shapes.place):
             self.launches.forget()   # (the camera is a constant of their kernels)
         # the camera views read the new tables through base; of their own fields, the eye's
         # buffer follows the geometry and the launch's inputs are gathered again
-        for view in (base, *base.views.values()) if phong or light or geo else ():
+        for view in (base, *base.views.values()) if phong or lam or light or geo else ():
             if geo and view is not base:   # the camera rays' buffer around the eye (views.camera_view)
                 view.eye_buf = lightbuffer.plan_eye(view, scene) if base.tuning.light_buffer else None
             view.frozen_inputs = None       # gathered again: the new arrays are the launch's inputs
@@ -421,6 +469,7 @@ class Tables:
         for spec in self.shapes.custom:
             checked_index([spec.slot], nslots, "custom shape slot")
         base.bsdf_ptr = mi.BSDFPtr(bsdfs) if not base.all_phong else None
+        self._lambert_tables(base, bsdfs, is_phong)
         # shadow transmittance (3-3-3): Phong t; Mitsuba BSDFs are opaque
         base.shadow_t_np = trans.copy()
         self._shape_tables(base, self._bvh_quadrics(base))
@@ -500,6 +549,25 @@ class Tables:
         base.any_mis = bool(np.any(glossy)) and bool(base.area_tab or base.consts)
         self._shadow_tables(base, scene, shapes, slot_list)
         return base
+
+    @staticmethod
+    def _lambert_tables(base, bsdfs, is_phong):
+        """The tables of the slots whose BSDF is a ``diffuse`` of one reflectance value
+        (:func:`_uniform_diffuse`; the kernel evaluates them without a BSDF call)."""
+        nslots = len(bsdfs)
+        lam = np.zeros(nslots, dtype=bool)
+        two = np.zeros(nslots, dtype=bool)
+        rgb = np.zeros((nslots, 3), dtype=np.float32)
+        src = {}
+        for sl, b in enumerate(bsdfs):
+            found = None if is_phong[sl] else _uniform_diffuse(b)
+            v = None if found is None else _spectrum_rgb(found[0])
+            if v is not None:
+                lam[sl], two[sl], rgb[sl], src[sl] = True, found[1], v, found[0]
+        base.lam, base.lam_two, base.lam_rgb = mi.Bool(lam), mi.Bool(two), mi.Float(rgb.ravel())
+        base.lam_np, base.lam_src = rgb, src
+        base.any_lam, base.any_lam_two = bool(lam.any()), bool(two.any())
+        base.all_lam = bool(np.all(lam | is_phong))
 
     def _bvh_quadrics(self, base):
         """The links1 quadrics to put under a BVH (bvh.py) instead of one code block each:
