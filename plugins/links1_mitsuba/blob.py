@@ -253,7 +253,6 @@ class BlobSpec(CandidateLists, RootSolvers):
         s_lo, s_hi = tmin * scale, tmax * scale   # the segment, as in _setup
         T = self._threshold()
         run = active & (start < end)
-        eps = 1e-6 * max(self.threshold, 1.0)
 
         def solve(start, end, Lb, Gb):
             if self.solver == "paper":
@@ -262,7 +261,7 @@ class BlobSpec(CandidateLists, RootSolvers):
             inside = (W0 > T) | ((W0 == T) & (dW0 > 0))
             sgn = dr.select(inside, -1.0, 1.0)
             n_eval = dr.select(run, mi.UInt32(1), mi.UInt32(0))
-            return self._exact(field_at, start, end, sgn, run, n_eval, Lb, Gb, eps, any_hit)
+            return self._exact(field_at, start, end, sgn, run, W0, dW0, n_eval, Lb, Gb, any_hit)
 
         def skip(start, end, Lb, Gb):
             return dr.full(mi.Float, INF, dr.width(start)), dr.zeros(mi.UInt32, dr.width(start))

@@ -1,5 +1,5 @@
 """The root finders of :class:`~links1_mitsuba.blob.BlobSpec` along a ray (eq. 3.8):
-``exact``, a march whose steps never jump over a root then secant refinement, and
+``exact``, a march whose steps never jump over a root then Newton / secant refinement, and
 ``paper``, the paper's span sampling with piecewise quadratic interpolation (3-2-3), the
 float64 core's algorithms (links1/geometry/blob.py) in Dr.Jit float32. A mixin of
 :class:`~links1_mitsuba.blob.BlobSpec`: its methods read the spec's constants and field.
@@ -10,95 +10,125 @@ import numpy as np
 
 from .shapes import INF
 
-#: Largest number of secant refinements of a bracketed blob root.
+#: Largest number of refinements (Newton or secant steps) of a bracketed blob root.
 MAX_REFINE = 24
+#: The refinement's target, relative to float32 resolution of the distance (``2e-7 (1 + |s|)``):
+#: Newton's point is taken once its error bound ``G h²/|F'|`` is below this share of it.
+NEWTON_TOL = 1.0 / 16.0
 
 
 class RootSolvers:
     """The root finders of :class:`~links1_mitsuba.blob.BlobSpec`."""
 
-    def _exact(self, field_at, start, end, sgn, run, n_eval, Lb, Gb, eps, any_hit=False):
-        """March with steps that never jump over a root (docs/numerics.md, step bounds); once the step
-        falls below ``probe`` it probes ``max(2h, probe)`` ahead; a sign change brackets the
-        root, refined by secant steps with the Illinois safeguard (as the core). A ray that
-        grazes the surface never brackets a root: a miss, as in the float64 core."""
+    def _exact(self, field_at, start, end, sgn, run, W0, dW0, n_eval, Lb, Gb, any_hit=False):
+        """The first root of ``F = sgn (T - W) = 0`` in ``[start, end)`` (eq. 3.8), ``W0``,
+        ``dW0`` the field at ``start``; ``Lb``, ``Gb`` bound ``|F'|``, ``|F''|`` along the ray
+        (docs/numerics.md, step bounds). One loop, a march (:func:`_march_step`) and then a
+        bracket ``[a, b]``, ``F(a) > 0 >= F(b)``, refined by Newton steps from the last point
+        where they stay inside, else the bracket's secant; done when Newton's point is within
+        :data:`NEWTON_TOL` of float32 resolution (its error ``~ G h²/|F'|``; from the march,
+        where a root is certain, ``hu - h2``) or the bracket within float32 resolution (its
+        secant point), or after :data:`MAX_REFINE` refinements. ``any_hit``:
+        :meth:`_any_root`. A ray that grazes the surface never brackets a root: a miss, as in
+        the float64 core. Returns ``(t, n_eval)`` (object units; ``inf``: no root)."""
         import drjit as dr
         import mitsuba as mi
         T = self._threshold()
         probe = self._probe()
         Lb = dr.maximum(Lb, 1e-30)
         Gb = dr.maximum(Gb, 1e-30)
+        F = sgn * (T - W0)
+        Fp = -sgn * dW0
+        if any_hit:
+            return self._any_root(field_at, start, end, sgn, run, F, Fp, n_eval, Lb, Gb)
         max_steps = self.max_steps
         n = dr.width(start)
         s = mi.Float(start)
-        s_prev = mi.Float(start)
-        f_prev = dr.full(mi.Float, 1.0, n)
-        found = dr.zeros(mi.Bool, n)
-        it = dr.zeros(mi.UInt32, n)
+        a, fa = mi.Float(s), mi.Float(F)
+        b, fb = dr.full(mi.Float, INF, n), dr.zeros(mi.Float, n)
+        brk = dr.zeros(mi.Bool, n)
+        t = dr.full(mi.Float, INF, n)
+        it = dr.full(mi.UInt32, 1, n)       # march evaluations (the one at start)
+        k = dr.zeros(mi.UInt32, n)          # refinements
 
-        def cond(s, s_prev, f_prev, found, run, it, n_eval):
+        def cond(s, F, Fp, a, fa, b, fb, brk, t, run, it, k, n_eval):
             return run
 
-        def body(s, s_prev, f_prev, found, run, it, n_eval):
-            W, dW = field_at(s)
-            n_eval += dr.select(run, mi.UInt32(1), 0)
-            F = sgn * (T - W)
-            Fp = -sgn * dW
-            root = run & (F <= 0) & (it > 0)
-            found = found | root
-            Fpos = dr.maximum(F, 0.0)
-            disc = dr.safe_sqrt(dr.square(Fp) + 2.0 * Gb * Fpos)
-            h2 = dr.select(Fp < 0, 2.0 * Fpos / dr.maximum(disc - Fp, 1e-30), (Fp + disc) / Gb)
-            h = dr.maximum(Fpos / Lb, h2)
-            step = dr.select(h < probe, dr.maximum(2.0 * h, probe), h)
+        def body(s, F, Fp, a, fa, b, fb, brk, t, run, it, k, n_eval):
+            tol = 2e-7 * (1.0 + dr.abs(s))
+            dN = -F / dr.select(Fp != 0, Fp, 1.0)            # Newton's step
+            xN = s + dN
+            # march: stops at a certain root within float32 resolution (Newton's point)
+            safe, step, sure, h2, hu = _march_step(F, Fp, Lb, Gb, probe)
+            near = ~brk & sure & (hu - h2 <= tol * NEWTON_TOL)
+            t = dr.select(run & near & (xN < end), dr.clip(xN, s + h2, s + hu), t)
+            miss = ~brk & ((s + safe >= end) | (it >= max_steps))
+            # bracket: Newton inside it, else its secant
+            sec = dr.clip(a + fa * ((b - a) / dr.select(fa != fb, fa - fb, 1.0)), a, b)
+            inside = (Fp != 0) & (xN > a) & (xN < b)
+            small = (Fp != 0) & (Gb * dr.square(dN) <= tol * NEWTON_TOL * dr.abs(Fp))
+            narrow = (b - a <= tol) | (k >= MAX_REFINE)
+            t = dr.select(run & brk & (small | narrow), dr.select(small, dr.clip(xN, a, b), sec), t)
+            go = run & ~dr.select(brk, small | narrow, near | miss)
+            x = dr.select(brk, dr.select(inside, xN, sec), dr.minimum(s + step, end))
+            W, dW = field_at(x)
+            n_eval += dr.select(go, mi.UInt32(1), 0)
+            Fx = sgn * (T - W)
+            pos = Fx > 0
+            it += dr.select(go & ~brk, mi.UInt32(1), 0)
+            k += dr.select(go & brk, mi.UInt32(1), 0)
+            a = dr.select(go & pos, x, a)
+            fa = dr.select(go & pos, Fx, fa)
+            b = dr.select(go & ~pos, x, b)
+            fb = dr.select(go & ~pos, Fx, fb)
+            brk = brk | (go & ~pos)
+            zero = go & (Fx == 0)
+            t = dr.select(zero, x, t)
+            s = dr.select(go, x, s)
+            F = dr.select(go, Fx, F)
+            Fp = dr.select(go, -sgn * dW, Fp)
+            run = go & ~zero
+            return s, F, Fp, a, fa, b, fb, brk, t, run, it, k, n_eval
+
+        out = dr.while_loop((s, F, Fp, a, fa, b, fb, brk, t, run, it, k, n_eval), cond, body)
+        return out[8], out[12]
+
+    def _any_root(self, field_at, start, end, sgn, run, F, Fp, n_eval, Lb, Gb):
+        """Whether ``F`` (at ``start``: ``F``, ``Fp``) has a root in ``[start, end)``, for a
+        shadow ray: the march of :meth:`_exact`, stopped at the first point with ``F <= 0``
+        or past a certain root (:func:`_march_step`'s ``s + hu``), either a point past the
+        root inside the interval (its exact place is not sought). ``(t, n_eval)``."""
+        import drjit as dr
+        import mitsuba as mi
+        T = self._threshold()
+        probe = self._probe()
+        max_steps = self.max_steps
+        s = mi.Float(start)
+        t = dr.full(mi.Float, INF, dr.width(start))
+        it = dr.full(mi.UInt32, 1, dr.width(start))
+
+        def cond(s, F, Fp, t, run, it, n_eval):
+            return run
+
+        def body(s, F, Fp, t, run, it, n_eval):
+            safe, step, sure, _, hu = _march_step(F, Fp, Lb, Gb, probe)
+            past = sure & (s + hu < end)
+            t = dr.select(run & past, s + hu, t)
+            go = run & ~past & (s + safe < end) & (it < max_steps)
+            x = dr.minimum(s + step, end)
+            W, dW = field_at(x)
+            n_eval += dr.select(go, mi.UInt32(1), 0)
             it += 1
-            go = run & ~root
-            s_prev = dr.select(go, s, s_prev)
-            f_prev = dr.select(go, F, f_prev)
-            s = dr.select(go, s + step, s)
-            run = go & (s < end) & (it < max_steps)
-            return s, s_prev, f_prev, found, run, it, n_eval
+            F = dr.select(go, sgn * (T - W), F)
+            Fp = dr.select(go, -sgn * dW, Fp)
+            root = go & (F <= 0)
+            t = dr.select(root, x, t)
+            s = dr.select(go, x, s)
+            run = go & ~root
+            return s, F, Fp, t, run, it, n_eval
 
-        s, s_prev, f_prev, found, run, it, n_eval = dr.while_loop(
-            (s, s_prev, f_prev, found, run, it, n_eval), cond, body)
-        if any_hit:
-            return dr.select(found, s, INF), n_eval
-        # bracket [a, b] with F(a) > 0 >= F(b): secant steps with the Illinois safeguard
-        a, b = mi.Float(s_prev), mi.Float(s)
-        fa = f_prev
-        Wb, _ = field_at(b)
-        fb = sgn * (T - Wb)
-        last = dr.zeros(mi.Int32, n)
-        k = dr.zeros(mi.UInt32, n)
-        act = found & (fb != 0) & (a < b)
-
-        def cond2(a, b, fa, fb, last, k, act, n_eval):
-            return act
-
-        def body2(a, b, fa, fb, last, k, act, n_eval):
-            x = dr.clip(a + fa * ((b - a) / (fa - fb)), a, b)
-            W, _ = field_at(x)
-            n_eval += dr.select(act, mi.UInt32(1), 0)
-            fx = sgn * (T - W)
-            up = fx > 0
-            na = dr.select(up, x, a)
-            nb = dr.select(up, b, x)
-            nfa = dr.select(up, fx, dr.select(last == -1, 0.5 * fa, fa))
-            nfb = dr.select(up, dr.select(last == 1, 0.5 * fb, fb), fx)
-            a = dr.select(act, na, a)
-            b = dr.select(act, nb, b)
-            fa = dr.select(act, nfa, fa)
-            fb = dr.select(act, nfb, fb)
-            last = dr.select(act, dr.select(up, 1, -1), last)
-            k += 1
-            act = act & (fx != 0) & (b - a > 2e-7 * (1.0 + dr.abs(b))) & (k < MAX_REFINE)
-            return a, b, fa, fb, last, k, act, n_eval
-
-        a, b, fa, fb, last, k, act, n_eval = dr.while_loop(
-            (a, b, fa, fb, last, k, act, n_eval), cond2, body2)
-        # final estimate: secant on the bracket (b itself when F(b) == 0)
-        x = dr.select(fb == 0, b, dr.clip(a + fa * ((b - a) / dr.select(fa != fb, fa - fb, 1.0)), a, b))
-        return dr.select(found, x, INF), n_eval
+        out = dr.while_loop((s, F, Fp, t, run, it, n_eval), cond, body)
+        return out[3], out[6]
 
     def _paper(self, per, s_lo, s_hi, run):
         """The paper's span sampling and piecewise quadratic interpolation (3-2-3), the
@@ -215,3 +245,26 @@ def _quad_root32(x0, x1, x2, y0, y1, y2, a, b):
     s = dr.minimum(dr.select(ok1, r1, INF), dr.select(ok2, r2, INF))
     s = dr.clip(s, 0.0, dr.select(dr.isfinite(L), L, 0.0))
     return dr.select(ok1 | ok2, a + s, INF)
+
+
+def _march_step(F, Fp, Lb, Gb, probe):
+    """The march's step from a point with ``F > 0``, ``F' = Fp``, given bounds ``Lb`` of
+    ``|F'|`` and ``Gb`` of ``|F''|`` (docs/numerics.md, step bounds): ``(safe, step, sure, h2,
+    hu)``. ``safe = max(F/L, h2)``, ``h2`` the first zero of ``F + F'h - Gh²/2``, never passes
+    the first root (once below ``probe``: ``max(2h, probe)``, a probe ahead). ``step``: where
+    ``F' < 0``, on to Newton's step ``-F/F'`` as far as ``-F'/G``, where ``F`` still decreases:
+    a point there with ``F > 0`` has no root before it, one with ``F <= 0`` brackets a single
+    root. ``sure``: ``F' < 0`` and ``F'² >= 2GF``, a root certain in ``[s + h2, s + hu]``,
+    ``hu`` the first zero of ``F + F'h + Gh²/2``."""
+    import drjit as dr
+    down = Fp < 0
+    Fpos = dr.maximum(F, 0.0)
+    disc = dr.safe_sqrt(dr.square(Fp) + 2.0 * Gb * Fpos)
+    h2 = dr.select(down, 2.0 * Fpos / dr.maximum(disc - Fp, 1e-30), (Fp + disc) / Gb)
+    h = dr.maximum(Fpos / Lb, h2)
+    safe = dr.select(h < probe, dr.maximum(2.0 * h, probe), h)
+    step = dr.select(down, dr.maximum(safe, dr.minimum(Fpos / dr.maximum(-Fp, 1e-30), -Fp / Gb)), safe)
+    du = dr.square(Fp) - 2.0 * Gb * Fpos
+    sure = down & (F > 0) & (du >= 0)
+    hu = 2.0 * Fpos / dr.maximum(dr.safe_sqrt(du) - Fp, 1e-30)
+    return safe, step, sure, h2, hu
