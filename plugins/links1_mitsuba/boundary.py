@@ -254,10 +254,14 @@ def _crossings(trace_points, scene, P, sensor, win, spp, seed):
     g = _grazes(ends, kd, (xl, yl), (xh, yh), lts)
     # f on both sides, SIDE_STEP pixels out: the primal ray tree (one launch for both ends)
     m_ = dr.width(g["q"])
-    xs = np.concatenate([xl.numpy() - SIDE_STEP * ~cl, xh.numpy() + SIDE_STEP * ~cl])
-    ys = np.concatenate([yl.numpy() - SIDE_STEP * cl, yh.numpy() + SIDE_STEP * cl])
-    f = trace_points(xs / P.film_size[0], ys / P.film_size[1],
-                     np.concatenate([key.numpy(), key.numpy()]).astype(np.uint32))[0]
+    # the ends' film coordinates made on the host from the evaluated ends (as at(): the same
+    # float32 values; reading xl ... would run a kernel each)
+    f32 = np.float32(fixed[li])
+    ends_h = [(np.where(cl, f32, e), np.where(cl, e, f32)) for e in (lo_d.numpy(), hi_d.numpy())]
+    xs = np.concatenate([ends_h[0][0] - SIDE_STEP * ~cl, ends_h[1][0] + SIDE_STEP * ~cl])
+    ys = np.concatenate([ends_h[0][1] - SIDE_STEP * cl, ends_h[1][1] + SIDE_STEP * cl])
+    keys_h = lane_key[li].astype(np.uint32)
+    f = trace_points(xs / P.film_size[0], ys / P.film_size[1], np.concatenate([keys_h, keys_h]))[0]
     jump = f[:m_] - f[m_:]
     # the outline's normal m at q, and the screen-space gradient a of m·q at fixed distances
     edge = _outline(scene, P, g["q"], g["d"], g["t"], g["slot"], g["prim"], g["hit"], g["ok"])
