@@ -23,7 +23,8 @@ polynomial fit of it (measured: within 4.2e-4). This module evaluates the exact 
 float64 for both renderers.
 
 Determinism: :class:`FilterGather` sums every output pixel's samples in one fixed order
-(sample index, then neighbour row, then neighbour column) with elementwise float64 operations,
+(per neighbour row, then column, the neighbour's samples in sample order, summed apart, then
+added to the pixel) with elementwise float64 operations,
 so a window of the film equals the same pixels of the full frame bit for bit whatever the
 window. A window needs the samples of a border of :attr:`Filter.border` pixels around it
 (:meth:`FilterGather.sample_window`); samples are keyed by full-film pixel
@@ -151,6 +152,13 @@ class FilterGather:
     Feed the samples one layer at a time with :meth:`add` (a layer: one sample per pixel of the
     sample window, e.g. sample index ``i`` of every pixel), then read :meth:`result`. The order
     of the layers is the summation order; callers add sample 0, 1, ... ``spp - 1``.
+
+    The fixed order, in two steps: :meth:`add` sums, for every pixel ``q`` of the sample window
+    and neighbour offset ``(dy, dx)``, the weighted values and the weights ``q``'s samples give
+    the pixel ``(dy, dx)`` away from it, layer after layer (a record of ``q`` depends only on its
+    own samples); :meth:`result` adds a pixel's records from its neighbours on the film in
+    ascending ``dy``, then ``dx``. With one layer this is the order ``(dy, dx)`` of the terms
+    themselves.
     """
 
     def __init__(self, filt: Filter, window, film_size):
@@ -162,8 +170,10 @@ class FilterGather:
         sx0, sy0 = max(0, x0 - b), max(0, y0 - b)
         sx1, sy1 = min(W, x0 + w + b), min(H, y0 + h + b)
         self.sample_window = (sx0, sy0, sx1 - sx0, sy1 - sy0)
+        nb = 2 * b + 1
+        #: per neighbour offset (dy, dx) and sample-window pixel: Σ w·value and Σ w
         self._num = None
-        self._den = np.zeros((h, w))
+        self._den = np.zeros((nb, nb, sy1 - sy0, sx1 - sx0))
 
     def inner(self, a: np.ndarray) -> np.ndarray:
         """The window's own pixels of an array over the sample window (first two axes)."""
@@ -176,10 +186,8 @@ class FilterGather:
         ``offx, offy (sh, sw)`` in [0, 1), optionally a per-sample factor ``weight (sh, sw)``
         (0 leaves a sample out)."""
         values = np.asarray(values, dtype=np.float64)
-        x0, y0, w, h = self.window
-        sx0, sy0, sw, sh = self.sample_window
         if self._num is None:
-            self._num = np.zeros((h, w, values.shape[2]))
+            self._num = np.zeros(self._den.shape + values.shape[2:])
         b = self.filter.border
         f = self.filter.eval
         offx, offy = np.asarray(offx, dtype=np.float64), np.asarray(offy, dtype=np.float64)
@@ -187,25 +195,32 @@ class FilterGather:
         wxs = [f(0.5 - dx - offx) for dx in range(-b, b + 1)]
         wys = [f(0.5 - dy - offy) if weight is None else f(0.5 - dy - offy) * weight
                for dy in range(-b, b + 1)]
+        for iy, wy in enumerate(wys):
+            for ix, wx in enumerate(wxs):
+                wgt = wy * wx
+                self._num[iy, ix] += wgt[:, :, None] * values
+                self._den[iy, ix] += wgt
+
+    def result(self) -> np.ndarray:
+        """``(h, w, C)``: weighted sum over summed weights (a zero weight divides by 1)."""
+        x0, y0, w, h = self.window
+        sx0, sy0, sw, sh = self.sample_window
+        b = self.filter.border
+        num, den = np.zeros((h, w) + self._num.shape[4:]), np.zeros((h, w))
         for dy in range(-b, b + 1):
             # rows of the window whose neighbour row y + dy lies on the film
             ya, yb = max(0, sy0 - (y0 + dy)), min(h, sy0 + sh - (y0 + dy))
             if ya >= yb:
                 continue
             rs = slice(y0 + dy + ya - sy0, y0 + dy + yb - sy0)
-            wy = wys[dy + b][rs]
             for dx in range(-b, b + 1):
                 xa, xb = max(0, sx0 - (x0 + dx)), min(w, sx0 + sw - (x0 + dx))
                 if xa >= xb:
                     continue
                 cs = slice(x0 + dx + xa - sx0, x0 + dx + xb - sx0)
-                wgt = wy[:, cs] * wxs[dx + b][rs, cs]
-                self._num[ya:yb, xa:xb] += wgt[:, :, None] * values[rs, cs]
-                self._den[ya:yb, xa:xb] += wgt
-
-    def result(self) -> np.ndarray:
-        """``(h, w, C)``: weighted sum over summed weights (a zero weight divides by 1)."""
-        return self._num / np.where(self._den == 0.0, 1.0, self._den)[:, :, None]
+                num[ya:yb, xa:xb] += self._num[dy + b, dx + b, rs, cs]
+                den[ya:yb, xa:xb] += self._den[dy + b, dx + b, rs, cs]
+        return num / np.where(den == 0.0, 1.0, den)[:, :, None]
 
 
 def filter_samples(filt: Filter, window, film_size, values: np.ndarray, origin, spp: int,

@@ -8,24 +8,35 @@ Everything here is a per-output-pixel *gather* in one fixed order, never a scatt
 * box filter (Mitsuba's fast path): the mean of the pixel's ``spp`` samples, summed in float64
   in sample order and divided by ``spp`` (numpy's ``mean`` of ``launch.render_windows`` before);
 * any other filter: the pixel is ``Σ w·s / Σ w`` over its ``spp`` samples and those of its
-  ``(2b+1)²`` neighbours on the film, summed in float64 in the order of
-  :meth:`links1.sensor.filters.FilterGather.add` (sample index, then neighbour row, then neighbour
-  column), with the 1-D weights of :meth:`links1.sensor.filters.Filter.eval` evaluated in float64 at
-  the sample offsets of :mod:`links1.maths.sampling` (recomputed from the same integer hash, in
-  float64 as :func:`links1.maths.sampling.sample_offsets`; the kernels' own camera rays use the
-  float32 rounding of the same offsets);
+  ``(2b+1)²`` neighbours on the film, with the 1-D weights of
+  :meth:`links1.sensor.filters.Filter.eval` evaluated in float64 at the sample offsets of
+  :mod:`links1.maths.sampling` (recomputed from the same integer hash, in float64 as
+  :func:`links1.maths.sampling.sample_offsets`; the kernels' own camera rays use the float32
+  rounding of the same offsets), summed in float64 in the order of
+  :class:`links1.sensor.filters.FilterGather`: per neighbour row, then column, the neighbour's
+  own samples in sample order summed apart, then added to the pixel;
 * AOVs: ``depth``/``normal``/``id`` of the pixel's sample 0, ``cost`` summed over its samples,
   ``samples`` = spp.
 
-What depends only on the windows (the :class:`Batch` tables, the sample ids, the filter
-gather's sample-major places and weight tables) is kept with the batch while the same windows
-are rendered again (:func:`cached_batch`), and the divisions by run-time values go through
-:func:`links1_mitsuba.util.udiv` (exact). The gather of the non-box filters computes a strip of
-:data:`STRIP` pixels of a window row a lane, reading each neighbour sample once for the strip
-(its RGB as one packet of four floats, its column weights as one packet; at spp 1, where every
-sample lies at its pixel's centre, the weights are :func:`_centre_weights`' constants) from a
-sample-major copy of the samples (:func:`_planes`); every pixel keeps its own sums in the
-order above (:func:`_filter_gather`).
+The non-box filters, in two passes at spp > 1 (each sample is read once, its ``2(2b+1)``
+weights made once, in the kernel: cheaper than reading them from a table):
+
+1. a lane a pixel ``q`` of a sample window (:func:`_filter_partials`): over ``q``'s samples, for
+   each neighbour offset ``(dy, dx)``, the record ``(Σ w·r, Σ w·g, Σ w·b, Σ w)`` of the terms
+   ``q`` gives the pixel ``(dy, dx)`` away (a table a offset, ``(2b+1)²`` of them);
+2. a lane an output pixel (:func:`_filter_sum`): its neighbours' records for it, added in
+   ascending ``dy``, then ``dx``, over the weight sum.
+
+A record depends only on its pixel's samples, so the pass-2 sums are a pixel's own whatever the
+window. At spp 1 every sample lies at its pixel's centre and the weights are ``2b+1``
+constants (:func:`_centre_weights`): the order above is then the one of the terms themselves,
+and one kernel computes a strip of :data:`STRIP` pixels of a window row a lane, reading each
+neighbour sample once for the strip (:func:`_filter_gather`). A film whose pass-1 table would
+pass :data:`FILM_TABLE_BYTES` makes each record in pass 2 itself (:func:`_filter_direct`).
+
+What depends only on the windows (the :class:`Batch` tables, the sample ids) is kept with the
+batch while the same windows are rendered again (:func:`cached_batch`), and the divisions by
+run-time values go through :func:`links1_mitsuba.util.udiv` (exact).
 
 So a pixel depends only on its own samples and those of its neighbours, never on the window:
 a window or a batch of windows equals the full frame bit for bit. Every size (film width,
@@ -51,27 +62,15 @@ import numpy as np
 
 from .util import mix32, table, udiv
 
-#: Largest table of 1-D filter column weights of a batch (bytes: a record of ``2b+1`` float64
-#: weights and the sample's offset ``oy`` padded to a power of two: 64 a sample for a
-#: gaussian); bigger windows evaluate the weights in the gather itself (more evaluations, the
-#: same values).
-FILM_TABLE_BYTES = 1 << 30
+#: Largest table of the filter's pass 1 (:func:`_filter_partials`: ``(2b+1)²`` records of four
+#: float64 a pixel of the sample windows; 210 MB at 512² for a gaussian, 1.66 GB at
+#: 1920 × 1080); a bigger film makes each pixel's records in pass 2 itself
+#: (:func:`_filter_direct`: the same values, the weights made ``(2b+1)²`` times).
+FILM_TABLE_BYTES = 1 << 31
 
-#: A batch of at most this many sample lanes keeps what depends only on its windows (sample
-#: ids, the filter gather's sample-major places, the filter's weight tables) evaluated between
-#: frames (:func:`cached_batch`): 4 bytes a lane for the ids and 4 for the places (at most
-#: 64 MiB) ...
+#: A batch of at most this many sample lanes keeps what depends only on its windows (the
+#: sample ids: 4 bytes a lane, at most 32 MiB) evaluated between frames (:func:`cached_batch`).
 KEEP_LANES = 1 << 23
-#: ... and its weight tables when they take at most this many bytes: the column weights'
-#: (512², spp 16, a gaussian or a lanczos: 268 MB) and for :data:`ROW_TABLE_FILTERS` the row
-#: weights' too (``2b+1`` float64 a sample) where both fit, else the row weights are made in
-#: the gather from the records' ``oy``
-KEEP_TABLE_BYTES = 3 << 27
-
-#: Filters whose row weights the gather reads from a table (two sines an evaluation cost more
-#: than the read); the others' (a polynomial, an exp) are made in the gather from the sample's
-#: ``oy`` at no more cost than the read, and their tables are smaller
-ROW_TABLE_FILTERS = ("lanczos",)
 
 #: Batches kept by :func:`cached_batch` (per integrator: the last few window sets).
 KEEP_BATCHES = 2
@@ -136,9 +135,10 @@ class Batch:
         w, s = np.array(self.wins, dtype=np.int64), np.array(self.swins, dtype=np.int64)
         self.x0, self.y0, self.w = u(w[:, 0]), u(w[:, 1]), u(w[:, 2])
         self.sx0, self.sy0, self.sw = u(s[:, 0]), u(s[:, 1]), u(s[:, 2])
-        #: pixels of each sample window (a plane of the filter gather's sample-major layout)
-        self.npix = u(s[:, 2] * s[:, 3])
         self.first_lane, self.first_pixel = u(self.lane_start), u(self.pixel_start)
+        #: the sample windows' pixels (a lane of the filter's pass 1), window after window
+        self.source_start, self.sources = self.lane_start // self.spp, self.lanes // self.spp
+        self.first_source = u(self.source_start)
         #: whether the values below are kept evaluated with the batch (:data:`KEEP_LANES`)
         self.keep = self.lanes <= KEEP_LANES
         self._kept, self._strips = {}, {}
@@ -171,9 +171,15 @@ class Batch:
 
     @functools.cached_property
     def lane_window(self):
-        """The window of each sample lane (:meth:`window_of`), made once a batch: the sample
-        ids and the filter's weight tables both read it."""
+        """The window of each sample lane (:meth:`window_of`), made once a batch (the sample
+        ids read it)."""
         return self.window_of(self.lane_start, self.lanes)
+
+    @functools.cached_property
+    def source_window(self):
+        """The window of each sample-window pixel (:meth:`window_of`), made once a batch (the
+        filter's pass 1 reads it)."""
+        return self.window_of(self.source_start, self.sources)
 
     def window_of(self, starts, n, scale=1):
         """The window (``UInt32``) of each of ``n`` entries laid out window after window from
@@ -198,8 +204,8 @@ def _divisor(v):
 def cached_batch(cache, wins, swins, spp):
     """The :class:`Batch` of ``wins``/``swins``/``spp`` from ``cache`` (a dict the caller
     keeps: the last :data:`KEEP_BATCHES` batches), or a new one put in it: a frame of the same
-    windows reuses its tables, sample ids and weight tables (the same values: they depend
-    only on the windows, the film and the sample pattern) instead of making them again."""
+    windows reuses its tables and sample ids (the same values: they depend only on the
+    windows, the film and the sample pattern) instead of making them again."""
     key = (tuple(map(tuple, wins)), tuple(map(tuple, swins)), int(spp))
     b = cache.pop(key, None)
     if b is None:
@@ -293,15 +299,17 @@ def reconstruct(rfilter, film_size, spp, seed, batch, data, aovs, dtype=None, mo
     (``"evaluated"`` in a derivative pass: reverse-mode AD needs it). ``dtype``: of the result
     (None: ``mi.Float64``). Returns ``(flat, C)``.
 
-    A lane computes one output pixel (box) or a strip of :data:`STRIP` consecutive pixels of
-    one window row (the other filters, :func:`_filter_gather`); a strip's pixels past its
-    row's end are masked."""
+    A lane computes one output pixel, or at spp 1 with a non-box filter a strip of
+    :data:`STRIP` consecutive pixels of one window row (:func:`_filter_gather`; a strip's pixels
+    past its row's end are masked)."""
     F64, U32, I32 = mi.Float64, mi.UInt32, mi.Int32   # of the variant in use
     dtype = F64 if dtype is None else dtype
     W, H = film_size
     n_s = op_u(spp)
     box = rfilter.border == 0 and rfilter.is_box
-    P = 1 if box else STRIP
+    # spp 1: every sample at its pixel's centre, its weights nb constants (the strip gather)
+    centred = _centre_weights(rfilter, 2 * rfilter.border + 1) if not box and int(spp) == 1 else None
+    P = 1 if centred is None else STRIP
     L = _Lanes(batch, P, n_s)
     if box:
         # a box filter's sample windows are its windows (sample_window), laid out as the
@@ -339,9 +347,14 @@ def reconstruct(rfilter, film_size, spp, seed, batch, data, aovs, dtype=None, mo
             s = F64(n_s)
             chans[0] += [a / s for a in acc[:3]]
         cost_sum = acc[-P:] if want_cost else None
-    if not box:
-        for p, rgb in enumerate(_filter_gather(rfilter, (W, H), spp, seed, batch, data, L, mode)):
+    if centred is not None:
+        for p, rgb in enumerate(_filter_gather((W, H), batch, data, L, centred, mode)):
             chans[p] += rgb
+    elif not box and batch.sources * (2 * rfilter.border + 1) ** 2 * 32 <= FILM_TABLE_BYTES:
+        part = _filter_partials(rfilter, (W, H), seed, batch, data, n_s, mode)
+        chans[0] += _filter_sum(rfilter, (W, H), batch, part, L)
+    elif not box:
+        chans[0] += _filter_direct(rfilter, (W, H), seed, batch, data, L, mode)
     if aovs:
         for p in range(P):
             first = L.sample(p)
@@ -381,10 +394,10 @@ def reconstruct(rfilter, film_size, spp, seed, batch, data, aovs, dtype=None, mo
     return out, C
 
 
-#: Output pixels a lane of the (non-box) filter gather computes: consecutive pixels of one
+#: Output pixels a lane of the non-box filter at spp 1 computes: consecutive pixels of one
 #: window row, which share all but ``2 * border`` of their neighbour columns, so each
-#: neighbour sample (its RGB packet and weights) is read once for the strip instead of once per
-#: pixel (:func:`_filter_gather`). A Python constant: the kernels' shape, not a size.
+#: neighbour sample (its RGB packet) is read once for the strip instead of once per pixel
+#: (:func:`_filter_gather`). A Python constant: the kernels' shape, not a size.
 STRIP = 8
 
 
@@ -392,7 +405,7 @@ class _Lanes:
     """The lanes of a reconstruction kernel: lane ``t`` computes ``P`` consecutive output
     pixels of one row of one window (``P = 1``: one pixel), the lanes laid window after window,
     row-major. Per lane (Dr.Jit arrays): its window (``window``) and the window's tables
-    (``x0 y0 sx0 sy0 sw npix w start``),
+    (``x0 y0 sx0 sy0 sw w start``),
     its first pixel's place ``lx, ly`` in the window and index ``pixel`` in the result,
     ``first`` (that pixel's sample 0 in the launch) and ``valid[p]`` (pixel ``p`` is inside the
     row; ``True`` for ``P = 1``)."""
@@ -403,7 +416,7 @@ class _Lanes:
         kw = batch.window_of(starts, self.n)
         g = lambda t: dr.gather(U32, t, kw)  # noqa: E731  (this lane's window's value)
         self.x0, self.y0, self.sx0, self.sy0, self.sw = g(batch.x0), g(batch.y0), g(batch.sx0), g(batch.sy0), g(batch.sw)
-        self.start, self.npix = g(batch.first_lane), g(batch.npix)
+        self.start = g(batch.first_lane)
         q = dr.arange(U32, self.n) - g(first)
         self.window, self.w = kw, g(batch.w)
         w = _divisor(self.w)
@@ -424,106 +437,189 @@ class _Lanes:
         return self.first + p * self.n_s if p else self.first
 
 
-def _filter_gather(rfilter, film_size, spp, seed, batch, data, L, mode):
-    """RGB (three float64 arrays) of each of the ``P`` pixels of the lanes ``L`` (:class:`_Lanes`)
-    under a non-box filter: ``Σ w·s / Σ w`` over the pixel's ``spp`` samples and those of its
-    ``(2b+1)²`` neighbours on the film, in the order of
-    :meth:`links1.sensor.filters.FilterGather.add` (sample, neighbour row, neighbour column).
+def _strata(spp):
+    """The opaque strata a side ``k`` of :func:`offsets` for ``spp`` (a Python int)."""
+    return op_u(math.ceil(math.sqrt(spp)) if spp > 1 else 1)
 
-    A loop step is one sample ``i`` and one neighbour row ``dy``: the strip's ``P`` pixels need
-    the ``P + 2b`` columns ``x - b .. x + P - 1 + b`` of that row, each read once (its RGB packet
-    and its weights) and added, in ascending column order, to every pixel ``p`` it
-    neighbours (column ``c`` is offset ``dx = c - p - b``). So each pixel still gets its terms in
-    ascending ``dx`` after those of the earlier rows and samples, in its own accumulators: the
-    same float64 sums, bit for bit, as a loop over one pixel's ``(2b+1)²`` neighbours. A column
-    is read where it lies in the window's sample window (the window plus the border, clipped
-    to the film): for a pixel inside the row exactly "on the film" (masked alike before), and
-    never outside the window's own lanes for the pixels past the row's end."""
+
+def _filter_gather(film_size, batch, data, L, centred, mode):
+    """At spp 1 (every sample at its pixel's centre, so its 1-D weights are the ``nb``
+    constants ``centred``, :func:`_centre_weights`): RGB (three float64 arrays) of each of the
+    ``P`` pixels of the lanes ``L`` (:class:`_Lanes`), ``Σ w·s / Σ w`` over the pixel's
+    ``(2b+1)²`` neighbours on the film in ascending neighbour row, then column: the order of
+    :meth:`links1.sensor.filters.FilterGather.result` with one sample a pixel.
+
+    A loop step is one neighbour row ``dy``: the strip's ``P`` pixels need the ``P + 2b``
+    columns ``x - b .. x + P - 1 + b`` of that row, each read once (its RGB as a packet) and
+    added, in ascending column order, to every pixel ``p`` it neighbours (column ``c`` is offset
+    ``dx = c - p - b``), each pixel in its own accumulators: the same float64 sums, bit for bit,
+    as a loop over one pixel's neighbours. A column is read where it lies in the window's sample
+    window (the window plus the border, clipped to the film): for a pixel inside the row exactly
+    "on the film", and never outside the window's own lanes for the pixels past the row's end."""
     F64, U32, I32 = mi.Float64, mi.UInt32, mi.Int32
-    W, H = film_size
-    P, b = len(L.valid), rfilter.border
-    nb = 2 * b + 1
-    n_s = L.n_s
-    k, sd = op_u(math.ceil(math.sqrt(spp)) if spp > 1 else 1), op_u(seed)
+    P, nb = len(L.valid), len(centred[0])
+    b = nb // 2
     y = I32(L.ly + L.y0)
-    Hi = op_i(H)
+    Hi = op_i(film_size[1])
     # the column of the strip's first neighbour (c = 0) in the sample window (may be < 0)
     cx0 = I32(L.lx + L.x0) - I32(L.sx0) - b
-
-    ns = batch.lanes
     total = data["total"]
-    # the samples' RGB as packets of four floats (r, g, b, 0): each neighbour is then one
-    # 16-byte gather instead of three 4-byte ones (~2.6x cheaper for scattered lanes on
-    # LLVM); the same values
-    Vec4 = mi.Vector4f
-    packed = dr.empty(type(total[0]), 4 * ns)   # (every record written below: _planes is a permutation)
-    planes = batch.kept(("planes", int(spp)), lambda: (_planes(batch, n_s),))[0]
-    dr.scatter(packed, Vec4(total[0], total[1], total[2], 0.0), planes)
-    pad = _wx_pad(nb)
-    # one sample a pixel lies at its centre (maths.sampling): its weights towards the
-    # neighbours are the same for every sample, nb numbers made once (centre_weights)
-    centred = _centre_weights(rfilter, nb) if int(spp) == 1 else None
-    tables = centred is None and ns * pad * 8 <= FILM_TABLE_BYTES
-    if tables:
-        # the row weights from a table for the filters in ROW_TABLE_FILTERS where both tables
-        # are kept; else made in the gather from the sample's oy (in its column weights' record)
-        rows = rfilter.name in ROW_TABLE_FILTERS and ns * (pad + nb) * 8 <= KEEP_TABLE_BYTES
-        make = lambda: _weight_tables(rfilter, W, n_s, k, sd, batch, nb, pad, rows)  # noqa: E731
-        wx_t, wy_t = (batch.kept(("weights", rfilter, W, int(spp), int(seed), rows), make)
-                      if ns * pad * 8 <= KEEP_TABLE_BYTES else make())
-        ArrayX = getattr(sys.modules[F64.__module__], "ArrayXf64")
+    # the samples' RGB as packets of four floats (r, g, b, 0): each neighbour is one 16-byte
+    # gather instead of three 4-byte ones (~2.6x cheaper for scattered lanes on LLVM)
+    packed = dr.empty(type(total[0]), 4 * batch.lanes)
+    dr.scatter(packed, mi.Vector4f(total[0], total[1], total[2], 0.0), dr.arange(U32, batch.lanes))
 
-    def body(j, *acc):
-        # one neighbour row of one sample a step, the strip's columns unrolled
+    def body(dyi, *acc):
         r, g, bl, den = (list(acc[q * P:(q + 1) * P]) for q in range(4))
-        i = j // nb
-        dyi = j - i * nb
-        dy = I32(dyi) - b
-        yy = y + dy
+        yy = y + I32(dyi) - b
         on_y = (yy >= 0) & (yy < Hi)
-        yu = U32(dr.select(on_y, yy, 0))
-        # the strip's first column's sample i in the launch (c = 0; U32 arithmetic wraps)
-        lane0 = L.start + i * L.npix + (yu - L.sy0) * L.sw + U32(cx0)
-        if centred is not None:
-            w_row = dr.gather(F64, centred[1], dyi)   # the step's row weight (one for all lanes)
+        # the strip's first column's sample in the launch (c = 0; U32 arithmetic wraps)
+        lane0 = L.start + (U32(dr.select(on_y, yy, 0)) - L.sy0) * L.sw + U32(cx0)
+        w_row = dr.gather(F64, centred[1], dyi)   # the step's row weight (one for all lanes)
         for c in range(P + 2 * b):
-            cx = cx0 + c
-            on = on_y & (U32(cx) < L.sw)
+            on = on_y & (U32(cx0 + c) < L.sw)
             lane = dr.select(on, lane0 + c if c else lane0, 0)
-            v = dr.gather(Vec4, packed, lane, on)
-            if centred is not None:
-                wy = dr.select(on, w_row, 0.0)   # off the film: zero weights (the tables' zeros)
-            elif tables:
-                # the sample's nb column weights and its offset oy as one packet (pad float64s)
-                wx = dr.gather(ArrayX, wx_t, lane, on, shape=(pad, dr.width(lane)))
-                wy = (dr.gather(F64, wy_t, lane * nb + dyi, on) if rows else
-                      filter_eval(rfilter, (0.5 - F64(dy)) - wx[nb]))
-            else:
-                ox, oy = offsets(yu * op_u(W) + U32(cx) + L.sx0, i, n_s, k, sd)
-                wy = filter_eval(rfilter, (0.5 - F64(dy)) - oy)
+            v = dr.gather(mi.Vector4f, packed, lane, on)
+            wy = dr.select(on, w_row, 0.0)   # off the film: zero weights
             for p in range(max(0, c - 2 * b), min(P, c + 1)):
-                dxi = c - p
-                if tables or centred is not None:
-                    # off the film wgt and the term are zeros (masked reads): a sum plus a zero
-                    # is the sum (never -0: it starts at +0), the same bits without a select
-                    wgt = wy * (centred[0][dxi] if centred is not None else wx[dxi])
-                    r[p], g[p], bl[p] = (r[p] + wgt * F64(v[0]), g[p] + wgt * F64(v[1]),
-                                         bl[p] + wgt * F64(v[2]))
-                    den[p] = den[p] + wgt
-                    continue
-                wgt = wy * filter_eval(rfilter, (0.5 - float(dxi - b)) - ox)
-                r[p] = dr.select(on, r[p] + wgt * F64(v[0]), r[p])
-                g[p] = dr.select(on, g[p] + wgt * F64(v[1]), g[p])
-                bl[p] = dr.select(on, bl[p] + wgt * F64(v[2]), bl[p])
-                den[p] = dr.select(on, den[p] + wgt, den[p])
-        return (j + 1, *r, *g, *bl, *den)
+                # off the film the weight and the term are zeros: a sum plus a zero is the sum
+                # (never -0: it starts at +0), the same bits without a select
+                wgt = wy * centred[0][c - p]
+                r[p], g[p], bl[p] = r[p] + wgt * F64(v[0]), g[p] + wgt * F64(v[1]), bl[p] + wgt * F64(v[2])
+                den[p] = den[p] + wgt
+        return (dyi + 1, *r, *g, *bl, *den)
     z = dr.zeros(F64, L.n)
-    _, *acc = _loop((dr.zeros(U32, L.n), *[z] * (4 * P)), lambda j, *_: j < n_s * nb, body, mode, int(spp) * nb)
-    out = []
-    for p in range(P):
-        den = dr.select(acc[3 * P + p] == 0.0, 1.0, acc[3 * P + p])
-        out.append([acc[p] / den, acc[P + p] / den, acc[2 * P + p] / den])
-    return out
+    _, *acc = _loop((dr.zeros(U32, L.n), *[z] * (4 * P)), lambda j, *_: j < nb, body, mode, nb)
+    return [_normalised(acc[p::P]) for p in range(P)]
+
+
+def _normalised(acc):
+    """RGB over the weight sum of ``acc = (Σ w·r, Σ w·g, Σ w·b, Σ w)`` (a zero weight divides by 1)."""
+    den = dr.select(acc[3] == 0.0, 1.0, acc[3])
+    return [acc[0] / den, acc[1] / den, acc[2] / den]
+
+
+def _weights(rfilter, pix, i, n_s, k, sd, nb):
+    """The 1-D weights ``wx[dx], wy[dy]`` (``nb`` each) of sample ``i`` of film pixel ``pix``
+    towards the pixels ``dx - b`` columns and ``dy - b`` rows from its own (strata ``k``, seed
+    ``sd``): :func:`filter_eval` at the offsets of :func:`offsets`, made in the kernel (cheaper
+    than reading them from a table), the values of :meth:`links1.sensor.filters.FilterGather.add`."""
+    ox, oy = offsets(pix, i, n_s, k, sd)
+    b = nb // 2
+    return ([filter_eval(rfilter, (0.5 - float(d - b)) - ox) for d in range(nb)],
+            [filter_eval(rfilter, (0.5 - float(d - b)) - oy) for d in range(nb)])
+
+
+def _add_terms(acc, wy, wx, v):
+    """``acc = (Σ w·r, Σ w·g, Σ w·b, Σ w)`` plus one sample's term ``w = wy · wx``."""
+    wgt = wy * wx
+    return [acc[0] + wgt * v[0], acc[1] + wgt * v[1], acc[2] + wgt * v[2], acc[3] + wgt]
+
+
+def _filter_partials(rfilter, film_size, seed, batch, data, n_s, mode):
+    """Pass 1 of the filter at spp > 1 (a lane: one pixel ``q`` of a sample window): for each
+    neighbour offset ``(dy, dx)`` the record ``(Σ w·r, Σ w·g, Σ w·b, Σ w)`` of ``q``'s samples in
+    sample order, ``w = wy(dy) · wx(dx)`` (:func:`_weights`, made once a sample): the terms ``q``
+    gives the output pixel ``(dy - b, dx - b)`` away from it, as
+    :meth:`links1.sensor.filters.FilterGather.add` sums them. Returns ``nb²`` Float64 tables, one
+    a offset ``dy · nb + dx``, with pixel ``q``'s record at ``4q``; a record depends only on its
+    pixel's samples."""
+    F64, U32 = mi.Float64, mi.UInt32
+    nb = 2 * rfilter.border + 1
+    nq = batch.sources
+    q = dr.arange(U32, nq)
+    kq = batch.source_window
+    local = q - dr.gather(U32, batch.first_source, kq)
+    sw = _divisor(dr.gather(U32, batch.sw, kq))
+    py = udiv(local, sw)
+    pix = (py + dr.gather(U32, batch.sy0, kq)) * op_u(film_size[0]) + local - py * sw + dr.gather(U32, batch.sx0, kq)
+    first = q * n_s
+    total = data["total"]
+    k, sd = _strata(batch.spp), op_u(seed)
+
+    def body(i, *acc):
+        v = dr.gather(type(total), total, first + i)
+        v = [F64(v[c]) for c in range(3)]
+        wx, wy = _weights(rfilter, pix, i, n_s, k, sd, nb)
+        out = []
+        for dy in range(nb):
+            for dx in range(nb):
+                at = 4 * (dy * nb + dx)
+                out += _add_terms(acc[at:at + 4], wy[dy], wx[dx], v)
+        return (i + 1, *out)
+    z = dr.zeros(F64, nq)
+    _, *acc = _loop((dr.zeros(U32, nq), *[z] * (4 * nb * nb)), lambda i, *_: i < n_s, body, mode, batch.spp)
+    # a table per offset (separate scatters into one array would each evaluate the ones
+    # before: the loop once per record); adjacent lanes write adjacent records
+    ArrayX = getattr(sys.modules[F64.__module__], "ArrayXf64")
+    parts = [dr.empty(F64, nq * 4) for _ in range(nb * nb)]
+    for kk, part in enumerate(parts):
+        dr.scatter(part, ArrayX(*acc[4 * kk:4 * kk + 4]), q)
+    return parts
+
+
+def _neighbours(rfilter, film_size, L):
+    """``(dy, dx, on, q)`` for each neighbour of the lanes' pixels in ascending row, then
+    column: ``on``, whether pixel ``(x + dx - b, y + dy - b)`` lies on the film, and ``q`` its
+    place in the window's sample window (row-major; 0 where not ``on``)."""
+    I32, U32 = mi.Int32, mi.UInt32
+    W, H = film_size
+    b = rfilter.border
+    nb = 2 * b + 1
+    x, y = I32(L.lx + L.x0), I32(L.ly + L.y0)
+    for dy in range(nb):
+        yy = y + (dy - b)
+        on_y = (yy >= 0) & (yy < op_i(H))
+        row = (U32(yy) - L.sy0) * L.sw - L.sx0
+        for dx in range(nb):
+            xx = x + (dx - b)
+            on = on_y & (xx >= 0) & (xx < op_i(W))
+            yield dy, dx, on, dr.select(on, row + U32(xx), 0)
+
+
+def _filter_sum(rfilter, film_size, batch, part, L):
+    """Pass 2 (a lane: one output pixel ``p``): ``Σ_dy Σ_dx`` of the record ``(dy, dx)`` of pixel
+    ``p + (dy - b, dx - b)`` on the film (:func:`_filter_partials`) in ascending ``dy``, then
+    ``dx``, as :meth:`links1.sensor.filters.FilterGather.result` sums them; RGB over the weight
+    sum. Off the film a record is zeros (a masked read): a sum plus +0 is the sum (never -0:
+    it starts at +0)."""
+    F64 = mi.Float64
+    ArrayX = getattr(sys.modules[F64.__module__], "ArrayXf64")
+    nb = 2 * rfilter.border + 1
+    q0 = dr.gather(mi.UInt32, batch.first_source, L.window)
+    acc = [dr.zeros(F64, L.n)] * 4
+    for dy, dx, on, q in _neighbours(rfilter, film_size, L):
+        rec = dr.gather(ArrayX, part[dy * nb + dx], dr.select(on, q0 + q, 0), on, shape=(4, L.n))
+        acc = [a + rec[c] for c, a in enumerate(acc)]
+    return _normalised(acc)
+
+
+def _filter_direct(rfilter, film_size, seed, batch, data, L, mode):
+    """Passes 1 and 2 in one kernel, without the table (a film whose table would take more
+    than :data:`FILM_TABLE_BYTES`): each output pixel makes the record ``(dy, dx)`` of each
+    neighbour from its samples (their weights made again for each output pixel) and adds it
+    as :func:`_filter_sum` does: the same operations in the same order, the same bits."""
+    F64, U32 = mi.Float64, mi.UInt32
+    W = film_size[0]
+    nb = 2 * rfilter.border + 1
+    n_s = L.n_s
+    total = data["total"]
+    k, sd = _strata(batch.spp), op_u(seed)
+    sw = _divisor(L.sw)
+    acc = [dr.zeros(F64, L.n)] * 4
+    for dy, dx, on, q in _neighbours(rfilter, film_size, L):
+        first = L.start + q * n_s
+        qy = udiv(q, sw)
+        pix = (qy + L.sy0) * op_u(W) + q - qy * sw + L.sx0
+
+        def body(i, *rec):
+            v = dr.gather(type(total), total, first + i, on)
+            wx, wy = _weights(rfilter, pix, i, n_s, k, sd, nb)
+            return (i + 1, *_add_terms(rec, wy[dy], wx[dx], [F64(v[c]) for c in range(3)]))
+        z = dr.zeros(F64, L.n)
+        _, *rec = _loop((dr.zeros(U32, L.n), *[z] * 4), lambda i, *_: i < n_s, body, mode, batch.spp)
+        acc = [dr.select(on, a + r, a) for a, r in zip(acc, rec)]
+    return _normalised(acc)
 
 
 _CENTRE_WEIGHTS = {}
@@ -531,7 +627,7 @@ _CENTRE_WEIGHTS = {}
 
 def _centre_weights(rfilter, nb):
     """The 1-D weights of a sample at its pixel's centre (spp 1) towards its ``nb`` neighbour
-    columns or rows, as Python floats and a Float64 array, evaluated as the tables are
+    columns or rows, as Python floats and a Float64 array, evaluated as :func:`_weights` does
     (:func:`filter_eval` on the device at ``(0.5 - d) - 0.5``): once per filter and variant."""
     key = (rfilter.name, tuple(sorted(rfilter.params.items())), rfilter.radius, nb, mi.variant())
     hit = _CENTRE_WEIGHTS.get(key)
@@ -542,56 +638,6 @@ def _centre_weights(rfilter, nb):
         dr.eval(w)
         hit = _CENTRE_WEIGHTS[key] = ([float(v) for v in np.asarray(w)], w)
     return hit
-
-
-def _planes(batch, n_s):
-    """Where each sample lane of ``batch`` (:func:`sample_ids`: pixel-major, sample ``i``
-    innermost) goes in the filter gather's sample-major layout: within its window's lanes,
-    plane ``i`` (the sample window's pixels, row-major) after plane ``i - 1``. A loop step of
-    the gather (one ``i``, one neighbour row) then reads neighbouring columns, and the
-    neighbouring strips of the SIMD lanes, from adjacent memory instead of ``spp`` samples
-    apart."""
-    U32 = mi.UInt32
-    kl = batch.lane_window
-    start = dr.gather(U32, batch.first_lane, kl)
-    local = dr.arange(U32, batch.lanes) - start
-    pix = udiv(local, n_s)
-    return start + (local - pix * n_s) * dr.gather(U32, batch.npix, kl) + pix
-
-
-def _wx_pad(nb):
-    """Float64s a sample's record of column weights takes in its table: ``nb`` and the
-    sample's ``oy``, padded to a power of two, the size of a packet gather."""
-    return 1 << nb.bit_length()
-
-
-def _weight_tables(rfilter, W, n_s, k, sd, batch, nb, pad, rows):
-    """The 1-D filter weights of every sample of ``batch`` towards its ``nb`` neighbour
-    columns (``wx``: a record of ``pad`` float64 a sample, the weights then the sample's
-    ``oy``) and, with ``rows``, rows (``wy``: ``nb`` a sample; else None), in one kernel over
-    the samples from their offsets made once: the values the gather would make, bit for bit."""
-    U32, F64 = mi.UInt32, mi.Float64
-    ns = batch.lanes
-    sl = dr.arange(U32, ns)
-    kl = batch.lane_window
-    local = sl - dr.gather(U32, batch.first_lane, kl)
-    npix = dr.gather(U32, batch.npix, kl)
-    i = udiv(local, _divisor(npix))
-    pl = local - i * npix
-    swl = _divisor(dr.gather(U32, batch.sw, kl))
-    py = udiv(pl, swl)
-    ox, oy = offsets((py + dr.gather(U32, batch.sy0, kl)) * op_u(W) + pl - py * swl
-                     + dr.gather(U32, batch.sx0, kl), i, n_s, k, sd)
-    ArrayX = getattr(sys.modules[F64.__module__], "ArrayXf64")
-    w = lambda o: [filter_eval(rfilter, (0.5 - float(d - rfilter.border)) - o) for d in range(nb)]  # noqa: E731
-    wx = dr.empty(F64, ns * pad)
-    dr.scatter(wx, ArrayX(*w(ox), oy, *[dr.zeros(F64, ns)] * (pad - nb - 1)), sl)
-    wy = None
-    if rows:
-        wy = dr.empty(F64, ns * nb)
-        dr.scatter(wy, ArrayX(*w(oy)), sl)
-    dr.eval(wx, wy)
-    return wx, wy
 
 
 def widen(v, n):

@@ -120,31 +120,28 @@ def test_windows_and_batches_equal_full_frame_on_device(variant, tmp_path, rfilt
 
 @pytest.mark.slow
 @pytest.mark.parametrize("rfilter", [f for f in RFILTERS if f != "box"])
-def test_filter_strips_at_film_edges_and_row_ends(variant, tmp_path, monkeypatch, rfilter):
-    """The non-box gather computes film.STRIP pixels of a row a lane (film._filter_gather):
-    windows whose width is not a multiple of STRIP (narrower than a strip too), at each film
-    edge, alone and in one batch, with both weight tables, with the column weights' alone (the
-    row weights made in the gather from the records' oy: KEEP_TABLE_BYTES = 0) and without
-    tables (weights evaluated in the gather, FILM_TABLE_BYTES = 0), give the numpy film's
-    pixels (bit for bit for the filters without exp/sin) and the full frame's bits."""
+def test_filter_windows_at_film_edges_in_two_passes_and_in_one(variant, tmp_path, monkeypatch, rfilter):
+    """The non-box film at spp > 1 sums each sample-window pixel's records in pass 1 and a
+    pixel's neighbours' records in pass 2 (film._filter_partials, film._filter_sum), or both in
+    one kernel where the table would be too big (film._filter_direct, FILM_TABLE_BYTES = 0):
+    windows at each film edge, narrower than the border, alone and in one batch, give the numpy
+    film's pixels (bit for bit for the filters without exp/sin) and the full frame's bits either
+    way."""
     import mitsuba as mi
     from links1_mitsuba import film
-    assert film.STRIP > 1 and W % film.STRIP == 0    # the full frame's rows are whole strips
     scene = load(tmp_path, rfilter)
     integ = scene.integrator()
     wins = [(W - 13, 0, 13, 5), (0, H - 3, 5, 3), (W - 3, H - 7, 3, 7), (10, 4, 1, 9), (1, 1, W - 1, 2)]
     full = np.asarray(integ.render_windows_device(scene, [None], spp=4, seed=5, aovs=AOVS, dtype=mi.Float64)[0])
-    for tables in ("rows", "columns", None):
-        if tables == "columns":
-            monkeypatch.setattr(film, "KEEP_TABLE_BYTES", 0)
-        if not tables:
+    for table in (True, False):
+        if not table:
             monkeypatch.setattr(film, "FILM_TABLE_BYTES", 0)
         batch = integ.render_windows_device(scene, wins, spp=4, seed=5, aovs=AOVS, dtype=mi.Float64)
         for (x0, y0, w, h), b in zip(wins, batch):
             one = integ.render_windows_device(scene, [(x0, y0, w, h)], spp=4, seed=5, aovs=AOVS, dtype=mi.Float64)[0]
             assert np.array_equal(np.asarray(one), full[y0:y0 + h, x0:x0 + w])
             assert np.array_equal(np.asarray(b), full[y0:y0 + h, x0:x0 + w])
-            if tables:
+            if table:
                 ref = numpy_film(integ, scene, (x0, y0, w, h), 4, 5, AOVS)
                 got = np.asarray(b)
                 if rfilter in EXACT:
@@ -157,9 +154,10 @@ def test_filter_strips_at_film_edges_and_row_ends(variant, tmp_path, monkeypatch
 @pytest.mark.parametrize("rfilter", [f for f in RFILTERS if f != "box"])
 def test_filter_at_spp_1_from_centre_weights(variant, tmp_path, monkeypatch, rfilter):
     """At spp 1 every sample lies at its pixel's centre and the non-box gather takes its
-    weights from film._centre_weights (2b+1 numbers, no tables): windows at the film's edges
-    give the full frame's bits, the per-sample tables' bits and the numpy film's pixels (bit
-    for bit for the filters without exp/sin)."""
+    weights from film._centre_weights (2b+1 numbers), STRIP pixels of a row a lane: windows at
+    the film's edges, narrower than a strip, give the full frame's bits, the numpy film's pixels
+    (bit for bit for the filters without exp/sin) and the bits of the two passes of spp > 1
+    (with one sample a pixel their order is the gather's)."""
     import mitsuba as mi
     from links1_mitsuba import film
     scene = load(tmp_path, rfilter)
@@ -177,13 +175,13 @@ def test_filter_at_spp_1_from_centre_weights(variant, tmp_path, monkeypatch, rfi
             assert np.array_equal(b, ref)
         else:
             np.testing.assert_array_less(np.abs(b - ref), 1e-12 * np.maximum(1.0, np.abs(ref)))
-    monkeypatch.setattr(film, "_centre_weights", lambda *a: None)     # the tables' path
+    monkeypatch.setattr(film, "_centre_weights", lambda *a: None)     # the two passes
     assert np.array_equal(frame([None])[0], full)
 
 
 def test_split_launches_weight_tables_and_device_counters(variant, tmp_path, monkeypatch):
-    """Launches split at LAUNCH_LANES give the same bits as one launch, weights evaluated in the
-    gather (windows over FILM_TABLE_BYTES) the same as from per-sample tables, and the ray
+    """Launches split at LAUNCH_LANES give the same bits as one launch, the filter in one kernel
+    (windows over FILM_TABLE_BYTES) the same as in two passes, and the ray
     counters summed on the device (all launches, or those past LAZY_COUNT_LANES lanes) equal
     those summed on the host. A frame of one launch runs no reduction kernel for its counters."""
     import drjit as dr
@@ -277,8 +275,8 @@ def test_mi_render_never_visits_numpy(variant, tmp_path, monkeypatch):
 
 @pytest.mark.parametrize("rfilter", ["box", "gaussian"])
 def test_frames_of_the_same_windows_reuse_the_batch(variant, tmp_path, monkeypatch, rfilter):
-    """A second frame of the same windows reuses the batch's sample ids and filter weight
-    tables (film.cached_batch, KEEP_LANES): its kernels are the first frame's less those, its
+    """A second frame of the same windows reuses the batch's sample ids (film.cached_batch,
+    KEEP_LANES) and window tables: its kernels are the first frame's less those, its
     pixels the same bits, and the same as a frame that keeps nothing (KEEP_LANES = 0). The
     channels are interleaved in the pixel kernel: no kernel runs over pixels x channels."""
     import drjit as dr
@@ -296,13 +294,8 @@ def test_frames_of_the_same_windows_reuse_the_batch(variant, tmp_path, monkeypat
         return out, hist
 
     integ.render_windows(scene, [(0, 0, 5, 5)], spp=4, seed=3, aovs=AOVS)   # the scene's tables
-    made = []
-    tables = film._weight_tables
-    monkeypatch.setattr(film, "_weight_tables", lambda *a: made.append(1) or tables(*a))
     first, k1 = frame()
-    made1 = len(made)
     again, k2 = frame()
-    made2 = len(made) - made1
     pixels = sum(w * h for *_, w, h in wins)
     C = 3 + 1 + 3 + 1 + 1 + 1
     monkeypatch.setattr(film, "KEEP_LANES", 0)
@@ -310,15 +303,12 @@ def test_frames_of_the_same_windows_reuse_the_batch(variant, tmp_path, monkeypat
     none, k3 = frame()
     for a, b, c in zip(first, again, none):
         assert np.array_equal(a, b) and np.array_equal(a, c)
-    # kept: the lanes' windows (a scatter of marks), the sample ids, and for gaussian the
-    # sample-major places and the weight tables (made in the first frame only); the launch and
-    # the pixels' kernels run again
+    # kept: the lanes' windows (a scatter of marks) and the sample ids (made in the first
+    # frame only); the launch and the pixels' kernels run again
     lanes = [b.lanes for b in integ.engine.batches.values()][-1]
     sizes1, sizes2 = [k["size"] for k in k1], [k["size"] for k in k2]
-    kept = 1 + (rfilter == "gaussian")
-    assert len(k2) < len(k1) and sizes2.count(lanes) == sizes1.count(lanes) - kept, (sizes1, sizes2)
-    assert (made1, made2) == ((1 if rfilter == "gaussian" else 0), 0)
-    assert len(k3) == len(k1) - (rfilter == "gaussian")   # (places not kept: made in the packing kernel)
+    assert len(k2) < len(k1) and sizes2.count(lanes) == sizes1.count(lanes) - 1, (sizes1, sizes2)
+    assert len(k3) == len(k1)
     assert not [k for k in k1 if k["size"] == pixels * C]
 
 
