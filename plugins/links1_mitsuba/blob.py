@@ -170,7 +170,7 @@ class BlobSpec(CandidateLists, RootSolvers):
         for i in range(len(self.centers)):
             row = self._crow(i)
             tau, h2, enter, leave, Lb, Gb = self._chord(u, v, row, enter, leave, Lb, Gb)
-            per.append((tau, h2, *row[3:5], *row[6:10]))
+            per.append((tau, h2, *row[3:5], *row[6:10], self._peak(h2, row)))
         start = dr.maximum(s_lo, enter)
         end = dr.minimum(s_hi, leave)
         return scale, per, start, end, Lb, Gb
@@ -197,10 +197,23 @@ class BlobSpec(CandidateLists, RootSolvers):
         return self._tables
 
     @staticmethod
-    def _term(s, tau, h2, w, S, inv3s2, S3, half, m2):
-        """One centre's ``w P(r)`` and ``w dP/ds`` at ``s`` (eq. 3.9); the constants are the
-        centre's row of :meth:`_consts` (Python floats or gathered Floats: the same float32
-        values, so both give the same bits)."""
+    def _peak(h2, row):
+        """The largest value of centre ``row``'s term ``w P(r)`` (eq. 3.9) along a line at
+        distance ``sqrt(h2)`` from it, ``w P(sqrt(h2))`` (0 for a negative weight): the bound
+        :meth:`_term` gives ahead of the point of closest approach."""
+        import drjit as dr
+        _, _, _, w, S, _, inv3s2, S3, half = row[:9]
+        r = dr.sqrt(h2)
+        P = dr.select(r < S, 1.0 - h2 * inv3s2, dr.select(r < S3, dr.square(r - S3) * half, 0.0))
+        return dr.maximum(w, 0.0) * P
+
+    @staticmethod
+    def _term(s, tau, h2, w, S, inv3s2, S3, half, m2, peak):
+        """One centre's ``w P(r)`` and ``w dP/ds`` at ``s`` (eq. 3.9), and a bound of ``w P``
+        from ``s`` on along the ray: ``w P(r)`` itself past the point of closest approach
+        ``tau`` (where ``r`` grows), ``peak`` (:meth:`_peak`) before it, 0 for a negative
+        weight. The constants are the centre's row of :meth:`_consts` (Python floats or
+        gathered Floats: the same float32 values, so both give the same bits)."""
         import drjit as dr
         dt = s - tau
         r2 = dr.square(dt) + h2
@@ -209,20 +222,24 @@ class BlobSpec(CandidateLists, RootSolvers):
         outer = r < S3
         P = dr.select(inner, 1.0 - r2 * inv3s2, dr.select(outer, dr.square(r - S3) * half, 0.0))  # eq. (3.9)
         g = dr.select(inner, m2, dr.select(outer, (1.0 - S3 / dr.maximum(r, 1e-30)) * inv3s2, 0.0))
-        return w * P, w * g * dt
+        wP = w * P
+        return wP, w * g * dt, dr.select(dt < 0, peak, dr.maximum(wP, 0.0))
 
     @staticmethod
-    def _field(per, s, W=0.0, dW=0.0):
+    def _field(per, s, W=0.0, dW=0.0, B=0.0):
         """W(s) and dW/ds along the unit object-space ray (eq. 3.6–3.9), the terms of
-        ``per`` added in order to ``W``, ``dW``."""
+        ``per`` added in order to ``W``, ``dW``; and ``B``, a bound of ``W`` from ``s`` on
+        along the ray (the sum of :meth:`_term`'s bounds)."""
         import mitsuba as mi
         W = mi.Float(W)
         dW = mi.Float(dW)
+        B = mi.Float(B)
         for tau, h2, *c in per:
-            Wk, dWk = BlobSpec._term(s, tau, h2, *c)
+            Wk, dWk, Bk = BlobSpec._term(s, tau, h2, *c)
             W += Wk
             dW += dWk
-        return W, dW
+            B += Bk
+        return W, dW, B
 
     def intersect(self, o, d, tmin, tmax, active, cost=None, any_hit=False, film=None):
         """Nearest root of ``W = threshold`` in (tmin, tmax): ``(t, prim=0)``; ``cost`` += evaluations.
@@ -257,11 +274,11 @@ class BlobSpec(CandidateLists, RootSolvers):
         def solve(start, end, Lb, Gb):
             if self.solver == "paper":
                 return self._paper(per, s_lo, s_hi, run)
-            W0, dW0 = field_at(start)
+            W0, dW0, B0 = field_at(start)
             inside = (W0 > T) | ((W0 == T) & (dW0 > 0))
             sgn = dr.select(inside, -1.0, 1.0)
             n_eval = dr.select(run, mi.UInt32(1), mi.UInt32(0))
-            return self._exact(field_at, start, end, sgn, run, W0, dW0, n_eval, Lb, Gb, any_hit)
+            return self._exact(field_at, start, end, sgn, run, W0, dW0, B0, n_eval, Lb, Gb, any_hit)
 
         def skip(start, end, Lb, Gb):
             return dr.full(mi.Float, INF, dr.width(start)), dr.zeros(mi.UInt32, dr.width(start))

@@ -314,15 +314,15 @@ class CandidateLists:
                     # an empty slot reads zeros: no crossing, and w = 0 adds exactly zero
                     row = self._row(lst.read(j), (j < cnt) & ~many)
                     tau, h2, *st = self._chord(u, v, row, *st)
-                    out += [tau, h2, *row[3:5], *row[6:10]]
+                    out += [tau, h2, *row[3:5], *row[6:10], self._peak(h2, row)]
                 return (*st, *out)
 
             def empty(*st):   # slots no lane of the packet fills: zeros, as an empty slot
-                return (*st, *[dr.zeros(mi.Float, n) for _ in range(8 * SLOT_GROUP)])
+                return (*st, *[dr.zeros(mi.Float, n) for _ in range(9 * SLOT_GROUP)])
             # the next slots only in packets where some lane has that many candidates
             res = group(*st) if g == 0 else dr.if_stmt(st, (cnt > g) & ~many, group, empty)
             st = res[:4]
-            slots += [tuple(res[4 + 8 * j:12 + 8 * j]) for j in range(SLOT_GROUP)]
+            slots += [tuple(res[4 + 9 * j:13 + 9 * j]) for j in range(SLOT_GROUP)]
 
         def span(row, enter, leave, Lb, Gb):
             return self._chord(u, v, row, enter, leave, Lb, Gb)[2:]
@@ -334,26 +334,27 @@ class CandidateLists:
         return (lst, cnt, ovf, many, slots), *st
 
     def _field_lists(self, u, v, cands, s):
-        """:meth:`_field` over the lane's candidate centres (the same terms, in leaf order)."""
+        """:meth:`_field` over the lane's candidate centres (the same terms, in leaf order):
+        ``W``, ``dW/ds`` and the bound ``B`` of ``W`` from ``s`` on."""
         import drjit as dr
         import mitsuba as mi
         lst, cnt, ovf, many, slots = cands
-        W, dW = self._field(slots[:SLOT_GROUP], s)
+        acc = self._field(slots[:SLOT_GROUP], s)
         for g in range(SLOT_GROUP, len(slots), SLOT_GROUP):
             # the next slots only in packets where some lane has that many candidates
-            def more(W, dW, g=g):
-                return self._field(slots[g:g + SLOT_GROUP], s, W, dW)
-            W, dW = dr.if_stmt((W, dW), (cnt > g) & ~many, more, lambda W, dW: (W, dW))
+            def more(*acc, g=g):
+                return self._field(slots[g:g + SLOT_GROUP], s, *acc)
+            acc = dr.if_stmt(acc, (cnt > g) & ~many, more, lambda *acc: acc)
 
-        def term(row, W, dW):
+        def term(row, W, dW, B):
             tau, h2 = self._chord(u, v, row, 0.0, 0.0, 0.0, 0.0)[:2]
-            Wk, dWk = self._term(s, tau, h2, *row[3:5], *row[6:10])
-            return W + Wk, dW + dWk
+            Wk, dWk, Bk = self._term(s, tau, h2, *row[3:5], *row[6:10], self._peak(h2, row))
+            return W + Wk, dW + dWk, B + Bk
 
-        def by_list(W, dW):
-            return self._each(lst, cnt, ovf, (dr.zeros(mi.Float, dr.width(s)), dr.zeros(mi.Float, dr.width(s))), term)
+        def by_list(*acc):
+            return self._each(lst, cnt, ovf, tuple(dr.zeros(mi.Float, dr.width(s)) for _ in range(3)), term)
 
-        return dr.if_stmt((W, dW), many, by_list, lambda W, dW: (W, dW))
+        return dr.if_stmt(acc, many, by_list, lambda *acc: acc)
 
 
 class BlobFilm:

@@ -20,10 +20,12 @@ NEWTON_TOL = 1.0 / 16.0
 class RootSolvers:
     """The root finders of :class:`~links1_mitsuba.blob.BlobSpec`."""
 
-    def _exact(self, field_at, start, end, sgn, run, W0, dW0, n_eval, Lb, Gb, any_hit=False):
+    def _exact(self, field_at, start, end, sgn, run, W0, dW0, B0, n_eval, Lb, Gb, any_hit=False):
         """The first root of ``F = sgn (T - W) = 0`` in ``[start, end)`` (eq. 3.8), ``W0``,
-        ``dW0`` the field at ``start``; ``Lb``, ``Gb`` bound ``|F'|``, ``|F''|`` along the ray
-        (docs/numerics.md, step bounds). One loop, a march (:func:`_march_step`) and then a
+        ``dW0`` the field at ``start`` and ``B0`` a bound of ``W`` from there on; ``Lb``, ``Gb``
+        bound ``|F'|``, ``|F''|`` along the ray (docs/numerics.md, step bounds). From outside
+        (``sgn = 1``) the march ends, a miss, where the bound ``B`` of ``W`` from the point on
+        (``field_at``'s third value) is below ``T``. One loop, a march (:func:`_march_step`) and then a
         bracket ``[a, b]``, ``F(a) > 0 >= F(b)``, refined by Newton steps from the last point
         where they stay inside, else the bracket's secant; done when Newton's point is within
         :data:`NEWTON_TOL` of float32 resolution (its error ``~ G h²/|F'|``; from the march,
@@ -39,6 +41,7 @@ class RootSolvers:
         Gb = dr.maximum(Gb, 1e-30)
         F = sgn * (T - W0)
         Fp = -sgn * dW0
+        run = run & ~_clear(sgn, B0, T)
         if any_hit:
             return self._any_root(field_at, start, end, sgn, run, F, Fp, n_eval, Lb, Gb)
         max_steps = self.max_steps
@@ -71,10 +74,11 @@ class RootSolvers:
             t = dr.select(run & brk & (small | narrow), dr.select(small, dr.clip(xN, a, b), sec), t)
             go = run & ~dr.select(brk, small | narrow, near | miss)
             x = dr.select(brk, dr.select(inside, xN, sec), dr.minimum(s + step, end))
-            W, dW = field_at(x)
+            W, dW, B = field_at(x)
             n_eval += dr.select(go, mi.UInt32(1), 0)
             Fx = sgn * (T - W)
             pos = Fx > 0
+            go_on = ~(pos & ~brk & _clear(sgn, B, T))     # no root from x on: a miss
             it += dr.select(go & ~brk, mi.UInt32(1), 0)
             k += dr.select(go & brk, mi.UInt32(1), 0)
             a = dr.select(go & pos, x, a)
@@ -87,7 +91,7 @@ class RootSolvers:
             s = dr.select(go, x, s)
             F = dr.select(go, Fx, F)
             Fp = dr.select(go, -sgn * dW, Fp)
-            run = go & ~zero
+            run = go & ~zero & go_on
             return s, F, Fp, a, fa, b, fb, brk, t, run, it, k, n_eval
 
         out = dr.while_loop((s, F, Fp, a, fa, b, fb, brk, t, run, it, k, n_eval), cond, body)
@@ -97,7 +101,8 @@ class RootSolvers:
         """Whether ``F`` (at ``start``: ``F``, ``Fp``) has a root in ``[start, end)``, for a
         shadow ray: the march of :meth:`_exact`, stopped at the first point with ``F <= 0``
         or past a certain root (:func:`_march_step`'s ``s + hu``), either a point past the
-        root inside the interval (its exact place is not sought). ``(t, n_eval)``."""
+        root inside the interval (its exact place is not sought), or, a miss, where the bound
+        of ``W`` from the point on is below ``T`` (from outside). ``(t, n_eval)``."""
         import drjit as dr
         import mitsuba as mi
         T = self._threshold()
@@ -116,7 +121,7 @@ class RootSolvers:
             t = dr.select(run & past, s + hu, t)
             go = run & ~past & (s + safe < end) & (it < max_steps)
             x = dr.minimum(s + step, end)
-            W, dW = field_at(x)
+            W, dW, B = field_at(x)
             n_eval += dr.select(go, mi.UInt32(1), 0)
             it += 1
             F = dr.select(go, sgn * (T - W), F)
@@ -124,7 +129,7 @@ class RootSolvers:
             root = go & (F <= 0)
             t = dr.select(root, x, t)
             s = dr.select(go, x, s)
-            run = go & ~root
+            run = go & ~root & ~_clear(sgn, B, T)
             return s, F, Fp, t, run, it, n_eval
 
         out = dr.while_loop((s, F, Fp, t, run, it, n_eval), cond, body)
@@ -193,7 +198,7 @@ class RootSolvers:
                 nx = dr.select(j < M, bases[k] + widths[k] * f, INF)
                 nxs[k] = dr.select(pick, nx, nxs[k])
                 js[k] = dr.select(pick, j, js[k])
-            W, _ = self._field(per, t)
+            W = self._field(per, t)[0]
             y = W - T
             # sliding window of the last three samples
             x0, x1, x2 = x1, x2, mi.Float(t)
@@ -268,3 +273,10 @@ def _march_step(F, Fp, Lb, Gb, probe):
     sure = down & (F > 0) & (du >= 0)
     hu = 2.0 * Fpos / dr.maximum(dr.safe_sqrt(du) - Fp, 1e-30)
     return safe, step, sure, h2, hu
+
+
+def _clear(sgn, B, T):
+    """No root from the point on, seen from outside (``sgn = 1``): the bound ``B`` of ``W``
+    there and beyond (:meth:`BlobSpec._term`) is below ``T``, by more than float32 rounding of
+    its sum."""
+    return (sgn > 0) & (B * (1.0 + 1e-5) < T)
