@@ -19,8 +19,10 @@ gradients need the visibility term (docs/method.md §6):
 4 samples a pixel (box filter) in both frames and the derivative pass, ``max_depth`` 2, every
 iteration at ``seed`` 0. The times: ``--rounds`` interleaved rounds of an iteration and a
 primal frame at ``--big`` (``compare.inverse.timing_only``), medians. With ``--stages``,
-where an iteration at ``--big`` goes (:func:`stages`). Writes
-``compare/results/inverse_outline.{json,md}``.
+where an iteration at ``--big`` goes (:func:`stages`); with ``--ab``, the frozen launches kept
+over a geometry update against recorded again at each (:func:`timing_ab`); with ``--where``,
+the iteration part by part (:func:`where`). Writes ``compare/results/inverse_outline.{json,md}``,
+or with ``--no-fit`` (the times alone) ``compare/results/inverse_outline_timing_<big>.{json,md}``.
 """
 from __future__ import annotations
 
@@ -71,20 +73,36 @@ def make_cases(iters, blob_iters):
     ]
 
 
-def stages(mi, dr, name, cls, variables, lrs, width, n, log):
-    """Where an iteration at ``width``² goes, ``n`` iterations (after 2) with
-    ``dr.JitFlag.KernelHistory``: its wall time, the visibility term's (``boundary_image``
-    wrapped: made, evaluated, synced) and the kernels of each (count, execution time as Dr.Jit
-    reports it, compiled ones), the primal frame's wall time; medians."""
-    from links1_mitsuba import boundary
+def _start(mi, dr, name, cls, variables, lrs, width):
+    """A case at ``width``² ready to iterate: ``(iteration, frame)``, each synced."""
     scene = inverse.load(name, width)
-    case = cls(name, scene, variables, lrs, n)
+    case = cls(name, scene, variables, lrs, 1)
     params = mi.traverse(scene)
     case.setup(mi, params)
     target = mi.render(scene, seed=0)
     inverse.sync(target)
     case.set_values(mi, params, {k: d["start"] for k, d in variables.items()})
     opt = inverse.optimizer(mi, case, params, variables, lrs)
+
+    def iteration():
+        img = mi.render(scene, params, seed=0)
+        dr.backward(dr.mean(dr.square(img - target), axis=None))
+        opt.step()
+        case.apply(mi, params, opt)
+        inverse.sync(opt[next(iter(variables))])
+
+    def frame():
+        inverse.sync(mi.render(scene, seed=0))
+    return iteration, frame
+
+
+def stages(mi, dr, name, cls, variables, lrs, width, n, log):
+    """Where an iteration at ``width``² goes, ``n`` iterations (after 2) with
+    ``dr.JitFlag.KernelHistory``: its wall time, the visibility term's (``boundary_image``
+    wrapped: made, evaluated, synced) and the kernels of each (count, execution time as Dr.Jit
+    reports it, compiled ones), the primal frame's wall time; medians."""
+    from links1_mitsuba import boundary
+    iteration, frame = _start(mi, dr, name, cls, variables, lrs, width)
     term, inner = [], boundary.boundary_image
 
     def jit(history):
@@ -111,15 +129,11 @@ def stages(mi, dr, name, cls, variables, lrs, width, n, log):
             term.clear()
             dr.kernel_history()
             t0 = time.perf_counter()
-            img = mi.render(scene, params, seed=0)
-            dr.backward(dr.mean(dr.square(img - target), axis=None))
-            opt.step()
-            case.apply(mi, params, opt)
-            inverse.sync(opt[next(iter(variables))])
+            iteration()
             t_it = time.perf_counter() - t0
             rest = jit(dr.kernel_history()) + [k for _, _, b in term for k in b]
             t0 = time.perf_counter()
-            inverse.sync(mi.render(scene, seed=0))
+            frame()
             t_primal = time.perf_counter() - t0
             dr.kernel_history()
             if r >= 2:
@@ -137,6 +151,131 @@ def stages(mi, dr, name, cls, variables, lrs, width, n, log):
     return out
 
 
+def timing_ab(mi, dr, name, cls, variables, lrs, width, n, log):
+    """What keeping the frozen launches over a geometry update buys: ``n`` rounds (after 3)
+    alternating the two ways, each an iteration, a timed iteration, a frame and a timed frame
+    (as :func:`compare.inverse.timing_only`): ``kept`` (the launches replayed after an update
+    that changes no literal of their kernels, tables.py) and ``recorded`` (both launches
+    recorded again at every update, as when every update started them anew: the check of
+    their literals made to see a change each time). Wall and process CPU times, medians."""
+    from links1_mitsuba import tables
+    same = tables._geometry_literals
+    iteration, frame = _start(mi, dr, name, cls, variables, lrs, width)
+    ways = {"kept": same, "recorded": lambda base: object()}
+    got = {k: [] for k in ways}
+
+    def timed(f):
+        t0, c0 = time.perf_counter(), time.process_time()
+        f()
+        return time.perf_counter() - t0, time.process_time() - c0
+    try:
+        for r in range(n + 3):
+            for way, fn in ways.items():
+                tables._geometry_literals = fn
+                iteration()
+                ti = timed(iteration)
+                frame()
+                tp = timed(frame)
+                if r >= 3:
+                    got[way].append([*ti, *tp])
+    finally:
+        tables._geometry_literals = same
+    out = {}
+    for way, rows in got.items():
+        a = np.array(rows) * 1e3
+        it_w, it_c, fr_w, fr_c = np.median(a, axis=0)
+        out[way] = dict(iteration_ms=it_w, iteration_cpu_ms=it_c, primal_ms=fr_w, primal_cpu_ms=fr_c,
+                        ratio=it_w / fr_w, ratio_cpu=it_c / fr_c, ratio_of_rounds=float(np.median(a[:, 0] / a[:, 2])))
+        log(f"  {name} at {width}², launches {way}: iteration {it_w:.1f} ms (CPU {it_c:.1f}), primal "
+            f"{fr_w:.1f} ms (CPU {fr_c:.1f}), ratio {it_w / fr_w:.2f} (CPU {it_c / fr_c:.2f})")
+    return dict(case=name, width=width, rounds=n, ways=out)
+
+
+#: the parts of an iteration :func:`where` times (module.object, attribute, label); a part
+#: marked · lies within the part above it, the term within an AD block where the frame is one
+#: block (gradients.py: apart from the blocks otherwise)
+_PARTS = [("tables.Tables", "_update_values", "  tables brought up to the update"),
+          ("gradients.Gradients", "render_backward", "derivative pass (render_backward)"),
+          ("gradients.Gradients", "_render_ad", "  AD blocks: traced, film, evaluated"),
+          ("boundary", "boundary_image", "  term (boundary_image): made, evaluated"),
+          ("boundary", "_active", "    corner queries (_active)"),
+          ("launch.Launches", "trace_points", "    side launch (trace_points)")]
+
+
+def where(mi, dr, name, cls, variables, lrs, width, n, log):
+    """Where an iteration at ``width``² goes, part by part (:data:`_PARTS`; a part waits for
+    the kernels before and after it, so the parts' kernels run apart), ``n`` iterations (after
+    3): wall and process CPU ms an iteration, medians over the iterations, and the primal
+    frame's."""
+    import importlib
+    from links1_mitsuba import boundary
+    acc, real = {}, []
+
+    def wrap(owner, attr, label):
+        f = getattr(owner, attr)
+        real.append((owner, attr, f))
+
+        def timed(*a, **k):
+            dr.sync_thread()
+            t0, c0 = time.perf_counter(), time.process_time()
+            out = f(*a, **k)
+            if isinstance(out, mi.TensorXf):
+                dr.eval(out)
+            dr.sync_thread()
+            acc[label][-1][0] += time.perf_counter() - t0
+            acc[label][-1][1] += time.process_time() - c0
+            return out
+        setattr(owner, attr, timed)
+    for path, attr, label in _PARTS:
+        mod, _, cls_name = path.partition(".")
+        owner = importlib.import_module(f"links1_mitsuba.{mod}")
+        wrap(getattr(owner, cls_name) if cls_name else owner, attr, label)
+    labels = ["iteration", "primal frame in mi.render(scene, params)", *(lbl for _, _, lbl in _PARTS),
+              "primal frame"]
+    acc = {k: [] for k in labels}
+    try:
+        iteration, frame = _start(mi, dr, name, cls, variables, lrs, width)
+        from links1_mitsuba import engine
+        real_render = engine.Engine.render
+
+        def render(self, *a, **k):
+            dr.sync_thread()
+            t0, c0 = time.perf_counter(), time.process_time()
+            out = real_render(self, *a, **k)
+            dr.eval(out)
+            dr.sync_thread()
+            part = acc["primal frame in mi.render(scene, params)" if stage[0] == "iteration" else "primal frame"][-1]
+            part[0] += time.perf_counter() - t0
+            part[1] += time.process_time() - c0
+            return out
+        engine.Engine.render = render
+        real.append((engine.Engine, "render", real_render))
+        stage = ["iteration"]
+        for r in range(n + 3):
+            for k in acc:
+                acc[k].append([0.0, 0.0])
+            stage[0] = "iteration"
+            t0, c0 = time.perf_counter(), time.process_time()
+            iteration()
+            acc["iteration"][-1] = [time.perf_counter() - t0, time.process_time() - c0]
+            stage[0] = "frame"
+            frame()
+            if r < 3:
+                for k in acc:
+                    acc[k].pop()
+    finally:
+        for owner, attr, f in reversed(real):
+            setattr(owner, attr, f)
+    med = {k: np.median(np.array(v) * 1e3, axis=0) for k, v in acc.items()}
+    accounted = med["primal frame in mi.render(scene, params)"] + med["derivative pass (render_backward)"]
+    med["loss, Adam step, params.update"] = med["iteration"] - accounted   # (the rest of the iteration)
+    order = labels[:-1] + ["loss, Adam step, params.update", "primal frame"]
+    rows = [dict(part=k, wall_ms=float(med[k][0]), cpu_ms=float(med[k][1])) for k in order]
+    for r in rows:
+        log(f"  {name} at {width}²: {r['part']:44s} {r['wall_ms']:8.1f} ms (CPU {r['cpu_ms']:.1f})")
+    return dict(case=name, width=width, iterations=n, parts=rows)
+
+
 def stages_markdown(rows):
     return md_table(["case", "iteration ms", "term ms (calls)", "term kernels: n, ms, compiled",
                      "other kernels: n, ms, compiled", "primal ms"],
@@ -144,6 +283,49 @@ def stages_markdown(rows):
                       f"{r['term_kernels']:.0f}, {r['term_kernel_ms']:.1f}, {r['term_compiled']:.0f}",
                       f"{r['other_kernels']:.0f}, {r['other_kernel_ms']:.1f}, {r['other_compiled']:.0f}",
                       f"{r['primal_ms']:.1f}"] for r in rows])
+
+
+def ab_markdown(rows):
+    return md_table(["case", "width", "launches", "iteration ms (CPU)", "primal ms (CPU)", "ratio (CPU)"],
+                    [[r["case"], f"{r['width']}²", way, f"{w['iteration_ms']:.1f} ({w['iteration_cpu_ms']:.1f})",
+                      f"{w['primal_ms']:.1f} ({w['primal_cpu_ms']:.1f})", f"{w['ratio']:.2f} ({w['ratio_cpu']:.2f})"]
+                     for r in rows for way, w in r["ways"].items()])
+
+
+def where_markdown(rows):
+    parts = [p["part"] for p in rows[0]["parts"]]
+    return md_table(["part (ms an iteration: wall / CPU)"] + [f"{r['case']} {r['width']}²" for r in rows],
+                    [[p.replace("  ", "· ")] + [f"{q['wall_ms']:.1f} / {q['cpu_ms']:.1f}" for r in rows
+                                                for q in r["parts"] if q["part"] == p] for p in parts])
+
+
+def _extra_markdown(results):
+    """The optional tables (--stages, --ab, --where) of ``results``."""
+    out = ""
+    if any("stages" in r for r in results):
+        out += ("\nWhere an iteration at the --big width goes (--stages: medians, with Dr.Jit's kernel history "
+                "on; term: the visibility term made, evaluated and synced; kernel ms: execution times as Dr.Jit "
+                "reports them):\n\n" + stages_markdown([r["stages"] for r in results if "stages" in r]))
+    if any("ab" in r for r in results):
+        out += ("\nThe frozen launches kept over a geometry update or recorded again at each (--ab: interleaved "
+                "rounds, medians, wall and process CPU):\n\n" + ab_markdown([r["ab"] for r in results if "ab" in r]))
+    if any("where" in r for r in results):
+        out += ("\nWhere an iteration goes, part by part (--where: each part synced before and after, medians; "
+                "a part marked · is within the one above it):\n\n"
+                + where_markdown([r["where"] for r in results if "where" in r]))
+    return out
+
+
+def timing_markdown(results, info, cmd):
+    rows = [[r["case"], f"{r['timing']['width']}²", f"{r['timing']['primal_median_ms']:.1f}",
+             f"{r['timing']['iteration_median_ms']:.1f}", f"{r['timing']['ratio']:.2f}",
+             f"{r['timing']['ratio_of_rounds']:.2f}"] for r in results]
+    return ("# Inverse rendering through outlines (projective=true): iteration times\n\n"
+            + machine_markdown(info, cmd) + "\n"
+            + md_table(["case", "width", "primal ms", "iteration ms", "ratio", "ratio of the rounds"], rows)
+            + "\nIteration: render with gradients (primal frame, derivative pass with the boundary term), "
+              "L2 loss, dr.backward, Adam step, params.update; primal: mi.render without gradients. "
+              "Medians of interleaved rounds.\n" + _extra_markdown(results))
 
 
 def markdown(results, info, cmd):
@@ -157,10 +339,7 @@ def markdown(results, info, cmd):
             + "\nIteration: render with gradients (primal frame, derivative pass with the boundary term), "
               "L2 loss, dr.backward, Adam step, params.update; primal: mi.render without gradients. "
               "Times: medians of interleaved rounds at the --big width.\n"
-            + ("" if not any("stages" in r for r in results) else
-               "\nWhere an iteration at the --big width goes (--stages: medians, with Dr.Jit's kernel "
-               "history on; term: the visibility term made, evaluated and synced; kernel ms: execution "
-               "times as Dr.Jit reports them):\n\n" + stages_markdown([r["stages"] for r in results if "stages" in r])))
+            + _extra_markdown(results))
 
 
 def main(argv=None):
@@ -173,6 +352,10 @@ def main(argv=None):
     ap.add_argument("--no-fit", action="store_true", help="the times alone")
     ap.add_argument("--stages", type=int, default=0, metavar="N",
                     help="also where an iteration at --big goes, N iterations with Dr.Jit's kernel history")
+    ap.add_argument("--ab", action="store_true",
+                    help="also time the frozen launches kept over an update against recorded at each (interleaved)")
+    ap.add_argument("--where", type=int, default=0, metavar="N",
+                    help="also where an iteration at --big goes, part by part, N iterations")
     ap.add_argument("--variant", default="llvm_ad_rgb")
     ap.add_argument("--only", nargs="*", default=None)
     ap.add_argument("--no-write", action="store_true")
@@ -186,7 +369,7 @@ def main(argv=None):
     info["variant"] = a.variant
     cmd = command_line()
     log = (lambda s: print(s, flush=True))
-    results = []
+    results, timed_only = [], []
     t_all = time.perf_counter()
     for name, cls, variables, lrs, iters in make_cases(a.iters, a.blob_iters):
         if a.only and name not in a.only:
@@ -196,14 +379,23 @@ def main(argv=None):
         r["timing"] = inverse.timing_only(mi, dr, name, cls, variables, lrs, a.big, a.rounds, log)
         if a.stages:
             r["stages"] = stages(mi, dr, name, cls, variables, lrs, a.big, a.stages, log)
+        if a.ab:
+            r["ab"] = timing_ab(mi, dr, name, cls, variables, lrs, a.big, a.rounds, log)
+        if a.where:
+            r["where"] = where(mi, dr, name, cls, variables, lrs, a.big, a.where, log)
         if a.no_fit:
+            timed_only.append(r)
             continue
         results.append(r)
         log("  per parameter: " + ", ".join(f"{k} {v:.4f}" for k, v in r["final_error"].items()))
         log(f"  {name}: final worst error {r['final_worst_error']:.4f}")
-    payload = dict(machine=info, command=cmd, width=a.width, results=results, total_s=time.perf_counter() - t_all)
+    payload = dict(machine=info, command=cmd, width=a.width, results=results or timed_only,
+                   total_s=time.perf_counter() - t_all)
     if not a.no_write:
-        log("wrote " + ", ".join(map(str, write_results("inverse_outline", payload, markdown(results, info, cmd)))))
+        # the times alone (--no-fit) go to a file of their own per --big, next to the fits' results
+        name, text = ("inverse_outline", markdown(results, info, cmd)) if not a.no_fit else \
+            (f"inverse_outline_timing_{a.big}", timing_markdown(timed_only, info, cmd))
+        log("wrote " + ", ".join(map(str, write_results(name, payload, text))))
     log(f"total {payload['total_s']:.0f} s")
     return 0
 
