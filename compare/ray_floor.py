@@ -274,8 +274,21 @@ def kernel_breakdown(scene, spp, repeats) -> dict:
                 kernels=sorted(groups.values(), key=lambda g: -g["ms"])[:12])
 
 
-def measure(scene, kind, depth, size, spps, repeats, rounds) -> dict:
+def interleaved(runs: dict, repeats: int) -> dict:
+    """``{name: [ms, ...]}``: each of ``runs`` (name -> a frame's function) timed ``repeats``
+    times, one after another in turn, each after the device has finished the one before."""
     import drjit as dr
+    ts = {k: [] for k in runs}
+    for _ in range(repeats):
+        for k, f in runs.items():
+            dr.sync_thread()
+            t0 = time.perf_counter()
+            f()
+            ts[k].append(1e3 * (time.perf_counter() - t0))
+    return ts
+
+
+def measure(scene, kind, depth, size, spps, repeats, rounds) -> dict:
     integ = mitsuba_integrator(kind, depth)
     mw = float(scene.integrator().min_weight)
     out = {}
@@ -289,13 +302,7 @@ def measure(scene, kind, depth, size, spps, repeats, rounds) -> dict:
         stats = scene.integrator().stats
         per_round = {k: [] for k in runs}
         for _ in range(rounds):
-            ts = {k: [] for k in runs}
-            for _ in range(repeats):
-                for k, f in runs.items():
-                    dr.sync_thread()
-                    t0 = time.perf_counter()
-                    f()
-                    ts[k].append(1e3 * (time.perf_counter() - t0))
+            ts = interleaved(runs, repeats)
             for k in runs:
                 per_round[k].append(float(np.median(ts[k])))
         best = {k: min(v) for k, v in per_round.items()}
