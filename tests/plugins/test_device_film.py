@@ -179,7 +179,7 @@ def test_filter_at_spp_1_from_centre_weights(variant, tmp_path, monkeypatch, rfi
     assert np.array_equal(frame([None])[0], full)
 
 
-def test_split_launches_weight_tables_and_device_counters(variant, tmp_path, monkeypatch):
+def test_split_launches_one_kernel_filter_and_device_counters(variant, tmp_path, monkeypatch):
     """Launches split at LAUNCH_LANES give the same bits as one launch, the filter in one kernel
     (windows over FILM_TABLE_BYTES) the same as in two passes, and the ray
     counters summed on the device (all launches, or those past LAZY_COUNT_LANES lanes) equal
