@@ -18,7 +18,17 @@ the whole kernel of the same round (median over the rounds). The variants:
 * ``camera rays loaded``: the camera rays made beforehand and read (the kernel without
   making them);
 * ``no shadow rays``: every shadow ray unoccluded (the image differs);
-* ``fixed BSDF``: a Lambert factor in place of the BSDF call (the image differs);
+* ``shadow rays made beforehand and read``: each light's shadow test on its rays captured
+  from the level (below), read instead of made in the kernel (the same lanes; no box cull);
+* ``shadow origins made beforehand and read``: the same with the origins alone read;
+* ``no branch on the hit``: direct light computed masked at every lane, not under the
+  symbolic branch that skips escaped rays (``Tuning.skip_misses``);
+* ``geometric normal := shading normal``: Mitsuba's record's geometric normal ``si.n`` (the
+  side and direction of the shadow rays' offset) replaced by its shading normal (the image
+  differs);
+* ``fixed BSDF``: a Lambert factor in place of the BSDF factor (the image differs);
+* ``diffuse BSDFs called``: every BSDF called (``BSDF::eval``), the ``diffuse`` BSDFs of one
+  reflectance too, which the kernel evaluates from their table (``tables._lambert_tables``);
 * ``camera + nearest``: the camera rays and their nearest hit only (``t``, slot).
 
 And the floor's parts (``compare.ray_floor.trace_floor``): the camera rays' preliminary
@@ -127,25 +137,7 @@ def measure_case(cid, spp, repeats, variant):
     def lambert(self, wi):
         return mi.Color3f(0.5) * dr.maximum(dr.dot(self.nf, wi), 0.0)
 
-    no_cull = dataclasses.replace(tracer.tuning, box_cull=False)
-    base = (tree, ())
-    variants = {
-        "ray-tree kernel": base,
-        "no box cull": (tree, ((tracer, "tuning", no_cull),)),
-        "no counters": (level_only, ()),
-        "minimal record": (tree, ((isect, "nearest", nearest_flags(mi.RayFlags.Minimal | mi.RayFlags.ShadingFrame)),)),
-        "camera rays loaded": (lambda: tree(True), ()),
-        "no shadow rays": (tree, ((isect, "shadow_mitsuba", unoccluded),)),
-        "fixed BSDF": (tree, ((rt.Hit, "f_eval", lambda self, wi: lambert(self, wi)),)),
-        "camera + nearest": (camera_nearest, ()),
-    }
-    images = {}
-    for name, (fn, patch) in variants.items():
-        with _patched(*patch):
-            out = fn()
-            if out is not None:
-                images[name] = np.asarray(out).copy()
-    # links1's own shadow rays (captured from the level traced in steps) and the floor's
+    # links1's own shadow rays (captured from the level traced in steps, by light) and the floor's
     captured = []
 
     def capture(tables, scene, o, d, smax, active, T, cost, tuning, light=None, own=None):
@@ -155,6 +147,52 @@ def measure_case(cid, spp, repeats, variant):
                   (tracer, "tuning", dataclasses.replace(tracer.tuning, skip_misses=False))):
         o, d, tmin, tmax, key, sample = rays()
         dr.eval(tracer.level(tables, scene, o, d, tmin, tmax, key, 1, False, sample=sample, symbolic=False).L)
+    for ray, act in captured:
+        dr.eval(ray, act)
+
+    def read_rays(tables, scene, o, d, smax, active, T, cost, tuning, light=None, own=None):
+        """The shadow test of light ``light`` on its ray captured above (made beforehand and
+        read; the same lanes), no box cull."""
+        cost += dr.select(active, mi.UInt32(1), 0)
+        return dr.select(scene.ray_test(captured[light][0], False, active), 0.0, T)
+
+    def read_origins(tables, scene, o, d, smax, active, T, cost, tuning, light=None, own=None):
+        """As :func:`read_rays` with the ray's origin alone read (direction, length made here)."""
+        cost += dr.select(active, mi.UInt32(1), 0)
+        ray = mi.Ray3f(captured[light][0].o, d, smax, 0.0, mi.Color0f())
+        return dr.select(scene.ray_test(ray, False, active), 0.0, T)
+
+    plain_nearest = isect.nearest
+
+    def shading_normal(*args, **kw):
+        t, slot, si, prim = plain_nearest(*args, **kw)
+        si.n = mi.Normal3f(si.sh_frame.n)
+        return t, slot, si, prim
+
+    no_cull = dataclasses.replace(tracer.tuning, box_cull=False)
+    no_branch = dataclasses.replace(tracer.tuning, skip_misses=False)
+    base = (tree, ())
+    variants = {
+        "ray-tree kernel": base,
+        "no box cull": (tree, ((tracer, "tuning", no_cull),)),
+        "no counters": (level_only, ()),
+        "minimal record": (tree, ((isect, "nearest", nearest_flags(mi.RayFlags.Minimal | mi.RayFlags.ShadingFrame)),)),
+        "camera rays loaded": (lambda: tree(True), ()),
+        "no shadow rays": (tree, ((isect, "shadow_mitsuba", unoccluded),)),
+        "shadow rays made beforehand and read": (tree, ((isect, "shadow_mitsuba", read_rays),)),
+        "no branch on the hit": (tree, ((tracer, "tuning", no_branch),)),
+        "shadow origins made beforehand and read": (tree, ((isect, "shadow_mitsuba", read_origins),)),
+        "geometric normal := shading normal": (tree, ((isect, "nearest", shading_normal),)),
+        "fixed BSDF": (tree, ((rt.Hit, "f_eval", lambda self, wi: lambert(self, wi)),)),
+        "diffuse BSDFs called": (tree, ((tables.base or tables, "any_lam", False),)),
+        "camera + nearest": (camera_nearest, ()),
+    }
+    images = {}
+    for name, (fn, patch) in variants.items():
+        with _patched(*patch):
+            out = fn()
+            if out is not None:
+                images[name] = np.asarray(out).copy()
     dense = []
     for ray, act in captured:
         dr.eval(ray, act)
