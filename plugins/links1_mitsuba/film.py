@@ -31,11 +31,15 @@ A record depends only on its pixel's samples, so the pass-2 sums are a pixel's o
 window. At spp 1 every sample lies at its pixel's centre and the weights are ``2b+1``
 constants (:func:`_centre_weights`): the order above is then the one of the terms themselves,
 and one kernel computes a strip of :data:`STRIP` pixels of a window row a lane, reading each
-neighbour sample once for the strip (:func:`_filter_gather`). A film whose pass-1 table would
-pass :data:`FILM_TABLE_BYTES` makes each record in pass 2 itself (:func:`_filter_direct`).
+neighbour sample once for the strip (:func:`_filter_gather`). Up to :data:`STRIPS_SPP`, where
+writing and reading the records costs more than the few samples, one kernel makes them and adds
+them, a strip of :data:`STRIPS_P` pixels a lane (:func:`_filter_strips`); a film whose pass-1
+table would pass :data:`FILM_TABLE_BYTES`, one kernel a pixel (:func:`_filter_direct`): the same
+operations in the same order, the same bits.
 
-What depends only on the windows (the :class:`Batch` tables, the sample ids) is kept with the
-batch while the same windows are rendered again (:func:`cached_batch`), and the divisions by
+What depends only on the windows (the :class:`Batch` tables, the sample ids, the strips'
+column weights) is kept with the batch while the same windows are rendered again
+(:func:`cached_batch`), and the divisions by
 run-time values go through :func:`links1_mitsuba.util.udiv` (exact).
 
 So a pixel depends only on its own samples and those of its neighbours, never on the window:
@@ -71,6 +75,16 @@ FILM_TABLE_BYTES = 1 << 31
 #: A batch of at most this many sample lanes keeps what depends only on its windows (the
 #: sample ids: 4 bytes a lane, at most 32 MiB) evaluated between frames (:func:`cached_batch`).
 KEEP_LANES = 1 << 23
+
+#: Largest spp whose non-box filter is one kernel of strips (:func:`_filter_strips`) rather than
+#: two passes (the same bits): the film at 512², spp 2, 62 against 131 ms (spp 4: 138 against
+#: 143; ``python -m compare.film_gather``, kernel times)
+STRIPS_SPP = 3
+#: Pixels of a row a lane of :func:`_filter_strips` computes (4: 62 ms, 8: 93, 2: 82, as above)
+STRIPS_P = 4
+#: Largest table of column weights (:func:`_column_weights`: 64 bytes a sample for a gaussian)
+#: kept with a batch between frames
+KEEP_TABLE_BYTES = 3 << 27
 
 #: Batches kept by :func:`cached_batch` (per integrator: the last few window sets).
 KEEP_BATCHES = 2
@@ -299,9 +313,10 @@ def reconstruct(rfilter, film_size, spp, seed, batch, data, aovs, dtype=None, mo
     (``"evaluated"`` in a derivative pass: reverse-mode AD needs it). ``dtype``: of the result
     (None: ``mi.Float64``). Returns ``(flat, C)``.
 
-    A lane computes one output pixel, or at spp 1 with a non-box filter a strip of
-    :data:`STRIP` consecutive pixels of one window row (:func:`_filter_gather`; a strip's pixels
-    past its row's end are masked)."""
+    A lane computes one output pixel, or with a non-box filter at spp 1 a strip of :data:`STRIP`
+    consecutive pixels of one window row (:func:`_filter_gather`), up to :data:`STRIPS_SPP` one
+    of :data:`STRIPS_P` (:func:`_filter_strips`); a strip's pixels past its row's end are
+    masked."""
     F64, U32, I32 = mi.Float64, mi.UInt32, mi.Int32   # of the variant in use
     dtype = F64 if dtype is None else dtype
     W, H = film_size
@@ -309,7 +324,8 @@ def reconstruct(rfilter, film_size, spp, seed, batch, data, aovs, dtype=None, mo
     box = rfilter.border == 0 and rfilter.is_box
     # spp 1: every sample at its pixel's centre, its weights nb constants (the strip gather)
     centred = _centre_weights(rfilter, 2 * rfilter.border + 1) if not box and int(spp) == 1 else None
-    P = 1 if centred is None else STRIP
+    strips = not box and centred is None and int(spp) <= STRIPS_SPP
+    P = STRIP if centred is not None else (STRIPS_P if strips else 1)
     L = _Lanes(batch, P, n_s)
     if box:
         # a box filter's sample windows are its windows (sample_window), laid out as the
@@ -349,6 +365,9 @@ def reconstruct(rfilter, film_size, spp, seed, batch, data, aovs, dtype=None, mo
         cost_sum = acc[-P:] if want_cost else None
     if centred is not None:
         for p, rgb in enumerate(_filter_gather((W, H), batch, data, L, centred, mode)):
+            chans[p] += rgb
+    elif strips:
+        for p, rgb in enumerate(_filter_strips(rfilter, (W, H), seed, batch, data, L, mode)):
             chans[p] += rgb
     elif not box and batch.sources * (2 * rfilter.border + 1) ** 2 * 32 <= FILM_TABLE_BYTES:
         part = _filter_partials(rfilter, (W, H), seed, batch, data, n_s, mode)
@@ -505,9 +524,14 @@ def _weights(rfilter, pix, i, n_s, k, sd, nb):
     ``sd``): :func:`filter_eval` at the offsets of :func:`offsets`, made in the kernel (cheaper
     than reading them from a table), the values of :meth:`links1.sensor.filters.FilterGather.add`."""
     ox, oy = offsets(pix, i, n_s, k, sd)
+    return _weights_at(rfilter, ox, nb), _weights_at(rfilter, oy, nb)
+
+
+def _weights_at(rfilter, o, nb):
+    """The ``nb`` 1-D weights of a sample at offset ``o`` in its pixel towards the pixels
+    ``d - b`` away (``d = 0 .. nb - 1``)."""
     b = nb // 2
-    return ([filter_eval(rfilter, (0.5 - float(d - b)) - ox) for d in range(nb)],
-            [filter_eval(rfilter, (0.5 - float(d - b)) - oy) for d in range(nb)])
+    return [filter_eval(rfilter, (0.5 - float(d - b)) - o) for d in range(nb)]
 
 
 def _add_terms(acc, wy, wx, v):
@@ -620,6 +644,95 @@ def _filter_direct(rfilter, film_size, seed, batch, data, L, mode):
         _, *rec = _loop((dr.zeros(U32, L.n), *[z] * 4), lambda i, *_: i < n_s, body, mode, batch.spp)
         acc = [dr.select(on, a + r, a) for a, r in zip(acc, rec)]
     return _normalised(acc)
+
+
+def _column_weights(rfilter, film_width, seed, batch):
+    """Per sample lane of ``batch`` (:func:`sample_ids`' layout) a record of :func:`_pad` float64:
+    its ``nb`` column weights (:func:`_weights`' ``wx``), then its offset ``oy``; one kernel over
+    the samples, kept with the batch (:meth:`Batch.kept`) up to :data:`KEEP_TABLE_BYTES`."""
+    F64, U32 = mi.Float64, mi.UInt32
+    nb = 2 * rfilter.border + 1
+    pad = _pad(nb)
+
+    def make():
+        n_s = op_u(batch.spp)
+        sl = dr.arange(U32, batch.lanes)
+        kl = batch.lane_window
+        local = sl - dr.gather(U32, batch.first_lane, kl)
+        pl = udiv(local, n_s)
+        i = local - pl * n_s
+        sw = _divisor(dr.gather(U32, batch.sw, kl))
+        py = udiv(pl, sw)
+        pix = (py + dr.gather(U32, batch.sy0, kl)) * op_u(film_width) + pl - py * sw + dr.gather(U32, batch.sx0, kl)
+        ox, oy = offsets(pix, i, n_s, _strata(batch.spp), op_u(seed))
+        rec = dr.empty(F64, batch.lanes * pad)
+        dr.scatter(rec, getattr(sys.modules[F64.__module__], "ArrayXf64")(
+            *_weights_at(rfilter, ox, nb), oy, *[dr.zeros(F64, batch.lanes)] * (pad - nb - 1)), sl)
+        return (rec,)
+    if batch.lanes * pad * 8 > KEEP_TABLE_BYTES:
+        return make()[0]
+    return batch.kept(("column weights", rfilter, int(film_width), int(seed)), make)[0]
+
+
+def _pad(nb):
+    """Float64s of a sample's weight record: ``nb`` and ``oy``, padded to a power of two (a packet)."""
+    return 1 << nb.bit_length()
+
+
+def _filter_strips(rfilter, film_size, seed, batch, data, L, mode):
+    """The sums of :func:`_filter_partials` and :func:`_filter_sum` in one kernel, for spp up to
+    :data:`STRIPS_SPP` (the two passes' tables cost more there than the samples' layers), a lane
+    :data:`STRIPS_P` pixels of a window row. A loop step is one neighbour row ``dy``: a loop over
+    the samples ``i`` reads each of the strip's ``P + 2b`` columns' sample ``i`` once (its RGB
+    packet; its column weights and ``oy`` from :func:`_column_weights`, the row weight made from
+    ``oy``) and adds its terms to the record ``(dy, dx)`` it gives each strip pixel it neighbours;
+    then each pixel adds its records in ascending column (``dx``) order. The same operations in
+    the same order as the two passes: the same bits."""
+    F64, U32, I32 = mi.Float64, mi.UInt32, mi.Int32
+    W, H = film_size
+    P, b = len(L.valid), rfilter.border
+    nb = 2 * b + 1
+    n_s = L.n_s
+    pad = _pad(nb)
+    ArrayX = getattr(sys.modules[F64.__module__], "ArrayXf64")
+    weights = _column_weights(rfilter, W, seed, batch)
+    total = data["total"]
+    packed = dr.empty(type(total[0]), 4 * batch.lanes)
+    dr.scatter(packed, mi.Vector4f(total[0], total[1], total[2], 0.0), dr.arange(U32, batch.lanes))
+    y = I32(L.ly + L.y0)
+    cx0 = I32(L.lx + L.x0) - I32(L.sx0) - b
+
+    pairs = [(c, p) for c in range(P + 2 * b) for p in range(max(0, c - 2 * b), min(P, c + 1))]
+
+    def body(dyi, *acc):
+        acc = list(acc)
+        yy = y + I32(dyi) - b
+        on_y = (yy >= 0) & (yy < op_i(H))
+        lane0 = L.start + ((U32(dr.select(on_y, yy, 0)) - L.sy0) * L.sw + U32(cx0)) * n_s
+        cy = 0.5 - (F64(dyi) - float(b))
+        ons = [on_y & (U32(cx0 + c) < L.sw) for c in range(P + 2 * b)]
+        firsts = [dr.select(ons[c], lane0 + c * n_s if c else lane0, 0) for c in range(P + 2 * b)]
+
+        def inner(i, *rec):
+            rec = list(rec)
+            for c in range(P + 2 * b):
+                v = dr.gather(mi.Vector4f, packed, firsts[c] + i, ons[c])
+                w = dr.gather(ArrayX, weights, firsts[c] + i, ons[c], shape=(pad, L.n))
+                wy = filter_eval(rfilter, cy - w[nb])
+                for j, (cc, p) in enumerate(pairs):
+                    if cc == c:
+                        rec[4 * j:4 * j + 4] = _add_terms(rec[4 * j:4 * j + 4], wy, w[c - p],
+                                                          [F64(v[0]), F64(v[1]), F64(v[2])])
+            return (i + 1, *rec)
+        z = dr.zeros(F64, L.n)
+        _, *rec = _loop((dr.zeros(U32, L.n), *[z] * (4 * len(pairs))), lambda i, *_: i < n_s, inner, mode, batch.spp)
+        for j, (c, p) in enumerate(pairs):
+            for q in range(4):
+                acc[q * P + p] = acc[q * P + p] + rec[4 * j + q]
+        return (dyi + 1, *acc)
+    z = dr.zeros(F64, L.n)
+    _, *acc = _loop((dr.zeros(U32, L.n), *[z] * (4 * P)), lambda j, *_: j < nb, body, mode, nb)
+    return [_normalised(acc[p::P]) for p in range(P)]
 
 
 _CENTRE_WEIGHTS = {}

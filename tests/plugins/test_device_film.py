@@ -122,33 +122,39 @@ def test_windows_and_batches_equal_full_frame_on_device(variant, tmp_path, rfilt
 @pytest.mark.parametrize("rfilter", [f for f in RFILTERS if f != "box"])
 def test_filter_windows_at_film_edges_in_two_passes_and_in_one(variant, tmp_path, monkeypatch, rfilter):
     """The non-box film at spp > 1 sums each sample-window pixel's records in pass 1 and a
-    pixel's neighbours' records in pass 2 (film._filter_partials, film._filter_sum), or both in
-    one kernel where the table would be too big (film._filter_direct, FILM_TABLE_BYTES = 0):
-    windows at each film edge, narrower than the border, alone and in one batch, give the numpy
-    film's pixels (bit for bit for the filters without exp/sin) and the full frame's bits either
-    way."""
+    pixel's neighbours' records in pass 2 (film._filter_partials, film._filter_sum); up to
+    film.STRIPS_SPP in one kernel of strips (film._filter_strips), and where the table would be
+    too big in one kernel a pixel (film._filter_direct, FILM_TABLE_BYTES = 0): windows at each
+    film edge, narrower than the border and than a strip, alone and in one batch, give the numpy
+    film's pixels (bit for bit for the filters without exp/sin) and the full frame's bits, the
+    same whichever way (at spp 2 the strips against the two passes, at spp 4 the two passes
+    against the one kernel)."""
     import mitsuba as mi
     from links1_mitsuba import film
+    assert 2 <= film.STRIPS_SPP < 4
     scene = load(tmp_path, rfilter)
     integ = scene.integrator()
     wins = [(W - 13, 0, 13, 5), (0, H - 3, 5, 3), (W - 3, H - 7, 3, 7), (10, 4, 1, 9), (1, 1, W - 1, 2)]
-    full = np.asarray(integ.render_windows_device(scene, [None], spp=4, seed=5, aovs=AOVS, dtype=mi.Float64)[0])
-    for table in (True, False):
-        if not table:
-            monkeypatch.setattr(film, "FILM_TABLE_BYTES", 0)
-        batch = integ.render_windows_device(scene, wins, spp=4, seed=5, aovs=AOVS, dtype=mi.Float64)
-        for (x0, y0, w, h), b in zip(wins, batch):
-            one = integ.render_windows_device(scene, [(x0, y0, w, h)], spp=4, seed=5, aovs=AOVS, dtype=mi.Float64)[0]
-            assert np.array_equal(np.asarray(one), full[y0:y0 + h, x0:x0 + w])
-            assert np.array_equal(np.asarray(b), full[y0:y0 + h, x0:x0 + w])
-            if table:
-                ref = numpy_film(integ, scene, (x0, y0, w, h), 4, 5, AOVS)
-                got = np.asarray(b)
-                if rfilter in EXACT:
-                    assert np.array_equal(got, ref)
-                else:
-                    np.testing.assert_array_less(np.abs(got - ref), 1e-12 * np.maximum(1.0, np.abs(ref)))
-                    assert np.array_equal(got[..., 3:], ref[..., 3:])
+    for spp, other in ((2, "STRIPS_SPP"), (4, "FILM_TABLE_BYTES")):
+        full = np.asarray(integ.render_windows_device(scene, [None], spp=spp, seed=5, aovs=AOVS, dtype=mi.Float64)[0])
+        for default in (True, False):
+            if not default:
+                monkeypatch.setattr(film, other, 0)
+            batch = integ.render_windows_device(scene, wins, spp=spp, seed=5, aovs=AOVS, dtype=mi.Float64)
+            for (x0, y0, w, h), b in zip(wins, batch):
+                one = integ.render_windows_device(scene, [(x0, y0, w, h)], spp=spp, seed=5, aovs=AOVS,
+                                                  dtype=mi.Float64)[0]
+                assert np.array_equal(np.asarray(one), full[y0:y0 + h, x0:x0 + w])
+                assert np.array_equal(np.asarray(b), full[y0:y0 + h, x0:x0 + w])
+                if default:
+                    ref = numpy_film(integ, scene, (x0, y0, w, h), spp, 5, AOVS)
+                    got = np.asarray(b)
+                    if rfilter in EXACT:
+                        assert np.array_equal(got, ref)
+                    else:
+                        np.testing.assert_array_less(np.abs(got - ref), 1e-12 * np.maximum(1.0, np.abs(ref)))
+                        assert np.array_equal(got[..., 3:], ref[..., 3:])
+        monkeypatch.undo()
 
 
 @pytest.mark.parametrize("rfilter", [f for f in RFILTERS if f != "box"])
@@ -211,7 +217,8 @@ def test_split_launches_one_kernel_filter_and_device_counters(variant, tmp_path,
 @pytest.mark.parametrize("rfilter", ["box", "gaussian"])
 def test_new_window_and_batch_sizes_compile_nothing(variant, tmp_path, rfilter):
     """Every kernel of a frame with new window sizes, origins, batch sizes and spp is one that
-    earlier frames ran (the same hash): window and batch sizes are run-time values."""
+    earlier frames ran (the same hash): window and batch sizes and spp are run-time values (the
+    non-box film has one set of kernels up to film.STRIPS_SPP and one above)."""
     import drjit as dr
     scene = load(tmp_path, rfilter)
     integ = scene.integrator()
@@ -224,8 +231,8 @@ def test_new_window_and_batch_sizes_compile_nothing(variant, tmp_path, rfilter):
         dr.set_flag(dr.JitFlag.KernelHistory, False)
         return {k["hash"] for k in hist if k.get("hash")}
 
-    seen = kernels([(0, 0, 8, 8)], 4) | kernels([(0, 0, 8, 8), (8, 8, 4, 4)], 4)
-    new = kernels([(3, 5, 13, 7)], 9) | kernels([(1, 1, 5, 6), (7, 2, 9, 9), (20, 0, 4, 18)], 2)
+    seen = kernels([(0, 0, 8, 8)], 4) | kernels([(0, 0, 8, 8), (8, 8, 4, 4)], 2)
+    new = kernels([(3, 5, 13, 7)], 9) | kernels([(1, 1, 5, 6), (7, 2, 9, 9), (20, 0, 4, 18)], 3)
     # a scanline partition's batch: one window a row, the same kernels as two windows
     rows = kernels([(0, y, W, 1) for y in range(H)], 3)
     assert new and new <= seen, new - seen

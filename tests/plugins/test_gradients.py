@@ -144,12 +144,12 @@ def test_reverse_equals_finite_difference_light_position(variant, key):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("spp", [1, 4])
+@pytest.mark.parametrize("spp", [1, 2, 4])
 def test_forward_equals_reverse(variant, spp):
     """Dot-product test over several families at once, with a Gaussian film (the film's
-    neighbour loop differentiated too; at spp 4 its two passes, film._filter_partials and
-    film._filter_sum): u·(J v) from render_forward equals (Jᵀ u)·v from render_backward, to
-    float32 rounding."""
+    neighbour loop differentiated too; at spp 2 its strips, film._filter_strips, at spp 4 its
+    two passes, film._filter_partials and film._filter_sum): u·(J v) from render_forward equals
+    (Jᵀ u)·v from render_backward, to float32 rounding."""
     import drjit as dr
     import mitsuba as mi
     keys = ["ball.bsdf.diffuse.value", "glass.bsdf.transmittance.value", "lp.L2.value", "ball.bsdf.exponent",
