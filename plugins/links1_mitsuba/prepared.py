@@ -164,6 +164,9 @@ class Prepared(ViewFields):
     uv_slots: set = _set_later()
     #: the BSDF of each slot (BSDFPtr), None when every slot is links1_phong
     bsdf_ptr: object = _set_later()
+    #: the scene's one Mitsuba shape's faces and vertex positions where the kernel makes its
+    #: geometric normal itself (``tables._face_normal_table``), else None
+    face_normals: tuple | None = _default(None)
     # -- Mitsuba ``diffuse`` BSDFs of one reflectance value (``rgb`` or a float, no texture),
     #    alone or as a ``twosided``'s one BSDF: evaluated in the kernel (raytree.Hit.f_eval) with
     #    the float operations of Mitsuba's SmoothDiffuse::eval, without a BSDF call

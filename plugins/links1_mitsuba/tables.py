@@ -47,6 +47,25 @@ from .util import checked_index, kind_of
 OFFSET_EPS = 2.0 ** -19
 _PRECISE_MITSUBA = ("Mesh", "OBJMesh", "PLYMesh", "Rectangle", "Disk", "Links1Bicubic", "SerializedMesh")
 
+#: Mitsuba's triangle meshes (their geometric normal: ``Mesh::face_normal``, Mitsuba 3.9.1's mesh.h)
+_TRIANGLE_MESHES = ("Mesh", "OBJMesh", "PLYMesh", "SerializedMesh")
+
+
+def _face_normal_table(shapes, member_slots):
+    """``(faces, vertex_positions)`` (the mesh's own buffers) where the scene's one Mitsuba shape
+    is a triangle mesh (normals not flipped, not in an instance), else None: the kernel makes its
+    geometric normal itself, with the operations of ``Mesh::face_normal`` (the triangle's
+    vertices gathered, ``normalize(cross(p1 - p0, p2 - p0))``), instead of reading ``si.n`` of
+    Mitsuba's record (an output of its one shape's surface call that cost the teapot's kernel
+    ~0.3: docs/benchmarks.md, the ray-tree kernel by part)."""
+    if len(shapes) != 1 or member_slots:
+        return None
+    s = shapes[0]
+    if not (s.is_mesh() and s.class_name() in _TRIANGLE_MESHES and not s.has_flipped_normals()):
+        return None
+    return own_param(s, "faces"), own_param(s, "vertex_positions")
+
+
 def _textured(bsdf) -> bool:
     """Whether a Mitsuba BSDF has a texture (bitmap and checkerboard expose ``to_uv``)."""
     import mitsuba as mi
@@ -348,6 +367,7 @@ class Tables:
             table[r] = sl
         base.reg_to_slot = mi.Int32(checked_index(table, nslots, "reg_to_slot", sentinel=-1))
         base.any_mitsuba_shapes = len(shapes) > 0
+        base.face_normals = _face_normal_table(shapes, base.member_slots)
         eps_np = np.full(max(nslots, 1), float(mi.math.RayEpsilon), dtype=np.float32)
         for s_, sl in zip(shapes, slot_list):
             if s_.is_mesh() or kind_of(s_) in _PRECISE_MITSUBA:
