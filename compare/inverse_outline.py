@@ -19,8 +19,9 @@ gradients need the visibility term (docs/method.md §6):
 4 samples a pixel (box filter) in both frames and the derivative pass, ``max_depth`` 2, every
 iteration at ``seed`` 0. The times: ``--rounds`` interleaved rounds of an iteration and a
 primal frame at ``--big`` (``compare.inverse.timing_only``), medians. With ``--stages``,
-where an iteration at ``--big`` goes (:func:`stages`); with ``--ab``, the frozen launches kept
-over a geometry update against recorded again at each (:func:`timing_ab`); with ``--where``,
+where an iteration at ``--big`` goes (:func:`stages`); with ``--ab``, what the recordings buy
+(:func:`timing_ab`: the frozen launches kept over a geometry update or recorded again at each,
+the term's stages frozen or traced); with ``--where``,
 the iteration part by part (:func:`where`). Writes ``compare/results/inverse_outline.{json,md}``,
 or with ``--no-fit`` (the times alone) ``compare/results/inverse_outline_timing_<big>.{json,md}``.
 """
@@ -152,16 +153,22 @@ def stages(mi, dr, name, cls, variables, lrs, width, n, log):
 
 
 def timing_ab(mi, dr, name, cls, variables, lrs, width, n, log):
-    """What keeping the frozen launches over a geometry update buys: ``n`` rounds (after 3)
-    alternating the two ways, each an iteration, a timed iteration, a frame and a timed frame
-    (as :func:`compare.inverse.timing_only`): ``kept`` (the launches replayed after an update
-    that changes no literal of their kernels, tables.py) and ``recorded`` (both launches
-    recorded again at every update, as when every update started them anew: the check of
-    their literals made to see a change each time). Wall and process CPU times, medians."""
-    from links1_mitsuba import tables
-    same = tables._geometry_literals
+    """What the recordings buy: ``n`` rounds (after 3) alternating three ways, each an
+    iteration, a timed iteration, a frame and a timed frame (as
+    :func:`compare.inverse.timing_only`): ``kept`` (as the plugin runs: the frozen launches
+    replayed after an update that changes no literal of their kernels, tables.py, and the
+    boundary term's stages of queries frozen, ``Launches.frozen_stage``), ``recorded`` (both
+    launches recorded again at every update: the check of their literals made to see a change
+    each time) and ``stages traced`` (the term's stages traced every frame). Wall and process
+    CPU times, medians."""
+    from links1_mitsuba import launch, tables
+    same, frozen_stage = tables._geometry_literals, launch.Launches.frozen_stage
+
+    def traced(self, tables_, scene, tracer, fn, *args):
+        return fn(tables_, scene, *args)
     iteration, frame = _start(mi, dr, name, cls, variables, lrs, width)
-    ways = {"kept": same, "recorded": lambda base: object()}
+    ways = {"kept": (same, frozen_stage), "recorded": (lambda base: object(), frozen_stage),
+            "stages traced": (same, traced)}
     got = {k: [] for k in ways}
 
     def timed(f):
@@ -170,8 +177,8 @@ def timing_ab(mi, dr, name, cls, variables, lrs, width, n, log):
         return time.perf_counter() - t0, time.process_time() - c0
     try:
         for r in range(n + 3):
-            for way, fn in ways.items():
-                tables._geometry_literals = fn
+            for way, (literals, stage) in ways.items():
+                tables._geometry_literals, launch.Launches.frozen_stage = literals, stage
                 iteration()
                 ti = timed(iteration)
                 frame()
@@ -179,14 +186,14 @@ def timing_ab(mi, dr, name, cls, variables, lrs, width, n, log):
                 if r >= 3:
                     got[way].append([*ti, *tp])
     finally:
-        tables._geometry_literals = same
+        tables._geometry_literals, launch.Launches.frozen_stage = same, frozen_stage
     out = {}
     for way, rows in got.items():
         a = np.array(rows) * 1e3
         it_w, it_c, fr_w, fr_c = np.median(a, axis=0)
         out[way] = dict(iteration_ms=it_w, iteration_cpu_ms=it_c, primal_ms=fr_w, primal_cpu_ms=fr_c,
                         ratio=it_w / fr_w, ratio_cpu=it_c / fr_c, ratio_of_rounds=float(np.median(a[:, 0] / a[:, 2])))
-        log(f"  {name} at {width}², launches {way}: iteration {it_w:.1f} ms (CPU {it_c:.1f}), primal "
+        log(f"  {name} at {width}², {way}: iteration {it_w:.1f} ms (CPU {it_c:.1f}), primal "
             f"{fr_w:.1f} ms (CPU {fr_c:.1f}), ratio {it_w / fr_w:.2f} (CPU {it_c / fr_c:.2f})")
     return dict(case=name, width=width, rounds=n, ways=out)
 
@@ -286,7 +293,7 @@ def stages_markdown(rows):
 
 
 def ab_markdown(rows):
-    return md_table(["case", "width", "launches", "iteration ms (CPU)", "primal ms (CPU)", "ratio (CPU)"],
+    return md_table(["case", "width", "way", "iteration ms (CPU)", "primal ms (CPU)", "ratio (CPU)"],
                     [[r["case"], f"{r['width']}²", way, f"{w['iteration_ms']:.1f} ({w['iteration_cpu_ms']:.1f})",
                       f"{w['primal_ms']:.1f} ({w['primal_cpu_ms']:.1f})", f"{w['ratio']:.2f} ({w['ratio_cpu']:.2f})"]
                      for r in rows for way, w in r["ways"].items()])
@@ -307,8 +314,9 @@ def _extra_markdown(results):
                 "on; term: the visibility term made, evaluated and synced; kernel ms: execution times as Dr.Jit "
                 "reports them):\n\n" + stages_markdown([r["stages"] for r in results if "stages" in r]))
     if any("ab" in r for r in results):
-        out += ("\nThe frozen launches kept over a geometry update or recorded again at each (--ab: interleaved "
-                "rounds, medians, wall and process CPU):\n\n" + ab_markdown([r["ab"] for r in results if "ab" in r]))
+        out += ("\nThe recordings' worth (--ab: interleaved rounds, medians, wall and process CPU; kept: as the "
+                "plugin runs; recorded: the frozen launches recorded again at every update; stages traced: the "
+                "term's stages of queries traced every frame):\n\n" + ab_markdown([r["ab"] for r in results if "ab" in r]))
     if any("where" in r for r in results):
         out += ("\nWhere an iteration goes, part by part (--where: each part synced before and after, medians; "
                 "a part marked · is within the one above it):\n\n"
@@ -353,7 +361,7 @@ def main(argv=None):
     ap.add_argument("--stages", type=int, default=0, metavar="N",
                     help="also where an iteration at --big goes, N iterations with Dr.Jit's kernel history")
     ap.add_argument("--ab", action="store_true",
-                    help="also time the frozen launches kept over an update against recorded at each (interleaved)")
+                    help="also time the recordings' worth: kept, recorded at each update, the term's stages traced")
     ap.add_argument("--where", type=int, default=0, metavar="N",
                     help="also where an iteration at --big goes, part by part, N iterations")
     ap.add_argument("--variant", default="llvm_ad_rgb")

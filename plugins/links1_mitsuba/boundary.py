@@ -159,16 +159,28 @@ def _unit(x):
 
 
 # ---------------------------------------------------------------- the term
-def boundary_image(trace_points, scene, P, Q, sensor, win, spp, seed):
+def boundary_image(trace_points, scene, P, Q, sensor, win, spp, seed, stage=None):
     """The boundary term of the window ``win = (x0, y0, w, h)``: a ``TensorXf (h, w, 3)`` of
     value 0 whose derivative is the term (see the module's docstring); ``P``: the primal
     tables, ``Q``: the derivative pass's (``Q.geo_ad``: the attached links1 shapes);
     ``trace_points(xf, yf, keys)``: the primal ray tree through film positions of ``P``
-    (``Launches.trace_points``)."""
+    (``Launches.trace_points``); ``stage(fn, *args)``: ``fn(P, scene, *args)`` for the term's
+    stages of queries (:func:`_seen_slots`, :func:`_bisected`), frozen by the launches
+    (``Launches.frozen_stage``: recorded once, replayed every frame); None: traced here."""
     check_filter(P)
     x0, y0, w, h = win
+    run = stage if stage is not None else (lambda fn, *args: fn(P, scene, *args))
+
+    def stage(fn, *args):
+        # a blob keeps its last nearest-hit search's candidate lists for the normal at its hit
+        # (BlobSpec._line); the queries take no normal, so they are dropped around a stage: a
+        # recording that let go of another's arrays (or left its own) aborts the process
+        _drop_lines(P)
+        out = run(fn, *args)
+        _drop_lines(P)
+        return out
     with dr.suspend_grad():
-        cr = _crossings(trace_points, scene, P, sensor, win, spp, seed)
+        cr = _crossings(trace_points, scene, P, sensor, win, spp, seed, stage)
     out = dr.zeros(mi.Float, w * h * 3)
     if cr is not None:
         with dr.resume_grad():
@@ -180,7 +192,7 @@ def boundary_image(trace_points, scene, P, Q, sensor, win, spp, seed):
     return mi.TensorXf(out / float(spp), shape=(h, w, 3))
 
 
-def _crossings(trace_points, scene, P, sensor, win, spp, seed):
+def _crossings(trace_points, scene, P, sensor, win, spp, seed, stage):
     """The crossings of the window's sample rows and columns, bisected, with the detached
     part of their terms, or None where there are none: ``{pixel, weight (Color3f), q, m,
     slot, valid, part, tri, light, p, ts}`` (``q``: the grazing point, on the silhouette shape
@@ -190,7 +202,7 @@ def _crossings(trace_points, scene, P, sensor, win, spp, seed):
     lts = _lights(P)
     # the pixels whose lines are queried: those near a change of what their corners see (and
     # per light, those near a change of its occluder: its shadow rays are traced there alone)
-    near = _active(P, scene, win, lts).reshape(1 + len(lts), -1)
+    near = _active(P, win, lts, stage).reshape(1 + len(lts), -1)
     pix = np.nonzero(near.any(axis=0))[0]
     n = pix.size * spp
     if n == 0:
@@ -210,17 +222,14 @@ def _crossings(trace_points, scene, P, sensor, win, spp, seed):
     is_col = np.repeat(np.array([False, True]), n)
     lane_key = np.concatenate([keys, keys])
 
-    def at(a, colm, fxd):
-        return dr.select(colm, fxd, a), dr.select(colm, a, fxd)
-
     rep = lambda v: np.repeat(v, POINTS)   # noqa: E731
-    x, y = at(_dev(mi.Float, along.ravel()), _dev(mi.Bool, rep(is_col)), _dev(mi.Float, rep(fixed)))
+    x, y = _at(_dev(mi.Float, along.ravel()), _dev(mi.Bool, rep(is_col)), _dev(mi.Float, rep(fixed)))
     on = [_dev(mi.Bool, rep(np.tile(near[1 + j, pix], 2))) for j in range(len(lts))]
-    cam, shadows = _status(P, scene, x, y, _dev(mi.UInt32, rep(lane_key)), lts, on=on)
-    dr.eval(cam[3], *[s_[2] for s_ in shadows])   # one kernel (each alone would trace the camera rays again)
+    seen, occluders = stage(_seen_slots, x, y, _dev(mi.UInt32, rep(lane_key)), on)
+    dr.eval(seen, *occluders)   # one kernel (each alone would trace the camera rays again)
     # what each point sees: the camera ray's slot, then each light's occluder: an interval
     # whose ends differ is a crossing of the first that differs (the camera's first)
-    sig = [v.numpy().reshape(2 * n, POINTS) for v in [cam[3]] + [s_[2] for s_ in shadows]]
+    sig = [v.numpy().reshape(2 * n, POINTS) for v in [seen, *occluders]]
     kind = np.full((2 * n, POINTS - 1), -1)
     for j in reversed(range(len(sig))):
         kind = np.where(sig[j][:, :-1] != sig[j][:, 1:], j, kind)
@@ -233,24 +242,10 @@ def _crossings(trace_points, scene, P, sensor, win, spp, seed):
     lo_d, hi_d = _dev(mi.Float, along[li, ki]), _dev(mi.Float, along[li, ki + 1])
     c_lo = _dev(mi.Int32, sig[0][li, ki])
     o_lo = _dev(mi.Int32, np.choose(np.maximum(kind[li, ki], 0), [g[li, ki] for g in sig]))
-    # bisection, lo keeping what the interval's first point sees: one symbolic loop (a kernel);
-    # a lane stops where its interval's midpoint rounds to an end (float32: the steps after it
-    # would query that end again and change nothing)
-    def halve(lo_, hi_, i):
-        mid = 0.5 * (lo_ + hi_)
-        cm, sm = _status(P, scene, *at(mid, colm, fxd), key, lts, only=kd)
-        same = (cm[3] == c_lo) & ((kd == 0) | (_pick(kd, [cm[3]] + [s_[2] for s_ in sm]) == o_lo))
-        return dr.select(same, mid, lo_), dr.select(same, hi_, mid), i + 1
-
-    def going(lo_, hi_, i):
-        mid = 0.5 * (lo_ + hi_)
-        return (i < BISECT_STEPS) & (mid != lo_) & (mid != hi_)
-
-    lo_d, hi_d, _ = dr.while_loop((lo_d, hi_d, dr.zeros(mi.UInt32, dr.width(lo_d))), going, halve,
-                                  label="links1_bisect")
-    (xl, yl), (xh, yh) = at(lo_d, colm, fxd), at(hi_d, colm, fxd)
+    lo_d, hi_d = stage(_bisected, lo_d, hi_d, colm, fxd, key, kd, c_lo, o_lo)
+    (xl, yl), (xh, yh) = _at(lo_d, colm, fxd), _at(hi_d, colm, fxd)
     ends = [_status(P, scene, xa, ya, key, lts, only=kd) for xa, ya in ((xl, yl), (xh, yh))]
-    dr.eval(lo_d, hi_d, ends)   # (the loop and what its ends see: one kernel)
+    dr.eval(ends)   # (what both ends see: one kernel)
     g = _grazes(ends, kd, (xl, yl), (xh, yh), lts)
     # f on both sides, SIDE_STEP pixels out: the primal ray tree (one launch for both ends)
     m_ = dr.width(g["q"])
@@ -277,7 +272,51 @@ def _crossings(trace_points, scene, P, sensor, win, spp, seed):
     return edge
 
 
-def _active(P, scene, win, lts):
+def _drop_lines(P):
+    """Forget the candidate lists each blob of ``P`` keeps from its last nearest-hit search
+    (``BlobSpec._line``)."""
+    for sp in P.custom:
+        if getattr(sp, "_line", None) is not None:
+            sp._line = None
+
+
+def _at(a, colm, fxd):
+    """Film coordinates ``(x, y)`` of points at ``a`` along rows (``colm`` False: ``y`` is
+    ``fxd``) or columns (``x`` is ``fxd``)."""
+    return dr.select(colm, fxd, a), dr.select(colm, a, fxd)
+
+
+def _seen_slots(P, scene, x, y, key, on=None):
+    """A stage of the term (``boundary_image``'s ``stage``): what the points ``(x, y)`` see,
+    the camera ray's slot and each light's occluder (:func:`_status`; ``on``: per light, the
+    lanes its shadow segments are traced on, None: all)."""
+    cam, shadows = _status(P, scene, x, y, key, _lights(P), on=on)
+    return cam[3], [s_[2] for s_ in shadows]
+
+
+def _bisected(P, scene, lo, hi, colm, fxd, key, kd, c_lo, o_lo):
+    """A stage of the term: the crossings' intervals ``[lo, hi]`` along their rows or columns
+    (:func:`_at`) bisected, ``lo`` keeping what the interval's first point sees (the camera
+    ray's slot ``c_lo`` and, for a shadow edge of light ``kd − 1``, its occluder ``o_lo``): one
+    symbolic loop (a kernel); a lane stops where its interval's midpoint rounds to an end
+    (float32: the steps after it would query that end again and change nothing)."""
+    lts = _lights(P)
+
+    def halve(lo_, hi_, i):
+        mid = 0.5 * (lo_ + hi_)
+        cm, sm = _status(P, scene, *_at(mid, colm, fxd), key, lts, only=kd)
+        same = (cm[3] == c_lo) & ((kd == 0) | (_pick(kd, [cm[3]] + [s_[2] for s_ in sm]) == o_lo))
+        return dr.select(same, mid, lo_), dr.select(same, hi_, mid), i + 1
+
+    def going(lo_, hi_, i):
+        mid = 0.5 * (lo_ + hi_)
+        return (i < BISECT_STEPS) & (mid != lo_) & (mid != hi_)
+
+    lo, hi, _ = dr.while_loop((lo, hi, dr.zeros(mi.UInt32, dr.width(lo))), going, halve, label="links1_bisect")
+    return lo, hi
+
+
+def _active(P, win, lts, stage):
     """``(1 + len(lts), h, w)`` bools: the window's pixels within one pixel of a pixel whose
     four corners do not all see the same, per signal (the slot seen; each light's occluder):
     the only ones whose lines can cross an outline or a shadow edge of that signal, unless it
@@ -285,11 +324,11 @@ def _active(P, scene, win, lts):
     x0, y0, w, h = win
     gx, gy = np.meshgrid(np.arange(x0 - 1, x0 + w + 2, dtype=np.float64),
                          np.arange(y0 - 1, y0 + h + 2, dtype=np.float64))
-    cam, shadows = _status(P, scene, _dev(mi.Float, gx.ravel()), _dev(mi.Float, gy.ravel()),
-                           dr.zeros(mi.UInt32, gx.size), lts)
-    dr.eval(cam[3], *[s_[2] for s_ in shadows])
+    seen, occluders = stage(_seen_slots, _dev(mi.Float, gx.ravel()), _dev(mi.Float, gy.ravel()),
+                            _dev(mi.UInt32, np.zeros(gx.size, dtype=np.uint32)))
+    dr.eval(seen, *occluders)
     grown = np.zeros((1 + len(lts), h, w), dtype=bool)
-    for j, v in enumerate([cam[3]] + [s_[2] for s_ in shadows]):
+    for j, v in enumerate([seen, *occluders]):
         g = v.numpy().reshape(gx.shape)
         c = g[:-1, :-1]
         diff = (g[:-1, 1:] != c) | (g[1:, :-1] != c) | (g[1:, 1:] != c)

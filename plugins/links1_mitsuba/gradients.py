@@ -299,7 +299,8 @@ class Gradients:
         """The visibility term of window ``win`` (boundary.py), its sides' radiance by the primal
         tree (the point launch of the primal tables)."""
         points = functools.partial(self.launches.trace_points, primal, scene, tracer)
-        return boundary.boundary_image(points, scene, primal, ad_tables, sensor, win, spp, seed)
+        stage = functools.partial(self.launches.frozen_stage, primal, scene, tracer)
+        return boundary.boundary_image(points, scene, primal, ad_tables, sensor, win, spp, seed, stage)
 
     def _backward_boundary(self, scene, grad_in, sensor, seed, spp, tuning):
         """Propagate ``grad_in`` through the visibility term alone, in blocks of rows of at most

@@ -265,6 +265,7 @@ class Launches:
         "config",
         "window_launch",   # the frozen window launch (:meth:`_frozen_fn`), or None
         "point_launch",    # the frozen point launch (:meth:`_frozen_points_fn`), or None
+        "stage_launches",  # the boundary term's frozen stages by function (:meth:`frozen_stage`)
         "batches",         # the film's batch tables by windows (film.cached_batch)
         "stats_now",       # ray counters of the last render, summed
         "stats_pending",   # ... or the launches' counters, summed when first read
@@ -273,6 +274,7 @@ class Launches:
     def __init__(self, config: Config):
         self.config = config
         self.window_launch = self.point_launch = None
+        self.stage_launches = {}
         self.batches = {}
         self.stats_now = self.stats_pending = None
 
@@ -280,8 +282,10 @@ class Launches:
         """Start both frozen launches anew: called by the tables (tables.py) when the ones
         recorded read tables that were replaced (their key names the tables by ``id``, and a
         new one may get a dead one's) or constants of their kernels changed (lights, camera;
-        of the tables made from the links1 shapes' geometry, what :func:`literal_key` holds)."""
+        of the tables made from the links1 shapes' geometry, what :func:`literal_key` holds);
+        the boundary term's stages with them."""
         self.window_launch = self.point_launch = None
+        self.stage_launches = {}
 
     def recordings(self) -> tuple:
         """``(window, point)``: the recordings of the frozen launches (0 while there is none)."""
@@ -349,21 +353,22 @@ class Launches:
         self._set_stats(counts)
 
     # -------------------------------------------------------------- the frozen launches
-    def _call_frozen(self, fn, tables, scene, tracer: Tracer, *args):
+    def _call_frozen(self, fn, tables, scene, tracer: Tracer, *args, **held):
         """Call a frozen launch with ``args``, the scene as :class:`SceneInputs` and, last, its
         caller: a :class:`~links1_mitsuba.util.Hidden` holding the frame's ``tracer``, the
         ``tables`` and the scene, which a recording's body reads (freeze walks nothing of a
         ``Hidden`` and keys it on its type alone: a new one each call replays the recording;
         the Dr.Jit arrays the body reads reach freeze as the table inputs and scene inputs). A
         recording that reads more of the scene than :class:`SceneInputs` holds is made again
-        with the whole scene, which the launches of ``tables`` then keep passing."""
+        with the whole scene, which the launches of ``tables`` then keep passing. ``held``: more
+        for the body, in the caller."""
         scene_input = getattr(tables, "scene_input", None)
         extra = _extra_scenes(tables)
         if scene_input is None:
             scene_input = tables.scene_input = SceneInputs(scene, extra, _unread_bsdfs(tables))
         elif scene_input is not _WHOLE_SCENE and scene_input.stale:
             scene_input = tables.scene_input = _WHOLE_SCENE   # freeze would update the scene's own
-        caller = Hidden(tracer=tracer, tables=tables, scene=scene)
+        caller = Hidden(tracer=tracer, tables=tables, scene=scene, **held)
         # no cyclic garbage collection while recording: freeing another renderer's Dr.Jit
         # state (its own recordings) in the middle of one aborts the process
         gc_on = gc.isenabled()
@@ -423,6 +428,24 @@ class Launches:
                 return total, cost, counters
             self.point_launch = dr.freeze(launch_points, warn_after=1000)
         return self.point_launch
+
+    def frozen_stage(self, tables, scene, tracer: Tracer, fn, *args):
+        """``fn(tables, scene, *args)``, a stage of the boundary term (boundary.py: a module-level
+        function of Dr.Jit arrays returning Dr.Jit arrays), as a :func:`drjit.freeze` function
+        recorded once per configuration (the tables, the scene, ``fn``; started anew with the
+        launches, :meth:`forget`) and replayed for any lane count, as the point launch; traced
+        each call without ``use_freeze``."""
+        if not self.config.use_freeze:
+            return fn(tables, scene, *args)
+        frozen = self.stage_launches.get(fn)
+        if frozen is None:
+            def stage(*a):
+                # (args, cfg, table inputs, scene input, caller: no closure, as _frozen_fn)
+                caller = a[-1]
+                return caller.stage(caller.tables, caller.scene, *a[:-4])
+            frozen = self.stage_launches[fn] = dr.freeze(stage, warn_after=1000)
+        cfg = self._key(tables, scene, tracer, fn.__module__, fn.__qualname__)
+        return self._call_frozen(frozen, tables, scene, tracer, *args, cfg, frozen_inputs(tables), stage=fn)
 
     def _key(self, tables, scene, tracer: Tracer, *more) -> tuple:
         """A frozen launch's configuration (hashed by freeze): the tables and scene by id,

@@ -357,6 +357,57 @@ def test_kernels_compiled_once(variant, tmp_path):
     assert [k["operation_count"] for k in kernels if not k["cache_hit"]] == []
 
 
+@pytest.mark.slow
+def test_frozen_stages_replay_the_traced_crossings(variant, tmp_path, monkeypatch):
+    """The term's stages of queries (the corners, the points of the lines, the bisection) are
+    frozen launches (``Launches.frozen_stage``): over an optimisation's loop of moves of a
+    blob and a quadric over a floor (outlines, shadow edges on the floor and on the blob) each
+    frame's crossings (pixel, weight, grazing point, normal, kind) are those the stages give
+    traced as they are (``stage=None``), bit for bit, while the stages are recorded once and
+    replayed."""
+    import drjit as dr
+    import mitsuba as mi
+    import links1_mitsuba as lm
+    from links1_mitsuba import boundary
+    blob = SHAPES["blob"][1].replace('id="obj"', 'id="blob"')
+    ball = OCCLUDERS["quadric"][1].replace('id="obj"', 'id="ball"')
+    path = tmp_path / "scene.xml"
+    path.write_text(scene(whitted(1, projective=True) + SHADOW_CAMERA, FLOOR, blob, ball, SHADOW_LIGHT))
+    sc = lm.load_file(str(path))
+    real, compared = boundary._crossings, []
+
+    def both(trace_points, scene_, P, sensor, win, spp, seed, stage):
+        frozen = real(trace_points, scene_, P, sensor, win, spp, seed, stage)
+        traced = real(trace_points, scene_, P, sensor, win, spp, seed, lambda fn, *a: fn(P, scene_, *a))
+        assert (frozen is None) == (traced is None)
+        for k in ("pixel", "weight", "q", "m", "slot", "valid", "part", "light") if frozen is not None else ():
+            a, b = frozen[k], traced[k]
+            for c in range(dr.size_v(a)) if dr.size_v(a) > 1 else [None]:
+                assert np.array_equal(np.array(a if c is None else a[c]), np.array(b if c is None else b[c])), k
+        compared.append((0, 0) if frozen is None else (int(np.count_nonzero(np.array(frozen["valid"]))),
+                                                       int(np.count_nonzero(np.array(frozen["light"]) >= 0))))
+        return frozen
+    monkeypatch.setattr(boundary, "_crossings", both)
+    params = mi.traverse(sc)
+    B, Q = "links1_whitted.blob.centers", "links1_whitted.ball.to_world"
+    centres = np.array(params[B], dtype=np.float64).reshape(3, -1)
+    for it in range(4):
+        centres[0] += 0.03
+        params[B] = mi.Point3f(*[mi.Float(c) for c in centres])
+        params[Q] = mi.Transform4f().translate(mi.Vector3f(-0.02, 0.01, 0.0)) @ mi.Transform4f(params[Q])
+        dr.enable_grad(params[B])
+        params.update()
+        img = mi.render(sc, params, seed=it)
+        dr.backward(dr.sum(img, axis=None))
+        if it == 1:
+            stages = dict(sc.integrator().engine.launches.stage_launches)
+            recorded = {f: s.n_recordings for f, s in stages.items()}
+    assert len(compared) == 4 and all(c[0] and c[1] for c in compared)   # outlines and shadow edges
+    now = sc.integrator().engine.launches.stage_launches
+    assert now == stages and {f: s.n_recordings for f, s in now.items()} == recorded
+    assert set(f.__name__ for f in stages) == {"_seen_slots", "_bisected"}
+
+
 def test_nothing_added_where_no_outline_moves(variant, tmp_path):
     """With no shape's geometry attached (a light's position), ``projective`` changes neither
     the frame nor the derivative, bit for bit; without the option a moving outline's term is
