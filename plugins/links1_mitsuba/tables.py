@@ -63,7 +63,8 @@ def _face_normal_table(shapes, member_slots):
     s = shapes[0]
     if not (s.is_mesh() and s.class_name() in _TRIANGLE_MESHES and not s.has_flipped_normals()):
         return None
-    return own_param(s, "faces"), own_param(s, "vertex_positions")
+    # (detached: the launches read primal values; attached vertices stay the derivative pass's)
+    return dr.detach(own_param(s, "faces")), dr.detach(own_param(s, "vertex_positions"))
 
 
 def _textured(bsdf) -> bool:
