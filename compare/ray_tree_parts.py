@@ -25,7 +25,9 @@ the whole kernel of the same round (median over the rounds). The variants:
   symbolic branch that skips escaped rays (``Tuning.skip_misses``);
 * ``geometric normal := shading normal``: Mitsuba's record's geometric normal ``si.n`` (the
   side and direction of the shadow rays' offset) replaced by its shading normal (the image
-  differs);
+  differs where the kernel reads ``si.n``);
+* ``Mitsuba's geometric normal``: ``si.n`` read from Mitsuba's record where the kernel makes
+  the one mesh's face normal itself (``tables._face_normal_table``; the same bits);
 * ``fixed BSDF``: a Lambert factor in place of the BSDF factor (the image differs);
 * ``diffuse BSDFs called``: every BSDF called (``BSDF::eval``), the ``diffuse`` BSDFs of one
   reflectance too, which the kernel evaluates from their table (``tables._lambert_tables``);
@@ -183,6 +185,7 @@ def measure_case(cid, spp, repeats, variant):
         "no branch on the hit": (tree, ((tracer, "tuning", no_branch),)),
         "shadow origins made beforehand and read": (tree, ((isect, "shadow_mitsuba", read_origins),)),
         "geometric normal := shading normal": (tree, ((isect, "nearest", shading_normal),)),
+        "Mitsuba's geometric normal": (tree, ((tables.base or tables, "face_normals", None),)),
         "fixed BSDF": (tree, ((rt.Hit, "f_eval", lambda self, wi: lambert(self, wi)),)),
         "diffuse BSDFs called": (tree, ((tables.base or tables, "any_lam", False),)),
         "camera + nearest": (camera_nearest, ()),
