@@ -77,11 +77,12 @@ FILM_TABLE_BYTES = 1 << 31
 KEEP_LANES = 1 << 23
 
 #: Largest spp whose non-box filter is one kernel of strips (:func:`_filter_strips`) rather than
-#: two passes (the same bits): the film at 512², spp 2, 62 against 131 ms (spp 4: 138 against
-#: 143; ``python -m compare.film_gather``, kernel times)
-STRIPS_SPP = 3
-#: Pixels of a row a lane of :func:`_filter_strips` computes (4: 62 ms, 8: 93, 2: 82, as above)
-STRIPS_P = 4
+#: two passes (the same bits): the film's kernels at 512², gaussian, the strips against the two
+#: passes (minima of 4, load 6-7): spp 4 123 / 142 ms, spp 6 186 / 211, spp 8 240 / 194
+STRIPS_SPP = 6
+#: Pixels of a row a lane of :func:`_filter_strips` computes (each column's samples are read
+#: by ``(P + 2b) / P`` lanes a neighbour row)
+STRIPS_P = 8
 #: Largest table of column weights (:func:`_column_weights`: 64 bytes a sample for a gaussian)
 #: kept with a batch between frames
 KEEP_TABLE_BYTES = 3 << 27
@@ -540,6 +541,13 @@ def _add_terms(acc, wy, wx, v):
     return [acc[0] + wgt * v[0], acc[1] + wgt * v[1], acc[2] + wgt * v[2], acc[3] + wgt]
 
 
+def _first_terms(wy, wx, v):
+    """The record ``(w·r, w·g, w·b, w)`` of one sample's term ``w = wy · wx``: :func:`_add_terms`
+    on a zero record but for the sign of a zero."""
+    wgt = wy * wx
+    return [wgt * v[0], wgt * v[1], wgt * v[2], wgt]
+
+
 def _filter_partials(rfilter, film_size, seed, batch, data, n_s, mode):
     """Pass 1 of the filter at spp > 1 (a lane: one pixel ``q`` of a sample window): for each
     neighbour offset ``(dy, dx)`` the record ``(Σ w·r, Σ w·g, Σ w·b, Σ w)`` of ``q``'s samples in
@@ -682,12 +690,16 @@ def _pad(nb):
 def _filter_strips(rfilter, film_size, seed, batch, data, L, mode):
     """The sums of :func:`_filter_partials` and :func:`_filter_sum` in one kernel, for spp up to
     :data:`STRIPS_SPP` (the two passes' tables cost more there than the samples' layers), a lane
-    :data:`STRIPS_P` pixels of a window row. A loop step is one neighbour row ``dy``: a loop over
-    the samples ``i`` reads each of the strip's ``P + 2b`` columns' sample ``i`` once (its RGB
-    packet; its column weights and ``oy`` from :func:`_column_weights`, the row weight made from
-    ``oy``) and adds its terms to the record ``(dy, dx)`` it gives each strip pixel it neighbours;
-    then each pixel adds its records in ascending column (``dx``) order. The same operations in
-    the same order as the two passes: the same bits."""
+    :data:`STRIPS_P` pixels of a window row. A loop step is one neighbour row ``dy``; in it, column
+    after column of the strip's ``P + 2b``, the column's samples are read once each (the RGB
+    packet; the column weights and ``oy`` from :func:`_column_weights`, the row weight made from
+    ``oy``) and their terms summed, in sample order, into the record ``(dy, dx)`` the column
+    gives each strip pixel it neighbours; each pixel then adds that record (its columns come in
+    ascending ``dx``). So only one column's records are live at a time (a loop over samples
+    ``1 .. spp - 1`` a column, straight code at spp 2). The same operations in the same order as
+    the two passes, the same bits; a record starts at its first term instead of adding it to a
+    zero (``0 + t`` is ``t`` but for ``t = -0``, and a pixel's sums, which start at ``+0``, add
+    a ``-0`` record as a ``+0`` one)."""
     F64, U32, I32 = mi.Float64, mi.UInt32, mi.Int32
     W, H = film_size
     P, b = len(L.valid), rfilter.border
@@ -702,33 +714,39 @@ def _filter_strips(rfilter, film_size, seed, batch, data, L, mode):
     y = I32(L.ly + L.y0)
     cx0 = I32(L.lx + L.x0) - I32(L.sx0) - b
 
-    pairs = [(c, p) for c in range(P + 2 * b) for p in range(max(0, c - 2 * b), min(P, c + 1))]
-
     def body(dyi, *acc):
         acc = list(acc)
         yy = y + I32(dyi) - b
         on_y = (yy >= 0) & (yy < op_i(H))
         lane0 = L.start + ((U32(dr.select(on_y, yy, 0)) - L.sy0) * L.sw + U32(cx0)) * n_s
         cy = 0.5 - (F64(dyi) - float(b))
-        ons = [on_y & (U32(cx0 + c) < L.sw) for c in range(P + 2 * b)]
-        firsts = [dr.select(ons[c], lane0 + c * n_s if c else lane0, 0) for c in range(P + 2 * b)]
+        for c in range(P + 2 * b):
+            on = on_y & (U32(cx0 + c) < L.sw)
+            first = dr.select(on, lane0 + c * n_s if c else lane0, 0)
+            pixels = range(max(0, c - 2 * b), min(P, c + 1))
 
-        def inner(i, *rec):
-            rec = list(rec)
-            for c in range(P + 2 * b):
-                v = dr.gather(mi.Vector4f, packed, firsts[c] + i, ons[c])
-                w = dr.gather(ArrayX, weights, firsts[c] + i, ons[c], shape=(pad, L.n))
+            def visit(i, rec, first=first, on=on, pixels=pixels, c=c):
+                # the column's records plus the terms of its sample i (rec None: i is its first)
+                at = first if isinstance(i, int) and i == 0 else first + i
+                v = dr.gather(mi.Vector4f, packed, at, on)
+                w = dr.gather(ArrayX, weights, at, on, shape=(pad, L.n))
                 wy = filter_eval(rfilter, cy - w[nb])
-                for j, (cc, p) in enumerate(pairs):
-                    if cc == c:
-                        rec[4 * j:4 * j + 4] = _add_terms(rec[4 * j:4 * j + 4], wy, w[c - p],
-                                                          [F64(v[0]), F64(v[1]), F64(v[2])])
-            return (i + 1, *rec)
-        z = dr.zeros(F64, L.n)
-        _, *rec = _loop((dr.zeros(U32, L.n), *[z] * (4 * len(pairs))), lambda i, *_: i < n_s, inner, mode, batch.spp)
-        for j, (c, p) in enumerate(pairs):
-            for q in range(4):
-                acc[q * P + p] = acc[q * P + p] + rec[4 * j + q]
+                v = [F64(v[0]), F64(v[1]), F64(v[2])]
+                return {p: _add_terms(rec[p], wy, w[c - p], v) if rec else _first_terms(wy, w[c - p], v)
+                        for p in pixels}
+            rec = visit(0, None)
+            if batch.spp == 2:
+                rec = visit(1, rec)
+            else:
+                def step(i, *flat, visit=visit, pixels=pixels):
+                    r = visit(i, {p: list(flat[4 * j:4 * j + 4]) for j, p in enumerate(pixels)})
+                    return (i + 1, *[x for p in pixels for x in r[p]])
+                _, *flat = _loop((dr.ones(U32, L.n), *[x for p in pixels for x in rec[p]]),
+                                 lambda i, *_: i < n_s, step, mode, batch.spp - 1)
+                rec = {p: flat[4 * j:4 * j + 4] for j, p in enumerate(pixels)}
+            for p in pixels:
+                for q in range(4):
+                    acc[q * P + p] = acc[q * P + p] + rec[p][q]
         return (dyi + 1, *acc)
     z = dr.zeros(F64, L.n)
     _, *acc = _loop((dr.zeros(U32, L.n), *[z] * (4 * P)), lambda j, *_: j < nb, body, mode, nb)

@@ -127,15 +127,15 @@ def test_filter_windows_at_film_edges_in_two_passes_and_in_one(variant, tmp_path
     too big in one kernel a pixel (film._filter_direct, FILM_TABLE_BYTES = 0): windows at each
     film edge, narrower than the border and than a strip, alone and in one batch, give the numpy
     film's pixels (bit for bit for the filters without exp/sin) and the full frame's bits, the
-    same whichever way (at spp 2 the strips against the two passes, at spp 4 the two passes
-    against the one kernel)."""
+    same whichever way (at spp 2, straight code, and 3, a loop over the samples, the strips
+    against the two passes; above STRIPS_SPP the two passes against the one kernel)."""
     import mitsuba as mi
     from links1_mitsuba import film
-    assert 2 <= film.STRIPS_SPP < 4
+    assert 3 <= film.STRIPS_SPP
     scene = load(tmp_path, rfilter)
     integ = scene.integrator()
     wins = [(W - 13, 0, 13, 5), (0, H - 3, 5, 3), (W - 3, H - 7, 3, 7), (10, 4, 1, 9), (1, 1, W - 1, 2)]
-    for spp, other in ((2, "STRIPS_SPP"), (4, "FILM_TABLE_BYTES")):
+    for spp, other in ((2, "STRIPS_SPP"), (3, "STRIPS_SPP"), (film.STRIPS_SPP + 1, "FILM_TABLE_BYTES")):
         full = np.asarray(integ.render_windows_device(scene, [None], spp=spp, seed=5, aovs=AOVS, dtype=mi.Float64)[0])
         for default in (True, False):
             if not default:
@@ -218,7 +218,7 @@ def test_split_launches_one_kernel_filter_and_device_counters(variant, tmp_path,
 def test_new_window_and_batch_sizes_compile_nothing(variant, tmp_path, rfilter):
     """Every kernel of a frame with new window sizes, origins, batch sizes and spp is one that
     earlier frames ran (the same hash): window and batch sizes and spp are run-time values (the
-    non-box film has one set of kernels up to film.STRIPS_SPP and one above)."""
+    non-box film has one set of kernels at spp 2, one up to film.STRIPS_SPP and one above)."""
     import drjit as dr
     scene = load(tmp_path, rfilter)
     integ = scene.integrator()
@@ -231,7 +231,8 @@ def test_new_window_and_batch_sizes_compile_nothing(variant, tmp_path, rfilter):
         dr.set_flag(dr.JitFlag.KernelHistory, False)
         return {k["hash"] for k in hist if k.get("hash")}
 
-    seen = kernels([(0, 0, 8, 8)], 4) | kernels([(0, 0, 8, 8), (8, 8, 4, 4)], 2)
+    two = [(0, 0, 8, 8), (8, 8, 4, 4)]
+    seen = kernels([(0, 0, 8, 8)], 4) | kernels(two, 4) | kernels(two, 2) | kernels([(0, 0, 8, 8)], 8)
     new = kernels([(3, 5, 13, 7)], 9) | kernels([(1, 1, 5, 6), (7, 2, 9, 9), (20, 0, 4, 18)], 3)
     # a scanline partition's batch: one window a row, the same kernels as two windows
     rows = kernels([(0, y, W, 1) for y in range(H)], 3)
@@ -283,7 +284,7 @@ def test_mi_render_never_visits_numpy(variant, tmp_path, monkeypatch):
 @pytest.mark.parametrize("rfilter", ["box", "gaussian"])
 def test_frames_of_the_same_windows_reuse_the_batch(variant, tmp_path, monkeypatch, rfilter):
     """A second frame of the same windows reuses the batch's sample ids (film.cached_batch,
-    KEEP_LANES) and window tables: its kernels are the first frame's less those, its
+    KEEP_LANES), window tables and the strips' column weights: its kernels are the first frame's less those, its
     pixels the same bits, and the same as a frame that keeps nothing (KEEP_LANES = 0). The
     channels are interleaved in the pixel kernel: no kernel runs over pixels x channels."""
     import drjit as dr
@@ -310,12 +311,15 @@ def test_frames_of_the_same_windows_reuse_the_batch(variant, tmp_path, monkeypat
     none, k3 = frame()
     for a, b, c in zip(first, again, none):
         assert np.array_equal(a, b) and np.array_equal(a, c)
-    # kept: the lanes' windows (a scatter of marks) and the sample ids (made in the first
+    # kept: the lanes' windows (a scatter of marks), the sample ids and, for the strips of a
+    # non-box filter (spp 4 <= film.STRIPS_SPP), the samples' column weights (made in the first
     # frame only); the launch and the pixels' kernels run again
     lanes = [b.lanes for b in integ.engine.batches.values()][-1]
     sizes1, sizes2 = [k["size"] for k in k1], [k["size"] for k in k2]
-    assert len(k2) < len(k1) and sizes2.count(lanes) == sizes1.count(lanes) - 1, (sizes1, sizes2)
-    assert len(k3) == len(k1)
+    kept = 1 if rfilter == "box" else 2
+    assert len(k2) < len(k1) and sizes2.count(lanes) == sizes1.count(lanes) - kept, (sizes1, sizes2)
+    # kept nothing: the column weights are written by the kernel that packs the samples
+    assert len(k3) == len(k1) - (kept - 1)
     assert not [k for k in k1 if k["size"] == pixels * C]
 
 

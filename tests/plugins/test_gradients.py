@@ -144,11 +144,11 @@ def test_reverse_equals_finite_difference_light_position(variant, key):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("spp", [1, 2, 4])
+@pytest.mark.parametrize("spp", [1, 2, 4, 7])
 def test_forward_equals_reverse(variant, spp):
     """Dot-product test over several families at once, with a Gaussian film (the film's
-    neighbour loop differentiated too; at spp 2 its strips, film._filter_strips, at spp 4 its
-    two passes, film._filter_partials and film._filter_sum): u·(J v) from render_forward equals
+    neighbour loop differentiated too; at spp 2 and 4 its strips, film._filter_strips, at spp 7
+    its two passes, film._filter_partials and film._filter_sum): u·(J v) from render_forward equals
     (Jᵀ u)·v from render_backward, to float32 rounding."""
     import drjit as dr
     import mitsuba as mi
