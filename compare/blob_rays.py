@@ -17,8 +17,8 @@ tracing is not counted; one Dr.Jit thread: robust to other processes on the mach
 stretch wall time), the smallest of ``--reps`` runs, the table the median over ``--rounds``
 interleaved rounds, in ns a ray. Counters:
 candidate centres a camera ray, field evaluations a ray (the ``cost`` of ``intersect``) split
-into the march's (an any-hit search of the same ray: the march alone) and the bracket's
-refinement, per camera ray, per camera ray that meets a 3S sphere, per hit, and per shadow ray;
+into the march's (an any-hit search of the same ray: the march up to a sign change or a
+certain root) and the rest (the refinement), per camera ray, per camera ray that meets a 3S sphere, per hit, and per shadow ray;
 the share of rays that meet a 3S sphere and that hit. Precision: ``--check`` camera rays' hit
 distances against the float64 core's (``links1.geometry.blob.Blob`` on the same float32 rays):
 the error in float32 ulps of the distance (quantiles, largest) and the rays whose hit or miss

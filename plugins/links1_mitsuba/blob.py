@@ -251,40 +251,54 @@ class BlobSpec(CandidateLists, RootSolvers):
         toward (:meth:`dir_lists`)."""
         import drjit as dr
         import mitsuba as mi
-        if self.uses_lists():
-            u, v, scale = self._unit_ray(o, d)
-            found = None if film is None else self._film_candidates(u, v, film, o, d, active)
-            cands, enter, leave, Lb, Gb = self._setup_lists(u, v, active, found)
-            # kept for the normal at this ray's hit (raytree.py calls normal(o, d, ...) next)
-            self._line = None if any_hit else (o, d, cands[:3])
-            start, end = dr.maximum(tmin * scale, enter), dr.minimum(tmax * scale, leave)
-            per = None
-
-            def field_at(s):
-                return self._field_lists(u, v, cands, s)
-        else:
-            scale, per, start, end, Lb, Gb = self._setup(o, d, tmin, tmax)
-
-            def field_at(s):
-                return BlobSpec._field(per, s)
-        s_lo, s_hi = tmin * scale, tmax * scale   # the segment, as in _setup
+        from .blob_roots import _clear
         T = self._threshold()
-        run = active & (start < end)
+        lists = self.uses_lists()
+        u, v, scale = self._unit_ray(o, d)
+        s_lo, s_hi = tmin * scale, tmax * scale   # the segment, as in _setup
+        found = gate = None
+        if lists and film is not None and any_hit:
+            # a shadow ray: a bound of W from its start on, over its list; where it is below
+            # T no root follows (a miss), and a packet of such rays skips the set-up and march
+            *found, B_lo = self._film_candidates(u, v, film, o, d, active, s_lo)
+            gate = active & ~_clear(1.0, B_lo, T)
+        elif lists and film is not None:
+            found = self._film_candidates(u, v, film, o, d, active)
 
-        def solve(start, end, Lb, Gb):
-            if self.solver == "paper":
-                return self._paper(per, s_lo, s_hi, run)
-            W0, dW0, B0 = field_at(start)
-            inside = (W0 > T) | ((W0 == T) & (dW0 > 0))
-            sgn = dr.select(inside, -1.0, 1.0)
-            n_eval = dr.select(run, mi.UInt32(1), mi.UInt32(0))
-            return self._exact(field_at, start, end, sgn, run, W0, dW0, B0, n_eval, Lb, Gb, any_hit)
+        def search(active):
+            if lists:
+                cands, enter, leave, Lb, Gb = self._setup_lists(u, v, active, found)
+                # kept for the normal at this ray's hit (raytree.py calls normal(o, d, ...) next)
+                self._line = None if any_hit else (o, d, cands[:3])
+                start, end = dr.maximum(s_lo, enter), dr.minimum(s_hi, leave)
+                per = None
 
-        def skip(start, end, Lb, Gb):
-            return dr.full(mi.Float, INF, dr.width(start)), dr.zeros(mi.UInt32, dr.width(start))
+                def field_at(s):
+                    return self._field_lists(u, v, cands, s)
+            else:
+                _, per, start, end, Lb, Gb = self._setup(o, d, tmin, tmax)
 
-        # symbolic conditional: a packet of rays that all miss the centres' spheres skips the solver
-        t_obj, n_eval = dr.if_stmt((start, end, Lb, Gb), run, solve, skip)
+                def field_at(s):
+                    return BlobSpec._field(per, s)
+            run = active & (start < end)
+
+            def solve(start, end, Lb, Gb):
+                if self.solver == "paper":
+                    return self._paper(per, s_lo, s_hi, run)
+                W0, dW0, B0 = field_at(start)
+                inside = (W0 > T) | ((W0 == T) & (dW0 > 0))
+                sgn = dr.select(inside, -1.0, 1.0)
+                n_eval = dr.select(run, mi.UInt32(1), mi.UInt32(0))
+                return self._exact(field_at, start, end, sgn, run, W0, dW0, B0, n_eval, Lb, Gb, any_hit)
+
+            # symbolic conditional: a packet of rays that all miss the centres' spheres skips the solver
+            return dr.if_stmt((start, end, Lb, Gb), run, solve, _none)
+
+        if gate is None:
+            t_obj, n_eval = search(active)
+        else:
+            self._line = None
+            t_obj, n_eval = dr.if_stmt((gate,), gate, search, _none)
         if cost is not None:
             cost += n_eval
         t = t_obj / scale
@@ -338,3 +352,10 @@ class BlobSpec(CandidateLists, RootSolvers):
         ln = dr.norm(nw)
         return dr.select(ln > 1e-20, nw / dr.maximum(ln, 1e-30), -d)
 
+
+def _none(x, *_):
+    """No root: ``(inf, 0 evaluations)`` (the false branch of :meth:`BlobSpec.intersect`'s
+    conditionals)."""
+    import drjit as dr
+    import mitsuba as mi
+    return dr.full(mi.Float, INF, dr.width(x)), dr.zeros(mi.UInt32, dr.width(x))

@@ -184,24 +184,31 @@ class CandidateLists:
 
         return self._collect(hit_box, self._crosses(u, v), active)
 
-    def _crosses(self, u, v):
+    def _crosses(self, u, v, s0=None):
         """``hit_centre(idx, act)`` of :meth:`_collect` for the line ``u + s v``: whether it
-        crosses centre ``idx``'s 3S sphere (float32, the test of :meth:`_chord`)."""
+        crosses centre ``idx``'s 3S sphere (float32, the test of :meth:`_chord`). With ``s0``:
+        ``(crosses, bound)``, the bound also of the centre's term of ``W`` from ``u + s0 v`` on
+        along the line (:meth:`BlobSpec._term`)."""
         import drjit as dr
         import mitsuba as mi
 
         def hit_centre(idx, act):
             row = self._row(idx, act)
             rel = mi.Vector3f(*row[:3]) - u
-            return dr.squared_norm(dr.cross(rel, v)) < row[5]
+            h2 = dr.squared_norm(dr.cross(rel, v))
+            if s0 is None:
+                return h2 < row[5]
+            peak = self._peak(h2, row)
+            return h2 < row[5], self._term(s0, dr.dot(rel, v), h2, *row[3:5], *row[6:10], peak)[2]
         return hit_centre
 
-    def _film_candidates(self, u, v, film, o, d, active):
+    def _film_candidates(self, u, v, film, o, d, active, s0=None):
         """:meth:`_line_candidates` of rays ``o + t d`` (world) whose lines ``film`` lists by
         cell (:class:`BlobFilm`: camera rays from its eye; :class:`BlobDirGrid`: rays along a
         directional light): the same test over their cell's list (a superset of the centres
         the lines of the cell cross, in increasing row) instead of the hierarchy's walk, so
-        the same list, count and overflow."""
+        the same list, count and overflow. With ``s0`` also a bound of ``W`` from ``u + s0 v``
+        on (the sum of :meth:`BlobSpec._term`'s bounds over the list)."""
         import drjit as dr
         import mitsuba as mi
         n = dr.width(active)
@@ -211,20 +218,26 @@ class CandidateLists:
         lst = dr.alloc_local(mi.UInt32, LIST_CAP + 1, mi.UInt32(0))
         cnt = dr.zeros(mi.UInt32, n)
         ovf = dr.zeros(mi.Bool, n)
-        hit_centre = self._crosses(u, v)
+        hit_centre = self._crosses(u, v, s0)
+        bound = () if s0 is None else (dr.zeros(mi.Float, n),)
 
-        def cond(k, lst, cnt, ovf):
+        def cond(k, lst, cnt, ovf, *bound):
             return k < end
 
-        def body(k, lst, cnt, ovf):
+        def body(k, lst, cnt, ovf, *bound):
             act = k < end
             idx = dr.gather(mi.UInt32, film.rows, k, act)
-            take = act & hit_centre(idx, act)
+            if s0 is None:
+                take = act & hit_centre(idx, act)
+            else:
+                take, b = hit_centre(idx, act)
+                take &= act
+                bound = (bound[0] + dr.select(take, b, 0.0),)
             cnt, ovf = self._keep(lst, cnt, ovf, idx, take)
-            return k + 1, lst, cnt, ovf
+            return k + 1, lst, cnt, ovf, *bound
 
-        _, lst, cnt, ovf = dr.while_loop((k, lst, cnt, ovf), cond, body, label="links1_blob_film")
-        return lst, cnt, ovf
+        _, lst, cnt, ovf, *bound = dr.while_loop((k, lst, cnt, ovf, *bound), cond, body, label="links1_blob_film")
+        return (lst, cnt, ovf, *bound)
 
     def film_lists(self, eye, R, window, size, margin, angle):
         """:class:`BlobFilm` of a pinhole camera at ``eye`` (frame ``R``, film ``window`` of
