@@ -259,15 +259,16 @@ class BlobSpec(CandidateLists, RootSolvers):
         found = gate = None
         if lists and film is not None and any_hit:
             # a shadow ray: a bound of W from its start on, over its list; where it is below
-            # T no root follows (a miss), and a packet of such rays skips the set-up and march
-            *found, B_lo = self._film_candidates(u, v, film, o, d, active, s_lo)
-            gate = active & ~_clear(1.0, B_lo, T)
+            # T no root follows (a miss), and a packet of such rays skips the list, set-up and
+            # march (the list is made only where some lane of the packet goes on)
+            gate = active & ~_clear(1.0, self._film_bound(u, v, film, o, d, active, s_lo), T)
         elif lists and film is not None:
             found = self._film_candidates(u, v, film, o, d, active)
 
         def search(active):
             if lists:
-                cands, enter, leave, Lb, Gb = self._setup_lists(u, v, active, found)
+                made = found if gate is None else self._film_candidates(u, v, film, o, d, active)
+                cands, enter, leave, Lb, Gb = self._setup_lists(u, v, active, made)
                 # kept for the normal at this ray's hit (raytree.py calls normal(o, d, ...) next)
                 self._line = None if any_hit else (o, d, cands[:3])
                 start, end = dr.maximum(s_lo, enter), dr.minimum(s_hi, leave)

@@ -30,6 +30,10 @@ LIST_CAP = 64
 LEAF_CENTRES = 4
 #: Cells a side at most of a directional light's grid (:meth:`CandidateLists.dir_lists`).
 DIR_SIDE = 256
+#: Cells of a directional light's grid per smallest range 3S (a side): the finer, the nearer a
+#: cell's list to the centres its lines cross (100 centres, compare.blob_rays' shadow rays from
+#: hits: 14.9 entries a list at 8 (square lists), 10.0 at 32, 8.9 crossed).
+DIR_CELLS_PER_RANGE = 32
 #: List entries over a directional light's grid at most (else coarser cells, halving the sides).
 DIR_ENTRIES = 1 << 22
 #: :meth:`BlobSpec._consts` columns in the packets of a centre's row in the candidate
@@ -202,42 +206,58 @@ class CandidateLists:
             return h2 < row[5], self._term(s0, dr.dot(rel, v), h2, *row[3:5], *row[6:10], peak)[2]
         return hit_centre
 
-    def _film_candidates(self, u, v, film, o, d, active, s0=None):
+    def _film_candidates(self, u, v, film, o, d, active):
         """:meth:`_line_candidates` of rays ``o + t d`` (world) whose lines ``film`` lists by
         cell (:class:`BlobFilm`: camera rays from its eye; :class:`BlobDirGrid`: rays along a
         directional light): the same test over their cell's list (a superset of the centres
         the lines of the cell cross, in increasing row) instead of the hierarchy's walk, so
-        the same list, count and overflow. With ``s0`` also a bound of ``W`` from ``u + s0 v``
-        on (the sum of :meth:`BlobSpec._term`'s bounds over the list)."""
+        the same list, count and overflow."""
         import drjit as dr
         import mitsuba as mi
         n = dr.width(active)
-        cell = film.cell(o, d)
-        k = dr.gather(mi.UInt32, film.off, cell, active)
-        end = dr.select(active, dr.gather(mi.UInt32, film.off, cell + 1, active), k)
+        k, end = self._cell_span(film, o, d, active)
         lst = dr.alloc_local(mi.UInt32, LIST_CAP + 1, mi.UInt32(0))
         cnt = dr.zeros(mi.UInt32, n)
         ovf = dr.zeros(mi.Bool, n)
-        hit_centre = self._crosses(u, v, s0)
-        bound = () if s0 is None else (dr.zeros(mi.Float, n),)
+        hit_centre = self._crosses(u, v)
 
-        def cond(k, lst, cnt, ovf, *bound):
+        def cond(k, lst, cnt, ovf):
             return k < end
 
-        def body(k, lst, cnt, ovf, *bound):
+        def body(k, lst, cnt, ovf):
             act = k < end
             idx = dr.gather(mi.UInt32, film.rows, k, act)
-            if s0 is None:
-                take = act & hit_centre(idx, act)
-            else:
-                take, b = hit_centre(idx, act)
-                take &= act
-                bound = (bound[0] + dr.select(take, b, 0.0),)
-            cnt, ovf = self._keep(lst, cnt, ovf, idx, take)
-            return k + 1, lst, cnt, ovf, *bound
+            cnt, ovf = self._keep(lst, cnt, ovf, idx, act & hit_centre(idx, act))
+            return k + 1, lst, cnt, ovf
 
-        _, lst, cnt, ovf, *bound = dr.while_loop((k, lst, cnt, ovf, *bound), cond, body, label="links1_blob_film")
-        return (lst, cnt, ovf, *bound)
+        _, lst, cnt, ovf = dr.while_loop((k, lst, cnt, ovf), cond, body, label="links1_blob_film")
+        return lst, cnt, ovf
+
+    def _film_bound(self, u, v, film, o, d, active, s0):
+        """A bound of ``W`` from ``u + s0 v`` on along the rays of :meth:`_film_candidates`:
+        the sum of :meth:`BlobSpec._term`'s bounds over the centres of the cell's list whose
+        3S sphere the line crosses (the list of :meth:`_film_candidates`, not kept)."""
+        import drjit as dr
+        import mitsuba as mi
+        k, end = self._cell_span(film, o, d, active)
+        hit_centre = self._crosses(u, v, s0)
+
+        def body(k, bound):
+            act = k < end
+            take, b = hit_centre(dr.gather(mi.UInt32, film.rows, k, act), act)
+            return k + 1, bound + dr.select(act & take, b, 0.0)
+
+        return dr.while_loop((k, dr.zeros(mi.Float, dr.width(active))), lambda k, _: k < end, body,
+                             label="links1_blob_bound")[1]
+
+    @staticmethod
+    def _cell_span(film, o, d, active):
+        """The entries ``[k, end)`` of the cell's list of rays ``o + t d`` in ``film``."""
+        import drjit as dr
+        import mitsuba as mi
+        cell = film.cell(o, d)
+        k = dr.gather(mi.UInt32, film.off, cell, active)
+        return k, dr.select(active, dr.gather(mi.UInt32, film.off, cell + 1, active), k)
 
     def film_lists(self, eye, R, window, size, margin, angle):
         """:class:`BlobFilm` of a pinhole camera at ``eye`` (frame ``R``, film ``window`` of
@@ -263,12 +283,12 @@ class CandidateLists:
     def dir_lists(self, w, extent, margin):
         """:class:`BlobDirGrid` of the lines along the unit direction ``w`` (world, a directional
         light's shadow rays) through points within ``extent`` of the origin in each coordinate:
-        per cell of a grid on the plane across ``w`` (an eighth of the smallest range 3S a side,
-        at most ``DIR_SIDE`` cells a side and about ``DIR_ENTRIES`` entries, one more cell for a
-        non-finite point) the rows whose
+        per cell of a grid on the plane across ``w`` (:data:`DIR_CELLS_PER_RANGE` cells along
+        the smallest range 3S, at most ``DIR_SIDE`` cells a side and about ``DIR_ENTRIES``
+        entries, one more cell for a non-finite point) the rows whose
         3S sphere such a line can cross, conservative: the sphere padded as in
         :meth:`film_lists` (relative to ``extent`` for the float32 line test) plus ``margin``,
-        and one cell more around it."""
+        listed in every cell within one cell of a cell its disc across ``w`` meets."""
         self.tables()
         k = self._consts()
         m = np.eye(4) if self.to_world is None else np.asarray(self.to_world, dtype=np.float64)
@@ -286,7 +306,7 @@ class CandidateLists:
         a, b = cw @ e1, cw @ e2
         u0, v0 = float((a - rad).min()), float((b - rad).min())
         span = max(float((a + rad).max()) - u0, float((b + rad).max()) - v0)
-        N = int(min(DIR_SIDE, max(1, np.ceil(span / (rad.min() / 8.0)))))
+        N = int(min(DIR_SIDE, max(1, np.ceil(span / (rad.min() / DIR_CELLS_PER_RANGE)))))
         while N > 1 and len(c) * (2.0 * rad.max() * N / span + 3.0) ** 2 > DIR_ENTRIES:
             N //= 2
         scale = N / span
@@ -298,7 +318,17 @@ class CandidateLists:
         cu, per = iu1 - iu0 + 1, (iu1 - iu0 + 1) * (iv1 - iv0 + 1)
         objs = np.repeat(np.arange(len(c)), per)
         j = np.arange(objs.size) - np.repeat(np.cumsum(per) - per, per)
-        cl = (np.repeat(iv0, per) + j // np.repeat(cu, per)) * N + np.repeat(iu0, per) + j % np.repeat(cu, per)
+        iu = np.repeat(iu0, per) + j % np.repeat(cu, per)
+        iv = np.repeat(iv0, per) + j // np.repeat(cu, per)
+        # of the sphere's square of cells, those within one cell of a cell its disc meets (the
+        # kernel's float32 cell of a point errs by one at most; the border cells reach beyond)
+        def gap(i, x, x0):
+            lo = np.where(i > 0, x0 + (i - 1) / scale, -np.inf)
+            hi = np.where(i < N - 1, x0 + (i + 2) / scale, np.inf)
+            return np.maximum(np.maximum(lo - x, x - hi), 0.0)
+        du, dv = gap(iu, np.repeat(a, per), u0), gap(iv, np.repeat(b, per), v0)
+        near = du * du + dv * dv <= np.repeat(rad, per) ** 2
+        objs, cl = objs[near], (iv * N + iu)[near]
         cl = np.concatenate([cl, np.full(len(c), N * N)])        # a non-finite point: every centre
         objs = np.concatenate([objs, np.arange(len(c))])
         pos = np.empty(len(self.centers), dtype=np.int64)
