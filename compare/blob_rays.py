@@ -10,7 +10,9 @@ Camera rays: the benchmark scene's pinhole (its eye, 50° field of view), ``--sp
 samples a pixel in consecutive lanes (the launch's order); shadow rays: from their hits (1e-3
 along the light) toward the scene's directional light. Parts: ``lists`` (the candidate lists
 only), ``+ set-up`` (and the register slots, the span and the bounds), ``intersect`` (and the root
-finder: the whole nearest-hit search), ``any-hit`` (a shadow ray's search); a blob that sums
+finder: the whole nearest-hit search), ``any-hit`` (a shadow ray's search) and, with the light
+grid's lists, ``bound`` (its first part: the bound of ``W`` over the cell's list alone, which
+decides whether the ray goes on to its list, set-up and march); a blob that sums
 all its centres (under ``LIST_MIN_CENTRES``; ``--list-min`` sets it for the run) has the last
 two only. Each part's kernel time is the process CPU time of its evaluation (traced first, so
 tracing is not counted; one Dr.Jit thread: robust to other processes on the machine, which
@@ -19,7 +21,11 @@ interleaved rounds, in ns a ray. Counters:
 candidate centres a camera ray, field evaluations a ray (the ``cost`` of ``intersect``) split
 into the march's (an any-hit search of the same ray: the march up to a sign change or a
 certain root) and the rest (the refinement), per camera ray, per camera ray that meets a 3S sphere, per hit, and per shadow ray;
-the share of rays that meet a 3S sphere and that hit. Precision: ``--check`` camera rays' hit
+the share of rays that meet a 3S sphere and that hit; the camera rays' evaluations, the mean over
+packets of :data:`PACKET` consecutive lanes (a pixel's samples at spp 16) of their largest
+(a packet's loop runs until its last lane is done); the share of shadow rays whose bound does not
+exclude a root and of packets with one such lane; the list entries a camera ray's film cell and a
+shadow ray's grid cell hold. Precision: ``--check`` camera rays' hit
 distances against the float64 core's (``links1.geometry.blob.Blob`` on the same float32 rays):
 the error in float32 ulps of the distance (quantiles, largest) and the rays whose hit or miss
 differs.
@@ -43,6 +49,8 @@ from .scaling import blob_centres  # noqa: E402
 
 THRESHOLD = 0.5
 LIGHT = np.array([0.4, 1.0, 0.3])   # toward compare.blob_mesh's directional light
+#: lanes of a CPU packet (AVX-512 float32) for the packet counters
+PACKET = 16
 
 
 def _rays(k, res, spp):
@@ -132,11 +140,16 @@ def measure(k, res, spp, rounds, reps, check=0):
         cost = dr.zeros(mi.UInt32, n)
         return spec.intersect(S, W, 0.0, 1e4, hit, cost, any_hit=True, film=lst)[0], cost
 
+    def bound(lst):
+        u, v, _ = spec._unit_ray(S, W)
+        return spec._film_bound(u, v, lst, S, W, hit, 0.0)
+
     parts = {"camera: lists": cands, "camera: + set-up": setup, "camera: intersect": full,
-             "shadow: any-hit": shadow}
+             "shadow: bound": bound, "shadow: any-hit": shadow}
     if not lists:
         parts = {p: parts[p] for p in ("camera: intersect", "shadow: any-hit")}
-    times = {(p, s): [] for p in parts for s in (("walk", "lists") if lists else ("all",))}
+    times = {(p, s): [] for p in parts for s in (("walk", "lists") if lists else ("all",))
+             if (p, s) != ("shadow: bound", "walk")}
     for _ in range(rounds):
         for (p, s) in times:
             fn, lst = parts[p], None if s != "lists" else (grid if p.startswith("shadow") else film)
@@ -166,9 +179,22 @@ def measure(k, res, spp, rounds, reps, check=0):
                 "refine_hit": float((cost - mcost)[hits > 0].mean()) if nh else 0.0,
                 "evaluations_hit": float(cost[hits > 0].mean()) if nh else 0.0,
                 "evaluations_shadow": float(scost.sum() / nh)}
+    whole = n - n % PACKET
+    counters["evaluations_packet_max"] = float(cost[:whole].reshape(-1, PACKET).max(1).mean())
     if lists:
+        Bs = np.array(bound(grid))
+        goes = (hits > 0) & (Bs * (1.0 + 1e-5) >= THRESHOLD)    # blob_roots._clear fails: a root may follow
+        counters["shadow_goes_on"] = float(goes.sum() / nh)
+        counters["shadow_packets_going_on"] = float(goes[:whole].reshape(-1, PACKET).any(1).sum()
+                                                    / max(hits[:whole].reshape(-1, PACKET).any(1).sum(), 1))
         counters.update({"film_entries_per_cell": film.entries / (film.nu * film.nv + 1),
                          "grid_entries_per_cell": grid.entries / (grid.N * grid.N + 1)})
+
+        def entries(lst, o, d):     # the list lengths of the rays' cells
+            off, cell = np.array(lst.off, dtype=np.int64), np.array(lst.cell(o, d), dtype=np.int64)
+            return off[cell + 1] - off[cell]
+        counters["film_entries_camera_ray"] = float(entries(film, O, D).mean())
+        counters["grid_entries_shadow_ray"] = float(entries(grid, S, W)[hits > 0].mean())
     if check:
         counters.update(hit_errors(c, O, D, tc, check))
     ns = {f"{p} ({s})": 1e6 * float(np.median(v)) / (n if p.startswith("camera") else nh) for (p, s), v in times.items()}
@@ -206,10 +232,12 @@ def main(argv=None) -> int:
     for k in ks:
         ns, counters = measure(k, a.res, a.spp, a.rounds, a.reps, a.check)
         rows = []
-        for p in ("camera: lists", "camera: + set-up", "camera: intersect", "shadow: any-hit"):
+        for p in ("camera: lists", "camera: + set-up", "camera: intersect", "shadow: bound", "shadow: any-hit"):
             if f"{p} (walk)" in ns:
                 wk, ls = ns[f"{p} (walk)"], ns[f"{p} (lists)"]
                 rows.append([p, wk, ls, wk / ls, "–"])
+            elif f"{p} (lists)" in ns:
+                rows.append([p, "–", ns[f"{p} (lists)"], "–", "–"])
             elif f"{p} (all)" in ns:
                 rows.append([p, "–", "–", "–", ns[f"{p} (all)"]])
         text += (f"\n## {k} centres ({counters['rays']} camera rays)\n\n"
