@@ -33,7 +33,8 @@ constants (:func:`_centre_weights`): the order above is then the one of the term
 and one kernel computes a strip of :data:`STRIP` pixels of a window row a lane, reading each
 neighbour sample once for the strip (:func:`_filter_gather`). Up to :data:`STRIPS_SPP`, where
 writing and reading the records costs more than the few samples, one kernel makes them and adds
-them, a strip of :data:`STRIPS_P` pixels a lane (:func:`_filter_strips`); a film whose pass-1
+them, a strip of :data:`STRIPS_P` pixels a lane (:func:`_filter_strips`; a derivative pass takes
+the two passes, whose unrolled loops LLVM compiles in a fraction of the strips' time); a film whose pass-1
 table would pass :data:`FILM_TABLE_BYTES`, one kernel a pixel (:func:`_filter_direct`): the same
 operations in the same order, the same bits.
 
@@ -329,7 +330,10 @@ def reconstruct(rfilter, film_size, spp, seed, batch, data, aovs, dtype=None, mo
     box = rfilter.border == 0 and rfilter.is_box
     # spp 1: every sample at its pixel's centre, its weights nb constants (the strip gather)
     centred = _centre_weights(rfilter, 2 * rfilter.border + 1) if not box and int(spp) == 1 else None
-    strips = not box and centred is None and int(spp) <= STRIPS_SPP
+    # (not in a derivative pass: there its loops are unrolled, UNROLL_MAX, and the strips' code
+    # took LLVM 11 s (spp 2) and 25 s (spp 4) to compile against 1.6 s for the two passes, the
+    # same bits)
+    strips = not box and centred is None and int(spp) <= STRIPS_SPP and mode != "evaluated"
     P = STRIP if centred is not None else (STRIPS_P if strips else 1)
     L = _Lanes(batch, P, n_s)
     if box:

@@ -143,18 +143,32 @@ def test_reverse_equals_finite_difference_light_position(variant, key):
     assert np.max(np.abs(g)) > 1.0
 
 
+FAMILY_KEYS = ["ball.bsdf.diffuse.value", "glass.bsdf.transmittance.value", "lp.L2.value", "ball.bsdf.exponent",
+               "floor.bsdf.reflectance.value", "mp.intensity.value"]
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("spp", [1, 2, 4, 7])
-def test_forward_equals_reverse(variant, spp):
-    """Dot-product test over several families at once, with a Gaussian film (the film's
-    neighbour loop differentiated too; at spp 2 and 4 its strips, film._filter_strips, at spp 7
-    its two passes, film._filter_partials and film._filter_sum): u·(J v) from render_forward equals
-    (Jᵀ u)·v from render_backward, to float32 rounding."""
+def test_forward_equals_reverse(variant):
+    """Dot-product test over several families at once, with a Gaussian film at spp 1 (the
+    film's neighbour loop differentiated too)."""
+    _forward_equals_reverse(load(SHADING, rfilter=""), FAMILY_KEYS, spp=1)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("spp", [2, 7])
+def test_film_forward_equals_reverse(variant, spp):
+    """The Gaussian film at spp > 1 differentiated: a derivative pass takes its two passes
+    (film._filter_partials, film._filter_sum) at every such spp, their sample loops unrolled up
+    to film.UNROLL_MAX steps (spp 2) or not (spp 7); a depth-1 frame and two parameters, so the
+    film is what differs from the spp-1 test."""
+    _forward_equals_reverse(load(SHADING, depth=1, rfilter=""), ["floor.bsdf.reflectance.value", "lp.L2.value"],
+                            spp=spp)
+
+
+def _forward_equals_reverse(scene, keys, spp):
+    """u·(J v) from render_forward equals (Jᵀ u)·v from render_backward, to float32 rounding."""
     import drjit as dr
     import mitsuba as mi
-    keys = ["ball.bsdf.diffuse.value", "glass.bsdf.transmittance.value", "lp.L2.value", "ball.bsdf.exponent",
-            "floor.bsdf.reflectance.value", "mp.intensity.value"]
-    scene = load(SHADING, rfilter="")
     rng = np.random.default_rng(3)
     params = mi.traverse(scene)
     vs = {k: rng.normal(size=dr.width(params[k]) * (3 if dr.size_v(params[k]) == 3 else 1)) for k in keys}
