@@ -30,8 +30,11 @@ demo: setup
 	$(BIN)/links1 render scenes/fig11.xml --renderer core -o out/demo.png
 	@echo "demo image: $(CURDIR)/out/demo.png"
 
+# the suite on TEST_JOBS processes (pytest-xdist), a test file to a process (its module fixtures
+# and compiled kernels shared); TEST_JOBS=0 runs it in this process
+TEST_JOBS ?= 2
 test: setup
-	$(BIN)/python -m pytest -q -p no:cacheprovider tests
+	$(BIN)/python -m pytest -q -p no:cacheprovider -n $(TEST_JOBS) --dist loadfile tests
 
 test-fast: setup
 	$(BIN)/python -m pytest -q -p no:cacheprovider -m "not slow" tests
