@@ -68,6 +68,7 @@ from links1.maths.sampling import mix32
 
 from . import geometry, intersect
 from .camera import rays_at
+from .film import widen
 from .lights import DIRECTED, POSITIONED
 from .util import INF, aligned, kind_of
 
@@ -165,7 +166,7 @@ def boundary_image(trace_points, scene, P, Q, sensor, win, spp, seed, stage=None
     tables, ``Q``: the derivative pass's (``Q.geo_ad``: the attached links1 shapes);
     ``trace_points(xf, yf, keys)``: the primal ray tree through film positions of ``P``
     (``Launches.trace_points``); ``stage(fn, *args)``: ``fn(P, scene, *args)`` for the term's
-    stages of queries (:func:`_seen_slots`, :func:`_bisected`), frozen by the launches
+    stages (:func:`_seen_slots`, :func:`_bisected`, :func:`_edges`), frozen by the launches
     (``Launches.frozen_stage``: recorded once, replayed every frame); None: traced here."""
     check_filter(P)
     x0, y0, w, h = win
@@ -243,12 +244,9 @@ def _crossings(trace_points, scene, P, sensor, win, spp, seed, stage):
     c_lo = _dev(mi.Int32, sig[0][li, ki])
     o_lo = _dev(mi.Int32, np.choose(np.maximum(kind[li, ki], 0), [g[li, ki] for g in sig]))
     lo_d, hi_d = stage(_bisected, lo_d, hi_d, colm, fxd, key, kd, c_lo, o_lo)
-    (xl, yl), (xh, yh) = _at(lo_d, colm, fxd), _at(hi_d, colm, fxd)
-    ends = [_status(P, scene, xa, ya, key, lts, only=kd) for xa, ya in ((xl, yl), (xh, yh))]
-    dr.eval(ends)   # (what both ends see: one kernel)
-    g = _grazes(ends, kd, (xl, yl), (xh, yh), lts)
+    edge = stage(_edges, lo_d, hi_d, colm, fxd, key, kd)
     # f on both sides, SIDE_STEP pixels out: the primal ray tree (one launch for both ends)
-    m_ = dr.width(g["q"])
+    m_ = li.size
     # the ends' film coordinates made on the host from the evaluated ends (as at(): the same
     # float32 values; reading xl ... would run a kernel each)
     f32 = np.float32(fixed[li])
@@ -258,18 +256,40 @@ def _crossings(trace_points, scene, P, sensor, win, spp, seed, stage):
     keys_h = lane_key[li].astype(np.uint32)
     f = trace_points(xs / P.film_size[0], ys / P.film_size[1], np.concatenate([keys_h, keys_h]))[0]
     jump = f[:m_] - f[m_:]
+    jump_c = mi.Color3f(*[_dev(mi.Float, jump[:, c]) for c in range(3)])
+    # (a frozen stage returns a value that is the same on every lane at its recorded width)
+    edge = {k: (tuple(widen(u, m_) for u in v) if k == "tri" else widen(v, m_)) for k, v in zip(_EDGE, edge)}
+    edge.update(pixel=_dev(mi.UInt32, pix[li % n]), weight=jump_c * edge.pop("coef"), lights=lts,
+                tri=edge.pop("tri", None))
+    dr.eval(edge["pixel"], edge["weight"], edge["q"], edge["m"], edge["slot"], edge["valid"], edge["part"],
+            edge["light"], edge["p"])
+    return edge
+
+
+#: the values :func:`_edges` returns, in its order (``tri``: with Mitsuba meshes only)
+_EDGE = ("q", "m", "valid", "part", "slot", "light", "p", "ts", "coef", "tri")
+
+
+def _edges(P, scene, lo, hi, colm, fxd, key, kd):
+    """A stage of the term: what the bisected crossings ``[lo, hi]`` (:func:`_bisected`) are,
+    all but the radiance on their sides: what both ends see (:func:`_status`), where the ray
+    grazes (:func:`_grazes`), the outline there (:func:`_outline`: its normal ``m``, ``valid``,
+    ``part``, a mesh edge's ``tri``), and the detached factor ``a_x / |a|²`` (a column's
+    ``a_y``) of the crossing's weight (``coef``; 0 where not ``valid``), with ``a`` the screen
+    gradient of ``m·q`` (:func:`_screen_gradient`); the values of :data:`_EDGE`, in order."""
+    lts = _lights(P)
+    (xl, yl), (xh, yh) = _at(lo, colm, fxd), _at(hi, colm, fxd)
+    ends = [_status(P, scene, xa, ya, key, lts, only=kd) for xa, ya in ((xl, yl), (xh, yh))]
+    dr.eval(ends)   # (what both ends see: one kernel)
+    g = _grazes(ends, kd, (xl, yl), (xh, yh), lts)
     # the outline's normal m at q, and the screen-space gradient a of m·q at fixed distances
     edge = _outline(scene, P, g["q"], g["d"], g["t"], g["slot"], g["prim"], g["hit"], g["ok"])
     ax, ay = _screen_gradient(P, scene, edge["m"], g, key, lts)
     a2 = ax * ax + ay * ay
-    edge["valid"] &= a2 > 0
-    coef = dr.select(edge["valid"], dr.select(colm, ay, ax) / dr.select(edge["valid"], a2, 1.0), 0.0)
-    jump_c = mi.Color3f(*[_dev(mi.Float, jump[:, c]) for c in range(3)])
-    edge.update(pixel=_dev(mi.UInt32, pix[li % n]), weight=jump_c * coef, q=g["q"], slot=g["slot"],
-                light=g["light"], p=g["p"], ts=g["t"], lights=lts)
-    dr.eval(edge["pixel"], edge["weight"], edge["q"], edge["m"], edge["slot"], edge["valid"], edge["part"],
-            edge["light"], edge["p"])
-    return edge
+    valid = edge["valid"] & (a2 > 0)
+    coef = dr.select(valid, dr.select(colm, ay, ax) / dr.select(valid, a2, 1.0), 0.0)
+    out = [g["q"], edge["m"], valid, edge["part"], g["slot"], g["light"], g["p"], g["t"], coef]
+    return out if edge["tri"] is None else out + [list(edge["tri"])]
 
 
 def _drop_lines(P):
@@ -479,10 +499,10 @@ def _outline(scene, P, q, d, t, slot, prim, hit, ok):
     valid = dr.zeros(mi.Bool, n)
     part = dr.zeros(mi.UInt32, n)
     tol = RIM * t
+    # (every family's lanes computed, none skipped by a test of the lanes: a frozen stage,
+    # :func:`_edges`, replays what its recording traced)
     for sp in P.custom:
         on = ok & (slot == sp.slot)
-        if not dr.any(on):
-            continue
         G1, g1 = geometry.implicit(mi, dr, sp, {}, q)
         m1 = dr.normalize(g1)
         smooth = on & (prim == 0) & (dr.abs(dr.dot(m1, d)) < GRAZE)
@@ -499,8 +519,6 @@ def _outline(scene, P, q, d, t, slot, prim, hit, ok):
             valid |= rim
     for sl in _slots_of(P, _is_sphere):
         on = ok & (slot == sl)
-        if not dr.any(on):
-            continue
         si = _sphere_hit(scene, P, q, sl, on)
         smooth = on & si.is_valid() & (dr.abs(dr.dot(si.n, d)) < GRAZE)
         m = dr.select(smooth, si.n, m)
@@ -511,12 +529,11 @@ def _outline(scene, P, q, d, t, slot, prim, hit, ok):
         on = dr.zeros(mi.Bool, n)
         for sl in meshes:
             on |= ok & (slot == sl)
-        if dr.any(on):
-            tri, tau, near = _mesh_edge(q, hit, on, tol)
-            m_e = dr.cross(tau, d)
-            near &= dr.squared_norm(m_e) > 0
-            m = dr.select(near, dr.normalize(m_e), m)
-            valid |= near
+        tri, tau, near = _mesh_edge(q, hit, on, tol)
+        m_e = dr.cross(tau, d)
+        near &= dr.squared_norm(m_e) > 0
+        m = dr.select(near, dr.normalize(m_e), m)
+        valid |= near
     return {"m": m, "valid": valid, "part": part, "tri": tri}
 
 
