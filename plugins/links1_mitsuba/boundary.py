@@ -237,20 +237,27 @@ def _crossings(trace_points, scene, P, sensor, win, spp, seed, stage):
     li, ki = np.nonzero(kind >= 0)
     if li.size == 0:
         return None
-    kd = _dev(mi.Int32, kind[li, ki])
-    cl, key = is_col[li], _dev(mi.UInt32, lane_key[li])
-    colm, fxd = _dev(mi.Bool, cl), _dev(mi.Float, fixed[li])
-    lo_d, hi_d = _dev(mi.Float, along[li, ki]), _dev(mi.Float, along[li, ki + 1])
-    c_lo = _dev(mi.Int32, sig[0][li, ki])
-    o_lo = _dev(mi.Int32, np.choose(np.maximum(kind[li, ki], 0), [g[li, ki] for g in sig]))
+    # the bisection and the ends take the crossings by kind (the camera's, then each light's
+    # shadow edges: a packet of lanes of one kind traces that kind's rays alone), and _edges
+    # puts its values back in the crossings' order (``back``); lanes are independent: the same
+    # values as in that order
+    kinds = kind[li, ki]
+    order = np.argsort(kinds, kind="stable")
+    back = np.argsort(order)
+    ls, ks = li[order], ki[order]
+    kd = _dev(mi.Int32, kinds[order])
+    key, colm, fxd = _dev(mi.UInt32, lane_key[ls]), _dev(mi.Bool, is_col[ls]), _dev(mi.Float, fixed[ls])
+    lo_d, hi_d = _dev(mi.Float, along[ls, ks]), _dev(mi.Float, along[ls, ks + 1])
+    c_lo = _dev(mi.Int32, sig[0][ls, ks])
+    o_lo = _dev(mi.Int32, np.choose(np.maximum(kinds[order], 0), [g[ls, ks] for g in sig]))
     lo_d, hi_d = stage(_bisected, lo_d, hi_d, colm, fxd, key, kd, c_lo, o_lo)
-    edge = stage(_edges, lo_d, hi_d, colm, fxd, key, kd)
+    edge = stage(_edges, lo_d, hi_d, colm, fxd, key, kd, _dev(mi.UInt32, back))
     # f on both sides, SIDE_STEP pixels out: the primal ray tree (one launch for both ends)
     m_ = li.size
     # the ends' film coordinates made on the host from the evaluated ends (as at(): the same
-    # float32 values; reading xl ... would run a kernel each)
-    f32 = np.float32(fixed[li])
-    ends_h = [(np.where(cl, f32, e), np.where(cl, e, f32)) for e in (lo_d.numpy(), hi_d.numpy())]
+    # float32 values; reading xl ... would run a kernel each), in the crossings' order
+    cl, f32 = is_col[li], np.float32(fixed[li])
+    ends_h = [(np.where(cl, f32, e), np.where(cl, e, f32)) for e in (lo_d.numpy()[back], hi_d.numpy()[back])]
     xs = np.concatenate([ends_h[0][0] - SIDE_STEP * ~cl, ends_h[1][0] + SIDE_STEP * ~cl])
     ys = np.concatenate([ends_h[0][1] - SIDE_STEP * cl, ends_h[1][1] + SIDE_STEP * cl])
     keys_h = lane_key[li].astype(np.uint32)
@@ -270,13 +277,14 @@ def _crossings(trace_points, scene, P, sensor, win, spp, seed, stage):
 _EDGE = ("q", "m", "valid", "part", "slot", "light", "p", "ts", "coef", "tri")
 
 
-def _edges(P, scene, lo, hi, colm, fxd, key, kd):
+def _edges(P, scene, lo, hi, colm, fxd, key, kd, back):
     """A stage of the term: what the bisected crossings ``[lo, hi]`` (:func:`_bisected`) are,
     all but the radiance on their sides: what both ends see (:func:`_status`), where the ray
     grazes (:func:`_grazes`), the outline there (:func:`_outline`: its normal ``m``, ``valid``,
     ``part``, a mesh edge's ``tri``), and the detached factor ``a_x / |a|²`` (a column's
     ``a_y``) of the crossing's weight (``coef``; 0 where not ``valid``), with ``a`` the screen
-    gradient of ``m·q`` (:func:`_screen_gradient`); the values of :data:`_EDGE`, in order."""
+    gradient of ``m·q`` (:func:`_screen_gradient`); the values of :data:`_EDGE`, in order, lane
+    ``i`` of each that of the crossing ``back[i]``."""
     lts = _lights(P)
     (xl, yl), (xh, yh) = _at(lo, colm, fxd), _at(hi, colm, fxd)
     ends = [_status(P, scene, xa, ya, key, lts, only=kd) for xa, ya in ((xl, yl), (xh, yh))]
@@ -289,7 +297,8 @@ def _edges(P, scene, lo, hi, colm, fxd, key, kd):
     valid = edge["valid"] & (a2 > 0)
     coef = dr.select(valid, dr.select(colm, ay, ax) / dr.select(valid, a2, 1.0), 0.0)
     out = [g["q"], edge["m"], valid, edge["part"], g["slot"], g["light"], g["p"], g["t"], coef]
-    return out if edge["tri"] is None else out + [list(edge["tri"])]
+    out = [dr.gather(type(v), v, back) for v in out]
+    return out if edge["tri"] is None else out + [[dr.gather(type(v), v, back) for v in edge["tri"]]]
 
 
 def _drop_lines(P):

@@ -405,7 +405,7 @@ def test_frozen_stages_replay_the_traced_crossings(variant, tmp_path, monkeypatc
     assert len(compared) == 4 and all(c[0] and c[1] for c in compared)   # outlines and shadow edges
     now = sc.integrator().engine.launches.stage_launches
     # the same stage launches, at most one more recording each since (freeze's layout change, never one an update)
-    assert now == stages and all(s.n_recordings <= recorded[f] + 1 for f, s in now.items()), recorded
+    assert now == stages and all(s.n_recordings <= recorded[f] + 1 for f, s in now.items()), (recorded, {f.__name__: s.n_recordings for f, s in now.items()})
     assert set(f.__name__ for f in stages) == {"_seen_slots", "_bisected", "_edges"}
 
 
