@@ -166,8 +166,9 @@ def boundary_image(trace_points, scene, P, Q, sensor, win, spp, seed, stage=None
     tables, ``Q``: the derivative pass's (``Q.geo_ad``: the attached links1 shapes);
     ``trace_points(xf, yf, keys)``: the primal ray tree through film positions of ``P``
     (``Launches.trace_points``); ``stage(fn, *args)``: ``fn(P, scene, *args)`` for the term's
-    stages (:func:`_seen_slots`, :func:`_bisected`, :func:`_edges`), frozen by the launches
-    (``Launches.frozen_stage``: recorded once, replayed every frame); None: traced here."""
+    stages (:func:`_seen_slots`, :func:`_line_kinds`, :func:`_bisected`, :func:`_edges`), frozen by
+    the launches (``Launches.frozen_stage``: recorded once, replayed every frame); None: traced
+    here."""
     check_filter(P)
     x0, y0, w, h = win
     run = stage if stage is not None else (lambda fn, *args: fn(P, scene, *args))
@@ -226,30 +227,27 @@ def _crossings(trace_points, scene, P, sensor, win, spp, seed, stage):
     rep = lambda v: np.repeat(v, POINTS)   # noqa: E731
     x, y = _at(_dev(mi.Float, along.ravel()), _dev(mi.Bool, rep(is_col)), _dev(mi.Float, rep(fixed)))
     on = [_dev(mi.Bool, rep(np.tile(near[1 + j, pix], 2))) for j in range(len(lts))]
-    seen, occluders = stage(_seen_slots, x, y, _dev(mi.UInt32, rep(lane_key)), on)
-    dr.eval(seen, *occluders)   # one kernel (each alone would trace the camera rays again)
-    # what each point sees: the camera ray's slot, then each light's occluder: an interval
-    # whose ends differ is a crossing of the first that differs (the camera's first)
-    sig = [v.numpy().reshape(2 * n, POINTS) for v in [seen, *occluders]]
-    kind = np.full((2 * n, POINTS - 1), -1)
-    for j in reversed(range(len(sig))):
-        kind = np.where(sig[j][:, :-1] != sig[j][:, 1:], j, kind)
-    li, ki = np.nonzero(kind >= 0)
-    if li.size == 0:
+    kind, c_all, o_all = stage(_line_kinds, x, y, _dev(mi.UInt32, rep(lane_key)), on,
+                               dr.arange(mi.UInt32, 2 * n * POINTS))
+    # the crossings: the intervals whose kind is a signal, lane by lane (a line's lanes are
+    # its POINTS points; the interval from point k is lane k's), as numpy: lines li, points ki
+    at = dr.compress(kind >= 0)
+    if dr.width(at) == 0:
         return None
+    kinds, at_h = dr.gather(mi.Int32, kind, at).numpy(), at.numpy()
+    li, ki = at_h // POINTS, at_h % POINTS
     # the bisection and the ends take the crossings by kind (the camera's, then each light's
     # shadow edges: a packet of lanes of one kind traces that kind's rays alone), and _edges
     # puts its values back in the crossings' order (``back``); lanes are independent: the same
     # values as in that order
-    kinds = kind[li, ki]
     order = np.argsort(kinds, kind="stable")
     back = np.argsort(order)
     ls, ks = li[order], ki[order]
     kd = _dev(mi.Int32, kinds[order])
     key, colm, fxd = _dev(mi.UInt32, lane_key[ls]), _dev(mi.Bool, is_col[ls]), _dev(mi.Float, fixed[ls])
     lo_d, hi_d = _dev(mi.Float, along[ls, ks]), _dev(mi.Float, along[ls, ks + 1])
-    c_lo = _dev(mi.Int32, sig[0][ls, ks])
-    o_lo = _dev(mi.Int32, np.choose(np.maximum(kinds[order], 0), [g[ls, ks] for g in sig]))
+    at_s = _dev(mi.UInt32, at_h[order])
+    c_lo, o_lo = dr.gather(mi.Int32, c_all, at_s), dr.gather(mi.Int32, o_all, at_s)
     lo_d, hi_d = stage(_bisected, lo_d, hi_d, colm, fxd, key, kd, c_lo, o_lo)
     edge = stage(_edges, lo_d, hi_d, colm, fxd, key, kd, _dev(mi.UInt32, back))
     # f on both sides, SIDE_STEP pixels out: the primal ray tree (one launch for both ends)
@@ -321,6 +319,23 @@ def _seen_slots(P, scene, x, y, key, on=None):
     lanes its shadow segments are traced on, None: all)."""
     cam, shadows = _status(P, scene, x, y, key, _lights(P), on=on)
     return cam[3], [s_[2] for s_ in shadows]
+
+
+def _line_kinds(P, scene, x, y, key, on, lane):
+    """A stage of the term: the points ``(x, y)`` of the lines (:data:`POINTS` lanes a line, in
+    order; ``lane``: the lanes' indices) queried (:func:`_seen_slots`: the camera ray's slot,
+    then each light's occluder), and per lane the interval from its point to the next of its
+    line: ``kind``, the first of those signals that differs at its ends (-1: none, and on a
+    line's last point), ``c_lo`` the slot seen at its first point and ``o_lo`` the value of
+    signal ``kind`` there."""
+    seen, occluders = _seen_slots(P, scene, x, y, key, on)
+    sig = [seen, *occluders]
+    dr.eval(sig)   # one kernel (each alone would trace the camera rays again)
+    inner = lane % POINTS != POINTS - 1
+    kind = dr.full(mi.Int32, -1, dr.width(lane))
+    for j in reversed(range(len(sig))):
+        kind = dr.select(inner & (sig[j] != dr.gather(mi.Int32, sig[j], lane + 1, inner)), j, kind)
+    return kind, seen, _pick(kind, sig)
 
 
 def _bisected(P, scene, lo, hi, colm, fxd, key, kd, c_lo, o_lo):

@@ -359,8 +359,9 @@ def test_kernels_compiled_once(variant, tmp_path):
 
 @pytest.mark.slow
 def test_frozen_stages_replay_the_traced_crossings(variant, tmp_path, monkeypatch):
-    """The term's stages (the corners, the points of the lines, the bisection, what the
-    crossings' ends see with the outline and screen gradient there) are frozen launches (``Launches.frozen_stage``): over an optimisation's loop of moves of a
+    """The term's stages (the corners, the points of the lines and their intervals' kinds, the
+    bisection, what the crossings' ends see with the outline and screen gradient there) are
+    frozen launches (``Launches.frozen_stage``): over an optimisation's loop of moves of a
     blob and a quadric over a floor (outlines, shadow edges on the floor and on the blob) each
     frame's crossings (pixel, weight, grazing point, normal, kind) are those the stages give
     traced as they are (``stage=None``), bit for bit, while the stages are recorded once and
@@ -406,7 +407,7 @@ def test_frozen_stages_replay_the_traced_crossings(variant, tmp_path, monkeypatc
     now = sc.integrator().engine.launches.stage_launches
     # the same stage launches, at most one more recording each since (freeze's layout change, never one an update)
     assert now == stages and all(s.n_recordings <= recorded[f] + 1 for f, s in now.items()), (recorded, {f.__name__: s.n_recordings for f, s in now.items()})
-    assert set(f.__name__ for f in stages) == {"_seen_slots", "_bisected", "_edges"}
+    assert set(f.__name__ for f in stages) == {"_seen_slots", "_line_kinds", "_bisected", "_edges"}
 
 
 def test_nothing_added_where_no_outline_moves(variant, tmp_path):
