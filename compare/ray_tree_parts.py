@@ -65,9 +65,10 @@ def _kernels_ms(fn) -> float:
 
 
 @contextlib.contextmanager
-def _patched(*pairs):
-    """``(object, attribute, value)`` set for the block, restored after it."""
-    old = [(o, a, getattr(o, a)) for o, a, _ in pairs]
+def patched(*pairs):
+    """``(object, attribute, value)`` set for the block, restored after it (a class's own
+    entry restored as it was: a staticmethod stays one)."""
+    old = [(o, a, o.__dict__[a] if isinstance(o, type) else getattr(o, a)) for o, a, _ in pairs]
     for o, a, v in pairs:
         setattr(o, a, v)
     try:
@@ -77,16 +78,12 @@ def _patched(*pairs):
             setattr(o, a, v)
 
 
-def measure_case(cid, spp, repeats, variant):
+def traced_case(scene, spp):
+    """What tracing a loaded case's ray tree by hand takes (after one frame): ``(tracer,
+    tables, lanes, sample ids, (spp, strata), seeds)`` as the frame's launch has them."""
     import drjit as dr
     import mitsuba as mi
     from links1.maths.sampling import key_seed, strata
-    import links1_mitsuba.intersect as isect
-    import links1_mitsuba.raytree as rt
-    from links1_mitsuba.camera import camera_rays
-    from compare.ray_floor import floor_rays, load_case, mitsuba_integrator, trace_floor
-
-    scene, kind, depth, size = load_case(cid, "box", 512, variant)
     mi.render(scene, spp=1)
     eng = scene.integrator().engine
     tracer = eng._tracer()
@@ -97,6 +94,19 @@ def measure_case(cid, spp, repeats, variant):
     dr.eval(sid)
     spp_ = (dr.opaque(mi.UInt32, spp), dr.opaque(mi.UInt32, strata(spp)))
     seeds = (dr.opaque(mi.UInt32, 0), dr.opaque(mi.UInt32, key_seed(0)))
+    return tracer, tables, n, sid, spp_, seeds
+
+
+def measure_case(cid, spp, repeats, variant):
+    import drjit as dr
+    import mitsuba as mi
+    import links1_mitsuba.intersect as isect
+    import links1_mitsuba.raytree as rt
+    from links1_mitsuba.camera import camera_rays
+    from compare.ray_floor import floor_rays, load_case, mitsuba_integrator, trace_floor
+
+    scene, kind, depth, size = load_case(cid, "box", 512, variant)
+    tracer, tables, n, sid, spp_, seeds = traced_case(scene, spp)
     loaded = camera_rays(tables, sid, spp_, seeds)
     dr.eval(*loaded[:5], *loaded[5])
 
@@ -145,8 +155,8 @@ def measure_case(cid, spp, repeats, variant):
     def capture(tables, scene, o, d, smax, active, T, cost, tuning, light=None, own=None):
         captured.append((mi.Ray3f(o, d, smax, 0.0, mi.Color0f()), mi.Bool(active)))
         return T
-    with _patched((isect, "shadow_mitsuba", capture),
-                  (tracer, "tuning", dataclasses.replace(tracer.tuning, skip_misses=False))):
+    with patched((isect, "shadow_mitsuba", capture),
+                 (tracer, "tuning", dataclasses.replace(tracer.tuning, skip_misses=False))):
         o, d, tmin, tmax, key, sample = rays()
         dr.eval(tracer.level(tables, scene, o, d, tmin, tmax, key, 1, False, sample=sample, symbolic=False).L)
     for ray, act in captured:
@@ -192,7 +202,7 @@ def measure_case(cid, spp, repeats, variant):
     }
     images = {}
     for name, (fn, patch) in variants.items():
-        with _patched(*patch):
+        with patched(*patch):
             out = fn()
             if out is not None:
                 images[name] = np.asarray(out).copy()
@@ -212,12 +222,12 @@ def measure_case(cid, spp, repeats, variant):
     }
     runs = {**{k: v for k, v in variants.items()}, **{k: (f, ()) for k, f in floors.items()}}
     for _, (fn, patch) in runs.items():
-        with _patched(*patch):
+        with patched(*patch):
             fn()
     times = {k: [] for k in runs}
     for _ in range(repeats):
         for name, (fn, patch) in runs.items():
-            with _patched(*patch):
+            with patched(*patch):
                 times[name].append(_kernels_ms(fn))
     ms = {k: float(np.median(v)) for k, v in times.items()}
     ref = images["ray-tree kernel"]
@@ -245,24 +255,39 @@ def markdown(cases, a, info, cmd) -> str:
     return "".join(md)
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m compare.ray_tree_parts", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--only", nargs="*", default=["teapot", "cbox_point"])
+def probe_args(argv, module, doc, only):
+    """The arguments of a ray-tree probe (this module's, ``compare.ray_tree_levels``'): the
+    cases (``only``: the default ones), spp, repeats, variant."""
+    ap = argparse.ArgumentParser(prog=f"python -m {module}", description=doc.split("\n\n")[0])
+    ap.add_argument("--only", nargs="*", default=only)
     ap.add_argument("--spp", type=int, default=16)
     ap.add_argument("--repeats", type=int, default=9)
     ap.add_argument("--variant", default="llvm_ad_rgb")
-    a = ap.parse_args(argv)
+    return ap.parse_args(argv)
+
+
+def run_probe(a, stem, measure, line, markdown) -> int:
+    """A ray-tree probe's run: ``measure(case, spp, repeats, variant)`` per case of ``a``
+    (:func:`probe_args`), a line (``line(case id, row)``) per row printed, and
+    ``compare/results/{stem}.{json,md}`` (``markdown(cases, a, info, command)``) written."""
     info, cmd = machine_info(), command_line()
     cases = []
     for cid in a.only:
-        c = measure_case(cid, a.spp, a.repeats, a.variant)
+        c = measure(cid, a.spp, a.repeats, a.variant)
         cases.append(c)
         for r in c["rows"]:
-            print(f"{cid:12s} {r['part']:40s} {r['ms']:8.1f} ms  {r['ratio']:.3f}  same={r['same']}", flush=True)
-    paths = write_results("ray_tree_parts", dict(machine=info, command=cmd, args=vars(a), cases=cases),
+            print(line(cid, r), flush=True)
+    paths = write_results(stem, dict(machine=info, command=cmd, args=vars(a), cases=cases),
                           markdown(cases, a, info, cmd))
     print("wrote", ", ".join(str(p) for p in paths))
     return 0
+
+
+def main(argv=None) -> int:
+    a = probe_args(argv, "compare.ray_tree_parts", __doc__, ["teapot", "cbox_point"])
+    return run_probe(a, "ray_tree_parts", measure_case,
+                     lambda cid, r: f"{cid:12s} {r['part']:40s} {r['ms']:8.1f} ms  {r['ratio']:.3f}  same={r['same']}",
+                     markdown)
 
 
 if __name__ == "__main__":

@@ -139,6 +139,8 @@ class Prepared(ViewFields):
     has_dr: object = _set_later()
     has_dt: object = _set_later()
     has_null: object = _set_later()
+    #: has_dr | has_dt | has_null as numpy (nslots,) bool
+    mitsuba_delta_np: object = _set_later()
     #: some Mitsuba BSDF has a delta reflection / transmission / Null lobe / any delta lobe
     any_mitsuba_dr: bool = _set_later()
     any_mitsuba_dt: bool = _set_later()
@@ -154,6 +156,10 @@ class Prepared(ViewFields):
     any_phong_r: bool = _set_later()
     any_phong_t: bool = _set_later()
     any_specular: bool = _set_later()
+    #: per slot: a hit there can spawn a child (a links1_phong slot that reflects or transmits,
+    #: a Mitsuba BSDF with a delta or Null lobe), Bool: the lobes are computed under a
+    #: symbolic branch on it (raytree.Tracer._secondary)
+    spawns: object = _set_later()
     #: per slot: the Mitsuba BSDF has a diffuse or glossy lobe (Bool); direct light from the
     #: sampled lights at such hits adds a BSDF sample, combined by multiple importance sampling
     #: (``any_mis``: some such slot and some area or environment light); links1_phong keeps
@@ -162,6 +168,11 @@ class Prepared(ViewFields):
     any_mis: bool = _set_later()
     #: the links1 quadric slots whose Mitsuba BSDF has a texture (they get the core's uv)
     uv_slots: set = _set_later()
+    #: per slot: direct light can reach the eye from a hit there (a links1_phong slot, a Mitsuba
+    #: BSDF with a smooth lobe), Bool: the direct light is computed under a symbolic branch on
+    #: it (raytree.Tracer.level); every slot is such a slot
+    shaded: object = _set_later()
+    all_shaded: bool = _set_later()
     #: the BSDF of each slot (BSDFPtr), None when every slot is links1_phong
     bsdf_ptr: object = _set_later()
     #: the scene's one Mitsuba shape's faces and vertex positions where the kernel makes its

@@ -230,14 +230,17 @@ class Tracer:
             return self._direct(tables, scene, h, key, sample, symbolic, skip, later, out, cost, n_shadow)
 
         if skip:
-            out, cost, n_shadow = dr.if_stmt((out, cost, n_shadow), h.hit, direct,
+            # (a hit whose BSDF has delta lobes alone gets no direct light: the packets of such
+            # hits skip it too)
+            lit = h.hit if tables.all_shaded else h.hit & dr.gather(mi.Bool, tables.shaded, h.uslot, h.hit)
+            out, cost, n_shadow = dr.if_stmt((out, cost, n_shadow), lit, direct,
                                              lambda out, cost, n_shadow: (out, cost, n_shadow),
                                              mode="symbolic", label="links1_direct")
         else:
             out, cost, n_shadow = direct(out, cost, n_shadow)
         res = Level(L=out, cost=cost, t=h.t, slot=h.slot, ns=h.ns, hit=h.hit, n_shadow=n_shadow)
         if spawn:
-            self._secondary(tables, h, res)
+            self._secondary(tables, h, res, branch=symbolic and not ad)
         return res
 
     def _surface(self, tables, scene, o, d, tmin, tmax, active, cost, depth, symbolic, ad) -> Hit:
@@ -482,16 +485,32 @@ class Tracer:
             out += dr.select(lit, contrib * dr.select(need, T, 1.0), 0.0)
         return out, cost, n_shadow
 
-    def _secondary(self, tables, h, res):
+    def _secondary(self, tables, h, res, branch=False):
         """The children of each hit, eq. (3.12)-(3.16): Phong mirror and refraction weights and
         directions, and Mitsuba BSDFs' delta lobes (mirror, glass, the straight-through
-        ``Null`` lobe), set on ``res`` with their origins."""
-        n, d, nf, front, hit, uslot, offset = h.n, h.d, h.nf, h.front, h.hit, h.uslot, h.offset
+        ``Null`` lobe), set on ``res`` with their origins. ``branch``: the lobes under a
+        symbolic ``dr.if_stmt`` on the hits whose slot has one (``tables.spawns``)."""
+        n, d, hit, uslot, offset = h.n, h.d, h.hit, h.uslot, h.offset
+        zero = (dr.zeros(mi.Color3f, n), dr.zeros(mi.Color3f, n), dr.zeros(mi.Vector3f, n),
+                dr.zeros(mi.Vector3f, n))
+        if branch:
+            spawns = hit & dr.gather(mi.Bool, tables.spawns, uslot, hit)
+            r, tw, dir_r, dir_t = dr.if_stmt(zero, spawns, lambda *z: self._lobes(tables, h, *z),
+                                             lambda *z: z, mode="symbolic", label="links1_lobes")
+        else:
+            r, tw, dir_r, dir_t = self._lobes(tables, h, *zero)
+        has_r = hit & (dr.max(r) > 0)
+        has_tt = hit & (dr.max(tw) > 0)
+        dir_r = dr.normalize(dir_r)
+        dir_t = dr.normalize(dir_t)
+        res.r, res.tw, res.has_r, res.has_t = r, tw, has_r, has_tt
+        res.dir_r, res.dir_t, res.o_r, res.o_t = dir_r, dir_t, offset(dir_r), offset(dir_t)
+
+    def _lobes(self, tables, h, r, tw, dir_r, dir_t):
+        """The mirror and refraction weights and directions ``(r, tw, dir_r, dir_t)`` of the
+        hits (:meth:`_secondary`), from zeros."""
+        d, nf, front, uslot = h.d, h.nf, h.front, h.uslot
         ph, mb, bsdf, sif = h.ph, h.mb, h.bsdf, h.sif
-        r = dr.zeros(mi.Color3f, n)
-        tw = dr.zeros(mi.Color3f, n)
-        dir_r = dr.zeros(mi.Vector3f, n)
-        dir_t = dr.zeros(mi.Vector3f, n)
         if tables.any_phong_r or tables.any_phong_t:
             cos_i = -dr.dot(d, nf)
             dir_r = d + nf * (2.0 * cos_i)                                  # eq. (3.12)
@@ -542,12 +561,7 @@ class Tracer:
                 ok = act & (dr.max(wn) > 0)
                 tw = dr.select(ok, wn, tw)
                 dir_t = dr.select(ok, d, dir_t)
-        has_r = hit & (dr.max(r) > 0)
-        has_tt = hit & (dr.max(tw) > 0)
-        dir_r = dr.normalize(dir_r)
-        dir_t = dr.normalize(dir_t)
-        res.r, res.tw, res.has_r, res.has_t = r, tw, has_r, has_tt
-        res.dir_r, res.dir_t, res.o_r, res.o_t = dir_r, dir_t, offset(dir_r), offset(dir_t)
+        return r, tw, dir_r, dir_t
 
     @staticmethod
     def _unmasked(tables, bsdf, sif, uslot, active):

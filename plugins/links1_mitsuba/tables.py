@@ -104,6 +104,13 @@ def _spectrum_rgb(node):
     return np.repeat(v, 3) if v.size == 1 else v if v.size == 3 else None
 
 
+def _spawn_table(is_phong, refl, trans, mitsuba_delta):
+    """Per slot, whether a hit there can spawn a child (``Prepared.spawns``): a links1_phong
+    slot whose reflectance or transmittance is not zero, a Mitsuba BSDF with a delta or Null
+    lobe (``mitsuba_delta``)."""
+    return mi.Bool(mitsuba_delta | (is_phong & ((refl.max(1) > 0) | (trans.max(1) > 0))))
+
+
 def _unmask(mi, b):
     """The BSDF a Mitsuba ``mask`` (nested masks too) wraps; ``b`` itself if it is no mask."""
     while kind_of(b) == "Mask":
@@ -295,6 +302,8 @@ class Tables:
                 return False
             # the tables whose values changed, made as _prepare_scene makes them (the same bits)
             new = {k: mi.Float(v.ravel()) for k, v in now.items() if not np.array_equal(v, base.phong_np[k])}
+            if not np.array_equal(now["refl"].max(1) > 0, base.phong_np["refl"].max(1) > 0):
+                new["spawns"] = _spawn_table(base.is_phong_np, now["refl"], trans, base.mitsuba_delta_np)
         lam_now = None
         if lam:
             lam_now = base.lam_np.copy()
@@ -449,6 +458,7 @@ class Tables:
         base.any_mitsuba_dr, base.any_mitsuba_dt = bool(has_dr.any()), bool(has_dt.any())
         base.any_mitsuba_null = bool(has_null.any())
         base.any_mitsuba_delta = bool(np.any(has_dr | has_dt | has_null))
+        base.mitsuba_delta_np = has_dr | has_dt | has_null
         # masks: their delta lobes are sampled on the nested BSDF and scaled by the opacity
         # (Mitsuba's mask.sample cannot sample one lobe alone: it returns its null lobe)
         # the delta lobes by component: each component of a slot's sampler (a mask's nested BSDF)
@@ -474,6 +484,7 @@ class Tables:
         base.any_phong_r = bool(np.any(refl.max(1) > 0))
         base.any_phong_t = bool(np.any(trans.max(1) > 0))
         base.any_specular = base.any_mitsuba_delta or base.any_phong_r or base.any_phong_t
+        base.spawns = _spawn_table(is_phong, refl, trans, has_dr | has_dt | has_null)
         base.glossy = mi.Bool(glossy)
         # links1_quadric shapes whose Mitsuba BSDF has a texture get the core's uv
         base.uv_slots = {sp.slot for sp in self.shapes.custom if sp.__class__.__name__ == "QuadricSpec"
@@ -490,6 +501,8 @@ class Tables:
         for spec in self.shapes.custom:
             checked_index([spec.slot], nslots, "custom shape slot")
         base.bsdf_ptr = mi.BSDFPtr(bsdfs) if not base.all_phong else None
+        shaded = is_phong | np.array([bool(int(b.flags()) & int(mi.BSDFFlags.Smooth)) for b in bsdfs])
+        base.shaded, base.all_shaded = mi.Bool(shaded), bool(shaded.all())
         self._lambert_tables(base, bsdfs, is_phong)
         # shadow transmittance (3-3-3): Phong t; Mitsuba BSDFs are opaque
         base.shadow_t_np = trans.copy()

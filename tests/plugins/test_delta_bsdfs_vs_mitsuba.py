@@ -156,3 +156,46 @@ def test_mask_around_dielectric_warns_in_both_renderers(variant):
     with pytest.warns(UserWarning, match="straight-through"):
         sc = load_string(xml, variant=variant)
         sc.integrator().render_window(sc, None, spp=1)
+
+
+def test_branches_skip_only_what_adds_nothing(variant):
+    """The ray tree computes a hit's delta lobes under a branch on the slots that can spawn
+    (``Prepared.spawns``) and its direct light under one on the slots direct light can reach
+    the eye from (``Prepared.shaded``): ``scenes/delta_bsdfs.xml`` (every delta BSDF, diffuse
+    and plastic slots, two delta lights) traced with every hit taken into both branches gives
+    the same radiance, ray counts and children, bit for bit."""
+    import os
+    import drjit as dr
+    import mitsuba as mi
+    import links1_mitsuba as lm
+    from links1.maths.sampling import key_seed, strata
+    from links1_mitsuba.camera import camera_rays
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    scene = lm.load_file(os.path.join(root, "scenes", "delta_bsdfs.xml"), variant=variant, res=40)
+    scene.integrator().max_depth = 5
+    mi.render(scene, spp=1)
+    eng = scene.integrator().engine
+    tracer = eng._tracer()
+    tables = eng.tables.prepare(scene, None, tracer.tuning)
+    base = tables.base or tables
+    spp = 2
+    n = tables.film_size[0] * tables.film_size[1] * spp
+    spawns, shaded = np.asarray(base.spawns), np.asarray(base.shaded)
+    assert spawns.any() and not spawns.all() and shaded.any() and not shaded.all()
+
+    def trace():
+        o, d, tmin, tmax, key, sample = camera_rays(
+            tables, dr.arange(mi.UInt32, n), (dr.opaque(mi.UInt32, spp), dr.opaque(mi.UInt32, strata(spp))),
+            (dr.opaque(mi.UInt32, 0), dr.opaque(mi.UInt32, key_seed(0))))
+        rgb, cost, _, _, _, c = tracer.trace_tree(tables, scene, o, d, tmin, tmax, key, False, sample)
+        return [np.asarray(rgb), np.asarray(cost)] + [np.asarray(c[k]) for k in ("nsh1", "cr", "ct", "nr", "nt", "nsh2")]
+
+    got = trace()
+    base.spawns, base.shaded, base.all_shaded = mi.Bool(np.ones_like(spawns)), mi.Bool(np.ones_like(shaded)), True
+    try:
+        every = trace()
+    finally:
+        base.spawns, base.shaded, base.all_shaded = mi.Bool(spawns), mi.Bool(shaded), False
+    assert got[4].any() and got[5].any()           # refraction at level 1, mirror rays below it
+    for a, b in zip(got, every):
+        assert np.array_equal(a, b)

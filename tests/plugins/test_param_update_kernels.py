@@ -424,6 +424,31 @@ def test_phong_value_update_rebuilds_only_the_material_rows(variant):
     dr.sync_thread()
 
 
+def test_reflectance_update_that_makes_a_slot_spawn_is_the_files_frame(variant):
+    """A ``links1_phong`` reflectance from 0 to more, while another slot reflects already, is
+    an update in place (no build); the slots whose hits spawn children (``Prepared.spawns``:
+    the ray tree computes the lobes under a branch on it) follow it, so the frame and its
+    mirror rays are the file's with that reflectance, bit for bit (the floor's mirror rays
+    added to the blob's)."""
+    import mitsuba as mi
+    import links1_mitsuba as lm
+    xml = scene_xml(CENTRES)
+    scene = lm.load_string(xml)
+    integ = scene.integrator()
+    mi.render(scene, seed=0)
+    builds, reflect = integ.info()["scene_builds"], integ.stats["reflect"]
+    params = mi.traverse(scene)
+    params["floor.bsdf.reflectance.value"] = mi.Color3f(0.5, 0.25, 0.125)
+    params.update()
+    got = np.array(mi.render(scene, seed=0))
+    assert integ.info()["scene_builds"] == builds and integ.info()["value_updates"] == 1
+    old = '<rgb name="diffuse" value="0.6, 0.5, 0.4"/>'
+    assert xml.count(old) == 1
+    fresh = lm.load_string(xml.replace(old, old + '<rgb name="reflectance" value="0.5, 0.25, 0.125"/>'))
+    assert np.array_equal(got, np.array(mi.render(fresh, seed=0)))
+    assert integ.stats["reflect"] == fresh.integrator().stats["reflect"] > reflect > 0
+
+
 def test_specular_update_keeps_the_reflectance_it_defaulted_to(variant):
     """A ``links1_phong`` without ``reflectance`` gets ``r = specular`` when loaded; in
     ``mi.traverse`` the two are separate parameters, so a new ``specular`` leaves ``r`` at the
