@@ -206,6 +206,7 @@ _PARTS = [("tables.Tables", "_update_values", "  tables brought up to the update
           ("gradients.Gradients", "_render_ad", "  AD blocks: traced, film, evaluated"),
           ("boundary", "boundary_image", "  term (boundary_image): made, evaluated"),
           ("boundary", "_active", "    corner queries (_active)"),
+          ("launch.Launches", "frozen_stage", "    frozen stages (frozen_stage: corners, lines, bisection, ends)"),
           ("launch.Launches", "trace_points", "    side launch (trace_points)")]
 
 
