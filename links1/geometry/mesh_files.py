@@ -22,6 +22,7 @@ Mitsuba semantics kept here
 """
 from __future__ import annotations
 
+import re
 import struct
 import zlib
 
@@ -421,14 +422,8 @@ SERIALIZED_NORMALS, SERIALIZED_TEXCOORDS, SERIALIZED_COLORS = 0x1, 0x2, 0x8
 SERIALIZED_FACE_NORMALS, SERIALIZED_SINGLE, SERIALIZED_DOUBLE = 0x10, 0x1000, 0x2000
 
 
-def read_serialized(path: str, shape_index: int = 0):
-    """Read mesh ``shape_index`` of a Mitsuba ``.serialized`` file (format in the module doc) →
-    ``(vertices, faces, normals or None, texcoords or None)``."""
-    try:
-        with open(path, "rb") as fh:
-            data = fh.read()
-    except OSError as exc:
-        raise ValueError(f"{path}: cannot read: {exc.strerror}") from None
+def _serialized_start(data: bytes, path: str, k: int):
+    """``(format version, offset of mesh k's zlib stream)`` of a serialized file's bytes."""
     if len(data) < 4:
         raise ValueError(f"{path}: too short for a serialized mesh ({len(data)} bytes)")
     magic, version = struct.unpack_from("<HH", data, 0)
@@ -437,7 +432,6 @@ def read_serialized(path: str, shape_index: int = 0):
                          f"expected 0x{SERIALIZED_MAGIC:04X})")
     if version not in (3, 4):
         raise ValueError(f"{path}: serialized format version {version} is not supported (3 or 4)")
-    k = int(shape_index)
     if k < 0:
         raise ValueError(f"{path}: shape_index must be >= 0, got {k}")
     start = 4
@@ -454,6 +448,19 @@ def read_serialized(path: str, shape_index: int = 0):
         if start + 4 > at or struct.unpack_from("<H", data, start)[0] != SERIALIZED_MAGIC:
             raise ValueError(f"{path}: the end-of-file table gives mesh {k} a bad offset {start}")
         start += 4
+    return version, start
+
+
+def read_serialized(path: str, shape_index: int = 0):
+    """Read mesh ``shape_index`` of a Mitsuba ``.serialized`` file (format in the module doc) →
+    ``(vertices, faces, normals or None, texcoords or None)``."""
+    try:
+        with open(path, "rb") as fh:
+            data = fh.read()
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot read: {exc.strerror}") from None
+    k = int(shape_index)
+    version, start = _serialized_start(data, path, k)
     stream = zlib.decompressobj()
     try:
         body = stream.decompress(data[start:])
@@ -498,3 +505,36 @@ def read_serialized(path: str, shape_index: int = 0):
     if normals is not None:
         normals = tf.normalize(normals)
     return vertices, faces, normals, texcoords
+
+
+def stores_normals(path: str, kind: str, shape_index: int = 0) -> bool:
+    """Whether the mesh file ``path`` of ``kind`` ``'ply'``, ``'obj'`` or ``'serialized'``
+    stores vertex normals, as Mitsuba 3.9.1's readers decide (a PLY vertex element with ``nx``,
+    an OBJ ``vn`` line, a serialized mesh's normals flag), reading no more of it than that
+    takes; ValueError naming the file when it cannot be read."""
+    try:
+        with open(path, "rb") as fh:
+            if kind == "ply":
+                head = b""
+                while b"end_header" not in head:
+                    chunk = fh.read(1 << 16)
+                    if not chunk:
+                        break
+                    head += chunk
+                _, elements, _ = _ply_header(head, path)
+                return any(e[0] == "vertex" and any(q[0] == "nx" for q in e[2]) for e in elements)
+            data = fh.read()
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot read: {exc.strerror}") from None
+    if kind == "obj":
+        return re.search(rb"(?m)^[ \t]*vn[ \t]", data) is not None
+    if kind != "serialized":
+        raise ValueError(f"{path}: unknown mesh file kind {kind!r} (ply, obj, serialized)")
+    _, start = _serialized_start(data, path, int(shape_index))
+    try:
+        head = zlib.decompressobj().decompress(data[start:], 4)
+    except zlib.error as exc:
+        raise ValueError(f"{path}: mesh {shape_index}: corrupt compressed data ({exc})") from None
+    if len(head) < 4:
+        raise ValueError(f"{path}: mesh {shape_index}: truncated data in its flags")
+    return bool(struct.unpack("<I", head)[0] & SERIALIZED_NORMALS)

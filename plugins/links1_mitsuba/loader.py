@@ -241,11 +241,44 @@ def _add_integrator(state, plugin: str):
     return nodes[len(nodes) - 1]
 
 
-def _repair_normals(scene, places=None) -> None:
-    """Mitsuba 3.9.1's OBJ reader flags vertex normals when a file has ``vn`` lines that no
-    face references, and leaves them uninitialised: recompute such normals (angle-weighted,
-    as the core does for meshes without normals)."""
+#: Mitsuba's mesh files, whose reader computes smooth vertex normals where the file stores none
+#: (``Mesh::recompute_vertex_normals``)
+MESH_FILES = ("ply", "obj", "serialized")
+
+
+def _mesh_files(state) -> dict:
+    """Shape id -> (plugin, resolved file name, shape_index) of every mesh-file node that will
+    have vertex normals (not ``face_normals``), while the file resolver still holds the scene's
+    paths."""
     import mitsuba as mi
+    out = {}
+    fr = mi.file_resolver()
+    for node in state.nodes:
+        props = node.props
+        if node.type != mi.ObjectType.Shape or props.plugin_name() not in MESH_FILES or not props.id():
+            continue
+        if "filename" not in props or ("face_normals" in props and bool(props["face_normals"])):
+            continue
+        index = int(props["shape_index"]) if "shape_index" in props else 0
+        out[props.id()] = (props.plugin_name(), str(fr.resolve(str(props["filename"]))), index)
+    return out
+
+
+def _settle_normals(scene, mesh_files: dict, places=None) -> None:
+    """Vertex normals that are the same bits on every load.
+
+    Mitsuba computes a mesh file's missing normals (``Mesh::recompute_vertex_normals``) with
+    float32 atomic scatter-adds over Dr.Jit's threads: the order of each vertex's sum, and so
+    its last bits, change from load to load (the image of a PLY without normals differed in a
+    few pixels run to run). Such normals are computed again on one thread, in face order.
+    Mitsuba 3.9.1's OBJ reader also flags normals when a file has ``vn`` lines that no face
+    references, and leaves them uninitialised: those are recomputed the same way, with a
+    warning. The thread count goes back at once (one thread stalls Mitsuba's EXR reads)."""
+    import drjit as dr
+    import mitsuba as mi
+
+    from links1.geometry.mesh_files import stores_normals
+    redo = []
     for s in scene.shapes():
         if not (s.is_mesh() and s.has_vertex_normals()):
             continue
@@ -257,8 +290,24 @@ def _repair_normals(scene, places=None) -> None:
         if n.size and not (np.all(np.isfinite(ln)) and np.all(np.abs(ln - 1.0) < 1e-3)):
             warnings.warn(f"{place_of(s, places) or repr(s.id())}: invalid vertex normals from Mitsuba's reader "
                           "(unreferenced 'vn' lines?); recomputed", stacklevel=3)
+            redo.append(s)
+        elif s.id() in mesh_files:
+            kind, path, index = mesh_files[s.id()]
+            try:
+                if not stores_normals(path, kind, index):
+                    redo.append(s)
+            except ValueError:
+                pass   # Mitsuba read it: its normals stay as Mitsuba made them
+    if not redo:
+        return
+    threads = dr.thread_count()
+    dr.set_thread_count(1)
+    try:
+        for s in redo:
             s.recompute_vertex_normals()
-            mi.traverse(s).update()
+            dr.eval(mi.traverse(s)["vertex_normals"])
+    finally:
+        dr.set_thread_count(threads)
 
 
 def _where(state, node) -> str:
@@ -420,12 +469,13 @@ def _load(parse, source, integrator, base_dir, variant, params, filename=None):
         places = _places(state, None if filename else source)
         mi.parser.transform_all(config, state)
         _hand_places(state, places)
+        mesh_files = _mesh_files(state)
         scene = mi.parser.instantiate(config, state)
     finally:
         fr.clear()
         for i in range(len(saved)):
             fr.append(saved[i])
-    _repair_normals(scene, places)
+    _settle_normals(scene, mesh_files, places)
     if integrator != "scene":
         whitted = scene.integrator()
         whitted.attach(specs, slot_of_id, names, places)

@@ -126,6 +126,38 @@ def test_ply_truncated(tmp_path):
         mesh_files.read_ply(str(p))
 
 
+@pytest.mark.parametrize("kind", ["ply", "ply-ascii", "obj", "serialized-3", "serialized-4"])
+def test_stores_normals_says_what_the_file_holds(tmp_path, kind):
+    """``stores_normals`` (which mesh files Mitsuba computes normals for) against files written
+    with and without normals, and the readers' own answer (normals or None)."""
+    from tests.core.test_serialized import QUAD, TET, write_serialized
+    v, f, n = meshes.cube_mesh()
+    answers = []
+    for with_normals in (True, False):
+        p = str(tmp_path / f"{with_normals}.{kind[:3]}")
+        if kind.startswith("ply"):
+            mesh_files.write_ply(p, v, f, n if with_normals else None, binary=kind == "ply")
+            read = mesh_files.read_ply(p)[2]
+        elif kind == "obj":
+            mesh_files.write_obj(p, v, f, n if with_normals else None)
+            read = mesh_files.read_obj(p)[2]
+        else:   # the file's first mesh has normals, its second none
+            write_serialized(p, [TET, QUAD], int(kind[-1]))
+            read = mesh_files.read_serialized(p, 0 if with_normals else 1)[2]
+        index = 1 if kind.startswith("serialized") and not with_normals else 0
+        answers.append((mesh_files.stores_normals(p, kind.split("-")[0], index), read is not None))
+    assert answers == [(True, True), (False, False)]
+
+
+def test_stores_normals_names_a_bad_file(tmp_path):
+    p = tmp_path / "bad.ply"
+    p.write_bytes(b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\n")
+    with pytest.raises(ValueError, match="bad.ply.*end_header"):
+        mesh_files.stores_normals(str(p), "ply")
+    with pytest.raises(ValueError, match="missing.obj: cannot read"):
+        mesh_files.stores_normals(str(tmp_path / "missing.obj"), "obj")
+
+
 # -- normals, transforms ---------------------------------------------------------------------
 
 def test_angle_weighted_normals_of_shared_cube_corners():
