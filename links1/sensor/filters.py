@@ -117,6 +117,12 @@ class Filter:
         far = (-b - 6 * c) * x3 + (6 * b + 30 * c) * x2 + (-12 * b - 48 * c) * x + (8 * b + 24 * c)
         return np.where(x < 2.0, np.where(x < 1.0, near, far) / 6.0, 0.0)
 
+    def eval32(self, x) -> np.ndarray:
+        """The weights of ``links1_mitsuba``'s float32 film: :meth:`eval` (float64) rounded to
+        float32 (a float32 ``exp`` near the radius, ``exp(a x²) - exp(a r²)``, would cancel to a
+        few significant bits)."""
+        return self.eval(x).astype(np.float32)
+
     def describe(self) -> str:
         return self.name + "".join(f" {k}={v:g}" for k, v in self.params.items())
 
@@ -159,10 +165,15 @@ class FilterGather:
     own samples); :meth:`result` adds a pixel's records from its neighbours on the film in
     ascending ``dy``, then ``dx``. With one layer this is the order ``(dy, dx)`` of the terms
     themselves.
+
+    ``dtype``: of the weights, sums and the division (float64: the core's images; float32: the
+    arithmetic of ``links1_mitsuba``'s device film, whose sample offsets are the float32 rounding
+    of the float64 ones, as its camera rays have them).
     """
 
-    def __init__(self, filt: Filter, window, film_size):
+    def __init__(self, filt: Filter, window, film_size, dtype=np.float64):
         self.filter = filt
+        self.dtype = np.dtype(dtype)
         self.window = tuple(int(v) for v in window)
         W, H = (int(v) for v in film_size)
         x0, y0, w, h = self.window
@@ -173,7 +184,7 @@ class FilterGather:
         nb = 2 * b + 1
         #: per neighbour offset (dy, dx) and sample-window pixel: Σ w·value and Σ w
         self._num = None
-        self._den = np.zeros((nb, nb, sy1 - sy0, sx1 - sx0))
+        self._den = np.zeros((nb, nb, sy1 - sy0, sx1 - sx0), dtype=self.dtype)
 
     def inner(self, a: np.ndarray) -> np.ndarray:
         """The window's own pixels of an array over the sample window (first two axes)."""
@@ -185,12 +196,15 @@ class FilterGather:
         """One layer of samples: ``values (sh, sw, C)``, their offsets in their pixel
         ``offx, offy (sh, sw)`` in [0, 1), optionally a per-sample factor ``weight (sh, sw)``
         (0 leaves a sample out)."""
-        values = np.asarray(values, dtype=np.float64)
+        dt = self.dtype
+        values = np.asarray(values, dtype=dt)
         if self._num is None:
-            self._num = np.zeros(self._den.shape + values.shape[2:])
+            self._num = np.zeros(self._den.shape + values.shape[2:], dtype=dt)
         b = self.filter.border
-        f = self.filter.eval
-        offx, offy = np.asarray(offx, dtype=np.float64), np.asarray(offy, dtype=np.float64)
+        # float32: the device film's weights (Filter.eval32) at the offsets (exact in float64)
+        f = self.filter.eval if dt == np.float64 else self.filter.eval32
+        offx = np.asarray(offx, dtype=dt).astype(np.float64)
+        offy = np.asarray(offy, dtype=dt).astype(np.float64)
         # the 1-D weights of every sample towards the pixel dx (dy) columns (rows) away from it
         wxs = [f(0.5 - dx - offx) for dx in range(-b, b + 1)]
         wys = [f(0.5 - dy - offy) if weight is None else f(0.5 - dy - offy) * weight
@@ -206,7 +220,7 @@ class FilterGather:
         x0, y0, w, h = self.window
         sx0, sy0, sw, sh = self.sample_window
         b = self.filter.border
-        num, den = np.zeros((h, w) + self._num.shape[4:]), np.zeros((h, w))
+        num, den = np.zeros((h, w) + self._num.shape[4:], dtype=self.dtype), np.zeros((h, w), dtype=self.dtype)
         for dy in range(-b, b + 1):
             # rows of the window whose neighbour row y + dy lies on the film
             ya, yb = max(0, sy0 - (y0 + dy)), min(h, sy0 + sh - (y0 + dy))
@@ -224,19 +238,20 @@ class FilterGather:
 
 
 def filter_samples(filt: Filter, window, film_size, values: np.ndarray, origin, spp: int,
-                   seed: int) -> np.ndarray:
+                   seed: int, dtype=np.float64) -> np.ndarray:
     """Filtered pixels ``(h, w, C)`` of ``window`` from every sample of a traced block.
 
     ``values (th, tw, spp, C)``: the samples (pattern of :mod:`links1.maths.sampling` with ``spp`` and
     ``seed``) of the pixels of a block whose top-left pixel is ``origin = (tx0, ty0)`` (it may
     start off the film) and which covers the window's :attr:`FilterGather.sample_window`.
+    ``dtype``: the gather's arithmetic (:class:`FilterGather`).
     """
-    gather = FilterGather(filt, window, film_size)
+    gather = FilterGather(filt, window, film_size, dtype)
     sx0, sy0, sw, sh = gather.sample_window
     r0, c0 = sy0 - int(origin[1]), sx0 - int(origin[0])
     block = np.asarray(values)[r0:r0 + sh, c0:c0 + sw]
     py, px = np.mgrid[sy0:sy0 + sh, sx0:sx0 + sw]
     for i in range(spp):
-        ox, oy = sample_offsets(px, py, i, spp, seed, int(film_size[0]))
+        ox, oy = (o.astype(dtype) for o in sample_offsets(px, py, i, spp, seed, int(film_size[0])))
         gather.add(block[:, :, i], ox, oy)
     return gather.result()

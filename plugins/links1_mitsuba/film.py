@@ -8,18 +8,21 @@ Everything here is a per-output-pixel *gather* in one fixed order, never a scatt
 * box filter (Mitsuba's fast path): the mean of the pixel's ``spp`` samples, summed in float64
   in sample order and divided by ``spp`` (numpy's ``mean`` of ``launch.render_windows`` before);
 * any other filter: the pixel is ``Σ w·s / Σ w`` over its ``spp`` samples and those of its
-  ``(2b+1)²`` neighbours on the film, with the 1-D weights of
-  :meth:`links1.sensor.filters.Filter.eval` evaluated in float64 at the sample offsets of
-  :mod:`links1.maths.sampling` (recomputed from the same integer hash, in float64 as
-  :func:`links1.maths.sampling.sample_offsets`; the kernels' own camera rays use the float32
-  rounding of the same offsets), summed in float64 in the order of
-  :class:`links1.sensor.filters.FilterGather`: per neighbour row, then column, the neighbour's
-  own samples in sample order summed apart, then added to the pixel;
+  ``(2b+1)²`` neighbours on the film, in float32 (the output's precision: twice the SIMD lanes
+  and half the bytes of float64): the 1-D weights of :meth:`links1.sensor.filters.Filter.eval`
+  evaluated in float64 at the sample offsets of :mod:`links1.maths.sampling` rounded to float32
+  (recomputed from the same integer hash as :func:`links1.maths.sampling.sample_offsets`: the
+  positions of the kernels' own camera rays) and rounded to float32, summed in float32 in the
+  order of :class:`links1.sensor.filters.FilterGather` with ``dtype=np.float32``: per neighbour
+  row, then column, the neighbour's own samples in sample order summed apart, then added to
+  the pixel. Against the float64 film at the same positions a pixel moves by a few float32 ulps
+  where the weights are positive (gaussian, tent: measured ≤ 10), more only relative to a pixel
+  that nearly cancels (mitchell, lanczos: negative lobes); ``compare/results/film_precision.md``;
 * AOVs: ``depth``/``normal``/``id`` of the pixel's sample 0, ``cost`` summed over its samples,
   ``samples`` = spp.
 
-The non-box filters, in two passes at spp > 1 (each sample is read once, its ``2(2b+1)``
-weights made once, in the kernel: cheaper than reading them from a table):
+The non-box filters, in two passes at spp > 1 (each sample is read once with its ``2(2b+1)``
+weights, made once a batch, :func:`_sample_weights`):
 
 1. a lane a pixel ``q`` of a sample window (:func:`_filter_partials`): over ``q``'s samples, for
    each neighbour offset ``(dy, dx)``, the record ``(Σ w·r, Σ w·g, Σ w·b, Σ w)`` of the terms
@@ -38,8 +41,8 @@ the two passes, whose unrolled loops LLVM compiles in a fraction of the strips' 
 table would pass :data:`FILM_TABLE_BYTES`, one kernel a pixel (:func:`_filter_direct`): the same
 operations in the same order, the same bits.
 
-What depends only on the windows (the :class:`Batch` tables, the sample ids, the strips'
-column weights) is kept with the batch while the same windows are rendered again
+What depends only on the windows (the :class:`Batch` tables, the sample ids, the samples'
+weights) is kept with the batch while the same windows are rendered again
 (:func:`cached_batch`), and the divisions by
 run-time values go through :func:`links1_mitsuba.util.udiv` (exact).
 
@@ -49,11 +52,12 @@ spp, seeds) enters the kernels as an opaque value and the windows' origins, size
 as tables (:class:`Batch`): new windows and batch sizes replay the cached kernels (one kernel
 per filter type and AOV list), and a batch of hundreds of windows is still one kernel.
 
-Agreement with the numpy path (:func:`links1.sensor.filters.filter_samples`): bit for bit for box,
-tent, mitchell and catmullrom; gaussian and lanczos differ where Dr.Jit's float64 ``exp`` /
-``sin`` differ from libm's by an ulp (about one evaluation in six), i.e. a relative 1e-15 in
-float64 and, after the float32 rounding of ``mi.render``, almost always nothing. A division
-by a Python float would become a reciprocal multiply in Dr.Jit: divisors are opaque.
+Agreement with the numpy path (:func:`links1.sensor.filters.filter_samples`, float64 for box,
+``dtype=np.float32`` for the others): bit for bit for box, tent, mitchell and catmullrom;
+gaussian and lanczos weights differ where Dr.Jit's float64 ``exp`` / ``sin`` differ from libm's
+by an ulp (about one evaluation in six) and that ulp survives the rounding to float32 (about
+once in 2^29): bit for bit on every scene measured. A division by a Python float would become
+a reciprocal multiply in Dr.Jit: divisors are opaque.
 """
 from __future__ import annotations
 
@@ -68,7 +72,7 @@ import numpy as np
 from .util import mix32, table, udiv
 
 #: Largest table of the filter's pass 1 (:func:`_filter_partials`: ``(2b+1)²`` records of four
-#: float64 a pixel of the sample windows; 210 MB at 512² for a gaussian, 1.66 GB at
+#: float32 a pixel of the sample windows; 105 MB at 512² for a gaussian, 830 MB at
 #: 1920 × 1080); a bigger film makes each pixel's records in pass 2 itself
 #: (:func:`_filter_direct`: the same values, the weights made ``(2b+1)²`` times).
 FILM_TABLE_BYTES = 1 << 31
@@ -84,13 +88,9 @@ STRIPS_SPP = 6
 #: Pixels of a row a lane of :func:`_filter_strips` computes (each column's samples are read
 #: by ``(P + 2b) / P`` lanes a neighbour row)
 STRIPS_P = 8
-#: Largest table of column weights (:func:`_column_weights`: 64 bytes a sample for a gaussian)
-#: kept with a batch between frames
+#: Largest table of the samples' weights (:func:`_sample_weights`: 64 bytes a sample for a
+#: gaussian, 268 MB at 512², spp 16) kept with a batch between frames
 KEEP_TABLE_BYTES = 3 << 27
-#: Filters whose strips read a sample's row weights from :func:`_column_weights`' table instead
-#: of making them from its ``oy`` (two ``sin`` a weight; lanczos at 512², spp 4: 161 against
-#: 192 ms; a gaussian's ``exp`` is cheaper than the read: 104 against 97 ms)
-ROW_TABLE_FILTERS = ("lanczos",)
 
 #: Batches kept by :func:`cached_batch` (per integrator: the last few window sets).
 KEEP_BATCHES = 2
@@ -378,7 +378,7 @@ def reconstruct(rfilter, film_size, spp, seed, batch, data, aovs, dtype=None, mo
     elif strips:
         for p, rgb in enumerate(_filter_strips(rfilter, (W, H), seed, batch, data, L, mode)):
             chans[p] += rgb
-    elif not box and batch.sources * (2 * rfilter.border + 1) ** 2 * 32 <= FILM_TABLE_BYTES:
+    elif not box and batch.sources * (2 * rfilter.border + 1) ** 2 * 16 <= FILM_TABLE_BYTES:
         part = _filter_partials(rfilter, (W, H), seed, batch, data, n_s, mode)
         chans[0] += _filter_sum(rfilter, (W, H), batch, part, L)
     elif not box:
@@ -484,7 +484,7 @@ def _filter_gather(film_size, batch, data, L, centred, mode):
     as a loop over one pixel's neighbours. A column is read where it lies in the window's sample
     window (the window plus the border, clipped to the film): for a pixel inside the row exactly
     "on the film", and never outside the window's own lanes for the pixels past the row's end."""
-    F64, U32, I32 = mi.Float64, mi.UInt32, mi.Int32
+    FT, U32, I32 = mi.Float32, mi.UInt32, mi.Int32
     P, nb = len(L.valid), len(centred[0])
     b = nb // 2
     y = I32(L.ly + L.y0)
@@ -503,7 +503,7 @@ def _filter_gather(film_size, batch, data, L, centred, mode):
         on_y = (yy >= 0) & (yy < Hi)
         # the strip's first column's sample in the launch (c = 0; U32 arithmetic wraps)
         lane0 = L.start + (U32(dr.select(on_y, yy, 0)) - L.sy0) * L.sw + U32(cx0)
-        w_row = dr.gather(F64, centred[1], dyi)   # the step's row weight (one for all lanes)
+        w_row = dr.gather(FT, centred[1], dyi)   # the step's row weight (one for all lanes)
         for c in range(P + 2 * b):
             on = on_y & (U32(cx0 + c) < L.sw)
             lane = dr.select(on, lane0 + c if c else lane0, 0)
@@ -513,10 +513,10 @@ def _filter_gather(film_size, batch, data, L, centred, mode):
                 # off the film the weight and the term are zeros: a sum plus a zero is the sum
                 # (never -0: it starts at +0), the same bits without a select
                 wgt = wy * centred[0][c - p]
-                r[p], g[p], bl[p] = r[p] + wgt * F64(v[0]), g[p] + wgt * F64(v[1]), bl[p] + wgt * F64(v[2])
+                r[p], g[p], bl[p] = r[p] + wgt * v[0], g[p] + wgt * v[1], bl[p] + wgt * v[2]
                 den[p] = den[p] + wgt
         return (dyi + 1, *r, *g, *bl, *den)
-    z = dr.zeros(F64, L.n)
+    z = dr.zeros(FT, L.n)
     _, *acc = _loop((dr.zeros(U32, L.n), *[z] * (4 * P)), lambda j, *_: j < nb, body, mode, nb)
     return [_normalised(acc[p::P]) for p in range(P)]
 
@@ -533,14 +533,20 @@ def _weights(rfilter, pix, i, n_s, k, sd, nb):
     ``sd``): :func:`filter_eval` at the offsets of :func:`offsets`, made in the kernel (cheaper
     than reading them from a table), the values of :meth:`links1.sensor.filters.FilterGather.add`."""
     ox, oy = offsets(pix, i, n_s, k, sd)
-    return _weights_at(rfilter, ox, nb), _weights_at(rfilter, oy, nb)
+    return _weights_at(rfilter, mi.Float32(ox), nb), _weights_at(rfilter, mi.Float32(oy), nb)
 
 
 def _weights_at(rfilter, o, nb):
     """The ``nb`` 1-D weights of a sample at offset ``o`` in its pixel towards the pixels
     ``d - b`` away (``d = 0 .. nb - 1``)."""
     b = nb // 2
-    return [filter_eval(rfilter, (0.5 - float(d - b)) - o) for d in range(nb)]
+    return [weight32(rfilter, (0.5 - float(d - b)) - mi.Float64(o)) for d in range(nb)]
+
+
+def weight32(f, x):
+    """The film's weight at offset ``x`` (float64, exact from a float32 sample offset):
+    :func:`filter_eval` in float64, rounded to float32 (:meth:`links1.sensor.filters.Filter.eval32`)."""
+    return mi.Float32(filter_eval(f, x))
 
 
 def _add_terms(acc, wy, wx, v):
@@ -564,7 +570,7 @@ def _filter_partials(rfilter, film_size, seed, batch, data, n_s, mode):
     :meth:`links1.sensor.filters.FilterGather.add` sums them. Returns ``nb²`` Float64 tables, one
     a offset ``dy · nb + dx``, with pixel ``q``'s record at ``4q``; a record depends only on its
     pixel's samples."""
-    F64, U32 = mi.Float64, mi.UInt32
+    FT, U32 = mi.Float32, mi.UInt32
     nb = 2 * rfilter.border + 1
     nq = batch.sources
     q = dr.arange(U32, nq)
@@ -576,23 +582,31 @@ def _filter_partials(rfilter, film_size, seed, batch, data, n_s, mode):
     first = q * n_s
     total = data["total"]
     k, sd = _strata(batch.spp), op_u(seed)
+    ArrayX = getattr(sys.modules[FT.__module__], "ArrayXf")
+    pad = _pad(nb)
+    # the samples' weights from the table kept with the batch (the same values)
+    kept = batch.keep and batch.lanes * 2 * pad * 4 <= KEEP_TABLE_BYTES
+    weights = _sample_weights(rfilter, film_size[0], seed, batch) if kept else None
 
     def body(i, *acc):
         v = dr.gather(type(total), total, first + i)
-        v = [F64(v[c]) for c in range(3)]
-        wx, wy = _weights(rfilter, pix, i, n_s, k, sd, nb)
+        v = [v[0], v[1], v[2]]
+        if kept:
+            at = (first + i) * 2
+            wx, wy = dr.gather(ArrayX, weights, at, shape=(pad, nq)), dr.gather(ArrayX, weights, at + 1, shape=(pad, nq))
+        else:
+            wx, wy = _weights(rfilter, pix, i, n_s, k, sd, nb)
         out = []
         for dy in range(nb):
             for dx in range(nb):
                 at = 4 * (dy * nb + dx)
                 out += _add_terms(acc[at:at + 4], wy[dy], wx[dx], v)
         return (i + 1, *out)
-    z = dr.zeros(F64, nq)
+    z = dr.zeros(FT, nq)
     _, *acc = _loop((dr.zeros(U32, nq), *[z] * (4 * nb * nb)), lambda i, *_: i < n_s, body, mode, batch.spp)
     # a table per offset (separate scatters into one array would each evaluate the ones
     # before: the loop once per record); adjacent lanes write adjacent records
-    ArrayX = getattr(sys.modules[F64.__module__], "ArrayXf64")
-    parts = [dr.empty(F64, nq * 4) for _ in range(nb * nb)]
+    parts = [dr.empty(FT, nq * 4) for _ in range(nb * nb)]
     for kk, part in enumerate(parts):
         dr.scatter(part, ArrayX(*acc[4 * kk:4 * kk + 4]), q)
     return parts
@@ -623,11 +637,11 @@ def _filter_sum(rfilter, film_size, batch, part, L):
     ``dx``, as :meth:`links1.sensor.filters.FilterGather.result` sums them; RGB over the weight
     sum. Off the film a record is zeros (a masked read): a sum plus +0 is the sum (never -0:
     it starts at +0)."""
-    F64 = mi.Float64
-    ArrayX = getattr(sys.modules[F64.__module__], "ArrayXf64")
+    FT = mi.Float32
+    ArrayX = getattr(sys.modules[FT.__module__], "ArrayXf")
     nb = 2 * rfilter.border + 1
     q0 = dr.gather(mi.UInt32, batch.first_source, L.window)
-    acc = [dr.zeros(F64, L.n)] * 4
+    acc = [dr.zeros(FT, L.n)] * 4
     for dy, dx, on, q in _neighbours(rfilter, film_size, L):
         rec = dr.gather(ArrayX, part[dy * nb + dx], dr.select(on, q0 + q, 0), on, shape=(4, L.n))
         acc = [a + rec[c] for c, a in enumerate(acc)]
@@ -639,14 +653,14 @@ def _filter_direct(rfilter, film_size, seed, batch, data, L, mode):
     than :data:`FILM_TABLE_BYTES`): each output pixel makes the record ``(dy, dx)`` of each
     neighbour from its samples (their weights made again for each output pixel) and adds it
     as :func:`_filter_sum` does: the same operations in the same order, the same bits."""
-    F64, U32 = mi.Float64, mi.UInt32
+    FT, U32 = mi.Float32, mi.UInt32
     W = film_size[0]
     nb = 2 * rfilter.border + 1
     n_s = L.n_s
     total = data["total"]
     k, sd = _strata(batch.spp), op_u(seed)
     sw = _divisor(L.sw)
-    acc = [dr.zeros(F64, L.n)] * 4
+    acc = [dr.zeros(FT, L.n)] * 4
     for dy, dx, on, q in _neighbours(rfilter, film_size, L):
         first = L.start + q * n_s
         qy = udiv(q, sw)
@@ -655,22 +669,22 @@ def _filter_direct(rfilter, film_size, seed, batch, data, L, mode):
         def body(i, *rec):
             v = dr.gather(type(total), total, first + i, on)
             wx, wy = _weights(rfilter, pix, i, n_s, k, sd, nb)
-            return (i + 1, *_add_terms(rec, wy[dy], wx[dx], [F64(v[c]) for c in range(3)]))
-        z = dr.zeros(F64, L.n)
+            return (i + 1, *_add_terms(rec, wy[dy], wx[dx], [v[0], v[1], v[2]]))
+        z = dr.zeros(FT, L.n)
         _, *rec = _loop((dr.zeros(U32, L.n), *[z] * 4), lambda i, *_: i < n_s, body, mode, batch.spp)
         acc = [dr.select(on, a + r, a) for a, r in zip(acc, rec)]
     return _normalised(acc)
 
 
-def _column_weights(rfilter, film_width, seed, batch, rows=False):
-    """Per sample lane of ``batch`` (:func:`sample_ids`' layout) a record of :func:`_pad` float64:
-    its ``nb`` column weights (:func:`_weights`' ``wx``), then its offset ``oy``; with ``rows``
-    another :func:`_pad` of its ``nb`` row weights (``wy``). One kernel over the samples, kept
-    with the batch (:meth:`Batch.kept`) up to :data:`KEEP_TABLE_BYTES`."""
-    F64, U32 = mi.Float64, mi.UInt32
+def _sample_weights(rfilter, film_width, seed, batch):
+    """Per sample lane of ``batch`` (:func:`sample_ids`' layout) two records of :func:`_pad`
+    float32: its ``nb`` column weights, then its ``nb`` row weights (:func:`_weights`' ``wx``,
+    ``wy``; a float64 ``exp`` / ``sin`` each). One kernel over the samples, kept with the batch
+    (:meth:`Batch.kept`) up to :data:`KEEP_TABLE_BYTES`: a frame of the same windows reads them."""
+    FT, U32 = mi.Float32, mi.UInt32
     nb = 2 * rfilter.border + 1
     pad = _pad(nb)
-    size = 2 * pad if rows else pad
+    size = 2 * pad
 
     def make():
         n_s = op_u(batch.spp)
@@ -682,21 +696,19 @@ def _column_weights(rfilter, film_width, seed, batch, rows=False):
         sw = _divisor(dr.gather(U32, batch.sw, kl))
         py = udiv(pl, sw)
         pix = (py + dr.gather(U32, batch.sy0, kl)) * op_u(film_width) + pl - py * sw + dr.gather(U32, batch.sx0, kl)
-        ox, oy = offsets(pix, i, n_s, _strata(batch.spp), op_u(seed))
-        zero = dr.zeros(F64, batch.lanes)
-        vals = [*_weights_at(rfilter, ox, nb), oy, *[zero] * (pad - nb - 1)]
-        if rows:
-            vals += [*_weights_at(rfilter, oy, nb), *[zero] * (pad - nb)]
-        rec = dr.empty(F64, batch.lanes * size)
-        dr.scatter(rec, getattr(sys.modules[F64.__module__], "ArrayXf64")(*vals), sl)
+        ox, oy = (FT(o) for o in offsets(pix, i, n_s, _strata(batch.spp), op_u(seed)))
+        zero = dr.zeros(FT, batch.lanes)
+        vals = [*_weights_at(rfilter, ox, nb), *[zero] * (pad - nb), *_weights_at(rfilter, oy, nb), *[zero] * (pad - nb)]
+        rec = dr.empty(FT, batch.lanes * size)
+        dr.scatter(rec, getattr(sys.modules[FT.__module__], "ArrayXf")(*vals), sl)
         return (rec,)
-    if batch.lanes * size * 8 > KEEP_TABLE_BYTES:
+    if batch.lanes * size * 4 > KEEP_TABLE_BYTES:
         return make()[0]
-    return batch.kept(("column weights", rfilter, int(film_width), int(seed), rows), make)[0]
+    return batch.kept(("weights", rfilter, int(film_width), int(seed)), make)[0]
 
 
 def _pad(nb):
-    """Float64s of a sample's weight record: ``nb`` and ``oy``, padded to a power of two (a packet)."""
+    """Float32s of a sample's weight record: ``nb``, padded to a power of two (a packet)."""
     return 1 << nb.bit_length()
 
 
@@ -705,23 +717,21 @@ def _filter_strips(rfilter, film_size, seed, batch, data, L, mode):
     :data:`STRIPS_SPP` (the two passes' tables cost more there than the samples' layers), a lane
     :data:`STRIPS_P` pixels of a window row. A loop step is one neighbour row ``dy``; in it, column
     after column of the strip's ``P + 2b``, the column's samples are read once each (the RGB
-    packet; the column weights and ``oy`` from :func:`_column_weights`, the row weight made from
-    ``oy``) and their terms summed, in sample order, into the record ``(dy, dx)`` the column
+    packet, its column weights and its row weight from :func:`_sample_weights`) and their terms summed, in sample order, into the record ``(dy, dx)`` the column
     gives each strip pixel it neighbours; each pixel then adds that record (its columns come in
     ascending ``dx``). So only one column's records are live at a time (a loop over samples
     ``1 .. spp - 1`` a column, straight code at spp 2). The same operations in the same order as
     the two passes, the same bits; a record starts at its first term instead of adding it to a
     zero (``0 + t`` is ``t`` but for ``t = -0``, and a pixel's sums, which start at ``+0``, add
     a ``-0`` record as a ``+0`` one)."""
-    F64, U32, I32 = mi.Float64, mi.UInt32, mi.Int32
+    FT, U32, I32 = mi.Float32, mi.UInt32, mi.Int32
     W, H = film_size
     P, b = len(L.valid), rfilter.border
     nb = 2 * b + 1
     n_s = L.n_s
     pad = _pad(nb)
-    ArrayX = getattr(sys.modules[F64.__module__], "ArrayXf64")
-    rows = rfilter.name in ROW_TABLE_FILTERS
-    weights = _column_weights(rfilter, W, seed, batch, rows)
+    ArrayX = getattr(sys.modules[FT.__module__], "ArrayXf")
+    weights = _sample_weights(rfilter, W, seed, batch)
     total = data["total"]
     packed = dr.empty(type(total[0]), 4 * batch.lanes)
     dr.scatter(packed, mi.Vector4f(total[0], total[1], total[2], 0.0), dr.arange(U32, batch.lanes))
@@ -733,7 +743,6 @@ def _filter_strips(rfilter, film_size, seed, batch, data, L, mode):
         yy = y + I32(dyi) - b
         on_y = (yy >= 0) & (yy < op_i(H))
         lane0 = L.start + ((U32(dr.select(on_y, yy, 0)) - L.sy0) * L.sw + U32(cx0)) * n_s
-        cy = 0.5 - (F64(dyi) - float(b))
         for c in range(P + 2 * b):
             on = on_y & (U32(cx0 + c) < L.sw)
             first = dr.select(on, lane0 + c * n_s if c else lane0, 0)
@@ -743,10 +752,9 @@ def _filter_strips(rfilter, film_size, seed, batch, data, L, mode):
                 # the column's records plus the terms of its sample i (rec None: i is its first)
                 at = first if isinstance(i, int) and i == 0 else first + i
                 v = dr.gather(mi.Vector4f, packed, at, on)
-                w = dr.gather(ArrayX, weights, at * 2 if rows else at, on, shape=(pad, L.n))
-                wy = (dr.gather(F64, weights, at * (2 * pad) + pad + dyi, on) if rows
-                      else filter_eval(rfilter, cy - w[nb]))
-                v = [F64(v[0]), F64(v[1]), F64(v[2])]
+                w = dr.gather(ArrayX, weights, at * 2, on, shape=(pad, L.n))
+                wy = dr.gather(FT, weights, at * (2 * pad) + pad + dyi, on)
+                v = [v[0], v[1], v[2]]
                 return {p: _add_terms(rec[p], wy, w[c - p], v) if rec else _first_terms(wy, w[c - p], v)
                         for p in pixels}
             rec = visit(0, None)
@@ -763,7 +771,7 @@ def _filter_strips(rfilter, film_size, seed, batch, data, L, mode):
                 for q in range(4):
                     acc[q * P + p] = acc[q * P + p] + rec[p][q]
         return (dyi + 1, *acc)
-    z = dr.zeros(F64, L.n)
+    z = dr.zeros(FT, L.n)
     _, *acc = _loop((dr.zeros(U32, L.n), *[z] * (4 * P)), lambda j, *_: j < nb, body, mode, nb)
     return [_normalised(acc[p::P]) for p in range(P)]
 
@@ -780,7 +788,7 @@ def _centre_weights(rfilter, nb):
     if hit is None:
         F64 = mi.Float64
         x = F64([0.5 - float(d - rfilter.border) for d in range(nb)]) - dr.opaque(F64, 0.5)
-        w = filter_eval(rfilter, x)
+        w = weight32(rfilter, x)
         dr.eval(w)
         hit = _CENTRE_WEIGHTS[key] = ([float(v) for v in np.asarray(w)], w)
     return hit

