@@ -8,8 +8,16 @@
 import hypothesis.internal.observability  # noqa: F401
 
 import os
+import signal
 
 import pytest
+
+# A shell without job control starts background commands with SIGINT ignored, and an ignored
+# signal stays ignored across exec: the CLI processes that the Ctrl-C tests start would then never
+# see their SIGINT (Python installs its KeyboardInterrupt handler only over the default action).
+# The tests stand for a user at a terminal, where Ctrl-C has its default action.
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 #: what ``make test-fast`` (``-m "not slow"`` over tests/) must keep at least one test of: the
 #: core, the Mitsuba plugin, partitioning, the docs checks, the stress tests (the CLI's own tests
