@@ -7,7 +7,6 @@ from __future__ import annotations
 import json
 import os
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -26,18 +25,24 @@ pytestmark = [pytest.mark.dask, pytest.mark.slow]
 DASK = os.path.join(os.path.dirname(sys.executable), "dask")
 
 
-def _free_port():
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def _wait_for_file(path, timeout):
     deadline = time.time() + timeout
     while not path.exists():
         if time.time() > deadline:
             raise TimeoutError(f"{path} did not appear in {timeout} s")
         time.sleep(0.02)
+
+
+def _scheduler_address(path, timeout):
+    """The address a scheduler wrote to ``path``, once the file is there whole."""
+    deadline = time.time() + timeout
+    while True:
+        try:
+            return json.loads(path.read_text())["address"]
+        except (OSError, ValueError, KeyError):
+            if time.time() > deadline:
+                raise TimeoutError(f"no scheduler address in {path} after {timeout} s") from None
+            time.sleep(0.02)
 
 
 def _stop(procs):
@@ -60,14 +65,17 @@ def cli_cluster(tmp_path):
     if not os.path.exists(DASK):
         pytest.skip("the dask command line is not installed")
     from distributed import Client
-    port = _free_port()
-    addr = f"tcp://127.0.0.1:{port}"
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([ROOT, os.environ.get("PYTHONPATH", "")]))
     log = open(tmp_path / "dask.log", "w")
     procs = []
     try:
-        procs.append(subprocess.Popen([DASK, "scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard",
-                                       "--idle-timeout", "600"], stdout=log, stderr=log, env=env))
+        # port 0: the scheduler binds a free port itself and writes its address to the file (a port
+        # picked here and bound later could be taken meanwhile, by the other test process)
+        sched = tmp_path / "scheduler.json"
+        procs.append(subprocess.Popen([DASK, "scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
+                                       "--scheduler-file", str(sched), "--idle-timeout", "600"],
+                                      stdout=log, stderr=log, env=env))
+        addr = _scheduler_address(sched, 60)
         workers = [subprocess.Popen([DASK, "worker", addr, "--host", "127.0.0.1", "--nthreads", "1", "--no-nanny",
                                      "--no-dashboard", "--death-timeout", "60", "--name", f"w{k}"],
                                     stdout=log, stderr=log, env=env) for k in range(2)]

@@ -93,15 +93,16 @@ def test_contract_check(rc, stderr, image_ok, broken):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("command, expect", [
-    ("import os, signal; os.kill(os.getpid(), signal.SIGSEGV)", "signal"),
-    ("import time; time.sleep(60)", "hang"),
+@pytest.mark.parametrize("command, expect, timeout", [
+    ("import os, signal; os.kill(os.getpid(), signal.SIGSEGV)", "signal", 60),
+    ("import time; time.sleep(60)", "hang", 3),
 ])
-def test_worker_reports_crash_and_hang(command, expect, tmp_path):
-    """A worker that dies of a signal or never answers is a broken contract, not a pass."""
+def test_worker_reports_crash_and_hang(command, expect, timeout, tmp_path):
+    """A worker that dies of a signal or never answers is a broken contract, not a pass. (The
+    crash has a minute to come: an interpreter starting on a loaded machine is not a hang.)"""
     w = fuzz.Worker(command=[sys.executable, "-c", command])
     try:
-        rc, stderr, ok = w.run(["render"], str(tmp_path / "o.exr"), timeout=3)
+        rc, stderr, ok = w.run(["render"], str(tmp_path / "o.exr"), timeout=timeout)
     finally:
         w.close(kill=True)
     assert expect in fuzz.check(rc, stderr, ok)
