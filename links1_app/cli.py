@@ -173,22 +173,24 @@ def main(argv=None) -> int:
     interrupted``, status 130, no output file (it is written atomically, and once a finished
     frame is being written the interrupt is ignored: the file is then complete), no process left
     (the partitioning back ends stop their workers and clusters, :mod:`links1.interrupts`)."""
-    handler = ignore_interrupts(False)
-    if handler is signal.default_int_handler:   # Python's own (main thread): noted, then raised
-        signal.signal(signal.SIGINT, _on_interrupt)
-    hooks = threading.excepthook, sys.excepthook
-    threading.excepthook, sys.excepthook = _quiet_once_interrupted, _quiet_sys_once_interrupted
-    _INTERRUPTED.clear()
-    try:
+    handler = hooks = None
+    try:   # from the first statement: a Ctrl-C before the handler below is in place is Python's
+        _INTERRUPTED.clear()
+        handler = ignore_interrupts(False)
+        if handler is signal.default_int_handler:   # Python's own (main thread): noted, then raised
+            signal.signal(signal.SIGINT, _on_interrupt)
+        hooks = threading.excepthook, sys.excepthook
+        threading.excepthook, sys.excepthook = _quiet_once_interrupted, _quiet_sys_once_interrupted
         return _main(argv)
     except KeyboardInterrupt:
+        _INTERRUPTED.set()    # (also when Python's own handler raised it, before ours was set)
         ignore_interrupts()   # a second Ctrl-C does not break what is left of the clean-up
         stop_resource_sharer()
         print("links1: interrupted", file=sys.stderr)
         return 130
     finally:
         restore_interrupts(handler)   # main() called from Python: as it was
-        if not _INTERRUPTED.is_set():
+        if hooks is not None and not _INTERRUPTED.is_set():
             threading.excepthook, sys.excepthook = hooks
 
 

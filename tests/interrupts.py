@@ -1,8 +1,9 @@
 """Ctrl-C at random moments of a ``links1 render``: shared by the core, pool, Dask and plugin tests.
 
 Each try starts ``links1 render`` in a session of its own, waits until the command line's
-``main`` is about to run (the process has imported links1; before that an interrupt is
-Python's own start-up traceback, which no program can turn into one line), sleeps a seeded
+``main`` handles Ctrl-C (the process has imported links1 and ``main`` has set its handler;
+before that an interrupt is Python's own start-up traceback, which no program can turn into
+one line), sleeps a seeded
 random delay, and sends SIGINT: to the whole process group, as a terminal's Ctrl-C does, or
 to the root alone, as ``kill -INT`` does. The process must then end within ``timeout`` seconds
 with status 130 and the one line ``links1: interrupted`` on stderr, leave no output file (nor a
@@ -20,9 +21,14 @@ import time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
-#: the console script's two lines, with a byte written to fd ``argv[1]`` once links1 is imported
-_MAIN = ("import os, sys\nfrom links1_app.cli import main\n"
-         "os.write(int(sys.argv[1]), b'r')\nos.close(int(sys.argv[1]))\nsys.exit(main(sys.argv[2:]))")
+#: the console script's two lines, with a byte written to fd ``argv[1]`` once ``main`` handles
+#: Ctrl-C (its first statements done, ``_main`` about to parse the command line): a SIGINT
+#: between the import and those statements is Python's own, as in any console script's
+#: start-up, and under load the child could still be there when a short delay had passed
+_MAIN = ("import os, sys\nfrom links1_app import cli\nparse = cli._main\n"
+         "def ready_then_parse(argv):\n    os.write(int(sys.argv[1]), b'r')\n    os.close(int(sys.argv[1]))\n"
+         "    return parse(argv)\n"
+         "cli._main = ready_then_parse\nsys.exit(cli.main(sys.argv[2:]))")
 
 
 def session_processes(sid: int) -> list:
@@ -40,6 +46,15 @@ def session_processes(sid: int) -> list:
         if session == sid and state != "Z":
             out.append(int(name))
     return out
+
+
+def processes_left(sid: int, timeout: float = 5.0) -> list:
+    """Pids of session ``sid`` still there after up to ``timeout`` seconds (a child the root
+    killed may take a moment to end and be reaped, the longer the busier the machine)."""
+    deadline = time.monotonic() + timeout
+    while session_processes(sid) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    return session_processes(sid)
 
 
 def _kill_session(sid: int) -> None:
@@ -82,10 +97,7 @@ def interrupt_once(args, out, delay: float, to_group: bool, timeout: float = 30.
         lines = err.decode(errors="replace").strip().splitlines()
         if p.returncode != 130 or lines != ["links1: interrupted"]:
             return f"{what}: status {p.returncode}, stderr {lines[-6:]!r}"
-        deadline = time.monotonic() + 5.0   # a child may take a moment to be reaped by init
-        while session_processes(p.pid) and time.monotonic() < deadline:
-            time.sleep(0.05)
-        left = session_processes(p.pid)
+        left = processes_left(p.pid)
         if left:
             return f"{what}: processes left behind: {left}"
         written = [n for n in os.listdir(os.path.dirname(str(out)) or ".") if os.path.basename(str(out)) in n]
