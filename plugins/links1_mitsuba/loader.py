@@ -273,11 +273,14 @@ def _settle_normals(scene, mesh_files: dict, places=None) -> None:
     few pixels run to run). Such normals are computed again on one thread, in face order.
     Mitsuba 3.9.1's OBJ reader also flags normals when a file has ``vn`` lines that no face
     references, and leaves them uninitialised: those are recomputed the same way, with a
-    warning. The thread count goes back at once (one thread stalls Mitsuba's EXR reads)."""
+    warning. The thread count goes back at once (one thread stalls Mitsuba's EXR reads).
+    LLVM variants only: a scalar variant sums in face order already, and a CUDA variant's
+    atomics keep their order whatever Dr.Jit's thread count (its normals vary as Mitsuba's)."""
     import drjit as dr
     import mitsuba as mi
 
     from links1.geometry.mesh_files import stores_normals
+    llvm = mi.variant().startswith("llvm")
     redo = []
     for s in scene.shapes():
         if not (s.is_mesh() and s.has_vertex_normals()):
@@ -291,7 +294,7 @@ def _settle_normals(scene, mesh_files: dict, places=None) -> None:
             warnings.warn(f"{place_of(s, places) or repr(s.id())}: invalid vertex normals from Mitsuba's reader "
                           "(unreferenced 'vn' lines?); recomputed", stacklevel=3)
             redo.append(s)
-        elif s.id() in mesh_files:
+        elif s.id() in mesh_files and llvm:
             kind, path, index = mesh_files[s.id()]
             try:
                 if not stores_normals(path, kind, index):
