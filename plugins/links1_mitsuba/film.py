@@ -82,9 +82,10 @@ FILM_TABLE_BYTES = 1 << 31
 KEEP_LANES = 1 << 23
 
 #: Largest spp whose non-box filter is one kernel of strips (:func:`_filter_strips`) rather than
-#: two passes (the same bits): the film's kernels at 512², gaussian, the strips against the two
-#: passes (minima of 4, load 6-7): spp 4 123 / 142 ms, spp 6 186 / 211, spp 8 240 / 194
-STRIPS_SPP = 6
+#: two passes (the same bits): the film's kernels at 512², gaussian, the strips / the two passes
+#: (``compare.film_gather``, medians of 7-9, load 4-5): spp 4 0.62, 6 0.66, 7 0.82, 8 1.07-1.16,
+#: 10 0.83, 12 1.24, 16 1.28
+STRIPS_SPP = 7
 #: Pixels of a row a lane of :func:`_filter_strips` computes (each column's samples are read
 #: by ``(P + 2b) / P`` lanes a neighbour row)
 STRIPS_P = 8
@@ -472,7 +473,7 @@ def _strata(spp):
 
 def _filter_gather(film_size, batch, data, L, centred, mode):
     """At spp 1 (every sample at its pixel's centre, so its 1-D weights are the ``nb``
-    constants ``centred``, :func:`_centre_weights`): RGB (three float64 arrays) of each of the
+    constants ``centred``, :func:`_centre_weights`): RGB (three float32 arrays) of each of the
     ``P`` pixels of the lanes ``L`` (:class:`_Lanes`), ``Σ w·s / Σ w`` over the pixel's
     ``(2b+1)²`` neighbours on the film in ascending neighbour row, then column: the order of
     :meth:`links1.sensor.filters.FilterGather.result` with one sample a pixel.
@@ -480,7 +481,7 @@ def _filter_gather(film_size, batch, data, L, centred, mode):
     A loop step is one neighbour row ``dy``: the strip's ``P`` pixels need the ``P + 2b``
     columns ``x - b .. x + P - 1 + b`` of that row, each read once (its RGB as a packet) and
     added, in ascending column order, to every pixel ``p`` it neighbours (column ``c`` is offset
-    ``dx = c - p - b``), each pixel in its own accumulators: the same float64 sums, bit for bit,
+    ``dx = c - p - b``), each pixel in its own accumulators: the same float32 sums, bit for bit,
     as a loop over one pixel's neighbours. A column is read where it lies in the window's sample
     window (the window plus the border, clipped to the film): for a pixel inside the row exactly
     "on the film", and never outside the window's own lanes for the pixels past the row's end."""
@@ -530,8 +531,9 @@ def _normalised(acc):
 def _weights(rfilter, pix, i, n_s, k, sd, nb):
     """The 1-D weights ``wx[dx], wy[dy]`` (``nb`` each) of sample ``i`` of film pixel ``pix``
     towards the pixels ``dx - b`` columns and ``dy - b`` rows from its own (strata ``k``, seed
-    ``sd``): :func:`filter_eval` at the offsets of :func:`offsets`, made in the kernel (cheaper
-    than reading them from a table), the values of :meth:`links1.sensor.filters.FilterGather.add`."""
+    ``sd``): :func:`weight32` at the float32 offsets of :func:`offsets`, made in the kernel (where
+    the batch keeps no :func:`_sample_weights`), the values of
+    :meth:`links1.sensor.filters.FilterGather.add` with ``dtype=np.float32``."""
     ox, oy = offsets(pix, i, n_s, k, sd)
     return _weights_at(rfilter, mi.Float32(ox), nb), _weights_at(rfilter, mi.Float32(oy), nb)
 
@@ -565,9 +567,9 @@ def _first_terms(wy, wx, v):
 def _filter_partials(rfilter, film_size, seed, batch, data, n_s, mode):
     """Pass 1 of the filter at spp > 1 (a lane: one pixel ``q`` of a sample window): for each
     neighbour offset ``(dy, dx)`` the record ``(Σ w·r, Σ w·g, Σ w·b, Σ w)`` of ``q``'s samples in
-    sample order, ``w = wy(dy) · wx(dx)`` (:func:`_weights`, made once a sample): the terms ``q``
-    gives the output pixel ``(dy - b, dx - b)`` away from it, as
-    :meth:`links1.sensor.filters.FilterGather.add` sums them. Returns ``nb²`` Float64 tables, one
+    sample order, ``w = wy(dy) · wx(dx)`` (read from :func:`_sample_weights` where the batch keeps
+    them, else :func:`_weights`): the terms ``q`` gives the output pixel ``(dy - b, dx - b)`` away
+    from it, as :meth:`links1.sensor.filters.FilterGather.add` sums them. Returns ``nb²`` Float32 tables, one
     a offset ``dy · nb + dx``, with pixel ``q``'s record at ``4q``; a record depends only on its
     pixel's samples."""
     FT, U32 = mi.Float32, mi.UInt32
@@ -781,7 +783,7 @@ _CENTRE_WEIGHTS = {}
 
 def _centre_weights(rfilter, nb):
     """The 1-D weights of a sample at its pixel's centre (spp 1) towards its ``nb`` neighbour
-    columns or rows, as Python floats and a Float64 array, evaluated as :func:`_weights` does
+    columns or rows, as Python floats and a Float32 array, evaluated as :func:`_weights` does
     (:func:`filter_eval` on the device at ``(0.5 - d) - 0.5``): once per filter and variant."""
     key = (rfilter.name, tuple(sorted(rfilter.params.items())), rfilter.radius, nb, mi.variant())
     hit = _CENTRE_WEIGHTS.get(key)
