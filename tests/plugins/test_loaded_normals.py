@@ -46,6 +46,9 @@ def _normals(mi, sc):
 
 @pytest.mark.slow
 def test_computed_normals_and_image_same_bits_every_load(tmp_path, llvm):
+    """Six loads of a mesh file without normals: the same normals bit for bit, within 2e-5 of
+    the float64 angle-weighted normals, and the same image. LLVM only: the load-to-load order is
+    that of Dr.Jit's LLVM thread pool."""
     import mitsuba as mi
     import links1_mitsuba
     v, f = _bumpy()
@@ -63,6 +66,8 @@ def test_computed_normals_and_image_same_bits_every_load(tmp_path, llvm):
 
 
 def test_normals_a_file_stores_are_mitsubas(tmp_path, llvm):
+    """A file that stores normals keeps Mitsuba's own reading of them. LLVM only: the loader's
+    one-thread recompute, which must leave these alone, runs on LLVM variants alone."""
     import mitsuba as mi
     import links1_mitsuba
     v, f = _bumpy(24)
