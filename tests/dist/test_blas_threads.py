@@ -72,10 +72,16 @@ print(others() - c0)
 @pytest.mark.skipif(not os.path.isdir("/proc/self/task"), reason="needs /proc for per-thread CPU time")
 def test_no_blas_thread_spins_under_the_limit():
     """With one BLAS thread no worker is left to spin after a product: the other threads take
-    < 20 ms of the next 200 ms (a spinning worker takes 40-50 ms here)."""
-    out = subprocess.run([sys.executable, "-c", SPIN_PROBE, "1"], capture_output=True, text=True, timeout=120,
-                         check=True).stdout
-    assert int(out.split()[-1]) < 20e6
+    < 20 ms of the next 200 ms (a spinning worker takes 40-50 ms here) in the best of three fresh
+    interpreters (a spinner spins in every one; a loaded machine once gave one probe 82 ms)."""
+    taken = []
+    for _ in range(3):
+        out = subprocess.run([sys.executable, "-c", SPIN_PROBE, "1"], capture_output=True, text=True,
+                             timeout=120, check=True).stdout
+        taken.append(int(out.split()[-1]))
+        if taken[-1] < 20e6:
+            break
+    assert min(taken) < 20e6, taken
 
 
 @pytest.mark.slow
