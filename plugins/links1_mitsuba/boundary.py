@@ -227,8 +227,10 @@ def _crossings(trace_points, scene, P, sensor, win, spp, seed, stage):
     rep = lambda v: np.repeat(v, POINTS)   # noqa: E731
     x, y = _at(_dev(mi.Float, along.ravel()), _dev(mi.Bool, rep(is_col)), _dev(mi.Float, rep(fixed)))
     on = [_dev(mi.Bool, rep(np.tile(near[1 + j, pix], 2))) for j in range(len(lts))]
-    kind, c_all, o_all = stage(_line_kinds, x, y, _dev(mi.UInt32, rep(lane_key)), on,
-                               dr.arange(mi.UInt32, 2 * n * POINTS))
+    seen, occluders = stage(_seen_slots, x, y, _dev(mi.UInt32, rep(lane_key)), on)
+    dr.eval(seen, *occluders)   # one kernel (each alone would trace the camera rays again)
+    kind, o_all = stage(_line_kinds, dr.arange(mi.UInt32, 2 * n * POINTS), seen, *occluders)
+    c_all = seen
     # the crossings: the intervals whose kind is a signal, lane by lane (a line's lanes are
     # its POINTS points; the interval from point k is lane k's), as numpy: lines li, points ki
     at = dr.compress(kind >= 0)
@@ -321,21 +323,19 @@ def _seen_slots(P, scene, x, y, key, on=None):
     return cam[3], [s_[2] for s_ in shadows]
 
 
-def _line_kinds(P, scene, x, y, key, on, lane):
-    """A stage of the term: the points ``(x, y)`` of the lines (:data:`POINTS` lanes a line, in
-    order; ``lane``: the lanes' indices) queried (:func:`_seen_slots`: the camera ray's slot,
-    then each light's occluder), and per lane the interval from its point to the next of its
-    line: ``kind``, the first of those signals that differs at its ends (-1: none, and on a
-    line's last point), ``c_lo`` the slot seen at its first point and ``o_lo`` the value of
-    signal ``kind`` there."""
-    seen, occluders = _seen_slots(P, scene, x, y, key, on)
-    sig = [seen, *occluders]
-    dr.eval(sig)   # one kernel (each alone would trace the camera rays again)
+def _line_kinds(P, scene, lane, *sig):
+    """A stage of the term: per lane of the lines' points (:data:`POINTS` lanes a line, in
+    order; ``lane``: the lanes' indices) and what they see, ``sig`` (:func:`_seen_slots`: the
+    camera ray's slot, then each light's occluder), the interval from its point to the next of
+    its line: ``kind``, the first of those signals that differs at its ends (-1: none, and on a
+    line's last point), and the value of signal ``kind`` at its first point. (A stage apart
+    from the queries: with them in one frozen function, a later traced corner query failed to
+    compile in Dr.Jit 1.5's LLVM backend, a vcall's function defined twice in one module.)"""
     inner = lane % POINTS != POINTS - 1
     kind = dr.full(mi.Int32, -1, dr.width(lane))
     for j in reversed(range(len(sig))):
         kind = dr.select(inner & (sig[j] != dr.gather(mi.Int32, sig[j], lane + 1, inner)), j, kind)
-    return kind, seen, _pick(kind, sig)
+    return kind, _pick(kind, list(sig))
 
 
 def _bisected(P, scene, lo, hi, colm, fxd, key, kd, c_lo, o_lo):
