@@ -26,12 +26,15 @@ the whole kernel of the same round (median over the rounds). The variants:
 * ``geometric normal := shading normal``: Mitsuba's record's geometric normal ``si.n`` (the
   side and direction of the shadow rays' offset) replaced by its shading normal (the image
   differs where the kernel reads ``si.n``);
-* ``Mitsuba's geometric normal``: ``si.n`` read from Mitsuba's record where the kernel makes
-  the one mesh's face normal itself (``tables._face_normal_table``; the same bits);
+* ``Mitsuba's surface record``: the nearest hit's record from ``scene.ray_intersect`` (Embree's
+  hit and the shapes' surface call) where the kernel makes it from the preliminary hit on
+  the meshes (``tables.MeshRecord``, ``intersect.mesh_surface``; the same bits);
 * ``fixed BSDF``: a Lambert factor in place of the BSDF factor (the image differs);
 * ``diffuse BSDFs called``: every BSDF called (``BSDF::eval``), the ``diffuse`` BSDFs of one
   reflectance too, which the kernel evaluates from their table (``tables._lambert_tables``);
-* ``camera + nearest``: the camera rays and their nearest hit only (``t``, slot).
+* ``camera + nearest``: the camera rays and their nearest hit only (``t``, slot);
+* ``camera + preliminary hit``: the camera rays and Embree's preliminary hit alone
+  (``scene.ray_intersect_preliminary``: what the full record adds to ``camera + nearest``).
 
 And the floor's parts (``compare.ray_floor.trace_floor``): the camera rays' preliminary
 hits (rays read), the shadow rays links1 traces (captured from the level) densely packed and
@@ -129,6 +132,11 @@ def measure_case(cid, spp, repeats, variant):
                                       dr.zeros(mi.UInt32, n), coherent=True)
         dr.eval(t, slot)
 
+    def camera_preliminary():
+        o, d, tmin, tmax, _, _ = rays()
+        pi = scene.ray_intersect_preliminary(mi.Ray3f(o + d * tmin, d, tmax - tmin), True)
+        dr.eval(pi.t, pi.shape)
+
     def nearest_flags(flags):
         def nearest(tables, scene, o, d, tmin, tmax, active, cost, eye=False, coherent=False, ad=False):
             ray = mi.Ray3f(o + d * tmin, d, tmax - tmin)
@@ -195,10 +203,11 @@ def measure_case(cid, spp, repeats, variant):
         "no branch on the hit": (tree, ((tracer, "tuning", no_branch),)),
         "shadow origins made beforehand and read": (tree, ((isect, "shadow_mitsuba", read_origins),)),
         "geometric normal := shading normal": (tree, ((isect, "nearest", shading_normal),)),
-        "Mitsuba's geometric normal": (tree, ((tables.base or tables, "face_normals", None),)),
+        "Mitsuba's surface record": (tree, ((tables.base or tables, "mesh_record", None),)),
         "fixed BSDF": (tree, ((rt.Hit, "f_eval", lambda self, wi: lambert(self, wi)),)),
         "diffuse BSDFs called": (tree, ((tables.base or tables, "any_lam", False),)),
         "camera + nearest": (camera_nearest, ()),
+        "camera + preliminary hit": (camera_preliminary, ()),
     }
     images = {}
     for name, (fn, patch) in variants.items():

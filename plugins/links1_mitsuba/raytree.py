@@ -55,18 +55,6 @@ def child_keys(key):
     return mix32(key ^ mi.UInt32(KEY_REFLECT)), mix32(key ^ mi.UInt32(KEY_REFRACT))
 
 
-def _face_normal(table, si):
-    """The geometric normal ``si.n`` of a hit on the mesh whose ``(faces, vertex_positions)`` are
-    ``table`` (``tables._face_normal_table``), made as Mitsuba 3.9.1's ``Mesh::face_normal``
-    makes it (mesh.h: the face's vertex indices and positions gathered, ``normalize(cross(p1 -
-    p0, p2 - p0))``): the same bits; 0 where Embree found no hit, as Mitsuba's record."""
-    faces, positions = table
-    valid = si.is_valid()
-    fi = [dr.gather(mi.UInt32, faces, si.prim_index * 3 + k, valid) for k in range(3)]
-    p0, p1, p2 = (dr.gather(mi.Point3f, positions, f, valid) for f in fi)
-    return mi.Vector3f(dr.select(valid, dr.normalize(dr.cross(p1 - p0, p2 - p0)), 0.0))
-
-
 def _power_heuristic(pdf_a, pdf_b):
     """Veach's power heuristic (β = 2) of strategy a against b, each pdf times its sample
     count; 0 where it is not finite (Mitsuba's ``direct``: ``mis_weight``)."""
@@ -264,11 +252,10 @@ class Tracer:
         uslot = mi.UInt32(dr.maximum(slot, 0))
         # ---- surface record of the winner
         p = o + d * t
-        own_ng = tables.face_normals is not None and not ad
+        # the record made in the kernel from Embree's preliminary hit (intersect.mesh_surface)
+        own_si = tables.mesh_record is not None and not ad
         if tables.any_mitsuba_shapes:
             ng, ns = mi.Vector3f(si.n), mi.Vector3f(si.sh_frame.n)
-            if own_ng:
-                ng = _face_normal(tables.face_normals, si)
             mits = hit & si.is_valid() & (dr.abs(si.t + tmin - t) <= 0.0)
             p = dr.select(mits, si.p, p)
         else:
@@ -313,7 +300,7 @@ class Tracer:
             sif = mi.SurfaceInteraction3f(si)
             cw = hit & ~mits
             sif.p = dr.select(cw, p, si.p)
-            sif.n = mi.Normal3f(ng) if own_ng else dr.select(cw, mi.Normal3f(ng), si.n)
+            sif.n = mi.Normal3f(ng) if own_si else dr.select(cw, mi.Normal3f(ng), si.n)
             frame_c = mi.Frame3f(ns)
             sif.sh_frame = mi.Frame3f(dr.select(cw, frame_c.s, si.sh_frame.s),
                                       dr.select(cw, frame_c.t, si.sh_frame.t),

@@ -18,6 +18,7 @@ serves every Mitsuba variant.
 """
 from __future__ import annotations
 
+import dataclasses
 import warnings
 
 import numpy as np
@@ -27,7 +28,7 @@ from links1.shading.lights import ENV_LIGHT_ID, number_area_lights
 import drjit as dr
 import mitsuba as mi
 
-from . import lightbuffer, proxies, views
+from . import lightbuffer, normals, proxies, views
 from .bvh import QuadricBVH
 from .config import Config
 from .launch import Launches, literal_key
@@ -47,24 +48,76 @@ from .util import checked_index, kind_of
 OFFSET_EPS = 2.0 ** -19
 _PRECISE_MITSUBA = ("Mesh", "OBJMesh", "PLYMesh", "Rectangle", "Disk", "Links1Bicubic", "SerializedMesh")
 
-#: Mitsuba's triangle meshes (their geometric normal: ``Mesh::face_normal``, Mitsuba 3.9.1's mesh.h)
+#: Mitsuba's triangle meshes (their record: ``Mesh::compute_surface_interaction``, Mitsuba 3.9.1's mesh.cpp)
 _TRIANGLE_MESHES = ("Mesh", "OBJMesh", "PLYMesh", "SerializedMesh")
 
 
-def _face_normal_table(shapes, member_slots):
-    """``(faces, vertex_positions)`` (the mesh's own buffers) where the scene's one Mitsuba shape
-    is a triangle mesh (normals not flipped, not in an instance), else None: the kernel makes its
-    geometric normal itself, with the operations of ``Mesh::face_normal`` (the triangle's
-    vertices gathered, ``normalize(cross(p1 - p0, p2 - p0))``), instead of reading ``si.n`` of
-    Mitsuba's record (an output of its one shape's surface call that cost the teapot's kernel
-    ~0.3: docs/benchmarks.md, the ray-tree kernel by part)."""
-    if len(shapes) != 1 or member_slots:
-        return None
-    s = shapes[0]
-    if not (s.is_mesh() and s.class_name() in _TRIANGLE_MESHES and not s.has_flipped_normals()):
+@dataclasses.dataclass(eq=False)
+class MeshRecord:
+    """The buffers of the scene's Mitsuba triangle meshes from which the kernel makes the
+    nearest hit's surface record (``intersect.mesh_surface``), one mesh's own buffers or all
+    of them in one (faces renumbered past the earlier meshes' vertices): faces (3 a face),
+    vertex positions (3 a vertex), vertex normals and texture coordinates (None where no
+    mesh has them; zeros for a mesh without), and per slot its first face (None: one
+    mesh), whether it has normals / texture coordinates (None: every mesh or none) and
+    whether its normals are flipped (None: none)."""
+
+    faces: object
+    positions: object
+    normals: object = None
+    texcoords: object = None
+    face_off: object = None
+    has_n: object = None
+    has_uv: object = None
+    flip: object = None
+
+
+def _mesh_record_table(shapes, slot_list, member_slots, nslots):
+    """:class:`MeshRecord` where every Mitsuba shape of the scene is a triangle mesh outside
+    instances, else None (the kernel reads Mitsuba's record, ``scene.ray_intersect``: its
+    surface call through the shapes' callables cost ~0.2-0.3 of the ray-tree kernel,
+    docs/benchmarks.md)."""
+    if not shapes or member_slots or not all(s.is_mesh() and s.class_name() in _TRIANGLE_MESHES
+                                             for s in shapes):
         return None
     # (detached: the launches read primal values; attached vertices stay the derivative pass's)
-    return dr.detach(own_param(s, "faces")), dr.detach(own_param(s, "vertex_positions"))
+    bufs = [dict(faces=dr.detach(own_param(s, "faces")), positions=dr.detach(own_param(s, "vertex_positions")),
+                 normals=dr.detach(own_param(s, "vertex_normals")) if s.has_vertex_normals() else None,
+                 texcoords=dr.detach(own_param(s, "vertex_texcoords")) if s.has_vertex_texcoords() else None)
+            for s in shapes]
+    has_n = [b["normals"] is not None for b in bufs]
+    has_uv = [b["texcoords"] is not None for b in bufs]
+    flip = [s.has_flipped_normals() for s in shapes]
+
+    def per_slot(flags, dtype):
+        out = np.zeros(max(nslots, 1), dtype=dtype)
+        for sl, v in zip(slot_list, flags):
+            out[sl] = v
+        return out
+
+    def mixed(flags):
+        return mi.Bool(per_slot(flags, bool)) if any(flags) and not all(flags) else None
+
+    rec = MeshRecord(faces=None, positions=None, has_n=mixed(has_n), has_uv=mixed(has_uv),
+                     flip=mi.Bool(per_slot(flip, bool)) if any(flip) else None)
+    if len(shapes) == 1:
+        b = bufs[0]
+        rec.faces, rec.positions, rec.normals, rec.texcoords = b["faces"], b["positions"], b["normals"], b["texcoords"]
+        return rec
+    nv = [dr.width(b["positions"]) // 3 for b in bufs]
+    nf = [dr.width(b["faces"]) // 3 for b in bufs]
+    voff, foff = np.cumsum([0] + nv[:-1]), np.cumsum([0] + nf[:-1])
+    rec.faces = mi.UInt32(np.concatenate([np.asarray(b["faces"], dtype=np.uint32) + np.uint32(o)
+                                          for b, o in zip(bufs, voff)]))
+    rec.positions = mi.Float(np.concatenate([np.asarray(b["positions"], dtype=np.float32) for b in bufs]))
+    if any(has_n):
+        rec.normals = mi.Float(np.concatenate([np.asarray(b["normals"], dtype=np.float32) if h
+                                               else np.zeros(3 * k, np.float32) for b, h, k in zip(bufs, has_n, nv)]))
+    if any(has_uv):
+        rec.texcoords = mi.Float(np.concatenate([np.asarray(b["texcoords"], dtype=np.float32) if h
+                                                 else np.zeros(2 * k, np.float32) for b, h, k in zip(bufs, has_uv, nv)]))
+    rec.face_off = mi.UInt32(per_slot(foff, np.uint32))
+    return rec
 
 
 def _textured(bsdf) -> bool:
@@ -208,18 +261,34 @@ class Tables:
             self.last = None
         ident = scene_identity(scene)
         base = getattr(self.last, "base", None)
-        same = base is not None and base.ident == ident and base.tuning.tables_key() == tuning.tables_key()
+        known = base is not None and base.ident == ident
+        same = known and base.tuning.tables_key() == tuning.tables_key()
         if same and (not self.config.verify_scene or base.watch.unchanged(scene)):
             pass
-        elif not (same and self._update_values(base, scene)):
-            # (after _update_values, the base's watch knows which parameters changed: the new
-            # watch reads only those again)
-            base = self._prepare_scene(scene, ident, tuning, base.watch if same else None)
+        else:
+            if known and self.config.verify_scene:
+                self._settle_normals(base, scene)
+            if not (same and self._update_values(base, scene)):
+                # (after _update_values, the base's watch knows which parameters changed: the
+                # new watch reads only those again)
+                base = self._prepare_scene(scene, ident, tuning, base.watch if same else None)
         view, made = views.camera_view(base, scene, views.sensor_of(scene, sensor), self.config.verify_scene,
                                        self.shapes.place)
         self.n_camera_views += made
         self.last = view
         return view
+
+    @staticmethod
+    def _settle_normals(base, scene) -> None:
+        """The vertex normals Mitsuba computed again, on its threads, for the meshes whose
+        vertices a ``params.update()`` moved since ``base`` was made, computed once more on one
+        thread before any table reads them (:func:`.normals.settle_moved`: the same bits at
+        every update, and those of a fresh ``links1_mitsuba.load_file``; normals the update
+        set are kept). Seen by ``base``'s watch (a scene the tables had not seen keeps the
+        normals it was loaded with: ``loader._settle_normals``)."""
+        moved = [node for name, node in base.watch.changed(scene) or () if name == "vertex_positions"]
+        if moved:
+            normals.settle_moved(moved)
 
     def _update_values(self, base, scene) -> bool:
         """The tables ``base`` brought up to a change of ``links1_phong`` coefficients, analytic
@@ -377,7 +446,7 @@ class Tables:
             table[r] = sl
         base.reg_to_slot = mi.Int32(checked_index(table, nslots, "reg_to_slot", sentinel=-1))
         base.any_mitsuba_shapes = len(shapes) > 0
-        base.face_normals = _face_normal_table(shapes, base.member_slots)
+        base.mesh_record = _mesh_record_table(shapes, slot_list, base.member_slots, nslots)
         eps_np = np.full(max(nslots, 1), float(mi.math.RayEpsilon), dtype=np.float32)
         for s_, sl in zip(shapes, slot_list):
             if s_.is_mesh() or kind_of(s_) in _PRECISE_MITSUBA:
