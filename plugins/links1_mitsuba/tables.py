@@ -28,7 +28,7 @@ from links1.shading.lights import ENV_LIGHT_ID, number_area_lights
 import drjit as dr
 import mitsuba as mi
 
-from . import lightbuffer, normals, proxies, views
+from . import lightbuffer, proxies, views
 from .bvh import QuadricBVH
 from .config import Config
 from .launch import Launches, literal_key
@@ -261,34 +261,18 @@ class Tables:
             self.last = None
         ident = scene_identity(scene)
         base = getattr(self.last, "base", None)
-        known = base is not None and base.ident == ident
-        same = known and base.tuning.tables_key() == tuning.tables_key()
+        same = base is not None and base.ident == ident and base.tuning.tables_key() == tuning.tables_key()
         if same and (not self.config.verify_scene or base.watch.unchanged(scene)):
             pass
-        else:
-            if known and self.config.verify_scene:
-                self._settle_normals(base, scene)
-            if not (same and self._update_values(base, scene)):
-                # (after _update_values, the base's watch knows which parameters changed: the
-                # new watch reads only those again)
-                base = self._prepare_scene(scene, ident, tuning, base.watch if same else None)
+        elif not (same and self._update_values(base, scene)):
+            # (after _update_values, the base's watch knows which parameters changed: the new
+            # watch reads only those again)
+            base = self._prepare_scene(scene, ident, tuning, base.watch if same else None)
         view, made = views.camera_view(base, scene, views.sensor_of(scene, sensor), self.config.verify_scene,
                                        self.shapes.place)
         self.n_camera_views += made
         self.last = view
         return view
-
-    @staticmethod
-    def _settle_normals(base, scene) -> None:
-        """The vertex normals Mitsuba computed again, on its threads, for the meshes whose
-        vertices a ``params.update()`` moved since ``base`` was made, computed once more on one
-        thread before any table reads them (:func:`.normals.settle_moved`: the same bits at
-        every update, and those of a fresh ``links1_mitsuba.load_file``; normals the update
-        set are kept). Seen by ``base``'s watch (a scene the tables had not seen keeps the
-        normals it was loaded with: ``loader._settle_normals``)."""
-        moved = [node for name, node in base.watch.changed(scene) or () if name == "vertex_positions"]
-        if moved:
-            normals.settle_moved(moved)
 
     def _update_values(self, base, scene) -> bool:
         """The tables ``base`` brought up to a change of ``links1_phong`` coefficients, analytic
