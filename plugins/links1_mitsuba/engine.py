@@ -97,11 +97,13 @@ class Engine:
         return Tracer(self.config, self.current_tuning())
 
     # -------------------------------------------------------------- the scene's links1 shapes
-    def attach(self, custom, slot_of_id, shape_names=None, places=None):
-        """Called by the loader: the custom shapes, the file order of all shapes and where
-        each object is in the file (for warnings); the tables are made anew."""
+    def attach(self, custom, slot_of_id, shape_names=None, places=None, shapes=()):
+        """Called by the loader: the custom shapes, the file order of all shapes, where each
+        object is in the file (for warnings) and the scene's Mitsuba shapes as loaded (their
+        vertices: :meth:`.tables.Tables.loaded`); the tables are made anew."""
         self.shapes.attach(custom, slot_of_id, shape_names, places)
         self.tables.forget()
+        self.tables.loaded(shapes)
 
     def adopt(self, scene):
         """A scene the loader did not attach: see :meth:`.sceneshapes.SceneShapes.adopt`."""

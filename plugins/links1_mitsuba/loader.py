@@ -270,17 +270,19 @@ def _settle_normals(scene, mesh_files: dict, places=None) -> None:
     Mitsuba computes a mesh file's missing normals (``Mesh::recompute_vertex_normals``) with
     float32 atomic scatter-adds over Dr.Jit's threads: the order of each vertex's sum, and so
     its last bits, change from load to load (the image of a PLY without normals differed in a
-    few pixels run to run). Such normals are computed again on one thread, in face order.
-    Mitsuba 3.9.1's OBJ reader also flags normals when a file has ``vn`` lines that no face
-    references, and leaves them uninitialised: those are recomputed the same way, with a
-    warning. The thread count goes back at once (one thread stalls Mitsuba's EXR reads).
-    LLVM variants only: a scalar variant sums in face order already, and a CUDA variant's
-    atomics keep their order whatever Dr.Jit's thread count (its normals vary as Mitsuba's)."""
-    import drjit as dr
+    few pixels run to run). Such normals are computed again on one thread, in face order
+    (:func:`.normals.recompute`; a ``params.update()`` that moves the vertices gets the same
+    before the next frame: :func:`.normals.settle_moved`). Mitsuba 3.9.1's OBJ reader also
+    flags normals when a file has ``vn`` lines that no face references, and leaves them
+    uninitialised: those are recomputed the same way, with a warning. LLVM variants only: a
+    scalar variant sums in face order already, and a CUDA variant's atomics keep their order
+    whatever Dr.Jit's thread count (its normals vary as Mitsuba's)."""
     import mitsuba as mi
 
     from links1.geometry.mesh_files import stores_normals
-    llvm = mi.variant().startswith("llvm")
+
+    from . import normals
+    llvm = normals.llvm()
     redo = []
     for s in scene.shapes():
         if not (s.is_mesh() and s.has_vertex_normals()):
@@ -301,16 +303,7 @@ def _settle_normals(scene, mesh_files: dict, places=None) -> None:
                     redo.append(s)
             except ValueError:
                 pass   # Mitsuba read it: its normals stay as Mitsuba made them
-    if not redo:
-        return
-    threads = dr.thread_count()
-    dr.set_thread_count(1)
-    try:
-        for s in redo:
-            s.recompute_vertex_normals()
-            dr.eval(mi.traverse(s)["vertex_normals"])
-    finally:
-        dr.set_thread_count(threads)
+    normals.recompute(redo)
 
 
 def _where(state, node) -> str:
@@ -481,7 +474,7 @@ def _load(parse, source, integrator, base_dir, variant, params, filename=None):
     _settle_normals(scene, mesh_files, places)
     if integrator != "scene":
         whitted = scene.integrator()
-        whitted.attach(specs, slot_of_id, names, places)
+        whitted.attach(specs, slot_of_id, names, places, list(scene.shapes()))
     return scene
 
 

@@ -305,15 +305,33 @@ class ParamWatch(Hidden):
 
 
 
-def own_param(obj, name):
-    """``mi.traverse(obj)[name]`` for a parameter of ``obj`` itself (not of a child object),
-    read through one ``obj.traverse`` with :class:`ParamWatch`'s callback class: Mitsuba's
-    ``mi.traverse`` defines its callback class anew at every call (~0.2 ms, most of a rebuild's
-    five calls on a small scene). KeyError as ``mi.traverse`` when ``obj`` has no such one."""
+def _own_entry(obj, name):
+    """``(value, cpptype)`` of ``obj``'s own parameter ``name`` as its ``traverse`` puts it (a
+    C++ field's address and type; a Python plugin's value and None); KeyError as
+    ``mi.traverse`` when ``obj`` has no such one."""
     cb = ParamWatch._Shallow.make(mi)
     cb.out = []
     obj.traverse(cb)
     for n, v, ct in cb.out:
         if n == name:
-            return v if ct is None else mi.get_property(v, ct, obj)
+            return v, ct
     raise KeyError(name)
+
+
+def own_param(obj, name):
+    """``mi.traverse(obj)[name]`` for a parameter of ``obj`` itself (not of a child object),
+    read through one ``obj.traverse`` with :class:`ParamWatch`'s callback class: Mitsuba's
+    ``mi.traverse`` defines its callback class anew at every call (~0.2 ms, most of a rebuild's
+    five calls on a small scene). KeyError as ``mi.traverse`` when ``obj`` has no such one."""
+    v, ct = _own_entry(obj, name)
+    return v if ct is None else mi.get_property(v, ct, obj)
+
+
+def set_own_param(obj, name, value) -> None:
+    """``obj``'s own parameter ``name``, a C++ object's field, set to ``value`` as
+    ``mi.traverse(obj)[name] = value`` sets it, without ``parameters_changed``: for a value
+    the object had (normals.settle_moved). KeyError as :func:`own_param`."""
+    v, ct = _own_entry(obj, name)
+    if ct is None:
+        raise KeyError(f"{name}: not a C++ field of {obj.class_name()}")
+    mi.set_property(v, ct, value)

@@ -33,6 +33,7 @@ from .bvh import QuadricBVH
 from .config import Config
 from .launch import Launches, literal_key
 from .lights import ConstantEnvRecord, EnvMapRecord, analytic_light, area_table, envmap_table
+from .normals import held_positions, llvm, settle_moved
 from .paramwatch import ParamWatch, own_param
 from .prepared import LIGHT_FIELDS, PHONG_TABLES, SHAPE_FIELDS, Prepared
 from .registered import plugin_class
@@ -226,6 +227,8 @@ class Tables:
     __slots__ = (
         "config", "shapes", "launches",
         "last",            # the last prepared camera view (prepared.CameraView), or None
+        "vertices",        # id(mesh) -> (mesh, its vertex positions when last seen): whether an
+        #                    update moved them since (_settle_normals), for meshes with normals
         # -- counters (tests and benchmarks read them through Engine.info())
         "n_scene_builds", "n_camera_views", "n_value_updates",
     )
@@ -235,11 +238,18 @@ class Tables:
         self.shapes = shapes
         self.launches = launches
         self.last = None
+        self.vertices = {}
         self.n_scene_builds = self.n_camera_views = self.n_value_updates = 0
 
     def forget(self):
         """The next :meth:`prepare` checks nothing against the last tables: it builds them."""
         self.last = None
+
+    def loaded(self, shapes):
+        """Called by the loader: the vertex positions of the scene's meshes as loaded, their
+        normals settled (``loader._settle_normals``): the first frame's
+        :meth:`_settle_normals` tells which meshes an update moved since."""
+        self.vertices = {id(s): (s, v) for s in shapes if (v := held_positions(s)) is not None}
 
     def prepare(self, scene, sensor, tuning: Tuning):
         """The tables of ``scene`` seen from ``sensor`` (a sensor object, an index into
@@ -261,18 +271,46 @@ class Tables:
             self.last = None
         ident = scene_identity(scene)
         base = getattr(self.last, "base", None)
-        same = base is not None and base.ident == ident and base.tuning.tables_key() == tuning.tables_key()
+        known = base is not None and base.ident == ident
+        same = known and base.tuning.tables_key() == tuning.tables_key()
         if same and (not self.config.verify_scene or base.watch.unchanged(scene)):
             pass
-        elif not (same and self._update_values(base, scene)):
-            # (after _update_values, the base's watch knows which parameters changed: the new
-            # watch reads only those again)
-            base = self._prepare_scene(scene, ident, tuning, base.watch if same else None)
+        else:
+            if self.config.verify_scene:
+                self._settle_normals(scene, base if known else None)
+            if not (same and self._update_values(base, scene)):
+                # (after _update_values, the base's watch knows which parameters changed: the
+                # new watch reads only those again)
+                base = self._prepare_scene(scene, ident, tuning, base.watch if same else None)
         view, made = views.camera_view(base, scene, views.sensor_of(scene, sensor), self.config.verify_scene,
                                        self.shapes.place)
         self.n_camera_views += made
         self.last = view
         return view
+
+    def _settle_normals(self, scene, base) -> None:
+        """The vertex normals Mitsuba computed again, on its threads, for the meshes whose
+        vertices a ``params.update()`` moved, computed once more on one thread before any table
+        reads them (:func:`.normals.settle_moved`: the same bits at every update, those of a
+        fresh ``links1_mitsuba.load_file``; normals the update set are kept). Moved since
+        ``base``, as its watch saw; without one (the scene's first frame, or the tables
+        forgotten), since the positions :attr:`vertices` holds: the loader's or those the last
+        frame saw. A scene from plain ``mi.load_file`` has no record before its first frame:
+        its meshes keep the normals Mitsuba made until then (which a file's could not be told
+        from)."""
+        if not llvm():
+            return
+        if base is not None:
+            moved = [node for name, node in base.watch.changed(scene) or ()
+                     if name == "vertex_positions" and isinstance(node, mi.Mesh)]
+        else:
+            ids = dr.detail.collect_indices
+            now = {id(s): (s, v) for s in scene.shapes() if (v := held_positions(s)) is not None}
+            moved = [s for k, (s, v) in now.items() if k in self.vertices and ids(self.vertices[k][1]) != ids(v)]
+            self.vertices = now     # (this scene's meshes alone: another scene's are let go)
+        settle_moved(moved)
+        if base is not None:
+            self.vertices.update({id(s): (s, v) for s in moved if (v := held_positions(s)) is not None})
 
     def _update_values(self, base, scene) -> bool:
         """The tables ``base`` brought up to a change of ``links1_phong`` coefficients, analytic
