@@ -47,11 +47,16 @@ def recompute(meshes) -> None:
     if not meshes:
         return
     threads = dr.thread_count()
+    # Dr.Jit's LLVM launches are asynchronous: the work queued before (Mitsuba's own parallel
+    # recompute at load) ends before the pool shrinks, and the recompute ends before it grows
+    # back, or the pool's new threads take the rest of its blocks (under load: other bits)
+    dr.sync_thread()
     dr.set_thread_count(1)
     try:
         for s in meshes:
             s.recompute_vertex_normals()
             dr.eval(own_param(s, "vertex_normals"))
+        dr.sync_thread()
     finally:
         dr.set_thread_count(threads)
 
