@@ -142,6 +142,7 @@ def cmd_render(args) -> int:
         print(f"timing: first={first * 1e3:.1f} ms median={statistics.median(times) * 1e3:.1f} ms "
               f"min={min(times) * 1e3:.1f} ms max={max(times) * 1e3:.1f} ms", file=sys.stderr)
     _check_finite_image(image, args.renderer)
+    raise_if_interrupted()
     ignore_interrupts()   # the frame is complete: Ctrl-C from here on no longer stops its writing
     if kind == "png":
         write_image(args.output, image[..., :3])
@@ -179,8 +180,9 @@ def main(argv=None) -> int:
         handler = ignore_interrupts(False)
         if handler is signal.default_int_handler:   # Python's own (main thread): noted, then raised
             signal.signal(signal.SIGINT, _on_interrupt)
-        hooks = threading.excepthook, sys.excepthook
+        hooks = threading.excepthook, sys.excepthook, sys.unraisablehook
         threading.excepthook, sys.excepthook = _quiet_once_interrupted, _quiet_sys_once_interrupted
+        sys.unraisablehook = _quiet_unraisable_once_interrupted
         return _main(argv)
     except KeyboardInterrupt:
         _INTERRUPTED.set()    # (also when Python's own handler raised it, before ours was set)
@@ -191,7 +193,7 @@ def main(argv=None) -> int:
     finally:
         restore_interrupts(handler)   # main() called from Python: as it was
         if hooks is not None and not _INTERRUPTED.is_set():
-            threading.excepthook, sys.excepthook = hooks
+            threading.excepthook, sys.excepthook, sys.unraisablehook = hooks
 
 
 #: set when Ctrl-C reaches the command: the process is then ending
@@ -201,6 +203,21 @@ _INTERRUPTED = threading.Event()
 def _on_interrupt(signum, frame):
     _INTERRUPTED.set()
     signal.default_int_handler(signum, frame)
+
+
+def raise_if_interrupted() -> None:
+    """KeyboardInterrupt where Ctrl-C reached the command but its exception did not: raised in a
+    weak reference's callback or a finaliser (an import's module lock, say), Python prints and
+    drops it, and the render would go on to write its output."""
+    if _INTERRUPTED.is_set():
+        raise KeyboardInterrupt
+
+
+def _quiet_unraisable_once_interrupted(unraisable) -> None:
+    """``sys.unraisablehook`` of the command: the KeyboardInterrupt that Python drops there is
+    the interrupt :func:`raise_if_interrupted` raises again, not an error to print."""
+    if not (_INTERRUPTED.is_set() and isinstance(unraisable.exc_value, KeyboardInterrupt)):
+        sys.__unraisablehook__(unraisable)
 
 
 def _quiet_once_interrupted(args) -> None:

@@ -155,3 +155,39 @@ def test_warnings_are_one_clean_line_each(tmp_path, workers):
     assert warns[0].startswith(f"links1: warning: {scene}:7: ") and "clamping out-of-gamut" in warns[0]
     assert warns[1].startswith(f"links1: warning: {scene}:8: ") and "hair" in warns[1]
     assert "SceneWarning" not in res.stderr and ".py:" not in res.stderr
+
+
+def test_an_interrupt_python_drops_still_stops_the_render(tmp_path, capsys, monkeypatch):
+    """Ctrl-C that lands in a finaliser (Python prints and drops the KeyboardInterrupt raised
+    there: an import's module lock, say) still ends the command as Ctrl-C does: status 130, the
+    one line, no output file, and no dropped-exception report."""
+    import gc
+    import os
+    import signal
+    import weakref
+
+    from links1.tracing.render import CoreRenderer
+    real = CoreRenderer.render
+
+    class Anything:
+        pass
+
+    def interrupted_in_a_finaliser(self, *a, **k):
+        obj = Anything()
+        weakref.finalize(obj, os.kill, os.getpid(), signal.SIGINT)
+        del obj                          # the finaliser runs here, the signal's handler inside it
+        gc.collect()
+        return real(self, *a, **k)
+
+    monkeypatch.setattr(CoreRenderer, "render", interrupted_in_a_finaliser)
+    import sys
+    import threading
+
+    from links1_app import cli
+    for owner, name in ((sys, "excepthook"), (sys, "unraisablehook"), (threading, "excepthook")):
+        monkeypatch.setattr(owner, name, getattr(owner, name))   # an interrupted command keeps its hooks
+    out = tmp_path / "a.exr"
+    assert run_cli("render", FIG4, "--renderer", "core", "-D", "res=8", "-o", str(out), "--no-progress") == 130
+    assert not out.exists()
+    assert capsys.readouterr().err.strip().splitlines() == ["links1: interrupted"]
+    cli._INTERRUPTED.clear()
