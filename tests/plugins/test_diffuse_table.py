@@ -84,8 +84,10 @@ def test_diffuse_table_renders_mitsubas_eval(variant, floor, box, card, all_lam)
 
 @pytest.mark.slow
 def test_reflectance_update_goes_into_the_table(variant):
-    """Two updates: after the first (dr.freeze may record a launch twice, the second time with
-    the values that changed made opaque) the second replays the recording, reading the table."""
+    """Four updates: after the first (dr.freeze may record a launch twice, the second time with
+    the values that changed made opaque) the others replay the recording, reading the table: at
+    most one more recording in all (freeze records again once where its inputs' layout changes,
+    seen in some orders of the suite's tests), never one an update."""
     import mitsuba as mi
 
     import links1_mitsuba as lm
@@ -93,8 +95,9 @@ def test_reflectance_update_goes_into_the_table(variant):
     integ = s.integrator()
     before = np.array(mi.render(s, seed=3))
     params = mi.traverse(s)
-    for box, card in ((0.9, (0.8, 0.1, 0.1)), (0.2, (0.1, 0.9, 0.3))):
-        rec = integ.info()["recordings"]
+    recs = []
+    for box, card in ((0.9, (0.8, 0.1, 0.1)), (0.2, (0.1, 0.9, 0.3)), (0.5, (0.3, 0.3, 0.8)), (0.7, (0.6, 0.2, 0.4))):
+        recs.append(integ.info()["recordings"])
         params["box.bsdf.reflectance.value"] = mi.Float(box)
         params["card.bsdf.brdf_0.reflectance.value"] = mi.Color3f(*card)
         params.update()
@@ -104,5 +107,6 @@ def test_reflectance_update_goes_into_the_table(variant):
         assert not np.array_equal(before, expected)
         np.testing.assert_array_equal(after, expected)
         before = after
-    assert (integ.info()["scene_builds"], integ.info()["value_updates"]) == (1, 2)
-    assert integ.info()["recordings"] == rec <= 2    # the second update: replayed, the table its input
+    recs.append(integ.info()["recordings"])
+    assert (integ.info()["scene_builds"], integ.info()["value_updates"]) == (1, 4)
+    assert recs[1] <= 2 and recs[-1] <= recs[1] + 1, recs    # the later updates: replayed, the table their input
