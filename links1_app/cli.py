@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import inspect
+import os
 import signal
 import statistics
 import sys
@@ -169,11 +170,15 @@ def _takes_progress(renderer) -> bool:
         return False
 
 
-def main(argv=None) -> int:
+def main(argv=None, *, program: bool | None = None) -> int:
     """The command line -> exit status. Ctrl-C (SIGINT) at any moment: the line ``links1:
     interrupted``, status 130, no output file (it is written atomically, and once a finished
     frame is being written the interrupt is ignored: the file is then complete), no process left
-    (the partitioning back ends stop their workers and clusters, :mod:`links1.interrupts`)."""
+    (the partitioning back ends stop their workers and clusters, :mod:`links1.interrupts`).
+    ``program`` (default: ``argv`` is None, as the console script calls it): the process ends
+    with this call, so after that line its stderr goes nowhere: what the standard library's
+    teardown prints of the stopped pools (a queue's feeder thread writing to a pipe closed under
+    it) is not the command's to show."""
     handler = hooks = None
     try:   # from the first statement: a Ctrl-C before the handler below is in place is Python's
         _INTERRUPTED.clear()
@@ -189,6 +194,8 @@ def main(argv=None) -> int:
         ignore_interrupts()   # a second Ctrl-C does not break what is left of the clean-up
         stop_resource_sharer()
         print("links1: interrupted", file=sys.stderr)
+        if argv is None if program is None else program:
+            _quiet_from_here()
         return 130
     finally:
         restore_interrupts(handler)   # main() called from Python: as it was
@@ -203,6 +210,17 @@ _INTERRUPTED = threading.Event()
 def _on_interrupt(signum, frame):
     _INTERRUPTED.set()
     signal.default_int_handler(signum, frame)
+
+
+def _quiet_from_here() -> None:
+    """stderr (the descriptor, so threads' direct prints too) to the null device."""
+    try:
+        sys.stderr.flush()
+        null = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(null, 2)
+        os.close(null)
+    except (OSError, ValueError):
+        pass
 
 
 def raise_if_interrupted() -> None:

@@ -28,7 +28,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 _MAIN = ("import os, sys\nfrom links1_app import cli\nparse = cli._main\n"
          "def ready_then_parse(argv):\n    os.write(int(sys.argv[1]), b'r')\n    os.close(int(sys.argv[1]))\n"
          "    return parse(argv)\n"
-         "cli._main = ready_then_parse\nsys.exit(cli.main(sys.argv[2:]))")
+         "cli._main = ready_then_parse\nsys.exit(cli.main(sys.argv[2:], program=True))")
 
 
 def session_processes(sid: int) -> list:
@@ -96,7 +96,7 @@ def interrupt_once(args, out, delay: float, to_group: bool, timeout: float = 30.
             stops.append(time.monotonic() - t)
         lines = err.decode(errors="replace").strip().splitlines()
         if p.returncode != 130 or lines != ["links1: interrupted"]:
-            return f"{what}: status {p.returncode}, stderr {lines[-6:]!r}"
+            return f"{what}: status {p.returncode}, stderr {lines[-20:]!r}"
         left = processes_left(p.pid)
         if left:
             return f"{what}: processes left behind: {left}"

@@ -191,3 +191,45 @@ def test_an_interrupt_python_drops_still_stops_the_render(tmp_path, capsys, monk
     assert not out.exists()
     assert capsys.readouterr().err.strip().splitlines() == ["links1: interrupted"]
     cli._INTERRUPTED.clear()
+
+
+#: a render interrupted from a finaliser (as above), then the teardown's noise: a thread's
+#: direct print and a write to the descriptor after ``main`` returned
+_NOISY_TEARDOWN = """
+import gc, os, signal, sys, threading, weakref
+from links1_app import cli
+from links1.tracing.render import CoreRenderer
+real = CoreRenderer.render
+class Anything:
+    pass
+def interrupted(self, *a, **k):
+    obj = Anything()
+    weakref.finalize(obj, os.kill, os.getpid(), signal.SIGINT)
+    del obj
+    gc.collect()
+    return real(self, *a, **k)
+CoreRenderer.render = interrupted
+program = sys.argv.pop(1) == "program"
+status = cli.main(sys.argv[1:], program=program)
+t = threading.Thread(target=lambda: print("Traceback (most recent call last): noise", file=sys.stderr))
+t.start()
+t.join()
+os.write(2, b"OSError: [Errno 9] Bad file descriptor\\n")
+sys.exit(status)
+"""
+
+
+@pytest.mark.parametrize("program", [True, False], ids=["console-script", "called-from-python"])
+def test_after_the_interrupted_line_the_program_prints_nothing(tmp_path, program):
+    """As the console script runs it, the command's process ends with ``links1: interrupted`` as
+    its last word on stderr, whatever its teardown prints after; called from Python (a caller's
+    process that goes on), stderr is left as it was."""
+    out = tmp_path / "a.exr"
+    args = ["program" if program else "python", "render", FIG4, "--renderer", "core", "-D", "res=8",
+            "-o", str(out), "--no-progress"]
+    p = subprocess.run([sys.executable, "-c", _NOISY_TEARDOWN, *args], cwd=ROOT, capture_output=True, text=True,
+                       timeout=120)
+    lines = p.stderr.strip().splitlines()
+    assert p.returncode == 130 and not out.exists()
+    assert lines[0] == "links1: interrupted"
+    assert (lines == ["links1: interrupted"]) == program, lines
