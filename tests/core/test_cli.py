@@ -157,33 +157,36 @@ def test_warnings_are_one_clean_line_each(tmp_path, workers):
     assert "SceneWarning" not in res.stderr and ".py:" not in res.stderr
 
 
-def test_an_interrupt_python_drops_still_stops_the_render(tmp_path, capsys, monkeypatch):
-    """Ctrl-C that lands in a finaliser (Python prints and drops the KeyboardInterrupt raised
-    there: an import's module lock, say) still ends the command as Ctrl-C does: status 130, the
-    one line, no output file, and no dropped-exception report."""
+class _Anything:
+    pass
+
+
+def interrupted_from_a_finaliser(real):
+    """``CoreRenderer.render`` (``real``) that first sends this process SIGINT from a finaliser,
+    where Python prints and drops the KeyboardInterrupt the signal's handler raises."""
     import gc
     import os
     import signal
     import weakref
 
-    from links1.tracing.render import CoreRenderer
-    real = CoreRenderer.render
-
-    class Anything:
-        pass
-
-    def interrupted_in_a_finaliser(self, *a, **k):
-        obj = Anything()
+    def render(self, *a, **k):
+        obj = _Anything()
         weakref.finalize(obj, os.kill, os.getpid(), signal.SIGINT)
         del obj                          # the finaliser runs here, the signal's handler inside it
         gc.collect()
         return real(self, *a, **k)
+    return render
 
-    monkeypatch.setattr(CoreRenderer, "render", interrupted_in_a_finaliser)
-    import sys
+
+def test_an_interrupt_python_drops_still_stops_the_render(tmp_path, capsys, monkeypatch):
+    """Ctrl-C that lands in a finaliser (Python prints and drops the KeyboardInterrupt raised
+    there: an import's module lock, say) still ends the command as Ctrl-C does: status 130, the
+    one line, no output file, and no dropped-exception report."""
     import threading
 
+    from links1.tracing.render import CoreRenderer
     from links1_app import cli
+    monkeypatch.setattr(CoreRenderer, "render", interrupted_from_a_finaliser(CoreRenderer.render))
     for owner, name in ((sys, "excepthook"), (sys, "unraisablehook"), (threading, "excepthook")):
         monkeypatch.setattr(owner, name, getattr(owner, name))   # an interrupted command keeps its hooks
     out = tmp_path / "a.exr"
@@ -196,19 +199,11 @@ def test_an_interrupt_python_drops_still_stops_the_render(tmp_path, capsys, monk
 #: a render interrupted from a finaliser (as above), then the teardown's noise: a thread's
 #: direct print and a write to the descriptor after ``main`` returned
 _NOISY_TEARDOWN = """
-import gc, os, signal, sys, threading, weakref
+import os, sys, threading
 from links1_app import cli
 from links1.tracing.render import CoreRenderer
-real = CoreRenderer.render
-class Anything:
-    pass
-def interrupted(self, *a, **k):
-    obj = Anything()
-    weakref.finalize(obj, os.kill, os.getpid(), signal.SIGINT)
-    del obj
-    gc.collect()
-    return real(self, *a, **k)
-CoreRenderer.render = interrupted
+from tests.core.test_cli import interrupted_from_a_finaliser
+CoreRenderer.render = interrupted_from_a_finaliser(CoreRenderer.render)
 program = sys.argv.pop(1) == "program"
 status = cli.main(sys.argv[1:], program=program)
 t = threading.Thread(target=lambda: print("Traceback (most recent call last): noise", file=sys.stderr))
