@@ -691,13 +691,9 @@ def _sample_weights(rfilter, film_width, seed, batch):
     def make():
         n_s = op_u(batch.spp)
         sl = dr.arange(U32, batch.lanes)
-        kl = batch.lane_window
-        local = sl - dr.gather(U32, batch.first_lane, kl)
-        pl = udiv(local, n_s)
-        i = local - pl * n_s
-        sw = _divisor(dr.gather(U32, batch.sw, kl))
-        py = udiv(pl, sw)
-        pix = (py + dr.gather(U32, batch.sy0, kl)) * op_u(film_width) + pl - py * sw + dr.gather(U32, batch.sx0, kl)
+        sid = sample_ids(film_width, batch.spp, batch)     # pixel * spp + i, kept with the batch
+        pix = udiv(sid, n_s)
+        i = sid - pix * n_s
         ox, oy = (FT(o) for o in offsets(pix, i, n_s, _strata(batch.spp), op_u(seed)))
         zero = dr.zeros(FT, batch.lanes)
         vals = [*_weights_at(rfilter, ox, nb), *[zero] * (pad - nb), *_weights_at(rfilter, oy, nb), *[zero] * (pad - nb)]
