@@ -128,6 +128,7 @@ def animate(scene, output=None, *, frames, defines=(), fps=24.0, renderer="core"
     dict kept across calls (``"eq41"``: frame -> eq. 4.1 load map, ``"camera"``: frame -> the core's
     camera), so experiments read each frame once.
     ``options``: the renderer's (spp, width, height, max_depth, seed, params, ...)."""
+    from .cli import raise_if_interrupted   # (the command line imports this module)
     if units not in UNIT_CHOICES:
         raise UsageError(f"unknown --units {units!r}; choose from {', '.join(UNIT_CHOICES)}")
     if plan_from not in PLAN_FROM:
@@ -174,6 +175,7 @@ def animate(scene, output=None, *, frames, defines=(), fps=24.0, renderer="core"
         out = img[..., keep]
         f = frames[k]
         if f in paths:
+            raise_if_interrupted()   # a Ctrl-C whose exception Python dropped: no frame written after it
             p = paths[f]
             os.makedirs(os.path.dirname(os.path.abspath(p)), exist_ok=True)
             if p.lower().endswith(".png"):
@@ -328,6 +330,7 @@ def add_cli(sub) -> None:
 
 
 def run_cli(args) -> int:
+    from .cli import raise_if_interrupted
     from .cli_options import adaptive_options, progress_choice
     frames = parse_frames(args.frames)
     frame_values(args.defines, frames[:1], args.fps)    # a bad -D: one line before anything starts
@@ -367,6 +370,7 @@ def run_cli(args) -> int:
     print(f"links1: wrote {len(res.written)} frames ({args.output}, {res.units} units, {res.n_nodes} node(s), "
           f"{res.makespan_s:.2f} s)", file=sys.stderr)
     if args.video:
+        raise_if_interrupted()
         write_video(args.video, [output_path(args.output, f) for f in frames], args.fps)
         print(f"links1: wrote {args.video} ({len(frames)} frames at {args.fps:g} fps)", file=sys.stderr)
     return 0

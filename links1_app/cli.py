@@ -226,7 +226,7 @@ def _quiet_from_here() -> None:
 def raise_if_interrupted() -> None:
     """KeyboardInterrupt where Ctrl-C reached the command but its exception did not: raised in a
     weak reference's callback or a finaliser (an import's module lock, say), Python prints and
-    drops it, and the render would go on to write its output."""
+    drops it, and the command would go on to write its output (render, each frame of animate)."""
     if _INTERRUPTED.is_set():
         raise KeyboardInterrupt
 

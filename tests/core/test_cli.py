@@ -196,6 +196,23 @@ def test_an_interrupt_python_drops_still_stops_the_render(tmp_path, capsys, monk
     cli._INTERRUPTED.clear()
 
 
+def test_an_interrupt_python_drops_still_stops_animate(tmp_path, capsys, monkeypatch):
+    """The same dropped Ctrl-C during a sequence's first frame: status 130, the one line, and no
+    frame written after it (the sequence renders on, each finished frame checked before its write)."""
+    import threading
+
+    from links1_app import cli
+    from links1_app.partition.sequence import SequenceRenderer
+    monkeypatch.setattr(SequenceRenderer, "_render", interrupted_from_a_finaliser(SequenceRenderer._render))
+    for owner, name in ((sys, "excepthook"), (sys, "unraisablehook"), (threading, "excepthook")):
+        monkeypatch.setattr(owner, name, getattr(owner, name))
+    assert run_cli("animate", FIG4, "--renderer", "core", "-D", "res=8", "--frames", "2", "-o",
+                   str(tmp_path / "f_%d.exr"), "--no-progress") == 130
+    assert list(tmp_path.iterdir()) == []
+    assert capsys.readouterr().err.strip().splitlines() == ["links1: interrupted"]
+    cli._INTERRUPTED.clear()
+
+
 #: a render interrupted from a finaliser (as above), then the teardown's noise: a thread's
 #: direct print and a write to the descriptor after ``main`` returned
 _NOISY_TEARDOWN = """
