@@ -1,6 +1,6 @@
 """Ctrl-C (SIGINT): the root process alone stops, at once and cleanly, whatever renders.
 
-Three helpers, standard library only:
+Helpers, standard library only:
 
 * :func:`held_interrupts` / :func:`check_interrupt`: a renderer whose work runs inside
   native calls (the plugin's Dr.Jit launches) holds SIGINT while it works and raises
@@ -14,6 +14,9 @@ Three helpers, standard library only:
   whole process group, reaches only the root, which then ends them itself.
 * :func:`ignore_interrupts`: once the root is stopping (or writing a finished frame), a
   second Ctrl-C does not break the clean-up half way.
+* :data:`COMMAND_INTERRUPTED` / :func:`raise_if_interrupted`: a Ctrl-C that reached the
+  command (its handler sets the event) stops it before each output it writes, also where
+  Python dropped the ``KeyboardInterrupt``.
 """
 from __future__ import annotations
 
@@ -24,6 +27,17 @@ import threading
 
 #: the holds in force in this process, innermost last: [the handler held, interrupts caught]
 _HOLDS: list = []
+
+#: set when Ctrl-C reaches the command (``links1_app.cli``'s handler): the process is then ending
+COMMAND_INTERRUPTED = threading.Event()
+
+
+def raise_if_interrupted() -> None:
+    """KeyboardInterrupt where Ctrl-C reached the command but its exception did not: raised in a
+    weak reference's callback or a finaliser (an import's module lock, say), Python prints and
+    drops it, and the command would go on to write its output (render, each frame of animate)."""
+    if COMMAND_INTERRUPTED.is_set():
+        raise KeyboardInterrupt
 
 
 def _main_thread() -> bool:

@@ -20,6 +20,7 @@ from tqdm import tqdm
 
 from links1.errors import UsageError
 from links1.imaging.image import write_image
+from links1.interrupts import raise_if_interrupted
 from links1.partition.loadmodel import load_table, scene_model
 from links1.partition.strategies import STRATEGIES, make_plan
 from links1.tracing.aovs import aov_channel, check_aovs, channel_names
@@ -128,7 +129,6 @@ def animate(scene, output=None, *, frames, defines=(), fps=24.0, renderer="core"
     dict kept across calls (``"eq41"``: frame -> eq. 4.1 load map, ``"camera"``: frame -> the core's
     camera), so experiments read each frame once.
     ``options``: the renderer's (spp, width, height, max_depth, seed, params, ...)."""
-    from .cli import raise_if_interrupted   # (the command line imports this module)
     if units not in UNIT_CHOICES:
         raise UsageError(f"unknown --units {units!r}; choose from {', '.join(UNIT_CHOICES)}")
     if plan_from not in PLAN_FROM:
@@ -330,7 +330,6 @@ def add_cli(sub) -> None:
 
 
 def run_cli(args) -> int:
-    from .cli import raise_if_interrupted
     from .cli_options import adaptive_options, progress_choice
     frames = parse_frames(args.frames)
     frame_values(args.defines, frames[:1], args.fps)    # a bad -D: one line before anything starts

@@ -19,7 +19,9 @@ import numpy as np
 from links1 import __version__
 from links1.errors import Links1Error, RenderAborted, UsageError, one_line_warnings
 from links1.imaging.image import write_image
-from links1.interrupts import held_interrupts, ignore_interrupts, restore_interrupts, stop_resource_sharer
+from links1.interrupts import COMMAND_INTERRUPTED as _INTERRUPTED
+from links1.interrupts import (held_interrupts, ignore_interrupts, raise_if_interrupted, restore_interrupts,
+                               stop_resource_sharer)
 
 from . import animate, diff
 from .cli_options import (nonneg_int, adaptive_options, add_progress_arguments, add_render_arguments,
@@ -203,10 +205,6 @@ def main(argv=None, *, program: bool | None = None) -> int:
             threading.excepthook, sys.excepthook, sys.unraisablehook = hooks
 
 
-#: set when Ctrl-C reaches the command: the process is then ending
-_INTERRUPTED = threading.Event()
-
-
 def _on_interrupt(signum, frame):
     _INTERRUPTED.set()
     signal.default_int_handler(signum, frame)
@@ -221,14 +219,6 @@ def _quiet_from_here() -> None:
         os.close(null)
     except (OSError, ValueError):
         pass
-
-
-def raise_if_interrupted() -> None:
-    """KeyboardInterrupt where Ctrl-C reached the command but its exception did not: raised in a
-    weak reference's callback or a finaliser (an import's module lock, say), Python prints and
-    drops it, and the command would go on to write its output (render, each frame of animate)."""
-    if _INTERRUPTED.is_set():
-        raise KeyboardInterrupt
 
 
 def _quiet_unraisable_once_interrupted(unraisable) -> None:
