@@ -1,6 +1,6 @@
 """Where ``links1_whitted``'s ray-tree kernel spends its time beyond the rays' floor.
 
-    python -m compare.ray_tree_parts [--only teapot cbox_point] [--spp 16] [--repeats 9]
+    python -m compare.ray_tree_parts [--only teapot cbox_point delta_bsdfs cbox_mirror_glass] [--spp 16] [--repeats 9]
 
 Per case (``compare.ray_floor``'s scenes with a box filter, 512 px wide), one scene object,
 the level-1 ray tree traced as the frame traces it (``Tracer.trace_tree`` over the camera
@@ -12,14 +12,16 @@ the whole kernel of the same round (median over the rounds). The variants:
 * ``no box cull``: the shadow rays go to Embree without the occluder boxes' slab test
   (``Tuning.box_cull`` off);
 * ``no counters``: the level's radiance alone evaluated (no per-lane cost and shadow-ray
-  counts written);
+  counts written; level 1 alone: where the tree goes deeper, through delta BSDFs, the image
+  differs);
 * ``minimal record``: Embree's hit expanded with ``RayFlags.Minimal | ShadingFrame`` (no uv,
   no dp/du: the diffuse BSDFs read the shading normal alone);
 * ``camera rays loaded``: the camera rays made beforehand and read (the kernel without
   making them);
 * ``no shadow rays``: every shadow ray unoccluded (the image differs);
 * ``shadow rays made beforehand and read``: each light's shadow test on its rays captured
-  from the level (below), read instead of made in the kernel (the same lanes; no box cull);
+  from level 1 (below), read instead of made in the kernel (the same lanes; no box cull); the
+  deeper levels' shadow rays (delta BSDFs) made in the kernel, no box cull either;
 * ``shadow origins made beforehand and read``: the same with the origins alone read;
 * ``no branch on the hit``: direct light computed masked at every lane, not under the
   symbolic branch that skips escaped rays (``Tuning.skip_misses``);
@@ -39,7 +41,8 @@ the whole kernel of the same round (median over the rounds). The variants:
 And the floor's parts (``compare.ray_floor.trace_floor``): the camera rays' preliminary
 hits (rays read), the shadow rays links1 traces (captured from the level) densely packed and
 as full-width masked packets; and a frame of Mitsuba's ``direct`` (emitter_samples 1,
-bsdf_samples 0; kernels, so also its film). ``same`` says whether a variant's radiance equals
+bsdf_samples 0), or of its ``path`` at the case's depth where the tree goes deeper (kernels,
+so also its film). ``same`` says whether a variant's radiance equals
 the kernel's bit for bit. Writes ``compare/results/ray_tree_parts.{json,md}``.
 """
 from __future__ import annotations
@@ -170,14 +173,30 @@ def measure_case(cid, spp, repeats, variant):
     for ray, act in captured:
         dr.eval(ray, act)
 
+    # the shadow rays read are level 1's: a deeper level's (the tree's loop, another width)
+    # makes its own, as the kernel does without the box cull
+    plain_level, plain_shadow = type(tracer).level, isect.shadow_mitsuba
+    in_level1 = [False]
+
+    def level(self, tables, scene, o, d, tmin, tmax, key, depth, *args, **kw):
+        in_level1[0] = depth == 1
+        try:
+            return plain_level(self, tables, scene, o, d, tmin, tmax, key, depth, *args, **kw)
+        finally:
+            in_level1[0] = False
+
     def read_rays(tables, scene, o, d, smax, active, T, cost, tuning, light=None, own=None):
-        """The shadow test of light ``light`` on its ray captured above (made beforehand and
-        read; the same lanes), no box cull."""
+        """The shadow test of light ``light`` on its level-1 ray captured above (made beforehand
+        and read; the same lanes), no box cull."""
+        if not in_level1[0]:
+            return plain_shadow(tables, scene, o, d, smax, active, T, cost, no_cull, light, own)
         cost += dr.select(active, mi.UInt32(1), 0)
         return dr.select(scene.ray_test(captured[light][0], False, active), 0.0, T)
 
     def read_origins(tables, scene, o, d, smax, active, T, cost, tuning, light=None, own=None):
         """As :func:`read_rays` with the ray's origin alone read (direction, length made here)."""
+        if not in_level1[0]:
+            return plain_shadow(tables, scene, o, d, smax, active, T, cost, no_cull, light, own)
         cost += dr.select(active, mi.UInt32(1), 0)
         ray = mi.Ray3f(captured[light][0].o, d, smax, 0.0, mi.Color0f())
         return dr.select(scene.ray_test(ray, False, active), 0.0, T)
@@ -199,9 +218,10 @@ def measure_case(cid, spp, repeats, variant):
         "minimal record": (tree, ((isect, "nearest", nearest_flags(mi.RayFlags.Minimal | mi.RayFlags.ShadingFrame)),)),
         "camera rays loaded": (lambda: tree(True), ()),
         "no shadow rays": (tree, ((isect, "shadow_mitsuba", unoccluded),)),
-        "shadow rays made beforehand and read": (tree, ((isect, "shadow_mitsuba", read_rays),)),
+        "shadow rays made beforehand and read": (tree, ((isect, "shadow_mitsuba", read_rays), (type(tracer), "level", level))),
         "no branch on the hit": (tree, ((tracer, "tuning", no_branch),)),
-        "shadow origins made beforehand and read": (tree, ((isect, "shadow_mitsuba", read_origins),)),
+        "shadow origins made beforehand and read": (tree, ((isect, "shadow_mitsuba", read_origins),
+                                                           (type(tracer), "level", level))),
         "geometric normal := shading normal": (tree, ((isect, "nearest", shading_normal),)),
         "Mitsuba's surface record": (tree, ((tables.base or tables, "mesh_record", None),)),
         "fixed BSDF": (tree, ((rt.Hit, "f_eval", lambda self, wi: lambert(self, wi)),)),
@@ -227,7 +247,7 @@ def measure_case(cid, spp, repeats, variant):
         "floor: camera rays' preliminary hits": lambda: trace_floor(scene, cam_batches),
         "floor: links1's shadow rays, dense": lambda: [dr.eval(scene.ray_test(r)) for r in dense],
         "floor: links1's shadow rays, masked": lambda: [dr.eval(scene.ray_test(r, False, a)) for r, a in captured],
-        "Mitsuba direct frame (its kernels)": lambda: dr.eval(mi.render(scene, integrator=direct, spp=spp, seed=0)),
+        f"Mitsuba {kind} frame (its kernels)": lambda: dr.eval(mi.render(scene, integrator=direct, spp=spp, seed=0)),
     }
     runs = {**{k: v for k, v in variants.items()}, **{k: (f, ()) for k, f in floors.items()}}
     for _, (fn, patch) in runs.items():
@@ -293,7 +313,7 @@ def run_probe(a, stem, measure, line, markdown) -> int:
 
 
 def main(argv=None) -> int:
-    a = probe_args(argv, "compare.ray_tree_parts", __doc__, ["teapot", "cbox_point"])
+    a = probe_args(argv, "compare.ray_tree_parts", __doc__, ["teapot", "cbox_point", "delta_bsdfs", "cbox_mirror_glass"])
     return run_probe(a, "ray_tree_parts", measure_case,
                      lambda cid, r: f"{cid:12s} {r['part']:40s} {r['ms']:8.1f} ms  {r['ratio']:.3f}  same={r['same']}",
                      markdown)
