@@ -20,6 +20,14 @@ from . import geometry
 from .shapes import quadric_uv
 from .util import INF, color3, gather3, next_up
 
+#: the kinds of Mitsuba shape whose nearest hit's surface record the kernel makes
+#: (:func:`mesh_surface`, ``tables.MeshRecord.kind``): every ``Mesh`` (triangle meshes,
+#: rectangles, cubes: ``Mesh::compute_surface_interaction``, Mitsuba 3.9.1's mesh.cpp),
+#: spheres (sphere.cpp), disks (disk.cpp)
+KIND_MESH, KIND_SPHERE, KIND_DISK = 0, 1, 2
+#: floats a sphere's or disk's row of ``tables.MeshRecord.rows``
+ROW = 24
+
 # the switches read here (preliminary, box_cull, eye_buffer, split) are fields of
 # tuning.Tuning, handed over while tracing: a frozen launch is keyed on them (launch.py)
 
@@ -36,7 +44,7 @@ def nearest(tables, scene, o, d, tmin, tmax, active, cost, eye=False, coherent=F
     one, as in Mitsuba)."""
     rec = getattr(tables, "mesh_record", None)
     if tables.any_mitsuba_shapes and rec is not None and not ad:
-        # every Mitsuba shape a triangle mesh: Embree's preliminary hit, the record made here
+        # every Mitsuba shape a mesh, sphere or disk: Embree's preliminary hit, the record made here
         ray = mi.Ray3f(o + d * tmin, d, tmax - tmin)
         pi = scene.ray_intersect_preliminary(ray, bool(coherent), active)
         valid = active & pi.is_valid()
@@ -70,17 +78,56 @@ def nearest(tables, scene, o, d, tmin, tmax, active, cost, eye=False, coherent=F
 
 def mesh_surface(rec, ray, pi, slot, valid):
     """Mitsuba's surface record (``scene.ray_intersect``'s, ``RayFlags.All``) of the
-    preliminary hits ``pi`` of ``ray`` on the triangle meshes of ``rec``
+    preliminary hits ``pi`` of ``ray`` on the meshes, spheres and disks of ``rec``
     (``tables.MeshRecord``; ``slot``: the hit's slot, ``valid``: the lanes with a hit), made
-    with the float operations of Mitsuba 3.9.1's ``Mesh::compute_surface_interaction``
-    (mesh.cpp) and ``SurfaceInteraction::finalize_surface_interaction`` (interaction.h): the
-    same bits. The point is interpolated from the vertices with the barycentrics (not
-    ``o + t d``), the geometric normal is ``Mesh::face_normal``, the shading normal the
-    normalized interpolated vertex normal (a mesh without: the face normal), uv and dp/du,
-    dp/dv from the texture coordinates (without: the barycentrics and the edges), the shading
-    frame's tangent Gram-Schmidt of dp/du. Lanes without a hit hold what Mitsuba's shape
-    call leaves there (zeros, ``t`` infinite, ``wi = -d``)."""
+    with the float operations of Mitsuba 3.9.1's ``compute_surface_interaction`` of each
+    (:func:`_mesh_part`, :func:`_analytic_part`; the shape's kind from ``rec.kind``, each
+    kind's operations in the kernel where the scene has one, the lanes' own kind selected)
+    and ``SurfaceInteraction::finalize_surface_interaction`` (interaction.h): the same bits.
+    Lanes without a hit hold what Mitsuba's shape call leaves there (zeros, ``t`` infinite,
+    ``wi = -d``)."""
     sl = mi.UInt32(dr.maximum(slot, 0))
+    kind = None if rec.kind is None else dr.gather(mi.UInt32, rec.kind, sl, valid)
+    parts = []
+    if KIND_MESH in rec.kinds:
+        mesh = valid if kind is None else valid & (kind == KIND_MESH)
+        parts.append((mesh, _mesh_part(rec, pi, sl, mesh)))
+    if len(rec.kinds - {KIND_MESH}):
+        m = valid if kind is None else valid & (kind != KIND_MESH)
+        parts.append((m, _analytic_part(rec, ray, pi, sl, m, kind)))
+    (_, (p, n, ns, uv, dp_du, dp_dv)), rest = parts[-1], parts[:-1]
+    for m, part in rest:
+        p, n, ns, uv, dp_du, dp_dv = (dr.select(m, a, b) for a, b in zip(part, (p, n, ns, uv, dp_du, dp_dv)))
+    if rec.flip is not None:
+        fl = dr.gather(mi.Bool, rec.flip, sl, valid)
+        n, ns = dr.select(fl, -n, n), dr.select(fl, -ns, ns)
+    si = dr.zeros(mi.SurfaceInteraction3f, dr.width(valid))
+    si.t = dr.select(valid, pi.t, INF)
+    si.p = dr.select(valid, p, 0.0)
+    si.n = dr.select(valid, n, 0.0)
+    si.uv = dr.select(valid, uv, 0.0)
+    dp_du = dr.select(valid, dp_du, 0.0)
+    si.dp_du, si.dp_dv = dp_du, dr.select(valid, dp_dv, 0.0)
+    si.prim_index = dr.select(valid, pi.prim_index, 0)
+    si.shape = dr.select(valid, pi.shape, mi.ShapePtr(None))
+    si.time = ray.time
+    si.wavelengths = ray.wavelengths
+    # SurfaceInteraction::initialize_sh_frame
+    ns = dr.select(valid, ns, 0.0)
+    s = dr.normalize(dr.fma(ns, -dr.dot(ns, dp_du), dp_du))
+    s = dr.select(dr.all(dp_du == 0.0), mi.coordinate_system(ns)[0], s)
+    si.sh_frame = mi.Frame3f(s, dr.cross(ns, s), ns)
+    si.wi = dr.select(valid, si.to_local(-ray.d), -ray.d)
+    return si
+
+
+def _mesh_part(rec, pi, sl, valid):
+    """``(p, n, ns, uv, dp_du, dp_dv)`` of the hits ``valid`` on meshes, normals not yet
+    flipped, as Mitsuba 3.9.1's ``Mesh::compute_surface_interaction`` (mesh.cpp) makes them:
+    the point interpolated from the vertices with the barycentrics (not ``o + t d``), the
+    geometric normal ``Mesh::face_normal``, the shading normal the normalized interpolated
+    vertex normal (a mesh without: the face normal), uv and dp/du, dp/dv from the texture
+    coordinates (without: the barycentrics and the edges)."""
     face = pi.prim_index
     if rec.face_off is not None:
         face = face + dr.gather(mi.UInt32, rec.face_off, sl, valid)
@@ -112,27 +159,72 @@ def mesh_surface(rec, ray, pi, slot, valid):
         n0, n1, n2 = (dr.gather(mi.Vector3f, rec.normals, f, has) for f in fi)
         ni = dr.fma(n2, b2, dr.fma(n1, b1, n0 * b0))
         ns = dr.select(has, ni * dr.rsqrt(dr.squared_norm(ni)), ns)
-    if rec.flip is not None:
-        fl = dr.gather(mi.Bool, rec.flip, sl, valid)
-        n, ns = dr.select(fl, -n, n), dr.select(fl, -ns, ns)
-    si = dr.zeros(mi.SurfaceInteraction3f, dr.width(valid))
-    si.t = dr.select(valid, pi.t, INF)
-    si.p = dr.select(valid, p, 0.0)
-    si.n = dr.select(valid, n, 0.0)
-    si.uv = dr.select(valid, uv, 0.0)
-    dp_du = dr.select(valid, dp_du, 0.0)
-    si.dp_du, si.dp_dv = dp_du, dr.select(valid, dp_dv, 0.0)
-    si.prim_index = dr.select(valid, pi.prim_index, 0)
-    si.shape = dr.select(valid, pi.shape, mi.ShapePtr(None))
-    si.time = ray.time
-    si.wavelengths = ray.wavelengths
-    # SurfaceInteraction::initialize_sh_frame
-    ns = dr.select(valid, ns, 0.0)
-    s = dr.normalize(dr.fma(ns, -dr.dot(ns, dp_du), dp_du))
-    s = dr.select(dr.all(dp_du == 0.0), mi.coordinate_system(ns)[0], s)
-    si.sh_frame = mi.Frame3f(s, dr.cross(ns, s), ns)
-    si.wi = dr.select(valid, si.to_local(-ray.d), -ray.d)
-    return si
+    return p, n, ns, uv, dp_du, dp_dv
+
+
+def _linear(m, v):
+    """``AffineTransform4f * Vector3f`` (Mitsuba 3.9.1's transform.h) of the rows ``m`` (9
+    floats, row by row): ``m[i][0] v0``, then ``fma(m[i][j], v_j, .)``."""
+    return mi.Vector3f(*[dr.fma(m[3 * i + 2], v[2], dr.fma(m[3 * i + 1], v[1], m[3 * i] * v[0]))
+                         for i in range(3)])
+
+
+def _analytic_part(rec, ray, pi, sl, valid, kind):
+    """``(p, n, ns, uv, dp_du, dp_dv)`` of the hits ``valid`` on spheres and disks (``kind``:
+    the lanes' kind, None where all are of one), normals not yet flipped, as Mitsuba 3.9.1's
+    ``Sphere::compute_surface_interaction`` (sphere.cpp) and ``Disk::...`` (disk.cpp) make
+    them in a differentiable variant, without ``FollowShape``: the point ``ray(t)``; a
+    sphere's normal ``normalize(p - center)``, uv from the spherical angles of ``p`` in object
+    space, dp/du and dp/dv the parameterization's (``(1, 0, 0)`` on the axis) scaled by 2 pi
+    and pi; a disk's normal its frame's, uv (r, phi / 2 pi) from Embree's local hit
+    (``pi.prim_uv``), dp/du the radial direction, dp/dv the tangent times 2 pi r."""
+    row = [dr.gather(mi.Float, rec.rows, sl * ROW + k, valid) for k in range(ROW if KIND_SPHERE in rec.kinds else 12)]
+    lin, c = row[:9], mi.Vector3f(*row[9:12])
+    p = dr.fma(ray.d, pi.t, ray.o)                      # Ray::operator()
+    two_pi = mi.Float(2.0 * dr.pi)
+    zero = mi.Float(0.0)
+    if KIND_SPHERE in rec.kinds:
+        sph = valid if kind is None else valid & (kind == KIND_SPHERE)
+        n_s = dr.normalize(p - c)
+        # to_object * p (transform.h): the inverse's translation, then fma(inv[i][j], p_j, .)
+        inv = [row[12 + 4 * i:16 + 4 * i] for i in range(3)]
+        loc = mi.Vector3f(*[dr.fma(r[2], p[2], dr.fma(r[1], p[1], dr.fma(r[0], p[0], r[3]))) for r in inv])
+        theta = mi.dir_to_sph(loc).x                    # dr::unit_angle_z
+        rd = dr.sqrt(dr.square(loc.x) + dr.square(loc.y))
+        inv_rd = dr.rcp(rd)
+        dv_s = mi.Vector3f(loc.z * (loc.x * inv_rd), loc.z * (loc.y * inv_rd), -rd)
+        dv_s = dr.select(sph & (rd == 0.0), mi.Vector3f(1.0, 0.0, 0.0), dv_s)
+        du_s = _linear(lin, mi.Vector3f(-loc.y, loc.x, zero)) * two_pi
+        dv_s = _linear(lin, dv_s) * mi.Float(dr.pi)
+    if KIND_DISK in rec.kinds:
+        disk = valid if kind is None else valid & (kind == KIND_DISK)
+        q = pi.prim_uv
+        r_2 = dr.squared_norm(q)
+        inv_r = dr.select(r_2 != 0.0, dr.rsqrt(r_2), 0.0)
+        r = r_2 * inv_r
+        cos_phi, sin_phi = q.x * inv_r, q.y * inv_r
+        du_d = _linear(lin, mi.Vector3f(cos_phi, sin_phi, zero))
+        dv_d = _linear(lin, mi.Vector3f(-sin_phi, cos_phi, zero)) * (two_pi * r)
+    # one atan2 for both kinds: phi of the sphere's local point, of the disk's hit
+    if KIND_DISK not in rec.kinds:
+        phi = dr.atan2(loc.y, loc.x)
+    elif KIND_SPHERE not in rec.kinds:
+        phi = dr.atan2(q.y, q.x)
+    else:
+        phi = dr.atan2(dr.select(disk, q.y, loc.y), dr.select(disk, q.x, loc.x))
+    out = []
+    if KIND_SPHERE in rec.kinds:
+        ph = dr.select(phi < 0.0, phi + two_pi, phi)
+        uv_s = mi.Point2f(ph * dr.inv_two_pi, theta * dr.inv_pi)
+        out.append((sph, (p, n_s, n_s, uv_s, du_s, dv_s)))
+    if KIND_DISK in rec.kinds:
+        v = phi * dr.inv_two_pi
+        uv_d = mi.Point2f(r, dr.select(v < 0.0, v + 1.0, v))
+        out.append((disk, (p, c, c, uv_d, du_d, dv_d)))
+    (_, res), rest = out[-1], out[:-1]
+    for m, part in rest:
+        res = tuple(dr.select(m, a, b) for a, b in zip(part, res))
+    return res
 
 
 def _nearest_custom(tables, o, d, tmin, tmax, active, cost, eye, t, slot, prim):

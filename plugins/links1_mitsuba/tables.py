@@ -31,6 +31,7 @@ import mitsuba as mi
 from . import lightbuffer, proxies, views
 from .bvh import QuadricBVH
 from .config import Config
+from .intersect import KIND_DISK, KIND_MESH, KIND_SPHERE, ROW
 from .launch import Launches, literal_key
 from .lights import ConstantEnvRecord, EnvMapRecord, analytic_light, area_table, envmap_table
 from .normals import held_positions, llvm, settle_moved
@@ -49,19 +50,28 @@ from .util import checked_index, kind_of
 OFFSET_EPS = 2.0 ** -19
 _PRECISE_MITSUBA = ("Mesh", "OBJMesh", "PLYMesh", "Rectangle", "Disk", "Links1Bicubic", "SerializedMesh")
 
-#: Mitsuba's triangle meshes (their record: ``Mesh::compute_surface_interaction``, Mitsuba 3.9.1's mesh.cpp)
-_TRIANGLE_MESHES = ("Mesh", "OBJMesh", "PLYMesh", "SerializedMesh")
+
+def _record_kind(s):
+    """``s``'s kind for :class:`MeshRecord`, or None where the kernel does not make its record."""
+    if s.is_mesh():
+        return KIND_MESH
+    return {"Sphere": KIND_SPHERE, "Disk": KIND_DISK}.get(s.class_name())
 
 
 @dataclasses.dataclass(eq=False)
 class MeshRecord:
-    """The buffers of the scene's Mitsuba triangle meshes from which the kernel makes the
-    nearest hit's surface record (``intersect.mesh_surface``), one mesh's own buffers or all
-    of them in one (faces renumbered past the earlier meshes' vertices): faces (3 a face),
-    vertex positions (3 a vertex), vertex normals and texture coordinates (None where no
-    mesh has them; zeros for a mesh without), and per slot its first face (None: one
-    mesh), whether it has normals / texture coordinates (None: every mesh or none) and
-    whether its normals are flipped (None: none)."""
+    """What the kernel makes the nearest hit's surface record from (``intersect.mesh_surface``)
+    on the scene's Mitsuba shapes. Meshes: their buffers, one mesh's own or all of them in one
+    (faces renumbered past the earlier meshes' vertices): faces (3 a face), vertex positions
+    (3 a vertex), vertex normals and texture coordinates (None where no mesh has them; zeros
+    for a mesh without), and per slot its first face (None: one mesh), whether it has
+    normals / texture coordinates (None: every mesh or none) and whether its normals are
+    flipped (None: none); ``faces`` None where the scene has no mesh. Spheres and disks: a
+    row of :data:`ROW` floats a slot (``rows``; None where there are none), the linear part of
+    ``to_world`` (9, row by row), then a sphere's center (3) and ``to_world``'s inverse (12,
+    row by row: ``AffineTransform4f::inverse``, the transposed ``inverse_transpose``), a
+    disk's normal (3: ``m_frame.n``). ``kinds``: the kinds present; ``kind``: each slot's
+    (None: one kind); ``flip`` also marks spheres whose normals point inwards."""
 
     faces: object
     positions: object
@@ -71,40 +81,81 @@ class MeshRecord:
     has_n: object = None
     has_uv: object = None
     flip: object = None
+    kinds: frozenset = frozenset({KIND_MESH})
+    kind: object = None
+    rows: object = None
+
+
+def _analytic_row(s, kind):
+    """The :data:`ROW` floats of sphere or disk ``s`` (:class:`MeshRecord`), made from its
+    ``to_world`` (the sphere's center with the operations of ``Sphere::update``,
+    ``to_world * Point3f(0)``), the disk's normal read from Mitsuba (``sample_position``'s,
+    ``m_frame.n``)."""
+    tw = dr.detach(own_param(s, "to_world"))
+    m = np.asarray(tw.matrix, dtype=np.float32).reshape(4, 4)
+    row = np.zeros(ROW, dtype=np.float32)
+    row[:9] = m[:3, :3].ravel()
+    if kind == KIND_SPHERE:
+        row[9:12] = np.asarray(tw @ mi.Point3f(0.0), dtype=np.float32).ravel()
+        inv = np.asarray(tw.inverse_transpose, dtype=np.float32).reshape(4, 4).T
+        row[12:24] = inv[:3, :].ravel()
+    else:
+        # (Mitsuba's own bits: Disk::update's may be folded on the host, 1 / sqrt there)
+        row[9:12] = np.asarray(s.sample_position(0.0, mi.Point2f(0.5)).n, dtype=np.float32).ravel()
+    return row
 
 
 def _mesh_record_table(shapes, slot_list, member_slots, nslots):
-    """:class:`MeshRecord` where every Mitsuba shape of the scene is a triangle mesh outside
-    instances, else None (the kernel reads Mitsuba's record, ``scene.ray_intersect``: its
-    surface call through the shapes' callables cost ~0.2-0.3 of the ray-tree kernel,
+    """:class:`MeshRecord` where every Mitsuba shape of the scene is a mesh, sphere or disk
+    outside instances, else None (the kernel reads Mitsuba's record, ``scene.ray_intersect``:
+    its surface call through the shapes' callables cost ~0.2-0.3 of the ray-tree kernel,
     docs/benchmarks.md)."""
-    if not shapes or member_slots or not all(s.is_mesh() and s.class_name() in _TRIANGLE_MESHES
-                                             for s in shapes):
+    kinds = [_record_kind(s) for s in shapes]
+    if not shapes or member_slots or None in kinds:
         return None
-    # (detached: the launches read primal values; attached vertices stay the derivative pass's)
-    bufs = [dict(faces=dr.detach(own_param(s, "faces")), positions=dr.detach(own_param(s, "vertex_positions")),
-                 normals=dr.detach(own_param(s, "vertex_normals")) if s.has_vertex_normals() else None,
-                 texcoords=dr.detach(own_param(s, "vertex_texcoords")) if s.has_vertex_texcoords() else None)
-            for s in shapes]
-    has_n = [b["normals"] is not None for b in bufs]
-    has_uv = [b["texcoords"] is not None for b in bufs]
-    flip = [s.has_flipped_normals() for s in shapes]
 
-    def per_slot(flags, dtype):
+    def per_slot(flags, dtype, sl_list=slot_list):
         out = np.zeros(max(nslots, 1), dtype=dtype)
-        for sl, v in zip(slot_list, flags):
+        for sl, v in zip(sl_list, flags):
             out[sl] = v
         return out
 
-    def mixed(flags):
-        return mi.Bool(per_slot(flags, bool)) if any(flags) and not all(flags) else None
+    flip = [s.has_flipped_normals() and k != KIND_DISK for s, k in zip(shapes, kinds)]
+    rec = MeshRecord(faces=None, positions=None, flip=mi.Bool(per_slot(flip, bool)) if any(flip) else None,
+                     kinds=frozenset(kinds))
+    if len(rec.kinds) > 1:
+        rec.kind = mi.UInt32(per_slot(kinds, np.uint32))
+    analytic = [(s, k, sl) for s, k, sl in zip(shapes, kinds, slot_list) if k != KIND_MESH]
+    if analytic:
+        rows = np.zeros((max(nslots, 1), ROW), dtype=np.float32)
+        for s, k, sl in analytic:
+            rows[sl] = _analytic_row(s, k)
+        rec.rows = mi.Float(rows.ravel())
+    meshes = [(s, sl) for s, k, sl in zip(shapes, kinds, slot_list) if k == KIND_MESH]
+    if meshes:
+        _mesh_buffers(rec, meshes, per_slot)
+    return rec
 
-    rec = MeshRecord(faces=None, positions=None, has_n=mixed(has_n), has_uv=mixed(has_uv),
-                     flip=mi.Bool(per_slot(flip, bool)) if any(flip) else None)
-    if len(shapes) == 1:
+
+def _mesh_buffers(rec, meshes, per_slot):
+    """``rec``'s mesh buffers (:class:`MeshRecord`) of ``meshes`` (``[(mesh, slot)]``)."""
+    # (detached: the launches read primal values; attached vertices stay the derivative pass's)
+    bufs = [dict(faces=dr.detach(s.faces_buffer()), positions=dr.detach(s.vertex_positions_buffer()),
+                 normals=dr.detach(s.vertex_normals_buffer()) if s.has_vertex_normals() else None,
+                 texcoords=dr.detach(s.vertex_texcoords_buffer()) if s.has_vertex_texcoords() else None)
+            for s, _ in meshes]
+    slots = [sl for _, sl in meshes]
+    has_n = [b["normals"] is not None for b in bufs]
+    has_uv = [b["texcoords"] is not None for b in bufs]
+
+    def mixed(flags):
+        return mi.Bool(per_slot(flags, bool, slots)) if any(flags) and not all(flags) else None
+
+    rec.has_n, rec.has_uv = mixed(has_n), mixed(has_uv)
+    if len(meshes) == 1:
         b = bufs[0]
         rec.faces, rec.positions, rec.normals, rec.texcoords = b["faces"], b["positions"], b["normals"], b["texcoords"]
-        return rec
+        return
     nv = [dr.width(b["positions"]) // 3 for b in bufs]
     nf = [dr.width(b["faces"]) // 3 for b in bufs]
     voff, foff = np.cumsum([0] + nv[:-1]), np.cumsum([0] + nf[:-1])
@@ -117,8 +168,7 @@ def _mesh_record_table(shapes, slot_list, member_slots, nslots):
     if any(has_uv):
         rec.texcoords = mi.Float(np.concatenate([np.asarray(b["texcoords"], dtype=np.float32) if h
                                                  else np.zeros(2 * k, np.float32) for b, h, k in zip(bufs, has_uv, nv)]))
-    rec.face_off = mi.UInt32(per_slot(foff, np.uint32))
-    return rec
+    rec.face_off = mi.UInt32(per_slot(foff, np.uint32, slots))
 
 
 def _textured(bsdf) -> bool:

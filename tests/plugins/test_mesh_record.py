@@ -1,12 +1,14 @@
-"""Where every Mitsuba shape of a scene is a triangle mesh outside instances, links1_whitted makes
-the nearest hit's surface record itself from Embree's preliminary hit and the meshes' buffers
-(``tables.MeshRecord``, ``intersect.mesh_surface``) with the operations of Mitsuba's
-``Mesh::compute_surface_interaction``, instead of ``scene.ray_intersect``'s record.
+"""Where every Mitsuba shape of a scene is a mesh (triangle meshes, rectangles, cubes), a sphere or
+a disk outside instances, links1_whitted makes the nearest hit's surface record itself from
+Embree's preliminary hit and the shapes' buffers and transforms (``tables.MeshRecord``,
+``intersect.mesh_surface``) with the operations of Mitsuba's ``compute_surface_interaction`` of
+each, instead of ``scene.ray_intersect``'s record.
 
-The reference is Mitsuba's record itself: on rays aimed at every mesh (texture coordinates or
-not, vertex normals or face normals, flipped normals) each field is equal bit for bit, and the
-frame with the record taken away (Mitsuba's) is the frame with it; a scene with another shape
-keeps Mitsuba's record."""
+The reference is Mitsuba's record itself: on rays aimed at every shape (texture coordinates or
+not, vertex normals or face normals, flipped normals; spheres, rectangles and disks under
+rotations, non-uniform and negative scales, rays from inside and segments that end before a
+hit) each field is equal bit for bit, and the frame with the record taken away (Mitsuba's) is
+the frame with it; a scene with another shape keeps Mitsuba's record."""
 from __future__ import annotations
 
 import numpy as np
@@ -22,6 +24,25 @@ CHECKER = ('<bsdf type="diffuse"><texture type="checkerboard" name="reflectance"
 PLASTIC = '<bsdf type="plastic"/>'
 MIRROR = '<bsdf type="conductor"/>'
 SPHERE = '<shape type="sphere"><point name="center" x="1.2" y="0.5" z="0.5"/><float name="radius" value="0.4"/></shape>'
+CYLINDER = '<shape type="cylinder"><point name="p0" x="1.2" y="0" z="0.5"/><point name="p1" x="1.2" y="0.8" z="0.5"/></shape>'
+#: spheres (a flipped one under a non-uniform scale, one mirrored by a negative scale), rectangles
+#: and disks (flipped ones, non-uniform scales, rotations off the axes) and a cube
+ANALYTIC = [
+    '<shape type="sphere"><transform name="to_world"><scale x="0.3" y="0.6" z="0.45"/><rotate x="1" y="1" angle="37"/>'
+    '<translate x="-1.5" y="0.8" z="0.2"/></transform><boolean name="flip_normals" value="true"/>{bsdf}</shape>',
+    '<shape type="sphere"><transform name="to_world"><scale x="-0.5" y="0.5" z="0.5"/><translate y="1.9" z="-1"/>'
+    '</transform>{bsdf}</shape>',
+    '<shape type="rectangle"><transform name="to_world"><scale x="0.6" y="0.3"/><rotate y="1" angle="30"/>'
+    '<translate x="0.3" y="0.8" z="-1.5"/></transform><boolean name="flip_normals" value="true"/>{bsdf}</shape>',
+    '<shape type="rectangle"><transform name="to_world"><scale x="0.4" y="0.7"/><rotate x="1" z="0.5" angle="70"/>'
+    '<translate x="1.6" y="1.2" z="1"/></transform>{bsdf}</shape>',
+    '<shape type="disk"><transform name="to_world"><scale x="0.5" y="0.8"/><rotate x="1" y="0.3" angle="-60"/>'
+    '<translate x="-0.4" y="0.5" z="1.2"/></transform>{bsdf}</shape>',
+    '<shape type="disk"><transform name="to_world"><scale value="0.4"/><rotate y="1" angle="120"/>'
+    '<translate x="2" y="0.6" z="-0.5"/></transform><boolean name="flip_normals" value="true"/>{bsdf}</shape>',
+    '<shape type="cube"><transform name="to_world"><scale x="0.2" y="0.3" z="0.25"/><rotate z="1" angle="20"/>'
+    '<translate x="-0.6" y="1.5" z="-0.8"/></transform>{bsdf}</shape>',
+]
 
 #: a floor with texture coordinates (its BSDF a checkerboard)
 FLOOR = """v -3 0 -3
@@ -55,19 +76,20 @@ def _shape(path, bsdf, extra=""):
     return f'<shape type="obj"><string name="filename" value="{path}"/>{extra}{bsdf}</shape>'
 
 
-def _load(tmp_path, sphere=False):
+def _load(tmp_path, extra=(), meshes=True):
     """The floor, the tetrahedron (a mirror: its reflections are level 2's hits) and the
-    tetrahedron again shifted, flat shaded (``face_normals``) with flipped normals."""
+    tetrahedron again shifted, flat shaded (``face_normals``) with flipped normals (without
+    ``meshes``: none of them), then the shapes ``extra``."""
     import links1_mitsuba as lm
     floor, tetra = tmp_path / "floor.obj", tmp_path / "tetra.obj"
     floor.write_text(FLOOR)
     tetra.write_text(TETRA)
     moved = ('<transform name="to_world"><translate x="1.4" z="0.3"/></transform>'
              '<boolean name="face_normals" value="true"/><boolean name="flip_normals" value="true"/>')
+    mesh = [_shape(floor, CHECKER), _shape(tetra, MIRROR), _shape(tetra, PLASTIC, moved)] if meshes else []
     return lm.load_string(scene(perspective("0, 3, 6", "0, 0.5, 0", fov=45, width=24, height=20, spp=2),
                                 '<integrator type="links1_whitted"><integer name="max_depth" value="3"/></integrator>',
-                                LAMP, _shape(floor, CHECKER), _shape(tetra, MIRROR), _shape(tetra, PLASTIC, moved),
-                                SPHERE if sphere else ""))
+                                LAMP, *mesh, *extra))
 
 
 def _frame(s, own):
@@ -87,48 +109,75 @@ def _frame(s, own):
         engine.launches.forget()
 
 
-@pytest.mark.parametrize("sphere, made", [(False, True), (True, False)], ids=["meshes", "with a sphere"])
-def test_mesh_record_renders_mitsubas(variant, tmp_path, sphere, made):
-    s = _load(tmp_path, sphere)
+def _analytic(bsdfs=(PLASTIC, MIRROR, CHECKER)):
+    return [SPHERE] + [a.format(bsdf=bsdfs[i % len(bsdfs)]) for i, a in enumerate(ANALYTIC)]
+
+
+@pytest.mark.parametrize("extra, made", [((), True), ("analytic", True), ((CYLINDER,), False)],
+                         ids=["meshes", "with spheres, rectangles, disks", "with a cylinder"])
+def test_mesh_record_renders_mitsubas(variant, tmp_path, extra, made):
+    s = _load(tmp_path, _analytic() if extra == "analytic" else extra)
     own, has = _frame(s, True)
     mitsuba, _ = _frame(s, False)
     assert has == made
-    assert np.count_nonzero(own) > own.size // 2
+    assert np.count_nonzero(own) > own.size // 3
     np.testing.assert_array_equal(own, mitsuba)
 
 
-def test_mesh_record_is_mitsubas(variant, tmp_path):
+def _record_fields_equal(s, n_rays, inside=0.0, short=0.0):
+    """Mitsuba's record (``scene.ray_intersect``) and the kernel's (``mesh_surface``) of rays
+    from around ``s`` to points sampled on every shape (``n_rays`` a shape; a share ``inside``
+    of them from near the shape's box center, a share ``short`` of segments ending at 2):
+    every field equal bit for bit. Returns the tables' record."""
     import drjit as dr
     import mitsuba as mi
 
     from links1_mitsuba.intersect import mesh_surface
-    s = _load(tmp_path)
     mi.render(s, spp=1)
     tables = s.integrator().engine.tables.last
     rec = (tables.base or tables).mesh_record
-    # (mixed: one mesh with texture coordinates, one flat shaded, one flipped)
-    assert rec.face_off is not None and rec.has_uv is not None and rec.has_n is not None and rec.flip is not None
-    # rays from around the scene to points sampled on every mesh
     rng = np.random.default_rng(3)
-    targets = []
+    targets, origins = [], []
     for sh in s.shapes():
-        u = rng.random((2, 2000)).astype(np.float32)
-        targets.append(np.array(sh.sample_position(0.0, mi.Point2f(u[0], u[1])).p))
-    tg = np.concatenate(targets, axis=1)
-    o = (rng.random(tg.shape) * [[6], [3], [6]] - [[3], [-0.2], [3]]).astype(np.float32)
-    ray = mi.Ray3f(mi.Point3f(o), mi.Vector3f((tg - o).astype(np.float32)))
-    ray.d = dr.normalize(ray.d)
+        u = rng.random((2, n_rays)).astype(np.float32)
+        tg = np.array(sh.sample_position(0.0, mi.Point2f(u[0], u[1])).p)
+        o = rng.random(tg.shape) * [[6], [3], [6]] - [[3], [-0.2], [3]]
+        center = np.array(sh.bbox().center()).reshape(3, 1)
+        near = rng.random(n_rays) < inside
+        o[:, near] = center + (rng.random((3, near.sum())) - 0.5) * 0.05
+        targets.append(tg)
+        origins.append(o.astype(np.float32))
+    tg, o = np.concatenate(targets, axis=1), np.concatenate(origins, axis=1)
+    ray = mi.Ray3f(mi.Point3f(o), dr.normalize(mi.Vector3f((tg - o).astype(np.float32))))
+    ray.maxt = mi.Float(np.where(rng.random(tg.shape[1]) < short, 2.0, np.inf).astype(np.float32))
     si = s.ray_intersect(ray)
     pi = s.ray_intersect_preliminary(ray)
     valid = pi.is_valid()
     reg = dr.reinterpret_array(mi.UInt32, pi.shape)
     slot = dr.select(valid, dr.gather(mi.Int32, tables.reg_to_slot, reg, valid), -1)
     mine = mesh_surface(rec, ray, pi, slot, valid)
-    hits = np.bincount(np.array(slot)[np.array(valid)], minlength=3)
-    assert np.all(hits > 300), hits
-    for name in ("t", "p", "n", "uv", "dp_du", "dp_dv", "wi", "prim_index", "sh_frame.s", "sh_frame.t", "sh_frame.n"):
+    hits = np.bincount(np.array(slot)[np.array(valid)], minlength=len(s.shapes()))
+    assert np.all(hits > n_rays // 4), hits
+    for name in ("t", "p", "n", "uv", "dp_du", "dp_dv", "dn_du", "dn_dv", "wi", "prim_index",
+                 "sh_frame.s", "sh_frame.t", "sh_frame.n", "time"):
         a, b = si, mine
         for part in name.split("."):
             a, b = getattr(a, part), getattr(b, part)
         np.testing.assert_array_equal(np.array(b), np.array(a), err_msg=name)
     np.testing.assert_array_equal(np.array(reg), np.array(dr.reinterpret_array(mi.UInt32, mine.shape)))
+    return rec
+
+
+def test_mesh_record_is_mitsubas(variant, tmp_path):
+    rec = _record_fields_equal(_load(tmp_path), 2000)
+    # (mixed: one mesh with texture coordinates, one flat shaded, one flipped)
+    assert rec.face_off is not None and rec.has_uv is not None and rec.has_n is not None and rec.flip is not None
+
+
+@pytest.mark.parametrize("meshes", [True, False], ids=["with meshes", "alone"])
+def test_analytic_record_is_mitsubas(variant, tmp_path, meshes):
+    """Spheres, rectangles, disks and a cube (with the meshes: every kind's operations in
+    one kernel, the lanes' kind selected)."""
+    from links1_mitsuba.intersect import KIND_DISK, KIND_MESH, KIND_SPHERE
+    rec = _record_fields_equal(_load(tmp_path, _analytic(), meshes=meshes), 1000, inside=0.3, short=0.1)
+    assert rec.kinds == {KIND_MESH, KIND_SPHERE, KIND_DISK} and rec.kind is not None and rec.rows is not None
