@@ -54,9 +54,9 @@ another occluder of the same shadow ray), grazes that are neither a smooth silho
 (``|m·D|`` below :data:`GRAZE`) nor an edge above (the curve where two surfaces cut), Mitsuba
 shapes other than spheres and meshes, a receiver's own motion under a shadow edge, outlines
 and shadows seen in mirrors or through glass, pairs of crossings closer than
-``1/(POINTS − 1)`` pixel on one line, and outlines (shadow edges) that enter and leave a 3 × 3
-block of pixels between its corners (a light's shadow rays are traced on the lines of the
-pixels near a change of its occluder at the corners). Box filter only.
+``1/(POINTS − 1)`` pixel on one line, and outlines (shadow edges) that enter and leave a
+pixel between its corners (a light's shadow rays are traced on the lines of the pixels whose
+corners' occluders of it differ). Box filter only.
 """
 from __future__ import annotations
 
@@ -202,8 +202,8 @@ def _crossings(trace_points, scene, P, sensor, win, spp, seed, stage):
     receiver's point ``p``; the rest: :func:`_outline`)."""
     x0, y0, w, h = win
     lts = _lights(P)
-    # the pixels whose lines are queried: those near a change of what their corners see (and
-    # per light, those near a change of its occluder: its shadow rays are traced there alone)
+    # the pixels whose lines are queried: those whose corners do not all see the same (and
+    # per light, those whose corners' occluders differ: its shadow rays are traced there alone)
     near = _active(P, win, lts, stage).reshape(1 + len(lts), -1)
     pix = np.nonzero(near.any(axis=0))[0]
     n = pix.size * spp
@@ -361,25 +361,21 @@ def _bisected(P, scene, lo, hi, colm, fxd, key, kd, c_lo, o_lo):
 
 
 def _active(P, win, lts, stage):
-    """``(1 + len(lts), h, w)`` bools: the window's pixels within one pixel of a pixel whose
-    four corners do not all see the same, per signal (the slot seen; each light's occluder):
-    the only ones whose lines can cross an outline or a shadow edge of that signal, unless it
-    enters and leaves that 3 × 3 block of pixels between the corners (docs/method.md §6)."""
+    """``(1 + len(lts), h, w)`` bools: the window's pixels whose four corners do not all see
+    the same, per signal (the slot seen; each light's occluder): the only ones whose lines
+    can cross an outline or a shadow edge of that signal, unless it enters and leaves the
+    pixel between its corners (docs/method.md §6)."""
     x0, y0, w, h = win
-    gx, gy = np.meshgrid(np.arange(x0 - 1, x0 + w + 2, dtype=np.float64),
-                         np.arange(y0 - 1, y0 + h + 2, dtype=np.float64))
+    gx, gy = np.meshgrid(np.arange(x0, x0 + w + 1, dtype=np.float64), np.arange(y0, y0 + h + 1, dtype=np.float64))
     seen, occluders = stage(_seen_slots, _dev(mi.Float, gx.ravel()), _dev(mi.Float, gy.ravel()),
                             _dev(mi.UInt32, np.zeros(gx.size, dtype=np.uint32)))
     dr.eval(seen, *occluders)
-    grown = np.zeros((1 + len(lts), h, w), dtype=bool)
+    out = np.zeros((1 + len(lts), h, w), dtype=bool)
     for j, v in enumerate([seen, *occluders]):
         g = v.numpy().reshape(gx.shape)
         c = g[:-1, :-1]
-        diff = (g[:-1, 1:] != c) | (g[1:, :-1] != c) | (g[1:, 1:] != c)
-        for dy in range(3):
-            for dx in range(3):
-                grown[j] |= diff[dy:dy + h, dx:dx + w]
-    return grown
+        out[j] = (g[:-1, 1:] != c) | (g[1:, :-1] != c) | (g[1:, 1:] != c)
+    return out
 
 
 def _pick(kd, values):
