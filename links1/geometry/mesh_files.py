@@ -22,7 +22,8 @@ Mitsuba semantics kept here
 """
 from __future__ import annotations
 
-import re
+import mmap
+import os
 import struct
 import zlib
 
@@ -422,11 +423,13 @@ SERIALIZED_NORMALS, SERIALIZED_TEXCOORDS, SERIALIZED_COLORS = 0x1, 0x2, 0x8
 SERIALIZED_FACE_NORMALS, SERIALIZED_SINGLE, SERIALIZED_DOUBLE = 0x10, 0x1000, 0x2000
 
 
-def _serialized_start(data: bytes, path: str, k: int):
-    """``(format version, offset of mesh k's zlib stream)`` of a serialized file's bytes."""
-    if len(data) < 4:
-        raise ValueError(f"{path}: too short for a serialized mesh ({len(data)} bytes)")
-    magic, version = struct.unpack_from("<HH", data, 0)
+def _serialized_start(read_at, size: int, path: str, k: int):
+    """``(format version, offset of mesh k's zlib stream)`` of a serialized file of ``size``
+    bytes, ``read_at(offset, n)`` its bytes there (the format header, and for k > 0 the
+    end-of-file table's entry and the mesh's header: nothing else is read)."""
+    if size < 4:
+        raise ValueError(f"{path}: too short for a serialized mesh ({size} bytes)")
+    magic, version = struct.unpack("<HH", read_at(0, 4))
     if magic != SERIALIZED_MAGIC:
         raise ValueError(f"{path}: not a Mitsuba serialized mesh (header 0x{magic:04X}, "
                          f"expected 0x{SERIALIZED_MAGIC:04X})")
@@ -436,16 +439,16 @@ def _serialized_start(data: bytes, path: str, k: int):
         raise ValueError(f"{path}: shape_index must be >= 0, got {k}")
     start = 4
     if k > 0:
-        (count,) = struct.unpack_from("<I", data, len(data) - 4)
+        (count,) = struct.unpack("<I", read_at(size - 4, 4))
         if k >= count:
             raise ValueError(f"{path}: shape_index {k} is out of range (the file holds {count} "
                              f"mesh{'es' if count != 1 else ''}: 0..{count - 1})")
         width = 8 if version == 4 else 4
-        at = len(data) - 4 - width * (count - k)
+        at = size - 4 - width * (count - k)
         if at < 4:
             raise ValueError(f"{path}: the end-of-file table of {count} meshes does not fit in the file")
-        (start,) = struct.unpack_from("<Q" if width == 8 else "<I", data, at)
-        if start + 4 > at or struct.unpack_from("<H", data, start)[0] != SERIALIZED_MAGIC:
+        (start,) = struct.unpack("<Q" if width == 8 else "<I", read_at(at, width))
+        if start + 4 > at or struct.unpack("<H", read_at(start, 2))[0] != SERIALIZED_MAGIC:
             raise ValueError(f"{path}: the end-of-file table gives mesh {k} a bad offset {start}")
         start += 4
     return version, start
@@ -460,7 +463,7 @@ def read_serialized(path: str, shape_index: int = 0):
     except OSError as exc:
         raise ValueError(f"{path}: cannot read: {exc.strerror}") from None
     k = int(shape_index)
-    version, start = _serialized_start(data, path, k)
+    version, start = _serialized_start(lambda at, n: data[at:at + n], len(data), path, k)
     stream = zlib.decompressobj()
     try:
         body = stream.decompress(data[start:])
@@ -511,7 +514,11 @@ def stores_normals(path: str, kind: str, shape_index: int = 0) -> bool:
     """Whether the mesh file ``path`` of ``kind`` ``'ply'``, ``'obj'`` or ``'serialized'``
     stores vertex normals, as Mitsuba 3.9.1's readers decide (a PLY vertex element with ``nx``,
     an OBJ ``vn`` line, a serialized mesh's normals flag), reading no more of it than that
-    takes; ValueError naming the file when it cannot be read."""
+    takes: a PLY's header; an OBJ up to its first ``vn`` line (the whole file where it has
+    none); a serialized file's format header, table entry and the first compressed bytes of the
+    mesh (its flags). ValueError naming the file when it cannot be read."""
+    if kind not in ("ply", "obj", "serialized"):
+        raise ValueError(f"{path}: unknown mesh file kind {kind!r} (ply, obj, serialized)")
     try:
         with open(path, "rb") as fh:
             if kind == "ply":
@@ -523,18 +530,49 @@ def stores_normals(path: str, kind: str, shape_index: int = 0) -> bool:
                     head += chunk
                 _, elements, _ = _ply_header(head, path)
                 return any(e[0] == "vertex" and any(q[0] == "nx" for q in e[2]) for e in elements)
-            data = fh.read()
+            if kind == "obj":
+                return _obj_has_vn(fh)
+            return _serialized_flags(fh, path, int(shape_index)) & SERIALIZED_NORMALS != 0
     except OSError as exc:
         raise ValueError(f"{path}: cannot read: {exc.strerror}") from None
-    if kind == "obj":
-        return re.search(rb"(?m)^[ \t]*vn[ \t]", data) is not None
-    if kind != "serialized":
-        raise ValueError(f"{path}: unknown mesh file kind {kind!r} (ply, obj, serialized)")
-    _, start = _serialized_start(data, path, int(shape_index))
-    try:
-        head = zlib.decompressobj().decompress(data[start:], 4)
-    except zlib.error as exc:
-        raise ValueError(f"{path}: mesh {shape_index}: corrupt compressed data ({exc})") from None
-    if len(head) < 4:
-        raise ValueError(f"{path}: mesh {shape_index}: truncated data in its flags")
-    return bool(struct.unpack("<I", head)[0] & SERIALIZED_NORMALS)
+
+
+def _obj_has_vn(fh) -> bool:
+    """Whether an OBJ file (binary handle) has a ``vn`` line (``^[ \\t]*vn[ \\t]``), up to the
+    first: the file mapped, its "n" bytes found (``find`` of one byte runs at memory speed, "vn"
+    would not: a "v" starts most lines) and the line checked around each."""
+    if os.fstat(fh.fileno()).st_size == 0:
+        return False
+    with mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as m:
+        at = m.find(b"n", 1)
+        while at >= 0:
+            if m[at - 1] == 0x76 and m[at + 1:at + 2] in (b" ", b"\t"):   # "vn" then a blank
+                first = at - 1
+                while first > 0 and m[first - 1] in (0x20, 0x09):
+                    first -= 1
+                if first == 0 or m[first - 1] == 0x0A:                       # at a line's start
+                    return True
+            at = m.find(b"n", at + 1)
+    return False
+
+
+def _serialized_flags(fh, path: str, k: int) -> int:
+    """Mesh ``k``'s flags word of a serialized file (binary handle): the first four bytes of
+    its zlib stream, inflated from as few compressed bytes as that takes."""
+    def read_at(at, n):
+        fh.seek(at)
+        return fh.read(n)
+    _, start = _serialized_start(read_at, os.fstat(fh.fileno()).st_size, path, k)
+    fh.seek(start)
+    data = b""
+    while True:
+        chunk = fh.read(1 << 12)
+        data += chunk
+        try:
+            head = zlib.decompressobj().decompress(data, 4)
+        except zlib.error as exc:
+            raise ValueError(f"{path}: mesh {k}: corrupt compressed data ({exc})") from None
+        if len(head) >= 4:
+            return struct.unpack("<I", head)[0]
+        if not chunk:
+            raise ValueError(f"{path}: mesh {k}: truncated data in its flags")

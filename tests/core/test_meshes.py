@@ -158,6 +158,46 @@ def test_stores_normals_names_a_bad_file(tmp_path):
         mesh_files.stores_normals(str(tmp_path / "missing.obj"), "obj")
 
 
+#: an OBJ has normals where a line is ``vn`` after blanks and before a blank (Mitsuba 3.9.1's reader)
+_VN_LINE = rb"(?m)^[ \t]*vn[ \t]"
+
+
+@pytest.mark.parametrize("text", [
+    b"", b"vn 0 0 1", b"v 0 0 0\nvn 0 0 1\n", b"v 0 0 0\r\n \t vn\t0 0 1\r\n", b"# normals: vn 0 0 1\nv 0 0 0\n",
+    b"usemtl vn \nv nan inf 0\nf 1 1 1\n", b"vnx 0 0 1\nvn\n", b"o v vn\nv 0 0 0\n  vn 1 0 0", b"xvn 0 0 1\n",
+    b"v 0 0 0\n" * 3 + b"vn", b"v 1 2 3\nvt 0 0\nf 1/1 1/1 1/1\n"])
+def test_stores_normals_of_an_obj_is_its_first_vn_line(tmp_path, text):
+    """The OBJ scan (a file mapped, its "n" bytes found and their lines checked) against the
+    line rule as a regular expression over the whole file."""
+    import re
+    p = tmp_path / "m.obj"
+    p.write_bytes(text)
+    assert mesh_files.stores_normals(str(p), "obj") == (re.search(_VN_LINE, text) is not None)
+
+
+def test_stores_normals_reads_a_ply_header_and_a_serialized_mesh_flags_alone(tmp_path):
+    """The answer needs a PLY's header and a serialized mesh's flags word only: files whose data
+    after that is cut off (the readers: truncated) still answer."""
+    from tests.core.test_serialized import QUAD, TET, write_serialized
+    v, f, n = meshes.cube_mesh()
+    ply = tmp_path / "cut.ply"
+    mesh_files.write_ply(str(ply), v, f, n)
+    data = ply.read_bytes()
+    ply.write_bytes(data[:data.index(b"end_header\n") + 11 + 5])
+    with pytest.raises(ValueError, match="truncated"):
+        mesh_files.read_ply(str(ply))
+    assert mesh_files.stores_normals(str(ply), "ply")
+    for k, shape in enumerate((TET, QUAD)):
+        whole = tmp_path / f"{k}.serialized"
+        write_serialized(str(whole), [shape])
+        cut = tmp_path / f"cut{k}.serialized"
+        cut.write_bytes(whole.read_bytes()[:4 + 16])     # the format header and the stream's first bytes
+        with pytest.raises(ValueError, match="truncated"):
+            mesh_files.read_serialized(str(cut))
+        assert mesh_files.stores_normals(str(cut), "serialized") == (mesh_files.read_serialized(str(whole))[2]
+                                                                     is not None) == (k == 0)
+
+
 # -- normals, transforms ---------------------------------------------------------------------
 
 def test_angle_weighted_normals_of_shared_cube_corners():
