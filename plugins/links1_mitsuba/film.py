@@ -22,7 +22,8 @@ Everything here is a per-output-pixel *gather* in one fixed order, never a scatt
   ``samples`` = spp.
 
 The non-box filters, in two passes at spp > 1 (each sample is read once with its ``2(2b+1)``
-weights, made once a batch, :func:`_sample_weights`):
+weights, made once a batch, :func:`_sample_weights`; kept as ``2 · 2b`` where the filter's
+radius allows it: a sample's two outermost weights are never both nonzero):
 
 1. a lane a pixel ``q`` of a sample window (:func:`_filter_partials`): over ``q``'s samples, for
    each neighbour offset ``(dy, dx)``, the record ``(Σ w·r, Σ w·g, Σ w·b, Σ w)`` of the terms
@@ -89,8 +90,8 @@ STRIPS_SPP = 7
 #: Pixels of a row a lane of :func:`_filter_strips` computes (each column's samples are read
 #: by ``(P + 2b) / P`` lanes a neighbour row)
 STRIPS_P = 8
-#: Largest table of the samples' weights (:func:`_sample_weights`: 64 bytes a sample for a
-#: gaussian, 268 MB at 512², spp 16) kept with a batch between frames
+#: Largest table of the samples' weights (:func:`_sample_weights`: 32 bytes a sample for a
+#: gaussian, 134 MB at 512², spp 16; the strips' full record 64) kept with a batch between frames
 KEEP_TABLE_BYTES = 3 << 27
 
 #: Batches kept by :func:`cached_batch` (per integrator: the last few window sets).
@@ -586,14 +587,20 @@ def _filter_partials(rfilter, film_size, seed, batch, data, n_s, mode):
     k, sd = _strata(batch.spp), op_u(seed)
     ArrayX = getattr(sys.modules[FT.__module__], "ArrayXf")
     pad = _pad(nb)
-    # the samples' weights from the table kept with the batch (the same values)
+    # the samples' weights from the table kept with the batch (the same values), in the
+    # compact record where the batch's samples allow it
     kept = batch.keep and batch.lanes * 2 * pad * 4 <= KEEP_TABLE_BYTES
-    weights = _sample_weights(rfilter, film_size[0], seed, batch) if kept else None
+    weights, compact = _sample_weights(rfilter, film_size[0], seed, batch, compact=True) if kept else (None, False)
+    if compact:
+        base, half = mix32(mix32(sd) ^ pix), mi.Float64(k) * 0.5
 
     def body(i, *acc):
         v = dr.gather(type(total), total, first + i)
         v = [v[0], v[1], v[2]]
-        if kept:
+        if compact:
+            rec = dr.gather(ArrayX, weights, first + i, shape=(_compact_pad(nb), nq))
+            wx, wy = _expand(rec, nb, _sides(base, i, k, half))
+        elif kept:
             at = (first + i) * 2
             wx, wy = dr.gather(ArrayX, weights, at, shape=(pad, nq)), dr.gather(ArrayX, weights, at + 1, shape=(pad, nq))
         else:
@@ -678,15 +685,29 @@ def _filter_direct(rfilter, film_size, seed, batch, data, L, mode):
     return _normalised(acc)
 
 
-def _sample_weights(rfilter, film_width, seed, batch):
-    """Per sample lane of ``batch`` (:func:`sample_ids`' layout) two records of :func:`_pad`
-    float32: its ``nb`` column weights, then its ``nb`` row weights (:func:`_weights`' ``wx``,
-    ``wy``; a float64 ``exp`` / ``sin`` each). One kernel over the samples, kept with the batch
-    (:meth:`Batch.kept`) up to :data:`KEEP_TABLE_BYTES`: a frame of the same windows reads them."""
+def _sample_weights(rfilter, film_width, seed, batch, compact=False):
+    """Per sample lane of ``batch`` (:func:`sample_ids`' layout) the 1-D weights of
+    :func:`_weights` (``wx``, ``wy``; a float64 ``exp`` / ``sin`` each), made in one kernel over
+    the samples and kept with the batch (:meth:`Batch.kept`) up to :data:`KEEP_TABLE_BYTES`: a
+    frame of the same windows reads them. Returns ``(table, is_compact)``:
+
+    * the full record: two records of :func:`_pad` float32, the ``nb`` column weights, then the
+      ``nb`` row weights;
+    * with ``compact`` where it is smaller (:func:`_compact_pad`; not lanczos), the compact
+      record of :func:`_expand`, if every sample of the batch allows it (checked on the device
+      when the table is made: else the full record). The filter is zero at ``|x| >= r``; the
+      outermost weights of a sample at offset ``o`` are at ``x = b + 1/2 - o`` and
+      ``-(b - 1/2 + o)``, so with a radius ``r <= b`` (gaussian, tent, mitchell, catmullrom at
+      their defaults) the first is nonzero only for ``o > 1/2``, the last only for ``o < 1/2``:
+      the record keeps the ``nb - 2`` inner weights and the outermost one on the offset's side
+      (:func:`_sides`), the other being +0. Half the bytes of the full record for a gaussian
+      (32 against 64 a sample, one packet instead of two), the same values."""
     FT, U32 = mi.Float32, mi.UInt32
     nb = 2 * rfilter.border + 1
     pad = _pad(nb)
-    size = 2 * pad
+    compact = compact and _compact_pad(nb) < 2 * pad
+    size = _compact_pad(nb) if compact else 2 * pad
+    ArrayX = getattr(sys.modules[FT.__module__], "ArrayXf")
 
     def make():
         n_s = op_u(batch.spp)
@@ -694,15 +715,59 @@ def _sample_weights(rfilter, film_width, seed, batch):
         sid = sample_ids(film_width, batch.spp, batch)     # pixel * spp + i, kept with the batch
         pix = udiv(sid, n_s)
         i = sid - pix * n_s
-        ox, oy = (FT(o) for o in offsets(pix, i, n_s, _strata(batch.spp), op_u(seed)))
+        k, sd = _strata(batch.spp), op_u(seed)
+        ox, oy = (FT(o) for o in offsets(pix, i, n_s, k, sd))
         zero = dr.zeros(FT, batch.lanes)
-        vals = [*_weights_at(rfilter, ox, nb), *[zero] * (pad - nb), *_weights_at(rfilter, oy, nb), *[zero] * (pad - nb)]
-        rec = dr.empty(FT, batch.lanes * size)
-        dr.scatter(rec, getattr(sys.modules[FT.__module__], "ArrayXf")(*vals), sl)
-        return (rec,)
+        wx, wy = _weights_at(rfilter, ox, nb), _weights_at(rfilter, oy, nb)
+        if compact:
+            vals, dropped = [], mi.Bool(False)
+            for w, hi in zip((wx, wy), _sides(mix32(mix32(sd) ^ pix), i, k, mi.Float64(k) * 0.5)):
+                vals += [*w[1:-1], dr.select(hi, w[0], w[-1])]
+                # the other outermost weight, which the record leaves out: +0 (all bits 0)?
+                dropped |= dr.reinterpret_array(U32, dr.select(hi, w[-1], w[0])) != 0
+            rec = dr.empty(FT, batch.lanes * size)
+            dr.scatter(rec, ArrayX(*vals, *[zero] * (size - len(vals))), sl)
+            n_dropped = dr.count(dropped)
+            dr.eval(rec, n_dropped)
+            if n_dropped[0] == 0:
+                return rec, True
+        vals = [*wx, *[zero] * (pad - nb), *wy, *[zero] * (pad - nb)]
+        rec = dr.empty(FT, batch.lanes * 2 * pad)
+        dr.scatter(rec, ArrayX(*vals), sl)
+        return rec, False
     if batch.lanes * size * 4 > KEEP_TABLE_BYTES:
-        return make()[0]
-    return batch.kept(("weights", rfilter, int(film_width), int(seed)), make)[0]
+        return make()
+    return batch.kept(("weights", rfilter, int(film_width), int(seed), compact), make)
+
+
+def _sides(base, i, k, half):
+    """Whether sample ``i`` of a pixel lies past the pixel's middle in x and in y
+    (``sx + ux > k / 2``, ``sy + uy > k / 2``: exact in float64; an offset :func:`offsets`
+    rounds to ``0.5`` lies on either side) from the pixel's hash ``base``
+    (``mix32(mix32(seed) ^ pixel)``), strata ``k`` and ``half = k / 2`` (Float64)."""
+    F64 = mi.Float64
+    ux = F64(mix32(base ^ (2 * i)) >> 8) * 2.0 ** -24
+    uy = F64(mix32(base ^ (2 * i + 1)) >> 8) * 2.0 ** -24
+    sy = udiv(i, k)
+    return F64(i - sy * k) + ux > half, F64(sy) + uy > half
+
+
+def _expand(rec, nb, sides):
+    """The weights ``wx``, ``wy`` (``nb`` each) of a compact record (:func:`_sample_weights`:
+    per axis the ``nb - 2`` inner weights, then the outermost one on the sample's side) and the
+    sample's ``sides`` (:func:`_sides`): the other outermost weight is +0."""
+    zero, m = mi.Float32(0.0), nb - 2
+    out = []
+    for a, hi in enumerate(sides):
+        w = rec[a * (m + 1):(a + 1) * (m + 1)]
+        out.append([dr.select(hi, w[m], zero), *w[:m], dr.select(hi, zero, w[m])])
+    return out
+
+
+def _compact_pad(nb):
+    """Float32s of a sample's compact weight record (:func:`_sample_weights`): ``2 (nb - 1)``,
+    padded to a power of two (a packet)."""
+    return 1 << (2 * nb - 3).bit_length()
 
 
 def _pad(nb):
@@ -729,7 +794,7 @@ def _filter_strips(rfilter, film_size, seed, batch, data, L, mode):
     n_s = L.n_s
     pad = _pad(nb)
     ArrayX = getattr(sys.modules[FT.__module__], "ArrayXf")
-    weights = _sample_weights(rfilter, W, seed, batch)
+    weights = _sample_weights(rfilter, W, seed, batch)[0]
     total = data["total"]
     packed = dr.empty(type(total[0]), 4 * batch.lanes)
     dr.scatter(packed, mi.Vector4f(total[0], total[1], total[2], 0.0), dr.arange(U32, batch.lanes))

@@ -200,6 +200,44 @@ def test_filter_at_spp_1_from_centre_weights(variant, tmp_path, monkeypatch, rfi
     assert np.array_equal(frame([None])[0], full)
 
 
+@pytest.mark.parametrize("name, params, compact", [
+    ("gaussian", {}, True), ("tent", {}, True), ("mitchell", {}, True), ("catmullrom", {}, True),
+    ("gaussian", {"stddev": 0.3}, False), ("tent", {"radius": 1.3}, False), ("lanczos", {}, False)])
+def test_compact_sample_weights_are_the_full_records_weights(variant, name, params, compact):
+    """The compact weight record (film._sample_weights: the inner weights and the outermost one
+    on the sample's side of its pixel's middle, film._sides) expands (film._expand) to the full
+    record's weights bit for bit, at odd and even strata (spp 2, 8, 16); where a filter's
+    radius passes its border (both outermost weights of a sample nonzero) the batch keeps the
+    full record, and lanczos (no fewer floats) too."""
+    import drjit as dr
+    import mitsuba as mi
+    from links1.sensor.filters import Filter
+    from links1_mitsuba import film
+    from links1_mitsuba.util import mix32, udiv
+    rf = Filter(name, params)
+    nb = 2 * rf.border + 1
+    win = (0, 0, W, H)
+    for spp in (2, 8, 16):
+        batch = film.Batch([win], [film.sample_window(rf, win, (W, H))], spp)
+        full, is_compact = film._sample_weights(rf, W, 5, batch)
+        assert not is_compact
+        table, is_compact = film._sample_weights(rf, W, 5, batch, compact=True)
+        assert is_compact == compact
+        if not compact:
+            assert np.array_equal(np.asarray(table), np.asarray(full))
+            continue
+        n, pad = batch.lanes, film._pad(nb)
+        sid = film.sample_ids(W, spp, batch)
+        pix = udiv(sid, film.op_u(spp))
+        k = film._strata(spp)
+        sides = film._sides(mix32(mix32(film.op_u(5)) ^ pix), sid - pix * film.op_u(spp), k, mi.Float64(k) * 0.5)
+        rec = dr.gather(mi.ArrayXf, table, dr.arange(mi.UInt32, n), shape=(film._compact_pad(nb), n))
+        got = np.array([np.asarray(w) for ws in film._expand(rec, nb, sides) for w in ws])
+        want = np.asarray(full).reshape(n, 2, pad)[:, :, :nb].transpose(1, 2, 0).reshape(2 * nb, n)
+        assert np.array_equal(got.view(np.uint32), want.view(np.uint32))
+        assert np.count_nonzero(want[[0, nb - 1, nb, 2 * nb - 1]]) > n   # the outermost weights matter
+
+
 def test_split_launches_one_kernel_filter_and_device_counters(variant, tmp_path, monkeypatch):
     """Launches split at LAUNCH_LANES give the same bits as one launch, the filter in one kernel
     (windows over FILM_TABLE_BYTES) the same as in two passes, and the ray
