@@ -31,6 +31,10 @@ radius allows it: a sample's two outermost weights are never both nonzero):
 2. a lane an output pixel (:func:`_filter_sum`): its neighbours' records for it, added in
    ascending ``dy``, then ``dx``, over the weight sum.
 
+The weight sums depend only on the samples' places: where the batch keeps the samples' weights,
+the two passes of the weights alone make them once (:func:`_weight_sums`) and a frame's records
+carry the RGB sums alone.
+
 A record depends only on its pixel's samples, so the pass-2 sums are a pixel's own whatever the
 window. At spp 1 every sample lies at its pixel's centre and the weights are ``2b+1``
 constants (:func:`_centre_weights`): the order above is then the one of the terms themselves,
@@ -381,8 +385,9 @@ def reconstruct(rfilter, film_size, spp, seed, batch, data, aovs, dtype=None, mo
         for p, rgb in enumerate(_filter_strips(rfilter, (W, H), seed, batch, data, L, mode)):
             chans[p] += rgb
     elif not box and batch.sources * (2 * rfilter.border + 1) ** 2 * 16 <= FILM_TABLE_BYTES:
-        part = _filter_partials(rfilter, (W, H), seed, batch, data, n_s, mode)
-        chans[0] += _filter_sum(rfilter, (W, H), batch, part, L)
+        den = _weight_sums(rfilter, (W, H), seed, batch, L, n_s)
+        part = _filter_partials(rfilter, (W, H), seed, batch, data, n_s, mode, channels=4 if den is None else 3)
+        chans[0] += _filter_sum(rfilter, (W, H), batch, part, L, den)
     elif not box:
         chans[0] += _filter_direct(rfilter, (W, H), seed, batch, data, L, mode)
     if aovs:
@@ -552,10 +557,11 @@ def weight32(f, x):
     return mi.Float32(filter_eval(f, x))
 
 
-def _add_terms(acc, wy, wx, v):
-    """``acc = (Σ w·r, Σ w·g, Σ w·b, Σ w)`` plus one sample's term ``w = wy · wx``."""
+def _add_terms(acc, wy, wx, v, weight=True):
+    """``acc = (Σ w·r, Σ w·g, Σ w·b, Σ w)`` plus one sample's term ``w = wy · wx``; with ``v``
+    of fewer channels (none: ``(Σ w)``) those; ``weight=False``: without ``Σ w``."""
     wgt = wy * wx
-    return [acc[0] + wgt * v[0], acc[1] + wgt * v[1], acc[2] + wgt * v[2], acc[3] + wgt]
+    return [a + wgt * c for a, c in zip(acc, v)] + ([acc[len(v)] + wgt] if weight else [])
 
 
 def _first_terms(wy, wx, v):
@@ -565,14 +571,16 @@ def _first_terms(wy, wx, v):
     return [wgt * v[0], wgt * v[1], wgt * v[2], wgt]
 
 
-def _filter_partials(rfilter, film_size, seed, batch, data, n_s, mode):
+def _filter_partials(rfilter, film_size, seed, batch, data, n_s, mode, channels=4):
     """Pass 1 of the filter at spp > 1 (a lane: one pixel ``q`` of a sample window): for each
     neighbour offset ``(dy, dx)`` the record ``(Σ w·r, Σ w·g, Σ w·b, Σ w)`` of ``q``'s samples in
     sample order, ``w = wy(dy) · wx(dx)`` (read from :func:`_sample_weights` where the batch keeps
     them, else :func:`_weights`): the terms ``q`` gives the output pixel ``(dy - b, dx - b)`` away
     from it, as :meth:`links1.sensor.filters.FilterGather.add` sums them. Returns ``nb²`` Float32 tables, one
     a offset ``dy · nb + dx``, with pixel ``q``'s record at ``4q``; a record depends only on its
-    pixel's samples."""
+    pixel's samples. ``channels``: 4, the record; 3, its RGB sums (the fourth float +0: a packet),
+    where the weight sums are kept (:func:`_weight_sums`); 1, the weight sums ``Σ w`` alone (one
+    float a record, ``data`` unused)."""
     FT, U32 = mi.Float32, mi.UInt32
     nb = 2 * rfilter.border + 1
     nq = batch.sources
@@ -583,7 +591,7 @@ def _filter_partials(rfilter, film_size, seed, batch, data, n_s, mode):
     py = udiv(local, sw)
     pix = (py + dr.gather(U32, batch.sy0, kq)) * op_u(film_size[0]) + local - py * sw + dr.gather(U32, batch.sx0, kq)
     first = q * n_s
-    total = data["total"]
+    total = data["total"] if data is not None else None
     k, sd = _strata(batch.spp), op_u(seed)
     ArrayX = getattr(sys.modules[FT.__module__], "ArrayXf")
     pad = _pad(nb)
@@ -594,9 +602,14 @@ def _filter_partials(rfilter, film_size, seed, batch, data, n_s, mode):
     if compact:
         base, half = mix32(mix32(sd) ^ pix), mi.Float64(k) * 0.5
 
+    C = channels
+
     def body(i, *acc):
-        v = dr.gather(type(total), total, first + i)
-        v = [v[0], v[1], v[2]]
+        if C == 1:
+            v = []
+        else:
+            v = dr.gather(type(total), total, first + i)
+            v = [v[0], v[1], v[2]]
         if compact:
             rec = dr.gather(ArrayX, weights, first + i, shape=(_compact_pad(nb), nq))
             wx, wy = _expand(rec, nb, _sides(base, i, k, half))
@@ -608,16 +621,21 @@ def _filter_partials(rfilter, film_size, seed, batch, data, n_s, mode):
         out = []
         for dy in range(nb):
             for dx in range(nb):
-                at = 4 * (dy * nb + dx)
-                out += _add_terms(acc[at:at + 4], wy[dy], wx[dx], v)
+                at = C * (dy * nb + dx)
+                out += _add_terms(acc[at:at + C], wy[dy], wx[dx], v, weight=C != 3)
         return (i + 1, *out)
     z = dr.zeros(FT, nq)
-    _, *acc = _loop((dr.zeros(U32, nq), *[z] * (4 * nb * nb)), lambda i, *_: i < n_s, body, mode, batch.spp)
+    _, *acc = _loop((dr.zeros(U32, nq), *[z] * (C * nb * nb)), lambda i, *_: i < n_s, body, mode, batch.spp)
     # a table per offset (separate scatters into one array would each evaluate the ones
     # before: the loop once per record); adjacent lanes write adjacent records
+    if C == 1:
+        parts = [dr.empty(FT, nq) for _ in range(nb * nb)]
+        for part, a in zip(parts, acc):
+            dr.scatter(part, a, q)
+        return parts
     parts = [dr.empty(FT, nq * 4) for _ in range(nb * nb)]
     for kk, part in enumerate(parts):
-        dr.scatter(part, ArrayX(*acc[4 * kk:4 * kk + 4]), q)
+        dr.scatter(part, ArrayX(*acc[C * kk:C * kk + C], *[FT(0.0)] * (4 - C)), q)
     return parts
 
 
@@ -640,21 +658,45 @@ def _neighbours(rfilter, film_size, L):
             yield dy, dx, on, dr.select(on, row + U32(xx), 0)
 
 
-def _filter_sum(rfilter, film_size, batch, part, L):
+def _filter_sum(rfilter, film_size, batch, part, L, den=None):
     """Pass 2 (a lane: one output pixel ``p``): ``Σ_dy Σ_dx`` of the record ``(dy, dx)`` of pixel
     ``p + (dy - b, dx - b)`` on the film (:func:`_filter_partials`) in ascending ``dy``, then
     ``dx``, as :meth:`links1.sensor.filters.FilterGather.result` sums them; RGB over the weight
-    sum. Off the film a record is zeros (a masked read): a sum plus +0 is the sum (never -0:
-    it starts at +0)."""
+    sum (``den``, :func:`_weight_sums`, where it is kept: the records' RGB sums alone). Off the
+    film a record is zeros (a masked read): a sum plus +0 is the sum (never -0: it starts at
+    +0). ``part`` of one float a record (the weight sums alone): that sum."""
     FT = mi.Float32
     ArrayX = getattr(sys.modules[FT.__module__], "ArrayXf")
     nb = 2 * rfilter.border + 1
     q0 = dr.gather(mi.UInt32, batch.first_source, L.window)
-    acc = [dr.zeros(FT, L.n)] * 4
+    one = dr.width(part[0]) == batch.sources
+    C = 1 if one else 3 if den is not None else 4
+    acc = [dr.zeros(FT, L.n)] * C
     for dy, dx, on, q in _neighbours(rfilter, film_size, L):
-        rec = dr.gather(ArrayX, part[dy * nb + dx], dr.select(on, q0 + q, 0), on, shape=(4, L.n))
+        at = dr.select(on, q0 + q, 0)
+        rec = [dr.gather(FT, part[dy * nb + dx], at, on)] if one else \
+            dr.gather(ArrayX, part[dy * nb + dx], at, on, shape=(4, L.n))
         acc = [a + rec[c] for c, a in enumerate(acc)]
-    return _normalised(acc)
+    if one:
+        return acc[0]
+    return _normalised(acc if den is None else [*acc, den])
+
+
+def _weight_sums(rfilter, film_size, seed, batch, L, n_s):
+    """The weight sum ``Σ w`` of each output pixel of ``batch`` (the lanes ``L``, a pixel a
+    lane): pass 1 and pass 2 of the weights alone (:func:`_filter_partials` with one channel,
+    :func:`_filter_sum`), the same operations in the same order as the records' fourth channel,
+    so the same bits. It depends only on the samples' places, not their values: made once and
+    kept with the batch where the batch keeps the samples' weights (a frame's records then carry
+    RGB alone: three sums a term instead of four); None elsewhere."""
+    nb = 2 * rfilter.border + 1
+    if not (batch.keep and batch.lanes * 2 * _pad(nb) * 4 <= KEEP_TABLE_BYTES):
+        return None
+
+    def make():
+        part = _filter_partials(rfilter, film_size, seed, batch, None, n_s, None, channels=1)
+        return (_filter_sum(rfilter, film_size, batch, part, L),)
+    return batch.kept(("den", rfilter, tuple(film_size), int(seed)), make)[0]
 
 
 def _filter_direct(rfilter, film_size, seed, batch, data, L, mode):
