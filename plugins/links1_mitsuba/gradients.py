@@ -184,18 +184,20 @@ class Gradients:
         A frame whose graph the primal kept (:meth:`render_keeping_graph`) is propagated
         through that graph instead of being rendered again."""
         kept = self._take_kept(scene, sensor, seed, spp, tuning)   # the whole frame as one block
-        blocks = [None] if kept is not None else self._ad_blocks(scene, sensor, seed, spp, tuning)
+        # (the primal tables prepared once for the pass's parts: the scene does not change in it)
+        blocks, primal = ([None], None) if kept is not None else self._ad_blocks(scene, sensor, seed, spp, tuning)
         # projective over several blocks: the visibility term in its own, larger blocks first
         # (its graph is small; each pass over a window has a cost of its own)
         apart = self.config.projective and len(blocks) > 1
         y = 0
         with dr.resume_grad():
             if apart:
-                self._backward_boundary(scene, grad_in, sensor, seed, spp, tuning)
+                self._backward_boundary(scene, grad_in, sensor, seed, spp, tuning, primal)
             for block in blocks:
                 # one block's graph at a time: built, its rows of grad_in propagated, dropped
                 img = kept if block is None else self._render_ad(scene, sensor, seed, spp, tuning, window=block,
-                                                                 mode=dr.ADMode.Backward, edge=not apart)
+                                                                 mode=dr.ADMode.Backward, edge=not apart,
+                                                                 primal=primal)
                 kept = None
                 h = img.shape[0]
                 g = grad_in if h == grad_in.shape[0] else grad_in[y:y + h]
@@ -209,16 +211,17 @@ class Gradients:
         dr.eval()
 
     def _ad_blocks(self, scene, sensor, seed, spp, tuning):
-        """The blocks (:func:`row_blocks`) of the frame a derivative pass renders; with more
-        than one, Dr.Jit's allocation cache is flushed first (the primal frame's buffers wait
-        there, in sizes the blocks do not reuse: the peak would be the primal's plus a block's)."""
+        """The blocks (:func:`row_blocks`) of the frame a derivative pass renders and the primal
+        tables it starts from; with more than one block, Dr.Jit's allocation cache is flushed
+        first (the primal frame's buffers wait there, in sizes the blocks do not reuse: the peak
+        would be the primal's plus a block's)."""
         sensor_, win, spp_, _ = render_request(scene, sensor, seed, spp, self.config.seed)
         with dr.suspend_grad():
             primal = self.tables.prepare(scene, sensor_, tuning)
         blocks = row_blocks(win, primal.film_size, primal.rfilter.border, spp_)
         if len(blocks) > 1:
             dr.flush_malloc_cache()
-        return blocks
+        return blocks, primal
 
     # -------------------------------------------------------------- the kept graph
     def render_keeping_graph(self, scene, sensor, win, spp, seed, tuning):
@@ -271,18 +274,18 @@ class Gradients:
         return img
 
     # -------------------------------------------------------------- the differentiable frame
-    def _render_ad(self, scene, sensor, seed, spp, tuning, window=None, mode=None, edge=True):
+    def _render_ad(self, scene, sensor, seed, spp, tuning, window=None, mode=None, edge=True, primal=None):
         """The frame ``render()`` makes (or its ``window``), with Dr.Jit's AD graph from the
         scene's gradient-enabled parameters (see the module's docstring); ``mode``: the
         ``dr.ADMode`` the graph is made for (Forward or Backward: the same frame); ``edge``:
-        with the visibility term where ``projective`` (:meth:`_backward_boundary` otherwise)."""
+        with the visibility term where ``projective`` (:meth:`_backward_boundary` otherwise);
+        ``primal``: the tables ``Tables.prepare`` gave for this request (None: prepared here)."""
         if self.config.adaptive is not None:
             raise NotImplementedError("links1_whitted: gradients of adaptive anti-aliasing are not "
                                       "implemented (render with spp instead of adaptive)")
         sensor, win, spp, seed = render_request(scene, sensor, seed, spp, self.config.seed)
         win = win if window is None else window
-        with dr.suspend_grad():
-            primal = self.tables.prepare(scene, sensor, tuning)
+        primal = self._prepared(scene, sensor, tuning, primal)
         ad_tables = self._ad_tables(primal, scene)
         tracer = Tracer(self.config, tuning)
         # projective: the visibility term (boundary.py), traced before the interior pass, its
@@ -302,13 +305,13 @@ class Gradients:
         stage = functools.partial(self.launches.frozen_stage, primal, scene, tracer)
         return boundary.boundary_image(points, scene, primal, ad_tables, sensor, win, spp, seed, stage)
 
-    def _backward_boundary(self, scene, grad_in, sensor, seed, spp, tuning):
+    def _backward_boundary(self, scene, grad_in, sensor, seed, spp, tuning, primal=None):
         """Propagate ``grad_in`` through the visibility term alone, in blocks of rows of at most
         :data:`.boundary.BLOCK_LANES` samples (the term of a block is the frame's rows: its lines
-        are drawn from the film's sample ids, its pixels chosen by their own neighbourhood)."""
+        are drawn from the film's sample ids, its pixels chosen by their own neighbourhood);
+        ``primal``: as :meth:`_render_ad`'s."""
         sensor, win, spp, seed = render_request(scene, sensor, seed, spp, self.config.seed)
-        with dr.suspend_grad():
-            primal = self.tables.prepare(scene, sensor, tuning)
+        primal = self._prepared(scene, sensor, tuning, primal)
         ad_tables = self._ad_tables(primal, scene)
         tracer = Tracer(self.config, tuning)
         for block in row_blocks(win, primal.film_size, 0, spp, boundary.BLOCK_LANES):
@@ -317,6 +320,14 @@ class Gradients:
             dr.set_grad(edge, grad_in[y:y + block[3], :, :3])
             dr.enqueue(dr.ADMode.Backward, edge)
             dr.traverse(dr.ADMode.Backward)
+
+    def _prepared(self, scene, sensor, tuning, primal=None):
+        """``primal`` where given (the tables one derivative pass prepared for its request), else
+        the primal tables of ``sensor`` (``Tables.prepare``)."""
+        if primal is not None:
+            return primal
+        with dr.suspend_grad():
+            return self.tables.prepare(scene, sensor, tuning)
 
     def _ad_tables(self, primal, scene):
         """A shallow copy of the tables ``primal`` with the attached values of the parameters
