@@ -25,7 +25,8 @@ times each, interleaved (links1, Mitsuba, floor, links1, ...), after one warm-up
   could save: the difference).
 
 Reported per case: the three medians (the best round's, as ``compare/vs_direct.py``), links1 /
-Mitsuba, floor / Mitsuba and links1 / floor; the rays each traces (links1's from its ``stats``;
+Mitsuba (and the same ratio of the process's CPU time a frame, medians of all frames: robust to
+the other jobs of a shared machine), floor / Mitsuba and links1 / floor; the rays each traces (links1's from its ``stats``;
 the floor's by kind; ``direct``'s: one camera ray a sample and one shadow ray a smooth hit;
 ``path``'s are not counted); and, for links1's frame, the kernels by hash from
 ``dr.kernel_history()`` (ms a frame) and the host's share (wall − kernels). Writes
@@ -274,17 +275,22 @@ def kernel_breakdown(scene, spp, repeats) -> dict:
                 kernels=sorted(groups.values(), key=lambda g: -g["ms"])[:12])
 
 
-def interleaved(runs: dict, repeats: int) -> dict:
+def interleaved(runs: dict, repeats: int, cpu: dict | None = None) -> dict:
     """``{name: [ms, ...]}``: each of ``runs`` (name -> a frame's function) timed ``repeats``
-    times, one after another in turn, each after the device has finished the one before."""
+    times, one after another in turn, each after the device has finished the one before.
+    ``cpu``: a dict that receives ``{name: [ms, ...]}`` of the process's CPU time (all its
+    threads) in each frame, which other jobs on a shared machine disturb far less than the
+    wall time (they take cores away; a frame's CPU work stays)."""
     import drjit as dr
     ts = {k: [] for k in runs}
     for _ in range(repeats):
         for k, f in runs.items():
             dr.sync_thread()
-            t0 = time.perf_counter()
+            c0, t0 = time.process_time(), time.perf_counter()
             f()
             ts[k].append(1e3 * (time.perf_counter() - t0))
+            if cpu is not None:
+                cpu.setdefault(k, []).append(1e3 * (time.process_time() - c0))
     return ts
 
 
@@ -301,14 +307,16 @@ def measure(scene, kind, depth, size, spps, repeats, rounds) -> dict:
             f()                                   # warm-up: compilation, prepared tables
         stats = scene.integrator().stats
         per_round = {k: [] for k in runs}
+        cpu = {}
         for _ in range(rounds):
-            ts = interleaved(runs, repeats)
+            ts = interleaved(runs, repeats, cpu)
             for k in runs:
                 per_round[k].append(float(np.median(ts[k])))
         best = {k: min(v) for k, v in per_round.items()}
+        cpu_ms = {k: float(np.median(v)) for k, v in cpu.items()}
         W, H = size
         mitsuba_rays = (dict(camera=W * H * spp, shadow=fcounts["smooth_hits0"]) if kind == "direct" else None)
-        out[spp] = dict(ms=best, rounds_ms=per_round,
+        out[spp] = dict(ms=best, rounds_ms=per_round, cpu_ms=cpu_ms,
                         round_ratios=[a / b for a, b in zip(per_round["links1"], per_round["mitsuba"])],
                         links1_rays={k: stats[k] for k in ("camera", "shadow", "reflect", "refract")},
                         floor_rays=dict(camera=fcounts["camera"], shadow=fcounts["shadow"],
@@ -333,6 +341,11 @@ def _rays(d) -> str:
     return "/".join(f"{v / 1e6:.2f}" for v in d.values()) + " M"
 
 
+def _cpu_ratio(t) -> str:
+    c = t.get("cpu_ms")
+    return f"{c['links1'] / c['mitsuba']:.2f}" if c else "—"
+
+
 def markdown(rows, a, info, cmd) -> str:
     md = ["# links1_whitted's CPU frame: Mitsuba and the rays' floor\n\n", machine_markdown(info, cmd),
           "\nThe machine was shared with other jobs (2 cores): only ratios measured in the same run mean "
@@ -342,10 +355,13 @@ def markdown(rows, a, info, cmd) -> str:
           "the mirror/glass ones. floor: links1's rays alone, densely packed (`ray_intersect_preliminary`, "
           "`ray_test`); floor, masked: its shadow rays as full-width masked packets instead. Target: links1 / Mitsuba ≤ 0.8 (box), ≤ 0.5 (other filters), ≤ 0.4 (`path`); "
           "never above 1.0 at spp 1.\n\n",
-          "| scene | filter | size | vs | spp | links1 ms | Mitsuba ms | floor ms | links1 / Mitsuba | floor / Mitsuba "
+          "links1 / Mitsuba (CPU): the same ratio of the process's CPU time a frame (all threads; medians "
+          "of all frames), which the other jobs disturb far less than the wall time.\n\n",
+          "| scene | filter | size | vs | spp | links1 ms | Mitsuba ms | floor ms | links1 / Mitsuba "
+          "| links1 / Mitsuba (CPU) | floor / Mitsuba "
           "| links1 / floor | floor, masked ms | links1 rays (camera/shadow/reflect/refract) "
           "| floor rays (camera/shadow/secondary) | `direct` rays (camera/shadow) |\n",
-          "| " + " | ".join(["---"] * 15) + " |\n"]
+          "| " + " | ".join(["---"] * 16) + " |\n"]
     for r in rows:
         for spp, t in r["timing"].items():
             ms = t["ms"]
@@ -354,7 +370,7 @@ def markdown(rows, a, info, cmd) -> str:
             ok = rat <= tg and (int(spp) != 1 or rat <= 1.0)
             md.append(f"| `{r['id']}` | {r['rfilter']} | {r['width']}×{r['height']} | {r['kind']} | {spp} | "
                       f"{ms['links1']:.1f} | {ms['mitsuba']:.1f} | {ms['floor']:.1f} | **{rat:.2f}** "
-                      f"{'✓' if ok else '✗'} (≤ {tg}) | {ms['floor'] / ms['mitsuba']:.2f} | "
+                      f"{'✓' if ok else '✗'} (≤ {tg}) | {_cpu_ratio(t)} | {ms['floor'] / ms['mitsuba']:.2f} | "
                       f"{ms['links1'] / ms['floor']:.2f} | {ms['floor_masked']:.1f} | {_rays(t['links1_rays'])} | "
                       f"{_rays(t['floor_rays'])} | "
                       f"{_rays(t['mitsuba_rays'])} |\n")
@@ -396,6 +412,7 @@ def main(argv=None) -> int:
                 ms = v["ms"]
                 print(f"{cid:18s} {rf:8s} spp {s:3d}: links1 {ms['links1']:7.1f} {kind} {ms['mitsuba']:7.1f} "
                       f"floor {ms['floor']:7.1f} masked {ms['floor_masked']:7.1f} ms  l/m {ms['links1'] / ms['mitsuba']:.2f} "
+                      f"(CPU {_cpu_ratio(v)}) "
                       f"f/m {ms['floor'] / ms['mitsuba']:.2f}  kernels: " + ", ".join(
                           f"{g['label']} {g['ms']:.1f}" for g in v["kernels"]["kernels"][:5]), flush=True)
             del scene
