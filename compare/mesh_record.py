@@ -1,14 +1,18 @@
-"""links1_whitted's frame with the nearest hit's record made in the kernel on triangle meshes
-(``tables.MeshRecord``, ``intersect.mesh_surface``) against the same frame with Mitsuba's
-record (``scene.ray_intersect``: Embree's hit and the shapes' surface call).
+"""links1_whitted's frame with the nearest hit's record made in the kernel (``tables.MeshRecord``,
+``intersect.mesh_surface``: meshes, rectangles, spheres, disks), each way of picking a lane's
+kind (``intersect.DISPATCH``), against the same frame with Mitsuba's record
+(``scene.ray_intersect``: Embree's hit and the shapes' surface call).
 
-    python -m compare.mesh_record [--only teapot cbox_point] [--spp 1 16] [--repeats 9]
+    python -m compare.mesh_record [--only teapot cbox_point delta_bsdfs] [--spp 1 16] [--repeats 9]
+                                  [--ways if select switch mitsuba]
 
-Per case (``compare.ray_floor``'s scenes with a box filter, 512 px wide), one scene object; the
-two frames alternate (the record taken from the tables and the frozen launches recorded again
-at each switch, outside the timing), ``repeats`` pairs after one warm-up of each: wall time of
-``mi.render`` (a ``dr.eval`` of its output), medians, and the median of the pairs' ratios. Both
-frames must be the same bits (checked). Writes ``compare/results/mesh_record.{json,md}``.
+Per case (``compare.ray_floor``'s scenes, 512 px wide, ``--filter``), one scene object; the
+frames of the ``ways`` alternate (the record or the dispatch switched and the frozen launches
+recorded again at each switch, outside the timing), ``repeats`` rounds after one warm-up of
+each: wall time and process CPU time (every thread) of ``mi.render`` (a ``dr.eval`` of its
+output), medians, and per way the median of its ratios to the first way's frame of the same
+round. Every frame must be the first way's bits (checked). Writes
+``compare/results/mesh_record.{json,md}``.
 """
 from __future__ import annotations
 
@@ -17,75 +21,99 @@ import time
 
 import numpy as np
 
-from compare.common import command_line, machine_info, machine_markdown, write_results
+from compare.common import command_line, cpu_seconds, machine_info, machine_markdown, write_results
+
+WAYS = ("if", "select", "switch", "mitsuba")
 
 
-def measure(cid, spp, repeats, variant):
+def measure(cid, spp, repeats, variant, ways=("if", "mitsuba"), filt="box"):
     import drjit as dr
     import mitsuba as mi
     from compare.ray_floor import load_case
 
-    scene, _, _, _ = load_case(cid, "box", 512, variant)
+    from links1_mitsuba import intersect
+
+    scene, _, _, _ = load_case(cid, filt, 512, variant)
     engine = scene.integrator().engine
     dr.eval(mi.render(scene, spp=spp, seed=0))
     base = engine.tables.last.base or engine.tables.last
-    rec = base.mesh_record
+    rec, dispatch = base.mesh_record, intersect.DISPATCH
     if rec is None:
-        raise RuntimeError(f"{cid}: no mesh record (a shape other than a triangle mesh, or instances)")
+        raise RuntimeError(f"{cid}: no record made in the kernel (a shape it does not make, or instances)")
 
-    def frame(own):
-        base.mesh_record = rec if own else None
+    def frame(way):
+        base.mesh_record = None if way == "mitsuba" else rec
+        intersect.DISPATCH = dispatch if way == "mitsuba" else way
         engine.launches.forget()
-        img = mi.render(scene, spp=spp, seed=0)       # (recorded: not timed)
-        dr.eval(img)
-        t0 = time.perf_counter()
+        dr.eval(mi.render(scene, spp=spp, seed=0))      # (recorded: not timed)
+        dr.sync_thread()
+        t0, c0 = time.perf_counter(), cpu_seconds()
         img = mi.render(scene, spp=spp, seed=0)
         dr.eval(img)
         dr.sync_thread()
-        return (time.perf_counter() - t0) * 1e3, np.array(img)
+        return (time.perf_counter() - t0) * 1e3, (cpu_seconds() - c0) * 1e3, np.array(img)
 
+    wall, cpu = ({w: [] for w in ways} for _ in range(2))
+    same = {w: True for w in ways}
     try:
-        ms = {True: [], False: []}
-        imgs = {}
         for k in range(repeats + 1):
-            for own in (True, False):
-                t, imgs[own] = frame(own)
+            first = None
+            for w in ways:
+                tw, tc, img = frame(w)
+                first = img if first is None else first
+                same[w] &= bool(np.array_equal(img, first))
                 if k:
-                    ms[own].append(t)
+                    wall[w].append(tw)
+                    cpu[w].append(tc)
     finally:
-        base.mesh_record = rec
+        base.mesh_record, intersect.DISPATCH = rec, dispatch
         engine.launches.forget()
-    ratios = [a / b for a, b in zip(ms[True], ms[False])]
-    return dict(id=cid, spp=spp, own_ms=float(np.median(ms[True])), mitsuba_ms=float(np.median(ms[False])),
-                ratio=float(np.median(ratios)), ratios=ratios, same=bool(np.array_equal(imgs[True], imgs[False])))
+    out = dict(id=cid, spp=spp, kinds=sorted(rec.kinds), ways={})
+    for w in ways:
+        rw = [a / b for a, b in zip(wall[w], wall[ways[0]])]
+        rc = [a / b for a, b in zip(cpu[w], cpu[ways[0]])]
+        out["ways"][w] = dict(wall_ms=float(np.median(wall[w])), cpu_ms=float(np.median(cpu[w])),
+                              wall_ratio=float(np.median(rw)), cpu_ratio=float(np.median(rc)),
+                              cpu_ratios=rc, same=same[w])
+    return out
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="compare.mesh_record", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--only", nargs="*", default=["teapot", "cbox_point"])
+    ap.add_argument("--only", nargs="*", default=["teapot", "cbox_point", "delta_bsdfs"])
     ap.add_argument("--spp", type=int, nargs="+", default=[1, 16])
     ap.add_argument("--repeats", type=int, default=9)
+    ap.add_argument("--ways", nargs="+", default=["if", "mitsuba"], choices=WAYS)
+    ap.add_argument("--filter", default="box")
     ap.add_argument("--variant", default="llvm_ad_rgb")
     a = ap.parse_args(argv)
     info, cmd = machine_info(), command_line()
     rows = []
     for cid in a.only:
         for spp in a.spp:
-            r = measure(cid, spp, a.repeats, a.variant)
+            r = measure(cid, spp, a.repeats, a.variant, tuple(a.ways), a.filter)
             rows.append(r)
-            print(f"{cid:12s} spp {spp:3d}: kernel's record {r['own_ms']:7.1f} ms, Mitsuba's {r['mitsuba_ms']:7.1f} ms, "
-                  f"ratio {r['ratio']:.3f} ({min(r['ratios']):.2f}-{max(r['ratios']):.2f}) same={r['same']}", flush=True)
-    md = ["# links1_whitted's frame: the kernel's mesh record against Mitsuba's\n", machine_markdown(info, cmd),
-          f"\nWall time of `mi.render` (512 px wide, box filter), the two frames alternated, {a.repeats} pairs, "
-          "medians; ratio: median of the pairs' ratios (range in brackets); same: the frames equal bit for bit "
+            print(f"{cid:12s} spp {spp:3d}: " + ", ".join(
+                f"{w} {v['cpu_ms']:.1f} ms CPU ({v['cpu_ratio']:.3f}, wall {v['wall_ratio']:.3f}) same={v['same']}"
+                for w, v in r["ways"].items()), flush=True)
+    first = a.ways[0]
+    md = ["# links1_whitted's frame: the kernel's surface record, its dispatch, against Mitsuba's record\n",
+          machine_markdown(info, cmd),
+          f"\n`mi.render` (512 px wide, {a.filter} filter), the frames of each way alternated, {a.repeats} rounds, "
+          "medians of process CPU time (every thread) and wall time; ratio: the median of each round's ratio to the "
+          f"`{first}` frame (CPU; wall in brackets); ways: `if`/`select`/`switch` the kernel's record "
+          "(`intersect.DISPATCH`), `mitsuba` Mitsuba's record; same: every frame equals the first way's bit for bit "
           "(`compare/mesh_record.py`).\n",
-          "| scene | spp | kernel's record ms | Mitsuba's record ms | ratio | same |", "| --- | --- | --- | --- | --- | --- |"]
-    md += [f"| `{r['id']}` | {r['spp']} | {r['own_ms']:.1f} | {r['mitsuba_ms']:.1f} | **{r['ratio']:.2f}** "
-           f"({min(r['ratios']):.2f}–{max(r['ratios']):.2f}) | {r['same']} |" for r in rows]
+          "| scene | spp | kinds | way | CPU ms | wall ms | ratio | same |", "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+    names = {0: "mesh", 1: "rectangle", 2: "sphere", 3: "disk"}
+    for r in rows:
+        for w, v in r["ways"].items():
+            md.append(f"| `{r['id']}` | {r['spp']} | {' '.join(names[k] for k in r['kinds'])} | {w} | {v['cpu_ms']:.1f} | "
+                      f"{v['wall_ms']:.1f} | **{v['cpu_ratio']:.3f}** ({v['wall_ratio']:.3f}) | {v['same']} |")
     paths = write_results("mesh_record", dict(machine=info, command=cmd, cases=rows), "\n".join(md) + "\n")
     print("wrote " + ", ".join(str(p) for p in paths))
-    return 0 if all(r["same"] for r in rows) else 1
+    return 0 if all(v["same"] for r in rows for v in r["ways"].values()) else 1
 
 
 if __name__ == "__main__":

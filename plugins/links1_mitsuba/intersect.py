@@ -13,6 +13,8 @@ variant.
 """
 from __future__ import annotations
 
+import dataclasses
+
 import drjit as dr
 import mitsuba as mi
 
@@ -21,12 +23,17 @@ from .shapes import quadric_uv
 from .util import INF, color3, gather3, next_up
 
 #: the kinds of Mitsuba shape whose nearest hit's surface record the kernel makes
-#: (:func:`mesh_surface`, ``tables.MeshRecord.kind``): every ``Mesh`` (triangle meshes,
-#: rectangles, cubes: ``Mesh::compute_surface_interaction``, Mitsuba 3.9.1's mesh.cpp),
-#: spheres (sphere.cpp), disks (disk.cpp)
-KIND_MESH, KIND_SPHERE, KIND_DISK = 0, 1, 2
-#: floats a sphere's or disk's row of ``tables.MeshRecord.rows``
+#: (:func:`mesh_surface`, ``tables.MeshRecord.kind``): ``Mesh`` (triangle meshes, cubes:
+#: ``Mesh::compute_surface_interaction``, Mitsuba 3.9.1's mesh.cpp), rectangles (a ``Mesh`` of
+#: two faces, its record made from a row of the rectangle's own: rectangle.cpp), spheres
+#: (sphere.cpp), disks (disk.cpp)
+KIND_MESH, KIND_RECT, KIND_SPHERE, KIND_DISK = 0, 1, 2, 3
+#: floats a rectangle's, sphere's or disk's row of ``tables.MeshRecord.rows``
 ROW = 24
+#: how :func:`mesh_surface` picks each lane's kind where a scene has several: one symbolic
+#: branch a kind present ("if": a packet runs the kinds it holds), or every kind's operations
+#: on every lane and a select ("select"), or Dr.Jit's symbolic switch ("switch")
+DISPATCH = "if"
 
 # the switches read here (preliminary, box_cull, eye_buffer, split) are fields of
 # tuning.Tuning, handed over while tracing: a frozen launch is keyed on them (launch.py)
@@ -78,26 +85,47 @@ def nearest(tables, scene, o, d, tmin, tmax, active, cost, eye=False, coherent=F
 
 def mesh_surface(rec, ray, pi, slot, valid):
     """Mitsuba's surface record (``scene.ray_intersect``'s, ``RayFlags.All``) of the
-    preliminary hits ``pi`` of ``ray`` on the meshes, spheres and disks of ``rec``
+    preliminary hits ``pi`` of ``ray`` on the meshes, rectangles, spheres and disks of ``rec``
     (``tables.MeshRecord``; ``slot``: the hit's slot, ``valid``: the lanes with a hit), made
     with the float operations of Mitsuba 3.9.1's ``compute_surface_interaction`` of each
-    (:func:`_mesh_part`, :func:`_analytic_part`; the shape's kind from ``rec.kind``, each
-    kind's operations in the kernel where the scene has one, the lanes' own kind selected)
-    and ``SurfaceInteraction::finalize_surface_interaction`` (interaction.h): the same bits.
-    Lanes without a hit hold what Mitsuba's shape call leaves there (zeros, ``t`` infinite,
-    ``wi = -d``)."""
+    (:func:`_mesh_part`, :func:`_rect_part`, :func:`_sphere_part`, :func:`_disk_part`; the
+    lane's kind from ``rec.kind``, each kind present in the kernel, picked as
+    :data:`DISPATCH` says) and ``SurfaceInteraction::finalize_surface_interaction``
+    (interaction.h): the same bits. Lanes without a hit hold what Mitsuba's shape call leaves
+    there (zeros, ``t`` infinite, ``wi = -d``)."""
     sl = mi.UInt32(dr.maximum(slot, 0))
     kind = None if rec.kind is None else dr.gather(mi.UInt32, rec.kind, sl, valid)
-    parts = []
-    if KIND_MESH in rec.kinds:
-        mesh = valid if kind is None else valid & (kind == KIND_MESH)
-        parts.append((mesh, _mesh_part(rec, pi, sl, mesh)))
-    if len(rec.kinds - {KIND_MESH}):
-        m = valid if kind is None else valid & (kind != KIND_MESH)
-        parts.append((m, _analytic_part(rec, ray, pi, sl, m, kind)))
-    (_, (p, n, ns, uv, dp_du, dp_dv)), rest = parts[-1], parts[:-1]
-    for m, part in rest:
-        p, n, ns, uv, dp_du, dp_dv = (dr.select(m, a, b) for a, b in zip(part, (p, n, ns, uv, dp_du, dp_dv)))
+    part = {KIND_MESH: _mesh_part, KIND_RECT: _rect_part, KIND_SPHERE: _sphere_part, KIND_DISK: _disk_part}
+    kinds = sorted(rec.kinds)
+    args = (ray.o, ray.d, pi.t, pi.prim_uv, pi.prim_index, sl)
+
+    def run(k, m, o, d, t, prim_uv, prim_index, sl):
+        # (the hit's fields as arguments: a symbolic call or branch takes no wide array it reads)
+        hit = _Hit(o, d, t, prim_uv, prim_index)
+        p, n, ns, uv, du, dv = part[k](rec, hit, sl, m)
+        return mi.Point3f(p), mi.Vector3f(n), mi.Vector3f(ns), mi.Point2f(uv), mi.Vector3f(du), mi.Vector3f(dv)
+
+    if kind is None:
+        out = run(kinds[0], valid, *args)
+    elif DISPATCH == "select":
+        out = run(kinds[-1], valid & (kind == kinds[-1]), *args)
+        for k in kinds[:-1]:
+            m = valid & (kind == k)
+            out = tuple(dr.select(m, a, b) for a, b in zip(run(k, m, *args), out))
+    elif DISPATCH == "switch":
+        idx = dr.zeros(mi.UInt32, dr.width(valid))
+        for k in kinds[:-1]:
+            idx += dr.select(kind > k, mi.UInt32(1), 0)
+        out = dr.switch(idx, [lambda *a, k=k: run(k, *a) for k in kinds], valid, *args, mode="symbolic",
+                        label="links1_record")
+    else:
+        def branch(ks, m, *a):
+            if len(ks) == 1:
+                return run(ks[0], m, *a)
+            return dr.if_stmt((m, *a), kind == ks[0], lambda *b: run(ks[0], *b), lambda *b: branch(ks[1:], *b),
+                              mode="symbolic", label="links1_record")
+        out = branch(kinds, valid, *args)
+    p, n, ns, uv, dp_du, dp_dv = out
     if rec.flip is not None:
         fl = dr.gather(mi.Bool, rec.flip, sl, valid)
         n, ns = dr.select(fl, -n, n), dr.select(fl, -ns, ns)
@@ -123,16 +151,50 @@ def mesh_surface(rec, ray, pi, slot, valid):
 
 def _mesh_part(rec, pi, sl, valid):
     """``(p, n, ns, uv, dp_du, dp_dv)`` of the hits ``valid`` on meshes, normals not yet
-    flipped, as Mitsuba 3.9.1's ``Mesh::compute_surface_interaction`` (mesh.cpp) makes them:
-    the point interpolated from the vertices with the barycentrics (not ``o + t d``), the
-    geometric normal ``Mesh::face_normal``, the shading normal the normalized interpolated
-    vertex normal (a mesh without: the face normal), uv and dp/du, dp/dv from the texture
-    coordinates (without: the barycentrics and the edges)."""
+    flipped: the face's vertices, texture coordinates and normals gathered from the meshes'
+    buffers, then :func:`_triangle`."""
     face = pi.prim_index
     if rec.face_off is not None:
         face = face + dr.gather(mi.UInt32, rec.face_off, sl, valid)
     fi = [dr.gather(mi.UInt32, rec.faces, face * 3 + k, valid) for k in range(3)]
-    p0, p1, p2 = (dr.gather(mi.Point3f, rec.positions, f, valid) for f in fi)
+    pos = [dr.gather(mi.Point3f, rec.positions, f, valid) for f in fi]
+    uvs = nrm = has_uv = has_n = None
+    if rec.texcoords is not None:
+        has_uv = valid if rec.has_uv is None else valid & dr.gather(mi.Bool, rec.has_uv, sl, valid)
+        uvs = [dr.gather(mi.Point2f, rec.texcoords, f, has_uv) for f in fi]
+    if rec.normals is not None:
+        has_n = valid if rec.has_n is None else valid & dr.gather(mi.Bool, rec.has_n, sl, valid)
+        nrm = [dr.gather(mi.Vector3f, rec.normals, f, has_n) for f in fi]
+    return _triangle(pi, pos, uvs, has_uv, nrm, has_n)
+
+
+def _rect_part(rec, pi, sl, valid):
+    """:func:`_mesh_part` on rectangles from their rows (``tables.MeshRecord``: the four
+    vertices, the normal all four carry): Mitsuba's rectangle is a ``Mesh`` whose faces are
+    (1, 2, 0) and (1, 3, 2) and whose vertex i has the texture coordinates (i & 1, i >> 1)
+    (rectangle.cpp), so that the face's vertices are gathered from the row without an index
+    and its texture coordinates are constants."""
+    first = pi.prim_index == 0
+    at = sl * ROW
+
+    def vertex(i):
+        return mi.Point3f(*[dr.gather(mi.Float, rec.rows, at + i * 3 + k, valid) for k in range(3)])
+    pos = [vertex(1), vertex(dr.select(first, mi.UInt32(2), 3)), vertex(dr.select(first, mi.UInt32(0), 2))]
+    uvs = [mi.Point2f(1.0, 0.0), dr.select(first, mi.Point2f(0.0, 1.0), mi.Point2f(1.0, 1.0)),
+           dr.select(first, mi.Point2f(0.0, 0.0), mi.Point2f(0.0, 1.0))]
+    n = mi.Vector3f(*[dr.gather(mi.Float, rec.rows, at + 12 + k, valid) for k in range(3)])
+    return _triangle(pi, pos, uvs, valid, [n, n, n], valid)
+
+
+def _triangle(pi, pos, uvs, has_uv, nrm, has_n):
+    """``(p, n, ns, uv, dp_du, dp_dv)`` of hits on triangles (vertices ``pos``, texture
+    coordinates ``uvs`` where ``has_uv``, vertex normals ``nrm`` where ``has_n``; None: none),
+    normals not yet flipped, as Mitsuba 3.9.1's ``Mesh::compute_surface_interaction``
+    (mesh.cpp) makes them: the point interpolated from the vertices with the barycentrics (not
+    ``o + t d``), the geometric normal ``Mesh::face_normal``, the shading normal the
+    normalized interpolated vertex normal (without: the face normal), uv and dp/du, dp/dv from
+    the texture coordinates (without: the barycentrics and the edges)."""
+    p0, p1, p2 = pos
     b1, b2 = pi.prim_uv.x, pi.prim_uv.y
     b0 = 1.0 - b1 - b2
     p = dr.fma(p0, b0, dr.fma(p1, b1, p2 * b2))
@@ -140,10 +202,9 @@ def _mesh_part(rec, pi, sl, valid):
     n = dr.normalize(dr.cross(dp0, dp1))      # Mesh::face_normal
     uv = mi.Point2f(b1, b2)
     dp_du, dp_dv = mi.Vector3f(dp0), mi.Vector3f(dp1)
-    if rec.texcoords is not None:
-        has = valid if rec.has_uv is None else valid & dr.gather(mi.Bool, rec.has_uv, sl, valid)
-        uv0, uv1, uv2 = (dr.gather(mi.Point2f, rec.texcoords, f, has) for f in fi)
-        uv = dr.select(has, dr.fma(uv2, b2, dr.fma(uv1, b1, uv0 * b0)), uv)
+    if uvs is not None:
+        uv0, uv1, uv2 = uvs
+        uv = dr.select(has_uv, dr.fma(uv2, b2, dr.fma(uv1, b1, uv0 * b0)), uv)
         # an arbitrary basis for degenerate parameterizations
         cs, ct = mi.coordinate_system(mi.Vector3f(n))
         duv0, duv1 = uv1 - uv0, uv2 - uv0
@@ -152,14 +213,24 @@ def _mesh_part(rec, pi, sl, valid):
         ok = det != 0.0
         du = dr.select(ok, dr.fma(duv1.y, dp0, -(duv0.y * dp1)) * inv_det, cs)
         dv = dr.select(ok, dr.fma(-duv1.x, dp0, duv0.x * dp1) * inv_det, ct)
-        dp_du, dp_dv = dr.select(has, du, dp_du), dr.select(has, dv, dp_dv)
+        dp_du, dp_dv = dr.select(has_uv, du, dp_du), dr.select(has_uv, dv, dp_dv)
     ns = mi.Vector3f(n)
-    if rec.normals is not None:
-        has = valid if rec.has_n is None else valid & dr.gather(mi.Bool, rec.has_n, sl, valid)
-        n0, n1, n2 = (dr.gather(mi.Vector3f, rec.normals, f, has) for f in fi)
+    if nrm is not None:
+        n0, n1, n2 = nrm
         ni = dr.fma(n2, b2, dr.fma(n1, b1, n0 * b0))
-        ns = dr.select(has, ni * dr.rsqrt(dr.squared_norm(ni)), ns)
+        ns = dr.select(has_n, ni * dr.rsqrt(dr.squared_norm(ni)), ns)
     return p, n, ns, uv, dp_du, dp_dv
+
+
+@dataclasses.dataclass
+class _Hit:
+    """A preliminary hit's fields that :func:`mesh_surface`'s parts read: its ray's origin and
+    direction, ``t``, ``prim_uv``, ``prim_index``."""
+    o: object
+    d: object
+    t: object
+    prim_uv: object
+    prim_index: object
 
 
 def _linear(m, v):
@@ -169,62 +240,55 @@ def _linear(m, v):
                          for i in range(3)])
 
 
-def _analytic_part(rec, ray, pi, sl, valid, kind):
-    """``(p, n, ns, uv, dp_du, dp_dv)`` of the hits ``valid`` on spheres and disks (``kind``:
-    the lanes' kind, None where all are of one), normals not yet flipped, as Mitsuba 3.9.1's
-    ``Sphere::compute_surface_interaction`` (sphere.cpp) and ``Disk::...`` (disk.cpp) make
-    them in a differentiable variant, without ``FollowShape``: the point ``ray(t)``; a
-    sphere's normal ``normalize(p - center)``, uv from the spherical angles of ``p`` in object
-    space, dp/du and dp/dv the parameterization's (``(1, 0, 0)`` on the axis) scaled by 2 pi
-    and pi; a disk's normal its frame's, uv (r, phi / 2 pi) from Embree's local hit
-    (``pi.prim_uv``), dp/du the radial direction, dp/dv the tangent times 2 pi r."""
-    row = [dr.gather(mi.Float, rec.rows, sl * ROW + k, valid) for k in range(ROW if KIND_SPHERE in rec.kinds else 12)]
+def _row(rec, sl, valid, n):
+    """The first ``n`` floats of the rows ``sl`` of ``rec.rows``."""
+    return [dr.gather(mi.Float, rec.rows, sl * ROW + k, valid) for k in range(n)]
+
+
+def _sphere_part(rec, pi, sl, valid):
+    """``(p, n, ns, uv, dp_du, dp_dv)`` of the hits ``valid`` on spheres, normals not yet
+    flipped, as Mitsuba 3.9.1's ``Sphere::compute_surface_interaction`` (sphere.cpp) makes them
+    in a differentiable variant without ``FollowShape``: the point ``ray(t)``, the normal
+    ``normalize(p - center)``, uv from the spherical angles of ``p`` in object space
+    (``to_world``'s stored inverse), dp/du and dp/dv the parameterization's (``(1, 0, 0)`` on
+    the axis) through ``to_world``, times 2 pi and pi."""
+    row = _row(rec, sl, valid, ROW)
     lin, c = row[:9], mi.Vector3f(*row[9:12])
-    p = dr.fma(ray.d, pi.t, ray.o)                      # Ray::operator()
-    two_pi = mi.Float(2.0 * dr.pi)
-    zero = mi.Float(0.0)
-    if KIND_SPHERE in rec.kinds:
-        sph = valid if kind is None else valid & (kind == KIND_SPHERE)
-        n_s = dr.normalize(p - c)
-        # to_object * p (transform.h): the inverse's translation, then fma(inv[i][j], p_j, .)
-        inv = [row[12 + 4 * i:16 + 4 * i] for i in range(3)]
-        loc = mi.Vector3f(*[dr.fma(r[2], p[2], dr.fma(r[1], p[1], dr.fma(r[0], p[0], r[3]))) for r in inv])
-        theta = mi.dir_to_sph(loc).x                    # dr::unit_angle_z
-        rd = dr.sqrt(dr.square(loc.x) + dr.square(loc.y))
-        inv_rd = dr.rcp(rd)
-        dv_s = mi.Vector3f(loc.z * (loc.x * inv_rd), loc.z * (loc.y * inv_rd), -rd)
-        dv_s = dr.select(sph & (rd == 0.0), mi.Vector3f(1.0, 0.0, 0.0), dv_s)
-        du_s = _linear(lin, mi.Vector3f(-loc.y, loc.x, zero)) * two_pi
-        dv_s = _linear(lin, dv_s) * mi.Float(dr.pi)
-    if KIND_DISK in rec.kinds:
-        disk = valid if kind is None else valid & (kind == KIND_DISK)
-        q = pi.prim_uv
-        r_2 = dr.squared_norm(q)
-        inv_r = dr.select(r_2 != 0.0, dr.rsqrt(r_2), 0.0)
-        r = r_2 * inv_r
-        cos_phi, sin_phi = q.x * inv_r, q.y * inv_r
-        du_d = _linear(lin, mi.Vector3f(cos_phi, sin_phi, zero))
-        dv_d = _linear(lin, mi.Vector3f(-sin_phi, cos_phi, zero)) * (two_pi * r)
-    # one atan2 for both kinds: phi of the sphere's local point, of the disk's hit
-    if KIND_DISK not in rec.kinds:
-        phi = dr.atan2(loc.y, loc.x)
-    elif KIND_SPHERE not in rec.kinds:
-        phi = dr.atan2(q.y, q.x)
-    else:
-        phi = dr.atan2(dr.select(disk, q.y, loc.y), dr.select(disk, q.x, loc.x))
-    out = []
-    if KIND_SPHERE in rec.kinds:
-        ph = dr.select(phi < 0.0, phi + two_pi, phi)
-        uv_s = mi.Point2f(ph * dr.inv_two_pi, theta * dr.inv_pi)
-        out.append((sph, (p, n_s, n_s, uv_s, du_s, dv_s)))
-    if KIND_DISK in rec.kinds:
-        v = phi * dr.inv_two_pi
-        uv_d = mi.Point2f(r, dr.select(v < 0.0, v + 1.0, v))
-        out.append((disk, (p, c, c, uv_d, du_d, dv_d)))
-    (_, res), rest = out[-1], out[:-1]
-    for m, part in rest:
-        res = tuple(dr.select(m, a, b) for a, b in zip(part, res))
-    return res
+    p = dr.fma(pi.d, pi.t, pi.o)                        # Ray::operator()
+    n = dr.normalize(p - c)
+    # to_object * p (transform.h): the inverse's translation, then fma(inv[i][j], p_j, .)
+    inv = [row[12 + 4 * i:16 + 4 * i] for i in range(3)]
+    loc = mi.Vector3f(*[dr.fma(r[2], p[2], dr.fma(r[1], p[1], dr.fma(r[0], p[0], r[3]))) for r in inv])
+    theta, phi = mi.dir_to_sph(loc)                     # dr::unit_angle_z, atan2
+    phi = dr.select(phi < 0.0, phi + mi.Float(2.0 * dr.pi), phi)
+    uv = mi.Point2f(phi * dr.inv_two_pi, theta * dr.inv_pi)
+    rd = dr.sqrt(dr.square(loc.x) + dr.square(loc.y))
+    inv_rd = dr.rcp(rd)
+    dv = mi.Vector3f(loc.z * (loc.x * inv_rd), loc.z * (loc.y * inv_rd), -rd)
+    dv = dr.select(valid & (rd == 0.0), mi.Vector3f(1.0, 0.0, 0.0), dv)
+    du = _linear(lin, mi.Vector3f(-loc.y, loc.x, 0.0)) * mi.Float(2.0 * dr.pi)
+    return p, n, n, uv, du, _linear(lin, dv) * mi.Float(dr.pi)
+
+
+def _disk_part(rec, pi, sl, valid):
+    """``(p, n, ns, uv, dp_du, dp_dv)`` of the hits ``valid`` on disks as Mitsuba 3.9.1's
+    ``Disk::compute_surface_interaction`` (disk.cpp) makes them in a differentiable variant
+    without ``FollowShape``: the point ``ray(t)``, the normal the disk's frame's, uv
+    ``(r, phi / 2 pi)`` from Embree's local hit (``pi.prim_uv``), dp/du the radial direction
+    and dp/dv the tangent times 2 pi r through ``to_world``."""
+    row = _row(rec, sl, valid, 12)
+    lin, n = row[:9], mi.Vector3f(*row[9:12])
+    p = dr.fma(pi.d, pi.t, pi.o)                        # Ray::operator()
+    q = pi.prim_uv
+    r_2 = dr.squared_norm(q)
+    inv_r = dr.select(r_2 != 0.0, dr.rsqrt(r_2), 0.0)
+    r = r_2 * inv_r
+    v = dr.atan2(q.y, q.x) * dr.inv_two_pi
+    uv = mi.Point2f(r, dr.select(v < 0.0, v + 1.0, v))
+    cos_phi, sin_phi = q.x * inv_r, q.y * inv_r
+    du = _linear(lin, mi.Vector3f(cos_phi, sin_phi, 0.0))
+    dv = _linear(lin, mi.Vector3f(-sin_phi, cos_phi, 0.0)) * (mi.Float(2.0 * dr.pi) * r)
+    return p, n, n, uv, du, dv
 
 
 def _nearest_custom(tables, o, d, tmin, tmax, active, cost, eye, t, slot, prim):

@@ -31,7 +31,7 @@ import mitsuba as mi
 from . import lightbuffer, proxies, views
 from .bvh import QuadricBVH
 from .config import Config
-from .intersect import KIND_DISK, KIND_MESH, KIND_SPHERE, ROW
+from .intersect import KIND_DISK, KIND_MESH, KIND_RECT, KIND_SPHERE, ROW
 from .launch import Launches, literal_key
 from .lights import ConstantEnvRecord, EnvMapRecord, analytic_light, area_table, envmap_table
 from .normals import held_positions, llvm, settle_moved
@@ -51,11 +51,33 @@ OFFSET_EPS = 2.0 ** -19
 _PRECISE_MITSUBA = ("Mesh", "OBJMesh", "PLYMesh", "Rectangle", "Disk", "Links1Bicubic", "SerializedMesh")
 
 
+#: a Mitsuba rectangle's faces and texture coordinates (rectangle.cpp), which its row assumes
+_RECT_FACES = np.array([1, 2, 0, 1, 3, 2], dtype=np.uint32)
+_RECT_UV = np.array([0, 0, 1, 0, 0, 1, 1, 1], dtype=np.float32)
+
+
 def _record_kind(s):
     """``s``'s kind for :class:`MeshRecord`, or None where the kernel does not make its record."""
+    if s.class_name() == "Rectangle" and _rect_row(s) is not None:
+        return KIND_RECT
     if s.is_mesh():
         return KIND_MESH
     return {"Sphere": KIND_SPHERE, "Disk": KIND_DISK}.get(s.class_name())
+
+
+def _rect_row(s):
+    """Rectangle ``s``'s row (:class:`MeshRecord`): its four vertices, then the normal that all
+    four carry; None where its buffers are not those the row assumes."""
+    faces = np.asarray(s.faces_buffer(), dtype=np.uint32)
+    uv = np.asarray(s.vertex_texcoords_buffer(), dtype=np.float32) if s.has_vertex_texcoords() else None
+    n = np.asarray(s.vertex_normals_buffer(), dtype=np.float32).reshape(-1, 3) if s.has_vertex_normals() else None
+    if (uv is None or n is None or not np.array_equal(faces, _RECT_FACES) or not np.array_equal(uv, _RECT_UV)
+            or not (n.view(np.uint32) == n[0].view(np.uint32)).all()):
+        return None
+    row = np.zeros(ROW, dtype=np.float32)
+    row[:12] = np.asarray(dr.detach(s.vertex_positions_buffer()), dtype=np.float32)
+    row[12:15] = n[0]
+    return row
 
 
 @dataclasses.dataclass(eq=False)
@@ -66,12 +88,14 @@ class MeshRecord:
     (3 a vertex), vertex normals and texture coordinates (None where no mesh has them; zeros
     for a mesh without), and per slot its first face (None: one mesh), whether it has
     normals / texture coordinates (None: every mesh or none) and whether its normals are
-    flipped (None: none); ``faces`` None where the scene has no mesh. Spheres and disks: a
-    row of :data:`ROW` floats a slot (``rows``; None where there are none), the linear part of
-    ``to_world`` (9, row by row), then a sphere's center (3) and ``to_world``'s inverse (12,
-    row by row: ``AffineTransform4f::inverse``, the transposed ``inverse_transpose``), a
-    disk's normal (3: ``m_frame.n``). ``kinds``: the kinds present; ``kind``: each slot's
-    (None: one kind); ``flip`` also marks spheres whose normals point inwards."""
+    flipped (None: none); ``faces`` None where the scene has no mesh. Rectangles, spheres and
+    disks: a row of :data:`ROW` floats a slot (``rows``; None where there are none): a
+    rectangle's four vertices (12) and the normal all four carry (3); the linear part of a
+    sphere's or disk's ``to_world`` (9, row by row), then a sphere's center (3) and
+    ``to_world``'s inverse (12, row by row: ``AffineTransform4f::inverse``, the transposed
+    ``inverse_transpose``), a disk's normal (3: ``m_frame.n``). ``kinds``: the kinds present;
+    ``kind``: each slot's (None: one kind); ``flip`` marks the meshes, rectangles and spheres
+    whose normals are flipped (a sphere's: also by a negative scale)."""
 
     faces: object
     positions: object
@@ -87,10 +111,12 @@ class MeshRecord:
 
 
 def _analytic_row(s, kind):
-    """The :data:`ROW` floats of sphere or disk ``s`` (:class:`MeshRecord`), made from its
-    ``to_world`` (the sphere's center with the operations of ``Sphere::update``,
-    ``to_world * Point3f(0)``), the disk's normal read from Mitsuba (``sample_position``'s,
-    ``m_frame.n``)."""
+    """The :data:`ROW` floats of rectangle, sphere or disk ``s`` (:class:`MeshRecord`): a
+    rectangle's :func:`_rect_row`; made from a sphere's or disk's ``to_world`` (the sphere's
+    center with the operations of ``Sphere::update``, ``to_world * Point3f(0)``), the disk's
+    normal read from Mitsuba (``sample_position``'s, ``m_frame.n``)."""
+    if kind == KIND_RECT:
+        return _rect_row(s)
     tw = dr.detach(own_param(s, "to_world"))
     m = np.asarray(tw.matrix, dtype=np.float32).reshape(4, 4)
     row = np.zeros(ROW, dtype=np.float32)

@@ -110,6 +110,7 @@ def _frame(s, own):
 
 
 def _analytic(bsdfs=(PLASTIC, MIRROR, CHECKER)):
+    """The shapes of :data:`ANALYTIC` and a sphere, their BSDFs in turn from ``bsdfs``."""
     return [SPHERE] + [a.format(bsdf=bsdfs[i % len(bsdfs)]) for i, a in enumerate(ANALYTIC)]
 
 
@@ -174,10 +175,15 @@ def test_mesh_record_is_mitsubas(variant, tmp_path):
     assert rec.face_off is not None and rec.has_uv is not None and rec.has_n is not None and rec.flip is not None
 
 
-@pytest.mark.parametrize("meshes", [True, False], ids=["with meshes", "alone"])
-def test_analytic_record_is_mitsubas(variant, tmp_path, meshes):
+@pytest.mark.parametrize("meshes, dispatch", [
+    pytest.param(True, "if", id="with meshes"), pytest.param(False, "if", id="alone"),
+    pytest.param(True, "select", id="with meshes, select", marks=pytest.mark.slow),
+    pytest.param(True, "switch", id="with meshes, switch", marks=pytest.mark.slow)])
+def test_analytic_record_is_mitsubas(variant, tmp_path, monkeypatch, meshes, dispatch):
     """Spheres, rectangles, disks and a cube (with the meshes: every kind's operations in
-    one kernel, the lanes' kind selected)."""
-    from links1_mitsuba.intersect import KIND_DISK, KIND_MESH, KIND_SPHERE
+    one kernel, each lane's kind picked by each way of ``intersect.DISPATCH``)."""
+    from links1_mitsuba import intersect
+    monkeypatch.setattr(intersect, "DISPATCH", dispatch)
     rec = _record_fields_equal(_load(tmp_path, _analytic(), meshes=meshes), 1000, inside=0.3, short=0.1)
-    assert rec.kinds == {KIND_MESH, KIND_SPHERE, KIND_DISK} and rec.kind is not None and rec.rows is not None
+    kinds = {intersect.KIND_MESH, intersect.KIND_RECT, intersect.KIND_SPHERE, intersect.KIND_DISK}
+    assert rec.kinds == kinds and rec.kind is not None and rec.rows is not None
