@@ -7,8 +7,8 @@ against a reference copy of ``film.py`` in the same process.
 Per filter and spp: one full-frame window of a ``res``² film, ``spp`` samples a pixel, random
 sample values (the gather's cost does not depend on them), what the film keeps with the batch
 made (as a second frame of the same windows has it): each round times ``reconstruct`` of this
-tree and of ``--ref`` once each, alternating (``dr.eval`` + ``dr.sync_thread``, warm), and
-checks that both give the same float32 bits. ``--ref``: a ``film.py``, or a git revision whose
+tree and of ``--ref`` once each, alternating (``dr.eval`` + ``dr.sync_thread``, warm; wall and
+the process's CPU time), and checks that both give the same float32 bits. ``--ref``: a ``film.py``, or a git revision whose
 ``plugins/links1_mitsuba/film.py`` is used. Prints the medians and their ratio (on a shared
 machine only the ratio measured in one run means something) and writes
 ``compare/results/film_gather.{json,md}``.
@@ -60,22 +60,26 @@ def measure(mods, rfilter, res, spp, repeats):
     dr.eval(data)
 
     def run(k):
-        t = time.perf_counter()
+        c, t = time.process_time(), time.perf_counter()
         out, _ = mods[k].reconstruct(rfilter, (W, H), spp, 7, batches[k], data, [], mi.Float)
         dr.eval(out)
         dr.sync_thread()
-        return time.perf_counter() - t, out
+        return time.perf_counter() - t, out, time.process_time() - c
 
     outs = {k: run(k)[1] for k in mods}            # compile, make what the batch keeps
     same = bool(dr.all(outs["this"] == outs["ref"]))
-    times = {k: [] for k in mods}
+    times, cpu = {k: [] for k in mods}, {k: [] for k in mods}
     for r in range(repeats):
         for k in (mods if r % 2 == 0 else reversed(list(mods))):
-            times[k].append(run(k)[0] * 1e3)
+            wall, _, c = run(k)
+            times[k].append(wall * 1e3)
+            cpu[k].append(c * 1e3)
     med = {k: statistics.median(v) for k, v in times.items()}
     low = {k: min(v) for k, v in times.items()}   # the least disturbed frame of each
+    cmed = {k: statistics.median(v) for k, v in cpu.items()}
     return dict(filter=rfilter.name, spp=spp, res=res, median_ms=med, min_ms=low, runs_ms=times, same_bits=same,
-                ratio=med["this"] / med["ref"], ratio_min=low["this"] / low["ref"])
+                ratio=med["this"] / med["ref"], ratio_min=low["this"] / low["ref"], cpu_median_ms=cmed,
+                cpu_runs_ms=cpu, ratio_cpu=cmed["this"] / cmed["ref"])
 
 
 def markdown(rows, info, cmd, ref) -> str:
@@ -84,11 +88,13 @@ def markdown(rows, info, cmd, ref) -> str:
            f"\nReference: `{ref}`. Rounds alternate the two films in one process; the machine was shared "
            "with other jobs (2 cores): only the ratios of one run mean something.\n",
            "\n| filter | spp | this ms (median / min) | reference ms (median / min) | this / reference (medians) | "
-           "(minima) | same float32 bits |", "| --- | --- | --- | --- | --- | --- | --- |"]
+           "(minima) | CPU ms this / reference (medians) | (CPU ratio) | same float32 bits |",
+           "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for r in rows:
-        m, lo = r["median_ms"], r["min_ms"]
+        m, lo, c = r["median_ms"], r["min_ms"], r["cpu_median_ms"]
         out.append(f"| {r['filter']} | {r['spp']} | {m['this']:.1f} / {lo['this']:.1f} | {m['ref']:.1f} / "
-                   f"{lo['ref']:.1f} | **{r['ratio']:.2f}** | {r['ratio_min']:.2f} | {r['same_bits']} |")
+                   f"{lo['ref']:.1f} | **{r['ratio']:.2f}** | {r['ratio_min']:.2f} | {c['this']:.1f} / {c['ref']:.1f} | "
+                   f"**{r['ratio_cpu']:.2f}** | {r['same_bits']} |")
     return "\n".join(out) + "\n"
 
 
@@ -117,7 +123,7 @@ def main(argv=None):
             m, lo = r["median_ms"], r["min_ms"]
             print(f"{a.res}², spp {spp}, {name}, {a.variant}, {a.repeats} rounds: this {m['this']:.1f} ms, "
                   f"ref {m['ref']:.1f} ms, this/ref {r['ratio']:.2f} (minima {lo['this']:.1f} / {lo['ref']:.1f} ms: "
-                  f"{r['ratio_min']:.2f}), same bits: {r['same_bits']}", flush=True)
+                  f"{r['ratio_min']:.2f}), CPU this/ref {r['ratio_cpu']:.2f}, same bits: {r['same_bits']}", flush=True)
     out = Path(a.out)
     out.with_suffix(".json").write_text(json.dumps(dict(machine=info, command=cmd, args=vars(a), rows=rows), indent=1))
     out.with_suffix(".md").write_text(markdown(rows, info, cmd, a.ref))
