@@ -22,8 +22,10 @@ primal frame at ``--big`` (``compare.inverse.timing_only``), medians. With ``--s
 where an iteration at ``--big`` goes (:func:`stages`); with ``--ab``, what the recordings buy
 (:func:`timing_ab`: the frozen launches kept over a geometry update or recorded again at each,
 the term's stages frozen or traced); with ``--where``,
-the iteration part by part (:func:`where`). Writes ``compare/results/inverse_outline.{json,md}``,
-or with ``--no-fit`` (the times alone) ``compare/results/inverse_outline_timing_<big>.{json,md}``.
+the iteration part by part (:func:`where`); with ``--host``, Python's share of it (:func:`host_split`). Writes ``compare/results/inverse_outline.{json,md}``,
+or with ``--no-fit`` (the times alone) ``compare/results/inverse_outline_timing_<big>.{json,md}``
+(``..._threads<N>`` with ``--threads N``: Dr.Jit's thread pool at N threads for the whole run,
+the primal frames too).
 """
 from __future__ import annotations
 
@@ -284,6 +286,84 @@ def where(mi, dr, name, cls, variables, lrs, width, n, log):
     return dict(case=name, width=width, iterations=n, parts=rows)
 
 
+def host_split(mi, dr, name, cls, variables, lrs, width, n, log):
+    """Python's share of an iteration at ``width``² and of its parts (:data:`_PARTS`, the
+    primal frame in it): ``n`` iterations (after 3) with ``dr.JitFlag.LaunchBlocking`` (each
+    kernel runs as it is launched, so a part's wall time is its kernels' time, as Dr.Jit's
+    kernel history reports it, plus its host time: tracing, launching, numpy) and the kernel
+    history on; per iteration, medians."""
+    import importlib
+    got, real, kern, timing = {}, [], [0.0, 0], [False]
+
+    def drain():
+        for k in dr.kernel_history():
+            kern[0] += k.get("execution_time", 0.0)
+            kern[1] += k.get("type") == dr.KernelType.JIT
+
+    def wrap(owner, attr, label):
+        f = getattr(owner, attr)
+        real.append((owner, attr, f))
+
+        def timed(*a, **k):
+            if not timing[0]:   # (the primal frame between iterations)
+                return f(*a, **k)
+            drain()
+            k0, t0 = list(kern), time.perf_counter()
+            out = f(*a, **k)
+            drain()
+            row = got[label][-1]
+            row[0] += (time.perf_counter() - t0) * 1e3
+            row[1] += kern[0] - k0[0]
+            row[2] += kern[1] - k0[1]
+            return out
+        setattr(owner, attr, timed)
+    parts = [("engine.Engine", "render", "primal frame in mi.render(scene, params)"),
+             ("tables.Tables", "prepare", "  tables prepared (all calls)")] + _PARTS[1:]
+    labels = ["iteration"] + [lbl for _, _, lbl in parts]
+    try:
+        iteration, frame = _start(mi, dr, name, cls, variables, lrs, width)
+        for path, attr, label in parts:
+            mod, _, cls_name = path.partition(".")
+            owner = importlib.import_module(f"links1_mitsuba.{mod}")
+            wrap(getattr(owner, cls_name) if cls_name else owner, attr, label)
+        dr.set_flag(dr.JitFlag.KernelHistory, True)
+        dr.set_flag(dr.JitFlag.LaunchBlocking, True)
+        for r in range(n + 3):
+            for k in labels:
+                got.setdefault(k, []).append([0.0, 0.0, 0])
+            drain()
+            timing[0] = True
+            k0, t0 = list(kern), time.perf_counter()
+            iteration()
+            drain()
+            timing[0] = False
+            got["iteration"][-1] = [(time.perf_counter() - t0) * 1e3, kern[0] - k0[0], kern[1] - k0[1]]
+            if r < 3:
+                for k in labels:
+                    got[k].pop()
+            frame()
+    finally:
+        dr.set_flag(dr.JitFlag.LaunchBlocking, False)
+        dr.set_flag(dr.JitFlag.KernelHistory, False)
+        for owner, attr, f in reversed(real):
+            setattr(owner, attr, f)
+    rows = []
+    for k in labels:
+        wall, kms, nk = np.median(np.array(got[k]), axis=0)
+        rows.append(dict(part=k, wall_ms=float(wall), kernel_ms=float(kms), host_ms=float(wall - kms), kernels=float(nk)))
+        log(f"  {name} at {width}² (launch-blocking): {k:44s} {wall:7.2f} ms: kernels {kms:6.2f} ({nk:.0f}), "
+            f"host {wall - kms:6.2f}")
+    return dict(case=name, width=width, iterations=n, parts=rows)
+
+
+def host_markdown(rows):
+    parts = [p["part"] for p in rows[0]["parts"]]
+    return md_table(["part (ms an iteration: wall = kernels + host)"] + [f"{r['case']} {r['width']}²" for r in rows],
+                    [[p.replace("  ", "· ")] + [f"{q['wall_ms']:.1f} = {q['kernel_ms']:.1f} ({q['kernels']:.0f}) + "
+                                                f"{q['host_ms']:.1f}" for r in rows for q in r["parts"] if q["part"] == p]
+                     for p in parts])
+
+
 def stages_markdown(rows):
     return md_table(["case", "iteration ms", "term ms (calls)", "term kernels: n, ms, compiled",
                      "other kernels: n, ms, compiled", "primal ms"],
@@ -318,6 +398,10 @@ def _extra_markdown(results):
         out += ("\nThe recordings' worth (--ab: interleaved rounds, medians, wall and process CPU; kept: as the "
                 "plugin runs; recorded: the frozen launches recorded again at every update; stages traced: the "
                 "term's stages of queries traced every frame):\n\n" + ab_markdown([r["ab"] for r in results if "ab" in r]))
+    if any("host" in r for r in results):
+        out += ("\nPython's share (--host: each kernel run as it is launched, Dr.Jit's LaunchBlocking; a part's wall "
+                "time is its kernels' execution time (their count) plus its host time; medians; · within the part "
+                "above):\n\n" + host_markdown([r["host"] for r in results if "host" in r]))
     if any("where" in r for r in results):
         out += ("\nWhere an iteration goes, part by part (--where: each part synced before and after, medians; "
                 "a part marked · is within the one above it):\n\n"
@@ -365,17 +449,26 @@ def main(argv=None):
                     help="also time the recordings' worth: kept, recorded at each update, the term's stages traced")
     ap.add_argument("--where", type=int, default=0, metavar="N",
                     help="also where an iteration at --big goes, part by part, N iterations")
+    ap.add_argument("--host", type=int, default=0, metavar="N",
+                    help="also Python's share of an iteration at --big and of its parts, N iterations with each "
+                         "kernel run as it is launched")
     ap.add_argument("--variant", default="llvm_ad_rgb")
     ap.add_argument("--only", nargs="*", default=None)
+    ap.add_argument("--threads", type=int, default=0, metavar="N",
+                    help="Dr.Jit's LLVM thread pool at N threads for the whole run, set before the first "
+                         "kernel (0: Dr.Jit's default, one a core); the results' file names say N")
     ap.add_argument("--no-write", action="store_true")
     a = ap.parse_args(argv)
     import links1_mitsuba as lm
     lm.register(a.variant)
     import drjit as dr
     import mitsuba as mi
+    if a.threads:
+        dr.set_thread_count(a.threads)
     inverse.SCENES.update(SCENES)
     info = machine_info()
     info["variant"] = a.variant
+    info["drjit_threads"] = dr.thread_count()
     cmd = command_line()
     log = (lambda s: print(s, flush=True))
     results, timed_only = [], []
@@ -392,6 +485,8 @@ def main(argv=None):
             r["ab"] = timing_ab(mi, dr, name, cls, variables, lrs, a.big, a.rounds, log)
         if a.where:
             r["where"] = where(mi, dr, name, cls, variables, lrs, a.big, a.where, log)
+        if a.host:
+            r["host"] = host_split(mi, dr, name, cls, variables, lrs, a.big, a.host, log)
         if a.no_fit:
             timed_only.append(r)
             continue
@@ -404,6 +499,7 @@ def main(argv=None):
         # the times alone (--no-fit) go to a file of their own per --big, next to the fits' results
         name, text = ("inverse_outline", markdown(results, info, cmd)) if not a.no_fit else \
             (f"inverse_outline_timing_{a.big}", timing_markdown(timed_only, info, cmd))
+        name += f"_threads{a.threads}" if a.threads else ""
         log("wrote " + ", ".join(map(str, write_results(name, payload, text))))
     log(f"total {payload['total_s']:.0f} s")
     return 0
