@@ -239,10 +239,14 @@ def _crossings(trace_points, scene, P, sensor, win, spp, seed, stage):
     kinds, at_h = dr.gather(mi.Int32, kind, at).numpy(), at.numpy()
     li, ki = at_h // POINTS, at_h % POINTS
     # the bisection and the ends take the crossings by kind (the camera's, then each light's
-    # shadow edges: a packet of lanes of one kind traces that kind's rays alone), and _edges
-    # puts its values back in the crossings' order (``back``); lanes are independent: the same
-    # values as in that order
-    order = np.argsort(kinds, kind="stable")
+    # shadow edges: a packet of lanes of one kind traces that kind's rays alone), a camera
+    # crossing between two lobes of one blob after the others (most are a change of dominant
+    # centre on one sheet of the surface, whose queries do not graze: packets of lanes that cost
+    # alike), and _edges puts its values back in the crossings' order (``back``); lanes are
+    # independent: the same values as in that order
+    ends = [dr.gather(mi.Int32, c_all, at + j).numpy() for j in (0, 1)]
+    lobes = (kinds == 0) & (ends[0] >= LOBES) & (ends[1] >= LOBES) & (ends[0] % LOBES == ends[1] % LOBES)
+    order = np.argsort(2 * kinds + lobes, kind="stable")
     back = np.argsort(order)
     ls, ks = li[order], ki[order]
     kd = _dev(mi.Int32, kinds[order])
@@ -252,17 +256,22 @@ def _crossings(trace_points, scene, P, sensor, win, spp, seed, stage):
     c_lo, o_lo = dr.gather(mi.Int32, c_all, at_s), dr.gather(mi.Int32, o_all, at_s)
     lo_d, hi_d = stage(_bisected, lo_d, hi_d, colm, fxd, key, kd, c_lo, o_lo)
     edge = stage(_edges, lo_d, hi_d, colm, fxd, key, kd, _dev(mi.UInt32, back))
-    # f on both sides, SIDE_STEP pixels out: the primal ray tree (one launch for both ends)
+    # f on both sides, SIDE_STEP pixels out: the primal ray tree (one launch for both ends), of
+    # the valid crossings alone (the others' weight is 0: their jump is taken as 0)
     m_ = li.size
-    # the ends' film coordinates made on the host from the evaluated ends (as at(): the same
-    # float32 values; reading xl ... would run a kernel each), in the crossings' order
-    cl, f32 = is_col[li], np.float32(fixed[li])
-    ends_h = [(np.where(cl, f32, e), np.where(cl, e, f32)) for e in (lo_d.numpy()[back], hi_d.numpy()[back])]
-    xs = np.concatenate([ends_h[0][0] - SIDE_STEP * ~cl, ends_h[1][0] + SIDE_STEP * ~cl])
-    ys = np.concatenate([ends_h[0][1] - SIDE_STEP * cl, ends_h[1][1] + SIDE_STEP * cl])
-    keys_h = lane_key[li].astype(np.uint32)
-    f = trace_points(xs / P.film_size[0], ys / P.film_size[1], np.concatenate([keys_h, keys_h]))[0]
-    jump = f[:m_] - f[m_:]
+    ok = np.nonzero(widen(edge[_EDGE.index("valid")], m_).numpy())[0]
+    jump = np.zeros((m_, 3))
+    if ok.size:
+        # the ends' film coordinates made on the host from the evaluated ends (as at(): the
+        # same float32 values; reading xl ... would run a kernel each), in the crossings' order
+        cl, f32 = is_col[li[ok]], np.float32(fixed[li[ok]])
+        lo_h, hi_h = lo_d.numpy()[back][ok], hi_d.numpy()[back][ok]
+        ends_h = [(np.where(cl, f32, e), np.where(cl, e, f32)) for e in (lo_h, hi_h)]
+        xs = np.concatenate([ends_h[0][0] - SIDE_STEP * ~cl, ends_h[1][0] + SIDE_STEP * ~cl])
+        ys = np.concatenate([ends_h[0][1] - SIDE_STEP * cl, ends_h[1][1] + SIDE_STEP * cl])
+        keys_h = lane_key[li[ok]].astype(np.uint32)
+        f = trace_points(xs / P.film_size[0], ys / P.film_size[1], np.concatenate([keys_h, keys_h]))[0]
+        jump[ok] = f[:ok.size] - f[ok.size:]
     jump_c = mi.Color3f(*[_dev(mi.Float, jump[:, c]) for c in range(3)])
     # (a frozen stage returns a value that is the same on every lane at its recorded width)
     edge = {k: (tuple(widen(u, m_) for u in v) if k == "tri" else widen(v, m_)) for k, v in zip(_EDGE, edge)}
