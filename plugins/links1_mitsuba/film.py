@@ -33,7 +33,8 @@ radius allows it: a sample's two outermost weights are never both nonzero):
 
 The weight sums depend only on the samples' places: where the batch keeps the samples' weights,
 the two passes of the weights alone make them once (:func:`_weight_sums`) and a frame's records
-carry the RGB sums alone.
+carry the RGB sums alone; a pixel whose samples are all zero (a black background, a hard
+shadow) then has records of +0 and skips pass 1's loop over its samples (in a primal frame).
 
 A record depends only on its pixel's samples, so the pass-2 sums are a pixel's own whatever the
 window. At spp 1 every sample lies at its pixel's centre and the weights are ``2b+1``
@@ -625,7 +626,17 @@ def _filter_partials(rfilter, film_size, seed, batch, data, n_s, mode, channels=
                 out += _add_terms(acc[at:at + C], wy[dy], wx[dx], v, weight=C != 3)
         return (i + 1, *out)
     z = dr.zeros(FT, nq)
-    _, *acc = _loop((dr.zeros(U32, nq), *[z] * (C * nb * nb)), lambda i, *_: i < n_s, body, mode, batch.spp)
+    cond = lambda i, *_: i < n_s  # noqa: E731
+    if C == 3 and mode != "evaluated" and not dr.grad_enabled(total):
+        # a pixel whose samples are all zero (RGB: black background, hard shadow) gives
+        # records of +0 (+0 plus w·0 = ±0 is +0), which the tables' zeros are: its lane
+        # skips the loop, and a packet of such lanes skips it at once
+        def seen(i, nz):
+            v = dr.gather(type(total), total, first + i)
+            return i + 1, nz | (v[0] != 0) | (v[1] != 0) | (v[2] != 0)
+        _, nz = _loop((dr.zeros(U32, nq), dr.zeros(mi.Bool, nq)), lambda i, _: i < n_s, seen, mode, batch.spp)
+        cond = lambda i, *_: (i < n_s) & nz  # noqa: E731
+    _, *acc = _loop((dr.zeros(U32, nq), *[z] * (C * nb * nb)), cond, body, mode, batch.spp)
     # a table per offset (separate scatters into one array would each evaluate the ones
     # before: the loop once per record); adjacent lanes write adjacent records
     if C == 1:

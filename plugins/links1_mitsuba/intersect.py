@@ -28,8 +28,8 @@ from .util import INF, color3, gather3, next_up
 #: two faces, its record made from a row of the rectangle's own: rectangle.cpp), spheres
 #: (sphere.cpp), disks (disk.cpp)
 KIND_MESH, KIND_RECT, KIND_SPHERE, KIND_DISK = 0, 1, 2, 3
-#: floats a rectangle's, sphere's or disk's row of ``tables.MeshRecord.rows``
-ROW = 24
+#: floats a rectangle's, sphere's, disk's or instance's row of ``tables.MeshRecord.rows``
+ROW = 36
 #: how :func:`mesh_surface` picks each lane's kind where a scene has several: one symbolic
 #: branch a kind present ("if": a packet runs the kinds it holds), or every kind's operations
 #: on every lane and a select ("select"), or Dr.Jit's symbolic switch ("switch")
@@ -51,14 +51,14 @@ def nearest(tables, scene, o, d, tmin, tmax, active, cost, eye=False, coherent=F
     one, as in Mitsuba)."""
     rec = getattr(tables, "mesh_record", None)
     if tables.any_mitsuba_shapes and rec is not None and not ad:
-        # every Mitsuba shape a mesh, sphere or disk: Embree's preliminary hit, the record made here
+        # every Mitsuba shape a mesh, rectangle, sphere or disk, or an instance of them: Embree's
+        # preliminary hit, the record made here
         ray = mi.Ray3f(o + d * tmin, d, tmax - tmin)
         pi = scene.ray_intersect_preliminary(ray, bool(coherent), active)
         valid = active & pi.is_valid()
         t = dr.select(valid, pi.t + tmin, INF)
-        reg = dr.reinterpret_array(mi.UInt32, pi.shape)
-        slot = dr.select(valid, dr.gather(mi.Int32, tables.reg_to_slot, reg, valid), -1)
-        si = mesh_surface(rec, ray, pi, slot, valid)
+        slot, inst, islot = record_slots(tables, rec, pi, valid)
+        si = mesh_surface(rec, ray, pi, slot, valid, inst, islot)
         cost += dr.select(active, mi.UInt32(1), 0)
     elif tables.any_mitsuba_shapes:
         ray = mi.Ray3f(o + d * tmin, d, tmax - tmin)
@@ -83,7 +83,35 @@ def nearest(tables, scene, o, d, tmin, tmax, active, cost, eye=False, coherent=F
     return t, slot, si, prim
 
 
-def mesh_surface(rec, ray, pi, slot, valid):
+def record_slots(tables, rec, pi, valid):
+    """``(slot, inst, islot)`` of the preliminary hits ``pi`` (``valid``: the lanes with a
+    hit): the slot of the shape hit (on an instance: the shapegroup's member, which Mitsuba's
+    record names: ``rec.member_of``), the lanes on an instance (None: the scene has none) and
+    the instance's slot."""
+    reg = dr.reinterpret_array(mi.UInt32, pi.shape)
+    slot = dr.select(valid, dr.gather(mi.Int32, tables.reg_to_slot, reg, valid), -1)
+    if rec.member_of is None:
+        return slot, None, None
+    ireg = dr.reinterpret_array(mi.UInt32, pi.instance)
+    inst = valid & (ireg != 0)
+    islot = mi.UInt32(dr.gather(mi.Int32, tables.reg_to_slot, ireg, inst))
+    member = dr.gather(mi.UInt32, rec.member_of, dr.gather(mi.UInt32, rec.inst_base, islot, inst) + pi.shape_index,
+                       inst)
+    return dr.select(inst, mi.Int32(member), slot), inst, islot
+
+
+def _affine(r, v, point):
+    """``AffineTransform4f * Point3f`` (``point``) or ``* Vector3f`` (Mitsuba 3.9.1's
+    transform.h) of the rows ``r`` (3 rows of 4 floats, the translation last): a point's
+    ``r[i][3]``, then ``fma(r[i][j], v_j, .)``; a vector's ``r[i][0] v0``, then the fmas."""
+    out = []
+    for row in r:
+        acc = dr.fma(row[0], v[0], row[3]) if point else row[0] * v[0]
+        out.append(dr.fma(row[2], v[2], dr.fma(row[1], v[1], acc)))
+    return (mi.Point3f if point else mi.Vector3f)(*out)
+
+
+def mesh_surface(rec, ray, pi, slot, valid, inst=None, islot=None):
     """Mitsuba's surface record (``scene.ray_intersect``'s, ``RayFlags.All``) of the
     preliminary hits ``pi`` of ``ray`` on the meshes, rectangles, spheres and disks of ``rec``
     (``tables.MeshRecord``; ``slot``: the hit's slot, ``valid``: the lanes with a hit), made
@@ -91,13 +119,25 @@ def mesh_surface(rec, ray, pi, slot, valid):
     (:func:`_mesh_part`, :func:`_rect_part`, :func:`_sphere_part`, :func:`_disk_part`; the
     lane's kind from ``rec.kind``, each kind present in the kernel, picked as
     :data:`DISPATCH` says) and ``SurfaceInteraction::finalize_surface_interaction``
-    (interaction.h): the same bits. Lanes without a hit hold what Mitsuba's shape call leaves
-    there (zeros, ``t`` infinite, ``wi = -d``)."""
+    (interaction.h): the same bits. On an instance (``inst``: those lanes, ``islot``: its
+    slot; :func:`record_slots`), as ``Instance::compute_surface_interaction`` (instance.cpp):
+    the member's record of the ray in the group's space, its point, normals and dp/du, dp/dv
+    transformed back by the instance's ``to_world`` (normals normalized). Lanes without a hit
+    hold what Mitsuba's shape call leaves there (zeros, ``t`` infinite, ``wi = -d``)."""
     sl = mi.UInt32(dr.maximum(slot, 0))
     kind = None if rec.kind is None else dr.gather(mi.UInt32, rec.kind, sl, valid)
     part = {KIND_MESH: _mesh_part, KIND_RECT: _rect_part, KIND_SPHERE: _sphere_part, KIND_DISK: _disk_part}
     kinds = sorted(rec.kinds)
-    args = (ray.o, ray.d, pi.t, pi.prim_uv, pi.prim_index, sl)
+    o, d = ray.o, ray.d
+    if inst is not None:
+        # the instance's to_world (rows), inverse_transpose (normals) and, where a member
+        # makes its point from the ray, the inverse: the ray in the group's space
+        row = [dr.gather(mi.Float, rec.rows, islot * ROW + k, inst) for k in range(33 if rec.inst_obj else 21)]
+        tw, it = [row[4 * i:4 * i + 4] for i in range(3)], [row[12 + 3 * i:15 + 3 * i] for i in range(3)]
+        if rec.inst_obj:
+            to = [row[21 + 4 * i:25 + 4 * i] for i in range(3)]
+            o, d = dr.select(inst, _affine(to, o, True), o), dr.select(inst, _affine(to, d, False), d)
+    args = (o, d, pi.t, pi.prim_uv, pi.prim_index, sl)
 
     def run(k, m, o, d, t, prim_uv, prim_index, sl):
         # (the hit's fields as arguments: a symbolic call or branch takes no wide array it reads)
@@ -129,6 +169,12 @@ def mesh_surface(rec, ray, pi, slot, valid):
     if rec.flip is not None:
         fl = dr.gather(mi.Bool, rec.flip, sl, valid)
         n, ns = dr.select(fl, -n, n), dr.select(fl, -ns, ns)
+    if inst is not None:
+        def normal(v):
+            return dr.normalize(mi.Vector3f(*[dr.fma(r[2], v[2], dr.fma(r[1], v[1], r[0] * v[0])) for r in it]))
+        p = dr.select(inst, _affine(tw, p, True), p)
+        n, ns = dr.select(inst, normal(n), n), dr.select(inst, normal(ns), ns)
+        dp_du, dp_dv = (dr.select(inst, _affine(tw, v, False), v) for v in (dp_du, dp_dv))
     si = dr.zeros(mi.SurfaceInteraction3f, dr.width(valid))
     si.t = dr.select(valid, pi.t, INF)
     si.p = dr.select(valid, p, 0.0)
@@ -138,6 +184,10 @@ def mesh_surface(rec, ray, pi, slot, valid):
     si.dp_du, si.dp_dv = dp_du, dr.select(valid, dp_dv, 0.0)
     si.prim_index = dr.select(valid, pi.prim_index, 0)
     si.shape = dr.select(valid, pi.shape, mi.ShapePtr(None))
+    if inst is not None:
+        member = dr.reinterpret_array(mi.ShapePtr, dr.gather(mi.UInt32, rec.slot_reg, sl, inst))
+        si.shape = dr.select(inst, member, si.shape)
+        si.instance = dr.select(inst, pi.instance, mi.ShapePtr(None))
     si.time = ray.time
     si.wavelengths = ray.wavelengths
     # SurfaceInteraction::initialize_sh_frame

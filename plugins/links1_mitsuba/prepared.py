@@ -175,9 +175,9 @@ class Prepared(ViewFields):
     all_shaded: bool = _set_later()
     #: the BSDF of each slot (BSDFPtr), None when every slot is links1_phong
     bsdf_ptr: object = _set_later()
-    #: where every Mitsuba shape is a mesh, sphere or disk outside instances, their buffers and
-    #: transforms from which the kernel makes the nearest hit's surface record itself
-    #: (``tables.MeshRecord``: ``intersect.mesh_surface``), else None
+    #: where every Mitsuba shape is a mesh, rectangle, sphere or disk, or an instance of them,
+    #: their buffers and transforms from which the kernel makes the nearest hit's surface record
+    #: itself (``tables.MeshRecord``: ``intersect.mesh_surface``), else None
     mesh_record: object = _default(None)
     # -- Mitsuba ``diffuse`` BSDFs of one reflectance value (``rgb`` or a float, no texture),
     #    alone or as a ``twosided``'s one BSDF: evaluated in the kernel (raytree.Hit.f_eval) with

@@ -95,7 +95,11 @@ class MeshRecord:
     ``to_world``'s inverse (12, row by row: ``AffineTransform4f::inverse``, the transposed
     ``inverse_transpose``), a disk's normal (3: ``m_frame.n``). ``kinds``: the kinds present;
     ``kind``: each slot's (None: one kind); ``flip`` marks the meshes, rectangles and spheres
-    whose normals are flipped (a sphere's: also by a negative scale)."""
+    whose normals are flipped (a sphere's: also by a negative scale). Instances of shapegroups
+    (their members are slots of their own, as any shape): a row each (:func:`_instance_row`),
+    ``inst_base``, ``member_of``, ``slot_reg`` (:func:`_instance_tables`; None: no instances)
+    and ``inst_obj``, whether a member makes its point from the ray (a sphere, a disk: the ray
+    is taken to the group's space)."""
 
     faces: object
     positions: object
@@ -108,6 +112,10 @@ class MeshRecord:
     kinds: frozenset = frozenset({KIND_MESH})
     kind: object = None
     rows: object = None
+    inst_base: object = None
+    member_of: object = None
+    slot_reg: object = None
+    inst_obj: bool = False
 
 
 def _analytic_row(s, kind):
@@ -131,36 +139,93 @@ def _analytic_row(s, kind):
     return row
 
 
-def _mesh_record_table(shapes, slot_list, member_slots, nslots):
-    """:class:`MeshRecord` where every Mitsuba shape of the scene is a mesh, sphere or disk
-    outside instances, else None (the kernel reads Mitsuba's record, ``scene.ray_intersect``:
-    its surface call through the shapes' callables cost ~0.2-0.3 of the ray-tree kernel,
-    docs/benchmarks.md)."""
-    kinds = [_record_kind(s) for s in shapes]
-    if not shapes or member_slots or None in kinds:
+def _mesh_record_table(shapes, slot_list, member_slots, nslots, scene=None):
+    """:class:`MeshRecord` where every Mitsuba shape of the scene is a mesh, rectangle, sphere
+    or disk, or an instance of shapegroups of them, else None (the kernel reads Mitsuba's record,
+    ``scene.ray_intersect``: its surface call through the shapes' callables cost ~0.1 of a
+    frame, docs/benchmarks.md)."""
+    inst = [s.class_name() == "Instance" for s in shapes]
+    kinds = [None if i else _record_kind(s) for s, i in zip(shapes, inst)]
+    if not shapes or any(k is None and not i for k, i in zip(kinds, inst)) or all(inst):
         return None
-
     def per_slot(flags, dtype, sl_list=slot_list):
         out = np.zeros(max(nslots, 1), dtype=dtype)
         for sl, v in zip(sl_list, flags):
             out[sl] = v
         return out
 
-    flip = [s.has_flipped_normals() and k != KIND_DISK for s, k in zip(shapes, kinds)]
+    flip = [k is not None and k != KIND_DISK and s.has_flipped_normals() for s, k in zip(shapes, kinds)]
     rec = MeshRecord(faces=None, positions=None, flip=mi.Bool(per_slot(flip, bool)) if any(flip) else None,
-                     kinds=frozenset(kinds))
+                     kinds=frozenset(k for k in kinds if k is not None))
     if len(rec.kinds) > 1:
-        rec.kind = mi.UInt32(per_slot(kinds, np.uint32))
+        rec.kind = mi.UInt32(per_slot([k or 0 for k in kinds], np.uint32))
     analytic = [(s, k, sl) for s, k, sl in zip(shapes, kinds, slot_list) if k != KIND_MESH]
     if analytic:
         rows = np.zeros((max(nslots, 1), ROW), dtype=np.float32)
         for s, k, sl in analytic:
-            rows[sl] = _analytic_row(s, k)
+            rows[sl] = _analytic_row(s, k) if k is not None else _instance_row(s)
         rec.rows = mi.Float(rows.ravel())
+    if any(inst):
+        _instance_tables(rec, shapes, slot_list, inst, nslots, scene)
     meshes = [(s, sl) for s, k, sl in zip(shapes, kinds, slot_list) if k == KIND_MESH]
     if meshes:
         _mesh_buffers(rec, meshes, per_slot)
     return rec
+
+
+def _instance_row(s):
+    """Instance ``s``'s row (:class:`MeshRecord`): its ``to_world`` (12, row by row), the
+    ``inverse_transpose`` that transforms normals (9, row by row) and the inverse (12, row by
+    row: the transposed ``inverse_transpose``, ``AffineTransform4f::inverse``)."""
+    tw = dr.detach(own_param(s, "to_world"))
+    m = np.asarray(tw.matrix, dtype=np.float32).reshape(4, 4)
+    it = np.asarray(tw.inverse_transpose, dtype=np.float32).reshape(4, 4)
+    row = np.zeros(ROW, dtype=np.float32)
+    row[:12] = m[:3, :].ravel()
+    row[12:21] = it[:3, :3].ravel()
+    row[21:33] = it.T[:3, :].ravel()
+    return row
+
+
+def _instance_tables(rec, shapes, slot_list, inst, nslots, scene):
+    """``rec``'s tables of the hits on instances (:class:`MeshRecord`): per instance slot the
+    first entry of its shapegroup's block in ``member_of`` (``inst_base``), whose entry
+    ``shape_index`` (Embree's index of the hit shape in the group) is the member's slot, and
+    every slot's shape (``slot_reg``: a member's registry id, which Mitsuba's record names).
+    Which member an instance's ``shape_index`` names is asked of Mitsuba: a preliminary hit
+    made up for each instance and index, its record's shape (``ShapeGroup::
+    compute_surface_interaction`` reads the group's own table)."""
+    reg = [int(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(s))[0]) for s in shapes]
+    reg_slot = dict(zip(reg, slot_list))
+    groups = group_lists(scene)
+    instances = [(s, sl) for s, sl, i in zip(shapes, slot_list, inst) if i]
+
+    def members_named(ptrs, index):
+        pi = dr.zeros(mi.PreliminaryIntersection3f, len(index))
+        pi.valid, pi.t, pi.prim_uv = mi.Bool(True), mi.Float(1.0), mi.Point2f(0.25)
+        pi.instance = dr.gather(mi.ShapePtr, mi.ShapePtr(ptrs), mi.UInt32(np.arange(len(index))))
+        pi.shape_index = mi.UInt32(index)
+        si = pi.compute_surface_interaction(mi.Ray3f(mi.Point3f(0.0), mi.Vector3f(0.0, 0.0, 1.0)),
+                                            +mi.RayFlags.Minimal)
+        return [int(r) for r in np.asarray(dr.reinterpret_array(mi.UInt32, si.shape))]
+    # each instance's group: the one whose members hold its index 0's shape
+    with dr.suspend_grad():
+        firsts = members_named([s for s, _ in instances], np.zeros(len(instances), np.uint32))
+    first_reg = {int(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(g[0]))[0]): gi for gi, g in enumerate(groups) if g}
+    member_of, base_of, inst_base = [], {}, np.zeros(max(nslots, 1), np.uint32)
+    for (s, sl), f in zip(instances, firsts):
+        gi = first_reg[f]
+        if gi not in base_of:
+            base_of[gi] = len(member_of)
+            with dr.suspend_grad():
+                named = members_named([s] * len(groups[gi]), np.arange(len(groups[gi]), dtype=np.uint32))
+            member_of += [reg_slot[r] for r in named]
+        inst_base[sl] = base_of[gi]
+    slot_reg = np.zeros(max(nslots, 1), np.uint32)
+    for r, sl in reg_slot.items():
+        slot_reg[sl] = r
+    rec.inst_base, rec.member_of, rec.slot_reg = mi.UInt32(inst_base), mi.UInt32(member_of), mi.UInt32(slot_reg)
+    rec.inst_obj = bool(rec.kinds & {KIND_SPHERE, KIND_DISK})
 
 
 def _mesh_buffers(rec, meshes, per_slot):
@@ -252,9 +317,9 @@ def _unmask(mi, b):
     return b
 
 
-def group_members(scene) -> list:
-    """The shapes inside the scene's ``shapegroup``s (drawn by its ``instance``s: a hit on one
-    names the member, ``si.instance`` the instance), each once, in the scene's order."""
+def group_lists(scene) -> list:
+    """The shapes inside each of the scene's ``shapegroup``s, group by group in the scene's
+    order, each shape once (:func:`group_members`)."""
     found, seen = [], set()
 
     class Collect(mi.TraversalCallback):
@@ -265,12 +330,18 @@ def group_members(scene) -> list:
 
     scene.traverse(Collect())
     groups = [s for s in found if s.class_name() == "ShapeGroupPlugin"]
-    members = []
+    lists = []
     for g in groups:
         found.clear()
         g.traverse(Collect())
-        members += [s for s in found if s.class_name() not in ("ShapeGroupPlugin", "Instance")]
-    return members
+        lists.append([s for s in found if s.class_name() not in ("ShapeGroupPlugin", "Instance")])
+    return lists
+
+
+def group_members(scene) -> list:
+    """The shapes inside the scene's ``shapegroup``s (drawn by its ``instance``s: a hit on one
+    names the member, ``si.instance`` the instance), each once, in the scene's order."""
+    return [s for g in group_lists(scene) for s in g]
 
 
 def _geometry_literals(base):
@@ -544,7 +615,7 @@ class Tables:
             table[r] = sl
         base.reg_to_slot = mi.Int32(checked_index(table, nslots, "reg_to_slot", sentinel=-1))
         base.any_mitsuba_shapes = len(shapes) > 0
-        base.mesh_record = _mesh_record_table(shapes, slot_list, base.member_slots, nslots)
+        base.mesh_record = _mesh_record_table(shapes, slot_list, base.member_slots, nslots, scene)
         eps_np = np.full(max(nslots, 1), float(mi.math.RayEpsilon), dtype=np.float32)
         for s_, sl in zip(shapes, slot_list):
             if s_.is_mesh() or kind_of(s_) in _PRECISE_MITSUBA:
