@@ -148,6 +148,9 @@ def _mesh_record_table(shapes, slot_list, member_slots, nslots, scene=None):
     kinds = [None if i else _record_kind(s) for s, i in zip(shapes, inst)]
     if not shapes or any(k is None and not i for k, i in zip(kinds, inst)) or all(inst):
         return None
+    if any(inst) and not mi.variant().startswith("llvm"):
+        return None   # (the member's slot comes from Embree's shape_index: _instance_tables)
+
     def per_slot(flags, dtype, sl_list=slot_list):
         out = np.zeros(max(nslots, 1), dtype=dtype)
         for sl, v in zip(sl_list, flags):

@@ -242,6 +242,8 @@ def test_instance_record_is_mitsubas(variant, tmp_path, analytic):
     """Hits on instances: the member's record in the group's space transformed back by the
     instance's ``to_world`` (Mitsuba's ``Instance::compute_surface_interaction``), the member's
     slot and shape, the instance."""
+    if not variant.startswith("llvm"):
+        pytest.skip("the member's slot from Embree's shape_index: LLVM variants alone make the record on instances")
     s = _instanced(tmp_path, analytic)
     rec, slots, on_inst = _record_fields_equal(s, 40000, box=True)
     assert rec.member_of is not None and rec.inst_obj == analytic
@@ -256,6 +258,6 @@ def test_instance_record_renders_mitsubas(variant, tmp_path, analytic):
     s = _instanced(tmp_path, analytic)
     own, has = _frame(s, True)
     mitsuba, _ = _frame(s, False)
-    assert has
+    assert has == variant.startswith("llvm")
     assert np.count_nonzero(own) > own.size // 3
     np.testing.assert_array_equal(own, mitsuba)
