@@ -34,7 +34,8 @@ radius allows it: a sample's two outermost weights are never both nonzero):
 The weight sums depend only on the samples' places: where the batch keeps the samples' weights,
 the two passes of the weights alone make them once (:func:`_weight_sums`) and a frame's records
 carry the RGB sums alone; a pixel whose samples are all zero (a black background, a hard
-shadow) then has records of +0 and skips pass 1's loop over its samples (in a primal frame).
+shadow) then has records of +0 and skips pass 1's loop over its samples, and an output pixel
+none of whose neighbours has a nonzero sample skips pass 2's reads (in a primal frame).
 
 A record depends only on its pixel's samples, so the pass-2 sums are a pixel's own whatever the
 window. At spp 1 every sample lies at its pixel's centre and the weights are ``2b+1``
@@ -387,8 +388,8 @@ def reconstruct(rfilter, film_size, spp, seed, batch, data, aovs, dtype=None, mo
             chans[p] += rgb
     elif not box and batch.sources * (2 * rfilter.border + 1) ** 2 * 16 <= FILM_TABLE_BYTES:
         den = _weight_sums(rfilter, (W, H), seed, batch, L, n_s)
-        part = _filter_partials(rfilter, (W, H), seed, batch, data, n_s, mode, channels=4 if den is None else 3)
-        chans[0] += _filter_sum(rfilter, (W, H), batch, part, L, den)
+        part, seen = _filter_partials(rfilter, (W, H), seed, batch, data, n_s, mode, channels=4 if den is None else 3)
+        chans[0] += _filter_sum(rfilter, (W, H), batch, part, L, den, seen)
     elif not box:
         chans[0] += _filter_direct(rfilter, (W, H), seed, batch, data, L, mode)
     if aovs:
@@ -581,7 +582,8 @@ def _filter_partials(rfilter, film_size, seed, batch, data, n_s, mode, channels=
     a offset ``dy · nb + dx``, with pixel ``q``'s record at ``4q``; a record depends only on its
     pixel's samples. ``channels``: 4, the record; 3, its RGB sums (the fourth float +0: a packet),
     where the weight sums are kept (:func:`_weight_sums`); 1, the weight sums ``Σ w`` alone (one
-    float a record, ``data`` unused)."""
+    float a record, ``data`` unused). Returns ``(tables, seen)``: ``seen`` (UInt32 a pixel: 1
+    where a sample is nonzero) where pixels of zero samples skipped the loop, else None."""
     FT, U32 = mi.Float32, mi.UInt32
     nb = 2 * rfilter.border + 1
     nq = batch.sources
@@ -626,7 +628,7 @@ def _filter_partials(rfilter, film_size, seed, batch, data, n_s, mode, channels=
                 out += _add_terms(acc[at:at + C], wy[dy], wx[dx], v, weight=C != 3)
         return (i + 1, *out)
     z = dr.zeros(FT, nq)
-    cond = lambda i, *_: i < n_s  # noqa: E731
+    cond, nz = (lambda i, *_: i < n_s), None  # noqa: E731
     if C == 3 and mode != "evaluated" and not dr.grad_enabled(total):
         # a pixel whose samples are all zero (RGB: black background, hard shadow) gives
         # records of +0 (+0 plus w·0 = ±0 is +0), which the tables' zeros are: its lane
@@ -643,39 +645,54 @@ def _filter_partials(rfilter, film_size, seed, batch, data, n_s, mode, channels=
         parts = [dr.empty(FT, nq) for _ in range(nb * nb)]
         for part, a in zip(parts, acc):
             dr.scatter(part, a, q)
-        return parts
+        return parts, None
     parts = [dr.empty(FT, nq * 4) for _ in range(nb * nb)]
     for kk, part in enumerate(parts):
         dr.scatter(part, ArrayX(*acc[C * kk:C * kk + C], *[FT(0.0)] * (4 - C)), q)
-    return parts
+    seen = None
+    if nz is not None:   # which pixels have a nonzero sample (1/0), written by the same kernel
+        seen = dr.empty(U32, nq)
+        dr.scatter(seen, dr.select(nz, U32(1), U32(0)), q)
+    return parts, seen
 
 
 def _neighbours(rfilter, film_size, L):
     """``(dy, dx, on, q)`` for each neighbour of the lanes' pixels in ascending row, then
     column: ``on``, whether pixel ``(x + dx - b, y + dy - b)`` lies on the film, and ``q`` its
     place in the window's sample window (row-major; 0 where not ``on``)."""
-    I32, U32 = mi.Int32, mi.UInt32
-    W, H = film_size
+    U32 = mi.UInt32
+    W = film_size[0]
     b = rfilter.border
-    nb = 2 * b + 1
-    x, y = I32(L.lx + L.x0), I32(L.ly + L.y0)
-    for dy in range(nb):
-        yy = y + (dy - b)
-        on_y = (yy >= 0) & (yy < op_i(H))
-        row = (U32(yy) - L.sy0) * L.sw - L.sx0
-        for dx in range(nb):
+    for dy, x, on_y, row in _rows(rfilter, film_size, L):
+        for dx in range(2 * b + 1):
             xx = x + (dx - b)
             on = on_y & (xx >= 0) & (xx < op_i(W))
             yield dy, dx, on, dr.select(on, row + U32(xx), 0)
 
 
-def _filter_sum(rfilter, film_size, batch, part, L, den=None):
+def _rows(rfilter, film_size, L):
+    """``(dy, x, on_y, row)`` for each neighbour row of the lanes' pixels (:func:`_neighbours`):
+    the pixel's column ``x`` (Int32), whether row ``y + dy - b`` lies on the film and the place
+    of its column 0 in the window's sample window (``row + x`` is column ``x``'s)."""
+    I32, U32 = mi.Int32, mi.UInt32
+    b = rfilter.border
+    x, y = I32(L.lx + L.x0), I32(L.ly + L.y0)
+    for dy in range(2 * b + 1):
+        yy = y + (dy - b)
+        yield dy, x, (yy >= 0) & (yy < op_i(film_size[1])), (U32(yy) - L.sy0) * L.sw - L.sx0
+
+
+def _filter_sum(rfilter, film_size, batch, part, L, den=None, seen=None):
     """Pass 2 (a lane: one output pixel ``p``): ``Σ_dy Σ_dx`` of the record ``(dy, dx)`` of pixel
     ``p + (dy - b, dx - b)`` on the film (:func:`_filter_partials`) in ascending ``dy``, then
     ``dx``, as :meth:`links1.sensor.filters.FilterGather.result` sums them; RGB over the weight
     sum (``den``, :func:`_weight_sums`, where it is kept: the records' RGB sums alone). Off the
     film a record is zeros (a masked read): a sum plus +0 is the sum (never -0: it starts at
-    +0). ``part`` of one float a record (the weight sums alone): that sum."""
+    +0). ``part`` of one float a record (the weight sums alone): that sum. With ``seen``
+    (:func:`_filter_partials`), a pixel none of whose neighbours has a nonzero sample (their
+    records are +0: its RGB sums +0) reads no record: a prefix sum of ``seen`` counts each
+    neighbour row's nonzero pixels with two reads, and the records' reads run in a loop of one
+    step that such lanes skip (a packet of them at once)."""
     FT = mi.Float32
     ArrayX = getattr(sys.modules[FT.__module__], "ArrayXf")
     nb = 2 * rfilter.border + 1
@@ -683,11 +700,28 @@ def _filter_sum(rfilter, film_size, batch, part, L, den=None):
     one = dr.width(part[0]) == batch.sources
     C = 1 if one else 3 if den is not None else 4
     acc = [dr.zeros(FT, L.n)] * C
-    for dy, dx, on, q in _neighbours(rfilter, film_size, L):
-        at = dr.select(on, q0 + q, 0)
-        rec = [dr.gather(FT, part[dy * nb + dx], at, on)] if one else \
-            dr.gather(ArrayX, part[dy * nb + dx], at, on, shape=(4, L.n))
-        acc = [a + rec[c] for c, a in enumerate(acc)]
+
+    def add(*acc):
+        for dy, dx, on, q in _neighbours(rfilter, film_size, L):
+            at = dr.select(on, q0 + q, 0)
+            rec = [dr.gather(FT, part[dy * nb + dx], at, on)] if one else \
+                dr.gather(ArrayX, part[dy * nb + dx], at, on, shape=(4, L.n))
+            acc = [a + rec[c] for c, a in enumerate(acc)]
+        return acc
+    if seen is None:
+        acc = add(*acc)
+    else:
+        U32, I32 = mi.UInt32, mi.Int32
+        total, b = dr.cumsum(seen), rfilter.border
+        near = dr.zeros(mi.Bool, L.n)
+        for _, x, on_y, row in _rows(rfilter, film_size, L):
+            # the row's neighbours on the film: columns first .. last of the sample window
+            first = q0 + row + U32(dr.maximum(x - b, 0))
+            last = q0 + row + U32(dr.minimum(x + b, op_i(film_size[0]) - 1))
+            before = dr.gather(U32, total, first - 1, on_y & (first > 0))
+            near |= on_y & (dr.gather(U32, total, last, on_y) != before)
+        _, *acc = dr.while_loop((dr.zeros(U32, L.n), *acc), lambda j, *_: (j < 1) & near,
+                                lambda j, *a: (j + 1, *add(*a)))
     if one:
         return acc[0]
     return _normalised(acc if den is None else [*acc, den])
@@ -705,7 +739,7 @@ def _weight_sums(rfilter, film_size, seed, batch, L, n_s):
         return None
 
     def make():
-        part = _filter_partials(rfilter, film_size, seed, batch, None, n_s, None, channels=1)
+        part, _ = _filter_partials(rfilter, film_size, seed, batch, None, n_s, None, channels=1)
         return (_filter_sum(rfilter, film_size, batch, part, L),)
     return batch.kept(("den", rfilter, tuple(film_size), int(seed)), make)[0]
 
