@@ -238,6 +238,35 @@ def test_compact_sample_weights_are_the_full_records_weights(variant, name, para
         assert np.count_nonzero(want[[0, nb - 1, nb, 2 * nb - 1]]) > n   # the outermost weights matter
 
 
+def test_zero_pixels_skipped_or_not_give_the_same_bits(variant, tmp_path, monkeypatch):
+    """The filter's passes skip the sample-window pixels whose samples are all zero (their
+    records are +0) where the batch's last frame had at least film.SKIP_ZEROS of them (the
+    test scene: about a third), else note them in pass 1's loop: frames either way, and with
+    AOVs, equal the frame of the kept-sums-free film (KEEP_TABLE_BYTES = 0: four channels, no
+    skip) bit for bit."""
+    import mitsuba as mi
+    from links1_mitsuba import film
+    scene = load(tmp_path, "gaussian")
+    integ = scene.integrator()
+    wins = [(0, 0, W, H), (3, 2, 11, 7)]
+
+    def frames():
+        return [np.asarray(a) for a in integ.render_windows_device(scene, wins, spp=9, seed=4, aovs=AOVS,
+                                                                      dtype=mi.Float64)]
+    skip = frames()
+    (batch,) = integ.engine.batches.values()
+    assert batch.skips_zeros()                        # a third of the pixels: skipped
+    monkeypatch.setattr(film, "SKIP_ZEROS", 2.0)      # never: the next frames note them instead
+    noted = [frames(), frames()]
+    assert not batch.skips_zeros() and batch.zero_probe is not None
+    monkeypatch.setattr(film, "KEEP_TABLE_BYTES", 0)
+    integ.engine.batches = {}
+    plain = frames()
+    for got in (skip, *noted):
+        for g, r in zip(got, plain):
+            assert np.array_equal(g, r)
+
+
 def test_split_launches_one_kernel_filter_and_device_counters(variant, tmp_path, monkeypatch):
     """Launches split at LAUNCH_LANES give the same bits as one launch, the filter in one kernel
     (windows over FILM_TABLE_BYTES) the same as in two passes, and the ray
