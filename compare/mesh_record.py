@@ -12,7 +12,8 @@ recorded again at each switch, outside the timing), ``repeats`` rounds after one
 each: wall time and process CPU time (every thread) of ``mi.render`` (a ``dr.eval`` of its
 output), medians, and per way the median of its ratios to the first way's frame of the same
 round. Every frame must be the first way's bits (checked). Writes
-``compare/results/mesh_record.{json,md}``.
+``compare/results/<--out>.{json,md}`` (``mesh_record``; the ways' comparison of the dispatch:
+``mesh_record_dispatch``).
 """
 from __future__ import annotations
 
@@ -87,6 +88,7 @@ def main(argv=None) -> int:
     ap.add_argument("--ways", nargs="+", default=["if", "mitsuba"], choices=WAYS)
     ap.add_argument("--filter", default="box")
     ap.add_argument("--variant", default="llvm_ad_rgb")
+    ap.add_argument("--out", default="mesh_record", help="name of the result files in compare/results")
     a = ap.parse_args(argv)
     info, cmd = machine_info(), command_line()
     rows = []
@@ -111,7 +113,7 @@ def main(argv=None) -> int:
         for w, v in r["ways"].items():
             md.append(f"| `{r['id']}` | {r['spp']} | {' '.join(names[k] for k in r['kinds'])} | {w} | {v['cpu_ms']:.1f} | "
                       f"{v['wall_ms']:.1f} | **{v['cpu_ratio']:.3f}** ({v['wall_ratio']:.3f}) | {v['same']} |")
-    paths = write_results("mesh_record", dict(machine=info, command=cmd, cases=rows), "\n".join(md) + "\n")
+    paths = write_results(a.out, dict(machine=info, command=cmd, cases=rows), "\n".join(md) + "\n")
     print("wrote " + ", ".join(str(p) for p in paths))
     return 0 if all(v["same"] for r in rows for v in r["ways"].values()) else 1
 
