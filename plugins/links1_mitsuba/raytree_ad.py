@@ -11,8 +11,13 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
+from . import intersect
 from .raytree import child_keys
 from .util import INF
+
+#: the derivative pass traces the samples whose camera ray hits something alone where at most
+#: this fraction of them does (:func:`trace_tree_ad`)
+SEEING_MAX = 0.75
 
 
 def cat(a, b, na, nb):
@@ -36,17 +41,69 @@ def trace_tree_ad(tracer, tables, scene, o, d, tmin, tmax, key, sample):
     and ``min_weight`` rule) traced level by level without local memory, so that Dr.Jit
     can differentiate them: the children of a level (mirror rays first, then
     refraction rays) are compacted into the next level's rays, and each level's
-    ``weight · I_o`` is added to its sample (eq. 3.16). Returns the samples' RGB, evaluated."""
+    ``weight · I_o`` is added to its sample (eq. 3.16). Returns the samples' RGB, evaluated.
+
+    Where no background shines (no environment: a camera ray that escapes sees 0), no ray
+    spawns children and at most :data:`SEEING_MAX` of the camera rays hit something, the trees
+    of those alone are traced (their nearest hits found first, on primal values) and put back
+    in their lanes, the others 0: an escaping camera ray's sample is 0 and carries no
+    derivative (its visibility is held; the derivative of the outlines it misses is the
+    visibility term's), and the AD kernels and their graph cover the samples that see
+    something."""
+    spawn = tracer.config.max_depth > 1 and tables.any_specular
+    # (not where children may be spawned: the reverse-mode scatter-adds into a level's arrays,
+    # then as many lanes as camera rays hit, hold that count in their code: new kernels per frame)
+    plain = tables.env is not None or spawn
+    seen = None if plain else _seeing(tables, scene, o, d, tmin, tmax, key, sample)
+    if seen is not None:
+        seeing = seen[0]
+        o, d, tmin, tmax, key = (dr.gather(type(v), v, seeing) for v in (o, d, tmin, tmax, key))
+        sample = (dr.gather(type(sample[0]), sample[0], seeing), dr.gather(type(sample[1]), sample[1], seeing),
+                  sample[2])
+    return _trace(tracer, tables, scene, o, d, tmin, tmax, key, sample, seen)
+
+
+def _seeing(tables, scene, o, d, tmin, tmax, key, sample):
+    """``(lanes, hits)``: the lanes (``UInt32``) whose camera ray hits something and the mask
+    of those, or None (every lane traced) where more than :data:`SEEING_MAX` of them do or
+    none does. The rays, their keys and samples are evaluated with the mask, in one kernel (a
+    gather evaluates its source alone: a kernel per component otherwise)."""
     n = dr.width(o)
+    with dr.suspend_grad():
+        _, slot, _, _ = intersect.nearest(tables, scene, dr.detach(o), dr.detach(d), tmin, tmax,
+                                          dr.full(mi.Bool, True, n), dr.zeros(mi.UInt32, n), ad=True)
+        hits = slot >= 0
+        dr.eval(o, d, tmin, tmax, key, sample[0], sample[1], hits)
+        seeing = dr.compress(hits)
+    m = dr.width(seeing)
+    return (seeing, hits) if 0 < m <= SEEING_MAX * n else None
+
+
+def _trace(tracer, tables, scene, o, d, tmin, tmax, key, sample, seen=None):
+    """:func:`trace_tree_ad` of the rays ``o, d``: every sample's, or with ``seen`` (``(lanes,
+    hits)`` of :func:`_seeing`) those of the samples ``lanes``, the others' RGB 0. Every
+    array the trees are summed into has a lane per sample (their scatter-adds' code does not
+    change with the number of rays that hit)."""
     spawn = tracer.config.max_depth > 1 and tables.any_specular
     later = []    # a level's shadow tests, evaluated with what its children take (below)
     res = tracer.level(tables, scene, o, d, tmin, tmax, key, 1, spawn, symbolic=False, ad=True,
                        sample=sample, later=later)
-    total = mi.Color3f(res.L)
+    if seen is None:
+        n = dr.width(o)
+        total = mi.Color3f(res.L)
+        own = dr.arange(mi.UInt32, n)
+    else:
+        # the level's RGB back in its samples' lanes by a gather (a lane's place among the
+        # seeing ones: the hits' exclusive prefix sum; each gathered once, so its reverse is a
+        # plain scatter, ReduceMode.Permute), differentiable both ways (a scatter's tangent in
+        # forward mode was read dirty)
+        own, hits = seen
+        n = dr.width(hits)
+        at = dr.prefix_sum(mi.UInt32(hits))
+        total = dr.select(hits, dr.gather(mi.Color3f, res.L, at, hits, mode=dr.ReduceMode.Permute), 0.0)
     if not spawn:
         dr.eval(total, *later)
         return total
-    own = dr.arange(mi.UInt32, n)
     cr, ct, w_r, w_t = tracer.children(res, res.hit, mi.Color3f(1.0), mi.UInt32(1))
     depth = 2
     while True:

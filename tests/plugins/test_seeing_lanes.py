@@ -1,0 +1,99 @@
+"""The derivative pass over the samples that see something (``raytree_ad.trace_tree_ad``).
+
+Where no environment shines and no ray spawns children, the pass traces the camera rays that
+hit something alone (``raytree_ad._seeing``) and puts their trees back in their lanes, the
+others 0. Its gradients must be those of the pass over every sample (``SEEING_MAX`` below 0:
+the trees of all lanes, as the primal traces them; checked against finite differences and the
+float64 core by the other gradient tests), in reverse and forward mode, up to float32 rounding
+of the sums' order (reverse-mode scatter-adds run in any order: 1e-5 relative), for geometry
+(a quadric's and a blob's), shading and light parameters at once.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tests.scenes import perspective, scene, whitted
+
+from .test_geometry_gradients import LIGHTS
+
+pytestmark = pytest.mark.mitsuba
+
+# a Phong quadric sphere and a blob before black (no floor: most camera rays escape)
+BODY = f"""
+  <shape type="links1_quadric" id="ball"><string name="kind" value="sphere"/>
+    <transform name="to_world"><scale value="0.8"/><translate x="-0.9" y="1.2" z="0.2"/></transform>
+    <bsdf type="links1_phong"><rgb name="diffuse" value="0.5, 0.4, 0.3"/><rgb name="specular" value="0.3"/>
+      <rgb name="reflectance" value="0"/><float name="exponent" value="12"/></bsdf></shape>
+  <shape type="links1_blob" id="blob">
+    <string name="centers" value="0.8 1.2 0 1 0.6,  1.2 1.6 0.2 0.8 0.5"/>
+    <float name="threshold" value="0.5"/>
+    <bsdf type="links1_phong"><rgb name="diffuse" value="0.3, 0.5, 0.4"/><rgb name="specular" value="0.2"/>
+      <rgb name="reflectance" value="0"/></bsdf></shape>
+  {LIGHTS}"""
+
+KEYS = ["links1_whitted.ball.to_world", "links1_whitted.blob.centers", "links1_whitted.ball.bsdf.diffuse.value",
+        "lp.position", "mp.position"]
+
+
+def _load():
+    import links1_mitsuba as lm
+    camera = perspective("0, 3, 6", "0, 1.2, 0", fov=40, width=24, height=18, spp=2)
+    return lm.load_string(scene(whitted(1) + camera, BODY))
+
+
+def _reverse(sc, weights):
+    import drjit as dr
+    import mitsuba as mi
+    params = mi.traverse(sc)
+    for k in KEYS:
+        dr.enable_grad(params[k])
+    img = mi.render(sc, params, seed=3)
+    dr.backward(dr.sum(img * mi.TensorXf(weights), axis=None))
+    out = [np.array(_flat(dr.grad(params[k])), dtype=np.float64) for k in KEYS]
+    for k in KEYS:
+        dr.disable_grad(params[k])
+    return out
+
+
+def _flat(v):
+    """A Dr.Jit value (a transform: its matrix) as a flat numpy array."""
+    return np.ravel(np.array(v.matrix if hasattr(v, "matrix") else v))
+
+
+def _forward(sc, key):
+    import drjit as dr
+    import mitsuba as mi
+    params = mi.traverse(sc)
+    v = params[key]
+    dr.enable_grad(v)
+    dr.set_grad(v, type(v)(*[1.0] * dr.size_v(v)) if dr.size_v(v) > 1 else 1.0)
+    params.update()
+    img = mi.render(sc, params, seed=3)
+    dr.forward_to(img)
+    g = np.array(dr.grad(img), dtype=np.float64)
+    dr.disable_grad(v)
+    return g
+
+
+@pytest.mark.slow
+def test_the_seeing_samples_alone_give_the_gradients_of_all(variant, monkeypatch):
+    from links1_mitsuba import raytree_ad
+    sc = _load()
+    weights = np.random.default_rng(11).uniform(0.0, 1.0, (18, 24, 3)).astype(np.float32)
+    traced = []
+    real = raytree_ad._seeing
+    monkeypatch.setattr(raytree_ad, "_seeing", lambda *a: traced.append(real(*a)) or traced[-1])
+    seeing_r = _reverse(sc, weights)
+    seeing_f = _forward(sc, "lp.position")
+    assert traced and all(t is not None for t in traced)           # the pass took the seeing lanes
+    lanes = [len(np.asarray(t[0])) for t in traced]
+    assert 0 < min(lanes) and max(lanes) < 0.5 * 18 * 24 * 2        # most camera rays escape here
+    monkeypatch.setattr(raytree_ad, "SEEING_MAX", -1.0)            # every lane traced
+    all_r = _reverse(sc, weights)
+    all_f = _forward(sc, "lp.position")
+    for k, a, b in zip(KEYS, seeing_r, all_r):
+        assert np.any(b != 0), k
+        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6 * np.abs(b).max(), err_msg=k)
+    assert np.any(all_f != 0)
+    np.testing.assert_allclose(seeing_f, all_f, rtol=1e-5, atol=1e-7)
