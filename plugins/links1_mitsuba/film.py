@@ -32,8 +32,8 @@ radius allows it: a sample's two outermost weights are never both nonzero):
    ascending ``dy``, then ``dx``, over the weight sum.
 
 The weight sums depend only on the samples' places: where the batch keeps the samples' weights,
-the two passes of the weights alone make them once (:func:`_weight_sums`) and a frame's records
-carry the RGB sums alone; a pixel whose samples are all zero (a black background, a hard
+the first frame's pass 2 keeps them (:func:`_keeps_weights`) and later frames' records carry the
+RGB sums alone; a pixel whose samples are all zero (a black background, a hard
 shadow) then has records of +0 and skips pass 1's loop over its samples, and an output pixel
 none of whose neighbours has a nonzero sample skips pass 2's reads (in a primal frame).
 
@@ -200,6 +200,18 @@ class Batch:
         dr.eval(*vals)
         self._kept[key[0]] = (key, vals)
         return vals
+
+    def peek(self, key):
+        """The values kept under ``key`` (:meth:`kept`, :meth:`keep_with_frame`), or None."""
+        hit = self._kept.get(key[0])
+        return hit[1] if hit is not None and hit[0] == key else None
+
+    def keep_with_frame(self, key, value):
+        """Keep ``value`` (a Dr.Jit array of this frame) under ``key``, evaluated with the frame's
+        own kernel (``dr.schedule``: no kernel of its own)."""
+        if self.keep:
+            dr.schedule(value)
+            self._kept[key[0]] = (key, value)
 
     def strips(self, P):
         """The lanes of a reconstruction kernel whose lane computes ``P`` consecutive pixels of
@@ -404,9 +416,14 @@ def reconstruct(rfilter, film_size, spp, seed, batch, data, aovs, dtype=None, mo
         for p, rgb in enumerate(_filter_strips(rfilter, (W, H), seed, batch, data, L, mode)):
             chans[p] += rgb
     elif not box and batch.sources * (2 * rfilter.border + 1) ** 2 * 16 <= FILM_TABLE_BYTES:
-        den = _weight_sums(rfilter, (W, H), seed, batch, L, n_s)
+        # the weight sums kept by an earlier frame of these windows, else this frame's, kept
+        key = ("den", rfilter, (W, H), int(seed))
+        den = batch.peek(key) if _keeps_weights(rfilter, batch) else None
         part, seen = _filter_partials(rfilter, (W, H), seed, batch, data, n_s, mode, channels=4 if den is None else 3)
-        chans[0] += _filter_sum(rfilter, (W, H), batch, part, L, den, seen)
+        rgb, sums = _filter_sum(rfilter, (W, H), batch, part, L, den, seen)
+        chans[0] += rgb
+        if den is None and _keeps_weights(rfilter, batch):
+            batch.keep_with_frame(key, sums)
     elif not box:
         chans[0] += _filter_direct(rfilter, (W, H), seed, batch, data, L, mode)
     if aovs:
@@ -577,8 +594,8 @@ def weight32(f, x):
 
 
 def _add_terms(acc, wy, wx, v, weight=True):
-    """``acc = (Σ w·r, Σ w·g, Σ w·b, Σ w)`` plus one sample's term ``w = wy · wx``; with ``v``
-    of fewer channels (none: ``(Σ w)``) those; ``weight=False``: without ``Σ w``."""
+    """``acc = (Σ w·r, Σ w·g, Σ w·b, Σ w)`` plus one sample's term ``w = wy · wx``;
+    ``weight=False``: ``acc`` without ``Σ w``."""
     wgt = wy * wx
     return [a + wgt * c for a, c in zip(acc, v)] + ([acc[len(v)] + wgt] if weight else [])
 
@@ -598,8 +615,7 @@ def _filter_partials(rfilter, film_size, seed, batch, data, n_s, mode, channels=
     from it, as :meth:`links1.sensor.filters.FilterGather.add` sums them. Returns ``nb²`` Float32 tables, one
     a offset ``dy · nb + dx``, with pixel ``q``'s record at ``4q``; a record depends only on its
     pixel's samples. ``channels``: 4, the record; 3, its RGB sums (the fourth float +0: a packet),
-    where the weight sums are kept (:func:`_weight_sums`); 1, the weight sums ``Σ w`` alone (one
-    float a record, ``data`` unused). Returns ``(tables, counts)``: where pixels of zero samples
+    where the weight sums are kept (:func:`reconstruct`). Returns ``(tables, counts)``: where pixels of zero samples
     skipped the loop, ``counts`` (UInt32, the pixels up to each one that have a nonzero sample:
     a prefix sum), else None."""
     FT, U32 = mi.Float32, mi.UInt32
@@ -612,7 +628,7 @@ def _filter_partials(rfilter, film_size, seed, batch, data, n_s, mode, channels=
     py = udiv(local, sw)
     pix = (py + dr.gather(U32, batch.sy0, kq)) * op_u(film_size[0]) + local - py * sw + dr.gather(U32, batch.sx0, kq)
     first = q * n_s
-    total = data["total"] if data is not None else None
+    total = data["total"]
     k, sd = _strata(batch.spp), op_u(seed)
     ArrayX = getattr(sys.modules[FT.__module__], "ArrayXf")
     pad = _pad(nb)
@@ -626,11 +642,8 @@ def _filter_partials(rfilter, film_size, seed, batch, data, n_s, mode, channels=
     C = channels
 
     def body(i, *acc):
-        if C == 1:
-            v = []
-        else:
-            v = dr.gather(type(total), total, first + i)
-            v = [v[0], v[1], v[2]]
+        v = dr.gather(type(total), total, first + i)
+        v = [v[0], v[1], v[2]]
         if compact:
             rec = dr.gather(ArrayX, weights, first + i, shape=(_compact_pad(nb), nq))
             wx, wy = _expand(rec, nb, _sides(base, i, k, half))
@@ -672,11 +685,6 @@ def _filter_partials(rfilter, film_size, seed, batch, data, n_s, mode, channels=
         _, *acc = _loop((dr.zeros(U32, nq), *acc), lambda i, *_: i < n_s, body, mode, batch.spp)
     # a table per offset (separate scatters into one array would each evaluate the ones
     # before: the loop once per record); adjacent lanes write adjacent records
-    if C == 1:
-        parts = [dr.empty(FT, nq) for _ in range(nb * nb)]
-        for part, a in zip(parts, acc):
-            dr.scatter(part, a, q)
-        return parts, None
     parts = [dr.empty(FT, nq * 4) for _ in range(nb * nb)]
     for kk, part in enumerate(parts):
         dr.scatter(part, ArrayX(*acc[C * kk:C * kk + C], *[FT(0.0)] * (4 - C)), q)
@@ -718,9 +726,9 @@ def _filter_sum(rfilter, film_size, batch, part, L, den=None, seen=None):
     """Pass 2 (a lane: one output pixel ``p``): ``Σ_dy Σ_dx`` of the record ``(dy, dx)`` of pixel
     ``p + (dy - b, dx - b)`` on the film (:func:`_filter_partials`) in ascending ``dy``, then
     ``dx``, as :meth:`links1.sensor.filters.FilterGather.result` sums them; RGB over the weight
-    sum (``den``, :func:`_weight_sums`, where it is kept: the records' RGB sums alone). Off the
-    film a record is zeros (a masked read): a sum plus +0 is the sum (never -0: it starts at
-    +0). ``part`` of one float a record (the weight sums alone): that sum. With ``seen``
+    sum (``den`` where the batch keeps it: the records' RGB sums alone). Off the film a record
+    is zeros (a masked read): a sum plus +0 is the sum (never -0: it starts at +0). Returns
+    ``(RGB, the weight sums)``. With ``seen``
     (:func:`_filter_partials`' counts), a pixel none of whose neighbours has a nonzero sample
     (their records are +0: its RGB sums +0) reads no record: two reads of the counts give each
     neighbour row's, and the records' reads run in a loop of one step that such lanes skip (a
@@ -729,15 +737,12 @@ def _filter_sum(rfilter, film_size, batch, part, L, den=None, seen=None):
     ArrayX = getattr(sys.modules[FT.__module__], "ArrayXf")
     nb = 2 * rfilter.border + 1
     q0 = dr.gather(mi.UInt32, batch.first_source, L.window)
-    one = dr.width(part[0]) == batch.sources
-    C = 1 if one else 3 if den is not None else 4
+    C = 3 if den is not None else 4
     acc = [dr.zeros(FT, L.n)] * C
 
     def add(*acc):
         for dy, dx, on, q in _neighbours(rfilter, film_size, L):
-            at = dr.select(on, q0 + q, 0)
-            rec = [dr.gather(FT, part[dy * nb + dx], at, on)] if one else \
-                dr.gather(ArrayX, part[dy * nb + dx], at, on, shape=(4, L.n))
+            rec = dr.gather(ArrayX, part[dy * nb + dx], dr.select(on, q0 + q, 0), on, shape=(4, L.n))
             acc = [a + rec[c] for c, a in enumerate(acc)]
         return acc
     if seen is None:
@@ -754,26 +759,16 @@ def _filter_sum(rfilter, film_size, batch, part, L, den=None, seen=None):
             near |= on_y & (dr.gather(U32, total, last, on_y) != before)
         _, *acc = dr.while_loop((dr.zeros(U32, L.n), *acc), lambda j, *_: (j < 1) & near,
                                 lambda j, *a: (j + 1, *add(*a)))
-    if one:
-        return acc[0]
-    return _normalised(acc if den is None else [*acc, den])
+    acc = acc if den is None else [*acc, den]
+    return _normalised(acc), acc[3]
 
 
-def _weight_sums(rfilter, film_size, seed, batch, L, n_s):
-    """The weight sum ``Σ w`` of each output pixel of ``batch`` (the lanes ``L``, a pixel a
-    lane): pass 1 and pass 2 of the weights alone (:func:`_filter_partials` with one channel,
-    :func:`_filter_sum`), the same operations in the same order as the records' fourth channel,
-    so the same bits. It depends only on the samples' places, not their values: made once and
-    kept with the batch where the batch keeps the samples' weights (a frame's records then carry
-    RGB alone: three sums a term instead of four); None elsewhere."""
-    nb = 2 * rfilter.border + 1
-    if not (batch.keep and batch.lanes * 2 * _pad(nb) * 4 <= KEEP_TABLE_BYTES):
-        return None
-
-    def make():
-        part, _ = _filter_partials(rfilter, film_size, seed, batch, None, n_s, None, channels=1)
-        return (_filter_sum(rfilter, film_size, batch, part, L),)
-    return batch.kept(("den", rfilter, tuple(film_size), int(seed)), make)[0]
+def _keeps_weights(rfilter, batch):
+    """Whether ``batch`` keeps the samples' weights (:func:`_sample_weights`) and so the pixels'
+    weight sums: they depend only on the samples' places, so a frame of these windows keeps its
+    pass 2's ``Σ w`` (the records' fourth channel) and later frames' records carry RGB alone
+    (three sums a term instead of four), the same bits."""
+    return batch.keep and batch.lanes * 2 * _pad(2 * rfilter.border + 1) * 4 <= KEEP_TABLE_BYTES
 
 
 def _filter_direct(rfilter, film_size, seed, batch, data, L, mode):

@@ -239,11 +239,11 @@ def test_compact_sample_weights_are_the_full_records_weights(variant, name, para
 
 
 def test_zero_pixels_skipped_or_not_give_the_same_bits(variant, tmp_path, monkeypatch):
-    """The filter's passes skip the sample-window pixels whose samples are all zero (their
+    """A batch's first frame sums the records' four channels and keeps its weight sums; later
+    frames sum RGB alone and skip the sample-window pixels whose samples are all zero (their
     records are +0) where the batch's last frame had at least film.SKIP_ZEROS of them (the
-    test scene: about a third), else note them in pass 1's loop: frames either way, and with
-    AOVs, equal the frame of the kept-sums-free film (KEEP_TABLE_BYTES = 0: four channels, no
-    skip) bit for bit."""
+    test scene: about a third), else note them in pass 1's loop: frames each way, with AOVs,
+    equal the frame of a film that keeps nothing (KEEP_TABLE_BYTES = 0) bit for bit."""
     import mitsuba as mi
     from links1_mitsuba import film
     scene = load(tmp_path, "gaussian")
@@ -253,16 +253,18 @@ def test_zero_pixels_skipped_or_not_give_the_same_bits(variant, tmp_path, monkey
     def frames():
         return [np.asarray(a) for a in integ.render_windows_device(scene, wins, spp=9, seed=4, aovs=AOVS,
                                                                       dtype=mi.Float64)]
-    skip = frames()
+    first = frames()
     (batch,) = integ.engine.batches.values()
-    assert batch.skips_zeros()                        # a third of the pixels: skipped
+    assert batch.zero_probe is None and batch.peek(("den", integ.prepare(scene).rfilter, (W, H), 4)) is not None
+    skip = frames()
+    assert batch.skips_zeros() and batch.zero_probe is not None      # a third of the pixels
     monkeypatch.setattr(film, "SKIP_ZEROS", 2.0)      # never: the next frames note them instead
     noted = [frames(), frames()]
     assert not batch.skips_zeros() and batch.zero_probe is not None
     monkeypatch.setattr(film, "KEEP_TABLE_BYTES", 0)
     integ.engine.batches = {}
     plain = frames()
-    for got in (skip, *noted):
+    for got in (first, skip, *noted):
         for g, r in zip(got, plain):
             assert np.array_equal(g, r)
 
