@@ -730,16 +730,21 @@ class Tracer:
         result = dr.while_loop((stk_f, stk_u, *[state[k] for k in names]), cond, body,
                                label="links1_whitted")
         v = dict(zip(names, result[2:]))
-        # materialise the loop's outputs in one kernel first: scatters into arrays of another
-        # size are scheduled as their own kernel, which would re-run the loop
-        dr.eval(v["L"], v["cost"], v["nsh"], v["nr"], v["nt"])          # kernel 2: the trees
-        # one child forest per sample (idx is unique: no races). The scatter targets are
-        # copies of level-1 arrays, whose width is the input's at every replay (a zeros(n)
-        # target would keep the recorded width; a scatter_add would force freeze to dry-run)
-        total = mi.Color3f(L1)
-        dr.scatter(total, g(L1) + v["L"], idx)
-        cost = mi.UInt32(cost1)
-        dr.scatter(cost, g(cost1) + v["cost"], idx)
+        # materialise the loop's outputs, and the sums with level 1's, in one kernel first:
+        # scatters into arrays of another size are scheduled as their own kernel, which would
+        # re-run the loop
+        L_sum, cost_sum = g(L1) + v["L"], g(cost1) + v["cost"]
+        dr.eval(L_sum, cost_sum, v["nsh"], v["nr"], v["nt"])          # kernel 2: the trees
+        # one child forest per sample (idx is unique: no races). The scatter targets are the
+        # level-1 arrays themselves, whose width is the input's at every replay (a zeros(n)
+        # target would keep the recorded width; a scatter_add would force freeze to dry-run),
+        # with no other reference left, so that the scatter writes them in place (a target
+        # still referenced, or read by a pending gather, is copied first: n lanes a channel)
+        total, cost = L1, cost1
+        del L1, cost1
+        res.L = res.cost = None
+        dr.scatter(total, L_sum, idx)
+        dr.scatter(cost, cost_sum, idx)
         dr.eval(total, cost)
         counters.update(nr=v["nr"], nt=v["nt"], nsh2=v["nsh"])
         return total, cost, res.t, res.slot, res.ns, counters
