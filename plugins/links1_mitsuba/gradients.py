@@ -47,7 +47,11 @@ propagated, and its graph freed before the next (forward mode renders one block:
 (``film.sample_window``), so its
 pixels are the full frame's and the loss ``Σ g_p I_p`` splits exactly by blocks; memory is
 bounded by one block's tree (~0.75 KiB a sample for scenes/fig11.xml at max_depth 5), not the
-frame's (docs/benchmarks.md, inverse rendering). A 256² frame at spp 1 is one block.
+frame's (docs/benchmarks.md, inverse rendering). A 256² frame at spp 1 is one block. Where
+the pass traces the samples that see something alone (``raytree_ad.trace_tree_ad``: no
+environment, no child ray) and the filter is the box, the blocks count the lanes on the tape
+(:func:`seeing_blocks`, the rows' hits found first): a frame most of whose camera rays escape
+is fewer blocks.
 
 :class:`Gradients` is one part of the ``Engine`` (engine.py), over its tables and launches;
 its methods name ``mi.Float``, ``mi.Ray3f``, ... when called, so the class serves every
@@ -63,7 +67,7 @@ import mitsuba as mi
 
 from links1.tracing.aovs import channel_names
 
-from . import boundary, geometry
+from . import boundary, geometry, raytree_ad
 from .config import Config
 from .launch import Launches
 from .lights import params_of
@@ -87,6 +91,8 @@ LINKS1_SPOT_FIELDS = (("origin", "origin"), ("intensity", "intensity"))
 #: pass puts on Dr.Jit's AD tape at once (see the module's docstring): 256² at spp 2 is one
 #: block; 1024² at spp 1 eight (~0.7 KiB a lane at max_depth 5: ~90 MiB a block).
 AD_BLOCK_LANES = 1 << 17
+#: most samples a block of :func:`seeing_blocks` has, in :data:`AD_BLOCK_LANES`
+SEEING_CAP = 4
 
 
 def row_blocks(win, film_size, border, spp, budget=None):
@@ -99,6 +105,28 @@ def row_blocks(win, film_size, border, spp, budget=None):
     cols = min(W, x0 + w + border) - max(0, x0 - border)
     rows = max(1, budget // max(1, cols * int(spp)) - 2 * border)
     return [(x0, y, w, min(rows, y0 + h - y)) for y in range(y0, y0 + h, rows)]
+
+
+def seeing_blocks(win, hits, spp, budget=None):
+    """The window ``win = (x0, y0, w, h)`` (a box filter's: no border) cut into windows of whole
+    rows, each with at most ``budget`` (default :data:`AD_BLOCK_LANES`) lanes on the AD tape,
+    as a derivative pass traces them (``raytree_ad``: the samples that see something alone
+    where few do; ``hits``: per row, how many of its samples' camera rays hit something), and
+    at most :data:`SEEING_CAP` times ``budget`` samples (their rays and film values), at least
+    one row each."""
+    budget = AD_BLOCK_LANES if budget is None else int(budget)
+    x0, y0, w, h = win
+    row = w * int(spp)
+    blocks, start, lanes, seen = [], 0, 0, 0
+    for r in range(h):
+        lanes2, seen2 = lanes + row, seen + int(hits[r])
+        taped = seen2 if raytree_ad.seeing_alone(lanes2, seen2) else lanes2
+        if r > start and (taped > budget or lanes2 > SEEING_CAP * budget):
+            blocks.append((x0, y0 + start, w, r - start))
+            start, lanes2, seen2 = r, row, int(hits[r])
+        lanes, seen = lanes2, seen2
+    blocks.append((x0, y0 + start, w, h - start))
+    return blocks
 
 
 def attached(*vals):
@@ -215,10 +243,14 @@ class Gradients:
         tables it starts from; with more than one block, Dr.Jit's allocation cache is flushed
         first (the primal frame's buffers wait there, in sizes the blocks do not reuse: the peak
         would be the primal's plus a block's)."""
-        sensor_, win, spp_, _ = render_request(scene, sensor, seed, spp, self.config.seed)
+        sensor_, win, spp_, seed_ = render_request(scene, sensor, seed, spp, self.config.seed)
         with dr.suspend_grad():
             primal = self.tables.prepare(scene, sensor_, tuning)
-        blocks = row_blocks(win, primal.film_size, primal.rfilter.border, spp_)
+            blocks = row_blocks(win, primal.film_size, primal.rfilter.border, spp_)
+            if len(blocks) > 1 and primal.rfilter.border == 0 and raytree_ad.traces_seeing(self.config, primal):
+                # blocks counted in the lanes the pass puts on the AD tape (few where few
+                # camera rays hit something): the rows' hits found first
+                blocks = seeing_blocks(win, self.launches.seeing_rows(primal, scene, win, spp_, seed_), spp_)
         if len(blocks) > 1:
             dr.flush_malloc_cache()
         return blocks, primal

@@ -27,7 +27,7 @@ from .camera import camera_rays, rays_at
 from .config import Config
 from .film import Batch, cached_batch, concat, reconstruct, sample_ids, sample_window, widen
 from .raytree import Tracer
-from .raytree_ad import trace_tree_ad
+from .raytree_ad import hits, trace_tree_ad
 from .util import Hidden, aligned
 
 #: Most samples (lanes) per launch of the window function; more are split into launches.
@@ -518,6 +518,18 @@ class Launches:
         if want:
             part.update(t0=widen(t0, n), s0=widen(s0, n), n0=widen(n0, n))
         return part, self._launch_counts(n, counters)
+
+    def seeing_rows(self, tables, scene, window, spp, seed):
+        """Per row of the film window ``window = (x0, y0, w, h)`` (its own samples: a box
+        filter's), how many of its samples' camera rays hit something (numpy ``h``): what a
+        derivative pass traces of it (``raytree_ad.trace_tree_ad``)."""
+        W, _ = tables.film_size
+        _, _, w, _ = window
+        sid = sample_ids(W, int(spp), Batch([window], [window], int(spp)))
+        o, d, tmin, tmax, _, _ = camera_rays(tables, sid, (dr.opaque(mi.UInt32, spp), dr.opaque(mi.UInt32, strata(spp))),
+                                             (dr.opaque(mi.UInt32, seed & 0xFFFFFFFF),
+                                              dr.opaque(mi.UInt32, key_seed(seed))))
+        return dr.block_sum(mi.UInt32(hits(tables, scene, o, d, tmin, tmax)), w * int(spp)).numpy()
 
     def window_samples(self, tables, scene, tracer: Tracer, window=None, spp=1, seed=None, aovs=None):
         """The samples a window's pixels are made of, as numpy (for checks and debugging):

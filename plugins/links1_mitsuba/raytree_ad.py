@@ -50,11 +50,7 @@ def trace_tree_ad(tracer, tables, scene, o, d, tmin, tmax, key, sample):
     derivative (its visibility is held; the derivative of the outlines it misses is the
     visibility term's), and the AD kernels and their graph cover the samples that see
     something."""
-    spawn = tracer.config.max_depth > 1 and tables.any_specular
-    # (not where children may be spawned: the reverse-mode scatter-adds into a level's arrays,
-    # then as many lanes as camera rays hit, hold that count in their code: new kernels per frame)
-    plain = tables.env is not None or spawn
-    seen = None if plain else _seeing(tables, scene, o, d, tmin, tmax, key, sample)
+    seen = _seeing(tables, scene, o, d, tmin, tmax, key, sample) if traces_seeing(tracer.config, tables) else None
     if seen is not None:
         seeing = seen[0]
         o, d, tmin, tmax, key = (dr.gather(type(v), v, seeing) for v in (o, d, tmin, tmax, key))
@@ -63,20 +59,41 @@ def trace_tree_ad(tracer, tables, scene, o, d, tmin, tmax, key, sample):
     return _trace(tracer, tables, scene, o, d, tmin, tmax, key, sample, seen)
 
 
+def traces_seeing(config, tables):
+    """Whether :func:`trace_tree_ad` may trace the seeing samples alone: no environment and no
+    child ray (where children may be spawned, the reverse-mode scatter-adds into a level's
+    arrays, then as many lanes as camera rays hit, hold that count in their code: new kernels
+    every frame)."""
+    return tables.env is None and not (config.max_depth > 1 and tables.any_specular)
+
+
+def seeing_alone(lanes, seeing):
+    """Whether :func:`trace_tree_ad` traces the ``seeing`` of ``lanes`` camera rays alone (where
+    :func:`traces_seeing`): some, and at most :data:`SEEING_MAX` of them, hit something."""
+    return 0 < seeing <= SEEING_MAX * lanes
+
+
+def hits(tables, scene, o, d, tmin, tmax):
+    """Where the rays ``o + t d`` (``tmin`` to ``tmax``) hit something (primal values)."""
+    n = dr.width(o)
+    with dr.suspend_grad():
+        _, slot, _, _ = intersect.nearest(tables, scene, dr.detach(o), dr.detach(d), tmin, tmax,
+                                          dr.full(mi.Bool, True, n), dr.zeros(mi.UInt32, n), ad=True)
+    return slot >= 0
+
+
 def _seeing(tables, scene, o, d, tmin, tmax, key, sample):
     """``(lanes, hits)``: the lanes (``UInt32``) whose camera ray hits something and the mask
     of those, or None (every lane traced) where more than :data:`SEEING_MAX` of them do or
     none does. The rays, their keys and samples are evaluated with the mask, in one kernel (a
     gather evaluates its source alone: a kernel per component otherwise)."""
     n = dr.width(o)
+    hit = hits(tables, scene, o, d, tmin, tmax)
     with dr.suspend_grad():
-        _, slot, _, _ = intersect.nearest(tables, scene, dr.detach(o), dr.detach(d), tmin, tmax,
-                                          dr.full(mi.Bool, True, n), dr.zeros(mi.UInt32, n), ad=True)
-        hits = slot >= 0
-        dr.eval(o, d, tmin, tmax, key, sample[0], sample[1], hits)
-        seeing = dr.compress(hits)
+        dr.eval(o, d, tmin, tmax, key, sample[0], sample[1], hit)
+        seeing = dr.compress(hit)
     m = dr.width(seeing)
-    return (seeing, hits) if 0 < m <= SEEING_MAX * n else None
+    return (seeing, hit) if seeing_alone(n, m) else None
 
 
 def _trace(tracer, tables, scene, o, d, tmin, tmax, key, sample, seen=None):

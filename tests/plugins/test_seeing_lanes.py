@@ -97,3 +97,24 @@ def test_the_seeing_samples_alone_give_the_gradients_of_all(variant, monkeypatch
         np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6 * np.abs(b).max(), err_msg=k)
     assert np.any(all_f != 0)
     np.testing.assert_allclose(seeing_f, all_f, rtol=1e-5, atol=1e-7)
+
+
+def test_seeing_blocks_cover_the_window_once_within_the_budget():
+    """Blocks counted in the lanes the pass puts on the AD tape: the seeing samples where few
+    of a block's camera rays hit something, else all of them; each block's lanes at most the
+    budget (or one row), its samples at most SEEING_CAP budgets, the rows each once in order."""
+    from links1_mitsuba import raytree_ad
+    from links1_mitsuba.gradients import SEEING_CAP, seeing_blocks
+    rng = np.random.default_rng(3)
+    for w, h, spp, budget in ((64, 48, 4, 3000), (32, 100, 1, 500), (16, 16, 2, 10)):
+        hits = rng.integers(0, w * spp + 1, h) * (rng.uniform(size=h) < 0.5)
+        blocks = seeing_blocks((5, 7, w, h), hits, spp, budget)
+        assert [b[1] for b in blocks] == list(np.cumsum([7] + [b[3] for b in blocks[:-1]]))
+        assert sum(b[3] for b in blocks) == h and all(b[0] == 5 and b[2] == w and b[3] >= 1 for b in blocks)
+        for x0, y0, _, bh in blocks:
+            lanes, seen = bh * w * spp, int(hits[y0 - 7:y0 - 7 + bh].sum())
+            taped = seen if raytree_ad.seeing_alone(lanes, seen) else lanes
+            assert bh == 1 or (taped <= budget and lanes <= SEEING_CAP * budget)
+    # few hits: one block of more samples than the budget; all hit: blocks of the budget's lanes
+    assert len(seeing_blocks((0, 0, 256, 256), np.full(256, 100), 4)) == 1
+    assert len(seeing_blocks((0, 0, 256, 256), np.full(256, 1024), 4)) == 2
