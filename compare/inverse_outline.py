@@ -21,9 +21,11 @@ iteration at ``seed`` 0. The times: ``--rounds`` interleaved rounds of an iterat
 primal frame at ``--big`` (``compare.inverse.timing_only``), medians. With ``--stages``,
 where an iteration at ``--big`` goes (:func:`stages`); with ``--ab``, what the recordings buy
 (:func:`timing_ab`: the frozen launches kept over a geometry update or recorded again at each,
-the term's stages frozen or traced); with ``--where``,
+the term's stages frozen or traced); with ``--guided``, a blob's camera crossings searched
+by its margin's secant against bisection (:func:`timing_guided`); with ``--where``,
 the iteration part by part (:func:`where`); with ``--host``, Python's share of it (:func:`host_split`). Writes ``compare/results/inverse_outline.{json,md}``,
 or with ``--no-fit`` (the times alone) ``compare/results/inverse_outline_timing_<big>.{json,md}``
+(``inverse_outline_guided_<big>`` with ``--guided``)
 (``..._threads<N>`` with ``--threads N``: Dr.Jit's thread pool at N threads for the whole run,
 the primal frames too).
 """
@@ -198,6 +200,57 @@ def timing_ab(mi, dr, name, cls, variables, lrs, width, n, log):
         log(f"  {name} at {width}², {way}: iteration {it_w:.1f} ms (CPU {it_c:.1f}), primal "
             f"{fr_w:.1f} ms (CPU {fr_c:.1f}), ratio {it_w / fr_w:.2f} (CPU {it_c / fr_c:.2f})")
     return dict(case=name, width=width, rounds=n, ways=out)
+
+
+def timing_guided(mi, dr, name, cls, variables, lrs, width, n, log):
+    """A blob's camera crossings searched by its margin's secant or by bisection
+    (``boundary.GUIDED``, docs/method.md §6): ``n`` rounds (after 3) alternating the two, each
+    an iteration timed whole and its bisection stage (``_bisected`` or ``_bisected_plain``,
+    synced before and after). Wall and process CPU times, medians."""
+    from links1_mitsuba import boundary, launch
+    frozen_stage, guided = launch.Launches.frozen_stage, boundary.GUIDED
+    acc = [0.0, 0.0]
+
+    def timed_stage(self, tables_, scene, tracer, fn, *args):
+        if fn not in (boundary._bisected, boundary._bisected_plain):
+            return frozen_stage(self, tables_, scene, tracer, fn, *args)
+        dr.eval()
+        dr.sync_thread()
+        t0, c0 = time.perf_counter(), time.process_time()
+        out = frozen_stage(self, tables_, scene, tracer, fn, *args)
+        dr.eval(out)
+        dr.sync_thread()
+        acc[0] += time.perf_counter() - t0
+        acc[1] += time.process_time() - c0
+        return out
+    iteration, _ = _start(mi, dr, name, cls, variables, lrs, width)
+    got = {"bisection": [], "guided": []}
+    try:
+        launch.Launches.frozen_stage = timed_stage
+        for r in range(n + 3):
+            for way in (got if r % 2 else reversed(list(got))):
+                boundary.GUIDED = way == "guided"
+                iteration()
+                acc[:] = [0.0, 0.0]
+                t0, c0 = time.perf_counter(), time.process_time()
+                iteration()
+                if r >= 3:
+                    got[way].append([time.perf_counter() - t0, time.process_time() - c0, *acc])
+    finally:
+        launch.Launches.frozen_stage, boundary.GUIDED = frozen_stage, guided
+    out = {}
+    for way, rows in got.items():
+        it_w, it_c, st_w, st_c = np.median(np.array(rows) * 1e3, axis=0)
+        out[way] = dict(iteration_ms=it_w, iteration_cpu_ms=it_c, stage_ms=st_w, stage_cpu_ms=st_c)
+        log(f"  {name} at {width}², {way}: iteration {it_w:.1f} ms (CPU {it_c:.1f}), its bisection stage "
+            f"{st_w:.1f} ms (CPU {st_c:.1f})")
+    return dict(case=name, width=width, rounds=n, ways=out)
+
+
+def guided_markdown(rows):
+    return md_table(["case", "width", "search", "iteration ms (CPU)", "bisection stage ms (CPU)"],
+                    [[r["case"], f"{r['width']}²", way, f"{w['iteration_ms']:.1f} ({w['iteration_cpu_ms']:.1f})",
+                      f"{w['stage_ms']:.1f} ({w['stage_cpu_ms']:.1f})"] for r in rows for way, w in r["ways"].items()])
 
 
 #: the parts of an iteration :func:`where` times (module.object, attribute, label); a part
@@ -398,6 +451,10 @@ def _extra_markdown(results):
         out += ("\nThe recordings' worth (--ab: interleaved rounds, medians, wall and process CPU; kept: as the "
                 "plugin runs; recorded: the frozen launches recorded again at every update; stages traced: the "
                 "term's stages of queries traced every frame):\n\n" + ab_markdown([r["ab"] for r in results if "ab" in r]))
+    if any("guided" in r for r in results):
+        out += ("\nA blob's camera crossings searched by its margin's secant or by bisection (--guided: interleaved "
+                "rounds, medians, wall and process CPU; the bisection stage synced before and after):\n\n"
+                + guided_markdown([r["guided"] for r in results if "guided" in r]))
     if any("host" in r for r in results):
         out += ("\nPython's share (--host: each kernel run as it is launched, Dr.Jit's LaunchBlocking; a part's wall "
                 "time is its kernels' execution time (their count) plus its host time; medians; · within the part "
@@ -447,6 +504,8 @@ def main(argv=None):
                     help="also where an iteration at --big goes, N iterations with Dr.Jit's kernel history")
     ap.add_argument("--ab", action="store_true",
                     help="also time the recordings' worth: kept, recorded at each update, the term's stages traced")
+    ap.add_argument("--guided", action="store_true",
+                    help="also time a blob's camera crossings searched by its margin's secant against bisection")
     ap.add_argument("--where", type=int, default=0, metavar="N",
                     help="also where an iteration at --big goes, part by part, N iterations")
     ap.add_argument("--host", type=int, default=0, metavar="N",
@@ -483,6 +542,8 @@ def main(argv=None):
             r["stages"] = stages(mi, dr, name, cls, variables, lrs, a.big, a.stages, log)
         if a.ab:
             r["ab"] = timing_ab(mi, dr, name, cls, variables, lrs, a.big, a.rounds, log)
+        if a.guided:
+            r["guided"] = timing_guided(mi, dr, name, cls, variables, lrs, a.big, a.rounds, log)
         if a.where:
             r["where"] = where(mi, dr, name, cls, variables, lrs, a.big, a.where, log)
         if a.host:
@@ -498,7 +559,7 @@ def main(argv=None):
     if not a.no_write:
         # the times alone (--no-fit) go to a file of their own per --big, next to the fits' results
         name, text = ("inverse_outline", markdown(results, info, cmd)) if not a.no_fit else \
-            (f"inverse_outline_timing_{a.big}", timing_markdown(timed_only, info, cmd))
+            (f"inverse_outline_{'guided' if a.guided else 'timing'}_{a.big}", timing_markdown(timed_only, info, cmd))
         name += f"_threads{a.threads}" if a.threads else ""
         log("wrote " + ", ".join(map(str, write_results(name, payload, text))))
     log(f"total {payload['total_s']:.0f} s")
