@@ -11,7 +11,9 @@ import warnings
 import mitsuba as mi
 import numpy as np
 
+from links1.geometry.shapes import TriangleMesh
 from links1.maths.halfspace import box_side, point_side
+from links1.tracing.occluders import _convex, _plane_of
 
 from .lights import DirectionalRecord, CylinderSpotRecord
 from .paramwatch import own_param
@@ -26,6 +28,10 @@ BOX_CULL_MAX = 8
 #: query per transparent shape and one over the opaque ones (``shadow_split``) instead of
 #: walking the crossings nearest first
 SPLIT_MAX = 8
+
+#: Mitsuba meshes of at most this many faces are tested for the core's planar and convex
+#: rules (:func:`_mesh_rules`); larger ones are taken as neither (conservative)
+MESH_RULES_MAX = 256
 
 
 def shadow_split(mi, shapes, slot_list, trans):
@@ -159,6 +165,26 @@ def plan_occluders(P, custom, shapes, slot_list, reuse=False):
         P.occ_boxes.append(occluder_boxes(msl, G["lo"], G["hi"], convex))
         P.occ_mslots.append(frozenset(int(v) for v in np.flatnonzero(msl)))
 
+def _mesh_rules(s_):
+    """``(convex, closed, plane)`` of a small Mitsuba mesh by the core's rules
+    (:mod:`links1.tracing.occluders`): a planar mesh is convex, with its plane (unit normal,
+    offset); a closed mesh with every vertex behind each face's plane is convex and closed;
+    else neither. Its vertices are welded by position first (Mitsuba's loaders split them by
+    normal and uv, which would leave a box's faces unjoined); the faces' winding is Mitsuba's
+    geometric normal, flip_normals included."""
+    v = np.array(s_.vertex_positions_buffer(), dtype=np.float64).reshape(-1, 3)
+    f = np.array(s_.faces_buffer(), dtype=np.int64).reshape(-1, 3)
+    if v.size == 0 or f.size == 0 or not np.all(np.isfinite(v)):
+        return False, False, None
+    v, weld = np.unique(v, axis=0, return_inverse=True)
+    core = TriangleMesh(v, weld.reshape(-1)[f])
+    pl = _plane_of(core)
+    if pl is not None:
+        nrm, p0 = pl
+        return True, False, (nrm, float(nrm @ p0))
+    return (True, True, None) if _convex(core) else (False, False, None)
+
+
 def occluder_shapes(P, custom, shapes, slot_list, last=None):
     """What :func:`plan_occluders` needs of the shapes, whatever the lights: per slot its box
     (``lo``, ``hi``), whether it is ``convex`` / ``closed`` / a Mitsuba shape, a planar
@@ -167,6 +193,7 @@ def occluder_shapes(P, custom, shapes, slot_list, last=None):
     and the tolerance ``tol`` of those tests. ``last``: the planning of the same tables
     before a change of the links1 shapes' geometry only, whose Mitsuba shapes' part (their
     boxes, kinds, planes: ~0.1 ms of device reads an update) is taken as it is."""
+    from .tables import _PLAIN_MESHES   # (meshes whose surface is their triangles)
     nslots = P.nslots
     if last is not None and len(last["plane"]) == nslots:
         m = last["mitsuba_slot"]
@@ -201,6 +228,8 @@ def occluder_shapes(P, custom, shapes, slot_list, last=None):
                     plane[sl] = (nrm, float(nrm @ m[:3, 3]))
             except Exception:
                 pass
+        elif s_.is_mesh() and kind in _PLAIN_MESHES and int(s_.face_count()) <= MESH_RULES_MAX:
+            convex[sl], closed[sl], plane[sl] = _mesh_rules(s_)
     for spec in custom:
         a, b = spec.bounds()
         lo[spec.slot], hi[spec.slot] = a, b
