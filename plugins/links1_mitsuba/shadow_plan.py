@@ -17,7 +17,7 @@ from links1.tracing.occluders import _convex, _plane_of
 
 from .lights import DirectionalRecord, CylinderSpotRecord
 from .paramwatch import own_param
-from .util import kind_of
+from .util import PLAIN_MESHES, kind_of
 
 #: Shadow rays toward a light that at most this many Mitsuba shapes can occlude first test the
 #: segment against those shapes' bounding boxes and call Embree only where one is met
@@ -193,7 +193,6 @@ def occluder_shapes(P, custom, shapes, slot_list, last=None):
     and the tolerance ``tol`` of those tests. ``last``: the planning of the same tables
     before a change of the links1 shapes' geometry only, whose Mitsuba shapes' part (their
     boxes, kinds, planes: ~0.1 ms of device reads an update) is taken as it is."""
-    from .tables import _PLAIN_MESHES   # (meshes whose surface is their triangles)
     nslots = P.nslots
     if last is not None and len(last["plane"]) == nslots:
         m = last["mitsuba_slot"]
@@ -228,7 +227,7 @@ def occluder_shapes(P, custom, shapes, slot_list, last=None):
                     plane[sl] = (nrm, float(nrm @ m[:3, 3]))
             except Exception:
                 pass
-        elif s_.is_mesh() and kind in _PLAIN_MESHES and int(s_.face_count()) <= MESH_RULES_MAX:
+        elif s_.is_mesh() and kind in PLAIN_MESHES and int(s_.face_count()) <= MESH_RULES_MAX:
             convex[sl], closed[sl], plane[sl] = _mesh_rules(s_)
     for spec in custom:
         a, b = spec.bounds()

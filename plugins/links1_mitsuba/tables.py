@@ -41,7 +41,7 @@ from .registered import plugin_class
 from .sceneshapes import SceneShapes
 from .shadow_plan import plan_occluders, shadow_split
 from .tuning import Tuning
-from .util import checked_index, kind_of
+from .util import PLAIN_MESHES, checked_index, kind_of
 
 #: Relative ray-origin offset on shapes whose float32 hits are accurate to a few ulps
 #: (meshes, rectangles, disks, links1 quadrics): a small offset keeps shadow rays that graze
@@ -56,16 +56,11 @@ _RECT_FACES = np.array([1, 2, 0, 1, 3, 2], dtype=np.uint32)
 _RECT_UV = np.array([0, 0, 1, 0, 0, 1, 1, 1], dtype=np.float32)
 
 
-#: Mitsuba's meshes whose record is ``Mesh::compute_surface_interaction`` itself (Mitsuba
-#: 3.9.1's mesh.cpp; not ``EllipsoidsMesh``, whose own call changes it)
-_PLAIN_MESHES = ("Mesh", "OBJMesh", "PLYMesh", "SerializedMesh", "Cube", "Rectangle")
-
-
 def _record_kind(s):
     """``s``'s kind for :class:`MeshRecord`, or None where the kernel does not make its record."""
     if s.class_name() == "Rectangle" and _rect_row(s) is not None:
         return KIND_RECT
-    if s.is_mesh() and s.class_name() in _PLAIN_MESHES:
+    if s.is_mesh() and s.class_name() in PLAIN_MESHES:
         return KIND_MESH
     return {"Sphere": KIND_SPHERE, "Disk": KIND_DISK}.get(s.class_name())
 

@@ -25,6 +25,13 @@ _M1, _M2 = int(_M1_NP), int(_M2_NP)
 _KINDS: dict = {}
 
 
+#: Mitsuba's meshes whose surface is their triangles and whose record is
+#: ``Mesh::compute_surface_interaction`` itself (Mitsuba 3.9.1's mesh.cpp; not
+#: ``EllipsoidsMesh``, whose own call changes it): the kernel's record (tables) and the
+#: core's occluder rules (shadow_plan) take these
+PLAIN_MESHES = ("Mesh", "OBJMesh", "PLYMesh", "SerializedMesh", "Cube", "Rectangle")
+
+
 def kind_of(obj) -> str:
     """The name a Mitsuba object's ``to_string`` starts with (``"Rectangle"``, ``"PointLight"``,
     ``"Mask"``, ``"Links1Point"``), as ``str(obj).split("[")[0]`` gives it, without printing the
