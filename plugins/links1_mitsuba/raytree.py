@@ -309,7 +309,8 @@ class Tracer:
             sif.uv = dr.select(cw, intersect.custom_uv(tables, o, d, t, prim, slot, uslot, hit), si.uv)
             sif.wi = sif.to_local(wo)
             bsdf = dr.gather(mi.BSDFPtr, tables.bsdf_ptr, uslot, hit)
-            is_ph = dr.gather(mi.Bool, tables.is_phong, uslot, hit)
+            # (no links1_phong: no gather of its flags)
+            is_ph = dr.gather(mi.Bool, tables.is_phong, uslot, hit) if tables.any_phong else dr.zeros(mi.Bool, n)
             mb = hit & ~is_ph
             ctx = mi.BSDFContext()
         # Phong parameters
@@ -324,7 +325,8 @@ class Tracer:
         # diffuse BSDFs of one reflectance (tables.lam): evaluated in f_eval, not called; a
         # derivative pass calls them (Mitsuba differentiates the reflectance: its sums' order)
         if need_si and tables.any_lam and not ad:
-            lam = h.lam = mb & dr.gather(mi.Bool, tables.lam, uslot, mb)
+            # every Mitsuba BSDF such a diffuse: each of their hits is one, no gather of the flags
+            lam = h.lam = mb if tables.all_lam else mb & dr.gather(mi.Bool, tables.lam, uslot, mb)
             h.mcall = mb & ~lam
             h.lam_rgb = gather3(tables.lam_rgb, uslot, lam)
             ci = sif.wi.z
