@@ -13,7 +13,7 @@ import numpy as np
 
 from links1.geometry.shapes import TriangleMesh
 from links1.maths.halfspace import box_side, point_side
-from links1.tracing.occluders import _convex, _plane_of
+from links1.tracing.occluders import _plane_of
 
 from .lights import DirectionalRecord, CylinderSpotRecord
 from .paramwatch import own_param
@@ -166,23 +166,20 @@ def plan_occluders(P, custom, shapes, slot_list, reuse=False):
         P.occ_mslots.append(frozenset(int(v) for v in np.flatnonzero(msl)))
 
 def _mesh_rules(s_):
-    """``(convex, closed, plane)`` of a small Mitsuba mesh by the core's rules
+    """``(convex, closed, plane)`` of a small Mitsuba mesh by the core's planar rule
     (:mod:`links1.tracing.occluders`): a planar mesh is convex, with its plane (unit normal,
-    offset); a closed mesh with every vertex behind each face's plane is convex and closed;
-    else neither. Its vertices are welded by position first (Mitsuba's loaders split them by
-    normal and uv, which would leave a box's faces unjoined); the faces' winding is Mitsuba's
-    geometric normal, flip_normals included."""
+    offset); else neither. The core's other rule, a closed convex mesh never shadowing its own
+    points toward a light outside it, is not taken: with it the cull skips a cube's own box
+    where its shadow rays leave it, and pixels of ``scenes/mitsuba_direct.xml``'s cube changed."""
     v = np.array(s_.vertex_positions_buffer(), dtype=np.float64).reshape(-1, 3)
     f = np.array(s_.faces_buffer(), dtype=np.int64).reshape(-1, 3)
     if v.size == 0 or f.size == 0 or not np.all(np.isfinite(v)):
         return False, False, None
-    v, weld = np.unique(v, axis=0, return_inverse=True)
-    core = TriangleMesh(v, weld.reshape(-1)[f])
-    pl = _plane_of(core)
+    pl = _plane_of(TriangleMesh(v, f))
     if pl is not None:
         nrm, p0 = pl
         return True, False, (nrm, float(nrm @ p0))
-    return (True, True, None) if _convex(core) else (False, False, None)
+    return False, False, None
 
 
 def occluder_shapes(P, custom, shapes, slot_list, last=None):
