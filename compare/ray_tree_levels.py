@@ -44,7 +44,7 @@ from __future__ import annotations
 import numpy as np
 
 from compare.common import cpu_seconds, machine_markdown
-from compare.ray_tree_parts import patched, probe_args, run_probe, traced_case
+from compare.ray_tree_parts import measured_note, patched, probe_args, run_probe, traced_case
 
 
 def _timed(fn, n, tree):
@@ -199,7 +199,7 @@ def markdown(cases, a, info, cmd) -> str:
         fr = c["floor_rays"]
         md.append(f"\n## `{c['id']}`, spp {c['spp']} ({c['lanes']:,} camera rays; the floor's rays: "
                   f"{fr['shadow']:,} shadow, {fr['secondary']:,} below level 1)\n\n"
-                  "| run | CPU ms | / ray tree (CPU) | kernels ms | level 1 | deeper | rest | same image |\n"
+                  + measured_note(c) + "| run | CPU ms | / ray tree (CPU) | kernels ms | level 1 | deeper | rest | same image |\n"
                   "| --- | --- | --- | --- | --- | --- | --- | --- |\n")
         for r in c["rows"]:
             same = "—" if r["same"] is None else ("yes" if r["same"] else "no")

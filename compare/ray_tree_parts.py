@@ -43,17 +43,20 @@ hits (rays read), the shadow rays links1 traces (captured from the level) densel
 as full-width masked packets; and a frame of Mitsuba's ``direct`` (emitter_samples 1,
 bsdf_samples 0), or of its ``path`` at the case's depth where the tree goes deeper (kernels,
 so also its film). ``same`` says whether a variant's radiance equals
-the kernel's bit for bit. Writes ``compare/results/ray_tree_parts.{json,md}``.
+the kernel's bit for bit. Writes ``compare/results/ray_tree_parts.{json,md}``: the cases run
+replace those of the same id there, the others are kept, each with the commit and load of
+the run that measured it.
 """
 from __future__ import annotations
 
 import argparse
 import contextlib
 import dataclasses
+import json
 
 import numpy as np
 
-from compare.common import command_line, machine_info, machine_markdown, write_results
+from compare.common import RESULTS, command_line, machine_info, machine_markdown, write_results
 
 
 def _kernels_ms(fn) -> float:
@@ -269,14 +272,14 @@ def measure_case(cid, spp, repeats, variant):
 def markdown(cases, a, info, cmd) -> str:
     md = ["# links1_whitted's ray-tree kernel by part\n\n", machine_markdown(info, cmd),
           f"\nThe machine was shared with other jobs (2 cores): only ratios measured in the same run mean "
-          f"something. Kernel time (`dr.kernel_history`) of each variant, {a.repeats} rounds interleaved, "
+          f"something (the header's run is the latest; each case names its own). Kernel time (`dr.kernel_history`) of each variant, {a.repeats} rounds interleaved, "
           "medians; ratio: to the whole ray-tree kernel of the same round (median over the rounds, "
           "min–max in brackets); same: the "
           "variant's radiance equals the kernel's bit for bit (`compare/ray_tree_parts.py`).\n"]
     for c in cases:
         md.append(f"\n## `{c['id']}`, box filter, spp {c['spp']} ({c['lanes']:,} camera rays; links1's shadow "
                   f"rays by light: {', '.join(f'{v:,}' for v in c['shadow_rays'])})\n\n"
-                  "| part | kernels ms | / ray-tree kernel | same image |\n| --- | --- | --- | --- |\n")
+                  + measured_note(c) + "| part | kernels ms | / ray-tree kernel | same image |\n| --- | --- | --- | --- |\n")
         for r in c["rows"]:
             rr = r["round_ratios"]
             same = "—" if r["same"] is None else ("yes" if r["same"] else "no")
@@ -295,17 +298,50 @@ def probe_args(argv, module, doc, only):
     return ap.parse_args(argv)
 
 
+def merge_cases(old: dict | None, cases: list[dict]) -> list[dict]:
+    """The cases of a results file (``old``: its payload, or None) with those of this run
+    (``cases``) in place of the ones of the same id, the others kept (order: the file's, then
+    the new ids). Each case carries ``measured`` (the commit, load at the start and command of
+    the run that measured it); a kept case without one takes its file's."""
+    cases = list(cases)
+    new = {c["id"]: c for c in cases}
+    merged, seen = [], set()
+    for c in (old or {}).get("cases", []):
+        if c["id"] in new:
+            merged.append(new[c["id"]])
+            seen.add(c["id"])
+            continue
+        if "measured" not in c:
+            info = old.get("machine", {})
+            c = dict(c, measured=dict(commit=info.get("git_commit"), load=info.get("load_average_at_start"),
+                                      command=old.get("command")))
+        merged.append(c)
+    return merged + [c for c in cases if c["id"] not in seen]
+
+
+def measured_note(c: dict) -> str:
+    """The line under a case's heading that says which run measured it."""
+    m = c.get("measured") or {}
+    load = m.get("load")
+    load = ", ".join(f"{x:g}" for x in load) if isinstance(load, (list, tuple)) else load
+    return f"Measured at commit {m.get('commit')}, load at the start {load}: `{m.get('command')}`.\n\n"
+
+
 def run_probe(a, stem, measure, line, markdown) -> int:
     """A ray-tree probe's run: ``measure(case, spp, repeats, variant)`` per case of ``a``
     (:func:`probe_args`), a line (``line(case id, row)``) per row printed, and
-    ``compare/results/{stem}.{json,md}`` (``markdown(cases, a, info, command)``) written."""
+    ``compare/results/{stem}.{json,md}`` (``markdown(cases, a, info, command)``) written: this
+    run's cases replace those of the same id there, the others are kept (:func:`merge_cases`)."""
     info, cmd = machine_info(), command_line()
     cases = []
     for cid in a.only:
         c = measure(cid, a.spp, a.repeats, a.variant)
+        c["measured"] = dict(commit=info.get("git_commit"), load=info.get("load_average_at_start"), command=cmd)
         cases.append(c)
         for r in c["rows"]:
             print(line(cid, r), flush=True)
+    path = RESULTS / f"{stem}.json"
+    cases = merge_cases(json.loads(path.read_text()) if path.exists() else None, cases)
     paths = write_results(stem, dict(machine=info, command=cmd, args=vars(a), cases=cases),
                           markdown(cases, a, info, cmd))
     print("wrote", ", ".join(str(p) for p in paths))
