@@ -7,6 +7,7 @@ Everything here is a per-output-pixel *gather* in one fixed order, never a scatt
   border, clipped to the film), window after window (:func:`sample_ids`);
 * box filter (Mitsuba's fast path): the mean of the pixel's ``spp`` samples, summed in float64
   in sample order and divided by ``spp`` (numpy's ``mean`` of ``launch.render_windows`` before);
+  at spp a multiple of 4, four consecutive samples a packet gather (:data:`BOX_PACKETS`);
 * any other filter: the pixel is ``Σ w·s / Σ w`` over its ``spp`` samples and those of its
   ``(2b+1)²`` neighbours on the film, in float32 (the output's precision: twice the SIMD lanes
   and half the bytes of float64): the 1-D weights of :meth:`links1.sensor.filters.Filter.eval`
@@ -118,6 +119,11 @@ def sample_window(rfilter, window, film_size):
     b = rfilter.border
     sx0, sy0 = max(0, x0 - b), max(0, y0 - b)
     return sx0, sy0, min(W, x0 + w + b) - sx0, min(H, y0 + h + b) - sy0
+
+
+#: The box filter's mean at spp a multiple of 4 reads a pixel's samples (consecutive in the
+#: launch's output) four at a time, with packet gathers (False: one at a time)
+BOX_PACKETS = True
 
 
 def op_u(v):
@@ -388,6 +394,22 @@ def reconstruct(rfilter, film_size, spp, seed, batch, data, aovs, dtype=None, mo
         v = data["total"]
         v = dr.gather(type(v), v, L.first, mode=red)
         chans[0] += [v[kk] for kk in range(3)]
+    elif box and not want_cost and mode != "evaluated" and BOX_PACKETS and int(spp) % 4 == 0:
+        # four samples a packet gather (a load and a transpose where gathers lane by lane read
+        # a cache line a lane each), summed in sample order in float64 as below: the same bits
+        total = data["total"]
+
+        def body(j, *acc):
+            acc = list(acc)
+            for kk in range(3):
+                v = dr.gather(mi.Array4f, total[kk], (L.first >> 2) + j)
+                for e in range(4):
+                    acc[kk] = acc[kk] + F64(v[e])
+            return (j + 1, *acc)
+        z = dr.zeros(F64, L.n)
+        _, *acc = dr.while_loop((dr.zeros(U32, L.n), z, z, z), lambda j, *_: j < (n_s >> 2), body, mode=mode)
+        s = F64(n_s)
+        chans[0] += [a / s for a in acc]
     elif box or want_cost:
         total, cost = data["total"], data.get("cost")
 

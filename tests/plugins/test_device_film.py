@@ -111,6 +111,29 @@ def test_device_film_equals_numpy_film(variant, tmp_path, rfilter, spp, aovs):
                                                              aovs=aovs).astype(np.float32))
 
 
+def test_box_mean_in_packets_equals_numpy_mean(variant, tmp_path, monkeypatch):
+    """At spp a multiple of 4 the box film reads a pixel's samples four at a time (packet
+    gathers): its pixels equal numpy's float64 mean of the same samples and the film read one
+    sample at a time, bit for bit, in a window and in a batch of windows (spp 4 and 8; spp 6
+    reads one at a time)."""
+    import mitsuba as mi
+    from links1_mitsuba import film
+    scene = load(tmp_path, "box")
+    integ = scene.integrator()
+    wins = [(0, 0, W, H), (3, 2, 11, 7), (20, 9, 4, 9)]
+    for spp in (4, 6, 8):
+        for flag in (True, False):
+            monkeypatch.setattr(film, "BOX_PACKETS", flag)
+            got = [np.asarray(a) for a in integ.render_windows_device(scene, wins, spp=spp, seed=3, aovs="",
+                                                                      dtype=mi.Float64)]
+            for window, g in zip(wins, got):
+                assert np.array_equal(g, numpy_film(integ, scene, window, spp, 3, ""))
+            if flag:
+                packets = got
+            else:
+                assert all(np.array_equal(a, b) for a, b in zip(packets, got))
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("rfilter", ["box", "gaussian", "lanczos"])
 def test_windows_and_batches_equal_full_frame_on_device(variant, tmp_path, rfilter):
