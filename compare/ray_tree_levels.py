@@ -190,7 +190,7 @@ def measure_case(cid, spp, repeats, variant):
 
 def markdown(cases, a, info, cmd) -> str:
     md = ["# links1_whitted's mirror/glass frame, level by level\n\n", machine_markdown(info, cmd),
-          f"\nThe machine was shared with other jobs (2 cores). {a.repeats} rounds interleaved, medians; "
+          "\nThe machine was shared with other jobs (2 cores). Rounds interleaved (`--repeats` of the case's run), medians; "
           "CPU: the process's CPU time of the run (every thread); kernels: `dr.kernel_history`'s wall "
           "time of its kernels (level 1, the deeper levels' loop, the rest); ratio: CPU time to the ray "
           "tree's of the same round (median over the rounds); same: the run's radiance equals the "

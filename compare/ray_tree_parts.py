@@ -272,7 +272,7 @@ def measure_case(cid, spp, repeats, variant):
 def markdown(cases, a, info, cmd) -> str:
     md = ["# links1_whitted's ray-tree kernel by part\n\n", machine_markdown(info, cmd),
           f"\nThe machine was shared with other jobs (2 cores): only ratios measured in the same run mean "
-          f"something (the header's run is the latest; each case names its own). Kernel time (`dr.kernel_history`) of each variant, {a.repeats} rounds interleaved, "
+          f"something (the header's run is the latest; each case names its own). Kernel time (`dr.kernel_history`) of each variant, rounds interleaved (`--repeats` of the case's run, 9 by default), "
           "medians; ratio: to the whole ray-tree kernel of the same round (median over the rounds, "
           "min–max in brackets); same: the "
           "variant's radiance equals the kernel's bit for bit (`compare/ray_tree_parts.py`).\n"]
