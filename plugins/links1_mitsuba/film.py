@@ -392,7 +392,8 @@ def reconstruct(rfilter, film_size, spp, seed, batch, data, aovs, dtype=None, mo
     if box and int(spp) == 1 and not want_cost:
         # one sample a pixel: its value (the mean below, v / 1 in float64, is v itself)
         v = data["total"]
-        v = dr.gather(type(v), v, L.first, mode=red)
+        if dr.width(v) != L.n:   # (as many lanes as pixels: sample q is pixel q, read in place)
+            v = dr.gather(type(v), v, L.first, mode=red)
         chans[0] += [v[kk] for kk in range(3)]
     elif box and not want_cost and mode != "evaluated" and BOX_PACKETS and int(spp) % 4 == 0:
         # four samples a packet gather (a load and a transpose where gathers lane by lane read
