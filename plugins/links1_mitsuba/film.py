@@ -441,11 +441,12 @@ def reconstruct(rfilter, film_size, spp, seed, batch, data, aovs, dtype=None, mo
     elif not box and batch.sources * (2 * rfilter.border + 1) ** 2 * 16 <= FILM_TABLE_BYTES:
         # the weight sums kept by an earlier frame of these windows, else this frame's, kept
         key = ("den", rfilter, (W, H), int(seed))
-        den = batch.peek(key) if _keeps_weights(rfilter, batch) else None
+        keeps = _keeps_weights(rfilter, batch)
+        den = batch.peek(key) if keeps else None
         part, seen = _filter_partials(rfilter, (W, H), seed, batch, data, n_s, mode, channels=4 if den is None else 3)
         rgb, sums = _filter_sum(rfilter, (W, H), batch, part, L, den, seen)
         chans[0] += rgb
-        if den is None and _keeps_weights(rfilter, batch):
+        if den is None and keeps:
             batch.keep_with_frame(key, sums)
     elif not box:
         chans[0] += _filter_direct(rfilter, (W, H), seed, batch, data, L, mode)
@@ -657,7 +658,7 @@ def _filter_partials(rfilter, film_size, seed, batch, data, n_s, mode, channels=
     pad = _pad(nb)
     # the samples' weights from the table kept with the batch (the same values), in the
     # compact record where the batch's samples allow it
-    kept = batch.keep and batch.lanes * 2 * pad * 4 <= KEEP_TABLE_BYTES
+    kept = _keeps_weights(rfilter, batch)
     weights, compact = _sample_weights(rfilter, film_size[0], seed, batch, compact=True) if kept else (None, False)
     if compact:
         base, half = mix32(mix32(sd) ^ pix), mi.Float64(k) * 0.5
