@@ -132,7 +132,7 @@ def mesh_surface(rec, ray, pi, slot, valid, inst=None, islot=None):
     if inst is not None:
         # the instance's to_world (rows), inverse_transpose (normals) and, where a member
         # makes its point from the ray, the inverse: the ray in the group's space
-        row = [dr.gather(mi.Float, rec.rows, islot * ROW + k, inst) for k in range(33 if rec.inst_obj else 21)]
+        row = _row(rec, islot, inst, 33 if rec.inst_obj else 21)
         tw, it = [row[4 * i:4 * i + 4] for i in range(3)], [row[12 + 3 * i:15 + 3 * i] for i in range(3)]
         if rec.inst_obj:
             to = [row[21 + 4 * i:25 + 4 * i] for i in range(3)]
@@ -171,7 +171,7 @@ def mesh_surface(rec, ray, pi, slot, valid, inst=None, islot=None):
         n, ns = dr.select(fl, -n, n), dr.select(fl, -ns, ns)
     if inst is not None:
         def normal(v):
-            return dr.normalize(mi.Vector3f(*[dr.fma(r[2], v[2], dr.fma(r[1], v[1], r[0] * v[0])) for r in it]))
+            return dr.normalize(_affine(it, v, False))
         p = dr.select(inst, _affine(tw, p, True), p)
         n, ns = dr.select(inst, normal(n), n), dr.select(inst, normal(ns), ns)
         dp_du, dp_dv = (dr.select(inst, _affine(tw, v, False), v) for v in (dp_du, dp_dv))
@@ -285,9 +285,8 @@ class _Hit:
 
 def _linear(m, v):
     """``AffineTransform4f * Vector3f`` (Mitsuba 3.9.1's transform.h) of the rows ``m`` (9
-    floats, row by row): ``m[i][0] v0``, then ``fma(m[i][j], v_j, .)``."""
-    return mi.Vector3f(*[dr.fma(m[3 * i + 2], v[2], dr.fma(m[3 * i + 1], v[1], m[3 * i] * v[0]))
-                         for i in range(3)])
+    floats, row by row): :func:`_affine` of a vector."""
+    return _affine([m[3 * i:3 * i + 3] for i in range(3)], v, False)
 
 
 def _row(rec, sl, valid, n):
@@ -302,13 +301,12 @@ def _sphere_part(rec, pi, sl, valid):
     ``normalize(p - center)``, uv from the spherical angles of ``p`` in object space
     (``to_world``'s stored inverse), dp/du and dp/dv the parameterization's (``(1, 0, 0)`` on
     the axis) through ``to_world``, times 2 pi and pi."""
-    row = _row(rec, sl, valid, ROW)
+    row = _row(rec, sl, valid, 24)
     lin, c = row[:9], mi.Vector3f(*row[9:12])
     p = dr.fma(pi.d, pi.t, pi.o)                        # Ray::operator()
     n = dr.normalize(p - c)
-    # to_object * p (transform.h): the inverse's translation, then fma(inv[i][j], p_j, .)
-    inv = [row[12 + 4 * i:16 + 4 * i] for i in range(3)]
-    loc = mi.Vector3f(*[dr.fma(r[2], p[2], dr.fma(r[1], p[1], dr.fma(r[0], p[0], r[3]))) for r in inv])
+    # to_object * p (transform.h)
+    loc = mi.Vector3f(_affine([row[12 + 4 * i:16 + 4 * i] for i in range(3)], p, True))
     theta, phi = mi.dir_to_sph(loc)                     # dr::unit_angle_z, atan2
     phi = dr.select(phi < 0.0, phi + mi.Float(2.0 * dr.pi), phi)
     uv = mi.Point2f(phi * dr.inv_two_pi, theta * dr.inv_pi)
