@@ -252,6 +252,6 @@ def filter_samples(filt: Filter, window, film_size, values: np.ndarray, origin, 
     block = np.asarray(values)[r0:r0 + sh, c0:c0 + sw]
     py, px = np.mgrid[sy0:sy0 + sh, sx0:sx0 + sw]
     for i in range(spp):
-        ox, oy = (o.astype(dtype) for o in sample_offsets(px, py, i, spp, seed, int(film_size[0])))
+        ox, oy = sample_offsets(px, py, i, spp, seed, int(film_size[0]))   # rounded to dtype by add
         gather.add(block[:, :, i], ox, oy)
     return gather.result()
