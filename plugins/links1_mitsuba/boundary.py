@@ -448,19 +448,24 @@ def _guides(P, kd, c_lo, c_hi):
     crossings alone): ``(mode, spec index, centre a, centre b)``, ``mode`` +1 where the
     interval's first point's camera ray meets the blob and the last point's does not, −1 the
     other way, 2 where both see the blob, lobes of centres ``a`` and ``b`` (:func:`_lobe`), 0
-    no guide. Blobs whose field sums candidate lists (many centres) are not guided (the
-    margin would sum every centre)."""
+    no guide (:func:`_guided_blobs`)."""
     n = dr.width(kd)
     mode, which = dr.zeros(mi.Float, n), dr.zeros(mi.UInt32, n)
     cam = kd == 0
-    for k, sp in enumerate(P.custom):
-        if sp.__class__.__name__ != "BlobSpec" or sp.uses_lists():
-            continue
+    for k, sp in _guided_blobs(P):
         a, b = _slot(c_lo) == sp.slot, _slot(c_hi) == sp.slot
         m_ = dr.select(cam & a & ~b, 1.0, dr.select(cam & b & ~a, -1.0, dr.select(cam & a & b, 2.0, 0.0)))
         which = dr.select(m_ != 0, k, which)
         mode = dr.select(m_ != 0, m_, mode)
     return mode, which, mi.Int32(c_lo // LOBES - 1), mi.Int32(c_hi // LOBES - 1)
+
+
+def _guided_blobs(P):
+    """``(index in P.custom, spec)`` of the blobs whose margin guides a search (:func:`_guides`,
+    :func:`_margin`): not those whose field sums candidate lists (many centres: the margin
+    would sum every centre)."""
+    return [(k, sp) for k, sp in enumerate(P.custom)
+            if sp.__class__.__name__ == "BlobSpec" and not sp.uses_lists()]
 
 
 def _margin(P, guide, cm, sg, steps=1):
@@ -475,9 +480,7 @@ def _margin(P, guide, cm, sg, steps=1):
     o, d, t, seen = cm[0], cm[1], cm[2], _slot(cm[3])
     n = dr.width(o)
     g, s_out = dr.full(mi.Float, dr.nan, n), sg
-    for k, sp in enumerate(P.custom):
-        if sp.__class__.__name__ != "BlobSpec" or sp.uses_lists():
-            continue
+    for k, sp in _guided_blobs(P):
         hit = (seen == sp.slot) & dr.isfinite(t)
         out = (which == k) & ((mode == 1) | (mode == -1))
         w_, s_ = dr.if_stmt((o, d, t, hit, sg), out, lambda *a: _ray_margin(sp, *a, steps=steps),
