@@ -496,10 +496,10 @@ def _margin(P, guide, cm, sg, steps=1):
 def _ray_margin(sp, o, d, t, hit, sg, steps=1):
     """``(max_s W − T, s)`` of blob ``sp`` along the ray ``o + t d``: from ``sg`` (the place
     of the maximum on the previous query's ray, object units along the unit object ray), or
-    from the ray's hit on the blob (``hit``), else from the closest approach to a centre with
-    the largest field, with ``steps`` > 1) ``steps`` Newton steps on ``dW/ds = 0``, the last one's quadratic model's
-    maximum ``W − (dW)²/(2 d²W)`` as the value (where ``d²W/ds² < 0``; else ``W``) and its
-    place as ``s``: exact to second order in the place's error (eq. 3.6–3.9)."""
+    from the ray's hit on the blob (``hit``), else (``steps`` > 1) from the closest approach
+    to a centre with the largest field; then ``steps`` Newton steps on ``dW/ds = 0``, the last
+    one's quadratic model's maximum ``W − (dW)²/(2 d²W)`` as the value (where ``d²W/ds² < 0``;
+    else ``W``) and its place as ``s``: exact to second order in the place's error (eq. 3.6–3.9)."""
     scale, per, _, _, _, _ = sp._setup(o, d, 0.0, INF)
     s = dr.select(hit, t * scale, sg)
     if steps > 1:
