@@ -114,14 +114,13 @@ def _trace(tracer, tables, scene, o, d, tmin, tmax, key, sample, seen=None):
         # seeing ones: the hits' exclusive prefix sum; each gathered once, so its reverse is a
         # plain scatter, ReduceMode.Permute), differentiable both ways (a scatter's tangent in
         # forward mode was read dirty)
-        own, hits = seen
-        n = dr.width(hits)
+        own, hit = seen
         # (the level's RGB evaluated first, in one kernel with its shadow tests: a gather
         # evaluates its source alone, a kernel per component each recomputing the level)
         dr.eval(res.L, *later)
         later.clear()
-        at = dr.prefix_sum(mi.UInt32(hits))
-        total = dr.select(hits, dr.gather(mi.Color3f, res.L, at, hits, mode=dr.ReduceMode.Permute), 0.0)
+        at = dr.prefix_sum(mi.UInt32(hit))
+        total = dr.select(hit, dr.gather(mi.Color3f, res.L, at, hit, mode=dr.ReduceMode.Permute), 0.0)
     if not spawn:
         dr.eval(total, *later)
         return total
