@@ -19,9 +19,8 @@ import numpy as np
 from links1 import __version__
 from links1.errors import Links1Error, RenderAborted, UsageError, one_line_warnings
 from links1.imaging.image import write_image
-from links1.interrupts import COMMAND_INTERRUPTED as _INTERRUPTED
-from links1.interrupts import (held_interrupts, ignore_interrupts, raise_if_interrupted, restore_interrupts,
-                               stop_resource_sharer)
+from links1.interrupts import (COMMAND_INTERRUPTED as _INTERRUPTED, held_interrupts, ignore_interrupts,
+                               raise_if_interrupted, restore_interrupts, stop_resource_sharer)
 
 from . import animate, diff
 from .cli_options import (nonneg_int, adaptive_options, add_progress_arguments, add_render_arguments,
@@ -196,7 +195,7 @@ def main(argv=None, *, program: bool | None = None) -> int:
         ignore_interrupts()   # a second Ctrl-C does not break what is left of the clean-up
         stop_resource_sharer()
         print("links1: interrupted", file=sys.stderr)
-        if argv is None if program is None else program:
+        if (argv is None) if program is None else program:
             _quiet_from_here()
         return 130
     finally:
