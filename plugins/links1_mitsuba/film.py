@@ -773,14 +773,14 @@ def _filter_sum(rfilter, film_size, batch, part, L, den=None, seen=None):
         acc = add(*acc)
     else:
         U32 = mi.UInt32
-        total, b = seen, rfilter.border
+        b = rfilter.border
         near = dr.zeros(mi.Bool, L.n)
         for _, x, on_y, row in _rows(rfilter, film_size, L):
             # the row's neighbours on the film: columns first .. last of the sample window
             first = q0 + row + U32(dr.maximum(x - b, 0))
             last = q0 + row + U32(dr.minimum(x + b, op_i(film_size[0]) - 1))
-            before = dr.gather(U32, total, first - 1, on_y & (first > 0))
-            near |= on_y & (dr.gather(U32, total, last, on_y) != before)
+            before = dr.gather(U32, seen, first - 1, on_y & (first > 0))
+            near |= on_y & (dr.gather(U32, seen, last, on_y) != before)
         _, *acc = dr.while_loop((dr.zeros(U32, L.n), *acc), lambda j, *_: (j < 1) & near,
                                 lambda j, *a: (j + 1, *add(*a)))
     acc = acc if den is None else [*acc, den]
