@@ -139,16 +139,16 @@ def _analytic_row(s, kind):
     return row
 
 
-def _mesh_record_table(shapes, slot_list, member_slots, nslots, scene=None):
+def _mesh_record_table(shapes, slot_list, nslots, scene, reg):
     """:class:`MeshRecord` where every Mitsuba shape of the scene is a mesh, rectangle, sphere
     or disk, or an instance of shapegroups of them, else None (the kernel reads Mitsuba's record,
     ``scene.ray_intersect``: its surface call through the shapes' callables cost ~0.1 of a
-    frame, docs/benchmarks.md)."""
+    frame, docs/benchmarks.md). ``reg``: the shapes' registry ids."""
     inst = [s.class_name() == "Instance" for s in shapes]
     kinds = [None if i else _record_kind(s) for s, i in zip(shapes, inst)]
     if not shapes or any(k is None and not i for k, i in zip(kinds, inst)) or all(inst):
         return None
-    if any(inst) and not mi.variant().startswith("llvm"):
+    if any(inst) and not llvm():
         return None   # (the member's slot comes from Embree's shape_index: _instance_tables)
 
     def per_slot(flags, dtype, sl_list=slot_list):
@@ -169,7 +169,7 @@ def _mesh_record_table(shapes, slot_list, member_slots, nslots, scene=None):
             rows[sl] = _analytic_row(s, k) if k is not None else _instance_row(s)
         rec.rows = mi.Float(rows.ravel())
     if any(inst):
-        _instance_tables(rec, shapes, slot_list, inst, nslots, scene)
+        _instance_tables(rec, shapes, slot_list, reg, inst, nslots, scene)
     meshes = [(s, sl) for s, k, sl in zip(shapes, kinds, slot_list) if k == KIND_MESH]
     if meshes:
         _mesh_buffers(rec, meshes, per_slot)
@@ -190,15 +190,15 @@ def _instance_row(s):
     return row
 
 
-def _instance_tables(rec, shapes, slot_list, inst, nslots, scene):
+def _instance_tables(rec, shapes, slot_list, reg, inst, nslots, scene):
     """``rec``'s tables of the hits on instances (:class:`MeshRecord`): per instance slot the
     first entry of its shapegroup's block in ``member_of`` (``inst_base``), whose entry
     ``shape_index`` (Embree's index of the hit shape in the group) is the member's slot, and
     every slot's shape (``slot_reg``: a member's registry id, which Mitsuba's record names).
     Which member an instance's ``shape_index`` names is asked of Mitsuba: a preliminary hit
     made up for each instance and index, its record's shape (``ShapeGroup::
-    compute_surface_interaction`` reads the group's own table)."""
-    reg = [int(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(s))[0]) for s in shapes]
+    compute_surface_interaction`` reads the group's own table). ``reg``: the shapes' registry
+    ids."""
     reg_slot = dict(zip(reg, slot_list))
     groups = group_lists(scene)
     instances = [(s, sl) for s, sl, i in zip(shapes, slot_list, inst) if i]
@@ -618,7 +618,7 @@ class Tables:
             table[r] = sl
         base.reg_to_slot = mi.Int32(checked_index(table, nslots, "reg_to_slot", sentinel=-1))
         base.any_mitsuba_shapes = len(shapes) > 0
-        base.mesh_record = _mesh_record_table(shapes, slot_list, base.member_slots, nslots, scene)
+        base.mesh_record = _mesh_record_table(shapes, slot_list, nslots, scene, reg)
         eps_np = np.full(max(nslots, 1), float(mi.math.RayEpsilon), dtype=np.float32)
         for s_, sl in zip(shapes, slot_list):
             if s_.is_mesh() or kind_of(s_) in _PRECISE_MITSUBA:
