@@ -8,8 +8,9 @@ Per filter and spp: one full-frame window of a ``res``² film, ``spp`` samples a
 sample values (the gather's cost does not depend on them), what the film keeps with the batch
 made (as a second frame of the same windows has it): each round times ``reconstruct`` of this
 tree and of ``--ref`` once each, alternating (``dr.eval`` + ``dr.sync_thread``, warm; wall and
-the process's CPU time), and checks that both give the same float32 bits. ``--ref``: a ``film.py``, or a git revision whose
-``plugins/links1_mitsuba/film.py`` is used. Prints the medians and their ratio (on a shared
+the process's CPU time), and checks that both give the same float32 bits. ``--ref``: a
+``film.py``, or a git revision whose ``plugins/links1_mitsuba/film.py`` is used. Prints the
+medians and their ratio (on a shared
 machine only the ratio measured in one run means something) and writes
 ``compare/results/film_gather.{json,md}``.
 """

@@ -918,8 +918,9 @@ def _filter_strips(rfilter, film_size, seed, batch, data, L, mode):
     :data:`STRIPS_SPP` (the two passes' tables cost more there than the samples' layers), a lane
     :data:`STRIPS_P` pixels of a window row. A loop step is one neighbour row ``dy``; in it, column
     after column of the strip's ``P + 2b``, the column's samples are read once each (the RGB
-    packet, its column weights and its row weight from :func:`_sample_weights`) and their terms summed, in sample order, into the record ``(dy, dx)`` the column
-    gives each strip pixel it neighbours; each pixel then adds that record (its columns come in
+    packet, its column weights and its row weight from :func:`_sample_weights`) and their
+    terms summed, in sample order, into the record ``(dy, dx)`` the column gives each strip
+    pixel it neighbours; each pixel then adds that record (its columns come in
     ascending ``dx``). So only one column's records are live at a time (a loop over samples
     ``1 .. spp - 1`` a column, straight code at spp 2). The same operations in the same order as
     the two passes, the same bits; a record starts at its first term instead of adding it to a

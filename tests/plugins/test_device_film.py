@@ -391,8 +391,9 @@ def test_mi_render_never_visits_numpy(variant, tmp_path, monkeypatch):
 @pytest.mark.parametrize("rfilter", ["box", "gaussian"])
 def test_frames_of_the_same_windows_reuse_the_batch(variant, tmp_path, monkeypatch, rfilter):
     """A second frame of the same windows reuses the batch's sample ids (film.cached_batch,
-    KEEP_LANES), window tables and the strips' column weights: its kernels are the first frame's less those, its
-    pixels the same bits, and the same as a frame that keeps nothing (KEEP_LANES = 0). The
+    KEEP_LANES), window tables and the strips' sample weights (film._sample_weights): its kernels
+    are the first frame's less those, its pixels the same bits, and the same as a frame that
+    keeps nothing (KEEP_LANES = 0). The
     channels are interleaved in the pixel kernel: no kernel runs over pixels x channels."""
     import drjit as dr
     from links1_mitsuba import film
@@ -419,13 +420,13 @@ def test_frames_of_the_same_windows_reuse_the_batch(variant, tmp_path, monkeypat
     for a, b, c in zip(first, again, none):
         assert np.array_equal(a, b) and np.array_equal(a, c)
     # kept: the lanes' windows (a scatter of marks), the sample ids and, for the strips of a
-    # non-box filter (spp 4 <= film.STRIPS_SPP), the samples' column weights (made in the first
+    # non-box filter (spp 4 <= film.STRIPS_SPP), the samples' weights (made in the first
     # frame only); the launch and the pixels' kernels run again
     lanes = [b.lanes for b in integ.engine.batches.values()][-1]
     sizes1, sizes2 = [k["size"] for k in k1], [k["size"] for k in k2]
     kept = 1 if rfilter == "box" else 2
     assert len(k2) < len(k1) and sizes2.count(lanes) == sizes1.count(lanes) - kept, (sizes1, sizes2)
-    # kept nothing: the column weights are written by the kernel that packs the samples
+    # kept nothing: the samples' weights are written by the kernel that packs the samples
     assert len(k3) == len(k1) - (kept - 1)
     assert not [k for k in k1 if k["size"] == pixels * C]
 
