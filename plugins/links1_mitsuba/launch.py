@@ -151,6 +151,15 @@ def _extra_scenes(tables) -> tuple:
     return tuple(x for x in [split["opaque"], *[t[0] for t in split["trans"]]] if x is not None)
 
 
+def _ray_counts(spp, seed):
+    """``(spp_, seeds)``, what a launch's camera rays take (``camera.camera_rays``) as opaque
+    ``UInt32`` (one kernel for every count and seed): ``(spp, strata(spp))`` and ``(seed``'s
+    low 32 bits, ``key_seed(seed))``."""
+    spp = int(spp)
+    return ((dr.opaque(mi.UInt32, spp), dr.opaque(mi.UInt32, strata(spp))),
+            (dr.opaque(mi.UInt32, seed & 0xFFFFFFFF), dr.opaque(mi.UInt32, key_seed(seed))))
+
+
 def _between_launches():
     """Wait for the launch just made, then raise ``KeyboardInterrupt`` if Ctrl-C came meanwhile
     (the render methods hold SIGINT, :func:`links1.interrupts.held_interrupts`): a render of
@@ -526,9 +535,7 @@ class Launches:
         W, _ = tables.film_size
         _, _, w, _ = window
         sid = sample_ids(W, int(spp), Batch([window], [window], int(spp)))
-        o, d, tmin, tmax, _, _ = camera_rays(tables, sid, (dr.opaque(mi.UInt32, spp), dr.opaque(mi.UInt32, strata(spp))),
-                                             (dr.opaque(mi.UInt32, seed & 0xFFFFFFFF),
-                                              dr.opaque(mi.UInt32, key_seed(seed))))
+        o, d, tmin, tmax, _, _ = camera_rays(tables, sid, *_ray_counts(spp, seed))
         return dr.block_sum(mi.UInt32(hits(tables, scene, o, d, tmin, tmax)), w * int(spp)).numpy()
 
     def window_samples(self, tables, scene, tracer: Tracer, window=None, spp=1, seed=None, aovs=None):
@@ -541,10 +548,7 @@ class Launches:
         seed = self.config.seed if seed is None else int(seed)
         want = bool(self.config.aovs if aovs is None else parse_aovs(aovs))
         sid = sample_ids(W, int(spp), Batch([win], [swin], spp))
-        part, _ = self._launch(tables, scene, tracer, sid,
-                               (dr.opaque(mi.UInt32, spp), dr.opaque(mi.UInt32, strata(spp))),
-                               (dr.opaque(mi.UInt32, seed & 0xFFFFFFFF),
-                                dr.opaque(mi.UInt32, key_seed(seed))), want)
+        part, _ = self._launch(tables, scene, tracer, sid, *_ray_counts(spp, seed), want)
         shape = (swin[3], swin[2], int(spp))
         out = {k: (np.stack([np.asarray(v[c]) for c in range(3)], axis=-1) if dr.size_v(v) == 3
                    else np.asarray(v)).reshape(shape + ((3,) if dr.size_v(v) == 3 else ()))
@@ -613,9 +617,7 @@ class Launches:
         batch = cached_batch(self.batches, wins, swins, spp)
         n = batch.lanes
         sid = sample_ids(W, spp, batch)
-        spp_ = (dr.opaque(mi.UInt32, spp), dr.opaque(mi.UInt32, strata(spp)))
-        seeds = (dr.opaque(mi.UInt32, seed & 0xFFFFFFFF),
-                 dr.opaque(mi.UInt32, key_seed(seed)))
+        spp_, seeds = _ray_counts(spp, seed)
         # launches of at most LAUNCH_LANES samples (lanes are independent: the same bits as
         # one launch); one launch of W*H*spp lanes needs ~90 bytes each (512², 1024 spp: 24 GB)
         if n <= LAUNCH_LANES:
