@@ -50,23 +50,21 @@ def nearest(tables, scene, o, d, tmin, tmax, active, cost, eye=False, coherent=F
     a ray that meets an edge shared by two triangles at the same distance may get the other
     one, as in Mitsuba)."""
     rec = getattr(tables, "mesh_record", None)
-    if tables.any_mitsuba_shapes and rec is not None and not ad:
-        # every Mitsuba shape a mesh, rectangle, sphere or disk, or an instance of them: Embree's
-        # preliminary hit, the record made here
+    if tables.any_mitsuba_shapes:
         ray = mi.Ray3f(o + d * tmin, d, tmax - tmin)
-        pi = scene.ray_intersect_preliminary(ray, bool(coherent), active)
-        valid = active & pi.is_valid()
-        t = dr.select(valid, pi.t + tmin, INF)
-        slot, inst, islot = record_slots(tables, rec, pi, valid)
-        si = mesh_surface(rec, ray, pi, slot, valid, inst, islot)
-        cost += dr.select(active, mi.UInt32(1), 0)
-    elif tables.any_mitsuba_shapes:
-        ray = mi.Ray3f(o + d * tmin, d, tmax - tmin)
-        si = scene.ray_intersect(ray, mi.RayFlags.All, bool(coherent), active)
-        valid = active & si.is_valid()
-        t = dr.select(valid, si.t + tmin, INF)
-        reg = dr.reinterpret_array(mi.UInt32, si.shape)
-        slot = dr.select(valid, dr.gather(mi.Int32, tables.reg_to_slot, reg, valid), -1)
+        if rec is not None and not ad:
+            # every Mitsuba shape a mesh, rectangle, sphere or disk, or an instance of them:
+            # Embree's preliminary hit, the record made here
+            pi = scene.ray_intersect_preliminary(ray, bool(coherent), active)
+            valid = active & pi.is_valid()
+            t = dr.select(valid, pi.t + tmin, INF)
+            slot, inst, islot = record_slots(tables, rec, pi, valid)
+            si = mesh_surface(rec, ray, pi, slot, valid, inst, islot)
+        else:
+            si = scene.ray_intersect(ray, mi.RayFlags.All, bool(coherent), active)
+            valid = active & si.is_valid()
+            t = dr.select(valid, si.t + tmin, INF)
+            slot = _shape_slot(tables, si.shape, valid)
         cost += dr.select(active, mi.UInt32(1), 0)
     else:
         si = dr.zeros(mi.SurfaceInteraction3f, dr.width(o))
@@ -83,13 +81,18 @@ def nearest(tables, scene, o, d, tmin, tmax, active, cost, eye=False, coherent=F
     return t, slot, si, prim
 
 
+def _shape_slot(tables, shape, valid):
+    """The slot of the Mitsuba shapes ``shape`` (``ShapePtr``, a hit's) where ``valid``, else -1."""
+    reg = dr.reinterpret_array(mi.UInt32, shape)
+    return dr.select(valid, dr.gather(mi.Int32, tables.reg_to_slot, reg, valid), -1)
+
+
 def record_slots(tables, rec, pi, valid):
     """``(slot, inst, islot)`` of the preliminary hits ``pi`` (``valid``: the lanes with a
     hit): the slot of the shape hit (on an instance: the shapegroup's member, which Mitsuba's
     record names: ``rec.member_of``), the lanes on an instance (None: the scene has none) and
     the instance's slot."""
-    reg = dr.reinterpret_array(mi.UInt32, pi.shape)
-    slot = dr.select(valid, dr.gather(mi.Int32, tables.reg_to_slot, reg, valid), -1)
+    slot = _shape_slot(tables, pi.shape, valid)
     if rec.member_of is None:
         return slot, None, None
     ireg = dr.reinterpret_array(mi.UInt32, pi.instance)
