@@ -165,6 +165,7 @@ def plan_occluders(P, custom, shapes, slot_list, reuse=False):
         P.occ_boxes.append(occluder_boxes(msl, G["lo"], G["hi"], convex))
         P.occ_mslots.append(frozenset(int(v) for v in np.flatnonzero(msl)))
 
+
 def _mesh_rules(s_):
     """``(convex, closed, plane)`` of a small Mitsuba mesh by the core's planar rule
     (:mod:`links1.tracing.occluders`): a planar mesh is convex, with its plane (unit normal,
@@ -176,10 +177,10 @@ def _mesh_rules(s_):
     if v.size == 0 or f.size == 0 or not np.all(np.isfinite(v)):
         return False, False, None
     pl = _plane_of(TriangleMesh(v, f))
-    if pl is not None:
-        nrm, p0 = pl
-        return True, False, (nrm, float(nrm @ p0))
-    return False, False, None
+    if pl is None:
+        return False, False, None
+    nrm, p0 = pl
+    return True, False, (nrm, float(nrm @ p0))
 
 
 def occluder_shapes(P, custom, shapes, slot_list, last=None):
