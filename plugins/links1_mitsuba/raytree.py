@@ -252,8 +252,6 @@ class Tracer:
         uslot = mi.UInt32(dr.maximum(slot, 0))
         # ---- surface record of the winner
         p = o + d * t
-        # the record made in the kernel from Embree's preliminary hit (intersect.mesh_surface)
-        own_si = tables.mesh_record is not None and not ad
         if tables.any_mitsuba_shapes:
             ng, ns = mi.Vector3f(si.n), mi.Vector3f(si.sh_frame.n)
             mits = hit & si.is_valid() & (dr.abs(si.t + tmin - t) <= 0.0)
@@ -300,7 +298,9 @@ class Tracer:
             sif = mi.SurfaceInteraction3f(si)
             cw = hit & ~mits
             sif.p = dr.select(cw, p, si.p)
-            sif.n = mi.Normal3f(ng) if own_si else dr.select(cw, mi.Normal3f(ng), si.n)
+            # (ng is si.n's value wherever no links1 shape won: the select kept for a
+            # derivative pass's graph alone)
+            sif.n = dr.select(cw, mi.Normal3f(ng), si.n) if ad else mi.Normal3f(ng)
             frame_c = mi.Frame3f(ns)
             sif.sh_frame = mi.Frame3f(dr.select(cw, frame_c.s, si.sh_frame.s),
                                       dr.select(cw, frame_c.t, si.sh_frame.t),
