@@ -30,6 +30,8 @@ from .util import INF, color3, gather3, next_up
 KIND_MESH, KIND_RECT, KIND_SPHERE, KIND_DISK = 0, 1, 2, 3
 #: floats a rectangle's, sphere's, disk's or instance's row of ``tables.MeshRecord.rows``
 ROW = 36
+#: floats a packet gather of the per-face table reads (``tables.MeshRecord.packets``)
+PACKET = 4
 #: how :func:`mesh_surface` picks each lane's kind where a scene has several: one symbolic
 #: branch a kind present ("if": a packet runs the kinds it holds), or every kind's operations
 #: on every lane and a select ("select"), or Dr.Jit's symbolic switch ("switch")
@@ -204,21 +206,55 @@ def mesh_surface(rec, ray, pi, slot, valid, inst=None, islot=None):
 
 def _mesh_part(rec, pi, sl, valid):
     """``(p, n, ns, uv, dp_du, dp_dv)`` of the hits ``valid`` on meshes, normals not yet
-    flipped: the face's vertices, texture coordinates and normals gathered from the meshes'
-    buffers, then :func:`_triangle`."""
+    flipped: the face's vertices, texture coordinates and normals read from the per-face
+    table (``rec.packets``, :func:`_face_values`) or gathered from the meshes' buffers, then
+    :func:`_triangle`."""
     face = pi.prim_index
     if rec.face_off is not None:
         face = face + dr.gather(mi.UInt32, rec.face_off, sl, valid)
-    fi = [dr.gather(mi.UInt32, rec.faces, face * 3 + k, valid) for k in range(3)]
-    pos = [dr.gather(mi.Point3f, rec.positions, f, valid) for f in fi]
     uvs = nrm = has_uv = has_n = None
     if rec.texcoords is not None:
         has_uv = valid if rec.has_uv is None else valid & dr.gather(mi.Bool, rec.has_uv, sl, valid)
-        uvs = [dr.gather(mi.Point2f, rec.texcoords, f, has_uv) for f in fi]
     if rec.normals is not None:
         has_n = valid if rec.has_n is None else valid & dr.gather(mi.Bool, rec.has_n, sl, valid)
-        nrm = [dr.gather(mi.Vector3f, rec.normals, f, has_n) for f in fi]
+    if rec.packets is not None:
+        pos, nrm, uvs = _face_values(rec, face, valid)
+    else:
+        fi = [dr.gather(mi.UInt32, rec.faces, face * 3 + k, valid) for k in range(3)]
+        pos = [dr.gather(mi.Point3f, rec.positions, f, valid) for f in fi]
+        if rec.texcoords is not None:
+            uvs = [dr.gather(mi.Point2f, rec.texcoords, f, has_uv) for f in fi]
+        if rec.normals is not None:
+            nrm = [dr.gather(mi.Vector3f, rec.normals, f, has_n) for f in fi]
     return _triangle(pi, pos, uvs, has_uv, nrm, has_n)
+
+
+def face_floats(rec):
+    """Floats a face of ``rec``'s per-face table (``tables.MeshRecord.packets``): 9, 9 more
+    with normals, 6 more with texture coordinates, rounded up to a multiple of :data:`PACKET`."""
+    k = 9 + (9 if rec.normals is not None else 0) + (6 if rec.texcoords is not None else 0)
+    return -(-k // PACKET) * PACKET
+
+
+def _face_values(rec, face, valid):
+    """``(positions, normals, texture coordinates)`` of the vertices of faces ``face`` (lanes
+    ``valid``) from the per-face table ``rec.packets`` (``tables.MeshRecord``), :data:`PACKET`
+    floats a packet gather: the same values as the buffers' (normals, texture coordinates None
+    where the record has none; a mesh without holds zeros there, as the buffers do)."""
+    n = face_floats(rec) // PACKET
+    vals = []
+    for j in range(n):
+        v = dr.gather(mi.ArrayXf, rec.packets, face * n + j, valid, shape=(PACKET, dr.width(face)))
+        vals += [v[i] for i in range(PACKET)]
+    pos = [mi.Point3f(*vals[3 * i:3 * i + 3]) for i in range(3)]
+    nrm = uvs = None
+    at = 9
+    if rec.normals is not None:
+        nrm = [mi.Vector3f(*vals[at + 3 * i:at + 3 * i + 3]) for i in range(3)]
+        at += 9
+    if rec.texcoords is not None:
+        uvs = [mi.Point2f(*vals[at + 2 * i:at + 2 * i + 2]) for i in range(3)]
+    return pos, nrm, uvs
 
 
 def _rect_part(rec, pi, sl, valid):

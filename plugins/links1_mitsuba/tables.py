@@ -31,7 +31,7 @@ import mitsuba as mi
 from . import lightbuffer, proxies, views
 from .bvh import QuadricBVH
 from .config import Config
-from .intersect import KIND_DISK, KIND_MESH, KIND_RECT, KIND_SPHERE, ROW
+from .intersect import KIND_DISK, KIND_MESH, KIND_RECT, KIND_SPHERE, ROW, face_floats
 from .launch import Launches, literal_key
 from .lights import ConstantEnvRecord, EnvMapRecord, analytic_light, area_table, envmap_table
 from .normals import held_positions, llvm, settle_moved
@@ -48,6 +48,9 @@ from .util import PLAIN_MESHES, checked_index, kind_of
 #: an object on the same side as the float64 core. Mitsuba's sphere/cylinder and links1
 #: blobs (iterative roots) use Mitsuba's RayEpsilon (self-shadowing otherwise).
 OFFSET_EPS = 2.0 ** -19
+#: The most bytes of a scene's per-face table (:class:`MeshRecord` ``packets``): a bigger
+#: table is not made, the kernel gathering each hit's face and vertices from the mesh buffers
+FACE_PACKETS_MAX_BYTES = 1 << 28
 _PRECISE_MITSUBA = ("Mesh", "OBJMesh", "PLYMesh", "Rectangle", "Disk", "Links1Bicubic", "SerializedMesh")
 
 
@@ -99,7 +102,13 @@ class MeshRecord:
     (their members are slots of their own, as any shape): a row each (:func:`_instance_row`),
     ``inst_base``, ``member_of``, ``slot_reg`` (:func:`_instance_tables`; None: no instances)
     and ``inst_obj``, whether a member makes its point from the ray (a sphere, a disk: the ray
-    is taken to the group's space)."""
+    is taken to the group's space). ``packets``: per face (the meshes' faces numbered as in
+    ``faces``) what a hit on it reads, contiguous: its three vertices' positions (9 floats),
+    then their normals (9) where ``normals`` is not None, their texture coordinates (6) where
+    ``texcoords`` is not None, zeros up to a multiple of ``intersect.PACKET`` floats (the kernel
+    reads them ``PACKET`` at a time: one packet gather each, in place of the face's index and
+    its vertices' gathers); None where there are no meshes or the table would pass
+    :data:`FACE_PACKETS_MAX_BYTES` (the kernel reads the buffers)."""
 
     faces: object
     positions: object
@@ -116,6 +125,7 @@ class MeshRecord:
     member_of: object = None
     slot_reg: object = None
     inst_obj: bool = False
+    packets: object = None
 
 
 def _analytic_row(s, kind):
@@ -249,6 +259,7 @@ def _mesh_buffers(rec, meshes, per_slot):
     if len(meshes) == 1:
         b = bufs[0]
         rec.faces, rec.positions, rec.normals, rec.texcoords = b["faces"], b["positions"], b["normals"], b["texcoords"]
+        rec.packets = _face_packets(rec)
         return
     nv = [dr.width(b["positions"]) // 3 for b in bufs]
     nf = [dr.width(b["faces"]) // 3 for b in bufs]
@@ -263,6 +274,25 @@ def _mesh_buffers(rec, meshes, per_slot):
         rec.texcoords = mi.Float(np.concatenate([np.asarray(b["texcoords"], dtype=np.float32) if h
                                                  else np.zeros(2 * k, np.float32) for b, h, k in zip(bufs, has_uv, nv)]))
     rec.face_off = mi.UInt32(per_slot(foff, np.uint32, slots))
+    rec.packets = _face_packets(rec)
+
+
+def _face_packets(rec):
+    """``rec``'s per-face table (:class:`MeshRecord` ``packets``) made from its mesh buffers, or
+    None where it would pass :data:`FACE_PACKETS_MAX_BYTES`."""
+    nf = dr.width(rec.faces) // 3
+    k = face_floats(rec)
+    if nf * k * 4 > FACE_PACKETS_MAX_BYTES:
+        return None
+    f = np.asarray(rec.faces, dtype=np.int64).reshape(-1, 3)
+    cols = [np.asarray(rec.positions, dtype=np.float32).reshape(-1, 3)[f].reshape(nf, 9)]
+    if rec.normals is not None:
+        cols.append(np.asarray(rec.normals, dtype=np.float32).reshape(-1, 3)[f].reshape(nf, 9))
+    if rec.texcoords is not None:
+        cols.append(np.asarray(rec.texcoords, dtype=np.float32).reshape(-1, 2)[f].reshape(nf, 6))
+    t = np.zeros((nf, k), dtype=np.float32)
+    t[:, :sum(c.shape[1] for c in cols)] = np.concatenate(cols, axis=1)
+    return mi.Float(t.ravel())
 
 
 def _textured(bsdf) -> bool:

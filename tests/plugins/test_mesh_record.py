@@ -184,10 +184,17 @@ def _record_fields_equal(s, n_rays, inside=0.0, short=0.0, box=False):
     return rec, np.array(slot)[np.array(valid)], on_inst
 
 
-def test_mesh_record_is_mitsubas(variant, tmp_path):
+@pytest.mark.parametrize("packets", [True, False], ids=["per-face table", "buffers"])
+def test_mesh_record_is_mitsubas(variant, tmp_path, monkeypatch, packets):
+    """The meshes' record from the per-face table (``MeshRecord.packets``) and, where a scene's
+    table would be too big, from the meshes' buffers."""
+    from links1_mitsuba import tables
+    if not packets:
+        monkeypatch.setattr(tables, "FACE_PACKETS_MAX_BYTES", 0)
     rec = _record_fields_equal(_load(tmp_path), 2000)[0]
     # (mixed: one mesh with texture coordinates, one flat shaded, one flipped)
     assert rec.face_off is not None and rec.has_uv is not None and rec.has_n is not None and rec.flip is not None
+    assert (rec.packets is not None) == packets
 
 
 @pytest.mark.parametrize("meshes, dispatch", [
