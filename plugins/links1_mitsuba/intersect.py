@@ -42,7 +42,8 @@ DISPATCH = "if"
 
 
 # -------------------------------------------------------------- geometry
-def nearest(tables, scene, o, d, tmin, tmax, active, cost, eye=False, coherent=False, ad=False):
+def nearest(tables, scene, o, d, tmin, tmax, active, cost, eye=False, coherent=False, ad=False, pi=None,
+            keep=None):
     """Nearest hit over Mitsuba shapes and custom shapes: (t, slot, si, prim).
     ``eye``: the rays start at a pinhole camera's eye and its buffer replaces the BVH
     (``Tuning.eye_buffer``).
@@ -50,14 +51,20 @@ def nearest(tables, scene, o, d, tmin, tmax, active, cost, eye=False, coherent=F
     ``coherent``: the camera's rays, neighbours in the lanes (Embree's coherent mode, as
     Mitsuba's own integrators trace their camera rays: ~1.2-2x faster for spp 16 eye rays;
     a ray that meets an edge shared by two triangles at the same distance may get the other
-    one, as in Mitsuba)."""
+    one, as in Mitsuba).
+    ``pi``: where the kernel makes the record (:func:`remakes`), the preliminary hits of these
+    rays found before (:func:`kept_hit`): the record made from them, no query. ``keep``: a list
+    that takes the preliminary hits the query found there."""
     rec = getattr(tables, "mesh_record", None)
     if tables.any_mitsuba_shapes:
         ray = mi.Ray3f(o + d * tmin, d, tmax - tmin)
         if rec is not None and not ad:
             # every Mitsuba shape a mesh, rectangle, sphere or disk, or an instance of them:
             # Embree's preliminary hit, the record made here
-            pi = scene.ray_intersect_preliminary(ray, bool(coherent), active)
+            if pi is None:
+                pi = scene.ray_intersect_preliminary(ray, bool(coherent), active)
+            if keep is not None:
+                keep.append(pi)
             valid = active & pi.is_valid()
             t = dr.select(valid, pi.t + tmin, INF)
             slot, inst, islot = record_slots(tables, rec, pi, valid)
@@ -81,6 +88,30 @@ def nearest(tables, scene, o, d, tmin, tmax, active, cost, eye=False, coherent=F
         return t, slot, si, prim
     t, slot, prim = _nearest_custom(tables, o, d, tmin, tmax, active, cost, eye, t, slot, prim)
     return t, slot, si, prim
+
+
+def remakes(tables):
+    """Whether a nearest hit's record can be made again from its preliminary hit alone
+    (:func:`kept_hit`, :func:`nearest`'s ``pi``): every shape of the scene a Mitsuba one whose
+    record the kernel makes (:func:`mesh_surface`) outside instances, no links1 shape."""
+    rec = getattr(tables, "mesh_record", None)
+    return (bool(tables.any_mitsuba_shapes) and rec is not None and rec.member_of is None
+            and not tables.custom_unrolled and tables.bvh is None)
+
+
+def kept_hit(pi):
+    """What a kernel stores of the preliminary hits ``pi`` for :func:`remade_hit` (whether
+    there is one, the hit shape's registry id, ``t``, the primitive and its uv): six arrays."""
+    return (pi.valid, dr.reinterpret_array(mi.UInt32, pi.shape), pi.t, pi.prim_index, pi.prim_uv.x, pi.prim_uv.y)
+
+
+def remade_hit(kept):
+    """The preliminary hits of :func:`kept_hit`'s arrays ``kept`` (gathered for other lanes)."""
+    valid, shape, t, prim_index, u, v = kept
+    pi = dr.zeros(mi.PreliminaryIntersection3f, dr.width(t))
+    pi.valid, pi.shape = mi.Bool(valid), dr.reinterpret_array(mi.ShapePtr, shape)
+    pi.t, pi.prim_index, pi.prim_uv = mi.Float(t), mi.UInt32(prim_index), mi.Point2f(u, v)
+    return pi
 
 
 def _shape_slot(tables, shape, valid):

@@ -40,6 +40,12 @@ LAUNCH_LANES = 1 << 22
 #: frame). One launch of a frame fits (``LAUNCH_LANES``).
 LAZY_COUNT_LANES = LAUNCH_LANES
 
+#: The launches hand the ray tree their camera rays as a function of the lanes too
+#: (``Tracer.trace_tree``'s ``rays``), so that its camera level stores the hits of the samples
+#: with children, not the children (False: it stores the children; before/after runs). Read
+#: when a launch is recorded: a frozen launch keeps what it was recorded with
+REMAKE = True
+
 
 def _columns(v, n=None):
     """(N, 3) float32 numpy array of a Dr.Jit 3-vector (or of a flat, interleaved Float).
@@ -158,6 +164,14 @@ def _ray_counts(spp, seed):
     spp = int(spp)
     return ((dr.opaque(mi.UInt32, spp), dr.opaque(mi.UInt32, strata(spp))),
             (dr.opaque(mi.UInt32, seed & 0xFFFFFFFF), dr.opaque(mi.UInt32, key_seed(seed))))
+
+
+def _rays_of(tables, sid, spp, seeds):
+    """``Tracer.trace_tree``'s ``rays``: the camera rays (``camera.camera_rays``: ``o, d, tmin,
+    tmax, key``) of the lanes ``idx`` of the sample ids ``sid``."""
+    if not REMAKE:
+        return None
+    return lambda idx: camera_rays(tables, dr.gather(mi.UInt32, sid, idx), spp, seeds)[:5]
 
 
 def _between_launches():
@@ -427,7 +441,8 @@ class Launches:
                 want = cfg[2]
                 o, d, tmin, tmax, key, sample = camera_rays(tables, sid, spp, seeds)
                 total, cost, t0, s0, n0, counters = caller.tracer.trace_tree(
-                    tables, caller.scene, o, d, tmin, tmax, key, want, sample, frozen=n_op)
+                    tables, caller.scene, o, d, tmin, tmax, key, want, sample, frozen=n_op,
+                    rays=_rays_of(tables, sid, spp, seeds))
                 return (total, cost, t0, s0, n0, counters) if want else (total, cost, counters)
             self.window_launch = dr.freeze(launch_kernels, warn_after=1000)
         return self.window_launch
@@ -522,7 +537,7 @@ class Launches:
         else:
             o, d, tmin, tmax, key, sample = camera_rays(tables, sid, spp_, seeds)
             total, cost, t0, s0, n0, counters = tracer.trace_tree(tables, scene, o, d, tmin, tmax, key,
-                                                                  want, sample)
+                                                                  want, sample, rays=_rays_of(tables, sid, spp_, seeds))
         part = {"total": widen(total, n), "cost": widen(cost, n)}
         if want:
             part.update(t0=widen(t0, n), s0=widen(s0, n), n0=widen(n0, n))

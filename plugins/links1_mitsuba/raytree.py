@@ -193,21 +193,23 @@ class Tracer:
 
     # -------------------------------------------------------------- one level
     def level(self, tables, scene, o, d, tmin, tmax, key, depth, spawn, active=None, symbolic=True,
-               sample=None, later=None, ad=False):
+               sample=None, later=None, ad=False, keep=None):
         """Trace and shade one ray per lane (inside the megakernel's loop when ``symbolic``).
         ``sample``: the camera sample of a primary hit (see :func:`.lights.light_uv`). ``later``
         (a derivative pass): a list that takes the shadow tests' results the pass keeps in
         memory, for the caller to evaluate (``raytree_ad.trace_tree_ad``: after it has read
         which rays the level spawns, so that reading waits for the hits' kernel only). ``ad``:
         a derivative pass's level (gradients.py: attached tables, no symbolic branches, visibility
-        on primal values). Returns a :class:`Level`: :meth:`_surface`, :meth:`_emitted`,
-        :meth:`_direct` under every light, :meth:`_secondary` when it spawns (``spawn``)."""
+        on primal values). ``keep``: a list that takes the nearest hits' preliminary hits
+        (``intersect.nearest``'s ``keep``). Returns a :class:`Level`: :meth:`_surface`,
+        :meth:`_emitted`, :meth:`_direct` under every light, :meth:`_secondary` when it spawns
+        (``spawn``)."""
         n = dr.width(o)
         if active is None:
             active = dr.full(mi.Bool, True, n)
         cost = dr.zeros(mi.UInt32, n)
         n_shadow = dr.zeros(mi.UInt32, n)
-        h = self._surface(tables, scene, o, d, tmin, tmax, active, cost, depth, symbolic, ad)
+        h = self._surface(tables, scene, o, d, tmin, tmax, active, cost, depth, symbolic, ad, keep=keep)
         out = self._emitted(tables, scene, h)
         # ---- direct light with shadows (eq. 3.11, 3-3-3). Shadow rays of all lights are
         # built and evaluated together, then handed to Mitsuba's ray tests (each test
@@ -231,18 +233,20 @@ class Tracer:
             self._secondary(tables, h, res, branch=symbolic and not ad)
         return res
 
-    def _surface(self, tables, scene, o, d, tmin, tmax, active, cost, depth, symbolic, ad) -> Hit:
+    def _surface(self, tables, scene, o, d, tmin, tmax, active, cost, depth, symbolic, ad, pi=None,
+                 keep=None) -> Hit:
         """The nearest hit of each ray (Mitsuba's and the links1 shapes', ``cost`` counting the
         tests) and its surface record: position, geometric and shading normals, Mitsuba's
         interaction record and BSDF where the scene has Mitsuba BSDFs or emitters, the Phong
-        coefficients where it has ``links1_phong``, the ray offset's scale."""
+        coefficients where it has ``links1_phong``, the ray offset's scale. ``pi``, ``keep``:
+        ``intersect.nearest``'s (the preliminary hits found before; a list that takes them)."""
         n = dr.width(o)
         if tables.any_mitsuba_shapes and not symbolic:
             dr.eval(o, d, tmin, tmax)
         # level 1 is the camera's rays (from its eye when it is a pinhole)
         eye = depth == 1 and tables.perspective and self.tuning.eye_buffer
         t, slot, si, prim = intersect.nearest(tables, scene, o, d, tmin, tmax, active, cost,
-                                              eye=eye, coherent=depth == 1, ad=ad)
+                                              eye=eye, coherent=depth == 1, ad=ad, pi=pi, keep=keep)
         if ad and not symbolic and tables.custom and not tables.any_mitsuba_shapes:
             # a derivative pass through links1 shapes: the search's results (detached) kept in
             # memory, so that each kernel of the AD traversal reads them instead of marching
@@ -613,7 +617,22 @@ class Tracer:
             ct &= dr.max(w_t) > mw
         return cr, ct, w_r, w_t
 
-    def trace_tree(self, tables, scene, o, d, tmin, tmax, key, want_aovs, sample, frozen=None):
+    def _remade_children(self, tables, scene, rays, kept):
+        """The children of camera rays ``rays = (o, d, tmin, tmax, key)`` from their preliminary
+        hits (``intersect.kept_hit``'s arrays ``kept``, at the same lanes): level 1's record
+        (:meth:`_surface`) and children (:meth:`_secondary`, :meth:`children`) made again with
+        the same operations -> ``(o_r, d_r, w_r, key_r, o_t, d_t, w_t, key_t)``."""
+        o, d, tmin, tmax, key = rays
+        m = dr.width(kept[2])
+        h = self._surface(tables, scene, o, d, tmin, tmax, dr.full(mi.Bool, True, m), dr.zeros(mi.UInt32, m), 1,
+                          True, False, pi=intersect.remade_hit(kept))
+        res = Level(L=None, cost=None, t=h.t, slot=h.slot, ns=h.ns, hit=h.hit, n_shadow=None)
+        self._secondary(tables, h, res)
+        _, _, w_r, w_t = self.children(res, res.hit, mi.Color3f(1.0), mi.UInt32(1))
+        key_r, key_t = child_keys(key)
+        return res.o_r, res.dir_r, w_r, key_r, res.o_t, res.dir_t, w_t, key_t
+
+    def trace_tree(self, tables, scene, o, d, tmin, tmax, key, want_aovs, sample, frozen=None, rays=None):
         """All ray trees: the camera level in one kernel, the rest in a "megakernel".
 
         Level 1 (every sample) is straight-line code. The samples whose hit spawns a
@@ -636,12 +655,23 @@ class Tracer:
         inactive and adds exact zeros, the same bits as no lane), so the loop exists whatever
         the recorded pixels held (two lanes: a recording with one would treat the loop's
         arrays as scalars and replay wrongly).
+
+        ``rays``: the camera rays of some of the lanes, ``rays(idx) -> (o, d, tmin, tmax, key)``,
+        the same values as the arguments' at ``idx`` (None: not given). With it, where the
+        kernel makes the nearest hit's record from the preliminary hit (``intersect.remakes``),
+        the camera level stores of each hit only its preliminary hit (six arrays:
+        ``intersect.kept_hit``) instead of its children's origins, directions, weights and
+        keys (20 arrays, of every sample, where the children are those of about a quarter of
+        them), and the loop's kernel makes level 1's record and children again on the
+        compacted lanes (:meth:`_remade_children`: the same operations, the same bits).
         """
         n = dr.width(o)
         md = self.config.max_depth
         spawn = md > 1 and tables.any_specular
         one = mi.UInt32(1)
-        res = self.level(tables, scene, o, d, tmin, tmax, key, 1, spawn, sample=sample)
+        remake = spawn and rays is not None and intersect.remakes(tables)
+        keep = [] if remake else None
+        res = self.level(tables, scene, o, d, tmin, tmax, key, 1, spawn, sample=sample, keep=keep)
         aov = (res.t, res.slot, res.ns) if want_aovs else ()
         if not spawn:
             rgb = mi.Color3f(res.L)
@@ -651,7 +681,9 @@ class Tracer:
         cr, ct, w_r, w_t = self.children(res, act, mi.Color3f(1.0), mi.UInt32(1))
         key_r, key_t = child_keys(key)
         has_t = tables.any_phong_t or tables.any_mitsuba_dt or tables.any_mitsuba_null
-        if has_t:
+        if remake:  # the children made again from the hit in the loop's kernel
+            kids = intersect.kept_hit(keep[0])
+        elif has_t:
             kids = (res.o_r, res.dir_r, w_r, key_r, res.o_t, res.dir_t, w_t, key_t)
         else:       # no refraction anywhere: no refraction children to store
             kids = (res.o_r, res.dir_r, w_r, key_r)
@@ -667,11 +699,11 @@ class Tracer:
         if m == 0:
             return L1, cost1, res.t, res.slot, res.ns, counters
         g = lambda x: dr.gather(type(x), x, idx)  # noqa: E731
-        if has_t:
-            o_r, d_r, wr, kr, o_t, d_t, wt, kt = (g(x) for x in kids)
-        else:
-            o_r, d_r, wr, kr = (g(x) for x in kids)
-            o_t, d_t, wt, kt = o_r, d_r, wr, kr
+        ch = [g(x) for x in kids]
+        if remake:
+            ch = self._remade_children(tables, scene, rays(idx), ch)
+        o_r, d_r, wr, kr = ch[:4]
+        o_t, d_t, wt, kt = ch[4:] if has_t else ch[:4]
         gr, gt = g(cr), g(ct)
         push = gr & gt
         K = md - 1

@@ -158,12 +158,10 @@ def test_mask_around_dielectric_warns_in_both_renderers(variant):
         sc.integrator().render_window(sc, None, spp=1)
 
 
-def test_branches_skip_only_what_adds_nothing(variant):
-    """The ray tree computes a hit's delta lobes under a branch on the slots that can spawn
-    (``Prepared.spawns``) and its direct light under one on the slots direct light can reach
-    the eye from (``Prepared.shaded``): ``scenes/delta_bsdfs.xml`` (every delta BSDF, diffuse
-    and plastic slots, two delta lights) traced with every hit taken into both branches gives
-    the same radiance, ray counts and children, bit for bit."""
+def _delta_tree(variant):
+    """``scenes/delta_bsdfs.xml`` at 40 px, ``max_depth`` 5, spp 2: ``(tables, trace)``, where
+    ``trace(remake=False)`` traces its ray trees (``Tracer.trace_tree``; ``remake``: given the
+    camera rays as a function of the lanes) -> radiance, costs and ray counters as numpy."""
     import os
     import drjit as dr
     import mitsuba as mi
@@ -177,19 +175,33 @@ def test_branches_skip_only_what_adds_nothing(variant):
     eng = scene.integrator().engine
     tracer = eng._tracer()
     tables = eng.tables.prepare(scene, None, tracer.tuning)
-    base = tables.base or tables
     spp = 2
     n = tables.film_size[0] * tables.film_size[1] * spp
+    sid = dr.arange(mi.UInt32, n)
+    counts = (dr.opaque(mi.UInt32, spp), dr.opaque(mi.UInt32, strata(spp)))
+    seeds = (dr.opaque(mi.UInt32, 0), dr.opaque(mi.UInt32, key_seed(0)))
+
+    def trace(remake=False):
+        o, d, tmin, tmax, key, sample = camera_rays(tables, sid, counts, seeds)
+        rays = None
+        if remake:
+            rays = lambda idx: camera_rays(tables, dr.gather(mi.UInt32, sid, idx), counts, seeds)[:5]  # noqa: E731
+        rgb, cost, _, _, _, c = tracer.trace_tree(tables, scene, o, d, tmin, tmax, key, False, sample, rays=rays)
+        return [np.asarray(rgb), np.asarray(cost)] + [np.asarray(c[k]) for k in ("nsh1", "cr", "ct", "nr", "nt", "nsh2")]
+    return tables, trace
+
+
+def test_branches_skip_only_what_adds_nothing(variant):
+    """The ray tree computes a hit's delta lobes under a branch on the slots that can spawn
+    (``Prepared.spawns``) and its direct light under one on the slots direct light can reach
+    the eye from (``Prepared.shaded``): ``scenes/delta_bsdfs.xml`` (every delta BSDF, diffuse
+    and plastic slots, two delta lights) traced with every hit taken into both branches gives
+    the same radiance, ray counts and children, bit for bit."""
+    import mitsuba as mi
+    tables, trace = _delta_tree(variant)
+    base = tables.base or tables
     spawns, shaded = np.asarray(base.spawns), np.asarray(base.shaded)
     assert spawns.any() and not spawns.all() and shaded.any() and not shaded.all()
-
-    def trace():
-        o, d, tmin, tmax, key, sample = camera_rays(
-            tables, dr.arange(mi.UInt32, n), (dr.opaque(mi.UInt32, spp), dr.opaque(mi.UInt32, strata(spp))),
-            (dr.opaque(mi.UInt32, 0), dr.opaque(mi.UInt32, key_seed(0))))
-        rgb, cost, _, _, _, c = tracer.trace_tree(tables, scene, o, d, tmin, tmax, key, False, sample)
-        return [np.asarray(rgb), np.asarray(cost)] + [np.asarray(c[k]) for k in ("nsh1", "cr", "ct", "nr", "nt", "nsh2")]
-
     got = trace()
     base.spawns, base.shaded, base.all_shaded = mi.Bool(np.ones_like(spawns)), mi.Bool(np.ones_like(shaded)), True
     try:
@@ -199,3 +211,19 @@ def test_branches_skip_only_what_adds_nothing(variant):
     assert got[4].any() and got[5].any()           # refraction at level 1, mirror rays below it
     for a, b in zip(got, every):
         assert np.array_equal(a, b)
+
+
+def test_children_remade_from_the_hit(variant):
+    """Given the camera rays as a function of the lanes (``trace_tree``'s ``rays``, as the
+    launches give them), the camera level stores only the preliminary hits of
+    ``scenes/delta_bsdfs.xml``'s spheres and rectangles and the loop's kernel makes their
+    record and children again: the same radiance, costs and ray counters, bit for bit, as the
+    tree that stores the children."""
+    from links1_mitsuba import intersect
+    tables, trace = _delta_tree(variant)
+    assert intersect.remakes(tables)
+    stored, remade = trace(), trace(remake=True)
+    assert stored[4].any() and stored[6].any() and stored[7].any()   # refraction at level 1, both kinds below it
+    for a, b in zip(stored, remade):
+        assert np.array_equal(a.view(np.uint32) if a.dtype == np.float32 else a,
+                              b.view(np.uint32) if b.dtype == np.float32 else b)
