@@ -28,7 +28,8 @@ radius allows it: a sample's two outermost weights are never both nonzero):
 
 1. a lane a pixel ``q`` of a sample window (:func:`_filter_partials`): over ``q``'s samples, for
    each neighbour offset ``(dy, dx)``, the record ``(Σ w·r, Σ w·g, Σ w·b, Σ w)`` of the terms
-   ``q`` gives the pixel ``(dy, dx)`` away (a table a offset, ``(2b+1)²`` of them);
+   ``q`` gives the pixel ``(dy, dx)`` away (a table a offset, ``(2b+1)²`` of them; RGB records
+   of 5 neighbours a row a table a row, 64 bytes a pixel: :func:`_row_tables`);
 2. a lane an output pixel (:func:`_filter_sum`): its neighbours' records for it, added in
    ascending ``dy``, then ``dx``, over the weight sum.
 
@@ -637,7 +638,8 @@ def _filter_partials(rfilter, film_size, seed, batch, data, n_s, mode, channels=
     sample order, ``w = wy(dy) · wx(dx)`` (read from :func:`_sample_weights` where the batch keeps
     them, else :func:`_weights`): the terms ``q`` gives the output pixel ``(dy - b, dx - b)`` away
     from it, as :meth:`links1.sensor.filters.FilterGather.add` sums them. Returns ``nb²`` Float32 tables, one
-    a offset ``dy · nb + dx``, with pixel ``q``'s record at ``4q``; a record depends only on its
+    a offset ``dy · nb + dx``, with pixel ``q``'s record at ``4q`` (where :func:`_row_tables`:
+    ``nb`` tables, one a neighbour row, pixel ``q``'s at ``16q``); a record depends only on its
     pixel's samples. ``channels``: 4, the record; 3, its RGB sums (the fourth float +0: a packet),
     where the weight sums are kept (:func:`reconstruct`). Returns ``(tables, counts)``: where pixels of zero samples
     skipped the loop, ``counts`` (UInt32, the pixels up to each one that have a nonzero sample:
@@ -707,11 +709,18 @@ def _filter_partials(rfilter, film_size, seed, batch, data, n_s, mode, channels=
                             mode, batch.spp)
     else:
         _, *acc = _loop((dr.zeros(U32, nq), *acc), lambda i, *_: i < n_s, body, mode, batch.spp)
-    # a table per offset (separate scatters into one array would each evaluate the ones
-    # before: the loop once per record); adjacent lanes write adjacent records
-    parts = [dr.empty(FT, nq * 4) for _ in range(nb * nb)]
-    for kk, part in enumerate(parts):
-        dr.scatter(part, ArrayX(*acc[C * kk:C * kk + C], *[FT(0.0)] * (4 - C)), q)
+    # a table per offset, or per neighbour row (_row_tables; separate scatters into one array
+    # would each evaluate the ones before: the loop once per record); adjacent lanes write
+    # adjacent records
+    if _row_tables(nb, C):
+        parts = [dr.empty(FT, nq * 16) for _ in range(nb)]
+        for dy, part in enumerate(parts):
+            r = acc[3 * nb * dy:3 * nb * (dy + 1)]   # the row's records (dx = 0 .. 4), RGB each
+            dr.scatter(part, ArrayX(*r[0:3], r[12], *r[3:6], r[13], *r[6:9], r[14], *r[9:12], FT(0.0)), q)
+    else:
+        parts = [dr.empty(FT, nq * 4) for _ in range(nb * nb)]
+        for kk, part in enumerate(parts):
+            dr.scatter(part, ArrayX(*acc[C * kk:C * kk + C], *[FT(0.0)] * (4 - C)), q)
     if nz is None:
         return parts, None
     seen = dr.empty(U32, nq)   # 1 where a pixel has a nonzero sample, written by the same kernel
@@ -764,9 +773,17 @@ def _filter_sum(rfilter, film_size, batch, part, L, den=None, seen=None):
     C = 3 if den is not None else 4
     acc = [dr.zeros(FT, L.n)] * C
 
+    rows = _row_tables(nb, C)
+
     def add(*acc):
         for dy, dx, on, q in _neighbours(rfilter, film_size, L):
-            rec = dr.gather(ArrayX, part[dy * nb + dx], dr.select(on, q0 + q, 0), on, shape=(4, L.n))
+            at = dr.select(on, q0 + q, 0)
+            if not rows:
+                rec = dr.gather(ArrayX, part[dy * nb + dx], at, on, shape=(4, L.n))
+            elif dx < nb - 1:
+                rec = dr.gather(ArrayX, part[dy], at * 4 + dx, on, shape=(4, L.n))
+            else:
+                rec = [dr.gather(FT, part[dy], at * 16 + (4 * c + 3), on) for c in range(3)]
             acc = [a + rec[c] for c, a in enumerate(acc)]
         return acc
     if seen is None:
@@ -785,6 +802,15 @@ def _filter_sum(rfilter, film_size, batch, part, L, den=None, seen=None):
                                 lambda j, *a: (j + 1, *add(*a)))
     acc = acc if den is None else [*acc, den]
     return _normalised(acc), acc[3]
+
+
+def _row_tables(nb, channels):
+    """Whether the filter's pass 1 writes its records a table per neighbour row, 16 float32 a
+    pixel (:func:`_filter_partials`, :func:`_filter_sum`): with RGB records (``channels`` 3)
+    and ``nb`` 5, the row's records ``dx = 0 .. 3`` at floats ``4 dx .. 4 dx + 2`` (a packet
+    of 4 each) and the channels of ``dx = 4`` at floats 3, 7 and 11: a cache line a row, 320
+    bytes a pixel instead of the 400 of a table per offset (25 packets of 4, one float +0)."""
+    return channels == 3 and nb == 5
 
 
 def _keeps_weights(rfilter, batch):

@@ -261,6 +261,33 @@ def test_compact_sample_weights_are_the_full_records_weights(variant, name, para
         assert np.count_nonzero(want[[0, nb - 1, nb, 2 * nb - 1]]) > n   # the outermost weights matter
 
 
+@pytest.mark.parametrize("rfilter", ["gaussian", "tent", "lanczos"])
+def test_later_frames_rgb_records_equal_numpy_film(variant, tmp_path, rfilter):
+    """Frames after a batch's first sum RGB records alone, in the two passes above
+    film.STRIPS_SPP, and with 5 neighbours a row (gaussian) write them a table per neighbour row
+    (film._row_tables: four packets and the fifth record in their fourth floats; tent and
+    lanczos keep a table per offset): windows at each film edge, three frames, equal the numpy
+    film (bit for bit for tent) and each other."""
+    import mitsuba as mi
+    from links1_mitsuba import film
+    scene = load(tmp_path, rfilter)
+    integ = scene.integrator()
+    nb = 2 * integ.prepare(scene).rfilter.border + 1
+    assert film._row_tables(nb, 3) == (rfilter == "gaussian")
+    wins = [(W - 13, 0, 13, 5), (0, H - 3, 5, 3), (10, 4, 1, 9), (1, 1, W - 1, 2)]
+    spp = film.STRIPS_SPP + 1
+    frames = [integ.render_windows_device(scene, wins, spp=spp, seed=5, dtype=mi.Float64) for _ in range(3)]
+    for k, win in enumerate(wins):
+        ref = numpy_film(integ, scene, win, spp, 5, "")
+        for frame in frames:
+            got = np.asarray(frame[k])
+            assert np.array_equal(got, np.asarray(frames[0][k]))
+            if rfilter in EXACT:
+                assert np.array_equal(got, ref)
+            else:
+                assert_near_numpy(got, ref)
+
+
 def test_zero_pixels_skipped_or_not_give_the_same_bits(variant, tmp_path, monkeypatch):
     """A batch's first frame sums the records' four channels and keeps its weight sums; later
     frames sum RGB alone and skip the sample-window pixels whose samples are all zero (their
