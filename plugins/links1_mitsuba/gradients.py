@@ -213,7 +213,9 @@ class Gradients:
         through that graph instead of being rendered again."""
         kept = self._take_kept(scene, sensor, seed, spp, tuning)   # the whole frame as one block
         # (the primal tables prepared once for the pass's parts: the scene does not change in it)
-        blocks, primal = ([None], None) if kept is not None else self._ad_blocks(scene, sensor, seed, spp, tuning)
+        blocks, primal, ad = ([None], None, None) if kept is not None else self._ad_blocks(scene, sensor, seed, spp,
+                                                                                           tuning)
+        ad = ad or [None] * len(blocks)
         # projective over several blocks: the visibility term in its own, larger blocks first
         # (its graph is small; each pass over a window has a cost of its own)
         apart = self.config.projective and len(blocks) > 1
@@ -221,11 +223,11 @@ class Gradients:
         with dr.resume_grad():
             if apart:
                 self._backward_boundary(scene, grad_in, sensor, seed, spp, tuning, primal)
-            for block in blocks:
+            for block, ad_tables in zip(blocks, ad):
                 # one block's graph at a time: built, its rows of grad_in propagated, dropped
                 img = kept if block is None else self._render_ad(scene, sensor, seed, spp, tuning, window=block,
                                                                  mode=dr.ADMode.Backward, edge=not apart,
-                                                                 primal=primal)
+                                                                 primal=primal, ad_tables=ad_tables)
                 kept = None
                 h = img.shape[0]
                 g = grad_in if h == grad_in.shape[0] else grad_in[y:y + h]
@@ -239,21 +241,45 @@ class Gradients:
         dr.eval()
 
     def _ad_blocks(self, scene, sensor, seed, spp, tuning):
-        """The blocks (:func:`row_blocks`) of the frame a derivative pass renders and the primal
-        tables it starts from; with more than one block, Dr.Jit's allocation cache is flushed
-        first (the primal frame's buffers wait there, in sizes the blocks do not reuse: the peak
-        would be the primal's plus a block's)."""
+        """The blocks (:func:`row_blocks`) of the frame a derivative pass renders, the primal
+        tables it starts from and, where the blocks were counted in the pass's seeing lanes,
+        each block's tables of the pass (:meth:`_ad_tables`) holding the hits of its camera
+        rays (else None); with more than one block, Dr.Jit's allocation cache is flushed first
+        (the primal frame's buffers wait there, in sizes the blocks do not reuse: the peak would
+        be the primal's plus a block's)."""
         sensor_, win, spp_, seed_ = render_request(scene, sensor, seed, spp, self.config.seed)
+        ad = None
         with dr.suspend_grad():
             primal = self.tables.prepare(scene, sensor_, tuning)
             blocks = row_blocks(win, primal.film_size, primal.rfilter.border, spp_)
             if len(blocks) > 1 and primal.rfilter.border == 0 and raytree_ad.traces_seeing(self.config, primal):
                 # blocks counted in the lanes the pass puts on the AD tape (few where few
-                # camera rays hit something): the rows' hits found first
-                blocks = seeing_blocks(win, self.launches.seeing_rows(primal, scene, win, spp_, seed_), spp_)
+                # camera rays hit something): the window's camera rays' hits found first, by the
+                # pass's own tables, which each block then takes (raytree_ad.SEEING) instead of
+                # tracing its camera rays again
+                with dr.resume_grad():
+                    tables = self._ad_tables(primal, scene)
+                hit = self.launches.seeing_hits(tables, scene, win, spp_, seed_)
+                lanes = win[2] * win[3] * spp_
+                seen = raytree_ad.seeing_of(hit) if lanes <= SEEING_CAP * AD_BLOCK_LANES else None
+                m = -1 if seen is None else dr.width(seen[0])
+                if 0 <= (m if raytree_ad.seeing_alone(lanes, m) else lanes) <= AD_BLOCK_LANES:
+                    blocks, parts = [win], [seen]    # one block: its seeing lanes as found here
+                else:
+                    blocks = seeing_blocks(win, dr.block_sum(mi.UInt32(hit), win[2] * spp_).numpy(), spp_)
+                    row = win[2] * spp_
+                    parts = [(None, dr.gather(mi.Bool, hit, dr.arange(mi.UInt32, b[3] * row) + (b[1] - win[1]) * row))
+                             for b in blocks]
+                ad = []
+                for part in parts:   # (a block's own tables: its graph is dropped before the next)
+                    if ad:
+                        with dr.resume_grad():
+                            tables = self._ad_tables(primal, scene)
+                    tables.ad_memo[raytree_ad.SEEING] = part
+                    ad.append(tables)
         if len(blocks) > 1:
             dr.flush_malloc_cache()
-        return blocks, primal
+        return blocks, primal, ad
 
     # -------------------------------------------------------------- the kept graph
     def render_keeping_graph(self, scene, sensor, win, spp, seed, tuning):
@@ -306,19 +332,21 @@ class Gradients:
         return img
 
     # -------------------------------------------------------------- the differentiable frame
-    def _render_ad(self, scene, sensor, seed, spp, tuning, window=None, mode=None, edge=True, primal=None):
+    def _render_ad(self, scene, sensor, seed, spp, tuning, window=None, mode=None, edge=True, primal=None,
+                   ad_tables=None):
         """The frame ``render()`` makes (or its ``window``), with Dr.Jit's AD graph from the
         scene's gradient-enabled parameters (see the module's docstring); ``mode``: the
         ``dr.ADMode`` the graph is made for (Forward or Backward: the same frame); ``edge``:
         with the visibility term where ``projective`` (:meth:`_backward_boundary` otherwise);
-        ``primal``: the tables ``Tables.prepare`` gave for this request (None: prepared here)."""
+        ``primal``: the tables ``Tables.prepare`` gave for this request (None: prepared here);
+        ``ad_tables``: the pass's tables :meth:`_ad_blocks` made for this window (None: made here)."""
         if self.config.adaptive is not None:
             raise NotImplementedError("links1_whitted: gradients of adaptive anti-aliasing are not "
                                       "implemented (render with spp instead of adaptive)")
         sensor, win, spp, seed = render_request(scene, sensor, seed, spp, self.config.seed)
         win = win if window is None else window
         primal = self._prepared(scene, sensor, tuning, primal)
-        ad_tables = self._ad_tables(primal, scene)
+        ad_tables = self._ad_tables(primal, scene) if ad_tables is None else ad_tables
         tracer = Tracer(self.config, tuning)
         # projective: the visibility term (boundary.py), traced before the interior pass, its
         # sides' radiance by the primal tree (the point launch of the primal tables)

@@ -543,15 +543,17 @@ class Launches:
             part.update(t0=widen(t0, n), s0=widen(s0, n), n0=widen(n0, n))
         return part, self._launch_counts(n, counters)
 
-    def seeing_rows(self, tables, scene, window, spp, seed):
-        """Per row of the film window ``window = (x0, y0, w, h)`` (its own samples: a box
-        filter's), how many of its samples' camera rays hit something (numpy ``h``): what a
-        derivative pass traces of it (``raytree_ad.trace_tree_ad``)."""
+    def seeing_hits(self, tables, scene, window, spp, seed):
+        """Where the camera rays of the film window ``window = (x0, y0, w, h)`` (its own samples:
+        a box filter's) hit something: a ``Bool`` lane per sample, in the order of the window's
+        launch (row by row), evaluated: what a derivative pass traces of it
+        (``raytree_ad.trace_tree_ad``)."""
         W, _ = tables.film_size
-        _, _, w, _ = window
         sid = sample_ids(W, int(spp), Batch([window], [window], int(spp)))
         o, d, tmin, tmax, _, _ = camera_rays(tables, sid, *_ray_counts(spp, seed))
-        return dr.block_sum(mi.UInt32(hits(tables, scene, o, d, tmin, tmax)), w * int(spp)).numpy()
+        hit = hits(tables, scene, o, d, tmin, tmax)
+        dr.eval(hit)
+        return hit
 
     def window_samples(self, tables, scene, tracer: Tracer, window=None, spp=1, seed=None, aovs=None):
         """The samples a window's pixels are made of, as numpy (for checks and debugging):

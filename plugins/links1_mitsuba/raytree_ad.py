@@ -18,6 +18,11 @@ from .util import INF
 #: the derivative pass traces the samples whose camera ray hits something alone where at most
 #: this fraction of them does (:func:`trace_tree_ad`)
 SEEING_MAX = 0.75
+#: the key of the pass's tables' ``ad_memo`` under which the hits of its camera rays wait where
+#: the pass found them before tracing (``Gradients._ad_blocks``): ``(lanes, hits)`` as
+#: :func:`seeing_of` makes them (``lanes`` None: not compressed yet); :func:`_seeing` takes
+#: them instead of tracing the rays again
+SEEING = "seeing"
 
 
 def cat(a, b, na, nb):
@@ -82,18 +87,25 @@ def hits(tables, scene, o, d, tmin, tmax):
     return slot >= 0
 
 
+def seeing_of(hit):
+    """``(lanes, hits)``: the lanes (``UInt32``) where the mask ``hit`` is set, and the mask."""
+    with dr.suspend_grad():
+        return dr.compress(hit), hit
+
+
 def _seeing(tables, scene, o, d, tmin, tmax, key, sample):
     """``(lanes, hits)``: the lanes (``UInt32``) whose camera ray hits something and the mask
     of those, or None (every lane traced) where more than :data:`SEEING_MAX` of them do or
     none does. The rays, their keys and samples are evaluated with the mask, in one kernel (a
     gather evaluates its source alone: a kernel per component otherwise)."""
     n = dr.width(o)
-    hit = hits(tables, scene, o, d, tmin, tmax)
+    lanes, hit = (tables.ad_memo or {}).pop(SEEING, (None, None))
+    if hit is None or dr.width(hit) != n:
+        lanes, hit = None, hits(tables, scene, o, d, tmin, tmax)
     with dr.suspend_grad():
         dr.eval(o, d, tmin, tmax, key, sample[0], sample[1], hit)
-        seeing = dr.compress(hit)
-    m = dr.width(seeing)
-    return (seeing, hit) if seeing_alone(n, m) else None
+    seen = seeing_of(hit) if lanes is None else (lanes, hit)
+    return seen if seeing_alone(n, dr.width(seen[0])) else None
 
 
 def _trace(tracer, tables, scene, o, d, tmin, tmax, key, sample, seen=None):

@@ -118,3 +118,32 @@ def test_seeing_blocks_cover_the_window_once_within_the_budget():
     # few hits: one block of more samples than the budget; all hit: blocks of the budget's lanes
     assert len(seeing_blocks((0, 0, 256, 256), np.full(256, 100), 4)) == 1
     assert len(seeing_blocks((0, 0, 256, 256), np.full(256, 1024), 4)) == 2
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("budget, blocks", [(300, 1), (200, 2)])
+def test_blocks_take_the_hits_counted_before_the_pass(variant, monkeypatch, budget, blocks):
+    """Where the window is more than one block of rows, the pass counts its camera rays' hits
+    first (its own tables) and each block takes its part of that mask (raytree_ad.SEEING): the
+    window's camera rays are traced for their hits once a pass, not once more in each block;
+    the blocks' gradients are those of the pass over every lane (rtol 1e-5, as above)."""
+    from links1_mitsuba import gradients, launch, raytree_ad
+    sc = _load()
+    weights = np.random.default_rng(5).uniform(0.0, 1.0, (18, 24, 3)).astype(np.float32)
+    monkeypatch.setattr(gradients, "AD_BLOCK_LANES", budget)
+    traced, seen = [], []
+    real_hits, real_seeing = raytree_ad.hits, raytree_ad._seeing
+    counting = lambda *a: traced.append(1) or real_hits(*a)   # noqa: E731
+    monkeypatch.setattr(raytree_ad, "hits", counting)
+    monkeypatch.setattr(launch, "hits", counting)
+    monkeypatch.setattr(raytree_ad, "_seeing", lambda *a: seen.append(real_seeing(*a)) or seen[-1])
+    got = _reverse(sc, weights)
+    assert len(traced) == 1                                   # the window's camera rays, once
+    assert len(seen) == blocks and all(s is not None for s in seen)
+    assert sum(len(np.asarray(s[0])) for s in seen) < 0.5 * 18 * 24 * 2
+    monkeypatch.setattr(raytree_ad, "SEEING_MAX", -1.0)      # every lane traced, in one block
+    monkeypatch.setattr(gradients, "AD_BLOCK_LANES", 1 << 17)
+    ref = _reverse(sc, weights)
+    for k, a, b in zip(KEYS, got, ref):
+        assert np.any(b != 0), k
+        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6 * np.abs(b).max(), err_msg=k)
