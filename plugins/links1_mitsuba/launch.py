@@ -316,11 +316,14 @@ class Launches:
 
     # -------------------------------------------------------------- ray counters
     def _counts(self, n, nsh1, cr=None, ct=None, nr=None, nt=None, nsh2=None):
-        """Ray counters of one launch of ``n`` camera rays (rays by kind)."""
+        """Ray counters of one launch of ``n`` camera rays (rays by kind; ``cr``, ``ct``: which
+        camera rays have a mirror and a refraction child, of every lane or of the compacted
+        ones: ``Tracer.trace_tree``)."""
         tot = lambda a: 0 if a is None else int(np.sum(_lanes(a, dr.width(a)), dtype=np.int64))  # noqa: E731
+        w = 0 if cr is None else max(dr.width(cr), dr.width(ct))
         return {"camera": int(n), "shadow": tot(nsh1) + tot(nsh2), "reflect": tot(cr) + tot(nr),
                 "refract": tot(ct) + tot(nt),
-                "secondary_lanes": int(np.count_nonzero(_lanes(cr, n) | _lanes(ct, n))) if cr is not None else 0}
+                "secondary_lanes": int(np.count_nonzero(_lanes(cr, w) | _lanes(ct, w))) if cr is not None else 0}
 
     def _launch_counts(self, n, counters):
         """A launch's ray counters for :meth:`_set_stats`: the launch's arrays (outputs of its
@@ -333,7 +336,8 @@ class Launches:
         def tot(a):
             return 0 if a is None else dr.sum(mi.UInt64(dr.select(a, 1, 0)) if dr.is_mask_v(a) else mi.UInt64(a))
         c = {k: counters.get(k) for k in ("nsh1", "cr", "ct", "nr", "nt", "nsh2")}
-        sec = 0 if c["cr"] is None else tot(widen(c["cr"], n) | widen(c["ct"], n))
+        w = 0 if c["cr"] is None else max(dr.width(c["cr"]), dr.width(c["ct"]))
+        sec = 0 if c["cr"] is None else tot(widen(c["cr"], w) | widen(c["ct"], w))
         return ("device", {"camera": int(n), "shadow": tot(c["nsh1"]) + tot(c["nsh2"]),
                            "reflect": tot(c["cr"]) + tot(c["nr"]), "refract": tot(c["ct"]) + tot(c["nt"]),
                            "secondary_lanes": sec})

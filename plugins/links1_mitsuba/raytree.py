@@ -48,6 +48,12 @@ from .util import INF, gather3, mix32
 # skips it instead of computing it masked
 
 
+#: where the children are made again in the loop's kernel (``Tracer.trace_tree``'s ``rays``),
+#: the camera level computes no lobes: the samples whose hit can spawn are compacted and the
+#: loop's kernel tells which spawn (False: level 1 computes them for its ``cr``, ``ct``)
+LOBES_IN_LOOP = True
+
+
 def child_keys(key):
     """The keys of a hit's mirror and refraction children, ``mix(key ^ KEY_REFLECT)`` and
     ``mix(key ^ KEY_REFRACT)`` (links1.maths.sampling.child_keys): one rule for the megakernel
@@ -621,16 +627,17 @@ class Tracer:
         """The children of camera rays ``rays = (o, d, tmin, tmax, key)`` from their preliminary
         hits (``intersect.kept_hit``'s arrays ``kept``, at the same lanes): level 1's record
         (:meth:`_surface`) and children (:meth:`_secondary`, :meth:`children`) made again with
-        the same operations -> ``(o_r, d_r, w_r, key_r, o_t, d_t, w_t, key_t)``."""
+        the same operations -> ``((cr, ct), (o_r, d_r, w_r, key_r, o_t, d_t, w_t, key_t))``, with
+        ``cr``, ``ct`` the lanes with a mirror and a refraction child (:meth:`children`)."""
         o, d, tmin, tmax, key = rays
         m = dr.width(kept[2])
         h = self._surface(tables, scene, o, d, tmin, tmax, dr.full(mi.Bool, True, m), dr.zeros(mi.UInt32, m), 1,
                           True, False, pi=intersect.remade_hit(kept))
         res = Level(L=None, cost=None, t=h.t, slot=h.slot, ns=h.ns, hit=h.hit, n_shadow=None)
         self._secondary(tables, h, res)
-        _, _, w_r, w_t = self.children(res, res.hit, mi.Color3f(1.0), mi.UInt32(1))
+        cr, ct, w_r, w_t = self.children(res, res.hit, mi.Color3f(1.0), mi.UInt32(1))
         key_r, key_t = child_keys(key)
-        return res.o_r, res.dir_r, w_r, key_r, res.o_t, res.dir_t, w_t, key_t
+        return (cr, ct), (res.o_r, res.dir_r, w_r, key_r, res.o_t, res.dir_t, w_t, key_t)
 
     def trace_tree(self, tables, scene, o, d, tmin, tmax, key, want_aovs, sample, frozen=None, rays=None):
         """All ray trees: the camera level in one kernel, the rest in a "megakernel".
@@ -663,7 +670,11 @@ class Tracer:
         ``intersect.kept_hit``) instead of its children's origins, directions, weights and
         keys (20 arrays, of every sample, where the children are those of about a quarter of
         them), and the loop's kernel makes level 1's record and children again on the
-        compacted lanes (:meth:`_remade_children`: the same operations, the same bits).
+        compacted lanes (:meth:`_remade_children`: the same operations, the same bits). The
+        camera level then computes no lobes (:data:`LOBES_IN_LOOP`): the samples whose hit is
+        on a slot that can spawn (``Prepared.spawns``) are compacted, those without a child
+        start inactive in the loop, and the counters of level 1's children (``cr``, ``ct``)
+        are arrays of the compacted lanes.
         """
         n = dr.width(o)
         md = self.config.max_depth
@@ -671,40 +682,53 @@ class Tracer:
         one = mi.UInt32(1)
         remake = spawn and rays is not None and intersect.remakes(tables)
         keep = [] if remake else None
-        res = self.level(tables, scene, o, d, tmin, tmax, key, 1, spawn, sample=sample, keep=keep)
+        # (remade: the children's lobes too are computed in the loop's kernel alone)
+        lobes1 = not (remake and LOBES_IN_LOOP)
+        res = self.level(tables, scene, o, d, tmin, tmax, key, 1, spawn and lobes1, sample=sample, keep=keep)
         aov = (res.t, res.slot, res.ns) if want_aovs else ()
         if not spawn:
             rgb = mi.Color3f(res.L)
             dr.eval(rgb, res.cost, res.n_shadow, *aov)
             return rgb, res.cost, res.t, res.slot, res.ns, dict(nsh1=res.n_shadow)
         act = res.hit
-        cr, ct, w_r, w_t = self.children(res, act, mi.Color3f(1.0), mi.UInt32(1))
-        key_r, key_t = child_keys(key)
         has_t = tables.any_phong_t or tables.any_mitsuba_dt or tables.any_mitsuba_null
+        if lobes1:
+            cr, ct, w_r, w_t = self.children(res, act, mi.Color3f(1.0), mi.UInt32(1))
+            split, flags = cr | ct, (cr, ct)
+        else:   # the hits on slots that can spawn (Prepared.spawns): the loop's kernel tells
+            split = act & dr.gather(mi.Bool, tables.spawns, mi.UInt32(dr.maximum(res.slot, 0)), act)
+            flags = (split,)
         if remake:  # the children made again from the hit in the loop's kernel
             kids = intersect.kept_hit(keep[0])
-        elif has_t:
-            kids = (res.o_r, res.dir_r, w_r, key_r, res.o_t, res.dir_t, w_t, key_t)
-        else:       # no refraction anywhere: no refraction children to store
-            kids = (res.o_r, res.dir_r, w_r, key_r)
+        else:
+            key_r, key_t = child_keys(key)
+            if has_t:
+                kids = (res.o_r, res.dir_r, w_r, key_r, res.o_t, res.dir_t, w_t, key_t)
+            else:       # no refraction anywhere: no refraction children to store
+                kids = (res.o_r, res.dir_r, w_r, key_r)
         L1, cost1, nsh1 = res.L, res.cost, res.n_shadow
-        dr.eval(L1, cost1, nsh1, cr, ct, *aov, *kids)                  # kernel 1: level 1
+        dr.eval(L1, cost1, nsh1, *flags, *aov, *kids)                  # kernel 1: level 1
         if frozen is not None:  # the last two samples always: a width of 1 would record as a scalar
             ar = dr.arange(mi.UInt32, n)
-            idx = dr.compress(cr | ct | (ar + 2 >= frozen))  # n: an input, not a literal
+            idx = dr.compress(split | (ar + 2 >= frozen))  # n: an input, not a literal
         else:
-            idx = dr.compress(cr | ct)
+            idx = dr.compress(split)
         m = dr.width(idx)
-        counters = dict(nsh1=nsh1, cr=cr, ct=ct)
+        # (the counters of level 1's children: of every lane, or of the compacted ones)
+        counters = dict(nsh1=nsh1, cr=cr, ct=ct) if lobes1 else dict(nsh1=nsh1)
         if m == 0:
             return L1, cost1, res.t, res.slot, res.ns, counters
         g = lambda x: dr.gather(type(x), x, idx)  # noqa: E731
         ch = [g(x) for x in kids]
         if remake:
-            ch = self._remade_children(tables, scene, rays(idx), ch)
+            made, ch = self._remade_children(tables, scene, rays(idx), ch)
         o_r, d_r, wr, kr = ch[:4]
         o_t, d_t, wt, kt = ch[4:] if has_t else ch[:4]
-        gr, gt = g(cr), g(ct)
+        if lobes1:
+            gr, gt = g(cr), g(ct)
+        else:
+            gr, gt = made
+            counters.update(cr=gr, ct=gt)
         push = gr & gt
         K = md - 1
         stk_f = dr.alloc_local(mi.Float, 9 * K, mi.Float(0.0))   # o, d, weight per entry
@@ -768,7 +792,7 @@ class Tracer:
         # scatters into arrays of another size are scheduled as their own kernel, which would
         # re-run the loop
         L_sum, cost_sum = g(L1) + v["L"], g(cost1) + v["cost"]
-        dr.eval(L_sum, cost_sum, v["nsh"], v["nr"], v["nt"])          # kernel 2: the trees
+        dr.eval(L_sum, cost_sum, v["nsh"], v["nr"], v["nt"], *([] if lobes1 else [gr, gt]))   # kernel 2: the trees
         # one child forest per sample (idx is unique: no races). The scatter targets are the
         # level-1 arrays themselves, whose width is the input's at every replay (a zeros(n)
         # target would keep the recorded width; a scatter_add would force freeze to dry-run),
