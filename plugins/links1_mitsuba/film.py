@@ -91,9 +91,11 @@ FILM_TABLE_BYTES = 1 << 31
 KEEP_LANES = 1 << 23
 
 #: Largest spp whose non-box filter is one kernel of strips (:func:`_filter_strips`) rather than
-#: two passes (the same bits): the film's kernels at 512², gaussian, the strips / the two passes
-#: (``compare.film_gather``, medians of 7-9, load 4-5): spp 4 0.62, 6 0.66, 7 0.82, 8 1.07-1.16,
-#: 10 0.83, 12 1.24, 16 1.28
+#: two passes (the same bits): the film at 512², gaussian, CPU time of the strips / the two passes
+#: (medians of 7-9, load 4-5) in a batch's first frame (the weights made, four-channel records),
+#: which a single render is: spp 2 0.46, 3 0.59, 4 0.77, 6 0.81; in later frames of the same
+#: windows (RGB records a neighbour row, :func:`_row_tables`): spp 2 0.74, 3 1.06, 4 1.53,
+#: 6 1.54, 7 1.71
 STRIPS_SPP = 7
 #: Pixels of a row a lane of :func:`_filter_strips` computes (each column's samples are read
 #: by ``(P + 2b) / P`` lanes a neighbour row)
