@@ -12,9 +12,13 @@ split into the level-1 kernel, the deeper levels' loop kernel and the rest (comp
 copies, the scatter back to the samples). The runs:
 
 * ``ray tree``: the whole tree as the frame traces it (level 1, compaction, the loop of the
-  deeper levels, the scatter back);
+  deeper levels, the scatter back; the camera rays handed over as a function of the lanes too,
+  ``trace_tree``'s ``rays``, as the launches do: level 1 keeps the preliminary hits of the
+  samples that can spawn and the loop's kernel makes their record and children again);
+* ``children stored at level 1``: the tree without ``rays``: level 1 computes its children's
+  lobes and stores their origins, directions, weights and keys (20 arrays a sample);
 * ``no lobe branch``: every hit computes its delta lobes (``Prepared.spawns`` all true: no
-  packet skips them); ``no direct-light branch on shaded slots``: the direct light skipped
+  packet skips them, and every hit is compacted for the loop's kernel to make them); ``no direct-light branch on shaded slots``: the direct light skipped
   only where rays escape (``Prepared.all_shaded``), not also at hits whose BSDF has no smooth
   lobe (both the same bits);
 * ``delta lobes computed twice``: the lobes (their BSDF calls included) a second time, added
@@ -22,10 +26,11 @@ copies, the scatter back to the samples). The runs:
   them without BSDF calls could save;
 * ``no direct light below level 1``: the tree with the deeper levels' direct light (light
   factors, shadow rays) switched off (the same rays; the image differs);
-* ``level 1 as the tree``: the level-1 kernel alone (its radiance, counters, which samples
-  spawn and their children's rays and weights, stored);
-* ``level 1, children not stored``: the same with only which samples spawn stored;
-* ``level 1, no children``: level 1's radiance alone (no delta lobes sampled);
+* ``level 1 as the tree``: the level-1 kernel alone as the tree has it (its radiance,
+  counters, which samples can spawn and their preliminary hits, stored);
+* ``level 1, children stored``: level 1 as the tree without ``rays`` (its children's lobes,
+  rays, weights and keys stored);
+* ``level 1, no children``: level 1's radiance alone (no delta lobes sampled, nothing kept);
 * ``camera + nearest``: the camera rays and their nearest hit (Embree's full record) alone;
 * ``floor, level 1`` / ``floor, deeper levels``: ``compare.ray_floor.trace_floor`` of the
   floor's rays of the camera level / of the levels below it (dense, nearest hits as
@@ -75,6 +80,7 @@ def measure_case(cid, spp, repeats, variant):
     import drjit as dr
     import mitsuba as mi
     import links1_mitsuba.raytree as rt
+    from links1_mitsuba import intersect
     from links1_mitsuba.camera import camera_rays
     from compare.ray_floor import CASES, floor_rays, load_case, mitsuba_integrator, trace_floor
 
@@ -84,27 +90,35 @@ def measure_case(cid, spp, repeats, variant):
     def rays():
         return camera_rays(tables, sid, spp_, seeds)
 
-    def tree():
-        o, d, tmin, tmax, key, sample = rays()
-        return tracer.trace_tree(tables, scene, o, d, tmin, tmax, key, False, sample)[0]
+    def lanes(idx):
+        return camera_rays(tables, dr.gather(mi.UInt32, sid, idx), spp_, seeds)[:5]
 
-    def level1(stored):
+    def tree(remake=True):
         def run():
             o, d, tmin, tmax, key, sample = rays()
-            res = tracer.level(tables, scene, o, d, tmin, tmax, key, 1, stored is not None, sample=sample)
+            return tracer.trace_tree(tables, scene, o, d, tmin, tmax, key, False, sample,
+                                     rays=lanes if remake else None)[0]
+        return run
+
+    def level1(kept):
+        def run():
+            o, d, tmin, tmax, key, sample = rays()
+            keep = [] if kept == "hits" else None
+            res = tracer.level(tables, scene, o, d, tmin, tmax, key, 1, kept == "children", sample=sample,
+                               keep=keep)
             out = [res.L, res.cost, res.n_shadow]
-            if stored is not None:
+            if kept == "children":
                 cr, ct, w_r, w_t = tracer.children(res, res.hit, mi.Color3f(1.0), mi.UInt32(1))
-                out += [cr, ct]
-                if stored:
-                    key_r, key_t = rt.child_keys(key)
-                    out += [res.o_r, res.dir_r, w_r, key_r, res.o_t, res.dir_t, w_t, key_t]
+                key_r, key_t = rt.child_keys(key)
+                out += [cr, ct, res.o_r, res.dir_r, w_r, key_r, res.o_t, res.dir_t, w_t, key_t]
+            elif kept == "hits":
+                can = res.hit & dr.gather(mi.Bool, tables.spawns, mi.UInt32(dr.maximum(res.slot, 0)), res.hit)
+                out += [can, *intersect.kept_hit(keep[0])]
             dr.eval(*out)
             return res.L
         return run
 
     def camera_nearest():
-        from links1_mitsuba import intersect
         o, d, tmin, tmax, _, _ = rays()
         t, slot, si, _ = intersect.nearest(tables, scene, o, d, tmin, tmax, dr.full(mi.Bool, True, n),
                                            dr.zeros(mi.UInt32, n), coherent=True)
@@ -141,13 +155,14 @@ def measure_case(cid, spp, repeats, variant):
     integ = mitsuba_integrator(kind, depth)
     floor = lambda levels, kinds: (lambda: trace_floor(scene, pick(levels, kinds)), ())  # noqa: E731
     runs = {
-        "ray tree": (tree, ()),
-        "no lobe branch (every hit's lobes)": (tree, ((base, "spawns", dr.full(mi.Bool, True, base.nslots)),)),
-        "no direct-light branch on shaded slots": (tree, ((base, "all_shaded", True),)),
-        "delta lobes computed twice": (tree, ((rt.Tracer, "_lobes", lobes_twice),)),
-        "no direct light below level 1": (tree, ((rt.Tracer, "level", level_no_direct_below_1),)),
-        "level 1 as the tree": (level1(True), ()),
-        "level 1, children not stored": (level1(False), ()),
+        "ray tree": (tree(), ()),
+        "children stored at level 1": (tree(False), ()),
+        "no lobe branch (every hit's lobes)": (tree(), ((base, "spawns", dr.full(mi.Bool, True, base.nslots)),)),
+        "no direct-light branch on shaded slots": (tree(), ((base, "all_shaded", True),)),
+        "delta lobes computed twice": (tree(), ((rt.Tracer, "_lobes", lobes_twice),)),
+        "no direct light below level 1": (tree(), ((rt.Tracer, "level", level_no_direct_below_1),)),
+        "level 1 as the tree": (level1("hits"), ()),
+        "level 1, children stored": (level1("children"), ()),
         "level 1, no children": (level1(None), ()),
         "camera + nearest": (camera_nearest, ()),
         "floor, level 1": floor("1", ("nearest", "shadow")),
@@ -161,7 +176,8 @@ def measure_case(cid, spp, repeats, variant):
         "Mitsuba path frame": (lambda: dr.eval(mi.render(scene, integrator=integ, spp=spp, seed=0)), ()),
     }
     #: the runs that trace the whole tree (their images compared with the tree's)
-    whole = ("ray tree", "no lobe branch (every hit's lobes)", "no direct-light branch on shaded slots",
+    whole = ("ray tree", "children stored at level 1",
+             "no lobe branch (every hit's lobes)", "no direct-light branch on shaded slots",
              "delta lobes computed twice", "no direct light below level 1")
     images = {}
     for name, (fn, patch) in runs.items():        # warm-up (compilation), and the images
