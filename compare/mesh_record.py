@@ -1,10 +1,11 @@
 """links1_whitted's frame with the nearest hit's record made in the kernel (``tables.MeshRecord``,
 ``intersect.mesh_surface``: meshes, rectangles, spheres, disks), each way of picking a lane's
-kind (``intersect.DISPATCH``), against the same frame with Mitsuba's record
-(``scene.ray_intersect``: Embree's hit and the shapes' surface call).
+kind (``intersect.DISPATCH``), its meshes' vertices read from the per-face table
+(``MeshRecord.packets``) or from the meshes' buffers (way ``buffers``), against the same frame
+with Mitsuba's record (``scene.ray_intersect``: Embree's hit and the shapes' surface call).
 
     python -m compare.mesh_record [--only teapot cbox_point delta_bsdfs] [--spp 1 16] [--repeats 9]
-                                  [--ways if select switch mitsuba]
+                                  [--ways if select switch buffers mitsuba]
 
 Per case (``compare.ray_floor``'s scenes, 512 px wide, ``--filter``), one scene object; the
 frames of the ``ways`` alternate (the record or the dispatch switched and the frozen launches
@@ -24,7 +25,7 @@ import numpy as np
 
 from compare.common import command_line, cpu_seconds, machine_info, machine_markdown, write_results
 
-WAYS = ("if", "select", "switch", "mitsuba")
+WAYS = ("if", "select", "switch", "buffers", "mitsuba")
 
 
 def measure(cid, spp, repeats, variant, ways=("if", "mitsuba"), filt="box"):
@@ -39,12 +40,14 @@ def measure(cid, spp, repeats, variant, ways=("if", "mitsuba"), filt="box"):
     dr.eval(mi.render(scene, spp=spp, seed=0))
     base = engine.tables.last.base or engine.tables.last
     rec, dispatch = base.mesh_record, intersect.DISPATCH
+    packets = None if rec is None else rec.packets
     if rec is None:
         raise RuntimeError(f"{cid}: no record made in the kernel (a shape it does not make, or instances)")
 
     def frame(way):
         base.mesh_record = None if way == "mitsuba" else rec
-        intersect.DISPATCH = dispatch if way == "mitsuba" else way
+        intersect.DISPATCH = dispatch if way in ("mitsuba", "buffers") else way
+        rec.packets = None if way == "buffers" else packets
         engine.launches.forget()
         dr.eval(mi.render(scene, spp=spp, seed=0))      # (recorded: not timed)
         dr.sync_thread()
@@ -67,7 +70,7 @@ def measure(cid, spp, repeats, variant, ways=("if", "mitsuba"), filt="box"):
                     wall[w].append(tw)
                     cpu[w].append(tc)
     finally:
-        base.mesh_record, intersect.DISPATCH = rec, dispatch
+        base.mesh_record, intersect.DISPATCH, rec.packets = rec, dispatch, packets
         engine.launches.forget()
     out = dict(id=cid, spp=spp, kinds=sorted(rec.kinds), ways={})
     for w in ways:
@@ -105,7 +108,8 @@ def main(argv=None) -> int:
           f"\n`mi.render` (512 px wide, {a.filter} filter), the frames of each way alternated, {a.repeats} rounds, "
           "medians of process CPU time (every thread) and wall time; ratio: the median of each round's ratio to the "
           f"`{first}` frame (CPU; wall in brackets); ways: `if`/`select`/`switch` the kernel's record "
-          "(`intersect.DISPATCH`), `mitsuba` Mitsuba's record; same: every frame equals the first way's bit for bit "
+          "(`intersect.DISPATCH`), `buffers` the kernel's record with the meshes' vertices gathered from their buffers "
+          "instead of the per-face table, `mitsuba` Mitsuba's record; same: every frame equals the first way's bit for bit "
           "(`compare/mesh_record.py`).\n",
           "| scene | spp | kinds | way | CPU ms | wall ms | ratio | same |", "| --- | --- | --- | --- | --- | --- | --- | --- |"]
     names = {0: "mesh", 1: "rectangle", 2: "sphere", 3: "disk"}

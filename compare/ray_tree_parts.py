@@ -1,6 +1,7 @@
 """Where ``links1_whitted``'s ray-tree kernel spends its time beyond the rays' floor.
 
-    python -m compare.ray_tree_parts [--only teapot cbox_point delta_bsdfs cbox_mirror_glass] [--spp 16] [--repeats 9]
+    python -m compare.ray_tree_parts [--only teapot cbox_point data_instancing delta_bsdfs cbox_mirror_glass]
+                                     [--spp 16] [--repeats 9]
 
 Per case (``compare.ray_floor``'s scenes with a box filter, 512 px wide), one scene object,
 the level-1 ray tree traced as the frame traces it (``Tracer.trace_tree`` over the camera
@@ -34,6 +35,15 @@ the whole kernel of the same round (median over the rounds). The variants:
 * ``fixed BSDF``: a Lambert factor in place of the BSDF factor (the image differs);
 * ``diffuse BSDFs called``: every BSDF called (``BSDF::eval``), the ``diffuse`` BSDFs of one
   reflectance too, which the kernel evaluates from their table (``tables._lambert_tables``);
+* ``record from the mesh buffers``: the meshes' hits read their face's index and its vertices
+  from the meshes' buffers (gathers), not from the per-face table (``MeshRecord.packets``,
+  packet gathers); the same bits;
+* ``no shadow rays, no branch on the hit``: both of the variants above (the image differs); and
+  the same with the record's reads of its tables (the per-face table, the meshes' buffers,
+  each slot's first face, the rows of rectangles and spheres) or the shading's (the diffuse
+  table's reflectance, each slot's ray offset) replaced by arithmetic on their index: what
+  reading them costs (without shadow tests and the branch, the made-up points and normals
+  change no lane's work, only values);
 * ``camera + nearest``: the camera rays and their nearest hit only (``t``, slot);
 * ``camera + preliminary hit``: the camera rays and Embree's preliminary hit alone
   (``scene.ray_intersect_preliminary``: what the full record adds to ``camera + nearest``).
@@ -85,6 +95,32 @@ def patched(*pairs):
     finally:
         for o, a, v in old:
             setattr(o, a, v)
+
+
+def made_up(sources):
+    """A stand-in for the ``drjit`` module whose ``gather`` from one of the arrays ``sources``
+    returns values made by arithmetic on the index (no memory read; the values differ), every
+    other name Dr.Jit's: ``module.dr`` patched with it, what ``module``'s reads of ``sources``
+    cost."""
+    import types
+
+    import drjit as dr
+    import mitsuba as mi
+    ids = {id(a) for a in sources if a is not None}
+
+    def gather(dtype, source, index, active=True, **kw):
+        if id(source) not in ids:
+            return dr.gather(dtype, source, index, active, **kw)
+        x = mi.Float(index) * 1e-3
+        if dtype is mi.ArrayXf:
+            return [x + 0.25 * i for i in range(kw["shape"][0])]
+        if dtype in (mi.UInt32, mi.Int32):
+            return dtype(index & 7)
+        if dtype is mi.Float:
+            return x + 0.5
+        return dtype(*[x + 0.25 * i for i in range(dr.size_v(dtype))])
+    return types.SimpleNamespace(**{**{k: getattr(dr, k) for k in dir(dr) if not k.startswith("__")},
+                                    "gather": gather})
 
 
 def traced_case(scene, spp):
@@ -144,7 +180,7 @@ def measure_case(cid, spp, repeats, variant):
         dr.eval(pi.t, pi.shape)
 
     def nearest_flags(flags):
-        def nearest(tables, scene, o, d, tmin, tmax, active, cost, eye=False, coherent=False, ad=False):
+        def nearest(tables, scene, o, d, tmin, tmax, active, cost, eye=False, coherent=False, ad=False, **_):
             ray = mi.Ray3f(o + d * tmin, d, tmax - tmin)
             si = scene.ray_intersect(ray, flags, bool(coherent), active)
             valid = active & si.is_valid()
@@ -211,8 +247,15 @@ def measure_case(cid, spp, repeats, variant):
         si.n = mi.Normal3f(si.sh_frame.n)
         return t, slot, si, prim
 
+    base_tables = tables.base or tables
+    rec = base_tables.mesh_record
+    record_tables = [] if rec is None else [rec.packets, rec.faces, rec.positions, rec.normals, rec.texcoords,
+                                            rec.face_off, rec.rows]
+    shading_tables = [base_tables.lam_rgb, base_tables.eps_table]
+    made_up_shading = made_up(shading_tables)
     no_cull = dataclasses.replace(tracer.tuning, box_cull=False)
     no_branch = dataclasses.replace(tracer.tuning, skip_misses=False)
+    plain = ((isect, "shadow_mitsuba", unoccluded), (tracer, "tuning", no_branch))
     base = (tree, ())
     variants = {
         "ray-tree kernel": base,
@@ -229,6 +272,11 @@ def measure_case(cid, spp, repeats, variant):
         "Mitsuba's surface record": (tree, ((tables.base or tables, "mesh_record", None),)),
         "fixed BSDF": (tree, ((rt.Hit, "f_eval", lambda self, wi: lambert(self, wi)),)),
         "diffuse BSDFs called": (tree, ((tables.base or tables, "any_lam", False),)),
+        "record from the mesh buffers": (tree, () if rec is None else ((rec, "packets", None),)),
+        "no shadow rays, no branch on the hit": (tree, plain),
+        "the same, the record's gathers replaced": (tree, plain + ((isect, "dr", made_up(record_tables)),)),
+        "the same, the shading's gathers replaced": (tree, plain + ((rt, "dr", made_up_shading), (
+            rt, "gather3", lambda t, i, a=True: made_up_shading.gather(mi.Color3f, t, i, a)))),
         "camera + nearest": (camera_nearest, ()),
         "camera + preliminary hit": (camera_preliminary, ()),
     }
@@ -349,7 +397,8 @@ def run_probe(a, stem, measure, line, markdown) -> int:
 
 
 def main(argv=None) -> int:
-    a = probe_args(argv, "compare.ray_tree_parts", __doc__, ["teapot", "cbox_point", "delta_bsdfs", "cbox_mirror_glass"])
+    a = probe_args(argv, "compare.ray_tree_parts", __doc__, ["teapot", "cbox_point", "data_instancing", "delta_bsdfs",
+                                                              "cbox_mirror_glass"])
     return run_probe(a, "ray_tree_parts", measure_case,
                      lambda cid, r: f"{cid:12s} {r['part']:40s} {r['ms']:8.1f} ms  {r['ratio']:.3f}  same={r['same']}",
                      markdown)
