@@ -53,6 +53,43 @@ from .util import INF, gather3, mix32
 #: loop's kernel tells which spawn (False: level 1 computes them for its ``cr``, ``ct``)
 LOBES_IN_LOOP = True
 
+#: the loop's stack (Dr.Jit local memory) written and read under symbolic branches on the lanes
+#: that push and pop: a packet without either skips their scatters and gathers (False: every
+#: packet runs them masked)
+STACK_BRANCH = True
+
+
+def _push(stk_f, stk_u, sp, o, d, w, depth, key, on):
+    """The ray tree's stack (``Tracer.trace_tree``: 9 floats, origin, direction and weight, and
+    2 integers, depth and key, an entry) with the entry ``(o, d, w, depth, key)`` written at
+    ``sp`` where ``on`` -> ``(stk_f, stk_u)``."""
+    def write(stk_f, stk_u, sp, o, d, w, depth, key, on):
+        for k, val in enumerate((o.x, o.y, o.z, d.x, d.y, d.z, w.x, w.y, w.z)):
+            stk_f.write(val, sp * 9 + k, on)
+        stk_u.write(depth, sp * 2, on)
+        stk_u.write(key, sp * 2 + 1, on)
+        return stk_f, stk_u
+    args = (stk_f, stk_u, sp, o, d, w, depth, key, on)
+    if not STACK_BRANCH:
+        return write(*args)
+    return dr.if_stmt(args, on, write, lambda stk_f, stk_u, *rest: (stk_f, stk_u), mode="symbolic",
+                      label="links1_push")
+
+
+def _pop(stk_f, stk_u, top, on):
+    """The stack's entry ``top`` where ``on`` (:func:`_push`'s layout) -> ``([o, d, w] as 9 floats,
+    depth, key)``; other lanes: zeros."""
+    def read(stk_f, stk_u, top, on):
+        return (*[stk_f.read(top * 9 + k, on) for k in range(9)], stk_u.read(top * 2, on),
+                stk_u.read(top * 2 + 1, on))
+    args = (stk_f, stk_u, top, on)
+    if STACK_BRANCH:
+        zf, zu = dr.zeros(mi.Float, dr.width(top)), dr.zeros(mi.UInt32, dr.width(top))
+        got = dr.if_stmt(args, on, read, lambda *a: (*[zf] * 9, zu, zu), mode="symbolic", label="links1_pop")
+    else:
+        got = read(*args)
+    return list(got[:9]), got[9], got[10]
+
 
 def child_keys(key):
     """The keys of a hit's mirror and refraction children, ``mix(key ^ KEY_REFLECT)`` and
@@ -733,12 +770,9 @@ class Tracer:
         K = md - 1
         stk_f = dr.alloc_local(mi.Float, 9 * K, mi.Float(0.0))   # o, d, weight per entry
         stk_u = dr.alloc_local(mi.UInt32, 2 * K, mi.UInt32(0))   # depth, key per entry
-        if has_t:
-            for k_, val in enumerate((o_t.x, o_t.y, o_t.z, d_t.x, d_t.y, d_t.z, wt.x, wt.y, wt.z)):
-                stk_f.write(val, mi.UInt32(k_), push)
-            stk_u.write(dr.full(mi.UInt32, 2, m), mi.UInt32(0), push)
-            stk_u.write(kt, mi.UInt32(1), push)
         zu = dr.zeros(mi.UInt32, m)
+        if has_t:
+            stk_f, stk_u = _push(stk_f, stk_u, zu, o_t, d_t, wt, zu + 2, kt, push)
         state = dict(o=mi.Point3f(dr.select(gr, o_r, o_t)), d=mi.Vector3f(dr.select(gr, d_r, d_t)),
                      wgt=mi.Color3f(dr.select(gr, wr, wt)),
                      depth=zu + 2, key=dr.select(gr, kr, kt), L=dr.zeros(mi.Color3f, m),
@@ -763,17 +797,9 @@ class Tracer:
             sp = v["sp"]
             push = cr & ct
             if has_t:
-                base = sp * 9
-                o_t, d_t = res.o_t, res.dir_t
-                for k, val in enumerate((o_t.x, o_t.y, o_t.z, d_t.x, d_t.y, d_t.z, w_t.x, w_t.y, w_t.z)):
-                    stk_f.write(val, base + k, push)
-                stk_u.write(v["depth"] + 1, sp * 2, push)
-                stk_u.write(key_t, sp * 2 + 1, push)
+                stk_f, stk_u = _push(stk_f, stk_u, sp, res.o_t, res.dir_t, w_t, v["depth"] + 1, key_t, push)
             pop = act & ~cr & ~ct & (sp > 0)
-            top = dr.select(pop, sp - 1, 0)
-            fp = [stk_f.read(top * 9 + k, pop) for k in range(9)]
-            dp = stk_u.read(top * 2, pop)
-            kp = stk_u.read(top * 2 + 1, pop)
+            fp, dp, kp = _pop(stk_f, stk_u, dr.select(pop, sp - 1, 0), pop)
             o_n = dr.select(cr, res.o_r, dr.select(ct, res.o_t, mi.Point3f(fp[0], fp[1], fp[2])))
             d_n = dr.select(cr, res.dir_r, dr.select(ct, res.dir_t, mi.Vector3f(fp[3], fp[4], fp[5])))
             w_n = dr.select(cr, w_r, dr.select(ct, w_t, mi.Color3f(fp[6], fp[7], fp[8])))
