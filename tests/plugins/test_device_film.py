@@ -261,28 +261,44 @@ def test_compact_sample_weights_are_the_full_records_weights(variant, name, para
         assert np.count_nonzero(want[[0, nb - 1, nb, 2 * nb - 1]]) > n   # the outermost weights matter
 
 
-@pytest.mark.parametrize("rfilter", ["gaussian", "tent", "lanczos"])
+#: a tent wider than its border: both outermost weights of a sample can be nonzero
+WIDE_TENT = '<rfilter type="tent"><float name="radius" value="1.3"/></rfilter>'
+
+
+@pytest.mark.parametrize("rfilter", ["gaussian", "tent", "lanczos", "wide tent"])
 def test_later_frames_rgb_records_equal_numpy_film(variant, tmp_path, rfilter):
-    """Frames after a batch's first sum RGB records alone, in the two passes above
-    film.STRIPS_SPP, and with 5 neighbours a row (gaussian) write them a table per neighbour row
-    (film._row_tables: four packets and the fifth record in their fourth floats; tent and
-    lanczos keep a table per offset): windows at each film edge, three frames, equal the numpy
-    film (bit for bit for tent) and each other."""
+    """Above film.STRIPS_SPP the batch keeps the samples' weights (film._sample_weights), in the
+    compact record where every left-out weight is +0 (else the full record: the wide tent;
+    lanczos has no compact record), and frames after the first sum RGB records alone, with 5
+    neighbours a row (gaussian) a table per neighbour row (film._row_tables: four packets and
+    the fifth record in their fourth floats). Windows at each film edge, four frames: each
+    equals the numpy film (bit for bit for the tents) and the first frame."""
+    import links1_mitsuba as lm
     import mitsuba as mi
     from links1_mitsuba import film
-    scene = load(tmp_path, rfilter)
-    integ = scene.integrator()
-    nb = 2 * integ.prepare(scene).rfilter.border + 1
+    if rfilter == "wide tent":
+        path = tmp_path / "film.xml"
+        camera = perspective("0, 2.5, 6", "0, 0.7, 0", fov=40, width=W, height=H, spp=None, rfilter=WIDE_TENT)
+        path.write_text(scene(whitted(3), camera, DIFFUSE, MIRROR))
+        scn = lm.load_file(str(path), variant=mi.variant())
+    else:
+        scn = load(tmp_path, rfilter)
+    integ = scn.integrator()
+    rf = integ.prepare(scn).rfilter
+    nb = 2 * rf.border + 1
     assert film._row_tables(nb, 3) == (rfilter == "gaussian")
     wins = [(W - 13, 0, 13, 5), (0, H - 3, 5, 3), (10, 4, 1, 9), (1, 1, W - 1, 2)]
     spp = film.STRIPS_SPP + 1
-    frames = [integ.render_windows_device(scene, wins, spp=spp, seed=5, dtype=mi.Float64) for _ in range(3)]
+    frames = [integ.render_windows_device(scn, wins, spp=spp, seed=5, dtype=mi.Float64) for _ in range(4)]
+    (batch,) = integ.engine.batches.values()
+    kept = batch.peek(("weights", rf, W, 5, True)) or batch.peek(("weights", rf, W, 5, False))
+    assert kept is not None and kept[1] == (rfilter in ("gaussian", "tent"))
     for k, win in enumerate(wins):
-        ref = numpy_film(integ, scene, win, spp, 5, "")
+        ref = numpy_film(integ, scn, win, spp, 5, "")
         for frame in frames:
             got = np.asarray(frame[k])
             assert np.array_equal(got, np.asarray(frames[0][k]))
-            if rfilter in EXACT:
+            if "tent" in rfilter:
                 assert np.array_equal(got, ref)
             else:
                 assert_near_numpy(got, ref)
