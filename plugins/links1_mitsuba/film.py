@@ -91,11 +91,11 @@ FILM_TABLE_BYTES = 1 << 31
 KEEP_LANES = 1 << 23
 
 #: Largest spp whose non-box filter is one kernel of strips (:func:`_filter_strips`) rather than
-#: two passes (the same bits): the film at 512², gaussian, CPU time of the strips / the two passes
-#: (medians of 7-9, load 4-5) in a batch's first frame (the weights made, four-channel records),
-#: which a single render is: spp 2 0.46, 3 0.59, 4 0.77, 6 0.81; in later frames of the same
-#: windows (RGB records a neighbour row, :func:`_row_tables`): spp 2 0.74, 3 1.06, 4 1.53,
-#: 6 1.54, 7 1.71
+#: two passes (the same bits), as a batch's first frame (the weights made, four-channel records),
+#: which a single render is, has it: the film kernels of the strips / the two passes at 512²,
+#: gaussian, spp 2 0.47, 4 0.76, 6 0.85 (``compare/results/film_frame_strips_first.md``); in later
+#: frames of the same windows (RGB records a neighbour row, :func:`_row_tables`) the two passes
+#: are the faster from spp 3 (``compare/results/film_frame_strips.md``, docs/benchmarks.md)
 STRIPS_SPP = 7
 #: Pixels of a row a lane of :func:`_filter_strips` computes (each column's samples are read
 #: by ``(P + 2b) / P`` lanes a neighbour row)
