@@ -695,12 +695,13 @@ def _filter_partials(rfilter, film_size, seed, batch, data, n_s, mode, channels=
     # which pixels have a nonzero sample: a pixel whose samples are all zero (RGB: black
     # background, hard shadow) gives records of +0 (+0 plus w·0 = ±0 is +0), which the
     # tables' zeros are; where the batch's last frame had enough of them (Batch.skips_zeros)
-    # such a lane skips the loop (found by a first loop over the samples' RGB), and a packet of
-    # them skips it at once; else the loop notes them (for the next frame's choice)
+    # such a lane skips the loop (found by a first loop over the samples' RGB, which a lane
+    # leaves at its first nonzero sample), and a packet of them skips it at once; else the loop
+    # notes them (for the next frame's choice)
     probe = C == 3 and mode != "evaluated" and not dr.grad_enabled(total)
     skip = probe and batch.skips_zeros()
     if skip:
-        _, nz = _loop((dr.zeros(U32, nq), dr.zeros(mi.Bool, nq)), lambda i, _: i < n_s,
+        _, nz = _loop((dr.zeros(U32, nq), dr.zeros(mi.Bool, nq)), lambda i, nz: (i < n_s) & ~nz,
                       lambda i, nz: (i + 1, nonzero(i, nz)), mode, batch.spp)
         _, *acc = _loop((dr.zeros(U32, nq), *acc), lambda i, *_: (i < n_s) & nz, body, mode, batch.spp)
     elif probe:
