@@ -193,7 +193,7 @@ def measure_case(cid, spp, repeats, variant):
             raise RuntimeError(f"{cid}: the minimal record variant is for Mitsuba shapes alone")
         return nearest
 
-    def unoccluded(tables, scene, o, d, smax, active, T, cost, tuning, light=None, own=None):
+    def unoccluded(tables, scene, o, d, smax, active, T, cost, tuning, light=None, own=None, coherent=False):
         return T
 
     def lambert(self, wi):
@@ -202,7 +202,7 @@ def measure_case(cid, spp, repeats, variant):
     # links1's own shadow rays (captured from the level traced in steps, by light) and the floor's
     captured = []
 
-    def capture(tables, scene, o, d, smax, active, T, cost, tuning, light=None, own=None):
+    def capture(tables, scene, o, d, smax, active, T, cost, tuning, light=None, own=None, coherent=False):
         captured.append((mi.Ray3f(o, d, smax, 0.0, mi.Color0f()), mi.Bool(active)))
         return T
     with patched((isect, "shadow_mitsuba", capture),
@@ -224,21 +224,21 @@ def measure_case(cid, spp, repeats, variant):
         finally:
             in_level1[0] = False
 
-    def read_rays(tables, scene, o, d, smax, active, T, cost, tuning, light=None, own=None):
+    def read_rays(tables, scene, o, d, smax, active, T, cost, tuning, light=None, own=None, coherent=False):
         """The shadow test of light ``light`` on its level-1 ray captured above (made beforehand
-        and read; the same lanes), no box cull."""
+        and read; the same lanes), no box cull; Embree's mode the kernel's."""
         if not in_level1[0]:
             return plain_shadow(tables, scene, o, d, smax, active, T, cost, no_cull, light, own)
         cost += dr.select(active, mi.UInt32(1), 0)
-        return dr.select(scene.ray_test(captured[light][0], False, active), 0.0, T)
+        return dr.select(scene.ray_test(captured[light][0], coherent and tuning.coherent_shadows, active), 0.0, T)
 
-    def read_origins(tables, scene, o, d, smax, active, T, cost, tuning, light=None, own=None):
+    def read_origins(tables, scene, o, d, smax, active, T, cost, tuning, light=None, own=None, coherent=False):
         """As :func:`read_rays` with the ray's origin alone read (direction, length made here)."""
         if not in_level1[0]:
             return plain_shadow(tables, scene, o, d, smax, active, T, cost, no_cull, light, own)
         cost += dr.select(active, mi.UInt32(1), 0)
         ray = mi.Ray3f(captured[light][0].o, d, smax, 0.0, mi.Color0f())
-        return dr.select(scene.ray_test(ray, False, active), 0.0, T)
+        return dr.select(scene.ray_test(ray, coherent and tuning.coherent_shadows, active), 0.0, T)
 
     plain_nearest = isect.nearest
 

@@ -491,18 +491,20 @@ def meets_boxes(o, d, smax, boxes, own):
     return meet
 
 
-def shadow_mitsuba(tables, scene, o, d, smax, active, T, cost, tuning, light=None, own=None):
+def shadow_mitsuba(tables, scene, o, d, smax, active, T, cost, tuning, light=None, own=None, coherent=False):
     """Continue the transmittance ``T`` through Mitsuba's shapes (once per shape): per
     group of shapes (:func:`_shadow_groups`) its query, which a packet whose segments
     meet none of the group's occluder boxes of ``light`` skips (``tables.occ_boxes``;
     ``own``: see :func:`meets_boxes`; ``tuning``: the
-    switches box_cull, split and preliminary of :class:`~.tuning.Tuning`)."""
+    switches box_cull, split and preliminary of :class:`~.tuning.Tuning`). ``coherent``: the
+    segments start at the camera rays' hits (neighbours in the lanes), their any-hit queries in
+    Embree's coherent mode where ``tuning.coherent_shadows`` (the same answers)."""
     if not tables.any_mitsuba_shapes:
         return T
     boxes = tables.occ_boxes[light] if tuning.box_cull and light is not None else None
     occ = tables.occ_mslots[light] if light is not None else None
     inc = dr.zeros(mi.UInt32, dr.width(o))
-    for slots, query in _shadow_groups(tables, scene, o, d, smax, occ, tuning):
+    for slots, query in _shadow_groups(tables, scene, o, d, smax, occ, tuning, coherent and tuning.coherent_shadows):
         mine = None if boxes is None else [b for b in boxes if slots is None or b[2] in slots]
         if mine is not None and not mine:
             continue                       # none of these shapes can shadow this light
@@ -517,16 +519,17 @@ def shadow_mitsuba(tables, scene, o, d, smax, active, T, cost, tuning, light=Non
     return T
 
 
-def _shadow_groups(tables, scene, o, d, smax, occ, tuning):
+def _shadow_groups(tables, scene, o, d, smax, occ, tuning, coherent):
     """``[(slots, query)]``: the Mitsuba shapes a shadow segment is tested against, by
     group (``slots`` None: all of them), ``query(T, tests, lanes) -> (T, tests)``. With
     ``tables.shadow_split`` (``shadow_plan.shadow_split``) an any-hit query on the opaque shapes'
     sub-scene (T = 0) and one on each transparent shape's (T times its transmittance),
     skipping groups that cannot occlude (``occ``: the light's occluder slots); else the
-    scene with :func:`_shadow_embree`."""
+    scene with :func:`_shadow_embree` (in Embree's coherent mode where ``coherent``)."""
     split = tables.shadow_split if tuning.split else None
     if split is None:
-        return [(None, lambda T, inc, run: _shadow_embree(tables, scene, o, d, smax, run, T, inc, tuning.preliminary))]
+        return [(None, lambda T, inc, run: _shadow_embree(tables, scene, o, d, smax, run, T, inc, tuning.preliminary,
+                                                          coherent))]
     ray = mi.Ray3f(o, d, smax, 0.0, mi.Color0f())
 
     def any_hit(sub, st):
@@ -542,11 +545,13 @@ def _shadow_groups(tables, scene, o, d, smax, occ, tuning):
     return groups
 
 
-def _shadow_embree(tables, scene, o, d, smax, act, T, inc, preliminary):
-    """Shadow segments of the lanes ``act`` through the whole scene: one any-hit test, or
-    with transparent shapes the walk over the crossings, nearest first -> (T, tests)."""
+def _shadow_embree(tables, scene, o, d, smax, act, T, inc, preliminary, coherent=False):
+    """Shadow segments of the lanes ``act`` through the whole scene: one any-hit test (in
+    Embree's coherent mode where ``coherent``), or with transparent shapes the walk over the
+    crossings, nearest first -> (T, tests)."""
     if not tables.any_transparent_mitsuba:
-        occluded = scene.ray_test(mi.Ray3f(o, d, smax, 0.0, mi.Color0f()), active=act)  # (o, d, x) would set time, not maxt
+        # (o, d, x) would set time, not maxt
+        occluded = scene.ray_test(mi.Ray3f(o, d, smax, 0.0, mi.Color0f()), coherent, act)
         return dr.select(occluded, 0.0, T), inc + dr.select(act, mi.UInt32(1), 0)
     reg_to_slot, bits_t, words_t, sh_t = tables.reg_to_slot, tables.trans_bits, tables.trans_words, tables.shadow_t
     nwords, max_crossings = tables.trans_nwords, tables.max_crossings

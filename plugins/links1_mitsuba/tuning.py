@@ -44,6 +44,11 @@ class Tuning:
     #: transparent shadows through few transparent Mitsuba shapes as any-hit queries on
     #: sub-scenes (``shadow_plan.shadow_split``) instead of the walk over the crossings
     split: bool = True
+    #: the camera rays' hits' shadow rays, in scenes without delta lobes (``raytree.Tracer.level``):
+    #: their any-hit queries on Mitsuba's shapes in Embree's coherent mode (``scene.ray_test``'s
+    #: ``coherent``; the same answers), the rays of a packet coming from neighbouring hits toward
+    #: one light (False: the incoherent mode, as Mitsuba's ``direct``; other shadow rays always)
+    coherent_shadows: bool = True
     #: direct light under a symbolic ``dr.if_stmt`` on the hit: a packet of escaped rays skips
     #: it instead of computing it masked (False: the straight-line code)
     skip_misses: bool = True

@@ -22,8 +22,8 @@ MEASURABLE = [("box_cull", False, "quadrics"), ("eye_buffer", False, "quadrics")
               ("split", False, "glass")]
 
 #: every field of Tuning (test_tuning_values_and_scopes checks the list)
-FIELDS = ["preliminary", "box_cull", "eye_buffer", "split", "skip_misses", "light_buffer", "keep_graph",
-          "bvh_min"]
+FIELDS = ["preliminary", "box_cull", "eye_buffer", "split", "coherent_shadows", "skip_misses", "light_buffer",
+          "keep_graph", "bvh_min"]
 
 
 def _xml(name):
@@ -133,3 +133,34 @@ def test_tuning_values_and_scopes():
     finally:
         tuning.set_tuning(prev)
     assert tuning.current() is start
+
+
+def test_coherent_shadow_rays_render_the_same_bits(variant, tmp_path):
+    """Embree's coherent mode for the camera rays' hits' shadow queries (``coherent_shadows``,
+    the default, taken where no BSDF has delta lobes) answers as the incoherent one (Mitsuba's
+    ``direct``): the same frame bit for bit, diffuse meshes, rectangles, spheres, disks and a
+    cube on a floor under a lamp."""
+    import mitsuba as mi
+
+    import links1_mitsuba
+    from links1_mitsuba import tuning
+
+    from .test_mesh_record import CHECKER, FLOOR, LAMP, TETRA, _analytic, _shape
+    from tests.scenes import perspective, scene
+    floor, tetra = tmp_path / "floor.obj", tmp_path / "tetra.obj"
+    floor.write_text(FLOOR)
+    tetra.write_text(TETRA)
+    diffuse = '<bsdf type="diffuse"/>'
+    xml = scene(perspective("0, 3, 6", "0, 0.5, 0", fov=45, width=32, height=24, spp=16),
+                '<integrator type="links1_whitted"/>', LAMP, _shape(floor, CHECKER), _shape(tetra, diffuse),
+                *_analytic((diffuse, CHECKER)))
+
+    def frame(coherent):
+        with tuning.tuned(coherent_shadows=coherent):
+            s = links1_mitsuba.load_string(xml)
+            img = np.array(mi.render(s, seed=1))
+            assert not s.integrator().engine.tables.last.any_specular      # (the mode is taken)
+            return img
+    on, off = frame(True), frame(False)
+    assert np.count_nonzero(on) > on.size // 3
+    np.testing.assert_array_equal(on, off)
