@@ -79,6 +79,19 @@ def cpu_seconds() -> float:
     return r.ru_utime + r.ru_stime
 
 
+def timed_render(scene, spp, seed=0):
+    """One ``mi.render`` of ``scene`` (evaluated, the threads synchronised before and after):
+    ``(wall ms, process CPU ms, image as numpy)``."""
+    import drjit as dr
+    import mitsuba as mi
+    dr.sync_thread()
+    t0, c0 = time.perf_counter(), cpu_seconds()
+    img = mi.render(scene, spp=spp, seed=seed)
+    dr.eval(img)
+    dr.sync_thread()
+    return (time.perf_counter() - t0) * 1e3, (cpu_seconds() - c0) * 1e3, np.array(img)
+
+
 def gpu_name() -> str | None:
     """The NVIDIA GPU's name, or None (no GPU: the CUDA rows are skipped)."""
     try:

@@ -19,11 +19,10 @@ round. Every frame must be the first way's bits (checked). Writes
 from __future__ import annotations
 
 import argparse
-import time
 
 import numpy as np
 
-from compare.common import command_line, cpu_seconds, machine_info, machine_markdown, write_results
+from compare.common import command_line, machine_info, machine_markdown, timed_render, write_results
 
 WAYS = ("if", "select", "switch", "buffers", "mitsuba")
 
@@ -50,12 +49,7 @@ def measure(cid, spp, repeats, variant, ways=("if", "mitsuba"), filt="box"):
         rec.packets = None if way == "buffers" else packets
         engine.launches.forget()
         dr.eval(mi.render(scene, spp=spp, seed=0))      # (recorded: not timed)
-        dr.sync_thread()
-        t0, c0 = time.perf_counter(), cpu_seconds()
-        img = mi.render(scene, spp=spp, seed=0)
-        dr.eval(img)
-        dr.sync_thread()
-        return (time.perf_counter() - t0) * 1e3, (cpu_seconds() - c0) * 1e3, np.array(img)
+        return timed_render(scene, spp)
 
     wall, cpu = ({w: [] for w in ways} for _ in range(2))
     same = {w: True for w in ways}
