@@ -23,11 +23,13 @@ where an iteration at ``--big`` goes (:func:`stages`); with ``--ab``, what the r
 (:func:`timing_ab`: the frozen launches kept over a geometry update or recorded again at each,
 the term's stages frozen or traced); with ``--guided``, a blob's camera crossings searched
 by its margin's secant against bisection (:func:`timing_guided`); with ``--where``,
-the iteration part by part (:func:`where`); with ``--host``, Python's share of it (:func:`host_split`). Writes ``compare/results/inverse_outline.{json,md}``,
+the iteration part by part (:func:`where`); with ``--host``, Python's share of it (:func:`host_split`);
+with ``--kernels``, its kernels one by one (:func:`kernels`); with ``--flag-ab``, a module flag
+at its value and flipped, alternated (:func:`flag_ab`). Writes ``compare/results/inverse_outline.{json,md}``,
 or with ``--no-fit`` (the times alone) ``compare/results/inverse_outline_timing_<big>.{json,md}``
 (``inverse_outline_guided_<big>`` with ``--guided``)
 (``..._threads<N>`` with ``--threads N``: Dr.Jit's thread pool at N threads for the whole run,
-the primal frames too).
+the primal frames too; ``..._<flag>`` with ``--flag-ab``).
 """
 from __future__ import annotations
 
@@ -409,6 +411,139 @@ def host_split(mi, dr, name, cls, variables, lrs, width, n, log):
     return dict(case=name, width=width, iterations=n, parts=rows)
 
 
+def _launch_blocking(dr, fn):
+    """``fn()`` with each kernel run as it is launched and Dr.Jit's kernel history on -> the JIT
+    kernels it ran (their history entries; ``site``: where in links1_mitsuba, or this
+    benchmark, each was launched: the innermost frames)."""
+    import sys
+    import traceback
+    ks = []
+
+    def prof(frame_, event, arg):
+        if event in ("c_return", "return"):
+            h = [k for k in dr.kernel_history() if k.get("type") == dr.KernelType.JIT]
+            if h:
+                site = [f"{f.f_code.co_filename.rsplit('/', 1)[-1]}:{f.f_code.co_name}"
+                        for f, _ in traceback.walk_stack(frame_)
+                        if ("links1_mitsuba" in f.f_code.co_filename or "compare" in f.f_code.co_filename)
+                        and not f.f_code.co_name.startswith(("_traverse", "_call_frozen", "<"))]
+                for k in h:
+                    k["site"] = " < ".join(site[:3])
+                ks.extend(h)
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    dr.set_flag(dr.JitFlag.LaunchBlocking, True)
+    dr.kernel_history()
+    sys.setprofile(prof)
+    try:
+        fn()
+    finally:
+        sys.setprofile(None)
+        dr.set_flag(dr.JitFlag.LaunchBlocking, False)
+        dr.set_flag(dr.JitFlag.KernelHistory, False)
+    return ks
+
+
+def kernels(mi, dr, name, cls, variables, lrs, width, n, log):
+    """Where an iteration's kernel time goes, kernel by kernel: ``n`` iterations (after 3), each
+    kernel run as it is launched (:func:`_launch_blocking`), then a primal frame; per kernel (in
+    launch order) its lanes, IR operations, launch site and execution time as Dr.Jit reports it
+    (median and minimum over the iterations: the load preempts a kernel's threads now and then,
+    the minimum is what it costs alone), and the primal frame's kernel likewise."""
+    iteration, frame = _start(mi, dr, name, cls, variables, lrs, width)
+    runs, prim = [], []
+    for r in range(n + 3):
+        ks = _launch_blocking(dr, iteration)
+        pk = _launch_blocking(dr, frame)
+        if r >= 3:
+            runs.append(ks)
+            prim.append(sum(k["execution_time"] for k in pk))
+    m = int(np.median([len(h) for h in runs]))
+    runs = [h for h in runs if len(h) == m]
+    t = np.array([[k["execution_time"] for k in h] for h in runs])
+    rows = [dict(i=i, lanes=int(k["size"]), ops=int(k["operation_count"]), site=k["site"],
+                 median_ms=float(np.median(t[:, i])), min_ms=float(t[:, i].min())) for i, k in enumerate(runs[0])]
+    out = dict(case=name, width=width, iterations=len(runs), kernels=m, rows=rows,
+               sum_median_ms=float(np.median(t.sum(axis=1))), sum_of_medians_ms=float(np.median(t, axis=0).sum()),
+               sum_of_min_ms=float(t.min(axis=0).sum()), primal_median_ms=float(np.median(prim)),
+               primal_min_ms=float(np.min(prim)))
+    log(f"  {name} at {width}²: {m} kernels an iteration, their time {out['sum_median_ms']:.2f} ms (median), "
+        f"per-kernel minima summed {out['sum_of_min_ms']:.2f} ms; primal frame's kernels {out['primal_median_ms']:.2f} "
+        f"(min {out['primal_min_ms']:.2f})")
+    for r_ in sorted(rows, key=lambda r_: -r_["min_ms"])[:12]:
+        log(f"    #{r_['i']:2d} {r_['min_ms']:6.3f} ms min, {r_['median_ms']:6.3f} median, {r_['lanes']:7d} lanes, "
+            f"{r_['ops']:5d} ops: {r_['site']}")
+    return out
+
+
+def kernels_markdown(r):
+    return (f"{r['case']} at {r['width']}²: {r['kernels']} kernels an iteration ({r['iterations']} iterations); "
+            f"their time {r['sum_median_ms']:.2f} ms (median of the sums), per-kernel minima summed "
+            f"{r['sum_of_min_ms']:.2f} ms; the primal frame's kernels {r['primal_median_ms']:.2f} ms (min "
+            f"{r['primal_min_ms']:.2f}).\n\n"
+            + md_table(["#", "lanes", "ops", "min ms", "median ms", "launched in"],
+                       [[q["i"], q["lanes"], q["ops"], f"{q['min_ms']:.3f}", f"{q['median_ms']:.3f}", q["site"]]
+                        for q in r["rows"]]))
+
+
+def flag_ab(mi, dr, name, cls, variables, lrs, width, n, log, flag):
+    """A module flag of links1_mitsuba (``flag``: ``module.NAME``, a bool) at its value and
+    flipped, alternated in one process: ``n`` rounds (after 2 iterations each way), each way
+    once a round (the order alternating), then a primal frame; per way the iteration's kernels
+    (run as launched, :func:`_launch_blocking`: their count and time) and then an iteration timed
+    as it runs (wall and process CPU); medians and the medians of the per-round ratios."""
+    import importlib
+    mod_name, _, attr = flag.rpartition(".")
+    mod = importlib.import_module(f"links1_mitsuba.{mod_name}")
+    kept = getattr(mod, attr)
+    ways = {f"{attr}={kept}": kept, f"{attr}={not kept}": not kept}
+    iteration, frame = _start(mi, dr, name, cls, variables, lrs, width)
+    got, each = {w: [] for w in ways}, {w: [] for w in ways}
+    prim = []
+    try:
+        for w, v in ways.items():
+            setattr(mod, attr, v)
+            iteration()
+            iteration()
+        for r in range(n):
+            for w in (list(ways) if r % 2 == 0 else list(ways)[::-1]):
+                setattr(mod, attr, ways[w])
+                ks = _launch_blocking(dr, iteration)
+                t0, c0 = time.perf_counter(), time.process_time()
+                iteration()
+                got[w].append([sum(k["execution_time"] for k in ks), len(ks), (time.perf_counter() - t0) * 1e3,
+                               (time.process_time() - c0) * 1e3])
+                each[w].append([k["execution_time"] for k in ks])
+            c0 = time.process_time()
+            frame()
+            prim.append((time.process_time() - c0) * 1e3)
+    finally:
+        setattr(mod, attr, kept)
+    base = np.array(got[list(ways)[0]])
+    out = dict(case=name, width=width, rounds=n, flag=flag, primal_cpu_ms=float(np.median(prim)), ways={})
+    for w in ways:
+        a = np.array(got[w])
+        q = dict(kernel_ms=float(np.median(a[:, 0])), kernels=float(np.median(a[:, 1])),
+                 wall_ms=float(np.median(a[:, 2])), cpu_ms=float(np.median(a[:, 3])),
+                 kernel_min_ms=float(np.min([e for e in each[w] if len(e) == a[0, 1]], axis=0).sum()),
+                 kernel_ratio=float(np.median(a[:, 0] / base[:, 0])), wall_ratio=float(np.median(a[:, 2] / base[:, 2])),
+                 cpu_ratio=float(np.median(a[:, 3] / base[:, 3])))
+        out["ways"][w] = q
+        log(f"  {name} at {width}², {w}: kernels {q['kernels']:.0f}, {q['kernel_ms']:.2f} ms (ratio of the rounds "
+            f"{q['kernel_ratio']:.3f}), per-kernel minima summed {q['kernel_min_ms']:.2f} ms; iteration wall {q['wall_ms']:.2f} ms ({q['wall_ratio']:.3f}), CPU "
+            f"{q['cpu_ms']:.2f} ms ({q['cpu_ratio']:.3f})")
+    log(f"  primal frame CPU {out['primal_cpu_ms']:.2f} ms")
+    return out
+
+
+def flag_markdown(rows):
+    return md_table(["case", "width", "way", "kernels", "kernel ms (ratio)", "per-kernel minima ms",
+                     "iteration wall ms (ratio)", "iteration CPU ms (ratio)", "primal CPU ms"],
+                    [[r["case"], f"{r['width']}²", w, f"{q['kernels']:.0f}", f"{q['kernel_ms']:.2f} ({q['kernel_ratio']:.3f})",
+                      f"{q['kernel_min_ms']:.2f}",
+                      f"{q['wall_ms']:.2f} ({q['wall_ratio']:.3f})", f"{q['cpu_ms']:.2f} ({q['cpu_ratio']:.3f})",
+                      f"{r['primal_cpu_ms']:.2f}"] for r in rows for w, q in r["ways"].items()])
+
+
 def host_markdown(rows):
     parts = [p["part"] for p in rows[0]["parts"]]
     return md_table(["part (ms an iteration: wall = kernels + host)"] + [f"{r['case']} {r['width']}²" for r in rows],
@@ -459,6 +594,15 @@ def _extra_markdown(results):
         out += ("\nPython's share (--host: each kernel run as it is launched, Dr.Jit's LaunchBlocking; a part's wall "
                 "time is its kernels' execution time (their count) plus its host time; medians; · within the part "
                 "above):\n\n" + host_markdown([r["host"] for r in results if "host" in r]))
+    if any("flag" in r for r in results):
+        out += ("\nA module flag at its value and flipped (--flag-ab: alternated in one process, medians and the "
+                "medians of the per-round ratios to the first way; kernel ms: the iteration's kernels run as "
+                "launched, as Dr.Jit reports them; wall and CPU: an iteration as it runs):\n\n"
+                + flag_markdown([r["flag"] for r in results if "flag" in r]))
+    if any("kernels" in r for r in results):
+        out += ("\nKernel by kernel (--kernels: each run as it is launched, its execution time as Dr.Jit reports it; "
+                "launched in: the innermost frames of links1_mitsuba and this benchmark):\n\n"
+                + "\n".join(kernels_markdown(r["kernels"]) for r in results if "kernels" in r))
     if any("where" in r for r in results):
         out += ("\nWhere an iteration goes, part by part (--where: each part synced before and after, medians; "
                 "a part marked · is within the one above it):\n\n"
@@ -511,6 +655,12 @@ def main(argv=None):
     ap.add_argument("--host", type=int, default=0, metavar="N",
                     help="also Python's share of an iteration at --big and of its parts, N iterations with each "
                          "kernel run as it is launched")
+    ap.add_argument("--kernels", type=int, default=0, metavar="N",
+                    help="also the iteration's kernels one by one at --big, N iterations with each kernel run as "
+                         "it is launched")
+    ap.add_argument("--flag-ab", default=None, metavar="MODULE.NAME",
+                    help="also a links1_mitsuba module's bool flag at its value and flipped, alternated in one "
+                         "process, --rounds rounds at --big")
     ap.add_argument("--variant", default="llvm_ad_rgb")
     ap.add_argument("--only", nargs="*", default=None)
     ap.add_argument("--threads", type=int, default=0, metavar="N",
@@ -548,6 +698,10 @@ def main(argv=None):
             r["where"] = where(mi, dr, name, cls, variables, lrs, a.big, a.where, log)
         if a.host:
             r["host"] = host_split(mi, dr, name, cls, variables, lrs, a.big, a.host, log)
+        if a.kernels:
+            r["kernels"] = kernels(mi, dr, name, cls, variables, lrs, a.big, a.kernels, log)
+        if a.flag_ab:
+            r["flag"] = flag_ab(mi, dr, name, cls, variables, lrs, a.big, a.rounds, log, a.flag_ab)
         if a.no_fit:
             timed_only.append(r)
             continue
@@ -561,6 +715,7 @@ def main(argv=None):
         name, text = ("inverse_outline", markdown(results, info, cmd)) if not a.no_fit else \
             (f"inverse_outline_{'guided' if a.guided else 'timing'}_{a.big}", timing_markdown(timed_only, info, cmd))
         name += f"_threads{a.threads}" if a.threads else ""
+        name += f"_{a.flag_ab.rpartition('.')[2].lower()}" if a.flag_ab else ""
         log("wrote " + ", ".join(map(str, write_results(name, payload, text))))
     log(f"total {payload['total_s']:.0f} s")
     return 0

@@ -104,6 +104,10 @@ BLOCK_LANES = 1 << 21
 #: whether a blob's camera crossings (its outline, a change of its lobe) are searched with its
 #: margin's secant (:func:`_narrowed`); False: halvings alone
 GUIDED = True
+#: whether the ends' values (:func:`_edges`) are made in one kernel before they are put back in
+#: the crossings' order; False: each gather evaluates its value alone (a kernel per value, each
+#: making the shared terms again)
+EDGES_ONE_KERNEL = True
 #: Newton steps toward the field's maximum along the ray of a guided crossing's ends
 #: (:func:`_ray_margin`; a query in its search takes one, from the previous query's maximum)
 NEWTON = 3
@@ -266,7 +270,7 @@ def _crossings(trace_points, scene, P, sensor, win, spp, seed, stage):
     c_lo, o_lo = dr.gather(mi.Int32, c_all, at_s), dr.gather(mi.Int32, o_all, at_s)
     c_hi = dr.gather(mi.Int32, c_all, at_s + 1)
     lo_d, hi_d = stage(_bisected if GUIDED else _bisected_plain, lo_d, hi_d, colm, fxd, key, kd, c_lo, o_lo, c_hi)
-    edge = stage(_edges, lo_d, hi_d, colm, fxd, key, kd, _dev(mi.UInt32, back))
+    edge = stage(_edges, lo_d, hi_d, colm, fxd, key, kd, _dev(mi.UInt32, back), EDGES_ONE_KERNEL)
     # f on both sides, SIDE_STEP pixels out: the primal ray tree (one launch for both ends), of
     # the valid crossings alone (the others' weight is 0: their jump is taken as 0)
     m_ = li.size
@@ -297,14 +301,15 @@ def _crossings(trace_points, scene, P, sensor, win, spp, seed, stage):
 _EDGE = ("q", "m", "valid", "part", "slot", "light", "p", "ts", "coef", "tri")
 
 
-def _edges(P, scene, lo, hi, colm, fxd, key, kd, back):
+def _edges(P, scene, lo, hi, colm, fxd, key, kd, back, one=True):
     """A stage of the term: what the bisected crossings ``[lo, hi]`` (:func:`_bisected`) are,
     all but the radiance on their sides: what both ends see (:func:`_status`), where the ray
     grazes (:func:`_grazes`), the outline there (:func:`_outline`: its normal ``m``, ``valid``,
     ``part``, a mesh edge's ``tri``), and the detached factor ``a_x / |a|²`` (a column's
     ``a_y``) of the crossing's weight (``coef``; 0 where not ``valid``), with ``a`` the screen
     gradient of ``m·q`` (:func:`_screen_gradient`); the values of :data:`_EDGE`, in order, lane
-    ``i`` of each that of the crossing ``back[i]``."""
+    ``i`` of each that of the crossing ``back[i]``; ``one``: made in one kernel before they are
+    put back in order (:data:`EDGES_ONE_KERNEL`)."""
     lts = _lights(P)
     (xl, yl), (xh, yh) = _at(lo, colm, fxd), _at(hi, colm, fxd)
     ends = [_status(P, scene, xa, ya, key, lts, only=kd) for xa, ya in ((xl, yl), (xh, yh))]
@@ -317,6 +322,8 @@ def _edges(P, scene, lo, hi, colm, fxd, key, kd, back):
     valid = edge["valid"] & (a2 > 0)
     coef = dr.select(valid, dr.select(colm, ay, ax) / dr.select(valid, a2, 1.0), 0.0)
     out = [g["q"], edge["m"], valid, edge["part"], g["slot"], g["light"], g["p"], g["t"], coef]
+    if one:
+        dr.eval(*out, *(edge["tri"] or ()))
     out = [dr.gather(type(v), v, back) for v in out]
     return out if edge["tri"] is None else out + [[dr.gather(type(v), v, back) for v in edge["tri"]]]
 

@@ -530,7 +530,9 @@ class Launches:
             o, d, tmin, tmax, key, sample = camera_rays(tables, sid, spp_, seeds)
             # (the samples' RGB evaluated in one kernel: the film's gather would evaluate each
             # channel alone, recomputing the shading of the ray tree three times)
-            total = trace_tree_ad(tracer, tables, scene, o, d, tmin, tmax, key, sample)
+            total = trace_tree_ad(tracer, tables, scene, o, d, tmin, tmax, key, sample,
+                                  rays=lambda lanes: camera_rays(tables, dr.gather(mi.UInt32, sid, lanes), spp_, seeds),
+                                  backward=mode == dr.ADMode.Backward)
             return {"total": total, "cost": dr.zeros(mi.UInt32, n)}, (n, dict(nsh1=None))
         if self.config.use_freeze:
             cfg = self._key(tables, scene, tracer, want)

@@ -23,6 +23,14 @@ SEEING_MAX = 0.75
 #: :func:`seeing_of` makes them (``lanes`` None: not compressed yet); :func:`_seeing` takes
 #: them instead of tracing the rays again
 SEEING = "seeing"
+#: where the pass found its camera rays' hits before tracing (:data:`SEEING`), the seeing
+#: samples' rays are made from their own sample ids (``rays`` of :func:`trace_tree_ad`) instead
+#: of every sample's rays evaluated and gathered: the same values, a kernel over the window fewer
+RAYS_OF_SEEING = True
+#: in a reverse-mode pass, the seeing lanes' RGB put back in their samples' lanes by a scatter
+#: over the seeing lanes (its reverse a gather, made in the next backward kernel) instead of a
+#: gather over every lane (its reverse a kernel over every lane); forward mode keeps the gather
+SCATTERED_BACK = True
 
 
 def cat(a, b, na, nb):
@@ -41,7 +49,7 @@ def cat(a, b, na, nb):
     return dr.select(in_a, ga, gb)
 
 
-def trace_tree_ad(tracer, tables, scene, o, d, tmin, tmax, key, sample):
+def trace_tree_ad(tracer, tables, scene, o, d, tmin, tmax, key, sample, rays=None, backward=False):
     """The ray trees of :meth:`.raytree.Tracer.trace_tree` (the same levels, children, weights, keys
     and ``min_weight`` rule) traced level by level without local memory, so that Dr.Jit
     can differentiate them: the children of a level (mirror rays first, then
@@ -54,14 +62,27 @@ def trace_tree_ad(tracer, tables, scene, o, d, tmin, tmax, key, sample):
     in their lanes, the others 0: an escaping camera ray's sample is 0 and carries no
     derivative (its visibility is held; the derivative of the outlines it misses is the
     visibility term's), and the AD kernels and their graph cover the samples that see
-    something."""
-    seen = _seeing(tables, scene, o, d, tmin, tmax, key, sample) if traces_seeing(tracer.config, tables) else None
-    if seen is not None:
+    something. ``rays``: a function of lanes (``UInt32``) giving those samples' camera rays as
+    ``o, d, tmin, tmax, key, sample`` (:data:`RAYS_OF_SEEING`), or None; ``backward``: the
+    graph is made for reverse mode (:data:`SCATTERED_BACK`)."""
+    seen, made = None, False
+    if traces_seeing(tracer.config, tables):
+        lanes, hit = (tables.ad_memo or {}).get(SEEING, (None, None))
+        made = (RAYS_OF_SEEING and rays is not None and lanes is not None and dr.width(hit) == dr.width(o)
+                and seeing_alone(dr.width(o), dr.width(lanes)))
+        seen = _seeing(tables, scene, o, d, tmin, tmax, key, sample, made)
+    if seen is not None and made:
+        o, d, tmin, tmax, key, sample = rays(seen[0])
+        # (evaluated in one kernel over the seeing lanes: the level's kernels, its backward
+        # one too, would each make the rays again)
+        with dr.suspend_grad():
+            dr.eval(o, d, tmin, tmax, key, sample[0], sample[1])
+    elif seen is not None:
         seeing = seen[0]
         o, d, tmin, tmax, key = (dr.gather(type(v), v, seeing) for v in (o, d, tmin, tmax, key))
         sample = (dr.gather(type(sample[0]), sample[0], seeing), dr.gather(type(sample[1]), sample[1], seeing),
                   sample[2])
-    return _trace(tracer, tables, scene, o, d, tmin, tmax, key, sample, seen)
+    return _trace(tracer, tables, scene, o, d, tmin, tmax, key, sample, seen, backward)
 
 
 def traces_seeing(config, tables):
@@ -93,22 +114,24 @@ def seeing_of(hit):
         return dr.compress(hit), hit
 
 
-def _seeing(tables, scene, o, d, tmin, tmax, key, sample):
+def _seeing(tables, scene, o, d, tmin, tmax, key, sample, made=False):
     """``(lanes, hits)``: the lanes (``UInt32``) whose camera ray hits something and the mask
     of those, or None (every lane traced) where more than :data:`SEEING_MAX` of them do or
     none does. The rays, their keys and samples are evaluated with the mask, in one kernel (a
-    gather evaluates its source alone: a kernel per component otherwise)."""
+    gather evaluates its source alone: a kernel per component otherwise), unless ``made``
+    (the seeing lanes' rays made from their sample ids instead: :data:`RAYS_OF_SEEING`)."""
     n = dr.width(o)
     lanes, hit = (tables.ad_memo or {}).pop(SEEING, (None, None))
     if hit is None or dr.width(hit) != n:
         lanes, hit = None, hits(tables, scene, o, d, tmin, tmax)
-    with dr.suspend_grad():
-        dr.eval(o, d, tmin, tmax, key, sample[0], sample[1], hit)
+    if not made:
+        with dr.suspend_grad():
+            dr.eval(o, d, tmin, tmax, key, sample[0], sample[1], hit)
     seen = seeing_of(hit) if lanes is None else (lanes, hit)
     return seen if seeing_alone(n, dr.width(seen[0])) else None
 
 
-def _trace(tracer, tables, scene, o, d, tmin, tmax, key, sample, seen=None):
+def _trace(tracer, tables, scene, o, d, tmin, tmax, key, sample, seen=None, backward=False):
     """:func:`trace_tree_ad` of the rays ``o, d``: every sample's, or with ``seen`` (``(lanes,
     hits)`` of :func:`_seeing`) those of the samples ``lanes``, the others' RGB 0. Every
     array the trees are summed into has a lane per sample (their scatter-adds' code does not
@@ -131,8 +154,12 @@ def _trace(tracer, tables, scene, o, d, tmin, tmax, key, sample, seen=None):
         # evaluates its source alone, a kernel per component each recomputing the level)
         dr.eval(res.L, *later)
         later.clear()
-        at = dr.prefix_sum(mi.UInt32(hit))
-        total = dr.select(hit, dr.gather(mi.Color3f, res.L, at, hit, mode=dr.ReduceMode.Permute), 0.0)
+        if backward and SCATTERED_BACK:
+            total = dr.zeros(mi.Color3f, dr.width(hit))
+            dr.scatter(total, res.L, own, mode=dr.ReduceMode.Permute)
+        else:
+            at = dr.prefix_sum(mi.UInt32(hit))
+            total = dr.select(hit, dr.gather(mi.Color3f, res.L, at, hit, mode=dr.ReduceMode.Permute), 0.0)
     if not spawn:
         dr.eval(total, *later)
         return total

@@ -357,6 +357,17 @@ def test_kernels_compiled_once(variant, tmp_path):
     assert [k["operation_count"] for k in kernels if not k["cache_hit"]] == []
 
 
+def _blob_and_ball_over_floor(tmp_path):
+    """A blob and a quadric over a floor, lit (outlines, shadow edges on the floor and on the
+    blob), ``projective``."""
+    import links1_mitsuba as lm
+    blob = SHAPES["blob"][1].replace('id="obj"', 'id="blob"')
+    ball = OCCLUDERS["quadric"][1].replace('id="obj"', 'id="ball"')
+    path = tmp_path / "scene.xml"
+    path.write_text(scene(whitted(1, projective=True) + SHADOW_CAMERA, FLOOR, blob, ball, SHADOW_LIGHT))
+    return lm.load_file(str(path))
+
+
 @pytest.mark.slow
 def test_frozen_stages_replay_the_traced_crossings(variant, tmp_path, monkeypatch):
     """The term's stages (the corners, the points of the lines and their intervals' kinds, the
@@ -368,13 +379,8 @@ def test_frozen_stages_replay_the_traced_crossings(variant, tmp_path, monkeypatc
     replayed."""
     import drjit as dr
     import mitsuba as mi
-    import links1_mitsuba as lm
     from links1_mitsuba import boundary
-    blob = SHAPES["blob"][1].replace('id="obj"', 'id="blob"')
-    ball = OCCLUDERS["quadric"][1].replace('id="obj"', 'id="ball"')
-    path = tmp_path / "scene.xml"
-    path.write_text(scene(whitted(1, projective=True) + SHADOW_CAMERA, FLOOR, blob, ball, SHADOW_LIGHT))
-    sc = lm.load_file(str(path))
+    sc = _blob_and_ball_over_floor(tmp_path)
     real, compared = boundary._crossings, []
 
     def both(trace_points, scene_, P, sensor, win, spp, seed, stage):
@@ -408,6 +414,37 @@ def test_frozen_stages_replay_the_traced_crossings(variant, tmp_path, monkeypatc
     # the same stage launches, at most one more recording each since (freeze's layout change, never one an update)
     assert now == stages and all(s.n_recordings <= recorded[f] + 1 for f, s in now.items()), (recorded, {f.__name__: s.n_recordings for f, s in now.items()})
     assert set(f.__name__ for f in stages) == {"_seen_slots", "_line_kinds", "_bisected", "_edges"}
+
+
+@pytest.mark.slow
+def test_ends_in_one_kernel_are_the_kernel_by_kernel_crossings(variant, tmp_path, monkeypatch):
+    """The ends' values made in one kernel before they are put back in order
+    (``boundary.EDGES_ONE_KERNEL``) are those each gather makes alone, bit for bit (a blob and a
+    quadric over a floor: outlines and shadow edges)."""
+    import drjit as dr
+    import mitsuba as mi
+    from links1_mitsuba import boundary
+    sc = _blob_and_ball_over_floor(tmp_path)
+    real, compared = boundary._crossings, []
+
+    def both(trace_points, scene_, P, sensor, win, spp, seed, stage):
+        got = []
+        for one in (True, False):
+            monkeypatch.setattr(boundary, "EDGES_ONE_KERNEL", one)
+            got.append(real(trace_points, scene_, P, sensor, win, spp, seed, lambda fn, *a: fn(P, scene_, *a)))
+        for k in ("pixel", "weight", "q", "m", "slot", "valid", "part", "light"):
+            a, b = got[0][k], got[1][k]
+            for c in range(dr.size_v(a)) if dr.size_v(a) > 1 else [None]:
+                assert np.array_equal(np.array(a if c is None else a[c]), np.array(b if c is None else b[c])), k
+        compared.append((int(np.count_nonzero(np.array(got[0]["valid"]))),
+                         int(np.count_nonzero(np.array(got[0]["light"]) >= 0))))
+        return got[0]
+    monkeypatch.setattr(boundary, "_crossings", both)
+    params = mi.traverse(sc)
+    dr.enable_grad(params["links1_whitted.blob.centers"])
+    params.update()
+    dr.backward(dr.sum(mi.render(sc, params, seed=0), axis=None))
+    assert len(compared) == 1 and compared[0][0] and compared[0][1]   # outlines and shadow edges
 
 
 def test_nothing_added_where_no_outline_moves(variant, tmp_path):

@@ -126,20 +126,24 @@ def test_blocks_take_the_hits_counted_before_the_pass(variant, monkeypatch, budg
     """Where the window is more than one block of rows, the pass counts its camera rays' hits
     first (its own tables) and each block takes its part of that mask (raytree_ad.SEEING): the
     window's camera rays are traced for their hits once a pass, not once more in each block;
-    the blocks' gradients are those of the pass over every lane (rtol 1e-5, as above)."""
+    a block that takes the seeing lanes found there makes their rays from their sample ids
+    (raytree_ad.RAYS_OF_SEEING); the blocks' gradients are those of the pass over every lane
+    (rtol 1e-5, as above)."""
     from links1_mitsuba import gradients, launch, raytree_ad
     sc = _load()
     weights = np.random.default_rng(5).uniform(0.0, 1.0, (18, 24, 3)).astype(np.float32)
     monkeypatch.setattr(gradients, "AD_BLOCK_LANES", budget)
-    traced, seen = [], []
+    traced, seen, made = [], [], []
     real_hits, real_seeing = raytree_ad.hits, raytree_ad._seeing
     counting = lambda *a: traced.append(1) or real_hits(*a)   # noqa: E731
     monkeypatch.setattr(raytree_ad, "hits", counting)
     monkeypatch.setattr(launch, "hits", counting)
-    monkeypatch.setattr(raytree_ad, "_seeing", lambda *a: seen.append(real_seeing(*a)) or seen[-1])
+    monkeypatch.setattr(raytree_ad, "_seeing", lambda *a: made.append(a[8:] == (True,)) or
+                        seen.append(real_seeing(*a)) or seen[-1])
     got = _reverse(sc, weights)
     assert len(traced) == 1                                   # the window's camera rays, once
     assert len(seen) == blocks and all(s is not None for s in seen)
+    assert made == [blocks == 1] * blocks     # the one block's rays made from its lanes' sample ids
     assert sum(len(np.asarray(s[0])) for s in seen) < 0.5 * 18 * 24 * 2
     monkeypatch.setattr(raytree_ad, "SEEING_MAX", -1.0)      # every lane traced, in one block
     monkeypatch.setattr(gradients, "AD_BLOCK_LANES", 1 << 17)
