@@ -36,6 +36,9 @@ PACKET = 4
 #: branch a kind present ("if": a packet runs the kinds it holds), or every kind's operations
 #: on every lane and a select ("select"), or Dr.Jit's symbolic switch ("switch")
 DISPATCH = "if"
+#: a fresh preliminary hit's slot from Embree's geometry id (:func:`record_slots`; False: from
+#: the shape's registry id, as a hit remade from kept arrays): the same slots
+GEOM_SLOTS = True
 
 # the switches read here (preliminary, box_cull, eye_buffer, split) are fields of
 # tuning.Tuning, handed over while tracing: a frozen launch is keyed on them (launch.py)
@@ -61,13 +64,14 @@ def nearest(tables, scene, o, d, tmin, tmax, active, cost, eye=False, coherent=F
         if rec is not None and not ad:
             # every Mitsuba shape a mesh, rectangle, sphere or disk, or an instance of them:
             # Embree's preliminary hit, the record made here
-            if pi is None:
+            fresh = pi is None
+            if fresh:
                 pi = scene.ray_intersect_preliminary(ray, bool(coherent), active)
             if keep is not None:
                 keep.append(pi)
             valid = active & pi.is_valid()
             t = dr.select(valid, pi.t + tmin, INF)
-            slot, inst, islot = record_slots(tables, rec, pi, valid)
+            slot, inst, islot = record_slots(tables, rec, pi, valid, fresh)
             si = mesh_surface(rec, ray, pi, slot, valid, inst, islot)
         else:
             si = scene.ray_intersect(ray, mi.RayFlags.All, bool(coherent), active)
@@ -120,11 +124,19 @@ def _shape_slot(tables, shape, valid):
     return dr.select(valid, dr.gather(mi.Int32, tables.reg_to_slot, reg, valid), -1)
 
 
-def record_slots(tables, rec, pi, valid):
+def record_slots(tables, rec, pi, valid, fresh=False):
     """``(slot, inst, islot)`` of the preliminary hits ``pi`` (``valid``: the lanes with a
     hit): the slot of the shape hit (on an instance: the shapegroup's member, which Mitsuba's
     record names: ``rec.member_of``), the lanes on an instance (None: the scene has none) and
-    the instance's slot."""
+    the instance's slot. ``fresh``: ``pi`` is Embree's answer in this kernel (not one remade
+    from :func:`kept_hit`'s arrays), so where the scene has no instance (:data:`GEOM_SLOTS`) the
+    slot comes from its geometry id, ``shape_index``, the index itself where the slots are the
+    shapes' indices: no gather of the registry id (``pi.shape``, a gather after Embree's call)
+    and of its slot, each waiting on the one before."""
+    if fresh and GEOM_SLOTS and rec.member_of is None and tables.geom_to_slot is not None:
+        g = pi.shape_index
+        slot = mi.Int32(g) if tables.geom_slot_identity else dr.gather(mi.Int32, tables.geom_to_slot, g, valid)
+        return dr.select(valid, slot, -1), None, None
     slot = _shape_slot(tables, pi.shape, valid)
     if rec.member_of is None:
         return slot, None, None

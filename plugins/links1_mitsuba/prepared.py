@@ -108,6 +108,12 @@ class Prepared(ViewFields):
     bvh_slots: frozenset = _default(frozenset())
     #: Mitsuba's shape registry id -> slot (-1: none), Int32
     reg_to_slot: object = _set_later()
+    #: Embree's geometry id (a preliminary hit's ``shape_index``: the shape's index in
+    #: ``scene.shapes()``) -> slot (-1: none), Int32; None where the scene has instances (there
+    #: ``shape_index`` is the member's index in its group)
+    geom_to_slot: object = _default(None)
+    #: ``geom_to_slot`` is the identity (every shape of ``scene.shapes()`` the slot of its index)
+    geom_slot_identity: bool = _default(False)
     #: whether the scene has Mitsuba shapes (else no ``scene.ray_intersect``)
     any_mitsuba_shapes: bool = _set_later()
     #: relative ray-origin offset per slot (``OFFSET_EPS`` or Mitsuba's RayEpsilon), Float

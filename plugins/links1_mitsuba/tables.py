@@ -648,6 +648,15 @@ class Tables:
         for r, sl in zip(reg, slot_list):
             table[r] = sl
         base.reg_to_slot = mi.Int32(checked_index(table, nslots, "reg_to_slot", sentinel=-1))
+        # Embree's geometry ids: the shapes' indices in scene.shapes() (Mitsuba attaches them in
+        # that order; on an instance the id is the member's in its group: none then)
+        every = list(scene.shapes())
+        if shapes and not any(s.class_name() in ("Instance", "ShapeGroup") for s in every):
+            by_reg = dict(zip(reg, slot_list))
+            g2s = np.array([by_reg.get(int(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(s))[0]), -1) for s in every],
+                           dtype=np.int32)
+            base.geom_to_slot = mi.Int32(checked_index(g2s, nslots, "geom_to_slot", sentinel=-1))
+            base.geom_slot_identity = bool(np.array_equal(g2s, np.arange(len(every))))
         base.any_mitsuba_shapes = len(shapes) > 0
         base.mesh_record = _mesh_record_table(shapes, slot_list, nslots, scene, reg)
         eps_np = np.full(max(nslots, 1), float(mi.math.RayEpsilon), dtype=np.float32)
