@@ -27,6 +27,7 @@ from .camera import camera_rays, rays_at
 from .config import Config
 from .film import Batch, cached_batch, concat, reconstruct, sample_ids, sample_window, widen
 from .raytree import Tracer
+from . import raytree_ad
 from .raytree_ad import hits, trace_tree_ad
 from .util import Hidden, aligned
 
@@ -520,11 +521,13 @@ class Launches:
             self._set_stats(counts)
         return np.concatenate(L), np.concatenate(cost)
 
-    def _launch(self, tables, scene, tracer: Tracer, sid, spp_, seeds, want, mode=dr.ADMode.Primal):
+    def _launch(self, tables, scene, tracer: Tracer, sid, spp_, seeds, want, mode=dr.ADMode.Primal, compact=False):
         """One launch over the sample ids ``sid`` (a ``UInt32`` array) -> (its device outputs
         ``total``, ``cost`` and with ``want`` ``t0``, ``s0``, ``n0``, each with one lane per
         sample; its ray counters). ``mode``: ``dr.ADMode.Primal`` (the frozen launch) or a
-        derivative pass's (gradients.py)."""
+        derivative pass's (gradients.py); ``compact``: in a derivative pass that traces the
+        seeing samples alone, their RGB and lanes as ``seeing`` instead of ``total``
+        (``raytree_ad.trace_tree_ad``)."""
         n = dr.width(sid)
         if mode != dr.ADMode.Primal:   # a derivative pass (gradients.py): unfrozen, no AOVs
             o, d, tmin, tmax, key, sample = camera_rays(tables, sid, spp_, seeds)
@@ -532,8 +535,9 @@ class Launches:
             # channel alone, recomputing the shading of the ray tree three times)
             total = trace_tree_ad(tracer, tables, scene, o, d, tmin, tmax, key, sample,
                                   rays=lambda lanes: camera_rays(tables, dr.gather(mi.UInt32, sid, lanes), spp_, seeds),
-                                  backward=mode == dr.ADMode.Backward)
-            return {"total": total, "cost": dr.zeros(mi.UInt32, n)}, (n, dict(nsh1=None))
+                                  backward=mode == dr.ADMode.Backward, compact=compact)
+            return ({"seeing": total} if isinstance(total, tuple) else {"total": total, "cost": dr.zeros(mi.UInt32, n)},
+                    (n, dict(nsh1=None)))
         if self.config.use_freeze:
             cfg = self._key(tables, scene, tracer, want)
             out = self._call_frozen(self._frozen_fn(), tables, scene, tracer, sid, dr.opaque(mi.UInt32, n),
@@ -644,7 +648,14 @@ class Launches:
         # launches of at most LAUNCH_LANES samples (lanes are independent: the same bits as
         # one launch); one launch of W*H*spp lanes needs ~90 bytes each (512², 1024 spp: 24 GB)
         if n <= LAUNCH_LANES:
-            parts, counts = self._launch(tables, scene, tracer, sid, spp_, seeds, want, mode)
+            # a box filter's window in a reverse-mode pass: its seeing samples summed into their
+            # pixels (raytree_ad.SEEING_FILM)
+            compact = (raytree_ad.SEEING_FILM and mode == dr.ADMode.Backward and len(wins) == 1 and box
+                       and tables.rfilter.is_box)
+            parts, counts = self._launch(tables, scene, tracer, sid, spp_, seeds, want, mode, compact)
+            if "seeing" in parts:
+                self._set_stats([counts])
+                return raytree_ad.seeing_film(*parts["seeing"], spp_[0], batch.pixels), 3, batch
             counts = [counts]
         else:
             dr.eval(sid)

@@ -13,7 +13,7 @@ import mitsuba as mi
 
 from . import intersect
 from .raytree import child_keys
-from .util import INF
+from .util import INF, udiv
 
 #: the derivative pass traces the samples whose camera ray hits something alone where at most
 #: this fraction of them does (:func:`trace_tree_ad`)
@@ -31,6 +31,22 @@ RAYS_OF_SEEING = True
 #: over the seeing lanes (its reverse a gather, made in the next backward kernel) instead of a
 #: gather over every lane (its reverse a kernel over every lane); forward mode keeps the gather
 SCATTERED_BACK = True
+#: in a reverse-mode pass of a box filter, the seeing lanes' RGB summed into their pixels by a
+#: scatter-add (:func:`seeing_film`) instead of put back in every lane and reconstructed: its
+#: reverse is a gather in the backward kernel; no kernel over every lane or pixel either way
+SEEING_FILM = True
+
+
+def seeing_film(L, lanes, spp, pixels):
+    """The box filter's pixels (``pixels`` of them, a flat ``Float`` array of ``3 · pixels``, RGB
+    innermost) of samples ``lanes`` (``UInt32``, lane ``pixel · spp + i`` of the launch) of RGB
+    ``L``, the others 0: each pixel's samples summed in float64, then over ``spp`` (an opaque
+    ``UInt32``), as :func:`.film.reconstruct` makes a box pixel (a sum of at most ``spp``
+    float32 values in float64: exact, whatever their order, unless their exponents differ by
+    more than 29); differentiable, its reverse a gather."""
+    acc = dr.zeros(mi.Float64, 3 * pixels)
+    dr.scatter_add(acc, mi.ArrayXf64(*[mi.Float64(L[c]) for c in range(3)]), udiv(lanes, spp))
+    return mi.Float(acc / mi.Float64(spp))
 
 
 def cat(a, b, na, nb):
@@ -49,7 +65,7 @@ def cat(a, b, na, nb):
     return dr.select(in_a, ga, gb)
 
 
-def trace_tree_ad(tracer, tables, scene, o, d, tmin, tmax, key, sample, rays=None, backward=False):
+def trace_tree_ad(tracer, tables, scene, o, d, tmin, tmax, key, sample, rays=None, backward=False, compact=False):
     """The ray trees of :meth:`.raytree.Tracer.trace_tree` (the same levels, children, weights, keys
     and ``min_weight`` rule) traced level by level without local memory, so that Dr.Jit
     can differentiate them: the children of a level (mirror rays first, then
@@ -64,7 +80,9 @@ def trace_tree_ad(tracer, tables, scene, o, d, tmin, tmax, key, sample, rays=Non
     visibility term's), and the AD kernels and their graph cover the samples that see
     something. ``rays``: a function of lanes (``UInt32``) giving those samples' camera rays as
     ``o, d, tmin, tmax, key, sample`` (:data:`RAYS_OF_SEEING`), or None; ``backward``: the
-    graph is made for reverse mode (:data:`SCATTERED_BACK`)."""
+    graph is made for reverse mode (:data:`SCATTERED_BACK`); ``compact``: where the seeing
+    samples alone are traced, return ``(L, lanes)`` instead: their RGB and lanes (for
+    :func:`seeing_film`)."""
     seen, made = None, False
     if traces_seeing(tracer.config, tables):
         lanes, hit = (tables.ad_memo or {}).get(SEEING, (None, None))
@@ -82,7 +100,7 @@ def trace_tree_ad(tracer, tables, scene, o, d, tmin, tmax, key, sample, rays=Non
         o, d, tmin, tmax, key = (dr.gather(type(v), v, seeing) for v in (o, d, tmin, tmax, key))
         sample = (dr.gather(type(sample[0]), sample[0], seeing), dr.gather(type(sample[1]), sample[1], seeing),
                   sample[2])
-    return _trace(tracer, tables, scene, o, d, tmin, tmax, key, sample, seen, backward)
+    return _trace(tracer, tables, scene, o, d, tmin, tmax, key, sample, seen, backward, compact)
 
 
 def traces_seeing(config, tables):
@@ -131,7 +149,7 @@ def _seeing(tables, scene, o, d, tmin, tmax, key, sample, made=False):
     return seen if seeing_alone(n, dr.width(seen[0])) else None
 
 
-def _trace(tracer, tables, scene, o, d, tmin, tmax, key, sample, seen=None, backward=False):
+def _trace(tracer, tables, scene, o, d, tmin, tmax, key, sample, seen=None, backward=False, compact=False):
     """:func:`trace_tree_ad` of the rays ``o, d``: every sample's, or with ``seen`` (``(lanes,
     hits)`` of :func:`_seeing`) those of the samples ``lanes``, the others' RGB 0. Every
     array the trees are summed into has a lane per sample (their scatter-adds' code does not
@@ -154,6 +172,8 @@ def _trace(tracer, tables, scene, o, d, tmin, tmax, key, sample, seen=None, back
         # evaluates its source alone, a kernel per component each recomputing the level)
         dr.eval(res.L, *later)
         later.clear()
+        if compact and not spawn:
+            return res.L, own
         if backward and SCATTERED_BACK:
             total = dr.zeros(mi.Color3f, dr.width(hit))
             dr.scatter(total, res.L, own, mode=dr.ReduceMode.Permute)

@@ -51,10 +51,10 @@ def _grads(scene, keys, weights, monkeypatch, budget):
     cls = Launches
     real = cls._launch
 
-    def counted(self, tables, scene_, tracer, sid, spp_, seeds, want, mode=dr.ADMode.Primal):
+    def counted(self, tables, scene_, tracer, sid, spp_, seeds, want, mode=dr.ADMode.Primal, compact=False):
         if mode != dr.ADMode.Primal:     # a derivative pass's launch
             widths.append(dr.width(sid))
-        return real(self, tables, scene_, tracer, sid, spp_, seeds, want, mode)
+        return real(self, tables, scene_, tracer, sid, spp_, seeds, want, mode, compact)
     monkeypatch.setattr(cls, "_launch", counted)
     params = mi.traverse(scene)
     for k in keys:

@@ -151,3 +151,30 @@ def test_blocks_take_the_hits_counted_before_the_pass(variant, monkeypatch, budg
     for k, a, b in zip(KEYS, got, ref):
         assert np.any(b != 0), k
         np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6 * np.abs(b).max(), err_msg=k)
+
+
+@pytest.mark.slow
+def test_seeing_film_is_the_box_film_of_every_lane(variant, monkeypatch):
+    """A reverse-mode pass's frame made from its seeing samples summed into their pixels
+    (``raytree_ad.SEEING_FILM``) is the box film of every lane (film.reconstruct, the others'
+    RGB 0), bit for bit, and its gradients are those of that film (rtol 1e-5, as above)."""
+    import drjit as dr
+    from links1_mitsuba import gradients, raytree_ad
+    sc = _load()
+    weights = np.random.default_rng(7).uniform(0.0, 1.0, (18, 24, 3)).astype(np.float32)
+    real, frames = gradients.Gradients._render_ad, []
+
+    def kept(self, *a, **k):
+        img = real(self, *a, **k)
+        frames.append(np.array(dr.detach(img)))
+        return img
+    monkeypatch.setattr(gradients.Gradients, "_render_ad", kept)
+    got = []
+    for on in (True, False):
+        monkeypatch.setattr(raytree_ad, "SEEING_FILM", on)
+        got.append(_reverse(sc, weights))
+    assert len(frames) == 2 and np.any(frames[1] != 0)
+    assert np.array_equal(frames[0], frames[1])
+    for k, a, b in zip(KEYS, *got):
+        assert np.any(b != 0), k
+        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6 * np.abs(b).max(), err_msg=k)
