@@ -26,7 +26,8 @@ from .fake_renderer import FAKE, pixel_values
 
 RES = 32
 OPTS = {"core": dict(params={"res": str(RES)}, aovs=("id",)),
-        "mitsuba": dict(params={"res": str(RES)}, aovs=("id",))}
+        # (the variant named: a test run before this one in the same process may leave another active)
+        "mitsuba": dict(params={"res": str(RES)}, aovs=("id",), variant="llvm_ad_rgb")}
 
 
 def _renderer_or_skip(kind):
