@@ -24,12 +24,12 @@ where an iteration at ``--big`` goes (:func:`stages`); with ``--ab``, what the r
 the term's stages frozen or traced); with ``--guided``, a blob's camera crossings searched
 by its margin's secant against bisection (:func:`timing_guided`); with ``--where``,
 the iteration part by part (:func:`where`); with ``--host``, Python's share of it (:func:`host_split`);
-with ``--kernels``, its kernels one by one (:func:`kernels`); with ``--flag-ab``, a module flag
-at its value and flipped, alternated (:func:`flag_ab`). Writes ``compare/results/inverse_outline.{json,md}``,
+with ``--kernels``, its kernels one by one (:func:`kernels`); with ``--flag-ab``, module flags
+at their values and flipped, alternated (:func:`flag_ab`). Writes ``compare/results/inverse_outline.{json,md}``,
 or with ``--no-fit`` (the times alone) ``compare/results/inverse_outline_timing_<big>.{json,md}``
 (``inverse_outline_guided_<big>`` with ``--guided``)
 (``..._threads<N>`` with ``--threads N``: Dr.Jit's thread pool at N threads for the whole run,
-the primal frames too; ``..._<flag>`` with ``--flag-ab``).
+the primal frames too; ``..._<flags>`` with ``--flag-ab``).
 """
 from __future__ import annotations
 
@@ -414,7 +414,7 @@ def host_split(mi, dr, name, cls, variables, lrs, width, n, log):
 def _launch_blocking(dr, fn):
     """``fn()`` with each kernel run as it is launched and Dr.Jit's kernel history on -> the JIT
     kernels it ran (their history entries; ``site``: where in links1_mitsuba, or this
-    benchmark, each was launched: the innermost frames)."""
+    benchmark, each was launched: the innermost frames at the first Python return after it)."""
     import sys
     import traceback
     ks = []
@@ -486,27 +486,36 @@ def kernels_markdown(r):
 
 
 def flag_ab(mi, dr, name, cls, variables, lrs, width, n, log, flag):
-    """A module flag of links1_mitsuba (``flag``: ``module.NAME``, a bool) at its value and
-    flipped, alternated in one process: ``n`` rounds (after 2 iterations each way), each way
+    """Module flags of links1_mitsuba (``flag``: ``module.NAME``, bools, comma-separated) at
+    their values and all flipped, alternated in one process: ``n`` rounds (after 2 iterations each way), each way
     once a round (the order alternating), then a primal frame; per way the iteration's kernels
     (run as launched, :func:`_launch_blocking`: their count and time) and then an iteration timed
     as it runs (wall and process CPU); medians and the medians of the per-round ratios."""
     import importlib
-    mod_name, _, attr = flag.rpartition(".")
-    mod = importlib.import_module(f"links1_mitsuba.{mod_name}")
-    kept = getattr(mod, attr)
-    ways = {f"{attr}={kept}": kept, f"{attr}={not kept}": not kept}
+    flags = []
+    for f in flag.split(","):
+        mod_name, _, attr = f.strip().rpartition(".")
+        mod = importlib.import_module(f"links1_mitsuba.{mod_name}")
+        flags.append((mod, attr, getattr(mod, attr)))
+
+    def way(flip):
+        return " ".join(f"{a}={v != flip}" for _, a, v in flags), flip
+    ways = dict(map(way, (False, True)))
+
+    def put(flip):
+        for mod, a, v in flags:
+            setattr(mod, a, v != flip)
     iteration, frame = _start(mi, dr, name, cls, variables, lrs, width)
     got, each = {w: [] for w in ways}, {w: [] for w in ways}
     prim = []
     try:
         for w, v in ways.items():
-            setattr(mod, attr, v)
+            put(v)
             iteration()
             iteration()
         for r in range(n):
             for w in (list(ways) if r % 2 == 0 else list(ways)[::-1]):
-                setattr(mod, attr, ways[w])
+                put(ways[w])
                 ks = _launch_blocking(dr, iteration)
                 t0, c0 = time.perf_counter(), time.process_time()
                 iteration()
@@ -517,7 +526,7 @@ def flag_ab(mi, dr, name, cls, variables, lrs, width, n, log, flag):
             frame()
             prim.append((time.process_time() - c0) * 1e3)
     finally:
-        setattr(mod, attr, kept)
+        put(False)
     base = np.array(got[list(ways)[0]])
     out = dict(case=name, width=width, rounds=n, flag=flag, primal_cpu_ms=float(np.median(prim)), ways={})
     for w in ways:
@@ -595,13 +604,15 @@ def _extra_markdown(results):
                 "time is its kernels' execution time (their count) plus its host time; medians; · within the part "
                 "above):\n\n" + host_markdown([r["host"] for r in results if "host" in r]))
     if any("flag" in r for r in results):
-        out += ("\nA module flag at its value and flipped (--flag-ab: alternated in one process, medians and the "
+        out += ("\nModule flags at their values and flipped (--flag-ab: alternated in one process, medians and the "
                 "medians of the per-round ratios to the first way; kernel ms: the iteration's kernels run as "
                 "launched, as Dr.Jit reports them; wall and CPU: an iteration as it runs):\n\n"
                 + flag_markdown([r["flag"] for r in results if "flag" in r]))
     if any("kernels" in r for r in results):
         out += ("\nKernel by kernel (--kernels: each run as it is launched, its execution time as Dr.Jit reports it; "
-                "launched in: the innermost frames of links1_mitsuba and this benchmark):\n\n"
+                "launched in: the innermost frames of links1_mitsuba and this benchmark at the first Python "
+                "return after its launch, so a kernel that Dr.Jit or Mitsuba launches from C++ (the loss's "
+                "reverse) is named by the call that follows it):\n\n"
                 + "\n".join(kernels_markdown(r["kernels"]) for r in results if "kernels" in r))
     if any("where" in r for r in results):
         out += ("\nWhere an iteration goes, part by part (--where: each part synced before and after, medians; "
@@ -659,8 +670,8 @@ def main(argv=None):
                     help="also the iteration's kernels one by one at --big, N iterations with each kernel run as "
                          "it is launched")
     ap.add_argument("--flag-ab", default=None, metavar="MODULE.NAME",
-                    help="also a links1_mitsuba module's bool flag at its value and flipped, alternated in one "
-                         "process, --rounds rounds at --big")
+                    help="also links1_mitsuba modules' bool flags (comma-separated) at their values and all "
+                         "flipped, alternated in one process, --rounds rounds at --big")
     ap.add_argument("--variant", default="llvm_ad_rgb")
     ap.add_argument("--only", nargs="*", default=None)
     ap.add_argument("--threads", type=int, default=0, metavar="N",
@@ -715,7 +726,7 @@ def main(argv=None):
         name, text = ("inverse_outline", markdown(results, info, cmd)) if not a.no_fit else \
             (f"inverse_outline_{'guided' if a.guided else 'timing'}_{a.big}", timing_markdown(timed_only, info, cmd))
         name += f"_threads{a.threads}" if a.threads else ""
-        name += f"_{a.flag_ab.rpartition('.')[2].lower()}" if a.flag_ab else ""
+        name += "".join(f"_{f.rpartition('.')[2].lower()}" for f in a.flag_ab.split(",")) if a.flag_ab else ""
         log("wrote " + ", ".join(map(str, write_results(name, payload, text))))
     log(f"total {payload['total_s']:.0f} s")
     return 0
