@@ -39,6 +39,9 @@ DISPATCH = "if"
 #: a fresh preliminary hit's slot from Embree's geometry id (:func:`record_slots`; False: from
 #: the shape's registry id, as a hit remade from kept arrays): the same slots
 GEOM_SLOTS = True
+#: a hit's kind and its mesh's first face read as one word (``MeshRecord.kind_face``; False:
+#: two gathers): the same values
+KIND_FACE = True
 
 # the switches read here (preliminary, box_cull, eye_buffer, split) are fields of
 # tuning.Tuning, handed over while tracing: a frozen launch is keyed on them (launch.py)
@@ -173,7 +176,14 @@ def mesh_surface(rec, ray, pi, slot, valid, inst=None, islot=None):
     transformed back by the instance's ``to_world`` (normals normalized). Lanes without a hit
     hold what Mitsuba's shape call leaves there (zeros, ``t`` infinite, ``wi = -d``)."""
     sl = mi.UInt32(dr.maximum(slot, 0))
-    kind = None if rec.kind is None else dr.gather(mi.UInt32, rec.kind, sl, valid)
+    face_off = ()
+    if rec.kind_face is not None and KIND_FACE:
+        # the kind and the meshes' first face in one word (tables.MeshRecord.kind_face): one
+        # gather, the first face handed to the branch
+        kf = dr.gather(mi.UInt32, rec.kind_face, sl, valid)
+        kind, face_off = kf & 3, (kf >> 2,)
+    else:
+        kind = None if rec.kind is None else dr.gather(mi.UInt32, rec.kind, sl, valid)
     part = {KIND_MESH: _mesh_part, KIND_RECT: _rect_part, KIND_SPHERE: _sphere_part, KIND_DISK: _disk_part}
     kinds = sorted(rec.kinds)
     o, d = ray.o, ray.d
@@ -185,11 +195,11 @@ def mesh_surface(rec, ray, pi, slot, valid, inst=None, islot=None):
         if rec.inst_obj:
             to = [row[21 + 4 * i:25 + 4 * i] for i in range(3)]
             o, d = dr.select(inst, _affine(to, o, True), o), dr.select(inst, _affine(to, d, False), d)
-    args = (o, d, pi.t, pi.prim_uv, pi.prim_index, sl)
+    args = (o, d, pi.t, pi.prim_uv, pi.prim_index, sl, *face_off)
 
-    def run(k, m, o, d, t, prim_uv, prim_index, sl):
+    def run(k, m, o, d, t, prim_uv, prim_index, sl, *face_off):
         # (the hit's fields as arguments: a symbolic call or branch takes no wide array it reads)
-        hit = _Hit(o, d, t, prim_uv, prim_index)
+        hit = _Hit(o, d, t, prim_uv, prim_index, *face_off)
         p, n, ns, uv, du, dv = part[k](rec, hit, sl, m)
         return mi.Point3f(p), mi.Vector3f(n), mi.Vector3f(ns), mi.Point2f(uv), mi.Vector3f(du), mi.Vector3f(dv)
 
@@ -253,7 +263,9 @@ def _mesh_part(rec, pi, sl, valid):
     table (``rec.packets``, :func:`_face_values`) or gathered from the meshes' buffers, then
     :func:`_triangle`."""
     face = pi.prim_index
-    if rec.face_off is not None:
+    if pi.face_off is not None:
+        face = face + pi.face_off
+    elif rec.face_off is not None:
         face = face + dr.gather(mi.UInt32, rec.face_off, sl, valid)
     uvs = nrm = has_uv = has_n = None
     if rec.texcoords is not None:
@@ -357,12 +369,14 @@ def _triangle(pi, pos, uvs, has_uv, nrm, has_n):
 @dataclasses.dataclass
 class _Hit:
     """A preliminary hit's fields that :func:`mesh_surface`'s parts read: its ray's origin and
-    direction, ``t``, ``prim_uv``, ``prim_index``."""
+    direction, ``t``, ``prim_uv``, ``prim_index``, and its mesh's first face (None: gathered
+    from ``MeshRecord.face_off``)."""
     o: object
     d: object
     t: object
     prim_uv: object
     prim_index: object
+    face_off: object = None
 
 
 def _linear(m, v):

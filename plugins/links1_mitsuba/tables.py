@@ -120,6 +120,8 @@ class MeshRecord:
     flip: object = None
     kinds: frozenset = frozenset({KIND_MESH})
     kind: object = None
+    #: where both ``kind`` and ``face_off`` are: per slot ``face_off << 2 | kind`` (UInt32)
+    kind_face: object = None
     rows: object = None
     inst_base: object = None
     member_of: object = None
@@ -274,6 +276,9 @@ def _mesh_buffers(rec, meshes, per_slot):
         rec.texcoords = mi.Float(np.concatenate([np.asarray(b["texcoords"], dtype=np.float32) if h
                                                  else np.zeros(2 * k, np.float32) for b, h, k in zip(bufs, has_uv, nv)]))
     rec.face_off = mi.UInt32(per_slot(foff, np.uint32, slots))
+    if rec.kind is not None and int(foff[-1]) < 2 ** 30:
+        rec.kind_face = mi.UInt32((np.asarray(rec.face_off, dtype=np.uint32) << np.uint32(2))
+                                  | np.asarray(rec.kind, dtype=np.uint32))
     rec.packets = _face_packets(rec)
 
 
