@@ -36,9 +36,9 @@ KEYS = ["links1_whitted.ball.to_world", "links1_whitted.blob.centers", "links1_w
         "lp.position", "mp.position"]
 
 
-def _load():
+def _load(rfilter="box"):
     import links1_mitsuba as lm
-    camera = perspective("0, 3, 6", "0, 1.2, 0", fov=40, width=24, height=18, spp=2)
+    camera = perspective("0, 3, 6", "0, 1.2, 0", fov=40, width=24, height=18, spp=2, rfilter=rfilter)
     return lm.load_string(scene(whitted(1) + camera, BODY))
 
 
@@ -77,26 +77,32 @@ def _forward(sc, key):
 
 
 @pytest.mark.slow
-def test_the_seeing_samples_alone_give_the_gradients_of_all(variant, monkeypatch):
+@pytest.mark.parametrize("rfilter", ["box", "gaussian"])
+def test_the_seeing_samples_alone_give_the_gradients_of_all(variant, monkeypatch, rfilter):
+    """Reverse mode with either filter (a box filter's pass sums the seeing samples into their
+    pixels, raytree_ad.SEEING_FILM; another filter's puts them back in every lane by a scatter,
+    raytree_ad.SCATTERED_BACK, and reconstructs), forward mode with the box filter."""
     from links1_mitsuba import raytree_ad
-    sc = _load()
+    sc = _load(rfilter)
     weights = np.random.default_rng(11).uniform(0.0, 1.0, (18, 24, 3)).astype(np.float32)
     traced = []
     real = raytree_ad._seeing
     monkeypatch.setattr(raytree_ad, "_seeing", lambda *a: traced.append(real(*a)) or traced[-1])
+    box = rfilter == "box"
     seeing_r = _reverse(sc, weights)
-    seeing_f = _forward(sc, "lp.position")
+    seeing_f = _forward(sc, "lp.position") if box else None
     assert traced and all(t is not None for t in traced)           # the pass took the seeing lanes
     lanes = [len(np.asarray(t[0])) for t in traced]
     assert 0 < min(lanes) and max(lanes) < 0.5 * 18 * 24 * 2        # most camera rays escape here
     monkeypatch.setattr(raytree_ad, "SEEING_MAX", -1.0)            # every lane traced
     all_r = _reverse(sc, weights)
-    all_f = _forward(sc, "lp.position")
     for k, a, b in zip(KEYS, seeing_r, all_r):
         assert np.any(b != 0), k
         np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6 * np.abs(b).max(), err_msg=k)
-    assert np.any(all_f != 0)
-    np.testing.assert_allclose(seeing_f, all_f, rtol=1e-5, atol=1e-7)
+    if box:
+        all_f = _forward(sc, "lp.position")
+        assert np.any(all_f != 0)
+        np.testing.assert_allclose(seeing_f, all_f, rtol=1e-5, atol=1e-7)
 
 
 def test_seeing_blocks_cover_the_window_once_within_the_budget():
