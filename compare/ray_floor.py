@@ -15,7 +15,9 @@ times each, interleaved (links1, Mitsuba, floor, links1, ...), after one warm-up
 * ``floor``: links1's rays traced alone, densely packed (:func:`floor_rays`, made once,
   untimed): per level of the ray tree ``scene.ray_intersect_preliminary`` of its rays (the
   eye rays coherent) and ``scene.ray_test`` of its shadow rays, one compacted batch per
-  light. The rays: eye rays through the pixels' sample positions (links1's sample order,
+  light (the eye rays' hits' shadow rays in Embree's coherent mode where links1 traces them so:
+  no BSDF of the scene has a delta lobe and ``Tuning.coherent_shadows``; the others incoherent).
+  The rays: eye rays through the pixels' sample positions (links1's sample order,
   ``pixel * spp + i``); at every hit whose BSDF has a smooth lobe, a shadow ray to each light
   that lies on the side of the surface the ray came from; at every hit, one child ray per
   delta lobe of its BSDF (``BSDFContext.component``) whose weight along the tree stays above
@@ -158,6 +160,10 @@ def floor_rays(scene, size, spp, depth, min_weight, seed=0):
     batches, counts = [], dict(camera=n, shadow=0, secondary=0, smooth_hits0=0)
     emitters = scene.emitters()
     ctx_all = mi.BSDFContext()
+    # level 1's shadow rays in the mode links1's kernel tests them (raytree.Tracer.level)
+    from links1_mitsuba.tuning import Tuning
+    delta = any(s.bsdf() is not None and mi.has_flag(s.bsdf().flags(), mi.BSDFFlags.Delta) for s in scene.shapes())
+    coherent_shadows = Tuning().coherent_shadows and not delta
     for level in range(depth):
         ray = mi.Ray3f(rays)
         dr.eval(ray)
@@ -178,9 +184,10 @@ def floor_rays(scene, size, spp, depth, min_weight, seed=0):
                 sh = si.spawn_ray_to(ds.p)
                 sray = dr.gather(mi.Ray3f, sh, idx)
                 dr.eval(sray, sh, need)
-                batches.append((level, sray, False, "shadow", True))
+                coherent = level == 0 and coherent_shadows
+                batches.append((level, sray, coherent, "shadow", True))
                 # the same tests as full-width masked packets (as one kernel issues them)
-                batches.append((level, mi.Ray3f(sh), False, "shadow_masked", need))
+                batches.append((level, mi.Ray3f(sh), coherent, "shadow_masked", need))
                 counts["shadow"] += dr.width(idx)
         if level == depth - 1:
             break
