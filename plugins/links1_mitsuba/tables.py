@@ -578,7 +578,7 @@ class Tables:
                     and bool(np.any(now["refl"].max(1) > 0)) == base.any_phong_r):
                 return False
             # the tables whose values changed, made as _prepare_scene makes them (the same bits)
-            new = {k: mi.Float(v.ravel()) for k, v in now.items() if not np.array_equal(v, base.phong_np[k])}
+            new = {k: table(mi.Float, v) for k, v in now.items() if not np.array_equal(v, base.phong_np[k])}
             if not np.array_equal(now["refl"].max(1) > 0, base.phong_np["refl"].max(1) > 0):
                 new["spawns"] = _spawn_table(base.is_phong_np, now["refl"], trans, base.mitsuba_delta_np)
         lam_now = None
@@ -590,7 +590,7 @@ class Tables:
                     return False
                 lam_now[sl] = v
             if not np.array_equal(lam_now, base.lam_np):
-                new["lam_rgb"] = mi.Float(lam_now.ravel())
+                new["lam_rgb"] = table(mi.Float, lam_now)
         if light:
             lights = [L for e in scene.emitters()
                       for L in [analytic_light(e, kind_of(e), point_class, spot_class, base, self.shapes.place)]
@@ -649,10 +649,10 @@ class Tables:
         base.custom = self.shapes.custom
         # registry id -> slot
         reg = [int(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(s))[0]) for s in shapes]
-        table = np.full(max(reg + [0]) + 1, -1, dtype=np.int32)
+        reg_slot = np.full(max(reg + [0]) + 1, -1, dtype=np.int32)
         for r, sl in zip(reg, slot_list):
-            table[r] = sl
-        base.reg_to_slot = mi.Int32(checked_index(table, nslots, "reg_to_slot", sentinel=-1))
+            reg_slot[r] = sl
+        base.reg_to_slot = mi.Int32(checked_index(reg_slot, nslots, "reg_to_slot", sentinel=-1))
         # Embree's geometry ids: the shapes' indices in scene.shapes() (Mitsuba attaches them in
         # that order; on an instance the id is the member's in its group: none then)
         every = list(scene.shapes())
@@ -735,8 +735,8 @@ class Tables:
         base.all_phong = bool(is_phong.all())
         base.any_phong = bool(is_phong.any())
         base.is_phong = mi.Bool(is_phong)
-        base.amb, base.dif, base.spe = (mi.Float(a.ravel()) for a in (amb, dif, spe))
-        base.refl, base.trans = mi.Float(refl.ravel()), mi.Float(trans.ravel())
+        base.amb, base.dif, base.spe = (table(mi.Float, a) for a in (amb, dif, spe))
+        base.refl, base.trans = table(mi.Float, refl), table(mi.Float, trans)
         base.expo, base.ior = mi.Float(expo), mi.Float(ior)
         base.phong_np = dict(amb=amb, dif=dif, spe=spe, refl=refl, expo=expo, ior=ior)
         base.any_ambient = bool(np.any(amb > 0))
@@ -884,7 +884,7 @@ class Tables:
             v = None if found is None else _spectrum_rgb(found[0])
             if v is not None:
                 lam[sl], two[sl], rgb[sl], src[sl] = True, found[1], v, found[0]
-        base.lam, base.lam_two, base.lam_rgb = mi.Bool(lam), mi.Bool(two), mi.Float(rgb.ravel())
+        base.lam, base.lam_two, base.lam_rgb = mi.Bool(lam), mi.Bool(two), table(mi.Float, rgb)
         base.lam_np, base.lam_src = rgb, src
         base.any_lam, base.any_lam_two = bool(lam.any()), bool(two.any())
         base.all_lam = bool(np.all(lam | is_phong))
