@@ -46,6 +46,10 @@ LAZY_COUNT_LANES = LAUNCH_LANES
 #: with children, not the children (False: it stores the children; before/after runs). Read
 #: when a launch is recorded: a frozen launch keeps what it was recorded with
 REMAKE = True
+#: the camera rays' hits of a derivative pass (:meth:`Launches.seeing_hits`) take the window's
+#: batch and sample ids from the launches' cache, which the pass's window then takes too
+#: (False: a batch of their own, its sample ids made anew every pass)
+SEEING_BATCH_CACHED = True
 
 
 def _columns(v, n=None):
@@ -559,7 +563,9 @@ class Launches:
         launch (row by row), evaluated: what a derivative pass traces of it
         (``raytree_ad.trace_tree_ad``)."""
         W, _ = tables.film_size
-        sid = sample_ids(W, int(spp), Batch([window], [window], int(spp)))
+        batch = (cached_batch(self.batches, [window], [window], int(spp)) if SEEING_BATCH_CACHED
+                 else Batch([window], [window], int(spp)))
+        sid = sample_ids(W, int(spp), batch)
         o, d, tmin, tmax, _, _ = camera_rays(tables, sid, *_ray_counts(spp, seed))
         hit = hits(tables, scene, o, d, tmin, tmax)
         dr.eval(hit)
