@@ -42,6 +42,9 @@ GEOM_SLOTS = True
 #: a hit's kind and its mesh's first face read as one word (``MeshRecord.kind_face``; False:
 #: two gathers): the same values
 KIND_FACE = True
+#: a rectangle's, sphere's, disk's or instance's row read :data:`PACKET` floats a packet gather
+#: (:func:`_row`; False: one gather a float): the same values
+ROW_PACKETS = True
 
 # the switches read here (preliminary, box_cull, eye_buffer, split) are fields of
 # tuning.Tuning, handed over while tracing: a frozen launch is keyed on them (launch.py)
@@ -319,14 +322,20 @@ def _rect_part(rec, pi, sl, valid):
     (rectangle.cpp), so that the face's vertices are gathered from the row without an index
     and its texture coordinates are constants."""
     first = pi.prim_index == 0
-    at = sl * ROW
+    if ROW_PACKETS:   # the four vertices and the normal (15 floats) read whole, the face's picked
+        row = _row(rec, sl, valid, 15)
+        vert = [mi.Point3f(*row[3 * i:3 * i + 3]) for i in range(4)]
+        pos = [vert[1], dr.select(first, vert[2], vert[3]), dr.select(first, vert[0], vert[2])]
+        n = mi.Vector3f(*row[12:15])
+    else:
+        at = sl * ROW
 
-    def vertex(i):
-        return mi.Point3f(*[dr.gather(mi.Float, rec.rows, at + i * 3 + k, valid) for k in range(3)])
-    pos = [vertex(1), vertex(dr.select(first, mi.UInt32(2), 3)), vertex(dr.select(first, mi.UInt32(0), 2))]
+        def vertex(i):
+            return mi.Point3f(*[dr.gather(mi.Float, rec.rows, at + i * 3 + k, valid) for k in range(3)])
+        pos = [vertex(1), vertex(dr.select(first, mi.UInt32(2), 3)), vertex(dr.select(first, mi.UInt32(0), 2))]
+        n = mi.Vector3f(*[dr.gather(mi.Float, rec.rows, at + 12 + k, valid) for k in range(3)])
     uvs = [mi.Point2f(1.0, 0.0), dr.select(first, mi.Point2f(0.0, 1.0), mi.Point2f(1.0, 1.0)),
            dr.select(first, mi.Point2f(0.0, 0.0), mi.Point2f(0.0, 1.0))]
-    n = mi.Vector3f(*[dr.gather(mi.Float, rec.rows, at + 12 + k, valid) for k in range(3)])
     return _triangle(pi, pos, uvs, valid, [n, n, n], valid)
 
 
@@ -386,8 +395,16 @@ def _linear(m, v):
 
 
 def _row(rec, sl, valid, n):
-    """The first ``n`` floats of the rows ``sl`` of ``rec.rows``."""
-    return [dr.gather(mi.Float, rec.rows, sl * ROW + k, valid) for k in range(n)]
+    """The first ``n`` floats of the rows ``sl`` of ``rec.rows``: :data:`PACKET` floats a
+    packet gather (:data:`ROW_PACKETS`; the rows 64-byte aligned, ``ROW`` a multiple of
+    ``PACKET``), else one gather a float; the same values."""
+    if not ROW_PACKETS:
+        return [dr.gather(mi.Float, rec.rows, sl * ROW + k, valid) for k in range(n)]
+    vals = []
+    for j in range(-(-n // PACKET)):
+        v = dr.gather(mi.ArrayXf, rec.rows, sl * (ROW // PACKET) + j, valid, shape=(PACKET, dr.width(valid)))
+        vals += [v[i] for i in range(PACKET)]
+    return vals[:n]
 
 
 def _sphere_part(rec, pi, sl, valid):

@@ -179,7 +179,7 @@ def _mesh_record_table(shapes, slot_list, nslots, scene, reg):
         rows = np.zeros((max(nslots, 1), ROW), dtype=np.float32)
         for s, k, sl in analytic:
             rows[sl] = _analytic_row(s, k) if k is not None else _instance_row(s)
-        rec.rows = mi.Float(rows.ravel())
+        rec.rows = table(mi.Float, rows)   # 64-byte aligned: intersect._row's packet gathers
     if any(inst):
         _instance_tables(rec, shapes, slot_list, reg, inst, nslots, scene)
     meshes = [(s, sl) for s, k, sl in zip(shapes, kinds, slot_list) if k == KIND_MESH]
