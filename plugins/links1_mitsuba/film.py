@@ -217,8 +217,11 @@ class Batch:
 
     def keep_with_frame(self, key, value):
         """Keep ``value`` (a Dr.Jit array of this frame) under ``key``, evaluated with the frame's
-        own kernel (``dr.schedule``: no kernel of its own)."""
+        own kernel (``dr.schedule``: no kernel of its own). Kept detached: a value made in a
+        derivative pass may be attached to its AD graph, and a later pass's backward would leave
+        its gradient on the kept node for a forward pass after it to propagate as a tangent."""
         if self.keep:
+            value = dr.detach(value)
             dr.schedule(value)
             self._kept[key[0]] = (key, value)
 
