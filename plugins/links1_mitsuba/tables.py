@@ -654,9 +654,10 @@ class Tables:
             reg_slot[r] = sl
         base.reg_to_slot = mi.Int32(checked_index(reg_slot, nslots, "reg_to_slot", sentinel=-1))
         # Embree's geometry ids: the shapes' indices in scene.shapes() (Mitsuba attaches them in
-        # that order; on an instance the id is the member's in its group: none then)
+        # that order; on an instance the id is the member's in its group: none then; OptiX's
+        # preliminary hits untried: none there)
         every = list(scene.shapes())
-        if shapes and not any(s.class_name() in ("Instance", "ShapeGroup") for s in every):
+        if shapes and llvm() and not any(s.class_name() in ("Instance", "ShapeGroup") for s in every):
             by_reg = dict(zip(reg, slot_list))
             g2s = np.array([by_reg.get(int(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(s))[0]), -1) for s in every],
                            dtype=np.int32)
