@@ -51,6 +51,11 @@ OFFSET_EPS = 2.0 ** -19
 #: The most bytes of a scene's per-face table (:class:`MeshRecord` ``packets``): a bigger
 #: table is not made, the kernel gathering each hit's face and vertices from the mesh buffers
 FACE_PACKETS_MAX_BYTES = 1 << 28
+#: a geometry update of the links1 shapes alone (``Tables._update_values``) keeps the launches'
+#: scene input (:class:`~.launch.SceneInputs`: the update replaces none of the Mitsuba scene's
+#: variables, only the integrator's) and starts from the literals' key the last update left
+#: (:func:`_geometry_literals` walked once an update, not twice); False: both made anew
+GEO_UPDATE_KEPT = True
 _PRECISE_MITSUBA = ("Mesh", "OBJMesh", "PLYMesh", "Rectangle", "Disk", "Links1Bicubic", "SerializedMesh")
 
 
@@ -417,6 +422,8 @@ class Tables:
         #                    update moved them since (_settle_normals), for meshes with normals
         # -- counters (tests and benchmarks read them through Engine.info())
         "n_scene_builds", "n_camera_views", "n_value_updates",
+        "geo_key",         # (tables, their views' keys, _geometry_literals of them) as the last
+        #                    geometry update left them
     )
 
     def __init__(self, config: Config, shapes: SceneShapes, launches: Launches):
@@ -426,6 +433,7 @@ class Tables:
         self.last = None
         self.vertices = {}
         self.n_scene_builds = self.n_camera_views = self.n_value_updates = 0
+        self.geo_key = None
 
     def forget(self):
         """The next :meth:`prepare` checks nothing against the last tables: it builds them."""
@@ -599,7 +607,10 @@ class Tables:
                 return False
             base.lights = lights
         # (a geometry update replays the frozen launches unless it changed a literal of their kernels)
-        literals = _geometry_literals(base) if geo and not light else None
+        kept = self.geo_key[2] if GEO_UPDATE_KEPT and self.geo_key is not None and self.geo_key[0] is base \
+            and self.geo_key[1] == tuple(base.views) else None     # (a camera view made since: walked)
+        self.geo_key = None
+        literals = (kept if kept is not None else _geometry_literals(base)) if geo and not light else None
         if geo:
             self._shape_tables(base, quad)
         if light or geo:
@@ -620,11 +631,14 @@ class Tables:
             if geo and view is not base:   # the camera rays' buffer around the eye (views.camera_view)
                 view.eye_buf = lightbuffer.plan_eye(view, scene) if base.tuning.light_buffer else None
             view.frozen_inputs = None       # gathered again: the new arrays are the launch's inputs
-            if light or geo or not base.all_phong or base.any_mitsuba_emission:
+            if light or (geo and not GEO_UPDATE_KEPT) or not base.all_phong or base.any_mitsuba_emission:
                 view.scene_input = None     # the scene's variables (the BSDFs' new values) too
             # (all links1_phong: the launch's scene input leaves them out, launch._unread_bsdfs)
-        if literals is not None and _geometry_literals(base) != literals:
-            self.launches.forget()   # (a literal of their kernels changed: another structure)
+        if literals is not None:
+            now_key = _geometry_literals(base)
+            if now_key != literals:
+                self.launches.forget()   # (a literal of their kernels changed: another structure)
+            self.geo_key = (base, tuple(base.views), now_key)
         base.watch = base.watch.renewed(scene)
         self.n_value_updates += 1
         return True
