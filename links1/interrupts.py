@@ -20,6 +20,7 @@ Helpers, standard library only:
 """
 from __future__ import annotations
 
+import _signal
 import contextlib
 import functools
 import signal
@@ -53,18 +54,20 @@ def held_interrupts():
     if _HOLDS or not _main_thread():
         yield
         return
-    old = signal.getsignal(signal.SIGINT)
+    # (``_signal``'s functions, which ``signal``'s wrap in enum conversions: a frame holds once,
+    # and after its kernels those conversions cost ~60 µs of the host's time)
+    old = _signal.getsignal(_signal.SIGINT)
     if not callable(old):   # SIG_IGN (a worker), SIG_DFL, or set outside Python: nothing to hold
         yield
         return
     hold = [old, []]
-    signal.signal(signal.SIGINT, lambda signum, frame: hold[1].append(frame))
+    _signal.signal(_signal.SIGINT, lambda signum, frame: hold[1].append(frame))
     _HOLDS.append(hold)
     try:
         yield
     finally:
         _HOLDS.remove(hold)
-        signal.signal(signal.SIGINT, old)
+        _signal.signal(_signal.SIGINT, old)
         if hold[1]:
             old(signal.SIGINT, hold[1][0])
 

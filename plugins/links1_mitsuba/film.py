@@ -124,6 +124,9 @@ def sample_window(rfilter, window, film_size):
     return sx0, sy0, min(W, x0 + w + b) - sx0, min(H, y0 + h + b) - sy0
 
 
+#: A box filter's frame at spp 1 without AOVs makes only the lanes' pixel indices
+#: (:class:`_PixelLanes`; False: every table of :class:`_Lanes`, traced and unused)
+PIXEL_LANES = True
 #: The box filter's mean at spp a multiple of 4 reads a pixel's samples (consecutive in the
 #: launch's output) four at a time, with packet gathers (False: one at a time)
 BOX_PACKETS = True
@@ -384,7 +387,10 @@ def reconstruct(rfilter, film_size, spp, seed, batch, data, aovs, dtype=None, mo
     # same bits)
     strips = not box and centred is None and int(spp) <= STRIPS_SPP and mode != "evaluated"
     P = STRIP if centred is not None else (STRIPS_P if strips else 1)
-    L = _Lanes(batch, P, n_s)
+    if box and int(spp) == 1 and not aovs and PIXEL_LANES:
+        L = _PixelLanes(batch)   # (reads no window table)
+    else:
+        L = _Lanes(batch, P, n_s)
     if box:
         # a box filter's sample windows are its windows (sample_window), laid out as the
         # pixels are (Batch): a pixel's sample 0 is pixel · spp, found without a division
@@ -500,6 +506,17 @@ def reconstruct(rfilter, film_size, spp, seed, batch, data, aovs, dtype=None, mo
 #: neighbour sample (its RGB packet) is read once for the strip instead of once per pixel
 #: (:func:`_filter_gather`). A Python constant: the kernels' shape, not a size.
 STRIP = 8
+
+
+class _PixelLanes:
+    """The lanes of a box filter's frame at spp 1 without AOVs, the part of :class:`_Lanes` it
+    reads: lane ``q`` is output pixel ``q`` (``n``, ``pixel``; ``first``, its sample, the
+    caller's). The window tables' gathers that :class:`_Lanes` traces, which no kernel of such
+    a frame uses, are left out: host time of a frame."""
+
+    def __init__(self, batch):
+        _, self.n, _ = batch.strips(1)
+        self.pixel = dr.arange(mi.UInt32, self.n)
 
 
 class _Lanes:

@@ -80,10 +80,15 @@ class Tuning:
         only in where repeated ``True``/``False`` objects sit (``f(x, (False, (True, False)))``
         replays the recording of ``f(x, (False, (True, True)))``: box_cull=False replayed the
         default's launch, ``tests/plugins/test_tuning.py``); bit 62 keeps the number off
-        CPython's shared small ints (a repeated object)."""
-        flags = [getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "bvh_min"]
-        bits = sum(int(b) << k for k, b in enumerate(flags))
-        return (1 << 62) | (min(self.bvh_min, (1 << 40) - 1) << len(flags)) | bits
+        CPython's shared small ints (a repeated object). Made once a value (it is frozen): a
+        frame asks for it."""
+        key = self.__dict__.get("_key")
+        if key is None:
+            flags = [getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "bvh_min"]
+            bits = sum(int(b) << k for k, b in enumerate(flags))
+            key = (1 << 62) | (min(self.bvh_min, (1 << 40) - 1) << len(flags)) | bits
+            object.__setattr__(self, "_key", key)
+        return key
 
     def tables_key(self) -> tuple:
         """The part that the prepared tables are built from (``tables.py``: the light buffers,
