@@ -34,6 +34,10 @@ def _token(value):
     return (a.dtype.str, a.shape, np.ascontiguousarray(a).tobytes())
 
 
+#: :class:`ParamWatch` reads the own values of a watched object of Mitsuba's C++ classes by their
+#: fields' addresses, as a child's (False: it traverses the object one level at each check)
+ROOT_BY_ADDRESS = True
+
 #: :class:`ParamWatch`'s stand-in for the watched scene's integrator (not held: its tables hold the watch)
 _INTEGRATOR = object()
 
@@ -117,7 +121,8 @@ class ParamWatch(Hidden):
             for k in keys:
                 self._pins.pop(k, None)
             self._pins.update(pins)
-            for name in ("_own", "_retraverse", "_jit", "_jit_keys", "_scalar", "_scalar_keys", "_root_keys"):
+            for name in ("_own", "_retraverse", "_jit", "_jit_keys", "_scalar", "_scalar_keys", "_root_keys",
+                         "_root"):
                 setattr(self, name, getattr(renew, name, None))
         else:
             self.state, self._pins = self._read_all(params, pin=True)
@@ -133,6 +138,7 @@ class ParamWatch(Hidden):
                 self._scalar = [(v, ct, node) for k, v, ct, node in kids if self.state[k][0] == "value"]
                 self._scalar_keys = [k for k, *_ in kids if self.state[k][0] == "value"]
                 self._root_keys = sorted(k for k, (_, _, node, _) in params.properties.items() if node is obj)
+                self._root = self._fixed_root(obj, params)
         if not self._retraverse:
             self._jit_ids = [i for k in self._jit_keys for i in self.state[k][1]]
             self._scalar_tokens = [self.state[k][1] for k in self._scalar_keys]
@@ -234,14 +240,28 @@ class ParamWatch(Hidden):
         entries = self._node_entries(obj)
         return entries is not None and not any(self._differs(k, e) for k, e in entries)
 
+    @staticmethod
+    def _fixed_root(obj, params):
+        """``(class, [(key, field, cpptype)])``: ``obj``'s own values where a C++ class of
+        Mitsuba's puts them all as fields (its keys fixed by the class; read by address at each
+        check of an object of that class, with it as their node, as a child's are), else None (a
+        Python plugin, a value put by value: ``obj`` traversed one level at each check)."""
+        if not ROOT_BY_ADDRESS or not type(obj).__module__.startswith("mitsuba"):
+            return None
+        own = [(k, v, ct) for k, (v, ct, node, _) in params.properties.items() if node is obj]
+        return (type(obj), own) if all(ct is not None for _, _, ct in own) else None
+
     def _node_entries(self, obj):
         """``[(key, (value, cpptype, node))]`` of ``obj``'s own values and those the Python
         plugins (and the scene's integrator) hand out, their nodes traversed one level, in the
         watch's keys; None where they are not the watched ones (keys added or gone)."""
-        own = self._shallow(obj)
-        if sorted(name for name, _, _ in own) != self._root_keys:
-            return None
-        out = [(name, (v, ct, obj)) for name, v, ct in own]
+        if self._root is not None and type(obj) is self._root[0] and ROOT_BY_ADDRESS:
+            out = [(k, (v, ct, obj)) for k, v, ct in self._root[1]]
+        else:
+            own = self._shallow(obj)
+            if sorted(name for name, _, _ in own) != self._root_keys:
+                return None
+            out = [(name, (v, ct, obj)) for name, v, ct in own]
         for ref, keys in self._own:
             node = obj.integrator() if ref is _INTEGRATOR else ref
             vals = self._shallow(node)
