@@ -17,6 +17,12 @@ frame path (``engine``, ``launch``, ``film``, ``views``, ``tables``) wrapped in 
   ``mi.render`` less ``Engine.render`` is Mitsuba's own wrapper (``dr.custom``, the sampler's
   re-seeding).
 
+With ``--ab ROUNDS``, also the host-time cuts against the code before them, alternated in the
+same process (ROUNDS rounds of 5 frames each way, the order swapped every round, the same bits
+checked): ``film.PIXEL_LANES`` and ``paramwatch.ROOT_BY_ADDRESS`` off, the SIGINT hold through
+``signal``'s enum-converting functions instead of ``_signal``'s, ``Tuning.key`` made every frame;
+medians of wall, process CPU and submit time a frame.
+
 Writes ``compare/results/host_frame.{json,md}`` (``--out``).
 """
 from __future__ import annotations
@@ -77,7 +83,57 @@ def _wrap_all(acc):
     return undo
 
 
-def measure(cid, rfilter, spp, frames, width, variant) -> dict:
+def _host_cuts(on: bool) -> None:
+    """The host-time cuts on (as the code is) or off (the code before them: module docstring)."""
+    import _signal
+    import signal
+
+    import links1_mitsuba.film as F
+    import links1_mitsuba.paramwatch as P
+    from links1 import interrupts
+    F.PIXEL_LANES = P.ROOT_BY_ADDRESS = on
+    interrupts._signal = _signal if on else signal
+
+
+def ab(scene, spp, rounds) -> dict:
+    """``{"old"|"new": {"wall"|"cpu"|"submit": ms}}``: frames alternated with the host-time cuts
+    off and on (:func:`_host_cuts`), medians; ``same_bits``: the two frames' pixels equal."""
+    import drjit as dr
+    import mitsuba as mi
+    from links1_mitsuba import tuning
+    imgs = {}
+    for on in (False, True):
+        _host_cuts(on)
+        for _ in range(3):
+            img = mi.render(scene, spp=spp, seed=0)
+            dr.eval(img)
+        imgs[on] = np.asarray(img).view(np.uint32)
+    same = bool(np.array_equal(imgs[False], imgs[True]))
+    res = {on: {"wall": [], "cpu": [], "submit": []} for on in (False, True)}
+    try:
+        for r in range(rounds):
+            for on in ((False, True) if r % 2 == 0 else (True, False)):
+                _host_cuts(on)
+                for _ in range(5):
+                    if not on:   # Tuning.key made every frame, as before
+                        tuning.current().__dict__.pop("_key", None)
+                    dr.sync_thread()
+                    c0, t0 = time.process_time(), time.perf_counter()
+                    img = mi.render(scene, spp=spp, seed=0)
+                    dr.eval(img)
+                    t1 = time.perf_counter()
+                    dr.sync_thread()
+                    res[on]["submit"].append(t1 - t0)
+                    res[on]["wall"].append(time.perf_counter() - t0)
+                    res[on]["cpu"].append(time.process_time() - c0)
+    finally:
+        _host_cuts(True)
+    return dict(same_bits=same, rounds=rounds,
+                **{("new" if on else "old"): {k: 1e3 * float(np.median(v)) for k, v in d.items()}
+                   for on, d in res.items()})
+
+
+def measure(cid, rfilter, spp, frames, width, variant, ab_rounds=0) -> dict:
     import drjit as dr
     import mitsuba as mi
     from compare.ray_floor import load_case, mitsuba_integrator
@@ -124,7 +180,8 @@ def measure(cid, rfilter, spp, frames, width, variant) -> dict:
                    us["Launches.render_windows_device"] - us["Launches._render_flat"],
                "freeze's call and the caller's record (_call_frozen − launch._extra_scenes)": us["Launches._call_frozen"]
                    - us.get("launch._extra_scenes", 0.0)}
-    return dict(id=cid, rfilter=rfilter, spp=spp, size=list(size), frames=frames,
+    cuts = ab(scene, spp, ab_rounds) if ab_rounds else None
+    return dict(id=cid, rfilter=rfilter, spp=spp, size=list(size), frames=frames, ab=cuts,
                 submit_us={k: 1e6 * float(np.median(v)) for k, v in subs.items()},
                 functions=[f for f in funcs if f["us"] >= 1.0], derived=derived)
 
@@ -143,6 +200,13 @@ def markdown(rows, info, cmd) -> str:
             md.append(f"| `{f['name']}` | {f['us']:.1f} | {f['calls']:g} |\n")
         for name, v in r["derived"].items():
             md.append(f"| {name} | {v:.1f} | |\n")
+        if r.get("ab"):
+            a = r["ab"]
+            md.append(f"\nThe host-time cuts off / on, alternated ({a['rounds']} rounds × 5 frames each way; "
+                      f"the same bits: {a['same_bits']}):\n\n| ms a frame (median) | off | on | on / off |\n"
+                      "| --- | --- | --- | --- |\n")
+            for k in ("wall", "cpu", "submit"):
+                md.append(f"| {k} | {a['old'][k]:.3f} | {a['new'][k]:.3f} | **{a['new'][k] / a['old'][k]:.3f}** |\n")
         md.append("\n")
     return "".join(md)
 
@@ -155,6 +219,8 @@ def main(argv=None) -> int:
     ap.add_argument("--frames", type=int, default=200)
     ap.add_argument("--width", type=int, default=512)
     ap.add_argument("--variant", default="llvm_ad_rgb")
+    ap.add_argument("--ab", type=int, default=0, metavar="ROUNDS",
+                    help="also alternate the host-time cuts off and on, ROUNDS rounds (module docstring)")
     ap.add_argument("--out", default=str(RESULTS / "host_frame"))
     a = ap.parse_args(argv)
     import links1_mitsuba as lm
@@ -165,7 +231,7 @@ def main(argv=None) -> int:
         cid, _, rfilter = case.partition(":")
         if not rfilter:
             raise SystemExit(f"compare.host_frame: --only {case}: give ID:FILTER (e.g. cbox_point:box)")
-        rows.append(measure(cid, rfilter, a.spp, a.frames, a.width, a.variant))
+        rows.append(measure(cid, rfilter, a.spp, a.frames, a.width, a.variant, a.ab))
         print(f"{case}: submit {rows[-1]['submit_us']}", flush=True)
     cmd = command_line()
     out = Path(a.out)
