@@ -584,40 +584,44 @@ def where_markdown(rows):
                                                 for q in r["parts"] if q["part"] == p] for p in parts])
 
 
+#: the optional tables (--stages, --ab, ...): the results' key, the table's introduction, its table of the
+#: list of those results' values
+_EXTRA = (
+    ("stages", "Where an iteration at the --big width goes (--stages: medians, with Dr.Jit's kernel history on; term: "
+               "the visibility term made, evaluated and synced; kernel ms: execution times as Dr.Jit reports them)",
+     stages_markdown),
+    ("ab", "The recordings' worth (--ab: interleaved rounds, medians, wall and process CPU; kept: as the plugin runs; "
+           "recorded: the frozen launches recorded again at every update; stages traced: the term's stages of "
+           "queries traced every frame)",
+     ab_markdown),
+    ("guided", "A blob's camera crossings searched by its margin's secant or by bisection (--guided: interleaved "
+               "rounds, medians, wall and process CPU; the bisection stage synced before and after)",
+     guided_markdown),
+    ("host", "Python's share (--host: each kernel run as it is launched, Dr.Jit's LaunchBlocking; a part's wall time "
+             "is its kernels' execution time (their count) plus its host time; medians; · within the part above)",
+     host_markdown),
+    ("flag", "Module flags at their values and flipped (--flag-ab: alternated in one process, medians and the medians "
+             "of the per-round ratios to the first way; kernel ms: the iteration's kernels run as launched, as "
+             "Dr.Jit reports them; wall and CPU: an iteration as it runs)",
+     flag_markdown),
+    ("kernels", "Kernel by kernel (--kernels: each run as it is launched, its execution time as Dr.Jit reports it; "
+                "launched in: the innermost frames of links1_mitsuba and this benchmark at the first Python return "
+                "after its launch, so a kernel that Dr.Jit or Mitsuba launches from C++ (the loss's reverse) is named "
+                "by the call that follows it)",
+     lambda v: "\n".join(kernels_markdown(k) for k in v)),
+    ("where", "Where an iteration goes, part by part (--where: each part synced before and after, medians; a part "
+              "marked · is within the one above it)",
+     where_markdown),
+)
+
+
 def _extra_markdown(results):
-    """The optional tables (--stages, --ab, --where) of ``results``."""
+    """The optional tables (:data:`_EXTRA`) of ``results``."""
     out = ""
-    if any("stages" in r for r in results):
-        out += ("\nWhere an iteration at the --big width goes (--stages: medians, with Dr.Jit's kernel history "
-                "on; term: the visibility term made, evaluated and synced; kernel ms: execution times as Dr.Jit "
-                "reports them):\n\n" + stages_markdown([r["stages"] for r in results if "stages" in r]))
-    if any("ab" in r for r in results):
-        out += ("\nThe recordings' worth (--ab: interleaved rounds, medians, wall and process CPU; kept: as the "
-                "plugin runs; recorded: the frozen launches recorded again at every update; stages traced: the "
-                "term's stages of queries traced every frame):\n\n" + ab_markdown([r["ab"] for r in results if "ab" in r]))
-    if any("guided" in r for r in results):
-        out += ("\nA blob's camera crossings searched by its margin's secant or by bisection (--guided: interleaved "
-                "rounds, medians, wall and process CPU; the bisection stage synced before and after):\n\n"
-                + guided_markdown([r["guided"] for r in results if "guided" in r]))
-    if any("host" in r for r in results):
-        out += ("\nPython's share (--host: each kernel run as it is launched, Dr.Jit's LaunchBlocking; a part's wall "
-                "time is its kernels' execution time (their count) plus its host time; medians; · within the part "
-                "above):\n\n" + host_markdown([r["host"] for r in results if "host" in r]))
-    if any("flag" in r for r in results):
-        out += ("\nModule flags at their values and flipped (--flag-ab: alternated in one process, medians and the "
-                "medians of the per-round ratios to the first way; kernel ms: the iteration's kernels run as "
-                "launched, as Dr.Jit reports them; wall and CPU: an iteration as it runs):\n\n"
-                + flag_markdown([r["flag"] for r in results if "flag" in r]))
-    if any("kernels" in r for r in results):
-        out += ("\nKernel by kernel (--kernels: each run as it is launched, its execution time as Dr.Jit reports it; "
-                "launched in: the innermost frames of links1_mitsuba and this benchmark at the first Python "
-                "return after its launch, so a kernel that Dr.Jit or Mitsuba launches from C++ (the loss's "
-                "reverse) is named by the call that follows it):\n\n"
-                + "\n".join(kernels_markdown(r["kernels"]) for r in results if "kernels" in r))
-    if any("where" in r for r in results):
-        out += ("\nWhere an iteration goes, part by part (--where: each part synced before and after, medians; "
-                "a part marked · is within the one above it):\n\n"
-                + where_markdown([r["where"] for r in results if "where" in r]))
+    for key, intro, table in _EXTRA:
+        values = [r[key] for r in results if key in r]
+        if values:
+            out += f"\n{intro}:\n\n" + table(values)
     return out
 
 
