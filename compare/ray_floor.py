@@ -16,7 +16,9 @@ times each, interleaved (links1, Mitsuba, floor, links1, ...), after one warm-up
   untimed): per level of the ray tree ``scene.ray_intersect_preliminary`` of its rays (the
   eye rays coherent) and ``scene.ray_test`` of its shadow rays, one compacted batch per
   light (the eye rays' hits' shadow rays in Embree's coherent mode where links1 traces them so:
-  no BSDF of the scene has a delta lobe and ``Tuning.coherent_shadows``; the others incoherent).
+  no BSDF of the scene has a delta lobe and ``Tuning.coherent_shadows``; the others incoherent;
+  none from the eye rays' hits toward a light at the eye, which links1 does not test:
+  ``Tuning.eye_lights``, :func:`eye_emitters`).
   The rays: eye rays through the pixels' sample positions (links1's sample order,
   ``pixel * spp + i``); at every hit whose BSDF has a smooth lobe, a shadow ray to each light
   that lies on the side of the surface the ray came from; at every hit, one child ray per
@@ -164,6 +166,8 @@ def floor_rays(scene, size, spp, depth, min_weight, seed=0):
     from links1_mitsuba.tuning import Tuning
     delta = any(s.bsdf() is not None and mi.has_flag(s.bsdf().flags(), mi.BSDFFlags.Delta) for s in scene.shapes())
     coherent_shadows = Tuning().coherent_shadows and not delta
+    # no level-1 shadow ray toward a light at the eye, as links1 (shadow_plan.eye_lights)
+    at_eye = eye_emitters(scene, sensor, size) if Tuning().eye_lights else set()
     for level in range(depth):
         ray = mi.Ray3f(rays)
         dr.eval(ray)
@@ -175,7 +179,9 @@ def floor_rays(scene, size, spp, depth, min_weight, seed=0):
         smooth = hit & mi.has_flag(flags, mi.BSDFFlags.Smooth)
         if level == 0:
             counts["smooth_hits0"] = int(np.count_nonzero(np.asarray(smooth)))
-        for e in emitters:
+        for k, e in enumerate(emitters):
+            if level == 0 and k in at_eye:
+                continue
             ds, _ = e.sample_direction(si, mi.Point2f(0.5), smooth)
             front = dr.dot(si.n, ds.d) * dr.dot(si.n, -ray.d) > 0   # the light on the ray's side
             need = smooth & (ds.pdf > 0) & front
@@ -213,6 +219,33 @@ def floor_rays(scene, size, spp, depth, min_weight, seed=0):
         weight = mi.Color3f(*(mi.Float(np.concatenate([np.asarray(k[a]) for k in kids_w])) for a in range(3)))
         rays = mi.Ray3f(o, d)
     return batches, counts
+
+
+def eye_emitters(scene, sensor, size) -> set:
+    """The indices in ``scene.emitters()`` of the point and spot emitters at the pinhole ``sensor``'s eye toward which
+    links1's camera-ray hits send no shadow ray (the core's rule,
+    :func:`links1.tracing.occluders.lights_at_eye`, on the scene's shape boxes)."""
+    import math
+    import mitsuba as mi
+    from links1.tracing.occluders import lights_at_eye, near_reach
+    if sensor.class_name() != "PerspectiveCamera":
+        return set()
+    prm = mi.traverse(sensor)
+    eye = np.array(prm["to_world"].matrix, dtype=np.float64).reshape(4, 4)[:3, 3]
+    tn = math.tan(math.radians(float(np.array(prm["x_fov"]).ravel()[0])) / 2.0)
+    reach = near_reach(sensor.near_clip(), tn, tn * size[1] / size[0])
+    positions = []
+    for e in scene.emitters():
+        ep = mi.traverse(e)
+        if e.class_name() == "PointLight":
+            positions.append(np.array(ep["position"], dtype=np.float64).ravel())
+        elif e.class_name() == "SpotLight":
+            positions.append(np.array(ep["to_world"].matrix, dtype=np.float64).reshape(4, 4)[:3, 3])
+        else:
+            positions.append(None)
+    boxes = [(np.array(b.min, dtype=np.float64), np.array(b.max, dtype=np.float64))
+             for b in (s.bbox() for s in scene.shapes())]
+    return {k for k, free in enumerate(lights_at_eye(eye, reach, positions, boxes)) if free}
 
 
 def trace_floor(scene, batches, masked=False):

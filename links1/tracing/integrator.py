@@ -135,10 +135,14 @@ class WhittedIntegrator:
         the product of r and t factors down the tree) exceeds this (default 1/255; 0 traces all).
     light_samples : int
         Shadow rays per sampled light (area emitters, environments) per hit (default 1).
+    camera : links1.sensor.camera.Camera or None
+        The camera whose rays are the ones traced at depth 1 (None: rays of any origin): a
+        pinhole's hits need no shadow ray toward a light at its eye
+        (:func:`links1.tracing.occluders.lights_at_eye`).
     """
 
     def __init__(self, scene, max_depth: int | None = None, min_weight: float = DEFAULT_MIN_WEIGHT,
-                 light_samples: int = 1):
+                 light_samples: int = 1, camera=None):
         self.scene = scene
         self.light_samples = int(light_samples)
         if self.light_samples < 1:
@@ -163,6 +167,8 @@ class WhittedIntegrator:
         self._shadow_need = plan.shadow_need
         self._shadow_inner = plan.shadow_inner
         self._shadow_t_light = plan.shadow_t_light
+        #: per light: at the camera's eye, so its shadow rays from depth-1 hits need no test
+        self._eye_lit = occluders.camera_lights_at_eye(camera, self.shapes, self.lights)
         #: per material: glossy lobes, so BSDF samples join the light samples (None: no glossy
         #: material meets a sampled light, and no hit takes a BSDF sample)
         # (diffuse lobes too, as Mitsuba's direct samples every smooth BSDF; links1_phong keeps
@@ -287,7 +293,7 @@ class WhittedIntegrator:
                         pdf_b = _call(mats[k].pdf, wo[g], wi[g], nf[g], rec.ns[g], tangent[k])
                         contrib[g] *= power_heuristic(m * pdf_l[g], pdf_b)[:, None]
                 self._shadowed(out, contrib, wi, dist, j, hits, rec, eps, cost, idx,
-                               aim=isinstance(light, AreaLight))
+                               aim=isinstance(light, AreaLight), free=depth == 1 and self._eye_lit[j])
         if gl is not None:
             self._bsdf_sampled(out, glossy, mats, tangent, d, nf, rec, eps, cost, idx, keys, sample)
 
@@ -437,9 +443,10 @@ class WhittedIntegrator:
         ok = ln > 0
         return np.where(ok[:, None], s_ / np.where(ok, ln, 1.0)[:, None], coordinate_system(ns)[0])
 
-    def _shadowed(self, out, contrib, wi, dist, j, hits, rec, eps, cost, idx, aim=False):
+    def _shadowed(self, out, contrib, wi, dist, j, hits, rec, eps, cost, idx, aim=False, free=False):
         """Add ``contrib`` of light ``j`` to ``out``, dimmed by the transmittance of the shapes
-        its shadow segment crosses (3-3-3), tracing only where an occluder can be.
+        its shadow segment crosses (3-3-3), tracing only where an occluder can be (``free``:
+        nowhere, the light at the eye of the camera rays these hits are of).
 
         ``aim``: the light's points lie on a surface (an area emitter). The segment then runs
         from the offset origin to the sampled point itself and stops short of it by that
@@ -448,6 +455,9 @@ class WhittedIntegrator:
         normal), inside the emitter when the emitter is not convex (and so an occluder): a
         luminaire mesh shadowed itself on points that see it obliquely."""
         lit = np.any(contrib != 0.0, axis=1)
+        if free:
+            out[lit] += contrib[lit]
+            return
         need = self._shadow_need[j][hits.shape] | \
             (self._shadow_inner[j][hits.shape] & (dot(rec.ng, wi) <= 0.0))  # inner side: links1.tracing.occluders
         unblockable = lit & ~need  # no shape can lie between these points and the light

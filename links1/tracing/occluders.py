@@ -11,7 +11,10 @@ Two conservative facts decide it:
 * a **planar** shape (disk, rectangle, flat mesh) shadows nothing toward a light when the
   light and every other shape lie on one side of its plane (a floor under the scene); for an
   area light the whole emitter (its bounding box) must lie on that side;
-* a convex **emitter** never hides the points sampled on it (they face the shaded point).
+* a convex **emitter** never hides the points sampled on it (they face the shaded point);
+* a light **at a pinhole camera's eye** (a headlight) is hidden from no point the camera
+  sees: the shadow ray of a camera ray's hit runs back along that camera ray, which met
+  nothing before the hit (:func:`lights_at_eye`; the camera's rays only, not deeper levels').
 
 The result per light ``j``: ``occluder[j]`` (S,) bool, the shapes a shadow ray toward ``j``
 may hit, and ``need[j]`` (S,) bool, whether a point on shape ``s`` needs a shadow ray toward
@@ -20,6 +23,8 @@ may hit, and ``need[j]`` (S,) bool, whether a point on shape ``s`` needs a shado
 ``ng · wi <= 0``.
 """
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
@@ -129,3 +134,51 @@ def shadow_plan(shapes, lights):
         occluder.append(occ)
         need.append(nd)
     return occluder, need
+
+
+#: Margin of :func:`lights_at_eye`'s near-plane reach (relative), for the float32 rays' rounding
+EYE_REACH_MARGIN = 2.0 ** -16
+
+
+def near_reach(near_clip: float, tan_x: float, tan_y: float) -> float:
+    """How far from a pinhole camera's eye its rays start at most: the near plane's corner,
+    ``near_clip`` away along the view axis, ``tan_x`` and ``tan_y`` the half-angles' tangents."""
+    return float(near_clip) * math.sqrt(1.0 + tan_x * tan_x + tan_y * tan_y)
+
+
+def lights_at_eye(eye, reach: float, positions, boxes) -> list[bool]:
+    """Per light, whether the shadow rays of a pinhole camera's hits toward it need no test:
+    the light sits at the eye (its position equal to the eye's in float32, the precision the
+    plugin's rays are traced in), so each shadow ray runs back along the camera ray that found
+    its hit, which met nothing before it. The camera rays start on the near plane, up to
+    ``reach`` (:func:`near_reach`) from the eye, so every shape's bounding box must keep
+    farther than that: a shape nearer would be unseen yet cast a shadow (and an unbounded one
+    may be anywhere). ``positions``: per light its position, or None for a light without one;
+    ``boxes``: ``(lo, hi)`` per shape. Conservative: False where unsure."""
+    eye = np.asarray(eye, dtype=np.float64).reshape(3)
+    if not np.all(np.isfinite(eye)):
+        return [False] * len(positions)
+    r = reach * (1.0 + EYE_REACH_MARGIN) + EYE_REACH_MARGIN * (1.0 + float(np.max(np.abs(eye))))
+    for lo, hi in boxes:
+        lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
+        if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
+            return [False] * len(positions)
+        gap = np.maximum(np.maximum(lo - eye, eye - hi), 0.0)   # the eye's distance to the box
+        if float(np.sqrt(gap @ gap)) <= r:
+            return [False] * len(positions)
+    e32 = eye.astype(np.float32)
+    return [p is not None and bool(np.array_equal(np.asarray(p, dtype=np.float64).reshape(3).astype(np.float32), e32))
+            for p in positions]
+
+
+def camera_lights_at_eye(camera, shapes, lights) -> list[bool]:
+    """:func:`lights_at_eye` of the core's camera (``links1.sensor.camera.Camera``: a pinhole
+    perspective one, else none), shapes and lights (point, cone spot and projector lights
+    have a position)."""
+    if camera is None or camera.projection != "perspective" or camera.thin_lens:
+        return [False] * len(lights)
+    t = math.tan(math.radians(camera.fov_x) / 2.0)
+    reach = near_reach(camera.near_clip, t, t * camera.height / camera.width)
+    positions = [lt.position if isinstance(lt, (PointLight, ConeSpotLight, ProjectorLight)) else None
+                 for lt in lights]
+    return lights_at_eye(camera.origin, reach, positions, [s.bounds() for s in shapes])

@@ -170,7 +170,8 @@ def _render_pixels(scene, cam, px, py, add_layer, *, spp, max_depth, seed, aovs,
     """Trace the ``spp`` samples of the pixels ``(px, py)`` of the film (row 0 at the top):
     ``add_layer(rgb (n, 3), offx (n,), offy (n,))`` receives sample 0, 1, ... of every pixel in
     turn; returns the per-pixel AOV channels ``(n, number of AOV channels)``."""
-    integ = WhittedIntegrator(scene, max_depth=max_depth, min_weight=min_weight, light_samples=light_samples)
+    integ = WhittedIntegrator(scene, max_depth=max_depth, min_weight=min_weight, light_samples=light_samples,
+                              camera=cam)
     npix = len(px)
     layer, offs = np.zeros((npix, 3)), np.zeros((2, npix))  # one sample of every pixel
     cost = np.zeros(npix, dtype=np.int64)
@@ -213,7 +214,8 @@ def _render_adaptive(scene, cam, win, *, threshold, depth, max_depth, seed, aovs
                      progress):
     """The core's adaptive render of window ``win``: :func:`render_adaptive_window` with the
     core's integrator tracing the lattice points and an spp-1 pass for the centre AOVs."""
-    integ = WhittedIntegrator(scene, max_depth=max_depth, min_weight=min_weight, light_samples=light_samples)
+    integ = WhittedIntegrator(scene, max_depth=max_depth, min_weight=min_weight, light_samples=light_samples,
+                              camera=cam)
 
     def trace_points(xf, yf, keys):
         L, cost = np.empty((len(xf), 3)), np.empty(len(xf))

@@ -38,7 +38,7 @@ import mitsuba as mi
 
 from links1.maths.sampling import KEY_REFLECT, KEY_REFRACT
 
-from . import intersect, lights
+from . import intersect, lights, shadow_plan
 from .config import Config
 from .tuning import Tuning
 from .util import INF, gather3, mix32
@@ -263,10 +263,13 @@ class Tracer:
         # where no BSDF has delta lobes: frames 0.95x on the teapot and data_instancing, 1.00x on
         # cbox_point, but 1.04x on the mirror/glass scenes (delta_bsdfs, cbox_mirror_glass)
         coherent = depth == 1 and not tables.any_specular
+        # the camera rays' hits: no shadow ray toward a light at a pinhole's eye (not in a
+        # derivative pass, whose lights may be attached values)
+        free = shadow_plan.eye_lights(tables) if depth == 1 and not ad and self.tuning.eye_lights else None
 
         def direct(out, cost, n_shadow):
             return self._direct(tables, scene, h, key, sample, symbolic, skip, later, out, cost, n_shadow,
-                                coherent=coherent)
+                                coherent=coherent, free=free)
 
         if skip:
             # (a hit whose BSDF has delta lobes alone gets no direct light: the packets of such
@@ -425,12 +428,14 @@ class Tracer:
             out += dr.select(emits, em.eval(sif, emits), 0.0)
         return out
 
-    def _direct(self, tables, scene, h, key, sample, symbolic, skip, later, out, cost, n_shadow, coherent=False):
+    def _direct(self, tables, scene, h, key, sample, symbolic, skip, later, out, cost, n_shadow, coherent=False,
+                free=None):
         """Direct light with shadows (eq. 3.11, 3-3-3) added to ``out``: every analytic light,
         ``light_samples`` samples of each area and environment light (with a BSDF sample and
         multiple importance sampling at glossy hits), their shadow rays built together and
         handed to the ray tests (``coherent``: the hits are the camera rays', neighbours in the
-        lanes: ``intersect.shadow_mitsuba``'s). Returns ``(out, cost, n_shadow)``."""
+        lanes: ``intersect.shadow_mitsuba``'s; ``free``: per analytic light, True where no hit
+        needs a shadow ray toward it, ``shadow_plan.eye_lights``). Returns ``(out, cost, n_shadow)``."""
         n, hit, slot, uslot, p, ng, nf, eps, ad = h.n, h.hit, h.slot, h.uslot, h.p, h.ng, h.nf, h.eps, h.ad
         bsdf, sif, glossy, ctx_s = h.bsdf, h.sif, h.glossy, h.ctx_s
         f_eval, offset = h.f_eval, h.offset
@@ -468,6 +473,9 @@ class Tracer:
             so, smax = offset(wi), dist - 2.0 * eps
             if ad:   # visibility on primal values (the shadow ray's place is attached)
                 so, wi, smax = dr.detach(so), dr.detach(wi), dr.detach(smax)
+            if free is not None and free[jl]:   # at the eye: the camera ray backwards, unoccluded
+                pending.append((contrib, so, wi, smax, lit, lit, None, False, jl))
+                continue
             T, need, occ_m = shadow(jl, so, wi, smax, lit, contrib)
             pending.append((contrib, so, wi, smax, lit, need, T, occ_m, jl))
         m_inv = 1.0 / self.config.light_samples

@@ -1,21 +1,24 @@
 """Which shadow rays a scene needs, planned once per scene on the host (numpy): which shapes can
 lie between a lit point and each light (:func:`plan_occluders`, the same rules as
 :mod:`links1.tracing.occluders`, the side of a plane from :mod:`links1.maths.halfspace`), the
-boxes of the few Mitsuba shapes a shadow ray is first tested against (:func:`occluder_boxes`)
-and the sub-scenes of the transparent ones (:func:`shadow_split`).
+boxes of the few Mitsuba shapes a shadow ray is first tested against (:func:`occluder_boxes`),
+the sub-scenes of the transparent ones (:func:`shadow_split`) and the lights at a pinhole
+camera's eye, toward which its rays' hits need no shadow ray (:func:`eye_lights`).
 """
 from __future__ import annotations
 
+import math
 import warnings
 
+import drjit as dr
 import mitsuba as mi
 import numpy as np
 
 from links1.geometry.shapes import TriangleMesh
 from links1.maths.halfspace import box_side, point_side
-from links1.tracing.occluders import _plane_of
+from links1.tracing.occluders import _plane_of, lights_at_eye, near_reach
 
-from .lights import DirectionalRecord, CylinderSpotRecord
+from .lights import POSITIONED, DirectionalRecord, CylinderSpotRecord
 from .paramwatch import own_param
 from .util import PLAIN_MESHES, kind_of
 
@@ -164,6 +167,25 @@ def plan_occluders(P, custom, shapes, slot_list, reuse=False):
         P.occ_mitsuba.append(bool(np.any(msl)))
         P.occ_boxes.append(occluder_boxes(msl, G["lo"], G["hi"], convex))
         P.occ_mslots.append(frozenset(int(v) for v in np.flatnonzero(msl)))
+
+
+def eye_lights(tables) -> tuple:
+    """Per analytic light of ``tables`` (a camera view, ``tables.lights``): whether the hits of
+    its camera's rays need no shadow ray toward it, the light at the eye of a pinhole
+    perspective camera and no shape's box within the near plane's reach
+    (:func:`links1.tracing.occluders.lights_at_eye`, the core's rule). All False for another
+    camera, a light without a position or one whose position is a Dr.Jit value (a derivative
+    pass's), and before the shapes are planned."""
+    lights = tables.lights
+    G = getattr(tables, "occ_shapes", None)
+    if not tables.perspective or tables.lens is not None or G is None:
+        return (False,) * len(lights)
+    W, H = tables.film_size
+    tn = math.tan(math.radians(tables.x_fov) / 2.0)
+    positions = [L.position if isinstance(L, POSITIONED) and not dr.is_array_v(L.position) else None
+                 for L in lights]
+    eye = np.asarray(tables.cam, dtype=np.float64)[:3, 3]
+    return tuple(lights_at_eye(eye, near_reach(tables.near, tn, tn * H / W), positions, zip(G["lo"], G["hi"])))
 
 
 def _mesh_rules(s_):

@@ -39,7 +39,7 @@ from .paramwatch import ParamWatch, own_param
 from .prepared import LIGHT_FIELDS, PHONG_TABLES, SHAPE_FIELDS, Prepared
 from .registered import plugin_class
 from .sceneshapes import SceneShapes
-from .shadow_plan import plan_occluders, shadow_split
+from .shadow_plan import eye_lights, plan_occluders, shadow_split
 from .tuning import Tuning
 from .util import PLAIN_MESHES, checked_index, kind_of, table
 
@@ -392,9 +392,11 @@ def _geometry_literals(base):
     """What the frozen launches' kernels take as literals from the tables a geometry update
     makes anew (``launch.literal_key``): the shapes' tables (:data:`SHAPE_FIELDS`), the
     tables planned from the lights and the shapes' bounds (:data:`LIGHT_FIELDS`, without the
-    planning's own host data ``occ_shapes``) and each camera view's eye buffer."""
+    planning's own host data ``occ_shapes``) and each camera view's eye buffer and lights at
+    its eye (``shadow_plan.eye_lights``: a shape moved near the eye takes that rule away)."""
     return literal_key([getattr(base, f, None) for f in SHAPE_FIELDS + LIGHT_FIELDS if f != "occ_shapes"]
-                       + [view.eye_buf for view in base.views.values()])
+                       + [view.eye_buf for view in base.views.values()]
+                       + [eye_lights(view) for view in base.views.values()])
 
 
 def scene_identity(scene):

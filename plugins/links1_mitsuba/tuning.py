@@ -61,6 +61,9 @@ class Tuning:
     #: (``gradients.Gradients.render_keeping_graph``); its values are the primal's to float32
     #: rounding. False (default): the primal frame, bit for bit, then the pass again
     keep_graph: bool = False
+    #: the camera rays' hits send no shadow ray toward a light at a pinhole camera's eye (their
+    #: shadow rays would retrace the camera rays: ``shadow_plan.eye_lights``; False: tested)
+    eye_lights: bool = True
     #: custom quadrics with finite bounds go under a BVH (bvh.py) from this many on
     bvh_min: int = 8
 

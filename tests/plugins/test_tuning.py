@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from .test_lightbuffer import _scene as _quadrics_scene
+from .test_headlight import body as _headlight_body, xml as _headlight_xml
 from .test_shadow_split import _xml as _glass_scene
 
 pytestmark = pytest.mark.mitsuba
@@ -19,14 +20,16 @@ pytestmark = pytest.mark.mitsuba
 #: tests a pixel makes (the ``cost`` AOV), so a frame made with the old setting is told apart
 MEASURABLE = [("box_cull", False, "quadrics"), ("eye_buffer", False, "quadrics"),
               ("light_buffer", False, "quadrics"), ("bvh_min", 10 ** 9, "quadrics"),
-              ("split", False, "glass")]
+              ("split", False, "glass"), ("eye_lights", False, "headlight")]
 
 #: every field of Tuning (test_tuning_values_and_scopes checks the list)
 FIELDS = ["preliminary", "box_cull", "eye_buffer", "split", "coherent_shadows", "skip_misses", "light_buffer",
-          "keep_graph", "bvh_min"]
+          "keep_graph", "eye_lights", "bvh_min"]
 
 
 def _xml(name):
+    if name == "headlight":
+        return _headlight_xml(_headlight_body())
     return _quadrics_scene(120) if name == "quadrics" else _glass_scene()
 
 
