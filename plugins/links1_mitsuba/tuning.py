@@ -62,7 +62,9 @@ class Tuning:
     #: rounding. False (default): the primal frame, bit for bit, then the pass again
     keep_graph: bool = False
     #: the camera rays' hits send no shadow ray toward a light at a pinhole camera's eye (their
-    #: shadow rays would retrace the camera rays: ``shadow_plan.eye_lights``; False: tested)
+    #: shadow rays would retrace the camera rays: ``shadow_plan.eye_lights``; False: tested, and
+    #: at a grazing hit the test may find the hit's neighbour: 9 of 262,144 pixels of
+    #: ``data_instancing`` at spp 16 lose one sample in 16)
     eye_lights: bool = True
     #: custom quadrics with finite bounds go under a BVH (bvh.py) from this many on
     bvh_min: int = 8
