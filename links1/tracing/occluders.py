@@ -156,19 +156,22 @@ def lights_at_eye(eye, reach: float, positions, boxes) -> list[bool]:
     may be anywhere). ``positions``: per light its position, or None for a light without one;
     ``boxes``: ``(lo, hi)`` per shape. Conservative: False where unsure."""
     eye = np.asarray(eye, dtype=np.float64).reshape(3)
-    if not np.all(np.isfinite(eye)):
-        return [False] * len(positions)
-    r = reach * (1.0 + EYE_REACH_MARGIN) + EYE_REACH_MARGIN * (1.0 + float(np.max(np.abs(eye))))
-    for lo, hi in boxes:
-        lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
-        if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
-            return [False] * len(positions)
-        gap = np.maximum(np.maximum(lo - eye, eye - hi), 0.0)   # the eye's distance to the box
-        if float(np.sqrt(gap @ gap)) <= r:
-            return [False] * len(positions)
     e32 = eye.astype(np.float32)
-    return [p is not None and bool(np.array_equal(np.asarray(p, dtype=np.float64).reshape(3).astype(np.float32), e32))
-            for p in positions]
+    at = [p is not None and bool(np.array_equal(np.asarray(p, dtype=np.float64).reshape(3).astype(np.float32), e32))
+          for p in positions]
+    if not any(at) or not np.all(np.isfinite(eye)):
+        return [False] * len(at)
+    boxes = list(boxes)
+    if boxes:
+        lo = np.array([b[0] for b in boxes], dtype=np.float64).reshape(-1, 3)
+        hi = np.array([b[1] for b in boxes], dtype=np.float64).reshape(-1, 3)
+        if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
+            return [False] * len(at)
+        gap = np.maximum(np.maximum(lo - eye, eye - hi), 0.0)     # the eye's distance to each box
+        r = reach * (1.0 + EYE_REACH_MARGIN) + EYE_REACH_MARGIN * (1.0 + float(np.max(np.abs(eye))))
+        if float(np.min(np.sqrt(np.sum(gap * gap, axis=1)))) <= r:
+            return [False] * len(at)
+    return at
 
 
 def camera_lights_at_eye(camera, shapes, lights) -> list[bool]:
@@ -181,4 +184,4 @@ def camera_lights_at_eye(camera, shapes, lights) -> list[bool]:
     reach = near_reach(camera.near_clip, t, t * camera.height / camera.width)
     positions = [lt.position if isinstance(lt, (PointLight, ConeSpotLight, ProjectorLight)) else None
                  for lt in lights]
-    return lights_at_eye(camera.origin, reach, positions, [s.bounds() for s in shapes])
+    return lights_at_eye(camera.origin, reach, positions, (s.bounds() for s in shapes))   # (boxes only if needed)
