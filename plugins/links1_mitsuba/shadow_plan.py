@@ -173,7 +173,8 @@ def eye_lights(tables) -> tuple:
     """Per analytic light of ``tables`` (a camera view, ``tables.lights``): whether the hits of
     its camera's rays need no shadow ray toward it, the light at the eye of a pinhole
     perspective camera and no shape's box within the near plane's reach
-    (:func:`links1.tracing.occluders.lights_at_eye`, the core's rule). All False for another
+    (:func:`links1.tracing.occluders.lights_at_eye`, the core's rule; the shapes inside
+    instances by the instances' boxes). All False for another
     camera, a light without a position or one whose position is a Dr.Jit value (a derivative
     pass's), and before the shapes are planned."""
     lights = tables.lights
@@ -185,7 +186,10 @@ def eye_lights(tables) -> tuple:
     positions = [L.position if isinstance(L, POSITIONED) and not dr.is_array_v(L.position) else None
                  for L in lights]
     eye = np.asarray(tables.cam, dtype=np.float64)[:3, 3]
-    return tuple(lights_at_eye(eye, near_reach(tables.near, tn, tn * H / W), positions, zip(G["lo"], G["hi"])))
+    # a shapegroup's members are bounded by their instances' world boxes (their own: unbounded)
+    keep = [sl for sl in range(len(G["lo"])) if sl not in tables.member_slots]
+    return tuple(lights_at_eye(eye, near_reach(tables.near, tn, tn * H / W), positions,
+                               zip(G["lo"][keep], G["hi"][keep])))
 
 
 def _mesh_rules(s_):

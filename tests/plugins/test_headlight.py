@@ -110,3 +110,26 @@ def test_a_links1_shape_moved_before_the_eye_takes_the_rule_away(variant):
                           near=1.5), variant)
     assert np.array_equal(moved, fresh)
     assert np.count_nonzero(moved[..., :3].sum(-1) < 0.5 * first[..., :3].sum(-1)) > 20
+
+
+def test_a_headlight_over_mitsuba_instances(variant):
+    """Plain ``mi.load_string`` of a scene with a shapegroup drawn twice (Mitsuba's own
+    instances, not written out): the members are bounded by their instances' boxes."""
+    import mitsuba as mi
+    import links1_mitsuba
+    from links1_mitsuba.tuning import Tuning
+    links1_mitsuba.register(variant)
+    floor, objects = SHAPES.split("<shape", 2)[1:]       # the floor; the sphere and the cube
+    group = ('<shape type="shapegroup" id="g"><shape' + objects + "</shape>\n"
+             + "".join(f'<shape type="instance"><ref id="g"/><transform name="to_world">'
+                       f'<translate x="{x}"/></transform></shape>' for x in (-1.2, 1.2)))
+    text = xml("<shape" + floor + group + point_light(EYE), near=1.5)
+    frames = []
+    for on in (True, False):
+        sc = mi.load_string(text)
+        sc.integrator().tuning = Tuning(eye_lights=on)
+        frames.append((np.array(mi.render(sc, seed=0)), sc.integrator().stats["shadow"]))
+    assert any(s.class_name() == "Instance" for s in sc.shapes())
+    (on, n_on), (off, n_off) = frames
+    assert n_on == 0 and n_off > 2000
+    assert np.array_equal(on, off)
