@@ -141,11 +141,12 @@ def mitsuba_integrator(kind, depth):
 
 
 # ----------------------------------------------------------------------------- the floor
-def floor_rays(scene, size, spp, depth, min_weight, seed=0):
+def floor_rays(scene, size, spp, depth, min_weight, seed=0, eye_rule=True):
     """The rays of a Whitted tree of ``depth`` levels for ``size[0] × size[1] × spp`` samples
     (module docstring), as ``[(level, rays, coherent, kind, active), ...]`` with ``kind``
     "nearest" or "shadow" (each batch densely packed) or "shadow_masked" (the shadow rays at
-    the width of their level, ``active`` the lanes that need them); made untimed."""
+    the width of their level, ``active`` the lanes that need them); made untimed. ``eye_rule``:
+    no level-1 shadow ray toward a light at the eye, as links1 (False: every light's)."""
     import drjit as dr
     import mitsuba as mi
     W, H = size
@@ -167,7 +168,7 @@ def floor_rays(scene, size, spp, depth, min_weight, seed=0):
     delta = any(s.bsdf() is not None and mi.has_flag(s.bsdf().flags(), mi.BSDFFlags.Delta) for s in scene.shapes())
     coherent_shadows = Tuning().coherent_shadows and not delta
     # no level-1 shadow ray toward a light at the eye, as links1 (shadow_plan.eye_lights)
-    at_eye = eye_emitters(scene, sensor, size) if Tuning().eye_lights else set()
+    at_eye = eye_emitters(scene, sensor, size) if eye_rule and Tuning().eye_lights else set()
     for level in range(depth):
         ray = mi.Ray3f(rays)
         dr.eval(ray)
