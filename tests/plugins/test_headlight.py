@@ -133,3 +133,20 @@ def test_a_headlight_over_mitsuba_instances(variant):
     (on, n_on), (off, n_off) = frames
     assert n_on == 0 and n_off > 2000
     assert np.array_equal(on, off)
+
+
+@pytest.mark.parametrize("sensor", ["thinlens", "orthographic"])
+def test_no_headlight_rule_without_a_pinhole(variant, sensor):
+    """A thin lens's rays start across its aperture and an orthographic camera's across its
+    film: a light at the sensor's origin is not where they come from, so its shadow rays are
+    tested (and the image is the rule-free one)."""
+    lens = ('<float name="aperture_radius" value="0.05"/><float name="focus_distance" value="6"/>'
+            if sensor == "thinlens" else "")
+    text = xml(body()).replace('<sensor type="perspective">', f'<sensor type="{sensor}">{lens}')
+    if sensor == "orthographic":
+        text = text.replace('<float name="fov" value="40"/>', "")
+    assert f'type="{sensor}"' in text
+    img, n = render(text, variant)
+    off, _ = render(text, variant, on=False)
+    assert n > 2000
+    assert np.array_equal(img, off)
