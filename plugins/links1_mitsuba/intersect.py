@@ -300,10 +300,7 @@ def _face_values(rec, face, valid):
     floats a packet gather: the same values as the buffers' (normals, texture coordinates None
     where the record has none; a mesh without holds zeros there, as the buffers do)."""
     n = face_floats(rec) // PACKET
-    vals = []
-    for j in range(n):
-        v = dr.gather(mi.ArrayXf, rec.packets, face * n + j, valid, shape=(PACKET, dr.width(face)))
-        vals += [v[i] for i in range(PACKET)]
+    vals = _packets(rec.packets, face * n, n, valid)
     pos = [mi.Point3f(*vals[3 * i:3 * i + 3]) for i in range(3)]
     nrm = uvs = None
     at = 9
@@ -400,11 +397,17 @@ def _row(rec, sl, valid, n):
     ``PACKET``), else one gather a float; the same values."""
     if not ROW_PACKETS:
         return [dr.gather(mi.Float, rec.rows, sl * ROW + k, valid) for k in range(n)]
+    return _packets(rec.rows, sl * (ROW // PACKET), -(-n // PACKET), valid)[:n]
+
+
+def _packets(table, first, count, valid):
+    """The floats of ``count`` consecutive packets of :data:`PACKET` floats of ``table`` from
+    packet ``first`` (lane by lane) on, one packet gather each (the table 64-byte aligned)."""
     vals = []
-    for j in range(-(-n // PACKET)):
-        v = dr.gather(mi.ArrayXf, rec.rows, sl * (ROW // PACKET) + j, valid, shape=(PACKET, dr.width(valid)))
+    for j in range(count):
+        v = dr.gather(mi.ArrayXf, table, first + j, valid, shape=(PACKET, max(dr.width(first), dr.width(valid))))
         vals += [v[i] for i in range(PACKET)]
-    return vals[:n]
+    return vals
 
 
 def _sphere_part(rec, pi, sl, valid):

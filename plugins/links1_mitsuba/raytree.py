@@ -455,7 +455,8 @@ class Tracer:
 
         def shadow(j, so, wi, smax, lit, contrib):
             nonlocal n_shadow
-            if not tables.any_shadow[j]:
+            if not tables.any_shadow[j] or (free is not None and j < len(free) and free[j]):
+                # nothing can shadow this light (at the eye: the camera ray backwards)
                 return None, lit, None
             need = need_of(j, lit, wi)
             n_shadow = n_shadow + dr.select(need, mi.UInt32(1), 0)
@@ -473,9 +474,6 @@ class Tracer:
             so, smax = offset(wi), dist - 2.0 * eps
             if ad:   # visibility on primal values (the shadow ray's place is attached)
                 so, wi, smax = dr.detach(so), dr.detach(wi), dr.detach(smax)
-            if free is not None and free[jl]:   # at the eye: the camera ray backwards, unoccluded
-                pending.append((contrib, so, wi, smax, lit, lit, None, False, jl))
-                continue
             T, need, occ_m = shadow(jl, so, wi, smax, lit, contrib)
             pending.append((contrib, so, wi, smax, lit, need, T, occ_m, jl))
         m_inv = 1.0 / self.config.light_samples
