@@ -43,8 +43,22 @@ query point also records, per light, the nearest occluder of the shadow segment 
 is a shadow edge: the shadow ray of the side with the nearer occluder grazes it at
 ``q = p + s L`` (``p`` the receiver's point, ``L`` the unit direction to the light), ``m`` and
 ``V_n`` as above at ``q``, and ``a = m·∂q/∂(x, y)`` at fixed ``s`` through ``p``'s and ``L``'s
-change with the pixel. A light that moves swings the shadow ray about ``p``: ``V_n`` loses
-``m·∂q/∂θ`` of that swing.
+change with the pixel. The shadow ray moves too: its point at ``s`` by ``δp + s δL``, ``p``
+moving along its camera ray with a links1 receiver (``δt = −δG/(∇G·e)``) and ``L`` with ``p``
+and the light; ``V_n`` loses ``m·`` that (:func:`_moving_receiver`).
+
+Terminators: a links1 shape's side lit by a light ends where it turns away from it,
+``h = N·L = 0`` (eq. 3.11 shades ``N·L > 0`` alone), and the Phong highlight is not 0 there
+where the light comes from behind (a jump). A query point records :data:`UNLIT` for such a
+light there, so the change is a crossing of that light; it moves where ``h`` at the pixel
+changes: ``dx_c/dθ = −δh/h_x``, i.e. ``a = ∇h`` on the screen and ``V_n = −δh``
+(:func:`_terminator`). Near it float32's grazing shadow segments meet the surface a chord
+away (:data:`ATTACHED`): not an occluder there.
+
+Cuts: where two surfaces cut (a blob sunk into a floor), the camera crossing's two sides hit
+them at one point (:data:`CUT`); ``m ⊥ D`` and the curve's tangent ``n₁ × n₂``, and with
+``m = α n₁ + β n₂``, ``V_n = −α δĜ₁ − β δĜ₂`` (``Ĝ = G/|∇G|`` of a links1 shape; a Mitsuba
+shape held fixed), as a quadric's rim; its sides' radiance :data:`CUT_SIDE_STEP` out.
 
 What a query point sees is the slot of its hit, a blob's made distinct per lobe (its dominant
 centre, :func:`_lobe`): one lobe hiding another is a crossing too.
@@ -52,12 +66,13 @@ centre, :func:`_lobe`): one lobe hiding another is a crossing too.
 Left out (biased there, as docs/method.md §6 says): crossings that do not change what is seen
 (a mesh in front of itself, a lobe in front of part of itself, an occluder's edge behind
 another occluder of the same shadow ray), grazes that are neither a smooth silhouette
-(``|m·D|`` below :data:`GRAZE`) nor an edge above (the curve where two surfaces cut), Mitsuba
-shapes other than spheres and meshes, a receiver's own motion under a shadow edge, outlines
-and shadows seen in mirrors or through glass, pairs of crossings closer than
-``1/(POINTS − 1)`` pixel on one line, and outlines (shadow edges) that enter and leave a
-pixel between its corners (a light's shadow rays are traced on the lines of the pixels whose
-corners' occluders of it differ). Box filter only.
+(``|m·D|`` below :data:`GRAZE`) nor an edge above, a moving Mitsuba shape's share of a cut,
+Mitsuba shapes other than spheres and meshes, the terminators of Mitsuba's shapes and a
+Mitsuba receiver's own motion under a shadow edge, outlines and shadows seen in mirrors or
+through glass, pairs of crossings closer than ``1/(POINTS − 1)`` pixel on one line, and
+outlines (shadow edges, terminators) that enter and leave a pixel between its corners (a
+light's shadow rays are traced on the lines of the pixels whose corners' occluders of it
+differ). Box filter only.
 """
 from __future__ import annotations
 
@@ -83,11 +98,18 @@ BISECT_STEPS = 22
 #: how far (pixels) from a crossing its two sides' radiance is traced: the primal ray tree's
 #: intersection rounds otherwise than the bisection's queries on the last few ulps
 SIDE_STEP = 1e-3
+#: the same on the curve where two surfaces cut (:data:`CUT`): there the two hits are at one
+#: depth, and which is the nearer flips on the last ulps for a while on either side
+CUT_SIDE_STEP = 2e-2
 #: largest |m·D| at a crossing's grazing point taken as a smooth silhouette
 GRAZE = 0.05
 #: a grazing point within RIM·t of a links1 quadric's rim or of a mesh triangle's edge (t its
 #: distance from the camera) is on that edge
 RIM = 1e-4
+#: a camera crossing whose two sides' hits lie within CUT·t of each other is on the curve where
+#: two surfaces cut (a blob sunk into a floor): what is seen changes from one to the other
+#: there, no ray grazes (an outline's far side lies farther off)
+CUT = 1e-3
 #: the step (pixels) of the central differences of q(x, y) at fixed s: a camera ray's, and a
 #: shadow ray's (its receiver's point at the shifted pixel, which must see the same surface)
 DQ_STEP = 0.25
@@ -95,6 +117,17 @@ DQ_SHADOW = 0.01
 #: a shadow segment starts SHADOW_EPS·t from its receiver's point (t: the camera ray's
 #: distance) and stops SHADOW_EPS of its length short of a light
 SHADOW_EPS = 1e-4
+#: a shadow segment whose occluder is its receiver's own surface within ATTACHED·t of the
+#: receiver's point is a chord of the surface at its terminator (a few SHADOW_EPS·t long,
+#: float32's grazing shadow rays; a shadow one part of a surface casts on another lies 10⁻² t
+#: and more away): on a links1 shape not an occluder (the renderer's shadow rays leave it
+#: lit, :data:`UNLIT` ends its lit side), on a Mitsuba sphere left out (its terminator is
+#: not followed), on a mesh followed as the edge it lies on
+ATTACHED = 2e-3
+#: what a query point records for a light that its links1 shape's side faces away from
+#: (``N·L ≤ 0``, :func:`_terminator`): the shading's lit side ends there (eq. 3.11), a jump
+#: where the Phong highlight is not 0; its shadow segment is not traced
+UNLIT = -3
 #: the slots' stride of a blob's lobes in what a query point sees (:func:`_lobe`)
 LOBES = 1 << 20
 #: most sample lanes (pixels times spp) of a block of rows the term is made for at once in
@@ -134,14 +167,16 @@ def _rays(P, x, y, key):
 
 
 def _seen(P, scene, x, y, key, active=True):
-    """``(o, d, t, slot, prim, (shape, triangle))`` of the camera rays through ``(x, y)``: the
-    nearest hit (primal; ``prim``: a links1 quadric's part, 0 its side; ``shape`` and
-    ``triangle``: Mitsuba's hit shape and primitive); on lanes ``active`` (elsewhere no hit)."""
+    """``(o, d, t, slot, prim, (shape, triangle), n)`` of the camera rays through ``(x, y)``:
+    the nearest hit (primal; ``prim``: a links1 quadric's part, 0 its side; ``shape`` and
+    ``triangle``: Mitsuba's hit shape and primitive, ``n`` its geometric normal there); on
+    lanes ``active`` (elsewhere no hit)."""
     o, d, tmin, tmax = _rays(P, x, y, key)
     act = dr.full(mi.Bool, True, dr.width(x)) & active
     cost = dr.zeros(mi.UInt32, dr.width(x))
     t, slot, si, prim = intersect.nearest(P, scene, o, d, tmin, tmax, act, cost)
-    return o, d, t, _lobe(P, slot, o + d * dr.select(dr.isfinite(t), t, 0.0)), prim, (si.shape, si.prim_index)
+    return (o, d, t, _lobe(P, slot, o + d * dr.select(dr.isfinite(t), t, 0.0)), prim, (si.shape, si.prim_index),
+            mi.Vector3f(si.n))
 
 
 def _lobe(P, slot, x):
@@ -282,8 +317,9 @@ def _crossings(trace_points, scene, P, sensor, win, spp, seed, stage):
         cl, f32 = is_col[li[ok]], np.float32(fixed[li[ok]])
         lo_h, hi_h = lo_d.numpy()[back][ok], hi_d.numpy()[back][ok]
         ends_h = [(np.where(cl, f32, e), np.where(cl, e, f32)) for e in (lo_h, hi_h)]
-        xs = np.concatenate([ends_h[0][0] - SIDE_STEP * ~cl, ends_h[1][0] + SIDE_STEP * ~cl])
-        ys = np.concatenate([ends_h[0][1] - SIDE_STEP * cl, ends_h[1][1] + SIDE_STEP * cl])
+        step = np.where(widen(edge[_EDGE.index("cut")], m_).numpy()[ok], CUT_SIDE_STEP, SIDE_STEP)
+        xs = np.concatenate([ends_h[0][0] - step * ~cl, ends_h[1][0] + step * ~cl])
+        ys = np.concatenate([ends_h[0][1] - step * cl, ends_h[1][1] + step * cl])
         keys_h = lane_key[li[ok]].astype(np.uint32)
         f = trace_points(xs / P.film_size[0], ys / P.film_size[1], np.concatenate([keys_h, keys_h]))[0]
         jump[ok] = f[:ok.size] - f[ok.size:]
@@ -298,7 +334,8 @@ def _crossings(trace_points, scene, P, sensor, win, spp, seed, stage):
 
 
 #: the values :func:`_edges` returns, in its order (``tri``: with Mitsuba meshes only)
-_EDGE = ("q", "m", "valid", "part", "slot", "light", "p", "ts", "coef", "tri")
+_EDGE = ("q", "m", "valid", "part", "slot", "light", "p", "ts", "att", "e", "rslot", "rprim", "cut", "n1", "n2", "coef",
+         "tri")
 
 
 def _edges(P, scene, lo, hi, colm, fxd, key, kd, back, one=True):
@@ -317,11 +354,28 @@ def _edges(P, scene, lo, hi, colm, fxd, key, kd, back, one=True):
     g = _grazes(ends, kd, (xl, yl), (xh, yh), lts)
     # the outline's normal m at q, and the screen-space gradient a of m·q at fixed distances
     edge = _outline(scene, P, g["q"], g["d"], g["t"], g["slot"], g["prim"], g["hit"], g["ok"])
-    ax, ay = _screen_gradient(P, scene, edge["m"], g, key, lts)
-    a2 = ax * ax + ay * ay
-    valid = edge["valid"] & (a2 > 0)
+    # a terminator is followed on the links1 shapes (:func:`_terminator`); a chord at one on a
+    # Mitsuba sphere is left out, on a mesh (whose terminator lies on its edges) followed as
+    # its edge (:data:`ATTACHED`)
+    custom = _custom_lanes(P, g["rslot"])
+    att = g["ok"] & g["att"]
+    g["att"] = att
+    # where two surfaces cut, the curve's normal on the screen: m ⊥ the curve's tangent n1 × n2
+    # and ⊥ D (as a quadric's rim, :func:`_outline`)
+    n1 = _unit_normal(P, g["slot"], g["prim"], g["q"], g["n1"])
+    n2 = _unit_normal(P, g["rslot"], g["rprim"], g["q"], g["n2"])
+    mc = dr.cross(dr.cross(n1, n2), g["d"])
+    cut = g["ok"] & g["cut"]
+    cut_ok = cut & (dr.squared_norm(mc) > 1e-8)
+    edge["m"] = dr.select(cut_ok, dr.normalize(mc), edge["m"])
+    edge["valid"] = dr.select(cut, cut_ok, edge["valid"])
+    (ax, ay), seen_same = _screen_gradient(P, scene, edge["m"], g, key, lts)
+    a2 = dr.select(seen_same, ax * ax + ay * ay, 0.0)
+    valid = dr.select(att, custom, edge["valid"] & ~(g["chord"] & ~custom & ~_mesh_lanes(P, g["slot"]))) & (a2 > 0)
     coef = dr.select(valid, dr.select(colm, ay, ax) / dr.select(valid, a2, 1.0), 0.0)
-    out = [g["q"], edge["m"], valid, edge["part"], g["slot"], g["light"], g["p"], g["t"], coef]
+    part = dr.select(cut, mi.UInt32(g["prim"]), edge["part"])   # (a cut's: the near surface's part)
+    out = [g["q"], edge["m"], valid, part, g["slot"], g["light"], g["p"], g["t"], att, g["e"], g["rslot"],
+           g["rprim"], cut, n1, n2, coef]
     if one:
         dr.eval(*out, *(edge["tri"] or ()))
     out = [dr.gather(type(v), v, back) for v in out]
@@ -590,29 +644,53 @@ def _grazes(ends, kd, lo_xy, hi_xy, lts):
     """Where each bisected crossing's ray grazes: ``{q, d, t, slot, prim, hit, ok, light, p,
     x, y}``. A camera crossing (the ends see different slots): the camera ray of the side with
     the nearer hit, at that hit. A shadow edge of light ``kd − 1`` (the same slot, another
-    occluder): the shadow ray of the side whose occluder is nearer, at that occluder."""
+    occluder): the shadow ray of the side whose occluder is nearer, at that occluder; ``att``
+    where a links1 shape's side faces the light on one side and away on the other (its
+    terminator, :data:`UNLIT`: ``slot`` the receiver's), ``chord`` where the occluder is the
+    receiver's own surface at its point (:data:`ATTACHED`), ``e`` the camera ray's direction at
+    the receiver, ``rslot`` and ``rprim`` the receiver's slot and part; ``cut`` where the
+    camera crossing is on the curve where two surfaces cut (:data:`CUT`; ``rslot`` and ``rprim``
+    the far side's surface, ``n1`` and ``n2`` the Mitsuba shapes' normals of the near and far
+    side)."""
     (cl, sl), (ch, sh) = ends
     near_lo = cl[2] <= ch[2]
     sel = lambda m_, a, b: type(a)(dr.select(m_, a, b)) if not isinstance(a, tuple) else \
         tuple(dr.select(m_, u, v) for u, v in zip(a, b))   # noqa: E731
     cam = [sel(near_lo, a, b) for a, b in zip(cl, ch)]
-    o, d, t, slot, prim, hit = cam
+    o, d, t, slot, prim, hit, ng = cam
+    far = [sel(near_lo, b, a) for a, b in zip(cl, ch)]
     slot = _slot(slot)   # (a blob's lobe: its slot)
     cam_ok = dr.isfinite(t) & (cl[3] != ch[3])
+    # the curve where two surfaces cut: both sides' hits at one point
+    cut = cam_ok & dr.isfinite(far[2]) & (dr.norm(d * t - far[1] * far[2]) <= CUT * t)
     g = {"q": o + d * dr.select(cam_ok, t, 0.0), "d": d, "t": t, "slot": slot, "prim": prim, "hit": hit,
          "ok": cam_ok, "light": dr.full(mi.Int32, -1, dr.width(t)), "p": o + d * dr.select(cam_ok, t, 0.0),
-         "x": dr.select(near_lo, lo_xy[0], hi_xy[0]), "y": dr.select(near_lo, lo_xy[1], hi_xy[1])}
+         "x": dr.select(near_lo, lo_xy[0], hi_xy[0]), "y": dr.select(near_lo, lo_xy[1], hi_xy[1]),
+         "att": dr.zeros(mi.Bool, dr.width(t)), "chord": dr.zeros(mi.Bool, dr.width(t)), "e": d,
+         "rslot": dr.select(cut, _slot(far[3]), slot), "rprim": dr.select(cut, far[4], prim), "cut": cut,
+         "n1": ng, "n2": mi.Vector3f(far[6])}
     for j in range(len(lts)):
         (sd_l, ts_l, ss_l, pr_l, hit_l), (sd_h, ts_h, ss_h, pr_h, hit_h) = sl[j], sh[j]
         lo_side = (ss_l >= 0) & ((ss_h < 0) | (ts_l <= ts_h))
         on = (kd == j + 1) & (cl[3] == ch[3]) & (ss_l != ss_h) & dr.isfinite(cl[2]) & dr.isfinite(ch[2])
+        # a links1 shape's terminator: lit (and unshadowed) on one side, facing away on the other
+        # (against a cast shadow neither side has this light's term: no jump)
+        att = ((ss_l == UNLIT) & (ss_h == -1)) | ((ss_h == UNLIT) & (ss_l == -1))
+        on &= att | ((ss_l != UNLIT) & (ss_h != UNLIT))
         p = dr.select(lo_side, cl[0] + cl[1] * cl[2], ch[0] + ch[1] * ch[2])
         sd, ts = dr.select(lo_side, sd_l, sd_h), dr.select(lo_side, ts_l, ts_h)
+        ts = dr.select(att, 0.0, ts)
         on &= dr.isfinite(ts)
-        vals = {"q": p + sd * dr.select(on, ts, 0.0), "d": sd, "t": ts, "slot": dr.select(lo_side, ss_l, ss_h),
-                "prim": dr.select(lo_side, pr_l, pr_h), "hit": sel(lo_side, hit_l, hit_h), "ok": on,
+        occ = dr.select(att, _slot(cl[3]), dr.select(lo_side, ss_l, ss_h))
+        # a chord of the receiver's own surface at its terminator (ATTACHED: Mitsuba's shapes)
+        chord = ~att & (occ == _slot(cl[3])) & (ts <= ATTACHED * dr.select(lo_side, cl[2], ch[2]))
+        vals = {"q": p + sd * dr.select(on, ts, 0.0), "d": sd, "t": ts, "slot": occ,
+                "prim": dr.select(lo_side, pr_l, pr_h),
+                "hit": sel(lo_side, hit_l, hit_h), "ok": on,
                 "light": mi.Int32(j), "p": p, "x": dr.select(lo_side, lo_xy[0], hi_xy[0]),
-                "y": dr.select(lo_side, lo_xy[1], hi_xy[1])}
+                "y": dr.select(lo_side, lo_xy[1], hi_xy[1]), "att": att, "chord": chord,
+                "e": sel(lo_side, mi.Vector3f(cl[1]), mi.Vector3f(ch[1])), "rslot": _slot(cl[3]),
+                "rprim": dr.select(lo_side, cl[4], ch[4]), "cut": dr.zeros(mi.Bool, dr.width(ts))}
         for k_, v in vals.items():
             g[k_] = sel(on, v, g[k_])
         g["ok"] = g["ok"] | on
@@ -623,23 +701,72 @@ def _screen_gradient(P, scene, m, g, key, lts):
     """``a = (m·∂q/∂x, m·∂q/∂y)`` at the grazes ``g``: a camera ray's ``q = O + s D`` at fixed
     ``s`` (central differences of the camera rays, :data:`DQ_STEP` pixels); a shadow ray's
     ``q = p + s L`` at fixed ``s``, ``p`` the receiver's point seen at the shifted pixel and
-    ``L`` its direction to the light (central differences of :data:`DQ_SHADOW` pixels)."""
+    ``L`` its direction to the light (central differences of :data:`DQ_SHADOW` pixels); at a
+    links1 shape's terminator (``g["att"]``) the gradient of ``h = N·L`` at the receiver's point
+    seen (:func:`_terminator`), whose zero the terminator is. And where a shadow edge's or a
+    terminator's shifted pixels all see its receiver (else no gradient there: near the
+    receiver's own outline)."""
     a = []
     shadow = g["light"] >= 0
+    same = dr.full(mi.Bool, True, dr.width(shadow))
     for dx, dy in ((1.0, 0.0), (0.0, 1.0)):
         qs = []
         for sgn in (1.0, -1.0):
             o, d, _, _ = _rays(P, g["x"] + sgn * dx * DQ_STEP, g["y"] + sgn * dy * DQ_STEP, key)
             q_cam = o + d * g["t"]
-            o2, d2, t2, _, _, _ = _seen(P, scene, g["x"] + sgn * dx * DQ_SHADOW, g["y"] + sgn * dy * DQ_SHADOW, key,
-                                        shadow)
+            o2, d2, t2, s2, prim2, _, _ = _seen(P, scene, g["x"] + sgn * dx * DQ_SHADOW,
+                                                g["y"] + sgn * dy * DQ_SHADOW, key, shadow)
+            same &= _slot(s2) == g["rslot"]
             p2 = o2 + d2 * dr.select(dr.isfinite(t2), t2, 0.0)
-            q_sh = p2 + _toward_all(lts, g["light"], p2) * g["t"]
-            qs.append((q_cam, q_sh))
+            L2 = _toward_all(lts, g["light"], p2)
+            q_sh = p2 + L2 * g["t"]
+            qs.append((q_cam, q_sh, _terminator(P, {}, g["rslot"], prim2, p2, L2, d2)))
         da_cam = dr.dot(m, qs[0][0] - qs[1][0]) / (2.0 * DQ_STEP)
         da_sh = dr.dot(m, qs[0][1] - qs[1][1]) / (2.0 * DQ_SHADOW)
-        a.append(dr.select(shadow, da_sh, da_cam))
-    return a
+        da_h = (qs[0][2] - qs[1][2]) / (2.0 * DQ_SHADOW)
+        a.append(dr.select(g["att"], da_h, dr.select(shadow, da_sh, da_cam)))
+    return a, same | ~shadow
+
+
+def _terminator(P, held, slot, prim, p, L, e):
+    """``h = N·L`` at points ``p`` of part ``prim`` of the links1 shape of ``slot`` (``N`` its
+    unit normal ``∇G/|∇G|`` (:func:`_implicit_part`) turned toward the camera ray ``e`` that
+    met it, with the attached parameters ``held[slot]``; 0 elsewhere): the shading's lit side
+    is ``h > 0`` (eq. 3.11), so a terminator lies where ``h = 0``."""
+    h = dr.zeros(mi.Float, dr.width(p))
+    for sp in P.custom:
+        _, gn = _implicit_part(sp, held.get(sp.slot, {}), p, prim)
+        n = dr.normalize(gn)
+        h = dr.select(slot == sp.slot, dr.dot(dr.select(dr.dot(n, e) > 0, -n, n), L), h)
+    return h
+
+
+def _implicit_part(sp, held, p, prim):
+    """``(G, ∇G)`` of :func:`links1_mitsuba.geometry.implicit` of the part ``prim`` (per lane: a
+    links1 quadric's side 0 or clip plane ``j + 1``) of the shape ``sp``."""
+    G, gn = geometry.implicit(mi, dr, sp, held, p)
+    for j in range(len(getattr(sp, "clips", []))):
+        Gj, gj = geometry.implicit(mi, dr, sp, held, p, part=j + 1)
+        G, gn = dr.select(prim == j + 1, Gj, G), dr.select(prim == j + 1, gj, gn)
+    return G, gn
+
+
+def _unit_normal(P, slot, prim, q, n):
+    """The unit normal at ``q`` of the surface of ``slot`` (part ``prim``): a links1 shape's
+    ``∇G/|∇G|`` (:func:`_implicit_part`), a Mitsuba shape's ``n`` (its hit's, normalised)."""
+    out = dr.normalize(n)
+    for sp in P.custom:
+        _, gn = _implicit_part(sp, {}, q, prim)
+        out = dr.select(slot == sp.slot, dr.normalize(gn), out)
+    return out
+
+
+def _custom_lanes(P, slot):
+    """Where ``slot`` is a links1 shape's."""
+    on = dr.zeros(mi.Bool, dr.width(slot))
+    for sp in P.custom:
+        on |= slot == sp.slot
+    return on
 
 
 def _lights(P):
@@ -676,22 +803,27 @@ def _status(P, scene, x, y, key, lts, only=None, on=None):
     """What the camera rays through ``(x, y)`` see (:func:`_seen`) and, per light ``j`` of
     ``lts`` (with ``only``, an ``Int32`` per lane: on the lanes where it is ``j + 1``; with
     ``on``, a ``Bool`` per light: on its lanes), the nearest occluder of the shadow segment
-    from the hit: ``(dir, s, slot (-1: none or not traced, -2: no hit), prim, (shape,
-    triangle))``."""
+    from the hit: ``(dir, s, slot (-1: none or not traced, -2: no hit, :data:`UNLIT`: a links1
+    shape's side facing away from the light), prim, (shape, triangle))``."""
     cam = _seen(P, scene, x, y, key)
     o, d, t = cam[0], cam[1], cam[2]
     hit = dr.isfinite(t)
     p = o + d * dr.select(hit, t, 0.0)
+    rslot = _slot(cam[3])
     out = []
     for j, lt in enumerate(lts):
         sd, smax = _toward(lt, p)
         act = hit if only is None else hit & (only == j + 1)
         act = act if on is None else act & on[j]
+        custom = _custom_lanes(P, rslot)
+        unlit = act & custom & (_terminator(P, {}, rslot, cam[4], p, sd, d) <= 0)
+        act &= ~unlit
         cost = dr.zeros(mi.UInt32, dr.width(p))
         ts, ss, si, pr = intersect.nearest(P, scene, p, sd, dr.select(act, SHADOW_EPS * t, 0.0),
                                            dr.select(act, smax, 0.0), act, cost)
-        out.append((sd, dr.select(act, ts, INF), dr.select(hit, dr.select(act, ss, -1), -2), pr,
-                    (si.shape, si.prim_index)))
+        act &= ~(custom & (ss == rslot) & (ts <= ATTACHED * t))   # (a chord at the terminator)
+        out.append((sd, dr.select(act, ts, INF), dr.select(hit, dr.select(act, ss, dr.select(unlit, UNLIT, -1)), -2),
+                    pr, (si.shape, si.prim_index)))
     return cam, out
 
 
@@ -802,11 +934,13 @@ def _normal_speed(scene, P, Q, cr):
     (side ``G₁``, clip plane ``G₂``): ``m = α∇G₁ + β∇G₂`` (``m ⊥ τ``), so ``V_n = −α δG₁ − β δG₂``;
     a Mitsuba sphere's point moving with it (``FollowShape``), a mesh edge's point moving with
     its two vertices."""
-    q, m, slot, valid, part = cr["q"], cr["m"], cr["slot"], cr["valid"], cr["part"]
+    q, m, slot, valid, part, att = cr["q"], cr["m"], cr["slot"], cr["valid"], cr["part"], cr["att"]
     vn = dr.zeros(mi.Float, dr.width(q))
     any_ = False
+    cut = valid & cr["cut"]
+    valid = valid & ~cut
     for sl, (sp, held) in (Q.geo_ad or {}).items():
-        on = valid & (slot == sl)
+        on = valid & ~att & (slot == sl)
         G1, g1 = geometry.implicit(mi, dr, sp, held, q)
         d1, g1 = G1 - dr.detach(G1), dr.detach(g1)
         vn = dr.select(on & (part == 0), -d1 / dr.norm(g1), vn)
@@ -835,16 +969,69 @@ def _normal_speed(scene, P, Q, cr):
         if dr.grad_enabled(p):
             vn = dr.select(on, dr.dot(m, p - dr.detach(p)), vn)
             any_ = True
-    # a shadow edge also moves with its light: the shadow ray from p swings about p
-    for j, (k, at_, _) in enumerate(cr["lights"]):
-        rec = Q.lights[k]
-        if not (at_ and dr.is_array_v(rec.position) and dr.grad_enabled(rec.position)):
-            continue
-        on = valid & (cr["light"] == j)
-        q_ray = cr["p"] + _toward((k, at_, rec), cr["p"])[0] * cr["ts"]
-        vn = dr.select(on, vn - dr.dot(m, q_ray - dr.detach(q_ray)), vn)
+    # a shadow edge also moves with its receiver and its light: the shadow ray from the
+    # receiver's point p (moving along its camera ray as its surface moves) toward the light
+    # moves at the grazing point by δp + s δL; a terminator (``h = N·L = 0`` on the receiver,
+    # :func:`_terminator`) moves where ``h`` at the pixel changes: ``dx_c/dθ = −δh / h_x``, so
+    # its ``V_n`` is ``−δh`` (``a``: ``∇h``)
+    held = {sl: h_ for sl, (_, h_) in (Q.geo_ad or {}).items()}
+    if held or any(_attached_light(Q.lights[k]) for k, _, _ in cr["lights"]):
+        pa = _moving_receiver(P, held, cr)
+        L = mi.Vector3f(0.0)
+        for j, (k, at_, _) in enumerate(cr["lights"]):
+            L = dr.select(cr["light"] == j, _toward((k, at_, Q.lights[k]), pa)[0], L)
+        q_ray = pa + L * dr.select(att, 0.0, cr["ts"])
+        shadow = valid & ~att & (cr["light"] >= 0)
+        vn = dr.select(shadow, vn - dr.dot(m, q_ray - dr.detach(q_ray)), vn)
+        h = _terminator(P, held, cr["rslot"], cr["rprim"], pa, L, cr["e"])
+        vn = dr.select(valid & att, -(h - dr.detach(h)), vn)
+        any_ = True
+    # where two surfaces cut: m = α n₁ + β n₂ (m ⊥ the curve), so V_n = −α δĜ₁ − β δĜ₂ with
+    # Ĝᵢ = Gᵢ/|∇Gᵢ| (a links1 shape's implicit surface; a Mitsuba shape's held fixed: 0)
+    if held:
+        d1 = _unit_speed(P, held, slot, part, q)
+        d2 = _unit_speed(P, held, cr["rslot"], cr["rprim"], q)
+        n1, n2 = cr["n1"], cr["n2"]
+        c12, b1, b2 = dr.dot(n1, n2), dr.dot(m, n1), dr.dot(m, n2)
+        det = 1.0 - c12 * c12
+        ok = cut & (det > 0)
+        det = dr.select(ok, det, 1.0)
+        vn = dr.select(ok, -((b1 - b2 * c12) * d1 + (b2 - c12 * b1) * d2) / det, vn)
         any_ = True
     return vn if any_ else None
+
+
+def _unit_speed(P, held, slot, prim, q):
+    """``δG / |∇G|`` (value 0) at ``q`` of the links1 shape of ``slot`` (part ``prim``) with
+    attached parameters in ``held``; 0 elsewhere."""
+    out = dr.zeros(mi.Float, dr.width(q))
+    for sp in P.custom:
+        if sp.slot in held:
+            G, gn = _implicit_part(sp, held[sp.slot], q, prim)
+            out = dr.select(slot == sp.slot, (G - dr.detach(G)) / dr.norm(dr.detach(gn)), out)
+    return out
+
+
+def _moving_receiver(P, held, cr):
+    """The receiver's point of each crossing (``p``, attached): where its camera ray
+    (direction ``e``) meets its links1 shape as the shape moves (the hit's implicit derivative
+    ``δt = −δG / (∇G·e)``; the other shapes' receivers held fixed)."""
+    p, e, slot, prim = cr["p"], cr["e"], cr["rslot"], cr["rprim"]
+    pa = mi.Point3f(p)
+    for sp in P.custom:
+        if sp.slot not in held:
+            continue
+        G, gn = _implicit_part(sp, held[sp.slot], p, prim)
+        dG, gn = G - dr.detach(G), dr.detach(gn)
+        den = dr.dot(gn, e)
+        pa = dr.select(slot == sp.slot, p - e * dG / dr.select(den != 0, den, 1.0), pa)
+    return pa
+
+
+def _attached_light(rec):
+    """Whether a light record's position or direction has gradients."""
+    return any(dr.is_array_v(getattr(rec, f, None)) and dr.grad_enabled(getattr(rec, f))
+               for f in ("position", "direction", "origin", "axis"))
 
 
 def _mesh_lanes(P, slot):
