@@ -126,7 +126,8 @@ SHADOW_EPS = 1e-4
 ATTACHED = 2e-3
 #: what a query point records for a light that its links1 shape's side faces away from
 #: (``N·L ≤ 0``, :func:`_terminator`): the shading's lit side ends there (eq. 3.11), a jump
-#: where the Phong highlight is not 0; its shadow segment is not traced
+#: where the Phong highlight is not 0 (not recorded on a surface without one,
+#: :func:`_highlight`: no jump); its shadow segment is not traced
 UNLIT = -3
 #: the slots' stride of a blob's lobes in what a query point sees (:func:`_lobe`)
 LOBES = 1 << 20
@@ -214,13 +215,17 @@ def boundary_image(trace_points, scene, P, Q, sensor, win, spp, seed, stage=None
     value 0 whose derivative is the term (see the module's docstring); ``P``: the primal
     tables, ``Q``: the derivative pass's (``Q.geo_ad``: the attached links1 shapes);
     ``trace_points(xf, yf, keys)``: the primal ray tree through film positions of ``P``
-    (``Launches.trace_points``); ``stage(fn, *args)``: ``fn(P, scene, *args)`` for the term's
+    (``Launches.trace_points``); ``stage(fn, *args, key=...)``: ``fn(P, scene, *args)`` for the term's
     stages (:func:`_seen_slots`, :func:`_line_kinds`, :func:`_bisected`, :func:`_edges`), frozen by
     the launches (``Launches.frozen_stage``: recorded once, replayed every frame); None: traced
     here."""
     check_filter(P)
     x0, y0, w, h = win
-    run = stage if stage is not None else (lambda fn, *args: fn(P, scene, *args))
+    # (the lights followed are a Python choice of the stages' traces: a recording's key)
+    lights_key = tuple(k for k, _, _ in _lights(P))
+    frozen = stage
+    run = (lambda fn, *args: frozen(fn, *args, key=lights_key)) if frozen is not None else \
+        (lambda fn, *args: fn(P, scene, *args))
 
     def stage(fn, *args):
         # a blob keeps its last nearest-hit search's candidate lists for the normal at its hit
@@ -309,7 +314,11 @@ def _crossings(trace_points, scene, P, sensor, win, spp, seed, stage):
     # f on both sides, SIDE_STEP pixels out: the primal ray tree (one launch for both ends), of
     # the valid crossings alone (the others' weight is 0: their jump is taken as 0)
     m_ = li.size
-    ok = np.nonzero(widen(edge[_EDGE.index("valid")], m_).numpy())[0]
+    valid_h = widen(edge[_EDGE.index("valid")], m_).numpy()
+    ok = np.nonzero(valid_h)[0]
+    # which kinds of valid crossings there are (the velocity traces each kind's part alone)
+    kinds_h = {k: bool(np.any(valid_h & widen(edge[_EDGE.index(k)], m_).numpy())) for k in ("att", "cut")}
+    kinds_h["shadow"] = bool(np.any(valid_h & (kinds > 0)))
     jump = np.zeros((m_, 3))
     if ok.size:
         # the ends' film coordinates made on the host from the evaluated ends (as at(): the
@@ -327,7 +336,7 @@ def _crossings(trace_points, scene, P, sensor, win, spp, seed, stage):
     # (a frozen stage returns a value that is the same on every lane at its recorded width)
     edge = {k: (tuple(widen(u, m_) for u in v) if k == "tri" else widen(v, m_)) for k, v in zip(_EDGE, edge)}
     edge.update(pixel=_dev(mi.UInt32, pix[li % n]), weight=jump_c * edge.pop("coef"), lights=lts,
-                tri=edge.pop("tri", None))
+                tri=edge.pop("tri", None), kinds=kinds_h)
     dr.eval(edge["pixel"], edge["weight"], edge["q"], edge["m"], edge["slot"], edge["valid"], edge["part"],
             edge["light"], edge["p"])
     return edge
@@ -751,6 +760,16 @@ def _implicit_part(sp, held, p, prim):
     return G, gn
 
 
+def _highlight(P, slot, on):
+    """Whether the surface of ``slot`` (on lanes ``on``) may jump where it turns from a light:
+    a ``links1_phong`` with a highlight (``specular`` > 0: eq. 3.11's ``(R·V)^n`` need not be 0
+    where ``N·L`` is; its diffuse term is), any other BSDF. (From the tables, so that a frozen
+    stage follows a changed material.)"""
+    spe = dr.gather(mi.Color3f, P.spe, slot, on)
+    phong = dr.gather(mi.Bool, P.is_phong, slot, on) if P.any_phong else dr.zeros(mi.Bool, dr.width(slot))
+    return ~phong | (dr.max(spe) > 0)
+
+
 def _unit_normal(P, slot, prim, q, n):
     """The unit normal at ``q`` of the surface of ``slot`` (part ``prim``): a links1 shape's
     ``∇G/|∇G|`` (:func:`_implicit_part`), a Mitsuba shape's ``n`` (its hit's, normalised)."""
@@ -772,7 +791,11 @@ def _custom_lanes(P, slot):
 def _lights(P):
     """``[(k, at, record)]``: the delta lights whose shadow edges are followed, ``k`` their
     place in ``P.lights``: at a position (``at``: a point light, a spot) or along a direction
-    (directional, ``links1_spot``: light travels along ``direction``)."""
+    (directional, ``links1_spot``: light travels along ``direction``); none where no surface
+    of the scene takes light (every one a ``links1_phong`` without ``diffuse`` and
+    ``specular``: a shadow or a terminator changes nothing)."""
+    if P.all_phong and not (P.phong_np["dif"].any() or P.phong_np["spe"].any()):
+        return []
     return [(k, isinstance(rec, POSITIONED), rec) for k, rec in enumerate(P.lights)
             if isinstance(rec, POSITIONED + DIRECTED)]
 
@@ -816,7 +839,7 @@ def _status(P, scene, x, y, key, lts, only=None, on=None):
         act = hit if only is None else hit & (only == j + 1)
         act = act if on is None else act & on[j]
         custom = _custom_lanes(P, rslot)
-        unlit = act & custom & (_terminator(P, {}, rslot, cam[4], p, sd, d) <= 0)
+        unlit = act & custom & _highlight(P, rslot, act & custom) & (_terminator(P, {}, rslot, cam[4], p, sd, d) <= 0)
         act &= ~unlit
         cost = dr.zeros(mi.UInt32, dr.width(p))
         ts, ss, si, pr = intersect.nearest(P, scene, p, sd, dr.select(act, SHADOW_EPS * t, 0.0),
@@ -975,7 +998,8 @@ def _normal_speed(scene, P, Q, cr):
     # :func:`_terminator`) moves where ``h`` at the pixel changes: ``dx_c/dθ = −δh / h_x``, so
     # its ``V_n`` is ``−δh`` (``a``: ``∇h``)
     held = {sl: h_ for sl, (_, h_) in (Q.geo_ad or {}).items()}
-    if held or any(_attached_light(Q.lights[k]) for k, _, _ in cr["lights"]):
+    kinds = cr["kinds"]
+    if (held or any(_attached_light(Q.lights[k]) for k, _, _ in cr["lights"])) and kinds["shadow"]:
         pa = _moving_receiver(P, held, cr)
         L = mi.Vector3f(0.0)
         for j, (k, at_, _) in enumerate(cr["lights"]):
@@ -983,12 +1007,13 @@ def _normal_speed(scene, P, Q, cr):
         q_ray = pa + L * dr.select(att, 0.0, cr["ts"])
         shadow = valid & ~att & (cr["light"] >= 0)
         vn = dr.select(shadow, vn - dr.dot(m, q_ray - dr.detach(q_ray)), vn)
-        h = _terminator(P, held, cr["rslot"], cr["rprim"], pa, L, cr["e"])
-        vn = dr.select(valid & att, -(h - dr.detach(h)), vn)
+        if kinds["att"]:
+            h = _terminator(P, held, cr["rslot"], cr["rprim"], pa, L, cr["e"])
+            vn = dr.select(valid & att, -(h - dr.detach(h)), vn)
         any_ = True
     # where two surfaces cut: m = α n₁ + β n₂ (m ⊥ the curve), so V_n = −α δĜ₁ − β δĜ₂ with
     # Ĝᵢ = Gᵢ/|∇Gᵢ| (a links1 shape's implicit surface; a Mitsuba shape's held fixed: 0)
-    if held:
+    if held and kinds["cut"]:
         d1 = _unit_speed(P, held, slot, part, q)
         d2 = _unit_speed(P, held, cr["rslot"], cr["rprim"], q)
         n1, n2 = cr["n1"], cr["n2"]

@@ -469,12 +469,13 @@ class Launches:
             self.point_launch = dr.freeze(launch_points, warn_after=1000)
         return self.point_launch
 
-    def frozen_stage(self, tables, scene, tracer: Tracer, fn, *args):
+    def frozen_stage(self, tables, scene, tracer: Tracer, fn, *args, key=()):
         """``fn(tables, scene, *args)``, a stage of the boundary term (boundary.py: a module-level
         function of Dr.Jit arrays returning Dr.Jit arrays), as a :func:`drjit.freeze` function
-        recorded once per configuration (the tables, the scene, ``fn``; started anew with the
-        launches, :meth:`forget`) and replayed for any lane count, as the point launch; traced
-        each call without ``use_freeze``."""
+        recorded once per configuration (the tables, the scene, ``fn``, the caller's ``key`` of
+        the Python choices its trace makes; started anew with the launches, :meth:`forget`)
+        and replayed for any lane count, as the point launch; traced each call without
+        ``use_freeze``."""
         if not self.config.use_freeze:
             return fn(tables, scene, *args)
         frozen = self.stage_launches.get(fn)
@@ -484,7 +485,7 @@ class Launches:
                 caller = a[-1]
                 return caller.stage(caller.tables, caller.scene, *a[:-4])
             frozen = self.stage_launches[fn] = dr.freeze(stage, warn_after=1000)
-        cfg = self._key(tables, scene, tracer, fn.__module__, fn.__qualname__)
+        cfg = self._key(tables, scene, tracer, fn.__module__, fn.__qualname__, key)
         return self._call_frozen(frozen, tables, scene, tracer, *args, cfg, frozen_inputs(tables), stage=fn)
 
     def _key(self, tables, scene, tracer: Tracer, *more) -> tuple:

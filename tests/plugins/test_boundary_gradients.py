@@ -574,3 +574,34 @@ def test_blob_sunk_into_a_floor_against_finite_differences(variant, tmp_path):
     for what, rows in (("floor rows", floor_rows), ("frame", np.ones(H, bool))):
         assert_agree(f"blob in floor, {what}", *mean_se([float(a[rows, :, 0].sum()) for a in ads]),
                      *mean_se([float(f[rows, :, 0].sum()) for f in fds]))
+
+
+@pytest.mark.slow
+def test_lights_followed_once_a_surface_takes_light(variant, tmp_path):
+    """Where no surface takes light (every one a ``links1_phong`` of ambient alone) the term
+    follows no light's shadows; once a parameter gives the floor a diffuse colour, the term's
+    recorded stages follow them again: the derivative is then the one of a scene loaded with
+    that floor (same seeds: the same values)."""
+    import drjit as dr
+    import mitsuba as mi
+    import links1_mitsuba as lm
+    key, ball = OCCLUDERS["quadric"]
+
+    def load_with(diffuse):
+        floor = ('<shape type="rectangle" id="floor"><transform name="to_world"><scale value="4"/>'
+                 '<rotate x="1" angle="-90"/></transform><bsdf type="links1_phong">'
+                 f'<rgb name="ambient" value="0.1"/><rgb name="diffuse" value="{diffuse}"/>'
+                 '<rgb name="specular" value="0"/></bsdf></shape>')
+        path = tmp_path / f"scene_{diffuse}.xml"
+        path.write_text(scene(whitted(1, projective=True) + SHADOW_CAMERA, floor, ball, SHADOW_LIGHT))
+        return lm.load_file(str(path))
+    changed = load_with(0)
+    forward(changed, key, 0, spp=4)   # (recorded without lights)
+    params = mi.traverse(changed)
+    params["floor.bsdf.diffuse.value"] = mi.Color3f(0.6)
+    params.update()
+    fresh = load_with(0.6)
+    a, b = forward(changed, key, 1, spp=4), forward(fresh, key, 1, spp=4)
+    dark = forward(load_with(0), key, 1, spp=4)
+    assert np.abs(b - dark).max() > 1e-2          # the floor's shadow edge: a share of its own
+    np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6)
