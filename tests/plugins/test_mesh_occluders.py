@@ -73,7 +73,7 @@ def _core_plan(light):
 
 
 @pytest.mark.parametrize("light", [(1.5, 4.0, 2.0), (-3.0, 3.0, -2.5)])
-def test_the_plan_on_obj_meshes_is_the_cores(tmp_path, light):
+def test_the_plan_on_obj_meshes_is_the_cores(variant, tmp_path, light):
     import links1_mitsuba
     sc = links1_mitsuba.load_string(_scene(tmp_path, ",".join(map(str, light))))
     tables = sc.integrator().prepare(sc)
@@ -92,7 +92,7 @@ def test_the_plan_on_obj_meshes_is_the_cores(tmp_path, light):
     assert not want["floor"]["occluder"] and not want["fold"]["convex"]
 
 
-def test_the_frame_is_the_one_without_the_mesh_rule(tmp_path, monkeypatch):
+def test_the_frame_is_the_one_without_the_mesh_rule(variant, tmp_path, monkeypatch):
     import links1_mitsuba
     import mitsuba as mi
     from links1_mitsuba import shadow_plan
