@@ -36,9 +36,11 @@ two cases whose outlines carry the information:
   only) before black, placed from its outline alone (translation ``t``): without the visibility
   term its gradient is 0.
 
-These two render at spp 4 (the visibility term is an estimate over random rows and columns of
-each pixel) with ``max_depth`` 2; ``blob_floor_off`` and ``quadric_outline_off`` are the same
-fits without the visibility term, for contrast.
+These two render their frames at spp 4 (the visibility term is an estimate over random rows
+and columns of each pixel) and their derivative pass at spp 1 (``mi.render``'s ``spp_grad``,
+a case's :func:`spp_grad`; its samples are ``seed_grad``'s, other than the frame's) with
+``max_depth`` 2; ``blob_floor_off`` and ``quadric_outline_off`` are the same fits without
+the visibility term, for contrast.
 
 Every other render is spp 1 with a box filter (the sample at the pixel centre: deterministic),
 ``max_depth`` 3, the given ``--width`` square. Parameter error = the worst component's
@@ -60,8 +62,8 @@ Dr.Jit's caches) and their code generation + LLVM time are reported (``kernels_c
 Every iteration renders with ``seed=0`` (with spp 1 the sample is the pixel centre whatever the
 seed; at spp 4 the same samples every iteration, and the derivative pass its own, Mitsuba's
 ``seed_grad``). New values of a blob's or a quadric's parameters replay the same kernels (the shapes
-gather them from Dr.Jit tables: ``tables()`` in ``plugins/links1_mitsuba/shapes.py`` and ``blob.py``); before,
-they were literals and each blob iteration compiled ~100 kernels (~23 s).
+gather them from Dr.Jit tables: ``tables()`` in ``plugins/links1_mitsuba/shapes.py`` and ``blob.py``; as
+literals, each blob iteration would compile ~100 kernels, ~23 s).
 """
 from __future__ import annotations
 
@@ -150,10 +152,12 @@ SCENES = {
     <bsdf type="links1_phong"><rgb name="diffuse" value="0.5, 0.4, 0.3"/><rgb name="specular" value="0.3"/>
       <rgb name="reflectance" value="0"/><float name="exponent" value="12"/></bsdf></shape>""" + LIGHTS),
     # (e) the 4-centre blob over the floor, one view (spp 4: the visibility term's rows and columns)
-    "blob_floor": dict(camera=dict(fov=50, origin="0, 2.6, 5", target="0.1, 1.3, 0"), spp=4, projective=True,
+    "blob_floor": dict(camera=dict(fov=50, origin="0, 2.6, 5", target="0.1, 1.3, 0"), spp=4, spp_grad=1,
+                       projective=True,
                        body=FLOOR.format(refl=0) + blob_xml(FLOOR_LOBES) + LIGHTS),
     # (f) a constant-colour quadric sphere before black: only its outline moves
-    "quadric_outline": dict(camera=dict(fov=40, origin="0, 2.5, 6", target="0, 1, 0"), spp=4, projective=True, body="""
+    "quadric_outline": dict(camera=dict(fov=40, origin="0, 2.5, 6", target="0, 1, 0"), spp=4, spp_grad=1,
+                            projective=True, body="""
   <shape type="links1_quadric" id="ball"><string name="kind" value="sphere"/>
     <transform name="to_world"><scale value="1.2"/><translate x="0.2" y="1.4" z="0.3"/></transform>
     <bsdf type="links1_phong"><rgb name="ambient" value="0.9, 0.7, 0.5"/><rgb name="diffuse" value="0"/>
@@ -168,6 +172,12 @@ def scene_of(case):
     """The scene of ``case`` and whether the derivatives add the visibility term (``OFF``)."""
     base = case.removesuffix(OFF)
     return SCENES[base], SCENES[base].get("projective", False) and not case.endswith(OFF)
+
+
+def spp_grad(case):
+    """The samples a pixel of ``case``'s derivative pass (``mi.render``'s ``spp_grad``; 0: the
+    frame's own)."""
+    return scene_of(case)[0].get("spp_grad", 0)
 
 
 def load(case, width):
@@ -354,7 +364,7 @@ def run_case(mi, dr, name, cls, variables, lrs, iters, width, log):
         t0 = time.perf_counter()
         loss = 0.0
         for k in fit:   # the views' losses, each differentiated at once (one AD graph at a time)
-            img = mi.render(scene, params, sensor=k, seed=0)
+            img = mi.render(scene, params, sensor=k, seed=0, spp_grad=spp_grad(name))
             err = dr.square(img - targets[k])
             if masked:   # only pixels on the blob in both images: no silhouette term (left out)
                 m = (np.asarray(img).sum(-1) > 0) & target_on[k]
@@ -442,7 +452,7 @@ def timing_only(mi, dr, name, cls, variables, lrs, width, n, log):
     opt = optimizer(mi, case, params, variables, lrs)
 
     def iteration():
-        img = mi.render(scene, params, seed=0)
+        img = mi.render(scene, params, seed=0, spp_grad=spp_grad(name))
         dr.backward(dr.mean(dr.square(img - target), axis=None))
         opt.step()
         case.apply(mi, params, opt)

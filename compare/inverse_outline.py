@@ -1,7 +1,7 @@
 """Inverse rendering through outlines and shadow edges (``links1_whitted`` with
 ``projective=true``): a benchmark.
 
-    python -m compare.inverse_outline [--width 64] [--iters 150] [--blob-iters 300] [--rounds 9]
+    python -m compare.inverse_outline [--width 64] [--iters 150] [--blob-iters 1500] [--rounds 9] [--spp-grad N]
                                       [--variant llvm_ad_rgb] [--only quadric_outline blob_view]
 
 As :mod:`compare.inverse` (its ``run_case``: ``mi.ad.Adam`` on the L2 image loss, the worst
@@ -14,10 +14,12 @@ gradients need the visibility term (docs/method.md §6):
 * ``blob_view``: the 6-centre blob of ``compare.inverse`` over the Phong floor, one view, no
   loss mask: its centres and threshold ``T`` (eq. 3.6–3.9) from its outline, shading and
   shadow on the floor (its weights are known: every weight and ``T`` scaled alike leave the
-  surface ``W = T`` unchanged, so no image tells both).
+  surface ``W = T`` unchanged, so no image tells both). The view is from the front, left and
+  above, where each lobe shows in the outline (straight from the front, with the lights in
+  front, the back lobe's height changes nothing the camera sees: it stays where it starts).
 
-4 samples a pixel (box filter) in both frames and the derivative pass, ``max_depth`` 2, every
-iteration at ``seed`` 0. The times: ``--rounds`` interleaved rounds of an iteration and a
+4 samples a pixel (box filter) in both frames, 1 in the derivative pass (``mi.render``'s
+``spp_grad``, :func:`compare.inverse.spp_grad`), ``max_depth`` 2, every iteration at ``seed`` 0. The times: ``--rounds`` interleaved rounds of an iteration and a
 primal frame at ``--big`` (``compare.inverse.timing_only``), medians. With ``--stages``,
 where an iteration at ``--big`` goes (:func:`stages`); with ``--ab``, what the recordings buy
 (:func:`timing_ab`: the frozen launches kept over a geometry update or recorded again at each,
@@ -51,13 +53,15 @@ BLOB = """<shape type="links1_blob" id="blob">
       <rgb name="reflectance" value="0"/><float name="exponent" value="10"/></bsdf></shape>"""
 
 SCENES = {
-    "quadric_outline": dict(camera=dict(fov=40, origin="0, 3, 6", target="0, 0.8, 0"), spp=4, integrator=PROJECTIVE,
+    "quadric_outline": dict(camera=dict(fov=40, origin="0, 3, 6", target="0, 0.8, 0"), spp=4, spp_grad=1,
+                            integrator=PROJECTIVE,
                             body="""
   <shape type="links1_quadric" id="ball"><string name="kind" value="sphere"/>
     <transform name="to_world"><scale value="1.2"/><translate x="0.2" y="1.4" z="0.3"/></transform>
     <bsdf type="links1_phong"><rgb name="ambient" value="0.8, 0.6, 0.4"/><rgb name="diffuse" value="0"/></bsdf></shape>"""
                             + inverse.LIGHTS),
-    "blob_view": dict(camera=dict(fov=50, origin="0, 2.6, 5", target="0.1, 1.3, 0"), spp=4, integrator=PROJECTIVE,
+    "blob_view": dict(camera=dict(fov=50, origin="-3, 4, 3.8", target="0.1, 1.3, 0"), spp=4, spp_grad=1,
+                      integrator=PROJECTIVE,
                       body=inverse.FLOOR.format(refl=0) + BLOB + inverse.LIGHTS),
 }
 
@@ -92,7 +96,7 @@ def _start(mi, dr, name, cls, variables, lrs, width):
     opt = inverse.optimizer(mi, case, params, variables, lrs)
 
     def iteration():
-        img = mi.render(scene, params, seed=0)
+        img = mi.render(scene, params, seed=0, spp_grad=inverse.spp_grad(name))
         dr.backward(dr.mean(dr.square(img - target), axis=None))
         opt.step()
         case.apply(mi, params, opt)
@@ -626,24 +630,26 @@ def _extra_markdown(results):
 
 
 def timing_markdown(results, info, cmd):
-    rows = [[r["case"], f"{r['timing']['width']}²", f"{r['timing']['primal_median_ms']:.1f}",
+    rows = [[r["case"], f"{r['timing']['width']}²", r.get("spp_grad", "–"), f"{r['timing']['primal_median_ms']:.1f}",
              f"{r['timing']['iteration_median_ms']:.1f}", f"{r['timing']['ratio']:.2f}",
              f"{r['timing']['ratio_of_rounds']:.2f}"] for r in results]
     return ("# Inverse rendering through outlines (projective=true): iteration times\n\n"
             + machine_markdown(info, cmd) + "\n"
-            + md_table(["case", "width", "primal ms", "iteration ms", "ratio", "ratio of the rounds"], rows)
+            + md_table(["case", "width", "derivative pass spp", "primal ms", "iteration ms", "ratio",
+                        "ratio of the rounds"], rows)
             + "\nIteration: render with gradients (primal frame, derivative pass with the boundary term), "
               "L2 loss, dr.backward, Adam step, params.update; primal: mi.render without gradients. "
               "Medians of interleaved rounds.\n" + _extra_markdown(results))
 
 
 def markdown(results, info, cmd):
-    rows = [[r["case"], r["iters"], f"{r['final_worst_error'] * 100:.3f} %", r["iterations_to_1pct"],
+    rows = [[r["case"], r.get("spp_grad", "–"), r["iters"], f"{r['final_worst_error'] * 100:.3f} %", r["iterations_to_1pct"],
              ", ".join(f"{k.split('.')[-1]} {v * 100:.3f} %" for k, v in r["final_error"].items()),
              f"{r['timing']['primal_median_ms']:.1f}", f"{r['timing']['iteration_median_ms']:.1f}",
              f"{r['timing']['ratio']:.2f}"] for r in results]
     return ("# Inverse rendering through outlines (projective=true)\n\n" + machine_markdown(info, cmd) + "\n"
-            + md_table(["case", "iterations", "worst error / range", "iterations to ≤ 1 %", "per parameter",
+            + md_table(["case", "derivative pass spp", "iterations", "worst error / range", "iterations to ≤ 1 %",
+                        "per parameter",
                         "primal ms", "iteration ms", "ratio"], rows)
             + "\nIteration: render with gradients (primal frame, derivative pass with the boundary term), "
               "L2 loss, dr.backward, Adam step, params.update; primal: mi.render without gradients. "
@@ -655,7 +661,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--width", type=int, default=64)
     ap.add_argument("--iters", type=int, default=150)
-    ap.add_argument("--blob-iters", type=int, default=300)
+    ap.add_argument("--blob-iters", type=int, default=1500)
     ap.add_argument("--rounds", type=int, default=9, help="timing rounds (interleaved iteration / frame)")
     ap.add_argument("--big", type=int, default=256, help="the width the times are taken at")
     ap.add_argument("--no-fit", action="store_true", help="the times alone")
@@ -681,6 +687,9 @@ def main(argv=None):
     ap.add_argument("--threads", type=int, default=0, metavar="N",
                     help="Dr.Jit's LLVM thread pool at N threads for the whole run, set before the first "
                          "kernel (0: Dr.Jit's default, one a core); the results' file names say N")
+    ap.add_argument("--spp-grad", type=int, default=-1, metavar="N",
+                    help="the derivative pass's samples a pixel in every case (mi.render's spp_grad; 0: the "
+                         "frame's 4; default: each case's own, 1); the results' file names say N")
     ap.add_argument("--no-write", action="store_true")
     a = ap.parse_args(argv)
     import links1_mitsuba as lm
@@ -690,6 +699,9 @@ def main(argv=None):
     if a.threads:
         dr.set_thread_count(a.threads)
     inverse.SCENES.update(SCENES)
+    if a.spp_grad >= 0:
+        for name in SCENES:
+            inverse.SCENES[name] = dict(SCENES[name], spp_grad=a.spp_grad)
     info = machine_info()
     info["variant"] = a.variant
     info["drjit_threads"] = dr.thread_count()
@@ -702,6 +714,7 @@ def main(argv=None):
             continue
         log(f"case {name}")
         r = {"case": name} if a.no_fit else inverse.run_case(mi, dr, name, cls, variables, lrs, iters, a.width, log)[0]
+        r["spp_grad"] = inverse.spp_grad(name) or inverse.scene_of(name)[0]["spp"]
         r["timing"] = inverse.timing_only(mi, dr, name, cls, variables, lrs, a.big, a.rounds, log)
         if a.stages:
             r["stages"] = stages(mi, dr, name, cls, variables, lrs, a.big, a.stages, log)
@@ -730,6 +743,7 @@ def main(argv=None):
         name, text = ("inverse_outline", markdown(results, info, cmd)) if not a.no_fit else \
             (f"inverse_outline_{'guided' if a.guided else 'timing'}_{a.big}", timing_markdown(timed_only, info, cmd))
         name += f"_threads{a.threads}" if a.threads else ""
+        name += f"_sppgrad{a.spp_grad}" if a.spp_grad >= 0 else ""
         name += "".join(f"_{f.rpartition('.')[2].lower()}" for f in a.flag_ab.split(",")) if a.flag_ab else ""
         log("wrote " + ", ".join(map(str, write_results(name, payload, text))))
     log(f"total {payload['total_s']:.0f} s")

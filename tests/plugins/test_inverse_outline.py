@@ -4,7 +4,7 @@ A ``links1_quadric`` sphere of one constant colour before black, its translation
 of its range (0.5 a component) from the truth: only its outline moves with it, so without the
 visibility term (``projective`` off) every gradient is 0 and the start stays where it is.
 With it, Adam on the L2 image loss must bring the worst component within 2 % of the range in
-100 iterations at 32², spp 4 (a margin: it ends under 1 %, as the 64² fit of
+100 iterations at 32², spp 4 and the derivative pass at 1 (a margin: it ends under 1 %, as the 64² fit of
 ``python -m compare.inverse`` does).
 """
 from __future__ import annotations
