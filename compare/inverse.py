@@ -576,7 +576,7 @@ def markdown(results, big, info, cmd):
     out = ["# Inverse rendering with links1_whitted\n", machine_markdown(info, cmd), "",
            "Adam on the L2 image loss, box filter; spp 1 (pixel centres) and `max_depth` 3, but the outline "
            "cases (blob_floor, quadric_outline: `projective=true`, the visibility term; `_off`: the same fit "
-           "without it) spp 4 and `max_depth` 2. No loss mask but the five-view blob's. Error: the worst "
+           "without it) spp 4 (their derivative pass 1: `mi.render`'s `spp_grad`) and `max_depth` 2. No loss mask but the five-view blob's. Error: the worst "
            "component's |x − x*| / range (ranges below). Times: wall-clock medians in one process; an iteration is "
            "render with gradients + loss + backward + Adam step + `params.update`; the primal frame is "
            "`mi.render` without gradients.\n"]

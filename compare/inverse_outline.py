@@ -174,7 +174,7 @@ def timing_ab(mi, dr, name, cls, variables, lrs, width, n, log):
     from links1_mitsuba import launch, tables
     same, frozen_stage = tables._geometry_literals, launch.Launches.frozen_stage
 
-    def traced(self, tables_, scene, tracer, fn, *args):
+    def traced(self, tables_, scene, tracer, fn, *args, key=()):
         return fn(tables_, scene, *args)
     iteration, frame = _start(mi, dr, name, cls, variables, lrs, width)
     ways = {"kept": (same, frozen_stage), "recorded": (lambda base: object(), frozen_stage),
@@ -217,13 +217,13 @@ def timing_guided(mi, dr, name, cls, variables, lrs, width, n, log):
     frozen_stage, guided = launch.Launches.frozen_stage, boundary.GUIDED
     acc = [0.0, 0.0]
 
-    def timed_stage(self, tables_, scene, tracer, fn, *args):
+    def timed_stage(self, tables_, scene, tracer, fn, *args, key=()):
         if fn not in (boundary._bisected, boundary._bisected_plain):
-            return frozen_stage(self, tables_, scene, tracer, fn, *args)
+            return frozen_stage(self, tables_, scene, tracer, fn, *args, key=key)
         dr.eval()
         dr.sync_thread()
         t0, c0 = time.perf_counter(), time.process_time()
-        out = frozen_stage(self, tables_, scene, tracer, fn, *args)
+        out = frozen_stage(self, tables_, scene, tracer, fn, *args, key=key)
         dr.eval(out)
         dr.sync_thread()
         acc[0] += time.perf_counter() - t0
