@@ -833,12 +833,12 @@ def _status(P, scene, x, y, key, lts, only=None, on=None):
     hit = dr.isfinite(t)
     p = o + d * dr.select(hit, t, 0.0)
     rslot = _slot(cam[3])
+    custom = _custom_lanes(P, rslot)
     out = []
     for j, lt in enumerate(lts):
         sd, smax = _toward(lt, p)
         act = hit if only is None else hit & (only == j + 1)
         act = act if on is None else act & on[j]
-        custom = _custom_lanes(P, rslot)
         unlit = act & custom & _highlight(P, rslot, act & custom) & (_terminator(P, {}, rslot, cam[4], p, sd, d) <= 0)
         act &= ~unlit
         cost = dr.zeros(mi.UInt32, dr.width(p))
