@@ -546,33 +546,46 @@ def _ambient(rgb):
             '<rgb name="specular" value="0"/></bsdf>')
 
 
+#: a ball of constant colour sunk into the floor: a one-centre blob (its centre's y moves), a
+#: links1 quadric sphere (its translation's y)
+SUNK = {
+    "blob": ("links1_whitted.obj.centers", '<shape type="links1_blob" id="obj"><string name="centers" '
+             'value="0.1 0.25 0 1 0.8"/><float name="threshold" value="0.5"/>{bsdf}</shape>'),
+    "quadric": ("links1_whitted.obj.to_world", '<shape type="links1_quadric" id="obj"><string name="kind" '
+                'value="sphere"/><transform name="to_world"><translate x="0.1" y="0.25"/></transform>{bsdf}</shape>'),
+}
+
+
 @pytest.mark.slow
-def test_blob_sunk_into_a_floor_against_finite_differences(variant, tmp_path):
-    """A one-centre blob (a ball of constant colour) sunk into a floor of another constant
-    colour: moving it up moves its outline against the black above and the curve where it cuts
-    the floor (``boundary.CUT``), nothing else (without the term every derivative is 0).
-    d Σ red / dθ over the rows below the horizon (the cut's, the floor's) and over the frame,
-    for the centre's y, against central differences of 1024-spp frames."""
+@pytest.mark.parametrize("shape", sorted(SUNK))
+def test_sunk_into_a_floor_against_finite_differences(variant, tmp_path, shape):
+    """A ball of constant colour sunk into a floor of another constant colour: moving it up
+    moves its outline against the black above and the curve where it cuts the floor
+    (``boundary.CUT``), nothing else (without the term every derivative is 0). d Σ red / dθ over
+    the rows where the floor shows (the cut's) and over the frame, for the ball's y, against
+    central differences of 1024-spp frames."""
     import drjit as dr
     import mitsuba as mi
     import links1_mitsuba as lm
     floor = ('<shape type="rectangle" id="floor"><transform name="to_world"><scale value="4"/>'
              f'<rotate x="1" angle="-90"/></transform>{_ambient("0.1, 0.3, 0.7")}</shape>')
-    blob = (f'<shape type="links1_blob" id="obj"><string name="centers" value="0.1 0.25 0 1 0.8"/>'
-            f'<float name="threshold" value="0.5"/>{_ambient("0.9, 0.6, 0.2")}</shape>')
+    key, ball = SUNK[shape]
     cam = perspective("0, 1.6, 5", "0, 0.3, 0", fov=40, width=W, height=H, spp=4)
     path = tmp_path / "scene.xml"
-    path.write_text(scene(whitted(1, projective=True) + cam, floor, blob))
+    path.write_text(scene(whitted(1, projective=True) + cam, floor, ball.format(bsdf=_ambient("0.9, 0.6, 0.2"))))
     sc = lm.load_file(str(path))
-    key = "links1_whitted.obj.centers"
-    arr = np.array(mi.traverse(sc)[key], dtype=np.float64).reshape(3, -1)
-    make = lambda th: mi.Point3f(mi.Float(arr[0]), mi.Float(arr[1]) + th, mi.Float(arr[2]))   # noqa: E731
+    if shape == "blob":
+        arr = np.array(mi.traverse(sc)[key], dtype=np.float64).reshape(3, -1)
+        make = lambda th: mi.Point3f(mi.Float(arr[0]), mi.Float(arr[1]) + th, mi.Float(arr[2]))   # noqa: E731
+    else:
+        base = mi.Transform4f(mi.traverse(sc)[key])
+        make = lambda th: mi.Transform4f().translate(mi.Vector3f(0.0, th, 0.0)) @ base   # noqa: E731
     ads = [forward(sc, key, s, make=make) for s in AD_SEEDS]
     fds = [finite_differences(sc, key, s, make=make) for s in FD_SEEDS]
     frame = np.array(mi.render(sc, seed=0, spp=64))
     floor_rows = (frame[..., 2] > 0.35).any(axis=1)   # rows where the floor shows
     for what, rows in (("floor rows", floor_rows), ("frame", np.ones(H, bool))):
-        assert_agree(f"blob in floor, {what}", *mean_se([float(a[rows, :, 0].sum()) for a in ads]),
+        assert_agree(f"{shape} in floor, {what}", *mean_se([float(a[rows, :, 0].sum()) for a in ads]),
                      *mean_se([float(f[rows, :, 0].sum()) for f in fds]))
 
 
