@@ -742,12 +742,20 @@ def _terminator(P, held, slot, prim, p, L, e):
     unit normal ``∇G/|∇G|`` (:func:`_implicit_part`) turned toward the camera ray ``e`` that
     met it, with the attached parameters ``held[slot]``; 0 elsewhere): the shading's lit side
     is ``h > 0`` (eq. 3.11), so a terminator lies where ``h = 0``."""
-    h = dr.zeros(mi.Float, dr.width(p))
+    n, on = _links1_normal(P, held, slot, prim, p)
+    return dr.select(on, dr.dot(dr.select(dr.dot(n, e) > 0, -n, n), L), 0.0)
+
+
+def _links1_normal(P, held, slot, prim, p):
+    """The unit normal ``∇G/|∇G|`` (:func:`_implicit_part`, the attached parameters
+    ``held[slot]``) at points ``p`` of part ``prim`` of the links1 shape of ``slot``, and
+    where ``slot`` is one."""
+    n, on = mi.Vector3f(0.0), dr.zeros(mi.Bool, dr.width(p))
     for sp in P.custom:
         _, gn = _implicit_part(sp, held.get(sp.slot, {}), p, prim)
-        n = dr.normalize(gn)
-        h = dr.select(slot == sp.slot, dr.dot(dr.select(dr.dot(n, e) > 0, -n, n), L), h)
-    return h
+        mine = slot == sp.slot
+        n, on = dr.select(mine, dr.normalize(gn), n), on | mine
+    return n, on
 
 
 def _implicit_part(sp, held, p, prim):
@@ -773,11 +781,8 @@ def _highlight(P, slot, on):
 def _unit_normal(P, slot, prim, q, n):
     """The unit normal at ``q`` of the surface of ``slot`` (part ``prim``): a links1 shape's
     ``∇G/|∇G|`` (:func:`_implicit_part`), a Mitsuba shape's ``n`` (its hit's, normalised)."""
-    out = dr.normalize(n)
-    for sp in P.custom:
-        _, gn = _implicit_part(sp, {}, q, prim)
-        out = dr.select(slot == sp.slot, dr.normalize(gn), out)
-    return out
+    own, on = _links1_normal(P, {}, slot, prim, q)
+    return dr.select(on, own, dr.normalize(n))
 
 
 def _custom_lanes(P, slot):
@@ -969,13 +974,8 @@ def _normal_speed(scene, P, Q, cr):
         vn = dr.select(on & (part == 0), -d1 / dr.norm(g1), vn)
         for j in range(len(getattr(sp, "clips", []))):
             G2, g2 = geometry.implicit(mi, dr, sp, held, q, part=j + 1)
-            d2, g2 = G2 - dr.detach(G2), dr.detach(g2)
-            a11, a12, a22 = dr.dot(g1, g1), dr.dot(g1, g2), dr.dot(g2, g2)
-            b1, b2 = dr.dot(m, g1), dr.dot(m, g2)
-            det = a11 * a22 - a12 * a12
-            rim = on & (part == j + 1) & (det > 0)
-            det = dr.select(rim, det, 1.0)
-            vn = dr.select(rim, -((b1 * a22 - b2 * a12) * d1 + (a11 * b2 - a12 * b1) * d2) / det, vn)
+            speed, ok = _meeting_speed(m, g1, d1, dr.detach(g2), G2 - dr.detach(G2))
+            vn = dr.select(on & (part == j + 1) & ok, speed, vn)
         any_ = True
     for sl in _slots_of(P, _is_sphere):
         on = valid & (slot == sl)
@@ -1014,16 +1014,25 @@ def _normal_speed(scene, P, Q, cr):
     # where two surfaces cut: m = α n₁ + β n₂ (m ⊥ the curve), so V_n = −α δĜ₁ − β δĜ₂ with
     # Ĝᵢ = Gᵢ/|∇Gᵢ| (a links1 shape's implicit surface; a Mitsuba shape's held fixed: 0)
     if held and kinds["cut"]:
-        d1 = _unit_speed(P, held, slot, part, q)
-        d2 = _unit_speed(P, held, cr["rslot"], cr["rprim"], q)
-        n1, n2 = cr["n1"], cr["n2"]
-        c12, b1, b2 = dr.dot(n1, n2), dr.dot(m, n1), dr.dot(m, n2)
-        det = 1.0 - c12 * c12
-        ok = cut & (det > 0)
-        det = dr.select(ok, det, 1.0)
-        vn = dr.select(ok, -((b1 - b2 * c12) * d1 + (b2 - c12 * b1) * d2) / det, vn)
+        speed, ok = _meeting_speed(m, cr["n1"], _unit_speed(P, held, slot, part, q),
+                                   cr["n2"], _unit_speed(P, held, cr["rslot"], cr["rprim"], q))
+        vn = dr.select(cut & ok, speed, vn)
         any_ = True
     return vn if any_ else None
+
+
+def _meeting_speed(m, g1, d1, g2, d2):
+    """The normal velocity ``V_n = m·v`` of the curve where two surfaces ``G₁ = 0`` and
+    ``G₂ = 0`` meet (a quadric's rim, two surfaces that cut), ``m`` its unit normal ``⊥`` the
+    curve: ``∇Gᵢ·v = −δGᵢ`` and ``m = α∇G₁ + β∇G₂``, so ``V_n = −α δG₁ − β δG₂``; ``g``: the
+    detached gradients, ``d``: the attached ``δG`` (value 0). With where it is defined (the
+    gradients not parallel)."""
+    a11, a12, a22 = dr.dot(g1, g1), dr.dot(g1, g2), dr.dot(g2, g2)
+    b1, b2 = dr.dot(m, g1), dr.dot(m, g2)
+    det = a11 * a22 - a12 * a12
+    ok = det > 0
+    det = dr.select(ok, det, 1.0)
+    return -((b1 * a22 - b2 * a12) * d1 + (a11 * b2 - a12 * b1) * d2) / det, ok
 
 
 def _unit_speed(P, held, slot, prim, q):
