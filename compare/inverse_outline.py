@@ -1,7 +1,7 @@
 """Inverse rendering through outlines and shadow edges (``links1_whitted`` with
 ``projective=true``): a benchmark.
 
-    python -m compare.inverse_outline [--width 64] [--iters 150] [--blob-iters 1500] [--rounds 9] [--spp-grad N]
+    python -m compare.inverse_outline [--width 64] [--iters 150] [--blob-iters 2000] [--rounds 9] [--spp-grad N]
                                       [--variant llvm_ad_rgb] [--only quadric_outline blob_view]
 
 As :mod:`compare.inverse` (its ``run_case``: ``mi.ad.Adam`` on the L2 image loss, the worst
@@ -661,7 +661,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--width", type=int, default=64)
     ap.add_argument("--iters", type=int, default=150)
-    ap.add_argument("--blob-iters", type=int, default=1500)
+    ap.add_argument("--blob-iters", type=int, default=2000)
     ap.add_argument("--rounds", type=int, default=9, help="timing rounds (interleaved iteration / frame)")
     ap.add_argument("--big", type=int, default=256, help="the width the times are taken at")
     ap.add_argument("--no-fit", action="store_true", help="the times alone")
